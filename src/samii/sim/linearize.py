@@ -1,0 +1,198 @@
+"""Linearise the simulator at static equilibrium; modes and transfer functions.
+
+MuJoCo's finite-difference transition derivatives (``mjd_transitionFD``) give
+the one-step map of the simulator, hydraulic plugin states included::
+
+    x[k+1] = Ad x[k] + Bd u[k],   y[k] = C x[k] + D u[k]
+
+with x = (dqpos, qvel, act) and u = ctrl (the excitation in volts added to the
+servo amplifier's position loop). The continuous-time model is the exact
+zero-order-hold inverse, ``[[A, B], [0, 0]] = logm([[Ad, Bd], [0, I]]) / dt``,
+so its poles are ``log(z)/dt``: what the simulator does, not an approximation
+of it, and close to the ODE for dt well below the fastest mode.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+import scipy.linalg
+
+__all__ = ["LinearModel", "Mode", "linearize", "modes_from_poles", "base_modes", "ModesReport", "modes_report"]
+
+
+@dataclass(frozen=True)
+class Mode:
+    freq_hz: float  #: undamped natural frequency |s|/2pi
+    zeta: float  #: damping ratio -Re(s)/|s|
+
+    @property
+    def pole(self) -> complex:
+        wn = 2 * np.pi * self.freq_hz
+        return complex(-self.zeta * wn, wn * np.sqrt(max(0.0, 1 - self.zeta**2)))
+
+
+@dataclass(frozen=True)
+class LinearModel:
+    """Continuous-time linearisation. Input: ctrl [V]; outputs: theta [rad], accel [m/s^2]."""
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray  #: rows: theta, accel
+    D: np.ndarray
+    dt_s: float
+    #: servo amplifier position gain [V/rad] the model was linearised with
+    position_gain_v_per_rad: float
+    outputs: tuple[str, ...] = ("theta", "accel")
+
+    @property
+    def poles(self) -> np.ndarray:
+        return np.linalg.eigvals(self.A)
+
+    def open_loop(self) -> "LinearModel":
+        """The same system with the position loop opened: input v [V], the valve voltage.
+
+        With v = r - Kp theta (unsaturated) the state equation in terms of v is
+        dx = (A - B Kp C_theta) x + B r = (A_cl + B Kp C_theta) ... i.e. A_ol = A_cl + Kp B C_theta.
+        """
+        kp = self.position_gain_v_per_rad
+        A = self.A + kp * self.B @ self.C[:1]
+        C = self.C + kp * self.D @ self.C[:1]
+        return LinearModel(A, self.B, C, self.D, self.dt_s, 0.0, self.outputs)
+
+    def with_position_gain(self, kp_v_per_rad: float) -> "LinearModel":
+        """Close the servo loop with gain ``kp_v_per_rad`` (from the open-loop form)."""
+        ol = self.open_loop()
+        A = ol.A - kp_v_per_rad * ol.B @ ol.C[:1]
+        C = ol.C - kp_v_per_rad * ol.D @ ol.C[:1]
+        return LinearModel(A, ol.B, C, ol.D, self.dt_s, kp_v_per_rad, self.outputs)
+
+    def frequency_response(self, freq_hz: np.ndarray) -> dict[str, np.ndarray]:
+        """Complex response of each output to ctrl at ``freq_hz``: C (jw - A)^-1 B + D."""
+        freq_hz = np.atleast_1d(np.asarray(freq_hz, float))
+        n = self.A.shape[0]
+        out = np.empty((len(self.outputs), freq_hz.size), complex)
+        eye = np.eye(n)
+        for k, f in enumerate(freq_hz):
+            x = np.linalg.solve(2j * np.pi * f * eye - self.A, self.B[:, 0])
+            out[:, k] = self.C @ x + self.D[:, 0]
+        return dict(zip(self.outputs, out))
+
+    def to_control(self):
+        """python-control StateSpace (input ctrl, outputs theta, accel)."""
+        import control
+
+        return control.ss(self.A, self.B, self.C, self.D, inputs=["ctrl"], outputs=list(self.outputs))
+
+
+def _sensor_rows(model: mujoco.MjModel) -> tuple[int, int]:
+    theta = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, "theta")
+    accel = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, "base_accel")
+    if theta < 0 or accel < 0:
+        raise ValueError("the model needs sensors named 'theta' (jointpos) and 'base_accel' (framelinacc)")
+    # framelinacc: world z is the bending direction (third component)
+    return int(model.sensor_adr[theta]), int(model.sensor_adr[accel]) + 2
+
+
+def _discrete(model: mujoco.MjModel, data: mujoco.MjData, eps: float, with_sensors: bool):
+    nx = 2 * model.nv + model.na
+    A = np.zeros((nx, nx))
+    B = np.zeros((nx, model.nu))
+    C = np.zeros((model.nsensordata, nx)) if with_sensors else None
+    D = np.zeros((model.nsensordata, model.nu)) if with_sensors else None
+    mujoco.mjd_transitionFD(model, data, eps, True, A, B, C, D)
+    return A, B, C, D
+
+
+def _to_continuous(Ad: np.ndarray, Bd: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    n, m = Bd.shape
+    M = np.zeros((n + m, n + m))
+    M[:n, :n] = Ad
+    M[:n, n:] = Bd
+    M[n:, n:] = np.eye(m)
+    L = scipy.linalg.logm(M).real / dt
+    return L[:n, :n], L[:n, n:]
+
+
+def linearize(model: mujoco.MjModel, data: mujoco.MjData | None = None, *, position_gain_v_per_rad: float | None = None, eps: float = 1e-6) -> LinearModel:
+    """Linearise ``model`` about ``data`` (default: its ``home`` keyframe).
+
+    ``position_gain_v_per_rad`` is the servo amplifier gain compiled into the
+    model (read from the plugin config when not given).
+    """
+    from samii.sim.model import make_data
+
+    if data is None:
+        data = make_data(model)
+    if position_gain_v_per_rad is None:
+        from samii.sim.plugin import hydraulic_params
+
+        position_gain_v_per_rad = hydraulic_params(model).position_gain
+    Ad, Bd, Cs, Ds = _discrete(model, data, eps, True)
+    A, B = _to_continuous(Ad, Bd, model.opt.timestep)
+    r_theta, r_accel = _sensor_rows(model)
+    C = Cs[[r_theta, r_accel]]
+    D = Ds[[r_theta, r_accel]]
+    # Sensor derivatives are taken against the discrete state at the same instant,
+    # so they carry over to continuous time unchanged.
+    return LinearModel(A, B, C, D, float(model.opt.timestep), float(position_gain_v_per_rad))
+
+
+def modes_from_poles(poles: np.ndarray, *, max_freq_hz: float = np.inf) -> list[Mode]:
+    """Oscillatory modes (one per complex pair, Im > 0), sorted by frequency."""
+    poles = np.asarray(poles, complex)
+    osc = poles[poles.imag > 1e-9]
+    wn = np.abs(osc)
+    modes = [Mode(float(w / (2 * np.pi)), float(-p.real / w)) for p, w in zip(osc, wn) if w / (2 * np.pi) <= max_freq_hz]
+    return sorted(modes, key=lambda m: m.freq_hz)
+
+
+def base_modes(spec: mujoco.MjSpec, theta2_rad: float, *, max_freq_hz: float = 45.0) -> list[Mode]:
+    """Modes with joint 2 held at ``theta2_rad`` (link 2 welded), below ``max_freq_hz``."""
+    from samii.sim.equilibrium import static_equilibrium
+    from samii.sim.model import held_joint2_model
+
+    held = held_joint2_model(spec, theta2_rad)
+    eq = static_equilibrium(held)
+    data = mujoco.MjData(held)
+    data.qpos[:] = eq.qpos
+    data.act[:] = eq.act
+    mujoco.mj_forward(held, data)
+    Ad, Bd, _, _ = _discrete(held, data, 1e-6, False)
+    z = np.linalg.eigvals(Ad).astype(complex)
+    s = np.log(z) / held.opt.timestep
+    return modes_from_poles(s, max_freq_hz=max_freq_hz)
+
+
+@dataclass(frozen=True)
+class ModesReport:
+    pose_deg: tuple[float, ...]  #: arm joint angles at equilibrium [deg]
+    base_modes: tuple[Mode, ...]  #: joint 2 held
+    coupled_poles: np.ndarray  #: whole system, servo position loop closed (all poles, sorted by |s|)
+    position_gain_v_per_rad: float
+
+    def as_json(self) -> dict:
+        return {
+            "pose_deg": [round(a, 6) for a in self.pose_deg],
+            "base_modes": [{"freq_hz": m.freq_hz, "zeta": m.zeta} for m in self.base_modes],
+            "coupled_poles": [[float(p.real), float(p.imag)] for p in self.coupled_poles],
+        }
+
+
+def modes_report(path=None, *, overrides=None, max_freq_hz: float = 45.0) -> ModesReport:
+    """Base modes (joint 2 held) and the coupled system's poles below ``max_freq_hz``."""
+    from samii.sim.model import load_model, load_spec, make_data
+
+    spec, _ = load_spec(path, overrides=overrides)
+    model = load_model(path, overrides=overrides)
+    data = make_data(model)
+    arm = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"joint{i}") for i in range(1, 7)]
+    pose = tuple(float(np.degrees(data.qpos[model.jnt_qposadr[j]])) for j in arm)
+    theta2 = float(data.qpos[model.jnt_qposadr[arm[1]]])
+    lin = linearize(model, data)
+    poles = lin.poles
+    poles = poles[np.abs(poles) <= 2 * np.pi * max_freq_hz]
+    poles = poles[np.argsort(np.abs(poles) + 1e-9 * poles.imag)]
+    return ModesReport(pose, tuple(base_modes(spec, theta2, max_freq_hz=max_freq_hz)), poles, lin.position_gain_v_per_rad)

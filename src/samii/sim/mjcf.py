@@ -1,0 +1,320 @@
+"""Writes the MJCF of SAMII on its flexible beam from physical parameters.
+
+``models/samii/samii.xml`` is this module's output for the tuned parameters
+(``experiments/tune_model/tune.py`` rewrites it); the convergence study and
+``load_model(overrides=...)`` call it with other values. One source of
+geometry, so the committed XML and every variant agree.
+
+Beam: rigid-finite-element (RFE) discretisation of an Euler-Bernoulli
+cantilever. The beam of length L is cut into ``n_segments`` elements of
+length l = L/n; each element's bending stiffness is lumped in one hinge at the
+element centre with stiffness EI/l (the spring that makes a uniform moment
+produce the exact end rotation of the element). Rigid bodies sit between
+hinges: two half-length end bodies and n-1 full-length bodies, each with the
+mass and rotary inertia of its piece of beam. A clamp hinge with a torsional
+spring and damper at x = 0 models the clamp (public TMM chain: clamp
+torsional spring/damper -> beam -> l0 -> joint 1 spring/damper -> l1 -> joint 2 -> l2).
+
+Geometry: beam along +x, horizontal, clamped at the origin; bending in the
+vertical x-z plane (hinge axes along y), the plane joint 2 swings in at the
+nominal pose. Arm on the beam tip: l0 is a post rigidly fixed on the tip, joint
+1, 2 and 3 are hinges about y, so the nominal pose (-90, 90, 90, 0, 0, 0) deg
+has l1 and link 2 vertical and link 3 pointing along +x ("north").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, fields
+
+import numpy as np
+
+from samii.notebook import TMM
+
+__all__ = ["BeamParams", "ArmParams", "HydraulicConfig", "SamiiParams", "NOMINAL_POSE_RAD", "samii_xml"]
+
+#: Nominal pose of the notebook (chapter 9): joint 1 = -90 deg, joint 2 = 90 deg, joint 3 = 90 deg, joints 4-6 = 0.
+NOMINAL_POSE_RAD = (-math.pi / 2, math.pi / 2, math.pi / 2, 0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class BeamParams:
+    """The flexible base. Public TMM values plus the tuned clamp and damping knobs."""
+
+    length_m: float = TMM["beam"]["length_m"]
+    EI_Nm2: float = TMM["beam"]["EI_Nm2"]
+    mass_per_length_kg_m: float = TMM["beam"]["mass_per_length_kg_m"]
+    n_segments: int = 6
+    #: Square tube outer side for visuals and the minor inertias. A steel tube
+    #: with EI = 339134.5 N m^2 and 5.7281 kg/m has I/A = a^2/6 (thin wall) =
+    #: 1.70e-6/7.30e-4 -> a = 0.118 m.
+    section_side_m: float = 0.118
+    clamp_stiffness_Nm_rad: float = 3.0e5
+    clamp_damping_Nms_rad: float = 300.0
+    #: Stiffness-proportional damping of the beam hinges: c = beta * k [s].
+    beam_damping_time_s: float = 2.0e-4
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.name == "n_segments":
+                if not isinstance(v, (int, np.integer)) or v < 1:
+                    raise ValueError(f"n_segments must be a positive integer, got {v!r}")
+            elif not (math.isfinite(v) and v >= 0) or (v == 0 and f.name not in ("clamp_damping_Nms_rad", "beam_damping_time_s")):
+                raise ValueError(f"beam parameter {f.name} must be finite and positive, got {v!r}")
+
+
+@dataclass(frozen=True)
+class ArmParams:
+    """The arm: TMM links l0, l1, l2 plus a light wrist and the held-joint servos."""
+
+    joint1_stiffness_Nm_rad: float = 2.0e4
+    joint1_damping_Nms_rad: float = 20.0
+    #: Joints 3-6 are held by stiff position servos, modelled as springs about
+    #: the nominal angle; stiff enough that their modes lie far above 25 Hz.
+    held_stiffness_Nm_rad: float = 2.0e3
+    held_damping_Nms_rad: float = 2.0
+    #: Reflected inertia of the held joints' servo drives. Without it the wrist
+    #: joints that turn about a link's own axis (inertia ~1e-5 kg m^2) would have
+    #: modes near 1.5e4 rad/s; with it the held-joint modes sit near 70 Hz.
+    held_armature_kgm2: float = 0.01
+    #: Joint-2 viscous friction (rod seals, bearings).
+    joint2_damping_Nms_rad: float = 0.0
+
+
+@dataclass(frozen=True)
+class HydraulicConfig:
+    """Config attributes of the samii.hydraulic plugin (SI units; see sim/hydraulic.c)."""
+
+    supply_pressure: float = 7.0e6
+    bulk_modulus: float = 0.7e9
+    total_volume: float = 20e-6
+    displacement: float = 1.7e-6
+    leakage_coefficient: float = 1.1e-13
+    valve_time_constant: float = 6.3e-3
+    rated_flow: float = 8.3e-6
+    rated_voltage: float = 10.0
+    #: 1 V per degree: the rig's unity position feedback with theta in degrees.
+    position_gain: float = 180.0 / math.pi
+    reference_angle: float = math.pi / 2
+
+
+@dataclass(frozen=True)
+class SamiiParams:
+    beam: BeamParams = field(default_factory=BeamParams)
+    arm: ArmParams = field(default_factory=ArmParams)
+    hydraulic: HydraulicConfig = field(default_factory=HydraulicConfig)
+    timestep_s: float = 5e-4
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+# --- wrist (links 3-6): not in the public TMM, which lumps everything outboard
+# of joint 2 into l2. Light estimates; link 2's own mass properties are chosen so
+# that the composite outboard of joint 2 keeps the TMM's l2 mass, centre of mass
+# and inertia at the nominal pose.
+_WRIST = (
+    # name, mass [kg], length along +x [m]
+    ("link3", 0.20, 0.15),
+    ("link4", 0.08, 0.08),
+    ("link5", 0.06, 0.05),
+    ("link6", 0.06, 0.05),
+)
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.10g}"
+
+
+def _vec(*xs: float) -> str:
+    return " ".join(_fmt(x) for x in xs)
+
+
+def _box_inertia(m: float, a: float, b: float, c: float) -> tuple[float, float, float]:
+    """Diagonal inertia of a solid box with side lengths a, b, c along x, y, z."""
+    return (m * (b * b + c * c) / 12, m * (a * a + c * c) / 12, m * (a * a + b * b) / 12)
+
+
+def _link2_properties() -> tuple[float, tuple[float, float, float], tuple[float, float, float]]:
+    """Mass, CoM (link-2 frame) and diagonal inertia of link 2 itself, such that
+    link 2 plus the wrist at the nominal pose has the TMM l2 figures."""
+    l2 = TMM["link_l2"]
+    m_tot, cg, I_tot = l2["mass_kg"], l2["cg_m"], l2["I_cg_kgm2"]
+    z3 = l2["length_m"]
+    parts = []  # (mass, x, z, Iyy about own CoM)
+    x = 0.0
+    for _, m, length in _WRIST:
+        parts.append((m, x + length / 2, z3, m * length**2 / 12))
+        x += length
+    m_w = sum(p[0] for p in parts)
+    m2 = m_tot - m_w
+    x2 = -sum(p[0] * p[1] for p in parts) / m2
+    z2 = (m_tot * cg - sum(p[0] * p[2] for p in parts)) / m2
+    I_wrist = sum(p[3] + p[0] * ((p[1]) ** 2 + (p[2] - cg) ** 2) for p in parts)
+    Iyy2 = I_tot - I_wrist - m2 * (x2**2 + (z2 - cg) ** 2)
+    if Iyy2 <= 0:
+        raise ValueError("wrist too heavy for the TMM l2 inertia")
+    # about the link axis (z) and x: a 0.08 m wide body; x same as y (axisymmetric estimate)
+    Izz2 = m2 * 0.08**2 / 8
+    return m2, (x2, 0.0, z2), (Iyy2, Iyy2, Izz2)
+
+
+def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyframe_act=None) -> str:
+    """MJCF text of SAMII on its beam for ``params``.
+
+    ``keyframe_qpos``/``keyframe_act`` give the ``home`` keyframe (static
+    equilibrium); by default the undeformed beam at the nominal pose.
+    """
+    b, a, h = params.beam, params.arm, params.hydraulic
+    n = b.n_segments
+    L = b.length_m
+    ell = L / n
+    k_hinge = b.EI_Nm2 / ell
+    c_hinge = b.beam_damping_time_s * k_hinge
+    s = b.section_side_m
+    mu = b.mass_per_length_kg_m
+
+    lines: list[str] = []
+    add = lines.append
+    add('<mujoco model="samii">')
+    add("  <!-- Generated by samii.sim.mjcf.samii_xml; rewrite with experiments/tune_model/tune.py. See README.md (model card). -->")
+    add('  <compiler angle="radian" autolimits="true"/>')
+    add(f'  <option timestep="{_fmt(params.timestep_s)}" integrator="implicitfast"/>')
+    add("  <extension>")
+    add('    <plugin plugin="samii.hydraulic"/>')
+    add("  </extension>")
+    add("  <default>")
+    add('    <default class="samii">')
+    add('      <joint type="hinge" axis="0 1 0" limited="false"/>')
+    add('      <geom contype="0" conaffinity="0" group="2"/>')
+    add('      <site group="4"/>')
+    add(f'      <default class="clamp"><joint stiffness="{_fmt(b.clamp_stiffness_Nm_rad)}" damping="{_fmt(b.clamp_damping_Nms_rad)}"/></default>')
+    add(f"      <!-- EI/l = {_fmt(b.EI_Nm2)}/{_fmt(ell)}; damping = beam_damping_time * stiffness -->")
+    add(f'      <default class="beam_hinge"><joint stiffness="{_fmt(k_hinge)}" damping="{_fmt(c_hinge)}"/></default>')
+    add(f'      <default class="joint1"><joint stiffness="{_fmt(a.joint1_stiffness_Nm_rad)}" damping="{_fmt(a.joint1_damping_Nms_rad)}" springref="{_fmt(NOMINAL_POSE_RAD[0])}"/></default>')
+    add(f'      <default class="joint2"><joint damping="{_fmt(a.joint2_damping_Nms_rad)}"/></default>')
+    add(f'      <default class="held"><joint stiffness="{_fmt(a.held_stiffness_Nm_rad)}" damping="{_fmt(a.held_damping_Nms_rad)}" armature="{_fmt(a.held_armature_kgm2)}"/></default>')
+    add('      <default class="beam_visual"><geom type="box" rgba="0.62 0.64 0.68 1"/></default>')
+    add('      <default class="link_visual"><geom type="capsule" rgba="0.95 0.55 0.15 1"/></default>')
+    add('      <default class="hydraulic_visual"><geom type="cylinder" rgba="0.25 0.35 0.75 1"/></default>')
+    add("    </default>")
+    add("  </default>")
+    add("")
+    add("  <worldbody>")
+    add('    <body name="wall" childclass="samii">')
+    add('      <geom name="clamp_block" type="box" pos="-0.15 0 0" size="0.15 0.25 0.3" rgba="0.3 0.3 0.3 1"/>')
+    add("    </body>")
+
+    indent = "    "
+    # Beam bodies: body 0 [0, l/2] (clamp hinge at 0), bodies 1..n-1 of length l, body n [L-l/2, L].
+    for i in range(n + 1):
+        seg_len = ell / 2 if i in (0, n) else ell
+        x_start = 0.0 if i == 0 else (i - 0.5) * ell
+        pos = 0.0 if i == 0 else (ell / 2 if i == 1 else ell)
+        m = mu * seg_len
+        Ixx = m * s * s / 6  # thin-walled square tube: polar moment m a^2/6 (torsion, unused in-plane)
+        _, Iyy, Izz = _box_inertia(m, seg_len, s, s)
+        name = f"beam_{i}"
+        cls = ' childclass="samii"' if i == 0 else ""
+        add(f'{indent}<body name="{name}" pos="{_vec(pos, 0, 0)}"{cls}>')
+        ind = indent + "  "
+        if i == 0:
+            add(f'{ind}<joint name="clamp" class="clamp"/>')
+        else:
+            add(f'{ind}<joint name="beam_hinge_{i}" class="beam_hinge"/>')
+        add(f'{ind}<inertial pos="{_vec(seg_len / 2, 0, 0)}" mass="{_fmt(m)}" diaginertia="{_vec(Ixx, Iyy, Izz)}"/>')
+        add(f'{ind}<geom class="beam_visual" pos="{_vec(seg_len / 2, 0, 0)}" size="{_vec(seg_len / 2, s / 2, s / 2)}"/>')
+        indent = ind
+        del x_start
+
+    # Tip of the beam: accelerometer site and the arm.
+    tip = ell / 2
+    l0, l1 = TMM["link_l0"], TMM["link_l1"]
+    add(f'{indent}<site name="base_accel" pos="{_vec(tip, 0, 0)}" size="0.02"/>')
+    add(f'{indent}<body name="l0" pos="{_vec(tip, 0, s / 2)}">')
+    ind = indent + "  "
+    add(f'{ind}<!-- l0: TMM link l0 (mounting post), rigidly fixed on the beam tip -->')
+    add(f'{ind}<inertial pos="{_vec(0, 0, l0["cg_m"])}" mass="{_fmt(l0["mass_kg"])}" diaginertia="{_vec(l0["I_cg_kgm2"], l0["I_cg_kgm2"], l0["mass_kg"] * 0.1**2 / 2)}"/>')
+    add(f'{ind}<geom class="link_visual" type="box" pos="{_vec(0, 0, l0["length_m"] / 2)}" size="0.09 0.09 {_fmt(l0["length_m"] / 2)}" rgba="0.35 0.35 0.38 1"/>')
+    # joint 1 at the top of l0; body quat R_y(+90deg) so that q1 = -90 deg leaves l1 vertical
+    qy = lambda ang: _vec(math.cos(ang / 2), 0, math.sin(ang / 2), 0)  # noqa: E731
+    add(f'{ind}<body name="link1" pos="{_vec(0, 0, l0["length_m"])}" quat="{qy(math.pi / 2)}">')
+    ind2 = ind + "  "
+    add(f'{ind2}<joint name="joint1" class="joint1"/>')
+    # body frame = parent * quat * R_y(q1): identity at q1 = -90 deg, so l1 points up (+z)
+    ind3 = ind2
+    add(f'{ind3}<inertial pos="{_vec(0, 0, l1["cg_m"])}" mass="{_fmt(l1["mass_kg"])}" diaginertia="{_vec(l1["I_cg_kgm2"], l1["I_cg_kgm2"], l1["mass_kg"] * 0.06**2 / 2)}"/>')
+    add(f'{ind3}<geom class="link_visual" fromto="0 0 0 0 0 {_fmt(l1["length_m"])}" size="0.05"/>')
+    add(f'{ind3}<geom class="hydraulic_visual" pos="0 0 {_fmt(l1["length_m"])}" euler="1.5707963 0 0" size="0.06 0.07"/>')
+    # joint 2 at the top of l1; body quat R_y(-90deg) so that q2 = +90 deg leaves link 2 vertical
+    m2, c2, I2 = _link2_properties()
+    add(f'{ind3}<body name="link2" pos="{_vec(0, 0, l1["length_m"])}" quat="{qy(-math.pi / 2)}">')
+    ind4 = ind3 + "  "
+    add(f'{ind4}<joint name="joint2" class="joint2"/>')
+    ind5 = ind4
+    add(f"{ind5}<!-- link 2 plus links 3-6 at the nominal pose = TMM l2 (mass, cg, inertia); see README -->")
+    add(f'{ind5}<inertial pos="{_vec(*c2)}" mass="{_fmt(m2)}" diaginertia="{_vec(*I2)}"/>')
+    add(f'{ind5}<geom class="link_visual" fromto="0 0 0 0 0 {_fmt(TMM["link_l2"]["length_m"])}" size="0.04"/>')
+    add(f'{ind5}<body name="link3" pos="0 0 {_fmt(TMM["link_l2"]["length_m"])}">')
+    ind6 = ind5 + "  "
+    add(f'{ind6}<joint name="joint3" class="held" springref="{_fmt(NOMINAL_POSE_RAD[2])}"/>')
+    # links 3-6 along local z; R_y(q3 = 90deg) points them along +x
+    x = 0.0
+    body_ind = ind6
+    opened = 1
+    for j, (name, m, length) in enumerate(_WRIST):
+        if j > 0:
+            add(f'{body_ind}<body name="{name}" pos="0 0 {_fmt(x_prev_len)}">')  # noqa: F821
+            body_ind += "  "
+            opened += 1
+            axis = {"link4": "0 0 1", "link5": "0 1 0", "link6": "0 0 1"}[name]
+            add(f'{body_ind}<joint name="joint{j + 3}" class="held" axis="{axis}"/>')
+        Ixx, Iyy, Izz = _box_inertia(m, 0.03, 0.03, length)
+        add(f'{body_ind}<inertial pos="0 0 {_fmt(length / 2)}" mass="{_fmt(m)}" diaginertia="{_vec(Ixx, Iyy, Izz)}"/>')
+        add(f'{body_ind}<geom class="link_visual" fromto="0 0 0 0 0 {_fmt(length)}" size="{_fmt(0.03 - 0.004 * j)}"/>')
+        x_prev_len = length
+        x += length
+    add(f'{body_ind}<site name="end_effector" pos="0 0 {_fmt(x_prev_len)}" size="0.015"/>')
+    for _ in range(opened - 1):
+        body_ind = body_ind[:-2]
+        add(f"{body_ind}</body>")
+    add(f"{ind5}</body>")  # link3
+    add(f"{ind3}</body>")  # link2
+    add(f"{ind}</body>")  # link1
+    add(f"{indent}</body>")  # l0
+    for i in range(n + 1):
+        indent = indent[:-2]
+        add(f"{indent}</body>")
+    add("  </worldbody>")
+    add("")
+    add("  <actuator>")
+    add('    <plugin name="joint2" joint="joint2" plugin="samii.hydraulic" actdim="2" ctrlrange="-10 10">')
+    hyd_units = {
+        "supply_pressure": "Pa", "bulk_modulus": "Pa", "total_volume": "m^3", "displacement": "m^3/rad",
+        "leakage_coefficient": "m^3/(s Pa)", "valve_time_constant": "s", "rated_flow": "m^3/s",
+        "rated_voltage": "V", "position_gain": "V/rad", "reference_angle": "rad",
+    }
+    for key, unit in hyd_units.items():
+        add(f'      <config key="{key}" value="{_fmt(getattr(h, key))}"/>  <!-- {unit} -->')
+    add("    </plugin>")
+    add("  </actuator>")
+    add("")
+    add("  <sensor>")
+    add('    <jointpos name="theta" joint="joint2"/>')
+    add("    <!-- world-frame linear acceleration of the beam tip; includes -gravity, removed in samii.sim.simulate -->")
+    add('    <framelinacc name="base_accel" objtype="site" objname="base_accel"/>')
+    add("  </sensor>")
+    add("")
+    nq = (n + 1) + 6
+    if keyframe_qpos is None:
+        keyframe_qpos = [0.0] * (n + 1) + list(NOMINAL_POSE_RAD)
+    if keyframe_act is None:
+        keyframe_act = [0.0, 0.0]
+    if len(keyframe_qpos) != nq:
+        raise ValueError(f"keyframe_qpos has {len(keyframe_qpos)} values, the model has nq = {nq}")
+    add("  <keyframe>")
+    add(f'    <key name="home" qpos="{_vec(*keyframe_qpos)}" act="{_vec(*keyframe_act)}"/>')
+    add("  </keyframe>")
+    add("</mujoco>")
+    return "\n".join(lines) + "\n"

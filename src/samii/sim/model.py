@@ -1,0 +1,210 @@
+"""Load SAMII's MuJoCo model: the embedded default, a file, or the default with overrides.
+
+The default model is ``models/samii/samii.xml`` (installed as ``samii/_model``),
+written by :func:`samii.sim.mjcf.samii_xml` from the parameters in
+``samii_params.json`` beside it. ``load_model(overrides=...)`` rebuilds the MJCF
+from those parameters with some replaced (dotted names, e.g.
+``{"beam.clamp_stiffness_Nm_rad": 2e5, "hydraulic.bulk_modulus": 1e9}``) and
+puts the ``home`` keyframe at the new static equilibrium.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, fields, is_dataclass, replace
+from pathlib import Path
+from typing import Mapping
+
+import mujoco
+import numpy as np
+
+from samii.sim.mjcf import ArmParams, BeamParams, HydraulicConfig, SamiiParams, samii_xml
+
+__all__ = [
+    "model_dir",
+    "default_model_path",
+    "default_params",
+    "params_from_dict",
+    "params_with_overrides",
+    "write_params",
+    "load_model",
+    "load_spec",
+    "make_data",
+    "held_joint2_model",
+    "ACTUATOR",
+    "JOINT",
+]
+
+ACTUATOR = "joint2"  #: name of the hydraulic actuator
+JOINT = "joint2"  #: the joint it drives
+PARAMS_FILE = "samii_params.json"
+
+
+def model_dir() -> Path:
+    """Folder of the default model: the installed copy, else the source tree's models/samii."""
+    here = Path(__file__).resolve().parent.parent
+    for candidate in (here / "_model", here.parent.parent / "models" / "samii"):
+        if (candidate / "samii.xml").is_file():
+            return candidate
+    raise FileNotFoundError(
+        f"samii's default model was not found in {here / '_model'} (installed package) "
+        f"nor in {here.parent.parent / 'models' / 'samii'} (source checkout); reinstall samii"
+    )
+
+
+def default_model_path() -> Path:
+    return model_dir() / "samii.xml"
+
+
+def params_from_dict(d: Mapping) -> SamiiParams:
+    """Inverse of ``SamiiParams.as_dict``; unknown keys are an error."""
+    sections = {"beam": BeamParams, "arm": ArmParams, "hydraulic": HydraulicConfig}
+    kw = {}
+    for key, value in d.items():
+        if key in sections:
+            cls = sections[key]
+            names = {f.name for f in fields(cls)}
+            unknown = set(value) - names
+            if unknown:
+                raise ValueError(f"unknown {key} parameter(s) {sorted(unknown)}; expected some of {sorted(names)}")
+            kw[key] = cls(**value)
+        elif key == "timestep_s":
+            kw[key] = float(value)
+        else:
+            raise ValueError(f"unknown parameter section {key!r}; expected beam, arm, hydraulic, timestep_s")
+    return SamiiParams(**kw)
+
+
+def default_params() -> SamiiParams:
+    """The tuned parameters of the default model (``samii_params.json``)."""
+    path = model_dir() / PARAMS_FILE
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path} is missing: it holds the parameters samii.xml was written from") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    return params_from_dict(data["params"])
+
+
+def write_params(params: SamiiParams, path: Path, *, note: str = "") -> None:
+    path.write_text(json.dumps({"note": note, "params": params.as_dict()}, indent=2) + "\n")
+
+
+def params_with_overrides(params: SamiiParams, overrides: Mapping[str, float]) -> SamiiParams:
+    """Replace dotted fields (``section.name`` or ``timestep_s``) of ``params``."""
+    out = params
+    for dotted, value in overrides.items():
+        parts = dotted.split(".")
+        if len(parts) == 1 and parts[0] == "timestep_s":
+            out = replace(out, timestep_s=float(value))
+            continue
+        if len(parts) != 2 or not hasattr(out, parts[0]) or not is_dataclass(getattr(out, parts[0])):
+            raise ValueError(f"override {dotted!r}: expected 'beam.<name>', 'arm.<name>', 'hydraulic.<name>' or 'timestep_s'")
+        section = getattr(out, parts[0])
+        names = {f.name for f in fields(section)}
+        if parts[1] not in names:
+            raise ValueError(f"override {dotted!r}: {parts[0]} has no parameter {parts[1]!r}; expected one of {sorted(names)}")
+        cast = int if parts[1] == "n_segments" else float
+        out = replace(out, **{parts[0]: replace(section, **{parts[1]: cast(value)})})
+    return out
+
+
+def _load_plugin() -> None:
+    from samii.sim.plugin import load_plugin
+
+    load_plugin()
+
+
+def load_spec(path: str | Path | None = None, *, params: SamiiParams | None = None, overrides: Mapping[str, float] | None = None) -> tuple[mujoco.MjSpec, bool]:
+    """The MjSpec of a model and whether it was generated (so needs its equilibrium computed)."""
+    _load_plugin()
+    if path is not None and (params is not None or overrides):
+        raise ValueError("give either a model file or params/overrides, not both")
+    if path is not None:
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"model file {path} does not exist")
+        return mujoco.MjSpec.from_file(str(path)), False
+    if params is None and not overrides:
+        return mujoco.MjSpec.from_file(str(default_model_path())), False
+    base = params if params is not None else default_params()
+    if overrides:
+        base = params_with_overrides(base, overrides)
+    return mujoco.MjSpec.from_string(samii_xml(base)), True
+
+
+def load_model(path: str | Path | None = None, *, params: SamiiParams | None = None, overrides: Mapping[str, float] | None = None) -> mujoco.MjModel:
+    """Compile SAMII's model, with its ``home`` keyframe at static equilibrium.
+
+    Parameters
+    ----------
+    path : path, optional
+        An MJCF file; default the embedded model.
+    params : SamiiParams, optional
+        Build the MJCF from these parameters instead.
+    overrides : mapping of dotted name to value, optional
+        Replace some of the default (or given) parameters, e.g.
+        ``{"beam.clamp_stiffness_Nm_rad": 2e5}``.
+    """
+    spec, generated = load_spec(path, params=params, overrides=overrides)
+    model = spec.compile()
+    _check_model(model, path)
+    if generated:
+        from samii.sim.equilibrium import static_equilibrium
+
+        eq = static_equilibrium(model)
+        model.key_qpos[0] = eq.qpos
+        model.key_act[0] = eq.act
+    return model
+
+
+def _check_model(model: mujoco.MjModel, path) -> None:
+    from samii.sim.plugin import validate_model
+
+    where = str(path) if path is not None else "samii model"
+    if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, ACTUATOR) < 0:
+        raise ValueError(f"{where}: no actuator named {ACTUATOR!r} (the hydraulic actuator of joint 2)")
+    for sensor in ("theta", "base_accel"):
+        if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, sensor) < 0:
+            raise ValueError(f"{where}: no sensor named {sensor!r}")
+    if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home") < 0:
+        raise ValueError(f"{where}: no keyframe named 'home' (the nominal pose)")
+    validate_model(model)
+
+
+def make_data(model: mujoco.MjModel) -> mujoco.MjData:
+    """MjData at the ``home`` keyframe (static equilibrium), forward-computed."""
+    data = mujoco.MjData(model)
+    key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
+    mujoco.mj_resetDataKeyframe(model, data, key)
+    mujoco.mj_forward(model, data)
+    return data
+
+
+def held_joint2_model(spec: mujoco.MjSpec, theta2_rad: float) -> mujoco.MjModel:
+    """The model with joint 2 held at ``theta2_rad``: the joint, its actuator and
+    sensor removed and link 2 welded to link 1 at that angle. Keyframes dropped."""
+    spec = spec.copy()
+    joint = spec.joint(JOINT)
+    body = joint.parent
+    axis = np.asarray(joint.axis, float)
+    axis = axis / np.linalg.norm(axis)
+    rot = np.zeros(4)
+    mujoco.mju_axisAngle2Quat(rot, axis, theta2_rad)
+    q = np.zeros(4)
+    mujoco.mju_mulQuat(q, np.asarray(body.quat, float), rot)
+    body.quat = q
+    for act in list(spec.actuators):
+        if act.target == JOINT:
+            spec.delete(act)
+    for sensor in list(spec.sensors):
+        if sensor.objname == JOINT:
+            spec.delete(sensor)
+    for key in list(spec.keys):
+        spec.delete(key)
+    spec.delete(joint)
+    for plugin in list(spec.plugins):
+        spec.delete(plugin)
+    return spec.compile()
