@@ -44,7 +44,7 @@ class BeamParams:
     length_m: float = TMM["beam"]["length_m"]
     EI_Nm2: float = TMM["beam"]["EI_Nm2"]
     mass_per_length_kg_m: float = TMM["beam"]["mass_per_length_kg_m"]
-    n_segments: int = 6
+    n_segments: int = 4
     #: Square tube outer side for visuals and the minor inertias. A steel tube
     #: with EI = 339134.5 N m^2 and 5.7281 kg/m has I/A = a^2/6 (thin wall) =
     #: 1.70e-6/7.30e-4 -> a = 0.118 m.
@@ -104,7 +104,7 @@ class SamiiParams:
     beam: BeamParams = field(default_factory=BeamParams)
     arm: ArmParams = field(default_factory=ArmParams)
     hydraulic: HydraulicConfig = field(default_factory=HydraulicConfig)
-    timestep_s: float = 5e-4
+    timestep_s: float = 1e-3
 
     def as_dict(self) -> dict:
         return asdict(self)

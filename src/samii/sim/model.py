@@ -148,8 +148,10 @@ def load_model(path: str | Path | None = None, *, params: SamiiParams | None = N
         Replace some of the default (or given) parameters, e.g.
         ``{"beam.clamp_stiffness_Nm_rad": 2e5}``.
     """
+    from samii.sim.plugin import compile_spec
+
     spec, generated = load_spec(path, params=params, overrides=overrides)
-    model = spec.compile()
+    model = compile_spec(spec)  # validates the hydraulic config, naming any bad attribute
     _check_model(model, path)
     if generated:
         from samii.sim.equilibrium import static_equilibrium
@@ -161,8 +163,6 @@ def load_model(path: str | Path | None = None, *, params: SamiiParams | None = N
 
 
 def _check_model(model: mujoco.MjModel, path) -> None:
-    from samii.sim.plugin import validate_model
-
     where = str(path) if path is not None else "samii model"
     if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, ACTUATOR) < 0:
         raise ValueError(f"{where}: no actuator named {ACTUATOR!r} (the hydraulic actuator of joint 2)")
@@ -171,7 +171,6 @@ def _check_model(model: mujoco.MjModel, path) -> None:
             raise ValueError(f"{where}: no sensor named {sensor!r}")
     if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home") < 0:
         raise ValueError(f"{where}: no keyframe named 'home' (the nominal pose)")
-    validate_model(model)
 
 
 def make_data(model: mujoco.MjModel) -> mujoco.MjData:
@@ -185,7 +184,12 @@ def make_data(model: mujoco.MjModel) -> mujoco.MjData:
 
 def held_joint2_model(spec: mujoco.MjSpec, theta2_rad: float) -> mujoco.MjModel:
     """The model with joint 2 held at ``theta2_rad``: the joint, its actuator and
-    sensor removed and link 2 welded to link 1 at that angle. Keyframes dropped."""
+    sensor removed and link 2 welded to link 1 at that angle. The ``home``
+    keyframe keeps the other joints' values."""
+    full = spec.copy().compile()
+    key = mujoco.mj_name2id(full, mujoco.mjtObj.mjOBJ_KEY, "home")
+    home = {full.joint(j).name: float(full.key_qpos[key][full.jnt_qposadr[j]]) for j in range(full.njnt)} if key >= 0 else {}
+
     spec = spec.copy()
     joint = spec.joint(JOINT)
     body = joint.parent
@@ -202,9 +206,14 @@ def held_joint2_model(spec: mujoco.MjSpec, theta2_rad: float) -> mujoco.MjModel:
     for sensor in list(spec.sensors):
         if sensor.objname == JOINT:
             spec.delete(sensor)
-    for key in list(spec.keys):
-        spec.delete(key)
+    for k in list(spec.keys):
+        spec.delete(k)
     spec.delete(joint)
     for plugin in list(spec.plugins):
         spec.delete(plugin)
-    return spec.compile()
+    held = spec.compile()
+    if home:
+        qpos = np.array([home.get(held.joint(j).name, 0.0) for j in range(held.njnt)])
+        spec.add_key(name="home", qpos=qpos)
+        held = spec.compile()
+    return held
