@@ -314,7 +314,9 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     if len(keyframe_qpos) != nq:
         raise ValueError(f"keyframe_qpos has {len(keyframe_qpos)} values, the model has nq = {nq}")
     add("  <keyframe>")
-    add(f'    <key name="home" qpos="{_vec(*keyframe_qpos)}" act="{_vec(*keyframe_act)}"/>')
+    full = lambda xs: " ".join(repr(float(x)) for x in xs)  # noqa: E731  (full precision: exact equilibrium)
+    add("    <!-- static equilibrium under gravity at the nominal pose (samii.sim.equilibrium) -->")
+    add(f'    <key name="home" qpos="{full(keyframe_qpos)}" act="{full(keyframe_act)}"/>')
     add("  </keyframe>")
     add("</mujoco>")
     return "\n".join(lines) + "\n"
