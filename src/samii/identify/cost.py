@@ -1,0 +1,206 @@
+"""The notebook's curve-fitting cost, as a residual vector with its Jacobian.
+
+Chapter 9 (``samiierr.m``) defines, over the swept-sine points::
+
+    ev1 = 20 log10|act_data| - 20 log10|act_model|      (dB)
+    ev2 = 20 log10|base_data| - 20 log10|base_model|    (dB)
+    phe1 = act_phase_data - act_phase_model              (deg)
+    phe2 = base_phase_data - base_phase_model            (deg)
+    evt = [ev1; ev2; phaseweight*phe1; phaseweight*phe2];  errout = sum(evt.^2)
+
+so the phase weight multiplies the phase error *before* squaring (the prose
+says "phase weight times the squared phase error"; the code is what ran).
+Chapter 1 (eq 1.4) is the same with phase weight 0 over 1-12 Hz.
+
+The residual here is ``log(H_model / H_data)``: its real part times
+20/ln 10 is the dB error, its imaginary part times 180/pi the phase error,
+taken as the principal value of the phase *difference*. That equals the
+notebook's difference of unwrapped phases wherever the two curves are within
+180 deg of each other (every point of any sensible fit) and, unlike it, does
+not depend on where each curve's unwrapping started.
+
+Optional, and not the notebook's: ``weighting="coherence"`` multiplies each
+point's residuals by sqrt(g/(1-g)) (g = coherence, clipped to [0.01, 0.999]),
+normalised to unit mean square. That is the inverse of the random error of an
+H1 estimate (Bendat & Piersol, *Random Data*, 4th ed., table 9.6:
+eps = sqrt(1-g)/sqrt(2 n_avg g) for the gain; the same in rad for the phase)
+up to a constant, so points measured badly count less.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal, Mapping, get_args
+
+import numpy as np
+
+from samii.frequency_response import Channel, FrequencyResponse
+from samii.identify.structures import ModelStructure
+
+__all__ = ["DB_PER_NEPER", "DEG_PER_RAD", "Weighting", "FitProblem", "notebook_cost"]
+
+#: 20 log10|H| = DB_PER_NEPER * ln|H|.
+DB_PER_NEPER = 20.0 / np.log(10.0)
+DEG_PER_RAD = 180.0 / np.pi
+#: Coherence is clipped to this range before forming weights or noise profiles:
+#: 0.999 because a 3-average estimate cannot resolve coherence closer to 1
+#: (and noise-free data have exactly 1); 0.01 to keep weights finite.
+COHERENCE_CLIP = (0.01, 0.999)
+
+Weighting = Literal["none", "coherence"]
+
+
+@dataclass(frozen=True)
+class FitProblem:
+    """The data, the structure and the cost settings of one fit.
+
+    Parameters
+    ----------
+    data : FrequencyResponse
+        Measured or synthetic responses.
+    structure : ModelStructure
+    phase_weight : float
+        Multiplies the phase error in degrees before squaring (chapter 9).
+    band_hz : (lo, hi), optional
+        Fit only the points with lo <= f <= hi (eq 1.4 used 1-12 Hz). Default: all.
+    channels : tuple of channels, optional
+        Channels in the cost. Default: ``act`` and ``base`` if present (the
+        notebook's choice), else whatever of ``act``, ``base``, ``total`` is there.
+    weighting : {"none", "coherence"}
+        ``"none"`` is the notebook's cost; ``"coherence"`` is described in the module docstring.
+    """
+
+    data: FrequencyResponse
+    structure: ModelStructure
+    phase_weight: float = 0.1
+    band_hz: tuple[float, float] | None = None
+    channels: tuple[Channel, ...] | None = None
+    weighting: Weighting = "none"
+    # derived
+    w: np.ndarray = field(init=False, repr=False)
+    _inv_data: Mapping[Channel, np.ndarray] = field(init=False, repr=False)
+    _weights: Mapping[Channel, np.ndarray] = field(init=False, repr=False)
+    _noise: Mapping[Channel, np.ndarray] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if not np.isfinite(self.phase_weight) or self.phase_weight < 0:
+            raise ValueError(f"phase_weight must be finite and >= 0, got {self.phase_weight}")
+        if self.weighting not in get_args(Weighting):
+            raise ValueError(f"weighting must be one of {get_args(Weighting)}, got {self.weighting!r}")
+        data = self.data
+        if self.band_hz is not None:
+            lo, hi = (float(v) for v in self.band_hz)
+            if not 0 < lo < hi:
+                raise ValueError(f"band_hz must be 0 < lo < hi, got {self.band_hz}")
+            data = data.band(lo, hi)
+            object.__setattr__(self, "band_hz", (lo, hi))
+        object.__setattr__(self, "data", data)
+        channels = self.channels
+        if channels is None:
+            channels = tuple(c for c in ("act", "base") if c in data.channels) or data.channels
+        missing = [c for c in channels if c not in data.channels]
+        if missing:
+            raise ValueError(f"channels {missing} are not in the data (has {data.channels})")
+        object.__setattr__(self, "channels", tuple(channels))
+        n_min = len(self.structure.param_names)
+        if self.n_residuals < n_min:
+            raise ValueError(f"{self.n_residuals} residuals for {n_min} parameters: widen the band or add channels/phase")
+        object.__setattr__(self, "w", data.w)
+        inv, weights, noise = {}, {}, {}
+        for c in channels:
+            h = data.response(c)
+            if np.any(h == 0):
+                raise ValueError(f"channel {c} has a zero response at {data.freq_hz[np.flatnonzero(h == 0)[0]]} Hz; its dB error is undefined")
+            inv[c] = 1.0 / h  # stored as the reciprocal: log(H_model / H_data) is one complex log
+            coh = data.coherence(c)
+            # noise profile: variance of log H at each point, up to one common factor
+            g = np.ones_like(data.freq_hz) if coh is None else np.clip(coh, *COHERENCE_CLIP)
+            noise[c] = (1.0 - g) / g if coh is not None else g
+            weights[c] = np.ones_like(g)
+        if self.weighting == "coherence":
+            if any(data.coherence(c) is None for c in channels):
+                raise ValueError("weighting='coherence' needs coherence for every fitted channel (columns *_coh)")
+            for c in channels:
+                weights[c] = 1.0 / np.sqrt(noise[c])
+            rms = np.sqrt(np.mean(np.concatenate([v**2 for v in weights.values()])))
+            weights = {c: v / rms for c, v in weights.items()}
+        object.__setattr__(self, "_inv_data", inv)
+        object.__setattr__(self, "_weights", weights)
+        object.__setattr__(self, "_noise", noise)
+
+    # -- layout of the residual vector ---------------------------------------------
+    @property
+    def with_phase(self) -> bool:
+        return self.phase_weight > 0
+
+    @property
+    def blocks(self) -> tuple[tuple[Channel, str], ...]:
+        """(channel, "mag"|"phase") of each block of residuals, in order (the notebook's evt)."""
+        mags = tuple((c, "mag") for c in self.channels)
+        return mags + (tuple((c, "phase") for c in self.channels) if self.with_phase else ())
+
+    @property
+    def n_residuals(self) -> int:
+        m = self.data.freq_hz.size
+        return m * len(self.channels) * (2 if self.phase_weight > 0 else 1)
+
+    # -- evaluation ----------------------------------------------------------------
+    def errors(self, x: np.ndarray) -> dict[Channel, tuple[np.ndarray, np.ndarray]]:
+        """Unweighted model - data errors per channel: (dB, deg)."""
+        out = {}
+        for c, (h, _) in self.structure.log_responses(x, self.w, self.channels, derivatives=False).items():
+            e = np.log(h * self._inv_data[c])  # principal branch: the phase difference wrapped to +-180 deg
+            out[c] = (DB_PER_NEPER * e.real, DEG_PER_RAD * e.imag)
+        return out
+
+    def residuals_and_jacobian(self, x: np.ndarray, *, jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """Residual vector r (model - data; cost = sum r^2) and dr/dx (analytic)."""
+        resp = self.structure.log_responses(x, self.w, self.channels, derivatives=jacobian)
+        rs, js = [], []
+        logs = {c: np.log(resp[c][0] * self._inv_data[c]) for c in self.channels}
+        for c, kind in self.blocks:
+            dL = resp[c][1]
+            e = logs[c]
+            wt = self._weights[c]
+            if kind == "mag":
+                rs.append(DB_PER_NEPER * wt * e.real)
+                if jacobian:
+                    js.append(DB_PER_NEPER * wt[:, None] * dL.real)
+            else:
+                k = self.phase_weight * DEG_PER_RAD
+                rs.append(k * wt * e.imag)
+                if jacobian:
+                    js.append(k * wt[:, None] * dL.imag)
+        return np.concatenate(rs), (np.vstack(js) if jacobian else None)
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        return self.residuals_and_jacobian(x, jacobian=False)[0]
+
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        return self.residuals_and_jacobian(x)[1]
+
+    def cost(self, x: np.ndarray) -> float:
+        """sum of squared residuals: the notebook's ``errout`` when weighting is "none"."""
+        r = self.residuals(x)
+        return float(r @ r)
+
+    def noise_profile(self) -> np.ndarray:
+        """Relative variance of every residual under circular complex noise.
+
+        The random errors of |H| (relative) and of its phase (rad) have equal
+        standard deviations (Bendat & Piersol table 9.6), so a dB residual has
+        DB_PER_NEPER^2 and a weighted degree residual (pw DEG_PER_RAD)^2 times
+        the same variance; along frequency it follows (1-g)/g when coherence g
+        is given, else it is flat. One common factor remains unknown.
+        """
+        out = []
+        for c, kind in self.blocks:
+            k = DB_PER_NEPER if kind == "mag" else self.phase_weight * DEG_PER_RAD
+            out.append(k**2 * self._weights[c] ** 2 * self._noise[c])
+        return np.concatenate(out)
+
+
+def notebook_cost(params: Mapping[str, float], data: FrequencyResponse, structure: ModelStructure, *, phase_weight: float, band_hz: tuple[float, float] | None = None) -> float:
+    """The notebook's ``errout`` for named parameters (act and base channels)."""
+    problem = FitProblem(data, structure, phase_weight=phase_weight, band_hz=band_hz)
+    return problem.cost(structure.vector(params))

@@ -1,0 +1,167 @@
+"""Plots of Bode fits: data, fitted models and coherence, with units.
+
+matplotlib is imported inside the functions (compute paths never import it).
+"""
+
+from __future__ import annotations
+
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from samii.frequency_response import Channel, FrequencyResponse
+
+__all__ = ["CHANNEL_LABELS", "plot_fit_overlay", "plot_parameter_sweep", "save_figure"]
+
+#: (title, magnitude unit) of each channel (DATA_FORMATS.md).
+CHANNEL_LABELS: dict[str, tuple[str, str]] = {
+    "act": ("actuator θ/v", "rad/V"),
+    "base": ("flexible base ẍ/θ", "(m/s²)/rad"),
+    "total": ("ẍ/v", "(m/s²)/V"),
+}
+
+
+def _aligned_phase_deg(h: np.ndarray, ref_deg: np.ndarray | None) -> np.ndarray:
+    """Unwrapped phase of ``h``, shifted by whole turns to sit nearest ``ref_deg`` (the data)."""
+    ph = np.degrees(np.unwrap(np.angle(h)))
+    if ref_deg is None:
+        return ph
+    return ph - 360.0 * np.round(np.median(ph - ref_deg) / 360.0)
+
+
+def plot_fit_overlay(
+    data: FrequencyResponse,
+    models: Mapping[str, object],
+    *,
+    channels: Sequence[Channel] | None = None,
+    band_hz: tuple[float, float] | None = None,
+    title: str | None = None,
+    note: str | None = None,
+    n_model_points: int = 600,
+):
+    """Bode overlay: one column per channel; magnitude, phase and coherence rows.
+
+    Parameters
+    ----------
+    data : FrequencyResponse
+        Drawn as dots (coherence as a line in the bottom row when present).
+    models : mapping label -> FitResult or (ModelStructure, params)
+        Drawn as lines on a dense log grid over the data's span.
+    band_hz : (lo, hi), optional
+        The fit band, shaded.
+    note : str, optional
+        Provenance printed under the plots (e.g. "synthetic data: ...").
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    import matplotlib.pyplot as plt
+
+    channels = tuple(channels or [c for c in ("act", "base") if c in data.channels] or data.channels)
+    f = data.freq_hz
+    fm = np.geomspace(f[0], f[-1], n_model_points)
+    has_coh = any(data.coherence(c) is not None for c in channels)
+    rows = 3 if has_coh else 2
+    fig, axes = plt.subplots(rows, len(channels), figsize=(5.2 * len(channels), 7.4 if has_coh else 6.0), sharex=True, squeeze=False, gridspec_kw={"height_ratios": [3, 3, 1.3][:rows]})
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for j, ch in enumerate(channels):
+        name, unit = CHANNEL_LABELS[ch]
+        am, ap = axes[0, j], axes[1, j]
+        ph_data = data.phase_deg(ch)
+        am.semilogx(f, data.magnitude_db(ch), ".", ms=2.5, color="0.45", label="data", zorder=1)
+        ap.semilogx(f, ph_data, ".", ms=2.5, color="0.45", zorder=1)
+        for k, (label, model) in enumerate(models.items()):
+            if hasattr(model, "structure"):
+                st, params = model.structure, model.params
+            else:
+                st, params = model
+            h = st.response(params, fm, ch)
+            ref = np.interp(fm, f, ph_data)
+            am.semilogx(fm, 20 * np.log10(np.abs(h)), "-", lw=1.3, color=colors[k % len(colors)], label=label, zorder=2)
+            ap.semilogx(fm, _aligned_phase_deg(h, ref), "-", lw=1.3, color=colors[k % len(colors)], zorder=2)
+        am.set_title(name)
+        am.set_ylabel(f"magnitude [dB re 1 {unit}]")
+        ap.set_ylabel("phase [deg]")
+        if has_coh:
+            ac = axes[2, j]
+            coh = data.coherence(ch)
+            if coh is not None:
+                ac.semilogx(f, coh, "-", lw=1.0, color="0.3")
+            ac.set_ylim(0, 1.05)
+            ac.set_ylabel("coherence")
+        for a in axes[:, j]:
+            a.grid(True, which="both", lw=0.3, alpha=0.6)
+            if band_hz is not None:
+                a.axvspan(*band_hz, color="tab:green", alpha=0.06, lw=0)
+        axes[-1, j].set_xlabel("frequency [Hz]")
+    axes[0, 0].legend(fontsize=8, loc="best")
+    if band_hz is not None:
+        axes[0, -1].text(0.99, 0.02, f"fit band {band_hz[0]:g}-{band_hz[1]:g} Hz (shaded)", transform=axes[0, -1].transAxes, ha="right", va="bottom", fontsize=7, color="tab:green")
+    if title:
+        fig.suptitle(title, fontsize=11)
+    if note:
+        fig.text(0.01, 0.005, note, fontsize=7, va="bottom", ha="left", color="0.25", wrap=True)
+    fig.tight_layout(rect=(0, 0.04 if note else 0, 1, 1))
+    return fig
+
+
+def plot_parameter_sweep(
+    x: Sequence[float],
+    estimates: Sequence[Mapping[str, float]],
+    stderrs: Sequence[Mapping[str, float]] | None,
+    names: Sequence[str],
+    *,
+    xlabel: str,
+    reference: Mapping[str, Sequence[float]] | None = None,
+    reference_label: str = "notebook",
+    truth: Mapping[str, float] | None = None,
+    title: str | None = None,
+    note: str | None = None,
+):
+    """Small multiples: each parameter against ``x`` with 95 % error bars.
+
+    ``reference`` (name -> values at the same ``x``) is drawn as open markers,
+    ``truth`` (name -> value) as a horizontal line.
+    """
+    import matplotlib.pyplot as plt
+
+    n = len(names)
+    cols = 4 if n > 9 else 3
+    rows = int(np.ceil(n / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(3.1 * cols, 2.1 * rows + 0.6), squeeze=False)
+    x = np.asarray(x, float)
+    for i, name in enumerate(names):
+        a = axes.flat[i]
+        v = np.array([e[name] for e in estimates])
+        if stderrs is not None:
+            err = 1.96 * np.array([s[name] for s in stderrs])
+            err = np.where(np.isfinite(err), err, 0.0)
+            a.errorbar(x, v, yerr=err, fmt="o-", ms=3, lw=1, capsize=2, label="samii ±95 %")
+        else:
+            a.plot(x, v, "o-", ms=3, lw=1, label="samii")
+        if reference is not None and name in reference:
+            a.plot(x, reference[name], "s", mfc="none", ms=5, color="tab:red", label=reference_label)
+        if truth is not None and name in truth:
+            a.axhline(truth[name], color="0.4", lw=0.8, ls="--", label="data generated with")
+        a.set_title(name, fontsize=9)
+        a.tick_params(labelsize=7)
+        a.grid(True, lw=0.3, alpha=0.6)
+        a.set_xlabel(xlabel, fontsize=7)
+    for a in list(axes.flat)[n:]:
+        a.set_visible(False)
+    axes.flat[0].legend(fontsize=6)
+    if title:
+        fig.suptitle(title, fontsize=11)
+    if note:
+        fig.text(0.01, 0.005, note, fontsize=7, va="bottom", ha="left", color="0.25", wrap=True)
+    fig.tight_layout(rect=(0, 0.04 if note else 0, 1, 1))
+    return fig
+
+
+def save_figure(fig, path, *, dpi: int = 110) -> None:
+    """Save and close ``fig`` (PNG at a modest dpi keeps committed figures small)."""
+    import matplotlib.pyplot as plt
+
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
