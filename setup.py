@@ -19,6 +19,7 @@ from __future__ import annotations
 import importlib.metadata
 import importlib.util
 import json
+import os
 import re
 import shutil
 import sys
@@ -64,6 +65,9 @@ class BuildPlugin(build_ext):
         super().finalize_options()
         if getattr(self, "_mujoco", None):
             return  # finalize_options can run more than once
+        # always recompile (under a second): a build/ folder left from another MuJoCo version
+        # must not be reused, and file dates cannot tell
+        self.force = True
         folder, version = _mujoco_core()
         include = folder / "include"
         if sys.platform.startswith("linux"):
@@ -100,7 +104,16 @@ class BuildPlugin(build_ext):
         return Path(ext_path).with_name(BUILD_INFO)
 
     def build_extension(self, ext: Extension) -> None:
-        super().build_extension(ext)
+        if ext.name != PLUGIN_EXT:
+            return super().build_extension(ext)
+        # drop run paths the Python build put into the link command (e.g. its own lib folder):
+        # the plugin's only run path is the mujoco package's
+        linker = list(self.compiler.linker_so)
+        self.compiler.linker_so = [arg for arg in linker if not arg.startswith("-Wl,-rpath,")]
+        try:
+            super().build_extension(ext)
+        finally:
+            self.compiler.linker_so = linker
         if ext.name == PLUGIN_EXT:
             library = Path(self.get_ext_fullpath(ext.name))
             info = {
@@ -112,12 +125,20 @@ class BuildPlugin(build_ext):
             self._info_path(str(library)).write_text(json.dumps(info, indent=2) + "\n")
 
     def copy_extensions_to_source(self) -> None:
-        super().copy_extensions_to_source()
+        # editable install: put the library and its build record into src/samii/sim/. Replace
+        # atomically (copy, then rename): processes that have the old library mapped keep a valid
+        # file instead of one truncated under them.
         build_py_cmd = self.get_finalized_command("build_py")
         for ext in self.extensions:
+            inplace, regular = self._get_inplace_equivalent(build_py_cmd, ext)
+            pairs = [(regular, inplace)]
             if ext.name == PLUGIN_EXT:
-                inplace, regular = self._get_inplace_equivalent(build_py_cmd, ext)
-                self.copy_file(str(self._info_path(regular)), str(self._info_path(inplace)))
+                pairs.append((str(self._info_path(regular)), str(self._info_path(inplace))))
+            for source, target in pairs:
+                partial = target + ".partial"
+                shutil.copyfile(source, partial)
+                shutil.copymode(source, partial)
+                os.replace(partial, target)
 
     def get_outputs(self) -> list[str]:
         outputs = super().get_outputs()
