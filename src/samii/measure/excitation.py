@@ -1,0 +1,376 @@
+"""Excitation signals of the rig's Bode tests: a repeated swept sine and a stepped (fixed) sine.
+
+Both are added to the joint-2 valve command while the position loop holds the
+arm at the nominal pose (the integrator in theta/v drifts open loop, notebook
+ch. 9 / DESIGN.md). Both are pure functions of time, so a simulator or a signal
+generator can evaluate them at any rate.
+
+Swept sine
+----------
+A sweep law that gives every octave *at least* ``cycles_per_octave`` cycles and
+*at least* ``seconds_per_octave`` seconds, the rule a dynamic signal analyzer
+applies per frequency point ("integrate N cycles or T seconds, whichever is
+longer"). Written as the sweep rate::
+
+    df/dt = min(f^2 / C, f / L),   C = cycles_per_octave / ln 2,  L = seconds_per_octave / ln 2
+
+Below the corner ``f_c = C / L = cycles_per_octave / seconds_per_octave`` the
+sweep is hyperbolic (the period grows linearly; a constant number of cycles per
+octave), above it exponential (a constant time per octave). A pure exponential
+sweep long enough to give 0.1 Hz three cycles would spend 20 s on every one of
+the 8.6 octaves from 0.1 to 40 Hz (~3 min per sweep); the hybrid spends that
+time only where cycles are scarce.
+
+Defaults (0.1-40 Hz as in notebook ch. 9; 3 cycles and 4 s per octave; 2 V) give
+a sweep of 63 s and, with 1 s of rest before and 3 s after each sweep, a
+campaign of 3 x 67 s = 3.4 min simulated, 2 s of wall time at the 100x real
+time the simulator aims for. The amplitude: under unity position feedback
+(1 V/deg in the notebook's units, loop gain K1 ~ 28 1/s, eq 9.4) the joint
+follows theta ~ r / Kp below the loop bandwidth, so 2 V moves joint 2 by about
+2 deg at low frequency; the valve command v = r / (1 + Kp G) peaks at about
+1.8 r near the closed-loop hydraulic resonance (8.4 Hz, eq 10.1), i.e. 3.6 V,
+well inside the +-10 V range.
+
+The response must come to rest between sweeps: the frequency-response
+estimator (:mod:`samii.measure.frf`) takes each repetition as one record from
+rest to rest. The rest before a sweep gives the operating point that the
+estimator subtracts.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+__all__ = ["SweptSine", "SteppedSine", "DEFAULT_STEPPED_FREQS_HZ"]
+
+# Time constant of the slowest mode of eq 9.4: base mode 1, 1 / (z1 w1)
+# = 1 / (0.0298 * 10.886 rad/s) = 3.08 s. Stepped-sine settling waits 5 of them
+# (transient down to e^-5 < 1 %).
+_SLOWEST_TAU_S = 3.08
+
+#: Default stepped-sine frequencies [Hz]: about 6 per octave over 0.5-35 Hz (the
+#: acceptance band of issue 3), avoiding the exact lightly damped base
+#: resonances where settling is slowest.
+DEFAULT_STEPPED_FREQS_HZ: tuple[float, ...] = (0.5, 1.0, 1.5, 2.5, 4.0, 6.0, 8.0, 9.0, 11.0, 14.0, 18.0, 22.0, 28.0, 35.0)
+
+
+def _raised_cosine(x: np.ndarray) -> np.ndarray:
+    """0 at x <= 0, 1 at x >= 1, smooth (zero slope at both ends) in between."""
+    x = np.clip(x, 0.0, 1.0)
+    return 0.5 - 0.5 * np.cos(np.pi * x)
+
+
+@dataclass(frozen=True)
+class SweptSine:
+    """A swept sine repeated ``repetitions`` times, each record from rest to rest.
+
+    One record (repetition) is: ``lead_s`` of rest; the active part; ``tail_s``
+    of rest. The active part, described upwards, is a fade at ``start_hz`` over
+    ``fade_low_cycles``, the sweep ``start_hz`` -> ``stop_hz`` at full amplitude,
+    and a fade at ``stop_hz`` over ``fade_high_cycles``; with
+    ``direction="down"`` it runs in reverse (fade-in at ``stop_hz``, sweep down,
+    fade-out at ``start_hz``). Every frequency of the band is swept at full
+    amplitude; the command and its slope start and end at zero.
+
+    Sweeping *down* is the default because the record must end at rest: the
+    slowest mode (base mode 1, 1.73 Hz, time constant 1/(z1 w1) = 3.1 s, eq 9.4)
+    is then crossed about 45 s before the end of the sweep and has decayed by
+    e^-14; sweeping up it would still ring at 1e-3 of its peak when the next
+    record starts, swamping the weak low-frequency acceleration. What moves at
+    the end of a down sweep is the quasi-static low-frequency response, which
+    follows the excitation to rest within the position loop's time constants
+    (slowest 1/4.2 s, eq 10.1).
+
+    Parameters
+    ----------
+    start_hz, stop_hz : float
+        Band of the sweep [Hz], start_hz < stop_hz whatever the direction.
+    amplitude_v : float
+        Peak excitation added to the valve command [V].
+    cycles_per_octave : float
+        Minimum number of cycles per octave (governs the low end).
+    seconds_per_octave : float
+        Minimum time per octave [s] (governs the high end).
+    fade_low_cycles, fade_high_cycles : float
+        Raised-cosine envelope at the ``start_hz`` and ``stop_hz`` ends, in
+        cycles of those frequencies.
+    lead_s, tail_s : float
+        Rest before and after each sweep [s]. The lead gives the operating
+        point. The tail lets the response decay before the next record: 10 s is
+        3.2 time constants of base mode 1 (3.1 s), which any transient of the
+        excitation rings up (with a 3 s tail the ringing left at the end of a
+        record biased the base FRF by 0.06 dB at 0.5-1 Hz, with 10 s by 0.002 dB).
+    repetitions : int
+        Number of sweeps to average (3 on the rig, notebook ch. 9).
+    direction : {"down", "up"}
+        Sweep direction.
+    """
+
+    start_hz: float = 0.1
+    stop_hz: float = 40.0
+    amplitude_v: float = 2.0
+    cycles_per_octave: float = 3.0
+    seconds_per_octave: float = 4.0
+    fade_low_cycles: float = 0.25
+    fade_high_cycles: float = 10.0
+    lead_s: float = 1.0
+    tail_s: float = 10.0
+    repetitions: int = 3
+    direction: Literal["down", "up"] = "down"
+
+    def __post_init__(self) -> None:
+        for name in ("start_hz", "stop_hz", "amplitude_v", "cycles_per_octave", "seconds_per_octave"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"SweptSine.{name} must be positive and finite, got {value!r}")
+        for name in ("fade_low_cycles", "fade_high_cycles", "lead_s", "tail_s"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"SweptSine.{name} must be non-negative and finite, got {value!r}")
+        if self.stop_hz <= self.start_hz:
+            raise ValueError(f"SweptSine.stop_hz ({self.stop_hz}) must exceed start_hz ({self.start_hz})")
+        if int(self.repetitions) != self.repetitions or self.repetitions < 1:
+            raise ValueError(f"SweptSine.repetitions must be a positive integer, got {self.repetitions!r}")
+        if self.direction not in ("down", "up"):
+            raise ValueError(f"SweptSine.direction must be 'down' or 'up', got {self.direction!r}")
+
+    # -- the sweep law, described upwards ----------------------------------------
+
+    @property
+    def _c(self) -> float:
+        return self.cycles_per_octave / np.log(2.0)
+
+    @property
+    def _l(self) -> float:
+        return self.seconds_per_octave / np.log(2.0)
+
+    @property
+    def corner_hz(self) -> float:
+        """Frequency where the law turns from constant cycles to constant time per octave [Hz]."""
+        return self.cycles_per_octave / self.seconds_per_octave
+
+    @property
+    def _knee_hz(self) -> float:
+        return float(np.clip(self.corner_hz, self.start_hz, self.stop_hz))
+
+    @property
+    def _knee_s(self) -> float:
+        return self._c * (1.0 / self.start_hz - 1.0 / self._knee_hz)
+
+    @property
+    def sweep_s(self) -> float:
+        """Duration of the sweep proper between start_hz and stop_hz [s]."""
+        return self._knee_s + self._l * np.log(self.stop_hz / self._knee_hz)
+
+    @property
+    def fade_low_s(self) -> float:
+        return self.fade_low_cycles / self.start_hz
+
+    @property
+    def fade_high_s(self) -> float:
+        return self.fade_high_cycles / self.stop_hz
+
+    @property
+    def active_s(self) -> float:
+        """Duration of the excitation within one record [s]."""
+        return self.fade_low_s + self.sweep_s + self.fade_high_s
+
+    @property
+    def record_s(self) -> float:
+        """Length of one repetition, rest to rest [s]."""
+        return self.lead_s + self.active_s + self.tail_s
+
+    @property
+    def duration_s(self) -> float:
+        """The whole campaign [s]."""
+        return self.repetitions * self.record_s
+
+    def _up_frequency_hz(self, u: np.ndarray) -> np.ndarray:
+        """Frequency at time u into the upward active part."""
+        tau = np.clip(u - self.fade_low_s, 0.0, self.sweep_s)
+        hyper = 1.0 / (1.0 / self.start_hz - np.minimum(tau, self._knee_s) / self._c)
+        return np.where(tau <= self._knee_s, hyper, self._knee_hz * np.exp((tau - self._knee_s) / self._l))
+
+    def _up_cycles(self, u: np.ndarray) -> np.ndarray:
+        """Cycles completed at time u into the upward active part (integral of the frequency)."""
+        tau = np.clip(u - self.fade_low_s, 0.0, self.sweep_s)
+        th = np.minimum(tau, self._knee_s)
+        hyper = -self._c * np.log1p(-self.start_hz * th / self._c)
+        f_log = self._knee_hz * np.exp(np.maximum(tau - self._knee_s, 0.0) / self._l)
+        swept = hyper + self._l * (f_log - self._knee_hz)
+        before = self.start_hz * np.minimum(u, self.fade_low_s)
+        after = self.stop_hz * np.maximum(u - self.fade_low_s - self.sweep_s, 0.0)
+        return before + swept + after
+
+    def _up_envelope(self, u: np.ndarray) -> np.ndarray:
+        env = np.ones_like(u)
+        if self.fade_low_s > 0:
+            env = env * _raised_cosine(u / self.fade_low_s)
+        if self.fade_high_s > 0:
+            env = env * _raised_cosine((self.active_s - u) / self.fade_high_s)
+        return env
+
+    def _active_time(self, t_s) -> tuple[np.ndarray, np.ndarray]:
+        """Time into the active part of the current record, and whether it is active."""
+        t = np.asarray(t_s, float)
+        inside = (t >= 0) & (t < self.duration_s)
+        u = np.where(inside, t % self.record_s, -1.0) - self.lead_s
+        return u, inside & (u >= 0) & (u <= self.active_s)
+
+    def frequency_hz(self, t_s) -> np.ndarray:
+        """Instantaneous excitation frequency at campaign times ``t_s`` [Hz] (NaN at rest)."""
+        u, active = self._active_time(t_s)
+        if self.direction == "down":
+            u = self.active_s - u
+        return np.where(active, self._up_frequency_hz(u), np.nan)
+
+    def signal(self, t_s) -> np.ndarray:
+        """Excitation r(t) [V] at campaign times ``t_s`` (t = 0 is the start of the first record)."""
+        u, active = self._active_time(t_s)
+        if self.direction == "up":
+            cycles, env = self._up_cycles(u), self._up_envelope(u)
+        else:  # the upward active part played backwards, phase counted from its start
+            total = float(self._up_cycles(np.asarray(self.active_s)))
+            cycles = total - self._up_cycles(self.active_s - u)
+            env = self._up_envelope(self.active_s - u)
+        return np.where(active, self.amplitude_v * env * np.sin(2.0 * np.pi * cycles), 0.0)
+
+    def describe(self) -> dict[str, float | int | str]:
+        """Every setting and the derived durations, for metadata and run.json."""
+        return {
+            "excitation": f"swept sine {self.start_hz:g}-{self.stop_hz:g} Hz {self.direction}, {self.repetitions} repetitions",
+            "sweep_law": "df/dt = min(f^2/C, f/L): >= cycles_per_octave cycles and >= seconds_per_octave s per octave",
+            "start_hz": self.start_hz,
+            "stop_hz": self.stop_hz,
+            "direction": self.direction,
+            "amplitude_v": self.amplitude_v,
+            "cycles_per_octave": self.cycles_per_octave,
+            "seconds_per_octave": self.seconds_per_octave,
+            "corner_hz": self.corner_hz,
+            "fade_low_cycles": self.fade_low_cycles,
+            "fade_high_cycles": self.fade_high_cycles,
+            "lead_s": self.lead_s,
+            "tail_s": self.tail_s,
+            "sweep_s": self.sweep_s,
+            "record_s": self.record_s,
+            "repetitions": self.repetitions,
+            "duration_s": self.duration_s,
+        }
+
+
+@dataclass(frozen=True)
+class SteppedSine:
+    """Stepped (fixed) sine: one dwell per frequency, contiguous in time.
+
+    Each dwell: ``ramp_s`` raised-cosine ramp-up, steady excitation until
+    ``settle_s`` after the dwell began, then a measurement window of a whole
+    number of periods (at least ``measure_cycles`` and at least ``measure_s``),
+    then a ``ramp_s`` ramp-down to zero. The run starts with ``lead_s`` of rest.
+
+    Parameters
+    ----------
+    freqs_hz : sequence of float
+        Dwell frequencies [Hz], positive, any order (kept as given).
+    amplitude_v : float
+        Peak excitation [V]; 2 V as the swept sine (see module docstring).
+    settle_s : float
+        Time from the start of a dwell to the start of its measurement [s].
+        Default 5 time constants of the slowest mode of eq 9.4 (base mode 1,
+        3.08 s), so a transient excited by the ramp has decayed below 1 %.
+    ramp_s : float
+        Ramp-up and ramp-down time [s].
+    measure_cycles : int
+        Minimum number of whole periods in the measurement window.
+    measure_s : float
+        Minimum length of the measurement window [s].
+    lead_s : float
+        Rest at the start of the run [s].
+    """
+
+    freqs_hz: tuple[float, ...] = DEFAULT_STEPPED_FREQS_HZ
+    amplitude_v: float = 2.0
+    settle_s: float = 5.0 * _SLOWEST_TAU_S
+    ramp_s: float = 1.0
+    measure_cycles: int = 4
+    measure_s: float = 2.0
+    lead_s: float = 1.0
+    _starts: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        freqs = tuple(float(f) for f in np.atleast_1d(np.asarray(self.freqs_hz, float)))
+        if not freqs:
+            raise ValueError("SteppedSine.freqs_hz is empty")
+        if not all(np.isfinite(f) and f > 0 for f in freqs):
+            raise ValueError(f"SteppedSine.freqs_hz must be positive and finite, got {freqs}")
+        object.__setattr__(self, "freqs_hz", freqs)
+        for name in ("amplitude_v", "settle_s", "measure_s"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise ValueError(f"SteppedSine.{name} must be positive, got {getattr(self, name)!r}")
+        if not (0 <= self.ramp_s <= self.settle_s):
+            raise ValueError(f"SteppedSine.ramp_s must lie in 0...settle_s, got {self.ramp_s!r}")
+        if self.lead_s < 0:
+            raise ValueError(f"SteppedSine.lead_s must be non-negative, got {self.lead_s!r}")
+        if int(self.measure_cycles) != self.measure_cycles or self.measure_cycles < 1:
+            raise ValueError(f"SteppedSine.measure_cycles must be a positive integer, got {self.measure_cycles!r}")
+        starts = self.lead_s + np.concatenate([[0.0], np.cumsum(self.dwell_s)[:-1]])
+        object.__setattr__(self, "_starts", starts)
+
+    @property
+    def n_cycles(self) -> np.ndarray:
+        """Whole periods in each measurement window."""
+        f = np.asarray(self.freqs_hz)
+        return np.maximum(self.measure_cycles, np.ceil(self.measure_s * f - 1e-9)).astype(int)
+
+    @property
+    def window_s(self) -> np.ndarray:
+        """Length of each measurement window [s]: n_cycles / f."""
+        return self.n_cycles / np.asarray(self.freqs_hz)
+
+    @property
+    def dwell_s(self) -> np.ndarray:
+        """Length of each dwell [s]."""
+        return self.settle_s + self.window_s + self.ramp_s
+
+    @property
+    def windows_s(self) -> np.ndarray:
+        """Measurement windows as (start, stop) campaign times [s], shape (n, 2)."""
+        start = self._starts + self.settle_s
+        return np.column_stack([start, start + self.window_s])
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.lead_s + np.sum(self.dwell_s))
+
+    def signal(self, t_s) -> np.ndarray:
+        """Excitation r(t) [V] at campaign times ``t_s``."""
+        t = np.asarray(t_s, float)
+        out = np.zeros_like(t)
+        for f, start, dwell in zip(self.freqs_hz, self._starts, self.dwell_s):
+            tau = t - start
+            inside = (tau >= 0) & (tau < dwell)
+            if not np.any(inside):
+                continue
+            tau = tau[inside]
+            env = np.ones_like(tau)
+            if self.ramp_s > 0:
+                env = _raised_cosine(tau / self.ramp_s) * _raised_cosine((dwell - tau) / self.ramp_s)
+            out[inside] = self.amplitude_v * env * np.sin(2.0 * np.pi * f * tau)
+        return out
+
+    def describe(self) -> dict[str, float | int | str | list]:
+        """Every setting and the derived schedule, for metadata and run.json."""
+        return {
+            "excitation": f"stepped sine, {len(self.freqs_hz)} frequencies",
+            "freqs_hz": list(self.freqs_hz),
+            "amplitude_v": self.amplitude_v,
+            "settle_s": self.settle_s,
+            "ramp_s": self.ramp_s,
+            "measure_cycles": self.measure_cycles,
+            "measure_s": self.measure_s,
+            "lead_s": self.lead_s,
+            "n_cycles": self.n_cycles.tolist(),
+            "duration_s": self.duration_s,
+        }
