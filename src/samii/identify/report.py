@@ -1,0 +1,72 @@
+"""What a fit leaves behind: JSON of every fit and overlay Bode plots, in one folder.
+
+Nothing already there is overwritten unless asked (DATA_FORMATS.md, "Bad input").
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Sequence
+
+from samii.frequency_response import FrequencyResponse
+from samii.identify.fit import FitResult
+
+__all__ = ["CLI_KEYS", "summary_dict", "fit_filename", "write_fit_outputs"]
+
+#: Keys of ``samii fit --json`` (issue 5), then the phase weight and the warnings.
+CLI_KEYS = ("params", "stderr", "cost", "rms_mag_db", "rms_phase_deg", "converged", "message")
+
+
+def summary_dict(result: FitResult) -> dict:
+    """The ``--json`` object of one fit."""
+    d = result.to_dict()
+    out = {k: d[k] for k in CLI_KEYS}
+    out["phase_weight"] = d["phase_weight"]
+    out["warnings"] = d["warnings"]
+    return out
+
+
+def fit_filename(result: FitResult, many: bool) -> str:
+    return f"fit_pw{result.phase_weight:g}.json" if many else "fit.json"
+
+
+def write_fit_outputs(data: FrequencyResponse, results: Sequence[FitResult], out_dir, *, overwrite: bool = False, note: str | None = None) -> list[Path]:
+    """Write ``fit.json`` (or ``fit_pw<W>.json`` per weight), ``bode_fit.png`` and, for a sweep, ``parameters.png``.
+
+    Raises
+    ------
+    FileExistsError
+        If a file to be written exists and ``overwrite`` is False.
+    """
+    out = Path(out_dir)
+    many = len(results) > 1
+    targets = [out / fit_filename(r, many) for r in results] + [out / "bode_fit.png"] + ([out / "parameters.png"] if many else [])
+    if not overwrite:
+        existing = [str(p) for p in targets if p.exists()]
+        if existing:
+            raise FileExistsError(f"would overwrite {', '.join(existing)}; choose another --out or pass --overwrite")
+    out.mkdir(parents=True, exist_ok=True)
+    for r, path in zip(results, targets):
+        path.write_text(json.dumps(r.to_dict(), indent=2) + "\n")
+    from samii.viz.fit_plot import plot_fit_overlay, plot_parameter_sweep, save_figure
+
+    band = results[0].band_hz
+    full = (data.freq_hz[0], data.freq_hz[-1])
+    models = {(f"fit, phase weight {r.phase_weight:g}" if many else "fit"): r for r in results}
+    st = results[0].structure
+    title = f"samii fit: {st.describe()}"
+    fig = plot_fit_overlay(data, models, channels=results[0].channels, band_hz=None if band == full else band, title=title, note=note or data.metadata.get("source"))
+    save_figure(fig, out / "bode_fit.png")
+    if many:
+        fig = plot_parameter_sweep(
+            [r.phase_weight for r in results],
+            [r.params for r in results],
+            [r.stderr for r in results],
+            st.param_names,
+            xlabel="phase weight",
+            title="fitted parameters against phase weight (95 % intervals)",
+            note=note,
+        )
+        save_figure(fig, out / "parameters.png")
+    return targets
