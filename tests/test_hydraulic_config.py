@@ -104,6 +104,7 @@ def test_params_dataclass_rejects_non_physical(name):
         ('actdim="2"', 'actdim="1"', 'must have actdim="2"', "actdim = 1"),
         ('ctrllimited="true"', 'ctrllimited="true" gear="2"', "must have gear 1", "gear = 2"),
         ('type="hinge"', 'type="slide"', "must act on a hinge joint", None),
+        ('ctrllimited="true"', 'ctrllimited="true" delay="0.002" nsample="3"', "must not have a delay", None),
     ],
 )
 def test_actuator_form_is_checked(old, new, c_message, py_message):

@@ -168,6 +168,11 @@ static Hydraulic* hydraulic_create(const mjModel* m, int instance) {
                 SAMII_PLUGIN_NAME, name, SAMII_ACTDIM, m->actuator_actnum[actuator]);
     return NULL;
   }
+  if (m->actuator_delay[actuator] != 0) {
+    mju_warning("%s: actuator '%s' must not have a delay (the plugin reads ctrl directly)",
+                SAMII_PLUGIN_NAME, name);
+    return NULL;
+  }
   if (m->actuator_actlimited[actuator]) {
     mju_warning("%s: actuator '%s' must not be actlimited (the plugin limits its own states)",
                 SAMII_PLUGIN_NAME, name);
@@ -280,6 +285,9 @@ static void hydraulic_compute(const mjModel* m, mjData* d, int instance, int cap
 static void hydraulic_advance(const mjModel* m, mjData* d, int instance) {
   const Hydraulic* h = (const Hydraulic*) d->plugin_data[instance];
   mjtNum* act = d->act + h->actadr;
+  if (mjDISABLED(mjDSBL_ACTUATION)) {
+    return;  // MuJoCo did not compute act_dot nor integrate act
+  }
 
   if (m->opt.integrator != mjINT_RK4 && !disabled(m, h)) {
     // P_{n+1} used -Dm*qvel_n; replace it by -Dm*qvel_{n+1}. MuJoCo integrated
