@@ -26,7 +26,7 @@ solution.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable, Literal, Mapping
 
 import numpy as np
@@ -129,7 +129,7 @@ class HydraulicParams:
     reference_angle : float
         Set point of the position loop [rad], finite.
     source : str
-        Where the values came from, for error messages (not a parameter).
+        Where the values came from, for error messages (not a parameter; ignored by ``==``).
     """
 
     supply_pressure: float
@@ -142,7 +142,7 @@ class HydraulicParams:
     rated_voltage: float
     position_gain: float
     reference_angle: float
-    source: str = "samii.hydraulic"
+    source: str = field(default="samii.hydraulic", compare=False)
 
     def __post_init__(self) -> None:
         for name in ATTRIBUTES:
