@@ -1,0 +1,255 @@
+"""The pole-cancelling compensator of notebook chapter 10, and the loop it closes.
+
+Compensator (eq 10.9)::
+
+    G_c(s) = prod (s - z_i) / prod (s - p_i)      (monic numerator and denominator, Matlab poly())
+
+zeros ``z_i``: the lightly damped poles to cancel, i.e. the complex pair of the
+inner unity-theta loop (eq 10.1) and base modes 1 and 3 (eq 10.2; mode 2 is
+already cancelled by the actuator zeros); poles ``p_i``: the desired
+replacements, ``-zeta w +- j w sqrt(1 - zeta^2)`` at 3, 8 and 10 Hz with
+zeta = 1 (eq 10.3-10.8, double real poles). (Eq 10.7 as printed omits the
+factor ``w`` on the imaginary part; with zeta = 1 it does not matter.)
+
+The loop. The notebook shows it only in a figure that did not survive
+(figure 10.1) and picks the gain "using root locus so that the closed loop
+poles have damping of approximately 0.7": 0.0666. Two readings fit the text:
+
+``"theta"`` (default): ``K G_c`` in cascade in front of the inner loop, in an
+outer unity theta loop::
+
+    theta = G_cl u,   u = K G_c (theta_ref - theta),   G_cl = A/(1 + A)
+    v = u - theta = K G_c (theta_ref - theta) - theta
+    open loop K G_c G_cl;  closed loop theta/theta_ref = K G_c G_cl / (1 + K G_c G_cl)
+
+At K = 0.0666 two closed-loop pairs have zeta 0.711 and 0.698 (the notebook's
+"approximately 0.7"), and the compensator's zeros remove base modes 1 and 3
+and the inner-loop pair from theta_ref -> xdd entirely, which is the
+"input shaper" behaviour chapter 11 reports, including "not capable of
+quickly damping out a vibration disturbance" (no accelerometer in the loop).
+Its DC gain is ``K G_c(0) / (1 + K G_c(0))`` (0.134 at the notebook's values):
+theta settles short of theta_ref unless the reference is scaled, which the
+notebook does not mention; :attr:`PoleCancelDesign.reference_gain` gives the
+prefilter that restores a unit DC gain.
+
+``"accel"``: ``K G_c`` as the filter of the chapter-2 mass-damping loop,
+``theta = G_cl (theta_ref - K G_c xdd)`` (figure 10.2's caption reads "root
+locus of the mass damping system"; the sign is Matlab's ``rlocus``, 1 + K L = 0). At K = 0.0666 its pairs have zeta 0.710,
+0.757 and 0.348, a poorer match.
+
+In both, cancelled poles remain closed-loop poles (they become
+uncontrollable or unobservable from the loop, not moved): the compensator
+cannot damp them, only avoid exciting them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal, Mapping
+
+import control
+import numpy as np
+from scipy import optimize
+
+from samii import notebook as nb
+from samii.design.controller import LinearController, from_discrete_tf
+
+__all__ = [
+    "CancelLoop",
+    "inner_loop_pair",
+    "base_modes_to_cancel",
+    "desired_compensator_poles",
+    "compensator",
+    "cancel_open_loop",
+    "closed_loop_poles",
+    "choose_gain",
+    "PoleCancelDesign",
+    "design_pole_cancel",
+]
+
+CancelLoop = Literal["theta", "accel"]
+
+
+def inner_loop_pair(p: Mapping[str, float]) -> np.ndarray:
+    """The complex pair of the unity theta loop (eq 10.1 from eq 9.4), negative imaginary part first."""
+    cl = control.feedback(nb.actuator_tf(p), 1).poles()
+    pair = cl[np.abs(cl.imag) > 1e-9 * np.abs(cl)]
+    if len(pair) != 2:
+        raise ValueError(f"the unity theta loop has {len(pair)} complex poles, expected one pair")
+    return np.sort_complex(pair)
+
+
+def base_modes_to_cancel(p: Mapping[str, float]) -> np.ndarray:
+    """Base-mode poles other than mode 2 (eq 10.2 from eq 9.4), by frequency, negative imaginary part first."""
+    poles = nb.base_tf(p).poles()
+    m2 = np.roots([1.0, 2 * p["zz"] * p["wz"], p["wz"] ** 2])
+    keep = np.array([x for x in poles if np.min(np.abs(m2 - x)) > 1e-6 * abs(x)])
+    order = np.lexsort((keep.imag, np.abs(keep)))
+    return keep[order]
+
+
+def desired_compensator_poles(freqs_hz=nb.EQ10_3_HZ, zetas=nb.EQ10_ZETA) -> np.ndarray:
+    """Poles ``-zeta w +- j w sqrt(1 - zeta^2)``, ``w = 2 pi f`` (eq 10.7-10.8; zeta = 1 gives double real poles)."""
+    if len(freqs_hz) != len(zetas):
+        raise ValueError(f"need one damping ratio per frequency, got {len(freqs_hz)} and {len(zetas)}")
+    out = []
+    for f, z in zip(freqs_hz, zetas):
+        if not (f > 0 and 0 < z <= 1):
+            raise ValueError(f"desired pole needs f > 0 and 0 < zeta <= 1, got f={f}, zeta={z}")
+        w = 2 * np.pi * f
+        d = w * np.sqrt(1 - z**2)
+        out += [complex(-z * w, -d), complex(-z * w, d)]
+    return np.array(out)
+
+
+def compensator(zeros: np.ndarray, poles: np.ndarray) -> control.TransferFunction:
+    """Monic ``poly(zeros) / poly(poles)`` (eq 10.9), real coefficients."""
+    return control.tf(np.real(np.poly(zeros)), np.real(np.poly(poles)))
+
+
+def cancel_open_loop(p: Mapping[str, float], Gc: control.TransferFunction, *, loop: CancelLoop = "theta") -> control.TransferFunction:
+    """Open loop whose root locus in K picks the gain (see module docstring); closed loop ``1 + K L = 0``.
+
+    Both use the notebook's (Matlab ``rlocus``) convention ``1 + K L = 0``. For
+    ``"accel"`` that is ``theta = G_cl (theta_ref - K G_c xdd)``: chapter 2's
+    ``K_a = -K`` in :mod:`samii.design.rootlocus` terms.
+    """
+    g_cl = control.feedback(nb.actuator_tf(p), 1)
+    if loop == "theta":
+        return Gc * g_cl
+    if loop == "accel":
+        return Gc * nb.base_tf(p) * g_cl
+    raise ValueError(f"loop must be 'theta' or 'accel', got {loop!r}")
+
+
+def closed_loop_poles(L: control.TransferFunction, K: float) -> np.ndarray:
+    """Roots of ``1 + K L = 0``, all of them including the cancelled ones (eigenvalues of a realisation of L)."""
+    ss = control.tf2ss(L)
+    A, B, C, D = (np.asarray(m, float) for m in (ss.A, ss.B, ss.C, ss.D))
+    return np.linalg.eigvals(A - B @ (K / (1.0 + K * D[0, 0]) * C))
+
+
+def _moving_pairs(L: control.TransferFunction, K: float) -> np.ndarray:
+    """Upper-half-plane closed-loop poles at K that are not open-loop poles (cancelled ones stay put)."""
+    ol = L.poles()
+    cl = closed_loop_poles(L, K)
+    cl = cl[cl.imag > 1e-9 * np.abs(cl)]
+    return np.array([x for x in cl if np.min(np.abs(ol - x)) > 1e-6 * abs(x)])
+
+
+def choose_gain(L: control.TransferFunction, *, zeta: float = 0.7, k_max: float = 10.0) -> float:
+    """Smallest K > 0 at which the dominant moving closed-loop pair reaches damping ``zeta``.
+
+    The dominant pair is the moving complex pair of smallest magnitude. The
+    replacement poles start critically damped (K = 0) and lose damping as K
+    grows; this is the notebook's rule made explicit. Found by bisection.
+    """
+
+    def f(K: float) -> float:
+        pairs = _moving_pairs(L, K)
+        if pairs.size == 0:
+            return 1.0 - zeta
+        dom = pairs[np.argmin(np.abs(pairs))]
+        return -dom.real / abs(dom) - zeta
+
+    ks = np.geomspace(1e-6, k_max, 400)
+    vals = np.array([f(k) for k in ks])
+    idx = np.flatnonzero((vals[:-1] > 0) & (vals[1:] <= 0))
+    if idx.size == 0:
+        raise ValueError(f"the dominant pair never reaches zeta = {zeta} for 0 < K <= {k_max}")
+    i = int(idx[0])
+    return float(optimize.brentq(f, ks[i], ks[i + 1], xtol=1e-12, rtol=1e-12))
+
+
+@dataclass(frozen=True)
+class PoleCancelDesign:
+    """The chapter-10 design: compensator, gain and the loop it closes.
+
+    Attributes
+    ----------
+    zeros : ndarray
+        Cancelled poles (eq 10.1 then eq 10.2).
+    poles : ndarray
+        Desired compensator poles (eq 10.8).
+    Gc : control.TransferFunction
+        Monic compensator (eq 10.9).
+    gain : float
+        K on the root locus.
+    loop : {"theta", "accel"}
+    open_loop : control.TransferFunction
+        L with closed-loop poles at roots of ``1 + K L``.
+    """
+
+    params: Mapping[str, float]
+    zeros: np.ndarray
+    poles: np.ndarray
+    Gc: control.TransferFunction
+    gain: float
+    loop: CancelLoop
+    open_loop: control.TransferFunction
+
+    @property
+    def closed_loop(self) -> np.ndarray:
+        return closed_loop_poles(self.open_loop, self.gain)
+
+    @property
+    def reference_gain(self) -> float:
+        """Prefilter on theta_ref that makes theta/theta_ref = 1 at DC (``"theta"`` loop; 1 for ``"accel"``)."""
+        if self.loop == "accel":
+            return 1.0
+        g0 = self.gain * float(np.real(control.dcgain(self.Gc)))
+        return (1.0 + g0) / g0
+
+    def controller(
+        self,
+        *,
+        sample_time_s: float,
+        method: Literal["matched", "zoh", "tustin"] = "matched",
+        scale_reference: bool = False,
+        input_scale: Mapping[str, float] | None = None,
+        model_units: str = "",
+    ) -> LinearController:
+        """The runnable controller; ``K G_c`` discretised by ``method``.
+
+        ``"matched"`` (pole-zero matching, ``z = exp(s T)`` for poles and zeros)
+        is the default because it keeps the cancellation exact: the ZOH model
+        of the plant has its poles at ``exp(p T)`` too.
+        """
+        Gd = control.sample_system(self.gain * self.Gc, sample_time_s, method=method)
+        A, B, C, D = from_discrete_tf(Gd.num[0][0], Gd.den[0][0], sample_time_s=sample_time_s)
+        n = A.shape[0]
+        r = self.reference_gain if scale_reference else 1.0
+        if self.loop == "theta":
+            # v = K Gc (r theta_ref - theta) - theta
+            Bw = np.concatenate([r * B, -B], axis=1)
+            Dw = np.array([[r * D.item(), -D.item() - 1.0]])
+            inputs = ("theta_ref", "theta")
+        else:
+            # v = theta_ref - theta - K Gc accel
+            Bw = np.concatenate([np.zeros((n, 2)), -B], axis=1)
+            Dw = np.array([[1.0, -1.0, -D.item()]])
+            inputs = ("theta_ref", "theta", "accel")
+        return LinearController(
+            A, Bw, C.reshape(1, n), Dw,
+            sample_time_s=sample_time_s, inputs=inputs, input_scale=input_scale,
+            name=f"pole-cancelling compensator ({self.loop} loop, K = {self.gain:.4g})",
+            method=f"K Gc discretised by {method}", model_units=model_units,
+        )  # fmt: skip
+
+
+def design_pole_cancel(
+    p: Mapping[str, float] = nb.EQ9_4,
+    *,
+    freqs_hz=nb.EQ10_3_HZ,
+    zetas=nb.EQ10_ZETA,
+    loop: CancelLoop = "theta",
+    gain: float | None = None,
+    target_zeta: float = 0.7,
+) -> PoleCancelDesign:
+    """Design the compensator on parameters ``p`` (default eq 9.4); ``gain=None`` picks it by :func:`choose_gain`."""
+    zeros = np.concatenate([inner_loop_pair(p), base_modes_to_cancel(p)])
+    poles = desired_compensator_poles(freqs_hz, zetas)
+    Gc = compensator(zeros, poles)
+    L = cancel_open_loop(p, Gc, loop=loop)
+    k = choose_gain(L, zeta=target_zeta) if gain is None else float(gain)
+    return PoleCancelDesign(p, zeros, poles, Gc, k, loop, L)

@@ -1,0 +1,196 @@
+"""Runnable discrete-time controllers: one small interface for the simulator, the tests and the CLI.
+
+A controller is called once per sample: it reads the measurements taken at
+``t_k`` and returns the valve command ``v[k]`` [V], which the caller holds
+(zero-order hold) until ``t_{k+1}``. Measurement names are those of
+DATA_FORMATS.md: ``theta`` [rad, relative to the nominal pose], ``accel``
+[m/s^2] and ``theta_ref`` [rad] when a reference is used.
+
+Every implementation here is a :class:`LinearController`: a discrete-time
+state-space system, discretised explicitly by its designer (the method is
+stored in ``method``), evaluated with plain numpy (two matrix-vector
+products per step). Designs made on the notebook's own models carry the
+notebook's units (theta most likely in degrees, acceleration unstated); the
+``input_scale`` converts the caller's SI signals to them, and ``model_units``
+says which they are.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal, Mapping, Protocol, runtime_checkable
+
+import numpy as np
+
+__all__ = [
+    "Controller",
+    "LinearController",
+    "unity_theta_controller",
+    "mass_damping_controller",
+    "from_discrete_tf",
+]
+
+MEASUREMENTS = ("theta_ref", "theta", "accel")
+
+
+@runtime_checkable
+class Controller(Protocol):
+    """What the closed-loop simulator needs from a controller."""
+
+    sample_time_s: float
+    inputs: tuple[str, ...]
+
+    def reset(self) -> None:
+        """Return to the initial (zero) state."""
+
+    def step(self, measurements: Mapping[str, float]) -> float:
+        """One sample: measurements at t_k (names in ``inputs``) -> valve command v[k] [V]."""
+
+
+def _matrix(name: str, value, shape: tuple[int | None, int | None]) -> np.ndarray:
+    arr = np.array(value, dtype=float, ndmin=2)
+    for got, want, what in zip(arr.shape, shape, ("rows", "columns")):
+        if want is not None and got != want:
+            raise ValueError(f"LinearController.{name} must have {want} {what}, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"LinearController.{name} has a NaN or infinite entry")
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True)
+class LinearController:
+    """``z[k+1] = A z[k] + B w[k]``, ``v[k] = C z[k] + D w[k]``, ``w = scale * measurements[inputs]``.
+
+    Parameters
+    ----------
+    A, B, C, D : array
+        Discrete-time matrices; ``C`` has one row (one valve command).
+    sample_time_s : float
+        The sample time the matrices were discretised for.
+    inputs : tuple of str
+        Measurement names read, in the column order of ``B``/``D``.
+    input_scale : mapping, optional
+        Factor applied to each measurement before use (to the design model's
+        units), default 1 for each.
+    name, method, model_units : str
+        What the controller is, how it was discretised, and the units of the
+        model it was designed on.
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+    sample_time_s: float
+    inputs: tuple[str, ...]
+    input_scale: Mapping[str, float] | None = None
+    name: str = ""
+    method: str = ""
+    model_units: str = ""
+    _scale: np.ndarray = field(init=False, repr=False, compare=False)
+    _state: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        A = _matrix("A", self.A, (None, None))
+        n = A.shape[0] if A.size else 0
+        if A.size and A.shape[0] != A.shape[1]:
+            raise ValueError(f"LinearController.A must be square, got shape {A.shape}")
+        m = len(self.inputs)
+        if m == 0 or len(set(self.inputs)) != m:
+            raise ValueError(f"LinearController.inputs must be distinct names, got {self.inputs}")
+        unknown = [s for s in self.inputs if s not in MEASUREMENTS]
+        if unknown:
+            raise ValueError(f"LinearController.inputs {unknown} are not measurements of DATA_FORMATS.md {MEASUREMENTS}")
+        object.__setattr__(self, "A", A.reshape(n, n))
+        object.__setattr__(self, "B", _matrix("B", self.B, (n, m)) if n else np.zeros((0, m)))
+        object.__setattr__(self, "C", _matrix("C", self.C, (1, n)) if n else np.zeros((1, 0)))
+        object.__setattr__(self, "D", _matrix("D", self.D, (1, m)))
+        if not (np.isfinite(self.sample_time_s) and self.sample_time_s > 0):
+            raise ValueError(f"LinearController.sample_time_s must be positive, got {self.sample_time_s}")
+        scale = dict(self.input_scale or {})
+        extra = set(scale) - set(self.inputs)
+        if extra:
+            raise ValueError(f"LinearController.input_scale names {sorted(extra)} that are not inputs {self.inputs}")
+        object.__setattr__(self, "input_scale", dict(scale))
+        object.__setattr__(self, "inputs", tuple(self.inputs))
+        object.__setattr__(self, "_scale", np.array([float(scale.get(s, 1.0)) for s in self.inputs]))
+        object.__setattr__(self, "_state", np.zeros(n))
+
+    @property
+    def n_states(self) -> int:
+        return self.A.shape[0]
+
+    def reset(self) -> None:
+        self._state[:] = 0.0
+
+    def step(self, measurements: Mapping[str, float]) -> float:
+        try:
+            w = np.array([measurements[s] for s in self.inputs], dtype=float)
+        except KeyError as exc:
+            raise KeyError(f"controller {self.name!r} needs measurement {exc.args[0]!r}; it reads {self.inputs}") from None
+        if not np.all(np.isfinite(w)):
+            bad = [s for s, x in zip(self.inputs, w) if not np.isfinite(x)]
+            raise ValueError(f"controller {self.name!r}: measurement {bad} is NaN or infinite")
+        w *= self._scale
+        z = self._state
+        v = float(self.C[0] @ z + self.D[0] @ w)
+        z[:] = self.A @ z + self.B @ w
+        return v
+
+    def statespace(self):
+        """The controller as a discrete-time :class:`control.StateSpace` (input in model units, before scaling)."""
+        import control
+
+        return control.ss(self.A, self.B, self.C, self.D, self.sample_time_s, inputs=list(self.inputs), outputs=["v"])
+
+
+def unity_theta_controller(*, sample_time_s: float, input_scale: Mapping[str, float] | None = None, model_units: str = "") -> LinearController:
+    """``v = theta_ref - theta``: the inner position loop alone (the notebook's "no vibration suppression")."""
+    return LinearController(
+        np.zeros((0, 0)), np.zeros((0, 2)), np.zeros((1, 0)), [[1.0, -1.0]],
+        sample_time_s=sample_time_s, inputs=("theta_ref", "theta"), input_scale=input_scale,
+        name="unity theta feedback", method="static gain (no discretisation)", model_units=model_units,
+    )  # fmt: skip
+
+
+def from_discrete_tf(num: np.ndarray, den: np.ndarray, *, sample_time_s: float):
+    """State-space matrices (A, B, C, D) of a discrete SISO transfer function, via python-control."""
+    import control
+
+    ss = control.tf2ss(control.tf(num, den, sample_time_s))
+    return np.asarray(ss.A), np.asarray(ss.B), np.asarray(ss.C), np.asarray(ss.D)
+
+
+def mass_damping_controller(
+    K_a: float,
+    filter_tf=None,
+    *,
+    sample_time_s: float,
+    method: Literal["zoh", "tustin", "matched"] = "tustin",
+    input_scale: Mapping[str, float] | None = None,
+    model_units: str = "",
+) -> LinearController:
+    """``v = theta_ref + K_a F(z) accel - theta`` (the chapter-2 loop, see :mod:`samii.design.rootlocus`).
+
+    ``filter_tf`` is the continuous filter F(s) (None: F = 1), discretised by
+    ``method`` with :func:`control.sample_system`.
+    """
+    import control
+
+    if filter_tf is None:
+        A, B, C, D = np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.array([[1.0]])
+        how = "no filter (static gain)"
+    else:
+        Fd = control.sample_system(control.tf(filter_tf), sample_time_s, method=method)
+        A, B, C, D = from_discrete_tf(Fd.num[0][0], Fd.den[0][0], sample_time_s=sample_time_s)
+        how = f"filter discretised by {method}"
+    n = A.shape[0]
+    Bw = np.zeros((n, 3))
+    Bw[:, 2:] = B
+    Dw = np.array([[1.0, -1.0, K_a * float(np.asarray(D).ravel()[0])]])
+    return LinearController(
+        A, Bw, K_a * np.asarray(C).reshape(1, n), Dw,
+        sample_time_s=sample_time_s, inputs=("theta_ref", "theta", "accel"), input_scale=input_scale,
+        name=f"mass-damping acceleration feedback K_a = {K_a:g}", method=how, model_units=model_units,
+    )  # fmt: skip

@@ -1,0 +1,104 @@
+"""`samii design seed-report`: the notebook's eq 8.1-8.3 and 10.1-10.9 reproduced to their printed precision."""
+
+import json
+
+import numpy as np
+import pytest
+
+from samii import notebook as nb
+from samii.design import seed_report as sr
+
+
+@pytest.fixture(scope="module")
+def report():
+    return sr.seed_report()
+
+
+@pytest.mark.parametrize("key", ["eq8_1", "eq8_2", "eq8_3", "eq10_1", "eq10_2", "eq10_8", "eq10_9_num", "eq10_9_den"])
+def test_reproduced_to_printed_precision(report, key):
+    e = report[key]
+    assert e.matches, (key, e.ours, e.notebook)
+    # and the check itself is sharp: one unit in the last printed digit is caught
+    nudged = np.asarray(e.notebook, complex).copy()
+    i = int(np.argmax(np.abs(nudged)))
+    nudged[i] += 2.1 * sr.half_unit_of_last_digit(float(np.abs(nudged[i].real)) or 1.0)
+    assert not sr._within(e.ours, nudged)
+
+
+def test_half_unit_of_last_digit():
+    assert sr.half_unit_of_last_digit(-169.8) == pytest.approx(0.05)
+    assert sr.half_unit_of_last_digit(27620.0) == pytest.approx(5.0)  # printed 2.762e+4
+    assert sr.half_unit_of_last_digit(8.189e9) == pytest.approx(5e5)
+    assert sr.half_unit_of_last_digit(0.0666) == pytest.approx(5e-5)
+
+
+def test_eq8_3_needs_one_over_sqrt2(report):
+    # with zeta = 0.707 the moved poles miss the printed digits; 1/sqrt(2) hits them
+    from samii.design import canonical as cc
+    from samii.design import placement as pl
+
+    sys = cc.numeric_statespace(cc.derive_canonical_form(2, "accel"), nb.EQ1_4_OPTIMIZED)
+    alt = sr._pair(pl.desired_poles(sys, 0.707), np.array(nb.EQ8_3))
+    assert not sr._within(alt, nb.EQ8_3)
+    assert "1/sqrt(2)" in report["eq8_3"].note
+
+
+def test_printed_numerator_is_not_poly_of_printed_zeros(report):
+    # the notebook's eq 10.9 numerator agrees with the unrounded poles, not with its own rounded eq 10.1/10.2
+    printed = np.real(np.poly(np.array(nb.EQ10_1 + nb.EQ10_2)))
+    assert not sr._within(printed, nb.EQ10_9_NUM)
+    assert "printed" in report["eq10_9_num"].note
+
+
+def test_gain_differs_and_says_why(report):
+    g = report["eq10_gain"]
+    assert not g.matches and float(g.ours) == pytest.approx(nb.EQ10_GAIN, rel=0.1)
+    assert "0.711" in g.note and "0.698" in g.note
+
+
+def test_json_has_the_issue_keys(report):
+    out = json.loads(json.dumps(report.as_json()))
+    for k in ("eq8_1", "eq8_2", "eq8_3", "eq10_1", "eq10_2", "eq10_8"):
+        assert all(len(pair) == 2 for pair in out[k])
+    assert out["eq10_9_num"][0] == 1.0 and len(out["eq10_9_num"]) == 7
+    assert out["eq10_9_den"][1] == pytest.approx(263.9, abs=0.05)
+    assert isinstance(out["eq10_gain"], float)
+    assert out["comparison"]["eq8_1"]["within_printed_precision"] is True
+
+
+def test_cli_seed_report_json(capsys):
+    from samii.cli import main
+
+    assert main(["design", "seed-report", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["eq10_1"][0] == pytest.approx([-4.2144, -52.841], abs=1e-3)
+    assert main(["design", "seed-report"]) == 0
+    text = capsys.readouterr().out
+    assert "eq10_gain" in text and "DIFFERS" in text and "matches to printed precision" in text
+
+
+def test_cli_other_actions(capsys, tmp_path):
+    from samii.cli import main
+
+    assert main(["design", "cancel", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["loop"] == "theta" and len(out["zeros"]) == 6
+    assert main(["design", "place", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert len(out["controller_poles_z"]) == 6
+    assert main(["design", "canonical", "--out", str(tmp_path)]) == 0
+    assert (tmp_path / "ccf_2mode_accel.tex").read_text().startswith("% Controllable canonical form")
+    with pytest.raises(SystemExit, match="--force"):
+        main(["design", "canonical", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit, match="Kalman|kalman"):
+        main(["design", "place", "--observer", "kalman"])
+
+
+def test_cli_rlocus_writes_tables(capsys, tmp_path):
+    from samii.cli import main
+
+    assert main(["design", "rlocus", "--out", str(tmp_path), "--no-plots", "--n-gains", "150"]) == 0
+    text = capsys.readouterr().out
+    assert "| eq1.3_s4 | as_built |" in text
+    rows = json.loads((tmp_path / "summary.json").read_text())
+    assert len(rows) == 28 and {r["variant"] for r in rows} >= {"as_built", "bandpass", "lowpass_2hz"}
