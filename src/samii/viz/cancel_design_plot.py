@@ -1,0 +1,62 @@
+"""Root locus of the chapter-10 compensator loop up to the chosen gain (the notebook's figures 10.2 and 10.3).
+
+Compute lives in :mod:`samii.design.cancel`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["plot_cancel_locus"]
+
+
+def plot_cancel_locus(design, *, notebook_gain: float | None = None, path: str | Path | None = None, n_gains: int = 400):
+    """Closed-loop poles of ``1 + K L = 0`` for K from 0 to the design gain; full view and zoom near the origin."""
+    import matplotlib
+
+    if path is not None:
+        matplotlib.use("Agg", force=False)
+    import control
+    import matplotlib.pyplot as plt
+
+    kmax = max(design.gain, notebook_gain or 0.0)
+    ks = np.linspace(0.0, kmax, n_gains)
+    rl = control.root_locus_map(design.open_loop, gains=ks)
+    loci = np.asarray(rl.loci)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5.5))
+    for ax, zoom in zip(axes, (False, True)):
+        for j in range(loci.shape[1]):
+            ax.plot(loci[:, j].real, loci[:, j].imag, "-", color="C0", lw=1.0, label=f"closed-loop poles, K 0 to {kmax:.4g}" if j == 0 else None)
+        p, z = design.open_loop.poles(), design.open_loop.zeros()
+        ax.plot(p.real, p.imag, "x", color="k", ms=7, label="open-loop poles")
+        ax.plot(z.real, z.imag, "o", mfc="none", color="C2", ms=7, label="open-loop zeros")
+        end = design.closed_loop
+        ax.plot(end.real, end.imag, "*", color="C3", ms=10, label=f"our K = {design.gain:.4g} (dominant pair zeta 0.7)")
+        if notebook_gain is not None:
+            from samii.design.cancel import closed_loop_poles
+
+            nbp = closed_loop_poles(design.open_loop, notebook_gain)
+            ax.plot(nbp.real, nbp.imag, "^", mfc="none", color="C1", ms=8, label=f"notebook's K = {notebook_gain:g}")
+        r = np.array([0.0, 400.0])
+        ax.plot(-0.7 * r, np.sqrt(1 - 0.49) * r, "--", color="0.5", lw=0.8, label="damping ratio 0.7")
+        ax.axvline(0, color="0.6", lw=0.8)
+        ax.set_xlabel("real part [1/s]")
+        ax.set_ylabel("imaginary part [rad/s]")
+        if zoom:
+            ax.set_xlim(-70, 5)
+            ax.set_ylim(-5, 70)
+            ax.set_title("zoom near the origin", fontsize=9)
+        else:
+            ax.set_xlim(-220, 20)
+            ax.set_ylim(-5, 200)
+            ax.set_title("full", fontsize=9)
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(fontsize=7, loc="upper left")
+    fig.suptitle(f"Chapter 10 pole-cancelling compensator on eq 9.4, '{design.loop}' loop: root locus in K (1 + K L = 0)", fontsize=10)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=80)
+        plt.close(fig)
+    return fig

@@ -1,0 +1,62 @@
+"""Pole maps of the chapter-8 design (the notebook's figures 8.1 and 8.2). Compute lives in :mod:`samii.design.placement`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["plot_pole_sets"]
+
+
+def plot_pole_sets(design, *, path: str | Path | None = None):
+    """s-plane and z-plane maps: open loop, unity theta feedback, desired controller poles, observer poles.
+
+    ``design`` is a :class:`samii.design.placement.PlacementDesign`.
+    """
+    import matplotlib
+
+    if path is not None:
+        matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    from samii.design.placement import unity_feedback_poles
+
+    T = design.sample_time_s
+    ol = np.linalg.eigvals(np.asarray(design.model.A))
+    ufb = unity_feedback_poles(design.model)
+    sets = [
+        ("open loop (eq 8.1)", ol, "x", "k"),
+        ("unity theta feedback (eq 8.2)", ufb, "+", "C0"),
+        (f"desired, zeta {design.zeta:.3g} (eq 8.3)", design.poles_s, "o", "C3"),
+    ]
+    if design.observer_poles_s is not None:
+        sets.append(("observer, 2x desired", design.observer_poles_s, "s", "C2"))
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 5.2))
+    for label, p, m, c in sets:
+        a1.plot(p.real, p.imag, m, color=c, mfc="none", ms=8, mew=1.4, label=label)
+        z = np.exp(p * T)
+        a2.plot(z.real, z.imag, m, color=c, mfc="none", ms=8, mew=1.4, label=label)
+    if design.observer_poles_s is None:
+        z = design.observer_poles_z
+        a2.plot(z.real, z.imag, "s", color="C2", mfc="none", ms=8, label="Kalman filter poles")
+    a1.set_xlabel("real part [1/s]")
+    a1.set_ylabel("imaginary part [rad/s]")
+    a1.set_title("continuous poles (s plane)")
+    a1.axvline(0, color="0.6", lw=0.8)
+    a1.grid(True, alpha=0.3)
+    a1.legend(fontsize=8)
+    th = np.linspace(0, np.pi / 2, 200)
+    a2.plot(np.cos(th), np.sin(th), "-", color="0.6", lw=0.8, label="unit circle")
+    a2.set_xlim(0.6, 1.02)
+    a2.set_ylim(-0.02, 0.2)
+    a2.set_xlabel("real part of z")
+    a2.set_ylabel("imaginary part of z")
+    a2.set_title(f"digital poles z = exp(s T), T = {T * 1e3:g} ms (upper half)")
+    a2.grid(True, alpha=0.3)
+    fig.suptitle("Chapter 8 pole placement on the eq 1.4 model (1 accelerometer, canonical form of chapter 5)", fontsize=10)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=80)
+        plt.close(fig)
+    return fig
