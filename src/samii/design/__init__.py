@@ -1,1 +1,14 @@
-"""samii.design"""
+"""samii.design: control design on transfer-function and state-space models (notebook chapters 2-3, 5-8, 10).
+
+Modules (import what you need; this package imports nothing heavy):
+
+* ``rootlocus``: the mass-damping acceleration-feedback loop, exact stable K_a intervals, damping summary;
+* ``canonical``: controllable canonical forms derived with sympy, numeric matrices, checks, LaTeX;
+* ``placement``: the desired-pole rule, ZOH discretisation, state feedback, observer at 2x or Kalman;
+* ``cancel``: the pole-cancelling compensator and the loop it closes;
+* ``controller``: the runnable discrete-time ``Controller`` interface and ``LinearController``;
+* ``seed_report``: the notebook's design tables recomputed and compared;
+* ``cli``: ``samii design ...``.
+"""
+
+__all__ = ["rootlocus", "canonical", "placement", "cancel", "controller", "seed_report"]

@@ -52,7 +52,7 @@ import numpy as np
 from scipy import optimize
 
 from samii import notebook as nb
-from samii.design.controller import LinearController, from_discrete_tf
+from samii.design.controller import NOTEBOOK_UNITS, LinearController, from_discrete_tf
 
 __all__ = [
     "CancelLoop",
@@ -207,7 +207,7 @@ class PoleCancelDesign:
         method: Literal["matched", "zoh", "tustin"] = "matched",
         scale_reference: bool = False,
         input_scale: Mapping[str, float] | None = None,
-        model_units: str = "",
+        model_units: str = NOTEBOOK_UNITS,
     ) -> LinearController:
         """The runnable controller; ``K G_c`` discretised by ``method``.
 

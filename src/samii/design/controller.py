@@ -23,6 +23,7 @@ from typing import Literal, Mapping, Protocol, runtime_checkable
 import numpy as np
 
 __all__ = [
+    "NOTEBOOK_UNITS",
     "Controller",
     "LinearController",
     "unity_theta_controller",
@@ -31,6 +32,9 @@ __all__ = [
 ]
 
 MEASUREMENTS = ("theta_ref", "theta", "accel")
+
+#: What a design on one of the notebook's fits works in (notebook.py: units not stated in the notebook).
+NOTEBOOK_UNITS = "notebook units: theta most likely in degrees, acceleration unit unstated; v in volts"
 
 
 @runtime_checkable

@@ -35,7 +35,7 @@ import control
 import numpy as np
 from scipy import linalg
 
-from samii.design.controller import LinearController
+from samii.design.controller import NOTEBOOK_UNITS, LinearController
 
 __all__ = [
     "desired_poles",
@@ -156,7 +156,7 @@ class PlacementDesign:
     measured: tuple[str, ...]
     kalman_covariances: tuple[float, tuple[float, ...]] | None
 
-    def controller(self, *, input_scale: dict[str, float] | None = None, model_units: str = "") -> LinearController:
+    def controller(self, *, input_scale: dict[str, float] | None = None, model_units: str = NOTEBOOK_UNITS) -> LinearController:
         """The runnable controller: inputs ``theta_ref``, then the measured outputs (``theta``, ``accel``).
 
         ``input_scale`` converts the caller's signals to the model's units
