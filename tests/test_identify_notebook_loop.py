@@ -14,8 +14,9 @@ def test_percent_change_is_the_notebooks_definition():
     assert not c.met
     assert percent_change(np.array([10.0]), np.array([10.0009]), 5.0, 4.9996).met
     assert percent_change(np.ones(2), np.ones(2) * 1.00005, 1.0, 1.0).met
-    assert percent_change(np.ones(2), np.ones(2), 1e-25, 6e-26, cost_floor=1e-20).met
-    assert not percent_change(np.ones(2), np.ones(2), 1e-25, 6e-26).met
+    exact = percent_change(np.ones(2), np.ones(2), 2e-9, 4e-15, cost_floor=1e-12)  # an exact fit's last step
+    assert exact.met and exact.cost_at_floor and exact.cost_pct == pytest.approx(-100, abs=1e-3)
+    assert not percent_change(np.ones(2), np.ones(2), 2e-9, 4e-15).met
 
 
 def test_loop_meets_the_criterion_for_five_consecutive_loops():

@@ -27,35 +27,37 @@ NOTEBOOK_TOL_PCT = 0.01
 
 @dataclass(frozen=True)
 class PercentChange:
-    """The notebook's convergence test between two successive loop ends."""
+    """The notebook's convergence test between two successive iterates (or loop ends).
+
+    ``cost_at_floor``: the newer cost is at rounding level (an exact fit to exact
+    data), where a percent change of the cost means nothing and is not tested.
+    """
 
     max_param_pct: float
     cost_pct: float
     tol_pct: float = NOTEBOOK_TOL_PCT
+    cost_at_floor: bool = False
 
     @property
     def met(self) -> bool:
-        return bool(self.max_param_pct < self.tol_pct and abs(self.cost_pct) < self.tol_pct)
+        return bool(self.max_param_pct < self.tol_pct and (abs(self.cost_pct) < self.tol_pct or self.cost_at_floor))
 
     def describe(self) -> str:
         verdict = "met" if self.met else "not met"
-        return f"notebook criterion {verdict} (max |change| of a coefficient {self.max_param_pct:.2g} %, of the cost {self.cost_pct:.2g} %; limit {self.tol_pct} %)"
+        floor = ", the cost at rounding level" if self.cost_at_floor else ""
+        return f"notebook criterion {verdict} (max |change| of a coefficient {self.max_param_pct:.2g} %, of the cost {self.cost_pct:.2g} %{floor}; limit {self.tol_pct} %)"
 
 
 def percent_change(x_old: np.ndarray, x_new: np.ndarray, cost_old: float, cost_new: float, *, tol_pct: float = NOTEBOOK_TOL_PCT, cost_floor: float = 0.0) -> PercentChange:
     """100 (new - old) / old for every coefficient (largest magnitude kept) and for the cost.
 
-    A cost below ``cost_floor`` (rounding level: an exact fit to noise-free data) counts
-    as unchanged, since its percent change is then noise of floating-point arithmetic.
+    A new cost at or below ``cost_floor`` marks an exact fit (see ``PercentChange``).
     """
     x_old, x_new = np.asarray(x_old, float), np.asarray(x_new, float)
     with np.errstate(divide="ignore", invalid="ignore"):
         px = np.where(x_old != 0, 100.0 * (x_new - x_old) / np.abs(x_old), np.where(x_new == x_old, 0.0, np.inf))
-        if max(abs(cost_old), abs(cost_new)) <= cost_floor:
-            pc = 0.0
-        else:
-            pc = 100.0 * (cost_new - cost_old) / abs(cost_old) if cost_old != 0 else np.inf
-    return PercentChange(float(np.max(np.abs(px))), float(pc), tol_pct)
+        pc = 100.0 * (cost_new - cost_old) / abs(cost_old) if cost_old != 0 else (0.0 if cost_new == cost_old else np.inf)
+    return PercentChange(float(np.max(np.abs(px))), float(pc), tol_pct, bool(abs(cost_new) <= cost_floor))
 
 
 @dataclass(frozen=True)

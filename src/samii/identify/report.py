@@ -7,12 +7,12 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Sequence
+from typing import Mapping, Sequence
 
 from samii.frequency_response import FrequencyResponse
 from samii.identify.fit import FitResult
 
-__all__ = ["CLI_KEYS", "summary_dict", "fit_filename", "write_fit_outputs"]
+__all__ = ["CLI_KEYS", "summary_dict", "fit_filename", "write_fit_outputs", "params_markdown"]
 
 #: Keys of ``samii fit --json`` (issue 5), then the phase weight and the warnings.
 CLI_KEYS = ("params", "stderr", "cost", "rms_mag_db", "rms_phase_deg", "converged", "message")
@@ -70,3 +70,24 @@ def write_fit_outputs(data: FrequencyResponse, results: Sequence[FitResult], out
         )
         save_figure(fig, out / "parameters.png")
     return targets
+
+
+def params_markdown(columns: Mapping[str, Mapping[str, float]], names: Sequence[str], *, stderr: Mapping[str, Mapping[str, float]] | None = None, extra_rows: Mapping[str, Mapping[str, str]] | None = None) -> str:
+    """A markdown table: one row per parameter, one column per fit; ``value ± 1.96 stderr`` where given."""
+    labels = list(columns)
+    lines = ["| parameter | " + " | ".join(labels) + " |", "|---|" + "---|" * len(labels)]
+    for n in names:
+        cells = []
+        for lab in labels:
+            v = columns[lab].get(n)
+            se = (stderr or {}).get(lab, {}).get(n)
+            if v is None:
+                cells.append("")
+            elif se is not None:
+                cells.append(f"{v:.5g} ± {1.96 * se:.2g}")
+            else:
+                cells.append(f"{v:.5g}")
+        lines.append(f"| {n} | " + " | ".join(cells) + " |")
+    for row, vals in (extra_rows or {}).items():
+        lines.append(f"| {row} | " + " | ".join(vals.get(lab, "") for lab in labels) + " |")
+    return "\n".join(lines) + "\n"

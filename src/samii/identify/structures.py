@@ -25,6 +25,7 @@ analytic derivative of its natural logarithm with respect to every parameter
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Literal, Mapping, get_args
 
 import numpy as np
@@ -88,7 +89,7 @@ class ModelStructure:
     def power(self) -> int:
         return {"s4": 4, "s2": 2}[self.numerator]
 
-    @property
+    @cached_property
     def param_names(self) -> tuple[str, ...]:
         names = list(_ACT_NAMES)
         for k in range(1, self.n_modes + 1):
@@ -97,10 +98,16 @@ class ModelStructure:
         names += [f"B{k}" for k in range(1, self.n_modes + 1)]
         return tuple(names)
 
-    @property
+    @cached_property
     def positive(self) -> np.ndarray:
-        """Mask of the parameters that must be positive (all but the B gains)."""
-        return np.array([not n.startswith("B") for n in self.param_names])
+        """Mask of the parameters that must be positive (all but the B gains); read-only."""
+        mask = np.array([not n.startswith("B") for n in self.param_names])
+        mask.setflags(write=False)
+        return mask
+
+    @cached_property
+    def _index(self) -> dict[str, int]:
+        return {n: i for i, n in enumerate(self.param_names)}
 
     def mode_names(self, k: int) -> tuple[str, str]:
         """Names of the frequency and damping of base mode ``k`` (1-based)."""
@@ -157,46 +164,54 @@ class ModelStructure:
             channel -> (H (m,), dlogH/dx (m, n_params)). ``dlogH/dx = (dH/dx)/H``
             is analytic (derived term by term from eq 9.1 and 9.2 below).
         """
-        idx = {n: i for i, n in enumerate(self.param_names)}
+        idx = self._index
         s = 1j * np.asarray(w, float)
+        s2 = s * s
         n = len(self.param_names)
         out: dict = {}
         need_act = any(c in channels for c in ("act", "total"))
         need_base = any(c in channels for c in ("base", "total"))
         if need_act:
             K1, wp, zp, wz, zz, tau = (x[idx[k]] for k in _ACT_NAMES)
-            Dp = s * s + 2 * zp * wp * s + wp * wp
-            Nz = s * s + 2 * zz * wz * s + wz * wz
-            H = K1 * wp**2 * Nz * tau / (s * wz**2 * Dp * (s + tau))
+            inv_Dp = 1.0 / (s2 + 2 * zp * wp * s + wp * wp)
+            Nz = s2 + 2 * zz * wz * s + wz * wz
+            inv_lag = 1.0 / (s + tau)
+            H = (K1 * wp**2 * tau / wz**2) * Nz * inv_Dp * inv_lag / s
             if not derivatives:
                 out["act"] = (H, None)
             else:  # log H = log K1 + 2 log wp + log Nz + log tau - log s - 2 log wz - log Dp - log(s + tau)
+                inv_Nz = 1.0 / Nz
                 dL = np.zeros((s.size, n), complex)
                 dL[:, idx["K1"]] = 1.0 / K1
-                dL[:, idx["wp"]] = 2.0 / wp - (2 * zp * s + 2 * wp) / Dp
-                dL[:, idx["zp"]] = -2 * wp * s / Dp
-                dL[:, idx["wz"]] = (2 * zz * s + 2 * wz) / Nz - 2.0 / wz
-                dL[:, idx["zz"]] = 2 * wz * s / Nz
-                dL[:, idx["tau"]] = 1.0 / tau - 1.0 / (s + tau)
+                dL[:, idx["wp"]] = 2.0 / wp - (2 * zp * s + 2 * wp) * inv_Dp
+                dL[:, idx["zp"]] = (-2 * wp) * s * inv_Dp
+                dL[:, idx["wz"]] = (2 * zz * s + 2 * wz) * inv_Nz - 2.0 / wz
+                dL[:, idx["zz"]] = (2 * wz) * s * inv_Nz
+                dL[:, idx["tau"]] = 1.0 / tau - inv_lag
                 out["act"] = (H, dL)
         if need_base:
-            sn = s**self.power
+            sn = s2 * s2 if self.power == 4 else s2
             H = np.zeros(s.size, complex)
-            dH = np.zeros((s.size, n), complex) if derivatives else None
+            cols: list[tuple[int, np.ndarray]] = []
             for k in range(1, self.n_modes + 1):
                 wn, zn = self.mode_names(k)
                 wk, zk, Bk = x[idx[wn]], x[idx[zn]], x[idx[f"B{k}"]]
                 g, dg = (wk**2, 2 * wk) if self.w2_factors else (1.0, 0.0)
-                D = s * s + 2 * zk * wk * s + wk * wk
-                term = sn * g / D
-                H += Bk * term
-                if not derivatives:
-                    continue
-                dH[:, idx[f"B{k}"]] += term
-                # d/dw [g/D] = dg/D - g (2 z s + 2 w)/D^2 ;  d/dz [g/D] = -g 2 w s / D^2
-                dH[:, idx[wn]] += Bk * sn * (dg / D - g * (2 * zk * s + 2 * wk) / D**2)
-                dH[:, idx[zn]] += Bk * sn * (-g * 2 * wk * s / D**2)
-            out["base"] = (H, dH / H[:, None] if derivatives else None)
+                inv_D = 1.0 / (s2 + 2 * zk * wk * s + wk * wk)
+                t = sn * inv_D
+                H += (Bk * g) * t
+                if derivatives:
+                    # d/dw [g/D] = dg/D - g (2 z s + 2 w)/D^2 ;  d/dz [g/D] = -g 2 w s / D^2
+                    cols.append((idx[f"B{k}"], g * t))
+                    cols.append((idx[wn], Bk * t * (dg - g * (2 * zk * s + 2 * wk) * inv_D)))
+                    cols.append((idx[zn], (-2 * Bk * g * wk) * t * s * inv_D))
+            dL = None
+            if derivatives:
+                inv_H = 1.0 / H
+                dL = np.zeros((s.size, n), complex)
+                for i, col in cols:
+                    dL[:, i] += col * inv_H
+            out["base"] = (H, dL)
         if "total" in channels:
             (Ha, dLa), (Hb, dLb) = out["act"], out["base"]
             out["total"] = (Ha * Hb, dLa + dLb if derivatives else None)

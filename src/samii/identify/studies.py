@@ -46,6 +46,8 @@ from samii.identify.synthetic import SweptSineNoise, synthesize
 
 __all__ = [
     "NOTEBOOK_PHASE_WEIGHTS",
+    "STANDIN_NOTE",
+    "study_data",
     "from_notebook_units",
     "to_notebook_units",
     "synthetic_rig_frf",
@@ -74,7 +76,7 @@ def to_notebook_units(params: Mapping[str, float]) -> dict[str, float]:
     return {k: v / (_DEG if k == "K1" else 1 / _DEG if k.startswith("B") else 1.0) for k, v in params.items()}
 
 
-def synthetic_rig_frf(freq_hz: np.ndarray, *, rng: np.random.Generator, noise: SweptSineNoise | None = SweptSineNoise()) -> FrequencyResponse:
+def synthetic_rig_frf(freq_hz: np.ndarray, *, rng: np.random.Generator | None, noise: SweptSineNoise | None = SweptSineNoise()) -> FrequencyResponse:
     """Stand-in swept-sine data: eq 9.4 in SI + the unmodelled effects of the module docstring + noise."""
     st = ModelStructure.notebook_3mode()
     p = from_notebook_units(nb.EQ9_4)
@@ -94,6 +96,29 @@ def synthetic_rig_frf(freq_hz: np.ndarray, *, rng: np.random.Generator, noise: S
         "unmodelled": f"theta/v delay {RIG_DELAY_S * 1e3:g} ms and pole-zero pairs at base modes 1, 3 (zeros {RIG_COUPLING[0][1]:.1%}, {RIG_COUPLING[1][1]:.1%} below); accelerometer 2nd-order Butterworth {RIG_ACCEL_FILTER_HZ:g} Hz",
     }
     return synthesize(f, {"act": act, "base": base, "total": act * base}, noise=noise, rng=rng, metadata=meta)
+
+
+#: Printed on every figure made from the stand-in data.
+STANDIN_NOTE = (
+    "SYNTHETIC DATA, not measured: stand-in for the notebook's 3-average swept sine = eq 9.4 (SI, theta assumed in deg) "
+    "+ 2 ms delay and small pole-zero pairs at base modes 1, 3 in theta/v + 100 Hz accelerometer filter + 3-average noise "
+    "(samii.identify.studies.synthetic_rig_frf)"
+)
+STANDIN_SEED = 2003
+STANDIN_FREQ_HZ = np.geomspace(0.1, 40.0, 400)  # chapter 9: "frequency content from 0.1-40Hz"
+
+
+def study_data(path=None, *, freq_hz: np.ndarray = STANDIN_FREQ_HZ, seed: int = STANDIN_SEED) -> tuple[FrequencyResponse, FrequencyResponse | None, str]:
+    """Data for a study: an FRF CSV if ``path`` is given, else the stand-in.
+
+    Returns (data, noise-free version or None, note for the figures).
+    """
+    if path is not None:
+        from samii.measure.io import read_frf_csv
+
+        return read_frf_csv(path), None, f"data: {path}"
+    data = synthetic_rig_frf(freq_hz, rng=np.random.default_rng(seed))
+    return data, synthetic_rig_frf(freq_hz, rng=None, noise=None), STANDIN_NOTE
 
 
 def phase_weight_sweep(

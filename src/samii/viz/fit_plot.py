@@ -11,7 +11,7 @@ import numpy as np
 
 from samii.frequency_response import Channel, FrequencyResponse
 
-__all__ = ["CHANNEL_LABELS", "plot_fit_overlay", "plot_parameter_sweep", "save_figure"]
+__all__ = ["CHANNEL_LABELS", "plot_fit_overlay", "plot_model_error", "plot_parameter_sweep", "plot_panels", "save_figure"]
 
 #: (title, magnitude unit) of each channel (DATA_FORMATS.md).
 CHANNEL_LABELS: dict[str, tuple[str, str]] = {
@@ -19,6 +19,10 @@ CHANNEL_LABELS: dict[str, tuple[str, str]] = {
     "base": ("flexible base ẍ/θ", "(m/s²)/rad"),
     "total": ("ẍ/v", "(m/s²)/V"),
 }
+
+
+#: Alternate solid and dashed lines so that curves lying on top of each other stay visible.
+_LINESTYLES = ("-", "--")
 
 
 def _aligned_phase_deg(h: np.ndarray, ref_deg: np.ndarray | None) -> np.ndarray:
@@ -38,6 +42,7 @@ def plot_fit_overlay(
     title: str | None = None,
     note: str | None = None,
     n_model_points: int = 600,
+    model_span_hz: tuple[float, float] | None = None,
 ):
     """Bode overlay: one column per channel; magnitude, phase and coherence rows.
 
@@ -49,6 +54,8 @@ def plot_fit_overlay(
         Drawn as lines on a dense log grid over the data's span.
     band_hz : (lo, hi), optional
         The fit band, shaded.
+    model_span_hz : (lo, hi), optional
+        Draw the models over this span (e.g. beyond the data) instead of the data's.
     note : str, optional
         Provenance printed under the plots (e.g. "synthetic data: ...").
 
@@ -60,7 +67,7 @@ def plot_fit_overlay(
 
     channels = tuple(channels or [c for c in ("act", "base") if c in data.channels] or data.channels)
     f = data.freq_hz
-    fm = np.geomspace(f[0], f[-1], n_model_points)
+    fm = np.geomspace(*(model_span_hz or (f[0], f[-1])), n_model_points)
     has_coh = any(data.coherence(c) is not None for c in channels)
     rows = 3 if has_coh else 2
     fig, axes = plt.subplots(rows, len(channels), figsize=(5.2 * len(channels), 7.4 if has_coh else 6.0), sharex=True, squeeze=False, gridspec_kw={"height_ratios": [3, 3, 1.3][:rows]})
@@ -77,9 +84,10 @@ def plot_fit_overlay(
             else:
                 st, params = model
             h = st.response(params, fm, ch)
-            ref = np.interp(fm, f, ph_data)
-            am.semilogx(fm, 20 * np.log10(np.abs(h)), "-", lw=1.3, color=colors[k % len(colors)], label=label, zorder=2)
-            ap.semilogx(fm, _aligned_phase_deg(h, ref), "-", lw=1.3, color=colors[k % len(colors)], zorder=2)
+            ref = np.interp(np.log(fm), np.log(f), ph_data)
+            style = dict(ls=_LINESTYLES[k % 2], lw=1.3, color=colors[k % len(colors)], zorder=2)
+            am.semilogx(fm, 20 * np.log10(np.abs(h)), label=label, **style)
+            ap.semilogx(fm, _aligned_phase_deg(h, ref), **style)
         am.set_title(name)
         am.set_ylabel(f"magnitude [dB re 1 {unit}]")
         ap.set_ylabel("phase [deg]")
@@ -103,6 +111,79 @@ def plot_fit_overlay(
     if note:
         fig.text(0.01, 0.005, note, fontsize=7, va="bottom", ha="left", color="0.25", wrap=True)
     fig.tight_layout(rect=(0, 0.04 if note else 0, 1, 1))
+    return fig
+
+
+def plot_model_error(
+    freq_hz: np.ndarray,
+    errors: Mapping[str, Mapping[str, tuple[np.ndarray, np.ndarray]]],
+    *,
+    band_hz: tuple[float, float] | None = None,
+    title: str | None = None,
+    note: str | None = None,
+    what: str = "model - data",
+):
+    """Errors along frequency: magnitude [dB] and phase [deg] rows, one column per channel.
+
+    ``errors``: label -> channel -> (dB error, deg error) on ``freq_hz``.
+    """
+    import matplotlib.pyplot as plt
+
+    channels = list(next(iter(errors.values())))
+    fig, axes = plt.subplots(2, len(channels), figsize=(5.2 * len(channels), 5.6), sharex=True, squeeze=False)
+    for j, ch in enumerate(channels):
+        for k, (label, per) in enumerate(errors.items()):
+            db, deg = per[ch]
+            deg = np.degrees(np.unwrap(np.radians(deg)))  # errors are principal values; drawn continuous
+            axes[0, j].semilogx(freq_hz, db, lw=1.2, ls=_LINESTYLES[k % 2], label=label)
+            axes[1, j].semilogx(freq_hz, deg, lw=1.2, ls=_LINESTYLES[k % 2])
+        axes[0, j].set_title(CHANNEL_LABELS[ch][0])
+        axes[0, j].set_ylabel("magnitude error [dB]")
+        axes[1, j].set_ylabel("phase error [deg]")
+        axes[1, j].set_xlabel("frequency [Hz]")
+        for a in axes[:, j]:
+            a.axhline(0, color="0.3", lw=0.6)
+            a.grid(True, which="both", lw=0.3, alpha=0.6)
+            if band_hz is not None:
+                a.axvspan(*band_hz, color="tab:green", alpha=0.06, lw=0)
+    axes[0, 0].legend(fontsize=8)
+    fig.suptitle(f"{title + ': ' if title else ''}{what}", fontsize=11)
+    if note:
+        fig.text(0.01, 0.005, note, fontsize=7, va="bottom", ha="left", color="0.25", wrap=True)
+    fig.tight_layout(rect=(0, 0.05 if note else 0, 1, 1))
+    return fig
+
+
+def plot_panels(
+    x: Sequence[float],
+    panels: Mapping[str, Mapping[str, Sequence[float]]],
+    *,
+    xlabel: str,
+    title: str | None = None,
+    note: str | None = None,
+    logx: bool = False,
+):
+    """Side-by-side line plots: panel y-label -> series label -> values at ``x``."""
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.6 * len(panels), 3.6), squeeze=False)
+    for a, (ylabel, series) in zip(axes[0], panels.items()):
+        for label, y in series.items():
+            (a.semilogx if logx else a.plot)(x, y, "o-", ms=4, lw=1.2, label=label)
+        if logx:  # label the points themselves, not powers of ten
+            from matplotlib.ticker import NullFormatter
+
+            a.set_xticks(list(x), [f"{v:g}" for v in x])
+            a.xaxis.set_minor_formatter(NullFormatter())
+        a.set_xlabel(xlabel)
+        a.set_ylabel(ylabel)
+        a.grid(True, which="both", lw=0.3, alpha=0.6)
+        a.legend(fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=11)
+    if note:
+        fig.text(0.01, 0.005, note, fontsize=7, va="bottom", ha="left", color="0.25", wrap=True)
+    fig.tight_layout(rect=(0, 0.06 if note else 0, 1, 1))
     return fig
 
 
