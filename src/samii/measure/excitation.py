@@ -21,15 +21,30 @@ sweep long enough to give 0.1 Hz three cycles would spend 20 s on every one of
 the 8.6 octaves from 0.1 to 40 Hz (~3 min per sweep); the hybrid spends that
 time only where cycles are scarce.
 
-Defaults (0.1-40 Hz as in notebook ch. 9; 3 cycles and 4 s per octave; 2 V) give
-a sweep of 63 s and, with 1 s of rest before and 3 s after each sweep, a
-campaign of 3 x 67 s = 3.4 min simulated, 2 s of wall time at the 100x real
-time the simulator aims for. The amplitude: under unity position feedback
-(1 V/deg in the notebook's units, loop gain K1 ~ 28 1/s, eq 9.4) the joint
-follows theta ~ r / Kp below the loop bandwidth, so 2 V moves joint 2 by about
-2 deg at low frequency; the valve command v = r / (1 + Kp G) peaks at about
-1.8 r near the closed-loop hydraulic resonance (8.4 Hz, eq 10.1), i.e. 3.6 V,
-well inside the +-10 V range.
+Defaults, and why
+-----------------
+Band 0.1-40 Hz and 3 repetitions as on the rig (notebook ch. 9). 3 cycles and 4 s
+per octave give a 63 s sweep.
+
+Amplitude 0.1 V. The constraint is the load pressure at the closed-loop
+hydraulic resonance (8.4 Hz, eq 10.1): to move the link there the actuator
+needs J w^2 theta / Dm, and with the simulator's 7 MPa supply and 1.7 cm^3/rad
+displacement a 2 V sweep (the joint moving 2 deg at low frequency) drives the
+load pressure to 95 % of supply, where the orifice law is far from linear
+(the FRF near the resonance then moves by 7 dB). At 0.1 V the peak load
+pressure is about 1.2 MPa (17 % of supply), the valve command stays below
+0.2 V (2 % of its +-10 V range), the joint moves 0.1 deg at low frequency
+(theta ~ r / Kp below the loop bandwidth, Kp = 1 V/deg) and the measured FRF
+stays within 0.5 dB and 2 deg of the small-signal one over 0.5-35 Hz
+(experiments/amplitude_dependence). Raise it for a better signal-to-noise
+ratio with sensor noise, at the price of that nonlinearity.
+
+Rest of 45 s after each sweep: the lightest-damped mode of the default
+simulator, base mode 1 (1.73 Hz, zeta ~ 0.008 under the position loop,
+``samii modes``), has a time constant 1/(zeta w) ~ 11.8 s; 45 s is about 4 of
+them. (The notebook's zeta = 0.03 would need only 15 s.) With these defaults
+the campaign is 3 x 109 s = 5.5 min simulated, about 2 s of wall time at the
+150x real time of the simulator.
 
 The response must come to rest between sweeps: the frequency-response
 estimator (:mod:`samii.measure.frf`) takes each repetition as one record from
@@ -45,11 +60,6 @@ from typing import Literal
 import numpy as np
 
 __all__ = ["SweptSine", "SteppedSine", "DEFAULT_STEPPED_FREQS_HZ"]
-
-# Time constant of the slowest mode of eq 9.4: base mode 1, 1 / (z1 w1)
-# = 1 / (0.0298 * 10.886 rad/s) = 3.08 s. Stepped-sine settling waits 5 of them
-# (transient down to e^-5 < 1 %).
-_SLOWEST_TAU_S = 3.08
 
 #: Default stepped-sine frequencies [Hz]: about 6 per octave over 0.5-35 Hz (the
 #: acceptance band of issue 3), avoiding the exact lightly damped base
@@ -76,20 +86,19 @@ class SweptSine:
     amplitude; the command and its slope start and end at zero.
 
     Sweeping *down* is the default because the record must end at rest: the
-    slowest mode (base mode 1, 1.73 Hz, time constant 1/(z1 w1) = 3.1 s, eq 9.4)
-    is then crossed about 45 s before the end of the sweep and has decayed by
-    e^-14; sweeping up it would still ring at 1e-3 of its peak when the next
-    record starts, swamping the weak low-frequency acceleration. What moves at
-    the end of a down sweep is the quasi-static low-frequency response, which
-    follows the excitation to rest within the position loop's time constants
-    (slowest 1/4.2 s, eq 10.1).
+    lightly damped base mode 1 (1.73 Hz) is then crossed about 45 s before the
+    end of the sweep, and what still moves when the excitation stops is the
+    quasi-static low-frequency response, which follows it to rest within the
+    position loop's time constants (slowest 1/4.2 s, eq 10.1). Sweeping up on
+    the notebook's model left base mode 1 ringing at 1e-3 of its peak when the
+    next record started, which swamped the weak low-frequency acceleration.
 
     Parameters
     ----------
     start_hz, stop_hz : float
         Band of the sweep [Hz], start_hz < stop_hz whatever the direction.
     amplitude_v : float
-        Peak excitation added to the valve command [V].
+        Peak excitation added to the valve command [V] (see the module docstring).
     cycles_per_octave : float
         Minimum number of cycles per octave (governs the low end).
     seconds_per_octave : float
@@ -99,10 +108,11 @@ class SweptSine:
         cycles of those frequencies.
     lead_s, tail_s : float
         Rest before and after each sweep [s]. The lead gives the operating
-        point. The tail lets the response decay before the next record: 10 s is
-        3.2 time constants of base mode 1 (3.1 s), which any transient of the
-        excitation rings up (with a 3 s tail the ringing left at the end of a
-        record biased the base FRF by 0.06 dB at 0.5-1 Hz, with 10 s by 0.002 dB).
+        point. The tail lets the response decay before the next record, so it
+        must last a few time constants of the slowest mode (see the module
+        docstring); any transient of the excitation rings that mode up. On the
+        notebook's model a 3 s tail left ringing that biased the base FRF by
+        0.06 dB at 0.5-1 Hz, a 10 s tail by 0.002 dB.
     repetitions : int
         Number of sweeps to average (3 on the rig, notebook ch. 9).
     direction : {"down", "up"}
@@ -111,13 +121,13 @@ class SweptSine:
 
     start_hz: float = 0.1
     stop_hz: float = 40.0
-    amplitude_v: float = 2.0
+    amplitude_v: float = 0.1
     cycles_per_octave: float = 3.0
     seconds_per_octave: float = 4.0
     fade_low_cycles: float = 0.25
     fade_high_cycles: float = 10.0
     lead_s: float = 1.0
-    tail_s: float = 10.0
+    tail_s: float = 45.0
     repetitions: int = 3
     direction: Literal["down", "up"] = "down"
 
@@ -275,13 +285,16 @@ class SteppedSine:
     freqs_hz : sequence of float
         Dwell frequencies [Hz], positive, any order (kept as given).
     amplitude_v : float
-        Peak excitation [V]; 2 V as the swept sine (see module docstring).
+        Peak excitation [V]; 0.1 V as the swept sine (see the module docstring).
     settle_s : float
         Time from the start of a dwell to the start of its measurement [s].
-        Default 5 time constants of the slowest mode of eq 9.4 (base mode 1,
-        3.08 s), so a transient excited by the ramp has decayed below 1 %.
+        Default about 4 time constants of the slowest mode of the default
+        simulator (base mode 1, 11.8 s): in the simulator, 15 s left errors of
+        0.4 dB and 10 deg at 1.5 Hz, 45 s leaves 0.03 dB and 0.3 deg.
     ramp_s : float
-        Ramp-up and ramp-down time [s].
+        Ramp-up and ramp-down time [s]; 4 s (7 periods of base mode 1) rings that
+        mode up less than 1 s does (after 15 s of settling, 4 deg left at 1.5 Hz
+        instead of 10 deg).
     measure_cycles : int
         Minimum number of whole periods in the measurement window.
     measure_s : float
@@ -291,9 +304,9 @@ class SteppedSine:
     """
 
     freqs_hz: tuple[float, ...] = DEFAULT_STEPPED_FREQS_HZ
-    amplitude_v: float = 2.0
-    settle_s: float = 5.0 * _SLOWEST_TAU_S
-    ramp_s: float = 1.0
+    amplitude_v: float = 0.1
+    settle_s: float = 45.0
+    ramp_s: float = 4.0
     measure_cycles: int = 4
     measure_s: float = 2.0
     lead_s: float = 1.0

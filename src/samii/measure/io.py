@@ -46,6 +46,7 @@ __all__ = [
     "read_frf_csv",
     "write_frf_csv",
     "read_mat_bode",
+    "write_text",
 ]
 
 # Significant digits written. Time and frequency get 15 so that a uniform grid
@@ -214,6 +215,11 @@ def _write_atomic(path, text: str, overwrite: bool) -> Path:
         if os.path.exists(tmp):
             os.unlink(tmp)
     return path
+
+
+def write_text(path, text: str, *, overwrite: bool = False) -> Path:
+    """Write ``text`` to ``path`` atomically; refuse to replace an existing file unless ``overwrite``."""
+    return _write_atomic(path, text, overwrite)
 
 
 def _format_table(metadata: Mapping[str, str], columns: Mapping[str, np.ndarray], formats: list[str]) -> str:

@@ -22,16 +22,20 @@ CHANNEL_LABELS = {
 
 
 def _anchored_phase(frf: FrequencyResponse, ch: str, threshold: float | None) -> np.ndarray:
-    """Unwrapped phase [deg] anchored at the lowest coherent point (wrapped into -180...180 there).
+    """Unwrapped phase [deg], put on the branch where it lies in -180...180 mid-band.
 
-    Unwrapping from the lowest frequency lets noise there (weak signal, low
-    coherence) throw the whole curve whole turns off; anchoring where the data
-    are good keeps the branch a reader expects.
+    The anchor is the coherent point nearest the band's geometric centre, not
+    the lowest frequency: a weak signal at the band's edge (the base
+    acceleration near 0.1 Hz) can throw an unwrap started there whole turns off.
     """
     ph = frf.phase_deg(ch)
     coh = frf.coherence(ch)
     good = np.ones(ph.size, bool) if coh is None or threshold is None else coh >= threshold
-    i = int(np.flatnonzero(good)[0]) if np.any(good) else 0
+    if not np.any(good):
+        good[:] = True
+    centre = 0.5 * (np.log(frf.freq_hz[0]) + np.log(frf.freq_hz[-1]))
+    candidates = np.flatnonzero(good)
+    i = int(candidates[np.argmin(np.abs(np.log(frf.freq_hz[candidates]) - centre))])
     return ph - 360.0 * np.round(ph[i] / 360.0)
 
 
@@ -49,7 +53,7 @@ def _align_phase(phase_deg: np.ndarray, freq_hz: np.ndarray, ref_phase_deg: np.n
 
 
 def bode_plot(
-    frf: FrequencyResponse,
+    frf: FrequencyResponse | None,
     *,
     stepped: FrequencyResponse | None = None,
     reference: FrequencyResponse | None = None,
@@ -62,8 +66,9 @@ def bode_plot(
 
     Parameters
     ----------
-    frf : FrequencyResponse
-        The swept-sine (or any) measurement, drawn as lines.
+    frf : FrequencyResponse or None
+        The swept-sine (or any) measurement, drawn as lines; None to draw
+        only ``stepped``.
     stepped : FrequencyResponse, optional
         Stepped-sine points, drawn as markers on the same axes.
     reference : FrequencyResponse, optional
@@ -81,14 +86,17 @@ def bode_plot(
     """
     from matplotlib.figure import Figure
 
-    channels = [ch for ch in CHANNELS if ch in frf.channels or (stepped is not None and ch in stepped.channels)]
+    if frf is None and stepped is None:
+        raise ValueError("bode_plot needs frf or stepped")
+    present = set(frf.channels if frf is not None else ()) | set(stepped.channels if stepped is not None else ())
+    channels = [ch for ch in CHANNELS if ch in present]
     fig = Figure(figsize=(4.6 * len(channels), 8.6), layout="constrained")
     axes = fig.subplots(3, len(channels), sharex="col", squeeze=False, gridspec_kw={"height_ratios": [3, 2.2, 1.2]})
     for j, ch in enumerate(channels):
         name, unit = CHANNEL_LABELS[ch]
         ax_mag, ax_ph, ax_coh = axes[:, j]
         ref_phase = None
-        if ch in frf.channels:
+        if frf is not None and ch in frf.channels:
             ref_phase = _anchored_phase(frf, ch, coherence_threshold)
             coh = frf.coherence(ch)
             mag = frf.magnitude_db(ch)
