@@ -19,7 +19,6 @@ Run ``PYTHONPATH=src python experiments/manual_vs_optimized/run.py [--data FRF.c
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
@@ -32,7 +31,7 @@ from samii.identify.notebook_loop import nelder_mead_loop
 from samii.identify.report import params_markdown
 from samii.identify.starts import solve_gains
 from samii.identify.structures import ModelStructure
-from samii.identify.studies import manual_vs_optimized, study_data, to_notebook_units
+from samii.identify.studies import manual_vs_optimized, study_setup, to_notebook_units
 from samii.viz.fit_plot import plot_fit_overlay, plot_model_error, save_figure
 
 HERE = Path(__file__).resolve().parent
@@ -40,13 +39,7 @@ BAND = nb.EQ1_4_FIT_RANGE_HZ
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", help="FRF CSV to use instead of the synthetic stand-in")
-    ap.add_argument("--out", default=HERE / "out", type=Path)
-    args = ap.parse_args()
-    args.out.mkdir(parents=True, exist_ok=True)
-
-    data, clean, note = study_data(args.data)
+    out, data, clean, note = study_setup(__doc__.splitlines()[0], HERE / "out")
     st = ModelStructure.notebook_2mode()
     t = time.perf_counter()
     study = manual_vs_optimized(data, band_hz=BAND, rng=np.random.default_rng(0))
@@ -62,15 +55,15 @@ def main() -> None:
     models = {
         "manual, eq 1.3": (st, study.manual),
         "notebook optimised, eq 1.4": (st, study.notebook_optimized),
-        f"notebook procedure (Nelder-Mead loop) on these data": (st, nm_params),
+        "notebook procedure (Nelder-Mead loop) on these data": (st, nm_params),
         "samii fit on these data": res,
     }
-    save_figure(plot_fit_overlay(data, models, band_hz=BAND, title="Manual vs optimised 2-mode fit (notebook ch. 1, fig. 1.5/1.6)", note=note), args.out / "bode_overlay.png")
+    save_figure(plot_fit_overlay(data, models, band_hz=BAND, title="Manual vs optimised 2-mode fit (notebook ch. 1, fig. 1.5/1.6)", note=note), out / "bode_overlay.png")
     reference = clean if clean is not None else data
     what = "model - noise-free stand-in" if clean is not None else "model - data"
     ref_problem = FitProblem(reference, st, phase_weight=0.0)
     errors = {k: ref_problem.errors(st.vector(m.params if hasattr(m, "params") else m[1])) for k, m in models.items()}
-    save_figure(plot_model_error(reference.freq_hz, errors, band_hz=BAND, title="2-mode models", note=note, what=what), args.out / "model_error.png")
+    save_figure(plot_model_error(reference.freq_hz, errors, band_hz=BAND, title="2-mode models", note=note, what=what), out / "model_error.png")
 
     cost = {
         "manual eq 1.3": study.cost_manual,
@@ -102,8 +95,8 @@ def main() -> None:
         + params_markdown(cols, st.param_names, stderr={"samii": to_notebook_units(res.stderr)}, extra_rows=extra)
         + "\nsamii warnings: " + ("; ".join(res.warnings) or "none") + "\n"
     )
-    (args.out / "table.md").write_text(text)
-    (args.out / "results.json").write_text(json.dumps({"note": note, "cost": cost, "time_s": {"notebook_procedure": t_nm, "samii": t_samii}, "samii": res.to_dict(), "notebook_procedure": {"params": nm_params, "loops": loop.loops, "criterion_met": loop.criterion_met}}, indent=1) + "\n")
+    (out / "table.md").write_text(text)
+    (out / "results.json").write_text(json.dumps({"note": note, "cost": cost, "time_s": {"notebook_procedure": t_nm, "samii": t_samii}, "samii": res.to_dict(), "notebook_procedure": {"params": nm_params, "loops": loop.loops, "criterion_met": loop.criterion_met}}, indent=1) + "\n")
     for k, v in cost.items():
         print(f"{k:>20}: cost {v:.5g}")
     print(f"time: notebook procedure {t_nm:.3g} s, samii {t_samii:.3g} s")

@@ -17,7 +17,6 @@ Run ``PYTHONPATH=src python experiments/phase_weight_sweep/run.py [--data FRF.cs
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
@@ -25,26 +24,20 @@ import numpy as np
 
 from samii import notebook as nb
 from samii.identify.cost import FitProblem
-from samii.identify.report import params_markdown
-from samii.identify.studies import NOTEBOOK_PHASE_WEIGHTS, phase_weight_sweep, study_data, to_notebook_units
+from samii.identify.report import fits_markdown, params_markdown
+from samii.identify.studies import NOTEBOOK_PHASE_WEIGHTS, phase_weight_sweep, study_setup, to_notebook_units
 from samii.viz.fit_plot import plot_fit_overlay, plot_model_error, plot_panels, plot_parameter_sweep, save_figure
 
 HERE = Path(__file__).resolve().parent
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", help="FRF CSV to use instead of the synthetic stand-in")
-    ap.add_argument("--out", default=HERE / "out", type=Path)
-    args = ap.parse_args()
-    args.out.mkdir(parents=True, exist_ok=True)
-
-    data, clean, note = study_data(args.data)
+    out, data, clean, note = study_setup(__doc__.splitlines()[0], HERE / "out")
     fits = phase_weight_sweep(data, weights=NOTEBOOK_PHASE_WEIGHTS, rng=np.random.default_rng(0))
     st = fits[0].structure
     label = {r.phase_weight: f"pw {r.phase_weight:g}" for r in fits}
 
-    save_figure(plot_fit_overlay(data, {label[r.phase_weight]: r for r in fits}, title="Phase-weight sweep, 3-mode s⁴ model (notebook ch. 9, fig. 9.13/9.14)", note=note), args.out / "bode_overlay.png")
+    save_figure(plot_fit_overlay(data, {label[r.phase_weight]: r for r in fits}, title="Phase-weight sweep, 3-mode s⁴ model (notebook ch. 9, fig. 9.13/9.14)", note=note), out / "bode_overlay.png")
 
     reference = clean if clean is not None else data
     what = "model - noise-free stand-in" if clean is not None else "model - data"
@@ -52,40 +45,32 @@ def main() -> None:
     for r in fits:
         e = FitProblem(reference, st, phase_weight=r.phase_weight).errors(st.vector(r.params))
         errors[label[r.phase_weight]] = e
-    save_figure(plot_model_error(reference.freq_hz, errors, title="Where each phase weight puts the error", note=note, what=what), args.out / "model_error.png")
+    save_figure(plot_model_error(reference.freq_hz, errors, title="Where each phase weight puts the error", note=note, what=what), out / "model_error.png")
 
     pws = [r.phase_weight for r in fits]
     rms = {k: {c: [float(np.sqrt(np.mean(errors[label[w]][c][i] ** 2))) for w in pws] for c in fits[0].channels} for i, k in enumerate(("RMS magnitude error [dB]", "RMS phase error [deg]"))}
-    save_figure(plot_panels(pws, rms, xlabel="phase weight", title=f"Magnitude traded for phase: RMS of {what}, 0.1-40 Hz", note=note), args.out / "rms_vs_weight.png")
+    save_figure(plot_panels(pws, rms, xlabel="phase weight", title=f"Magnitude traded for phase: RMS of {what}, 0.1-40 Hz", note=note), out / "rms_vs_weight.png")
 
     nbu = [to_notebook_units(r.params) for r in fits]
     nbse = [to_notebook_units(r.stderr) for r in fits]
     ref = {n: [nb.EQ9_FITS[w][n] for w in pws] for n in st.param_names} if all(w in nb.EQ9_FITS for w in pws) else None
     save_figure(
         plot_parameter_sweep(pws, nbu, nbse, st.param_names, xlabel="phase weight", reference=ref, reference_label="notebook eq 9.3-9.12 (its own data)", title="Parameters against phase weight (notebook units: θ in deg assumed)", note=note),
-        args.out / "parameters.png",
+        out / "parameters.png",
     )
 
-    cols = {f"samii pw {w:g}": p for w, p in zip(pws, nbu)}
-    ses = {f"samii pw {w:g}": s for w, s in zip(pws, nbse)}
-    extra = {
-        "cost": {f"samii pw {r.phase_weight:g}": f"{r.cost:.5g}" for r in fits},
-        "converged": {f"samii pw {r.phase_weight:g}": str(r.converged) for r in fits},
-        "RMS act [dB / deg]": {f"samii pw {r.phase_weight:g}": f"{r.rms_mag_db['act']:.3g} / {r.rms_phase_deg['act']:.3g}" for r in fits},
-        "RMS base [dB / deg]": {f"samii pw {r.phase_weight:g}": f"{r.rms_mag_db['base']:.3g} / {r.rms_phase_deg['base']:.3g}" for r in fits},
-    }
     nb_cols = {f"notebook pw {w:g}": dict(nb.EQ9_FITS[w]) for w in pws if w in nb.EQ9_FITS}
     text = (
         "# Phase-weight sweep (notebook chapter 9)\n\n"
         f"{note}\n\n"
         "Parameters in the notebook's units (theta assumed in degrees: K1 x 180/pi, B x pi/180 from SI); "
         "samii values with 95 % intervals (sandwich covariance).\n\n"
-        + params_markdown(cols, st.param_names, stderr=ses, extra_rows=extra)
+        + fits_markdown({f"samii pw {r.phase_weight:g}": r for r in fits}, convert=to_notebook_units)
         + "\nThe notebook's own fits of its measured data (eq 9.3-9.12), for comparison of trends only:\n\n"
         + params_markdown(nb_cols, st.param_names)
     )
-    (args.out / "table.md").write_text(text)
-    (args.out / "results.json").write_text(json.dumps({"note": note, "fits": [r.to_dict() for r in fits]}, indent=1) + "\n")
+    (out / "table.md").write_text(text)
+    (out / "results.json").write_text(json.dumps({"note": note, "fits": [r.to_dict() for r in fits]}, indent=1) + "\n")
     for r in fits:
         print(f"pw {r.phase_weight:g}: cost {r.cost:.5g}, converged {r.converged}, RMS act {r.rms_mag_db['act']:.3g} dB / {r.rms_phase_deg['act']:.3g} deg, base {r.rms_mag_db['base']:.3g} dB / {r.rms_phase_deg['base']:.3g} deg, tau {r.params['tau']:.4g}")
 

@@ -21,14 +21,13 @@ sine needs to confirm s^4, not which model the rig follows). Run
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
 import numpy as np
 
-from samii.identify.report import params_markdown
-from samii.identify.studies import STANDIN_SEED, s2_vs_s4, study_data, synthetic_rig_frf, to_notebook_units
+from samii.identify.report import fits_markdown
+from samii.identify.studies import STANDIN_SEED, s2_vs_s4, study_setup, synthetic_rig_frf, to_notebook_units
 from samii.viz.fit_plot import plot_fit_overlay, plot_panels, save_figure
 
 HERE = Path(__file__).resolve().parent
@@ -38,18 +37,12 @@ POINTS_PER_DECADE = 154  # the stand-in's density: 400 points over 0.1-40 Hz
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", help="FRF CSV to use instead of the synthetic stand-in (skips the bandwidth study)")
-    ap.add_argument("--out", default=HERE / "out", type=Path)
-    args = ap.parse_args()
-    args.out.mkdir(parents=True, exist_ok=True)
-
-    data, clean, note = study_data(args.data)
+    out, data, clean, note = study_setup(__doc__.splitlines()[0], HERE / "out")
     fits = s2_vs_s4(data, phase_weight=PW, rng=np.random.default_rng(0))
     channels = tuple(c for c in ("act", "base", "total") if c in data.channels)
     save_figure(
         plot_fit_overlay(data, {f"{k} fit": r for k, r in fits.items()}, channels=channels, model_span_hz=(data.freq_hz[0], 100.0), title="s² vs s⁴ numerator, 3 modes, phase weight 0.1 (notebook ch. 4, fig. 4.1-4.3); models drawn to 100 Hz", note=note),
-        args.out / "bode_overlay.png",
+        out / "bode_overlay.png",
     )
 
     summary = {"note": note, "fits": {k: r.to_dict() for k, r in fits.items()}}
@@ -67,22 +60,14 @@ def main() -> None:
             "RMS base error [dB]": {k: [r[f"rms_base_db_{k}"] for r in rows] for k in ("s2", "s4")},
             "RMS base error [deg]": {k: [r[f"rms_base_deg_{k}"] for r in rows] for k in ("s2", "s4")},
         }
-        save_figure(plot_panels(edges, panels, xlabel="upper edge of the swept sine [Hz]", logx=True, title="How much band tells s² from s⁴ (fits to stand-in data 0.1 Hz - edge; errors against the data)", note=note), args.out / "bandwidth.png")
+        save_figure(plot_panels(edges, panels, xlabel="upper edge of the swept sine [Hz]", logx=True, title="How much band tells s² from s⁴ (fits to stand-in data 0.1 Hz - edge; errors against the data)", note=note), out / "bandwidth.png")
 
-    st = fits["s4"].structure
-    cols = {f"{k} fit": to_notebook_units(r.params) for k, r in fits.items()}
-    ses = {f"{k} fit": to_notebook_units(r.stderr) for k, r in fits.items()}
-    extra = {
-        "cost": {f"{k} fit": f"{r.cost:.5g}" for k, r in fits.items()},
-        "converged": {f"{k} fit": str(r.converged) for k, r in fits.items()},
-        **{f"RMS {c} [dB / deg]": {f"{k} fit": f"{r.rms_mag_db[c]:.3g} / {r.rms_phase_deg[c]:.3g}" for k, r in fits.items()} for c in fits["s4"].channels},
-    }
     text = (
         "# s^2 vs s^4 numerator (notebook chapter 4)\n\n"
         f"{note}\n\n"
         "3 modes, w2 = wz, phase weight 0.1, fitted to theta/v and xdd/theta. Parameters in the notebook's units (theta assumed in degrees; "
         "the s^2 model's B carry an extra s^2, so its B are not comparable with the s^4 ones); 95 % intervals.\n\n"
-        + params_markdown(cols, st.param_names, stderr=ses, extra_rows=extra)
+        + fits_markdown({f"{k} fit": r for k, r in fits.items()}, convert=to_notebook_units)
     )
     if "bandwidth" in summary:
         text += "\nBand needed (stand-in data 0.1 Hz to the edge, same density and noise):\n\n| edge [Hz] | cost s2 | cost s4 | ratio | RMS base s2 [dB / deg] | RMS base s4 [dB / deg] |\n|---|---|---|---|---|---|\n"
@@ -90,8 +75,8 @@ def main() -> None:
             text += f"| {r['f_max_hz']:g} | {r['cost_s2']:.5g} | {r['cost_s4']:.5g} | {r['cost_s2'] / r['cost_s4']:.3g} | {r['rms_base_db_s2']:.3g} / {r['rms_base_deg_s2']:.3g} | {r['rms_base_db_s4']:.3g} / {r['rms_base_deg_s4']:.3g} |\n"
     for k, r in fits.items():
         text += f"\n{k} warnings: " + ("; ".join(r.warnings) or "none") + "\n"
-    (args.out / "table.md").write_text(text)
-    (args.out / "results.json").write_text(json.dumps(summary, indent=1) + "\n")
+    (out / "table.md").write_text(text)
+    (out / "results.json").write_text(json.dumps(summary, indent=1) + "\n")
     for k, r in fits.items():
         print(f"{k}: cost {r.cost:.5g}, converged {r.converged}, RMS base {r.rms_mag_db['base']:.3g} dB / {r.rms_phase_deg['base']:.3g} deg")
     for r in summary.get("bandwidth", []):

@@ -1,10 +1,18 @@
 """Bounded least-squares fit of the notebook's models, with uncertainty and honest convergence.
 
 The residual vector and its analytic Jacobian come from ``FitProblem``
-(the notebook's cost); ``scipy.optimize.least_squares`` (trust-region
-reflective, bounds) minimises it from several starts. Internally positive
-parameters are optimised as logarithms (so the solver works in relative
-steps) and gains as multiples of their start.
+(the notebook's cost); ``scipy.optimize.least_squares`` minimises it from
+several starts: Levenberg-Marquardt, or trust-region reflective with the box
+``BOUNDS`` when LM's answer leaves it. Internally positive parameters are
+optimised as logarithms (positive by construction; the solver works in
+relative steps) and gains as multiples of their start. Every start is first
+moved onto the data's resonance peaks (``starts.snap_to_peaks``): a mode
+frequency tens of percent off otherwise leads into the wrong basin.
+
+Convergence is reported as the solver's status together with the notebook's
+own test (every coefficient and the cost changing by less than 0.01 %),
+applied to the solver's last two iterates, and with how many starts reached
+the best cost.
 
 Uncertainty: the covariance is the sandwich ``A J' V J A`` with
 ``A = (J'J)^-1``, which is right for the notebook's unweighted cost when the

@@ -7,12 +7,12 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Callable, Mapping, Sequence
 
 from samii.frequency_response import FrequencyResponse
 from samii.identify.fit import FitResult
 
-__all__ = ["CLI_KEYS", "summary_dict", "fit_filename", "write_fit_outputs", "params_markdown"]
+__all__ = ["CLI_KEYS", "summary_dict", "fit_filename", "write_fit_outputs", "params_markdown", "quality_rows", "fits_markdown"]
 
 #: Keys of ``samii fit --json`` (issue 5), then the phase weight and the warnings.
 CLI_KEYS = ("params", "stderr", "cost", "rms_mag_db", "rms_phase_deg", "converged", "message")
@@ -91,3 +91,20 @@ def params_markdown(columns: Mapping[str, Mapping[str, float]], names: Sequence[
     for row, vals in (extra_rows or {}).items():
         lines.append(f"| {row} | " + " | ".join(vals.get(lab, "") for lab in labels) + " |")
     return "\n".join(lines) + "\n"
+
+
+def quality_rows(fits: Mapping[str, FitResult]) -> dict[str, dict[str, str]]:
+    """Extra table rows for ``params_markdown``: cost, convergence and RMS errors of each labelled fit."""
+    rows = {"cost": {k: f"{r.cost:.5g}" for k, r in fits.items()}, "converged": {k: str(r.converged) for k, r in fits.items()}}
+    channels = next(iter(fits.values())).channels
+    for c in channels:
+        rows[f"RMS {c} [dB / deg]"] = {k: f"{r.rms_mag_db[c]:.3g} / {r.rms_phase_deg[c]:.3g}" for k, r in fits.items()}
+    return rows
+
+
+def fits_markdown(fits: Mapping[str, FitResult], *, convert: Callable[[Mapping[str, float]], Mapping[str, float]] = dict) -> str:
+    """``params_markdown`` of labelled fits (values and standard errors through ``convert``) with their quality rows."""
+    names = next(iter(fits.values())).structure.param_names
+    cols = {k: convert(r.params) for k, r in fits.items()}
+    ses = {k: convert(r.stderr) for k, r in fits.items()}
+    return params_markdown(cols, names, stderr=ses, extra_rows=quality_rows(fits))

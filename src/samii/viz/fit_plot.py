@@ -25,6 +25,16 @@ CHANNEL_LABELS: dict[str, tuple[str, str]] = {
 _LINESTYLES = ("-", "--")
 
 
+def _finish(fig, title: str | None, note: str | None, *, note_height: float):
+    """Title on top, provenance note in small print at the bottom, tight layout."""
+    if title:
+        fig.suptitle(title, fontsize=11)
+    if note:
+        fig.text(0.01, 0.005, note, fontsize=7, va="bottom", ha="left", color="0.25", wrap=True)
+    fig.tight_layout(rect=(0, note_height if note else 0, 1, 1))
+    return fig
+
+
 def _aligned_phase_deg(h: np.ndarray, ref_deg: np.ndarray | None) -> np.ndarray:
     """Unwrapped phase of ``h``, shifted by whole turns to sit nearest ``ref_deg`` (the data)."""
     ph = np.degrees(np.unwrap(np.angle(h)))
@@ -106,12 +116,7 @@ def plot_fit_overlay(
     axes[0, 0].legend(fontsize=8, loc="best")
     if band_hz is not None:
         axes[0, -1].text(0.99, 0.02, f"fit band {band_hz[0]:g}-{band_hz[1]:g} Hz (shaded)", transform=axes[0, -1].transAxes, ha="right", va="bottom", fontsize=7, color="tab:green")
-    if title:
-        fig.suptitle(title, fontsize=11)
-    if note:
-        fig.text(0.01, 0.005, note, fontsize=7, va="bottom", ha="left", color="0.25", wrap=True)
-    fig.tight_layout(rect=(0, 0.04 if note else 0, 1, 1))
-    return fig
+    return _finish(fig, title, note, note_height=0.04)
 
 
 def plot_model_error(
@@ -147,11 +152,7 @@ def plot_model_error(
             if band_hz is not None:
                 a.axvspan(*band_hz, color="tab:green", alpha=0.06, lw=0)
     axes[0, 0].legend(fontsize=8)
-    fig.suptitle(f"{title + ': ' if title else ''}{what}", fontsize=11)
-    if note:
-        fig.text(0.01, 0.005, note, fontsize=7, va="bottom", ha="left", color="0.25", wrap=True)
-    fig.tight_layout(rect=(0, 0.05 if note else 0, 1, 1))
-    return fig
+    return _finish(fig, f"{title + ': ' if title else ''}{what}", note, note_height=0.05)
 
 
 def plot_panels(
@@ -179,12 +180,7 @@ def plot_panels(
         a.set_ylabel(ylabel)
         a.grid(True, which="both", lw=0.3, alpha=0.6)
         a.legend(fontsize=8)
-    if title:
-        fig.suptitle(title, fontsize=11)
-    if note:
-        fig.text(0.01, 0.005, note, fontsize=7, va="bottom", ha="left", color="0.25", wrap=True)
-    fig.tight_layout(rect=(0, 0.06 if note else 0, 1, 1))
-    return fig
+    return _finish(fig, title, note, note_height=0.06)
 
 
 def plot_parameter_sweep(
@@ -232,12 +228,7 @@ def plot_parameter_sweep(
     for a in list(axes.flat)[n:]:
         a.set_visible(False)
     axes.flat[0].legend(fontsize=6)
-    if title:
-        fig.suptitle(title, fontsize=11)
-    if note:
-        fig.text(0.01, 0.005, note, fontsize=7, va="bottom", ha="left", color="0.25", wrap=True)
-    fig.tight_layout(rect=(0, 0.04 if note else 0, 1, 1))
-    return fig
+    return _finish(fig, title, note, note_height=0.04)
 
 
 def save_figure(fig, path, *, dpi: int = 110) -> None:
