@@ -10,16 +10,9 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from samii.frequency_response import Channel, FrequencyResponse
+from samii.viz.bode_plot import CHANNEL_LABELS
 
-__all__ = ["CHANNEL_LABELS", "plot_fit_overlay", "plot_model_error", "plot_parameter_sweep", "plot_panels", "save_figure"]
-
-#: (title, magnitude unit) of each channel (DATA_FORMATS.md).
-CHANNEL_LABELS: dict[str, tuple[str, str]] = {
-    "act": ("actuator θ/v", "rad/V"),
-    "base": ("flexible base ẍ/θ", "(m/s²)/rad"),
-    "total": ("ẍ/v", "(m/s²)/V"),
-}
-
+__all__ = ["plot_fit_overlay", "plot_model_error", "plot_parameter_sweep", "plot_panels", "save_figure"]
 
 #: Alternate solid and dashed lines so that curves lying on top of each other stay visible.
 _LINESTYLES = ("-", "--")
