@@ -50,7 +50,7 @@ COHERENCE_CLIP = (0.01, 0.999)
 Weighting = Literal["none", "coherence"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class FitProblem:
     """The data, the structure and the cost settings of one fit.
 

@@ -71,7 +71,7 @@ def _bounds(structure: ModelStructure) -> tuple[np.ndarray, np.ndarray]:
     return np.array(lo), np.array(hi)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class FitResult:
     """A fitted model with its uncertainty, quality and convergence report.
 

@@ -60,7 +60,7 @@ def percent_change(x_old: np.ndarray, x_new: np.ndarray, cost_old: float, cost_n
     return PercentChange(float(np.max(np.abs(px))), float(pc), tol_pct, bool(abs(cost_new) <= cost_floor))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class LoopResult:
     """Outcome of ``nelder_mead_loop``."""
 

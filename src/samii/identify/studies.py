@@ -153,7 +153,7 @@ def phase_weight_sweep(
     return tuple(fit(data, structure, phase_weight=float(w), band_hz=band_hz, start=start, rng=rng) for w in weights)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ManualVsOptimized:
     """Chapter 1 on given data: costs of the hand fit (eq 1.3), the notebook's optimum (eq 1.4) and samii's."""
 
