@@ -53,7 +53,8 @@ def test_small_amplitude_swept_sine_matches_the_linearised_simulator(model, smal
         keep = band & (frf.coherence(ch) > 0.95)
         assert keep.sum() > 0.9 * band.sum(), ch
         err_db, err_deg = _errors(frf, ref, ch, keep)
-        # measured: 0.09/0.56, 0.14/0.59, 0.18/1.04 (act, base, total); demand half the bounds
+        # measured (sign-alternating records): 0.06/0.36, 0.11/0.69, 0.11/0.69 dB/deg (act, base, total),
+        # every point of the band above coherence 0.95; demand half the bounds
         assert err_db < TOL_DB / 2 and err_deg < TOL_DEG / 2, (ch, err_db, err_deg)
 
 

@@ -155,3 +155,25 @@ def test_divergence_is_reported_not_written(model):
     fast = load_model(overrides={"timestep_s": 3e-3})  # beyond the stability limit 2/1207 s of the stiffest chain mode
     with pytest.raises(SimulationUnstable, match="diverged"):
         simulate(fast, np.full(20000, 5.0))
+
+
+def test_chunked_pipelined_run_equals_one_chunk(model):
+    """simulate() steps chunk k+1 on a worker thread while chunk k is handed on: same signals as one chunk."""
+    ctrl = 0.3 * np.sin(2 * np.pi * 3.0 * np.arange(3000) * model.opt.timestep)
+    one = simulate(model, ctrl, chunk_steps=3000, qpos_every=40)
+    seen = []
+    many = simulate(model, ctrl, chunk_steps=700, qpos_every=40, on_chunk=lambda c: seen.append(c.t.size))
+    assert seen == [700, 700, 700, 700, 200]
+    for name in ("t", "v", "theta", "accel", "p_load", "spool", "final_state", "frame_t", "frame_qpos"):
+        np.testing.assert_array_equal(getattr(many, name), getattr(one, name), err_msg=name)
+    # frame j is the state after step 40 j: at t = (40 j + 1) dt
+    assert many.frame_qpos.shape == (75, model.nq)
+    np.testing.assert_allclose(many.frame_t - one.t[0], (40 * np.arange(75) + 1) * model.opt.timestep, rtol=1e-12)
+
+
+def test_no_chunk_of_a_diverged_run_is_passed_on():
+    fast = load_model(overrides={"timestep_s": 3e-3})
+    seen = []
+    with pytest.raises(SimulationUnstable):
+        simulate(fast, np.full(20000, 5.0), chunk_steps=20000, on_chunk=seen.append)
+    assert seen == []

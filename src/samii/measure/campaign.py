@@ -11,19 +11,19 @@ actuator's ``ctrl`` and the simulator's signals are those a rig records.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
 from samii.frequency_response import FrequencyResponse
-from samii.measure.daq import DEFAULT_SAMPLE_RATE_HZ, SensorNoise, acquire
+from samii.measure.daq import DEFAULT_SAMPLE_RATE_HZ, Daq, SensorNoise, daq_timeseries
 from samii.measure.excitation import SteppedSine, SweptSine
 from samii.measure.frf import estimate_frf
 from samii.measure.stepped import estimate_stepped
 from samii.measure.timeseries import TimeSeries
 
-__all__ = ["Run", "Measurement", "simulate_excitation", "measure_swept", "measure_stepped", "linearised_frf"]
+__all__ = ["Run", "Measurement", "RECORDED_COLUMNS", "record", "measure_swept", "measure_stepped", "linearised_frf"]
 
 Progress = Callable[[int, int], None]
 
@@ -59,8 +59,34 @@ class Measurement:
     run: Run
 
 
-def simulate_excitation(model, excitation: SweptSine | SteppedSine, *, frame_steps: int | None = None, progress: Progress | None = None) -> Run:
-    """Run the simulator from its equilibrium with ``excitation`` on the valve command.
+def _physics_columns(chunk) -> dict[str, np.ndarray]:
+    """Time-series columns (DATA_FORMATS.md order) of one chunk of :func:`samii.sim.simulate.simulate`."""
+    return {"v": chunk.v, "theta": chunk.theta, "accel": chunk.accel, "r": chunk.ctrl,
+            "theta_ref": np.zeros(chunk.t.size), "p_load": chunk.p_load, "spool": chunk.spool}
+
+
+#: Columns of the recorded time series after ``t``.
+RECORDED_COLUMNS: tuple[str, ...] = ("v", "theta", "accel", "r", "theta_ref", "p_load", "spool")
+
+
+def record(
+    model,
+    excitation: SweptSine | SteppedSine,
+    *,
+    sample_rate_hz: float = DEFAULT_SAMPLE_RATE_HZ,
+    noise: SensorNoise | None = None,
+    rng: np.random.Generator | None = None,
+    timeseries_path=None,
+    overwrite: bool = False,
+    frame_steps: int | None = None,
+    progress: Progress | None = None,
+) -> tuple[Run, TimeSeries]:
+    """Run the simulator from its equilibrium with ``excitation`` on the valve command, and record it.
+
+    The DAQ samples each chunk of the run as it comes out of the simulator and,
+    with ``timeseries_path``, writes it to the time-series CSV while the next
+    chunk is stepped on the other core (as a rig's acquisition streams to disk).
+    The file appears only when the run has finished; a diverged run leaves none.
 
     Parameters
     ----------
@@ -68,60 +94,67 @@ def simulate_excitation(model, excitation: SweptSine | SteppedSine, *, frame_ste
         From :func:`samii.sim.model.load_model`.
     excitation : SweptSine or SteppedSine
         Evaluated at every physics step, for ``excitation.duration_s``.
+    sample_rate_hz, noise, rng
+        The DAQ (:class:`samii.measure.daq.Daq`).
+    timeseries_path : path-like, optional
+        Write the DAQ record there (DATA_FORMATS.md time-series CSV).
+    overwrite : bool
+        Replace an existing ``timeseries_path``.
     frame_steps : int, optional
-        Store qpos every this many steps (for animation); the run is then made
-        in chunks of that length, which costs ~0.2 ms per chunk.
+        Keep qpos every this many physics steps (for a Rerun animation).
     progress : callable(done_steps, total_steps), optional
+
+    Returns
+    -------
+    (Run, TimeSeries)
+        The physics-rate run and the DAQ record (metadata: source, DAQ and every
+        excitation setting).
+
+    Raises
+    ------
+    samii.sim.simulate.SimulationUnstable
+        If the run diverges; nothing is written.
     """
     import time
 
     import mujoco
 
+    from samii.measure.io import TimeSeriesCsvWriter
     from samii.sim.simulate import simulate
 
     dt = float(model.opt.timestep)
     n = int(round(excitation.duration_s / dt))
     ctrl = excitation.signal(np.arange(n) * dt)
-    data = mujoco.MjData(model)
+    daq = Daq(1.0 / dt, sample_rate_hz=sample_rate_hz, noise=noise, rng=rng)
+    meta = {"source": "samii simulator (MuJoCo + samii.hydraulic plugin)", "physics_timestep_s": f"{dt:g}"}
+    daq_meta = {**meta, **daq.metadata(), **{k: str(v) for k, v in excitation.describe().items()}}
+    writer = None
+    if timeseries_path is not None:
+        writer = TimeSeriesCsvWriter(timeseries_path, RECORDED_COLUMNS, daq_meta, overwrite=overwrite)
+    daq_t, daq_cols = [], []
+
+    def on_chunk(chunk) -> None:
+        # the DAQ clock starts at 0 with the run (the keyframe's own time is not the record's)
+        t, cols = daq.process(0.0, _physics_columns(chunk))
+        daq_t.append(t)
+        daq_cols.append(cols)
+        if writer is not None:
+            writer.write(t, cols)
+
     t0 = time.perf_counter()
-    if frame_steps is None:
-        res = simulate(model, ctrl, data=data, progress=progress)
-        parts, frames_t, frames_q = [res], None, None
-    else:
-        parts, frames_t, frames_q = [], [], []
-        state = None
-        nq = model.nq
-        for start in range(0, n, frame_steps):
-            res = simulate(model, ctrl[start : start + frame_steps], data=data, initial_state=state)
-            state = res.final_state
-            parts.append(res)
-            frames_t.append(state[0])
-            frames_q.append(state[1 : 1 + nq].copy())
-            if progress is not None:
-                progress(min(start + frame_steps, n), n)
-        frames_t, frames_q = np.asarray(frames_t), np.asarray(frames_q)
+    try:
+        res = simulate(model, ctrl, data=mujoco.MjData(model), progress=progress, on_chunk=on_chunk, qpos_every=frame_steps)
+        if writer is not None:
+            writer.close()
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
     wall = time.perf_counter() - t0
-    cat = {k: np.concatenate([getattr(p, k) for p in parts]) for k in ("t", "ctrl", "v", "theta", "accel", "p_load", "spool")}
-    physics = TimeSeries(
-        t=cat["t"] - cat["t"][0],
-        v=cat["v"],
-        theta=cat["theta"],
-        accel=cat["accel"],
-        r=cat["ctrl"],
-        theta_ref=np.zeros(n),
-        p_load=cat["p_load"],
-        spool=cat["spool"],
-        metadata={"source": "samii simulator (MuJoCo + samii.hydraulic plugin)", "physics_timestep_s": f"{dt:g}"},
-    )
-    return Run(physics, frames_t, frames_q, wall)
-
-
-def _acquire(run: Run, excitation, sample_rate_hz: float, noise: SensorNoise | None, rng) -> TimeSeries:
-    """DAQ record of ``run``, its metadata extended by every setting of the excitation."""
-    ts = acquire(run.physics, sample_rate_hz=sample_rate_hz, noise=noise, rng=rng)
-    meta = dict(ts.metadata)
-    meta.update({k: str(v) for k, v in excitation.describe().items()})
-    return replace(ts, metadata=meta)
+    physics = TimeSeries(t=res.t - res.t[0], **_physics_columns(res), metadata=meta)
+    ts = daq_timeseries(np.concatenate(daq_t), {k: np.concatenate([c[k] for c in daq_cols]) for k in RECORDED_COLUMNS}, daq_meta)
+    frame_t = None if res.frame_t is None else res.frame_t - res.t[0]
+    return Run(physics, frame_t, res.frame_qpos, wall), ts
 
 
 def measure_swept(
@@ -131,15 +164,19 @@ def measure_swept(
     sample_rate_hz: float = DEFAULT_SAMPLE_RATE_HZ,
     noise: SensorNoise | None = None,
     rng: np.random.Generator | None = None,
+    timeseries_path=None,
+    overwrite: bool = False,
     frame_steps: int | None = None,
     progress: Progress | None = None,
 ) -> Measurement:
     """Swept-sine Bode measurement of joint 2 in the simulator (issue 3, item 2-3).
 
-    Returns the DAQ time series and the instrument-variable FRF over the sweep band.
+    Returns the DAQ time series and the instrument-variable FRF over the sweep
+    band; with ``timeseries_path`` the record is streamed to that CSV as it is
+    made (see :func:`record`).
     """
-    run = simulate_excitation(model, sweep, frame_steps=frame_steps, progress=progress)
-    ts = _acquire(run, sweep, sample_rate_hz, noise, rng)
+    run, ts = record(model, sweep, sample_rate_hz=sample_rate_hz, noise=noise, rng=rng, timeseries_path=timeseries_path,
+                     overwrite=overwrite, frame_steps=frame_steps, progress=progress)
     frf = estimate_frf(ts, record_s=sweep.record_s, baseline_s=sweep.lead_s, band_hz=(sweep.start_hz, sweep.stop_hz))
     return Measurement(ts, frf, run)
 
@@ -151,12 +188,17 @@ def measure_stepped(
     sample_rate_hz: float = DEFAULT_SAMPLE_RATE_HZ,
     noise: SensorNoise | None = None,
     rng: np.random.Generator | None = None,
+    timeseries_path=None,
+    overwrite: bool = False,
     frame_steps: int | None = None,
     progress: Progress | None = None,
 ) -> Measurement:
-    """Stepped-sine measurement at ``stepped.freqs_hz`` in the simulator (issue 3, item 4)."""
-    run = simulate_excitation(model, stepped, frame_steps=frame_steps, progress=progress)
-    ts = _acquire(run, stepped, sample_rate_hz, noise, rng)
+    """Stepped-sine measurement at ``stepped.freqs_hz`` in the simulator (issue 3, item 4).
+
+    ``timeseries_path`` streams the record to that CSV as it is made (see :func:`record`).
+    """
+    run, ts = record(model, stepped, sample_rate_hz=sample_rate_hz, noise=noise, rng=rng, timeseries_path=timeseries_path,
+                     overwrite=overwrite, frame_steps=frame_steps, progress=progress)
     frf = estimate_stepped(ts, freqs_hz=stepped.freqs_hz, windows_s=stepped.windows_s)
     return Measurement(ts, frf, run)
 

@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
 
     from samii.measure.daq import SensorNoise
     from samii.measure.excitation import SteppedSine, SweptSine
-    from samii.measure.io import write_frf_csv, write_timeseries_csv
+    from samii.measure.io import write_frf_csv
 
     t_start = time.perf_counter()
     out = Path(args.out)
@@ -147,16 +147,26 @@ def run(args: argparse.Namespace) -> int:
 
     from samii.sim.simulate import SimulationUnstable
 
+    # the first measurement's record is timeseries.csv; the stepped one of --method both is timeseries_stepped.csv
+    ts_names = {kind: ("timeseries.csv" if i == 0 else f"timeseries_{kind}.csv") for i, (kind, _) in enumerate(plan)}
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
     results = {}
     try:
         for kind, excitation in plan:
             fn = measure_swept if kind == "swept" else measure_stepped
-            results[kind] = fn(model, excitation, sample_rate_hz=args.sample_rate_hz, noise=noise, rng=rng, frame_steps=frame_steps, progress=progress)
+            results[kind] = fn(model, excitation, sample_rate_hz=args.sample_rate_hz, noise=noise, rng=rng, frame_steps=frame_steps,
+                               progress=progress, timeseries_path=out / ts_names[kind], overwrite=args.overwrite)
+            written.append(out / ts_names[kind])
             offset[0] += int(round(excitation.duration_s / dt))
     except SimulationUnstable as exc:
         bar.close()
         print(f"samii measure: error: {exc}", file=sys.stderr)
         return 3
+    except FileExistsError as exc:  # a file appeared in --out meanwhile
+        bar.close()
+        print(f"samii measure: error: {exc}", file=sys.stderr)
+        return 2
     bar.close()
     sim_wall = sum(r.run.wall_s for r in results.values())
     simulated_s = sum(e.duration_s for _, e in plan)
@@ -167,12 +177,8 @@ def run(args: argparse.Namespace) -> int:
         ref_grid = np.geomspace(min(main.frf.freq_hz[0], 0.1), max(main.frf.freq_hz[-1], 40.0), 400)
         reference = linearised_frf(model, ref_grid)
         ref_at = linearised_frf(model, main.frf.freq_hz)
-    out.mkdir(parents=True, exist_ok=True)
-    written = []
-    written.append(write_timeseries_csv(main.timeseries, out / "timeseries.csv", overwrite=args.overwrite))
     written.append(write_frf_csv(main.frf, out / "frf.csv", overwrite=args.overwrite))
     if args.method == "both":
-        written.append(write_timeseries_csv(results["stepped"].timeseries, out / "timeseries_stepped.csv", overwrite=args.overwrite))
         written.append(write_frf_csv(results["stepped"].frf, out / "frf_stepped.csv", overwrite=args.overwrite))
 
     from samii.viz.bode_plot import bode_plot

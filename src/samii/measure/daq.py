@@ -17,7 +17,7 @@ from scipy import signal
 
 from samii.measure.timeseries import TimeSeries
 
-__all__ = ["SensorNoise", "acquire", "DEFAULT_SAMPLE_RATE_HZ"]
+__all__ = ["SensorNoise", "Daq", "acquire", "daq_timeseries", "DEFAULT_SAMPLE_RATE_HZ"]
 
 #: Rig DAQ rate [Hz] (issue 3): 25 samples per period at the top of the 40 Hz band.
 DEFAULT_SAMPLE_RATE_HZ = 1000.0
@@ -66,6 +66,116 @@ class SensorNoise:
         return {"v": self.v_v, "theta": self.theta_rad, "accel": self.accel_m_s2, "p_load": self.p_load_pa, "spool": self.spool}
 
 
+class Daq:
+    """A DAQ that samples a record chunk by chunk, as a rig's acquisition does.
+
+    Every channel passes the same causal anti-alias filter, started at the
+    first sample's value (the operating point), is sampled every ``q``-th
+    physics sample, and optionally gets white noise. Filter state, sampling
+    phase and noise streams carry over between chunks, so the record does not
+    depend on how it was cut: ``acquire`` is this with one chunk.
+
+    Parameters
+    ----------
+    physics_rate_hz : float
+        Rate of the signals fed in; an integer multiple of ``sample_rate_hz``.
+    sample_rate_hz : float
+        DAQ rate [Hz].
+    noise : SensorNoise, optional
+        White noise added after sampling; None for none.
+    rng : numpy.random.Generator
+        Required with ``noise``; the caller seeds it. Each noisy channel draws
+        from its own stream spawned from it (in the order of ``SensorNoise.std``).
+    """
+
+    def __init__(
+        self,
+        physics_rate_hz: float,
+        *,
+        sample_rate_hz: float = DEFAULT_SAMPLE_RATE_HZ,
+        noise: SensorNoise | None = None,
+        rng: np.random.Generator | None = None,
+    ) -> None:
+        if not (np.isfinite(sample_rate_hz) and sample_rate_hz > 0):
+            raise ValueError(f"sample_rate_hz must be positive, got {sample_rate_hz!r}")
+        ratio = physics_rate_hz / sample_rate_hz
+        q = int(round(ratio))
+        if q < 1 or abs(ratio - q) > 1e-6 * ratio:
+            raise ValueError(
+                f"the physics rate {physics_rate_hz:.9g} Hz must be an integer multiple of the DAQ rate "
+                f"{sample_rate_hz:.9g} Hz (ratio {ratio:.6g})"
+            )
+        if noise is not None and rng is None:
+            raise ValueError("sensor noise needs a seeded numpy Generator: pass rng=np.random.default_rng(seed)")
+        self.sample_rate_hz = float(sample_rate_hz)
+        self.noise = noise
+        self._q = q
+        self.cutoff_hz = _AA_CUTOFF_RATIO * sample_rate_hz
+        self._sos = signal.butter(_AA_ORDER, self.cutoff_hz, fs=physics_rate_hz, output="sos")
+        self._zi: np.ndarray | None = None
+        self._names: list[str] | None = None
+        self._phase = 0  # physics samples to skip before the next DAQ sample
+        self._t0: float | None = None
+        self._count = 0  # DAQ samples produced so far
+        self._streams = {}
+        if noise is not None:
+            stds = {k: v for k, v in noise.std().items() if v > 0}
+            self._streams = dict(zip(stds, rng.spawn(len(stds))))
+
+    def metadata(self) -> dict[str, str]:
+        """What a record from this DAQ says about it (DATA_FORMATS.md metadata lines)."""
+        noise = self.noise
+        return {
+            "sample_rate_hz": f"{self.sample_rate_hz:g}",
+            "antialias": f"Butterworth order {_AA_ORDER}, {self.cutoff_hz:g} Hz, causal, every channel, before sampling",
+            "sensor_noise": "none" if noise is None else ", ".join(f"{k} {v:g}" for k, v in noise.std().items()) + " (std, SI)",
+        }
+
+    def process(self, t0_s: float, columns: dict[str, np.ndarray]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Filter and sample one chunk of physics-rate ``columns`` (the same names every call).
+
+        ``t0_s`` is the time of the chunk's first sample; only the first call's is
+        used (the DAQ clock runs from there). Returns the DAQ times and columns.
+        """
+        names = list(columns)
+        if self._names is None:
+            self._names = names
+            self._t0 = float(t0_s)
+        elif names != self._names:
+            raise ValueError(f"a DAQ chunk must have the columns {self._names}, got {names}")
+        stack = np.vstack([np.asarray(columns[k], float) for k in names])
+        if self._zi is None:  # steady state for the first sample: start at the operating point
+            self._zi = signal.sosfilt_zi(self._sos)[:, None, :] * stack[None, :, 0, None]
+        filtered, self._zi = signal.sosfilt(self._sos, stack, axis=-1, zi=self._zi)
+        sampled = filtered[:, self._phase :: self._q]
+        self._phase = (self._phase - stack.shape[1]) % self._q
+        m = sampled.shape[1]
+        t = self._t0 + np.arange(self._count, self._count + m) / self.sample_rate_hz
+        self._count += m
+        out = dict(zip(names, sampled))
+        if self.noise is not None:
+            for name, stream in self._streams.items():
+                if name in out:
+                    out[name] = out[name] + stream.normal(0.0, getattr(self.noise, _NOISE_FIELD[name]), m)
+            if "spool" in out:
+                out["spool"] = np.clip(out["spool"], -1.0, 1.0)
+        return t, out
+
+
+#: SensorNoise field by time-series column.
+_NOISE_FIELD = {"v": "v_v", "theta": "theta_rad", "accel": "accel_m_s2", "p_load": "p_load_pa", "spool": "spool"}
+
+#: Time-series fields of TimeSeries (the rest go to ``extra``).
+_STANDARD = ("v", "theta", "accel", "r", "theta_ref", "p_load", "spool")
+
+
+def daq_timeseries(t: np.ndarray, columns: dict[str, np.ndarray], metadata: dict[str, str]) -> TimeSeries:
+    """A TimeSeries from DAQ output columns (standard names as fields, the rest as ``extra``)."""
+    cols = dict(columns)
+    standard = {k: cols.pop(k) for k in list(cols) if k in _STANDARD}
+    return TimeSeries(t=t, **standard, extra=cols, metadata=metadata)
+
+
 def acquire(
     physics: TimeSeries,
     *,
@@ -93,40 +203,8 @@ def acquire(
         Every column of ``physics`` (extra columns too) at the DAQ rate, starting
         at ``physics.t[0]``; metadata gains ``sample_rate_hz``, ``antialias`` and ``sensor_noise``.
     """
-    if not (np.isfinite(sample_rate_hz) and sample_rate_hz > 0):
-        raise ValueError(f"sample_rate_hz must be positive, got {sample_rate_hz!r}")
-    ratio = physics.sample_rate_hz / sample_rate_hz
-    q = int(round(ratio))
-    if q < 1 or abs(ratio - q) > 1e-6 * ratio:
-        raise ValueError(
-            f"the physics rate {physics.sample_rate_hz:.9g} Hz must be an integer multiple of the DAQ rate "
-            f"{sample_rate_hz:.9g} Hz (ratio {ratio:.6g})"
-        )
-    if noise is not None and rng is None:
-        raise ValueError("sensor noise needs a seeded numpy Generator: pass rng=np.random.default_rng(seed)")
-
-    cutoff_hz = _AA_CUTOFF_RATIO * sample_rate_hz
-    sos = signal.butter(_AA_ORDER, cutoff_hz, fs=physics.sample_rate_hz, output="sos")
-    zi_unit = signal.sosfilt_zi(sos)  # steady state for a unit input: start at the operating point
-
+    daq = Daq(physics.sample_rate_hz, sample_rate_hz=sample_rate_hz, noise=noise, rng=rng)
     columns = physics.columns()
-    del columns["t"]
-    names = list(columns)
-    stack = np.vstack([columns[n] for n in names])
-    zi = zi_unit[:, None, :] * stack[None, :, 0, None]  # (sections, channels, 2)
-    filtered, _ = signal.sosfilt(sos, stack, axis=-1, zi=zi)
-    sampled = filtered[:, ::q]
-    t = physics.t[0] + np.arange(sampled.shape[1]) / sample_rate_hz
-    out = dict(zip(names, sampled))
-    if noise is not None:
-        for name, std in noise.std().items():
-            if name in out and std > 0:
-                out[name] = out[name] + rng.normal(0.0, std, out[name].size)
-        if "spool" in out:
-            out["spool"] = np.clip(out["spool"], -1.0, 1.0)
-    meta = dict(physics.metadata)
-    meta["sample_rate_hz"] = f"{sample_rate_hz:g}"
-    meta["antialias"] = f"Butterworth order {_AA_ORDER}, {cutoff_hz:g} Hz, causal, every channel, before sampling"
-    meta["sensor_noise"] = "none" if noise is None else ", ".join(f"{k} {v:g}" for k, v in noise.std().items()) + " (std, SI)"
-    standard = {k: out.pop(k) for k in list(out) if k in ("v", "theta", "accel", "r", "theta_ref", "p_load", "spool")}
-    return TimeSeries(t=t, **standard, extra=out, metadata=meta)
+    t0 = float(columns.pop("t")[0])
+    t, out = daq.process(t0, columns)
+    return daq_timeseries(t, out, {**physics.metadata, **daq.metadata()})

@@ -21,11 +21,19 @@ frequencies are given, by a direct Fourier sum at exactly those frequencies.
 Each record's operating point (the mean over the rest before its sweep) is
 subtracted first. Cross-spectra are summed over the records (the averages).
 
+Sign-alternating records. When the records repeat one excitation with signs
+s_k = +-1 (``SweptSine.alternate_sign``), the sum is weighted, ``w_k = 1/(2 n+)``
+for positive and ``1/(2 n-)`` for negative records (the smallest-variance
+weights with sum w_k s_k = 0): the linear response keeps its sign in R*Y, an
+even-order distortion changes it, so it cancels from the estimate. For 3
+records (+, -, +) the weights are 1/4, 1/2, 1/4. Otherwise records weigh alike.
+
 Coherence. For the instrument-variable estimate the relevant coherence is that
 between the excitation and each signal, ``g_ry = |sum R* Y|^2 / (sum |R|^2 sum |Y|^2)``
-over the records. It measures how repeatable the part of ``y`` at that
-frequency is from record to record: sensor noise and other disturbances lower
-it, a repeatable nonlinear distortion does not (the sweeps are identical). A
+over the records (weighted as above). It measures how much of ``y`` at that
+frequency follows the excitation linearly: sensor noise and other disturbances
+lower it, and so does an even-order distortion when the records alternate in
+sign; a distortion repeated identically in every record does not. A
 channel's coherence is the product of those of its numerator and denominator,
 because the relative variance of a ratio is the sum of those of its two
 cross-spectra, ``(1 - g) / g`` each, to first order. With a single record the
@@ -40,7 +48,7 @@ import scipy.fft
 from samii.frequency_response import FrequencyResponse
 from samii.measure.timeseries import TimeSeries
 
-__all__ = ["estimate_frf", "split_records", "fourier_at", "log_frequency_grid"]
+__all__ = ["estimate_frf", "split_records", "record_weights", "fourier_at", "log_frequency_grid"]
 
 # Output grid density: 100 points per decade puts >= 2 points inside the
 # half-power band of the lightest-damped base mode (2 zeta = 6 % wide, mode 1, eq 9.4).
@@ -88,6 +96,33 @@ def split_records(ts: TimeSeries, *, record_s: float, baseline_s: float) -> tupl
             rec = rec - rec[:, :n_base].mean(axis=1, keepdims=True)
         records[name] = rec
     return records, n_records
+
+
+def record_weights(r_records: np.ndarray) -> tuple[np.ndarray, str]:
+    """Weights of the records in the averaged cross-spectra, and how they were chosen.
+
+    Records that repeat the first one's excitation up to sign (normalised
+    correlation above 0.999 in magnitude) with both signs present get weights
+    that cancel even-order distortion (module docstring); otherwise all weigh 1/N.
+    """
+    n = r_records.shape[0]
+    uniform = np.full(n, 1.0 / n)
+    if n < 2:
+        return uniform, "one record"
+    ref = r_records[0]
+    norms = np.linalg.norm(r_records, axis=1)
+    if norms[0] == 0 or np.any(norms == 0):
+        return uniform, "uniform"
+    corr = r_records @ ref / (norms * norms[0])
+    if np.any(np.abs(np.abs(corr) - 1.0) > 1e-3):
+        return uniform, "uniform (records are not one excitation repeated)"
+    signs = np.sign(corr)
+    n_pos, n_neg = int(np.sum(signs > 0)), int(np.sum(signs < 0))
+    if n_neg == 0:
+        return uniform, "uniform (records repeat one excitation with one sign)"
+    w = np.where(signs > 0, 0.5 / n_pos, 0.5 / n_neg)
+    pattern = "".join("+" if x > 0 else "-" for x in signs)
+    return w, f"signs {pattern}, weights {', '.join(f'{x:.4g}' for x in w)}: even-order distortion cancels"
 
 
 def fourier_at(x: np.ndarray, freqs_hz: np.ndarray, sample_rate_hz: float) -> np.ndarray:
@@ -166,21 +201,23 @@ def estimate_frf(
         spectra = {k: fourier_at(x, freqs, fs) for k, x in records.items()}
         grid = "direct Fourier sums at the requested frequencies"
 
+    w, weighting = record_weights(records["r"])
+    w = w[:, None]
     R = spectra["r"]
-    s_rr = np.sum(np.abs(R) ** 2, axis=0)
+    s_rr = np.sum(w * np.abs(R) ** 2, axis=0)
     # Parseval: the mean of |R(f)|^2 over all frequencies is sum r^2. A sweep puts
     # |R(f)|^2 >~ sum r^2 inside its band (0.1-40 Hz: from 1x at 40 Hz to 3000x at 0.1 Hz).
-    weak = s_rr < _MIN_EXCITATION * np.sum(records["r"] ** 2)
+    weak = s_rr < _MIN_EXCITATION * np.sum(w * records["r"] ** 2)
     if np.any(weak):
         raise ValueError(
             f"the excitation r has no energy at {np.round(freqs[weak][:5], 4).tolist()} Hz (more than 40 dB below "
             "its mean spectral level); estimate only inside the excited band"
         )
-    cross = {k: np.sum(np.conj(R) * spectra[k], axis=0) for k in ("v", "theta", "accel")}
+    cross = {k: np.sum(w * np.conj(R) * spectra[k], axis=0) for k in ("v", "theta", "accel")}
     coh = {}
     if n_records >= 2:
         for k in ("v", "theta", "accel"):
-            s_yy = np.sum(np.abs(spectra[k]) ** 2, axis=0)
+            s_yy = np.sum(w * np.abs(spectra[k]) ** 2, axis=0)
             with np.errstate(invalid="ignore", divide="ignore"):
                 g = np.abs(cross[k]) ** 2 / (s_rr * s_yy)
             coh[k] = np.clip(np.nan_to_num(g, nan=0.0), 0.0, 1.0)  # y == 0 exactly: no coherent signal
@@ -195,9 +232,10 @@ def estimate_frf(
         {
             "frf_estimator": "instrument variable, excitation r: act=S_r,theta/S_r,v base=S_r,accel/S_r,theta total=S_r,accel/S_r,v",
             "frf_records": f"{n_records} records of {n_rec / fs:.6g} s (one per sweep repetition), cross-spectra summed over records",
+            "frf_record_weights": weighting,
             "frf_window": f"rectangular over each whole rest-to-rest record; operating point = mean of the first {baseline_s:g} s of each record, subtracted",
             "frf_grid": grid,
-            "frf_coherence": "g_ry=|sum R*Y|^2/(sum|R|^2 sum|Y|^2) over records; channel = g_r,num * g_r,den"
+            "frf_coherence": "g_ry=|sum w R*Y|^2/(sum w|R|^2 sum w|Y|^2) over records; channel = g_r,num * g_r,den"
             if coh
             else "not estimated (one record)",
         }

@@ -34,6 +34,8 @@ class SimResult:
     p_load: np.ndarray  #: Pa, load pressure
     spool: np.ndarray  #: -1...1, spool position
     final_state: np.ndarray  #: mjSTATE_FULLPHYSICS after the last step (to continue a run)
+    frame_t: np.ndarray | None = None  #: s, times of the kept qpos frames (``qpos_every``)
+    frame_qpos: np.ndarray | None = None  #: (frames, nq) joint positions at ``frame_t``
 
     @property
     def dt_s(self) -> float:
@@ -53,8 +55,14 @@ def simulate(
     initial_state: np.ndarray | None = None,
     chunk_steps: int = 20000,
     progress: Callable[[int, int], None] | None = None,
+    on_chunk: Callable[[SimResult], None] | None = None,
+    qpos_every: int | None = None,
 ) -> SimResult:
     """Run ``len(ctrl_v)`` physics steps applying ``ctrl_v[k]`` during step k.
+
+    The steps run in chunks of ``mujoco.rollout`` on a worker thread (rollout
+    releases the GIL), so whatever ``on_chunk`` does with chunk k (a DAQ
+    writing to disk, say) runs on the other core while chunk k+1 is stepped.
 
     Parameters
     ----------
@@ -70,12 +78,20 @@ def simulate(
         (static equilibrium).
     chunk_steps : int
         Steps per rollout call (``progress(done, total)`` is called after each).
+    on_chunk : callable(SimResult), optional
+        Called in the calling thread with each chunk's signals, in order, while
+        the next chunk is stepped. Chunks of a diverged run are never passed on.
+    qpos_every : int, optional
+        Keep ``qpos`` every this many steps (for an animation): ``frame_t`` and
+        ``frame_qpos`` of the result.
 
     Raises
     ------
     SimulationUnstable
         If the state becomes non-finite or MuJoCo reports a bad acceleration.
     """
+    from concurrent.futures import ThreadPoolExecutor
+
     from samii.sim.model import ACTUATOR, make_data
     from samii.sim.plugin import hydraulic_params
 
@@ -84,6 +100,10 @@ def simulate(
         raise ValueError(f"ctrl_v must be a non-empty 1-D array of volts, got shape {ctrl_v.shape}")
     if not np.all(np.isfinite(ctrl_v)):
         raise ValueError(f"ctrl_v has a NaN or infinite value at step {int(np.flatnonzero(~np.isfinite(ctrl_v))[0])}")
+    if chunk_steps < 1:
+        raise ValueError(f"chunk_steps must be >= 1, got {chunk_steps}")
+    if qpos_every is not None and qpos_every < 1:
+        raise ValueError(f"qpos_every must be >= 1, got {qpos_every}")
     if data is None:
         data = make_data(model)
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
@@ -96,47 +116,63 @@ def simulate(
 
     act_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, ACTUATOR)
     act_adr = int(model.actuator_actadr[act_id])
-    qpos_start = 1  # FULLPHYSICS layout: time, qpos, qvel, act, ...
-    act_start = 1 + model.nq + model.nv
+    act_start = 1 + model.nq + model.nv  # FULLPHYSICS layout: time, qpos, qvel, act, ...
     theta_sensor = int(model.sensor_adr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, "theta")])
     accel_sensor = int(model.sensor_adr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, "base_accel")]) + 2
     hp = hydraulic_params(model, ACTUATOR)
-
+    dt = float(model.opt.timestep)
+    g_offset = tip_accel_offset(model)
     n = ctrl_v.size
-    states = np.empty((n, nstate))
-    sensors = np.empty((n, model.nsensordata))
+    out = {k: np.empty(n) for k in ("v", "theta", "accel", "p_load", "spool")}
+    frames_t, frames_q = [], []
     warn_before = int(data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number)
-    state = initial_state
-    done = 0
-    while done < n:
-        k = min(chunk_steps, n - done)
-        s, sd = mujoco.rollout.rollout(model, data, state[None, :], ctrl_v[None, done : done + k, None])
-        states[done : done + k] = s[0]
-        sensors[done : done + k] = sd[0]
-        state = s[0, -1]
-        bad = not np.all(np.isfinite(state)) or int(data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number) > warn_before
-        if bad:
-            t_bad = float(initial_state[0] + (done + k) * model.opt.timestep)
-            raise SimulationUnstable(f"simulation diverged before t = {t_bad:.4g} s (non-finite state or bad acceleration); no result written")
-        done += k
-        if progress is not None:
-            progress(done, n)
 
-    # state before step k: the initial state, then the state after step k-1
-    before = np.vstack([initial_state[None, :], states[:-1]])
-    spool = before[:, act_start + act_adr]
-    p_load = before[:, act_start + act_adr + 1] * hp.supply_pressure
-    theta_abs = sensors[:, theta_sensor]
-    v = np.clip(ctrl_v + hp.position_gain * (hp.reference_angle - theta_abs), -10.0, 10.0)
-    t = initial_state[0] + np.arange(n) * model.opt.timestep
-    del qpos_start
+    def step(state: np.ndarray, lo: int, hi: int):
+        return mujoco.rollout.rollout(model, data, state[None, :], ctrl_v[None, lo:hi, None])
+
+    bounds = [(lo, min(lo + chunk_steps, n)) for lo in range(0, n, chunk_steps)]
+    state = initial_state
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="samii-rollout") as pool:
+        pending = pool.submit(step, state, *bounds[0])
+        for i, (lo, hi) in enumerate(bounds):
+            s, sd = pending.result()
+            s, sd = s[0], sd[0]
+            last = s[-1]
+            if not np.all(np.isfinite(last)) or int(data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number) > warn_before:
+                t_bad = float(initial_state[0] + hi * dt)
+                raise SimulationUnstable(f"simulation diverged before t = {t_bad:.4g} s (non-finite state or bad acceleration); no result written")
+            if i + 1 < len(bounds):
+                pending = pool.submit(step, last, *bounds[i + 1])
+            # the state before step k: the chunk's start state, then the state after step k-1
+            before = np.vstack([state[None, :], s[:-1]])
+            theta_abs = sd[:, theta_sensor]
+            chunk = SimResult(
+                t=initial_state[0] + np.arange(lo, hi) * dt,
+                ctrl=ctrl_v[lo:hi].copy(),
+                v=np.clip(ctrl_v[lo:hi] + hp.position_gain * (hp.reference_angle - theta_abs), -10.0, 10.0),
+                theta=theta_abs - hp.reference_angle,
+                accel=sd[:, accel_sensor] - g_offset,
+                p_load=before[:, act_start + act_adr + 1] * hp.supply_pressure,
+                spool=before[:, act_start + act_adr],
+                final_state=last.copy(),
+            )
+            for k in out:
+                out[k][lo:hi] = getattr(chunk, k)
+            if qpos_every is not None:
+                rows = np.arange(-lo % qpos_every, hi - lo, qpos_every)  # states after steps 0, q, 2q, ...
+                frames_t.append(s[rows, 0])
+                frames_q.append(s[rows, 1 : 1 + model.nq])
+            state = last
+            if on_chunk is not None:
+                on_chunk(chunk)
+            if progress is not None:
+                progress(hi, n)
+
     return SimResult(
-        t=t,
+        t=initial_state[0] + np.arange(n) * dt,
         ctrl=ctrl_v.copy(),
-        v=v,
-        theta=theta_abs - hp.reference_angle,
-        accel=sensors[:, accel_sensor] - tip_accel_offset(model),
-        p_load=p_load,
-        spool=spool,
+        **out,
         final_state=state.copy(),
+        frame_t=np.concatenate(frames_t) if qpos_every is not None else None,
+        frame_qpos=np.concatenate(frames_q) if qpos_every is not None else None,
     )
