@@ -14,6 +14,10 @@ hinges: two half-length end bodies and n-1 full-length bodies, each with the
 mass and rotary inertia of its piece of beam. A clamp hinge with a torsional
 spring and damper at x = 0 models the clamp (public TMM chain: clamp
 torsional spring/damper -> beam -> l0 -> joint 1 spring/damper -> l1 -> joint 2 -> l2).
+Optionally the clamp is a standard linear solid: a Maxwell arm (spring k2 in
+series with damper c2) parallel to the clamp spring, built from a massless-ish
+internal node (a hinge to the world with joint damping c2) and a fixed tendon
+clamp - node with stiffness k2; see ``BeamParams`` and the model card.
 
 Geometry: beam along +x, horizontal, clamped at the origin; bending in the
 vertical x-z plane (hinge axes along y), the plane joint 2 swings in at the
@@ -49,8 +53,16 @@ class BeamParams:
     #: with EI = 339134.5 N m^2 and 5.7281 kg/m has I/A = a^2/6 (thin wall) =
     #: 1.70e-6/7.30e-4 -> a = 0.118 m.
     section_side_m: float = 0.118
+    #: Relaxed (static) stiffness k1 of the clamp and a parallel viscous damper.
     clamp_stiffness_Nm_rad: float = 3.0e5
     clamp_damping_Nms_rad: float = 300.0
+    #: Maxwell arm of a standard-linear-solid clamp (viscoelastic bolted clamp and
+    #: foundation): spring k2 in series with a damper c2 = k2 * relaxation time,
+    #: in parallel with k1. Its loss k2 w tau / (1 + (w tau)^2) peaks at w = 1/tau,
+    #: so placed near mode 1 it damps mode 1 far more than mode 3. 0 = off (no
+    #: Maxwell node in the MJCF: the plain spring-damper clamp).
+    clamp_maxwell_stiffness_Nm_rad: float = 0.0
+    clamp_relaxation_time_s: float = 1.0 / 10.886
     #: Stiffness-proportional damping of the beam hinges: c = beta * k [s].
     beam_damping_time_s: float = 2.0e-4
 
@@ -60,7 +72,7 @@ class BeamParams:
             if f.name == "n_segments":
                 if not isinstance(v, (int, np.integer)) or v < 1:
                     raise ValueError(f"n_segments must be a positive integer, got {v!r}")
-            elif not (math.isfinite(v) and v >= 0) or (v == 0 and f.name not in ("clamp_damping_Nms_rad", "beam_damping_time_s")):
+            elif not (math.isfinite(v) and v >= 0) or (v == 0 and f.name not in ("clamp_damping_Nms_rad", "beam_damping_time_s", "clamp_maxwell_stiffness_Nm_rad")):
                 raise ValueError(f"beam parameter {f.name} must be finite and positive, got {v!r}")
 
 
@@ -121,6 +133,15 @@ _WRIST = (
     ("link5", 0.06, 0.05),
     ("link6", 0.06, 0.05),
 )
+
+
+#: Rotary inertia [kg m^2] of the Maxwell node of the standard-linear-solid clamp
+#: (joint armature; the body itself carries 1e-6 of it). The node is an internal
+#: state of the clamp material, not a mass: its only pole of its own is -c2/J
+#: (about 2.4e5 rad/s for the tuned c2 = 2438 N m s/rad), far above every mode that matters. With
+#: implicitfast the joint damping c2 is integrated implicitly and the node's
+#: discrete step is stable for any J as long as dt < 2 c2/k2 (= 2 x relaxation time).
+MAXWELL_NODE_INERTIA_KGM2 = 0.01
 
 
 def _fmt(x: float) -> str:
@@ -289,8 +310,28 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     for i in range(n + 1):
         indent = indent[:-2]
         add(f"{indent}</body>")
+    maxwell = b.clamp_maxwell_stiffness_Nm_rad > 0
+    if maxwell:
+        k2 = b.clamp_maxwell_stiffness_Nm_rad
+        c2 = k2 * b.clamp_relaxation_time_s
+        j_body = 1e-6
+        add("    <!-- standard-linear-solid clamp: the Maxwell arm's internal node (damper c2 to the wall),")
+        add("         joined to the clamp hinge by the tendon spring k2 below; no geom, not a physical mass -->")
+        add('    <body name="clamp_maxwell_node" childclass="samii">')
+        add(f'      <joint name="clamp_maxwell" damping="{_fmt(c2)}" armature="{_fmt(MAXWELL_NODE_INERTIA_KGM2 - j_body)}"/>')
+        add(f'      <inertial pos="0 0 0" mass="1e-3" diaginertia="{_vec(j_body, j_body, j_body)}"/>')
+        add("    </body>")
     add("  </worldbody>")
     add("")
+    if maxwell:
+        add("  <tendon>")
+        add(f"    <!-- Maxwell spring k2 between the clamp hinge and the node: length q_clamp - q_node; relaxation time c2/k2 = {_fmt(b.clamp_relaxation_time_s)} s -->")
+        add(f'    <fixed name="clamp_maxwell" stiffness="{_fmt(k2)}" springlength="0">')
+        add('      <joint joint="clamp" coef="1"/>')
+        add('      <joint joint="clamp_maxwell" coef="-1"/>')
+        add("    </fixed>")
+        add("  </tendon>")
+        add("")
     add("  <actuator>")
     add('    <plugin name="joint2" joint="joint2" plugin="samii.hydraulic" actdim="2" ctrlrange="-10 10">')
     hyd_units = {
@@ -309,9 +350,9 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     add('    <framelinacc name="base_accel" objtype="site" objname="base_accel"/>')
     add("  </sensor>")
     add("")
-    nq = (n + 1) + 6
+    nq = (n + 1) + 6 + (1 if maxwell else 0)
     if keyframe_qpos is None:
-        keyframe_qpos = [0.0] * (n + 1) + list(NOMINAL_POSE_RAD)
+        keyframe_qpos = [0.0] * (n + 1) + list(NOMINAL_POSE_RAD) + ([0.0] if maxwell else [])
     if keyframe_act is None:
         keyframe_act = [0.0, 0.0]
     if len(keyframe_qpos) != nq:
