@@ -139,27 +139,71 @@ def test_compensator_zeros_and_poles_are_eq10():
         assert np.min(np.abs(cl - z)) < 2e-3 * abs(z)
 
 
-def test_gain_rule_and_the_notebooks_gain():
+def _theta_loop_pair_zetas(num_c, den_c, K):
+    """Damping ratios of the moving closed-loop pairs of 1 + K Gc G_cl = 0, slowest first.
+
+    Independent of samii.design.cancel: roots of the characteristic polynomial
+    den_c den_cl + K num_c num_cl, G_cl = eq 9.4 actuator under unity feedback;
+    poles within 1 % of a cancelled pole (eq 10.1, 10.2) are left out.
+    """
+    g_cl = control.feedback(nb.actuator_tf(nb.EQ9_4), 1)
+    char = np.polyadd(np.polymul(den_c, g_cl.den[0][0]), K * np.polymul(num_c, g_cl.num[0][0]))
+    r = np.roots(char)
+    cancelled = np.array(nb.EQ10_1 + nb.EQ10_2)
+    pairs = sorted((x for x in r if x.imag > 1e-6 and np.min(np.abs(cancelled - x)) > 1e-2 * abs(x)), key=abs)
+    return np.array([-x.real / abs(x) for x in pairs])
+
+
+def test_gain_rule_pins_our_value():
     d = cn.design_pole_cancel(nb.EQ9_4, loop="theta")
-    slow = min((z for z in d.closed_loop if z.imag > 1 and np.min(np.abs(d.zeros - z)) > 1e-3), key=abs)
-    assert -slow.real / abs(slow) == pytest.approx(0.7, abs=1e-9)
-    assert d.gain == pytest.approx(nb.EQ10_GAIN, rel=0.1)  # the notebook read 0.0666 off the plot
-    at_nb = cn.design_pole_cancel(nb.EQ9_4, loop="theta", gain=nb.EQ10_GAIN).closed_loop
-    zetas = sorted(-z.real / abs(z) for z in at_nb if z.imag > 1)
-    assert sum(abs(z - 0.7) < 0.015 for z in zetas) == 2  # "closed loop poles with damping of approximately 0.7"
+    # the rule: smallest K at which the slowest moving pair of 1 + K Gc G_cl = 0 has zeta 0.7. By the
+    # characteristic polynomial (not cancel.py) on a 1e-5 grid from 0.06 to 0.08 the slowest pair's zeta
+    # crosses 0.7 once, between K = 0.07211 and 0.07212 (it falls monotonically with K): K = 0.07212
+    num, den = d.Gc.num[0][0], d.Gc.den[0][0]
+    ks = np.arange(0.06, 0.08, 1e-5)
+    z1 = np.array([_theta_loop_pair_zetas(num, den, k)[0] for k in ks])
+    assert np.all(np.diff(z1) < 0)
+    crossing = ks[np.flatnonzero(z1 <= 0.7)[0]]
+    assert d.gain == pytest.approx(crossing, abs=1e-5)
+    assert d.gain == pytest.approx(0.07212, abs=1e-4)
+    assert _theta_loop_pair_zetas(num, den, d.gain)[0] == pytest.approx(0.7, abs=1e-9)
+    # 8.3 % above the notebook's 0.0666: beyond its printed precision, explained by the seed report
+    assert (d.gain - nb.EQ10_GAIN) / nb.EQ10_GAIN == pytest.approx(0.083, abs=1e-3)
+
+
+def test_zetas_at_the_notebooks_gain():
+    # the notebook's K = 0.0666 (chapter 10) on its own printed eq 10.9 polynomials: four moving pairs,
+    # slowest first. These are the numbers the seed report quotes (0.711, 0.514, 0.698, 0.954): two are
+    # "approximately 0.7", pair 2 is not
+    z = _theta_loop_pair_zetas(np.array(nb.EQ10_9_NUM), np.array(nb.EQ10_9_DEN), nb.EQ10_GAIN)
+    np.testing.assert_allclose(z, [0.711, 0.514, 0.698, 0.954], atol=1e-3)
+    # and through samii.design.cancel with the unrounded compensator, within the printed-coefficient effect
+    zc = cn.pair_zetas(cn.design_pole_cancel(nb.EQ9_4, loop="theta").open_loop, nb.EQ10_GAIN)
+    np.testing.assert_allclose(zc, z, atol=3e-4)
+
+
+def test_cancel_controller_tracks_theta_ref_with_unit_dc_gain_by_default(eq94):
+    d = cn.design_pole_cancel(nb.EQ9_4, loop="theta")
+    plant = _sampled_plant(eq94)
+    dc = control.dcgain(_loop(plant, d.controller(sample_time_s=T)))
+    assert dc[0] == pytest.approx(1.0, abs=1e-6)
+    # without the prefilter the loop as drawn settles at K Gc(0) / (1 + K Gc(0)) = 1 / reference_gain (0.143)
+    dc_raw = control.dcgain(_loop(plant, d.controller(sample_time_s=T, scale_reference=False)))
+    assert dc_raw[0] == pytest.approx(1 / d.reference_gain, rel=1e-5)
+    assert dc_raw[0] == pytest.approx(0.143, abs=5e-4)
 
 
 @pytest.mark.parametrize("loop", ["theta", "accel"])
 def test_cancel_controller_matches_prediction_and_keeps_cancellation(eq94, loop):
     d = cn.design_pole_cancel(nb.EQ9_4, loop=loop)
-    c = d.controller(sample_time_s=T, scale_reference=(loop == "theta"))
+    c = d.controller(sample_time_s=T)  # default: theta_ref scaled for unit DC gain
     plant = _sampled_plant(eq94)
     lp, run = _check_matches_prediction(plant, c, n=4000)
     # matched discretisation: the compensator zeros sit exactly on the sampled plant's poles
     zc = np.linalg.eigvals(np.asarray(c.A))
     assert zc.size == 6
     if loop == "theta":
-        assert run[-1, 0] == pytest.approx(1.0, abs=1e-3)  # with the reference prefilter
+        assert run[-1, 0] == pytest.approx(1.0, abs=1e-3)  # the default reference prefilter
         # theta_ref -> accel has no lightly damped mode left: the response has decayed by 4 s
         assert np.max(np.abs(run[-500:, 1])) < 1e-3 * np.max(np.abs(run[:, 1]))
 
@@ -203,15 +247,3 @@ def test_bad_measurements_are_named():
         c.step({"theta_ref": 0.0, "theta": float("nan"), "accel": 0.0})
     with pytest.raises(ValueError, match="not measurements"):
         ctl.LinearController([[0.0]], [[1.0]], [[1.0]], [[0.0]], sample_time_s=T, inputs=("torque",))
-
-
-def test_step_is_cheap(eq14):
-    import time
-
-    c = pl.design_placement(eq14, sample_time_s=T).controller()
-    m = {"theta_ref": 0.0, "theta": 0.0, "accel": 0.0}  # open loop: a nonzero input would grow without bound
-    t0 = time.perf_counter()
-    for _ in range(2000):
-        c.step(m)
-    per_step = (time.perf_counter() - t0) / 2000
-    assert per_step < 1e-4  # far below the 1 ms sample time

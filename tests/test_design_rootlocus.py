@@ -118,6 +118,46 @@ def test_as_built_notebook_finding_holds():
         assert not s.beats_no_feedback and s.best_ratio < 1.02
 
 
+def test_cancelled_mode_is_excluded_and_does_not_cap_the_ratio():
+    # eq 1.3: z1 = 0.05, zz = 0.06. Counting the fixed mode 2 would cap every ratio at 0.06/0.05 = 1.2
+    s = rl.summarize(_loop(variant="lowpass_2hz"), n_gains=600)
+    assert s.excluded_modes == (2,)
+    assert s.open_loop_min_moving_zeta == pytest.approx(nb.EQ1_3_MANUAL["z1"], rel=1e-9)
+    m1 = s.modes[0]
+    assert m1.ratio == pytest.approx(m1.best_zeta / nb.EQ1_3_MANUAL["z1"], rel=1e-12)
+    assert m1.best_zeta == m1.best_zeta_neg and m1.best_gain < 0  # only K_a < 0 (notebook's K_a > 0) helps
+    # the balanced optimum is bounded by mode 1's own best and, no longer capped, far above 1.2
+    assert 0.06 / 0.05 < 4.0 < s.best_ratio <= m1.ratio * (1 + 1e-9)
+    assert s.negative.min_moving_zeta == pytest.approx(s.negative.mode_zetas[0], rel=1e-12)
+    d = s.as_dict()
+    assert [e["mode"] for e in d["excluded_modes"]] == [2] and "cancellation" in d["excluded_modes"][0]["reason"]
+    assert d["modes"][0]["best_ratio_vs_open_loop"] == pytest.approx(m1.ratio)
+    integ = rl.summarize(_loop(variant="integrator_actuator"), n_gains=300)
+    assert integ.excluded_modes == ()
+
+
+def test_verdicts_per_variant_on_eq1_3():
+    # the notebook's finding ("no K_a of either sign beats none") on chapter 2's model, variant by variant
+    holds = {v: not rl.summarize(_loop(variant=v), n_gains=400).beats_no_feedback for v in VARIANTS}
+    assert holds == {
+        "as_built": True,
+        "integrator_actuator": True,
+        "position_sensor": True,
+        "integrator_and_position": False,
+        "lowpass_2hz": False,
+        "lowpass_4hz": False,
+        "bandpass": False,
+    }
+
+
+def test_sign_intervals_and_stability_limit():
+    ivs = ((-76.18, 133.9), (2.48e4, np.inf))  # eq1.3_s4 position sensor, shape of summary.md
+    assert rl.intervals_of_sign(ivs, 1) == ((0.0, 133.9), (2.48e4, np.inf))
+    assert rl.intervals_of_sign(ivs, -1) == ((-76.18, 0.0),)
+    assert rl.stability_limit(ivs, 1) == 133.9 and rl.stability_limit(ivs, -1) == -76.18
+    assert np.isnan(rl.stability_limit(((1.0, 2.0),), 1))
+
+
 def test_filters_are_unity_gain_butterworth():
     lp = rl.AccelFilter("lowpass", (2.0,)).tf()
     assert abs(lp(1j * 2 * np.pi * 2.0)) == pytest.approx(2**-0.5, rel=1e-9)

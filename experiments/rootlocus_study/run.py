@@ -13,7 +13,7 @@ Models (see ``samii.design.rootlocus.default_models``):
 
 Writes into ``out/``: ``summary.md`` (table), ``summary.json`` (everything),
 and ``rlocus_<model>_<variant>.png`` (K_a > 0 and < 0, full and zoomed) for the
-chapter 2/3 models. Run: ``python experiments/rootlocus_study/run.py`` (about 30 s).
+chapter 2/3 models. Run: ``python experiments/rootlocus_study/run.py`` (about 50 s); findings in README.md.
 """
 
 from __future__ import annotations
@@ -55,10 +55,20 @@ def verdicts(summaries) -> str:
     by_variant: dict[str, list] = {}
     for s in summaries:
         by_variant.setdefault(s.variant.name, []).append(s)
-    lines = ["", "Verdict per variant (holds = no K_a of either sign beats K_a = 0 by 10 % in least base-mode damping):", ""]
+    lines = [
+        "",
+        "Verdict per variant (holds = no stable K_a of either sign raises the least damping of the base modes the feedback",
+        f"can move by {100 * (rl.SIGNIFICANT_GAIN - 1):.0f} % without making another pole less damped than the least-damped one",
+        "without feedback). Excluded: " + rl.EXCLUSION_REASON + ".",
+        "",
+    ]
     for name, group in by_variant.items():
-        cells = ", ".join(f"{s.model}: {'holds' if not s.beats_no_feedback else f'does not hold ({s.best_ratio:.2f}x)'}" for s in group)
-        lines.append(f"- {name}: {cells}")
+        cells = []
+        for s in group:
+            verdict = "holds" if not s.beats_no_feedback else "does not hold"
+            excl = f", mode {', '.join(map(str, s.excluded_modes))} excluded" if s.excluded_modes else ""
+            cells.append(f"{s.model}: {verdict} ({s.best_ratio:.2f}x{excl})")
+        lines.append(f"- {name}: " + "; ".join(cells))
     return "\n".join(lines) + "\n"
 
 

@@ -44,6 +44,7 @@ __all__ = [
     "EQ8_1",
     "EQ8_2",
     "EQ8_3",
+    "EQ8_3_ZETA",
     "EQ10_1",
     "EQ10_2",
     "EQ10_3_HZ",
@@ -101,9 +102,13 @@ EQ9_4 = EQ9_FITS[0.1]
 EQ8_1 = (0.0, -188.5, -6.237 + 52.01j, -6.237 - 52.01j, -0.4361 + 10.55j, -0.4361 - 10.55j)
 #: Poles with unity theta feedback, eq 8.2.
 EQ8_2 = (-169.8, -2.986 + 51.56j, -2.986 - 51.56j, -25.19, -0.4361 + 10.55j, -0.4361 - 10.55j)
-#: Desired poles (complex poles moved to zeta 0.707 at the same magnitude), eq 8.3.
+#: Desired poles (complex poles of eq 8.2 moved to zeta 1/sqrt(2) at the same magnitude), eq 8.3.
 EQ8_3 = (-169.8, -36.52 - 36.52j, -36.52 + 36.52j, -25.19, -7.466 - 7.466j, -7.466 + 7.466j)
-EQ8_3_ZETA = 0.707
+#: Damping of eq 8.3. Not printed by the notebook (chapter 8 says only "a specified
+#: damping ratio"); derived: eq 8.3 prints equal real and imaginary parts, which
+#: only zeta = 1/sqrt(2) gives, and it reproduces every printed digit, while 0.707
+#: gives -36.5115 -+ 36.5226j and -7.4649 -+ 7.4671j (printed -36.52, -7.466).
+EQ8_3_ZETA = 1.0 / np.sqrt(2.0)
 
 # Chapter 10, computed by the notebook from eq 9.4 (3-mode model).
 #: Inner-loop (unity theta feedback) pair to cancel, eq 10.1.

@@ -22,15 +22,18 @@ outer unity theta loop::
     v = u - theta = K G_c (theta_ref - theta) - theta
     open loop K G_c G_cl;  closed loop theta/theta_ref = K G_c G_cl / (1 + K G_c G_cl)
 
-At K = 0.0666 two closed-loop pairs have zeta 0.711 and 0.698 (the notebook's
-"approximately 0.7"), and the compensator's zeros remove base modes 1 and 3
-and the inner-loop pair from theta_ref -> xdd entirely, which is the
+At the notebook's K = 0.0666 the four moving closed-loop pairs have zeta
+0.711, 0.514, 0.698 and 0.954 (slowest first): two of them are the
+notebook's "approximately 0.7". The compensator's zeros remove base modes 1
+and 3 and the inner-loop pair from theta_ref -> xdd entirely, which is the
 "input shaper" behaviour chapter 11 reports, including "not capable of
 quickly damping out a vibration disturbance" (no accelerometer in the loop).
-Its DC gain is ``K G_c(0) / (1 + K G_c(0))`` (0.134 at the notebook's values):
-theta settles short of theta_ref unless the reference is scaled, which the
-notebook does not mention; :attr:`PoleCancelDesign.reference_gain` gives the
-prefilter that restores a unit DC gain.
+The loop's DC gain is ``K G_c(0) / (1 + K G_c(0))`` (0.143 at our K, 0.133
+at the notebook's): theta settles short of theta_ref unless the reference is
+scaled, which the notebook does not mention. The runnable controller
+(:meth:`PoleCancelDesign.controller`) scales it by default so that theta
+tracks theta_ref with unit DC gain; :attr:`PoleCancelDesign.reference_gain`
+is that prefilter.
 
 ``"accel"``: ``K G_c`` as the filter of the chapter-2 mass-damping loop,
 ``theta = G_cl (theta_ref - K G_c xdd)`` (figure 10.2's caption reads "root
@@ -52,7 +55,7 @@ import numpy as np
 from scipy import optimize
 
 from samii import notebook as nb
-from samii.design.controller import NOTEBOOK_UNITS, LinearController, from_discrete_tf
+from samii.design.controller import NOTEBOOK_UNITS, LinearController, from_discrete_tf, from_discrete_zpk
 
 __all__ = [
     "CancelLoop",
@@ -62,6 +65,9 @@ __all__ = [
     "compensator",
     "cancel_open_loop",
     "closed_loop_poles",
+    "moving_pairs",
+    "pair_zetas",
+    "gain_at_zeta",
     "choose_gain",
     "PoleCancelDesign",
     "design_pole_cancel",
@@ -129,36 +135,85 @@ def closed_loop_poles(L: control.TransferFunction, K: float) -> np.ndarray:
     return np.linalg.eigvals(A - B @ (K / (1.0 + K * D[0, 0]) * C))
 
 
-def _moving_pairs(L: control.TransferFunction, K: float) -> np.ndarray:
-    """Upper-half-plane closed-loop poles at K that are not open-loop poles (cancelled ones stay put)."""
+def moving_pairs(L: control.TransferFunction, K: float, *, cancel_tol: float = 1e-6) -> np.ndarray:
+    """Upper-half-plane closed-loop poles of ``1 + K L = 0`` that are not open-loop poles, slowest first.
+
+    Poles cancelled by the compensator's zeros stay where they are for every K
+    and are left out (those within ``cancel_tol`` relative of an open-loop
+    pole; a compensator built from rounded coefficients cancels only
+    approximately and needs a looser tolerance, e.g. 1e-2). On the eq 9.4
+    "theta" loop there are three moving pairs below K ~ 0.004 and four above
+    (near 11, 36, 77 and 141 rad/s at K = 0.0666); their magnitudes stay
+    apart, so the rank by magnitude names a pair.
+    """
     ol = L.poles()
     cl = closed_loop_poles(L, K)
     cl = cl[cl.imag > 1e-9 * np.abs(cl)]
-    return np.array([x for x in cl if np.min(np.abs(ol - x)) > 1e-6 * abs(x)])
+    moving = np.array([x for x in cl if np.min(np.abs(ol - x)) > cancel_tol * abs(x)], complex)
+    return moving[np.argsort(np.abs(moving))]
+
+
+def pair_zetas(L: control.TransferFunction, K: float, *, cancel_tol: float = 1e-6) -> np.ndarray:
+    """Damping ratios of :func:`moving_pairs` at gain K, slowest pair first."""
+    p = moving_pairs(L, K, cancel_tol=cancel_tol)
+    return -p.real / np.abs(p)
+
+
+def gain_at_zeta(
+    L: control.TransferFunction,
+    zeta: float,
+    *,
+    pair: int | tuple[int, ...] = 0,
+    bracket: tuple[float, float] = (1e-6, 10.0),
+    cancel_tol: float = 1e-6,
+) -> float:
+    """Smallest K in ``bracket`` at which a moving pair's damping ratio crosses ``zeta``.
+
+    Parameters
+    ----------
+    pair : int or tuple of int
+        Rank of the pair by magnitude (0 = slowest, see :func:`moving_pairs`);
+        a tuple: the mean damping ratio of those pairs.
+    bracket : (float, float)
+        Gains scanned (400 log-spaced points, then Brent's method). A rank
+        is only meaningful where the number of pairs does not change.
+    cancel_tol : float
+        As :func:`moving_pairs`.
+
+    Raises
+    ------
+    ValueError
+        If the damping does not cross ``zeta`` in the bracket.
+    """
+    ranks = (pair,) if isinstance(pair, (int, np.integer)) else tuple(pair)
+
+    def f(K: float) -> float:
+        z = pair_zetas(L, K, cancel_tol=cancel_tol)
+        if z.size <= max(ranks):  # the pair has not split off the real axis yet: critically damped
+            return 1.0 - zeta
+        return float(np.mean(z[list(ranks)])) - zeta
+
+    ks = np.geomspace(bracket[0], bracket[1], 400)
+    vals = np.array([f(k) for k in ks])
+    idx = np.flatnonzero(np.sign(vals[:-1]) != np.sign(vals[1:]))
+    if idx.size == 0:
+        what = f"moving pair {pair}" if len(ranks) == 1 else f"the mean damping of moving pairs {ranks}"
+        raise ValueError(f"{what} does not reach zeta = {zeta} for {bracket[0]:g} <= K <= {bracket[1]:g}")
+    i = int(idx[0])
+    return float(optimize.brentq(f, ks[i], ks[i + 1], xtol=1e-12, rtol=1e-12))
 
 
 def choose_gain(L: control.TransferFunction, *, zeta: float = 0.7, k_max: float = 10.0) -> float:
-    """Smallest K > 0 at which the dominant moving closed-loop pair reaches damping ``zeta``.
+    """Smallest K > 0 at which the dominant (slowest) moving closed-loop pair reaches damping ``zeta``.
 
-    The dominant pair is the moving complex pair of smallest magnitude. The
-    replacement poles start critically damped (K = 0) and lose damping as K
-    grows; this is the notebook's rule made explicit. Found by bisection.
+    The replacement poles start critically damped (K = 0) and every pair
+    loses damping as K grows; the notebook chose its gain "so that the closed
+    loop poles have damping of approximately 0.7" on the root-locus plot.
+    This rule makes that explicit for the dominant pair. On eq 9.4 it gives
+    K = 0.07212 against the notebook's 0.0666; no rule we found reproduces
+    0.0666 (see :mod:`samii.design.seed_report`).
     """
-
-    def f(K: float) -> float:
-        pairs = _moving_pairs(L, K)
-        if pairs.size == 0:
-            return 1.0 - zeta
-        dom = pairs[np.argmin(np.abs(pairs))]
-        return -dom.real / abs(dom) - zeta
-
-    ks = np.geomspace(1e-6, k_max, 400)
-    vals = np.array([f(k) for k in ks])
-    idx = np.flatnonzero((vals[:-1] > 0) & (vals[1:] <= 0))
-    if idx.size == 0:
-        raise ValueError(f"the dominant pair never reaches zeta = {zeta} for 0 < K <= {k_max}")
-    i = int(idx[0])
-    return float(optimize.brentq(f, ks[i], ks[i + 1], xtol=1e-12, rtol=1e-12))
+    return gain_at_zeta(L, zeta, pair=0, bracket=(1e-6, k_max))
 
 
 @dataclass(frozen=True)
@@ -194,46 +249,85 @@ class PoleCancelDesign:
 
     @property
     def reference_gain(self) -> float:
-        """Prefilter on theta_ref that makes theta/theta_ref = 1 at DC (``"theta"`` loop; 1 for ``"accel"``)."""
+        """Prefilter on theta_ref that makes theta/theta_ref = 1 at DC (``"theta"`` loop; 1 for ``"accel"``).
+
+        ``(1 + K G_c(0)) / (K G_c(0))`` from the outer loop
+        ``theta/theta_ref = K G_c G_cl / (1 + K G_c G_cl)`` with ``G_cl(0) = 1``
+        (the actuator integrates).
+        """
         if self.loop == "accel":
             return 1.0
-        g0 = self.gain * float(np.real(control.dcgain(self.Gc)))
+        g0 = self.dc_gain
         return (1.0 + g0) / g0
+
+    @property
+    def dc_gain(self) -> float:
+        """``K G_c(0) = K prod(-z_i) / prod(-p_i)``, from the roots (the expanded polynomials lose digits)."""
+        return float(self.gain * np.real(np.prod(-self.zeros) / np.prod(-self.poles)))
 
     def controller(
         self,
         *,
         sample_time_s: float,
         method: Literal["matched", "zoh", "tustin"] = "matched",
-        scale_reference: bool = False,
+        scale_reference: bool = True,
         input_scale: Mapping[str, float] | None = None,
         model_units: str = NOTEBOOK_UNITS,
     ) -> LinearController:
         """The runnable controller; ``K G_c`` discretised by ``method``.
 
-        ``"matched"`` (pole-zero matching, ``z = exp(s T)`` for poles and zeros)
-        is the default because it keeps the cancellation exact: the ZOH model
-        of the plant has its poles at ``exp(p T)`` too.
+        Parameters
+        ----------
+        sample_time_s : float
+            Controller sample time [s].
+        method : {"matched", "zoh", "tustin"}
+            Discretisation of ``K G_c``. ``"matched"`` (pole-zero matching,
+            ``z = exp(s T)`` for poles and zeros) is the default because it
+            keeps the cancellation exact: the ZOH model of the plant has its
+            poles at ``exp(p T)`` too.
+        scale_reference : bool
+            ``"theta"`` loop only. True (default): multiply theta_ref by
+            ``r = (1 + K G_d(1)) / (K G_d(1))``, with ``G_d`` the discretised
+            compensator, so that the sampled loop's theta/theta_ref is exactly
+            1 at DC (``v = K G_d (r theta_ref - theta) - theta``; in steady
+            state the integrating actuator needs ``v = 0``). All three methods
+            keep the DC gain, so ``r`` is :attr:`reference_gain`. False: the
+            notebook's loop as drawn, whose theta settles at ``1 / r`` of
+            theta_ref (0.143 at K = 0.0721). The ``"accel"`` loop has unit DC gain
+            without scaling (xdd vanishes at DC) and ignores it.
+        input_scale, model_units
+            As :class:`samii.design.controller.LinearController`.
         """
-        Gd = control.sample_system(self.gain * self.Gc, sample_time_s, method=method)
-        A, B, C, D = from_discrete_tf(Gd.num[0][0], Gd.den[0][0], sample_time_s=sample_time_s)
+        if method == "matched":
+            # python-control's pole-zero matching (z = exp(s T), DC gain kept), realised from the roots
+            # as a cascade of sections: the expanded polynomials would cost ~1e-6 of DC gain at 1 ms
+            T = sample_time_s
+            g0 = self.dc_gain
+            A, B, C, D = from_discrete_zpk(np.exp(self.zeros * T), np.exp(self.poles * T), g0, sample_time_s=T)
+        else:
+            Gd = control.sample_system(self.gain * self.Gc, sample_time_s, method=method)
+            g0 = float(np.real(control.dcgain(Gd)))
+            A, B, C, D = from_discrete_tf(Gd.num[0][0], Gd.den[0][0], sample_time_s=sample_time_s)
         n = A.shape[0]
-        r = self.reference_gain if scale_reference else 1.0
         if self.loop == "theta":
+            r = (1.0 + g0) / g0 if scale_reference else 1.0
             # v = K Gc (r theta_ref - theta) - theta
             Bw = np.concatenate([r * B, -B], axis=1)
             Dw = np.array([[r * D.item(), -D.item() - 1.0]])
             inputs = ("theta_ref", "theta")
+            ref = f", theta_ref scaled by {r:.6g} for unit DC gain" if scale_reference else ", reference not scaled"
         else:
             # v = theta_ref - theta - K Gc accel
             Bw = np.concatenate([np.zeros((n, 2)), -B], axis=1)
             Dw = np.array([[1.0, -1.0, -D.item()]])
             inputs = ("theta_ref", "theta", "accel")
+            ref = ""
         return LinearController(
             A, Bw, C.reshape(1, n), Dw,
             sample_time_s=sample_time_s, inputs=inputs, input_scale=input_scale,
-            name=f"pole-cancelling compensator ({self.loop} loop, K = {self.gain:.4g})",
-            method=f"K Gc discretised by {method}", model_units=model_units,
+            name=f"pole-cancelling compensator ({self.loop} loop, K = {self.gain:.4g}{ref})",
+            method=f"K Gc discretised by {method}" + (" (realised as a cascade of unit-DC sections)" if method == "matched" else ""),
+            model_units=model_units,
         )  # fmt: skip
 
 

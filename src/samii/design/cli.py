@@ -130,7 +130,7 @@ def run_canonical(args) -> int:
     for name in form.outputs:
         c = check[name]
         print(
-            f"  {name}/v: frequency response {c['freq_response_rel']:.2e}, zeros {c['zeros_rel']:.2e} (relative), "
+            f"  {name}/v: frequency response {c['freq_response_rel']:.2e}, numerator N_ss D - N D_ss {c['numerator_rel']:.2e} (relative), "
             f"zeros at the origin {c['origin_zeros_ss']} (state space) / {c['origin_zeros_tf']} (transfer function)"
         )
     if args.out is not None:
@@ -193,6 +193,7 @@ def run_cancel(args) -> int:
         "gain": d.gain,
         "closed_loop_poles": _pairs(cl),
         "reference_gain_for_unit_dc": d.reference_gain,
+        "controller_scales_reference_by_default": d.loop == "theta",
     }
     if args.json:
         print(json.dumps(out, indent=1))
@@ -204,7 +205,10 @@ def run_cancel(args) -> int:
             if z.imag >= 0:
                 print(f"  closed-loop pole {z.real:10.4f} {z.imag:+10.4f}j  zeta {-z.real / abs(z):.3f}")
         if d.loop == "theta":
-            print(f"  theta/theta_ref DC gain {1 / d.reference_gain:.3f}: scale theta_ref by {d.reference_gain:.4g} for a unit DC gain")
+            print(
+                f"  theta/theta_ref DC gain of the loop as drawn {1 / d.reference_gain:.3f}; the runnable controller scales "
+                f"theta_ref by {d.reference_gain:.4g} (unit DC gain) unless told not to"
+            )
     return 0
 
 

@@ -29,6 +29,7 @@ __all__ = [
     "unity_theta_controller",
     "mass_damping_controller",
     "from_discrete_tf",
+    "from_discrete_zpk",
 ]
 
 MEASUREMENTS = ("theta_ref", "theta", "accel")
@@ -164,6 +165,60 @@ def from_discrete_tf(num: np.ndarray, den: np.ndarray, *, sample_time_s: float):
 
     ss = control.tf2ss(control.tf(num, den, sample_time_s))
     return np.asarray(ss.A), np.asarray(ss.B), np.asarray(ss.C), np.asarray(ss.D)
+
+
+def _real_factors(roots: np.ndarray, tol: float = 1e-9) -> list[np.ndarray]:
+    """Real polynomials of degree 2 (a conjugate pair or two real roots) and at most one of degree 1 with these roots."""
+    roots = np.asarray(roots, complex)
+    cplx = [r for r in roots if r.imag > tol * max(abs(r), 1.0)]
+    real = sorted(float(r.real) for r in roots if abs(r.imag) <= tol * max(abs(r), 1.0))
+    if 2 * len(cplx) + len(real) != len(roots):
+        raise ValueError("complex roots must come in conjugate pairs")
+    out = [np.array([1.0, -2.0 * r.real, abs(r) ** 2]) for r in cplx]
+    for i in range(0, len(real) - 1, 2):
+        out.append(np.array([1.0, -(real[i] + real[i + 1]), real[i] * real[i + 1]]))
+    if len(real) % 2:
+        out.append(np.array([1.0, -real[-1]]))
+    return out
+
+
+def from_discrete_zpk(zeros, poles, dc_gain: float, *, sample_time_s: float):
+    """State-space matrices (A, B, C, D) of ``k prod(z - z_i) / prod(z - p_i)`` as a cascade of sections.
+
+    Each section (a real quadratic or linear factor of the numerator over one
+    of the denominator) has unit DC gain and ``dc_gain`` multiplies the
+    output, so the realisation's DC gain is ``dc_gain`` to round-off. A single
+    companion form of the expanded polynomials (:func:`from_discrete_tf`) loses
+    digits when poles cluster near ``z = 1``: for the chapter-10 compensator at
+    1 ms its DC gain is off by 6e-7 relative. Sections are built and chained
+    with python-control (:func:`control.tf2ss`, :func:`control.series`).
+
+    Raises
+    ------
+    ValueError
+        If there are more zeros than poles (not realisable) or a root lies at
+        ``z = 1`` (no unit-DC normalisation).
+    """
+    import control
+
+    nums, dens = _real_factors(zeros), _real_factors(poles)
+    if len(zeros) > len(poles):
+        raise ValueError(f"{len(zeros)} zeros and {len(poles)} poles: not realisable")
+    nums = sorted(nums, key=len, reverse=True)
+    dens = sorted(dens, key=len, reverse=True)
+    sys = None
+    for i, d in enumerate(dens):
+        n = nums[i] if i < len(nums) else np.array([1.0])
+        if len(n) > len(d):  # a quadratic numerator left for a linear denominator: swap in a later quadratic
+            raise ValueError("cannot pair the numerator factors with proper sections")
+        n1, d1 = np.polyval(n, 1.0), np.polyval(d, 1.0)
+        if n1 == 0 or d1 == 0:
+            raise ValueError("a zero or pole at z = 1 has no unit-DC section")
+        sec = control.tf2ss(control.tf(n / n1, d / d1, sample_time_s))
+        sys = sec if sys is None else control.series(sys, sec)
+    if sys is None:
+        return np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.array([[float(dc_gain)]])
+    return np.asarray(sys.A), np.asarray(sys.B), float(dc_gain) * np.asarray(sys.C), float(dc_gain) * np.asarray(sys.D)
 
 
 def mass_damping_controller(

@@ -5,7 +5,9 @@ Steps, as the notebook's ``digital_ss_11_05_03.m`` / ``clpolelocs.m``:
 1. desired poles (:func:`desired_poles`): the eigenvalues of the model under
    unity theta feedback (``v = theta_ref - theta``); real poles kept; each
    complex pole moved to the requested damping ratio at the same magnitude
-   (eq 8.2 -> eq 8.3 with zeta = 0.707);
+   (eq 8.2 -> eq 8.3 with zeta = 1/sqrt(2), :data:`samii.notebook.EQ8_3_ZETA`:
+   the notebook does not print its damping ratio; 1/sqrt(2) reproduces every
+   printed digit of eq 8.3, 0.707 does not, see ``samii design seed-report``);
 2. the model is discretised by zero-order hold at the sample time (Matlab's
    ``c2d(..., 'zoh')``; here :func:`control.sample_system`);
 3. state feedback by pole placement on the discrete model at ``z = exp(s T)``;
@@ -35,6 +37,7 @@ import control
 import numpy as np
 from scipy import linalg
 
+from samii import notebook as nb
 from samii.design.controller import NOTEBOOK_UNITS, LinearController
 
 __all__ = [
@@ -67,7 +70,7 @@ def unity_feedback_poles(sys: control.StateSpace, *, theta: str = "theta") -> np
 
 
 def desired_poles(sys: control.StateSpace, zeta: float, *, theta: str = "theta", real_tol: float = 1e-9) -> np.ndarray:
-    """The notebook's desired-pole rule (``clpolelocs.m``): eq 8.3 from eq 8.2 with ``zeta = 0.707``.
+    """The notebook's desired-pole rule (``clpolelocs.m``): eq 8.3 from eq 8.2 with ``zeta = 1/sqrt(2)``.
 
     Each complex pole ``p`` of the unity-theta-feedback loop becomes
     ``|p| (-zeta +- j sqrt(1 - zeta^2))``; real poles are kept.
@@ -196,7 +199,7 @@ def design_placement(
     model: control.StateSpace,
     *,
     sample_time_s: float,
-    zeta: float = 0.707,
+    zeta: float = nb.EQ8_3_ZETA,
     observer: ObserverKind = "placement",
     observer_factor: float = 2.0,
     measured: tuple[str, ...] = ("theta", "xdd"),
@@ -209,7 +212,8 @@ def design_placement(
     Parameters
     ----------
     zeta : float
-        Damping of the desired complex poles (the notebook: 0.707).
+        Damping of the desired complex poles; default 1/sqrt(2), the value
+        that reproduces eq 8.3 (:data:`samii.notebook.EQ8_3_ZETA`).
     observer : {"placement", "kalman"}
         Observer poles at ``observer_factor`` times the controller poles, or a Kalman filter.
     input_noise_std, measurement_noise_std

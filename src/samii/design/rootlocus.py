@@ -69,6 +69,7 @@ from samii import notebook as nb
 __all__ = [
     "BANDPASS_CORNERS_HZ",
     "SIGNIFICANT_GAIN",
+    "EXCLUSION_REASON",
     "ROBUST_GAIN_MARGIN",
     "AccelFilter",
     "LoopVariant",
@@ -82,6 +83,8 @@ __all__ = [
     "mass_damping_loop",
     "closed_loop_poles",
     "stable_gain_intervals",
+    "intervals_of_sign",
+    "stability_limit",
     "track_branches",
     "summarize",
     "root_locus_data",
@@ -102,11 +105,18 @@ Numerator = Literal["s4", "s2"]
 BANDPASS_CORNERS_HZ = (1.0, 3.0)
 
 #: A variant "beats no acceleration feedback" when some stable K_a raises the
-#: damping ratio of the least-damped base mode by at least this factor while no
-#: closed-loop pole ends up less damped than the least-damped pole without
-#: feedback. 1.10 = 10 % more damping, i.e. vibration decaying 10 % faster; the
-#: notebook's wording is "significantly improved", so the threshold is ours.
+#: damping ratio of the least-damped base mode that the feedback can move by at
+#: least this factor while no closed-loop pole ends up less damped than the
+#: least-damped pole without feedback. 1.10 = 10 % more damping, i.e. vibration
+#: decaying 10 % faster; the notebook's wording is "significantly improved", so
+#: the threshold is ours.
 SIGNIFICANT_GAIN = 1.10
+
+#: Why a base mode is left out of the verdict (:attr:`ModeDamping.fixed`).
+EXCLUSION_REASON = (
+    "pole-zero cancellation: its poles do not move with K_a (for the notebook's tied models the base's mode-2 "
+    "poles equal the actuator zeros, w2 = wz and z2 = zz in eq 1.2/9.2), so no K_a of either sign can change its damping"
+)
 
 #: Gain margin kept by the "robust" optimum (a factor 2 = 6 dB, the textbook minimum):
 #: the gain may double before the loop goes unstable.
@@ -363,6 +373,29 @@ def stable_gain_intervals(loop: MassDampingLoop) -> tuple[tuple[float, float], .
     return tuple(merged)
 
 
+def intervals_of_sign(intervals, sign: int) -> tuple[tuple[float, float], ...]:
+    """The parts of stable ``intervals`` with K_a of the given sign (0 excluded), e.g. for a plot of that sign."""
+    if sign not in (1, -1):
+        raise ValueError(f"sign must be +1 or -1, got {sign}")
+    out = []
+    for a, b in intervals:
+        lo, hi = (max(a, 0.0), b) if sign > 0 else (a, min(b, 0.0))
+        if lo < hi:
+            out.append((float(lo), float(hi)))
+    return tuple(out)
+
+
+def stability_limit(intervals, sign: int) -> float:
+    """The K_a of the given sign at which the loop first goes unstable, starting from K_a = 0.
+
+    ``inf`` (or ``-inf``) if never; ``nan`` if the loop without acceleration feedback is unstable.
+    """
+    iv = next(((a, b) for a, b in intervals if a < 0 < b), None)
+    if iv is None:
+        return float("nan")
+    return float(iv[1] if sign > 0 else iv[0])
+
+
 def _gain_grid(cands: np.ndarray, sign: float, n: int) -> np.ndarray:
     kabs = np.abs(cands[np.sign(cands) == sign]) if cands.size else np.array([1.0])
     lo = (kabs.min() if kabs.size else np.abs(cands).min() if cands.size else 1.0) * 1e-5
@@ -409,16 +442,38 @@ class ModeDamping:
     best_gain_neg: float
     fixed: bool
 
+    @property
+    def best_zeta(self) -> float:
+        """The larger of :attr:`best_zeta_pos` and :attr:`best_zeta_neg` (``nan`` if neither sign has a stable gain)."""
+        zs = [z for z in (self.best_zeta_pos, self.best_zeta_neg) if np.isfinite(z)]
+        return float(max(zs)) if zs else float("nan")
+
+    @property
+    def best_gain(self) -> float:
+        """The K_a at which :attr:`best_zeta` is reached (0 when no gain raises it)."""
+        if not np.isfinite(self.best_zeta):
+            return float("nan")
+        if np.isfinite(self.best_zeta_pos) and self.best_zeta_pos == self.best_zeta:
+            return self.best_gain_pos
+        return self.best_gain_neg
+
+    @property
+    def ratio(self) -> float:
+        """Best damping over stable K_a of either sign / damping without acceleration feedback."""
+        return float(self.best_zeta / self.open_loop_zeta)
+
 
 @dataclass(frozen=True)
 class SignResult:
     """The best one sign of K_a does for the base vibration.
 
     ``best_gain`` maximises, over the stable gains of this sign, the damping
-    ratio of the least-damped base mode among those that move with K_a, subject to every other complex
-    closed-loop pole staying at least as damped as the least-damped pole
-    without feedback (no new, worse oscillation). ``min_base_zeta`` is that
-    least base-mode damping there, ``mode_zetas`` every base mode's,
+    ratio of the least-damped base mode among those that move with K_a
+    (modes fixed by pole-zero cancellation are excluded: no gain changes
+    them), subject to every other complex closed-loop pole staying at least
+    as damped as the least-damped pole without feedback (no new, worse
+    oscillation). ``min_moving_zeta`` is that least damping of the moving
+    base modes there, ``mode_zetas`` every base mode's (fixed ones included),
     ``min_zeta_all`` the least damping of all complex closed-loop poles, and
     ``gain_margin`` the factor by which ``best_gain`` could grow before the loop
     goes unstable. ``best_gain`` is 0 when no gain of this sign beats K_a = 0;
@@ -426,7 +481,7 @@ class SignResult:
     """
 
     best_gain: float
-    min_base_zeta: float
+    min_moving_zeta: float
     mode_zetas: tuple[float, ...]
     min_zeta_all: float
     gain_margin: float
@@ -437,8 +492,13 @@ class RootLocusSummary:
     """Quantitative answer to the notebook's question for one variant on one model.
 
     The variant "beats no acceleration feedback" when a stable K_a of either
-    sign raises the least base-mode damping ratio by the factor
-    :data:`SIGNIFICANT_GAIN` under the constraint of :class:`SignResult`.
+    sign raises the least damping ratio of the base modes the feedback can
+    move by the factor :data:`SIGNIFICANT_GAIN` under the constraint of
+    :class:`SignResult`. Modes fixed by pole-zero cancellation
+    (:attr:`excluded_modes`, reason :data:`EXCLUSION_REASON`) are left out:
+    counting them would cap every ratio at their damping over the moving
+    modes' (e.g. 0.06/0.05 = 1.2 on eq 1.3). Each mode's own best damping
+    and ratio are in :attr:`modes`.
     """
 
     model: str
@@ -446,7 +506,7 @@ class RootLocusSummary:
     variant: LoopVariant
     stable_intervals: tuple[tuple[float, float], ...]
     modes: tuple[ModeDamping, ...]
-    open_loop_min_base_zeta: float
+    open_loop_min_moving_zeta: float
     open_loop_min_zeta_all: float
     positive: SignResult
     negative: SignResult
@@ -454,16 +514,21 @@ class RootLocusSummary:
     robust_negative: SignResult
 
     @property
+    def excluded_modes(self) -> tuple[int, ...]:
+        """Base modes left out of the verdict because they cannot move (see :data:`EXCLUSION_REASON`)."""
+        return tuple(m.mode for m in self.modes if m.fixed)
+
+    @property
     def best_ratio(self) -> float:
-        """Best least base-mode damping over both signs / its value without feedback."""
-        best = np.nanmax([self.positive.min_base_zeta, self.negative.min_base_zeta, self.open_loop_min_base_zeta])
-        return float(best / self.open_loop_min_base_zeta)
+        """Best least damping of the moving base modes over both signs (constrained) / its value without feedback."""
+        best = np.nanmax([self.positive.min_moving_zeta, self.negative.min_moving_zeta, self.open_loop_min_moving_zeta])
+        return float(best / self.open_loop_min_moving_zeta)
 
     @property
     def robust_ratio(self) -> float:
         """As :attr:`best_ratio`, keeping a gain margin of :data:`ROBUST_GAIN_MARGIN` (6 dB)."""
-        best = np.nanmax([self.robust_positive.min_base_zeta, self.robust_negative.min_base_zeta, self.open_loop_min_base_zeta])
-        return float(best / self.open_loop_min_base_zeta)
+        best = np.nanmax([self.robust_positive.min_moving_zeta, self.robust_negative.min_moving_zeta, self.open_loop_min_moving_zeta])
+        return float(best / self.open_loop_min_moving_zeta)
 
     @property
     def beats_no_feedback(self) -> bool:
@@ -479,7 +544,7 @@ class RootLocusSummary:
         def sign(r: SignResult) -> dict:
             return {
                 "best_K_a": num(r.best_gain),
-                "min_base_zeta": num(r.min_base_zeta),
+                "min_moving_mode_zeta": num(r.min_moving_zeta),
                 "base_mode_zetas": [num(z) for z in r.mode_zetas],
                 "min_zeta_all_poles": num(r.min_zeta_all),
                 "gain_margin": num(r.gain_margin),
@@ -500,11 +565,14 @@ class RootLocusSummary:
                     "at_K_a_pos": num(m.best_gain_pos),
                     "best_zeta_K_a_neg": num(m.best_zeta_neg),
                     "at_K_a_neg": num(m.best_gain_neg),
+                    "best_zeta": num(m.best_zeta),
+                    "best_ratio_vs_open_loop": num(m.ratio),
                     "fixed_by_cancellation": m.fixed,
                 }
                 for m in self.modes
             ],
-            "open_loop_min_base_zeta": self.open_loop_min_base_zeta,
+            "excluded_modes": [{"mode": k, "reason": EXCLUSION_REASON} for k in self.excluded_modes],
+            "open_loop_min_moving_mode_zeta": self.open_loop_min_moving_zeta,
             "open_loop_min_zeta_all_poles": self.open_loop_min_zeta_all,
             "K_a_pos": sign(self.positive),
             "K_a_neg": sign(self.negative),
@@ -567,7 +635,7 @@ def _best_for_sign(
     *,
     min_gain_margin: float = 1.0,
 ) -> SignResult:
-    """Constrained optimum of the least base-mode damping along one sign's tracked branches (see SignResult)."""
+    """Constrained optimum of the least moving base-mode damping along one sign's tracked branches (see SignResult)."""
     n_modes = len(mode_cols)
 
     def margin_ok(k: np.ndarray) -> np.ndarray:
@@ -582,7 +650,7 @@ def _best_for_sign(
 
     moving = [c for c in mode_cols if not is_fixed[c]]
     if not moving:
-        return SignResult(0.0, float(_zeta(ol[mode_cols]).min()), tuple(float(z) for z in _zeta(ol[mode_cols])), _min_zeta(ol), np.nan)
+        return SignResult(0.0, np.nan, tuple(float(z) for z in _zeta(ol[mode_cols])), _min_zeta(ol), np.nan)
 
     def score(rows: np.ndarray) -> np.ndarray:
         # least damping of the base modes that move (a cancelled mode keeps its damping for every K_a)
@@ -592,9 +660,10 @@ def _best_for_sign(
 
     def result(k: float, row: np.ndarray) -> SignResult:
         zs = tuple(float(z) for z in _zeta(row[mode_cols]))
+        zm = float(_zeta(row[moving]).min())
         if k == 0.0:
-            return SignResult(0.0, min(zs), zs, _min_zeta(row), np.nan)
-        return SignResult(k, min(zs), zs, _min_zeta(row), _gain_margin(k, intervals))
+            return SignResult(0.0, zm, zs, _min_zeta(row), np.nan)
+        return SignResult(k, zm, zs, _min_zeta(row), _gain_margin(k, intervals))
 
     sc = np.where(ok, score(br), -np.inf)
     j = int(np.argmax(sc))
@@ -657,7 +726,7 @@ def summarize(loop: MassDampingLoop, *, n_gains: int = 3000) -> RootLocusSummary
         variant=loop.variant,
         stable_intervals=intervals,
         modes=tuple(modes),
-        open_loop_min_base_zeta=float(_zeta(ol[mode_cols]).min()),
+        open_loop_min_moving_zeta=float(min((_zeta(ol[c]) for c in mode_cols if not is_fixed[c]), default=np.nan)),
         open_loop_min_zeta_all=_min_zeta(ol),
         positive=_best_for_sign(loop, intervals, mode_cols, is_fixed, *per_sign[1.0]),
         negative=_best_for_sign(loop, intervals, mode_cols, is_fixed, *per_sign[-1.0]),
@@ -753,25 +822,30 @@ def summary_table(summaries: tuple[RootLocusSummary, ...] | list[RootLocusSummar
     """A markdown table of the study: one row per model and variant."""
     lines = [
         "Mass-damping acceleration feedback, theta = G_cl (theta_ref + K_a F y) (notebook's K_a = -ours).",
-        "Per base mode: open-loop damping -> best damping over stable K_a > 0 / K_a < 0 (often at the edge of stability);",
-        "'fixed' = cancelled by the actuator zeros, cannot move. 'best K_a' maximises the least damping of the moving base modes",
-        "keeping every other pole at least as damped as without feedback and a 6 dB gain margin; ratio = least base-mode damping there / without feedback.",
-        f"Verdict: 'beats' if the ratio without the margin requirement is >= {SIGNIFICANT_GAIN} (then the 6 dB ratio is given too).",
+        "Per base mode: open-loop damping -> best damping over stable K_a > 0 / K_a < 0 (often at the edge of stability),",
+        "and the better of the two / open loop. 'excluded': modes fixed by pole-zero cancellation (the base's mode-2 poles equal",
+        "the actuator zeros, eq 1.2/9.2): their poles do not move with K_a, so they are left out of the verdict.",
+        "'best K_a (6 dB)' maximises the least damping of the moving base modes, keeping every other pole at least as damped",
+        "as the least-damped pole without feedback and a 6 dB gain margin; ratio = that least damping / without feedback,",
+        f"without (with) the margin. Verdict: the notebook's 'no K_a beats K_a = 0' holds unless the ratio without margin is >= {SIGNIFICANT_GAIN}.",
         "",
-        "| model | variant | stable K_a | base modes: zeta open -> best K_a>0 / best K_a<0 | best K_a (6 dB) | base zetas there | ratio (6 dB) | no K_a beats K_a = 0? |",
-        "|---|---|---|---|---|---|---|---|",
+        "| model | variant | stable K_a | base modes: zeta open -> best K_a>0 / best K_a<0 (best/open) | excluded | best K_a (6 dB) | base zetas there | ratio (6 dB) | finding |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for s in summaries:
         modes = "; ".join(
-            f"{m.mode}: {m.open_loop_zeta:.4f} fixed" if m.fixed else f"{m.mode}: {m.open_loop_zeta:.4f} -> {m.best_zeta_pos:.4f} / {m.best_zeta_neg:.4f}"
+            f"{m.mode}: {m.open_loop_zeta:.4f} fixed"
+            if m.fixed
+            else f"{m.mode}: {m.open_loop_zeta:.4f} -> {m.best_zeta_pos:.4f} / {m.best_zeta_neg:.4f} ({m.ratio:.2f}x)"
             for m in s.modes
         )
-        rob = max((s.robust_positive, s.robust_negative), key=lambda r: -np.inf if not np.isfinite(r.min_base_zeta) else r.min_base_zeta)
+        excluded = ", ".join(str(k) for k in s.excluded_modes) + " (cancelled)" if s.excluded_modes else "none"
+        rob = max((s.robust_positive, s.robust_negative), key=lambda r: -np.inf if not np.isfinite(r.min_moving_zeta) else r.min_moving_zeta)
         k = "0 (none helps)" if rob.best_gain == 0 else f"{rob.best_gain:.4g}"
         zs = ", ".join(f"{z:.4f}" for z in rob.mode_zetas)
         verdict = "holds" if not s.beats_no_feedback else "does not hold"
         lines.append(
-            f"| {s.model} | {s.variant.name} | {', '.join(_fmt_interval(a, b) for a, b in s.stable_intervals)} | {modes} | {k} | {zs} | "
+            f"| {s.model} | {s.variant.name} | {', '.join(_fmt_interval(a, b) for a, b in s.stable_intervals)} | {modes} | {excluded} | {k} | {zs} | "
             f"{s.best_ratio:.2f} ({s.robust_ratio:.2f}) | {verdict} |"
         )
     return "\n".join(lines) + "\n"

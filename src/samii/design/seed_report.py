@@ -13,7 +13,7 @@ Sources: eq 8.x from the eq 1.4 fit through the chapter-5 canonical form
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -22,9 +22,9 @@ from samii import notebook as nb
 
 __all__ = ["SeedEntry", "SeedReport", "seed_report", "half_unit_of_last_digit", "ZETA_EQ8_3"]
 
-#: Damping used for eq 8.3. The notebook does not print it; 1/sqrt(2) reproduces
-#: every printed digit, 0.707 misses the last digit of two real parts (see the report).
-ZETA_EQ8_3 = 1.0 / np.sqrt(2.0)
+#: Damping used for eq 8.3 (:data:`samii.notebook.EQ8_3_ZETA` = 1/sqrt(2)). The notebook does not
+#: print it; 1/sqrt(2) reproduces every printed digit, 0.707 misses the last digit of two real parts.
+ZETA_EQ8_3 = nb.EQ8_3_ZETA
 
 
 def half_unit_of_last_digit(x: float) -> float:
@@ -56,6 +56,7 @@ class SeedEntry:
     notebook: np.ndarray
     matches: bool
     note: str = ""
+    details: dict = field(default_factory=dict)
 
     @property
     def difference(self) -> np.ndarray:
@@ -74,6 +75,7 @@ class SeedEntry:
             "difference": self._components(self.difference) if self.ours.ndim else float(self.difference),
             "within_printed_precision": self.matches,
             "note": self.note,
+            **({"details": self.details} if self.details else {}),
         }
 
 
@@ -151,8 +153,9 @@ def seed_report(*, sample_time_s: float | None = None) -> SeedReport:
     e83 = _pair(placement.desired_poles(sys, ZETA_EQ8_3), np.array(nb.EQ8_3))
     alt = _pair(placement.desired_poles(sys, 0.707), np.array(nb.EQ8_3))
     note83 = (
-        f"desired poles with zeta = 1/sqrt(2) = {ZETA_EQ8_3:.5f}. The notebook does not print its zeta; with 0.707 the "
-        f"moved poles come out {_fmt(alt[1])} and {_fmt(alt[4])}, one unit off in the last printed digit, so the notebook used 1/sqrt(2)."
+        f"desired poles with zeta = 1/sqrt(2) = {ZETA_EQ8_3:.5f}. The notebook does not print its zeta, but eq 8.3 has equal "
+        f"real and imaginary parts, which only 1/sqrt(2) gives; with 0.707 the moved poles come out {_fmt(alt[1])} and "
+        f"{_fmt(alt[4])}, one unit off in the last printed digit of the real part, so the notebook used 1/sqrt(2)."
     )
     entries.append(SeedEntry("eq8_3", "desired poles (complex poles of eq 8.2 moved to zeta at the same magnitude)", e83, np.array(nb.EQ8_3, complex), _within(e83, nb.EQ8_3), note83))
 
@@ -194,16 +197,77 @@ def seed_report(*, sample_time_s: float | None = None) -> SeedReport:
     entries.append(SeedEntry("eq10_9_num", "compensator numerator, highest power first", num, np.array(nb.EQ10_9_NUM), _within(num, nb.EQ10_9_NUM), note_num))
     entries.append(SeedEntry("eq10_9_den", "compensator denominator, highest power first", den, np.array(nb.EQ10_9_DEN), _within(den, nb.EQ10_9_DEN), note_den))
 
-    at_nb = cancel.design_pole_cancel(nb.EQ9_4, loop="theta", gain=nb.EQ10_GAIN).closed_loop
-    hidden = design.zeros  # cancelled poles stay closed-loop poles; list only those that move
-    moving = sorted((z for z in at_nb if z.imag > 0 and np.min(np.abs(hidden - z)) > 1e-6 * abs(z)), key=abs)
-    zs = ", ".join(f"{-z.real / abs(z):.3f}" for z in moving)
-    note_gain = (
-        f"our rule: the smallest K at which the dominant (slowest) moving closed-loop pair of the outer theta loop "
-        f"(see samii.design.cancel) reaches zeta = 0.7. The notebook picked its gain on the root-locus plot "
-        f"(\"damping of approximately 0.7\"); at its K = {nb.EQ10_GAIN} the moving pairs have zeta {zs}, slowest first, "
-        f"so both readings agree on the loop and differ only in where on the locus 'about 0.7' is read."
-    )
+    gain_details = gain_analysis()
     g = np.array(design.gain)
-    entries.append(SeedEntry("eq10_gain", "compensator gain from the root locus (zeta ~ 0.7)", g, np.array(nb.EQ10_GAIN), _within(g, nb.EQ10_GAIN), note_gain))
+    entries.append(SeedEntry("eq10_gain", "compensator gain from the root locus (zeta ~ 0.7)", g, np.array(nb.EQ10_GAIN), _within(g, nb.EQ10_GAIN), _gain_note(gain_details), gain_details))
     return SeedReport(tuple(entries))
+
+
+#: Gains scanned for the pair-wise rules: four moving pairs exist throughout (three below K ~ 0.004).
+_GAIN_BRACKET = (0.01, 0.5)
+
+
+def gain_analysis() -> dict:
+    """Where on the chapter-10 locus the notebook's K = 0.0666 sits, as numbers.
+
+    Returns
+    -------
+    dict
+        ``ours``: our rule's K (slowest moving pair at zeta 0.7).
+        ``zetas_at_notebook_gain`` / ``pair_magnitudes_rad_s``: the moving
+        pairs of the "theta" loop at K = 0.0666, slowest first.
+        ``gain_pair{1,2,3}_zeta_0p7`` and ``gain_mean_pairs_1_3_zeta_0p7``: the
+        K at which pairs 1, 2, 3 and the mean damping of pairs 1 and 3 reach 0.7.
+        ``printed_polynomials``: the same three gains and the zetas at 0.0666
+        with the compensator built from the printed eq 10.9 coefficients.
+        ``accel_loop_zetas_at_notebook_gain``: the other reading of the loop.
+    """
+    from samii.design import cancel
+
+    d = cancel.design_pole_cancel(nb.EQ9_4, loop="theta")
+    L = d.open_loop
+    k_nb = nb.EQ10_GAIN
+    import control
+
+    L_printed = control.tf(list(nb.EQ10_9_NUM), list(nb.EQ10_9_DEN)) * control.feedback(nb.actuator_tf(nb.EQ9_4), 1)
+
+    def gains(loop, tol):
+        return {
+            "gain_pair1_zeta_0p7": cancel.gain_at_zeta(loop, 0.7, pair=0, bracket=_GAIN_BRACKET, cancel_tol=tol),
+            "gain_pair3_zeta_0p7": cancel.gain_at_zeta(loop, 0.7, pair=2, bracket=_GAIN_BRACKET, cancel_tol=tol),
+            "gain_mean_pairs_1_3_zeta_0p7": cancel.gain_at_zeta(loop, 0.7, pair=(0, 2), bracket=_GAIN_BRACKET, cancel_tol=tol),
+        }
+
+    accel = cancel.design_pole_cancel(nb.EQ9_4, loop="accel", gain=k_nb)
+    return {
+        "ours": d.gain,
+        "notebook": k_nb,
+        "zetas_at_notebook_gain": cancel.pair_zetas(L, k_nb).tolist(),
+        "pair_magnitudes_rad_s": np.abs(cancel.moving_pairs(L, k_nb)).tolist(),
+        "zetas_at_our_gain": cancel.pair_zetas(L, d.gain).tolist(),
+        "gain_pair2_zeta_0p7": cancel.gain_at_zeta(L, 0.7, pair=1, bracket=(1e-3, 0.5)),
+        **gains(L, 1e-6),
+        # the printed coefficients cancel the inner-loop pair only to ~1e-4: looser tolerance
+        "printed_polynomials": {"zetas_at_notebook_gain": cancel.pair_zetas(L_printed, k_nb, cancel_tol=1e-2).tolist(), **gains(L_printed, 1e-2)},
+        "accel_loop_zetas_at_notebook_gain": cancel.pair_zetas(accel.open_loop, k_nb).tolist(),
+    }
+
+
+def _gain_note(a: dict) -> str:
+    def zs(v):
+        return ", ".join(f"{z:.3f}" for z in v)
+
+    pr = a["printed_polynomials"]
+    return (
+        f"our rule (samii.design.cancel.choose_gain): the smallest K at which the slowest moving closed-loop pair of the outer "
+        f"theta loop reaches zeta = 0.7, K = {a['ours']:.5f}. The notebook prints no rule: it read K off the root-locus plot "
+        f"(\"damping of approximately 0.7\"). At its K = {a['notebook']} the four moving pairs (|p| = "
+        f"{', '.join(f'{m:.1f}' for m in a['pair_magnitudes_rad_s'])} rad/s) have zeta {zs(a['zetas_at_notebook_gain'])}: "
+        f"pairs 1 and 3 are 'about 0.7', pair 2 is not at any nearby K (it passes 0.7 at K = {a['gain_pair2_zeta_0p7']:.4f}). Pair 1 reaches 0.7 at "
+        f"K = {a['gain_pair1_zeta_0p7']:.5f}, pair 3 at {a['gain_pair3_zeta_0p7']:.5f}, their mean at "
+        f"{a['gain_mean_pairs_1_3_zeta_0p7']:.5f}; the notebook's 0.0666 lies between pair 3's and pair 1's gains. "
+        f"With the printed eq 10.9 polynomials the same gains are {pr['gain_pair1_zeta_0p7']:.5f}, {pr['gain_pair3_zeta_0p7']:.5f} "
+        f"and {pr['gain_mean_pairs_1_3_zeta_0p7']:.5f} (zeta at 0.0666: {zs(pr['zetas_at_notebook_gain'])}); the 'accel' "
+        f"reading of the loop gives zeta {zs(a['accel_loop_zetas_at_notebook_gain'])} at 0.0666. No rule we found reproduces "
+        f"0.0666 to its printed precision, so we keep ours."
+    )

@@ -21,6 +21,11 @@ def plot_cancel_locus(design, *, notebook_gain: float | None = None, path: str |
     import control
     import matplotlib.pyplot as plt
 
+    from samii.design.cancel import closed_loop_poles, pair_zetas
+
+    def zetas(k: float) -> str:
+        return ", ".join(f"{z:.3f}" for z in pair_zetas(design.open_loop, k))
+
     kmax = max(design.gain, notebook_gain or 0.0)
     ks = np.linspace(0.0, kmax, n_gains)
     rl = control.root_locus_map(design.open_loop, gains=ks)
@@ -33,12 +38,10 @@ def plot_cancel_locus(design, *, notebook_gain: float | None = None, path: str |
         ax.plot(p.real, p.imag, "x", color="k", ms=7, label="open-loop poles")
         ax.plot(z.real, z.imag, "o", mfc="none", color="C2", ms=7, label="open-loop zeros")
         end = design.closed_loop
-        ax.plot(end.real, end.imag, "*", color="C3", ms=10, label=f"our K = {design.gain:.4g} (dominant pair zeta 0.7)")
+        ax.plot(end.real, end.imag, "*", color="C3", ms=10, label=f"our K = {design.gain:.4g}: moving pairs zeta {zetas(design.gain)}")
         if notebook_gain is not None:
-            from samii.design.cancel import closed_loop_poles
-
             nbp = closed_loop_poles(design.open_loop, notebook_gain)
-            ax.plot(nbp.real, nbp.imag, "^", mfc="none", color="C1", ms=8, label=f"notebook's K = {notebook_gain:g}")
+            ax.plot(nbp.real, nbp.imag, "^", mfc="none", color="C1", ms=8, label=f"notebook's K = {notebook_gain:g}: zeta {zetas(notebook_gain)}")
         r = np.array([0.0, 400.0])
         ax.plot(-0.7 * r, np.sqrt(1 - 0.49) * r, "--", color="0.5", lw=0.8, label="damping ratio 0.7")
         ax.axvline(0, color="0.6", lw=0.8)
@@ -54,7 +57,11 @@ def plot_cancel_locus(design, *, notebook_gain: float | None = None, path: str |
             ax.set_title("full", fontsize=9)
         ax.grid(True, alpha=0.3)
     axes[0].legend(fontsize=7, loc="upper left")
-    fig.suptitle(f"Chapter 10 pole-cancelling compensator on eq 9.4, '{design.loop}' loop: root locus in K (1 + K L = 0)", fontsize=10)
+    fig.suptitle(
+        f"Chapter 10 pole-cancelling compensator on eq 9.4, '{design.loop}' loop: root locus in K (1 + K L = 0); "
+        "our K: slowest moving pair at zeta 0.7",
+        fontsize=10,
+    )
     fig.tight_layout()
     if path is not None:
         fig.savefig(path, dpi=80)

@@ -25,10 +25,11 @@ def plot_pole_sets(design, *, path: str | Path | None = None):
     T = design.sample_time_s
     ol = np.linalg.eigvals(np.asarray(design.model.A))
     ufb = unity_feedback_poles(design.model)
+    zeta = "1/sqrt(2)" if np.isclose(design.zeta, 1 / np.sqrt(2), rtol=1e-12, atol=0) else f"{design.zeta:.5g}"
     sets = [
         ("open loop (eq 8.1)", ol, "x", "k"),
         ("unity theta feedback (eq 8.2)", ufb, "+", "C0"),
-        (f"desired, zeta {design.zeta:.3g} (eq 8.3)", design.poles_s, "o", "C3"),
+        (f"desired, zeta = {zeta} (eq 8.3)", design.poles_s, "o", "C3"),
     ]
     if design.observer_poles_s is not None:
         sets.append(("observer, 2x desired", design.observer_poles_s, "s", "C2"))
@@ -36,9 +37,11 @@ def plot_pole_sets(design, *, path: str | Path | None = None):
     for label, p, m, c in sets:
         a1.plot(p.real, p.imag, m, color=c, mfc="none", ms=8, mew=1.4, label=label)
         z = np.exp(p * T)
+        z = z[z.imag >= 0]  # upper half: the conjugates mirror them
         a2.plot(z.real, z.imag, m, color=c, mfc="none", ms=8, mew=1.4, label=label)
     if design.observer_poles_s is None:
-        z = design.observer_poles_z
+        z = np.asarray(design.observer_poles_z)
+        z = z[z.imag >= 0]
         a2.plot(z.real, z.imag, "s", color="C2", mfc="none", ms=8, label="Kalman filter poles")
     a1.set_xlabel("real part [1/s]")
     a1.set_ylabel("imaginary part [rad/s]")
@@ -49,10 +52,11 @@ def plot_pole_sets(design, *, path: str | Path | None = None):
     th = np.linspace(0, np.pi / 2, 200)
     a2.plot(np.cos(th), np.sin(th), "-", color="0.6", lw=0.8, label="unit circle")
     a2.set_xlim(0.6, 1.02)
-    a2.set_ylim(-0.02, 0.2)
+    a2.set_ylim(-0.01, 0.2)
     a2.set_xlabel("real part of z")
     a2.set_ylabel("imaginary part of z")
-    a2.set_title(f"digital poles z = exp(s T), T = {T * 1e3:g} ms (upper half)")
+    a2.set_title(f"digital poles z = exp(s T), T = {T * 1e3:g} ms; Im z >= 0 (conjugates omitted)", fontsize=10)
+    a2.legend(fontsize=8, loc="upper left")
     a2.grid(True, alpha=0.3)
     fig.suptitle("Chapter 8 pole placement on the eq 1.4 model (1 accelerometer, canonical form of chapter 5)", fontsize=10)
     fig.tight_layout()
