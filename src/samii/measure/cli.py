@@ -36,6 +36,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--freqs-hz", type=_positive, nargs="+", metavar="F", help="stepped-sine frequencies [Hz] (default 14 points over 0.5-35 Hz)")
     parser.add_argument("--amplitude-v", type=_positive, default=None, metavar="V", help="excitation amplitude added to the valve command (default 0.1 V)")
     parser.add_argument("--averages", type=int, default=3, metavar="N", help="swept-sine repetitions averaged (default 3, as on the rig)")
+    parser.add_argument("--tail-s", type=_positive, default=None, metavar="S",
+                        help="rest after each sweep, for the response to decay (default 20 s: 6.5 time constants of the embedded model's base mode 1)")
     parser.add_argument("--band-hz", type=_positive, nargs=2, metavar=("LO", "HI"), default=(0.1, 40.0), help="swept-sine band (default 0.1 40)")
     parser.add_argument("--sample-rate-hz", type=_positive, default=1000.0, metavar="HZ", help="DAQ sampling rate (default 1000; must divide the physics rate)")
     parser.add_argument("--noise", action="store_true", help="add sensor noise (typical lab levels, see samii.measure.daq.SensorNoise)")
@@ -96,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         sweep = SweptSine(
             start_hz=args.band_hz[0], stop_hz=args.band_hz[1], repetitions=args.averages,
+            **({} if args.tail_s is None else {"tail_s": args.tail_s}),
             **({} if args.amplitude_v is None else {"amplitude_v": args.amplitude_v}),
         )
         stepped = SteppedSine(**({} if args.freqs_hz is None else {"freqs_hz": tuple(args.freqs_hz)}),

@@ -36,15 +36,17 @@ pressure is about 1.2 MPa (17 % of supply), the valve command stays below
 0.2 V (2 % of its +-10 V range), the joint moves 0.1 deg at low frequency
 (theta ~ r / Kp below the loop bandwidth, Kp = 1 V/deg) and the measured FRF
 stays within 0.5 dB and 2 deg of the small-signal one over 0.5-35 Hz
-(experiments/amplitude_dependence). Raise it for a better signal-to-noise
+(experiments/amplitude_nonlinearity). Raise it for a better signal-to-noise
 ratio with sensor noise, at the price of that nonlinearity.
 
-Rest of 45 s after each sweep: the lightest-damped mode of the default
-simulator, base mode 1 (1.73 Hz, zeta ~ 0.008 under the position loop,
-``samii modes``), has a time constant 1/(zeta w) ~ 11.8 s; 45 s is about 4 of
-them. (The notebook's zeta = 0.03 would need only 15 s.) With these defaults
-the campaign is 3 x 109 s = 5.5 min simulated, about 2 s of wall time at the
-150x real time of the simulator.
+Rest of 20 s after each sweep: the slowest mode of the default simulator,
+base mode 1 under the position loop (-0.326 +- 10.86j, ``samii modes``; eq
+10.2: -0.3245 +- 10.88j), has a time constant 1/0.326 = 3.1 s; 20 s is 6.5 of
+them (what still rings is 0.15 % of it). On the embedded model the FRF is the
+same with 15, 20 or 45 s (0.001 dB on xdd/theta at 0.02 V). A model with less
+damping needs more (``tail_s``; with the viscous clamp of an earlier model,
+zeta1 = 0.008, it took 45 s). With these defaults the campaign is 3 x 84 s =
+4.2 min simulated, under 2 s of wall time at 130-150x real time.
 
 The response must come to rest between sweeps: the frequency-response
 estimator (:mod:`samii.measure.frf`) takes each repetition as one record from
@@ -136,7 +138,7 @@ class SweptSine:
     fade_low_cycles: float = 0.25
     fade_high_cycles: float = 10.0
     lead_s: float = 1.0
-    tail_s: float = 45.0
+    tail_s: float = 20.0
     repetitions: int = 3
     direction: Literal["down", "up"] = "down"
     alternate_sign: bool = True
@@ -304,9 +306,8 @@ class SteppedSine:
         Peak excitation [V]; 0.1 V as the swept sine (see the module docstring).
     settle_s : float
         Time from the start of a dwell to the start of its measurement [s].
-        Default about 4 time constants of the slowest mode of the default
-        simulator (base mode 1, 11.8 s): in the simulator, 15 s left errors of
-        0.4 dB and 10 deg at 1.5 Hz, 45 s leaves 0.03 dB and 0.3 deg.
+        Default 6.5 time constants of the slowest mode of the default simulator
+        (base mode 1 under the position loop, 1/0.326 = 3.1 s).
     ramp_s : float
         Ramp-up and ramp-down time [s]; 4 s (7 periods of base mode 1) rings that
         mode up less than 1 s does (after 15 s of settling, 4 deg left at 1.5 Hz
@@ -321,7 +322,7 @@ class SteppedSine:
 
     freqs_hz: tuple[float, ...] = DEFAULT_STEPPED_FREQS_HZ
     amplitude_v: float = 0.1
-    settle_s: float = 45.0
+    settle_s: float = 20.0
     ramp_s: float = 4.0
     measure_cycles: int = 4
     measure_s: float = 2.0
