@@ -60,3 +60,55 @@ def test_bad_input_gives_one_clear_error(tmp_path, capsys):
     assert main(["fit", str(tmp_path / "missing.csv")]) == 2
     with pytest.raises(SystemExit):
         main(["fit", str(bad), "--phase-weights", "a,b"])
+
+
+@pytest.fixture(scope="module")
+def noisy_csv(tmp_path_factory):
+    from samii.identify import SweptSineNoise
+
+    st = ModelStructure.notebook_3mode()
+    data = synthesize(F_HZ, {c: st.response(SI_EQ9_4, F_HZ, c) for c in ("act", "base")}, noise=SweptSineNoise(), rng=np.random.default_rng(3))
+    return write_frf_csv(data, tmp_path_factory.mktemp("frf") / "eq9_4_noisy.csv")
+
+
+def test_json_reports_weighting_and_lack_of_fit(noisy_csv, capsys):
+    assert main(["fit", str(noisy_csv), "--json", "--weighting", "coherence", "--start", "auto"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["weighting"] == "coherence"
+    assert d["lack_of_fit"]["found"] is False and d["lack_of_fit"]["n_averages"] == 3  # synthesize writes frf_records
+    assert main(["fit", str(noisy_csv), "--modes", "2", "--start", "auto"]) == 0  # mode 3 (25 Hz) missing
+    out = capsys.readouterr().out
+    assert "weighting none (the notebook's cost)" in out
+    assert "lack of fit: FOUND" in out and "warning: lack of fit in xdd/theta (base)" in out
+
+
+def test_coherence_weighting_needs_coherence(tmp_path, capsys):
+    st = ModelStructure.notebook_3mode()
+    from samii import FrequencyResponse
+
+    data = FrequencyResponse(F_HZ, act=st.response(SI_EQ9_4, F_HZ, "act"), base=st.response(SI_EQ9_4, F_HZ, "base"))
+    path = write_frf_csv(data, tmp_path / "nocoh.csv")
+    assert main(["fit", str(path), "--weighting", "coherence"]) == 2
+    err = capsys.readouterr().err
+    assert "nocoh.csv" in err and "coherence" in err
+
+
+def test_actuator_only_file_fits_the_actuator(tmp_path, capsys):
+    from samii import FrequencyResponse
+
+    st = ModelStructure.notebook_3mode()
+    path = write_frf_csv(FrequencyResponse(F_HZ, act=st.response(SI_EQ9_4, F_HZ, "act")), tmp_path / "act_only.csv")
+    assert main(["fit", str(path), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["not_fitted"] == ["w1", "z1", "w3", "z3", "B1", "B2", "B3"]
+    assert all(d["params"][k] is None and d["stderr"][k] is None for k in d["not_fitted"])
+    assert d["params"]["wp"] == pytest.approx(SI_EQ9_4["wp"], rel=1e-6)
+    assert main(["fit", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "act_only.csv has no base channel" in out and "not fitted" in out
+
+
+def test_more_modes_than_the_notebook_has(frf_csv, capsys):
+    assert main(["fit", str(frf_csv), "--modes", "4", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert "notebook start skipped" in d["message"] and list(d["params"])[-1] == "B4"

@@ -115,3 +115,44 @@ def test_bad_parameters_are_named():
         st.vector(dict(nb.EQ9_4, zp=-0.1))
     with pytest.raises(ValueError, match="numerator"):
         ModelStructure(numerator="s3")
+
+
+def test_one_mode_structure_describes_converts_and_refuses_a_tie():
+    st = ModelStructure(n_modes=1)
+    assert st.tie_mode2 is False and st.param_names == ("K1", "wp", "zp", "wz", "zz", "tau", "w1", "z1", "B1")
+    assert st.describe() == "1 mode, s4 numerator, gains B_k (eq 9.2)"
+    assert "modes" not in st.describe() and "mode 2" not in st.describe()
+    p = {k: nb.EQ9_4[k] for k in st.param_names}
+    for ch in ("act", "base", "total"):
+        np.testing.assert_allclose(_eval_tf(st.to_tf(p, ch), W), st.response(p, F_HZ, ch), rtol=1e-10)
+    with pytest.raises(ValueError, match="n_modes >= 2"):
+        ModelStructure(n_modes=1, tie_mode2=True)
+    assert ModelStructure.notebook_3mode().describe() == "3 modes, s4 numerator, w2=wz, z2=zz, gains B_k (eq 9.2)"
+
+
+@pytest.mark.parametrize("structure", [ModelStructure.notebook_3mode(), ModelStructure.notebook_2mode(), ModelStructure(n_modes=4)])
+def test_tf_matches_the_seed_transfer_functions(structure):
+    # to_tf builds xdd/theta itself (any number of modes); it must agree with samii.notebook.base_tf
+    p = dict(nb.EQ9_4, w4=400.0, z4=0.02, B4=1e-5) if structure.n_modes == 4 else dict(nb.EQ1_4_OPTIMIZED if structure.n_modes == 2 else nb.EQ9_4)
+    kw = dict(numerator=structure.numerator, w2_factors=structure.w2_factors)
+    np.testing.assert_allclose(_eval_tf(structure.to_tf(p, "base"), W), _eval_tf(nb.base_tf(p, **kw), W), rtol=1e-10)
+    np.testing.assert_allclose(_eval_tf(structure.to_tf(p, "total"), W), _eval_tf(nb.total_tf(p, **kw), W), rtol=1e-10)
+
+
+def test_channel_params_and_units():
+    st = ModelStructure.notebook_3mode()
+    assert st.channel_params(("act",)) == ("K1", "wp", "zp", "wz", "zz", "tau")
+    assert st.channel_params(("base",)) == ("wz", "zz", "w1", "z1", "w3", "z3", "B1", "B2", "B3")  # mode 2 is (wz, zz), eq 9.2
+    assert st.channel_params(("total",)) == st.param_names
+    u = st.units()
+    # theta/v ~ K1/s at low frequency (eq 9.1); xdd/theta = s^4 B/D (eq 9.2): B in (m/s^2)/rad * s^2
+    assert (u["K1"], u["wp"], u["zp"], u["tau"], u["B1"]) == ("rad/(V·s)", "rad/s", "1", "rad/s", "(m/s²)/rad·s²")
+    assert ModelStructure.notebook_3mode("s2").units()["B1"] == "(m/s²)/rad"  # s^2/D is dimensionless
+    assert ModelStructure.notebook_2mode().units(theta="deg")["B1"] == "(m/s²)/deg·s⁴"  # eq 1.2: B w^2 s^4/D
+
+
+def test_modal_columns_sum_to_the_base_response():
+    st = ModelStructure.notebook_3mode()
+    x = st.vector(nb.EQ9_4)
+    cols = st.modal_columns(x, W)
+    np.testing.assert_allclose(cols @ np.array([nb.EQ9_4[f"B{k}"] for k in (1, 2, 3)]), st.response(nb.EQ9_4, F_HZ, "base"), rtol=1e-12)

@@ -72,6 +72,8 @@ def test_optimised_two_mode_fit_beats_both_notebook_sets(rig):
 
 
 def test_s4_beats_s2_on_the_s4_stand_in(rig):
+    # the stand-in is s^4 by construction (eq 9.4), so s^4 must fit it better; the notebook's own
+    # verdict on its measured data ("somewhat inconclusive", chapter 4) cannot be tested on it
     fits = s2_vs_s4(rig, rng=np.random.default_rng(0))
     assert fits["s4"].cost < fits["s2"].cost
-    assert fits["s2"].params["B2"] < 0  # chapter 2: "the coefficient B2 ... being negative" in the s^2 model
+    assert fits["s4"].rms_mag_db["base"] < fits["s2"].rms_mag_db["base"]

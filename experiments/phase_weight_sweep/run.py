@@ -55,7 +55,7 @@ def main() -> None:
     nbse = [to_notebook_units(r.stderr) for r in fits]
     ref = {n: [nb.EQ9_FITS[w][n] for w in pws] for n in st.param_names} if all(w in nb.EQ9_FITS for w in pws) else None
     save_figure(
-        plot_parameter_sweep(pws, nbu, nbse, st.param_names, xlabel="phase weight", reference=ref, reference_label="notebook eq 9.3-9.12 (its own data)", title="Parameters against phase weight (notebook units: θ in deg assumed)", note=note),
+        plot_parameter_sweep(pws, nbu, nbse, st.param_names, xlabel="phase weight", reference=ref, reference_label="notebook eq 9.3-9.12 (its own data)", units=st.units(theta="deg"), title="Parameters against phase weight (notebook units: θ in deg assumed)", note=note),
         out / "parameters.png",
     )
 

@@ -38,6 +38,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="notebook: frequencies/dampings of eq 9.4 (or eq 1.4 for 2 modes) with gains read off the data; "
         "auto: everything read off the data's peaks and notches. Default: both, plus two perturbed starts",
     )
+    parser.add_argument(
+        "--weighting",
+        choices=("none", "coherence"),
+        default="none",
+        help="none: the notebook's cost (every point counts alike, default); coherence: each point weighted by the inverse of "
+        "the random error its coherence predicts (Bendat & Piersol), so badly measured points count less. Needs *_coh columns",
+    )
+    parser.add_argument("--averages", type=int, default=None, metavar="N", help="averages behind the coherence, for the lack-of-fit test (default: the file's frf_records, else 3)")
     parser.add_argument("--out", metavar="DIR", help="write fit JSON and overlay Bode plots here")
     parser.add_argument("--overwrite", action="store_true", help="replace files already in --out")
     parser.add_argument("--json", action="store_true", help="print machine-readable results (one object, or a list for --phase-weights)")
@@ -55,10 +63,17 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.phase_weight is not None and args.phase_weight < 0:
             raise ValueError(f"--phase-weight must be >= 0, got {args.phase_weight}")
+        if args.averages is not None and args.averages < 1:
+            raise ValueError(f"--averages must be >= 1, got {args.averages}")
         structure = ModelStructure(n_modes=args.modes, numerator=args.numerator)
         data = read_frf_csv(args.frf)
+        if args.weighting == "coherence":
+            lacking = [c for c in data.channels if data.coherence(c) is None]
+            if lacking:
+                raise ValueError(f"{args.frf}: --weighting coherence needs coherence, but channel(s) {', '.join(lacking)} have no *_coh column")
         rng = np.random.default_rng(0)
-        results = [fit(data, structure, phase_weight=w, band_hz=tuple(args.band_hz) if args.band_hz else None, start=args.start or "both", rng=rng) for w in weights]
+        band = tuple(args.band_hz) if args.band_hz else None
+        results = [fit(data, structure, phase_weight=w, band_hz=band, weighting=args.weighting, start=args.start or "both", rng=rng, n_averages=args.averages) for w in weights]
         written = write_fit_outputs(data, results, args.out, overwrite=args.overwrite, note=f"data: {args.frf}") if args.out else []
     except (OSError, ValueError, KeyError) as exc:  # DataFormatError is a ValueError
         print(f"samii fit: error: {exc}", file=sys.stderr)
@@ -67,12 +82,21 @@ def run(args: argparse.Namespace) -> int:
         out = [summary_dict(r) for r in results]
         print(json.dumps(out[0] if len(out) == 1 else out, indent=2))
         return 0
-    print(f"samii fit: {args.frf}: {structure.describe()}; band {results[0].band_hz[0]:.3g}-{results[0].band_hz[1]:.3g} Hz, {results[0].n_points} points, channels {', '.join(results[0].channels)}")
+    r0 = results[0]
+    weighting = "coherence (points weighted by their predicted random error)" if r0.weighting == "coherence" else "none (the notebook's cost)"
+    print(f"samii fit: {args.frf}: {structure.describe()}; band {r0.band_hz[0]:.3g}-{r0.band_hz[1]:.3g} Hz, {r0.n_points} points, channels {', '.join(r0.channels)}; weighting {weighting}")
+    missing = [c for c in ("act", "base") if c not in data.channels]
+    if r0.not_fitted:
+        print(f"samii fit: {args.frf} has no {' or '.join(missing) or 'base'} channel: {', '.join(r0.not_fitted)} not fitted")
     for r in results:
         print(f"\nphase weight {r.phase_weight:g}: cost {r.cost:.6g}, converged {'yes' if r.converged else 'NO'}")
         print(r.table())
         rms = ", ".join(f"{c} {r.rms_mag_db[c]:.3g} dB / {r.rms_phase_deg[c]:.3g} deg" for c in r.channels)
         print(f"RMS error: {rms}")
+        if r.lack_of_fit is not None:
+            lof = r.lack_of_fit
+            ratio = ", ".join(f"{c} {v:.3g}" for c, v in lof.noise_ratio.items() if v is not None)
+            print(f"lack of fit: {'FOUND' if lof.found else 'none'} (rule: {lof.rule}; averages: {lof.n_averages_source})" + (f"; RMS residual / random error: {ratio}" if ratio else ""))
         print(r.message)
         for w in r.warnings:
             print(f"warning: {w}")

@@ -64,8 +64,9 @@ class FitProblem:
     band_hz : (lo, hi), optional
         Fit only the points with lo <= f <= hi (eq 1.4 used 1-12 Hz). Default: all.
     channels : tuple of channels, optional
-        Channels in the cost. Default: ``act`` and ``base`` if present (the
-        notebook's choice), else whatever of ``act``, ``base``, ``total`` is there.
+        Channels in the cost. Default: ``act`` and ``base`` where present (the
+        notebook's choice), with ``total`` in place of a missing ``base``.
+        Parameters no fitted channel depends on are not fitted (``fitted``).
     weighting : {"none", "coherence"}
         ``"none"`` is the notebook's cost; ``"coherence"`` is described in the module docstring.
     """
@@ -97,12 +98,14 @@ class FitProblem:
         object.__setattr__(self, "data", data)
         channels = self.channels
         if channels is None:
-            channels = tuple(c for c in ("act", "base") if c in data.channels) or data.channels
+            channels = tuple(c for c in ("act", "base") if c in data.channels)
+            if "base" not in channels and "total" in data.channels:
+                channels += ("total",)  # xdd/v stands in for a missing xdd/theta
         missing = [c for c in channels if c not in data.channels]
         if missing:
             raise ValueError(f"channels {missing} are not in the data (has {data.channels})")
         object.__setattr__(self, "channels", tuple(channels))
-        n_min = len(self.structure.param_names)
+        n_min = int(self.fitted.sum())
         if self.n_residuals < n_min:
             raise ValueError(f"{self.n_residuals} residuals for {n_min} parameters: widen the band or add channels/phase")
         object.__setattr__(self, "w", data.w)
@@ -128,6 +131,17 @@ class FitProblem:
         object.__setattr__(self, "_weights", weights)
         object.__setattr__(self, "_noise", noise)
 
+    # -- what the channels determine -------------------------------------------------
+    @property
+    def fitted(self) -> np.ndarray:
+        """Mask (``structure.param_names`` order) of the parameters the fitted channels depend on.
+
+        With theta/v alone the base modes and gains are not fitted; with xdd/theta
+        alone K1, wp, zp and tau are not (``ModelStructure.channel_params``).
+        """
+        used = set(self.structure.channel_params(tuple(self.channels)))
+        return np.array([n in used for n in self.structure.param_names])
+
     # -- layout of the residual vector ---------------------------------------------
     @property
     def with_phase(self) -> bool:
@@ -145,33 +159,46 @@ class FitProblem:
         return m * len(self.channels) * (2 if self.phase_weight > 0 else 1)
 
     # -- evaluation ----------------------------------------------------------------
+    def _log_ratio(self, h: np.ndarray, c: Channel) -> tuple[np.ndarray, np.ndarray]:
+        """(ln|H_model/H_data|, arg(H_model/H_data)), the phase on the principal branch (-pi, pi].
+
+        The same as ``np.log`` of the complex ratio, computed from its real and
+        imaginary parts (about three times faster than numpy's complex log).
+        """
+        q = h * self._inv_data[c]
+        re, im = q.real, q.imag
+        return 0.5 * np.log(re * re + im * im), np.arctan2(im, re)
+
     def errors(self, x: np.ndarray) -> dict[Channel, tuple[np.ndarray, np.ndarray]]:
         """Unweighted model - data errors per channel: (dB, deg)."""
         out = {}
         for c, (h, _) in self.structure.log_responses(x, self.w, self.channels, derivatives=False).items():
-            e = np.log(h * self._inv_data[c])  # principal branch: the phase difference wrapped to +-180 deg
-            out[c] = (DB_PER_NEPER * e.real, DEG_PER_RAD * e.imag)
+            mag, ph = self._log_ratio(h, c)  # principal branch: the phase difference wrapped to +-180 deg
+            out[c] = (DB_PER_NEPER * mag, DEG_PER_RAD * ph)
         return out
 
     def residuals_and_jacobian(self, x: np.ndarray, *, jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """Residual vector r (model - data; cost = sum r^2) and dr/dx (analytic)."""
         resp = self.structure.log_responses(x, self.w, self.channels, derivatives=jacobian)
-        rs, js = [], []
-        logs = {c: np.log(resp[c][0] * self._inv_data[c]) for c in self.channels}
-        for c, kind in self.blocks:
-            dL = resp[c][1]
-            e = logs[c]
-            wt = self._weights[c]
+        m = self.w.size
+        blocks = self.blocks
+        r = np.empty(m * len(blocks))
+        J = np.empty((m * len(blocks), len(self.structure.param_names))) if jacobian else None
+        logs = {c: self._log_ratio(resp[c][0], c) for c in self.channels}
+        unweighted = self.weighting == "none"
+        for b, (c, kind) in enumerate(blocks):
+            rows = slice(b * m, (b + 1) * m)
             if kind == "mag":
-                rs.append(DB_PER_NEPER * wt * e.real)
-                if jacobian:
-                    js.append(DB_PER_NEPER * wt[:, None] * dL.real)
+                k, e = DB_PER_NEPER, logs[c][0]
             else:
-                k = self.phase_weight * DEG_PER_RAD
-                rs.append(k * wt * e.imag)
-                if jacobian:
-                    js.append(k * wt[:, None] * dL.imag)
-        return np.concatenate(rs), (np.vstack(js) if jacobian else None)
+                k, e = self.phase_weight * DEG_PER_RAD, logs[c][1]
+            kw = k if unweighted else k * self._weights[c]
+            np.multiply(kw, e, out=r[rows])
+            if jacobian:
+                dL = resp[c][1]
+                part = dL.real if kind == "mag" else dL.imag
+                np.multiply(kw if unweighted else kw[:, None], part, out=J[rows])
+        return r, J
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
         return self.residuals_and_jacobian(x, jacobian=False)[0]

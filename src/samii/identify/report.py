@@ -14,7 +14,8 @@ from samii.identify.fit import FitResult
 
 __all__ = ["CLI_KEYS", "summary_dict", "fit_filename", "write_fit_outputs", "params_markdown", "quality_rows", "fits_markdown"]
 
-#: Keys of ``samii fit --json`` (issue 5), then the phase weight and the warnings.
+#: Keys of ``samii fit --json`` (issue 5); then phase weight, weighting, band, channels,
+#: parameters not fitted (null in ``params``), the lack-of-fit report and the warnings.
 CLI_KEYS = ("params", "stderr", "cost", "rms_mag_db", "rms_phase_deg", "converged", "message")
 
 
@@ -22,8 +23,8 @@ def summary_dict(result: FitResult) -> dict:
     """The ``--json`` object of one fit."""
     d = result.to_dict()
     out = {k: d[k] for k in CLI_KEYS}
-    out["phase_weight"] = d["phase_weight"]
-    out["warnings"] = d["warnings"]
+    for k in ("phase_weight", "weighting", "band_hz", "channels", "not_fitted", "lack_of_fit", "warnings"):
+        out[k] = d[k]
     return out
 
 
@@ -65,6 +66,7 @@ def write_fit_outputs(data: FrequencyResponse, results: Sequence[FitResult], out
             [r.stderr for r in results],
             st.param_names,
             xlabel="phase weight",
+            units=st.units(),
             title="fitted parameters against phase weight (95 % intervals)",
             note=note,
         )
@@ -99,7 +101,17 @@ def quality_rows(fits: Mapping[str, FitResult]) -> dict[str, dict[str, str]]:
     channels = next(iter(fits.values())).channels
     for c in channels:
         rows[f"RMS {c} [dB / deg]"] = {k: f"{r.rms_mag_db[c]:.3g} / {r.rms_phase_deg[c]:.3g}" for k, r in fits.items()}
+    rows["lack of fit (bands where residuals > 5x random error)"] = {k: _lof_cell(r) for k, r in fits.items()}
     return rows
+
+
+def _lof_cell(result: FitResult) -> str:
+    lof = result.lack_of_fit
+    if lof is None:
+        return ""
+    if not lof.found:
+        return "none"
+    return "; ".join(f"{b.channel} {b.f_lo_hz:.3g}-{b.f_hi_hz:.3g} Hz" for b in lof.bands)
 
 
 def fits_markdown(fits: Mapping[str, FitResult], *, convert: Callable[[Mapping[str, float]], Mapping[str, float]] = dict) -> str:

@@ -47,13 +47,8 @@ def _response(st: ModelStructure, x: np.ndarray, w: np.ndarray, channel: str) ->
 def _design(problem: FitProblem, x: np.ndarray, channel: str) -> np.ndarray:
     """Columns phi_k(w): the response of ``channel`` with B_k = 1 and the other B's 0."""
     st = problem.structure
-    cols = []
-    for k in range(1, st.n_modes + 1):
-        xk = x.copy()
-        for j in range(1, st.n_modes + 1):
-            xk[st.param_names.index(f"B{j}")] = 1.0 if j == k else 0.0
-        cols.append(_response(st, xk, problem.w, channel))
-    return np.stack(cols, axis=1)
+    cols = st.modal_columns(x, problem.w)
+    return cols * _response(st, x, problem.w, "act")[:, None] if channel == "total" else cols
 
 
 def solve_gains(problem: FitProblem, x: np.ndarray) -> np.ndarray:
@@ -210,9 +205,9 @@ def _scan_wp(problem: FitProblem, x: np.ndarray, n: int = 40) -> np.ndarray:
 
 
 def _grid_refine(problem: FitProblem, x: np.ndarray, *, sweeps: int = 2) -> np.ndarray:
-    """Coordinate search over a log grid (x/4 ... x*4, 9 points) of each damping ratio and tau."""
+    """Coordinate search over a log grid (x/4 ... x*4, 9 points) of each fitted damping ratio and tau."""
     st = problem.structure
-    names = [n for n in st.param_names if n.startswith("z") or n == "tau"]
+    names = [n for n, free in zip(st.param_names, problem.fitted) if free and (n.startswith("z") or n == "tau")]
     idx = {n: i for i, n in enumerate(st.param_names)}
     factors = np.geomspace(0.25, 4.0, 9)
     best = solve_gains(problem, x)

@@ -49,9 +49,11 @@ class ModelStructure:
     numerator : {"s4", "s2"}
         Power of s in front of the modal sum of xdd/theta (chapter 2 derives s^4;
         chapter 4 compares s^2).
-    tie_mode2 : bool
-        Mode 2 of the base is the actuator's zero pair (w2 = wz, z2 = zz, eq 9.2).
-        Needs ``n_modes >= 2``; with ``False`` mode 2 gets its own w2, z2.
+    tie_mode2 : bool, optional
+        Mode 2 of the base is the actuator's zero pair (w2 = wz, z2 = zz, eq 9.2);
+        with ``False`` mode 2 gets its own w2, z2. Default: True for 2 or more
+        modes (as the notebook), False for 1 mode (there is no mode 2 to tie;
+        ``True`` with 1 mode is refused).
     w2_factors : bool, optional
         Gains are B_k w_k^2 (eq 1.2) instead of B_k (eq 9.2). Default as the
         notebook: True for 2 modes, False otherwise. Pass it explicitly to fit
@@ -60,7 +62,7 @@ class ModelStructure:
 
     n_modes: int = 3
     numerator: Numerator = "s4"
-    tie_mode2: bool = True
+    tie_mode2: bool | None = None
     w2_factors: bool | None = None
 
     def __post_init__(self) -> None:
@@ -68,8 +70,11 @@ class ModelStructure:
             raise ValueError(f"n_modes must be an integer >= 1, got {self.n_modes!r}")
         if self.numerator not in get_args(Numerator):
             raise ValueError(f"numerator must be one of {get_args(Numerator)}, got {self.numerator!r}")
-        if self.tie_mode2 and self.n_modes < 2:
-            object.__setattr__(self, "tie_mode2", False)  # nothing to tie with a single mode
+        if self.tie_mode2 is None:
+            object.__setattr__(self, "tie_mode2", self.n_modes >= 2)
+        elif self.tie_mode2 and self.n_modes < 2:
+            raise ValueError("tie_mode2=True needs n_modes >= 2 (it makes mode 2 the actuator zero, w2 = wz); a 1-mode base has no mode 2")
+        object.__setattr__(self, "tie_mode2", bool(self.tie_mode2))
         if self.w2_factors is None:
             object.__setattr__(self, "w2_factors", self.n_modes == 2)
 
@@ -116,9 +121,48 @@ class ModelStructure:
         return f"w{k}", f"z{k}"
 
     def describe(self) -> str:
-        tie = "w2=wz, z2=zz" if self.tie_mode2 else "mode 2 free"
+        """One line, e.g. "3 modes, s4 numerator, w2=wz, z2=zz, gains B_k (eq 9.2)"."""
+        modes = "1 mode" if self.n_modes == 1 else f"{self.n_modes} modes"
+        tie = ("w2=wz, z2=zz, " if self.tie_mode2 else "mode 2 free, ") if self.n_modes >= 2 else ""
         gains = "B_k w_k^2 (eq 1.2)" if self.w2_factors else "B_k (eq 9.2)"
-        return f"{self.n_modes} modes, {self.numerator} numerator, {tie}, gains {gains}"
+        return f"{modes}, {self.numerator} numerator, {tie}gains {gains}"
+
+    def channel_params(self, channels: tuple[Channel, ...]) -> tuple[str, ...]:
+        """Names of the parameters the response of ``channels`` depends on, in ``param_names`` order.
+
+        theta/v (``act``) depends on the actuator's six (K1, wp, zp, wz, zz, tau);
+        xdd/theta (``base``) on every mode's frequency and damping (mode 2's are
+        wz, zz when tied) and the gains B_k; xdd/v (``total``) on all.
+        """
+        need: set[str] = set()
+        if "act" in channels or "total" in channels:
+            need.update(_ACT_NAMES)
+        if "base" in channels or "total" in channels:
+            for k in range(1, self.n_modes + 1):
+                need.update(self.mode_names(k))
+                need.add(f"B{k}")
+        return tuple(n for n in self.param_names if n in need)
+
+    def units(self, theta: str = "rad", accel: str = "m/s²") -> dict[str, str]:
+        """Unit of every parameter, for tables and plot titles.
+
+        ``theta``: unit of the arm angle ("rad" in samii's data, "deg" assumed for
+        the notebook's); ``accel``: unit of the base acceleration. Frequencies and
+        tau are in rad/s, damping ratios dimensionless; K1 follows from theta/v ~
+        K1/s at low frequency; B_k from xdd/theta = s^n B_k [w_k^2] / (s^2 + ...).
+        """
+        u = {"K1": f"{theta}/(V·s)", "tau": "rad/s"}
+        # xdd/theta [accel/theta]: s^n/D has units s^(2-n), w_k^2 has s^-2
+        base_power = self.power - 2 + (2 if self.w2_factors else 0)
+        gain = f"({accel})/{theta}" + {0: "", 2: "·s²", 4: "·s⁴"}[base_power]
+        for n in self.param_names:
+            if n.startswith("B"):
+                u[n] = gain
+            elif n.startswith("w"):
+                u[n] = "rad/s"
+            elif n.startswith("z"):
+                u[n] = "1"
+        return {n: u[n] for n in self.param_names}
 
     def to_dict(self) -> dict:
         return {"n_modes": int(self.n_modes), "numerator": self.numerator, "tie_mode2": bool(self.tie_mode2), "w2_factors": bool(self.w2_factors)}
@@ -189,7 +233,7 @@ class ModelStructure:
                 dL[:, idx["zz"]] = (2 * wz) * s * inv_Nz
                 dL[:, idx["tau"]] = 1.0 / tau - inv_lag
                 out["act"] = (H, dL)
-        if need_base:
+        if need_base:  # mode by mode on 1-d arrays: faster than (m, N) broadcasting at these sizes
             sn = s2 * s2 if self.power == 4 else s2
             H = np.zeros(s.size, complex)
             cols: list[tuple[int, np.ndarray]] = []
@@ -210,12 +254,34 @@ class ModelStructure:
                 inv_H = 1.0 / H
                 dL = np.zeros((s.size, n), complex)
                 for i, col in cols:
-                    dL[:, i] += col * inv_H
+                    dL[:, i] = col * inv_H
             out["base"] = (H, dL)
         if "total" in channels:
             (Ha, dLa), (Hb, dLb) = out["act"], out["base"]
             out["total"] = (Ha * Hb, dLa + dLb if derivatives else None)
         return {c: out[c] for c in channels}
+
+    @cached_property
+    def _mode_index(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Positions in ``param_names`` of every mode's frequency, damping and gain (mode order)."""
+        idx = self._index
+        names = [self.mode_names(k) for k in range(1, self.n_modes + 1)]
+        return tuple(np.array([idx[n] for n in col]) for col in (*zip(*names), [f"B{k}" for k in range(1, self.n_modes + 1)]))
+
+    def _modal_terms(self, wk: np.ndarray, zk: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(s^n / D_k (m, N), gain factor g_k (N,), 1/D_k (m, N)), D_k = s^2 + 2 z_k w_k s + w_k^2."""
+        s2 = (s * s)[:, None]
+        sn = s2 * s2 if self.power == 4 else s2
+        inv_D = 1.0 / (s2 + (2 * zk * wk) * s[:, None] + wk * wk)
+        g = wk**2 if self.w2_factors else np.ones_like(wk)
+        return sn * inv_D, g, inv_D
+
+    def modal_columns(self, x: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """xdd/theta of each mode with unit gain, (m, N): column k is s^n g_k / D_k, so base = columns @ B."""
+        wi, zi, _ = self._mode_index
+        x = np.asarray(x, float)
+        t, g, _ = self._modal_terms(x[wi], x[zi], 1j * np.asarray(w, float))
+        return t * g
 
     def response(self, params: Mapping[str, float], freq_hz: np.ndarray, channel: Channel) -> np.ndarray:
         """Complex response of ``channel`` at ``freq_hz`` for named parameters."""
@@ -224,24 +290,31 @@ class ModelStructure:
 
     # -- python-control -------------------------------------------------------------
     def to_tf(self, params: Mapping[str, float], channel: Channel = "total"):
-        """python-control ``TransferFunction`` of ``channel`` (uses samii.notebook's seed TFs).
+        """python-control ``TransferFunction`` of ``channel``.
 
-        The base channel with the s^4 numerator is improper (relative degree -2, chapter 2
-        notes it is non-causal); the total xdd/v is proper.
+        theta/v is ``samii.notebook.actuator_tf`` (eq 9.1); xdd/theta is built here
+        mode by mode exactly as ``samii.notebook.base_tf`` builds eq 9.2 (any
+        number of modes, 1 included). The base channel with the s^4 numerator is
+        improper (relative degree -2, chapter 2 notes it is non-causal); the total
+        xdd/v is proper.
         """
+        import control
+
         from samii import notebook as nb
 
-        p = self.params(self.vector(params))  # untied: w2, z2 present, which base_tf uses instead of wz, zz
-        if self.n_modes == 1:
-            raise NotImplementedError("conversion of a 1-mode base to python-control is not supported (samii.notebook.base_tf needs modes 1 and 2)")
+        p = self.params(self.vector(params))
+        if channel not in ("act", "base", "total"):
+            raise ValueError(f"channel must be 'act', 'base' or 'total', got {channel!r}")
         if channel == "act":
             return nb.actuator_tf(p)
-        base = nb.base_tf(p, numerator=self.numerator, w2_factors=self.w2_factors)
-        if channel == "base":
-            return base
-        if channel == "total":
-            return nb.actuator_tf(p) * base
-        raise ValueError(f"channel must be 'act', 'base' or 'total', got {channel!r}")
+        base = control.tf([0.0], [1.0])
+        for k in range(1, self.n_modes + 1):
+            wn, zn = self.mode_names(k)
+            wk, zk = p[wn], p[zn]
+            gain = p[f"B{k}"] * (wk**2 if self.w2_factors else 1.0)
+            base = base + control.tf([gain], [1.0, 2.0 * zk * wk, wk**2])
+        base = control.tf([1.0] + [0.0] * self.power, [1.0]) * base
+        return base if channel == "base" else nb.actuator_tf(p) * base
 
     def to_ss(self, params: Mapping[str, float], channel: Channel = "total"):
         """python-control ``StateSpace`` (minimal realisation) of ``channel``.

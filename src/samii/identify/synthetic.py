@@ -90,6 +90,7 @@ def synthesize(freq_hz: np.ndarray, responses: Mapping[Channel, np.ndarray], *, 
         if rng is None:
             raise ValueError("synthesize with noise needs a seeded numpy Generator (rng=)")
         meta["noise"] = f"swept sine, {noise.n_averages} averages, noise floor {noise.dynamic_range_db} dB below each channel's peak, coherence >= {noise.min_coherence}"
+        meta.setdefault("frf_records", f"{noise.n_averages} (synthetic: the noise model's averages)")  # read by the lack-of-fit test
     for ch, h in responses.items():
         h = np.asarray(h, complex)
         if noise is None:

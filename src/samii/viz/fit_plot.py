@@ -12,28 +12,80 @@ import numpy as np
 from samii.frequency_response import Channel, FrequencyResponse
 from samii.viz.bode_plot import CHANNEL_LABELS
 
-__all__ = ["plot_fit_overlay", "plot_model_error", "plot_parameter_sweep", "plot_panels", "save_figure"]
+__all__ = ["anchored_phase_deg", "plot_fit_overlay", "plot_model_error", "plot_parameter_sweep", "plot_panels", "save_figure"]
+
+#: Points with at least this coherence carry the phase unwrapping (random phase
+#: error below 2.6 deg for 3 averages, Bendat & Piersol table 9.6).
+ANCHOR_COHERENCE = 0.9
 
 #: Alternate solid and dashed lines so that curves lying on top of each other stay visible.
 _LINESTYLES = ("-", "--")
 
 
-def _finish(fig, title: str | None, note: str | None, *, note_height: float):
-    """Title on top, provenance note in small print at the bottom, tight layout."""
+def _finish(fig, title: str | None, note: str | None, *, note_height: float, top: float = 1.0):
+    """Title on top, provenance note in small print at the bottom, tight layout (axes below ``top``)."""
     if title:
         fig.suptitle(title, fontsize=11)
     if note:
         fig.text(0.01, 0.005, note, fontsize=7, va="bottom", ha="left", color="0.25", wrap=True)
-    fig.tight_layout(rect=(0, note_height if note else 0, 1, 1))
+    fig.tight_layout(rect=(0, note_height if note else 0, 1, top))
     return fig
 
 
-def _aligned_phase_deg(h: np.ndarray, ref_deg: np.ndarray | None) -> np.ndarray:
-    """Unwrapped phase of ``h``, shifted by whole turns to sit nearest ``ref_deg`` (the data)."""
+def anchored_phase_deg(h: np.ndarray, coherence: np.ndarray | None = None, *, min_coherence: float = ANCHOR_COHERENCE) -> np.ndarray:
+    """Phase of ``h`` [deg], unwrapped through the well-measured points only.
+
+    ``np.unwrap`` from the first point lets every noisy low-coherence point that
+    jumps by more than 180 deg add a turn to all the points after it (a data
+    phase drawn 1000 deg off). Here the points with coherence >= ``min_coherence``
+    are unwrapped among themselves, starting from the principal value of the
+    first of them; every other point takes the turn that puts it nearest the
+    phase interpolated between its well-measured neighbours. Without coherence
+    (or with fewer than 2 good points) all points count as good.
+    """
+    ang = np.angle(np.asarray(h, complex))
+    good = np.ones(ang.size, bool) if coherence is None else np.asarray(coherence) >= min_coherence
+    if good.sum() < 2:
+        good = np.ones(ang.size, bool)
+    idx = np.flatnonzero(good)
+    ph_good = np.unwrap(ang[idx])
+    ref = np.interp(np.arange(ang.size), idx, ph_good)
+    ph = ang + 2 * np.pi * np.round((ref - ang) / (2 * np.pi))
+    ph[idx] = ph_good
+    return np.degrees(ph)
+
+
+def _figure_legend(fig, handles: Mapping[str, object], *, max_cols: int, title: bool) -> float:
+    """One legend for the whole figure, between the title and the plots (inside an axes it hides
+    data somewhere). Returns the top of the area left for the axes, for ``_finish``."""
+    rows = int(np.ceil(len(handles) / max_cols))
+    ncol = int(np.ceil(len(handles) / rows))  # balanced rows (matplotlib fills column by column)
+    top = 1.0 - (0.035 if title else 0.0) - 0.026 * rows
+    fig.legend(list(handles.values()), list(handles), loc="lower center", bbox_to_anchor=(0.5, top - 0.012), ncol=ncol, fontsize=8, frameon=False, borderaxespad=0.0)
+    return top + 0.012
+
+
+def _aligned_phase_deg(h: np.ndarray, ref_deg: np.ndarray | None, weight: np.ndarray | None = None) -> np.ndarray:
+    """Unwrapped phase of ``h``, shifted by whole turns to sit nearest ``ref_deg`` (the data)
+    at the points where ``weight`` is true (all if None)."""
     ph = np.degrees(np.unwrap(np.angle(h)))
     if ref_deg is None:
         return ph
-    return ph - 360.0 * np.round(np.median(ph - ref_deg) / 360.0)
+    d = ph - ref_deg
+    if weight is not None and np.any(weight):
+        d = d[weight]
+    return ph - 360.0 * np.round(np.median(d) / 360.0)
+
+
+def _model_response(model, freq_hz: np.ndarray, channel: Channel) -> np.ndarray | None:
+    """Response of a FitResult or a (ModelStructure, params) pair; None if the model cannot give that channel."""
+    if hasattr(model, "structure"):
+        try:
+            return model.response(freq_hz, channel)
+        except ValueError:  # a channel whose parameters were not fitted
+            return None
+    st, params = model
+    return st.response(params, freq_hz, channel)
 
 
 def plot_fit_overlay(
@@ -75,28 +127,28 @@ def plot_fit_overlay(
     rows = 3 if has_coh else 2
     fig, axes = plt.subplots(rows, len(channels), figsize=(5.2 * len(channels), 7.4 if has_coh else 6.0), sharex=True, squeeze=False, gridspec_kw={"height_ratios": [3, 3, 1.3][:rows]})
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    handles: dict = {}
     for j, ch in enumerate(channels):
         name, unit = CHANNEL_LABELS[ch]
         am, ap = axes[0, j], axes[1, j]
-        ph_data = data.phase_deg(ch)
-        am.semilogx(f, data.magnitude_db(ch), ".", ms=2.5, color="0.45", label="data", zorder=1)
+        coh = data.coherence(ch)
+        ph_data = anchored_phase_deg(data.response(ch), coh)
+        (handles["data"],) = am.semilogx(f, data.magnitude_db(ch), ".", ms=2.5, color="0.45", zorder=1)
         ap.semilogx(f, ph_data, ".", ms=2.5, color="0.45", zorder=1)
+        good_m = None if coh is None else np.interp(np.log(fm), np.log(f), coh) >= ANCHOR_COHERENCE
+        ref = np.interp(np.log(fm), np.log(f), ph_data)
         for k, (label, model) in enumerate(models.items()):
-            if hasattr(model, "structure"):
-                st, params = model.structure, model.params
-            else:
-                st, params = model
-            h = st.response(params, fm, ch)
-            ref = np.interp(np.log(fm), np.log(f), ph_data)
+            h = _model_response(model, fm, ch)
+            if h is None:
+                continue
             style = dict(ls=_LINESTYLES[k % 2], lw=1.3, color=colors[k % len(colors)], zorder=2)
-            am.semilogx(fm, 20 * np.log10(np.abs(h)), label=label, **style)
-            ap.semilogx(fm, _aligned_phase_deg(h, ref), **style)
+            (handles[label],) = am.semilogx(fm, 20 * np.log10(np.abs(h)), **style)
+            ap.semilogx(fm, _aligned_phase_deg(h, ref, good_m), **style)
         am.set_title(name)
         am.set_ylabel(f"magnitude [dB re 1 {unit}]")
         ap.set_ylabel("phase [deg]")
         if has_coh:
             ac = axes[2, j]
-            coh = data.coherence(ch)
             if coh is not None:
                 ac.semilogx(f, coh, "-", lw=1.0, color="0.3")
             ac.set_ylim(0, 1.05)
@@ -106,10 +158,10 @@ def plot_fit_overlay(
             if band_hz is not None:
                 a.axvspan(*band_hz, color="tab:green", alpha=0.06, lw=0)
         axes[-1, j].set_xlabel("frequency [Hz]")
-    axes[0, 0].legend(fontsize=8, loc="best")
     if band_hz is not None:
-        axes[0, -1].text(0.99, 0.02, f"fit band {band_hz[0]:g}-{band_hz[1]:g} Hz (shaded)", transform=axes[0, -1].transAxes, ha="right", va="bottom", fontsize=7, color="tab:green")
-    return _finish(fig, title, note, note_height=0.04)
+        axes[0, -1].text(0.99, 0.02, f"fit band {band_hz[0]:.3g}-{band_hz[1]:.3g} Hz (shaded)", transform=axes[0, -1].transAxes, ha="right", va="bottom", fontsize=7, color="tab:green")
+    top = _figure_legend(fig, handles, max_cols=4 if len(channels) > 1 else 2, title=bool(title))
+    return _finish(fig, title, note, note_height=0.04, top=top)
 
 
 def plot_model_error(
@@ -128,12 +180,13 @@ def plot_model_error(
     import matplotlib.pyplot as plt
 
     channels = list(next(iter(errors.values())))
-    fig, axes = plt.subplots(2, len(channels), figsize=(5.2 * len(channels), 5.6), sharex=True, squeeze=False)
+    fig, axes = plt.subplots(2, len(channels), figsize=(5.2 * len(channels), 5.9), sharex=True, squeeze=False)
+    handles: dict = {}
     for j, ch in enumerate(channels):
         for k, (label, per) in enumerate(errors.items()):
             db, deg = per[ch]
             deg = np.degrees(np.unwrap(np.radians(deg)))  # errors are principal values; drawn continuous
-            axes[0, j].semilogx(freq_hz, db, lw=1.2, ls=_LINESTYLES[k % 2], label=label)
+            (handles[label],) = axes[0, j].semilogx(freq_hz, db, lw=1.2, ls=_LINESTYLES[k % 2])
             axes[1, j].semilogx(freq_hz, deg, lw=1.2, ls=_LINESTYLES[k % 2])
         axes[0, j].set_title(CHANNEL_LABELS[ch][0])
         axes[0, j].set_ylabel("magnitude error [dB]")
@@ -144,8 +197,8 @@ def plot_model_error(
             a.grid(True, which="both", lw=0.3, alpha=0.6)
             if band_hz is not None:
                 a.axvspan(*band_hz, color="tab:green", alpha=0.06, lw=0)
-    axes[0, 0].legend(fontsize=8)
-    return _finish(fig, f"{title + ': ' if title else ''}{what}", note, note_height=0.05)
+    top = _figure_legend(fig, handles, max_cols=6 if len(channels) > 1 else 3, title=True)
+    return _finish(fig, f"{title + ': ' if title else ''}{what}", note, note_height=0.05, top=top)
 
 
 def plot_panels(
@@ -186,13 +239,16 @@ def plot_parameter_sweep(
     reference: Mapping[str, Sequence[float]] | None = None,
     reference_label: str = "notebook",
     truth: Mapping[str, float] | None = None,
+    units: Mapping[str, str] | None = None,
     title: str | None = None,
     note: str | None = None,
 ):
     """Small multiples: each parameter against ``x`` with 95 % error bars.
 
     ``reference`` (name -> values at the same ``x``) is drawn as open markers,
-    ``truth`` (name -> value) as a horizontal line.
+    ``truth`` (name -> value) as a horizontal line, ``units`` (name -> unit, e.g.
+    ``ModelStructure.units()``) go into each panel's title. Parameters not
+    fitted (NaN) leave their panel empty, so marked.
     """
     import matplotlib.pyplot as plt
 
@@ -214,7 +270,12 @@ def plot_parameter_sweep(
             a.plot(x, reference[name], "s", mfc="none", ms=5, color="tab:red", label=reference_label)
         if truth is not None and name in truth:
             a.axhline(truth[name], color="0.4", lw=0.8, ls="--", label="data generated with")
-        a.set_title(name, fontsize=9)
+        unit = (units or {}).get(name)
+        a.set_title(f"{name} [{unit}]" if unit else name, fontsize=9)
+        if not np.any(np.isfinite(v)):
+            a.text(0.5, 0.5, "not fitted", transform=a.transAxes, ha="center", va="center", fontsize=8, color="0.4")
+            a.set_xticks([])
+            a.set_yticks([])
         a.tick_params(labelsize=7)
         a.grid(True, lw=0.3, alpha=0.6)
         a.set_xlabel(xlabel, fontsize=7)
