@@ -202,3 +202,21 @@ def test_alternating_signs_cancel_even_order_distortion(rig, sweep):
     assert np.max(err_alt) < TOL_DB  # as clean as without distortion
     assert np.max(err_same) > 1.0 and np.min(coh_same) > 0.99  # biased, and coherence does not tell
     assert np.min(coh_alt) < 0.9  # the alternating records' coherence does
+
+
+def test_stepped_coherence_is_the_spectral_coherence_of_the_estimate():
+    """A sine of amplitude A in white noise s over N samples: the least-squares amplitude has
+    error power 4 s^2/N, so coherence = A^2/(A^2 + 4 s^2/N); checked against the spread of
+    the estimate over seeded trials, and a harmonic barely lowers it."""
+    from samii.measure.stepped import sine_amplitude
+
+    fs, f, n, amp, s = 1000.0, 5.0, 2000, 0.01, 0.2  # 10 periods; SNR per sample -29 dB
+    t = np.arange(n) / fs
+    rng = np.random.default_rng(7)
+    est, coh = zip(*(sine_amplitude(amp * np.sin(2 * np.pi * f * t) + rng.normal(0, s, n), t, f) for _ in range(400)))
+    expected = amp**2 / (amp**2 + 4 * s**2 / n)  # 0.56
+    assert np.mean(coh) == pytest.approx(expected, rel=0.1)
+    err_power = np.mean(np.abs(np.asarray(est) - (-1j * amp)) ** 2)  # sin = Re(-j e^{jwt})
+    assert err_power == pytest.approx(4 * s**2 / n, rel=0.15)
+    clean = amp * np.sin(2 * np.pi * f * t) + 0.1 * amp * np.sin(2 * np.pi * 2 * f * t)
+    assert sine_amplitude(clean, t, f)[1] > 0.999

@@ -12,10 +12,15 @@ At a single frequency the instrument-variable estimate reduces to the ratio of
 complex amplitudes (the excitation's amplitude cancels): act = Theta/V,
 base = A/Theta, total = A/V, so the estimate is correct in closed loop.
 
-Coherence of a signal in a window is the fraction of its variance that the
-fitted sinusoid explains (1 for a clean sine; noise, harmonics and leftover
-transients lower it); a channel's coherence is the product of its numerator's
-and denominator's, as for the swept sine (:mod:`samii.measure.frf`).
+Coherence of a signal in a window is that of a spectral estimate at the dwell
+frequency with the window's resolution, so that it reads like the swept sine's
+(:mod:`samii.measure.frf`) on the same plot: with N samples and residual
+variance s^2 (what the sine does not explain, taken as white), the least-squares
+amplitude has error power E|dY|^2 = var(a) + var(b) = 4 s^2 / N, and
+``coherence = |Y|^2 / (|Y|^2 + 4 s^2 / N)``. Noise lowers it as it lowers the
+estimate's accuracy; harmonics and slow leftovers count as white noise (a
+conservative reading). A channel's coherence is the product of its numerator's
+and denominator's, as for the swept sine.
 """
 
 from __future__ import annotations
@@ -31,13 +36,16 @@ _SIGNALS = ("v", "theta", "accel")
 
 
 def sine_amplitude(y: np.ndarray, t_s: np.ndarray, freq_hz: float) -> tuple[complex, float]:
-    """Complex amplitude ``Y`` (y ~ Re(Y e^{j 2 pi f t}) + c) and the fraction of variance it explains."""
+    """Complex amplitude ``Y`` (y ~ Re(Y e^{j 2 pi f t}) + c) and its coherence (module docstring)."""
     w = 2.0 * np.pi * freq_hz
     basis = np.column_stack([np.cos(w * t_s), np.sin(w * t_s), np.ones_like(t_s)])
     (a, b, c), *_ = np.linalg.lstsq(basis, y, rcond=None)
-    var = np.var(y)
-    explained = (a * a + b * b) / 2.0 / var if var > 0 else 0.0
-    return complex(a, -b), float(min(explained, 1.0))
+    n = y.size
+    resid = y - basis @ np.array([a, b, c])
+    s2 = float(resid @ resid) / max(n - 3, 1)  # residual variance, 3 parameters fitted
+    power = a * a + b * b  # |Y|^2
+    coherence = power / (power + 4.0 * s2 / n) if power > 0 else 0.0
+    return complex(a, -b), float(coherence)
 
 
 def estimate_stepped(ts: TimeSeries, *, freqs_hz, windows_s) -> FrequencyResponse:
@@ -88,7 +96,7 @@ def estimate_stepped(ts: TimeSeries, *, freqs_hz, windows_s) -> FrequencyRespons
         {
             "frf_estimator": "stepped sine: least-squares sine fit (correlation with cos, sin and a constant) per dwell; act=Theta/V base=A/Theta total=A/V",
             "frf_window": "rectangular, whole periods after settling: " + "; ".join(f"{f:g} Hz {a:.6g}-{b:.6g} s" for f, (a, b) in zip(freqs[order], windows[order])),
-            "frf_coherence": "fraction of each signal's variance in the window explained by the fitted sine; channel = product of numerator's and denominator's",
+            "frf_coherence": "|Y|^2/(|Y|^2 + 4 s^2/N) per signal (s^2: residual variance of the sine fit, N samples: the spectral coherence at the window's resolution); channel = product of numerator's and denominator's",
         }
     )
     return FrequencyResponse(freqs[order], metadata=meta, **kw)

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from samii.frequency_response import CHANNELS, FrequencyResponse
+from samii.viz.phase import anchored_phase_deg
 
 __all__ = ["bode_plot", "CHANNEL_LABELS"]
 
@@ -22,14 +23,11 @@ CHANNEL_LABELS = {
 
 
 def _anchored_phase(frf: FrequencyResponse, ch: str, threshold: float | None) -> np.ndarray:
-    """Unwrapped phase [deg], put on the branch where it lies in -180...180 mid-band.
-
-    The anchor is the coherent point nearest the band's geometric centre, not
-    the lowest frequency: a weak signal at the band's edge (the base
-    acceleration near 0.1 Hz) can throw an unwrap started there whole turns off.
-    """
-    ph = frf.phase_deg(ch)
+    """Phase [deg] unwrapped through the coherent points (:func:`samii.viz.phase.anchored_phase_deg`),
+    on the branch where the coherent point nearest the band's geometric centre lies in -180...180."""
     coh = frf.coherence(ch)
+    kw = {} if threshold is None else {"min_coherence": threshold}
+    ph = anchored_phase_deg(frf.response(ch), coh if threshold is not None else None, **kw)
     good = np.ones(ph.size, bool) if coh is None or threshold is None else coh >= threshold
     if not np.any(good):
         good[:] = True
@@ -95,41 +93,61 @@ def bode_plot(
     for j, ch in enumerate(channels):
         name, unit = CHANNEL_LABELS[ch]
         ax_mag, ax_ph, ax_coh = axes[:, j]
-        ref_phase = None
+        # Phase branch: with a reference curve (smooth, dense), every measured point is
+        # drawn on the reference's branch (within 180 deg of it), so that a noisy
+        # stretch cannot carry the rest of the curve whole turns away; without
+        # one, the measurement is unwrapped from a coherent mid-band anchor.
+        ref_drawn = None
+        if reference is not None and ch in reference.channels:
+            ref_drawn = np.degrees(np.unwrap(np.angle(reference.response(ch))))
+            ref_drawn -= 360.0 * np.round(np.median(ref_drawn) / 360.0)
+        ref_curve = ref_drawn
+        lims = []
         if frf is not None and ch in frf.channels:
-            ref_phase = _anchored_phase(frf, ch, coherence_threshold)
             coh = frf.coherence(ch)
+            if ref_curve is None:
+                phase = _anchored_phase(frf, ch, coherence_threshold)
+            else:
+                phase = _align_phase(frf.phase_deg(ch), frf.freq_hz, ref_curve, reference.freq_hz)
             mag = frf.magnitude_db(ch)
             # the whole curve light, the coherent part solid
             ax_mag.semilogx(frf.freq_hz, mag, color="C0", lw=0.8, alpha=0.35)
-            ax_ph.semilogx(frf.freq_hz, ref_phase, color="C0", lw=0.8, alpha=0.35)
+            ax_ph.semilogx(frf.freq_hz, phase, color="C0", lw=0.8, alpha=0.35)
             ax_mag.semilogx(frf.freq_hz, _faded(mag, coh, coherence_threshold), color="C0", lw=1.3, label="swept sine")
-            ax_ph.semilogx(frf.freq_hz, _faded(ref_phase, coh, coherence_threshold), color="C0", lw=1.3)
+            ax_ph.semilogx(frf.freq_hz, _faded(phase, coh, coherence_threshold), color="C0", lw=1.3)
             if coh is not None:
                 ax_coh.semilogx(frf.freq_hz, coh, color="C0", lw=1.0)
-            good = np.isfinite(_faded(ref_phase, coh, coherence_threshold))
+            good = np.isfinite(_faded(phase, coh, coherence_threshold))
             if np.any(good) and not np.all(good):  # keep incoherent phase from squashing the axis
-                lo, hi = ref_phase[good].min(), ref_phase[good].max()
-                pad = max(20.0, 0.08 * (hi - lo))
-                ax_ph.set_ylim(lo - pad, hi + pad)
+                lims.append(phase[good])
+            elif np.all(good):
+                lims.append(phase)
+            if ref_curve is None:
+                ref_curve, ref_freq = phase, frf.freq_hz  # the stepped points' branch
+            else:
+                ref_freq = reference.freq_hz
+        elif ref_curve is not None:
+            ref_freq = reference.freq_hz
         if reference is not None and ch in reference.channels:
-            ph = reference.phase_deg(ch)
-            if ref_phase is not None:
-                lo, hi = frf.freq_hz[np.isfinite(_faded(ref_phase, frf.coherence(ch), coherence_threshold))][[0, -1]]
-                near = (reference.freq_hz >= lo) & (reference.freq_hz <= hi)
-                gap = ph[near] - np.interp(reference.freq_hz[near], frf.freq_hz, ref_phase)
-                ph = ph - 360.0 * np.round(np.median(gap) / 360.0) if gap.size else ph
             ax_mag.semilogx(reference.freq_hz, reference.magnitude_db(ch), "k--", lw=0.9, label=reference_label)
-            ax_ph.semilogx(reference.freq_hz, ph, "k--", lw=0.9)
+            ax_ph.semilogx(reference.freq_hz, ref_drawn, "k--", lw=0.9)
+            lims.append(ref_drawn)
         if stepped is not None and ch in stepped.channels:
             ph = stepped.phase_deg(ch)
-            if ref_phase is not None:
-                ph = _align_phase(ph, stepped.freq_hz, ref_phase, frf.freq_hz)
+            if ref_curve is not None:
+                ph = _align_phase(ph, stepped.freq_hz, ref_curve, ref_freq)
             ax_mag.semilogx(stepped.freq_hz, stepped.magnitude_db(ch), "o", color="C3", ms=4.5, mfc="none", label="stepped sine")
             ax_ph.semilogx(stepped.freq_hz, ph, "o", color="C3", ms=4.5, mfc="none")
             coh = stepped.coherence(ch)
             if coh is not None:
                 ax_coh.semilogx(stepped.freq_hz, coh, "o", color="C3", ms=3.5, mfc="none")
+            keep = np.ones(ph.size, bool) if coh is None or coherence_threshold is None else coh >= coherence_threshold
+            lims.append(ph[keep])
+        if lims and np.concatenate(lims).size:
+            allv = np.concatenate(lims)
+            lo, hi = float(np.min(allv)), float(np.max(allv))
+            pad = max(20.0, 0.08 * (hi - lo))
+            ax_ph.set_ylim(lo - pad, hi + pad)
         ax_mag.set_title(name)
         ax_mag.set_ylabel(f"magnitude [dB re 1 {unit}]")
         ax_ph.set_ylabel("phase [deg]")
