@@ -62,7 +62,8 @@ def one_campaign(model, excitation, folder: Path) -> dict[str, float]:
     out["record"] = time.perf_counter() - t
     t = time.perf_counter()
     if isinstance(excitation, SweptSine):
-        frf = estimate_frf(ts, record_s=excitation.record_s, baseline_s=excitation.lead_s, band_hz=(excitation.start_hz, excitation.stop_hz))
+        frf = estimate_frf(ts, record_s=excitation.record_s, baseline_s=excitation.lead_s, band_hz=(excitation.start_hz, excitation.stop_hz),
+                           record_signs=excitation.record_signs)
     else:
         frf = estimate_stepped(ts, freqs_hz=excitation.freqs_hz, windows_s=excitation.windows_s)
     out["estimate"] = time.perf_counter() - t

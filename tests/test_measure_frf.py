@@ -220,3 +220,26 @@ def test_stepped_coherence_is_the_spectral_coherence_of_the_estimate():
     assert err_power == pytest.approx(4 * s**2 / n, rel=0.15)
     clean = amp * np.sin(2 * np.pi * f * t) + 0.1 * amp * np.sin(2 * np.pi * 2 * f * t)
     assert sine_amplitude(clean, t, f)[1] > 0.999
+
+
+def test_record_signs_are_read_off_a_fast_sweep_or_stated():
+    """Records are cut at whole samples: a repeat is shifted by up to half a sample, which
+    a sweep to 100 Hz at 1 kHz turns into |rho| = 0.99; the signs must still be found."""
+    from samii.measure.frf import record_weights
+
+    sw = SweptSine(stop_hz=100.0, start_hz=1.0, tail_s=2.0, lead_s=0.5)
+    fs = 1000.0
+    r = sw.signal(np.arange(int(sw.duration_s * fs)) / fs)
+    n = int(np.floor(sw.record_s * fs))
+    starts = np.round(np.arange(sw.repetitions) * sw.record_s * fs).astype(int)
+    recs = np.stack([r[s : s + n] for s in starts])
+    w, how = record_weights(recs)
+    np.testing.assert_allclose(w, [0.25, 0.5, 0.25])
+    assert "+-+" in how and "read off" in how
+    w, how = record_weights(recs, sw.record_signs)
+    assert "stated" in how and sw.record_signs == (1, -1, 1)
+    with pytest.raises(ValueError, match="record signs"):
+        record_weights(recs, (1, 0, 1))
+    rng = np.random.default_rng(0)
+    w, how = record_weights(rng.normal(size=(3, 1000)))  # not one excitation repeated
+    assert "uniform" in how

@@ -76,3 +76,17 @@ def test_a_failed_stream_leaves_nothing_and_refuses_garbage(tmp_path):
     assert path.read_text() == "precious"
     with pytest.raises(ValueError, match="v, theta, accel"):
         TimeSeriesCsvWriter(tmp_path / "x.csv", ["v", "theta"], {})
+
+
+def test_empty_chunk_and_zero_noise_levels():
+    phys = _physics(1.0)
+    cols = phys.columns()
+    del cols["t"]
+    daq = Daq(PHYS_HZ, sample_rate_hz=1000.0)
+    t, out = daq.process(0.0, {k: v[:0] for k, v in cols.items()})
+    assert t.size == 0 and all(v.size == 0 for v in out.values())
+    # a channel's noise does not depend on another channel's level (one stream per channel)
+    a = acquire(phys, sample_rate_hz=1000.0, noise=SensorNoise(), rng=np.random.default_rng(5))
+    b = acquire(phys, sample_rate_hz=1000.0, noise=SensorNoise(v_v=0.0), rng=np.random.default_rng(5))
+    np.testing.assert_array_equal(a.accel, b.accel)
+    assert not np.array_equal(a.v, b.v)

@@ -205,3 +205,21 @@ def test_no_chunk_of_a_diverged_run_is_passed_on():
     with pytest.raises(SimulationUnstable):
         simulate(fast, np.full(20000, 5.0), chunk_steps=20000, on_chunk=seen.append)
     assert seen == []
+
+
+def test_divergence_is_caught_again_on_reused_data_and_for_any_warning(model):
+    """mujoco.rollout clears the warning counters at every call and stops at the first warning
+    of any kind (a bad qvel resets the state to finite defaults): both must still raise."""
+    import mujoco
+
+    fast = load_model(overrides={"timestep_s": 3e-3})
+    scratch = mujoco.MjData(fast)
+    for _ in range(2):  # the second run on the same data diverges just as the first
+        with pytest.raises(SimulationUnstable):
+            simulate(fast, np.full(20000, 5.0), data=scratch)
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    state = np.empty(mujoco.mj_stateSize(model, spec))
+    mujoco.mj_getState(model, mujoco.MjData(model), state, spec)
+    state[1 + model.nq] = 2e10  # qvel far beyond MuJoCo's bad-velocity limit (1e10)
+    with pytest.raises(SimulationUnstable):
+        simulate(model, np.zeros(100), initial_state=state)

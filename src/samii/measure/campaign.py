@@ -177,7 +177,8 @@ def measure_swept(
     """
     run, ts = record(model, sweep, sample_rate_hz=sample_rate_hz, noise=noise, rng=rng, timeseries_path=timeseries_path,
                      overwrite=overwrite, frame_steps=frame_steps, progress=progress)
-    frf = estimate_frf(ts, record_s=sweep.record_s, baseline_s=sweep.lead_s, band_hz=(sweep.start_hz, sweep.stop_hz))
+    frf = estimate_frf(ts, record_s=sweep.record_s, baseline_s=sweep.lead_s, band_hz=(sweep.start_hz, sweep.stop_hz),
+                       record_signs=sweep.record_signs)
     return Measurement(ts, frf, run)
 
 

@@ -118,9 +118,9 @@ class Daq:
         self._t0: float | None = None
         self._count = 0  # DAQ samples produced so far
         self._streams = {}
-        if noise is not None:
-            stds = {k: v for k, v in noise.std().items() if v > 0}
-            self._streams = dict(zip(stds, rng.spawn(len(stds))))
+        if noise is not None:  # one stream per channel, zero levels included: a channel's noise does not depend on the others' levels
+            names = list(noise.std())
+            self._streams = dict(zip(names, rng.spawn(len(names))))
 
     def metadata(self) -> dict[str, str]:
         """What a record from this DAQ says about it (DATA_FORMATS.md metadata lines)."""
@@ -138,6 +138,9 @@ class Daq:
         used (the DAQ clock runs from there). Returns the DAQ times and columns.
         """
         names = list(columns)
+        n_samples = len(next(iter(columns.values()))) if columns else 0
+        if n_samples == 0:
+            return np.empty(0), {k: np.empty(0) for k in names}
         if self._names is None:
             self._names = names
             self._t0 = float(t0_s)
@@ -155,8 +158,9 @@ class Daq:
         out = dict(zip(names, sampled))
         if self.noise is not None:
             for name, stream in self._streams.items():
-                if name in out:
-                    out[name] = out[name] + stream.normal(0.0, getattr(self.noise, _NOISE_FIELD[name]), m)
+                std = getattr(self.noise, _NOISE_FIELD[name])
+                if name in out and std > 0:
+                    out[name] = out[name] + stream.normal(0.0, std, m)
             if "spool" in out:
                 out["spool"] = np.clip(out["spool"], -1.0, 1.0)
         return t, out

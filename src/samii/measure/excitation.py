@@ -210,6 +210,11 @@ class SweptSine:
         """The whole campaign [s]."""
         return self.repetitions * self.record_s
 
+    @property
+    def record_signs(self) -> tuple[int, ...]:
+        """Sign of the excitation in each repetition: (+1, -1, +1, ...) with ``alternate_sign``."""
+        return tuple(-1 if (self.alternate_sign and k % 2) else 1 for k in range(self.repetitions))
+
     def _up_frequency_hz(self, u: np.ndarray) -> np.ndarray:
         """Frequency at time u into the upward active part."""
         tau = np.clip(u - self.fade_low_s, 0.0, self.sweep_s)

@@ -98,31 +98,41 @@ def split_records(ts: TimeSeries, *, record_s: float, baseline_s: float) -> tupl
     return records, n_records
 
 
-def record_weights(r_records: np.ndarray) -> tuple[np.ndarray, str]:
+def record_weights(r_records: np.ndarray, signs=None) -> tuple[np.ndarray, str]:
     """Weights of the records in the averaged cross-spectra, and how they were chosen.
 
-    Records that repeat the first one's excitation up to sign (normalised
-    correlation above 0.999 in magnitude) with both signs present get weights
-    that cancel even-order distortion (module docstring); otherwise all weigh 1/N.
+    With both signs present the weights cancel even-order distortion (module
+    docstring); otherwise all weigh 1/N. ``signs`` (+1/-1 per record, e.g.
+    ``SweptSine.record_signs``) states them; without it they are read off the
+    data: records whose excitation correlates with the first one's at
+    |rho| > 0.9 count as it repeated with the sign of rho. (Records are cut at
+    whole samples, so a repeat can be shifted by up to half a sample: |rho| is
+    then below 1 by ~(pi f_max / fs)^2 / 2, 0.8 % for a sweep to 40 Hz at 1 kHz.)
     """
     n = r_records.shape[0]
     uniform = np.full(n, 1.0 / n)
     if n < 2:
         return uniform, "one record"
-    ref = r_records[0]
-    norms = np.linalg.norm(r_records, axis=1)
-    if norms[0] == 0 or np.any(norms == 0):
-        return uniform, "uniform"
-    corr = r_records @ ref / (norms * norms[0])
-    if np.any(np.abs(np.abs(corr) - 1.0) > 1e-3):
-        return uniform, "uniform (records are not one excitation repeated)"
-    signs = np.sign(corr)
+    if signs is not None:
+        signs = np.asarray(signs, float).ravel()
+        if signs.size != n or not np.all(np.isin(signs, (-1.0, 1.0))):
+            raise ValueError(f"record signs must be {n} values of +1 or -1, got {signs.tolist()}")
+        how = "stated"
+    else:
+        norms = np.linalg.norm(r_records, axis=1)
+        if np.any(norms == 0):
+            return uniform, "uniform"
+        corr = r_records @ r_records[0] / (norms * norms[0])
+        if np.any(np.abs(corr) < 0.9):
+            return uniform, "uniform (records are not one excitation repeated)"
+        signs = np.sign(corr)
+        how = "read off the excitation"
     n_pos, n_neg = int(np.sum(signs > 0)), int(np.sum(signs < 0))
-    if n_neg == 0:
+    if n_neg == 0 or n_pos == 0:
         return uniform, "uniform (records repeat one excitation with one sign)"
     w = np.where(signs > 0, 0.5 / n_pos, 0.5 / n_neg)
     pattern = "".join("+" if x > 0 else "-" for x in signs)
-    return w, f"signs {pattern}, weights {', '.join(f'{x:.4g}' for x in w)}: even-order distortion cancels"
+    return w, f"signs {pattern} ({how}), weights {', '.join(f'{x:.4g}' for x in w)}: even-order distortion cancels"
 
 
 def fourier_at(x: np.ndarray, freqs_hz: np.ndarray, sample_rate_hz: float) -> np.ndarray:
@@ -145,6 +155,7 @@ def estimate_frf(
     freqs_hz=None,
     points_per_decade: float = _POINTS_PER_DECADE,
     pad_factor: int = 2,
+    record_signs=None,
 ) -> FrequencyResponse:
     """Closed-loop FRF (act, base, total) with coherence from repeated rest-to-rest sweep records.
 
@@ -166,6 +177,9 @@ def estimate_frf(
         Density of the logarithmic output grid.
     pad_factor : int
         FFT length is at least this many record lengths (finer grid at low frequency).
+    record_signs : sequence of +1/-1, optional
+        Sign of the excitation in each record (``SweptSine.record_signs``); by
+        default read off the data (:func:`record_weights`).
 
     Returns
     -------
@@ -201,7 +215,7 @@ def estimate_frf(
         spectra = {k: fourier_at(x, freqs, fs) for k, x in records.items()}
         grid = "direct Fourier sums at the requested frequencies"
 
-    w, weighting = record_weights(records["r"])
+    w, weighting = record_weights(records["r"], record_signs)
     w = w[:, None]
     R = spectra["r"]
     s_rr = np.sum(w * np.abs(R) ** 2, axis=0)

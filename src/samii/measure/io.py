@@ -20,7 +20,6 @@ folder first and move it into place, so a reader never sees half a file.
 
 from __future__ import annotations
 
-import io as _io
 import os
 import secrets
 from pathlib import Path

@@ -80,7 +80,10 @@ def simulate(
         Steps per rollout call (``progress(done, total)`` is called after each).
     on_chunk : callable(SimResult), optional
         Called in the calling thread with each chunk's signals, in order, while
-        the next chunk is stepped. Chunks of a diverged run are never passed on.
+        the next chunk is stepped (so it must not touch ``data``). The chunk in
+        which a run diverges is never passed on, but the chunks before it have
+        been: a consumer must discard what it got when ``SimulationUnstable``
+        is raised (``samii.measure.campaign.record`` deletes its file).
     qpos_every : int, optional
         Keep ``qpos`` every this many steps (for an animation): ``frame_t`` and
         ``frame_qpos`` of the result.
@@ -125,7 +128,6 @@ def simulate(
     n = ctrl_v.size
     out = {k: np.empty(n) for k in ("v", "theta", "accel", "p_load", "spool")}
     frames_t, frames_q = [], []
-    warn_before = int(data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number)
 
     def step(state: np.ndarray, lo: int, hi: int):
         return mujoco.rollout.rollout(model, data, state[None, :], ctrl_v[None, lo:hi, None])
@@ -138,7 +140,13 @@ def simulate(
             s, sd = pending.result()
             s, sd = s[0], sd[0]
             last = s[-1]
-            if not np.all(np.isfinite(last)) or int(data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number) > warn_before:
+            # mujoco.rollout clears the warning counters at every call and stops stepping at the
+            # first warning of any kind (bad qacc/qvel/qpos reset the state to finite defaults),
+            # copying that state into the rest of the chunk: any warning, a non-finite state or
+            # a clock that did not reach the chunk's end is a diverged run.
+            warned = any(int(w.number) > 0 for w in data.warning)
+            clock_ok = abs(float(last[0]) - (float(initial_state[0]) + hi * dt)) <= 1e-6 * max(1.0, hi * dt)
+            if warned or not clock_ok or not np.all(np.isfinite(last)):
                 t_bad = float(initial_state[0] + hi * dt)
                 raise SimulationUnstable(f"simulation diverged before t = {t_bad:.4g} s (non-finite state or bad acceleration); no result written")
             if i + 1 < len(bounds):
