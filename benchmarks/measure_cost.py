@@ -8,14 +8,14 @@ Times, in one process after a warm-up (median over repeats):
 
 * ``stepping``: one ``mujoco.rollout`` of the campaign's valve command from the
   ``home`` keyframe: the cost of ``mj_step`` alone on the same model (the limit);
-* ``record``: :func:`samii.measure.campaign.record` as ``samii measure`` runs it:
+* ``measure``: :func:`samii.measure.campaign.measure` as ``samii measure`` runs it:
   simulation in chunks, the DAQ (anti-alias filter, sampling) and
-  ``timeseries.csv`` streamed to disk while the next chunk steps on the other core;
-* ``estimate``: the FRF (instrument-variable swept sine or stepped-sine correlation);
+  ``timeseries.csv`` streamed to disk while the next chunk steps on the other core,
+  then the FRF estimate;
 * ``write_frf``: ``frf.csv``;
 * ``figure``: ``bode.png`` with the linearised simulator overlaid (not part of the goal).
 
-Printed: each stage's wall time, the campaign (record + estimate + write_frf)
+Printed: each stage's wall time, the campaign (measure + write_frf)
 against stepping, and real-time factors (simulated time / wall time). Goals
 (issue 3): >= 100x real time; campaign within 1.3x of stepping. The streaming
 needs a second core: on one core the CSV formatting (~1 s for the default
@@ -36,11 +36,9 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from samii.measure.campaign import linearised_frf, record
+from samii.measure.campaign import linearised_frf, measure
 from samii.measure.excitation import SteppedSine, SweptSine
-from samii.measure.frf import estimate_frf
 from samii.measure.io import write_frf_csv
-from samii.measure.stepped import estimate_stepped
 from samii.sim.model import load_model, make_data
 
 
@@ -58,15 +56,8 @@ def one_campaign(model, excitation, folder: Path) -> dict[str, float]:
     out["stepping"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    _, ts = record(model, excitation, timeseries_path=folder / "timeseries.csv", overwrite=True)
-    out["record"] = time.perf_counter() - t
-    t = time.perf_counter()
-    if isinstance(excitation, SweptSine):
-        frf = estimate_frf(ts, record_s=excitation.record_s, baseline_s=excitation.lead_s, band_hz=(excitation.start_hz, excitation.stop_hz),
-                           record_signs=excitation.record_signs)
-    else:
-        frf = estimate_stepped(ts, freqs_hz=excitation.freqs_hz, windows_s=excitation.windows_s)
-    out["estimate"] = time.perf_counter() - t
+    frf = measure(model, excitation, timeseries_path=folder / "timeseries.csv", overwrite=True).frf
+    out["measure"] = time.perf_counter() - t
     t = time.perf_counter()
     write_frf_csv(frf, folder / "frf.csv", overwrite=True)
     out["write_frf"] = time.perf_counter() - t
@@ -93,12 +84,12 @@ def main() -> None:
         runs = [one_campaign(model, excitation, Path(tmp)) for _ in range(args.repeats)]
     med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
     sim_s = excitation.duration_s
-    campaign = med["record"] + med["estimate"] + med["write_frf"]
+    campaign = med["measure"] + med["write_frf"]
     print(f"default {args.method}-sine campaign: {sim_s:.1f} s simulated, timestep {model.opt.timestep:g} s, "
           f"median of {args.repeats}, {os.cpu_count()} cores")
     for k, v in med.items():
         print(f"  {k:9s} {v:7.3f} s   {v / med['stepping']:6.3f} x stepping")
-    print(f"campaign (record+estimate+write_frf): {campaign:.3f} s = {campaign / med['stepping']:.2f} x stepping "
+    print(f"campaign (measure+write_frf): {campaign:.3f} s = {campaign / med['stepping']:.2f} x stepping "
           f"(goal <= 1.3), {sim_s / campaign:.0f}x real time (goal >= 100)")
     print(f"with the figure: {campaign + med['figure']:.3f} s = {(campaign + med['figure']) / med['stepping']:.2f} x stepping, "
           f"{sim_s / (campaign + med['figure']):.0f}x real time")

@@ -189,7 +189,7 @@ def test_missing_mode_is_reported_as_lack_of_fit_in_its_band(seed):
     base = [b for b in lof.bands if b.channel == "base"]
     assert any(b.f_lo_hz <= F_MODE3_HZ <= b.f_hi_hz for b in base), base
     assert not [b for b in lof.bands if b.channel == "act"]  # theta/v does not see mode 3
-    assert lof.noise_ratio["base"] > RATIO  # RMS over the whole band above the per-point threshold
+    assert lof.noise_ratio["base"] > RATIO  # RMS over the whole band above the per-point threshold (measured 29.4)
     assert any("xdd/theta (base)" in w and "structure error" in w for w in res.warnings)
     assert "LACK OF FIT" in res.message
     # without coherence the same-sign rule finds it too
@@ -205,7 +205,8 @@ def test_right_structure_with_noise_shows_no_lack_of_fit(seed):
     assert not res.lack_of_fit.found and not any("lack of fit" in w for w in res.warnings)
     # the residuals are the random error the coherence predicts, so their RMS ratio to it is about 1:
     # a little below, since the fit absorbs some noise and coherence is clipped at 0.999 (predicting
-    # more error than the synthetic data have near their peaks); a factor 2 either way allowed
+    # more error than the synthetic data have near their peaks); measured for seeds 0-2: act 0.72-0.74,
+    # base 0.89-1.09; a factor 2 either way allowed
     assert all(0.5 < r < 2.0 for r in res.lack_of_fit.noise_ratio.values())
     assert not fit(_without_coherence(data), ST3, phase_weight=0.1).lack_of_fit.found
 
@@ -213,7 +214,7 @@ def test_right_structure_with_noise_shows_no_lack_of_fit(seed):
 def test_lack_of_fit_rules_and_metadata():
     assert averages_from_metadata({"frf_records": "3 records of 109.207 s (one per sweep repetition)"}) == 3
     assert averages_from_metadata({}) is None
-    # flagged points 0-5 (gap of 2 bridged at 3, 4) and 10-12 (3 points: too few)
+    # flagged points 0-2 and 5-6 (one band 0-6: the gap of 2 at 3, 4 is bridged) and 10-12 (3 points: too few)
     flag = np.array([1, 1, 1, 0, 0, 1, 1, 0, 0, 0, 1, 1, 1], bool)
     assert _bands(flag, max_gap=2, min_points=5) == [(0, 6)]
     runs = _same_sign_runs(np.array([2.0] * 12 + [-2.0] + [2.0] * 11), 1.0, 12)
@@ -262,5 +263,5 @@ def test_a_start_that_cannot_be_built_is_skipped():
     assert [s[0] for s in res.starts] == ["auto"]
     res = fit(data, st4, phase_weight=0.1, start="notebook", n_perturbed=0)  # the only start asked for
     assert "falling back to the automatic start" in res.message and [s[0] for s in res.starts] == ["auto"]
-    for k in ("w1", "wz", "w3"):  # the three modes the data have are still found (5 %: as the peak reading above)
+    for k in ("w1", "wz", "w3"):  # the three modes the data have are still found (measured within 0.05 %; 5 %: as the peak reading above)
         assert res.params[k] == pytest.approx(nb.EQ9_4[k], rel=0.05), k

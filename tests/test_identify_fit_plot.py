@@ -8,7 +8,8 @@ import numpy as np  # noqa: E402
 
 from samii import notebook as nb  # noqa: E402
 from samii.identify import ModelStructure, SweptSineNoise, fit, synthesize  # noqa: E402
-from samii.viz.fit_plot import ANCHOR_COHERENCE, anchored_phase_deg, plot_fit_overlay, plot_parameter_sweep  # noqa: E402
+from samii.viz.fit_plot import plot_fit_overlay, plot_parameter_sweep  # noqa: E402
+from samii.viz.phase import ANCHOR_COHERENCE, anchored_phase_deg  # noqa: E402
 
 F_HZ = np.geomspace(0.1, 40.0, 400)  # the notebook's swept-sine span (chapter 9)
 

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from samii.frequency_response import FrequencyResponse
+from samii.frequency_response import FrequencyResponse, max_deviation
 from samii.measure.campaign import linearised_frf, measure_swept
 from samii.measure.excitation import SweptSine
 from samii.sim.model import load_model
@@ -63,6 +63,13 @@ def closed_loop(frf: FrequencyResponse, position_gain_v_per_rad: float) -> np.nd
     return g / (1.0 + position_gain_v_per_rad * g)
 
 
+def k1_rad_s_per_v(frf: FrequencyResponse) -> float:
+    """Flow gain read off theta/v ~ K1/s: mean |theta/v| w over K1_BAND_HZ."""
+    f = frf.freq_hz
+    lo = (f >= K1_BAND_HZ[0]) & (f <= K1_BAND_HZ[1])
+    return float(np.mean(np.abs(frf.response("act")[lo]) * 2 * np.pi * f[lo]))
+
+
 def servo_peak_index(ref: FrequencyResponse, kp: float) -> int:
     """Grid index of the linearised closed loop's resonance peak in SERVO_BAND_HZ."""
     f = ref.freq_hz
@@ -73,37 +80,27 @@ def servo_peak_index(ref: FrequencyResponse, kp: float) -> int:
 def summarise(amplitude_v: float, meas, ref: FrequencyResponse, kp: float, supply_pa: float) -> AmplitudeRow:
     """One table row; ``ref`` is the linearised simulator on the measurement's grid."""
     frf, ts = meas.frf, meas.timeseries
-    f = frf.freq_hz
-    w = 2 * np.pi * f
-    lo = (f >= K1_BAND_HZ[0]) & (f <= K1_BAND_HZ[1])
-    i = servo_peak_index(ref, kp)
-    t_cl = closed_loop(frf, kp)[i]
-    band = (f >= BAND_HZ[0]) & (f <= BAND_HZ[1])
-    dev_db, dev_deg = {}, {}
-    for ch in frf.channels:
-        ratio = frf.response(ch)[band] / ref.response(ch)[band]
-        dev_db[ch] = float(np.max(np.abs(20 * np.log10(np.abs(ratio)))))
-        dev_deg[ch] = float(np.max(np.abs(np.angle(ratio, deg=True))))
+    t_cl = closed_loop(frf, kp)[servo_peak_index(ref, kp)]
+    band = (frf.freq_hz >= BAND_HZ[0]) & (frf.freq_hz <= BAND_HZ[1])
+    dev = max_deviation(frf, ref, band_hz=BAND_HZ)
     return AmplitudeRow(
         amplitude_v=amplitude_v,
         peak_load_pressure_fraction=float(np.max(np.abs(ts.p_load)) / supply_pa),
         peak_spool=float(np.max(np.abs(ts.spool))),
         peak_valve_v=float(np.max(np.abs(ts.v))),
-        k1_rad_s_per_v=float(np.mean(np.abs(frf.response("act")[lo]) * w[lo])),
+        k1_rad_s_per_v=k1_rad_s_per_v(frf),
         servo_db=float(20 * np.log10(np.abs(t_cl))),
         servo_phase_deg=float(np.angle(t_cl, deg=True)),
-        max_dev_db=dev_db,
-        max_dev_deg=dev_deg,
+        max_dev_db={ch: d["max_abs_db"] for ch, d in dev.items()},
+        max_dev_deg={ch: d["max_abs_deg"] for ch, d in dev.items()},
         min_coherence=float(min(np.min(frf.coherence(ch)[band]) for ch in frf.channels)),
     )
 
 
 def reference_row(ref: FrequencyResponse, kp: float) -> dict:
-    f = ref.freq_hz
-    lo = (f >= K1_BAND_HZ[0]) & (f <= K1_BAND_HZ[1])
     i = servo_peak_index(ref, kp)
     t_cl = closed_loop(ref, kp)[i]
-    return {"k1_rad_s_per_v": float(np.mean(np.abs(ref.act[lo]) * 2 * np.pi * f[lo])), "servo_peak_hz": float(f[i]),
+    return {"k1_rad_s_per_v": k1_rad_s_per_v(ref), "servo_peak_hz": float(ref.freq_hz[i]),
             "servo_db": float(20 * np.log10(np.abs(t_cl))), "servo_phase_deg": float(np.angle(t_cl, deg=True))}
 
 

@@ -21,7 +21,7 @@ from typing import Literal, Mapping, get_args
 
 import numpy as np
 
-__all__ = ["Channel", "CHANNELS", "FrequencyResponse"]
+__all__ = ["Channel", "CHANNELS", "FrequencyResponse", "max_deviation"]
 
 Channel = Literal["act", "base", "total"]
 CHANNELS: tuple[Channel, ...] = get_args(Channel)
@@ -138,3 +138,33 @@ class FrequencyResponse:
                 v = getattr(self, name)
                 kw[name] = None if v is None else v[keep]
         return FrequencyResponse(self.freq_hz[keep], metadata=self.metadata, **kw)
+
+
+def max_deviation(
+    measured: FrequencyResponse,
+    reference: FrequencyResponse,
+    *,
+    band_hz: tuple[float, float],
+    min_coherence: float | None = None,
+) -> dict[Channel, dict[str, float]]:
+    """Largest |dB| and |deg| difference of ``measured`` from ``reference`` (same grid) per channel.
+
+    Over ``band_hz``; with ``min_coherence`` only where the measured coherence
+    exceeds it. Returns ``{channel: {"max_abs_db", "max_abs_deg", "points"}}``;
+    a channel with no point left is omitted.
+    """
+    if measured.freq_hz.shape != reference.freq_hz.shape or not np.allclose(measured.freq_hz, reference.freq_hz, rtol=1e-12):
+        raise ValueError("max_deviation needs both responses on the same frequency grid")
+    f = measured.freq_hz
+    out: dict[Channel, dict[str, float]] = {}
+    for ch in measured.channels:
+        keep = (f >= band_hz[0]) & (f <= band_hz[1])
+        coh = measured.coherence(ch)
+        if min_coherence is not None and coh is not None:
+            keep &= coh > min_coherence
+        if not np.any(keep) or ch not in reference.channels:
+            continue
+        ratio = measured.response(ch)[keep] / reference.response(ch)[keep]
+        out[ch] = {"max_abs_db": float(np.max(np.abs(20 * np.log10(np.abs(ratio))))),
+                   "max_abs_deg": float(np.max(np.abs(np.angle(ratio, deg=True)))), "points": int(keep.sum())}
+    return out

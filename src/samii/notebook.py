@@ -157,12 +157,10 @@ def actuator_tf(p: Mapping[str, float]) -> control.TransferFunction:
 
 
 def _mode_names(p: Mapping[str, float]) -> list[int]:
-    """Mode indices present in ``p``: 1, 2 (tied to wz/zz unless w2 given), 3, ..."""
-    modes = [1, 2]
-    k = 3
-    while f"w{k}" in p:
-        modes.append(k)
-        k += 1
+    """Mode indices present in ``p``: 1, 2, ... as long as a gain B_k is given (mode 2 is tied to wz/zz unless w2 is given)."""
+    modes = []
+    while f"B{len(modes) + 1}" in p:
+        modes.append(len(modes) + 1)
     return modes
 
 

@@ -55,7 +55,7 @@ import numpy as np
 from scipy import optimize
 
 from samii import notebook as nb
-from samii.design.controller import NOTEBOOK_UNITS, LinearController, from_discrete_tf, from_discrete_zpk
+from samii.design.controller import NOTEBOOK_UNITS, LinearController, from_discrete_zpk
 
 __all__ = [
     "CancelLoop",
@@ -298,16 +298,17 @@ class PoleCancelDesign:
         input_scale, model_units
             As :class:`samii.design.controller.LinearController`.
         """
-        if method == "matched":
-            # python-control's pole-zero matching (z = exp(s T), DC gain kept), realised from the roots
-            # as a cascade of sections: the expanded polynomials would cost ~1e-6 of DC gain at 1 ms
-            T = sample_time_s
-            g0 = self.dc_gain
-            A, B, C, D = from_discrete_zpk(np.exp(self.zeros * T), np.exp(self.poles * T), g0, sample_time_s=T)
+        T = sample_time_s
+        if method == "matched":  # python-control's pole-zero matching (z = exp(s T)), from the unrounded roots
+            zd, pd = np.exp(self.zeros * T), np.exp(self.poles * T)
         else:
-            Gd = control.sample_system(self.gain * self.Gc, sample_time_s, method=method)
-            g0 = float(np.real(control.dcgain(Gd)))
-            A, B, C, D = from_discrete_tf(Gd.num[0][0], Gd.den[0][0], sample_time_s=sample_time_s)
+            Gd = control.sample_system(self.gain * self.Gc, T, method=method)
+            zd, pd = Gd.zeros(), Gd.poles()
+        # All three methods keep the DC gain, K G_c(0) from the roots (dc_gain). The
+        # realisation is a cascade of unit-DC sections scaled by it: the expanded
+        # polynomials would cost ~1e-6 of DC gain at 1 ms (from_discrete_zpk).
+        g0 = self.dc_gain
+        A, B, C, D = from_discrete_zpk(zd, pd, g0, sample_time_s=T)
         n = A.shape[0]
         if self.loop == "theta":
             r = (1.0 + g0) / g0 if scale_reference else 1.0

@@ -209,8 +209,6 @@ def from_discrete_zpk(zeros, poles, dc_gain: float, *, sample_time_s: float):
     sys = None
     for i, d in enumerate(dens):
         n = nums[i] if i < len(nums) else np.array([1.0])
-        if len(n) > len(d):  # a quadratic numerator left for a linear denominator: swap in a later quadratic
-            raise ValueError("cannot pair the numerator factors with proper sections")
         n1, d1 = np.polyval(n, 1.0), np.polyval(d, 1.0)
         if n1 == 0 or d1 == 0:
             raise ValueError("a zero or pole at z = 1 has no unit-DC section")

@@ -245,7 +245,7 @@ def gain_analysis() -> dict:
         "zetas_at_notebook_gain": cancel.pair_zetas(L, k_nb).tolist(),
         "pair_magnitudes_rad_s": np.abs(cancel.moving_pairs(L, k_nb)).tolist(),
         "zetas_at_our_gain": cancel.pair_zetas(L, d.gain).tolist(),
-        "gain_pair2_zeta_0p7": cancel.gain_at_zeta(L, 0.7, pair=1, bracket=(1e-3, 0.5)),
+        "gain_pair2_zeta_0p7": cancel.gain_at_zeta(L, 0.7, pair=1, bracket=_GAIN_BRACKET),
         **gains(L, 1e-6),
         # the printed coefficients cancel the inner-loop pair only to ~1e-4: looser tolerance
         "printed_polynomials": {"zetas_at_notebook_gain": cancel.pair_zetas(L_printed, k_nb, cancel_tol=1e-2).tolist(), **gains(L_printed, 1e-2)},

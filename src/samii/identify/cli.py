@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"samii fit: {args.frf}: {structure.describe()}; band {r0.band_hz[0]:.3g}-{r0.band_hz[1]:.3g} Hz, {r0.n_points} points, channels {', '.join(r0.channels)}; weighting {weighting}")
     missing = [c for c in ("act", "base") if c not in data.channels]
     if r0.not_fitted:
-        print(f"samii fit: {args.frf} has no {' or '.join(missing) or 'base'} channel: {', '.join(r0.not_fitted)} not fitted")
+        print(f"samii fit: {args.frf} has no {' or '.join(missing)} channel: {', '.join(r0.not_fitted)} not fitted")
     for r in results:
         print(f"\nphase weight {r.phase_weight:g}: cost {r.cost:.6g}, converged {'yes' if r.converged else 'NO'}")
         print(r.table())

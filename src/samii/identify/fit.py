@@ -257,7 +257,6 @@ class _Solution:
     status: int
     message: str
     nfev: int
-    njev: int
 
 
 def _levenberg_marquardt(evaluate, z0: np.ndarray, *, ftol: float, xtol: float, gtol: float, max_nfev: int, on_accept=None, small_step=None) -> _Solution:
@@ -281,7 +280,7 @@ def _levenberg_marquardt(evaluate, z0: np.ndarray, *, ftol: float, xtol: float, 
     """
     z = np.array(z0, float)
     r, J = evaluate(z)[:2]
-    nfev = njev = 1
+    nfev = 1
     cost = float(r @ r)
     if on_accept:
         on_accept(z, cost)
@@ -323,7 +322,6 @@ def _levenberg_marquardt(evaluate, z0: np.ndarray, *, ftol: float, xtol: float, 
         if rho > 0:
             last_small = small_step is None or small_step(z, z_new)
             z, r, J, cost = z_new, r_new, J_new, cost_new
-            njev += 1
             if on_accept:
                 on_accept(z, cost)
             A, g = J.T @ J, J.T @ r
@@ -336,7 +334,7 @@ def _levenberg_marquardt(evaluate, z0: np.ndarray, *, ftol: float, xtol: float, 
             # a rejected step below xtol: no further progress is possible, stop whatever small_step says
             status = 4 if (f_small and step_small) else (2 if f_small else 3)
             break
-    return _Solution(z, r, status, _TERMINATION[status], nfev, njev)
+    return _Solution(z, r, status, _TERMINATION[status], nfev)
 
 
 def _solve(problem: FitProblem, x0: np.ndarray, *, max_nfev: int) -> tuple[np.ndarray, object, tuple[np.ndarray, float], tuple[np.ndarray, np.ndarray]]:
@@ -396,11 +394,9 @@ def _solve(problem: FitProblem, x0: np.ndarray, *, max_nfev: int) -> tuple[np.nd
 
     tol = dict(ftol=_TOL, xtol=_TOL, gtol=_TOL, max_nfev=max_nfev)
 
-    def small_step(za, zb):  # the notebook's coefficient test on a step (percent_change in z), with a factor 2 of margin
-        h = zb - za
-        with np.errstate(all="ignore"):
-            rel = np.where(pos, np.abs(np.expm1(h)), np.abs(h) / np.abs(za))
-        return bool(100.0 * np.max(rel) < NOTEBOOK_TOL_PCT / 2)
+    def small_step(za, zb):  # the notebook's coefficient test on a step, with a factor 2 of margin
+        change = percent_change(_from_z(pos, za, scale), _from_z(pos, zb, scale), 1.0, 1.0)
+        return change.max_param_pct < NOTEBOOK_TOL_PCT / 2
 
     sol = _levenberg_marquardt(evaluate, z0, on_accept=lambda z, c: iterates.append((z.tobytes(), full(z), c)), small_step=small_step, **tol)
     if np.any(sol.x < lo) or np.any(sol.x > hi) or np.any(sol.fun == _PENALTY):
@@ -421,20 +417,16 @@ def _undetermined_warning(involved: Sequence[str], singular_value: float) -> str
     return f"not identifiable from these data: {what} (relative singular value {singular_value:.1e})"
 
 
-def _covariance(problem: FitProblem, x: np.ndarray, rj: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
+def _covariance(problem: FitProblem, x: np.ndarray, rj: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
     """Sandwich covariance, standard errors, correlations and identifiability warnings.
 
-    ``rj``: residuals and Jacobian (fitted columns) at ``x`` if already known.
+    ``rj``: residuals and Jacobian (fitted columns) at ``x``.
     Rows and columns of parameters not fitted are NaN.
     """
     st = problem.structure
     free = problem.fitted
     names = [n for n, f in zip(st.param_names, free) if f]
-    if rj is None:
-        r, J = problem.residuals_and_jacobian(x)
-        J = J[:, free]
-    else:
-        r, J = rj
+    r, J = rj
     xf = x[free]
     m, n = J.shape
     d = np.where(xf != 0, np.abs(xf), 1.0)
@@ -567,7 +559,7 @@ def fit_problem(
     if lof.found:
         parts.append(
             f"LACK OF FIT: the model misses the data in {len(lof.bands)} band(s) "
-            f"({'; '.join(f'{b.channel} {b.f_lo_hz:.3g}-{b.f_hi_hz:.3g} Hz' for b in lof.bands)}): see warnings."
+            f"({lof.summary()}): see warnings."
         )
     cov, stderr, corr, warnings = _covariance(problem, x, rj)
     x_report = np.where(free, x, np.nan)

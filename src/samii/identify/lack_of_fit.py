@@ -139,6 +139,10 @@ class LackOfFit:
     def __post_init__(self) -> None:
         object.__setattr__(self, "noise_ratio", MappingProxyType(dict(self.noise_ratio)))
 
+    def summary(self) -> str:
+        """The bands in one line: "act 0.3-2.6 Hz; base 1-35 Hz" ("" when none)."""
+        return "; ".join(f"{b.channel} {b.f_lo_hz:.3g}-{b.f_hi_hz:.3g} Hz" for b in self.bands)
+
     @property
     def found(self) -> bool:
         return bool(self.bands)
@@ -188,18 +192,8 @@ def _same_sign_runs(e: np.ndarray, threshold: float, min_len: int) -> np.ndarray
     """Mask of the points in runs of at least ``min_len`` consecutive residuals beyond ``threshold`` with one sign."""
     mask = np.zeros(e.size, bool)
     for sign in (1.0, -1.0):
-        beyond = sign * e > threshold
-        i = 0
-        while i < e.size:
-            if beyond[i]:
-                j = i
-                while j + 1 < e.size and beyond[j + 1]:
-                    j += 1
-                if j - i + 1 >= min_len:
-                    mask[i : j + 1] = True
-                i = j + 1
-            else:
-                i += 1
+        for i, j in _bands(sign * e > threshold, max_gap=0, min_points=min_len):
+            mask[i : j + 1] = True
     return mask
 
 

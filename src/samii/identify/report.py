@@ -111,7 +111,7 @@ def _lof_cell(result: FitResult) -> str:
         return ""
     if not lof.found:
         return "none"
-    return "; ".join(f"{b.channel} {b.f_lo_hz:.3g}-{b.f_hi_hz:.3g} Hz" for b in lof.bands)
+    return lof.summary()
 
 
 def fits_markdown(fits: Mapping[str, FitResult], *, convert: Callable[[Mapping[str, float]], Mapping[str, float]] = dict) -> str:

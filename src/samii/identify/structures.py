@@ -298,8 +298,6 @@ class ModelStructure:
         improper (relative degree -2, chapter 2 notes it is non-causal); the total
         xdd/v is proper.
         """
-        import control
-
         from samii import notebook as nb
 
         p = self.params(self.vector(params))
@@ -307,13 +305,7 @@ class ModelStructure:
             raise ValueError(f"channel must be 'act', 'base' or 'total', got {channel!r}")
         if channel == "act":
             return nb.actuator_tf(p)
-        base = control.tf([0.0], [1.0])
-        for k in range(1, self.n_modes + 1):
-            wn, zn = self.mode_names(k)
-            wk, zk = p[wn], p[zn]
-            gain = p[f"B{k}"] * (wk**2 if self.w2_factors else 1.0)
-            base = base + control.tf([gain], [1.0, 2.0 * zk * wk, wk**2])
-        base = control.tf([1.0] + [0.0] * self.power, [1.0]) * base
+        base = nb.base_tf(p, numerator=self.numerator, w2_factors=self.w2_factors)
         return base if channel == "base" else nb.actuator_tf(p) * base
 
     def to_ss(self, params: Mapping[str, float], channel: Channel = "total"):

@@ -21,9 +21,9 @@ from samii.measure.daq import DEFAULT_SAMPLE_RATE_HZ, Daq, SensorNoise, daq_time
 from samii.measure.excitation import SteppedSine, SweptSine
 from samii.measure.frf import estimate_frf
 from samii.measure.stepped import estimate_stepped
-from samii.measure.timeseries import TimeSeries
+from samii.measure.timeseries import SIGNAL_COLUMNS, TimeSeries
 
-__all__ = ["Run", "Measurement", "RECORDED_COLUMNS", "record", "measure_swept", "measure_stepped", "linearised_frf"]
+__all__ = ["Run", "Measurement", "record", "measure", "measure_swept", "measure_stepped", "linearised_frf"]
 
 Progress = Callable[[int, int], None]
 
@@ -60,13 +60,13 @@ class Measurement:
 
 
 def _physics_columns(chunk) -> dict[str, np.ndarray]:
-    """Time-series columns (DATA_FORMATS.md order) of one chunk of :func:`samii.sim.simulate.simulate`."""
-    return {"v": chunk.v, "theta": chunk.theta, "accel": chunk.accel, "r": chunk.ctrl,
+    """Time-series columns (``SIGNAL_COLUMNS``, DATA_FORMATS.md) of a :func:`samii.sim.simulate.simulate` result.
+
+    The excitation ``r`` is the simulator's ``ctrl``; ``theta_ref`` is 0 (theta is relative to it).
+    """
+    cols = {"v": chunk.v, "theta": chunk.theta, "accel": chunk.accel, "r": chunk.ctrl,
             "theta_ref": np.zeros(chunk.t.size), "p_load": chunk.p_load, "spool": chunk.spool}
-
-
-#: Columns of the recorded time series after ``t``.
-RECORDED_COLUMNS: tuple[str, ...] = ("v", "theta", "accel", "r", "theta_ref", "p_load", "spool")
+    return {k: cols[k] for k in SIGNAL_COLUMNS}
 
 
 def record(
@@ -130,7 +130,7 @@ def record(
     daq_meta = {**meta, **daq.metadata(), **{k: str(v) for k, v in excitation.describe().items()}}
     writer = None
     if timeseries_path is not None:
-        writer = TimeSeriesCsvWriter(timeseries_path, RECORDED_COLUMNS, daq_meta, overwrite=overwrite)
+        writer = TimeSeriesCsvWriter(timeseries_path, SIGNAL_COLUMNS, daq_meta, overwrite=overwrite)
     daq_t, daq_cols = [], []
 
     def on_chunk(chunk) -> None:
@@ -152,14 +152,14 @@ def record(
         raise
     wall = time.perf_counter() - t0
     physics = TimeSeries(t=res.t - res.t[0], **_physics_columns(res), metadata=meta)
-    ts = daq_timeseries(np.concatenate(daq_t), {k: np.concatenate([c[k] for c in daq_cols]) for k in RECORDED_COLUMNS}, daq_meta)
+    ts = daq_timeseries(np.concatenate(daq_t), {k: np.concatenate([c[k] for c in daq_cols]) for k in SIGNAL_COLUMNS}, daq_meta)
     frame_t = None if res.frame_t is None else res.frame_t - res.t[0]
     return Run(physics, frame_t, res.frame_qpos, wall), ts
 
 
-def measure_swept(
+def measure(
     model,
-    sweep: SweptSine = SweptSine(),
+    excitation: SweptSine | SteppedSine,
     *,
     sample_rate_hz: float = DEFAULT_SAMPLE_RATE_HZ,
     noise: SensorNoise | None = None,
@@ -169,39 +169,31 @@ def measure_swept(
     frame_steps: int | None = None,
     progress: Progress | None = None,
 ) -> Measurement:
-    """Swept-sine Bode measurement of joint 2 in the simulator (issue 3, item 2-3).
+    """Bode measurement of joint 2 in the simulator: :func:`record`, then the estimator the excitation calls for.
 
-    Returns the DAQ time series and the instrument-variable FRF over the sweep
-    band; with ``timeseries_path`` the record is streamed to that CSV as it is
-    made (see :func:`record`).
+    A swept sine gives the instrument-variable FRF over its band (issue 3, items
+    2-3), with its record signs; a stepped sine the correlation estimate at its
+    dwell frequencies (item 4). Keyword arguments are those of :func:`record`:
+    ``timeseries_path`` streams the record to that CSV as it is made.
     """
-    run, ts = record(model, sweep, sample_rate_hz=sample_rate_hz, noise=noise, rng=rng, timeseries_path=timeseries_path,
+    run, ts = record(model, excitation, sample_rate_hz=sample_rate_hz, noise=noise, rng=rng, timeseries_path=timeseries_path,
                      overwrite=overwrite, frame_steps=frame_steps, progress=progress)
-    frf = estimate_frf(ts, record_s=sweep.record_s, baseline_s=sweep.lead_s, band_hz=(sweep.start_hz, sweep.stop_hz),
-                       record_signs=sweep.record_signs)
+    if isinstance(excitation, SweptSine):
+        frf = estimate_frf(ts, record_s=excitation.record_s, baseline_s=excitation.lead_s,
+                           band_hz=(excitation.start_hz, excitation.stop_hz), record_signs=excitation.record_signs)
+    else:
+        frf = estimate_stepped(ts, freqs_hz=excitation.freqs_hz, windows_s=excitation.windows_s)
     return Measurement(ts, frf, run)
 
 
-def measure_stepped(
-    model,
-    stepped: SteppedSine = SteppedSine(),
-    *,
-    sample_rate_hz: float = DEFAULT_SAMPLE_RATE_HZ,
-    noise: SensorNoise | None = None,
-    rng: np.random.Generator | None = None,
-    timeseries_path=None,
-    overwrite: bool = False,
-    frame_steps: int | None = None,
-    progress: Progress | None = None,
-) -> Measurement:
-    """Stepped-sine measurement at ``stepped.freqs_hz`` in the simulator (issue 3, item 4).
+def measure_swept(model, sweep: SweptSine = SweptSine(), **kwargs) -> Measurement:
+    """Swept-sine measurement: :func:`measure` with ``sweep`` (default: the rig's 0.1-40 Hz, 3 averages)."""
+    return measure(model, sweep, **kwargs)
 
-    ``timeseries_path`` streams the record to that CSV as it is made (see :func:`record`).
-    """
-    run, ts = record(model, stepped, sample_rate_hz=sample_rate_hz, noise=noise, rng=rng, timeseries_path=timeseries_path,
-                     overwrite=overwrite, frame_steps=frame_steps, progress=progress)
-    frf = estimate_stepped(ts, freqs_hz=stepped.freqs_hz, windows_s=stepped.windows_s)
-    return Measurement(ts, frf, run)
+
+def measure_stepped(model, stepped: SteppedSine = SteppedSine(), **kwargs) -> Measurement:
+    """Stepped-sine measurement: :func:`measure` with ``stepped`` (default: 14 points over 0.5-35 Hz)."""
+    return measure(model, stepped, **kwargs)
 
 
 def linearised_frf(model, freqs_hz, *, linear_model=None) -> FrequencyResponse:

@@ -63,24 +63,6 @@ def _versions() -> dict[str, str]:
     return out
 
 
-def _band_summary(frf, ref, lo_hz: float, hi_hz: float) -> dict:
-    """Largest |dB| and |deg| difference from the linearisation where coherence > 0.95 in lo..hi Hz."""
-    import numpy as np
-
-    out = {}
-    f = frf.freq_hz
-    for ch in frf.channels:
-        keep = (f >= lo_hz) & (f <= hi_hz)
-        coh = frf.coherence(ch)
-        if coh is not None:
-            keep &= coh > 0.95
-        if not np.any(keep):
-            continue
-        ratio = frf.response(ch)[keep] / ref.response(ch)[keep]
-        out[ch] = {"max_abs_db": float(np.max(np.abs(20 * np.log10(np.abs(ratio))))), "max_abs_deg": float(np.max(np.abs(np.angle(ratio, deg=True)))), "points": int(keep.sum())}
-    return out
-
-
 def run(args: argparse.Namespace) -> int:
     import time
     from dataclasses import asdict
@@ -88,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from samii.frequency_response import max_deviation
     from samii.measure.daq import SensorNoise
     from samii.measure.excitation import SteppedSine, SweptSine
     from samii.measure.io import write_frf_csv
@@ -117,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from samii.measure.campaign import linearised_frf, measure_stepped, measure_swept
+    from samii.measure.campaign import linearised_frf, measure
     from samii.sim.cli_modes import parse_overrides
     from samii.sim.model import default_params, load_model, params_with_overrides
     from samii.sim.plugin import hydraulic_params
@@ -157,8 +140,7 @@ def run(args: argparse.Namespace) -> int:
     results = {}
     try:
         for kind, excitation in plan:
-            fn = measure_swept if kind == "swept" else measure_stepped
-            results[kind] = fn(model, excitation, sample_rate_hz=args.sample_rate_hz, noise=noise, rng=rng, frame_steps=frame_steps,
+            results[kind] = measure(model, excitation, sample_rate_hz=args.sample_rate_hz, noise=noise, rng=rng, frame_steps=frame_steps,
                                progress=progress, timeseries_path=out / ts_names[kind], overwrite=args.overwrite)
             written.append(out / ts_names[kind])
             offset[0] += int(round(excitation.duration_s / dt))
@@ -223,7 +205,7 @@ def run(args: argparse.Namespace) -> int:
         "versions": _versions(),
         "timing": {"simulated_s": simulated_s, "simulation_wall_s": sim_wall, "total_wall_s": time.perf_counter() - t_start,
                    "real_time_factor": simulated_s / sim_wall if sim_wall > 0 else None},
-        "vs_linearised_simulator_0.5_35_hz": _band_summary(main.frf, ref_at, 0.5, 35.0),
+        "vs_linearised_simulator_0.5_35_hz": max_deviation(main.frf, ref_at, band_hz=(0.5, 35.0), min_coherence=0.95),
         "peaks": {"load_pressure_pa": float(np.max(np.abs(main.timeseries.p_load))) if main.timeseries.p_load is not None else None,
                   "valve_command_v": float(np.max(np.abs(main.timeseries.v))), "joint_angle_rad": float(np.max(np.abs(main.timeseries.theta)))},
         "outputs": [str(p) for p in written] + [str(out / "run.json")],

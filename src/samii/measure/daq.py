@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy import signal
 
-from samii.measure.timeseries import TimeSeries
+from samii.measure.timeseries import SIGNAL_COLUMNS, TimeSeries
 
 __all__ = ["SensorNoise", "Daq", "acquire", "daq_timeseries", "DEFAULT_SAMPLE_RATE_HZ"]
 
@@ -157,26 +157,18 @@ class Daq:
         self._count += m
         out = dict(zip(names, sampled))
         if self.noise is not None:
-            for name, stream in self._streams.items():
-                std = getattr(self.noise, _NOISE_FIELD[name])
+            for name, std in self.noise.std().items():
                 if name in out and std > 0:
-                    out[name] = out[name] + stream.normal(0.0, std, m)
+                    out[name] = out[name] + self._streams[name].normal(0.0, std, m)
             if "spool" in out:
                 out["spool"] = np.clip(out["spool"], -1.0, 1.0)
         return t, out
 
 
-#: SensorNoise field by time-series column.
-_NOISE_FIELD = {"v": "v_v", "theta": "theta_rad", "accel": "accel_m_s2", "p_load": "p_load_pa", "spool": "spool"}
-
-#: Time-series fields of TimeSeries (the rest go to ``extra``).
-_STANDARD = ("v", "theta", "accel", "r", "theta_ref", "p_load", "spool")
-
-
 def daq_timeseries(t: np.ndarray, columns: dict[str, np.ndarray], metadata: dict[str, str]) -> TimeSeries:
     """A TimeSeries from DAQ output columns (standard names as fields, the rest as ``extra``)."""
     cols = dict(columns)
-    standard = {k: cols.pop(k) for k in list(cols) if k in _STANDARD}
+    standard = {k: cols.pop(k) for k in list(cols) if k in SIGNAL_COLUMNS}
     return TimeSeries(t=t, **standard, extra=cols, metadata=metadata)
 
 

@@ -19,6 +19,7 @@ import numpy as np
 __all__ = [
     "REQUIRED_COLUMNS",
     "OPTIONAL_COLUMNS",
+    "SIGNAL_COLUMNS",
     "TIME_UNIFORMITY_RTOL",
     "TimeSeries",
     "first_nonuniform_step",
@@ -26,6 +27,8 @@ __all__ = [
 
 REQUIRED_COLUMNS: tuple[str, ...] = ("t", "v", "theta", "accel")
 OPTIONAL_COLUMNS: tuple[str, ...] = ("r", "theta_ref", "p_load", "spool")
+#: Every standard signal column, in file order (all but ``t``).
+SIGNAL_COLUMNS: tuple[str, ...] = REQUIRED_COLUMNS[1:] + OPTIONAL_COLUMNS
 #: DATA_FORMATS.md: "t uniformly sampled (relative spacing within 1e-6)".
 TIME_UNIFORMITY_RTOL = 1e-6
 

@@ -91,7 +91,8 @@ def simulate(
     Raises
     ------
     SimulationUnstable
-        If the state becomes non-finite or MuJoCo reports a bad acceleration.
+        If the state becomes non-finite or MuJoCo raises any warning (bad
+        acceleration, velocity or position).
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -144,11 +145,12 @@ def simulate(
             # first warning of any kind (bad qacc/qvel/qpos reset the state to finite defaults),
             # copying that state into the rest of the chunk: any warning, a non-finite state or
             # a clock that did not reach the chunk's end is a diverged run.
-            warned = any(int(w.number) > 0 for w in data.warning)
+            warned = [mujoco.mjtWarning(i).name for i, w in enumerate(data.warning) if int(w.number) > 0]
             clock_ok = abs(float(last[0]) - (float(initial_state[0]) + hi * dt)) <= 1e-6 * max(1.0, hi * dt)
             if warned or not clock_ok or not np.all(np.isfinite(last)):
                 t_bad = float(initial_state[0] + hi * dt)
-                raise SimulationUnstable(f"simulation diverged before t = {t_bad:.4g} s (non-finite state or bad acceleration); no result written")
+                why = ", ".join(warned) if warned else "non-finite state" if not np.all(np.isfinite(last)) else "the clock stopped"
+                raise SimulationUnstable(f"simulation diverged before t = {t_bad:.4g} s ({why}); no result written")
             if i + 1 < len(bounds):
                 pending = pool.submit(step, last, *bounds[i + 1])
             # the state before step k: the chunk's start state, then the state after step k-1

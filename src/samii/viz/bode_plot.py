@@ -96,19 +96,22 @@ def bode_plot(
         # Phase branch: with a reference curve (smooth, dense), every measured point is
         # drawn on the reference's branch (within 180 deg of it), so that a noisy
         # stretch cannot carry the rest of the curve whole turns away; without
-        # one, the measurement is unwrapped from a coherent mid-band anchor.
-        ref_drawn = None
-        if reference is not None and ch in reference.channels:
-            ref_drawn = np.degrees(np.unwrap(np.angle(reference.response(ch))))
-            ref_drawn -= 360.0 * np.round(np.median(ref_drawn) / 360.0)
-        ref_curve = ref_drawn
+        # one, the measurement is unwrapped from a coherent mid-band anchor and
+        # the stepped points follow it. ``branch`` is that curve: (freq_hz, phase_deg).
+        branch = None
         lims = []
+        if reference is not None and ch in reference.channels:
+            ref_phase = np.degrees(np.unwrap(np.angle(reference.response(ch))))
+            ref_phase -= 360.0 * np.round(np.median(ref_phase) / 360.0)
+            branch = (reference.freq_hz, ref_phase)
+            lims.append(ref_phase)
         if frf is not None and ch in frf.channels:
             coh = frf.coherence(ch)
-            if ref_curve is None:
+            if branch is None:
                 phase = _anchored_phase(frf, ch, coherence_threshold)
+                branch = (frf.freq_hz, phase)
             else:
-                phase = _align_phase(frf.phase_deg(ch), frf.freq_hz, ref_curve, reference.freq_hz)
+                phase = _align_phase(frf.phase_deg(ch), frf.freq_hz, branch[1], branch[0])
             mag = frf.magnitude_db(ch)
             # the whole curve light, the coherent part solid
             ax_mag.semilogx(frf.freq_hz, mag, color="C0", lw=0.8, alpha=0.35)
@@ -117,34 +120,23 @@ def bode_plot(
             ax_ph.semilogx(frf.freq_hz, _faded(phase, coh, coherence_threshold), color="C0", lw=1.3)
             if coh is not None:
                 ax_coh.semilogx(frf.freq_hz, coh, color="C0", lw=1.0)
-            good = np.isfinite(_faded(phase, coh, coherence_threshold))
-            if np.any(good) and not np.all(good):  # keep incoherent phase from squashing the axis
-                lims.append(phase[good])
-            elif np.all(good):
-                lims.append(phase)
-            if ref_curve is None:
-                ref_curve, ref_freq = phase, frf.freq_hz  # the stepped points' branch
-            else:
-                ref_freq = reference.freq_hz
-        elif ref_curve is not None:
-            ref_freq = reference.freq_hz
-        if reference is not None and ch in reference.channels:
+            coherent = np.isfinite(_faded(phase, coh, coherence_threshold))  # incoherent phase must not squash the axis
+            lims.append(phase[coherent])
+        if reference is not None and ch in reference.channels:  # drawn after the measurement: legend order
             ax_mag.semilogx(reference.freq_hz, reference.magnitude_db(ch), "k--", lw=0.9, label=reference_label)
-            ax_ph.semilogx(reference.freq_hz, ref_drawn, "k--", lw=0.9)
-            lims.append(ref_drawn)
+            ax_ph.semilogx(reference.freq_hz, branch[1], "k--", lw=0.9)
         if stepped is not None and ch in stepped.channels:
             ph = stepped.phase_deg(ch)
-            if ref_curve is not None:
-                ph = _align_phase(ph, stepped.freq_hz, ref_curve, ref_freq)
+            if branch is not None:
+                ph = _align_phase(ph, stepped.freq_hz, branch[1], branch[0])
             ax_mag.semilogx(stepped.freq_hz, stepped.magnitude_db(ch), "o", color="C3", ms=4.5, mfc="none", label="stepped sine")
             ax_ph.semilogx(stepped.freq_hz, ph, "o", color="C3", ms=4.5, mfc="none")
             coh = stepped.coherence(ch)
             if coh is not None:
                 ax_coh.semilogx(stepped.freq_hz, coh, "o", color="C3", ms=3.5, mfc="none")
-            keep = np.ones(ph.size, bool) if coh is None or coherence_threshold is None else coh >= coherence_threshold
-            lims.append(ph[keep])
-        if lims and np.concatenate(lims).size:
-            allv = np.concatenate(lims)
+            lims.append(ph[np.isfinite(_faded(ph, coh, coherence_threshold))])
+        allv = np.concatenate(lims) if lims else np.empty(0)
+        if allv.size:
             lo, hi = float(np.min(allv)), float(np.max(allv))
             pad = max(20.0, 0.08 * (hi - lo))
             ax_ph.set_ylim(lo - pad, hi + pad)

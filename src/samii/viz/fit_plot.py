@@ -12,9 +12,9 @@ import numpy as np
 from samii.frequency_response import Channel, FrequencyResponse
 from samii.viz.bode_plot import CHANNEL_LABELS
 
-__all__ = ["anchored_phase_deg", "plot_fit_overlay", "plot_model_error", "plot_parameter_sweep", "plot_panels", "save_figure"]
+__all__ = ["plot_fit_overlay", "plot_model_error", "plot_parameter_sweep", "plot_panels", "save_figure"]
 
-from samii.viz.phase import ANCHOR_COHERENCE, anchored_phase_deg  # noqa: F401  (re-exported)
+from samii.viz.phase import ANCHOR_COHERENCE, anchored_phase_deg
 
 #: Alternate solid and dashed lines so that curves lying on top of each other stay visible.
 _LINESTYLES = ("-", "--")
