@@ -204,6 +204,29 @@ def plot_panels(
     return _finish(fig, title, note, note_height=0.06)
 
 
+def _plot_reference_clipped(ax, x: np.ndarray, ref: np.ndarray, v: np.ndarray, err, label: str) -> None:
+    """Reference points as open squares; one far outside the estimates' range (more than twice that
+    range beyond it, such as a failed fit) is drawn as a triangle at the axis edge with its value,
+    so that it does not flatten the estimates and their error bars."""
+    lo, hi = np.nanmin(v - err), np.nanmax(v + err)
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        ax.plot(x, ref, "s", mfc="none", ms=5, color="tab:red", label=label)
+        return
+    span = max(hi - lo, 1e-12 * max(abs(lo), abs(hi), 1.0))
+    near = (ref >= lo - 2 * span) & (ref <= hi + 2 * span)
+    ax.plot(x[near], ref[near], "s", mfc="none", ms=5, color="tab:red", label=label)
+    if np.all(near):
+        return
+    inside = np.concatenate([[lo, hi], ref[near]])
+    y0, y1 = inside.min(), inside.max()
+    pad = 0.1 * (y1 - y0)
+    ax.set_ylim(y0 - pad, y1 + pad)
+    for xi, ri in zip(x[~near], ref[~near]):
+        y = y1 + pad * 0.5 if ri > y1 else y0 - pad * 0.5
+        ax.plot(xi, y, "^" if ri > y1 else "v", mfc="none", ms=5, color="tab:red")
+        ax.annotate(f"{ri:.3g}", (xi, y), textcoords="offset points", xytext=(-4, -10 if ri > y1 else 4), ha="right", fontsize=6, color="tab:red")
+
+
 def plot_parameter_sweep(
     x: Sequence[float],
     estimates: Sequence[Mapping[str, float]],
@@ -242,7 +265,7 @@ def plot_parameter_sweep(
         else:
             a.plot(x, v, "o-", ms=3, lw=1, label="samii")
         if reference is not None and name in reference:
-            a.plot(x, reference[name], "s", mfc="none", ms=5, color="tab:red", label=reference_label)
+            _plot_reference_clipped(a, x, np.asarray(reference[name], float), v, err if stderrs is not None else 0.0, reference_label)
         if truth is not None and name in truth:
             a.axhline(truth[name], color="0.4", lw=0.8, ls="--", label="data generated with")
         unit = (units or {}).get(name)
