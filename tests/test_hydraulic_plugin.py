@@ -192,8 +192,29 @@ def test_transition_fd_covers_the_plugin_states():
     expected = np.sort_complex(control.feedback(STABLE.position_gain * plant, 1).poles())
     # discretisation error of the explicit parts ~ h * 159 1/s
     np.testing.assert_allclose(s, expected, rtol=1e-2)
-    # and B: d theta_dot / d u through the valve is zero in one step, d x / d u = h/(tau V_rated)
-    assert B[2, 0] == pytest.approx(h / (STABLE.valve_time_constant * STABLE.rated_voltage), rel=1e-5)
+    # and B: d theta_dot / d u through the valve is zero in one step; the spool is stepped exactly
+    # with the command held, so d x / d u = (1 - exp(-h/tau_v)) / V_rated
+    assert B[2, 0] == pytest.approx(-np.expm1(-h / STABLE.valve_time_constant) / STABLE.rated_voltage, rel=1e-5)
+
+
+@pytest.mark.parametrize("timestep", [1e-3, 5e-4, 2e-3])
+def test_spool_lag_is_stepped_exactly(timestep):
+    """The spool's one-step map is exp(-h/tau_v) at any step: the valve pole stays at -1/tau_v
+    (explicit Euler would put it at log(1 - h/tau_v)/h: -171 rad/s for tau_v = 6.3 ms, h = 1 ms)."""
+    model, data = make(STABLE, timestep=timestep)
+    data.qpos[0] = THETA_REF
+    mujoco.mj_forward(model, data)
+    nx = 2 * model.nv + model.na
+    A = np.zeros((nx, nx))
+    mujoco.mjd_transitionFD(model, data, 1e-6, True, A, None, None, None)
+    # row and column of the spool state (act[0]): it depends on nothing but itself and the command
+    assert A[2, 2] == pytest.approx(np.exp(-timestep / STABLE.valve_time_constant), rel=1e-6)
+    # a held command: the spool follows the exact exponential to rounding error
+    v = 2.0
+    model, data = make(dataclasses.replace(STABLE, position_gain=0.0), timestep=timestep)  # v = command
+    got = run_plugin(model, data, lambda t: v, 20, (THETA_REF, 0.0, 0.0, 0.0))
+    t = np.arange(21) * timestep
+    np.testing.assert_allclose(got[2], v / STABLE.rated_voltage * -np.expm1(-t / STABLE.valve_time_constant), rtol=1e-9, atol=1e-15)
 
 
 def test_travel_limit_and_supply_pressure_bound_under_saturated_commands():

@@ -156,9 +156,11 @@ def test_actuator_linearisation_matches_eq9_4(model):
     pair = poles[np.argmin(np.abs(np.abs(poles) - nb.EQ9_4["wp"]) + 10 * (poles.imag <= 0))]
     assert abs(pair) == pytest.approx(nb.EQ9_4["wp"], rel=0.05)
     assert 0.10 <= -pair.real / abs(pair) <= 0.18
-    # valve real pole: 159 rad/s +- 10 % (eq 9.4 tau = 158.9)
+    # valve real pole: 159 rad/s (eq 9.4 tau = 158.9); the spool lag is 1/158.9 s and is stepped
+    # exactly, so only the coupling to the oil column moves it (to 157: -1.1 %); explicit Euler
+    # put it at 171 (+7.8 %)
     real = poles[(np.abs(poles.imag) < 1e-6) & (np.abs(poles) > 100) & (np.abs(poles) < 250)]
-    assert np.any(np.abs(np.abs(real) / nb.EQ9_4["tau"] - 1) < 0.10)
+    assert np.any(np.abs(np.abs(real) / nb.EQ9_4["tau"] - 1) < 0.03)
     # zero pair of theta/v near the second base mode (eq 9.4: wz = 62.06 rad/s)
     zeros = control.zeros(control.ss(ol.A, ol.B, ol.C[:1], ol.D[:1]))
     assert np.min(np.abs(np.abs(zeros) - nb.EQ9_4["wz"])) < 0.02 * nb.EQ9_4["wz"]
@@ -223,3 +225,29 @@ def test_divergence_is_caught_again_on_reused_data_and_for_any_warning(model):
     state[1 + model.nq] = 2e10  # qvel far beyond MuJoCo's bad-velocity limit (1e10)
     with pytest.raises(SimulationUnstable):
         simulate(model, np.zeros(100), initial_state=state)
+
+
+def test_base_coefficients_have_the_signs_of_eq9_4(model):
+    """Sign convention: theta positive in the slope sense (turning the beam's +x toward +z) and
+    the accelerometer positive up make eq 9.4's signs hold: B1 < 0 < B2, B3 > 0
+    (eq 9.4: B1 = -0.00146, B2 = 0.00157, B3 = 0.00028). With joint 2 turning about +y every
+    sign was reversed, and acceleration feedback designed on the notebook's models would run
+    inverted in the simulator."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        coeffs = linearize(model).base_coefficients(max_freq_hz=30.0)
+    assert [c.freq_hz for c in coeffs[:2]] == pytest.approx(nb.BASE_MODES_HZ[:2], rel=0.01)  # mode 3: 21.9 Hz, open
+    b1, b2, b3 = (c.B for c in coeffs[:3])
+    assert b1 < 0 < b2 and b3 > 0
+    # nearly proportional damping: the coefficients are real to a few per cent
+    assert all(abs(c.B_imag) < 0.15 * abs(c.B) for c in coeffs[:3])
+
+
+@pytest.mark.xfail(strict=True, reason="issue 8: the arm geometry gives B1/B2 = -1.85, B3/B2 = 1.40 (eq 9.4: -0.933, 0.179); open")
+def test_base_coefficient_ratios_match_eq9_4(model):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        b1, b2, b3 = (c.B for c in linearize(model).base_coefficients(max_freq_hz=30.0)[:3])
+    e = nb.EQ9_4
+    assert b1 / b2 == pytest.approx(e["B1"] / e["B2"], rel=0.30)
+    assert b3 / b2 == pytest.approx(e["B3"] / e["B2"], rel=0.30)

@@ -37,9 +37,14 @@
 // that cancels a damping ratio of about h*omega_h/2 (0.027 at h = 1 ms: a fifth of the
 // physical 0.14). The `advance` callback therefore re-evaluates the -Dm*theta_dot term of P_dot with
 // the NEW velocity (symplectic Euler for the hydraulic spring, as MuJoCo does for qpos), for the
-// Euler and implicit integrators. RK4 keeps MuJoCo's own integration (as does mj_step2 under RK4,
-// which falls back to plain Euler). The spool position is clamped to the travel limit after
-// integration.
+// Euler and implicit integrators. The spool lag is linear between steps (the amplifier output v is
+// held over the step, as MuJoCo holds ctrl), so `advance` also replaces MuJoCo's explicit Euler
+// x_{n+1} = x_n + h (v/V_rated - x_n)/tau_v by its exact solution
+//   x_{n+1} = v/V_rated + (x_n - v/V_rated) exp(-h/tau_v):
+// explicit Euler maps the valve pole -1/tau_v to log(1 - h/tau_v)/h, 171 rad/s instead of 159 at
+// h = 1 ms (tau_v/h = 6.3); the exact step keeps it at -1/tau_v for any h. RK4 keeps MuJoCo's own
+// integration (as does mj_step2 under RK4, which falls back to plain Euler). The spool position is
+// clamped to the travel limit after integration.
 //
 // Errors. Invalid configuration is reported from `init` by mju_warning + return -1, as the plugin
 // documentation asks (mju_error from a plugin would skip destructors in the Python bindings and the
@@ -300,6 +305,13 @@ static void hydraulic_advance(const mjModel* m, mjData* d, int instance) {
     mjtNum Dm = h->value[ATTR_DISPLACEMENT];
     mjtNum qvel_n = (load_flow(h, x_n, p_n) - h->leak * p_n - act_dot[1] / h->c_p) / Dm;
     act[1] -= dt * h->c_p * Dm * (d->qvel[h->dofadr] - qvel_n);
+
+    // exact spool step: act_dot[0] = (target - x_n)/tau_v, or 0 against the stop
+    if (act_dot[0] != 0) {
+      mjtNum tau_v = h->value[ATTR_VALVE_TIME_CONSTANT];
+      mjtNum target = x_n + tau_v * act_dot[0];
+      act[0] = target + (x_n - target) * mju_exp(-dt / tau_v);
+    }
   }
 
   // travel limit of the spool (explicit Euler may step past the stop)

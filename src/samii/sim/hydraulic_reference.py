@@ -328,7 +328,8 @@ def simulate_inertia(
         ``"mujoco"``: ``mj_step`` with the Euler integrator and the plugin's ``advance`` (explicit
         Euler of act from the state at t_n; qvel with the joint damping implicit, as MuJoCo's
         Euler does; qpos with the new qvel; then the pressure's ``-Dm*theta_dot`` term re-evaluated
-        with the new velocity and the spool clipped to the travel limit). ``"continuous"``:
+        with the new velocity, the spool stepped exactly (its lag is linear with the command held
+        over the step) and clipped to the travel limit). ``"continuous"``:
         :func:`scipy.integrate.solve_ivp` (DOP853) with tolerance ``rtol``.
     ctrlrange : (lo, hi) or None
         Clip of the command, as MuJoCo's ``ctrlrange``.
@@ -360,11 +361,14 @@ def _simulate_mujoco_euler(params, load, ctrl, h, n_steps, initial, ctrlrange):
         # mj_Euler: (M + h*B) qacc = qfrc_smooth, qfrc_smooth = torque - B*qvel
         qacc = (torque - b * w) / (J + h * b)
         # mj_advance: act, then qvel, then qpos with the new qvel
-        x, p = x + h * x_dot, p + h * p_dot
+        x_n, p = x, p + h * p_dot
         w_new = w + h * qacc
         theta = theta + h * w_new
-        # plugin advance: pressure sees the new velocity; spool travel limit
+        # plugin advance: pressure sees the new velocity; exact spool step; spool travel limit
         p -= h * c_p * Dm * (w_new - w)
+        if x_dot != 0.0:
+            target = x_n + params.valve_time_constant * x_dot
+            x = target + (x_n - target) * math.exp(-h / params.valve_time_constant)
         w = w_new
         x = min(max(x, -1.0), 1.0)
         out[:, n + 1] = theta, w, x, p

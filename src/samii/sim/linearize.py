@@ -20,7 +20,7 @@ import mujoco
 import numpy as np
 import scipy.linalg
 
-__all__ = ["LinearModel", "Mode", "linearize", "modes_from_poles", "base_modes", "ModesReport", "modes_report"]
+__all__ = ["LinearModel", "BaseCoefficient", "Mode", "linearize", "modes_from_poles", "base_modes", "ModesReport", "modes_report"]
 
 
 @dataclass(frozen=True)
@@ -32,6 +32,16 @@ class Mode:
     def pole(self) -> complex:
         wn = 2 * np.pi * self.freq_hz
         return complex(-self.zeta * wn, wn * np.sqrt(max(0.0, 1 - self.zeta**2)))
+
+
+@dataclass(frozen=True)
+class BaseCoefficient:
+    """One mode of xdd/theta in the notebook's eq 9.2 form (see :meth:`LinearModel.base_coefficients`)."""
+
+    freq_hz: float
+    zeta: float
+    B: float  #: the modal coefficient's real part [m/rad]
+    B_imag: float  #: imaginary part (0 for a proportionally damped mode)
 
 
 @dataclass(frozen=True)
@@ -79,6 +89,40 @@ class LinearModel:
             x = np.linalg.solve(2j * np.pi * f * eye - self.A, self.B[:, 0])
             out[:, k] = self.C @ x + self.D[:, 0]
         return dict(zip(self.outputs, out))
+
+    def base_coefficients(self, *, max_freq_hz: float = 45.0) -> list["BaseCoefficient"]:
+        """The simulator's xdd/theta in the notebook's modal form (eq 9.2),
+        ``xdd/theta = s^4 sum_k B_k / (s^2 + 2 zeta_k w_k s + w_k^2)``, one term per complex
+        pole pair of xdd/theta below ``max_freq_hz``.
+
+        The poles of xdd/theta are the zeros of theta/v (joint 2 held still); B_k is the residue
+        of xdd/theta at the upper pole p_k times (p_k - conj p_k)/p_k^4, taken as a contour
+        integral on a small circle about p_k (exact for a simple pole, no polynomial fitting).
+        Units: xdd/theta is (m/s^2)/rad and s^4/(s^2 + ...) is s^-2, so B_k is in m/rad
+        (the tip displacement per radian of joint 2 that mode k contributes above its
+        frequency). Its imaginary part (``B_imag``) measures how far the true response is from
+        the real-coefficient form of eq 9.2.
+        """
+        import control
+
+        ol = self.open_loop()
+        n = ol.A.shape[0]
+        eye = np.eye(n)
+
+        def base(s: complex) -> complex:
+            y = ol.C @ np.linalg.solve(s * eye - ol.A, ol.B[:, 0]) + ol.D[:, 0]
+            return complex(y[1] / y[0])
+
+        zeros = control.zeros(control.ss(ol.A, ol.B, ol.C[:1], ol.D[:1]))
+        zeros = zeros[(zeros.imag > 1e-9) & (np.abs(zeros) <= 2 * np.pi * max_freq_hz)]
+        out = []
+        ring = np.exp(2j * np.pi * np.arange(32) / 32)
+        for p in sorted(zeros, key=abs):
+            r = 1e-4 * abs(p)
+            residue = np.mean([base(p + r * e) * r * e for e in ring])
+            b = residue * (p - np.conj(p)) / p**4
+            out.append(BaseCoefficient(float(abs(p) / (2 * np.pi)), float(-p.real / abs(p)), float(b.real), float(b.imag)))
+        return out
 
     def to_control(self):
         """python-control StateSpace (input ctrl, outputs theta, accel)."""

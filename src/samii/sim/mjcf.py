@@ -271,11 +271,13 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     add(f'{ind3}<inertial pos="{_vec(0, 0, l1["cg_m"])}" mass="{_fmt(l1["mass_kg"])}" diaginertia="{_vec(l1["I_cg_kgm2"], l1["I_cg_kgm2"], l1["mass_kg"] * 0.06**2 / 2)}"/>')
     add(f'{ind3}<geom class="link_visual" fromto="0 0 0 0 0 {_fmt(l1["length_m"])}" size="0.05"/>')
     add(f'{ind3}<geom class="hydraulic_visual" pos="0 0 {_fmt(l1["length_m"])}" euler="1.5707963 0 0" size="0.06 0.07"/>')
-    # joint 2 at the top of l1; body quat R_y(-90deg) so that q2 = +90 deg leaves link 2 vertical
+    # joint 2 at the top of l1, turning about -y: theta positive in the slope sense of the beam
+    # (turning +x toward +z, as dw/dx > 0 with w up), the convention in which eq 9.4's B signs
+    # hold; body quat R_y(+90deg) so that q2 = +90 deg (R_y(-90deg)) leaves link 2 vertical
     m2, c2, I2 = _link2_properties()
-    add(f'{ind3}<body name="link2" pos="{_vec(0, 0, l1["length_m"])}" quat="{qy(-math.pi / 2)}">')
+    add(f'{ind3}<body name="link2" pos="{_vec(0, 0, l1["length_m"])}" quat="{qy(math.pi / 2)}">')
     ind4 = ind3 + "  "
-    add(f'{ind4}<joint name="joint2" class="joint2"/>')
+    add(f'{ind4}<joint name="joint2" class="joint2" axis="0 -1 0"/>')
     ind5 = ind4
     add(f"{ind5}<!-- link 2 plus links 3-6 at the nominal pose = TMM l2 (mass, cg, inertia); see README -->")
     add(f'{ind5}<inertial pos="{_vec(*c2)}" mass="{_fmt(m2)}" diaginertia="{_vec(*I2)}"/>')
