@@ -18,6 +18,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("samii.sim.cli_simulate", "run the simulator with a valve command and write the sensor signals"),
     "measure": ("samii.measure.cli", "swept- or stepped-sine Bode measurement in the simulator"),
     "fit": ("samii.identify.cli", "fit the notebook's transfer-function models to an FRF file"),
+    "calibrate": ("samii.calibrate.cli", "calibrate the simulator's physical parameters to FRF data"),
     "design": ("samii.design.cli", "control design: root loci, pole placement, pole cancellation, seed report"),
 }
 

@@ -28,6 +28,7 @@ __all__ = [
     "params_from_dict",
     "params_with_overrides",
     "write_params",
+    "read_params_file",
     "load_model",
     "load_spec",
     "make_data",
@@ -117,9 +118,38 @@ def _load_plugin() -> None:
     load_plugin()
 
 
+def read_params_file(path: str | Path) -> SamiiParams:
+    """Parameters from a parameter file (``{"params": {...}}``, as :func:`write_params` and
+    ``samii calibrate`` write it; ``samii_params.json`` is one)."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"parameter file {path} does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: cannot be read as a parameter file ({exc})") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("params"), dict):
+        raise ValueError(f"{path}: a parameter file is a JSON object with a 'params' object (sections beam, arm, hydraulic, timestep_s)")
+    try:
+        return params_from_dict(data["params"])
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: {exc}") from None
+
+
 def load_spec(path: str | Path | None = None, *, params: SamiiParams | None = None, overrides: Mapping[str, float] | None = None) -> tuple[mujoco.MjSpec, bool]:
-    """The MjSpec of a model and whether it was generated (so needs its equilibrium computed)."""
+    """The MjSpec of a model and whether it was generated (so needs its equilibrium computed).
+
+    ``path`` is an MJCF file, or a parameter file (``.json``: the model is written from its
+    parameters, and ``overrides`` apply on top of them)."""
     _load_plugin()
+    if path is not None and Path(path).suffix.lower() == ".json":
+        if params is not None:
+            raise ValueError("give either a parameter file or params, not both")
+        params, path = read_params_file(path), None
+        if not overrides:
+            return mujoco.MjSpec.from_string(samii_xml(params)), True
     if path is not None and (params is not None or overrides):
         raise ValueError("give either a model file or params/overrides, not both")
     if path is not None:
@@ -141,7 +171,8 @@ def load_model(path: str | Path | None = None, *, params: SamiiParams | None = N
     Parameters
     ----------
     path : path, optional
-        An MJCF file; default the embedded model.
+        An MJCF file, or a parameter file (``.json``, e.g. written by ``samii calibrate``);
+        default the embedded model.
     params : SamiiParams, optional
         Build the MJCF from these parameters instead.
     overrides : mapping of dotted name to value, optional

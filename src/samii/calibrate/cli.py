@@ -1,0 +1,214 @@
+"""``samii calibrate DATA --param NAME ...``: fit the simulator's physics to FRF data.
+
+Imports nothing heavy at module level (the ``samii`` command imports every
+stage's cli module to build its help).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+__all__ = ["add_arguments", "run", "load_target"]
+
+#: Output files written into --out.
+OUTPUTS = ("calibration.json", "calibrated_params.json", "calibration_bode.png")
+#: Named model curves that can stand in for data.
+NOTEBOOK_TARGETS = ("eq9.4",)
+
+
+def _name_value(text: str) -> tuple[str, float]:
+    name, sep, value = text.partition("=")
+    if not sep or not name.strip():
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
+    try:
+        v = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: value {value!r} is not a number") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{text!r}: value must be finite")
+    return name.strip(), v
+
+
+def _name_bounds(text: str) -> tuple[str, tuple[float, float]]:
+    name, sep, value = text.partition("=")
+    lo, sep2, hi = value.partition(":")
+    if not sep or not sep2 or not name.strip():
+        raise argparse.ArgumentTypeError(f"expected NAME=LO:HI, got {text!r}")
+    try:
+        return name.strip(), (float(lo), float(hi))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: LO and HI must be numbers") from None
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("data", metavar="DATA",
+                        help="FRF CSV (docs/DATA_FORMATS.md), a rig-era .mat, or eq9.4: the notebook's fitted model "
+                        "(theta taken in degrees; its acceleration unit is unknown, so calibrate gain.base with it)")
+    parser.add_argument("--param", action="append", default=[], metavar="NAME", required=True,
+                        help="physical parameter to calibrate, a --set name such as beam.clamp_stiffness_Nm_rad or "
+                        "hydraulic.total_volume; gain.base / gain.act for a sensor of unknown unit (repeatable)")
+    parser.add_argument("--start", action="append", default=[], type=_name_value, metavar="NAME=VALUE",
+                        help="starting value of a calibrated parameter (default: the model's value)")
+    parser.add_argument("--bound", action="append", default=[], type=_name_bounds, metavar="NAME=LO:HI",
+                        help="bounds of a calibrated parameter (default: physical limits where known, else a factor 10 around the start)")
+    parser.add_argument("--phase-weight", type=float, default=0.1, metavar="W", help="weight on the phase error in degrees (default 0.1, the notebook's eq 9.4)")
+    parser.add_argument("--band-hz", type=float, nargs=2, metavar=("LO", "HI"), help="use only LO <= f <= HI Hz (default: all the data)")
+    parser.add_argument("--channels", default=None, metavar="C1,C2", help="channels in the cost (default act,base where present)")
+    parser.add_argument("--weighting", choices=("none", "coherence"), default="none",
+                        help="none: the notebook's cost (default); coherence: points weighted by the random error their coherence predicts")
+    parser.add_argument("--model", metavar="PARAMS.json",
+                        help="parameter file to start from (default: the embedded model's); an MJCF file cannot be calibrated, its physics is not parametrised")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a model parameter before calibrating (repeatable)")
+    parser.add_argument("--max-iterations", type=int, default=60, metavar="N", help="solver iterations at most (default 60)")
+    parser.add_argument("--confirm", action="store_true",
+                        help="also measure the calibrated model with a swept sine in the nonlinear simulator and compare (about 5 s)")
+    parser.add_argument("--out", metavar="DIR", help="write calibration.json, calibrated_params.json (for --model) and calibration_bode.png here")
+    parser.add_argument("--overwrite", action="store_true", help="replace files already in --out")
+    parser.add_argument("--json", action="store_true", help="print the machine-readable report")
+
+
+def load_target(source: str):
+    """The FRF to calibrate to: a file, or the notebook's eq 9.4 curves in SI with theta in degrees.
+
+    eq 9.4 was fitted to theta in degrees (unity feedback 1 V/deg gives its K1 = 27.9/s), so its
+    theta/v is converted from deg/V to rad/V and its xdd/theta from per degree to per radian; its
+    acceleration unit is not stated, so the base channel keeps that unknown factor.
+    """
+    import numpy as np
+
+    from samii.frequency_response import FrequencyResponse
+
+    if source.lower() in NOTEBOOK_TARGETS:
+        from samii import notebook as nb
+        from samii.identify.structures import ModelStructure
+        from samii.measure.frf import log_frequency_grid
+
+        st = ModelStructure.notebook_3mode("s4")
+        f = log_frequency_grid(0.1, 40.0, 100)
+        deg = 180.0 / np.pi
+        act = st.response(nb.EQ9_4, f, "act") / deg  # theta_deg / v -> theta_rad / v
+        base = st.response(nb.EQ9_4, f, "base") * deg  # xdd / theta_deg -> xdd / theta_rad (xdd in the notebook's unit)
+        return FrequencyResponse(f, act=act, base=base, metadata={"source": "notebook eq 9.4 over 0.1-40 Hz; theta in degrees converted to rad; acceleration unit unknown"})
+    path = Path(source)
+    if path.suffix.lower() == ".mat":
+        from samii.measure.io import read_mat_bode
+
+        return read_mat_bode(path)
+    from samii.measure.io import read_frf_csv
+
+    return read_frf_csv(path)
+
+
+def run(args: argparse.Namespace) -> int:
+    from samii.sim.cli_modes import parse_overrides
+
+    prog = "samii calibrate"
+    try:
+        if args.out:
+            out = Path(args.out)
+            if out.exists() and not out.is_dir():
+                raise ValueError(f"--out {out} exists and is not a folder")
+            existing = [n for n in OUTPUTS if (out / n).exists()]
+            if existing and not args.overwrite:
+                raise ValueError(f"{out} already holds {', '.join(existing)}; pass --overwrite to replace")
+        if not (math.isfinite(args.phase_weight) and args.phase_weight >= 0):
+            raise ValueError(f"--phase-weight must be finite and >= 0, got {args.phase_weight}")
+        if args.max_iterations < 1:
+            raise ValueError(f"--max-iterations must be >= 1, got {args.max_iterations}")
+        if args.model is not None and Path(args.model).suffix.lower() != ".json":
+            raise ValueError(f"--model {args.model}: calibrate needs a parameter file (.json, e.g. samii_params.json or a calibrated_params.json), "
+                             "not an MJCF file, whose physics is not parametrised")
+        overrides = parse_overrides(args.set)
+        from samii.calibrate.calibrate import calibrate
+        from samii.sim.model import default_params, params_with_overrides, read_params_file
+
+        base = read_params_file(args.model) if args.model else default_params()
+        if overrides:
+            base = params_with_overrides(base, overrides)
+        data = load_target(args.data)
+        channels = tuple(c.strip() for c in args.channels.split(",")) if args.channels else None
+        confirm = None
+        if args.confirm:
+            from samii.measure.excitation import SweptSine
+
+            lo = max(0.1, float(data.freq_hz[0]))
+            hi = min(40.0, float(data.freq_hz[-1]))
+            confirm = SweptSine(start_hz=lo, stop_hz=hi)
+        result = calibrate(
+            data, args.param, base=base, start=dict(args.start), bounds=dict(args.bound),
+            phase_weight=args.phase_weight, band_hz=tuple(args.band_hz) if args.band_hz else None,
+            channels=channels, weighting=args.weighting, max_nfev=args.max_iterations, confirm=confirm,
+            data_source=args.data,
+        )
+        written = _write_outputs(result, data, Path(args.out), overwrite=args.overwrite) if args.out else []
+    except SystemExit as exc:  # parse_overrides
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    except (OSError, ValueError, KeyError) as exc:  # DataFormatError is a ValueError
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(result.to_json(indent=2))
+        return 0
+    r = result
+    print(f"{prog}: {args.data}: {len(r.names)} parameter(s), band {r.band_hz[0]:.3g}-{r.band_hz[1]:.3g} Hz, channels {', '.join(r.channels)}, "
+          f"phase weight {r.phase_weight:g}, weighting {r.weighting}")
+    print(r.table())
+    print(f"cost {r.cost_start:.6g} -> {r.cost:.6g}; {r.nfev} iterations, {r.elapsed_s:.1f} s; {r.status}; converged {'yes' if r.converged else 'NO'}")
+    for c in r.channels:
+        (d0, p0), (d1, p1) = r.rms_start[c], r.rms[c]
+        print(f"RMS error {c}: {d0:.3g} dB / {p0:.3g} deg -> {d1:.3g} dB / {p1:.3g} deg")
+    if r.confirmation:
+        conf = r.confirmation
+        print(f"confirmed by a {conf['method']}:")
+        for c in r.channels:
+            m, lin = conf["rms_error_measured"][c], conf["rms_error_linearised"][c]
+            print(f"  {c}: measured {m['db']:.3g} dB / {m['deg']:.3g} deg, linearised {lin['db']:.3g} dB / {lin['deg']:.3g} deg")
+    lof = r.lack_of_fit
+    print(f"lack of fit: {'FOUND' if lof.found else 'none'} ({lof.rule})")
+    for w in r.warnings:
+        print(f"warning: {w}")
+    if not r.converged:
+        print("warning: NOT converged: see the warnings above; try other --start values, --bound, more --max-iterations, or fewer parameters")
+    for p in written:
+        print(f"wrote {p}")
+    return 0
+
+
+def _write_outputs(result, data, out: Path, *, overwrite: bool) -> list[Path]:
+    """Report JSON, parameter file and overlay Bode plot; the figure is rendered before anything is written."""
+    import io
+
+    from samii.measure.io import write_text
+    from samii.viz.fit_plot import plot_fit_overlay
+
+    from samii.calibrate.simulator import SimulatorFRF
+
+    structure = SimulatorFRF(result.params, result.names)
+    models = {"start": (structure, dict(result.start)), "calibrated": (structure, dict(result.values))}
+    note = (f"data: {result.data_source}; calibrated: " + ", ".join(f"{n} = {result.values[n]:.4g}" for n in result.names)
+            + f"; phase weight {result.phase_weight:g}")
+    fig = plot_fit_overlay(data, models, channels=result.channels, band_hz=result.band_hz,
+                           title="samii calibrate: linearised simulator against the data", note=note, n_model_points=300)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    out.mkdir(parents=True, exist_ok=True)
+    written = [
+        write_text(out / "calibration.json", result.to_json(indent=2) + "\n", overwrite=overwrite),
+        result.write_params(out / "calibrated_params.json", overwrite=overwrite),
+    ]
+    png = out / "calibration_bode.png"
+    if png.exists() and not overwrite:
+        raise FileExistsError(f"{png} exists; pass --overwrite to replace")
+    tmp = png.with_name(f".{png.name}.tmp")
+    tmp.write_bytes(buf.getvalue())
+    tmp.replace(png)
+    written.append(png)
+    return written
