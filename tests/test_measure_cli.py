@@ -5,6 +5,8 @@ import json
 import numpy as np
 import pytest
 
+from samii.sim.model import default_params
+
 pytest.importorskip("mujoco")
 
 from samii.cli import main  # noqa: E402
@@ -27,7 +29,7 @@ def test_default_run_writes_everything(tmp_path, capsys):
     run = json.loads((out / "run.json").read_text())
     assert run["excitation"]["swept"]["repetitions"] == 3
     assert run["daq"]["seed"] == 0 and run["daq"]["sensor_noise"] is None
-    assert run["model"]["timestep_s"] == pytest.approx(0.001) and run["model"]["params"]["beam"]["length_m"] == pytest.approx(4.6482)
+    assert run["model"]["timestep_s"] == pytest.approx(0.001) and run["model"]["params"]["beam"] == default_params().as_dict()["beam"]
     assert "mujoco" in run["versions"] and run["timing"]["real_time_factor"] > 10
     for ch in ("act", "base", "total"):  # the bounds, at the default amplitude too
         assert run["vs_linearised_simulator_0.5_35_hz"][ch]["max_abs_db"] < 1.0

@@ -42,12 +42,13 @@ def render_model(path: Path) -> None:
     renderer.update_scene(data, camera="side")
     side = renderer.render()
     cam = mujoco.MjvCamera()
-    cam.lookat[:] = (4.3, 0.0, 0.55)  # the arm, at the beam tip (x = 4.65 m)
-    cam.distance, cam.azimuth, cam.elevation = 2.6, -125.0, -8.0
+    tip = data.site("base_accel").xpos
+    cam.lookat[:] = (tip[0] + 0.1, tip[1], tip[2] + 0.2)  # the arm, on the beam's top
+    cam.distance, cam.azimuth, cam.elevation = 2.2, -125.0, -10.0
     renderer.update_scene(data, camera=cam)
     close = renderer.render()
     fig, axes = plt.subplots(1, 2, figsize=(12.8, 4.8))
-    for ax, img, title in zip(axes, (side, close), ("side camera: clamp (left), 4.65 m beam, arm on its tip", "the arm at the nominal pose (-90, 90, 90, 0, 0, 0) deg")):
+    for ax, img, title in zip(axes, (side, close), ("side camera: foot clamp, the vertical beam (4.29 m free), arm on its top", "the arm at the nominal pose (-90, 90, 90, 0, 0, 0) deg; link 3 points north")):
         ax.imshow(img)
         ax.set_title(title, fontsize=10)
         ax.axis("off")

@@ -1,36 +1,32 @@
-"""Tune SAMII's physical knobs to the notebook and write them into the MJCF.
+"""Calibrate SAMII's physical knobs to the notebook's eq 9.4 and write them into the MJCF.
 
-Rerun with ``python experiments/tune_model/tune.py`` (about half a minute). It
-rewrites ``models/samii/samii.xml`` and ``models/samii/samii_params.json`` and
-writes ``experiments/tune_model/out/tuning.json`` (targets beside results).
+Rerun with ``python experiments/tune_model/tune.py`` (about a minute). It rewrites
+``models/samii/samii.xml`` and ``models/samii/samii_params.json`` and writes
+``experiments/tune_model/out/tuning.json`` and ``calibration_bode.png``.
 
-Fixed (public or derived, not tuned): beam L, EI, mass per length; link masses,
-centres of mass and inertias (TMM); hydraulic displacement and volume (DESIGN.md);
-valve time constant 1/159 s (eq 9.4 tau = 158.9 rad/s); rated flow from the loop
-gain K1 (eq 9.4: 27.9 per second with theta in degrees and unity feedback
-1 V/deg, so Kq = K1[rad/s/V] * rated_voltage * Dm).
+The rig was measured with a swept sine and fitted with the notebook's procedure (eq 9.1/9.2,
+3 modes, s^4, phase weight 0.1); eq 9.4 is what came out. So the simulator is calibrated
+when ITS swept-sine data, fitted the same way, give eq 9.4 back (issue 8). Stages:
 
-Tuned, in two stages:
-
-1. Base, joint 2 held (link 2 welded at the nominal pose):
-   clamp stiffness k1 -> mode 1 at 1.73 Hz, joint-1 stiffness -> mode 2 at 9.88 Hz
-   (eq 9.4: w1 = 10.886, wz = 62.063 rad/s). Mode 3 is what the beam gives.
-   Damping ratios (eq 9.4: 0.030, 0.049, 0.034): three knobs, three targets,
-   solved with every knob >= 0: the Maxwell-arm stiffness k2 of the
-   standard-linear-solid clamp (relaxation time fixed at 1/w1, so the arm's
-   loss peaks at mode 1), the joint-1 damper and the beam hinge damping. The
-   clamp's parallel viscous damper is 0: with viscous dampers alone the three
-   targets have no solution (a clamp damper gives mode 3 3.5x the damping
-   ratio it gives mode 1; see the model card). Stiffness and damping passes
-   alternate, since the Maxwell arm's storage stiffness moves the frequencies.
-2. Hydraulics, whole model: trapped oil volume -> the open-loop theta/v
-   hydraulic pole pair at 55.28 rad/s, leakage coefficient -> its damping 0.14
-   (eq 9.4: wp = 55.2835, zp = 0.139813). The oil column's stiffness is
-   4 beta Dm^2 / Vt, so only beta/Vt matters; beta stays at DESIGN.md's
-   0.7 GPa (oil with some entrained air) and the volume is the knob. With
-   DESIGN.md's starting 20 cm^3 the coupled pair sits at 42 rad/s, because
-   joint 1's compliance is in series with the oil column, and unity feedback
-   with K1 = 28/s is unstable.
+0. Structure, fixed: public beam (L, EI, mass per length) and TMM links; the arm upright on a
+   vertical cantilever (``beam.pitch_deg = 90``: the reading of the notebook's geometry whose
+   physics reproduces eq 9.4's B ratios, see the model card); valve time constant 1/158.87 s
+   (eq 9.4 tau); displacement, bulk modulus, supply pressure from DESIGN.md.
+1. A start: clamp stiffness, joint-1 stiffness and the beam's free length put the three base
+   modes that joint 2 drives at eq 9.4's 1.73, 9.88 and 24.96 Hz (modal coefficients of the
+   linearisation, ``LinearModel.base_coefficients``).
+2. ``samii calibrate`` (``samii.calibrate.calibrate``) of the base, xdd/theta, against eq 9.4's
+   xdd/theta curve over 0.1-40 Hz in the notebook's cost (phase weight 0.1): clamp stiffness,
+   Maxwell-arm stiffness (the clamp's viscoelastic loss), joint-1 stiffness and damping, beam
+   hinge damping, free length, the accelerometer's position on the mount, and the
+   accelerometer's unknown unit (``gain.base``). xdd/theta does not depend on the actuator.
+3. The actuator, theta/v: eq 9.1 cannot follow the simulator's theta/v everywhere (it has one
+   pole pair where the simulator has the arm's every mode), so instead of matching eq 9.4's
+   curve, the oil volume, leakage and rated flow are set so that the notebook's fit of the
+   simulator's (linearised, noise-free) data gives eq 9.4's wp, zp and K1: the target itself,
+   by indirect inference.
+4. Check: ``samii measure`` (default swept sine) then the notebook's fit, against every target
+   of issue 8 (``samii.calibrate.targets``).
 """
 
 from __future__ import annotations
@@ -38,184 +34,233 @@ from __future__ import annotations
 import json
 import math
 import sys
+import time
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
-import mujoco
 import numpy as np
 from scipy.optimize import least_squares
 
 from samii import notebook as nb
+from samii.calibrate import calibrate
+from samii.calibrate.cli import load_target
+from samii.calibrate.targets import check_fit_against_eq9_4
+from samii.identify.fit import fit
+from samii.identify.structures import ModelStructure
+from samii.measure.campaign import linearised_frf, measure_swept
+from samii.measure.excitation import SweptSine
+from samii.sim.equilibrium import static_equilibrium
 from samii.sim.linearize import base_modes, linearize
 from samii.sim.mjcf import NOMINAL_POSE_RAD, SamiiParams, samii_xml
-from samii.sim.model import write_params
-from samii.sim.plugin import load_plugin
+from samii.sim.model import load_model, load_spec, params_with_overrides, write_params
 
 ROOT = Path(__file__).resolve().parents[2]
 MODEL_DIR = ROOT / "models" / "samii"
 OUT = Path(__file__).resolve().parent / "out"
 
 TARGET_HZ = np.array(nb.BASE_MODES_HZ)
-TARGET_ZETA = np.array(nb.BASE_ZETAS)
-#: Relaxation time of the clamp's Maxwell arm: its loss peaks at mode 1's target frequency.
-CLAMP_RELAXATION_TIME_S = 1.0 / (2 * math.pi * TARGET_HZ[0])
-WP, ZP = nb.EQ9_4["wp"], nb.EQ9_4["zp"]
-K1_RAD = nb.EQ9_4["K1"] * math.pi / 180  # (rad/s)/V with theta in degrees in the notebook
-TAU = nb.EQ9_4["tau"]
+E = nb.EQ9_4
+K1_RAD = E["K1"] * math.pi / 180  # (rad/s)/V: the notebook's theta is in degrees
+
+BASE_KNOBS = (
+    "gain.base",
+    "beam.clamp_stiffness_Nm_rad",
+    "beam.clamp_maxwell_stiffness_Nm_rad",
+    "arm.joint1_stiffness_Nm_rad",
+    "arm.joint1_damping_Nms_rad",
+    "beam.beam_damping_time_s",
+    "beam.length_m",
+    "beam.accel_offset_m",
+)
+HYDRAULIC_KNOBS = ("hydraulic.total_volume", "hydraulic.leakage_coefficient", "hydraulic.rated_flow", "hydraulic.valve_time_constant")
+DAMPING_KNOBS = ("beam.clamp_maxwell_stiffness_Nm_rad", "beam.clamp_relaxation_time_s", "arm.joint1_damping_Nms_rad", "beam.beam_damping_time_s")
+FREQUENCY_KNOBS = ("beam.clamp_stiffness_Nm_rad", "arm.joint1_stiffness_Nm_rad", "beam.length_m")
+
+
+def structure() -> SamiiParams:
+    """Stage 0: public values, the vertical-cantilever reading, the valve lag of eq 9.4."""
+    p = params_with_overrides(SamiiParams(), {
+        "beam.pitch_deg": 90.0,
+        "beam.clamp_damping_Nms_rad": 0.0,
+        "beam.clamp_maxwell_stiffness_Nm_rad": 2.0e4,
+        "beam.clamp_relaxation_time_s": 1.0 / E["w1"],
+        "beam.beam_damping_time_s": 5.0e-4,
+        "arm.joint1_damping_Nms_rad": 4.0,
+        "hydraulic.valve_time_constant": 1.0 / E["tau"],
+        "hydraulic.total_volume": 5.0e-6,
+        "hydraulic.leakage_coefficient": 9.3e-14,
+    })
+    h = p.hydraulic
+    return replace(p, hydraulic=replace(h, rated_flow=K1_RAD * h.rated_voltage * h.displacement))
+
+
+def driven_modes(p: SamiiParams, max_hz: float = 40.0):
+    """The base modes joint 2 drives (xdd/theta's modal terms), by frequency."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        cs = linearize(load_model(params=p)).base_coefficients(max_freq_hz=max_hz)
+    big = max(abs(c.B) for c in cs)
+    return [c for c in cs if abs(c.B) > 1e-3 * big]
+
+
+def stage1_frequencies(p: SamiiParams) -> SamiiParams:
+    names = ("beam.clamp_stiffness_Nm_rad", "arm.joint1_stiffness_Nm_rad", "beam.length_m")
+
+    def with_x(x):
+        return params_with_overrides(p, dict(zip(names, np.exp(x))))
+
+    def r(x):
+        f = np.array([c.freq_hz for c in driven_modes(with_x(x))[:3]])
+        return np.log(f / TARGET_HZ)
+
+    x0 = np.log([1.3e5, 2.0e3, 4.3])
+    s = least_squares(r, x0, diff_step=1e-4, xtol=1e-10, bounds=(np.log([1e4, 2e2, 3.0]), np.log([1e7, 2e4, p.beam.length_m])))
+    return with_x(s.x)
 
 
 def held_modes(p: SamiiParams):
-    spec = mujoco.MjSpec.from_string(samii_xml(p))
-    ms = base_modes(spec, NOMINAL_POSE_RAD[1], max_freq_hz=200.0)
-    return np.array([m.freq_hz for m in ms[:3]]), np.array([m.zeta for m in ms[:3]])
+    """The base modes with joint 2 held (``samii modes``), first three."""
+    spec, _ = load_spec(params=p)
+    return base_modes(spec, NOMINAL_POSE_RAD[1], max_freq_hz=45.0)[:3]
 
 
-def with_base(p: SamiiParams, kc=None, kj=None, cc=None, cj=None, beta=None, k2=None, tau=None) -> SamiiParams:
-    b, a = p.beam, p.arm
-    b = replace(b, **{k: v for k, v in dict(clamp_stiffness_Nm_rad=kc, clamp_damping_Nms_rad=cc, beam_damping_time_s=beta,
-                                             clamp_maxwell_stiffness_Nm_rad=k2, clamp_relaxation_time_s=tau).items() if v is not None})
-    a = replace(a, **{k: v for k, v in dict(joint1_stiffness_Nm_rad=kj, joint1_damping_Nms_rad=cj).items() if v is not None})
-    return replace(p, beam=b, arm=a)
+def fitted_eq9(p: SamiiParams, f_hz: np.ndarray):
+    """The notebook's fit (3 modes, s^4, pw 0.1) of the simulator's linearised FRF."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        frf = linearised_frf(load_model(params=p), f_hz)
+    return fit(frf, ModelStructure(n_modes=3, numerator="s4"), phase_weight=0.1, start="notebook", n_perturbed=0)
 
 
-def tune_base(p: SamiiParams) -> SamiiParams:
-    # SLS clamp with its loss peak at mode 1, no parallel clamp damper; a starting Maxwell stiffness
-    p = with_base(p, cc=0.0, tau=CLAMP_RELAXATION_TIME_S, k2=max(p.beam.clamp_maxwell_stiffness_Nm_rad, 2e4))
+def stage3_indirect(p: SamiiParams, f_hz: np.ndarray) -> SamiiParams:
+    """Knobs set so that the notebook's fit of the simulator's data gives eq 9.4: the hydraulic
+    ones for wp, zp, K1, tau; the dampers for z1, zz, z3 (which the fit sees through both
+    channels, with the arm's other modes nearby, not as the modal dampings of stage 2)."""
+    knobs = HYDRAULIC_KNOBS + DAMPING_KNOBS + FREQUENCY_KNOBS
 
-    # stiffness: two knobs, two frequencies (log error); dampings held at current values
-    def r_freq(x, p):
-        f, _ = held_modes(with_base(p, kc=math.exp(x[0]), kj=math.exp(x[1])))
-        return np.log(f[:2] / TARGET_HZ[:2])
-
-    def tune_freq(p):
-        s = least_squares(r_freq, np.log([p.beam.clamp_stiffness_Nm_rad, p.arm.joint1_stiffness_Nm_rad]), args=(p,), diff_step=1e-5, xtol=1e-12)
-        return with_base(p, kc=math.exp(s.x[0]), kj=math.exp(s.x[1]))
-
-    # damping: three knobs, three damping ratios (relative error), every knob >= 0
-    scale = np.array([1e4, 10.0, 1e-4])  # N m/rad, N m s/rad, s
-
-    def r_zeta(y, p):
-        k2, cj, beta = y * scale
-        _, z = held_modes(with_base(p, k2=k2, cj=cj, beta=beta))
-        return (z - TARGET_ZETA) / TARGET_ZETA
-
-    def tune_zeta(p):
-        y0 = np.array([p.beam.clamp_maxwell_stiffness_Nm_rad, p.arm.joint1_damping_Nms_rad, p.beam.beam_damping_time_s]) / scale
-        s = least_squares(r_zeta, np.maximum(y0, 1e-3), args=(p,), bounds=(0, np.inf), diff_step=1e-4, xtol=1e-10)
-        k2, cj, beta = s.x * scale
-        return with_base(p, k2=k2, cj=cj, beta=beta)
-
-    p = tune_freq(p)
-    for _ in range(3):  # the Maxwell arm's storage stiffness and the dampers shift the frequencies slightly
-        p = tune_zeta(p)
-        p = tune_freq(p)
-    return p
-
-
-def clamp_loss_factor(p: SamiiParams, w: np.ndarray) -> np.ndarray:
-    """Loss factor Im K / Re K of the clamp's complex stiffness
-    K(jw) = k1 + jw c + k2 jw tau / (1 + jw tau) (standard linear solid) at ``w`` [rad/s]."""
-    b = p.beam
-    jwt = 1j * np.asarray(w, float) * b.clamp_relaxation_time_s
-    K = b.clamp_stiffness_Nm_rad + 1j * np.asarray(w) * b.clamp_damping_Nms_rad + b.clamp_maxwell_stiffness_Nm_rad * jwt / (1 + jwt)
-    return K.imag / K.real
-
-
-def hydraulic_pair(p: SamiiParams) -> complex:
-    """The open-loop theta/v pole nearest the notebook's wp pair (upper half plane)."""
-    model = mujoco.MjModel.from_xml_string(samii_xml(p))
-    from samii.sim.equilibrium import static_equilibrium
-
-    eq = static_equilibrium(model)
-    data = mujoco.MjData(model)
-    data.qpos[:], data.act[:] = eq.qpos, eq.act
-    mujoco.mj_forward(model, data)
-    ol = linearize(model, data, position_gain_v_per_rad=p.hydraulic.position_gain).open_loop()
-    poles = ol.poles
-    target = complex(-ZP * WP, WP * math.sqrt(1 - ZP**2))
-    return poles[np.argmin(np.abs(poles - target))]
-
-
-def tune_hydraulics(p: SamiiParams) -> SamiiParams:
-    h = p.hydraulic
-    h = replace(h, valve_time_constant=1.0 / TAU, rated_flow=K1_RAD * h.rated_voltage * h.displacement)
-    p = replace(p, hydraulic=h)
+    def with_x(x):
+        return params_with_overrides(p, dict(zip(knobs, np.exp(x))))
 
     def r(x):
-        q = replace(p, hydraulic=replace(p.hydraulic, total_volume=math.exp(x[0]), leakage_coefficient=math.exp(x[1])))
-        s = hydraulic_pair(q)
-        wn = abs(s)
-        return np.array([math.log(wn / WP), (-s.real / wn - ZP) / ZP])
+        try:
+            return residuals(with_x(x))
+        except (ValueError, RuntimeError, ZeroDivisionError):  # a trial point the simulator cannot run
+            return np.full(n_residuals, 1e3)
 
-    s = least_squares(r, np.log([h.total_volume, h.leakage_coefficient]), diff_step=1e-4, xtol=1e-12)
-    return replace(p, hydraulic=replace(p.hydraulic, total_volume=math.exp(s.x[0]), leakage_coefficient=math.exp(s.x[1])))
+    def residuals(q):
+        fp = fitted_eq9(q, f_hz).params
+        # each residual in units of its tolerance (issue 8): frequencies and gain tightly
+        out = [math.log(fp["wp"] / E["wp"]) / 0.05, math.log(fp["K1"] / K1_RAD) / 0.10, math.log(fp["tau"] / E["tau"]) / 0.15]
+        # the closed servo loop (unity feedback, 1 V/deg): eq 10.1's pair, within 10 %
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            cl = linearize(load_model(params=q)).poles
+        target = nb.EQ10_1[1]
+        out.append(abs(cl[np.argmin(np.abs(cl - target))] - target) / abs(target) / 0.10)
+        out += [math.log(fp[z] / E[z]) / 0.30 for z in ("zp", "z1", "zz", "z3")]
+        out += [math.log(fp[w] / E[w]) / 0.03 for w in ("w1", "wz", "w3")]
+        # and the physical modes (samii modes, joint 2 held: +-2 % in frequency, +-25 % in damping)
+        held = held_modes(q)
+        out += [math.log(m.zeta / z) / 0.25 for m, z in zip(held, nb.BASE_ZETAS)]
+        out += [math.log(m.freq_hz / f) / 0.02 for m, f in zip(held, nb.BASE_MODES_HZ)]
+        return np.array(out)
 
-
-def hydraulic_checks(p: SamiiParams) -> dict:
-    """The other eq 9.4 / 10.1 figures the test suite holds the model to: open-loop valve
-    pole 159 rad/s +-10 %, closed-loop (unity feedback, K1 = 28/s) pair within 10 % of eq 10.1."""
-    from samii.sim.equilibrium import static_equilibrium
-
-    model = mujoco.MjModel.from_xml_string(samii_xml(p))
-    eq = static_equilibrium(model)
-    data = mujoco.MjData(model)
-    data.qpos[:], data.act[:] = eq.qpos, eq.act
-    mujoco.mj_forward(model, data)
-    lin = linearize(model, data, position_gain_v_per_rad=p.hydraulic.position_gain)
-    ol = lin.open_loop().poles
-    real = ol[(np.abs(ol.imag) < 1e-6) & (np.abs(ol) > 100) & (np.abs(ol) < 250)]
-    valve = float(real[np.argmin(np.abs(np.abs(real) - TAU))].real)
-    target = nb.EQ10_1[1]
-    cl = lin.poles[np.argmin(np.abs(lin.poles - target))]
-    return {
-        "valve_pole": {"target": -TAU, "model": valve, "ok": bool(abs(abs(valve) / TAU - 1) < 0.10)},
-        "closed_loop_pair": {"target": [target.real, target.imag], "model": [float(cl.real), float(cl.imag)],
-                             "rel_distance": float(abs(cl - target) / abs(target)), "ok": bool(abs(cl - target) < 0.10 * abs(target))},
-    }
+    x0 = np.log([getattr(getattr(p, n.split(".")[0]), n.split(".")[1]) for n in knobs])
+    n_residuals = residuals(with_x(x0)).size
+    lo = x0 - np.log(20.0)  # a factor 20 either way; the free length at most the beam's
+    hi = x0 + np.log(20.0)
+    hi[list(knobs).index("beam.length_m")] = math.log(nb.TMM["beam"]["length_m"])
+    x0 = np.clip(x0, lo + 1e-9, hi - 1e-9)
+    s = least_squares(r, x0, bounds=(lo, hi), diff_step=1e-3, xtol=1e-8, ftol=1e-10)
+    print(f"stage 3: residuals in tolerances: {np.round(s.fun, 3).tolist()}")
+    return with_x(s.x)
 
 
 def main() -> int:
-    load_plugin()
-    p = SamiiParams()
-    p = tune_base(p)
-    p = tune_hydraulics(p)
-    # the home keyframe at static equilibrium
-    model = mujoco.MjModel.from_xml_string(samii_xml(p))
-    from samii.sim.equilibrium import static_equilibrium
+    t0 = time.perf_counter()
+    OUT.mkdir(parents=True, exist_ok=True)
+    p = structure()
+    p = stage1_frequencies(p)
+    print("stage 1 (mode frequencies):", [round(c.freq_hz, 3) for c in driven_modes(p)[:3]], "Hz")
 
+    target = load_target("eq9.4")
+    base_fit = calibrate(target, BASE_KNOBS, base=p, channels=("base",), phase_weight=0.1, max_nfev=100, data_source="eq 9.4 (xdd/theta)")
+    p = base_fit.params
+    print("stage 2 (calibrate xdd/theta):")
+    print(base_fit.table())
+    print(f"  cost {base_fit.cost_start:.4g} -> {base_fit.cost:.4g}, RMS {base_fit.rms['base'][0]:.2f} dB / {base_fit.rms['base'][1]:.2f} deg; {base_fit.status}")
+    for w in base_fit.warnings:
+        print("  warning:", w)
+
+    # the frequencies samii measure's default swept sine reports (FFT bins nearest a log grid):
+    # the notebook's fit of damping ratios depends on the points near each peak, so the
+    # linearised proxy is fitted on exactly the grid the check in stage 4 uses
+    f_hz = measure_swept(load_model(params=p), SweptSine()).frf.freq_hz
+    p = stage3_indirect(p, f_hz)
+    lin_fit = fitted_eq9(p, f_hz)
+    print("stage 3 (indirect): fitted wp {wp:.2f} zp {zp:.4f} K1 {K1:.3f} (deg: {K1d:.2f}) tau {tau:.1f} z1 {z1:.4f} zz {zz:.4f} z3 {z3:.4f}".format(K1d=lin_fit.params["K1"] * 180 / math.pi, **lin_fit.params))
+    for n in HYDRAULIC_KNOBS + DAMPING_KNOBS + FREQUENCY_KNOBS:
+        sec, name = n.split(".")
+        print(f"  {n} = {getattr(getattr(p, sec), name):.6g}")
+
+    # the home keyframe at static equilibrium; the committed model
+    model = load_model(params=p)
     eq = static_equilibrium(model)
-    xml = samii_xml(p, keyframe_qpos=eq.qpos, keyframe_act=eq.act)
-    (MODEL_DIR / "samii.xml").write_text(xml)
+    (MODEL_DIR / "samii.xml").write_text(samii_xml(p, keyframe_qpos=eq.qpos, keyframe_act=eq.act))
     write_params(p, MODEL_DIR / "samii_params.json", note="written by experiments/tune_model/tune.py; samii.xml is samii_xml() of these")
 
-    f, z = held_modes(p)
-    hp = hydraulic_pair(p)
+    # stage 4: the rig's procedure on the committed model
+    model = load_model(MODEL_DIR / "samii.xml")
+    meas = measure_swept(model, SweptSine())
+    measured_fit = fit(meas.frf, ModelStructure(n_modes=3, numerator="s4"), phase_weight=0.1)
+    checks = check_fit_against_eq9_4(measured_fit.params)
+    print("stage 4: samii measure (default) + samii fit --modes 3 --numerator s4 --phase-weight 0.1, against eq 9.4:")
+    for c in checks:
+        print("  " + c.row())
+
+    spec, _ = load_spec(MODEL_DIR / "samii.xml")
+    held = base_modes(spec, NOMINAL_POSE_RAD[1], max_freq_hz=45.0)
+    driven = driven_modes(p)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        lin = linearize(model)
+    ol = lin.open_loop().poles
+    valve = ol[(np.abs(ol.imag) < 1e-6) & (np.abs(ol) > 100) & (np.abs(ol) < 250)]
+    cl_pair = lin.poles[np.argmin(np.abs(lin.poles - nb.EQ10_1[1]))]
     result = {
         "params": p.as_dict(),
-        "base_modes_hz": {"target": TARGET_HZ.tolist(), "model": f.tolist()},
-        "base_zeta": {"target": TARGET_ZETA.tolist(), "model": z.tolist()},
-        "hydraulic_pair": {"target_wn": WP, "target_zeta": ZP, "model_wn": abs(hp), "model_zeta": -hp.real / abs(hp)},
+        "stage2_calibration": base_fit.to_dict(),
+        "stage3_linearised_fit": {k: float(v) for k, v in lin_fit.params.items()},
+        "stage4_measured_fit": {k: float(v) for k, v in measured_fit.params.items()},
+        "targets": [{"name": c.name, "target": c.target, "value": c.value, "tolerance": c.tolerance, "error": c.error, "ok": c.ok} for c in checks],
+        "driven_base_modes": [{"freq_hz": c.freq_hz, "zeta": c.zeta, "B_m_per_rad": c.B} for c in driven],
+        "held_modes_below_45hz": [{"freq_hz": m.freq_hz, "zeta": m.zeta} for m in held],
+        "valve_pole_rad_s": [float(v.real) for v in valve],
+        "unity_feedback_pair": [float(cl_pair.real), float(cl_pair.imag)],
+        "unity_feedback_pair_target": [nb.EQ10_1[1].real, nb.EQ10_1[1].imag],
         "equilibrium": {"max_qacc": eq.residual_qacc, "max_act_dot": eq.residual_act_dot},
-        "clamp_loss_factor": clamp_loss_factor(p, 2 * math.pi * f).tolist(),
-        "checks": hydraulic_checks(p),
+        "elapsed_s": time.perf_counter() - t0,
     }
-    OUT.mkdir(parents=True, exist_ok=True)
     (OUT / "tuning.json").write_text(json.dumps(result, indent=2) + "\n")
-    print(f"{'':18s}{'target':>10s}{'model':>10s}")
-    for i in range(3):
-        print(f"mode {i + 1} [Hz]      {TARGET_HZ[i]:10.3f}{f[i]:10.3f}   zeta {TARGET_ZETA[i]:.3f} {z[i]:.4f}")
-    print(f"hydraulic wn [rad/s] {WP:8.2f}{abs(hp):10.2f}   zeta {ZP:.3f} {-hp.real / abs(hp):.4f}")
-    for sec in ("beam", "arm", "hydraulic"):
-        print(sec, json.dumps(getattr(p, sec).__dict__))
-    for i in range(3):
-        print(f"clamp loss factor at mode {i + 1}: {result['clamp_loss_factor'][i]:.4f}")
-    c = result["checks"]
-    print(f"valve pole [rad/s] {-TAU:10.2f}{c['valve_pole']['model']:10.2f}   {'ok' if c['valve_pole']['ok'] else 'OUT OF BAND'}")
-    cl = c["closed_loop_pair"]
-    print(f"closed-loop pair   {cl['target'][0]:.2f}{cl['target'][1]:+.2f}j  {cl['model'][0]:.2f}{cl['model'][1]:+.2f}j   "
-          f"{100 * cl['rel_distance']:.1f} % {'ok' if cl['ok'] else 'OUT OF BAND'}")
-    ok = c["valve_pole"]["ok"] and cl["ok"] and np.all(np.abs(z / TARGET_ZETA - 1) < 0.25) and np.all(np.abs(f[:2] / TARGET_HZ[:2] - 1) < 0.02)
+    _plot(base_fit, target, OUT / "calibration_bode.png")
+    ok = all(c.ok for c in checks)
+    print(f"all targets {'met' if ok else 'NOT met'}; {time.perf_counter() - t0:.0f} s")
     return 0 if ok else 1
+
+
+def _plot(result, data, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    from samii.calibrate.simulator import SimulatorFRF
+    from samii.viz.fit_plot import plot_fit_overlay
+
+    st = SimulatorFRF(result.params, result.names)
+    fig = plot_fit_overlay(data, {"stage 1 start": (st, dict(result.start)), "calibrated": (st, dict(result.values))}, channels=("base",),
+                           title="SAMII simulator calibrated to eq 9.4's xdd/theta (samii calibrate)",
+                           note="data: eq 9.4's xdd/theta curve (theta in degrees converted to rad; the notebook's acceleration unit is calibrated as gain.base)")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 if __name__ == "__main__":

@@ -9,8 +9,9 @@ calibrates in the time domain; a swept-sine rig hands over Bode data, so this
 works where the data are.
 
 Solver: ``scipy.optimize.least_squares`` (trust-region reflective) in the
-logarithms of the parameters (every physical parameter here is positive; the
-solver takes relative steps), inside bounds. Bounds: hard physical limits where
+logarithms of the positive parameters (the solver takes relative steps) and in
+scaled units of the few that may be zero or negative (``SIGNED``: the
+accelerometer's position), inside bounds. Bounds: hard physical limits where
 physics gives them (``PHYSICAL_LIMITS``, each with its reason), otherwise a
 factor ``span`` (default 10) either side of the start; the user's bounds win.
 
@@ -39,7 +40,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from samii.calibrate.simulator import GAIN_PREFIX, SimulatorFRF, check_parameter_name, parameter_value
+from samii.calibrate.simulator import GAIN_PREFIX, SIGNED, SimulatorFRF, check_parameter_name, parameter_value
 from samii.frequency_response import Channel, FrequencyResponse
 from samii.identify.cost import FitProblem, Weighting
 from samii.identify.lack_of_fit import LackOfFit, lack_of_fit
@@ -55,6 +56,7 @@ PHYSICAL_LIMITS: Mapping[str, tuple[float, float, str]] = MappingProxyType({
     "beam.length_m": (3.0, 4.6482, "free length: at most the beam's 4.6482 m (TMM), less if the clamp grips part of it"),
     "beam.EI_Nm2": (1.0e4, 1.0e6, "steel at the public 5.73 kg/m: from a solid square bar (~1e4) to a 0.2 m thin-walled tube (~1e6)"),
     "beam.mass_per_length_kg_m": (2.0, 12.0, "within a factor of about 2 of the public 5.7281 kg/m"),
+    "beam.accel_offset_m": (-0.5, 0.45, "on the beam's last half element or on the mount post l0 (0.33 m) above the beam's end"),
     "gain.act": (1e-6, 1e6, "sensor unit unknown: any positive factor"),
     "gain.base": (1e-6, 1e6, "sensor unit unknown: any positive factor"),
 })
@@ -67,9 +69,11 @@ _PENALTY = 1e4
 
 def default_bounds(name: str, start: float, *, span: float = 10.0) -> tuple[float, float, str]:
     """(lo, hi, source) for parameter ``name`` starting at ``start``."""
-    if name.startswith(GAIN_PREFIX):
+    if name.startswith(GAIN_PREFIX) or name in SIGNED:
+        if name not in PHYSICAL_LIMITS:
+            raise ValueError(f"parameter {name!r} has no default bounds: give them (--bound {name}=LO:HI)")
         plo, phi, why = PHYSICAL_LIMITS[name]
-        return plo, phi, why
+        return plo, phi, f"physics: {why}"
     lo, hi = start / span, start * span
     if name in PHYSICAL_LIMITS:
         plo, phi, why = PHYSICAL_LIMITS[name]
@@ -120,7 +124,7 @@ class CalibrationResult:
             "settings": {"phase_weight": self.phase_weight, "band_hz": list(self.band_hz), "channels": list(self.channels), "weighting": self.weighting},
             "parameters": [
                 {"name": n, "start": self.start[n], "value": self.values[n], "stderr": num(self.stderr[n]),
-                 "change_pct": 100.0 * (self.values[n] / self.start[n] - 1.0),
+                 "change_pct": 100.0 * (self.values[n] / self.start[n] - 1.0) if self.start[n] != 0 else None,
                  "bounds": [self.bounds[n][0], self.bounds[n][1]], "bounds_source": self.bounds[n][2]}
                 for n in self.names
             ],
@@ -146,7 +150,8 @@ class CalibrationResult:
         for n in self.names:
             se = self.stderr[n]
             se_txt = f"{100 * se / abs(self.values[n]):9.2f}%" if math.isfinite(se) else "      n/a"
-            lines.append(f"{n:38s} {self.start[n]:12.5g} {self.values[n]:12.5g} {se_txt:>10s} {100 * (self.values[n] / self.start[n] - 1):+7.1f}%")
+            change = f"{100 * (self.values[n] / self.start[n] - 1):+7.1f}%" if self.start[n] != 0 else f"{self.values[n] - self.start[n]:+8.3g}"
+            lines.append(f"{n:38s} {self.start[n]:12.5g} {self.values[n]:12.5g} {se_txt:>10s} {change}")
         return "\n".join(lines)
 
     def write_params(self, path, *, overwrite: bool = False) -> Path:
@@ -243,8 +248,8 @@ def calibrate(
     if gains:  # an unknown sensor unit: start from the data's level against the model's
         x0[gains] = _gain_starts(data, base, names, x0, gains, band_hz)
     for n, v in zip(names, x0):
-        if not (math.isfinite(v) and v > 0):
-            raise ValueError(f"parameter {n}: start {v!r} must be finite and > 0 (parameters are calibrated as logarithms); give --start {n}=VALUE")
+        if not math.isfinite(v) or (n not in SIGNED and not v > 0):
+            raise ValueError(f"parameter {n}: start {v!r} must be finite and > 0 (positive parameters are calibrated as logarithms); give --start {n}=VALUE")
     user_bounds = dict(bounds or {})
     unknown = sorted(set(user_bounds) - set(names))
     if unknown:
@@ -253,8 +258,8 @@ def calibrate(
     for n, v in zip(names, x0):
         if n in user_bounds:
             lo, hi = (float(b) for b in user_bounds[n])
-            if not (0 < lo < hi and math.isfinite(hi)):
-                raise ValueError(f"bounds of {n}: expected 0 < lo < hi, finite, got ({lo}, {hi})")
+            if not (lo < hi and math.isfinite(lo) and math.isfinite(hi)) or (n not in SIGNED and lo <= 0):
+                raise ValueError(f"bounds of {n}: expected {'' if n in SIGNED else '0 < '}lo < hi, finite, got ({lo}, {hi})")
             bnds[n] = (lo, hi, "given")
         else:
             bnds[n] = default_bounds(n, float(v), span=span)
@@ -269,14 +274,24 @@ def calibrate(
         idle = [n for n, f in zip(names, free) if not f]
         raise ValueError(f"{idle} do not act on the fitted channels {problem.channels}")
 
-    lo = np.log([bnds[n][0] for n in names])
-    hi = np.log([bnds[n][1] for n in names])
-    z0 = np.log(x0)
+    # solver coordinates: log x for positive parameters, x / scale for signed ones
+    signed = np.array([n in SIGNED for n in names])
+    scale = np.array([(bnds[n][1] - bnds[n][0]) / 10 if n in SIGNED else 1.0 for n in names])
+
+    def to_z(x):
+        return np.where(signed, np.asarray(x, float) / scale, np.log(np.where(signed, 1.0, x)))
+
+    def to_x(z):
+        return np.where(signed, z * scale, np.exp(np.where(signed, 0.0, z)))
+
+    lo = to_z([bnds[n][0] for n in names])
+    hi = to_z([bnds[n][1] for n in names])
+    z0 = to_z(x0)
     failures: list[str] = []
 
     def fun(z):
         try:
-            r = problem.residuals(np.exp(z))
+            r = problem.residuals(to_x(z))
         except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
             failures.append(str(exc))
             return np.full(problem.n_residuals, _PENALTY)
@@ -285,26 +300,26 @@ def calibrate(
         return r
 
     def jac(z):
-        x = np.exp(z)
+        x = to_x(z)
         try:
             J = problem.jacobian(x)
         except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
             failures.append(str(exc))
             return np.zeros((problem.n_residuals, z.size))
-        return np.nan_to_num(J * x[None, :])
+        return np.nan_to_num(J * np.where(signed, scale, x)[None, :])  # dx/dz
 
     r0 = fun(z0)
     if r0[0] == _PENALTY and np.all(r0 == _PENALTY):
         raise ValueError(f"the simulator cannot be built at the start: {failures[-1] if failures else 'non-finite response'}")
     sol = least_squares(fun, z0, jac=jac, bounds=(lo, hi), method="trf", x_scale=1.0, xtol=1e-10, ftol=1e-10, gtol=1e-10, max_nfev=max_nfev)
-    x = np.exp(sol.x)
+    x = to_x(sol.x)
     r, J = problem.residuals_and_jacobian(x)
     cost = float(r @ r)
     _, se, corr, warnings = _covariance(problem, x, (r, J))
     warnings = list(warnings)
     on_bound = []
     for i, n in enumerate(names):
-        if min(abs(sol.x[i] - lo[i]), abs(hi[i] - sol.x[i])) < _ON_BOUND:
+        if min(abs(sol.x[i] - lo[i]), abs(hi[i] - sol.x[i])) < _ON_BOUND * (10 if signed[i] else 1):
             on_bound.append(n)
             warnings.append(f"{n} = {x[i]:.6g} ended on its bound [{bnds[n][0]:.6g}, {bnds[n][1]:.6g}] ({bnds[n][2]}): the data want it further; "
                             "check the structure (a missing effect) or widen the bound with --bound")

@@ -34,10 +34,13 @@ import numpy as np
 from samii.frequency_response import Channel, FrequencyResponse
 from samii.sim.mjcf import SamiiParams
 
-__all__ = ["SimulatorFRF", "GAIN_PREFIX", "parameter_value", "check_parameter_name"]
+__all__ = ["SimulatorFRF", "GAIN_PREFIX", "SIGNED", "parameter_value", "check_parameter_name"]
 
 #: Prefix of the channel-gain parameters.
 GAIN_PREFIX = "gain."
+#: Parameters that may be zero or negative (all others are positive), with the scale [their
+#: unit] below which their finite-difference step stops shrinking.
+SIGNED = {"beam.accel_offset_m": 0.1, "arm.heading_deg": 10.0, "beam.pitch_deg": 10.0}
 _GAIN_CHANNELS = ("act", "base")
 
 
@@ -97,7 +100,7 @@ class SimulatorFRF:
     # -- the interface of samii.identify.structures.ModelStructure that FitProblem uses --
     @property
     def positive(self) -> np.ndarray:
-        return np.ones(len(self.param_names), bool)
+        return np.array([n not in SIGNED for n in self.param_names])
 
     def channel_params(self, channels: tuple[Channel, ...]) -> tuple[str, ...]:
         """Every physical parameter may move every channel; a gain only its channels."""
@@ -171,7 +174,8 @@ class SimulatorFRF:
 
     def log_responses(self, x: np.ndarray, w: np.ndarray, channels: tuple[Channel, ...] = ("act", "base"), *, derivatives: bool = True) -> dict[Channel, tuple[np.ndarray, np.ndarray | None]]:
         """channel -> (H, dlogH/dx), as ``ModelStructure.log_responses``; derivatives by central
-        differences in log x."""
+        differences, relative steps (in log x) for positive parameters, absolute ones
+        (``rel_step`` times max(|x|, scale)) for the signed ones (``SIGNED``)."""
         x = np.asarray(x, float)
         f = np.asarray(w, float) / (2 * np.pi)
         h0 = self._responses(x, f)
@@ -179,12 +183,18 @@ class SimulatorFRF:
         if not derivatives:
             return out
         d = {c: np.empty((f.size, x.size), complex) for c in channels}
-        for i in range(x.size):
+        for i, name in enumerate(self.param_names):
             up, down = x.copy(), x.copy()
-            up[i] *= 1 + self.rel_step
-            down[i] *= 1 - self.rel_step
+            if name in SIGNED:
+                h = self.rel_step * max(abs(x[i]), SIGNED[name])
+                up[i] += h
+                down[i] -= h
+                span = 2 * h
+            else:  # d log H / d x_i = d log H / d log x_i / x_i
+                up[i] *= 1 + self.rel_step
+                down[i] *= 1 - self.rel_step
+                span = np.log((1 + self.rel_step) / (1 - self.rel_step)) * x[i]
             hu, hd = self._responses(up, f), self._responses(down, f)
             for c in channels:
-                # d log H / d x_i = d log H / d log x_i / x_i
-                d[c][:, i] = np.log(hu[c] / hd[c]) / (np.log((1 + self.rel_step) / (1 - self.rel_step)) * x[i])
+                d[c][:, i] = np.log(hu[c] / hd[c]) / span
         return {c: (h0[c], d[c]) for c in channels}

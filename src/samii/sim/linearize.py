@@ -131,13 +131,18 @@ class LinearModel:
         return control.ss(self.A, self.B, self.C, self.D, inputs=["ctrl"], outputs=list(self.outputs))
 
 
-def _sensor_rows(model: mujoco.MjModel) -> tuple[int, int]:
+def _sensor_rows(model: mujoco.MjModel) -> tuple[int, np.ndarray]:
+    """Row of theta and the weights of the accelerometer's measuring direction over the 3 framelinacc rows."""
+    from samii.sim.simulate import accel_direction
+
     theta = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, "theta")
     accel = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, "base_accel")
     if theta < 0 or accel < 0:
         raise ValueError("the model needs sensors named 'theta' (jointpos) and 'base_accel' (framelinacc)")
-    # framelinacc: world z is the bending direction (third component)
-    return int(model.sensor_adr[theta]), int(model.sensor_adr[accel]) + 2
+    w = np.zeros(model.nsensordata)
+    adr = int(model.sensor_adr[accel])
+    w[adr:adr + 3] = accel_direction(model)  # framelinacc (world frame) along the measuring direction
+    return int(model.sensor_adr[theta]), w
 
 
 def _discrete(model: mujoco.MjModel, data: mujoco.MjData, eps: float, with_sensors: bool):
@@ -176,9 +181,9 @@ def linearize(model: mujoco.MjModel, data: mujoco.MjData | None = None, *, posit
         position_gain_v_per_rad = hydraulic_params(model).position_gain
     Ad, Bd, Cs, Ds = _discrete(model, data, eps, True)
     A, B = _to_continuous(Ad, Bd, model.opt.timestep)
-    r_theta, r_accel = _sensor_rows(model)
-    C = Cs[[r_theta, r_accel]]
-    D = Ds[[r_theta, r_accel]]
+    r_theta, w_accel = _sensor_rows(model)
+    C = np.vstack([Cs[r_theta], w_accel @ Cs])
+    D = np.vstack([Ds[r_theta], w_accel @ Ds])
     # Sensor derivatives are taken against the discrete state at the same instant,
     # so they carry over to continuous time unchanged.
     return LinearModel(A, B, C, D, float(model.opt.timestep), float(position_gain_v_per_rad))

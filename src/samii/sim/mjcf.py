@@ -65,6 +65,24 @@ class BeamParams:
     clamp_relaxation_time_s: float = 1.0 / 10.886
     #: Stiffness-proportional damping of the beam hinges: c = beta * k [s].
     beam_damping_time_s: float = 2.0e-4
+    #: Torsional stiffness GJ of the beam [N m^2]: the thin-walled square steel tube of
+    #: ``section_side_m`` whose area is mass_per_length / 7850 kg/m^3 has wall t = A/(4a) =
+    #: 1.55 mm and J = a^3 t = 2.54e-6 m^4 (its I = 2/3 a^3 t = 1.69e-6 m^4 gives back the
+    #: public EI with E = 200 GPa); G = 79.3 GPa. Used only by the spatial beam (see ArmParams.heading_deg).
+    GJ_Nm2: float = 79.3e9 * 0.118**2 * 5.7281 / (4 * 7850.0)
+    #: Clamp stiffness in the beam's other bending plane (about z) and in torsion (about x);
+    #: spatial beam only. No public figure: assumed as stiff as the vertical clamp, and rigid-ish in torsion.
+    clamp_lateral_stiffness_Nm_rad: float = 1.331e5
+    clamp_torsion_stiffness_Nm_rad: float = 1.0e6
+    #: Inclination of the beam from horizontal [deg]: 0 a horizontal cantilever (the beam
+    #: along +x), 90 a vertical mast (clamped at the foot, the beam along +z). The arm stands
+    #: upright on the tip either way, so at 90 deg its links at the nominal pose continue the
+    #: beam's axis (the planar, collinear chain of the public transfer-matrix model).
+    pitch_deg: float = 0.0
+    #: Where the base accelerometer sits along the beam's axis, from the beam's end [m]:
+    #: 0 on the end, > 0 beyond it on the arm's mount (rigid with the tip), < 0 inboard on the
+    #: beam's last element (at most half an element).
+    accel_offset_m: float = 0.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -72,6 +90,12 @@ class BeamParams:
             if f.name == "n_segments":
                 if not isinstance(v, (int, np.integer)) or v < 1:
                     raise ValueError(f"n_segments must be a positive integer, got {v!r}")
+            elif f.name == "accel_offset_m":
+                if not math.isfinite(v):
+                    raise ValueError(f"beam parameter accel_offset_m must be finite, got {v!r}")
+            elif f.name == "pitch_deg":
+                if not (math.isfinite(v) and 0 <= v <= 90):
+                    raise ValueError(f"beam parameter pitch_deg must lie in 0...90 deg, got {v!r}")
             elif not (math.isfinite(v) and v >= 0) or (v == 0 and f.name not in ("clamp_damping_Nms_rad", "beam_damping_time_s", "clamp_maxwell_stiffness_Nm_rad")):
                 raise ValueError(f"beam parameter {f.name} must be finite and positive, got {v!r}")
 
@@ -92,6 +116,12 @@ class ArmParams:
     held_armature_kgm2: float = 0.01
     #: Joint-2 viscous friction (rod seals, bearings).
     joint2_damping_Nms_rad: float = 0.0
+    #: Where "north" (the direction link 3 points at the nominal pose) lies, measured from the
+    #: beam's axis (+x, clamp to tip) about +z [deg]. 0: north along the beam, link 2 swings in
+    #: the beam's vertical bending plane (planar model). Any other value turns the arm on the tip
+    #: and makes the beam spatial (bending about y and z, torsion about x, each hinge from EI or
+    #: GJ); the accelerometer then measures along north, the direction joint 2 drives.
+    heading_deg: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -135,13 +165,22 @@ _WRIST = (
 )
 
 
-#: Rotary inertia [kg m^2] of the Maxwell node of the standard-linear-solid clamp
-#: (joint armature; the body itself carries 1e-6 of it). The node is an internal
-#: state of the clamp material, not a mass: its only pole of its own is -c2/J
-#: (about 2.4e5 rad/s for the tuned c2 = 2438 N m s/rad), far above every mode that matters. With
-#: implicitfast the joint damping c2 is integrated implicitly and the node's
-#: discrete step is stable for any J as long as dt < 2 c2/k2 (= 2 x relaxation time).
+#: Smallest rotary inertia [kg m^2] of the Maxwell node of the standard-linear-solid clamp
+#: (joint armature; the body itself carries 1e-6 of it); the writer raises it to k2 dt^2
+#: when the tendon spring is stiffer, so that the explicitly integrated spring stays
+#: resolved (sqrt(k2/J) dt <= 1). The node is an internal state of the clamp material, not a
+#: mass: J s^2 + c2 s + k2 has the relaxation root -k2/c2 (1 + J k2/c2^2 + ...) and a fast
+#: root near -c2/J (-8.7e3 rad/s for the tuned clamp), far above every mode that matters. With
+#: implicitfast the joint damping c2 is integrated implicitly.
 MAXWELL_NODE_INERTIA_KGM2 = 0.01
+
+
+def _quat_mul(p, q) -> tuple[float, float, float, float]:
+    """Hamilton product p q of quaternions (w, x, y, z)."""
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return (pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw)
 
 
 def _fmt(x: float) -> str:
@@ -193,6 +232,10 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     ell = L / n
     k_hinge = b.EI_Nm2 / ell
     c_hinge = b.beam_damping_time_s * k_hinge
+    heading = math.radians(a.heading_deg)
+    pitch = math.radians(b.pitch_deg)
+    spatial = abs(math.remainder(a.heading_deg, 360.0)) > 1e-9
+    k_torsion = b.GJ_Nm2 / ell
     s = b.section_side_m
     mu = b.mass_per_length_kg_m
 
@@ -216,6 +259,13 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     add(f'      <default class="clamp"><joint stiffness="{_fmt(b.clamp_stiffness_Nm_rad)}" damping="{_fmt(b.clamp_damping_Nms_rad)}"/></default>')
     add(f"      <!-- EI/l = {_fmt(b.EI_Nm2)}/{_fmt(ell)}; damping = beam_damping_time * stiffness -->")
     add(f'      <default class="beam_hinge"><joint stiffness="{_fmt(k_hinge)}" damping="{_fmt(c_hinge)}"/></default>')
+    if spatial:
+        beta = b.beam_damping_time_s
+        add("      <!-- spatial beam: bending about z (EI/l), torsion about x (GJ/l); the same stiffness-proportional damping -->")
+        add(f'      <default class="beam_lateral"><joint axis="0 0 1" stiffness="{_fmt(k_hinge)}" damping="{_fmt(c_hinge)}"/></default>')
+        add(f'      <default class="beam_torsion"><joint axis="1 0 0" stiffness="{_fmt(k_torsion)}" damping="{_fmt(beta * k_torsion)}"/></default>')
+        add(f'      <default class="clamp_lateral"><joint axis="0 0 1" stiffness="{_fmt(b.clamp_lateral_stiffness_Nm_rad)}" damping="{_fmt(beta * b.clamp_lateral_stiffness_Nm_rad)}"/></default>')
+        add(f'      <default class="clamp_torsion"><joint axis="1 0 0" stiffness="{_fmt(b.clamp_torsion_stiffness_Nm_rad)}" damping="{_fmt(beta * b.clamp_torsion_stiffness_Nm_rad)}"/></default>')
     add(f'      <default class="joint1"><joint stiffness="{_fmt(a.joint1_stiffness_Nm_rad)}" damping="{_fmt(a.joint1_damping_Nms_rad)}" springref="{_fmt(NOMINAL_POSE_RAD[0])}"/></default>')
     add(f'      <default class="joint2"><joint damping="{_fmt(a.joint2_damping_Nms_rad)}"/></default>')
     add(f'      <default class="held"><joint stiffness="{_fmt(a.held_stiffness_Nm_rad)}" damping="{_fmt(a.held_damping_Nms_rad)}" armature="{_fmt(a.held_armature_kgm2)}"/></default>')
@@ -227,7 +277,12 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     add("")
     add("  <worldbody>")
     add('    <body name="wall" childclass="samii">')
-    add('      <geom name="clamp_block" type="box" pos="-0.15 0 0" size="0.15 0.25 0.3" rgba="0.3 0.3 0.3 1"/>')
+    if b.pitch_deg == 0:
+        add('      <geom name="clamp_block" type="box" pos="-0.15 0 0" size="0.15 0.25 0.3" rgba="0.3 0.3 0.3 1"/>')
+    else:  # the clamp block behind the beam's root, along its axis
+        th = math.radians(b.pitch_deg)
+        add(f'      <geom name="clamp_block" type="box" pos="{_vec(-0.15 * math.cos(th), 0, -0.15 * math.sin(th))}" '
+            f'quat="{_vec(math.cos(-th / 2), 0, math.sin(-th / 2), 0)}" size="0.15 0.25 0.3" rgba="0.3 0.3 0.3 1"/>')
     add("    </body>")
 
     indent = "    "
@@ -241,12 +296,20 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
         _, Iyy, Izz = _box_inertia(m, seg_len, s, s)
         name = f"beam_{i}"
         cls = ' childclass="samii"' if i == 0 else ""
+        if i == 0 and pitch != 0:
+            cls += f' quat="{_vec(math.cos(-pitch / 2), 0, math.sin(-pitch / 2), 0)}"'  # R_y(-pitch): the beam's +x turns up
         add(f'{indent}<body name="{name}" pos="{_vec(pos, 0, 0)}"{cls}>')
         ind = indent + "  "
         if i == 0:
             add(f'{ind}<joint name="clamp" class="clamp"/>')
+            if spatial:
+                add(f'{ind}<joint name="clamp_lateral" class="clamp_lateral"/>')
+                add(f'{ind}<joint name="clamp_torsion" class="clamp_torsion"/>')
         else:
             add(f'{ind}<joint name="beam_hinge_{i}" class="beam_hinge"/>')
+            if spatial:
+                add(f'{ind}<joint name="beam_lateral_{i}" class="beam_lateral"/>')
+                add(f'{ind}<joint name="beam_torsion_{i}" class="beam_torsion"/>')
         add(f'{ind}<inertial pos="{_vec(seg_len / 2, 0, 0)}" mass="{_fmt(m)}" diaginertia="{_vec(Ixx, Iyy, Izz)}"/>')
         add(f'{ind}<geom class="beam_visual" pos="{_vec(seg_len / 2, 0, 0)}" size="{_vec(seg_len / 2, s / 2, s / 2)}"/>')
         indent = ind
@@ -255,8 +318,17 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     # Tip of the beam: accelerometer site and the arm.
     tip = ell / 2
     l0, l1 = TMM["link_l0"], TMM["link_l1"]
-    add(f'{indent}<site name="base_accel" pos="{_vec(tip, 0, 0)}" size="0.02"/>')
-    add(f'{indent}<body name="l0" pos="{_vec(tip, 0, s / 2)}">')
+    if not -tip <= b.accel_offset_m <= 1.0:
+        raise ValueError(f"beam.accel_offset_m = {b.accel_offset_m} m: the accelerometer must sit on the last beam element "
+                         f"or the mount, {-tip:.3g} ... 1 m from the beam's end")
+    add(f'{indent}<site name="base_accel" pos="{_vec(tip + b.accel_offset_m, 0, 0)}" size="0.02"/>')
+    # l0 upright in the world and turned to the heading: R_y(pitch) R_z(heading) in the tip's frame
+    q_l0 = np.zeros(4)
+    q_l0[:] = _quat_mul((math.cos(pitch / 2), 0, math.sin(pitch / 2), 0), (math.cos(heading / 2), 0, 0, math.sin(heading / 2)))
+    l0_quat = "" if pitch == 0 and not spatial else f' quat="{_vec(*q_l0)}"'
+    # l0's foot: on the beam's upper face when horizontal, on its end face when vertical
+    foot = (tip + math.sin(pitch) * s / 2, 0.0, math.cos(pitch) * s / 2)
+    add(f'{indent}<body name="l0" pos="{_vec(*foot)}"{l0_quat}>')
     ind = indent + "  "
     add(f'{ind}<!-- l0: TMM link l0 (mounting post), rigidly fixed on the beam tip -->')
     add(f'{ind}<inertial pos="{_vec(0, 0, l0["cg_m"])}" mass="{_fmt(l0["mass_kg"])}" diaginertia="{_vec(l0["I_cg_kgm2"], l0["I_cg_kgm2"], l0["mass_kg"] * 0.1**2 / 2)}"/>')
@@ -320,7 +392,10 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
         add("    <!-- standard-linear-solid clamp: the Maxwell arm's internal node (damper c2 to the wall),")
         add("         joined to the clamp hinge by the tendon spring k2 below; no geom, not a physical mass -->")
         add('    <body name="clamp_maxwell_node" childclass="samii">')
-        add(f'      <joint name="clamp_maxwell" damping="{_fmt(c2)}" armature="{_fmt(MAXWELL_NODE_INERTIA_KGM2 - j_body)}"/>')
+        # the tendon spring k2 is integrated explicitly: J >= k2 dt^2 keeps the node's own
+        # (overdamped) oscillator resolved, sqrt(k2/J) dt <= 1, so the energy never overshoots
+        j_node = max(MAXWELL_NODE_INERTIA_KGM2, k2 * params.timestep_s**2)
+        add(f'      <joint name="clamp_maxwell" damping="{_fmt(c2)}" armature="{_fmt(j_node - j_body)}"/>')
         add(f'      <inertial pos="0 0 0" mass="1e-3" diaginertia="{_vec(j_body, j_body, j_body)}"/>')
         add("    </body>")
     add("  </worldbody>")
@@ -352,9 +427,20 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     add('    <framelinacc name="base_accel" objtype="site" objname="base_accel"/>')
     add("  </sensor>")
     add("")
-    nq = (n + 1) + 6 + (1 if maxwell else 0)
+    if spatial or pitch != 0:
+        if spatial:
+            direction = (math.cos(heading), math.sin(heading), 0.0)  # north: the horizontal direction joint 2 drives
+        else:
+            direction = (-math.sin(pitch), 0.0, math.cos(pitch))  # the beam's transverse direction in joint 2's plane
+        add("  <custom>")
+        add("    <!-- measuring direction of the base accelerometer (world frame; samii.sim.simulate.accel_direction) -->")
+        add(f'    <numeric name="samii_accel_direction" data="{_vec(*direction)}"/>')
+        add("  </custom>")
+        add("")
+    per_body = 3 if spatial else 1
+    nq = per_body * (n + 1) + 6 + (1 if maxwell else 0)
     if keyframe_qpos is None:
-        keyframe_qpos = [0.0] * (n + 1) + list(NOMINAL_POSE_RAD) + ([0.0] if maxwell else [])
+        keyframe_qpos = [0.0] * (per_body * (n + 1)) + list(NOMINAL_POSE_RAD) + ([0.0] if maxwell else [])
     if keyframe_act is None:
         keyframe_act = [0.0, 0.0]
     if len(keyframe_qpos) != nq:
