@@ -78,7 +78,7 @@ def test_json_reports_weighting_and_lack_of_fit(noisy_csv, capsys):
     assert d["lack_of_fit"]["found"] is False and d["lack_of_fit"]["n_averages"] == 3  # synthesize writes frf_records
     assert main(["fit", str(noisy_csv), "--modes", "2", "--start", "auto"]) == 0  # mode 3 (25 Hz) missing
     out = capsys.readouterr().out
-    assert "weighting none (the notebook's cost)" in out
+    assert "weighting coherence (points weighted by their predicted random error), chosen by --weighting auto" in out
     assert "lack of fit: FOUND" in out and "warning: lack of fit in xdd/theta (base)" in out
 
 

@@ -40,10 +40,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--weighting",
-        choices=("none", "coherence"),
-        default="none",
-        help="none: the notebook's cost (every point counts alike, default); coherence: each point weighted by the inverse of "
-        "the random error its coherence predicts (Bendat & Piersol), so badly measured points count less. Needs *_coh columns",
+        choices=("auto", "none", "coherence"),
+        default="auto",
+        help="none: the notebook's cost (every point counts alike); coherence: each point weighted by the inverse of "
+        "the random error its coherence predicts (Bendat & Piersol), so badly measured points count less, needs *_coh columns; "
+        "auto (default): coherence when the file has it for every fitted channel, else none",
     )
     parser.add_argument("--averages", type=int, default=None, metavar="N", help="averages behind the coherence, for the lack-of-fit test (default: the file's frf_records, else 3)")
     parser.add_argument("--out", metavar="DIR", help="write fit JSON and overlay Bode plots here")
@@ -84,12 +85,15 @@ def run(args: argparse.Namespace) -> int:
         return 0
     r0 = results[0]
     weighting = "coherence (points weighted by their predicted random error)" if r0.weighting == "coherence" else "none (the notebook's cost)"
+    if args.weighting == "auto":
+        weighting += ", chosen by --weighting auto" + ("" if r0.weighting == "coherence" else " (the file has no coherence for every fitted channel)")
     print(f"samii fit: {args.frf}: {structure.describe()}; band {r0.band_hz[0]:.3g}-{r0.band_hz[1]:.3g} Hz, {r0.n_points} points, channels {', '.join(r0.channels)}; weighting {weighting}")
     missing = [c for c in ("act", "base") if c not in data.channels]
     if r0.not_fitted:
         print(f"samii fit: {args.frf} has no {' or '.join(missing)} channel: {', '.join(r0.not_fitted)} not fitted")
     for r in results:
-        print(f"\nphase weight {r.phase_weight:g}: cost {r.cost:.6g}, converged {'yes' if r.converged else 'NO'}")
+        verdict = "yes" if r.sound else ("yes, BUT NOT A SOUND FIT (below)" if r.converged else "NO")
+        print(f"\nphase weight {r.phase_weight:g}: cost {r.cost:.6g}, converged {verdict}")
         print(r.table())
         rms = ", ".join(f"{c} {r.rms_mag_db[c]:.3g} dB / {r.rms_phase_deg[c]:.3g} deg" for c in r.channels)
         print(f"RMS error: {rms}")
@@ -100,6 +104,10 @@ def run(args: argparse.Namespace) -> int:
         print(r.message)
         for w in r.warnings:
             print(f"warning: {w}")
+        if r.concerns:
+            print(f"NOT A SOUND FIT{'' if r.converged else ' (and not converged)'}: do not take these parameters at face value:")
+            for c in r.concerns:
+                print(f"  !! {c}")
     for p in written:
         print(f"wrote {p}")
     return 0

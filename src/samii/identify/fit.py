@@ -54,7 +54,7 @@ from samii.identify.notebook_loop import NOTEBOOK_TOL_PCT, PercentChange, percen
 from samii.identify.starts import auto_start, notebook_start, perturbed_start, snap_to_peaks
 from samii.identify.structures import ModelStructure
 
-__all__ = ["FitResult", "fit", "fit_problem", "BOUNDS"]
+__all__ = ["FitResult", "fit", "fit_problem", "resolve_weighting", "BOUNDS"]
 
 #: Physical sanity bounds (rad/s for frequencies and tau). Damping up to 5:
 #: the notebook's own pw=0.5 fit reached z1 = 0.82 (eq 9.12), so it must be allowed.
@@ -137,6 +137,14 @@ class FitResult:
     metadata: Mapping[str, str] = field(default_factory=dict)
     lack_of_fit: LackOfFit | None = None
     not_fitted: tuple[str, ...] = ()
+    #: Why the fit should not be taken at face value even if converged, each with what to try
+    #: (a mode outside the band or in the noise, a damping on its bound, lack of fit).
+    concerns: tuple[str, ...] = ()
+
+    @property
+    def sound(self) -> bool:
+        """Converged and nothing in ``concerns``."""
+        return self.converged and not self.concerns
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "params", MappingProxyType(dict(self.params)))
@@ -191,6 +199,8 @@ class FitResult:
             "rms_mag_db": {k: float(v) for k, v in self.rms_mag_db.items()},
             "rms_phase_deg": {k: float(v) for k, v in self.rms_phase_deg.items()},
             "converged": bool(self.converged),
+            "sound": bool(self.sound),
+            "concerns": list(self.concerns),
             "message": self.message,
             "warnings": list(self.warnings),
             "not_fitted": list(self.not_fitted),
@@ -490,6 +500,48 @@ def _band_warnings(problem: FitProblem, params: Mapping[str, float]) -> list[str
     return out
 
 
+#: Channels whose coherence tells whether a mode's frequency was measured (the best of them:
+#: xdd/theta's coherence drops at theta/v's zeros, which sit at the base modes; xdd/v's does not).
+_MODE_CHANNELS = {"wp": ("act", "total"), "w1": ("base", "total"), "wz": ("base", "total"), "w3": ("base", "total")}
+
+
+def _concerns(problem: FitProblem, params: Mapping[str, float], lof: LackOfFit) -> list[str]:
+    """Reasons a converged fit is still not a sound one, each with what to try."""
+    from samii.identify.lack_of_fit import MIN_COHERENCE
+
+    data = problem.data
+    f = data.freq_hz
+    lo, hi = f[0], f[-1]
+    out = []
+    for n, v in params.items():
+        if not np.isfinite(v) or not (n.startswith("w")):
+            continue
+        fz = v / (2 * np.pi)
+        if not lo <= fz <= hi:
+            out.append(f"mode {n} = {fz:.3g} Hz lies outside the fitted band {lo:.3g}-{hi:.3g} Hz: widen --band-hz to include it, or fit fewer --modes")
+            continue
+        cohs = {c: data.coherence(c) for c in _MODE_CHANNELS.get(n, ("base", "total")) if c in data.channels and data.coherence(c) is not None}
+        if cohs:
+            g = {c: float(np.interp(np.log(fz), np.log(f), v)) for c, v in cohs.items()}
+            best = max(g, key=g.get)
+            if g[best] < MIN_COHERENCE:
+                out.append(f"mode {n} = {fz:.3g} Hz sits where the data are noise (coherence {g[best]:.2f} in {best}), not at a measured resonance: "
+                           f"try --weighting coherence, or --band-hz where the coherence is high")
+    lz, hz = BOUNDS["z"]
+    for n, v in params.items():
+        if n.startswith("z") and np.isfinite(v) and (v < 1.01 * lz or v > 0.99 * hz):
+            out.append(f"damping {n} = {v:.4g} is on its bound {BOUNDS['z']}: the mode is not in the data as modelled; "
+                       f"try another --start, a narrower --band-hz, or fewer --modes")
+    if lof.found:
+        ratio = ", ".join(f"{c} {v:.3g}" for c, v in lof.noise_ratio.items() if v is not None)
+        out.append(f"the residuals are far above the data's noise in {len(lof.bands)} band(s) ({lof.summary()})"
+                   + (f"; RMS residual / random error: {ratio}" if ratio else "")
+                   + ": the model structure misses an effect there, and the parameters are this structure's best compromise, "
+                   "not the system's; try --band-hz to fit where the structure holds, --modes for another mode, "
+                   "or look at the bands for the missing effect")
+    return out
+
+
 def _build_starts(problem: FitProblem, start: StartSpec) -> tuple[list[tuple[str, dict]], list[str]]:
     """The starts asked for, each snapped onto the data's peaks; a start that cannot be built is
     skipped with a note, and if none can, the automatic start (which pads missing modes) is used."""
@@ -570,6 +622,7 @@ def fit_problem(
     x_report = np.where(free, x, np.nan)
     params = dict(zip(st.param_names, map(float, x_report)))
     warnings = lof.warnings() + warnings + _band_warnings(problem, params)
+    concerns = _concerns(problem, params, lof)
     rms_m = {c: float(np.sqrt(np.mean(e[0] ** 2))) for c, e in errs.items()}
     rms_p = {c: float(np.sqrt(np.mean(e[1] ** 2))) for c, e in errs.items()}
     f = problem.data.freq_hz
@@ -596,7 +649,19 @@ def fit_problem(
         metadata=dict(problem.data.metadata),
         lack_of_fit=lof,
         not_fitted=not_fitted,
+        concerns=tuple(concerns),
     )
+
+
+def resolve_weighting(data: FrequencyResponse, channels: Sequence[Channel] | None, weighting: str) -> Weighting:
+    """``"auto"``: ``"coherence"`` when every fitted channel carries coherence, else ``"none"``."""
+    if weighting != "auto":
+        return weighting  # type: ignore[return-value]
+    if channels is None:
+        channels = [c for c in ("act", "base") if c in data.channels]
+        if "base" not in channels and "total" in data.channels:
+            channels.append("total")
+    return "coherence" if channels and all(data.coherence(c) is not None for c in channels) else "none"
 
 
 def fit(
@@ -627,9 +692,10 @@ def fit(
     channels : sequence, optional
         Default ``("act", "base")`` as the notebook (``total`` in place of a missing
         ``base``). Parameters the channels do not depend on are not fitted (NaN).
-    weighting : {"none", "coherence"}
+    weighting : {"none", "coherence", "auto"}
         ``"none"`` is the notebook's cost; ``"coherence"`` weights points by their
-        expected random error (see ``samii.identify.cost``).
+        expected random error (see ``samii.identify.cost``); ``"auto"`` (the CLI's
+        default) is ``"coherence"`` when every fitted channel has coherence, else ``"none"``.
     start : "notebook", "auto", "both" or mapping
         Where the solver starts (``samii.identify.starts``): notebook frequencies
         and dampings with gains read off the data, a start read off the data
@@ -662,5 +728,6 @@ def fit(
     10.886
     """
     structure = structure or ModelStructure.notebook_3mode()
+    weighting = resolve_weighting(data, channels, weighting)
     problem = FitProblem(data, structure, phase_weight=phase_weight, band_hz=band_hz, channels=None if channels is None else tuple(channels), weighting=weighting)
     return fit_problem(problem, start=start, n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, n_averages=n_averages)

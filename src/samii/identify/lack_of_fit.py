@@ -33,6 +33,11 @@ residuals have the same sign and exceed ``RUN_DEG`` = 6.6 deg (the same error
 of log H as 1 dB: 0.115 neper = 0.115 rad). Random errors of 1 dB standard
 deviation produce such a run with probability about 0.16^12 = 3e-10 per start.
 
+Points whose coherence is below ``MIN_COHERENCE`` = 0.5 are not tested: there the noise is as
+large as the signal, the small-error formulas above no longer hold (log|H| of a ratio of noisy
+spectra is heavy-tailed), and a large residual says the point is noise, not that the model lacks
+an effect. How many were left out is reported (``n_untested``).
+
 Either way, flagged points closer than ``MAX_GAP`` + 1 points are merged into
 one band (a residual that changes sign inside a band crosses zero, and a few
 noisy points may fall below the threshold), and a band needs at least
@@ -43,7 +48,7 @@ Each band becomes a warning naming the channel and its span in Hz.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Mapping
 
@@ -51,9 +56,11 @@ import numpy as np
 
 from samii.identify.cost import COHERENCE_CLIP, DB_PER_NEPER, DEG_PER_RAD, FitProblem
 
-__all__ = ["RATIO", "MisfitBand", "LackOfFit", "averages_from_metadata", "lack_of_fit"]
+__all__ = ["RATIO", "MIN_COHERENCE", "MisfitBand", "LackOfFit", "averages_from_metadata", "lack_of_fit"]
 
 RATIO = 5.0
+#: Below this coherence a point is noise-dominated and is not tested.
+MIN_COHERENCE = 0.5
 MIN_POINTS = 5
 MAX_GAP = 2
 RUN_POINTS = 12
@@ -135,8 +142,11 @@ class LackOfFit:
     n_averages_source: str
     bands: tuple[MisfitBand, ...]
     noise_ratio: Mapping[str, float | None]
+    #: channel -> points not tested because their coherence is below MIN_COHERENCE
+    n_untested: Mapping[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "n_untested", MappingProxyType(dict(self.n_untested)))
         object.__setattr__(self, "noise_ratio", MappingProxyType(dict(self.noise_ratio)))
 
     def summary(self) -> str:
@@ -158,6 +168,7 @@ class LackOfFit:
             "n_averages_source": self.n_averages_source,
             "noise_ratio": {k: (None if v is None else float(v)) for k, v in self.noise_ratio.items()},
             "bands": [b.to_dict() for b in self.bands],
+            "n_untested_low_coherence": dict(self.n_untested),
         }
 
 
@@ -217,6 +228,7 @@ def lack_of_fit(problem: FitProblem, x: np.ndarray, *, n_averages: int | None = 
     has_coh = all(data.coherence(c) is not None for c in problem.channels)
     bands: list[MisfitBand] = []
     ratios: dict[str, float | None] = {}
+    untested: dict[str, int] = {}
     if has_coh:
         if n_averages is not None:
             n, source = int(n_averages), "given"
@@ -229,16 +241,23 @@ def lack_of_fit(problem: FitProblem, x: np.ndarray, *, n_averages: int | None = 
         rule = (
             f"|residual| > {RATIO:g} x the random error coherence predicts (Bendat & Piersol table 9.6, {n} averages, "
             f"coherence clipped to {COHERENCE_CLIP}) in magnitude{' or phase' if with_phase else ''}; "
-            f">= {MIN_POINTS} such points, gaps of <= {MAX_GAP} bridged"
+            f">= {MIN_POINTS} such points, gaps of <= {MAX_GAP} bridged; points with coherence < {MIN_COHERENCE:g} (noise) not tested"
         )
         for c in problem.channels:
-            g = np.clip(data.coherence(c), *COHERENCE_CLIP)
+            raw = data.coherence(c)
+            tested = raw >= MIN_COHERENCE
+            untested[c] = int(np.count_nonzero(~tested))
+            g = np.clip(raw, *COHERENCE_CLIP)
             eps = np.sqrt((1.0 - g) / (2.0 * n * g))
             z_db = np.abs(errs[c][0]) / (DB_PER_NEPER * eps)
             z_deg = np.abs(errs[c][1]) / (DEG_PER_RAD * eps)
             z = np.maximum(z_db, z_deg) if with_phase else z_db
-            ratios[c] = float(np.sqrt(np.mean(np.concatenate([z_db**2, z_deg**2] if with_phase else [z_db**2]))))
-            for i, j in _bands(z > RATIO, max_gap=MAX_GAP, min_points=MIN_POINTS):
+            if np.any(tested):
+                parts = [z_db[tested] ** 2, z_deg[tested] ** 2] if with_phase else [z_db[tested] ** 2]
+                ratios[c] = float(np.sqrt(np.mean(np.concatenate(parts))))
+            else:
+                ratios[c] = None
+            for i, j in _bands((z > RATIO) & tested, max_gap=MAX_GAP, min_points=MIN_POINTS):
                 sl = slice(i, j + 1)
                 bands.append(MisfitBand(c, float(f[i]), float(f[j]), j - i + 1, float(np.max(np.abs(errs[c][0][sl]))), float(np.max(np.abs(errs[c][1][sl]))), float(np.median(z[sl]))))
     else:
@@ -255,4 +274,4 @@ def lack_of_fit(problem: FitProblem, x: np.ndarray, *, n_averages: int | None = 
             for i, j in _bands(flag, max_gap=MAX_GAP, min_points=RUN_POINTS):
                 sl = slice(i, j + 1)
                 bands.append(MisfitBand(c, float(f[i]), float(f[j]), j - i + 1, float(np.max(np.abs(errs[c][0][sl]))), float(np.max(np.abs(errs[c][1][sl]))), None))
-    return LackOfFit(rule, n, source, tuple(bands), ratios)
+    return LackOfFit(rule, n, source, tuple(bands), ratios, untested)
