@@ -181,6 +181,10 @@ def test_confirmation_by_a_simulated_measurement(truth_and_data):
     from samii.measure.excitation import SweptSine
 
     truth, data = truth_and_data
+    # above 0.5 Hz: lower, the accelerometer's tilt (g psi) and the tip's acceleration nearly
+    # cancel in xdd/theta (a notch near 0.3 Hz), where a transient record resolves the tiny
+    # response to a few dB only
+    data = data.band(0.5, 35.0)
     n = "hydraulic.total_volume"
     base = SimulatorFRF(default_params(), SIX).samii_params([truth[k] if k != n else parameter_value(default_params(), k) for k in SIX])
     res = calibrate(data, (n,), base=base, confirm=SweptSine(start_hz=0.3, stop_hz=35.0, amplitude_v=0.02))

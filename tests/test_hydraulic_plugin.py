@@ -241,6 +241,26 @@ def test_travel_limit_and_supply_pressure_bound_under_saturated_commands():
     assert plugin.valve_voltage(model, data) == 10.0
 
 
+def test_braking_through_an_open_valve_holds_the_load_pressure_near_supply():
+    """A heavy load coasting at -w0 against a valve opened forward pumps the load pressure up
+    (P_dot = c (Q - Dm theta_dot - Ctp P), with -Dm theta_dot > 0). Past the supply the oil flows
+    back through the open valve (signed square-root law), so P settles where
+    Kq x sqrt(P/Ps - 1) = Dm w0 (leakage aside), not at whatever the load's kinetic energy
+    compresses the oil to, as with a law that only cuts the flow off at P = Ps."""
+    params = OPEN_LOOP
+    w0 = 0.5 * params.rated_flow / params.displacement  # Dm w0 = Kq / 2: expect P/Ps ~ 1.25
+    model, data = make(params, inertia=50.0, timestep=1e-4)
+    got = run_plugin(model, data, lambda t: 10.0, 3000, (THETA_REF, -w0, 1.0, 0.0))  # valve open forward
+    x, p, w = got[2], got[3], got[1]
+    assert np.all(x > 0.99)
+    assert np.max(p) > 1.15  # the motor pumps past supply...
+    assert np.max(p) < 1.30  # ...and the open valve bounds it at 1 + (Dm |w| / (Kq x))^2 <= 1.25 (+ transient)
+    assert np.all(np.isfinite(p)) and w[-1] > w[0]  # the load is being braked
+    # the reference integrates the same law
+    ref = simulate_inertia(params, InertiaLoad(50.0, 0.0), lambda t: 10.0, timestep=1e-4, n_steps=3000, initial=(THETA_REF, -w0, 1.0, 0.0), method="mujoco")
+    np.testing.assert_allclose(ref.p_ratio, p, rtol=1e-9, atol=1e-12)
+
+
 def test_zero_input_energy_never_grows():
     """E = J theta_dot^2/2 + Vt P^2/(8 beta): dE/dt = -Ctp P^2 <= 0 with the valve shut.
 

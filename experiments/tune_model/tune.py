@@ -75,6 +75,8 @@ BASE_KNOBS = (
 )
 HYDRAULIC_KNOBS = ("hydraulic.total_volume", "hydraulic.leakage_coefficient", "hydraulic.rated_flow", "hydraulic.valve_time_constant")
 DAMPING_KNOBS = ("beam.clamp_maxwell_stiffness_Nm_rad", "beam.clamp_relaxation_time_s", "arm.joint1_damping_Nms_rad", "beam.beam_damping_time_s")
+#: Weight (as a tolerance) of the joint-2-held modal damping ratios against eq 9.4's in stage 3.
+MODAL_ZETA_TOL = (0.25, 0.25, 0.25)
 FREQUENCY_KNOBS = ("beam.clamp_stiffness_Nm_rad", "arm.joint1_stiffness_Nm_rad", "beam.length_m")
 
 
@@ -162,7 +164,7 @@ def stage3_indirect(p: SamiiParams, f_hz: np.ndarray) -> SamiiParams:
         out += [math.log(fp[w] / E[w]) / 0.03 for w in ("w1", "wz", "w3")]
         # and the physical modes (samii modes, joint 2 held: +-2 % in frequency, +-25 % in damping)
         held = held_modes(q)
-        out += [math.log(m.zeta / z) / 0.25 for m, z in zip(held, nb.BASE_ZETAS)]
+        out += [math.log(m.zeta / z) / tol for m, z, tol in zip(held, nb.BASE_ZETAS, MODAL_ZETA_TOL)]
         out += [math.log(m.freq_hz / f) / 0.02 for m, f in zip(held, nb.BASE_MODES_HZ)]
         return np.array(out)
 

@@ -7,7 +7,7 @@
 //
 //   servo amplifier   v     = clamp(u + Kp*(theta_ref - theta), -10 V, +10 V)
 //   spool (1st order) x_dot = (v/V_rated - x)/tau_v,        |x| <= 1   (1 = full opening)
-//   orifice flow      Q     = Kq * x * sqrt(max(Ps - sign(x)*P, 0)/Ps)                 [m^3/s]
+//   orifice flow      Q     = Kq * x * ssqrt((Ps - sign(x)*P)/Ps), ssqrt(u) = sign(u) sqrt(|u|)  [m^3/s]
 //   continuity        P_dot = (4*beta_e/Vt) * (Q - Dm*theta_dot - Ctp*P)                [Pa/s]
 //   torque            tau   = Dm * P                                                   [N m]
 //
@@ -243,11 +243,16 @@ static mjtNum valve_voltage(const mjModel* m, const mjData* d, const Hydraulic* 
   return mju_clip(v, -SAMII_AMPLIFIER_LIMIT_V, SAMII_AMPLIFIER_LIMIT_V);
 }
 
-// orifice load flow Q [m^3/s] for spool x and pressure ratio p = P/Ps
+// orifice load flow Q [m^3/s] for spool x and pressure ratio p = P/Ps. The drop across the
+// metering orifices is (Ps - sign(x) P)/Ps; when the motor pumps the load pressure past the
+// supply (an inertial load braked through an open valve) it turns negative and the oil flows
+// back to the supply through the open valve: the signed square-root law (Jelali & Kroll,
+// "Hydraulic Servo-systems", Springer 2003, sec. 3.3), which bounds the load pressure near Ps.
 static mjtNum load_flow(const Hydraulic* h, mjtNum x, mjtNum p) {
   x = mju_clip(x, -1, 1);
   mjtNum s = x > 0 ? 1 : (x < 0 ? -1 : 0);
-  return h->value[ATTR_RATED_FLOW] * x * mju_sqrt(mju_max(1 - s*p, 0));
+  mjtNum drop = 1 - s*p;
+  return h->value[ATTR_RATED_FLOW] * x * (drop >= 0 ? mju_sqrt(drop) : -mju_sqrt(-drop));
 }
 
 // actuator disabled through its group (opt.disableactuator)

@@ -10,7 +10,7 @@ critical-centre valve driving a motor through two compressible lines), with
 
     v     = clip(u + Kp*(theta_ref - theta), -10, 10)          servo amplifier [V]
     x_dot = (v/V_rated - x)/tau_v,   |x| <= 1                  spool, 1 = full opening
-    Q     = Kq * x * sqrt(max(Ps - sign(x)*P, 0)/Ps)           orifice flow [m^3/s]
+    Q     = Kq * x * ssqrt((Ps - sign(x)*P)/Ps)                orifice flow [m^3/s], ssqrt(u) = sign(u) sqrt(|u|)
     P_dot = 4*beta_e/Vt * (Q - Dm*theta_dot - Ctp*P)           load pressure [Pa/s]
     tau   = Dm*P                                               torque [N m]
 
@@ -230,7 +230,8 @@ def valve_voltage(params: HydraulicParams, u, theta, *, ctrlrange: tuple[float, 
 def load_flow(params: HydraulicParams, spool, p_ratio):
     """Orifice load flow Q [m^3/s] for spool position ``x`` (-1..1) and ``p_ratio`` = P/Ps."""
     x = np.clip(spool, -1.0, 1.0)
-    return params.rated_flow * x * np.sqrt(np.maximum(1.0 - np.sign(x) * np.asarray(p_ratio, float), 0.0))
+    drop = 1.0 - np.sign(x) * np.asarray(p_ratio, float)  # (Ps - sign(x) P) / Ps
+    return params.rated_flow * x * np.sign(drop) * np.sqrt(np.abs(drop))  # reverse flow past supply (hydraulic.c)
 
 
 def state_derivative(params: HydraulicParams, *, spool, p_ratio, theta_dot, voltage):

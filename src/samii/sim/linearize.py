@@ -133,15 +133,14 @@ class LinearModel:
 
 def _sensor_rows(model: mujoco.MjModel) -> tuple[int, np.ndarray]:
     """Row of theta and the weights of the accelerometer's measuring direction over the 3 framelinacc rows."""
-    from samii.sim.simulate import accel_direction
+    from samii.sim.sensors import accel_weights
 
     theta = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, "theta")
-    accel = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, "base_accel")
-    if theta < 0 or accel < 0:
-        raise ValueError("the model needs sensors named 'theta' (jointpos) and 'base_accel' (framelinacc)")
+    if theta < 0:
+        raise ValueError("the model needs a sensor named 'theta' (jointpos of joint 2)")
     w = np.zeros(model.nsensordata)
-    adr = int(model.sensor_adr[accel])
-    w[adr:adr + 3] = accel_direction(model)  # framelinacc (world frame) along the measuring direction
+    adr, weights = accel_weights(model)
+    w[adr:adr + 3] = weights  # the accelerometer's reading
     return int(model.sensor_adr[theta]), w
 
 

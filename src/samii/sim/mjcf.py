@@ -19,11 +19,16 @@ series with damper c2) parallel to the clamp spring, built from a massless-ish
 internal node (a hinge to the world with joint damping c2) and a fixed tendon
 clamp - node with stiffness k2; see ``BeamParams`` and the model card.
 
-Geometry: beam along +x, horizontal, clamped at the origin; bending in the
-vertical x-z plane (hinge axes along y), the plane joint 2 swings in at the
-nominal pose. Arm on the beam tip: l0 is a post rigidly fixed on the tip, joint
-1, 2 and 3 are hinges about y, so the nominal pose (-90, 90, 90, 0, 0, 0) deg
-has l1 and link 2 vertical and link 3 pointing along +x ("north").
+Geometry (issue 8): the beam's own frame has it along +x, clamped at the origin, bending about
+its y axis; ``BeamParams.pitch_deg`` tilts it up about world y (90: a vertical cantilever, the
+default model; 0: horizontal). The arm stands upright on the beam's end: l0 is a post rigidly
+fixed there, joints 1, 2 and 3 are hinges about y (joint 2 about -y, so theta is positive in the
+beam's slope sense), so the nominal pose (-90, 90, 90, 0, 0, 0) deg has l1 and link 2 vertical
+and link 3 pointing north (+x). ``ArmParams.heading_deg`` turns the arm about the vertical
+(north across the beam) and makes the beam spatial (lateral bending and torsion hinges). The
+base accelerometer (site and sensor ``base_accel``) reads the beam's transverse direction in
+joint 2's plane; ``BeamParams.accel_body_fixed`` chooses the design's ideal sensor (world frame)
+or a real, tilting one (``samii.sim.sensors``).
 """
 
 from __future__ import annotations
@@ -80,9 +85,15 @@ class BeamParams:
     #: beam's axis (the planar, collinear chain of the public transfer-matrix model).
     pitch_deg: float = 0.0
     #: Where the base accelerometer sits along the beam's axis, from the beam's end [m]:
-    #: 0 on the end, > 0 beyond it on the arm's mount (rigid with the tip), < 0 inboard on the
-    #: beam's last element (at most half an element).
+    #: 0 on the end, > 0 beyond it (rigid with the tip: on the post l0 when the beam is
+    #: vertical, a point on the beam's axis line in mid-air when it is horizontal), < 0 inboard
+    #: on the beam's last element (at most half an element).
     accel_offset_m: float = 0.0
+    #: The base accelerometer. 0: the design's sensor, the tip's acceleration along the beam's
+    #: transverse direction w in the world frame, gravity removed (MuJoCo framelinacc). 1: a real,
+    #: body-fixed accelerometer (MuJoCo accelerometer: specific force along an axis that tilts
+    #: with the tip), whose horizontal axis also reads g sin(tilt); see the model card.
+    accel_body_fixed: float = 0.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -90,6 +101,9 @@ class BeamParams:
             if f.name == "n_segments":
                 if not isinstance(v, (int, np.integer)) or v < 1:
                     raise ValueError(f"n_segments must be a positive integer, got {v!r}")
+            elif f.name == "accel_body_fixed":
+                if v not in (0.0, 1.0):
+                    raise ValueError(f"beam parameter accel_body_fixed must be 0 (ideal, world frame) or 1 (body-fixed), got {v!r}")
             elif f.name == "accel_offset_m":
                 if not math.isfinite(v):
                     raise ValueError(f"beam parameter accel_offset_m must be finite, got {v!r}")
@@ -321,7 +335,15 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     if not -tip <= b.accel_offset_m <= 1.0:
         raise ValueError(f"beam.accel_offset_m = {b.accel_offset_m} m: the accelerometer must sit on the last beam element "
                          f"or the mount, {-tip:.3g} ... 1 m from the beam's end")
-    add(f'{indent}<site name="base_accel" pos="{_vec(tip + b.accel_offset_m, 0, 0)}" size="0.02"/>')
+    # the accelerometer: body-fixed, measuring along its site's x axis (samii.sim.sensors). Planar
+    # beam: the beam's transverse direction w in joint 2's plane (local z of the beam: vertical
+    # for the horizontal beam, horizontal for the vertical one); spatial beam: the horizontal
+    # direction positive theta drives link 2's top, -north, R_y(pitch) R_z(heading + pi) here
+    if spatial:
+        q_site = _quat_mul((math.cos(pitch / 2), 0, math.sin(pitch / 2), 0), (math.cos((heading + math.pi) / 2), 0, 0, math.sin((heading + math.pi) / 2)))
+    else:
+        q_site = (math.cos(-math.pi / 4), 0.0, math.sin(-math.pi / 4), 0.0)  # R_y(-90 deg): x -> z
+    add(f'{indent}<site name="base_accel" pos="{_vec(tip + b.accel_offset_m, 0, 0)}" quat="{_vec(*q_site)}" size="0.02"/>')
     # l0 upright in the world and turned to the heading: R_y(pitch) R_z(heading) in the tip's frame
     q_l0 = np.zeros(4)
     q_l0[:] = _quat_mul((math.cos(pitch / 2), 0, math.sin(pitch / 2), 0), (math.cos(heading / 2), 0, 0, math.sin(heading / 2)))
@@ -423,17 +445,23 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     add("")
     add("  <sensor>")
     add('    <jointpos name="theta" joint="joint2"/>')
-    add("    <!-- world-frame linear acceleration of the beam tip; includes -gravity, removed in samii.sim.simulate -->")
-    add('    <framelinacc name="base_accel" objtype="site" objname="base_accel"/>')
+    if b.accel_body_fixed:
+        add("    <!-- body-fixed accelerometer on the tip (specific force a - g in the site frame; its x axis is read and")
+        add("         its reading at rest removed in samii.sim.simulate: a tilt of a horizontal axis reads g sin(tilt)) -->")
+        add('    <accelerometer name="base_accel" site="base_accel"/>')
+    else:
+        add("    <!-- the tip's acceleration in the world frame (reads a - g), read along the direction w below, gravity removed in samii.sim.simulate -->")
+        add('    <framelinacc name="base_accel" objtype="site" objname="base_accel"/>')
     add("  </sensor>")
     add("")
-    if spatial or pitch != 0:
+    if not b.accel_body_fixed:
+        # w in the world frame at the nominal geometry: the site's x axis (beam frame R_y(-pitch))
         if spatial:
-            direction = (math.cos(heading), math.sin(heading), 0.0)  # north: the horizontal direction joint 2 drives
+            direction = (-math.cos(heading), -math.sin(heading), 0.0)
         else:
-            direction = (-math.sin(pitch), 0.0, math.cos(pitch))  # the beam's transverse direction in joint 2's plane
+            direction = (-math.sin(pitch), 0.0, math.cos(pitch))
         add("  <custom>")
-        add("    <!-- measuring direction of the base accelerometer (world frame; samii.sim.simulate.accel_direction) -->")
+        add("    <!-- measuring direction of the base accelerometer, world frame (samii.sim.sensors) -->")
         add(f'    <numeric name="samii_accel_direction" data="{_vec(*direction)}"/>')
         add("  </custom>")
         add("")

@@ -15,7 +15,7 @@ import mujoco
 import mujoco.rollout
 import numpy as np
 
-__all__ = ["SimResult", "SimulationUnstable", "simulate", "tip_accel_offset", "accel_direction", "ACCEL_DIRECTION"]
+__all__ = ["SimResult", "SimulationUnstable", "simulate", "tip_accel_offset"]
 
 
 class SimulationUnstable(RuntimeError):
@@ -30,7 +30,7 @@ class SimResult:
     ctrl: np.ndarray  #: V, the excitation r added to the servo amplifier's position loop
     v: np.ndarray  #: V, valve voltage the valve received (after the loop and saturation)
     theta: np.ndarray  #: rad, joint-2 angle relative to the nominal pose (reference angle)
-    accel: np.ndarray  #: m/s^2, acceleration of the beam tip along the accelerometer's direction (default up), gravity removed
+    accel: np.ndarray  #: m/s^2, the base accelerometer (body-fixed specific force along its axis) minus its reading at rest
     p_load: np.ndarray  #: Pa, load pressure
     spool: np.ndarray  #: -1...1, spool position
     final_state: np.ndarray  #: mjSTATE_FULLPHYSICS after the last step (to continue a run)
@@ -42,26 +42,11 @@ class SimResult:
         return float(self.t[1] - self.t[0]) if self.t.size > 1 else float("nan")
 
 
-#: Name of the model's custom numeric holding the accelerometer's measuring direction (world frame).
-ACCEL_DIRECTION = "samii_accel_direction"
-
-
-def accel_direction(model: mujoco.MjModel) -> np.ndarray:
-    """Unit vector (world frame) along which the base accelerometer measures: the model's
-    custom numeric ``samii_accel_direction``, else world +z (up)."""
-    i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, ACCEL_DIRECTION)
-    if i < 0:
-        return np.array([0.0, 0.0, 1.0])
-    adr, size = int(model.numeric_adr[i]), int(model.numeric_size[i])
-    d = np.asarray(model.numeric_data[adr:adr + size], float)
-    if d.size != 3 or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
-        raise ValueError(f"custom numeric {ACCEL_DIRECTION!r} must hold a non-zero 3-vector, got {d.tolist()}")
-    return d / np.linalg.norm(d)
-
-
 def tip_accel_offset(model: mujoco.MjModel) -> float:
-    """What the accelerometer reads at rest: -g along its direction (framelinacc measures a - g)."""
-    return float(-accel_direction(model) @ model.opt.gravity)
+    """What the base accelerometer reads at rest (``samii.sim.sensors.accel_offset``): removed from ``accel``."""
+    from samii.sim.sensors import accel_offset
+
+    return accel_offset(model)
 
 
 def simulate(
@@ -139,8 +124,9 @@ def simulate(
     act_adr = int(model.actuator_actadr[act_id])
     act_start = 1 + model.nq + model.nv  # FULLPHYSICS layout: time, qpos, qvel, act, ...
     theta_sensor = int(model.sensor_adr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, "theta")])
-    accel_sensor = int(model.sensor_adr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, "base_accel")])
-    accel_dir = accel_direction(model)
+    from samii.sim.sensors import accel_weights
+
+    accel_sensor, accel_dir = accel_weights(model)
     hp = hydraulic_params(model, ACTUATOR)
     dt = float(model.opt.timestep)
     g_offset = tip_accel_offset(model)
