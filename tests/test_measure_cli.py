@@ -65,3 +65,21 @@ def test_bad_arguments(tmp_path, capsys):
     assert "stop_hz" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["measure", "--amplitude-v", "-1"])
+
+
+def test_load_pressure_above_supply_is_reported(tmp_path, capsys):
+    """Issue 8: at 5 V and 5 Hz the motor pumps the load pressure past the 7 MPa supply (7.7 MPa);
+    the run says so. At 3 Hz it stays below (3 MPa) and says nothing."""
+    out = tmp_path / "m5"
+    assert main(["measure", "--out", str(out), "--no-progress", "--amplitude-v", "5", "--freqs-hz", "5", "--method", "stepped"]) == 0
+    text = capsys.readouterr().out
+    run = json.loads((out / "run.json").read_text())
+    assert run["peaks"]["load_pressure_pa"] > run["model"]["hydraulic"]["supply_pressure"]
+    assert "warning: the load pressure reached" in text and "lower --amplitude-v" in text
+    assert run["warnings"]
+    # bounded by the open valve's reverse flow: within 20 % of supply, not the 9 MPa of a cut-off law
+    assert run["peaks"]["load_pressure_pa"] < 1.2 * run["model"]["hydraulic"]["supply_pressure"]
+    low = tmp_path / "m3"
+    assert main(["measure", "--out", str(low), "--no-progress", "--amplitude-v", "5", "--freqs-hz", "3", "--method", "stepped"]) == 0
+    assert "warning" not in capsys.readouterr().out
+    assert "warnings" not in json.loads((low / "run.json").read_text())

@@ -26,7 +26,7 @@ def run_main_job() -> int:
     print("base modes with joint 2 held: " + ", ".join(f"{m.freq_hz:.2f} Hz (zeta {m.zeta:.3f})" for m in rep.base_modes[:3]))
     pair = [s for s in rep.coupled_poles if 30 < abs(s.imag) < 80]
     if pair:
-        print(f"servo-loop pole pair: {pair[0].real:.2f} {pair[0].imag:+.2f}j 1/s")
+        print(f"servo-loop pole pair: {pair[0].real:.2f} ± {abs(pair[0].imag):.2f}j 1/s")
 
     model = load_model()
     dt = model.opt.timestep

@@ -249,7 +249,7 @@ def calibrate(
         x0[gains] = _gain_starts(data, base, names, x0, gains, band_hz)
     for n, v in zip(names, x0):
         if not math.isfinite(v) or (n not in SIGNED and not v > 0):
-            raise ValueError(f"parameter {n}: start {v!r} must be finite and > 0 (positive parameters are calibrated as logarithms); give --start {n}=VALUE")
+            raise ValueError(f"parameter {n}: start {float(v):g} must be finite and > 0 (positive parameters are calibrated as logarithms); give --start {n}=VALUE")
     user_bounds = dict(bounds or {})
     unknown = sorted(set(user_bounds) - set(names))
     if unknown:
@@ -325,6 +325,9 @@ def calibrate(
                             "check the structure (a missing effect) or widen the bound with --bound")
     if failures:
         warnings.append(f"{len(failures)} trial point(s) could not be simulated and were rejected (e.g. {failures[-1]})")
+    if "unit unknown" in str(data.metadata.get("source", "")) and "gain.base" not in names and any(c in ("base", "total") for c in problem.channels):
+        warnings.append("the data's acceleration unit is unknown (notebook curves) but gain.base is not calibrated: the physical "
+                        "parameters absorb the unit; add --param gain.base")
     converged = bool(sol.status > 0 and not on_bound)
     status = {0: "stopped at max_nfev", 1: "gradient small", 2: "cost change small", 3: "step small", 4: "cost and step small"}.get(sol.status, f"status {sol.status}")
     lof = lack_of_fit(problem, x)
@@ -332,9 +335,12 @@ def calibrate(
     w0 = problem.errors(x0)
     result_errors = problem.errors(x)
     values = {n: float(v) for n, v in zip(names, x)}
+    elapsed = time.perf_counter() - t0
     confirmation = None
     if confirm is not None:
+        t1 = time.perf_counter()
         confirmation = _confirm(structure, x, problem, confirm)
+        confirmation["elapsed_s"] = time.perf_counter() - t1
     return CalibrationResult(
         names=names,
         start={n: float(v) for n, v in zip(names, x0)},
@@ -349,7 +355,7 @@ def calibrate(
         converged=converged,
         status=status,
         nfev=int(sol.nfev),
-        elapsed_s=time.perf_counter() - t0,
+        elapsed_s=elapsed,
         warnings=tuple(warnings),
         lack_of_fit=lof,
         params=structure.samii_params(x),

@@ -52,7 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="physical parameter to calibrate, a --set name such as beam.clamp_stiffness_Nm_rad or "
                         "hydraulic.total_volume; gain.base / gain.act for a sensor of unknown unit (repeatable)")
     parser.add_argument("--start", action="append", default=[], type=_name_value, metavar="NAME=VALUE",
-                        help="starting value of a calibrated parameter (default: the model's value)")
+                        help="starting value of a calibrated parameter (default: the model's value; a channel gain starts at the data's level against the model's)")
     parser.add_argument("--bound", action="append", default=[], type=_name_bounds, metavar="NAME=LO:HI",
                         help="bounds of a calibrated parameter (default: physical limits where known, else a factor 10 around the start)")
     parser.add_argument("--phase-weight", type=float, default=0.1, metavar="W", help="weight on the phase error in degrees (default 0.1, the notebook's eq 9.4)")
@@ -94,6 +94,10 @@ def load_target(source: str):
         base = st.response(nb.EQ9_4, f, "base") * deg  # xdd / theta_deg -> xdd / theta_rad (xdd in the notebook's unit)
         return FrequencyResponse(f, act=act, base=base, metadata={"source": "notebook eq 9.4 over 0.1-40 Hz; theta in degrees converted to rad; acceleration unit unknown"})
     path = Path(source)
+    if not path.is_file():
+        raise ValueError(f"DATA {source!r}: no such file (DATA is an FRF CSV, a rig-era .mat, or one of {', '.join(NOTEBOOK_TARGETS)})")
+    if path.suffix.lower() not in (".csv", ".mat", ".txt"):
+        raise ValueError(f"DATA {source}: expected an FRF CSV (docs/DATA_FORMATS.md) or a rig-era .mat, not a {path.suffix or 'suffix-less'} file")
     if path.suffix.lower() == ".mat":
         from samii.measure.io import read_mat_bode
 
@@ -164,10 +168,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"RMS error {c}: {d0:.3g} dB / {p0:.3g} deg -> {d1:.3g} dB / {p1:.3g} deg")
     if r.confirmation:
         conf = r.confirmation
-        print(f"confirmed by a {conf['method']}:")
+        print(f"checked by a {conf['method']} ({conf['elapsed_s']:.1f} s): RMS error against the data of")
         for c in r.channels:
             m, lin = conf["rms_error_measured"][c], conf["rms_error_linearised"][c]
-            print(f"  {c}: measured {m['db']:.3g} dB / {m['deg']:.3g} deg, linearised {lin['db']:.3g} dB / {lin['deg']:.3g} deg")
+            print(f"  {c}: the measured calibrated model {m['db']:.3g} dB / {m['deg']:.3g} deg; its linearisation {lin['db']:.3g} dB / {lin['deg']:.3g} deg")
     lof = r.lack_of_fit
     print(f"lack of fit: {'FOUND' if lof.found else 'none'} ({lof.rule})")
     for w in r.warnings:
@@ -192,6 +196,8 @@ def _write_outputs(result, data, out: Path, *, overwrite: bool) -> list[Path]:
     models = {"start": (structure, dict(result.start)), "calibrated": (structure, dict(result.values))}
     note = (f"data: {result.data_source}; calibrated: " + ", ".join(f"{n} = {result.values[n]:.4g}" for n in result.names)
             + f"; phase weight {result.phase_weight:g}")
+    if "gain.base" in result.names:
+        note += "; xdd in the data's own unit: the model curves are multiplied by gain.base"
     fig = plot_fit_overlay(data, models, channels=result.channels, band_hz=result.band_hz,
                            title="samii calibrate: linearised simulator against the data", note=note, n_model_points=300)
     buf = io.BytesIO()

@@ -188,7 +188,14 @@ def run(args: argparse.Namespace) -> int:
         written.append(write_rerun_recording(args.rerun, model, first.timeseries, frame_t_s=first.run.frame_t_s, frame_qpos=first.run.frame_qpos))
 
     try:
-        params = asdict(params_with_overrides(default_params(), overrides)) if args.model is None else None
+        if args.model is None:
+            params = asdict(params_with_overrides(default_params(), overrides))
+        elif str(args.model).lower().endswith(".json"):  # a parameter file (samii calibrate): record what it held
+            from samii.sim.model import read_params_file
+
+            params = asdict(params_with_overrides(read_params_file(args.model), overrides))
+        else:
+            params = None  # an MJCF file: its physics is in the file
     except (OSError, ValueError):
         params = None
     hp = hydraulic_params(model)
@@ -210,6 +217,14 @@ def run(args: argparse.Namespace) -> int:
                   "valve_command_v": float(np.max(np.abs(main.timeseries.v))), "joint_angle_rad": float(np.max(np.abs(main.timeseries.theta)))},
         "outputs": [str(p) for p in written] + [str(out / "run.json")],
     }
+    p_peak = summary["peaks"]["load_pressure_pa"]
+    if p_peak is not None and p_peak > hp.supply_pressure:
+        summary["warnings"] = [
+            f"the load pressure reached {p_peak / 1e6:.2f} MPa, {100 * (p_peak / hp.supply_pressure - 1):.0f} % above the "
+            f"{hp.supply_pressure / 1e6:.3g} MPa supply: the motor pumped oil in faster than the partly closed valve returns it "
+            "to the supply (no relief valve is modelled; a rig's would clip the pressure). "
+            "The response is far from small-signal: lower --amplitude-v"
+        ]
     run_json = out / "run.json"
     from samii.measure.io import write_text
 
@@ -223,6 +238,8 @@ def run(args: argparse.Namespace) -> int:
           f"({tm['real_time_factor']:.0f}x real time), {tm['total_wall_s']:.1f} s in all")
     print(f"peak load pressure {summary['peaks']['load_pressure_pa'] / 1e6:.2f} MPa (supply {hp.supply_pressure / 1e6:.3g} MPa), "
           f"peak valve command {summary['peaks']['valve_command_v']:.2f} V")
+    for w in summary.get("warnings", []):
+        print(f"samii measure: warning: {w}")
     for ch, s in summary["vs_linearised_simulator_0.5_35_hz"].items():
         print(f"{ch}: within {s['max_abs_db']:.2f} dB and {s['max_abs_deg']:.2f} deg of the linearised simulator over 0.5-35 Hz (coherence > 0.95)")
     for p in summary["outputs"]:
