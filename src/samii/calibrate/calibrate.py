@@ -218,7 +218,8 @@ def calibrate(
     span : float
         Default bound factor either side of the start, where physics gives none.
     phase_weight, band_hz, channels, weighting
-        The cost, as in ``samii fit`` (``samii.identify.cost.FitProblem``).
+        The cost, as in ``samii fit`` (``samii.identify.cost.FitProblem``); ``weighting="auto"``
+        is coherence weighting when every channel in the cost has coherence, else none.
     max_nfev : int
         Largest number of solver iterations (each costs 2 n + 1 linearisations).
     confirm : samii.measure.excitation.SweptSine, optional
@@ -267,6 +268,9 @@ def calibrate(
         if not lo <= v <= hi:
             raise ValueError(f"parameter {n}: start {v:.6g} lies outside its bounds [{lo:.6g}, {hi:.6g}]")
 
+    from samii.identify.fit import resolve_weighting
+
+    weighting = resolve_weighting(data, channels, weighting)
     structure = SimulatorFRF(base, names)
     problem = FitProblem(data, structure, phase_weight=phase_weight, band_hz=band_hz, channels=channels, weighting=weighting)
     free = problem.fitted

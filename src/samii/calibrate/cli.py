@@ -58,8 +58,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--phase-weight", type=float, default=0.1, metavar="W", help="weight on the phase error in degrees (default 0.1, the notebook's eq 9.4)")
     parser.add_argument("--band-hz", type=float, nargs=2, metavar=("LO", "HI"), help="use only LO <= f <= HI Hz (default: all the data)")
     parser.add_argument("--channels", default=None, metavar="C1,C2", help="channels in the cost (default act,base where present)")
-    parser.add_argument("--weighting", choices=("none", "coherence"), default="none",
-                        help="none: the notebook's cost (default); coherence: points weighted by the random error their coherence predicts")
+    parser.add_argument("--weighting", choices=("auto", "none", "coherence"), default="auto",
+                        help="none: the notebook's cost; coherence: points weighted by the random error their coherence predicts; "
+                        "auto (default): coherence when the data have it for every channel in the cost, else none (as samii fit)")
     parser.add_argument("--model", metavar="PARAMS.json",
                         help="parameter file to start from (default: the embedded model's); an MJCF file cannot be calibrated, its physics is not parametrised")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a model parameter before calibrating (repeatable)")
