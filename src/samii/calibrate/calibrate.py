@@ -387,9 +387,7 @@ def _confirm(structure: SimulatorFRF, x: np.ndarray, problem: FitProblem, sweep)
     f = f[inside]
     _, ts = record(structure.model(x), sweep)
     meas = estimate_frf(ts, record_s=sweep.record_s, baseline_s=sweep.lead_s, freqs_hz=f, record_signs=sweep.record_signs)
-    gains = {n[len(GAIN_PREFIX):]: float(v) for n, v in zip(structure.param_names, x) if n.startswith(GAIN_PREFIX)}
-    ga, gb = gains.get("act", 1.0), gains.get("base", 1.0)
-    measured = {"act": meas.act * ga, "base": meas.base * gb / ga, "total": meas.total * gb}
+    measured = structure.with_gains(x, meas)
     linear = structure.frf(x, f)
 
     def rms(h, c):

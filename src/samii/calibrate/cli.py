@@ -7,7 +7,6 @@ stage's cli module to build its help).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path

@@ -140,6 +140,15 @@ class SimulatorFRF:
         return FrequencyResponse(np.asarray(freq_hz, float), act=h["act"], base=h["base"], total=h["total"],
                                  metadata={"source": "linearised simulator (samii calibrate)"})
 
+    def with_gains(self, x: Sequence[float], frf: FrequencyResponse) -> dict[str, np.ndarray]:
+        """``frf``'s channels (act, base, total) as the sensors with the gains in ``x`` read them."""
+        gains = {c: 1.0 for c in _GAIN_CHANNELS}
+        for n, v in zip(self.param_names, x):
+            if n.startswith(GAIN_PREFIX):
+                gains[n[len(GAIN_PREFIX):]] = float(v)
+        ga, gb = gains["act"], gains["base"]
+        return {"act": frf.act * ga, "base": frf.base * gb / ga, "total": frf.total * gb}
+
     def response(self, values: Mapping[str, float], freq_hz: np.ndarray, channel: Channel) -> np.ndarray:
         """One channel for named parameter values (``ModelStructure.response``'s signature, for plots)."""
         return self._responses(self.vector(values), np.asarray(freq_hz, float))[channel]
@@ -149,24 +158,9 @@ class SimulatorFRF:
         hit = self._cache.get(key)
         if hit is not None:
             return hit
-        import warnings
-
         from samii.measure.campaign import linearised_frf
-        from samii.sim.linearize import linearize
 
-        model = self.model(x)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # scipy logm accuracy notes
-            frf = linearised_frf(model, freq_hz, linear_model=linearize(model))
-        gains = {c: 1.0 for c in _GAIN_CHANNELS}
-        for n, v in zip(self.param_names, x):
-            if n.startswith(GAIN_PREFIX):
-                gains[n[len(GAIN_PREFIX):]] = float(v)
-        out = {
-            "act": frf.act * gains["act"],
-            "base": frf.base * gains["base"] / gains["act"],
-            "total": frf.total * gains["base"],
-        }
+        out = self.with_gains(x, linearised_frf(self.model(x), freq_hz))
         if len(self._cache) > 64:
             self._cache.clear()
         self._cache[key] = out

@@ -132,7 +132,7 @@ class LinearModel:
 
 
 def _sensor_rows(model: mujoco.MjModel) -> tuple[int, np.ndarray]:
-    """Row of theta and the weights of the accelerometer's measuring direction over the 3 framelinacc rows."""
+    """Row of theta, and the weights over all sensor rows that make the accelerometer's reading."""
     from samii.sim.sensors import accel_weights
 
     theta = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, "theta")

@@ -36,6 +36,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field, fields
 
+import mujoco
 import numpy as np
 
 from samii.notebook import TMM
@@ -189,20 +190,30 @@ _WRIST = (
 MAXWELL_NODE_INERTIA_KGM2 = 0.01
 
 
-def _quat_mul(p, q) -> tuple[float, float, float, float]:
-    """Hamilton product p q of quaternions (w, x, y, z)."""
-    pw, px, py, pz = p
-    qw, qx, qy, qz = q
-    return (pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw)
+_X, _Y, _Z = np.eye(3)
+
+
+def _quat(axis: np.ndarray, angle: float) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) of a rotation by ``angle`` about ``axis``."""
+    q = np.zeros(4)
+    mujoco.mju_axisAngle2Quat(q, axis, angle)
+    return q
+
+
+def _compose(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The rotation p q (q first, then p)."""
+    out = np.zeros(4)
+    mujoco.mju_mulQuat(out, p, q)
+    return out
 
 
 def _fmt(x: float) -> str:
-    return f"{x:.10g}"
+    return f"{x + 0.0:.10g}"  # + 0.0: no "-0"
 
 
 def _vec(*xs: float) -> str:
-    return " ".join(_fmt(x) for x in xs)
+    """Positions, quaternions, inertias: rounding residue of trigonometry (< 1e-12) written as 0."""
+    return " ".join(_fmt(0.0 if abs(x) < 1e-12 else x) for x in xs)
 
 
 def _box_inertia(m: float, a: float, b: float, c: float) -> tuple[float, float, float]:
@@ -248,6 +259,7 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     c_hinge = b.beam_damping_time_s * k_hinge
     heading = math.radians(a.heading_deg)
     pitch = math.radians(b.pitch_deg)
+    q_beam = _quat(_Y, -pitch)  # the beam's frame in the world: its +x turns up by the pitch
     spatial = abs(math.remainder(a.heading_deg, 360.0)) > 1e-9
     k_torsion = b.GJ_Nm2 / ell
     s = b.section_side_m
@@ -291,12 +303,10 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     add("")
     add("  <worldbody>")
     add('    <body name="wall" childclass="samii">')
-    if b.pitch_deg == 0:
-        add('      <geom name="clamp_block" type="box" pos="-0.15 0 0" size="0.15 0.25 0.3" rgba="0.3 0.3 0.3 1"/>')
-    else:  # the clamp block behind the beam's root, along its axis
-        th = math.radians(b.pitch_deg)
-        add(f'      <geom name="clamp_block" type="box" pos="{_vec(-0.15 * math.cos(th), 0, -0.15 * math.sin(th))}" '
-            f'quat="{_vec(math.cos(-th / 2), 0, math.sin(-th / 2), 0)}" size="0.15 0.25 0.3" rgba="0.3 0.3 0.3 1"/>')
+    block = np.zeros(3)  # the clamp block behind the beam's root, along its axis
+    mujoco.mju_rotVecQuat(block, -0.15 * _X, q_beam)
+    block_quat = "" if pitch == 0 else f' quat="{_vec(*q_beam)}"'
+    add(f'      <geom name="clamp_block" type="box" pos="{_vec(*block)}"{block_quat} size="0.15 0.25 0.3" rgba="0.3 0.3 0.3 1"/>')
     add("    </body>")
 
     indent = "    "
@@ -311,7 +321,7 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
         name = f"beam_{i}"
         cls = ' childclass="samii"' if i == 0 else ""
         if i == 0 and pitch != 0:
-            cls += f' quat="{_vec(math.cos(-pitch / 2), 0, math.sin(-pitch / 2), 0)}"'  # R_y(-pitch): the beam's +x turns up
+            cls += f' quat="{_vec(*q_beam)}"'
         add(f'{indent}<body name="{name}" pos="{_vec(pos, 0, 0)}"{cls}>')
         ind = indent + "  "
         if i == 0:
@@ -339,14 +349,10 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     # beam: the beam's transverse direction w in joint 2's plane (local z of the beam: vertical
     # for the horizontal beam, horizontal for the vertical one); spatial beam: the horizontal
     # direction positive theta drives link 2's top, -north, R_y(pitch) R_z(heading + pi) here
-    if spatial:
-        q_site = _quat_mul((math.cos(pitch / 2), 0, math.sin(pitch / 2), 0), (math.cos((heading + math.pi) / 2), 0, 0, math.sin((heading + math.pi) / 2)))
-    else:
-        q_site = (math.cos(-math.pi / 4), 0.0, math.sin(-math.pi / 4), 0.0)  # R_y(-90 deg): x -> z
+    q_site = _compose(_quat(_Y, pitch), _quat(_Z, heading + math.pi)) if spatial else _quat(_Y, -math.pi / 2)  # x -> z
     add(f'{indent}<site name="base_accel" pos="{_vec(tip + b.accel_offset_m, 0, 0)}" quat="{_vec(*q_site)}" size="0.02"/>')
     # l0 upright in the world and turned to the heading: R_y(pitch) R_z(heading) in the tip's frame
-    q_l0 = np.zeros(4)
-    q_l0[:] = _quat_mul((math.cos(pitch / 2), 0, math.sin(pitch / 2), 0), (math.cos(heading / 2), 0, 0, math.sin(heading / 2)))
+    q_l0 = _compose(_quat(_Y, pitch), _quat(_Z, heading))
     l0_quat = "" if pitch == 0 and not spatial else f' quat="{_vec(*q_l0)}"'
     # l0's foot: on the beam's upper face when horizontal, on its end face when vertical
     foot = (tip + math.sin(pitch) * s / 2, 0.0, math.cos(pitch) * s / 2)
@@ -356,7 +362,7 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     add(f'{ind}<inertial pos="{_vec(0, 0, l0["cg_m"])}" mass="{_fmt(l0["mass_kg"])}" diaginertia="{_vec(l0["I_cg_kgm2"], l0["I_cg_kgm2"], l0["mass_kg"] * 0.1**2 / 2)}"/>')
     add(f'{ind}<geom class="link_visual" type="box" pos="{_vec(0, 0, l0["length_m"] / 2)}" size="0.09 0.09 {_fmt(l0["length_m"] / 2)}" rgba="0.35 0.35 0.38 1"/>')
     # joint 1 at the top of l0; body quat R_y(+90deg) so that q1 = -90 deg leaves l1 vertical
-    qy = lambda ang: _vec(math.cos(ang / 2), 0, math.sin(ang / 2), 0)  # noqa: E731
+    qy = lambda ang: _vec(*_quat(_Y, ang))  # noqa: E731
     add(f'{ind}<body name="link1" pos="{_vec(0, 0, l0["length_m"])}" quat="{qy(math.pi / 2)}">')
     ind2 = ind + "  "
     add(f'{ind2}<joint name="joint1" class="joint1"/>')
@@ -455,11 +461,9 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     add("  </sensor>")
     add("")
     if not b.accel_body_fixed:
-        # w in the world frame at the nominal geometry: the site's x axis (beam frame R_y(-pitch))
-        if spatial:
-            direction = (-math.cos(heading), -math.sin(heading), 0.0)
-        else:
-            direction = (-math.sin(pitch), 0.0, math.cos(pitch))
+        # w in the world frame at the nominal geometry: the site's x axis
+        direction = np.zeros(3)
+        mujoco.mju_rotVecQuat(direction, _X, _compose(q_beam, q_site))
         add("  <custom>")
         add("    <!-- measuring direction of the base accelerometer, world frame (samii.sim.sensors) -->")
         add(f'    <numeric name="samii_accel_direction" data="{_vec(*direction)}"/>')

@@ -6,10 +6,12 @@ when the tip tilts by psi, a horizontal axis picks up g sin(psi) (first order in
 vertical one g cos(psi) (second order). The rig's "gravity removed" is the reading at rest
 subtracted (a DAQ offset or AC coupling); the dynamic tilt term stays, as on the rig.
 
-In the MJCF the sensor ``base_accel`` is MuJoCo's ``accelerometer`` on the site ``base_accel``
-(specific force in the site frame); the site's x axis is the measuring axis. Models written before
-issue 8 used ``framelinacc`` (world frame, no tilt) read along world +z or along the custom
-numeric ``samii_accel_direction``; both are still read.
+Two sensors are read (``BeamParams.accel_body_fixed`` chooses which the writer emits):
+``framelinacc`` of the site ``base_accel`` (DESIGN.md's sensor, the default: the tip's
+acceleration in the world frame, no tilt), read along the custom numeric
+``samii_accel_direction`` (world +z when absent, as in models written before issue 8); or
+MuJoCo's ``accelerometer`` on that site (specific force in the site frame, body-fixed), read
+along the site's x axis.
 """
 
 from __future__ import annotations
