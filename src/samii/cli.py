@@ -15,12 +15,20 @@ import sys
 # subcommand -> (module, one-line help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "modes": ("samii.sim.cli_modes", "linearise the simulator at the nominal pose and print its modes"),
-    "simulate": ("samii.sim.cli_simulate", "run the simulator with a valve command and write the sensor signals"),
     "measure": ("samii.measure.cli", "swept- or stepped-sine Bode measurement in the simulator"),
     "fit": ("samii.identify.cli", "fit the notebook's transfer-function models to an FRF file"),
     "calibrate": ("samii.calibrate.cli", "calibrate the simulator's physical parameters to FRF data"),
     "design": ("samii.design.cli", "control design: root loci, pole placement, pole cancellation, seed report"),
 }
+
+
+def _version() -> str:
+    from importlib import metadata
+
+    try:
+        return metadata.version("samii")
+    except metadata.PackageNotFoundError:  # pragma: no cover - running from a source tree
+        return "unknown"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -29,28 +37,93 @@ def build_parser() -> argparse.ArgumentParser:
         description="SAMII: a hydraulic arm on a flexible cantilevered beam, simulated in MuJoCo. "
         "With no subcommand, runs the main job on the embedded default model.",
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in SUBCOMMANDS.items():
-        try:
-            mod = importlib.import_module(module)
-        except ModuleNotFoundError as exc:  # stage not built yet
-            if exc.name != module:
-                raise
-            continue
+        mod = importlib.import_module(module)
         p = sub.add_parser(name, help=help_text, description=help_text)
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)
     return parser
 
 
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip() or type(exc).__name__
+    return " ".join(text.split())
+
+
+def _install_signal_handlers() -> None:
+    """SIGTERM and SIGHUP raise :class:`samii.errors.Interrupted`, so staged outputs are cleaned up."""
+    import signal
+
+    from samii.errors import Interrupted
+
+    def handler(signum, _frame):
+        raise Interrupted(signum)
+
+    for name in ("SIGTERM", "SIGHUP"):
+        sig = getattr(signal, name, None)
+        if sig is not None:
+            try:
+                signal.signal(sig, handler)
+            except (ValueError, OSError):  # not the main thread
+                pass
+
+
+def _report(prog: str, kind: str, exc: BaseException) -> None:
+    print(f"{prog}: {kind}: {_one_line(exc)}", file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run the command; map errors to one line on stderr and an exit code (see :mod:`samii.errors`)."""
+    import os
+
+    from samii.errors import EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_UNSTABLE, InputError, Interrupted, SimulationUnstable
+
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.command is None:
-        from samii.main_job import run_main_job
+    prog = "samii" + (f" {args.command}" if args.command else "")
+    if getattr(args, "design_command", None):
+        prog += f" {args.design_command}"
+    _install_signal_handlers()
+    try:
+        if args.command is None:
+            from samii.main_job import run_main_job
 
-        return run_main_job()
-    return int(args._run(args) or 0)
+            return run_main_job()
+        return int(args._run(args) or 0)
+    except Interrupted as exc:
+        print(f"{prog}: stopped by signal {exc.signum}; nothing half-written was kept", file=sys.stderr)
+        return 128 + exc.signum
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted; nothing half-written was kept", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:  # e.g. `samii modes | head`: the reader left, which is not an error
+        try:
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+        except (OSError, ValueError):
+            pass
+        return 0
+    except SimulationUnstable as exc:
+        _report(prog, "unstable", exc)
+        return EXIT_UNSTABLE
+    except InputError as exc:
+        _report(prog, "error", exc)
+        return EXIT_BAD_INPUT
+    except MemoryError:
+        print(f"{prog}: error: out of memory; the requested run is too large for this machine", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OSError as exc:  # files: missing, unreadable, a folder, disk full
+        where = f" {exc.filename}" if getattr(exc, "filename", None) else ""
+        print(f"{prog}: error:{where}: {exc.strerror or _one_line(exc)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except Exception as exc:  # a bug: one line by default, the traceback on request
+        if os.environ.get("SAMII_DEBUG"):
+            raise
+        print(f"{prog}: internal error: {type(exc).__name__}: {_one_line(exc)} (run with SAMII_DEBUG=1 for the traceback; please report it)",
+              file=sys.stderr)
+        return EXIT_INTERNAL
 
 
 if __name__ == "__main__":

@@ -15,11 +15,9 @@ import mujoco
 import mujoco.rollout
 import numpy as np
 
+from samii.errors import SimulationUnstable
+
 __all__ = ["SimResult", "SimulationUnstable", "simulate", "tip_accel_offset"]
-
-
-class SimulationUnstable(RuntimeError):
-    """The simulation diverged (non-finite state or MuJoCo's bad-acceleration reset)."""
 
 
 @dataclass(frozen=True)

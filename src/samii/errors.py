@@ -1,0 +1,57 @@
+"""The errors every stage raises and the exit codes the ``samii`` command maps them to.
+
+Library code raises :class:`InputError` for input a user can fix (a file, an
+option, a parameter value): its message is one line that names the file or
+option, the line or column where that helps, and what was expected.
+:class:`SimulationUnstable` marks a simulation that diverged or never reached a
+usable state (a loop oscillating on its own, a valve sitting on its rails): a
+finding about the model, not data. The command line (:mod:`samii.cli`) turns
+them into one line on stderr and an exit code:
+
+======  ==============================================================
+code    meaning
+======  ==============================================================
+0       done
+1       an internal error (a bug: please report it with ``SAMII_DEBUG=1``)
+2       bad input: an option, a file, a parameter value
+3       the simulation is unstable or diverged
+130     interrupted (Ctrl-C); 128 + N for signal N (SIGTERM 143, SIGHUP 129)
+======  ==============================================================
+
+Imports nothing heavy.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "EXIT_BAD_INPUT",
+    "EXIT_INTERNAL",
+    "EXIT_INTERRUPTED",
+    "EXIT_OK",
+    "EXIT_UNSTABLE",
+    "InputError",
+    "SimulationUnstable",
+    "Interrupted",
+]
+
+EXIT_OK = 0
+EXIT_INTERNAL = 1
+EXIT_BAD_INPUT = 2
+EXIT_UNSTABLE = 3
+EXIT_INTERRUPTED = 130
+
+
+class InputError(ValueError):
+    """Input a user can fix; the message is one line naming the file or option and what was expected."""
+
+
+class SimulationUnstable(RuntimeError):
+    """The simulation diverged (non-finite state, MuJoCo's bad-acceleration reset) or oscillates on its own."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """A termination signal (SIGTERM, SIGHUP) turned into an exception, so ``finally`` blocks clean up."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum

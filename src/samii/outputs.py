@@ -1,0 +1,204 @@
+"""An output folder that is all-or-nothing.
+
+Every command that writes files stages them in a hidden folder inside its
+``--out`` (same file system, so the final moves are renames) and moves them into
+place together only when the whole run succeeded::
+
+    with OutputFolder(out, ["frf.csv", "bode.png"], overwrite=args.overwrite) as folder:
+        write_frf_csv(frf, folder.path("frf.csv"))
+        ...
+
+- The folder is checked before any work (``OutputFolder(...)`` raises
+  :class:`~samii.errors.InputError` at once): an empty name, a path that is a
+  file, a parent that is not a writable folder, outputs that exist without
+  ``overwrite``.
+- On any exception, Ctrl-C or a handled signal (``samii.cli`` turns SIGTERM and
+  SIGHUP into exceptions) the staging folder is removed, and ``--out`` too when
+  this run created it and it is still empty: nothing half-written survives.
+- A run killed outright (SIGKILL, power loss) leaves its staging folder
+  ``.samii-stage-<pid>-<token>``; the next run into the same folder removes
+  those whose process is gone. Nothing else ever reads them.
+- The moves into place hold an exclusive lock (``flock``) on the ``--out`` folder itself, so two
+  concurrent runs into one folder never mix their files: the folder ends with
+  the whole set of one of them (with ``--overwrite``, the later), and a run
+  without ``--overwrite`` that finds its names taken fails and writes nothing.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import shutil
+from pathlib import Path
+from typing import Iterable
+
+from samii.errors import InputError
+
+__all__ = ["OutputFolder", "check_output_file"]
+
+_STAGE_PREFIX = ".samii-stage-"
+
+
+def _describe(path: Path) -> str:
+    return str(path) if str(path) else "''"
+
+
+def _nearest_existing(path: Path) -> Path:
+    p = path.absolute()
+    while not p.exists():
+        if p.parent == p:
+            break
+        p = p.parent
+    return p
+
+
+def _check_creatable_dir(path: Path, option: str) -> None:
+    if path.exists():
+        if not path.is_dir():
+            raise InputError(f"{option} {_describe(path)}: exists and is not a folder")
+        if not os.access(path, os.W_OK | os.X_OK):
+            raise InputError(f"{option} {_describe(path)}: folder is not writable")
+        return
+    base = _nearest_existing(path)
+    if not base.is_dir():
+        raise InputError(f"{option} {_describe(path)}: cannot create a folder under {base}, which is a file")
+    if not os.access(base, os.W_OK | os.X_OK):
+        raise InputError(f"{option} {_describe(path)}: cannot create it, {base} is not writable")
+
+
+def check_output_file(path, *, overwrite: bool, option: str) -> Path:
+    """Check, before any work, that a single output file (``--rerun FILE``, ``--save FILE``) can be written."""
+    text = os.fspath(path)
+    if not text.strip():
+        raise InputError(f"{option}: expected a file name, got an empty string")
+    p = Path(text)
+    if p.exists() and p.is_dir():
+        raise InputError(f"{option} {p}: is a folder, expected a file name")
+    if p.exists() and not overwrite:
+        raise InputError(f"{option} {p}: exists; pass --overwrite to replace it")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise InputError(f"{option} {p}: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"{option} {p}: folder {parent} is not writable")
+    return p
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_stale_stages(folder: Path) -> list[Path]:
+    """Remove staging folders left in ``folder`` by runs whose process no longer exists."""
+    removed = []
+    if not folder.is_dir():
+        return removed
+    for entry in folder.iterdir():
+        if not entry.name.startswith(_STAGE_PREFIX) or not entry.is_dir():
+            continue
+        try:
+            pid = int(entry.name[len(_STAGE_PREFIX):].split("-", 1)[0])
+        except ValueError:
+            continue
+        if pid != os.getpid() and not _pid_alive(pid):
+            shutil.rmtree(entry, ignore_errors=True)
+            removed.append(entry)
+    return removed
+
+
+class OutputFolder:
+    """Stage a run's outputs and move them into ``path`` together on success (see the module docstring).
+
+    ``names`` are the files this run will write; the check for existing ones is
+    made at construction, before any work, and again under the lock at commit.
+    ``option`` names the command-line option in messages.
+    """
+
+    def __init__(self, path, names: Iterable[str], *, overwrite: bool, option: str = "--out", overwrite_option: str = "--overwrite"):
+        text = os.fspath(path)
+        if not text.strip():
+            raise InputError(f"{option}: expected a folder name, got an empty string")
+        self.root = Path(text)
+        self.names = list(dict.fromkeys(names))
+        self.overwrite = overwrite
+        self.option = option
+        self.overwrite_option = overwrite_option
+        _check_creatable_dir(self.root, option)
+        self._check_existing()
+        self._stage: Path | None = None
+        self._created: list[Path] = []
+        self.written: list[Path] = []
+
+    def _check_existing(self) -> None:
+        if self.overwrite or not self.root.is_dir():
+            return
+        existing = [n for n in self.names if (self.root / n).exists()]
+        if existing:
+            shown = ", ".join(existing[:4]) + (", ..." if len(existing) > 4 else "")
+            raise InputError(f"{self.option} {self.root} already holds {shown}; pass {self.overwrite_option} to replace")
+
+    def path(self, name: str) -> Path:
+        """Where to write output ``name`` during the run (inside the staging folder)."""
+        if self._stage is None:
+            raise RuntimeError("OutputFolder.path() outside its with-block")
+        if name not in self.names:
+            self.names.append(name)
+        return self._stage / name
+
+    def final(self, name: str) -> Path:
+        """Where output ``name`` will be once the run succeeds."""
+        return self.root / name
+
+    def __enter__(self) -> "OutputFolder":
+        missing = []
+        p = self.root.absolute()
+        while not p.exists():
+            missing.append(p)
+            p = p.parent
+        self.root.mkdir(parents=True, exist_ok=True)
+        self._created = missing  # removed again (when empty) if the run fails
+        remove_stale_stages(self.root)
+        self._stage = self.root / f"{_STAGE_PREFIX}{os.getpid()}-{secrets.token_hex(4)}"
+        self._stage.mkdir()
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        committed = False
+        try:
+            if exc_type is None:
+                self._commit()
+                committed = True
+        finally:
+            if self._stage is not None:
+                shutil.rmtree(self._stage, ignore_errors=True)
+                self._stage = None
+            if not committed:
+                for folder in self._created:  # innermost first; only those still empty
+                    try:
+                        folder.rmdir()
+                    except OSError:
+                        break
+        return False
+
+    def _commit(self) -> None:
+        import fcntl
+
+        staged = [n for n in self.names if (self._stage / n).exists()]
+        fd = os.open(self.root, os.O_RDONLY)  # the folder itself is the lock: no lock file left behind
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            self._check_existing()
+            for name in staged:
+                if (self.root / name).is_dir():
+                    raise InputError(f"{self.option} {self.root}: {name} is a folder; cannot replace it with a file")
+            for name in staged:
+                os.replace(self._stage / name, self.root / name)
+                self.written.append(self.root / name)
+        finally:
+            os.close(fd)  # releases the lock
