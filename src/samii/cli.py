@@ -111,6 +111,17 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as exc:
         _report(prog, "error", exc)
         return EXIT_BAD_INPUT
+    except ValueError as exc:  # library validation (a LinAlgError is numerical trouble: internal, below)
+        import numpy as np
+
+        if isinstance(exc, np.linalg.LinAlgError):
+            if os.environ.get("SAMII_DEBUG"):
+                raise
+            print(f"{prog}: internal error: {type(exc).__name__}: {_one_line(exc)} (run with SAMII_DEBUG=1 for the traceback; please report it)",
+                  file=sys.stderr)
+            return EXIT_INTERNAL
+        _report(prog, "error", exc)
+        return EXIT_BAD_INPUT
     except MemoryError:
         print(f"{prog}: error: out of memory; the requested run is too large for this machine", file=sys.stderr)
         return EXIT_BAD_INPUT
