@@ -62,7 +62,7 @@ def test_bad_arguments(tmp_path, capsys):
     assert main(["measure", "--out", str(tmp_path / "x"), "--sample-rate-hz", "300", "--no-progress"]) == 2
     assert "physics rate" in capsys.readouterr().err
     assert main(["measure", "--out", str(tmp_path / "y"), "--band-hz", "40", "1", "--no-progress"]) == 2
-    assert "stop_hz" in capsys.readouterr().err
+    assert "--band-hz 40 1: expected LO < HI" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["measure", "--amplitude-v", "-1"])
 
@@ -75,7 +75,7 @@ def test_load_pressure_above_supply_is_reported(tmp_path, capsys):
     text = capsys.readouterr().out
     run = json.loads((out / "run.json").read_text())
     assert run["peaks"]["load_pressure_pa"] > run["model"]["hydraulic"]["supply_pressure"]
-    assert "warning: the load pressure reached" in text and "lower --amplitude-v" in text
+    assert "warning: stepped run: the load pressure reached" in text and "lower --amplitude-v" in text
     assert run["warnings"]
     # bounded by the open valve's reverse flow: within 20 % of supply, not the 9 MPa of a cut-off law
     assert run["peaks"]["load_pressure_pa"] < 1.2 * run["model"]["hydraulic"]["supply_pressure"]

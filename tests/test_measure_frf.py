@@ -20,6 +20,9 @@ PHYS_HZ = 2000.0  # physics rate of the linear rig (first-order hold: exact to O
 DAQ_HZ = 1000.0
 BAND = (0.5, 35.0)  # issue 3
 TOL_DB, TOL_DEG = 1.0 / 20, 5.0 / 20  # the issue's bounds with a factor-20 margin
+#: Stepped sine on a base resonance (the default grid holds mode 1 at 1.75 Hz): the test's 5-time-constant
+#: settle leaves e^-5 = 0.67 % of the transient, up to atan(0.0067) = 0.39 deg of phase in the window.
+TOL_DEG_STEPPED = 0.4
 
 
 @pytest.fixture(scope="module")
@@ -95,7 +98,7 @@ def test_stepped_sine_matches_exact_frf(stepped_frf, rig, stepped_design):
     for ch in ("act", "base", "total"):
         assert np.all(stepped_frf.coherence(ch) > 0.99)
         err_db, err_deg = _errors(stepped_frf, exact, ch, slice(None))
-        assert err_db < TOL_DB and err_deg < TOL_DEG, (ch, err_db, err_deg)
+        assert err_db < TOL_DB and err_deg < TOL_DEG_STEPPED, (ch, err_db, err_deg)
 
 
 def test_swept_and_stepped_agree(swept, sweep, stepped_frf):
@@ -103,7 +106,7 @@ def test_swept_and_stepped_agree(swept, sweep, stepped_frf):
     np.testing.assert_array_equal(at_steps.freq_hz, stepped_frf.freq_hz)
     for ch in ("act", "base", "total"):
         err_db, err_deg = _errors(at_steps, stepped_frf, ch, slice(None))
-        assert err_db < TOL_DB and err_deg < TOL_DEG, (ch, err_db, err_deg)
+        assert err_db < TOL_DB and err_deg < TOL_DEG_STEPPED, (ch, err_db, err_deg)
 
 
 def test_fft_grid_equals_direct_fourier_sums(swept, sweep, swept_frf):

@@ -15,6 +15,7 @@ import sys
 # subcommand -> (module, one-line help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "modes": ("samii.sim.cli_modes", "linearise the simulator at the nominal pose and print its modes"),
+    "params": ("samii.sim.cli_params", "list the model parameters --set accepts, with values and units"),
     "measure": ("samii.measure.cli", "swept- or stepped-sine Bode measurement in the simulator"),
     "fit": ("samii.identify.cli", "fit the notebook's transfer-function models to an FRF file"),
     "calibrate": ("samii.calibrate.cli", "calibrate the simulator's physical parameters to FRF data"),

@@ -12,6 +12,9 @@ import argparse
 import json
 import sys
 
+from samii.cli_args import float_in, int_in, nonempty_path, positive_float, seed
+from samii.errors import InputError, SimulationUnstable
+
 __all__ = ["add_arguments", "run"]
 
 _OUTPUTS = {"swept": ("timeseries.csv", "frf.csv"), "stepped": ("timeseries.csv", "frf.csv"), "both": ("timeseries.csv", "frf.csv", "timeseries_stepped.csv", "frf_stepped.csv")}
@@ -19,33 +22,36 @@ _OUTPUTS = {"swept": ("timeseries.csv", "frf.csv"), "stepped": ("timeseries.csv"
 _FRAME_STEPS = 40
 
 
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return value
+#: Longest run accepted [s of simulated time]: an hour (3.6 M physics steps, about 0.5 GB of
+#: signals in memory); the default swept sine is 253 s, the default stepped sine about 600 s.
+MAX_SIMULATED_S = 3600.0
+#: Valve command range [V] of the servo amplifier (the plugin clamps v to it).
+VALVE_RANGE_V = 10.0
+#: Fraction of the run the valve command may sit on a rail before the run is reported unstable.
+RAIL_FRACTION = 0.01
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", metavar="DIR", default="measure_out", help="output folder (default measure_out)")
+    parser.add_argument("--out", metavar="DIR", type=nonempty_path, default="measure_out", help="output folder (default measure_out)")
     parser.add_argument("--method", choices=("swept", "stepped", "both"), default="swept",
                         help="swept sine 0.1-40 Hz (default), stepped sine at --freqs-hz, or both (stepped points overlaid)")
-    parser.add_argument("--freqs-hz", type=_positive, nargs="+", metavar="F", help="stepped-sine frequencies [Hz] (default 14 points over 0.5-35 Hz)")
-    parser.add_argument("--amplitude-v", type=_positive, default=None, metavar="V", help="excitation amplitude added to the valve command (default 0.1 V)")
-    parser.add_argument("--averages", type=int, default=3, metavar="N", help="swept-sine repetitions averaged (default 3, as on the rig)")
-    parser.add_argument("--tail-s", type=_positive, default=None, metavar="S",
+    parser.add_argument("--freqs-hz", type=positive_float, nargs="+", metavar="F",
+                        help="stepped-sine frequencies [Hz], distinct, below the DAQ's anti-alias cutoff (default 17 points over 0.5-35 Hz, "
+                        "the base resonances 1.75, 9.9 and 25 Hz among them)")
+    parser.add_argument("--amplitude-v", type=float_in(0, VALVE_RANGE_V, lo_open=True, unit="V"), default=None, metavar="V",
+                        help="excitation amplitude added to the valve command, at most the valve's 10 V range (default 0.1 V)")
+    parser.add_argument("--averages", type=int_in(1, 100), default=3, metavar="N",
+                        help="swept-sine repetitions averaged, 1-100 (default 3, as on the rig; coherence needs at least 2)")
+    parser.add_argument("--tail-s", type=positive_float, default=None, metavar="S",
                         help="rest after each sweep, for the response to decay (default 20 s: 6.5 time constants of the embedded model's base mode 1)")
-    parser.add_argument("--band-hz", type=_positive, nargs=2, metavar=("LO", "HI"), default=(0.1, 40.0), help="swept-sine band (default 0.1 40)")
-    parser.add_argument("--sample-rate-hz", type=_positive, default=1000.0, metavar="HZ", help="DAQ sampling rate (default 1000; must divide the physics rate)")
+    parser.add_argument("--band-hz", type=positive_float, nargs=2, metavar=("LO", "HI"), default=(0.1, 40.0), help="swept-sine band (default 0.1 40)")
+    parser.add_argument("--sample-rate-hz", type=positive_float, default=1000.0, metavar="HZ", help="DAQ sampling rate (default 1000; must divide the physics rate)")
     parser.add_argument("--noise", action="store_true", help="add sensor noise (typical lab levels, see samii.measure.daq.SensorNoise)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the sensor-noise generator (default 0)")
+    parser.add_argument("--seed", type=seed, default=0, help="seed of the sensor-noise generator, an integer >= 0 (default 0)")
     parser.add_argument("--model", metavar="XML", help="MJCF file (default: the embedded SAMII model)")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="override a model parameter, e.g. hydraulic.supply_pressure=2.1e7 (repeatable)")
-    parser.add_argument("--rerun", metavar="FILE.rrd", help="also write a Rerun recording: the arm and beam moving and the measured signals")
+    parser.add_argument("--rerun", metavar="FILE.rrd", type=nonempty_path, help="also write a Rerun recording: the arm and beam moving and the measured signals")
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print the run summary as JSON")
@@ -63,66 +69,107 @@ def _versions() -> dict[str, str]:
     return out
 
 
-def run(args: argparse.Namespace) -> int:
-    import time
-    from dataclasses import asdict
-    from pathlib import Path
-
-    import numpy as np
-
-    from samii.frequency_response import max_deviation
-    from samii.measure.daq import SensorNoise
+def _excitations(args):
+    """The excitations ``args`` ask for, checked; raises InputError naming the option."""
     from samii.measure.excitation import SteppedSine, SweptSine
-    from samii.measure.io import write_frf_csv
 
-    t_start = time.perf_counter()
-    out = Path(args.out)
-    names = list(_OUTPUTS[args.method]) + ["bode.png", "run.json"]
+    lo, hi = args.band_hz
+    if not lo < hi:
+        raise InputError(f"--band-hz {lo:g} {hi:g}: expected LO < HI")
+    if args.freqs_hz is not None and len(set(args.freqs_hz)) != len(args.freqs_hz):
+        dup = sorted({f for f in args.freqs_hz if args.freqs_hz.count(f) > 1})
+        raise InputError(f"--freqs-hz: {', '.join(f'{f:g}' for f in dup)} Hz given more than once; expected distinct frequencies")
+    amp = {} if args.amplitude_v is None else {"amplitude_v": args.amplitude_v}
     try:
-        sweep = SweptSine(
-            start_hz=args.band_hz[0], stop_hz=args.band_hz[1], repetitions=args.averages,
-            **({} if args.tail_s is None else {"tail_s": args.tail_s}),
-            **({} if args.amplitude_v is None else {"amplitude_v": args.amplitude_v}),
-        )
-        stepped = SteppedSine(**({} if args.freqs_hz is None else {"freqs_hz": tuple(args.freqs_hz)}),
-                              **({} if args.amplitude_v is None else {"amplitude_v": args.amplitude_v}))
+        sweep = SweptSine(start_hz=lo, stop_hz=hi, repetitions=args.averages,
+                          **({} if args.tail_s is None else {"tail_s": args.tail_s}), **amp)
+        stepped = SteppedSine(**({} if args.freqs_hz is None else {"freqs_hz": tuple(args.freqs_hz)}), **amp)
     except ValueError as exc:
-        print(f"samii measure: error: {exc}", file=sys.stderr)
-        return 2
-    existing = [n for n in names if (out / n).exists()]
-    if args.rerun and Path(args.rerun).exists():
-        existing.append(str(args.rerun))
-    if existing and not args.overwrite:
-        print(f"samii measure: error: {out} already holds {', '.join(existing)}; pass --overwrite to replace", file=sys.stderr)
-        return 2
-
-    import warnings
-
-    from tqdm import tqdm
-
-    from samii.measure.campaign import linearised_frf, measure
-    from samii.sim.cli_modes import parse_overrides
-    from samii.sim.model import default_params, load_model, params_with_overrides
-    from samii.sim.plugin import hydraulic_params
-
-    overrides = parse_overrides(args.set)
-    try:
-        model = load_model(args.model, overrides=overrides or None)
-    except (OSError, ValueError) as exc:
-        print(f"samii measure: error: {exc}", file=sys.stderr)
-        return 2
-    dt = float(model.opt.timestep)
-    physics_hz = 1.0 / dt
-    if abs(physics_hz / args.sample_rate_hz - round(physics_hz / args.sample_rate_hz)) > 1e-6 or physics_hz < args.sample_rate_hz:
-        print(f"samii measure: error: --sample-rate-hz {args.sample_rate_hz:g} must divide the physics rate {physics_hz:g} Hz", file=sys.stderr)
-        return 2
-    noise = SensorNoise() if args.noise else None
-    rng = np.random.default_rng(args.seed)
-    frame_steps = _FRAME_STEPS if args.rerun else None
-
+        raise InputError(str(exc)) from None
     plan = [("swept", sweep)] if args.method in ("swept", "both") else []
     if args.method in ("stepped", "both"):
         plan.append(("stepped", stepped))
+    top = max(hi if kind == "swept" else max(e.freqs_hz) for kind, e in plan)
+    from samii.measure.daq import antialias_cutoff_hz
+
+    cutoff = antialias_cutoff_hz(args.sample_rate_hz)
+    if top > cutoff:
+        option = "--band-hz" if args.method != "stepped" and hi > cutoff else "--freqs-hz"
+        raise InputError(f"{option}: {top:g} Hz lies above the DAQ's anti-alias cutoff {cutoff:g} Hz at --sample-rate-hz "
+                         f"{args.sample_rate_hz:g} (a quarter of it); lower the frequency or raise the sample rate")
+    total = sum(e.duration_s for _, e in plan)
+    if total > MAX_SIMULATED_S:
+        raise InputError(f"the run would simulate {total:.4g} s, more than the {MAX_SIMULATED_S:g} s accepted "
+                         "(check --tail-s, --averages, --band-hz and --freqs-hz: a dwell lasts at least 4 periods)")
+    return sweep, stepped, plan
+
+
+def _check_loop_stable(model) -> None:
+    """Refuse a model whose servo loop is unstable at the nominal pose: it would oscillate on its own, not measure."""
+    import numpy as np
+
+    from samii.sim.linearize import discrete_poles
+
+    dt = float(model.opt.timestep)
+    z = discrete_poles(model)
+    s = np.log(z.astype(complex)) / dt
+    bad = s[s.real > 1e-3]
+    if bad.size:
+        worst = bad[np.argmax(bad.real)]
+        raise SimulationUnstable(
+            f"the servo loop is unstable at the nominal pose before any excitation: pole at {worst.real:.3g} "
+            f"{worst.imag:+.3g}j 1/s ({abs(worst.imag) / (2 * np.pi):.3g} Hz, growing {worst.real:.3g} 1/s); "
+            "it would oscillate on its own, not measure (check hydraulic.position_gain and the model)")
+
+
+def _check_rails(ts, kind: str) -> None:
+    import numpy as np
+
+    on_rail = np.abs(ts.v) >= VALVE_RANGE_V * (1 - 1e-6)
+    if on_rail.mean() > RAIL_FRACTION:
+        raise SimulationUnstable(
+            f"{kind} run: the valve command sat on its +-{VALVE_RANGE_V:g} V rails for {100 * on_rail.mean():.0f} % of the run; "
+            "a saturated loop is not a linear measurement (lower --amplitude-v, check the servo gain); nothing written")
+
+
+def run(args: argparse.Namespace) -> int:
+    import os
+    import time
+    import warnings
+    from dataclasses import asdict
+
+    import numpy as np
+
+    from samii.outputs import OutputFolder, check_output_file
+
+    t_start = time.perf_counter()
+    sweep, stepped, plan = _excitations(args)
+    names = list(_OUTPUTS[args.method]) + ["bode.png", "run.json"]
+    folder = OutputFolder(args.out, names, overwrite=args.overwrite)
+    rerun_path = check_output_file(args.rerun, overwrite=args.overwrite, option="--rerun") if args.rerun else None
+
+    from tqdm import tqdm
+
+    from samii.frequency_response import max_deviation
+    from samii.measure.campaign import linearised_frf, measure
+    from samii.measure.daq import SensorNoise
+    from samii.measure.io import write_frf_csv, write_text
+    from samii.sim.cli_modes import parse_overrides
+    from samii.sim.model import default_params, load_model, params_with_overrides, read_params_file
+    from samii.sim.plugin import hydraulic_params
+
+    overrides = parse_overrides(args.set)
+    model = load_model(args.model, overrides=overrides or None)
+    dt = float(model.opt.timestep)
+    physics_hz = 1.0 / dt
+    ratio = physics_hz / args.sample_rate_hz
+    if abs(ratio - round(ratio)) > 1e-6 or physics_hz < args.sample_rate_hz:
+        raise InputError(f"--sample-rate-hz {args.sample_rate_hz:g} must divide the physics rate {physics_hz:g} Hz")
+    _check_loop_stable(model)
+    noise = SensorNoise() if args.noise else None
+    rng = np.random.default_rng(args.seed)
+    frame_steps = _FRAME_STEPS if rerun_path else None
+
     total_steps = sum(int(round(e.duration_s / dt)) for _, e in plan)
     bar = tqdm(total=total_steps, unit="step", unit_scale=True, desc="samii measure", disable=args.no_progress, file=sys.stderr)
     offset = [0]
@@ -131,117 +178,123 @@ def run(args: argparse.Namespace) -> int:
         bar.n = offset[0] + done
         bar.refresh()
 
-    from samii.sim.simulate import SimulationUnstable
-
     # the first measurement's record is timeseries.csv; the stepped one of --method both is timeseries_stepped.csv
     ts_names = {kind: ("timeseries.csv" if i == 0 else f"timeseries_{kind}.csv") for i, (kind, _) in enumerate(plan)}
-    out.mkdir(parents=True, exist_ok=True)
-    written = []
     results = {}
+    rrd_tmp = rerun_path.parent / f".{rerun_path.name}.{os.getpid()}.tmp" if rerun_path else None
     try:
-        for kind, excitation in plan:
-            results[kind] = measure(model, excitation, sample_rate_hz=args.sample_rate_hz, noise=noise, rng=rng, frame_steps=frame_steps,
-                               progress=progress, timeseries_path=out / ts_names[kind], overwrite=args.overwrite)
-            written.append(out / ts_names[kind])
-            offset[0] += int(round(excitation.duration_s / dt))
-    except SimulationUnstable as exc:
-        bar.close()
-        print(f"samii measure: error: {exc}", file=sys.stderr)
-        return 3
-    except FileExistsError as exc:  # a file appeared in --out meanwhile
-        bar.close()
-        print(f"samii measure: error: {exc}", file=sys.stderr)
-        return 2
-    bar.close()
-    sim_wall = sum(r.run.wall_s for r in results.values())
-    simulated_s = sum(e.duration_s for _, e in plan)
+        with folder:
+            try:
+                for kind, excitation in plan:
+                    results[kind] = measure(model, excitation, sample_rate_hz=args.sample_rate_hz, noise=noise, rng=rng, frame_steps=frame_steps,
+                                            progress=progress, timeseries_path=folder.path(ts_names[kind]))
+                    _check_rails(results[kind].timeseries, kind)
+                    offset[0] += int(round(excitation.duration_s / dt))
+            finally:
+                bar.close()
+            sim_wall = sum(r.run.wall_s for r in results.values())
+            simulated_s = sum(e.duration_s for _, e in plan)
 
-    main = results.get("swept") or results["stepped"]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        ref_grid = np.geomspace(min(main.frf.freq_hz[0], 0.1), max(main.frf.freq_hz[-1], 40.0), 400)
-        reference = linearised_frf(model, ref_grid)
-        ref_at = linearised_frf(model, main.frf.freq_hz)
-    written.append(write_frf_csv(main.frf, out / "frf.csv", overwrite=args.overwrite))
-    if args.method == "both":
-        written.append(write_frf_csv(results["stepped"].frf, out / "frf_stepped.csv", overwrite=args.overwrite))
+            main = results.get("swept") or results["stepped"]
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                ref_grid = np.geomspace(min(main.frf.freq_hz[0], 0.1), max(main.frf.freq_hz[-1], 40.0), 400)
+                reference = linearised_frf(model, ref_grid)
+                coh = main.frf.coherence(main.frf.channels[0])
+                coh_ok = coh is not None and bool(np.any(np.isfinite(coh)))
+                checks = {kind: max_deviation(r.frf, linearised_frf(model, r.frf.freq_hz), band_hz=(0.5, 35.0),
+                                              min_coherence=0.95 if coh_ok or kind == "stepped" else None)
+                          for kind, r in results.items()}
+            write_frf_csv(main.frf, folder.path("frf.csv"))
+            if args.method == "both":
+                write_frf_csv(results["stepped"].frf, folder.path("frf_stepped.csv"))
 
-    from samii.viz.bode_plot import bode_plot
+            from samii.viz.bode_plot import bode_plot
 
-    amp = (sweep if "swept" in results else stepped).amplitude_v
-    title = f"samii measure: {args.method} sine, {amp:g} V, {'with' if noise else 'no'} sensor noise"
-    png = out / "bode.png"
-    if png.exists() and not args.overwrite:  # appeared meanwhile
-        print(f"samii measure: error: {png} exists; pass --overwrite", file=sys.stderr)
-        return 2
-    if "swept" in results:
-        bode_plot(results["swept"].frf, stepped=results["stepped"].frf if "stepped" in results else None,
-                  reference=reference, reference_label="linearised simulator", title=title, path=png)
-    else:
-        bode_plot(None, stepped=results["stepped"].frf, reference=reference, reference_label="linearised simulator", title=title, path=png)
-    written.append(png)
+            amp = (sweep if "swept" in results else stepped).amplitude_v
+            model_name = args.model or "embedded model"
+            if overrides:
+                model_name += " with " + ", ".join(f"{k}={v:g}" for k, v in overrides.items())
+            title = f"samii measure: {args.method} sine, {amp:g} V, {'with' if noise else 'no'} sensor noise\n{model_name}"
+            bode_plot(results.get("swept").frf if "swept" in results else None, stepped=results["stepped"].frf if "stepped" in results else None,
+                      reference=reference, reference_label="linearised simulator", title=title, path=folder.path("bode.png"))
 
-    if args.rerun:
-        from samii.measure.recording import write_rerun_recording
+            try:
+                if args.model is None:
+                    params = asdict(params_with_overrides(default_params(), overrides))
+                elif str(args.model).lower().endswith(".json"):  # a parameter file (samii calibrate): record what it held
+                    params = asdict(params_with_overrides(read_params_file(args.model), overrides))
+                else:
+                    params = None  # an MJCF file: its physics is in the file
+            except (OSError, ValueError):
+                params = None
+            hp = hydraulic_params(model)
+            peaks = {kind: {"load_pressure_pa": float(np.max(np.abs(r.timeseries.p_load))) if r.timeseries.p_load is not None else None,
+                            "valve_command_v": float(np.max(np.abs(r.timeseries.v))),
+                            "joint_angle_rad": float(np.max(np.abs(r.timeseries.theta)))} for kind, r in results.items()}
+            outputs = [str(folder.final(n)) for n in names] + ([str(rerun_path)] if rerun_path else [])
+            summary = {
+                "command": "samii measure",
+                "argv": sys.argv[1:],
+                "method": args.method,
+                "excitation": {kind: e.describe() for kind, e in plan},
+                "daq": {"sample_rate_hz": args.sample_rate_hz, "antialias": main.timeseries.metadata.get("antialias"),
+                        "sensor_noise": asdict(noise) if noise else None, "seed": args.seed},
+                "frf": {k: v for k, v in main.frf.metadata.items() if k.startswith("frf_")},
+                "model": {"file": args.model or "embedded default", "overrides": overrides, "timestep_s": dt,
+                          "params": params, "hydraulic": {k: v for k, v in asdict(hp).items() if k != "source"}},
+                "versions": _versions(),
+                "timing": {"simulated_s": simulated_s, "simulation_wall_s": sim_wall, "total_wall_s": time.perf_counter() - t_start,
+                           "real_time_factor": simulated_s / sim_wall if sim_wall > 0 else None},
+                "vs_linearised_simulator_0.5_35_hz": checks[plan[0][0]],
+                "peaks": peaks[plan[0][0]],
+                "outputs": outputs,
+            }
+            if args.method == "both":
+                summary["vs_linearised_simulator_0.5_35_hz_by_method"] = checks
+                summary["peaks_by_method"] = peaks
+            warnings_out = []
+            for kind, pk in peaks.items():
+                p_peak = pk["load_pressure_pa"]
+                if p_peak is not None and p_peak > hp.supply_pressure:
+                    warnings_out.append(
+                        f"{kind} run: the load pressure reached {p_peak / 1e6:.2f} MPa, {100 * (p_peak / hp.supply_pressure - 1):.0f} % above the "
+                        f"{hp.supply_pressure / 1e6:.3g} MPa supply: the motor pumped oil in faster than the partly closed valve returns it "
+                        "to the supply (no relief valve is modelled; a rig's would clip the pressure). "
+                        "The response is far from small-signal: lower --amplitude-v")
+            if "swept" in results and not coh_ok:
+                warnings_out.append("one swept-sine record cannot estimate coherence (--averages 1): the coherence panels are empty "
+                                    "and the check against the linearised simulator uses every point")
+            if warnings_out:
+                summary["warnings"] = warnings_out
+            write_text(folder.path("run.json"), json.dumps(summary, indent=2, default=str, allow_nan=False) + "\n")
+            if rerun_path is not None:
+                from samii.measure.recording import write_rerun_recording
 
-        first = results.get("swept") or results["stepped"]
-        written.append(write_rerun_recording(args.rerun, model, first.timeseries, frame_t_s=first.run.frame_t_s, frame_qpos=first.run.frame_qpos))
-
-    try:
-        if args.model is None:
-            params = asdict(params_with_overrides(default_params(), overrides))
-        elif str(args.model).lower().endswith(".json"):  # a parameter file (samii calibrate): record what it held
-            from samii.sim.model import read_params_file
-
-            params = asdict(params_with_overrides(read_params_file(args.model), overrides))
-        else:
-            params = None  # an MJCF file: its physics is in the file
-    except (OSError, ValueError):
-        params = None
-    hp = hydraulic_params(model)
-    summary = {
-        "command": "samii measure",
-        "argv": sys.argv[1:],
-        "method": args.method,
-        "excitation": {kind: e.describe() for kind, e in plan},
-        "daq": {"sample_rate_hz": args.sample_rate_hz, "antialias": main.timeseries.metadata.get("antialias"),
-                "sensor_noise": asdict(noise) if noise else None, "seed": args.seed},
-        "frf": {k: v for k, v in main.frf.metadata.items() if k.startswith("frf_")},
-        "model": {"file": args.model or "embedded default", "overrides": overrides, "timestep_s": dt,
-                  "params": params, "hydraulic": {k: v for k, v in asdict(hp).items() if k != "source"}},
-        "versions": _versions(),
-        "timing": {"simulated_s": simulated_s, "simulation_wall_s": sim_wall, "total_wall_s": time.perf_counter() - t_start,
-                   "real_time_factor": simulated_s / sim_wall if sim_wall > 0 else None},
-        "vs_linearised_simulator_0.5_35_hz": max_deviation(main.frf, ref_at, band_hz=(0.5, 35.0), min_coherence=0.95),
-        "peaks": {"load_pressure_pa": float(np.max(np.abs(main.timeseries.p_load))) if main.timeseries.p_load is not None else None,
-                  "valve_command_v": float(np.max(np.abs(main.timeseries.v))), "joint_angle_rad": float(np.max(np.abs(main.timeseries.theta)))},
-        "outputs": [str(p) for p in written] + [str(out / "run.json")],
-    }
-    p_peak = summary["peaks"]["load_pressure_pa"]
-    if p_peak is not None and p_peak > hp.supply_pressure:
-        summary["warnings"] = [
-            f"the load pressure reached {p_peak / 1e6:.2f} MPa, {100 * (p_peak / hp.supply_pressure - 1):.0f} % above the "
-            f"{hp.supply_pressure / 1e6:.3g} MPa supply: the motor pumped oil in faster than the partly closed valve returns it "
-            "to the supply (no relief valve is modelled; a rig's would clip the pressure). "
-            "The response is far from small-signal: lower --amplitude-v"
-        ]
-    run_json = out / "run.json"
-    from samii.measure.io import write_text
-
-    write_text(run_json, json.dumps(summary, indent=2, default=str) + "\n", overwrite=args.overwrite)
+                first = results[plan[0][0]]
+                write_rerun_recording(rrd_tmp, model, first.timeseries, frame_t_s=first.run.frame_t_s, frame_qpos=first.run.frame_qpos)
+        if rrd_tmp is not None:  # the recording lives outside --out: moved into place once the folder is complete
+            os.replace(rrd_tmp, rerun_path)
+    finally:
+        if rrd_tmp is not None and rrd_tmp.exists():
+            rrd_tmp.unlink()
     summary["timing"]["total_wall_s"] = time.perf_counter() - t_start
     if args.json:
-        print(json.dumps(summary, indent=2, default=str))
+        print(json.dumps(summary, indent=2, default=str, allow_nan=False))
         return 0
     tm = summary["timing"]
     print(f"samii measure: {args.method} sine, {simulated_s:.0f} s simulated in {sim_wall:.1f} s "
           f"({tm['real_time_factor']:.0f}x real time), {tm['total_wall_s']:.1f} s in all")
-    print(f"peak load pressure {summary['peaks']['load_pressure_pa'] / 1e6:.2f} MPa (supply {hp.supply_pressure / 1e6:.3g} MPa), "
-          f"peak valve command {summary['peaks']['valve_command_v']:.2f} V")
+    for kind, pk in peaks.items():
+        print(f"{kind}: peak load pressure {pk['load_pressure_pa'] / 1e6:.2f} MPa (supply {hp.supply_pressure / 1e6:.3g} MPa), "
+              f"peak valve command {pk['valve_command_v']:.2f} V")
     for w in summary.get("warnings", []):
         print(f"samii measure: warning: {w}")
-    for ch, s in summary["vs_linearised_simulator_0.5_35_hz"].items():
-        print(f"{ch}: within {s['max_abs_db']:.2f} dB and {s['max_abs_deg']:.2f} deg of the linearised simulator over 0.5-35 Hz (coherence > 0.95)")
+    for kind, check in checks.items():
+        cond = "coherence > 0.95" if coh_ok or kind == "stepped" else "every point"
+        for ch, st in check.items():
+            print(f"{kind} {ch}: within {st['max_abs_db']:.2f} dB and {st['max_abs_deg']:.2f} deg of the linearised simulator "
+                  f"over 0.5-35 Hz ({cond}, {st['points']} points)")
     for p in summary["outputs"]:
         print(f"wrote {p}")
     return 0

@@ -17,7 +17,7 @@ from scipy import signal
 
 from samii.measure.timeseries import SIGNAL_COLUMNS, TimeSeries
 
-__all__ = ["SensorNoise", "Daq", "acquire", "daq_timeseries", "DEFAULT_SAMPLE_RATE_HZ"]
+__all__ = ["SensorNoise", "Daq", "acquire", "antialias_cutoff_hz", "daq_timeseries", "DEFAULT_SAMPLE_RATE_HZ"]
 
 #: Rig DAQ rate [Hz] (issue 3): 25 samples per period at the top of the 40 Hz band.
 DEFAULT_SAMPLE_RATE_HZ = 1000.0
@@ -26,6 +26,11 @@ DEFAULT_SAMPLE_RATE_HZ = 1000.0
 # flat to < 0.001 dB over the 0-40 Hz measurement band.
 _AA_ORDER = 8
 _AA_CUTOFF_RATIO = 0.25
+
+
+def antialias_cutoff_hz(sample_rate_hz: float) -> float:
+    """Corner of the DAQ's anti-alias filter [Hz] at ``sample_rate_hz``: no response above it is measured."""
+    return _AA_CUTOFF_RATIO * float(sample_rate_hz)
 
 
 @dataclass(frozen=True)

@@ -4,26 +4,37 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+
+from samii.cli_args import positive_float
+from samii.errors import InputError
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", help="MJCF file (default: the embedded SAMII model)")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="override a model parameter, e.g. beam.clamp_stiffness_Nm_rad=2e5 (repeatable)")
-    p.add_argument("--max-freq-hz", type=float, default=45.0, help="list modes and poles up to this frequency (default 45)")
+    p.add_argument("--max-freq-hz", type=positive_float, default=45.0, help="list modes and poles up to this frequency (default 45)")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
 
 
 def parse_overrides(items: list[str]) -> dict[str, float]:
+    """``["beam.length_m=4.3", ...]`` as a dict; names are checked when the model is built
+    (``samii params`` lists them)."""
     out = {}
     for item in items:
         name, sep, value = item.partition("=")
-        if not sep:
-            raise SystemExit(f"--set {item!r}: expected NAME=VALUE")
+        if not sep or not name.strip():
+            raise InputError(f"--set {item!r}: expected NAME=VALUE, e.g. beam.length_m=4.3 (samii params lists the names)")
         try:
-            out[name.strip()] = float(value)
+            number = float(value)
         except ValueError:
-            raise SystemExit(f"--set {item!r}: value {value!r} is not a number") from None
+            raise InputError(f"--set {item!r}: value {value!r} is not a number") from None
+        if not math.isfinite(number):
+            raise InputError(f"--set {item!r}: expected a finite number, got {value!r}")
+        if name.strip() in out:
+            raise InputError(f"--set {name.strip()}: given twice")
+        out[name.strip()] = number
     return out
 
 

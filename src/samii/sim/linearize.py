@@ -20,7 +20,7 @@ import mujoco
 import numpy as np
 import scipy.linalg
 
-__all__ = ["LinearModel", "BaseCoefficient", "Mode", "linearize", "modes_from_poles", "base_modes", "ModesReport", "modes_report"]
+__all__ = ["LinearModel", "BaseCoefficient", "Mode", "discrete_poles", "linearize", "modes_from_poles", "base_modes", "ModesReport", "modes_report"]
 
 
 @dataclass(frozen=True)
@@ -186,6 +186,15 @@ def linearize(model: mujoco.MjModel, data: mujoco.MjData | None = None, *, posit
     # Sensor derivatives are taken against the discrete state at the same instant,
     # so they carry over to continuous time unchanged.
     return LinearModel(A, B, C, D, float(model.opt.timestep), float(position_gain_v_per_rad))
+
+
+def discrete_poles(model: mujoco.MjModel, data: mujoco.MjData | None = None, *, eps: float = 1e-6) -> np.ndarray:
+    """Eigenvalues z of the one-step map about ``data`` (default the ``home`` keyframe): the simulator is
+    stable there when every ``|z| <= 1``; ``log(z)/dt`` are its poles, with no matrix logarithm taken."""
+    from samii.sim.model import make_data
+
+    Ad, _, _, _ = _discrete(model, make_data(model) if data is None else data, eps, False)
+    return np.linalg.eigvals(Ad)
 
 
 def modes_from_poles(poles: np.ndarray, *, max_freq_hz: float = np.inf) -> list[Mode]:

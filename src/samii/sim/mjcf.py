@@ -163,6 +163,16 @@ class SamiiParams:
     hydraulic: HydraulicConfig = field(default_factory=HydraulicConfig)
     timestep_s: float = 1e-3
 
+    #: Largest physics step accepted [s]: about the 4.5 ms valve time constant; longer steps cannot
+    #: resolve the valve or the 45 Hz held-joint-3 mode (a 3 ms step already diverges: the
+    #: divergence tests use it, and a run that diverges is reported, not written).
+    MAX_TIMESTEP_S = 5e-3
+
+    def __post_init__(self) -> None:
+        dt = self.timestep_s
+        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and 0 < dt <= self.MAX_TIMESTEP_S):
+            raise ValueError(f"timestep_s must be a number in (0, {self.MAX_TIMESTEP_S:g}] s, got {dt!r}")
+
     def as_dict(self) -> dict:
         return asdict(self)
 

@@ -19,6 +19,7 @@ from typing import Mapping
 import mujoco
 import numpy as np
 
+from samii.errors import InputError
 from samii.sim.mjcf import ArmParams, BeamParams, HydraulicConfig, SamiiParams, samii_xml
 
 __all__ = [
@@ -99,16 +100,26 @@ def params_with_overrides(params: SamiiParams, overrides: Mapping[str, float]) -
     for dotted, value in overrides.items():
         parts = dotted.split(".")
         if len(parts) == 1 and parts[0] == "timestep_s":
-            out = replace(out, timestep_s=float(value))
+            try:
+                out = replace(out, timestep_s=float(value))
+            except ValueError as exc:
+                raise InputError(f"override timestep_s={float(value):g}: {exc}") from None
             continue
         if len(parts) != 2 or not hasattr(out, parts[0]) or not is_dataclass(getattr(out, parts[0])):
-            raise ValueError(f"override {dotted!r}: expected 'beam.<name>', 'arm.<name>', 'hydraulic.<name>' or 'timestep_s'")
+            raise InputError(f"override {dotted!r}: expected 'beam.<name>', 'arm.<name>', 'hydraulic.<name>' or 'timestep_s'")
         section = getattr(out, parts[0])
         names = {f.name for f in fields(section)}
         if parts[1] not in names:
-            raise ValueError(f"override {dotted!r}: {parts[0]} has no parameter {parts[1]!r}; expected one of {sorted(names)}")
-        cast = int if parts[1] == "n_segments" else float
-        out = replace(out, **{parts[0]: replace(section, **{parts[1]: cast(value)})})
+            raise InputError(f"override {dotted!r}: {parts[0]} has no parameter {parts[1]!r}; expected one of {sorted(names)}")
+        value = float(value)
+        if parts[1] == "n_segments":
+            if not (math.isfinite(value) and value == int(value)):
+                raise InputError(f"override {dotted!r}: expected a whole number of beam elements, got {value:g}")
+            value = int(value)
+        try:
+            out = replace(out, **{parts[0]: replace(section, **{parts[1]: value})})
+        except ValueError as exc:
+            raise InputError(f"override {dotted}={value:g}: {exc}") from None
     return out
 
 
@@ -125,17 +136,17 @@ def read_params_file(path: str | Path) -> SamiiParams:
     try:
         data = json.loads(path.read_text())
     except FileNotFoundError:
-        raise FileNotFoundError(f"parameter file {path} does not exist") from None
+        raise InputError(f"parameter file {path} does not exist") from None
     except (OSError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: cannot be read as a parameter file ({exc})") from None
+        raise InputError(f"{path}: cannot be read as a parameter file ({exc})") from None
     except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+        raise InputError(f"{path}: not valid JSON ({exc})") from None
     if not isinstance(data, dict) or not isinstance(data.get("params"), dict):
-        raise ValueError(f"{path}: a parameter file is a JSON object with a 'params' object (sections beam, arm, hydraulic, timestep_s)")
+        raise InputError(f"{path}: a parameter file is a JSON object with a 'params' object (sections beam, arm, hydraulic, timestep_s)")
     try:
         return params_from_dict(data["params"])
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{path}: {exc}") from None
+        raise InputError(f"{path}: {exc}") from None
 
 
 def load_spec(path: str | Path | None = None, *, params: SamiiParams | None = None, overrides: Mapping[str, float] | None = None) -> tuple[mujoco.MjSpec, bool]:
@@ -154,9 +165,14 @@ def load_spec(path: str | Path | None = None, *, params: SamiiParams | None = No
         raise ValueError("give either a model file or params/overrides, not both")
     if path is not None:
         path = Path(path)
+        if not path.exists():
+            raise InputError(f"model file {path} does not exist")
         if not path.is_file():
-            raise FileNotFoundError(f"model file {path} does not exist")
-        return mujoco.MjSpec.from_file(str(path)), False
+            raise InputError(f"model file {path} is not a regular file (a folder or a device); expected an MJCF .xml or a parameter .json")
+        try:
+            return mujoco.MjSpec.from_file(str(path)), False
+        except ValueError as exc:  # MuJoCo's XML parser: names the line
+            raise InputError(f"model file {path}: not a valid MJCF model ({' '.join(str(exc).split())})") from None
     if params is None and not overrides:
         return mujoco.MjSpec.from_file(str(default_model_path())), False
     base = params if params is not None else default_params()
@@ -196,12 +212,12 @@ def load_model(path: str | Path | None = None, *, params: SamiiParams | None = N
 def _check_model(model: mujoco.MjModel, path) -> None:
     where = str(path) if path is not None else "samii model"
     if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, ACTUATOR) < 0:
-        raise ValueError(f"{where}: no actuator named {ACTUATOR!r} (the hydraulic actuator of joint 2)")
+        raise InputError(f"{where}: no actuator named {ACTUATOR!r} (the hydraulic actuator of joint 2)")
     for sensor in ("theta", "base_accel"):
         if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, sensor) < 0:
-            raise ValueError(f"{where}: no sensor named {sensor!r}")
+            raise InputError(f"{where}: no sensor named {sensor!r}")
     if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home") < 0:
-        raise ValueError(f"{where}: no keyframe named 'home' (the nominal pose)")
+        raise InputError(f"{where}: no keyframe named 'home' (the nominal pose)")
 
 
 def make_data(model: mujoco.MjModel) -> mujoco.MjData:

@@ -37,6 +37,26 @@ def _anchored_phase(frf: FrequencyResponse, ch: str, threshold: float | None) ->
     return ph - 360.0 * np.round(ph[i] / 360.0)
 
 
+def _coherence(frf: FrequencyResponse, ch: str) -> np.ndarray | None:
+    """Coherence of ``ch``, or None when the data carry none (one record: every value NaN)."""
+    coh = frf.coherence(ch)
+    if coh is None or not np.any(np.isfinite(coh)):
+        return None
+    return coh
+
+
+def _mark_off_scale(ax, freq_hz: np.ndarray, values: np.ndarray, color: str) -> int:
+    """Draw points that lie beyond ``ax``'s y-limits as triangles on its edge; return how many."""
+    lo, hi = ax.get_ylim()
+    above, below = values > hi, values < lo
+    span = hi - lo
+    if np.any(above):
+        ax.semilogx(freq_hz[above], np.full(above.sum(), hi - 0.03 * span), "^", color=color, ms=5, mfc="none", clip_on=False)
+    if np.any(below):
+        ax.semilogx(freq_hz[below], np.full(below.sum(), lo + 0.03 * span), "v", color=color, ms=5, mfc="none", clip_on=False)
+    return int(above.sum() + below.sum())
+
+
 def _faded(y: np.ndarray, coh: np.ndarray | None, threshold: float | None) -> np.ndarray:
     """``y`` with the points below the coherence threshold blanked (NaN, not drawn)."""
     if coh is None or threshold is None:
@@ -106,7 +126,7 @@ def bode_plot(
             branch = (reference.freq_hz, ref_phase)
             lims.append(ref_phase)
         if frf is not None and ch in frf.channels:
-            coh = frf.coherence(ch)
+            coh = _coherence(frf, ch)
             if branch is None:
                 phase = _anchored_phase(frf, ch, coherence_threshold)
                 branch = (frf.freq_hz, phase)
@@ -120,26 +140,36 @@ def bode_plot(
             ax_ph.semilogx(frf.freq_hz, _faded(phase, coh, coherence_threshold), color="C0", lw=1.3)
             if coh is not None:
                 ax_coh.semilogx(frf.freq_hz, coh, color="C0", lw=1.0)
+            else:
+                ax_coh.text(0.5, 0.5, "no coherence: one record\n(--averages 1)", transform=ax_coh.transAxes,
+                            ha="center", va="center", fontsize="small", color="0.4")
             coherent = np.isfinite(_faded(phase, coh, coherence_threshold))  # incoherent phase must not squash the axis
             lims.append(phase[coherent])
         if reference is not None and ch in reference.channels:  # drawn after the measurement: legend order
             ax_mag.semilogx(reference.freq_hz, reference.magnitude_db(ch), "k--", lw=0.9, label=reference_label)
             ax_ph.semilogx(reference.freq_hz, branch[1], "k--", lw=0.9)
+        stepped_ph = None
         if stepped is not None and ch in stepped.channels:
             ph = stepped.phase_deg(ch)
             if branch is not None:
                 ph = _align_phase(ph, stepped.freq_hz, branch[1], branch[0])
             ax_mag.semilogx(stepped.freq_hz, stepped.magnitude_db(ch), "o", color="C3", ms=4.5, mfc="none", label="stepped sine")
             ax_ph.semilogx(stepped.freq_hz, ph, "o", color="C3", ms=4.5, mfc="none")
-            coh = stepped.coherence(ch)
+            coh = _coherence(stepped, ch)
             if coh is not None:
                 ax_coh.semilogx(stepped.freq_hz, coh, "o", color="C3", ms=3.5, mfc="none")
             lims.append(ph[np.isfinite(_faded(ph, coh, coherence_threshold))])
+            stepped_ph = ph
         allv = np.concatenate(lims) if lims else np.empty(0)
         if allv.size:
             lo, hi = float(np.min(allv)), float(np.max(allv))
             pad = max(20.0, 0.08 * (hi - lo))
             ax_ph.set_ylim(lo - pad, hi + pad)
+        if stepped_ph is not None:  # incoherent points beyond the axis: shown on its edge and counted, never dropped silently
+            n_off = _mark_off_scale(ax_ph, stepped.freq_hz, stepped_ph, "C3")
+            if n_off:
+                ax_ph.text(0.02, 0.03, f"{n_off} stepped point(s) off scale (low coherence), drawn on the edge",
+                           transform=ax_ph.transAxes, fontsize="x-small", color="C3")
         ax_mag.set_title(name)
         ax_mag.set_ylabel(f"magnitude [dB re 1 {unit}]")
         ax_ph.set_ylabel("phase [deg]")

@@ -1,0 +1,73 @@
+"""``samii params``: the model parameters ``--set NAME=VALUE`` accepts, with their values and units."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+__all__ = ["add_arguments", "run", "parameter_table"]
+
+#: Units of the names that do not carry them in a suffix (SI; see samii.sim.mjcf and sim/hydraulic.c).
+_UNITS = {
+    "hydraulic.supply_pressure": "Pa",
+    "hydraulic.bulk_modulus": "Pa",
+    "hydraulic.total_volume": "m^3",
+    "hydraulic.displacement": "m^3/rad",
+    "hydraulic.leakage_coefficient": "m^3/(s Pa)",
+    "hydraulic.valve_time_constant": "s",
+    "hydraulic.rated_flow": "m^3/s",
+    "hydraulic.rated_voltage": "V",
+    "hydraulic.position_gain": "V/rad",
+    "hydraulic.reference_angle": "rad",
+    "beam.n_segments": "-",
+    "beam.accel_body_fixed": "0 or 1",
+    "beam.section_side_m": "m",
+}
+_SUFFIX_UNITS = {"_m": "m", "_Nm2": "N m^2", "_kg_m": "kg/m", "_Nm_rad": "N m/rad", "_Nms_rad": "N m s/rad", "_s": "s",
+                 "_deg": "deg", "_kgm2": "kg m^2"}
+
+
+def _unit(name: str) -> str:
+    if name in _UNITS:
+        return _UNITS[name]
+    for suffix, unit in sorted(_SUFFIX_UNITS.items(), key=lambda kv: -len(kv[0])):
+        if name.endswith(suffix):
+            return unit
+    return ""
+
+
+def parameter_table(model: str | None = None) -> list[dict]:
+    """``[{"name", "value", "unit"}]`` for the embedded default (or a parameter file's) parameters."""
+    from dataclasses import asdict
+
+    from samii.sim.model import default_params, read_params_file
+
+    params = read_params_file(model) if model else default_params()
+    rows = []
+    for section, values in asdict(params).items():
+        if isinstance(values, dict):
+            rows += [{"name": f"{section}.{k}", "value": v, "unit": _unit(f"{section}.{k}")} for k, v in values.items()]
+        else:
+            rows.append({"name": section, "value": values, "unit": _unit(section)})
+    return rows
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--model", metavar="PARAMS.json", help="a parameter file (samii calibrate writes them; default: the embedded model's)")
+    p.add_argument("--json", action="store_true", help="print machine-readable JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    from samii.errors import InputError
+
+    if args.model and not str(args.model).lower().endswith(".json"):
+        raise InputError(f"--model {args.model}: samii params lists a parameter file (.json); an MJCF file holds its physics in the XML")
+    rows = parameter_table(args.model)
+    if args.json:
+        print(json.dumps(rows, indent=1))
+        return 0
+    print(f"parameters of {args.model or 'the embedded default model'} (override any with --set NAME=VALUE):")
+    width = max(len(r["name"]) for r in rows)
+    for r in rows:
+        print(f"  {r['name']:<{width}}  {r['value']:<12.6g}  {r['unit']}")
+    return 0
