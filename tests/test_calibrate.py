@@ -160,6 +160,7 @@ def test_cli_bad_input(truth_and_data, tmp_path, capsys, extra, message):
     assert main(["calibrate", str(frf), *extra]) == 2
     err = capsys.readouterr().err
     assert "samii calibrate: error:" in err and message in err
+    assert len(err.strip().splitlines()[-1]) and "Traceback" not in err
 
 
 def test_cli_missing_file(tmp_path, capsys):

@@ -82,7 +82,10 @@ def main(argv: list[str] | None = None) -> int:
     from samii.errors import EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_UNSTABLE, InputError, Interrupted, SimulationUnstable
 
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # argparse: --help, --version (0) or a rejected option (2, its one-line reason printed)
+        return exc.code if isinstance(exc.code, int) else EXIT_BAD_INPUT
     prog = "samii" + (f" {args.command}" if args.command else "")
     if getattr(args, "design_command", None):
         prog += f" {args.design_command}"

@@ -142,7 +142,9 @@ class CalibrationResult:
         }
 
     def to_json(self, **kwargs) -> str:
-        return json.dumps(self.to_dict(), **kwargs)
+        from samii.json_output import dumps
+
+        return dumps(self.to_dict(), **kwargs)
 
     def table(self) -> str:
         """Parameters, start, calibrated value, standard error."""

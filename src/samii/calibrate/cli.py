@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 from pathlib import Path
+
+from samii.cli_args import int_in, nonempty_path, nonnegative_float, positive_float
+from samii.errors import InputError
 
 __all__ = ["add_arguments", "run", "load_target"]
 
@@ -38,9 +40,12 @@ def _name_bounds(text: str) -> tuple[str, tuple[float, float]]:
     if not sep or not sep2 or not name.strip():
         raise argparse.ArgumentTypeError(f"expected NAME=LO:HI, got {text!r}")
     try:
-        return name.strip(), (float(lo), float(hi))
+        bounds = (float(lo), float(hi))
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r}: LO and HI must be numbers") from None
+    if not all(math.isfinite(b) for b in bounds) or not bounds[0] < bounds[1]:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected finite LO < HI")
+    return name.strip(), bounds
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -54,8 +59,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="starting value of a calibrated parameter (default: the model's value; a channel gain starts at the data's level against the model's)")
     parser.add_argument("--bound", action="append", default=[], type=_name_bounds, metavar="NAME=LO:HI",
                         help="bounds of a calibrated parameter (default: physical limits where known, else a factor 10 around the start)")
-    parser.add_argument("--phase-weight", type=float, default=0.1, metavar="W", help="weight on the phase error in degrees (default 0.1, the notebook's eq 9.4)")
-    parser.add_argument("--band-hz", type=float, nargs=2, metavar=("LO", "HI"), help="use only LO <= f <= HI Hz (default: all the data)")
+    parser.add_argument("--phase-weight", type=nonnegative_float, default=0.1, metavar="W", help="weight on the phase error in degrees (default 0.1, the notebook's eq 9.4)")
+    parser.add_argument("--band-hz", type=positive_float, nargs=2, metavar=("LO", "HI"), help="use only LO <= f <= HI Hz (default: all the data)")
     parser.add_argument("--channels", default=None, metavar="C1,C2", help="channels in the cost (default act,base where present)")
     parser.add_argument("--weighting", choices=("auto", "none", "coherence"), default="auto",
                         help="none: the notebook's cost; coherence: points weighted by the random error their coherence predicts; "
@@ -63,10 +68,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", metavar="PARAMS.json",
                         help="parameter file to start from (default: the embedded model's); an MJCF file cannot be calibrated, its physics is not parametrised")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a model parameter before calibrating (repeatable)")
-    parser.add_argument("--max-iterations", type=int, default=60, metavar="N", help="solver iterations at most (default 60)")
+    parser.add_argument("--max-iterations", type=int_in(1, 100000), default=60, metavar="N", help="solver iterations at most (default 60)")
     parser.add_argument("--confirm", action="store_true",
                         help="also measure the calibrated model with a swept sine in the nonlinear simulator and compare (about 5 s)")
-    parser.add_argument("--out", metavar="DIR", help="write calibration.json, calibrated_params.json (for --model) and calibration_bode.png here")
+    parser.add_argument("--out", metavar="DIR", type=nonempty_path, help="write calibration.json, calibrated_params.json (for --model) and calibration_bode.png here")
     parser.add_argument("--overwrite", action="store_true", help="replace files already in --out")
     parser.add_argument("--json", action="store_true", help="print the machine-readable report")
 
@@ -95,9 +100,9 @@ def load_target(source: str):
         return FrequencyResponse(f, act=act, base=base, metadata={"source": "notebook eq 9.4 over 0.1-40 Hz; theta in degrees converted to rad; acceleration unit unknown"})
     path = Path(source)
     if not path.is_file():
-        raise ValueError(f"DATA {source!r}: no such file (DATA is an FRF CSV, a rig-era .mat, or one of {', '.join(NOTEBOOK_TARGETS)})")
+        raise InputError(f"DATA {source!r}: no such file (DATA is an FRF CSV, a rig-era .mat, or one of {', '.join(NOTEBOOK_TARGETS)})")
     if path.suffix.lower() not in (".csv", ".mat", ".txt"):
-        raise ValueError(f"DATA {source}: expected an FRF CSV (docs/DATA_FORMATS.md) or a rig-era .mat, not a {path.suffix or 'suffix-less'} file")
+        raise InputError(f"DATA {source}: expected an FRF CSV (docs/DATA_FORMATS.md) or a rig-era .mat, not a {path.suffix or 'suffix-less'} file")
     if path.suffix.lower() == ".mat":
         from samii.measure.io import read_mat_bode
 
@@ -108,53 +113,48 @@ def load_target(source: str):
 
 
 def run(args: argparse.Namespace) -> int:
+    from samii.outputs import OutputFolder
     from samii.sim.cli_modes import parse_overrides
 
     prog = "samii calibrate"
+    folder = OutputFolder(args.out, OUTPUTS, overwrite=args.overwrite) if args.out else None
+    if args.band_hz and not args.band_hz[0] < args.band_hz[1]:
+        raise InputError(f"--band-hz {args.band_hz[0]:g} {args.band_hz[1]:g}: expected LO < HI")
+    if args.model is not None and Path(args.model).suffix.lower() != ".json":
+        raise InputError(f"--model {args.model}: calibrate needs a parameter file (.json, e.g. samii_params.json or a calibrated_params.json), "
+                         "not an MJCF file, whose physics is not parametrised")
+    overrides = parse_overrides(args.set)
+    from samii.calibrate.calibrate import calibrate
+    from samii.sim.model import default_params, params_with_overrides, read_params_file
+
+    base = read_params_file(args.model) if args.model else default_params()
+    if overrides:
+        base = params_with_overrides(base, overrides)
+    data = load_target(args.data)
+    channels = tuple(c.strip() for c in args.channels.split(",")) if args.channels else None
+    confirm = None
+    if args.confirm:
+        from samii.measure.excitation import SweptSine
+
+        lo = max(0.1, float(data.freq_hz[0]))
+        hi = min(40.0, float(data.freq_hz[-1]))
+        if not lo < hi:
+            raise InputError(f"--confirm: the data's band {data.freq_hz[0]:g}-{data.freq_hz[-1]:g} Hz leaves nothing of 0.1-40 Hz to sweep")
+        confirm = SweptSine(start_hz=lo, stop_hz=hi)
     try:
-        if args.out:
-            out = Path(args.out)
-            if out.exists() and not out.is_dir():
-                raise ValueError(f"--out {out} exists and is not a folder")
-            existing = [n for n in OUTPUTS if (out / n).exists()]
-            if existing and not args.overwrite:
-                raise ValueError(f"{out} already holds {', '.join(existing)}; pass --overwrite to replace")
-        if not (math.isfinite(args.phase_weight) and args.phase_weight >= 0):
-            raise ValueError(f"--phase-weight must be finite and >= 0, got {args.phase_weight}")
-        if args.max_iterations < 1:
-            raise ValueError(f"--max-iterations must be >= 1, got {args.max_iterations}")
-        if args.model is not None and Path(args.model).suffix.lower() != ".json":
-            raise ValueError(f"--model {args.model}: calibrate needs a parameter file (.json, e.g. samii_params.json or a calibrated_params.json), "
-                             "not an MJCF file, whose physics is not parametrised")
-        overrides = parse_overrides(args.set)
-        from samii.calibrate.calibrate import calibrate
-        from samii.sim.model import default_params, params_with_overrides, read_params_file
-
-        base = read_params_file(args.model) if args.model else default_params()
-        if overrides:
-            base = params_with_overrides(base, overrides)
-        data = load_target(args.data)
-        channels = tuple(c.strip() for c in args.channels.split(",")) if args.channels else None
-        confirm = None
-        if args.confirm:
-            from samii.measure.excitation import SweptSine
-
-            lo = max(0.1, float(data.freq_hz[0]))
-            hi = min(40.0, float(data.freq_hz[-1]))
-            confirm = SweptSine(start_hz=lo, stop_hz=hi)
         result = calibrate(
             data, args.param, base=base, start=dict(args.start), bounds=dict(args.bound),
             phase_weight=args.phase_weight, band_hz=tuple(args.band_hz) if args.band_hz else None,
             channels=channels, weighting=args.weighting, max_nfev=args.max_iterations, confirm=confirm,
             data_source=args.data,
         )
-        written = _write_outputs(result, data, Path(args.out), overwrite=args.overwrite) if args.out else []
-    except SystemExit as exc:  # parse_overrides
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 2
-    except (OSError, ValueError, KeyError) as exc:  # DataFormatError is a ValueError
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 2
+    except KeyError as exc:
+        raise InputError(f"{args.data}: {exc.args[0] if exc.args else exc}") from None
+    written = []
+    if folder is not None:
+        with folder:
+            _write_outputs(result, data, folder)
+        written = folder.written
     if args.json:
         print(result.to_json(indent=2))
         return 0
@@ -183,14 +183,13 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_outputs(result, data, out: Path, *, overwrite: bool) -> list[Path]:
-    """Report JSON, parameter file and overlay Bode plot; the figure is rendered before anything is written."""
-    import io
-
-    from samii.measure.io import write_text
-    from samii.viz.fit_plot import plot_fit_overlay
+def _write_outputs(result, data, folder) -> None:
+    """Report JSON, parameter file and overlay Bode plot, staged in ``folder`` (:class:`samii.outputs.OutputFolder`)."""
+    import matplotlib.pyplot as plt
 
     from samii.calibrate.simulator import SimulatorFRF
+    from samii.measure.io import write_text
+    from samii.viz.fit_plot import plot_fit_overlay
 
     structure = SimulatorFRF(result.params, result.names)
     models = {"start": (structure, dict(result.start)), "calibrated": (structure, dict(result.values))}
@@ -200,21 +199,9 @@ def _write_outputs(result, data, out: Path, *, overwrite: bool) -> list[Path]:
         note += "; xdd in the data's own unit: the model curves are multiplied by gain.base"
     fig = plot_fit_overlay(data, models, channels=result.channels, band_hz=result.band_hz,
                            title="samii calibrate: linearised simulator against the data", note=note, n_model_points=300)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
-    out.mkdir(parents=True, exist_ok=True)
-    written = [
-        write_text(out / "calibration.json", result.to_json(indent=2) + "\n", overwrite=overwrite),
-        result.write_params(out / "calibrated_params.json", overwrite=overwrite),
-    ]
-    png = out / "calibration_bode.png"
-    if png.exists() and not overwrite:
-        raise FileExistsError(f"{png} exists; pass --overwrite to replace")
-    tmp = png.with_name(f".{png.name}.tmp")
-    tmp.write_bytes(buf.getvalue())
-    tmp.replace(png)
-    written.append(png)
-    return written
+    try:
+        fig.savefig(folder.path("calibration_bode.png"), dpi=110)
+    finally:
+        plt.close(fig)
+    write_text(folder.path("calibration.json"), result.to_json(indent=2) + "\n")
+    result.write_params(folder.path("calibrated_params.json"))

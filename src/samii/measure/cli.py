@@ -9,11 +9,11 @@ FILE.rrd`` a Rerun recording. Imports nothing heavy at module level.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
 from samii.cli_args import float_in, int_in, nonempty_path, positive_float, seed
 from samii.errors import InputError, SimulationUnstable
+from samii.json_output import dumps
 
 __all__ = ["add_arguments", "run"]
 
@@ -267,7 +267,7 @@ def run(args: argparse.Namespace) -> int:
                                     "and the check against the linearised simulator uses every point")
             if warnings_out:
                 summary["warnings"] = warnings_out
-            write_text(folder.path("run.json"), json.dumps(summary, indent=2, default=str, allow_nan=False) + "\n")
+            write_text(folder.path("run.json"), dumps(summary, indent=2) + "\n")
             if rerun_path is not None:
                 from samii.measure.recording import write_rerun_recording
 
@@ -280,7 +280,7 @@ def run(args: argparse.Namespace) -> int:
             rrd_tmp.unlink()
     summary["timing"]["total_wall_s"] = time.perf_counter() - t_start
     if args.json:
-        print(json.dumps(summary, indent=2, default=str, allow_nan=False))
+        print(dumps(summary, indent=2))
         return 0
     tm = summary["timing"]
     print(f"samii measure: {args.method} sine, {simulated_s:.0f} s simulated in {sim_wall:.1f} s "

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 
 from samii.cli_args import positive_float
 from samii.errors import InputError
+from samii.json_output import dumps
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
         warnings.simplefilter("ignore", RuntimeWarning)  # scipy logm accuracy notes at 1e-13
         rep = modes_report(args.model, overrides=parse_overrides(args.set) or None, max_freq_hz=args.max_freq_hz)
     if args.json:
-        print(json.dumps(rep.as_json(), indent=2))
+        print(dumps(rep.as_json(), indent=2))
         return 0
     print("SAMII at the nominal pose: joint angles " + ", ".join(f"{a:.2f}" for a in rep.pose_deg) + " deg")
     print("\n(a) base modes, joint 2 held")

@@ -1,0 +1,41 @@
+"""JSON that every parser reads: non-finite numbers become ``null``, never ``NaN`` or ``Infinity``.
+
+Python's :mod:`json` writes ``NaN`` and ``Infinity`` by default, which are not JSON
+(RFC 8259) and break ``jq`` and JavaScript. Every command's ``--json`` and every
+JSON file the project writes go through :func:`dumps`; a ``null`` where a number is
+expected means "not defined" (e.g. a standard error of a parameter the data do not
+determine).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+__all__ = ["dumps", "finite_or_none"]
+
+
+def finite_or_none(obj: Any) -> Any:
+    """``obj`` with every non-finite float (also numpy scalars and arrays) replaced by None."""
+    import numpy as np
+
+    if isinstance(obj, dict):
+        return {k: finite_or_none(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_or_none(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return finite_or_none(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        return float(obj) if math.isfinite(obj) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
+
+
+def dumps(obj: Any, **kwargs) -> str:
+    """:func:`json.dumps` of :func:`finite_or_none` (``obj``), refusing any NaN left."""
+    kwargs.setdefault("default", str)
+    return json.dumps(finite_or_none(obj), allow_nan=False, **kwargs)
