@@ -32,8 +32,15 @@ def _version() -> str:
         return "unknown"
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argparse parser whose errors are one line (``samii CMD: error: argument --x: why``), no usage dump."""
+
+    def error(self, message: str):  # noqa: D401 - argparse API
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="samii",
         description="SAMII: a hydraulic arm on a flexible cantilevered beam, simulated in MuJoCo. "
         "With no subcommand, runs the main job on the embedded default model.",
