@@ -51,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", metavar="XML", help="MJCF file (default: the embedded SAMII model)")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="override a model parameter, e.g. hydraulic.supply_pressure=2.1e7 (repeatable)")
-    parser.add_argument("--rerun", metavar="FILE.rrd", type=nonempty_path, help="also write a Rerun recording: the arm and beam moving and the measured signals")
+    parser.add_argument("--rerun", metavar="FILE.rrd", type=nonempty_path, help="also write a Rerun recording: the arm and beam moving and the measured signals (with --method both, of the swept run; the file must not exist unless --overwrite)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print the run summary as JSON")
