@@ -23,6 +23,7 @@ __all__ = [
     "TIME_UNIFORMITY_RTOL",
     "TimeSeries",
     "first_nonuniform_step",
+    "typical_step",
 ]
 
 REQUIRED_COLUMNS: tuple[str, ...] = ("t", "v", "theta", "accel")
@@ -33,18 +34,25 @@ SIGNAL_COLUMNS: tuple[str, ...] = REQUIRED_COLUMNS[1:] + OPTIONAL_COLUMNS
 TIME_UNIFORMITY_RTOL = 1e-6
 
 
+def typical_step(t: np.ndarray) -> float:
+    """The median step of ``t``: the sampling interval a few dropped or repeated samples do not move."""
+    return float(np.median(np.diff(t))) if t.size >= 2 else float("nan")
+
+
 def first_nonuniform_step(t: np.ndarray, rtol: float = TIME_UNIFORMITY_RTOL) -> int | None:
     """Index ``i`` of the first step ``t[i] - t[i-1]`` that is not uniform, or None.
 
-    A step is uniform if it differs from the mean step ``(t[-1]-t[0])/(n-1)``
-    by at most ``rtol`` times the mean step, and the mean step is positive.
-    Returns 1 if the mean step is not positive (time not increasing).
+    A step is uniform if it differs from the typical (median) step by at most
+    ``rtol`` times that step, and the typical step is positive. The median, not
+    the mean ``(t[-1]-t[0])/(n-1)``, is the reference so that one dropped sample
+    is found where it is: with the mean, the gap shifts the mean and the very
+    first step is reported. Returns 1 if the typical step is not positive.
     """
     if t.size < 2:
         return None
     steps = np.diff(t)
-    mean = (t[-1] - t[0]) / (t.size - 1)
-    bad = ~(np.abs(steps - mean) <= rtol * mean) if mean > 0 else np.ones(steps.size, bool)
+    ref = typical_step(t)
+    bad = ~(np.abs(steps - ref) <= rtol * ref) if ref > 0 else np.ones(steps.size, bool)
     if not np.any(bad):
         return None
     return int(np.flatnonzero(bad)[0]) + 1
@@ -58,7 +66,7 @@ def _signal(name: str, value, n: int | None) -> np.ndarray:
         raise ValueError(f"signal {name!r} has {arr.size} samples, t has {n}")
     if not np.all(np.isfinite(arr)):
         bad = int(np.flatnonzero(~np.isfinite(arr))[0])
-        raise ValueError(f"signal {name!r} has a NaN or infinite value at sample {bad}")
+        raise ValueError(f"signal {name!r} has a NaN or infinite value ({float(arr[bad]):g}) at sample {bad}")
     arr.setflags(write=False)
     return arr
 
@@ -104,7 +112,7 @@ class TimeSeries:
         if i is not None:
             raise ValueError(
                 f"t must be uniformly sampled and increasing (relative spacing within {TIME_UNIFORMITY_RTOL:g}); "
-                f"step {i} is {t[i] - t[i - 1]!r} s, the mean step is {(t[-1] - t[0]) / (t.size - 1)!r} s"
+                f"step {i} is {float(t[i] - t[i - 1]):.9g} s, the typical (median) step is {typical_step(t):.9g} s"
             )
         object.__setattr__(self, "t", t)
         for name in REQUIRED_COLUMNS[1:]:
@@ -114,7 +122,7 @@ class TimeSeries:
                 object.__setattr__(self, name, _signal(name, getattr(self, name), t.size))
         if self.spool is not None and np.any(np.abs(self.spool) > 1.0 + 1e-9):
             bad = int(np.flatnonzero(np.abs(self.spool) > 1.0 + 1e-9)[0])
-            raise ValueError(f"signal 'spool' must lie in -1...1, got {self.spool[bad]!r} at sample {bad}")
+            raise ValueError(f"signal 'spool' must lie in -1...1, got {float(self.spool[bad]):g} at sample {bad}")
         extra = {}
         for name, value in self.extra.items():
             if name in REQUIRED_COLUMNS or name in OPTIONAL_COLUMNS:
