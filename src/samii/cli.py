@@ -38,6 +38,14 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str):  # noqa: D401 - argparse API
         self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
 
+    def parse_known_args(self, args=None, namespace=None):
+        # an option of another subcommand (e.g. `design seed-report --out`) is reported by the
+        # subcommand that got it, not by the top-level parser
+        ns, extras = super().parse_known_args(args, namespace)
+        if extras:
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
+        return ns, extras
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(

@@ -130,9 +130,10 @@ def cancel_open_loop(p: Mapping[str, float], Gc: control.TransferFunction, *, lo
 
 def closed_loop_poles(L: control.TransferFunction, K: float) -> np.ndarray:
     """Roots of ``1 + K L = 0``, all of them including the cancelled ones (eigenvalues of a realisation of L)."""
+    from samii.design.rootlocus import feedback_poles
+
     ss = control.tf2ss(L)
-    A, B, C, D = (np.asarray(m, float) for m in (ss.A, ss.B, ss.C, ss.D))
-    return np.linalg.eigvals(A - B @ (K / (1.0 + K * D[0, 0]) * C))
+    return feedback_poles(ss.A, ss.B, ss.C, ss.D, -K)  # 1 + K L = 0 is positive feedback with gain -K
 
 
 def moving_pairs(L: control.TransferFunction, K: float, *, cancel_tol: float = 1e-6) -> np.ndarray:
@@ -248,6 +249,30 @@ class PoleCancelDesign:
         return closed_loop_poles(self.open_loop, self.gain)
 
     @property
+    def unstable_poles(self) -> np.ndarray:
+        """Closed-loop poles with ``Re s >= 0`` (empty for a stable loop)."""
+        from samii.design.controller import unstable_poles
+
+        return unstable_poles(self.closed_loop, discrete=False)
+
+    @property
+    def stable(self) -> bool:
+        """Every closed-loop pole in the open left half plane."""
+        return self.unstable_poles.size == 0
+
+    @property
+    def dc_gain_as_drawn(self) -> float:
+        """theta/theta_ref at DC of the loop as drawn, without reference scaling (``inf`` if a closed-loop pole sits at s = 0).
+
+        ``K G_c(0) / (1 + K G_c(0))`` for ``"theta"``; 1 for ``"accel"`` (xdd vanishes at DC).
+        Meaningful only for a stable loop.
+        """
+        if self.loop == "accel":
+            return 1.0
+        g0 = self.dc_gain
+        return float(g0 / (1.0 + g0)) if 1.0 + g0 != 0.0 else float("inf")
+
+    @property
     def reference_gain(self) -> float:
         """Prefilter on theta_ref that makes theta/theta_ref = 1 at DC (``"theta"`` loop; 1 for ``"accel"``).
 
@@ -346,5 +371,7 @@ def design_pole_cancel(
     poles = desired_compensator_poles(freqs_hz, zetas)
     Gc = compensator(zeros, poles)
     L = cancel_open_loop(p, Gc, loop=loop)
+    if gain is not None and not (np.isfinite(gain) and gain != 0):
+        raise ValueError(f"gain must be a finite, nonzero number, got {float(gain):g} (K = 0 opens the loop)")
     k = choose_gain(L, zeta=target_zeta) if gain is None else float(gain)
     return PoleCancelDesign(p, zeros, poles, Gc, k, loop, L)

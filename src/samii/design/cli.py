@@ -2,178 +2,365 @@
 
 Subcommands::
 
-    samii design seed-report [--json]
-    samii design rlocus [--out DIR] [--json] [--no-plots] [--force]
-    samii design canonical [--modes 2|3] [--outputs accel|modal] [--out DIR] [--force]
+    samii design seed-report [--json] [--no-progress]
+    samii design rlocus [--out DIR] [--json] [--no-plots] [--force] [--n-gains N] [--no-progress]
+    samii design canonical [--modes 2|3] [--outputs accel|modal] [--out DIR] [--force] [--json]
     samii design place [--sample-time-s T] [--zeta Z] [--observer placement|kalman] [--json]
     samii design cancel [--loop theta|accel] [--gain K] [--json]
 
-Only numpy is imported at module level (the CLI builds its parser cheaply).
+Errors a user can fix are :class:`samii.errors.InputError` (exit 2, one line
+naming the option); numeric options are checked at parse time
+(:mod:`samii.cli_args`); ``--out`` folders are all-or-nothing
+(:class:`samii.outputs.OutputFolder`, checked before any work). JSON output
+is strict: non-finite numbers are written as ``null``.
+
+Only numpy and the light samii.cli_args and samii.errors are imported at module level (the CLI builds its parser cheaply).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
-from pathlib import Path
 
 import numpy as np
 
-__all__ = ["add_arguments", "run"]
+from samii.cli_args import finite_float, float_in, int_in, nonempty_path, positive_float
+from samii.errors import InputError
+
+__all__ = ["add_arguments", "run", "N_GAINS_RANGE", "MAX_ABS_CANCEL_GAIN", "PLOT_MAX_GAINS"]
+
+#: ``rlocus --n-gains`` bounds: the log-spaced tracking grid spans 8 decades (1e-5 to 1e3 times the
+#: crossing gains), so 100 points is about 12 per decade; run time grows linearly (about 10 s at 3000).
+N_GAINS_RANGE = (100, 100_000)
+
+#: Gains per sign drawn in each root-locus figure (at most ``--n-gains``).
+PLOT_MAX_GAINS = 1500
+
+#: ``cancel --gain`` magnitude bound: the chosen gain is 0.072; beyond 1e12 the closed-loop matrix
+#: overflows the double range the eigenvalue solver needs.
+MAX_ABS_CANCEL_GAIN = 1e12
+
+
+def _cancel_gain(text: str) -> float:
+    v = finite_float(text)
+    if v == 0.0:
+        raise argparse.ArgumentTypeError(f"expected a nonzero gain (K = 0 opens the loop), got {text!r}")
+    if abs(v) > MAX_ABS_CANCEL_GAIN:
+        raise argparse.ArgumentTypeError(f"expected a gain with |K| <= {MAX_ABS_CANCEL_GAIN:g}, got {text!r}")
+    return v
+
+
+_cancel_gain.__name__ = "gain"
+
+
+def _add_out(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument("--out", metavar="DIR", type=nonempty_path, help=f"folder for {what} (created if needed; all files appear together on success)")
+    p.add_argument("--force", "--overwrite", dest="force", action="store_true", help="replace existing files in --out (--overwrite is an alias)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    # the action parsers are of the command line's own class (samii.cli): errors in one line
     sub = parser.add_subparsers(dest="design_command", metavar="ACTION", required=True)
 
-    p = sub.add_parser("seed-report", help="recompute eq 8.1-8.3 and 10.1-10.9 and the gain, beside the notebook's values")
+    p = sub.add_parser("seed-report", help="recompute eq 8.1-8.3 and 10.1-10.9 and the gain, beside the notebook's values",
+                       description="Recompute the notebook's design tables (eq 8.1-8.3 from eq 1.4, eq 10.1-10.9 and the "
+                       "chapter-10 gain from eq 9.4) and print each beside the notebook's value. Takes about 5 s.")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print machine-readable results")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
 
-    p = sub.add_parser("rlocus", help="mass-damping root-locus study (chapters 2-3): stable K_a intervals and best damping")
-    p.add_argument("--out", type=Path, help="folder for summary.json, summary.md and one PNG per model and variant")
-    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    lo, hi = N_GAINS_RANGE
+    p = sub.add_parser("rlocus", help="mass-damping root-locus study (chapters 2-3): stable K_a intervals and best damping",
+                       description="Mass-damping acceleration-feedback study on 4 models x 7 loop variants: exact stable K_a "
+                       "intervals, best damping per base mode, verdicts. About 10 s at the default --n-gains, 30-60 s with "
+                       "the 28 figures; a progress bar on stderr shows how far it is.")  # fmt: skip
+    _add_out(p, "summary.json, summary.md and one PNG per model and variant")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON (non-finite values as null)")
     p.add_argument("--no-plots", action="store_true", help="with --out, write only the tables")
-    p.add_argument("--force", action="store_true", help="overwrite existing files in --out")
-    p.add_argument("--n-gains", type=int, default=3000, help="gains per sign on the tracking grid (default 3000)")
+    p.add_argument("--n-gains", type=int_in(lo, hi), default=3000, metavar="N",
+                   help=f"gains per sign on the log-spaced grid along which the root-locus branches are tracked "
+                   f"(8 decades around the stability limits), {lo} to {hi}; default 3000 (about 10 s; time grows "
+                   f"linearly); the figures draw min(N, {PLOT_MAX_GAINS})")  # fmt: skip
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
 
     p = sub.add_parser("canonical", help="controllable canonical form (chapters 5-7), checked against the transfer functions")
     p.add_argument("--modes", type=int, choices=(2, 3), default=2, help="base modes: 2 (eq 1.4) or 3 (eq 9.4)")
     p.add_argument("--outputs", choices=("accel", "modal"), default="accel", help="one accelerometer or modal feedback")
-    p.add_argument("--out", type=Path, help="folder for the LaTeX file")
-    p.add_argument("--force", action="store_true", help="overwrite an existing LaTeX file")
+    _add_out(p, "the LaTeX file ccf_<modes>mode_<outputs>.tex")
     p.add_argument("--json", action="store_true", help="print the check as JSON")
 
-    p = sub.add_parser("place", help="digital pole placement with observer (chapter 8) on the eq 1.4 model")
-    p.add_argument("--sample-time-s", type=float, default=1e-3, help="controller sample time [s] (default 0.001)")
-    p.add_argument("--zeta", type=float, default=1 / np.sqrt(2), help="damping of the moved poles (default 1/sqrt(2), see seed-report)")
-    p.add_argument("--observer", choices=("placement", "kalman"), default="placement")
-    p.add_argument("--input-noise-std", type=float, default=None, help="Kalman: valve-command noise [V]")
-    p.add_argument("--theta-noise-std", type=float, default=None, help="Kalman: theta noise [model units]")
-    p.add_argument("--accel-noise-std", type=float, default=None, help="Kalman: acceleration noise [model units]")
-    p.add_argument("--json", action="store_true")
+    p = sub.add_parser(
+        "place",
+        help="digital pole placement with observer (chapter 8) on the eq 1.4 model",
+        description="Chapter-8 digital pole placement on the eq 1.4 model (notebook units: theta most likely in degrees, "
+        "the acceleration unit unstated, v in volts), with an observer at twice the controller poles or a steady-state "
+        "Kalman filter. Every closed-loop pole outside the unit circle is flagged UNSTABLE.",
+    )
+    p.add_argument("--sample-time-s", type=positive_float, default=1e-3, metavar="T",
+                   help="controller sample time [s] (default 0.001). It must give at least 10 samples per period 2 pi/|s| "
+                   "of the fastest pole the design involves (plant, controller and observer poles): on eq 1.4 T <= 1.849 ms "
+                   "with the placement observer (its real pole at 339.6 rad/s), T <= 3.333 ms with kalman (the plant's "
+                   "188.5 rad/s pole). Very short T crowds every z = exp(sT) at 1: a design whose poles miss their targets "
+                   "by more than 0.01 %% is refused (about T < 1e-7 s)")  # fmt: skip
+    p.add_argument("--zeta", type=float_in(0.0, 1.0, lo_open=True, hi_open=True), default=1 / np.sqrt(2), metavar="Z",
+                   help="damping ratio of the moved poles, 0 < Z < 1 (1 would make each pair a double real pole, which "
+                   "single-input placement cannot place); default 1/sqrt(2), which reproduces eq 8.3 (see seed-report)")  # fmt: skip
+    p.add_argument("--observer", choices=("placement", "kalman"), default="placement",
+                   help="placement: observer poles at twice the controller poles (continuous), z = exp(2 s T) (default); "
+                   "kalman: steady-state Kalman filter, needs the three --*-noise-std options")  # fmt: skip
+    p.add_argument("--input-noise-std", type=positive_float, default=None, metavar="V",
+                   help="kalman: standard deviation of the process noise entering with the valve command, per sample [V]")
+    p.add_argument("--theta-noise-std", type=positive_float, default=None, metavar="STD",
+                   help="kalman: standard deviation of the theta measurement noise [notebook units: most likely degrees]")
+    p.add_argument("--accel-noise-std", type=positive_float, default=None, metavar="STD",
+                   help="kalman: standard deviation of the base-acceleration measurement noise [the notebook's acceleration "
+                   "unit, which it does not state]")  # fmt: skip
+    p.add_argument("--json", action="store_true", help="print the design as JSON")
 
-    p = sub.add_parser("cancel", help="pole-cancelling compensator (chapter 10) on the eq 9.4 model")
+    p = sub.add_parser(
+        "cancel",
+        help="pole-cancelling compensator (chapter 10) on the eq 9.4 model",
+        description="Chapter-10 pole-cancelling compensator on the eq 9.4 model. Every closed-loop pole with Re s >= 0 "
+        "is flagged UNSTABLE.",
+    )
     p.add_argument("--loop", choices=("theta", "accel"), default="theta", help="the loop the compensator closes (see samii.design.cancel)")
-    p.add_argument("--gain", type=float, default=None, help="use this gain instead of the zeta = 0.7 rule")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--gain", type=_cancel_gain, default=None, metavar="K",
+                   help=f"use this loop gain K (1 + K L = 0; nonzero, |K| <= {MAX_ABS_CANCEL_GAIN:g}) instead of the "
+                   "rule: the smallest K at which the slowest moving closed-loop pair reaches zeta 0.7 (0.0721)")  # fmt: skip
+    p.add_argument("--json", action="store_true", help="print the design as JSON (non-finite values as null)")
 
 
-def _pairs(z) -> list[list[float]]:
-    return [[float(np.real(x)), float(np.imag(x))] for x in np.atleast_1d(z)]
+# ---- output helpers ----
 
 
-def _check_out(out: Path, names: list[str], force: bool) -> None:
-    out.mkdir(parents=True, exist_ok=True)
-    existing = [n for n in names if (out / n).exists()]
-    if existing and not force:
-        raise SystemExit(f"samii design: {out} already has {existing[:3]}{'...' if len(existing) > 3 else ''}; pass --force to overwrite")
+def _jsonable(x):
+    """``x`` with numpy scalars and arrays as Python values and non-finite numbers as ``None``."""
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        f = float(x)
+        return f if math.isfinite(f) else None
+    if isinstance(x, (complex, np.complexfloating)):
+        return [_jsonable(float(np.real(x))), _jsonable(float(np.imag(x)))]
+    return x
+
+
+def _dumps(obj) -> str:
+    """Strict JSON (no NaN/Infinity tokens)."""
+    return json.dumps(_jsonable(obj), indent=1, allow_nan=False)
+
+
+def _pairs(z) -> list[list[float | None]]:
+    return [[_jsonable(float(np.real(x))), _jsonable(float(np.imag(x)))] for x in np.atleast_1d(z)]
+
+
+def _fmt_complex(z: complex, width: int = 10, digits: int = 4) -> str:
+    if not np.isfinite(z):
+        return "infinity"
+    return f"{z.real:{width}.{digits}f} {z.imag:+{width}.{digits}f}j"
+
+
+def _progress(total: int, what: str, disabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=f"samii design {what}", unit="step", disable=disabled, file=sys.stderr, dynamic_ncols=True)
+
+
+def _out_folder(args, names: list[str]):
+    """The all-or-nothing ``--out`` folder, checked now, before any work (``None`` without ``--out``)."""
+    from samii.outputs import OutputFolder
+
+    if args.out is None:
+        if args.force:
+            raise InputError("--force/--overwrite: only meaningful with --out")
+        return None
+    return OutputFolder(args.out, names, overwrite=args.force, overwrite_option="--force")
+
+
+# ---- actions ----
 
 
 def run_seed_report(args) -> int:
-    from samii.design.seed_report import seed_report
+    from samii.design.seed_report import STEPS, seed_report
 
-    report = seed_report()
+    with _progress(len(STEPS), "seed-report", args.no_progress) as bar:
+
+        bar.set_postfix_str(STEPS[0], refresh=False)
+
+        def step(label: str) -> None:  # label is done: show the one now running
+            i = STEPS.index(label) + 1
+            bar.set_postfix_str(STEPS[i] if i < len(STEPS) else "done", refresh=False)
+            bar.update(1)
+
+        report = seed_report(progress=step)
     if args.json:
-        print(json.dumps(report.as_json(), indent=1))
+        print(_dumps(report.as_json()))
     else:
         print(report.text())
     return 0
 
 
 def run_rlocus(args) -> int:
+    if args.no_plots and args.out is None:
+        raise InputError("--no-plots: only meaningful with --out (without --out no figures are drawn)")
     from samii.design import rootlocus as rl
 
     models = rl.default_models()
-    summaries = []
-    loops = []
-    for label, (p, num) in models.items():
-        for v in rl.NOTEBOOK_VARIANTS:
+    plan = [(label, p, num, v) for label, (p, num) in models.items() for v in rl.NOTEBOOK_VARIANTS]
+    plots = args.out is not None and not args.no_plots
+    pngs = [f"rlocus_{label}_{v.name}.png" for label, _, _, v in plan] if plots else []
+    folder = _out_folder(args, ["summary.json", "summary.md", *pngs])
+
+    loops, summaries = [], []
+    with _progress(len(plan) * (2 if plots else 1), "rlocus", args.no_progress) as bar:
+        for label, p, num, v in plan:
+            bar.set_postfix_str(f"{label} {v.name}", refresh=False)
             loop = rl.mass_damping_loop(p, numerator=num, variant=v, model=label)
             loops.append(loop)
             summaries.append(rl.summarize(loop, n_gains=args.n_gains))
-    table = rl.summary_table(summaries)
-    if args.out is not None:
-        pngs = [] if args.no_plots else [f"rlocus_{lp.model}_{lp.variant.name}.png" for lp in loops]
-        _check_out(args.out, ["summary.json", "summary.md", *pngs], args.force)
-        (args.out / "summary.json").write_text(json.dumps([s.as_dict() for s in summaries], indent=1))
-        (args.out / "summary.md").write_text(table)
-        if not args.no_plots:
-            from samii.viz.rootlocus_plot import plot_variant
+            bar.update(1)
+        table = rl.summary_table(summaries)
+        rows = [s.as_dict() for s in summaries]
+        if folder is not None:
+            with folder:
+                folder.path("summary.json").write_text(_dumps(rows) + "\n")
+                folder.path("summary.md").write_text(table)
+                if plots:
+                    from samii.viz.rootlocus_plot import plot_variant
 
-            for lp, s, name in zip(loops, summaries, pngs):
-                plot_variant(lp, s, path=args.out / name)
+                    for lp, s, name in zip(loops, summaries, pngs):
+                        bar.set_postfix_str(f"plot {lp.model} {lp.variant.name}", refresh=False)
+                        plot_variant(lp, s, path=folder.path(name), n_gains=min(args.n_gains, PLOT_MAX_GAINS))
+                        bar.update(1)
     if args.json:
-        print(json.dumps([s.as_dict() for s in summaries], indent=1))
+        print(_dumps(rows))
     else:
         print(table)
-        if args.out is not None:
-            print(f"wrote {args.out}")
+        if folder is not None:
+            print(f"wrote {len(folder.written)} files to {folder.root}")
     return 0
 
 
 def run_canonical(args) -> int:
+    name = f"ccf_{args.modes}mode_{args.outputs}.tex"
+    folder = _out_folder(args, [name])
     from samii import notebook as nb
     from samii.design import canonical as cc
 
     form = cc.derive_canonical_form(args.modes, args.outputs)
     p = nb.EQ1_4_OPTIMIZED if args.modes == 2 else nb.EQ9_4
     check = cc.compare_with_tf(form, p)
-    if args.out is not None:
-        name = f"ccf_{args.modes}mode_{args.outputs}.tex"
-        _check_out(args.out, [name], args.force)
-        (args.out / name).write_text(form.latex())
+    if folder is not None:
+        with folder:
+            folder.path(name).write_text(form.latex())
+    model = "eq 1.4" if args.modes == 2 else "eq 9.4"
     if args.json:
-        print(json.dumps({"outputs": list(form.outputs), "model": "eq 1.4" if args.modes == 2 else "eq 9.4", "check": check}, indent=1))
+        print(_dumps({"outputs": list(form.outputs), "model": model, "check": check}))
         return 0
-    print(f"controllable canonical form, {args.modes} base modes, outputs {form.outputs}, input v; checked at {'eq 1.4' if args.modes == 2 else 'eq 9.4'}")
-    print(f"  poles of A vs transfer functions: max relative difference {check['poles']['rel']:.2e}")
-    for name in form.outputs:
-        c = check[name]
+    print(f"controllable canonical form, {args.modes} base modes, outputs {', '.join(form.outputs)}, input v; checked at {model}")
+    print(f"  poles of A vs transfer functions: max relative difference {float(check['poles']['rel']):.2e}")
+    for out_name in form.outputs:
+        c = check[out_name]
         print(
-            f"  {name}/v: frequency response {c['freq_response_rel']:.2e}, numerator N_ss D - N D_ss {c['numerator_rel']:.2e} (relative), "
-            f"zeros at the origin {c['origin_zeros_ss']} (state space) / {c['origin_zeros_tf']} (transfer function)"
+            f"  {out_name}/v: frequency response {float(c['freq_response_rel']):.2e}, numerator N_ss D - N D_ss "
+            f"{float(c['numerator_rel']):.2e} (relative), zeros at the origin {int(c['origin_zeros_ss'])} (state space) / "
+            f"{int(c['origin_zeros_tf'])} (transfer function)"
         )
-    if args.out is not None:
-        print(f"wrote {args.out / f'ccf_{args.modes}mode_{args.outputs}.tex'}")
+    if folder is not None:
+        print(f"wrote {folder.final(name)}")
     return 0
 
 
+_NOISE_OPTIONS = (("input_noise_std", "--input-noise-std"), ("theta_noise_std", "--theta-noise-std"), ("accel_noise_std", "--accel-noise-std"))
+
+
+def _check_place_options(args) -> None:
+    given = [opt for attr, opt in _NOISE_OPTIONS if getattr(args, attr) is not None]
+    if args.observer == "kalman":
+        missing = [opt for attr, opt in _NOISE_OPTIONS if getattr(args, attr) is None]
+        if missing:
+            names = " and ".join([", ".join(missing[:-1]), missing[-1]] if len(missing) > 1 else missing)
+            raise InputError(
+                f"--observer kalman: missing {names} (all three noise standard deviations are needed: --input-noise-std "
+                f"[V per sample], --theta-noise-std [notebook units, most likely degrees], --accel-noise-std [notebook units])"
+            )
+    elif given:
+        raise InputError(f"{', '.join(given)}: only used with --observer kalman (the placement observer takes no noise model)")
+
+
 def run_place(args) -> int:
+    _check_place_options(args)
     from samii import notebook as nb
     from samii.design import canonical as cc
-    from samii.design.placement import design_placement
+    from samii.design import placement as pl
 
     model = cc.numeric_statespace(cc.derive_canonical_form(2, "accel"), nb.EQ1_4_OPTIMIZED)
-    noise = None
-    if args.observer == "kalman":
-        if None in (args.input_noise_std, args.theta_noise_std, args.accel_noise_std):
-            raise SystemExit("samii design place: --observer kalman needs --input-noise-std, --theta-noise-std and --accel-noise-std")
-        noise = (args.theta_noise_std, args.accel_noise_std)
-    d = design_placement(
-        model, sample_time_s=args.sample_time_s, zeta=args.zeta, observer=args.observer,
-        input_noise_std=args.input_noise_std, measurement_noise_std=noise,
-    )  # fmt: skip
+    T = args.sample_time_s
+    t_max = pl.max_sample_time_s(model, zeta=args.zeta, observer=args.observer)
+    if T > t_max:
+        w, which = pl.fastest_pole(model, zeta=args.zeta, observer=args.observer)
+        raise InputError(
+            f"--sample-time-s {T:g}: too long; the fastest {which} pole of this design (|s| = {w:.4g} rad/s, period "
+            f"2 pi/|s| = {2e3 * np.pi / w:.3g} ms) needs at least {pl.MIN_SAMPLES_PER_PERIOD} samples per period, so "
+            f"--sample-time-s must be <= {pl._floor_digits(t_max, 4):g} s with --observer {args.observer}"
+        )
+    noise = (args.theta_noise_std, args.accel_noise_std) if args.observer == "kalman" else None
+    try:
+        d = pl.design_placement(
+            model, sample_time_s=T, zeta=args.zeta, observer=args.observer,
+            input_noise_std=args.input_noise_std, measurement_noise_std=noise,
+        )  # fmt: skip
+    except pl.PlacementInaccurate as exc:
+        raise InputError(f"--sample-time-s {T:g} (with --zeta {args.zeta:g}): {exc}") from None
+    cl = d.closed_loop_poles_z
+    bad = d.unstable_poles_z
+    stable = bad.size == 0
     out = {
         "model": "eq 1.4 (2-mode s^4), canonical form of chapter 5, notebook units",
         "sample_time_s": d.sample_time_s,
+        "max_sample_time_s": t_max,
         "zeta": d.zeta,
         "observer": d.observer,
+        "kalman_noise_std": None if d.kalman_covariances is None else {
+            "input_V": d.kalman_covariances[0], "theta": d.kalman_covariances[1][0], "accel": d.kalman_covariances[1][1]},
         "controller_poles_s": _pairs(d.poles_s),
         "controller_poles_z": _pairs(d.poles_z),
         "observer_poles_z": _pairs(d.observer_poles_z),
+        "closed_loop_poles_z": _pairs(cl),
+        "closed_loop_max_abs_z": float(np.max(np.abs(cl))),
+        "closed_loop_stable": stable,
+        "unstable_closed_loop_poles_z": _pairs(bad),
         "K": d.K.ravel().tolist(),
         "L": d.L.tolist(),
         "N": d.N,
-    }
+    }  # fmt: skip
     if args.json:
-        print(json.dumps(out, indent=1))
+        print(_dumps(out))
+        return 0
+
+    def flag(z: complex) -> str:
+        return "  UNSTABLE (|z| >= 1)" if not abs(z) < 1 else ""
+
+    print(f"pole placement on eq 1.4 (notebook units), T = {d.sample_time_s:g} s, zeta = {d.zeta:.5g}, observer: {d.observer}")
+    for s, z in zip(d.poles_s, d.poles_z):
+        print(f"  controller pole s = {_fmt_complex(s)}  ->  z = {z.real:.6f} {z.imag:+.6f}j{flag(z)}")
+    for z in d.observer_poles_z:
+        print(f"  observer pole z = {z.real:.6f} {z.imag:+.6f}j{flag(z)}")
+    print(f"  K = {np.array2string(d.K.ravel(), precision=4)}\n  N = {d.N:.6g}")
+    if stable:
+        print(f"  closed loop: stable, all {cl.size} poles inside the unit circle (largest |z| = {np.max(np.abs(cl)):.6f})")
     else:
-        print(f"pole placement on eq 1.4 (notebook units), T = {d.sample_time_s:g} s, zeta = {d.zeta:.5g}, observer: {d.observer}")
-        for s, z in zip(d.poles_s, d.poles_z):
-            print(f"  controller pole s = {s.real:10.4f} {s.imag:+10.4f}j  ->  z = {z.real:.6f} {z.imag:+.6f}j")
-        for z in d.observer_poles_z:
-            print(f"  observer pole z = {z.real:.6f} {z.imag:+.6f}j")
-        print(f"  K = {np.array2string(d.K.ravel(), precision=4)}\n  N = {d.N:.6g}")
+        print(f"  closed loop: UNSTABLE, {bad.size} of {cl.size} poles on or outside the unit circle: "
+              + ", ".join(f"{z.real:.6f} {z.imag:+.6f}j" for z in bad))  # fmt: skip
     return 0
 
 
@@ -183,6 +370,9 @@ def run_cancel(args) -> int:
 
     d = design_pole_cancel(nb.EQ9_4, loop=args.loop, gain=args.gain)
     cl = d.closed_loop
+    bad = d.unstable_poles
+    stable = bad.size == 0
+    dc = d.dc_gain_as_drawn if stable else float("nan")
     out = {
         "model": "eq 9.4 (3-mode s^4), notebook units",
         "loop": d.loop,
@@ -191,24 +381,35 @@ def run_cancel(args) -> int:
         "num": np.asarray(d.Gc.num[0][0], float).tolist(),
         "den": np.asarray(d.Gc.den[0][0], float).tolist(),
         "gain": d.gain,
+        "gain_chosen_by_rule": args.gain is None,
         "closed_loop_poles": _pairs(cl),
-        "reference_gain_for_unit_dc": d.reference_gain,
+        "closed_loop_stable": stable,
+        "unstable_closed_loop_poles": _pairs(bad),
+        "dc_gain_as_drawn": dc,
+        "reference_gain_for_unit_dc": d.reference_gain if stable else None,
         "controller_scales_reference_by_default": d.loop == "theta",
     }
     if args.json:
-        print(json.dumps(out, indent=1))
-    else:
-        print(f"pole-cancelling compensator on eq 9.4, {d.loop} loop, K = {d.gain:.5g}")
-        print(f"  numerator   {np.array2string(np.asarray(out['num']), precision=4)}")
-        print(f"  denominator {np.array2string(np.asarray(out['den']), precision=4)}")
-        for z in sorted(cl, key=abs):
-            if z.imag >= 0:
-                print(f"  closed-loop pole {z.real:10.4f} {z.imag:+10.4f}j  zeta {-z.real / abs(z):.3f}")
-        if d.loop == "theta":
-            print(
-                f"  theta/theta_ref DC gain of the loop as drawn {1 / d.reference_gain:.3f}; the runnable controller scales "
-                f"theta_ref by {d.reference_gain:.4g} (unit DC gain) unless told not to"
-            )
+        print(_dumps(out))
+        return 0
+    print(f"pole-cancelling compensator on eq 9.4, {d.loop} loop, K = {d.gain:.5g}")
+    print(f"  numerator   {np.array2string(np.asarray(out['num']), precision=4)}")
+    print(f"  denominator {np.array2string(np.asarray(out['den']), precision=4)}")
+    for z in sorted(cl, key=abs):
+        if z.imag >= 0:
+            zeta = -z.real / abs(z) if np.isfinite(z) and abs(z) > 0 else float("nan")
+            mark = "  UNSTABLE (Re s >= 0)" if not z.real < 0 else ""
+            print(f"  closed-loop pole {_fmt_complex(z)}  zeta {zeta:.3f}{mark}")
+    if not stable:
+        print(f"  closed loop: UNSTABLE, {bad.size} of {cl.size} poles with Re s >= 0 (largest real part {np.max(bad.real):.5g} 1/s); "
+              "no DC gain or reference scaling applies")  # fmt: skip
+        return 0
+    print(f"  closed loop: stable, all {cl.size} poles in the left half plane (largest real part {np.max(cl.real):.4g} 1/s)")
+    if d.loop == "theta":
+        print(
+            f"  theta/theta_ref DC gain of the loop as drawn {dc:.3f}; the runnable controller scales "
+            f"theta_ref by {d.reference_gain:.4g} (unit DC gain) unless told not to"
+        )
     return 0
 
 
@@ -220,6 +421,6 @@ def run(args) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    parser = argparse.ArgumentParser(prog="samii design")
-    add_arguments(parser)
-    sys.exit(run(parser.parse_args()))
+    from samii.cli import main
+
+    sys.exit(main(["design", *sys.argv[1:]]))

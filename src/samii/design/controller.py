@@ -30,12 +30,25 @@ __all__ = [
     "mass_damping_controller",
     "from_discrete_tf",
     "from_discrete_zpk",
+    "unstable_poles",
 ]
 
 MEASUREMENTS = ("theta_ref", "theta", "accel")
 
 #: What a design on one of the notebook's fits works in (notebook.py: units not stated in the notebook).
 NOTEBOOK_UNITS = "notebook units: theta most likely in degrees, acceleration unit unstated; v in volts"
+
+
+def unstable_poles(poles, *, discrete: bool) -> np.ndarray:
+    """The poles that are not asymptotically stable: ``Re s >= 0`` (continuous) or ``|z| >= 1`` (discrete).
+
+    A pole on the boundary (an undamped oscillation, an integrator) counts: a
+    loop that never settles is not a usable design. Non-finite poles (a root
+    at infinity) count too.
+    """
+    p = np.atleast_1d(np.asarray(poles, complex))
+    bad = ~np.isfinite(p) | ((np.abs(p) >= 1.0) if discrete else (p.real >= 0.0))
+    return p[bad]
 
 
 @runtime_checkable

@@ -25,6 +25,18 @@ whatever ``D`` is.
 
 Reference: ``v = N theta_ref - K x_hat`` with ``N`` giving theta/theta_ref a
 DC gain of 1.
+
+Sample time. ``z = exp(s T)`` maps a pole faithfully only while ``T`` is well
+below its period ``2 pi / |s|``: at half the period (Nyquist) complex poles
+alias and the placed ``z`` no longer stands for the intended ``s``; well
+before that the sampled controller reacts too late to its fastest dynamics.
+:func:`design_placement` asks for at least :data:`MIN_SAMPLES_PER_PERIOD`
+samples per period of the fastest pole the design involves (the plant's
+open-loop poles, the desired poles and, with ``observer="placement"``, the
+observer poles): :func:`max_sample_time_s`. Very short sample times crowd
+every ``z`` at 1, where placement loses accuracy; the design checks the
+poles it achieved (:data:`PLACEMENT_RTOL`) and raises
+:class:`PlacementInaccurate` rather than return a controller with other poles.
 """
 
 from __future__ import annotations
@@ -36,11 +48,17 @@ from typing import Literal
 import control
 import numpy as np
 from scipy import linalg
+from scipy.optimize import linear_sum_assignment
 
 from samii import notebook as nb
 from samii.design.controller import NOTEBOOK_UNITS, LinearController
 
 __all__ = [
+    "MIN_SAMPLES_PER_PERIOD",
+    "PLACEMENT_RTOL",
+    "PlacementInaccurate",
+    "fastest_pole",
+    "max_sample_time_s",
     "desired_poles",
     "unity_feedback_poles",
     "discretize",
@@ -51,6 +69,21 @@ __all__ = [
 ]
 
 ObserverKind = Literal["placement", "kalman"]
+
+#: Samples per period ``2 pi/|s|`` of the fastest pole a design involves (5x Nyquist; the textbook rule
+#: samples 10 to 30 times faster than the closed-loop bandwidth).
+MIN_SAMPLES_PER_PERIOD = 10
+
+#: Largest relative error ``|s_achieved - s_desired| / |s_desired|`` (``s = log(z)/T``) a design may have.
+PLACEMENT_RTOL = 1e-4
+
+
+class PlacementInaccurate(ValueError):
+    """The placed poles are not where they were asked to be (numerically ill-conditioned design)."""
+
+    def __init__(self, message: str, error: float):
+        super().__init__(message)
+        self.error = error
 
 
 def _output_index(sys: control.StateSpace, name: str) -> int:
@@ -75,8 +108,8 @@ def desired_poles(sys: control.StateSpace, zeta: float, *, theta: str = "theta",
     Each complex pole ``p`` of the unity-theta-feedback loop becomes
     ``|p| (-zeta +- j sqrt(1 - zeta^2))``; real poles are kept.
     """
-    if not 0 < zeta < 1:
-        raise ValueError(f"zeta must be in (0, 1), got {zeta}")
+    if not 0 < zeta < 1:  # zeta = 1 makes each pair a double real pole, which one input cannot place
+        raise ValueError(f"zeta must be in (0, 1), got {float(zeta):g}")
     out = []
     for p in unity_feedback_poles(sys, theta=theta):
         if abs(p.imag) <= real_tol * max(abs(p), 1.0):
@@ -86,10 +119,42 @@ def desired_poles(sys: control.StateSpace, zeta: float, *, theta: str = "theta",
     return np.array(out)
 
 
+def fastest_pole(
+    sys: control.StateSpace, *, zeta: float = nb.EQ8_3_ZETA, observer: ObserverKind = "placement", observer_factor: float = 2.0
+) -> tuple[float, str]:
+    """``(|s|, which)`` of the fastest pole a chapter-8 design on ``sys`` involves [rad/s].
+
+    ``which`` is ``"plant"``, ``"controller"`` or ``"observer"``: the model's
+    open-loop poles, the desired poles (:func:`desired_poles`, whose magnitudes
+    do not depend on ``zeta``) and, for ``observer="placement"``, the
+    observer poles at ``observer_factor`` times them. The Kalman filter's
+    poles follow from the noise and the sample time, so they are not known
+    beforehand.
+    """
+    sets = {"plant": np.linalg.eigvals(np.asarray(sys.A)), "controller": desired_poles(sys, zeta)}
+    if observer == "placement":
+        sets["observer"] = observer_factor * sets["controller"]
+    which = max(sets, key=lambda k: float(np.max(np.abs(sets[k]))))
+    return float(np.max(np.abs(sets[which]))), which
+
+
+def max_sample_time_s(
+    sys: control.StateSpace,
+    *,
+    zeta: float = nb.EQ8_3_ZETA,
+    observer: ObserverKind = "placement",
+    observer_factor: float = 2.0,
+    samples_per_period: float = MIN_SAMPLES_PER_PERIOD,
+) -> float:
+    """The longest sample time with ``samples_per_period`` samples per period ``2 pi/|s|`` of :func:`fastest_pole`."""
+    w, _ = fastest_pole(sys, zeta=zeta, observer=observer, observer_factor=observer_factor)
+    return float(2.0 * np.pi / (samples_per_period * w))
+
+
 def discretize(sys: control.StateSpace, sample_time_s: float) -> control.StateSpace:
     """Zero-order-hold discretisation (Matlab ``c2d(sys, T, 'zoh')``)."""
-    if not sample_time_s > 0:
-        raise ValueError(f"sample_time_s must be positive, got {sample_time_s}")
+    if not (np.isfinite(sample_time_s) and sample_time_s > 0):
+        raise ValueError(f"sample_time_s must be a positive number of seconds, got {float(sample_time_s):g}")
     return control.sample_system(sys, sample_time_s, method="zoh")
 
 
@@ -113,6 +178,25 @@ def _place(A: np.ndarray, B: np.ndarray, poles: np.ndarray) -> np.ndarray:
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="Convergence was not reached")
         return np.asarray(control.place(A, B, poles))
+
+
+def _floor_digits(x: float, digits: int) -> float:
+    """``x > 0`` rounded down to ``digits`` significant digits (a printed bound that itself satisfies the bound)."""
+    q = 10.0 ** (np.floor(np.log10(x)) - digits + 1)
+    return float(np.floor(x / q) * q)
+
+
+def _check_placed(achieved_z: np.ndarray, desired_s: np.ndarray, T: float, what: str) -> None:
+    """Raise :class:`PlacementInaccurate` if an achieved pole misses its target by more than :data:`PLACEMENT_RTOL`."""
+    s = np.log(np.asarray(achieved_z, complex)) / T
+    _, col = linear_sum_assignment(np.abs(desired_s[:, None] - s[None, :]))
+    err = float(np.max(np.abs(s[col] - desired_s) / np.abs(desired_s)))
+    if not err <= PLACEMENT_RTOL:
+        raise PlacementInaccurate(
+            f"the {what} poles came out {err:.2g} (relative) from their targets at sample time {T:g} s: every z = exp(s T) "
+            f"crowds near 1 (or the targets nearly coincide) and placement loses its accuracy; use a longer sample time",
+            err,
+        )
 
 
 def place_continuous(sys: control.StateSpace, poles: np.ndarray) -> np.ndarray:
@@ -158,6 +242,31 @@ class PlacementDesign:
     N: float
     measured: tuple[str, ...]
     kalman_covariances: tuple[float, tuple[float, ...]] | None
+
+    def _measured_C(self) -> np.ndarray:
+        return np.asarray(self.discrete.C)[[_output_index(self.discrete, m) for m in self.measured]]
+
+    @property
+    def achieved_poles_z(self) -> np.ndarray:
+        """Eigenvalues of ``Ad - Bd K``: the controller poles as designed, to rounding."""
+        return np.linalg.eigvals(np.asarray(self.discrete.A) - np.asarray(self.discrete.B) @ self.K)
+
+    @property
+    def achieved_observer_poles_z(self) -> np.ndarray:
+        """Eigenvalues of ``Ad - L Cm``: the observer (estimation error) poles."""
+        return np.linalg.eigvals(np.asarray(self.discrete.A) - self.L @ self._measured_C())
+
+    @property
+    def closed_loop_poles_z(self) -> np.ndarray:
+        """Every pole of the sampled loop (plant, observer, held command): controller, observer and ``z = 0``."""
+        return np.concatenate([self.achieved_poles_z, self.achieved_observer_poles_z, [0.0]])
+
+    @property
+    def unstable_poles_z(self) -> np.ndarray:
+        """Closed-loop poles on or outside the unit circle (empty for a usable design)."""
+        from samii.design.controller import unstable_poles
+
+        return unstable_poles(self.closed_loop_poles_z, discrete=True)
 
     def controller(self, *, input_scale: dict[str, float] | None = None, model_units: str = NOTEBOOK_UNITS) -> LinearController:
         """The runnable controller: inputs ``theta_ref``, then the measured outputs (``theta``, ``accel``).
@@ -206,6 +315,7 @@ def design_placement(
     input_noise_std: float | None = None,
     measurement_noise_std: tuple[float, ...] | None = None,
     balanced: bool = True,
+    min_samples_per_period: float = MIN_SAMPLES_PER_PERIOD,
 ) -> PlacementDesign:
     """Design the chapter-8 controller on ``model`` (e.g. :func:`samii.design.canonical.numeric_statespace`).
 
@@ -219,13 +329,46 @@ def design_placement(
     input_noise_std, measurement_noise_std
         Kalman filter only: process noise entering with the valve command
         (standard deviation per sample, V) and noise on each measured output
-        (model units). The notebook prints none of its values; they must be given.
+        (model units). The notebook prints none of its values; they must be
+        given, and be positive (a zero covariance makes the filter singular or
+        blind).
     balanced : bool
         Design on :func:`balance` of the model (same poles and transfer
         functions, well-scaled gains); the design's ``model`` is then the balanced one.
+    min_samples_per_period : float
+        ``sample_time_s`` may be at most :func:`max_sample_time_s` with this
+        many samples per period of the fastest pole (at least 2, Nyquist).
+
+    Raises
+    ------
+    ValueError
+        For a bad argument, including a sample time above :func:`max_sample_time_s`.
+    PlacementInaccurate
+        If a placed pole misses its target by more than :data:`PLACEMENT_RTOL` (relative, in s).
     """
     if observer not in ("placement", "kalman"):
         raise ValueError(f"observer must be 'placement' or 'kalman', got {observer!r}")
+    if not (np.isfinite(observer_factor) and observer_factor > 0):
+        raise ValueError(f"observer_factor must be positive, got {float(observer_factor):g}")
+    if not min_samples_per_period >= 2:
+        raise ValueError(f"min_samples_per_period must be >= 2 (Nyquist), got {float(min_samples_per_period):g}")
+    if observer == "kalman":
+        if input_noise_std is None or measurement_noise_std is None or len(measurement_noise_std) != len(measured):
+            raise ValueError("a Kalman observer needs input_noise_std and one measurement_noise_std per measured output")
+        for name, v in [("input_noise_std", input_noise_std)] + [(f"measurement_noise_std[{i}]", x) for i, x in enumerate(measurement_noise_std)]:
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"Kalman {name} must be a positive standard deviation, got {float(v):g}")
+    if not (np.isfinite(sample_time_s) and sample_time_s > 0):
+        raise ValueError(f"sample_time_s must be a positive number of seconds, got {float(sample_time_s):g}")
+    desired_poles(model, zeta)  # checks zeta
+    w, which = fastest_pole(model, zeta=zeta, observer=observer, observer_factor=observer_factor)
+    t_max = 2.0 * np.pi / (min_samples_per_period * w)
+    if sample_time_s > t_max:
+        raise ValueError(
+            f"sample_time_s {sample_time_s:g} s is too long: the fastest {which} pole (|s| = {w:.4g} rad/s, period "
+            f"2 pi/|s| = {2e3 * np.pi / w:.3g} ms) needs at least {min_samples_per_period:g} samples per period, "
+            f"i.e. a sample time <= {_floor_digits(t_max * 1e3, 4):g} ms"
+        )
     if balanced:
         model = balance(model)
     dsys = discretize(model, sample_time_s)
@@ -236,14 +379,14 @@ def design_placement(
     K = _place(Ad, Bd, p_z)
     idx = [_output_index(dsys, m) for m in measured]
     Cm = np.asarray(dsys.C)[idx]
+    _check_placed(np.linalg.eigvals(Ad - Bd @ K), p_s, T, "controller")
     if observer == "placement":
         po_s = observer_factor * p_s
         po_z = np.exp(po_s * T)
         L = _place(Ad.T, Cm.T, po_z).T
+        _check_placed(np.linalg.eigvals(Ad - L @ Cm), po_s, T, "observer")
         cov = None
     else:
-        if input_noise_std is None or measurement_noise_std is None or len(measurement_noise_std) != len(measured):
-            raise ValueError("a Kalman observer needs input_noise_std and one measurement_noise_std per measured output")
         QN = np.array([[input_noise_std**2]])
         RN = np.diag(np.asarray(measurement_noise_std, float) ** 2)
         # dlqe gives L for x_e[n+1] = A x_e + B u + L (y - C x_e - D u): a prediction estimator, as used here

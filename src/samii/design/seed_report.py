@@ -14,13 +14,17 @@ Sources: eq 8.x from the eq 1.4 fit through the chapter-5 canonical form
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from samii import notebook as nb
 
-__all__ = ["SeedEntry", "SeedReport", "seed_report", "half_unit_of_last_digit", "ZETA_EQ8_3"]
+__all__ = ["SeedEntry", "SeedReport", "seed_report", "half_unit_of_last_digit", "ZETA_EQ8_3", "STEPS"]
+
+#: The stages of :func:`seed_report`, in order (each reported to its ``progress`` callback when done).
+STEPS = ("eq 8.1-8.3", "eq 10.1-10.9", "chapter-10 gain analysis")
 
 #: Damping used for eq 8.3 (:data:`samii.notebook.EQ8_3_ZETA` = 1/sqrt(2)). The notebook does not
 #: print it; 1/sqrt(2) reproduces every printed digit, 0.707 misses the last digit of two real parts.
@@ -139,9 +143,16 @@ def _wrap(text: str, width: int) -> list[str]:
     return textwrap.wrap(text, width)
 
 
-def seed_report(*, sample_time_s: float | None = None) -> SeedReport:
-    """Recompute eq 8.1-8.3 (from eq 1.4) and eq 10.1-10.9 and the gain (from eq 9.4)."""
+def seed_report(*, sample_time_s: float | None = None, progress: Callable[[str], None] | None = None) -> SeedReport:
+    """Recompute eq 8.1-8.3 (from eq 1.4) and eq 10.1-10.9 and the gain (from eq 9.4).
+
+    ``progress(step)`` is called after each of :data:`STEPS` (the last, the gain analysis, takes most of the time).
+    """
     from samii.design import cancel, canonical, placement
+
+    def done(step: str) -> None:
+        if progress is not None:
+            progress(step)
 
     entries = []
     # chapter 8, eq 1.4, 1-accelerometer canonical form (chapter 5)
@@ -158,6 +169,8 @@ def seed_report(*, sample_time_s: float | None = None) -> SeedReport:
         f"{_fmt(alt[4])}, one unit off in the last printed digit of the real part, so the notebook used 1/sqrt(2)."
     )
     entries.append(SeedEntry("eq8_3", "desired poles (complex poles of eq 8.2 moved to zeta at the same magnitude)", e83, np.array(nb.EQ8_3, complex), _within(e83, nb.EQ8_3), note83))
+
+    done(STEPS[0])
 
     # chapter 10, eq 9.4
     design = cancel.design_pole_cancel(nb.EQ9_4, loop="theta")
@@ -197,9 +210,11 @@ def seed_report(*, sample_time_s: float | None = None) -> SeedReport:
     entries.append(SeedEntry("eq10_9_num", "compensator numerator, highest power first", num, np.array(nb.EQ10_9_NUM), _within(num, nb.EQ10_9_NUM), note_num))
     entries.append(SeedEntry("eq10_9_den", "compensator denominator, highest power first", den, np.array(nb.EQ10_9_DEN), _within(den, nb.EQ10_9_DEN), note_den))
 
+    done(STEPS[1])
     gain_details = gain_analysis()
     g = np.array(design.gain)
     entries.append(SeedEntry("eq10_gain", "compensator gain from the root locus (zeta ~ 0.7)", g, np.array(nb.EQ10_GAIN), _within(g, nb.EQ10_GAIN), _gain_note(gain_details), gain_details))
+    done(STEPS[2])
     return SeedReport(tuple(entries))
 
 

@@ -30,7 +30,7 @@ def plot_cancel_locus(design, *, notebook_gain: float | None = None, path: str |
     ks = np.linspace(0.0, kmax, n_gains)
     rl = control.root_locus_map(design.open_loop, gains=ks)
     loci = np.asarray(rl.loci)
-    fig, axes = plt.subplots(1, 2, figsize=(12, 5.5))
+    fig, axes = plt.subplots(1, 2, figsize=(15, 7.5), layout="constrained")
     for ax, zoom in zip(axes, (False, True)):
         for j in range(loci.shape[1]):
             ax.plot(loci[:, j].real, loci[:, j].imag, "-", color="C0", lw=1.0, label=f"closed-loop poles, K 0 to {kmax:.4g}" if j == 0 else None)
@@ -44,26 +44,28 @@ def plot_cancel_locus(design, *, notebook_gain: float | None = None, path: str |
             ax.plot(nbp.real, nbp.imag, "^", mfc="none", color="C1", ms=8, label=f"notebook's K = {notebook_gain:g}: zeta {zetas(notebook_gain)}")
         r = np.array([0.0, 400.0])
         ax.plot(-0.7 * r, np.sqrt(1 - 0.49) * r, "--", color="0.5", lw=0.8, label="damping ratio 0.7")
-        ax.axvline(0, color="0.6", lw=0.8)
-        ax.set_xlabel("real part [1/s]")
-        ax.set_ylabel("imaginary part [rad/s]")
+        ax.axvline(0, color="0.45", lw=1.0)
+        ax.axvspan(0.0, 30.0, color="C3", alpha=0.07, lw=0, label="unstable region (Re s > 0)")
+        ax.set_xlabel("real part [1/s]", fontsize=11)
+        ax.set_ylabel("imaginary part [rad/s]", fontsize=11)
+        ax.tick_params(labelsize=10)
         if zoom:
             ax.set_xlim(-70, 5)
             ax.set_ylim(-5, 70)
-            ax.set_title("zoom near the origin", fontsize=9)
+            ax.set_title("zoom near the origin", fontsize=12)
         else:
             ax.set_xlim(-220, 20)
             ax.set_ylim(-5, 200)
-            ax.set_title("full", fontsize=9)
+            ax.set_title("full", fontsize=12)
         ax.grid(True, alpha=0.3)
-    axes[0].legend(fontsize=7, loc="upper left")
+    # one legend below both panels, where it covers no branch
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncols=2, fontsize=10.5)
     fig.suptitle(
         f"Chapter 10 pole-cancelling compensator on eq 9.4, '{design.loop}' loop: root locus in K (1 + K L = 0); "
         "our K: slowest moving pair at zeta 0.7",
-        fontsize=10,
+        fontsize=13,
     )
-    fig.tight_layout()
     if path is not None:
-        fig.savefig(path, dpi=80)
+        fig.savefig(path, dpi=100)
         plt.close(fig)
     return fig

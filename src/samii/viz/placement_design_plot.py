@@ -33,7 +33,7 @@ def plot_pole_sets(design, *, path: str | Path | None = None):
     ]
     if design.observer_poles_s is not None:
         sets.append(("observer, 2x desired", design.observer_poles_s, "s", "C2"))
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 5.2))
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(15, 7), layout="constrained")
     for label, p, m, c in sets:
         a1.plot(p.real, p.imag, m, color=c, mfc="none", ms=8, mew=1.4, label=label)
         z = np.exp(p * T)
@@ -43,24 +43,25 @@ def plot_pole_sets(design, *, path: str | Path | None = None):
         z = np.asarray(design.observer_poles_z)
         z = z[z.imag >= 0]
         a2.plot(z.real, z.imag, "s", color="C2", mfc="none", ms=8, label="Kalman filter poles")
-    a1.set_xlabel("real part [1/s]")
-    a1.set_ylabel("imaginary part [rad/s]")
-    a1.set_title("continuous poles (s plane)")
+    a1.set_xlabel("real part [1/s]", fontsize=11)
+    a1.set_ylabel("imaginary part [rad/s]", fontsize=11)
+    a1.set_title("continuous poles (s plane)", fontsize=12)
     a1.axvline(0, color="0.6", lw=0.8)
     a1.grid(True, alpha=0.3)
-    a1.legend(fontsize=8)
     th = np.linspace(0, np.pi / 2, 200)
     a2.plot(np.cos(th), np.sin(th), "-", color="0.6", lw=0.8, label="unit circle")
     a2.set_xlim(0.6, 1.02)
     a2.set_ylim(-0.01, 0.2)
-    a2.set_xlabel("real part of z")
-    a2.set_ylabel("imaginary part of z")
-    a2.set_title(f"digital poles z = exp(s T), T = {T * 1e3:g} ms; Im z >= 0 (conjugates omitted)", fontsize=10)
-    a2.legend(fontsize=8, loc="upper left")
+    a2.set_xlabel("real part of z", fontsize=11)
+    a2.set_ylabel("imaginary part of z", fontsize=11)
+    a2.set_title(f"digital poles z = exp(s T), T = {T * 1e3:g} ms; Im z >= 0 (conjugates omitted)", fontsize=12)
     a2.grid(True, alpha=0.3)
-    fig.suptitle("Chapter 8 pole placement on the eq 1.4 model (1 accelerometer, canonical form of chapter 5)", fontsize=10)
-    fig.tight_layout()
+    for ax in (a1, a2):
+        ax.tick_params(labelsize=10)
+    # one legend below both panels (the z-plane's entries include the s-plane's), covering no pole
+    fig.legend(*a2.get_legend_handles_labels(), loc="outside lower center", ncols=3, fontsize=10.5)
+    fig.suptitle("Chapter 8 pole placement on the eq 1.4 model (1 accelerometer, canonical form of chapter 5)", fontsize=13)
     if path is not None:
-        fig.savefig(path, dpi=80)
+        fig.savefig(path, dpi=100)
         plt.close(fig)
     return fig
