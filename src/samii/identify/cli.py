@@ -1,4 +1,11 @@
-"""``samii fit FRF.csv``: fit the notebook's models to a frequency-response file.
+"""``samii fit FRF``: fit the notebook's models to a frequency-response file (CSV or rig-era .mat).
+
+Every option is checked when the command line is parsed (``samii.cli_args``);
+the output folder (``--out``) is checked before any work and written all or
+nothing (``samii.outputs.OutputFolder``). Input a user can fix raises
+:class:`samii.errors.InputError` naming the file or the option: one line on
+stderr, exit code 2. Long fits show their progress on stderr (a terminal
+only; ``--no-progress`` turns it off).
 
 Imports nothing heavy at module level (the ``samii`` command imports every
 stage's cli module to build its help).
@@ -7,30 +14,56 @@ stage's cli module to build its help).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
+from pathlib import Path
 
-__all__ = ["add_arguments", "run"]
+from samii.cli_args import float_in, int_in, nonempty_path, positive_float
+from samii.errors import InputError
+
+__all__ = ["add_arguments", "run", "MAX_MODES", "MAX_PHASE_WEIGHT", "MAX_PHASE_WEIGHTS", "MAX_AVERAGES"]
+
+#: Most base modes: each adds three parameters, and a swept sine over 0.1-40 Hz shows about three.
+MAX_MODES = 10
+#: Largest phase weight: at 100 one degree of phase error counts as 100 dB, and the magnitude no longer counts.
+MAX_PHASE_WEIGHT = 100.0
+#: Most fits of one ``--phase-weights`` sweep (chapter 9 swept 6).
+MAX_PHASE_WEIGHTS = 20
+#: Most averages behind a coherence (a swept sine has a few; a random test some hundreds).
+MAX_AVERAGES = 10000
+#: Seconds a fit runs before its progress is shown.
+PROGRESS_DELAY_S = 1.0
+
+_phase_weight = float_in(0.0, MAX_PHASE_WEIGHT)
 
 
-def _weights(text: str) -> list[float]:
-    try:
-        values = [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers like 0,0.1,0.2, got {text!r}") from None
-    if not values or any(v < 0 for v in values):
-        raise argparse.ArgumentTypeError(f"expected non-negative phase weights, got {text!r}")
+def _phase_weights(text: str) -> list[float]:
+    """Comma-separated phase weights, each in 0...MAX_PHASE_WEIGHT, no two writing the same file."""
+    cells = [c.strip() for c in text.split(",") if c.strip()]
+    if not cells:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers like 0,0.1,0.2, got {text!r}")
+    if len(cells) > MAX_PHASE_WEIGHTS:
+        raise argparse.ArgumentTypeError(f"expected at most {MAX_PHASE_WEIGHTS} weights (one fit each), got {len(cells)}")
+    values = [_phase_weight(c) for c in cells]  # ArgumentTypeError names the bad one
+    names = [f"{v:g}" for v in values]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise argparse.ArgumentTypeError(f"weight {', '.join(twice)} given twice; expected different weights (each writes fit_pw<W>.json)")
     return values
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("frf", metavar="FRF.csv", help="frequency-response CSV (DATA_FORMATS.md): act and/or base channels, optional coherence")
-    parser.add_argument("--modes", type=int, default=3, metavar="N", help="number of base modes (default 3, eq 9.2; 2 is eq 1.2 with B_k w_k^2 gains)")
+    parser.add_argument("frf", metavar="FRF", type=nonempty_path,
+                        help="frequency response: a CSV (DATA_FORMATS.md: freq_hz, act and/or base channels, optional coherence) "
+                        "or a rig-era MATLAB .mat (the notebook's mean_io_mr/_ph, mean_a2_j2a_mr/_ph)")
+    parser.add_argument("--modes", type=int_in(1, MAX_MODES), default=3, metavar="N",
+                        help=f"number of base modes, 1-{MAX_MODES} (default 3, eq 9.2; 2 is eq 1.2 with B_k w_k^2 gains)")
     parser.add_argument("--numerator", choices=("s4", "s2"), default="s4", help="power of s in front of xdd/theta's modal sum (default s4, chapter 2)")
     g = parser.add_mutually_exclusive_group()
-    g.add_argument("--phase-weight", type=float, default=None, metavar="W", help="weight on the phase error in degrees (default 0.1, the notebook's eq 9.4)")
-    g.add_argument("--phase-weights", type=_weights, default=None, metavar="W1,W2,...", help="one fit per weight (chapter 9 swept 0,0.1,0.2,0.3,0.4,0.5)")
-    parser.add_argument("--band-hz", type=float, nargs=2, metavar=("LO", "HI"), help="fit only LO <= f <= HI Hz (eq 1.4 used 1 12)")
+    g.add_argument("--phase-weight", type=_phase_weight, default=None, metavar="W",
+                   help=f"weight on the phase error in degrees, 0-{MAX_PHASE_WEIGHT:g} (default 0.1, the notebook's eq 9.4)")
+    g.add_argument("--phase-weights", type=_phase_weights, default=None, metavar="W1,W2,...",
+                   help=f"one fit per weight, at most {MAX_PHASE_WEIGHTS} (chapter 9 swept 0,0.1,0.2,0.3,0.4,0.5)")
+    parser.add_argument("--band-hz", type=positive_float, nargs=2, metavar=("LO", "HI"), help="fit only LO <= f <= HI Hz (eq 1.4 used 1 12)")
     parser.add_argument(
         "--start",
         choices=("notebook", "auto"),
@@ -46,42 +79,207 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "the random error its coherence predicts (Bendat & Piersol), so badly measured points count less, needs *_coh columns; "
         "auto (default): coherence when the file has it for every fitted channel, else none",
     )
-    parser.add_argument("--averages", type=int, default=None, metavar="N", help="averages behind the coherence, for the lack-of-fit test (default: the file's frf_records, else 3)")
-    parser.add_argument("--out", metavar="DIR", help="write fit JSON and overlay Bode plots here")
+    parser.add_argument("--averages", type=int_in(1, MAX_AVERAGES), default=None, metavar="N",
+                        help="averages behind the coherence, for the lack-of-fit test (default: the file's frf_records, else 3)")
+    parser.add_argument("--mat-freq-name", metavar="NAME", default=None,
+                        help="name of the frequency vector in a .mat file (default: the first of freq_hz, freq, f, frequency, hz, fr, ...)")
+    parser.add_argument("--mat-freq-unit", choices=("hz", "rad/s"), default="hz", help="unit of that vector (default hz)")
+    parser.add_argument("--out", metavar="DIR", type=nonempty_path,
+                        help="write fit.json (fit_pw<W>.json per weight), bode_fit.png and, for --phase-weights, parameters.png here")
     parser.add_argument("--overwrite", action="store_true", help="replace files already in --out")
-    parser.add_argument("--json", action="store_true", help="print machine-readable results (one object, or a list for --phase-weights)")
+    parser.add_argument("--json", action="store_true",
+                        help="print machine-readable results (one object, or a list for --phase-weights); numbers that are not "
+                        "defined (a parameter not fitted, the infinite standard error of one the data do not determine) are null")
+    parser.add_argument("--no-progress", action="store_true", help="no progress display on stderr")
+
+
+# --------------------------------------------------------------------------- reading the file
+
+
+def _head(path: Path, size: int = 65536) -> bytes:
+    """The first ``size`` bytes of a regular file (never opens a FIFO or a device), else b""."""
+    if not path.is_file():
+        return b""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(size)
+    except OSError:
+        return b""
+
+
+def _is_mat(path: Path) -> bool:
+    """A .mat suffix, or the header of a MATLAB v5+ file under another name."""
+    return path.suffix.lower() == ".mat" or _head(path, 6) == b"MATLAB"
+
+
+def _csv_header(path: Path) -> list[str]:
+    """Column names of a CSV's header row (the first line neither blank nor a comment), or [] if none is found."""
+    text = _head(path).decode("utf-8", errors="replace")
+    for line in text.splitlines():
+        line = line.strip()
+        if line and not line.startswith("#"):
+            return [c.strip() for c in line.split(",")]
+    return []
+
+
+def _csv_line_of_row(path: Path, row: int) -> int | None:
+    """1-based file line of data row ``row`` (0-based) of a CSV read by ``read_frf_csv``."""
+    seen_header = False
+    k = -1
+    with open(path, encoding="utf-8", errors="replace", newline=None) as fh:
+        for number, line in enumerate(fh, start=1):
+            line = line.strip()
+            if not line or line.startswith("#"):
+                continue
+            if not seen_header:
+                seen_header = True
+                continue
+            k += 1
+            if k == row:
+                return number
+    return None
+
+
+def _read(args):
+    """The file as a FrequencyResponse; InputError naming the file for anything a user can fix."""
+    from samii.identify.cost import frequency_out_of_range
+    from samii.measure.io import DataFormatError, read_frf_csv, read_mat_bode
+
+    path = Path(args.frf)
+    mat = _is_mat(path)
+    if mat:
+        try:
+            data = read_mat_bode(path, freq_name=args.mat_freq_name, freq_unit=args.mat_freq_unit)
+        except DataFormatError as exc:  # the library names its arguments: name the options
+            text = str(exc)
+            if text.endswith("pass freq_name="):
+                text = text[: -len("freq_name=")] + "--mat-freq-name NAME"
+            elif "freq_unit" in text:
+                text += " (samii fit: --mat-freq-unit rad/s)"
+            raise InputError(text) from None
+    else:
+        given = [o for o, v in (("--mat-freq-name", args.mat_freq_name is not None), ("--mat-freq-unit", args.mat_freq_unit != "hz")) if v]
+        if given:
+            raise InputError(f"{' and '.join(given)}: only for a .mat file; {path} is read as an FRF CSV")
+        try:
+            data = read_frf_csv(path)
+        except DataFormatError:
+            header = _csv_header(path)
+            if "t" in header and "freq_hz" not in header:
+                shown = ", ".join(header[:6]) + (", ..." if len(header) > 6 else "")
+                raise InputError(f"{path}: this is a time series (columns {shown}), not a frequency response; samii fit expects an FRF: "
+                                 "a CSV with freq_hz and <channel>_mag/<channel>_phase_deg columns (DATA_FORMATS.md, as samii measure "
+                                 "writes frf.csv) or a rig-era .mat") from None
+            raise
+    bad = frequency_out_of_range(data.freq_hz)
+    if bad is not None:
+        k, reason = bad
+        if mat:
+            where = f"{path}, variable {data.metadata.get('freq_vector', '?')!r}, element {k + 1}"
+        else:
+            line = _csv_line_of_row(path, k)
+            where = f"{path}, line {line}, column 'freq_hz'" if line is not None else f"{path}, data row {k + 1}"
+        raise InputError(f"{where}: {reason}")
+    return data
+
+
+# --------------------------------------------------------------------------- progress
+
+
+class _Progress:
+    """Progress of the whole command on stderr: a terminal only, and only once the run has taken PROGRESS_DELAY_S."""
+
+    def __init__(self, label: str, n_fits: int, *, enabled: bool):
+        import time
+
+        from tqdm import tqdm
+
+        self._clock = time.monotonic
+        self._start = self._clock()
+        self.fit_index = 0
+        self.bar = tqdm(total=n_fits, desc=label, unit="fit", delay=PROGRESS_DELAY_S, leave=False, file=sys.stderr, dynamic_ncols=True,
+                        disable=None if enabled else True, bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}{postfix}")
+
+    def _show(self, what: str) -> None:
+        self.bar.set_postfix_str(what, refresh=False)
+        if self._clock() - self._start >= PROGRESS_DELAY_S:
+            self.bar.refresh()
+
+    def stage(self, what: str) -> None:
+        self._show(what)
+
+    def fit_step(self, done: int, total: int, what: str) -> None:
+        """``fit``'s progress callback: stage ``done`` of ``total`` of the current fit (``done`` repeats within a long stage)."""
+        self.bar.n = self.fit_index + done / total
+        self._show(what)
+
+    def next_fit(self) -> None:
+        self.fit_index += 1
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+# --------------------------------------------------------------------------- the command
+
+
+def _library_error(path: str, exc: Exception) -> InputError:
+    """A fit's ValueError/KeyError as bad input naming the file."""
+    text = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
+    return InputError(text if text.startswith(str(path)) else f"{path}: {text}")
 
 
 def run(args: argparse.Namespace) -> int:
+    weights = args.phase_weights if args.phase_weights is not None else [0.1 if args.phase_weight is None else args.phase_weight]
+    if args.band_hz and not args.band_hz[0] < args.band_hz[1]:
+        raise InputError(f"--band-hz {args.band_hz[0]:g} {args.band_hz[1]:g}: expected LO < HI")
+    folder = None
+    if args.out is not None:
+        from samii.identify.report import fit_output_names
+        from samii.outputs import OutputFolder
+
+        folder = OutputFolder(args.out, fit_output_names(weights), overwrite=args.overwrite)
+
     import numpy as np
 
     from samii.identify.fit import fit
-    from samii.identify.report import summary_dict, write_fit_outputs
+    from samii.identify.report import json_text, summary_dict, write_fit_outputs
     from samii.identify.structures import ModelStructure
-    from samii.measure.io import read_frf_csv
 
-    weights = args.phase_weights if args.phase_weights is not None else [0.1 if args.phase_weight is None else args.phase_weight]
+    progress = _Progress(f"samii fit {args.frf}", len(weights), enabled=not args.no_progress)
     try:
-        if args.phase_weight is not None and args.phase_weight < 0:
-            raise ValueError(f"--phase-weight must be >= 0, got {args.phase_weight}")
-        if args.averages is not None and args.averages < 1:
-            raise ValueError(f"--averages must be >= 1, got {args.averages}")
+        progress.stage("reading")
+        data = _read(args)
         structure = ModelStructure(n_modes=args.modes, numerator=args.numerator)
-        data = read_frf_csv(args.frf)
         if args.weighting == "coherence":
             lacking = [c for c in data.channels if data.coherence(c) is None]
             if lacking:
-                raise ValueError(f"{args.frf}: --weighting coherence needs coherence, but channel(s) {', '.join(lacking)} have no *_coh column")
-        rng = np.random.default_rng(0)
+                raise InputError(f"{args.frf}: --weighting coherence needs coherence, but channel(s) {', '.join(lacking)} have no *_coh column")
         band = tuple(args.band_hz) if args.band_hz else None
-        results = [fit(data, structure, phase_weight=w, band_hz=band, weighting=args.weighting, start=args.start or "both", rng=rng, n_averages=args.averages) for w in weights]
-        written = write_fit_outputs(data, results, args.out, overwrite=args.overwrite, note=f"data: {args.frf}") if args.out else []
-    except (OSError, ValueError, KeyError) as exc:  # DataFormatError is a ValueError
-        print(f"samii fit: error: {exc}", file=sys.stderr)
-        return 2
+        if band is not None and not np.any((data.freq_hz >= band[0]) & (data.freq_hz <= band[1])):
+            raise InputError(f"{args.frf}: --band-hz {band[0]:g} {band[1]:g}: no frequency point in the band (the data span "
+                             f"{data.freq_hz[0]:g}-{data.freq_hz[-1]:g} Hz)")
+        rng = np.random.default_rng(0)
+        results = []
+        for w in weights:
+            try:
+                results.append(fit(data, structure, phase_weight=w, band_hz=band, weighting=args.weighting, start=args.start or "both",
+                                   rng=rng, n_averages=args.averages, progress=progress.fit_step))
+            except np.linalg.LinAlgError:
+                raise  # numerical trouble: a defect, reported as an internal error
+            except (ValueError, KeyError) as exc:  # the data cannot be fitted as asked (InputError included)
+                raise _library_error(args.frf, exc) from None
+            progress.next_fit()
+        if folder is not None:
+            progress.stage("writing plots")
+            with folder:
+                write_fit_outputs(data, results, folder, note=f"data: {args.frf}")
+    finally:
+        progress.close()
+    written = folder.written if folder is not None else []
     if args.json:
         out = [summary_dict(r) for r in results]
-        print(json.dumps(out[0] if len(out) == 1 else out, indent=2))
+        print(json_text(out[0] if len(out) == 1 else out))
         return 0
     r0 = results[0]
     weighting = "coherence (points weighted by their predicted random error)" if r0.weighting == "coherence" else "none (the notebook's cost)"

@@ -37,7 +37,7 @@ import numpy as np
 from samii.frequency_response import Channel, FrequencyResponse
 from samii.identify.structures import ModelStructure
 
-__all__ = ["DB_PER_NEPER", "DEG_PER_RAD", "Weighting", "FitProblem", "notebook_cost"]
+__all__ = ["DB_PER_NEPER", "DEG_PER_RAD", "FREQ_RANGE_HZ", "Weighting", "FitProblem", "frequency_out_of_range", "notebook_cost", "thinning_step"]
 
 #: 20 log10|H| = DB_PER_NEPER * ln|H|.
 DB_PER_NEPER = 20.0 / np.log(10.0)
@@ -46,8 +46,32 @@ DEG_PER_RAD = 180.0 / np.pi
 #: 0.999 because a 3-average estimate cannot resolve coherence closer to 1
 #: (and noise-free data have exactly 1); 0.01 to keep weights finite.
 COHERENCE_CLIP = (0.01, 0.999)
+#: Frequencies [Hz] a fit accepts: 1e-6 Hz (one cycle in 11.6 days, longer than any
+#: record) to 1e6 Hz (far above the hydraulics, the beam and the sensors). The
+#: model's own frequencies are bounded to 1e-3...1e6 rad/s (``fit.BOUNDS``); far
+#: outside, its s^4 numerator underflows to 0 (below about 1e-77 Hz) and the
+#: cost and its Jacobian are no longer numbers.
+FREQ_RANGE_HZ = (1e-6, 1e6)
 
 Weighting = Literal["none", "coherence"]
+
+
+def thinning_step(n_points: int, max_points: int) -> int:
+    """The smallest k such that every k-th of ``n_points`` points are at most ``max_points``."""
+    return max(1, -(-int(n_points) // int(max_points)))
+
+
+def frequency_out_of_range(freq_hz: np.ndarray) -> tuple[int, str] | None:
+    """(index, reason) of the first frequency outside ``FREQ_RANGE_HZ``, or None if all are inside."""
+    f = np.asarray(freq_hz, float)
+    lo, hi = FREQ_RANGE_HZ
+    bad = np.flatnonzero(~((f >= lo) & (f <= hi)))
+    if bad.size == 0:
+        return None
+    k = int(bad[0])
+    return k, (f"frequency {float(f[k]):g} Hz is outside {lo:g}...{hi:g} Hz, the range a fit of this model accepts "
+               f"({lo:g} Hz is one cycle in {1 / lo / 86400:.3g} days; the model's frequencies are bounded to "
+               "1e-3...1e6 rad/s and its s^4 terms underflow far below)")
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
@@ -85,16 +109,21 @@ class FitProblem:
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.phase_weight) or self.phase_weight < 0:
-            raise ValueError(f"phase_weight must be finite and >= 0, got {self.phase_weight}")
+            raise ValueError(f"phase_weight must be finite and >= 0, got {float(self.phase_weight):g}")
         if self.weighting not in get_args(Weighting):
             raise ValueError(f"weighting must be one of {get_args(Weighting)}, got {self.weighting!r}")
         data = self.data
         if self.band_hz is not None:
             lo, hi = (float(v) for v in self.band_hz)
             if not 0 < lo < hi:
-                raise ValueError(f"band_hz must be 0 < lo < hi, got {self.band_hz}")
+                raise ValueError(f"band_hz must be 0 < lo < hi, got {lo:g} {hi:g}")
+            if not np.any((data.freq_hz >= lo) & (data.freq_hz <= hi)):
+                raise ValueError(f"no frequency point in the band {lo:g}-{hi:g} Hz (the data span {data.freq_hz[0]:g}-{data.freq_hz[-1]:g} Hz)")
             data = data.band(lo, hi)
             object.__setattr__(self, "band_hz", (lo, hi))
+        out_of_range = frequency_out_of_range(data.freq_hz)
+        if out_of_range is not None:
+            raise ValueError(f"point {out_of_range[0] + 1} of the data: {out_of_range[1]}")
         object.__setattr__(self, "data", data)
         channels = self.channels
         if channels is None:
@@ -103,7 +132,7 @@ class FitProblem:
                 channels += ("total",)  # xdd/v stands in for a missing xdd/theta
         missing = [c for c in channels if c not in data.channels]
         if missing:
-            raise ValueError(f"channels {missing} are not in the data (has {data.channels})")
+            raise ValueError(f"channel(s) {', '.join(map(str, missing))} not in the data (it has {', '.join(data.channels)})")
         object.__setattr__(self, "channels", tuple(channels))
         n_min = int(self.fitted.sum())
         if self.n_residuals < n_min:
@@ -113,7 +142,7 @@ class FitProblem:
         for c in channels:
             h = data.response(c)
             if np.any(h == 0):
-                raise ValueError(f"channel {c} has a zero response at {data.freq_hz[np.flatnonzero(h == 0)[0]]} Hz; its dB error is undefined")
+                raise ValueError(f"channel {c} has a zero response at {float(data.freq_hz[np.flatnonzero(h == 0)[0]]):g} Hz; its dB error is undefined")
             inv[c] = 1.0 / h  # stored as the reciprocal: log(H_model / H_data) is one complex log
             coh = data.coherence(c)
             # noise profile: variance of log H at each point, up to one common factor
@@ -130,6 +159,32 @@ class FitProblem:
         object.__setattr__(self, "_inv_data", inv)
         object.__setattr__(self, "_weights", weights)
         object.__setattr__(self, "_noise", noise)
+
+    # -- size ------------------------------------------------------------------------
+    @property
+    def n_points(self) -> int:
+        """Frequency points in the cost (after the band)."""
+        return int(self.data.freq_hz.size)
+
+    def thinned(self, max_points: int) -> "FitProblem":
+        """The same problem on every k-th frequency point, k the smallest giving at most ``max_points``.
+
+        Taking every k-th point keeps the data's spacing (log or linear), so the
+        thinned cost is about the full one divided by k: its minimum lies near
+        the full problem's. ``self`` if it has ``max_points`` or fewer.
+        """
+        k = thinning_step(self.n_points, max_points)
+        if k == 1:
+            return self
+        d = self.data
+        kw = {}
+        for c in d.channels:
+            kw[c] = d.response(c)[::k]
+            coh = d.coherence(c)
+            if coh is not None:
+                kw[f"{c}_coh"] = coh[::k]
+        data = FrequencyResponse(d.freq_hz[::k], metadata=d.metadata, **kw)
+        return FitProblem(data, self.structure, phase_weight=self.phase_weight, channels=self.channels, weighting=self.weighting)
 
     # -- what the channels determine -------------------------------------------------
     @property

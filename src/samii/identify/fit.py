@@ -11,6 +11,12 @@ relative steps) and gains as multiples of their start. Every start is first
 moved onto the data's resonance peaks (``starts.snap_to_peaks``): a mode
 frequency tens of percent off otherwise leads into the wrong basin.
 
+Many points (an FFT's thousands of lines): the starts are searched on every
+k-th point, at most ``SEARCH_POINTS`` = 1000 (``FitProblem.thinned``), and the
+best is refined on all points, so a fit's time grows linearly with the points
+(benchmarks/fit_scale.py). Convergence, uncertainty and lack of fit are those of
+all points.
+
 Convergence is reported as the solver's status together with the notebook's
 own test (every coefficient and the cost changing by less than 0.01 %),
 applied to the solver's last two iterates, and with how many starts reached
@@ -40,15 +46,14 @@ zp and tau.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Literal, Mapping, Sequence
+from typing import Callable, Literal, Mapping, Sequence
 
 import numpy as np
 
 from samii.frequency_response import Channel, FrequencyResponse
-from samii.identify.cost import FitProblem, Weighting
+from samii.identify.cost import FitProblem, Weighting, thinning_step
 from samii.identify.lack_of_fit import LackOfFit, lack_of_fit
 from samii.identify.notebook_loop import NOTEBOOK_TOL_PCT, PercentChange, percent_change
 from samii.identify.starts import auto_start, notebook_start, perturbed_start, snap_to_peaks
@@ -70,6 +75,14 @@ _PENALTY = 1e8
 _TOL = 1e-10
 
 StartSpec = Literal["notebook", "auto", "both"] | Mapping[str, float]
+#: ``progress(done, total, what)``: called after each stage of a fit (a start solved, the refinement, the diagnosis).
+Progress = Callable[[int, int, str], None]
+
+#: Starts are searched on at most this many frequency points (every k-th point of larger data,
+#: ``FitProblem.thinned``); the best is then refined on all points. Keeps a fit's cost linear in
+#: the number of points (the searches cost as much as for 1000 points, the refinement a few
+#: iterations on all of them) and the peak-picking of the starts at the resolution it was made for.
+SEARCH_POINTS = 1000
 
 
 def _bounds(structure: ModelStructure) -> tuple[np.ndarray, np.ndarray]:
@@ -113,6 +126,9 @@ class FitResult:
         Bands where the residuals exceed the data's random error (``samii.identify.lack_of_fit``).
     not_fitted : tuple of str
         Parameters no fitted channel depends on: NaN in ``params`` and ``stderr``.
+    starts : tuple of (label, start cost, final cost)
+        Every start solved; on data thinned for the search (more than
+        ``SEARCH_POINTS`` points) the costs are those of the search points.
     """
 
     structure: ModelStructure
@@ -186,7 +202,13 @@ class FitResult:
 
     # -- report -----------------------------------------------------------------------
     def to_dict(self) -> dict:
-        """JSON-ready summary; the first keys are those of ``samii fit --json``."""
+        """JSON-ready summary; the first keys are those of ``samii fit --json``.
+
+        A number that is not defined is None (null in JSON): ``params`` and
+        ``stderr`` of a parameter not fitted, the ``stderr`` of a parameter the
+        data do not determine (infinite; a warning names it), a correlation
+        with such a parameter. ``to_json`` makes every other non-finite number null too.
+        """
 
         def num(v: float):
             return float(v) if np.isfinite(v) else None
@@ -195,7 +217,7 @@ class FitResult:
         return {
             "params": {k: num(v) for k, v in self.params.items()},
             "stderr": {k: num(v) for k, v in self.stderr.items()},
-            "cost": float(self.cost),
+            "cost": num(self.cost),
             "rms_mag_db": {k: float(v) for k, v in self.rms_mag_db.items()},
             "rms_phase_deg": {k: float(v) for k, v in self.rms_phase_deg.items()},
             "converged": bool(self.converged),
@@ -223,7 +245,10 @@ class FitResult:
         }
 
     def to_json(self, **kwargs) -> str:
-        return json.dumps(self.to_dict(), **kwargs)
+        """Strict JSON of ``to_dict`` (RFC 8259: non-finite numbers are null, never NaN or Infinity)."""
+        from samii.json_output import dumps
+
+        return dumps(self.to_dict(), **kwargs)
 
     def table(self) -> str:
         """Plain-text parameter table: value, standard error, relative error."""
@@ -272,7 +297,9 @@ class _Solution:
 def _levenberg_marquardt(evaluate, z0: np.ndarray, *, ftol: float, xtol: float, gtol: float, max_nfev: int, on_accept=None, small_step=None) -> _Solution:
     """Levenberg-Marquardt on the normal equations, with MINPACK's scaling and stopping tests.
 
-    ``evaluate(z) -> (r, J, ...)``. Each step solves ``(J'J + mu D) h = -J'r``
+    ``evaluate(z) -> (r, J'J, J'r, ...)``: the solver needs the Jacobian J only
+    through these (n x n and n), so the caller may form them without keeping a
+    scaled copy of J. Each step solves ``(J'J + mu D) h = -J'r``
     with ``D`` the running maximum of diag(J'J) (MINPACK's scaling, so the
     step does not depend on the units of z); ``mu`` follows Nielsen's update
     (Madsen, Nielsen & Tingleff, *Methods for non-linear least squares
@@ -289,12 +316,11 @@ def _levenberg_marquardt(evaluate, z0: np.ndarray, *, ftol: float, xtol: float, 
     after the cost has settled).
     """
     z = np.array(z0, float)
-    r, J = evaluate(z)[:2]
+    r, A, g = evaluate(z)[:3]
     nfev = 1
     cost = float(r @ r)
     if on_accept:
         on_accept(z, cost)
-    A, g = J.T @ J, J.T @ r
     D = np.maximum(np.diag(A).copy(), np.finfo(float).tiny)
     mu, nu = 1e-3, 2.0
     status = 0
@@ -322,7 +348,7 @@ def _levenberg_marquardt(evaluate, z0: np.ndarray, *, ftol: float, xtol: float, 
         dn = np.sqrt(D)
         step_small = np.linalg.norm(dn * h) <= xtol * (np.linalg.norm(dn * z) + xtol)
         z_new = z + h
-        r_new, J_new = evaluate(z_new)[:2]
+        r_new, A_new, g_new = evaluate(z_new)[:3]
         nfev += 1
         cost_new = float(r_new @ r_new)
         pred = float(-(2 * h @ g + h @ A @ h))  # cost - |r + J h|^2
@@ -331,10 +357,9 @@ def _levenberg_marquardt(evaluate, z0: np.ndarray, *, ftol: float, xtol: float, 
         f_small = pred <= ftol * cost and abs(actual) <= ftol * cost and rho <= 2
         if rho > 0:
             last_small = small_step is None or small_step(z, z_new)
-            z, r, J, cost = z_new, r_new, J_new, cost_new
+            z, r, A, g, cost = z_new, r_new, A_new, g_new, cost_new
             if on_accept:
                 on_accept(z, cost)
-            A, g = J.T @ J, J.T @ r
             D = np.maximum(D, np.diag(A))
             mu *= max(1 / 3, 1 - (2 * rho - 1) ** 3)
             nu = 2.0
@@ -347,7 +372,7 @@ def _levenberg_marquardt(evaluate, z0: np.ndarray, *, ftol: float, xtol: float, 
     return _Solution(z, r, status, _TERMINATION[status], nfev)
 
 
-def _solve(problem: FitProblem, x0: np.ndarray, *, max_nfev: int) -> tuple[np.ndarray, object, tuple[np.ndarray, float], tuple[np.ndarray, np.ndarray]]:
+def _solve(problem: FitProblem, x0: np.ndarray, *, max_nfev: int, on_evaluation: Callable[[int], None] | None = None) -> tuple[np.ndarray, object, tuple[np.ndarray, float], tuple[np.ndarray, np.ndarray]]:
     """Levenberg-Marquardt (``_levenberg_marquardt``) in log/scaled variables; scipy's
     trust-region reflective with the box ``BOUNDS`` if the unbounded answer leaves it
     (positivity already holds through the logs).
@@ -360,6 +385,7 @@ def _solve(problem: FitProblem, x0: np.ndarray, *, max_nfev: int) -> tuple[np.nd
     accepted iterate before the answer, with its cost (the solvers evaluate the
     Jacobian at every accepted point), for the notebook's percent-change test,
     and the residuals and Jacobian (fitted columns) at the answer.
+    ``on_evaluation(k)`` is called before the k-th evaluation of the model (progress of long solves).
     """
     from scipy.optimize import least_squares
 
@@ -378,18 +404,31 @@ def _solve(problem: FitProblem, x0: np.ndarray, *, max_nfev: int) -> tuple[np.nd
         x[free] = _from_z(pos, z, scale)
         return x
 
+    ix = np.ix_(free, free)
+    n_eval = [0]
+
     def evaluate(z):
+        """(r, J'J, J'r) in the solver's variables z, the Jacobian J in x (all columns), dx/dz and whether the model was finite at ``z``.
+
+        J'J and J'r are formed from J in x and scaled afterwards (n x n work instead of a scaled
+        m x n copy): with many points the passes over J dominate a fit's time.
+        """
         key = z.tobytes()
         if key not in cache:
             cache.clear()
+            n_eval[0] += 1
+            if on_evaluation is not None:
+                on_evaluation(n_eval[0])
             with np.errstate(all="ignore"):  # a trial step far outside: penalised below, step rejected
                 x = full(z)
                 r, jx = problem.residuals_and_jacobian(x)
-                jx = jx[:, free]
-                j = jx * np.where(pos, x[free], scale)[None, :]
-            if not (np.all(np.isfinite(r)) and np.all(np.isfinite(j))):
-                r, j = np.full_like(r, _PENALTY), np.zeros_like(j)
-            cache[key] = (r, j, jx)
+                d = np.where(pos, x[free], scale)  # dx/dz of the fitted parameters
+                A = (jx.T @ jx)[ix] * np.outer(d, d)
+                g = (jx.T @ r)[free] * d
+            ok = bool(np.all(np.isfinite(r)) and np.all(np.isfinite(A)) and np.all(np.isfinite(g)))
+            if not ok:
+                r, A, g = np.full_like(r, _PENALTY), np.zeros_like(A), np.zeros_like(g)
+            cache[key] = (r, A, g, jx, d, ok)
         return cache[key]
 
     def fun(z):
@@ -398,9 +437,9 @@ def _solve(problem: FitProblem, x0: np.ndarray, *, max_nfev: int) -> tuple[np.nd
     iterates: list[tuple[bytes, np.ndarray, float]] = []
 
     def jac(z):
-        r, j, _ = evaluate(z)
+        r, _, _, jx, d, ok = evaluate(z)
         iterates.append((z.tobytes(), full(z), float(r @ r)))
-        return j
+        return jx[:, free] * d[None, :] if ok else np.zeros((r.size, d.size))
 
     tol = dict(ftol=_TOL, xtol=_TOL, gtol=_TOL, max_nfev=max_nfev)
 
@@ -419,8 +458,8 @@ def _solve(problem: FitProblem, x0: np.ndarray, *, max_nfev: int) -> tuple[np.nd
         sol = least_squares(fun, z0, jac=jac, bounds=(lo, hi), method="trf", **tol)
     before = [(x, c) for key, x, c in iterates if key != sol.x.tobytes()]
     previous = before[-1] if before else (x0, problem.cost(x0))
-    r, _, jx = evaluate(sol.x)  # cached: the solver's last evaluation is normally its answer
-    return full(sol.x), sol, previous, (r, jx)
+    r, _, _, jx, _, _ = evaluate(sol.x)  # cached: the solver's last evaluation is normally its answer
+    return full(sol.x), sol, previous, (r, jx[:, free])
 
 
 def _undetermined_warning(involved: Sequence[str], singular_value: float) -> str:
@@ -444,6 +483,12 @@ def _covariance(problem: FitProblem, x: np.ndarray, rj: tuple[np.ndarray, np.nda
     r, J = rj
     xf = x[free]
     m, n = J.shape
+    N = len(st.param_names)
+    if not (np.all(np.isfinite(J)) and np.all(np.isfinite(r))):  # the model overflows at the answer: no uncertainty to give
+        se_full = np.where(free, np.inf, np.nan)
+        corr_full = np.full((N, N), np.nan)
+        corr_full[np.ix_(free, free)] = np.eye(n)
+        return np.full((N, N), np.nan), se_full, corr_full, ["the model cannot be evaluated at the answer (it overflows): no standard errors"]
     d = np.where(xf != 0, np.abs(xf), 1.0)
     Js = J * d[None, :]  # sensitivity to relative changes
     # eigen-decomposition of the small normal matrix, columns equilibrated first
@@ -479,7 +524,6 @@ def _covariance(problem: FitProblem, x: np.ndarray, rj: tuple[np.ndarray, np.nda
         if np.isfinite(stderr[i]) and xf[i] != 0 and stderr[i] / abs(xf[i]) > REL_STDERR_WARN:
             warnings.append(f"{p} = {xf[i]:.4g} is poorly determined (standard error {100 * stderr[i] / abs(xf[i]):.0f} %)")
     # embed in the full parameter order, NaN where not fitted
-    N = len(st.param_names)
     cov_full, corr_full, se_full = np.full((N, N), np.nan), np.full((N, N), np.nan), np.full(N, np.nan)
     ix = np.ix_(free, free)
     cov_full[ix], corr_full[ix], se_full[free] = cov, corr, stderr
@@ -578,17 +622,31 @@ def fit_problem(
     rng: np.random.Generator | None = None,
     max_nfev: int = 200,
     n_averages: int | None = None,
+    progress: Progress | None = None,
 ) -> FitResult:
     """Fit a prepared ``FitProblem``; see ``fit``."""
     st = problem.structure
     free = problem.fitted
-    starts, notes = _build_starts(problem, start)
+    search = problem.thinned(SEARCH_POINTS)
+    thinned = search is not problem
+    n_labels = 1 if not isinstance(start, str) else (2 if start == "both" else 1)
+    total = n_labels + n_perturbed + int(thinned) + 1  # starts, perturbed starts, refinement, diagnosis
+    step = [0]
+
+    def done(what: str) -> None:
+        step[0] += 1
+        if progress is not None:
+            progress(step[0], total, what)
+
+    starts, notes = _build_starts(search, start)
+    total += len(starts) - n_labels  # a start skipped, or the fallback added
     runs = []
 
     def run(label: str, p: Mapping[str, float]) -> None:
         x0 = st.vector(p)
-        x, sol, prev, (r, jx) = _solve(problem, x0, max_nfev=max_nfev)
-        runs.append((label, problem.cost(x0), float(r @ r), x, sol, prev, (r, jx)))
+        x, sol, prev, (r, jx) = _solve(search, x0, max_nfev=max_nfev)
+        runs.append((label, search.cost(x0), float(r @ r), x, sol, prev, (r, jx)))
+        done(f"start {label}")
 
     for label, p in starts:
         run(label, p)
@@ -596,20 +654,32 @@ def fit_problem(
         rng = rng if rng is not None else np.random.default_rng(0)
         best = min(runs, key=lambda r: r[2])
         for k in range(n_perturbed):
-            run(f"perturbed {k + 1} of {best[0]}", perturbed_start(problem, st.params(best[3]), rng=rng))
+            run(f"perturbed {k + 1} of {best[0]}", perturbed_start(search, st.params(best[3]), rng=rng))
     label, _, cost, x, sol, (x_prev, cost_prev), rj = min(runs, key=lambda r: r[2])
     nfev = sum(int(r[4].nfev) for r in runs)
+    agree = sum(1 for r in runs if r[2] <= cost * (1 + 1e-6) + 1e-12)
+    if thinned:
+        refining = f"refining on all {problem.n_points} points"
+        tick = (lambda k: progress(step[0], total, f"{refining}, evaluation {k}")) if progress is not None else None
+        x, sol, (x_prev, cost_prev), rj = _solve(problem, x, max_nfev=max_nfev, on_evaluation=tick)
+        cost = float(rj[0] @ rj[0])
+        nfev += int(sol.nfev)
+        done(f"refined on all {problem.n_points} points")
     # the notebook's criterion, for comparison, between the solver's last two iterates (the
     # notebook compared successive 500-iteration loops); rounding floor of the cost: an RMS
     # residual of 1e-6 dB (or weighted deg), i.e. an exact fit to data stored with ~10 digits
     crit = percent_change(x_prev[free], x[free], cost_prev, cost, cost_floor=1e-12 * problem.n_residuals)
-    agree = sum(1 for r in runs if r[2] <= cost * (1 + 1e-6) + 1e-12)
     solver_ok = bool(sol.status > 0)
     converged = solver_ok and crit.met and np.isfinite(cost)
     errs = problem.errors(x)
     lof = lack_of_fit(problem, x, n_averages=n_averages, errors=errs)
     not_fitted = tuple(n for n, f in zip(st.param_names, free) if not f)
-    parts = [f"best of {len(runs)} starts ({label}; {agree} reached it): solver: {sol.message} {crit.describe()}."]
+    if thinned:
+        where = (f"{len(runs)} starts searched on 1 point in {thinning_step(problem.n_points, SEARCH_POINTS)} ({search.n_points} of {problem.n_points}), "
+                 f"the best ({label}; {agree} reached it) refined on all {problem.n_points} points")
+    else:
+        where = f"best of {len(runs)} starts ({label}; {agree} reached it)"
+    parts = [f"{where}: solver: {sol.message} {crit.describe()}."]
     parts += [f"{n}." for n in notes]
     if not_fitted:
         parts.append(f"Not fitted (the fitted channel{'s' if len(problem.channels) > 1 else ''} {', '.join(problem.channels)} do not depend on them): {', '.join(not_fitted)}.")
@@ -623,6 +693,7 @@ def fit_problem(
     params = dict(zip(st.param_names, map(float, x_report)))
     warnings = lof.warnings() + warnings + _band_warnings(problem, params)
     concerns = _concerns(problem, params, lof)
+    done("uncertainty and lack of fit")
     rms_m = {c: float(np.sqrt(np.mean(e[0] ** 2))) for c, e in errs.items()}
     rms_p = {c: float(np.sqrt(np.mean(e[1] ** 2))) for c, e in errs.items()}
     f = problem.data.freq_hz
@@ -677,6 +748,7 @@ def fit(
     rng: np.random.Generator | None = None,
     max_nfev: int = 200,
     n_averages: int | None = None,
+    progress: Progress | None = None,
 ) -> FitResult:
     """Fit one of the notebook's model structures to frequency-response data.
 
@@ -710,6 +782,14 @@ def fit(
     n_averages : int, optional
         Averages behind the coherence, for the lack-of-fit test; default from the
         metadata ``frf_records``, else 3 (stated in the result).
+    progress : callable(done, total, what), optional
+        Called after each stage (a start solved, the refinement, the diagnosis).
+
+    Data with more than ``SEARCH_POINTS`` frequency points in the band are fitted
+    in two steps, so that the time grows linearly with the points: the starts
+    are searched on every k-th point (``FitProblem.thinned``), then the best is
+    refined on all points; convergence, uncertainty and lack of fit are those of
+    all points, the costs in ``FitResult.starts`` those of the search points.
 
     Returns
     -------
@@ -730,4 +810,4 @@ def fit(
     structure = structure or ModelStructure.notebook_3mode()
     weighting = resolve_weighting(data, channels, weighting)
     problem = FitProblem(data, structure, phase_weight=phase_weight, band_hz=band_hz, channels=None if channels is None else tuple(channels), weighting=weighting)
-    return fit_problem(problem, start=start, n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, n_averages=n_averages)
+    return fit_problem(problem, start=start, n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, n_averages=n_averages, progress=progress)

@@ -1,21 +1,31 @@
 """What a fit leaves behind: JSON of every fit and overlay Bode plots, in one folder.
 
-Nothing already there is overwritten unless asked (DATA_FORMATS.md, "Bad input").
+The folder is written all or nothing (``samii.outputs.OutputFolder``): nothing
+already there is overwritten unless asked (DATA_FORMATS.md, "Bad input"), and a
+failure part-way (a full disk) leaves no file behind.
+
+JSON is strict (RFC 8259): a number that is not defined (a parameter not fitted,
+the infinite standard error of a parameter the data do not determine) is
+``null``, never ``NaN`` or ``Infinity`` (``json_text``).
 """
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
+
+import numpy as np
 
 from samii.frequency_response import FrequencyResponse
 from samii.identify.fit import FitResult
 
-__all__ = ["CLI_KEYS", "summary_dict", "fit_filename", "write_fit_outputs", "params_markdown", "quality_rows", "fits_markdown"]
+__all__ = ["CLI_KEYS", "summary_dict", "json_text", "fit_filename", "fit_output_names", "write_fit_outputs", "notebook_reference",
+           "params_markdown", "quality_rows", "fits_markdown"]
 
 #: Keys of ``samii fit --json`` (issue 5); then phase weight, weighting, band, channels,
 #: parameters not fitted (null in ``params``), the lack-of-fit report and the warnings.
+#: ``stderr`` is null for a parameter not fitted and for one the data do not determine
+#: (its standard error is infinite; a warning names it).
 CLI_KEYS = ("params", "stderr", "cost", "rms_mag_db", "rms_phase_deg", "converged", "message")
 
 
@@ -28,37 +38,80 @@ def summary_dict(result: FitResult) -> dict:
     return out
 
 
-def fit_filename(result: FitResult, many: bool) -> str:
-    return f"fit_pw{result.phase_weight:g}.json" if many else "fit.json"
+def json_text(obj) -> str:
+    """Strict JSON (indented): non-finite numbers become null (``samii.json_output``)."""
+    from samii.json_output import dumps
+
+    return dumps(obj, indent=2)
 
 
-def write_fit_outputs(data: FrequencyResponse, results: Sequence[FitResult], out_dir, *, overwrite: bool = False, note: str | None = None) -> list[Path]:
+def fit_filename(result_or_weight: FitResult | float, many: bool) -> str:
+    """``fit.json``, or ``fit_pw<W>.json`` in a sweep of phase weights."""
+    w = result_or_weight.phase_weight if isinstance(result_or_weight, FitResult) else float(result_or_weight)
+    return f"fit_pw{w:g}.json" if many else "fit.json"
+
+
+def fit_output_names(phase_weights: Sequence[float]) -> list[str]:
+    """The files ``write_fit_outputs`` writes for fits at these phase weights (known before fitting)."""
+    many = len(phase_weights) > 1
+    return [fit_filename(w, many) for w in phase_weights] + ["bode_fit.png"] + (["parameters.png"] if many else [])
+
+
+def notebook_reference(results: Sequence[FitResult]) -> dict[str, list[float]] | None:
+    """The notebook's eq 9.3-9.12 values at the results' phase weights, for the 3-mode s^4 model of eq 9.1/9.2.
+
+    Frequencies, dampings and tau only: K1 and B_k depend on the notebook's
+    unstated unit of theta. NaN at a phase weight the notebook did not fit;
+    None when no result has the notebook's structure and one of its weights.
+    """
+    from samii import notebook as nb
+    from samii.identify.structures import ModelStructure
+
+    st = results[0].structure
+    if st != ModelStructure.notebook_3mode() or not any(r.phase_weight in nb.EQ9_FITS for r in results):
+        return None
+    names = [n for n in st.param_names if n[0] in "wz" or n == "tau"]
+    return {n: [nb.EQ9_FITS[r.phase_weight][n] if r.phase_weight in nb.EQ9_FITS else np.nan for r in results] for n in names}
+
+
+def write_fit_outputs(data: FrequencyResponse, results: Sequence[FitResult], out, *, overwrite: bool = False, note: str | None = None) -> list[Path]:
     """Write ``fit.json`` (or ``fit_pw<W>.json`` per weight), ``bode_fit.png`` and, for a sweep, ``parameters.png``.
+
+    ``out`` is a folder path, or a ``samii.outputs.OutputFolder`` already
+    entered (``samii fit`` makes it before fitting, so that a bad ``--out``
+    fails at once); with a path the folder is made here. Either way the files
+    appear together or not at all. Returns where they are (or will be, once the
+    caller's folder commits).
 
     Raises
     ------
-    FileExistsError
-        If a file to be written exists and ``overwrite`` is False.
+    samii.errors.InputError
+        ``out`` is not a usable folder, or holds one of the files and ``overwrite`` is False.
     """
-    out = Path(out_dir)
-    many = len(results) > 1
-    targets = [out / fit_filename(r, many) for r in results] + [out / "bode_fit.png"] + ([out / "parameters.png"] if many else [])
-    if not overwrite:
-        existing = [str(p) for p in targets if p.exists()]
-        if existing:
-            raise FileExistsError(f"would overwrite {', '.join(existing)}; choose another --out or pass --overwrite")
-    out.mkdir(parents=True, exist_ok=True)
-    for r, path in zip(results, targets):
-        path.write_text(json.dumps(r.to_dict(), indent=2) + "\n")
+    from samii.outputs import OutputFolder
+
+    if isinstance(out, OutputFolder):
+        _write(out, data, results, note)
+        return [out.final(n) for n in fit_output_names([r.phase_weight for r in results])]
+    folder = OutputFolder(out, fit_output_names([r.phase_weight for r in results]), overwrite=overwrite)
+    with folder:
+        _write(folder, data, results, note)
+    return list(folder.written)
+
+
+def _write(folder, data: FrequencyResponse, results: Sequence[FitResult], note: str | None) -> None:
     from samii.viz.fit_plot import plot_fit_overlay, plot_parameter_sweep, save_figure
 
+    many = len(results) > 1
+    for r in results:
+        folder.path(fit_filename(r, many)).write_text(json_text(r.to_dict()) + "\n")
     band = results[0].band_hz
     full = (data.freq_hz[0], data.freq_hz[-1])
     models = {(f"fit, phase weight {r.phase_weight:g}" if many else "fit"): r for r in results}
     st = results[0].structure
     title = f"samii fit: {st.describe()}"
     fig = plot_fit_overlay(data, models, channels=results[0].channels, band_hz=None if band == full else band, title=title, note=note or data.metadata.get("source"))
-    save_figure(fig, out / "bode_fit.png")
+    save_figure(fig, folder.path("bode_fit.png"))
     if many:
         fig = plot_parameter_sweep(
             [r.phase_weight for r in results],
@@ -66,12 +119,13 @@ def write_fit_outputs(data: FrequencyResponse, results: Sequence[FitResult], out
             [r.stderr for r in results],
             st.param_names,
             xlabel="phase weight",
+            reference=notebook_reference(results),
+            reference_label="notebook eq 9.3-9.12 (its own data)",
             units=st.units(),
             title="fitted parameters against phase weight (95 % intervals)",
             note=note,
         )
-        save_figure(fig, out / "parameters.png")
-    return targets
+        save_figure(fig, folder.path("parameters.png"))
 
 
 def params_markdown(columns: Mapping[str, Mapping[str, float]], names: Sequence[str], *, stderr: Mapping[str, Mapping[str, float]] | None = None, extra_rows: Mapping[str, Mapping[str, str]] | None = None) -> str:

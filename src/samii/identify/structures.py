@@ -67,7 +67,7 @@ class ModelStructure:
 
     def __post_init__(self) -> None:
         if not isinstance(self.n_modes, (int, np.integer)) or self.n_modes < 1:
-            raise ValueError(f"n_modes must be an integer >= 1, got {self.n_modes!r}")
+            raise ValueError(f"n_modes must be an integer >= 1, got {self.n_modes}")
         if self.numerator not in get_args(Numerator):
             raise ValueError(f"numerator must be one of {get_args(Numerator)}, got {self.numerator!r}")
         if self.tie_mode2 is None:
@@ -175,7 +175,8 @@ class ModelStructure:
             raise KeyError(f"parameters {missing} missing for structure ({self.describe()}); got {sorted(params)}")
         x = np.array([float(params[n]) for n in self.param_names])
         if not np.all(np.isfinite(x)):
-            raise ValueError(f"non-finite parameter in {dict(zip(self.param_names, x))}")
+            bad = [f"{n} = {float(v):g}" for n, v in zip(self.param_names, x) if not np.isfinite(v)]
+            raise ValueError(f"non-finite parameter(s): {', '.join(bad)}")
         bad = [n for n, v, pos in zip(self.param_names, x, self.positive) if pos and v <= 0]
         if bad:
             raise ValueError(f"parameters {bad} must be positive")

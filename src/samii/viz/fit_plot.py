@@ -227,6 +227,32 @@ def _plot_reference_clipped(ax, x: np.ndarray, ref: np.ndarray, v: np.ndarray, e
         ax.annotate(f"{ri:.3g}", (xi, y), textcoords="offset points", xytext=(-4, -10 if ri > y1 else 4), ha="right", fontsize=6, color="tab:red")
 
 
+#: A standard error above this many times its estimate marks a parameter the data do not
+#: determine: its 95 % bar is clipped at the axis (arrows) and labelled, so it does not flatten the panel.
+NOT_IDENTIFIABLE_REL = 10.0
+#: A panel of positive values spanning more than this factor is drawn on a log axis.
+LOG_SPAN = 30.0
+
+
+def _not_identifiable(v: np.ndarray, se: np.ndarray) -> np.ndarray:
+    """Mask of estimates whose standard error is infinite, undefined or above NOT_IDENTIFIABLE_REL times the estimate."""
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(v) & ~(se <= NOT_IDENTIFIABLE_REL * np.abs(v))
+
+
+def _mark_not_identifiable(ax, x: np.ndarray, v: np.ndarray, se: np.ndarray, wild: np.ndarray, color) -> None:
+    """Draw the 95 % bars of ``wild`` estimates only up to the axis edges, with arrows, and label them."""
+    y0, y1 = ax.get_ylim()
+    for xi, vi, si in zip(x[wild], v[wild], se[wild]):
+        for end in (y1, y0):
+            ax.annotate("", xy=(xi, end), xytext=(xi, vi), annotation_clip=False,
+                        arrowprops=dict(arrowstyle="-|>", color=color, lw=0.8, ls=":", mutation_scale=7, shrinkA=0, shrinkB=0))
+        size = f"±{1.96 * si:.2g}" if np.isfinite(si) else "±inf"
+        ax.annotate(f"not identifiable\n({size})", (xi, vi), textcoords="offset points", xytext=(5, -3), fontsize=6, color="tab:red",
+                    ha="left", va="top")
+    ax.set_ylim(y0, y1)
+
+
 def plot_parameter_sweep(
     x: Sequence[float],
     estimates: Sequence[Mapping[str, float]],
@@ -246,7 +272,12 @@ def plot_parameter_sweep(
     ``reference`` (name -> values at the same ``x``) is drawn as open markers,
     ``truth`` (name -> value) as a horizontal line, ``units`` (name -> unit, e.g.
     ``ModelStructure.units()``) go into each panel's title. Parameters not
-    fitted (NaN) leave their panel empty, so marked.
+    fitted (NaN) leave their panel empty, so marked. A parameter the data do not
+    determine (standard error infinite or above ``NOT_IDENTIFIABLE_REL`` times
+    the estimate) keeps its point, but its bar is cut at the axis with arrows
+    and labelled "not identifiable" with its size: the axis stays on the
+    estimates and the reference. Positive values spanning more than a factor
+    ``LOG_SPAN`` (a lag on its bound at 1e6 rad/s beside 100 rad/s) get a log axis.
     """
     import matplotlib.pyplot as plt
 
@@ -257,17 +288,26 @@ def plot_parameter_sweep(
     x = np.asarray(x, float)
     for i, name in enumerate(names):
         a = axes.flat[i]
-        v = np.array([e[name] for e in estimates])
+        v = np.array([e[name] for e in estimates], float)
+        ref = np.asarray(reference[name], float) if reference is not None and name in reference else None
+        fin = v[np.isfinite(v)]
+        if fin.size and np.all(fin > 0) and fin.max() / fin.min() > LOG_SPAN:
+            a.set_yscale("log")
         if stderrs is not None:
-            err = 1.96 * np.array([s[name] for s in stderrs])
-            err = np.where(np.isfinite(err), err, 0.0)
-            a.errorbar(x, v, yerr=err, fmt="o-", ms=3, lw=1, capsize=2, label="samii ±95 %")
+            se = np.array([s[name] for s in stderrs], float)
+            wild = _not_identifiable(v, se)
+            err = np.where(wild | ~np.isfinite(se), 0.0, 1.96 * se)
+            lines = a.errorbar(x, v, yerr=err, fmt="o-", ms=3, lw=1, capsize=2, label="samii ±95 %")
         else:
-            a.plot(x, v, "o-", ms=3, lw=1, label="samii")
-        if reference is not None and name in reference:
-            _plot_reference_clipped(a, x, np.asarray(reference[name], float), v, err if stderrs is not None else 0.0, reference_label)
+            se, wild, err = np.zeros_like(v), np.zeros(v.shape, bool), 0.0
+            lines = a.plot(x, v, "o-", ms=3, lw=1, label="samii")
+        if ref is not None:
+            _plot_reference_clipped(a, x, ref, v, err, reference_label)
         if truth is not None and name in truth:
             a.axhline(truth[name], color="0.4", lw=0.8, ls="--", label="data generated with")
+        if np.any(wild):
+            color = lines[0].get_color() if hasattr(lines[0], "get_color") else "C0"
+            _mark_not_identifiable(a, x, v, se, wild, color)
         unit = (units or {}).get(name)
         a.set_title(f"{name} [{unit}]" if unit else name, fontsize=9)
         if not np.any(np.isfinite(v)):
@@ -279,7 +319,11 @@ def plot_parameter_sweep(
         a.set_xlabel(xlabel, fontsize=7)
     for a in list(axes.flat)[n:]:
         a.set_visible(False)
-    axes.flat[0].legend(fontsize=6)
+    handles: dict = {}
+    for a in axes.flat[:n]:
+        for h, label in zip(*a.get_legend_handles_labels()):
+            handles.setdefault(label, h)
+    axes.flat[0].legend(list(handles.values()), list(handles), fontsize=6)
     return _finish(fig, title, note, note_height=0.04)
 
 
