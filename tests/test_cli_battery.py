@@ -32,6 +32,10 @@ def files(tmp_path_factory):
         "params_bad_value": '{"params": {"beam": {"length_m": -3}}}',
         "params_unknown": '{"params": {"beam": {"nonsense": 1}}}',
         "frf_text": "freq_hz,act_mag\n1,1\n2,1\n",
+        "params_null": '{"params": {"hydraulic": {"bulk_modulus": null}}}',
+        "params_string": '{"params": {"beam": {"length_m": "4.3"}}}',
+        "params_deep": "[" * 100000 + "]" * 100000,
+        "params_section_list": '{"params": {"beam": [1, 2]}}',
     }
     out = {}
     for name, text in f.items():
@@ -116,6 +120,9 @@ BAD_SETS = [
     ("=3", "NAME=VALUE"),
     ("beam.length_m=abc", "not a number"),
     ("hydraulic.valve_time_constant=-1", "valve_time_constant"),
+    ("beam.n_segments=100000", "n_segments"),
+    ("hydraulic.position_gain=1e9", "does not come to rest"),
+    ("hydraulic.reference_angle=100", "does not come to rest"),
 ]
 
 BAD_MODELS = [
@@ -130,6 +137,10 @@ BAD_MODELS = [
     ("params_wrong_shape", "'params' object"),
     ("params_bad_value", "length_m"),
     ("params_unknown", "nonsense"),
+    ("params_null", "finite number"),
+    ("params_string", "finite number"),
+    ("params_deep", "nested too deeply"),
+    ("params_section_list", "must be an object"),
 ]
 
 
@@ -156,7 +167,8 @@ def test_modes_set_given_twice(capsys):
 
 # ---------------------------------------------------------------------------- params
 
-@pytest.mark.parametrize("key, needle", [("malformed_xml", "parameter file"), ("missing_json", "does not exist"), ("bad_json", "not valid JSON")])
+@pytest.mark.parametrize("key, needle", [("malformed_xml", "parameter file"), ("missing_json", "does not exist"), ("bad_json", "not valid JSON"),
+                                         ("params_null", "finite number"), ("params_deep", "nested too deeply")])
 def test_params_bad_model(files, key, needle, capsys):
     _run_bad(["params", "--model", files[key]], capsys, 2, needle)
 
@@ -257,6 +269,13 @@ def test_measure_rerun_paths(files, out_dir, capsys):
     _run_bad(["measure", "--out", str(out_dir), "--no-progress", "--rerun", files["a_file"]], capsys, 2, "--overwrite", out_dir)
 
 
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="needs /proc")
+def test_measure_unwritable_pseudo_filesystem(out_dir, capsys):
+    """/proc passes a permission check for root but refuses new files: the check creates a probe file."""
+    _run_bad(["measure", "--out", str(out_dir), "--no-progress", "--rerun", "/proc/x.rrd"], capsys, 2, "not writable", out_dir)
+    _run_bad(["measure", "--out", "/proc/samii_out", "--no-progress"], capsys, 2, "not writable")
+
+
 def test_measure_existing_outputs_need_overwrite(out_dir, capsys):
     (out_dir / "frf.csv").write_text("the user's earlier result")
     line = _run_bad(["measure", "--out", str(out_dir), "--no-progress"], capsys, 2, "--overwrite", out_dir)
@@ -311,6 +330,10 @@ CALIBRATE = [
     (["--param", "hydraulic.total_volume", "--weighting", "bogus"], "--weighting"),
     (["--param", "hydraulic.total_volume", "--set", "beam.length_m=-1"], "length_m"),
     (["--param", "hydraulic.total_volume", "--out", ""], "--out"),
+    (["--param", "hydraulic.total_volume", "--channels", "bogus"], "--channels"),
+    (["--param", "hydraulic.total_volume", "--channels", ","], "--channels"),
+    (["--param", "hydraulic.total_volume", "--channels", "act,act"], "--channels"),
+    (["--param", "hydraulic.total_volume", "--channels", "total"], "no total channel"),
 ]
 
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 import os
 import secrets
 import shutil
+import tempfile
 from pathlib import Path
 from typing import Iterable
 
@@ -52,17 +53,31 @@ def _nearest_existing(path: Path) -> Path:
     return p
 
 
+def _can_create_in(folder: Path) -> bool:
+    """Whether a file can really be created in ``folder`` (permission bits say yes to root on /proc, a
+    read-only mount or a full quota; creating and removing a probe file asks the file system itself)."""
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return False
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".samii-probe-", dir=folder)
+    except OSError:
+        return False
+    os.close(fd)
+    os.unlink(probe)
+    return True
+
+
 def _check_creatable_dir(path: Path, option: str) -> None:
     if path.exists():
         if not path.is_dir():
             raise InputError(f"{option} {_describe(path)}: exists and is not a folder")
-        if not os.access(path, os.W_OK | os.X_OK):
+        if not _can_create_in(path):
             raise InputError(f"{option} {_describe(path)}: folder is not writable")
         return
     base = _nearest_existing(path)
     if not base.is_dir():
         raise InputError(f"{option} {_describe(path)}: cannot create a folder under {base}, which is a file")
-    if not os.access(base, os.W_OK | os.X_OK):
+    if not _can_create_in(base):
         raise InputError(f"{option} {_describe(path)}: cannot create it, {base} is not writable")
 
 
@@ -79,7 +94,7 @@ def check_output_file(path, *, overwrite: bool, option: str) -> Path:
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.is_dir():
         raise InputError(f"{option} {p}: folder {parent} does not exist")
-    if not os.access(parent, os.W_OK | os.X_OK):
+    if not _can_create_in(parent):
         raise InputError(f"{option} {p}: folder {parent} is not writable")
     return p
 

@@ -112,6 +112,18 @@ def load_target(source: str):
     return read_frf_csv(path)
 
 
+def _channels(text: str, data) -> tuple[str, ...]:
+    """``--channels act,base`` checked against the channels a calibration can use and the data hold."""
+    names = tuple(c.strip() for c in text.split(","))
+    allowed = ("act", "base", "total")
+    if not names or any(n not in allowed for n in names) or len(set(names)) != len(names):
+        raise InputError(f"--channels {text!r}: expected distinct names from {', '.join(allowed)}, comma-separated")
+    missing = [n for n in names if n not in data.channels]
+    if missing:
+        raise InputError(f"--channels {text!r}: the data have no {', '.join(missing)} channel (they hold {', '.join(data.channels)})")
+    return names
+
+
 def run(args: argparse.Namespace) -> int:
     from samii.outputs import OutputFolder
     from samii.sim.cli_modes import parse_overrides
@@ -131,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
     if overrides:
         base = params_with_overrides(base, overrides)
     data = load_target(args.data)
-    channels = tuple(c.strip() for c in args.channels.split(",")) if args.channels else None
+    channels = _channels(args.channels, data) if args.channels is not None else None
     confirm = None
     if args.confirm:
         from samii.measure.excitation import SweptSine

@@ -55,6 +55,13 @@ def _cancel_gain(text: str) -> float:
 _cancel_gain.__name__ = "gain"
 
 
+#: Noise standard deviations accepted [model units]: their squares (the covariances) must stay well
+#: inside double precision and their ratios within what the Riccati solver resolves (at 1e-4 and 1e4
+#: together it warns of an ill-conditioned matrix; at 1e-6 and 1e6 it fails).
+NOISE_STD_RANGE = (1e-3, 1e3)
+_noise_std = float_in(*NOISE_STD_RANGE, lo_open=False)
+
+
 def _add_out(p: argparse.ArgumentParser, what: str) -> None:
     p.add_argument("--out", metavar="DIR", type=nonempty_path, help=f"folder for {what} (created if needed; all files appear together on success)")
     p.add_argument("--force", "--overwrite", dest="force", action="store_true", help="replace existing files in --out (--overwrite is an alias)")
@@ -109,11 +116,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--observer", choices=("placement", "kalman"), default="placement",
                    help="placement: observer poles at twice the controller poles (continuous), z = exp(2 s T) (default); "
                    "kalman: steady-state Kalman filter, needs the three --*-noise-std options")  # fmt: skip
-    p.add_argument("--input-noise-std", type=positive_float, default=None, metavar="V",
+    p.add_argument("--input-noise-std", type=_noise_std, default=None, metavar="V",
                    help="kalman: standard deviation of the process noise entering with the valve command, per sample [V]")
-    p.add_argument("--theta-noise-std", type=positive_float, default=None, metavar="STD",
+    p.add_argument("--theta-noise-std", type=_noise_std, default=None, metavar="STD",
                    help="kalman: standard deviation of the theta measurement noise [notebook units: most likely degrees]")
-    p.add_argument("--accel-noise-std", type=positive_float, default=None, metavar="STD",
+    p.add_argument("--accel-noise-std", type=_noise_std, default=None, metavar="STD",
                    help="kalman: standard deviation of the base-acceleration measurement noise [the notebook's acceleration "
                    "unit, which it does not state]")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the design as JSON")

@@ -272,7 +272,10 @@ def run(args: argparse.Namespace) -> int:
                 from samii.measure.recording import write_rerun_recording
 
                 first = results[plan[0][0]]
-                write_rerun_recording(rrd_tmp, model, first.timeseries, frame_t_s=first.run.frame_t_s, frame_qpos=first.run.frame_qpos)
+                try:
+                    write_rerun_recording(rrd_tmp, model, first.timeseries, frame_t_s=first.run.frame_t_s, frame_qpos=first.run.frame_qpos)
+                except RuntimeError as exc:  # rerun's writer reports file-system failures as RuntimeError
+                    raise OSError(f"--rerun {rerun_path}: the recording could not be written ({' '.join(str(exc).split())})") from None
         if rrd_tmp is not None:  # the recording lives outside --out: moved into place once the folder is complete
             os.replace(rrd_tmp, rerun_path)
     finally:

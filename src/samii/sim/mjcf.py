@@ -47,6 +47,11 @@ __all__ = ["BeamParams", "ArmParams", "HydraulicConfig", "SamiiParams", "NOMINAL
 NOMINAL_POSE_RAD = (-math.pi / 2, math.pi / 2, math.pi / 2, 0.0, 0.0, 0.0)
 
 
+#: Most beam elements accepted: the base modes converge at 4 (experiments/convergence); each element
+#: adds a body and a hinge, and linearisation cost grows with the cube of the state size.
+MAX_BEAM_SEGMENTS = 40
+
+
 @dataclass(frozen=True)
 class BeamParams:
     """The flexible base. Public TMM values plus the tuned clamp and damping knobs."""
@@ -100,8 +105,9 @@ class BeamParams:
         for f in fields(self):
             v = getattr(self, f.name)
             if f.name == "n_segments":
-                if not isinstance(v, (int, np.integer)) or v < 1:
-                    raise ValueError(f"n_segments must be a positive integer, got {v!r}")
+                if not isinstance(v, (int, np.integer)) or not 1 <= v <= MAX_BEAM_SEGMENTS:
+                    raise ValueError(f"n_segments must be an integer in 1...{MAX_BEAM_SEGMENTS}, got {v!r} "
+                                     "(4 converge the base modes: experiments/convergence)")
             elif f.name == "accel_body_fixed":
                 if v not in (0.0, 1.0):
                     raise ValueError(f"beam parameter accel_body_fixed must be 0 (ideal, world frame) or 1 (body-fixed), got {v!r}")

@@ -67,11 +67,18 @@ def params_from_dict(d: Mapping) -> SamiiParams:
         if key in sections:
             cls = sections[key]
             names = {f.name for f in fields(cls)}
+            if not isinstance(value, Mapping):
+                raise ValueError(f"section {key!r} must be an object of name: number, got {type(value).__name__}")
             unknown = set(value) - names
             if unknown:
                 raise ValueError(f"unknown {key} parameter(s) {sorted(unknown)}; expected some of {sorted(names)}")
+            for name, v in value.items():
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                    raise ValueError(f"{key}.{name} must be a finite number, got {v!r}")
             kw[key] = cls(**value)
         elif key == "timestep_s":
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ValueError(f"timestep_s must be a number, got {value!r}")
             kw[key] = float(value)
         else:
             raise ValueError(f"unknown parameter section {key!r}; expected beam, arm, hydraulic, timestep_s")
@@ -141,6 +148,8 @@ def read_params_file(path: str | Path) -> SamiiParams:
         raise InputError(f"{path}: cannot be read as a parameter file ({exc})") from None
     except json.JSONDecodeError as exc:
         raise InputError(f"{path}: not valid JSON ({exc})") from None
+    except RecursionError:
+        raise InputError(f"{path}: JSON nested too deeply to be a parameter file") from None
     if not isinstance(data, dict) or not isinstance(data.get("params"), dict):
         raise InputError(f"{path}: a parameter file is a JSON object with a 'params' object (sections beam, arm, hydraulic, timestep_s)")
     try:
@@ -203,7 +212,11 @@ def load_model(path: str | Path | None = None, *, params: SamiiParams | None = N
     if generated:
         from samii.sim.equilibrium import static_equilibrium
 
-        eq = static_equilibrium(model)
+        try:
+            eq = static_equilibrium(model)
+        except RuntimeError as exc:  # no rest state: the parameters describe no usable rig
+            raise InputError(f"the model with these parameters does not come to rest near its nominal pose ({exc}); "
+                             "check the overridden values (samii params lists the defaults)") from None
         model.key_qpos[0] = eq.qpos
         model.key_act[0] = eq.act
     return model
