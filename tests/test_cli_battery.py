@@ -193,6 +193,7 @@ MEASURE = [
     (["--amplitude-v", "20"], "--amplitude-v"),
     (["--amplitude-v", "1e6"], "--amplitude-v"),
     (["--amplitude-v", "0"], "--amplitude-v"),
+    (["--amplitude-v", "1e-300"], "--amplitude-v"),
     (["--amplitude-v", "-1"], "--amplitude-v"),
     (["--amplitude-v", "nan"], "--amplitude-v"),
     (["--seed", "-1"], "--seed"),

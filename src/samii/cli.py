@@ -86,6 +86,21 @@ def _install_signal_handlers() -> None:
                 pass
 
 
+def _one_line_warnings(prog: str) -> None:
+    """Warnings (numpy's, scipy's, ours) as one line each, once per message, never a source-line dump."""
+    import warnings
+
+    seen: set[str] = set()
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        text = f"{prog}: warning: {category.__name__}: {' '.join(str(message).split())}"
+        if text not in seen:
+            seen.add(text)
+            print(text, file=sys.stderr)
+
+    warnings.showwarning = show
+
+
 def _report(prog: str, kind: str, exc: BaseException) -> None:
     print(f"{prog}: {kind}: {_one_line(exc)}", file=sys.stderr)
 
@@ -105,6 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "design_command", None):
         prog += f" {args.design_command}"
     _install_signal_handlers()
+    _one_line_warnings(prog)
     try:
         if args.command is None:
             from samii.main_job import run_main_job
@@ -145,8 +161,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{prog}: error: out of memory; the requested run is too large for this machine", file=sys.stderr)
         return EXIT_BAD_INPUT
     except OSError as exc:  # files: missing, unreadable, a folder, disk full
-        where = f" {exc.filename}" if getattr(exc, "filename", None) else ""
-        print(f"{prog}: error:{where}: {exc.strerror or _one_line(exc)}", file=sys.stderr)
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        print(f"{prog}: error: {where}{exc.strerror or _one_line(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except Exception as exc:  # a bug: one line by default, the traceback on request
         if os.environ.get("SAMII_DEBUG"):

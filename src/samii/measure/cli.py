@@ -27,6 +27,9 @@ _FRAME_STEPS = 40
 MAX_SIMULATED_S = 3600.0
 #: Valve command range [V] of the servo amplifier (the plugin clamps v to it).
 VALVE_RANGE_V = 10.0
+#: Smallest excitation accepted [V]: 3 steps of a 16-bit DAQ over +-10 V (0.3 mV each); below it a
+#: rig's measurement is quantisation noise (the simulator's would be round-off).
+MIN_AMPLITUDE_V = 1e-3
 #: Fraction of the run the valve command may sit on a rail before the run is reported unstable.
 RAIL_FRACTION = 0.01
 
@@ -38,8 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--freqs-hz", type=positive_float, nargs="+", metavar="F",
                         help="stepped-sine frequencies [Hz], distinct, below the DAQ's anti-alias cutoff (default 17 points over 0.5-35 Hz, "
                         "the base resonances 1.75, 9.9 and 25 Hz among them)")
-    parser.add_argument("--amplitude-v", type=float_in(0, VALVE_RANGE_V, lo_open=True, unit="V"), default=None, metavar="V",
-                        help="excitation amplitude added to the valve command, at most the valve's 10 V range (default 0.1 V)")
+    parser.add_argument("--amplitude-v", type=float_in(MIN_AMPLITUDE_V, VALVE_RANGE_V, unit="V"), default=None, metavar="V",
+                        help="excitation amplitude added to the valve command, 0.001-10 V (default 0.1 V)")
     parser.add_argument("--averages", type=int_in(1, 100), default=3, metavar="N",
                         help="swept-sine repetitions averaged, 1-100 (default 3, as on the rig; coherence needs at least 2)")
     parser.add_argument("--tail-s", type=positive_float, default=None, metavar="S",
