@@ -36,7 +36,16 @@ def files(tmp_path_factory):
         "params_string": '{"params": {"beam": {"length_m": "4.3"}}}',
         "params_deep": "[" * 100000 + "]" * 100000,
         "params_section_list": '{"params": {"beam": [1, 2]}}',
+        "params_partial": '{"params": {"beam": {"length_m": 4.3}, "arm": {}, "timestep_s": 0.001}}',
+        "params_negative_bulk": None,
     }
+    import json as _json
+
+    from samii.sim.model import default_params
+
+    full = default_params().as_dict()
+    full["hydraulic"]["bulk_modulus"] = -7e8
+    f["params_negative_bulk"] = _json.dumps({"params": full})
     out = {}
     for name, text in f.items():
         suffix = ".xml" if name.endswith("xml") or name in ("empty", "binary") else (".json" if "json" in name or name.startswith("params") else ".csv")
@@ -123,6 +132,9 @@ BAD_SETS = [
     ("beam.n_segments=100000", "n_segments"),
     ("hydraulic.position_gain=1e9", "does not come to rest"),
     ("hydraulic.reference_angle=100", "does not come to rest"),
+    ("arm.held_armature_kgm2=-1", "held_armature_kgm2"),
+    ("arm.joint1_stiffness_Nm_rad=0", "joint1_stiffness"),
+    ("arm.heading_deg=1000", "heading_deg"),
 ]
 
 BAD_MODELS = [
@@ -141,6 +153,8 @@ BAD_MODELS = [
     ("params_string", "finite number"),
     ("params_deep", "nested too deeply"),
     ("params_section_list", "must be an object"),
+    ("params_partial", "missing"),
+    ("params_negative_bulk", "bulk_modulus"),
 ]
 
 
@@ -168,9 +182,28 @@ def test_modes_set_given_twice(capsys):
 # ---------------------------------------------------------------------------- params
 
 @pytest.mark.parametrize("key, needle", [("malformed_xml", "parameter file"), ("missing_json", "does not exist"), ("bad_json", "not valid JSON"),
-                                         ("params_null", "finite number"), ("params_deep", "nested too deeply")])
+                                         ("params_null", "finite number"), ("params_deep", "nested too deeply"),
+                                         ("params_partial", "missing"), ("params_negative_bulk", "bulk_modulus")])
 def test_params_bad_model(files, key, needle, capsys):
     _run_bad(["params", "--model", files[key]], capsys, 2, needle)
+
+
+def test_params_empty_model_path(capsys):
+    _run_bad(["params", "--model", ""], capsys, 2, "--model")
+
+
+def test_modes_marks_an_unstable_loop(capsys):
+    """A servo gain of 300 V/rad destabilises two coupled pairs: listed, marked, and stable = false in JSON."""
+    import json
+
+    assert main(["modes", "--set", "hydraulic.position_gain=300"]) == 0
+    text = capsys.readouterr().out
+    assert text.count("UNSTABLE") >= 3  # two marked poles and the verdict
+    assert main(["modes", "--json", "--set", "hydraulic.position_gain=300"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["stable"] is False and all(p[0] > 0 for p in rep["unstable_poles"])
+    assert main(["modes", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["stable"] is True
 
 
 def test_params_lists_every_set_name(capsys):
@@ -226,6 +259,7 @@ MEASURE = [
     (["--averages", "2.5"], "--averages"),
     (["--averages", "1000"], "--averages"),
     (["--method", "bogus"], "--method"),
+    (["--freqs-hz", "5"], "--method stepped or both"),
     (["--set", "hydraulic.nonsense=1"], "has no parameter"),
     (["--set", "beam.n_segments=2.5"], "whole number"),
     (["--set", "timestep_s=-0.001"], "timestep_s"),
@@ -277,6 +311,21 @@ def test_measure_unwritable_pseudo_filesystem(out_dir, capsys):
     _run_bad(["measure", "--out", "/proc/samii_out", "--no-progress"], capsys, 2, "not writable")
 
 
+def test_measure_rerun_into_its_own_outputs(out_dir, capsys):
+    """--rerun D/frf.csv with --out D would put the recording where the FRF goes: refused before any work."""
+    _run_bad(["measure", "--out", str(out_dir), "--no-progress", "--rerun", str(out_dir / "frf.csv")], capsys, 2, "own output", out_dir)
+    _run_bad(["measure", "--out", str(out_dir), "--no-progress", "--overwrite", "--rerun", str(out_dir / "run.json")], capsys, 2,
+             "own output", out_dir)
+
+
+def test_measure_out_dangling_link_and_folder_named_like_an_output(tmp_path, out_dir, capsys):
+    link = tmp_path / "link"
+    link.symlink_to(tmp_path / "nowhere")
+    _run_bad(["measure", "--out", str(link), "--no-progress"], capsys, 2, "symbolic link")
+    (out_dir / "frf.csv").mkdir()
+    _run_bad(["measure", "--out", str(out_dir), "--no-progress", "--overwrite"], capsys, 2, "is a folder", out_dir)
+
+
 def test_measure_existing_outputs_need_overwrite(out_dir, capsys):
     (out_dir / "frf.csv").write_text("the user's earlier result")
     line = _run_bad(["measure", "--out", str(out_dir), "--no-progress"], capsys, 2, "--overwrite", out_dir)
@@ -319,6 +368,7 @@ CALIBRATE = [
     (["--param", "beam.nonsense"], "has no parameter"),
     (["--param", "hydraulic.total_volume", "--phase-weight", "nan"], "--phase-weight"),
     (["--param", "hydraulic.total_volume", "--phase-weight", "-1"], "--phase-weight"),
+    (["--param", "hydraulic.total_volume", "--phase-weight", "1e300"], "--phase-weight"),
     (["--param", "hydraulic.total_volume", "--band-hz", "5", "1"], "LO < HI"),
     (["--param", "hydraulic.total_volume", "--band-hz", "nan", "1"], "--band-hz"),
     (["--param", "hydraulic.total_volume", "--max-iterations", "0"], "--max-iterations"),
@@ -394,6 +444,39 @@ def test_signal_mid_run_leaves_nothing(tmp_path, signame, code):
     assert len(lines) == 1 and "Traceback" not in err, err
     assert not out.exists(), list(out.iterdir())
     assert not list(tmp_path.glob("**/*.tmp"))
+
+
+def test_ctrl_c_during_start_up(tmp_path):
+    """Ctrl-C while the command is still importing its stage (mujoco, scipy): one line, 130, nothing made."""
+    import signal
+    import time
+
+    out = tmp_path / "m"
+    proc = _spawn_measure(out)
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert "Traceback" not in err, err
+    if proc.returncode != 0:  # a very fast machine may have finished the 4 s run: then nothing to check
+        assert proc.returncode == 130, err
+        assert len([ln for ln in err.splitlines() if ln.strip()]) == 1, err
+        assert not out.exists()
+
+
+def test_frf_records_metadata_is_checked(tmp_path, capsys):
+    """'# frf_records:' sets the random error every residual is judged against: an absurd count is refused."""
+    import dataclasses
+
+    import numpy as np
+
+    from samii.identify.studies import synthetic_rig_frf
+    from samii.measure.io import write_frf_csv
+
+    data = synthetic_rig_frf(np.geomspace(0.1, 40.0, 200), rng=np.random.default_rng(0))  # with coherence
+    for bad in ("1000000000000", "nan", "0"):
+        damaged = dataclasses.replace(data, metadata={**data.metadata, "frf_records": bad})
+        path = write_frf_csv(damaged, tmp_path / f"frf_{bad}.csv")
+        _run_bad(["fit", str(path), "--no-progress"], capsys, 2, "frf_records")
 
 
 def test_stale_stage_of_a_killed_run_is_removed(tmp_path, capsys):

@@ -68,22 +68,45 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(text.split())
 
 
-def _install_signal_handlers() -> None:
-    """SIGTERM and SIGHUP raise :class:`samii.errors.Interrupted`, so staged outputs are cleaned up."""
+#: Signals received (set by the handlers): an exception raised while one was being handled (an
+#: import cut short by Ctrl-C raises ImportError) is reported as the interruption it is.
+_SIGNALLED: list[int] = []
+
+
+def _install_signal_handlers() -> dict:
+    """SIGINT raises KeyboardInterrupt and SIGTERM/SIGHUP :class:`samii.errors.Interrupted`, so staged
+    outputs are cleaned up; each is remembered in ``_SIGNALLED``."""
     import signal
 
     from samii.errors import Interrupted
 
     def handler(signum, _frame):
+        _SIGNALLED.append(signum)
         raise Interrupted(signum)
 
-    for name in ("SIGTERM", "SIGHUP"):
+    def on_sigint(signum, _frame):
+        _SIGNALLED.append(signum)
+        raise KeyboardInterrupt
+
+    previous = {}
+    for name, fn in (("SIGINT", on_sigint), ("SIGTERM", handler), ("SIGHUP", handler)):
         sig = getattr(signal, name, None)
         if sig is not None:
             try:
-                signal.signal(sig, handler)
+                previous[sig] = signal.signal(sig, fn)
             except (ValueError, OSError):  # not the main thread
                 pass
+    return previous
+
+
+def _restore_signal_handlers(previous: dict) -> None:
+    import signal
+
+    for sig, fn in previous.items():
+        try:
+            signal.signal(sig, fn)
+        except (ValueError, OSError, TypeError):
+            pass
 
 
 def _one_line_warnings(prog: str) -> None:
@@ -107,21 +130,30 @@ def _report(prog: str, kind: str, exc: BaseException) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command; map errors to one line on stderr and an exit code (see :mod:`samii.errors`)."""
+    _SIGNALLED.clear()
+    previous = _install_signal_handlers()  # first: a signal during start-up is reported like any other
+    try:
+        return _main(argv)
+    finally:
+        _restore_signal_handlers(previous)
+
+
+def _main(argv: list[str] | None) -> int:
     import os
 
     from samii.errors import EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_UNSTABLE, InputError, Interrupted, SimulationUnstable
 
-    parser = build_parser()
+    prog = "samii"
     try:
-        args = parser.parse_args(argv)
-    except SystemExit as exc:  # argparse: --help, --version (0) or a rejected option (2, its one-line reason printed)
-        return exc.code if isinstance(exc.code, int) else EXIT_BAD_INPUT
-    prog = "samii" + (f" {args.command}" if args.command else "")
-    if getattr(args, "design_command", None):
-        prog += f" {args.design_command}"
-    _install_signal_handlers()
-    _one_line_warnings(prog)
-    try:
+        parser = build_parser()
+        try:
+            args = parser.parse_args(argv)
+        except SystemExit as exc:  # argparse: --help, --version (0) or a rejected option (2, its one-line reason printed)
+            return exc.code if isinstance(exc.code, int) else EXIT_BAD_INPUT
+        prog = "samii" + (f" {args.command}" if args.command else "")
+        if getattr(args, "design_command", None):
+            prog += f" {args.design_command}"
+        _one_line_warnings(prog)
         if args.command is None:
             from samii.main_job import run_main_job
 
@@ -165,6 +197,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{prog}: error: {where}{exc.strerror or _one_line(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except Exception as exc:  # a bug: one line by default, the traceback on request
+        if _SIGNALLED:  # cut short by a signal (e.g. an import interrupted half-way): not a bug
+            signum = _SIGNALLED[0]
+            print(f"{prog}: stopped by signal {signum}; nothing half-written was kept", file=sys.stderr)
+            return EXIT_INTERRUPTED if signum == 2 else 128 + signum
         if os.environ.get("SAMII_DEBUG"):
             raise
         print(f"{prog}: internal error: {type(exc).__name__}: {_one_line(exc)} (run with SAMII_DEBUG=1 for the traceback; please report it)",

@@ -68,6 +68,8 @@ def _can_create_in(folder: Path) -> bool:
 
 
 def _check_creatable_dir(path: Path, option: str) -> None:
+    if path.is_symlink() and not path.exists():
+        raise InputError(f"{option} {_describe(path)}: is a symbolic link to {os.readlink(path)}, which does not exist")
     if path.exists():
         if not path.is_dir():
             raise InputError(f"{option} {_describe(path)}: exists and is not a folder")
@@ -151,8 +153,16 @@ class OutputFolder:
         self.written: list[Path] = []
 
     def _check_existing(self) -> None:
-        if self.overwrite or not self.root.is_dir():
+        if not self.root.is_dir():
             return
+        if self.overwrite:
+            folders = [n for n in self.names if (self.root / n).is_dir()]
+            if folders:
+                raise InputError(f"{self.option} {self.root}: {', '.join(folders)} is a folder; this run writes a file of that name")
+            return
+        folders = [n for n in self.names if (self.root / n).is_dir()]
+        if folders:
+            raise InputError(f"{self.option} {self.root}: {', '.join(folders)} is a folder; this run writes a file of that name")
         existing = [n for n in self.names if (self.root / n).exists()]
         if existing:
             shown = ", ".join(existing[:4]) + (", ..." if len(existing) > 4 else "")

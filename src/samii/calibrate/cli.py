@@ -10,7 +10,7 @@ import argparse
 import math
 from pathlib import Path
 
-from samii.cli_args import int_in, nonempty_path, nonnegative_float, positive_float
+from samii.cli_args import float_in, int_in, nonempty_path, positive_float
 from samii.errors import InputError
 
 __all__ = ["add_arguments", "run", "load_target"]
@@ -59,7 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="starting value of a calibrated parameter (default: the model's value; a channel gain starts at the data's level against the model's)")
     parser.add_argument("--bound", action="append", default=[], type=_name_bounds, metavar="NAME=LO:HI",
                         help="bounds of a calibrated parameter (default: physical limits where known, else a factor 10 around the start)")
-    parser.add_argument("--phase-weight", type=nonnegative_float, default=0.1, metavar="W", help="weight on the phase error in degrees (default 0.1, the notebook's eq 9.4)")
+    parser.add_argument("--phase-weight", type=float_in(0, 100), default=0.1, metavar="W", help="weight on the phase error in degrees (default 0.1, the notebook's eq 9.4)")
     parser.add_argument("--band-hz", type=positive_float, nargs=2, metavar=("LO", "HI"), help="use only LO <= f <= HI Hz (default: all the data)")
     parser.add_argument("--channels", default=None, metavar="C1,C2", help="channels in the cost (default act,base where present)")
     parser.add_argument("--weighting", choices=("auto", "none", "coherence"), default="auto",

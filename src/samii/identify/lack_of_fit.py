@@ -178,10 +178,23 @@ class LackOfFit:
         }
 
 
+#: Most averages a ``frf_records`` line may claim (as ``samii fit --averages``): a swept sine has a
+#: few, a random test some hundreds; more is a damaged or mistaken header.
+MAX_METADATA_AVERAGES = 10_000
+
+
 def averages_from_metadata(metadata: Mapping[str, str]) -> int | None:
-    """Number of averages from ``frf_records`` ("3 records of 109.2 s ..." or "3"), else None."""
-    m = re.match(r"\s*(\d+)", str(metadata.get("frf_records", "")))
-    return int(m.group(1)) if m and int(m.group(1)) > 0 else None
+    """Number of averages from ``frf_records`` ("3 records of 109.2 s ..." or "3"), else None (no such line).
+
+    A line that is present but holds no count in 1 ... MAX_METADATA_AVERAGES is an error (ValueError), not
+    a silent fallback: the count sets the random error every residual is judged against."""
+    if "frf_records" not in metadata:
+        return None
+    text = str(metadata["frf_records"])
+    m = re.match(r"\s*(\d+)", text)
+    if not m or not 1 <= int(m.group(1)) <= MAX_METADATA_AVERAGES:
+        raise ValueError(f"metadata '# frf_records: {text[:40]}': expected a number of averaged records in 1...{MAX_METADATA_AVERAGES}")
+    return int(m.group(1))
 
 
 def _bands(flag: np.ndarray, *, max_gap: int, min_points: int, freq: np.ndarray | None = None, bridge_rel: float = 0.0) -> list[tuple[int, int]]:

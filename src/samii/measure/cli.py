@@ -30,6 +30,9 @@ VALVE_RANGE_V = 10.0
 #: Smallest excitation accepted [V]: 3 steps of a 16-bit DAQ over +-10 V (0.3 mV each); below it a
 #: rig's measurement is quantisation noise (the simulator's would be round-off).
 MIN_AMPLITUDE_V = 1e-3
+#: Deviation from the linearised simulator [dB] above which the summary warns that the measurement is
+#: not small-signal (at the default 0.1 V it is 0.6 dB; at 3 V, 9 dB).
+LINEARITY_WARN_DB = 2.0
 #: Fraction of the run the valve command may sit on a rail before the run is reported unstable.
 RAIL_FRACTION = 0.01
 
@@ -77,6 +80,8 @@ def _excitations(args):
     from samii.measure.excitation import SteppedSine, SweptSine
 
     lo, hi = args.band_hz
+    if args.freqs_hz is not None and args.method == "swept":
+        raise InputError("--freqs-hz sets the stepped-sine dwells: use it with --method stepped or both")
     if not lo < hi:
         raise InputError(f"--band-hz {lo:g} {hi:g}: expected LO < HI")
     if args.freqs_hz is not None and len(set(args.freqs_hz)) != len(args.freqs_hz):
@@ -150,6 +155,9 @@ def run(args: argparse.Namespace) -> int:
     names = list(_OUTPUTS[args.method]) + ["bode.png", "run.json"]
     folder = OutputFolder(args.out, names, overwrite=args.overwrite)
     rerun_path = check_output_file(args.rerun, overwrite=args.overwrite, option="--rerun") if args.rerun else None
+    if rerun_path is not None and rerun_path.absolute().parent == folder.root.absolute() and (
+            rerun_path.name in names or rerun_path.name.startswith(".samii-stage")):
+        raise InputError(f"--rerun {rerun_path}: would replace the run's own output {rerun_path.name}; give the recording another name")
 
     from tqdm import tqdm
 
@@ -265,6 +273,14 @@ def run(args: argparse.Namespace) -> int:
                         f"{hp.supply_pressure / 1e6:.3g} MPa supply: the motor pumped oil in faster than the partly closed valve returns it "
                         "to the supply (no relief valve is modelled; a rig's would clip the pressure). "
                         "The response is far from small-signal: lower --amplitude-v")
+            for kind, check in checks.items():
+                worst = max(check.values(), key=lambda st: st["max_abs_db"], default=None)
+                if worst is not None and worst["max_abs_db"] > LINEARITY_WARN_DB:
+                    ch = max(check, key=lambda c: check[c]["max_abs_db"])
+                    warnings_out.append(
+                        f"{kind} run: {ch} lies {worst['max_abs_db']:.1f} dB / {worst['max_abs_deg']:.0f} deg from the linearised simulator "
+                        f"(coherent points, 0.5-35 Hz): the response at {amp:g} V is far from small-signal (valve and orifice "
+                        "nonlinearity), so this FRF is not the plant's linear model; lower --amplitude-v to measure that")
             if "swept" in results and not coh_ok:
                 warnings_out.append("one swept-sine record cannot estimate coherence (--averages 1): the coherence panels are empty "
                                     "and the check against the linearised simulator uses every point")

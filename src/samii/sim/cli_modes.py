@@ -64,5 +64,10 @@ def run(args: argparse.Namespace) -> int:
         wn = abs(s)
         zeta = -s.real / wn if wn > 0 else float("nan")
         im = f"{s.imag:+10.3f}j" if abs(s.imag) > 1e-9 else " " * 11
-        print(f"    {s.real:10.3f} {im}          {wn / (2 * np.pi):9.3f}   {zeta:.4f}")
+        flag = "   UNSTABLE" if s.real > 1e-6 else ""
+        print(f"    {s.real:10.3f} {im}          {wn / (2 * np.pi):9.3f}   {zeta:.4f}{flag}")
+    if not rep.stable:
+        n = sum(1 for p in rep.unstable_poles if p.imag >= 0)
+        print(f"\nUNSTABLE: {n} pole(s) or pair(s) in the right half plane, marked above: the nominal pose is not a "
+              "stable rest state under the servo loop (samii measure refuses this model)")
     return 0

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 
+from samii.cli_args import nonempty_path
+
 __all__ = ["add_arguments", "run", "parameter_table"]
 
 #: Units of the names that do not carry them in a suffix (SI; see samii.sim.mjcf and sim/hydraulic.c).
@@ -53,7 +55,7 @@ def parameter_table(model: str | None = None) -> list[dict]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--model", metavar="PARAMS.json", help="a parameter file (samii calibrate writes them; default: the embedded model's)")
+    p.add_argument("--model", metavar="PARAMS.json", type=nonempty_path, help="a parameter file (samii calibrate writes them; default: the embedded model's)")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
 
 

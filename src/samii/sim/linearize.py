@@ -235,7 +235,20 @@ class ModesReport:
             "pose_deg": [round(a, 6) for a in self.pose_deg],
             "base_modes": [{"freq_hz": m.freq_hz, "zeta": m.zeta} for m in self.base_modes],
             "coupled_poles": [[float(p.real), float(p.imag)] for p in self.coupled_poles],
+            "stable": self.stable,
+            "unstable_poles": [[float(p.real), float(p.imag)] for p in self.unstable_poles],
         }
+
+    @property
+    def unstable_poles(self) -> list[complex]:
+        """Poles of the coupled system (servo loop closed) with Re s > 1e-6 1/s (a time constant above 11 days:
+        anything slower is round-off about a marginal pole)."""
+        return [p for p in self.coupled_poles if p.real > 1e-6]
+
+    @property
+    def stable(self) -> bool:
+        """Whether the nominal pose is a stable rest state of the simulator under its servo loop."""
+        return not self.unstable_poles
 
 
 def modes_report(path=None, *, overrides=None, max_freq_hz: float = 45.0) -> ModesReport:

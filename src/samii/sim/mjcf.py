@@ -144,10 +144,23 @@ class ArmParams:
     #: GJ); the accelerometer then measures along north, the direction joint 2 drives.
     heading_deg: float = 0.0
 
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.name == "heading_deg":
+                if not (math.isfinite(v) and -360 <= v <= 360):
+                    raise ValueError(f"arm parameter heading_deg must lie in -360...360 deg, got {v!r}")
+            elif f.name in ("joint1_stiffness_Nm_rad", "held_stiffness_Nm_rad", "held_armature_kgm2"):
+                if not (math.isfinite(v) and v > 0):
+                    raise ValueError(f"arm parameter {f.name} must be finite and positive, got {v!r}")
+            elif not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"arm parameter {f.name} must be finite and >= 0, got {v!r}")
+
 
 @dataclass(frozen=True)
 class HydraulicConfig:
-    """Config attributes of the samii.hydraulic plugin (SI units; see sim/hydraulic.c)."""
+    """Config attributes of the samii.hydraulic plugin (SI units; see sim/hydraulic.c); checked
+    by the plugin's own rules (samii.sim.hydraulic_reference.ATTRIBUTES) when constructed."""
 
     supply_pressure: float = 7.0e6
     bulk_modulus: float = 0.7e9
@@ -160,6 +173,17 @@ class HydraulicConfig:
     #: 1 V per degree: the rig's unity position feedback with theta in degrees.
     position_gain: float = 180.0 / math.pi
     reference_angle: float = math.pi / 2
+
+    def __post_init__(self) -> None:
+        from samii.sim.hydraulic_reference import ATTRIBUTES
+
+        for name, (unit, rule) in ATTRIBUTES.items():
+            v = getattr(self, name)
+            ok = math.isfinite(v) and (v > 0 if rule == "positive" else v >= 0 if rule == "nonnegative" else True)
+            if not ok:
+                need = {"positive": "> 0", "nonnegative": ">= 0", "finite": "finite"}[rule]
+                raise ValueError(f"hydraulic parameter {name} must be a finite number {need if rule != 'finite' else ''} in {unit}, got {v!r}"
+                                 .replace("  ", " "))
 
 
 @dataclass(frozen=True)

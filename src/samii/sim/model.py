@@ -59,8 +59,9 @@ def default_model_path() -> Path:
     return model_dir() / "samii.xml"
 
 
-def params_from_dict(d: Mapping) -> SamiiParams:
-    """Inverse of ``SamiiParams.as_dict``; unknown keys are an error."""
+def params_from_dict(d: Mapping, *, complete: bool = False) -> SamiiParams:
+    """Inverse of ``SamiiParams.as_dict``; unknown keys are an error, and with ``complete`` so is a
+    missing one (a parameter file lists every parameter: nothing is silently taken from the defaults)."""
     sections = {"beam": BeamParams, "arm": ArmParams, "hydraulic": HydraulicConfig}
     kw = {}
     for key, value in d.items():
@@ -82,6 +83,14 @@ def params_from_dict(d: Mapping) -> SamiiParams:
             kw[key] = float(value)
         else:
             raise ValueError(f"unknown parameter section {key!r}; expected beam, arm, hydraulic, timestep_s")
+    if complete:
+        expected = {"beam": BeamParams, "arm": ArmParams, "hydraulic": HydraulicConfig}
+        missing = [k for k in (*expected, "timestep_s") if k not in d]
+        missing += [f"{k}.{f.name}" for k, cls in expected.items() if isinstance(d.get(k), Mapping)
+                    for f in fields(cls) if f.name not in d[k]]
+        if missing:
+            raise ValueError(f"missing {', '.join(missing[:4])}{', ...' if len(missing) > 4 else ''}: a parameter file lists every "
+                             "parameter (samii params --json shows them; samii calibrate writes complete files)")
     return SamiiParams(**kw)
 
 
@@ -153,7 +162,7 @@ def read_params_file(path: str | Path) -> SamiiParams:
     if not isinstance(data, dict) or not isinstance(data.get("params"), dict):
         raise InputError(f"{path}: a parameter file is a JSON object with a 'params' object (sections beam, arm, hydraulic, timestep_s)")
     try:
-        return params_from_dict(data["params"])
+        return params_from_dict(data["params"], complete=True)
     except (TypeError, ValueError) as exc:
         raise InputError(f"{path}: {exc}") from None
 
