@@ -124,10 +124,12 @@ def _check_loop_stable(model) -> None:
     bad = s[s.real > 1e-3]
     if bad.size:
         worst = bad[np.argmax(bad.real)]
+        how = (f"it would oscillate on its own at {abs(worst.imag) / (2 * np.pi):.3g} Hz" if abs(worst.imag) > 1e-6
+               else "it would drift away from the pose on its own (a real pole: e.g. a beam buckling under its load)")
         raise SimulationUnstable(
-            f"the servo loop is unstable at the nominal pose before any excitation: pole at {worst.real:.3g} "
-            f"{worst.imag:+.3g}j 1/s ({abs(worst.imag) / (2 * np.pi):.3g} Hz, growing {worst.real:.3g} 1/s); "
-            "it would oscillate on its own, not measure (check hydraulic.position_gain and the model)")
+            f"the model under its servo loop is unstable at the nominal pose before any excitation: pole at {worst.real:.3g} "
+            f"{worst.imag:+.3g}j 1/s, growing {worst.real:.3g} 1/s; {how}, not measure (check the overridden parameters, "
+            "e.g. hydraulic.position_gain, beam.length_m)")
 
 
 def _check_rails(ts, kind: str) -> None:
