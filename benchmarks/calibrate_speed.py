@@ -27,20 +27,13 @@ import time
 
 import numpy as np
 
-from samii.calibrate import calibrate
+from samii.calibrate import MODE_KNOBS, calibrate
 from samii.calibrate.simulator import SimulatorFRF, parameter_value
 from samii.identify.synthetic import SweptSineNoise, synthesize
 from samii.measure.frf import log_frequency_grid
 from samii.sim.model import default_params
 
-SIX = (
-    "beam.clamp_stiffness_Nm_rad",
-    "arm.joint1_stiffness_Nm_rad",
-    "beam.clamp_maxwell_stiffness_Nm_rad",
-    "arm.joint1_damping_Nms_rad",
-    "hydraulic.total_volume",
-    "hydraulic.leakage_coefficient",
-)
+SIX = MODE_KNOBS
 REPEATS = 3
 GOAL_S = 30.0
 

@@ -13,7 +13,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from samii.calibrate import calibrate
+from samii.calibrate import MODE_KNOBS, calibrate
 from samii.calibrate.cli import load_target
 from samii.calibrate.simulator import SimulatorFRF, parameter_value
 from samii.cli import main
@@ -23,15 +23,7 @@ from samii.measure.io import write_frf_csv
 from samii.sim.linearize import base_modes
 from samii.sim.model import default_params, load_model, load_spec
 
-#: Six knobs that set the three base modes, their damping and the hydraulic pole pair.
-SIX = (
-    "beam.clamp_stiffness_Nm_rad",
-    "arm.joint1_stiffness_Nm_rad",
-    "beam.clamp_maxwell_stiffness_Nm_rad",
-    "arm.joint1_damping_Nms_rad",
-    "hydraulic.total_volume",
-    "hydraulic.leakage_coefficient",
-)
+SIX = MODE_KNOBS
 FACTORS = np.array([1.2, 0.8, 1.2, 0.8, 1.2, 0.8])  # truth = embedded value x factor: the start is 20 % off
 
 

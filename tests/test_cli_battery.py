@@ -457,10 +457,9 @@ def test_ctrl_c_during_start_up(tmp_path):
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert "Traceback" not in err, err
-    if proc.returncode != 0:  # a very fast machine may have finished the 4 s run: then nothing to check
-        assert proc.returncode == 130, err
-        assert len([ln for ln in err.splitlines() if ln.strip()]) == 1, err
-        assert not out.exists()
+    assert proc.returncode == 130, err  # the run lasts about 4 s: 0.3 s in, it is still starting
+    assert len([ln for ln in err.splitlines() if ln.strip()]) == 1, err
+    assert not out.exists()
 
 
 def test_frf_records_metadata_is_checked(tmp_path, capsys):
@@ -526,9 +525,14 @@ def test_concurrent_runs_never_mix(tmp_path):
     assert sorted(p.name for p in (tmp_path / "p").iterdir()) == names
 
 
-def test_broken_pipe_is_quiet(tmp_path):
-    import subprocess
+def test_broken_pipe_is_quiet(capsys, monkeypatch):
+    """`samii params | head -1`: the reader leaves, stdout raises BrokenPipeError; exit 0, nothing on stderr."""
+    import io
 
-    proc = subprocess.run(f"{sys.executable} -c 'import sys; from samii.cli import main; sys.exit(main([\"params\"]))' | head -1",
-                          shell=True, capture_output=True, text=True, timeout=120)
-    assert "Traceback" not in proc.stderr and "BrokenPipe" not in proc.stderr
+    class ClosedPipe(io.StringIO):
+        def write(self, _text):
+            raise BrokenPipeError(32, "Broken pipe")
+
+    monkeypatch.setattr(sys, "stdout", ClosedPipe())
+    assert main(["params"]) == 0
+    assert capsys.readouterr().err == ""

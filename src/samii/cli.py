@@ -141,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
 def _main(argv: list[str] | None) -> int:
     import os
 
-    from samii.errors import EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_UNSTABLE, InputError, Interrupted, SimulationUnstable
+    from samii.errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_UNSTABLE, InputError, Interrupted, SimulationUnstable
 
     prog = "samii"
     try:
@@ -178,15 +178,11 @@ def _main(argv: list[str] | None) -> int:
     except InputError as exc:
         _report(prog, "error", exc)
         return EXIT_BAD_INPUT
-    except ValueError as exc:  # library validation (a LinAlgError is numerical trouble: internal, below)
+    except ValueError as exc:  # library validation; a LinAlgError is numerical trouble: a bug
         import numpy as np
 
         if isinstance(exc, np.linalg.LinAlgError):
-            if os.environ.get("SAMII_DEBUG"):
-                raise
-            print(f"{prog}: internal error: {type(exc).__name__}: {_one_line(exc)} (run with SAMII_DEBUG=1 for the traceback; please report it)",
-                  file=sys.stderr)
-            return EXIT_INTERNAL
+            return _internal_error(prog, exc)
         _report(prog, "error", exc)
         return EXIT_BAD_INPUT
     except MemoryError:
@@ -196,17 +192,26 @@ def _main(argv: list[str] | None) -> int:
         where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
         print(f"{prog}: error: {where}{exc.strerror or _one_line(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except Exception as exc:  # a bug: one line by default, the traceback on request
-        if _SIGNALLED:  # cut short by a signal (e.g. an import interrupted half-way): not a bug
-            signum = _SIGNALLED[0]
-            print(f"{prog}: stopped by signal {signum}; nothing half-written was kept", file=sys.stderr)
-            return EXIT_INTERRUPTED if signum == 2 else 128 + signum
-        if os.environ.get("SAMII_DEBUG"):
-            raise
-        print(f"{prog}: internal error: {type(exc).__name__}: {_one_line(exc)} (run with SAMII_DEBUG=1 for the traceback; please report it)",
-              file=sys.stderr)
-        return EXIT_INTERNAL
+    except Exception as exc:
+        return _internal_error(prog, exc)
 
+
+def _internal_error(prog: str, exc: Exception) -> int:
+    """An unexpected exception (call inside its ``except``): one line by default, the traceback with
+    ``SAMII_DEBUG=1``; cut short by a signal (an import interrupted half-way), it is that interruption."""
+    import os
+
+    from samii.errors import EXIT_INTERNAL, EXIT_INTERRUPTED
+
+    if _SIGNALLED:
+        signum = _SIGNALLED[0]
+        print(f"{prog}: stopped by signal {signum}; nothing half-written was kept", file=sys.stderr)
+        return EXIT_INTERRUPTED if signum == 2 else 128 + signum
+    if os.environ.get("SAMII_DEBUG"):
+        raise exc
+    print(f"{prog}: internal error: {type(exc).__name__}: {_one_line(exc)} (run with SAMII_DEBUG=1 for the traceback; please report it)",
+          file=sys.stderr)
+    return EXIT_INTERNAL
 
 if __name__ == "__main__":
     sys.exit(main())

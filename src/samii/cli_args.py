@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["finite_float", "float_in", "int_in", "positive_float", "nonnegative_float", "nonempty_path", "seed"]
+__all__ = ["finite_float", "float_in", "int_in", "name_value", "positive_float", "nonnegative_float", "nonempty_path", "seed"]
 
 
 def _number(text: str) -> float:
@@ -77,6 +77,20 @@ def nonnegative_float(text: str) -> float:
     if v < 0:
         raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
     return v
+
+
+def name_value(text: str) -> tuple[str, float]:
+    """``NAME=VALUE`` with a finite number: ``("beam.length_m", 4.3)`` (``--set``, ``--start``)."""
+    name, sep, value = text.partition("=")
+    if not sep or not name.strip():
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
+    try:
+        v = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: value {value!r} is not a number") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a finite number, got {value!r}")
+    return name.strip(), v
 
 
 def nonempty_path(text: str) -> str:

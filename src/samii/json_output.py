@@ -17,11 +17,12 @@ __all__ = ["dumps", "finite_or_none"]
 
 
 def finite_or_none(obj: Any) -> Any:
-    """``obj`` with every non-finite float (also numpy scalars and arrays) replaced by None."""
+    """``obj`` as plain JSON values: numpy scalars and arrays as Python ones, complex numbers as
+    ``[re, im]``, dict keys as strings, and every non-finite float replaced by None."""
     import numpy as np
 
     if isinstance(obj, dict):
-        return {k: finite_or_none(v) for k, v in obj.items()}
+        return {str(k): finite_or_none(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [finite_or_none(v) for v in obj]
     if isinstance(obj, np.ndarray):
@@ -32,6 +33,8 @@ def finite_or_none(obj: Any) -> Any:
         return int(obj)
     if isinstance(obj, np.bool_):
         return bool(obj)
+    if isinstance(obj, (complex, np.complexfloating)):  # a pole or zero: [re, im]
+        return [finite_or_none(float(obj.real)), finite_or_none(float(obj.imag))]
     return obj
 
 

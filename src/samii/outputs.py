@@ -83,8 +83,9 @@ def _check_creatable_dir(path: Path, option: str) -> None:
         raise InputError(f"{option} {_describe(path)}: cannot create it, {base} is not writable")
 
 
-def check_output_file(path, *, overwrite: bool, option: str) -> Path:
-    """Check, before any work, that a single output file (``--rerun FILE``, ``--save FILE``) can be written."""
+def check_output_file(path, *, overwrite: bool, option: str, beside: "OutputFolder | None" = None) -> Path:
+    """Check, before any work, that a single output file (``--rerun FILE``, ``--save FILE``) can be written,
+    and, given the run's ``beside`` folder, that it is not one of that folder's outputs or staging folders."""
     text = os.fspath(path)
     if not text.strip():
         raise InputError(f"{option}: expected a file name, got an empty string")
@@ -98,6 +99,8 @@ def check_output_file(path, *, overwrite: bool, option: str) -> Path:
         raise InputError(f"{option} {p}: folder {parent} does not exist")
     if not _can_create_in(parent):
         raise InputError(f"{option} {p}: folder {parent} is not writable")
+    if beside is not None and p.absolute().parent == beside.root.absolute() and (p.name in beside.names or p.name.startswith(_STAGE_PREFIX)):
+        raise InputError(f"{option} {p}: would replace the run's own output {p.name}; give it another name")
     return p
 
 
@@ -155,14 +158,11 @@ class OutputFolder:
     def _check_existing(self) -> None:
         if not self.root.is_dir():
             return
-        if self.overwrite:
-            folders = [n for n in self.names if (self.root / n).is_dir()]
-            if folders:
-                raise InputError(f"{self.option} {self.root}: {', '.join(folders)} is a folder; this run writes a file of that name")
-            return
         folders = [n for n in self.names if (self.root / n).is_dir()]
-        if folders:
+        if folders:  # never replaced, --overwrite or not
             raise InputError(f"{self.option} {self.root}: {', '.join(folders)} is a folder; this run writes a file of that name")
+        if self.overwrite:
+            return
         existing = [n for n in self.names if (self.root / n).exists()]
         if existing:
             shown = ", ".join(existing[:4]) + (", ..." if len(existing) > 4 else "")
@@ -218,10 +218,7 @@ class OutputFolder:
         fd = os.open(self.root, os.O_RDONLY)  # the folder itself is the lock: no lock file left behind
         try:
             fcntl.flock(fd, fcntl.LOCK_EX)
-            self._check_existing()
-            for name in staged:
-                if (self.root / name).is_dir():
-                    raise InputError(f"{self.option} {self.root}: {name} is a folder; cannot replace it with a file")
+            self._check_existing()  # again, under the lock: another run may have written meanwhile
             for name in staged:
                 os.replace(self._stage / name, self.root / name)
                 self.written.append(self.root / name)

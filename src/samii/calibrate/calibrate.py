@@ -46,7 +46,19 @@ from samii.identify.cost import FitProblem, Weighting
 from samii.identify.lack_of_fit import LackOfFit, lack_of_fit
 from samii.sim.mjcf import SamiiParams
 
-__all__ = ["PHYSICAL_LIMITS", "CalibrationResult", "calibrate", "default_bounds"]
+__all__ = ["MODE_KNOBS", "PHYSICAL_LIMITS", "CalibrationResult", "calibrate", "default_bounds"]
+
+#: Six physical parameters that set the simulator's three base modes, their damping and the
+#: hydraulic pole pair: what a calibration to a Bode test usually frees (the calibration test and
+#: benchmarks/calibrate_speed.py recover them from data started 20 % off).
+MODE_KNOBS: tuple[str, ...] = (
+    "beam.clamp_stiffness_Nm_rad",
+    "arm.joint1_stiffness_Nm_rad",
+    "beam.clamp_maxwell_stiffness_Nm_rad",
+    "arm.joint1_damping_Nms_rad",
+    "hydraulic.total_volume",
+    "hydraulic.leakage_coefficient",
+)
 
 #: Hard limits of parameters whose physics bounds them: (lo, hi, reason).
 PHYSICAL_LIMITS: Mapping[str, tuple[float, float, str]] = MappingProxyType({

@@ -10,7 +10,7 @@ import argparse
 import math
 from pathlib import Path
 
-from samii.cli_args import float_in, int_in, nonempty_path, positive_float
+from samii.cli_args import float_in, int_in, name_value, nonempty_path, positive_float
 from samii.errors import InputError
 
 __all__ = ["add_arguments", "run", "load_target"]
@@ -19,19 +19,6 @@ __all__ = ["add_arguments", "run", "load_target"]
 OUTPUTS = ("calibration.json", "calibrated_params.json", "calibration_bode.png")
 #: Named model curves that can stand in for data.
 NOTEBOOK_TARGETS = ("eq9.4",)
-
-
-def _name_value(text: str) -> tuple[str, float]:
-    name, sep, value = text.partition("=")
-    if not sep or not name.strip():
-        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
-    try:
-        v = float(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: value {value!r} is not a number") from None
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"{text!r}: value must be finite")
-    return name.strip(), v
 
 
 def _name_bounds(text: str) -> tuple[str, tuple[float, float]]:
@@ -55,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--param", action="append", default=[], metavar="NAME", required=True,
                         help="physical parameter to calibrate, a --set name such as beam.clamp_stiffness_Nm_rad or "
                         "hydraulic.total_volume; gain.base / gain.act for a sensor of unknown unit (repeatable)")
-    parser.add_argument("--start", action="append", default=[], type=_name_value, metavar="NAME=VALUE",
+    parser.add_argument("--start", action="append", default=[], type=name_value, metavar="NAME=VALUE",
                         help="starting value of a calibrated parameter (default: the model's value; a channel gain starts at the data's level against the model's)")
     parser.add_argument("--bound", action="append", default=[], type=_name_bounds, metavar="NAME=LO:HI",
                         help="bounds of a calibrated parameter (default: physical limits where known, else a factor 10 around the start)")

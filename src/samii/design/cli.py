@@ -20,8 +20,6 @@ Only numpy and the light samii.cli_args and samii.errors are imported at module 
 from __future__ import annotations
 
 import argparse
-import json
-import math
 import sys
 
 import numpy as np
@@ -141,33 +139,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 # ---- output helpers ----
 
 
-def _jsonable(x):
-    """``x`` with numpy scalars and arrays as Python values and non-finite numbers as ``None``."""
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, (bool, np.bool_)):
-        return bool(x)
-    if isinstance(x, (int, np.integer)):
-        return int(x)
-    if isinstance(x, (float, np.floating)):
-        f = float(x)
-        return f if math.isfinite(f) else None
-    if isinstance(x, (complex, np.complexfloating)):
-        return [_jsonable(float(np.real(x))), _jsonable(float(np.imag(x)))]
-    return x
-
-
 def _dumps(obj) -> str:
-    """Strict JSON (no NaN/Infinity tokens)."""
-    return json.dumps(_jsonable(obj), indent=1, allow_nan=False)
+    """Strict JSON (no NaN/Infinity tokens): :func:`samii.json_output.dumps`."""
+    from samii.json_output import dumps
+
+    return dumps(obj, indent=1)
 
 
 def _pairs(z) -> list[list[float | None]]:
-    return [[_jsonable(float(np.real(x))), _jsonable(float(np.imag(x)))] for x in np.atleast_1d(z)]
+    from samii.json_output import finite_or_none
+
+    return [finite_or_none(complex(x)) for x in np.atleast_1d(z)]
 
 
 def _fmt_complex(z: complex, width: int = 10, digits: int = 4) -> str:

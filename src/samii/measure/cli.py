@@ -18,6 +18,7 @@ from samii.json_output import dumps
 __all__ = ["add_arguments", "run"]
 
 _OUTPUTS = {"swept": ("timeseries.csv", "frf.csv"), "stepped": ("timeseries.csv", "frf.csv"), "both": ("timeseries.csv", "frf.csv", "timeseries_stepped.csv", "frf_stepped.csv")}
+_METHOD_LABEL = {"swept": "swept sine", "stepped": "stepped sine", "both": "swept and stepped sine"}
 #: Animation rate of the Rerun recording: a frame every 40 physics steps (25 fps at 1 ms).
 _FRAME_STEPS = 40
 
@@ -116,12 +117,10 @@ def _check_loop_stable(model) -> None:
     """Refuse a model whose servo loop is unstable at the nominal pose: it would oscillate on its own, not measure."""
     import numpy as np
 
-    from samii.sim.linearize import discrete_poles
+    from samii.sim.linearize import UNSTABLE_RATE_1_S, discrete_poles
 
-    dt = float(model.opt.timestep)
-    z = discrete_poles(model)
-    s = np.log(z.astype(complex)) / dt
-    bad = s[s.real > 1e-3]
+    s = np.log(discrete_poles(model).astype(complex)) / float(model.opt.timestep)
+    bad = s[s.real > UNSTABLE_RATE_1_S]
     if bad.size:
         worst = bad[np.argmax(bad.real)]
         how = (f"it would oscillate on its own at {abs(worst.imag) / (2 * np.pi):.3g} Hz" if abs(worst.imag) > 1e-6
@@ -156,10 +155,7 @@ def run(args: argparse.Namespace) -> int:
     sweep, stepped, plan = _excitations(args)
     names = list(_OUTPUTS[args.method]) + ["bode.png", "run.json"]
     folder = OutputFolder(args.out, names, overwrite=args.overwrite)
-    rerun_path = check_output_file(args.rerun, overwrite=args.overwrite, option="--rerun") if args.rerun else None
-    if rerun_path is not None and rerun_path.absolute().parent == folder.root.absolute() and (
-            rerun_path.name in names or rerun_path.name.startswith(".samii-stage")):
-        raise InputError(f"--rerun {rerun_path}: would replace the run's own output {rerun_path.name}; give the recording another name")
+    rerun_path = check_output_file(args.rerun, overwrite=args.overwrite, option="--rerun", beside=folder) if args.rerun else None
 
     from tqdm import tqdm
 
@@ -228,7 +224,7 @@ def run(args: argparse.Namespace) -> int:
             model_name = args.model or "embedded model"
             if overrides:
                 model_name += " with " + ", ".join(f"{k}={v:g}" for k, v in overrides.items())
-            title = f"samii measure: {args.method} sine, {amp:g} V, {'with' if noise else 'no'} sensor noise\n{model_name}"
+            title = f"samii measure: {_METHOD_LABEL[args.method]}, {amp:g} V, {'with' if noise else 'no'} sensor noise\n{model_name}"
             bode_plot(results.get("swept").frf if "swept" in results else None, stepped=results["stepped"].frf if "stepped" in results else None,
                       reference=reference, reference_label="linearised simulator", title=title, path=folder.path("bode.png"))
 
@@ -307,7 +303,7 @@ def run(args: argparse.Namespace) -> int:
         print(dumps(summary, indent=2))
         return 0
     tm = summary["timing"]
-    print(f"samii measure: {args.method} sine, {simulated_s:.0f} s simulated in {sim_wall:.1f} s "
+    print(f"samii measure: {_METHOD_LABEL[args.method]}, {simulated_s:.0f} s simulated in {sim_wall:.1f} s "
           f"({tm['real_time_factor']:.0f}x real time), {tm['total_wall_s']:.1f} s in all")
     for kind, pk in peaks.items():
         print(f"{kind}: peak load pressure {pk['load_pressure_pa'] / 1e6:.2f} MPa (supply {hp.supply_pressure / 1e6:.3g} MPa), "

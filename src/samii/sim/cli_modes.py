@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import math
 
-from samii.cli_args import positive_float
+from samii.cli_args import name_value, positive_float
 from samii.errors import InputError
 from samii.json_output import dumps
 
@@ -23,20 +22,14 @@ def parse_overrides(items: list[str]) -> dict[str, float]:
     (``samii params`` lists them)."""
     out = {}
     for item in items:
-        name, sep, value = item.partition("=")
-        if not sep or not name.strip():
-            raise InputError(f"--set {item!r}: expected NAME=VALUE, e.g. beam.length_m=4.3 (samii params lists the names)")
         try:
-            number = float(value)
-        except ValueError:
-            raise InputError(f"--set {item!r}: value {value!r} is not a number") from None
-        if not math.isfinite(number):
-            raise InputError(f"--set {item!r}: expected a finite number, got {value!r}")
-        if name.strip() in out:
-            raise InputError(f"--set {name.strip()}: given twice")
-        out[name.strip()] = number
+            name, number = name_value(item)
+        except argparse.ArgumentTypeError as exc:
+            raise InputError(f"--set {exc} (samii params lists the names)") from None
+        if name in out:
+            raise InputError(f"--set {name}: given twice")
+        out[name] = number
     return out
-
 
 def run(args: argparse.Namespace) -> int:
     import warnings
@@ -64,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
         wn = abs(s)
         zeta = -s.real / wn if wn > 0 else float("nan")
         im = f"{s.imag:+10.3f}j" if abs(s.imag) > 1e-9 else " " * 11
-        flag = "   UNSTABLE" if s.real > 1e-6 else ""
+        flag = "   UNSTABLE" if s in rep.unstable_poles else ""
         print(f"    {s.real:10.3f} {im}          {wn / (2 * np.pi):9.3f}   {zeta:.4f}{flag}")
     if not rep.stable:
         n = sum(1 for p in rep.unstable_poles if p.imag >= 0)

@@ -20,7 +20,7 @@ import mujoco
 import numpy as np
 import scipy.linalg
 
-__all__ = ["LinearModel", "BaseCoefficient", "Mode", "discrete_poles", "linearize", "modes_from_poles", "base_modes", "ModesReport", "modes_report"]
+__all__ = ["LinearModel", "BaseCoefficient", "Mode", "UNSTABLE_RATE_1_S", "discrete_poles", "linearize", "modes_from_poles", "base_modes", "ModesReport", "modes_report"]
 
 
 @dataclass(frozen=True)
@@ -188,6 +188,11 @@ def linearize(model: mujoco.MjModel, data: mujoco.MjData | None = None, *, posit
     return LinearModel(A, B, C, D, float(model.opt.timestep), float(position_gain_v_per_rad))
 
 
+#: Growth rate [1/s] above which a pole counts as unstable: a time constant of 11.6 days. Anything
+#: slower is round-off about a marginal pole (the logarithm of |z| = 1 + 1e-13 at dt = 1 ms is 1e-10 1/s).
+UNSTABLE_RATE_1_S = 1e-6
+
+
 def discrete_poles(model: mujoco.MjModel, data: mujoco.MjData | None = None, *, eps: float = 1e-6) -> np.ndarray:
     """Eigenvalues z of the one-step map about ``data`` (default the ``home`` keyframe): the simulator is
     stable there when every ``|z| <= 1``; ``log(z)/dt`` are its poles, with no matrix logarithm taken."""
@@ -241,9 +246,8 @@ class ModesReport:
 
     @property
     def unstable_poles(self) -> list[complex]:
-        """Poles of the coupled system (servo loop closed) with Re s > 1e-6 1/s (a time constant above 11 days:
-        anything slower is round-off about a marginal pole)."""
-        return [p for p in self.coupled_poles if p.real > 1e-6]
+        """Poles of the coupled system (servo loop closed) growing faster than ``UNSTABLE_RATE_1_S``."""
+        return [p for p in self.coupled_poles if p.real > UNSTABLE_RATE_1_S]
 
     @property
     def stable(self) -> bool:
