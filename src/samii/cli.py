@@ -20,6 +20,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "fit": ("samii.identify.cli", "fit the notebook's transfer-function models to an FRF file"),
     "calibrate": ("samii.calibrate.cli", "calibrate the simulator's physical parameters to FRF data"),
     "design": ("samii.design.cli", "control design: root loci, pole placement, pole cancellation, seed report"),
+    "closedloop": ("samii.closedloop.cli", "run a controller in the nonlinear simulator: step, Loper and release tests"),
 }
 
 

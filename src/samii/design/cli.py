@@ -5,8 +5,8 @@ Subcommands::
     samii design seed-report [--json] [--no-progress]
     samii design rlocus [--out DIR] [--json] [--no-plots] [--force] [--n-gains N] [--no-progress]
     samii design canonical [--modes 2|3] [--outputs accel|modal] [--out DIR] [--force] [--json]
-    samii design place [--sample-time-s T] [--zeta Z] [--observer placement|kalman] [--json]
-    samii design cancel [--loop theta|accel] [--gain K] [--json]
+    samii design place [--sample-time-s T] [--zeta Z] [--observer placement|kalman] [--json] [--save FILE.json]
+    samii design cancel [--loop theta|accel] [--gain K] [--sample-time-s T] [--json] [--save FILE.json]
 
 Errors a user can fix are :class:`samii.errors.InputError` (exit 2, one line
 naming the option); numeric options are checked at parse time
@@ -32,6 +32,10 @@ __all__ = ["add_arguments", "run", "N_GAINS_RANGE", "MAX_ABS_CANCEL_GAIN", "PLOT
 #: ``rlocus --n-gains`` bounds: the log-spaced tracking grid spans 8 decades (1e-5 to 1e3 times the
 #: crossing gains), so 100 points is about 12 per decade; run time grows linearly (about 10 s at 3000).
 N_GAINS_RANGE = (100, 100_000)
+
+#: ``cancel --sample-time-s`` bound [s]: 10 samples per period of the fastest root of the compensator
+#: (the cancelled third-mode pair of eq 10.2, |s| = 156.8 rad/s): 2 pi / 156.8 / 10 = 4.0 ms.
+MAX_CANCEL_SAMPLE_TIME_S = 4e-3
 
 #: Gains per sign drawn in each root-locus figure (at most ``--n-gains``).
 PLOT_MAX_GAINS = 1500
@@ -122,6 +126,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="kalman: standard deviation of the base-acceleration measurement noise [the notebook's acceleration "
                    "unit, which it does not state]")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the design as JSON")
+    _add_save(p)
 
     p = sub.add_parser(
         "cancel",
@@ -133,7 +138,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--gain", type=_cancel_gain, default=None, metavar="K",
                    help=f"use this loop gain K (1 + K L = 0; nonzero, |K| <= {MAX_ABS_CANCEL_GAIN:g}) instead of the "
                    "rule: the smallest K at which the slowest moving closed-loop pair reaches zeta 0.7 (0.0721)")  # fmt: skip
+    p.add_argument("--sample-time-s", type=float_in(0.0, MAX_CANCEL_SAMPLE_TIME_S, lo_open=True, unit="s"), default=1e-3, metavar="T",
+                   help=f"sample time of the runnable controller (--save) [s], 0 < T <= {MAX_CANCEL_SAMPLE_TIME_S:g} (default 0.001): "
+                   "10 samples per period of the fastest root, the cancelled third mode at 156.8 rad/s")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the design as JSON (non-finite values as null)")
+    _add_save(p)
+
+
+def _add_save(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--save", metavar="FILE.json", type=nonempty_path,
+                   help="write the runnable controller (matrices, sample time, inputs, units, provenance) for samii closedloop "
+                   "--controller FILE.json; the file must not exist unless --force/--overwrite")  # fmt: skip
+    p.add_argument("--force", "--overwrite", dest="force", action="store_true", help="with --save, replace an existing file")
 
 
 # ---- output helpers ----
@@ -286,8 +302,28 @@ def _check_place_options(args) -> None:
         raise InputError(f"{', '.join(given)}: only used with --observer kalman (the placement observer takes no noise model)")
 
 
+def _save_target(args):
+    """The ``--save`` file, checked before any work (None without ``--save``)."""
+    from samii.outputs import check_output_file
+
+    if args.save is None:
+        if args.force:
+            raise InputError("--force/--overwrite: only meaningful with --save")
+        return None
+    return check_output_file(args.save, overwrite=args.force, option="--save")
+
+
+def _save(saved, path, args, out: dict) -> None:
+    from samii.closedloop.controllers import write_controller
+
+    write_controller(saved, path)
+    out["saved"] = str(path)
+    args.saved_controller = str(path)  # the text report names it last (run)
+
+
 def run_place(args) -> int:
     _check_place_options(args)
+    save = _save_target(args)
     from samii import notebook as nb
     from samii.design import canonical as cc
     from samii.design import placement as pl
@@ -332,6 +368,15 @@ def run_place(args) -> int:
         "L": d.L.tolist(),
         "N": d.N,
     }  # fmt: skip
+    if save is not None:
+        from samii.closedloop.controllers import NOTEBOOK_INPUT_SCALE, NOTEBOOK_UNITS_SI, SavedController
+
+        scale = {k: NOTEBOOK_INPUT_SCALE[k] for k in ("theta_ref", "theta", "accel")}
+        c = d.controller(input_scale=scale, model_units=NOTEBOOK_UNITS_SI)
+        prov = {"designed_on": "eq 1.4 (notebook, 2 base modes), canonical form of chapter 5", "design": "samii design place (chapter 8)",
+                "sample_time_s": T, "zeta": d.zeta, "observer": d.observer, "kalman_noise_std": out["kalman_noise_std"],
+                "closed_loop_stable_on_design_model": stable}  # fmt: skip
+        _save(SavedController(c, True, prov), save, args, out)
     if args.json:
         print(_dumps(out))
         return 0
@@ -357,6 +402,7 @@ def run_cancel(args) -> int:
     from samii import notebook as nb
     from samii.design.cancel import design_pole_cancel
 
+    save = _save_target(args)
     d = design_pole_cancel(nb.EQ9_4, loop=args.loop, gain=args.gain)
     cl = d.closed_loop
     bad = d.unstable_poles
@@ -378,6 +424,17 @@ def run_cancel(args) -> int:
         "reference_gain_for_unit_dc": d.reference_gain if stable else None,
         "controller_scales_reference_by_default": d.loop == "theta",
     }
+    if save is not None:
+        if not stable:
+            raise InputError(f"--save: the closed loop on eq 9.4 is unstable at K = {d.gain:g}; a controller that is unstable on its own "
+                             "design model is not saved")  # fmt: skip
+        from samii.closedloop.controllers import NOTEBOOK_INPUT_SCALE, NOTEBOOK_UNITS_SI, SavedController
+
+        names = ("theta_ref", "theta") if d.loop == "theta" else ("theta_ref", "theta", "accel")
+        c = d.controller(sample_time_s=args.sample_time_s, input_scale={k: NOTEBOOK_INPUT_SCALE[k] for k in names}, model_units=NOTEBOOK_UNITS_SI)
+        prov = {"designed_on": "eq 9.4 (notebook, 3 base modes)", "design": "samii design cancel (chapter 10)", "loop": d.loop,
+                "gain": d.gain, "gain_chosen_by_rule": args.gain is None, "sample_time_s": args.sample_time_s}  # fmt: skip
+        _save(SavedController(c, True, prov), save, args, out)
     if args.json:
         print(_dumps(out))
         return 0
@@ -406,7 +463,11 @@ _RUN = {"seed-report": run_seed_report, "rlocus": run_rlocus, "canonical": run_c
 
 
 def run(args) -> int:
-    return _RUN[args.design_command](args)
+    code = _RUN[args.design_command](args)
+    saved = getattr(args, "saved_controller", None)
+    if saved and not args.json:
+        print(f"  controller written to {saved} (run it: samii closedloop --controller {saved} --scenario step)")
+    return code
 
 
 if __name__ == "__main__":  # pragma: no cover

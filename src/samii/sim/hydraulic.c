@@ -91,10 +91,71 @@ enum {
   NATTR
 };
 
-static const char* const kAttributes[NATTR] = {
+// Optional attributes (empty = absent): the reference input and the digital controller card.
+// Keep in sync with samii/sim/hydraulic_reference.py (OPTIONAL_ATTRIBUTES).
+enum {
+  OPT_REFERENCE_ACTUATOR = NATTR,  // name of an actuator whose ctrl is the servo loop's reference
+                                   // offset theta_r [rad] (added to reference_angle)
+  OPT_CONTROLLER_STATES,           // n, states of the discrete controller (0...CTRL_MAX_STATES)
+  OPT_CONTROLLER_A,                // n*n numbers, row-major
+  OPT_CONTROLLER_B,                // n*3 numbers, row-major; inputs (theta_r, theta, accel), SI
+  OPT_CONTROLLER_C,                // n numbers
+  OPT_CONTROLLER_D,                // 3 numbers
+  OPT_CONTROLLER_STEPS,            // sample period in physics steps (integer >= 1)
+  OPT_CONTROLLER_DELAY,            // computation delay in physics steps (0...CTRL_MAX_DELAY_STEPS, any real)
+  OPT_CONTROLLER_REPLACES_SERVO,   // 1: while enabled the controller replaces Kp*(...); 0: adds to it
+  OPT_CONTROLLER_THETA_SENSOR,     // name of the jointpos sensor of the actuator's joint
+  OPT_CONTROLLER_ACCEL_SENSOR,     // name of the 3-axis accelerometer
+  OPT_CONTROLLER_ACCEL_DIRECTION,  // 3 numbers: accel = direction . sensor - offset
+  OPT_CONTROLLER_ACCEL_OFFSET,     // [m/s^2]
+  OPT_CONTROLLER_THETA_NOISE,      // name of an actuator whose ctrl is added to the sampled theta [rad]
+  OPT_CONTROLLER_ACCEL_NOISE,      // ... to the sampled accel [m/s^2]
+  OPT_CONTROLLER_THETA_LSB,        // ADC step of theta [rad], 0 = no quantisation
+  OPT_CONTROLLER_ACCEL_LSB,        // ADC step of accel [m/s^2], 0 = no quantisation
+  NATTR_ALL
+};
+
+static const char* const kAttributes[NATTR_ALL] = {
   "supply_pressure", "bulk_modulus", "total_volume", "displacement", "leakage_coefficient",
   "valve_time_constant", "rated_flow", "rated_voltage", "position_gain", "reference_angle",
+  "reference_actuator", "controller_states", "controller_a", "controller_b", "controller_c",
+  "controller_d", "controller_steps", "controller_delay_steps", "controller_replaces_servo",
+  "controller_theta_sensor", "controller_accel_sensor", "controller_accel_direction",
+  "controller_accel_offset", "controller_theta_noise", "controller_accel_noise",
+  "controller_theta_lsb", "controller_accel_lsb",
 };
+
+#define CTRL_NIN 3                 // controller inputs: theta_r [rad], theta [rad], accel [m/s^2]
+#define CTRL_MAX_STATES 64
+#define CTRL_MAX_DELAY_STEPS 200
+
+// Plugin state of an instance with a controller (mjData.plugin_state, part of
+// mjSTATE_FULLPHYSICS, so rollouts carry it): see the header comment.
+enum {
+  ST_ENABLED = 0,  // 1: the controller runs; 0: the servo amplifier alone (set from outside)
+  ST_COUNTER,      // physics steps since the controller was enabled (sample when % steps == 0)
+  ST_VALVE,        // valve voltage applied at the end of the last step [V]
+  ST_COMMAND,      // the controller's latest command (held, zero-order) [V]
+  ST_BUFFER        // ring of held commands, newest first (delay_whole + 2), then the n states
+};
+
+typedef struct {
+  int n;                        // states
+  mjtNum* A;                    // n x n
+  mjtNum* B;                    // n x 3
+  mjtNum* C;                    // n
+  mjtNum D[CTRL_NIN];
+  int steps;                    // sample period [physics steps]
+  int delay_whole;              // delay = delay_whole + delay_frac [physics steps]
+  mjtNum delay_frac;
+  int replaces;
+  int theta_adr, accel_adr;     // sensordata addresses
+  mjtNum direction[3], accel_offset;
+  int theta_noise, accel_noise; // actuator ids or -1
+  mjtNum theta_lsb, accel_lsb;
+  int nbuf;                     // delay_whole + 2
+  mjtNum* z_scratch;            // n
+} Card;
 
 // rule for each attribute: 1 = must be > 0, 0 = must be >= 0, -1 = any finite value
 static const int kRule[NATTR] = {1, 1, 1, 1, 0, 1, 1, 1, 0, -1};
@@ -113,6 +174,9 @@ typedef struct {
   mjtNum c_p;         // 4*beta_e/(Vt*Ps): d(P/Ps)/dt per unit of net flow [1/m^3]
   mjtNum torque_per;  // Dm*Ps: torque per unit of P/Ps [N m]
   mjtNum leak;        // Ctp*Ps: leakage flow per unit of P/Ps [m^3/s]
+
+  int reference;      // actuator id of the reference input theta_r, or -1
+  Card* card;         // the digital controller, or NULL
 } Hydraulic;
 
 
@@ -142,6 +206,217 @@ static int parse_attribute(const mjModel* m, int instance, int i, mjtNum* out,
   return 0;
 }
 
+
+
+// Optional attribute text, or NULL when absent or empty.
+static const char* optional_text(const mjModel* m, int instance, int i) {
+  const char* text = mj_getPluginConfig(m, instance, kAttributes[i]);
+  return (text && text[0]) ? text : NULL;
+}
+
+// Parse exactly `count` finite numbers from an optional attribute; -1 with a message if wrong.
+static int parse_numbers(const mjModel* m, int instance, int i, mjtNum* out, int count,
+                         const char* name) {
+  const char* text = optional_text(m, instance, i);
+  if (!text) {
+    mju_warning("%s (actuator '%s'): config attribute '%s' is required with a controller "
+                "(%d numbers)", SAMII_PLUGIN_NAME, name, kAttributes[i], count);
+    return -1;
+  }
+  const char* p = text;
+  for (int k = 0; k < count; k++) {
+    char* end = NULL;
+    double value = strtod(p, &end);
+    if (end == p || !isfinite(value)) {
+      mju_warning("%s (actuator '%s'): config attribute '%s' has %d valid numbers "
+                  "(expected %d finite numbers)", SAMII_PLUGIN_NAME, name, kAttributes[i], k, count);
+      return -1;
+    }
+    out[k] = value;
+    p = end;
+  }
+  while (*p == ' ' || *p == '\t' || *p == '\n' || *p == '\r') p++;
+  if (*p) {
+    mju_warning("%s (actuator '%s'): config attribute '%s' has more than %d numbers or text "
+                "after them", SAMII_PLUGIN_NAME, name, kAttributes[i], count);
+    return -1;
+  }
+  return 0;
+}
+
+// One optional number in [lo, hi] (default when absent); -1 with a message if wrong.
+static int parse_optional(const mjModel* m, int instance, int i, mjtNum lo, mjtNum hi,
+                          mjtNum fallback, mjtNum* out, const char* name) {
+  if (!optional_text(m, instance, i)) {
+    *out = fallback;
+    return 0;
+  }
+  if (parse_numbers(m, instance, i, out, 1, name)) return -1;
+  if (!(*out >= lo && *out <= hi)) {
+    mju_warning("%s (actuator '%s'): config attribute '%s' = %g is out of range "
+                "(expected %g...%g)", SAMII_PLUGIN_NAME, name, kAttributes[i], *out, lo, hi);
+    return -1;
+  }
+  return 0;
+}
+
+// Id of the object named by an optional attribute (-1 when absent), -2 with a message if unknown.
+static int named_id(const mjModel* m, int instance, int i, int type, const char* what,
+                    const char* name) {
+  const char* text = optional_text(m, instance, i);
+  if (!text) return -1;
+  int id = mj_name2id(m, type, text);
+  if (id < 0) {
+    mju_warning("%s (actuator '%s'): config attribute '%s' = '%s' names no %s",
+                SAMII_PLUGIN_NAME, name, kAttributes[i], text, what);
+    return -2;
+  }
+  return id;
+}
+
+static void card_free(Card* c) {
+  if (c) {
+    free(c->A);
+    free(c->B);
+    free(c->C);
+    free(c->z_scratch);
+    free(c);
+  }
+}
+
+// The states and delay a config asks for (used by nstate before init); 0 = no controller.
+static int card_size(const mjModel* m, int instance, int* n, int* nbuf) {
+  const char* text = optional_text(m, instance, OPT_CONTROLLER_STATES);
+  *n = 0;
+  *nbuf = 0;
+  if (!text) return 0;
+  *n = (int) strtol(text, NULL, 10);
+  const char* delay = optional_text(m, instance, OPT_CONTROLLER_DELAY);
+  double dl = delay ? strtod(delay, NULL) : 0;
+  if (!(dl >= 0 && dl <= CTRL_MAX_DELAY_STEPS)) dl = 0;  // init reports it
+  *nbuf = (int) floor(dl) + 2;
+  return 1;
+}
+
+// Build the controller card from the config; NULL (card_ok = 1) when none is configured,
+// NULL with card_ok = 0 (after mju_warning) when the config is wrong.
+static Card* card_create(const mjModel* m, int instance, int actuator, const char* name,
+                         int* card_ok) {
+  *card_ok = 0;
+  if (!optional_text(m, instance, OPT_CONTROLLER_STATES)) {
+    for (int i = OPT_CONTROLLER_A; i < NATTR_ALL; i++) {
+      if (optional_text(m, instance, i)) {
+        mju_warning("%s (actuator '%s'): config attribute '%s' given without controller_states",
+                    SAMII_PLUGIN_NAME, name, kAttributes[i]);
+        return NULL;
+      }
+    }
+    *card_ok = 1;
+    return NULL;
+  }
+  if (m->opt.integrator == mjINT_RK4) {
+    mju_warning("%s (actuator '%s'): the controller card needs the Euler or implicit "
+                "integrators (it runs in the advance callback), not RK4", SAMII_PLUGIN_NAME, name);
+    return NULL;
+  }
+  mjtNum value;
+  if (parse_optional(m, instance, OPT_CONTROLLER_STATES, 0, CTRL_MAX_STATES, 0, &value, name)) {
+    return NULL;
+  }
+  if (value != floor(value)) {
+    mju_warning("%s (actuator '%s'): controller_states = %g is not an integer",
+                SAMII_PLUGIN_NAME, name, value);
+    return NULL;
+  }
+  Card* c = (Card*) calloc(1, sizeof(Card));
+  if (!c) {
+    mju_warning("%s: out of memory", SAMII_PLUGIN_NAME);
+    return NULL;
+  }
+  int n = c->n = (int) value;
+  c->A = (mjtNum*) calloc(n * n + 1, sizeof(mjtNum));
+  c->B = (mjtNum*) calloc(n * CTRL_NIN + 1, sizeof(mjtNum));
+  c->C = (mjtNum*) calloc(n + 1, sizeof(mjtNum));
+  c->z_scratch = (mjtNum*) calloc(n + 1, sizeof(mjtNum));
+  if (!c->A || !c->B || !c->C || !c->z_scratch) {
+    mju_warning("%s: out of memory", SAMII_PLUGIN_NAME);
+    card_free(c);
+    return NULL;
+  }
+  mjtNum steps, delay, replaces;
+  if ((n && parse_numbers(m, instance, OPT_CONTROLLER_A, c->A, n * n, name)) ||
+      (n && parse_numbers(m, instance, OPT_CONTROLLER_B, c->B, n * CTRL_NIN, name)) ||
+      (n && parse_numbers(m, instance, OPT_CONTROLLER_C, c->C, n, name)) ||
+      parse_numbers(m, instance, OPT_CONTROLLER_D, c->D, CTRL_NIN, name) ||
+      parse_optional(m, instance, OPT_CONTROLLER_STEPS, 1, 1e6, 1, &steps, name) ||
+      parse_optional(m, instance, OPT_CONTROLLER_DELAY, 0, CTRL_MAX_DELAY_STEPS, 0, &delay, name) ||
+      parse_optional(m, instance, OPT_CONTROLLER_REPLACES_SERVO, 0, 1, 0, &replaces, name) ||
+      parse_optional(m, instance, OPT_CONTROLLER_ACCEL_OFFSET, -1e6, 1e6, 0, &c->accel_offset, name) ||
+      parse_optional(m, instance, OPT_CONTROLLER_THETA_LSB, 0, 1, 0, &c->theta_lsb, name) ||
+      parse_optional(m, instance, OPT_CONTROLLER_ACCEL_LSB, 0, 1e3, 0, &c->accel_lsb, name)) {
+    card_free(c);
+    return NULL;
+  }
+  if (!n) {
+    for (int i = OPT_CONTROLLER_A; i <= OPT_CONTROLLER_C; i++) {
+      if (optional_text(m, instance, i)) {
+        mju_warning("%s (actuator '%s'): config attribute '%s' given for a controller without "
+                    "states", SAMII_PLUGIN_NAME, name, kAttributes[i]);
+        card_free(c);
+        return NULL;
+      }
+    }
+  }
+  if (steps != floor(steps) || replaces != floor(replaces)) {
+    mju_warning("%s (actuator '%s'): controller_steps and controller_replaces_servo must be "
+                "integers (got %g, %g)", SAMII_PLUGIN_NAME, name, steps, replaces);
+    card_free(c);
+    return NULL;
+  }
+  c->steps = (int) steps;
+  c->delay_whole = (int) floor(delay);
+  c->delay_frac = delay - c->delay_whole;
+  c->replaces = (int) replaces;
+  c->nbuf = c->delay_whole + 2;
+
+  // measurements: the joint's angle sensor and the accelerometer, by name
+  int theta = named_id(m, instance, OPT_CONTROLLER_THETA_SENSOR, mjOBJ_SENSOR, "sensor", name);
+  int accel = named_id(m, instance, OPT_CONTROLLER_ACCEL_SENSOR, mjOBJ_SENSOR, "sensor", name);
+  if (theta == -1 || accel == -1) {
+    mju_warning("%s (actuator '%s'): a controller needs controller_theta_sensor and "
+                "controller_accel_sensor", SAMII_PLUGIN_NAME, name);
+    card_free(c);
+    return NULL;
+  }
+  if (theta < 0 || accel < 0) {
+    card_free(c);
+    return NULL;
+  }
+  int joint = m->actuator_trnid[2*actuator];
+  if (m->sensor_type[theta] != mjSENS_JOINTPOS || m->sensor_objid[theta] != joint ||
+      (m->sensor_type[accel] != mjSENS_ACCELEROMETER && m->sensor_type[accel] != mjSENS_FRAMELINACC) ||
+      m->sensor_dim[accel] != 3) {
+    mju_warning("%s (actuator '%s'): controller_theta_sensor must be a jointpos sensor of the "
+                "actuator's joint and controller_accel_sensor an accelerometer or framelinacc",
+                SAMII_PLUGIN_NAME, name);
+    card_free(c);
+    return NULL;
+  }
+  c->theta_adr = m->sensor_adr[theta];
+  c->accel_adr = m->sensor_adr[accel];
+  if (parse_numbers(m, instance, OPT_CONTROLLER_ACCEL_DIRECTION, c->direction, 3, name)) {
+    card_free(c);
+    return NULL;
+  }
+  c->theta_noise = named_id(m, instance, OPT_CONTROLLER_THETA_NOISE, mjOBJ_ACTUATOR, "actuator", name);
+  c->accel_noise = named_id(m, instance, OPT_CONTROLLER_ACCEL_NOISE, mjOBJ_ACTUATOR, "actuator", name);
+  if (c->theta_noise < -1 || c->accel_noise < -1) {
+    card_free(c);
+    return NULL;
+  }
+  *card_ok = 1;
+  return c;
+}
 
 // Build the instance from the model; NULL (after mju_warning) if anything is wrong.
 static Hydraulic* hydraulic_create(const mjModel* m, int instance) {
@@ -221,6 +496,18 @@ static Hydraulic* hydraulic_create(const mjModel* m, int instance) {
   h->c_p = 4 * value[ATTR_BULK_MODULUS] / (value[ATTR_TOTAL_VOLUME] * Ps);
   h->torque_per = value[ATTR_DISPLACEMENT] * Ps;
   h->leak = value[ATTR_LEAKAGE_COEFFICIENT] * Ps;
+
+  h->reference = named_id(m, instance, OPT_REFERENCE_ACTUATOR, mjOBJ_ACTUATOR, "actuator", name);
+  if (h->reference < -1) {
+    free(h);
+    return NULL;
+  }
+  int card_ok;
+  h->card = card_create(m, instance, actuator, name, &card_ok);
+  if (!card_ok) {
+    free(h);
+    return NULL;
+  }
   return h;
 }
 
@@ -228,8 +515,14 @@ static Hydraulic* hydraulic_create(const mjModel* m, int instance) {
 // ------------------------------------------------------------------------------------------------
 // dynamics
 
-// servo amplifier output v [V]: command plus position loop, saturated at +-10 V
-static mjtNum valve_voltage(const mjModel* m, const mjData* d, const Hydraulic* h) {
+// the servo loop's reference angle [rad]: reference_angle plus the reference input, if any
+static mjtNum reference(const mjData* d, const Hydraulic* h) {
+  mjtNum r = h->reference >= 0 ? d->ctrl[h->reference] : 0;
+  return h->value[ATTR_REFERENCE_ANGLE] + (mju_isBad(r) ? 0 : r);
+}
+
+// the excitation u [V]: ctrl, zeroed if bad, clamped to ctrlrange
+static mjtNum excitation(const mjModel* m, const mjData* d, const Hydraulic* h) {
   int a = h->actuator;
   mjtNum u = d->ctrl[a];
   if (mju_isBad(u)) {
@@ -238,8 +531,13 @@ static mjtNum valve_voltage(const mjModel* m, const mjData* d, const Hydraulic* 
   if (m->actuator_ctrllimited[a] && !mjDISABLED(mjDSBL_CLAMPCTRL)) {
     u = mju_clip(u, m->actuator_ctrlrange[2*a], m->actuator_ctrlrange[2*a+1]);
   }
+  return u;
+}
+
+// servo amplifier output v [V]: command plus position loop, saturated at +-10 V
+static mjtNum valve_voltage(const mjModel* m, const mjData* d, const Hydraulic* h) {
   mjtNum theta = d->qpos[h->qposadr];
-  mjtNum v = u + h->value[ATTR_POSITION_GAIN] * (h->value[ATTR_REFERENCE_ANGLE] - theta);
+  mjtNum v = excitation(m, d, h) + h->value[ATTR_POSITION_GAIN] * (reference(d, h) - theta);
   return mju_clip(v, -SAMII_AMPLIFIER_LIMIT_V, SAMII_AMPLIFIER_LIMIT_V);
 }
 
@@ -291,6 +589,82 @@ static void hydraulic_compute(const mjModel* m, mjData* d, int instance, int cap
   d->actuator_force[h->actuator] = h->torque_per * d->act[h->actadr + 1];
 }
 
+
+// spool position after holding the valve voltage v for dt (exact solution of the linear lag)
+static mjtNum spool_after(const Hydraulic* h, mjtNum x, mjtNum v, mjtNum dt) {
+  mjtNum target = v / h->value[ATTR_RATED_VOLTAGE];
+  return target + (x - target) * mju_exp(-dt / h->value[ATTR_VALVE_TIME_CONSTANT]);
+}
+
+static mjtNum quantise(mjtNum x, mjtNum lsb) {
+  return lsb > 0 ? lsb * round(x / lsb) : x;
+}
+
+// One physics step of the controller card (from advance, after MuJoCo's integration): sample the
+// measurements of t_n (sensordata still holds them), update the controller every `steps` steps,
+// and step the spool from x_n under the voltage the valve sees over [t_n, t_n + h): the held,
+// delayed command (two pieces for a fractional delay), plus the excitation and, unless the
+// controller replaces it, the position loop, saturated at +-10 V.
+static void card_step(const mjModel* m, mjData* d, int instance, const Hydraulic* h,
+                      mjtNum x_n) {
+  Card* c = h->card;
+  mjtNum* s = d->plugin_state + m->plugin_stateadr[instance];
+  mjtNum* buf = s + ST_BUFFER;
+  mjtNum* z = buf + c->nbuf;
+  mjtNum theta_r = reference(d, h) - h->value[ATTR_REFERENCE_ANGLE];
+  mjtNum theta = d->sensordata[c->theta_adr] - h->value[ATTR_REFERENCE_ANGLE];
+  mjtNum servo = h->value[ATTR_POSITION_GAIN] * (theta_r - theta);
+  mjtNum u = excitation(m, d, h);
+  int enabled = s[ST_ENABLED] != 0;
+
+  memmove(buf + 1, buf, (c->nbuf - 1) * sizeof(mjtNum));
+  if (enabled) {
+    if (((long long) s[ST_COUNTER]) % c->steps == 0) {
+      const mjtNum* a = d->sensordata + c->accel_adr;
+      mjtNum accel = c->direction[0]*a[0] + c->direction[1]*a[1] + c->direction[2]*a[2]
+                     - c->accel_offset;
+      mjtNum w[CTRL_NIN] = {
+        theta_r,
+        quantise(theta + (c->theta_noise >= 0 ? d->ctrl[c->theta_noise] : 0), c->theta_lsb),
+        quantise(accel + (c->accel_noise >= 0 ? d->ctrl[c->accel_noise] : 0), c->accel_lsb),
+      };
+      int n = c->n;
+      mjtNum v = c->D[0]*w[0] + c->D[1]*w[1] + c->D[2]*w[2];
+      for (int i = 0; i < n; i++) v += c->C[i] * z[i];
+      for (int i = 0; i < n; i++) {
+        mjtNum zi = c->B[CTRL_NIN*i]*w[0] + c->B[CTRL_NIN*i+1]*w[1] + c->B[CTRL_NIN*i+2]*w[2];
+        const mjtNum* Ai = c->A + n*i;
+        for (int j = 0; j < n; j++) zi += Ai[j] * z[j];
+        c->z_scratch[i] = zi;
+      }
+      mju_copy(z, c->z_scratch, n);
+      s[ST_COMMAND] = v;
+    }
+    s[ST_COUNTER] += 1;
+  } else {
+    // the servo amplifier alone; the ring records what the position loop commands, so that a
+    // controller replacing it takes over its history through the delay (no jump at switch-on)
+    s[ST_COMMAND] = c->replaces ? servo : 0;
+  }
+  buf[0] = s[ST_COMMAND];
+
+  mjtNum dt = m->opt.timestep, x = x_n, v;
+  if (!enabled) {
+    v = mju_clip(u + servo, -SAMII_AMPLIFIER_LIMIT_V, SAMII_AMPLIFIER_LIMIT_V);
+  } else {
+    mjtNum base = u + (c->replaces ? 0 : servo);
+    if (c->delay_frac > 0) {
+      mjtNum v_old = mju_clip(base + buf[c->delay_whole + 1], -SAMII_AMPLIFIER_LIMIT_V,
+                              SAMII_AMPLIFIER_LIMIT_V);
+      x = mju_clip(spool_after(h, x, v_old, c->delay_frac * dt), -1, 1);
+      dt *= 1 - c->delay_frac;
+    }
+    v = mju_clip(base + buf[c->delay_whole], -SAMII_AMPLIFIER_LIMIT_V, SAMII_AMPLIFIER_LIMIT_V);
+  }
+  d->act[h->actadr] = spool_after(h, x, v, dt);
+  s[ST_VALVE] = v;
+}
+
 // after MuJoCo's integration of act (explicit Euler), qvel and qpos (see the header comment)
 static void hydraulic_advance(const mjModel* m, mjData* d, int instance) {
   const Hydraulic* h = (const Hydraulic*) d->plugin_data[instance];
@@ -311,8 +685,10 @@ static void hydraulic_advance(const mjModel* m, mjData* d, int instance) {
     mjtNum qvel_n = (load_flow(h, x_n, p_n) - h->leak * p_n - act_dot[1] / h->c_p) / Dm;
     act[1] -= dt * h->c_p * Dm * (d->qvel[h->dofadr] - qvel_n);
 
-    // exact spool step: act_dot[0] = (target - x_n)/tau_v, or 0 against the stop
-    if (act_dot[0] != 0) {
+    if (h->card) {
+      card_step(m, d, instance, h, x_n);
+    } else if (act_dot[0] != 0) {
+      // exact spool step: act_dot[0] = (target - x_n)/tau_v, or 0 against the stop
       mjtNum tau_v = h->value[ATTR_VALVE_TIME_CONSTANT];
       mjtNum target = x_n + tau_v * act_dot[0];
       act[0] = target + (x_n - target) * mju_exp(-dt / tau_v);
@@ -328,7 +704,11 @@ static void hydraulic_advance(const mjModel* m, mjData* d, int instance) {
 // plugin callbacks
 
 static int hydraulic_nstate(const mjModel* m, int instance) {
-  return 0;  // all states are in mjData.act
+  // the actuator's states are in mjData.act; a controller card keeps its own here
+  int n, nbuf;
+  if (!card_size(m, instance, &n, &nbuf)) return 0;
+  if (n < 0 || n > CTRL_MAX_STATES) n = 0;  // init reports it
+  return ST_BUFFER + nbuf + n;
 }
 
 static int hydraulic_init(const mjModel* m, mjData* d, int instance) {
@@ -341,13 +721,21 @@ static int hydraulic_init(const mjModel* m, mjData* d, int instance) {
 }
 
 static void hydraulic_destroy(mjData* d, int instance) {
-  free((void*) d->plugin_data[instance]);
+  Hydraulic* h = (Hydraulic*) d->plugin_data[instance];
+  if (h) card_free(h->card);
+  free(h);
   d->plugin_data[instance] = 0;
 }
 
 static void hydraulic_reset(const mjModel* m, mjtNum* plugin_state, void* plugin_data,
                             int instance) {
-  // nothing: the states are in mjData.act, which mj_resetData zeroes (or a keyframe sets)
+  // the actuator's states are in mjData.act, which mj_resetData zeroes (or a keyframe sets);
+  // a controller card starts enabled, at rest
+  int n, nbuf;
+  if (!card_size(m, instance, &n, &nbuf)) return;
+  if (n < 0 || n > CTRL_MAX_STATES) n = 0;
+  mju_zero(plugin_state, ST_BUFFER + nbuf + n);
+  plugin_state[ST_ENABLED] = 1;
 }
 
 mjPLUGIN_LIB_INIT(samii_hydraulic) {
@@ -361,7 +749,7 @@ mjPLUGIN_LIB_INIT(samii_hydraulic) {
   mjp_defaultPlugin(&plugin);
   plugin.name = SAMII_PLUGIN_NAME;
   plugin.capabilityflags |= mjPLUGIN_ACTUATOR;
-  plugin.nattribute = NATTR;
+  plugin.nattribute = NATTR_ALL;
   plugin.attributes = kAttributes;
   plugin.nstate = hydraulic_nstate;
   plugin.init = hydraulic_init;

@@ -34,6 +34,7 @@ import numpy as np
 __all__ = [
     "AMPLIFIER_LIMIT_V",
     "ATTRIBUTES",
+    "OPTIONAL_ATTRIBUTES",
     "HydraulicConfigError",
     "HydraulicParams",
     "InertiaLoad",
@@ -65,6 +66,16 @@ ATTRIBUTES: Mapping[str, tuple[str, Rule]] = {
     "reference_angle": ("rad", "finite"),
 }
 """Config attributes of the plugin: unit and rule. All are required."""
+
+#: Optional attributes after the ten physical ones (hydraulic.c, same order): the servo loop's
+#: reference input and the digital controller card (samii.closedloop.card writes them).
+OPTIONAL_ATTRIBUTES: tuple[str, ...] = (
+    "reference_actuator", "controller_states", "controller_a", "controller_b", "controller_c",
+    "controller_d", "controller_steps", "controller_delay_steps", "controller_replaces_servo",
+    "controller_theta_sensor", "controller_accel_sensor", "controller_accel_direction",
+    "controller_accel_offset", "controller_theta_noise", "controller_accel_noise",
+    "controller_theta_lsb", "controller_accel_lsb",
+)
 
 _EXPECTED = {
     "positive": "a finite number > 0",
@@ -157,10 +168,10 @@ class HydraulicParams:
         HydraulicConfigError
             Naming the first missing, unknown, unparsable or non-physical attribute.
         """
-        unknown = sorted(set(config) - set(ATTRIBUTES))
+        unknown = sorted(set(config) - set(ATTRIBUTES) - set(OPTIONAL_ATTRIBUTES))
         if unknown:
             raise HydraulicConfigError(
-                f"{source}: unknown config attribute '{unknown[0]}' (expected one of {', '.join(ATTRIBUTES)})"
+                f"{source}: unknown config attribute '{unknown[0]}' (expected one of {', '.join([*ATTRIBUTES, *OPTIONAL_ATTRIBUTES])})"
             )
         values = {}
         for name in ATTRIBUTES:

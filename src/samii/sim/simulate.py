@@ -17,7 +17,7 @@ import numpy as np
 
 from samii.errors import SimulationUnstable
 
-__all__ = ["SimResult", "SimulationUnstable", "simulate", "tip_accel_offset"]
+__all__ = ["SimResult", "SimulationUnstable", "check_rollout", "simulate", "tip_accel_offset"]
 
 
 @dataclass(frozen=True)
@@ -45,6 +45,23 @@ def tip_accel_offset(model: mujoco.MjModel) -> float:
     from samii.sim.sensors import accel_offset
 
     return accel_offset(model)
+
+
+def check_rollout(data: mujoco.MjData, last_state: np.ndarray, t_end_s: float, span_s: float) -> None:
+    """Raise :class:`SimulationUnstable` if a ``mujoco.rollout`` chunk ending at ``t_end_s`` diverged.
+
+    ``mujoco.rollout`` clears the warning counters at every call and stops
+    stepping at the first warning of any kind (bad qacc/qvel/qpos reset the
+    state to finite defaults), copying that state into the rest of the chunk:
+    any warning, a non-finite state or a clock that did not reach the chunk's
+    end (``last_state[0]``, mjSTATE_FULLPHYSICS) is a diverged run.
+    """
+    warned = [mujoco.mjtWarning(i).name for i, w in enumerate(data.warning) if int(w.number) > 0]
+    clock_ok = abs(float(last_state[0]) - t_end_s) <= 1e-6 * max(1.0, span_s)
+    finite = bool(np.all(np.isfinite(last_state)))
+    if warned or not clock_ok or not finite:
+        why = ", ".join(warned) if warned else "non-finite state" if not finite else "the clock stopped"
+        raise SimulationUnstable(f"simulation diverged before t = {t_end_s:.4g} s ({why}); no result written")
 
 
 def simulate(
@@ -143,16 +160,7 @@ def simulate(
             s, sd = pending.result()
             s, sd = s[0], sd[0]
             last = s[-1]
-            # mujoco.rollout clears the warning counters at every call and stops stepping at the
-            # first warning of any kind (bad qacc/qvel/qpos reset the state to finite defaults),
-            # copying that state into the rest of the chunk: any warning, a non-finite state or
-            # a clock that did not reach the chunk's end is a diverged run.
-            warned = [mujoco.mjtWarning(i).name for i, w in enumerate(data.warning) if int(w.number) > 0]
-            clock_ok = abs(float(last[0]) - (float(initial_state[0]) + hi * dt)) <= 1e-6 * max(1.0, hi * dt)
-            if warned or not clock_ok or not np.all(np.isfinite(last)):
-                t_bad = float(initial_state[0] + hi * dt)
-                why = ", ".join(warned) if warned else "non-finite state" if not np.all(np.isfinite(last)) else "the clock stopped"
-                raise SimulationUnstable(f"simulation diverged before t = {t_bad:.4g} s ({why}); no result written")
+            check_rollout(data, last, float(initial_state[0]) + hi * dt, hi * dt)
             if i + 1 < len(bounds):
                 pending = pool.submit(step, last, *bounds[i + 1])
             # the state before step k: the chunk's start state, then the state after step k-1

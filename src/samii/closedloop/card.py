@@ -1,0 +1,255 @@
+"""The controller card: a discrete controller compiled into the hydraulic plugin, so a closed loop runs at ``mj_step`` speed.
+
+The rig's controller is a computer that samples the joint angle and the base
+accelerometer, computes a valve command and holds it (zero-order hold) until
+the next sample; the analog servo amplifier adds its own position loop. The
+``samii.hydraulic`` plugin models both (``hydraulic.c``, "controller card"):
+
+- the servo amplifier: ``v = clamp(u + Kp (theta_0 + theta_r - theta) [+ c], +-10 V)``,
+  ``u`` the excitation (the hydraulic actuator's ctrl) and ``theta_r`` the
+  reference offset (the ctrl of a second, force-free actuator ``theta_ref``);
+- the card: every ``steps`` physics steps it samples ``w = (theta_r, theta, accel)``
+  at ``t_k`` (SI; optional noise from two more force-free actuators and ADC
+  quantisation), computes ``c = C z + D w`` and ``z <- A z + B w``, and the valve
+  sees ``c`` after ``delay_steps`` physics steps (fractional delays split the
+  step and integrate the spool exactly over both pieces). While the card
+  replaces the servo loop (``replaces_servo``) the ``Kp`` term is dropped.
+
+The card's state (``plugin_state``: enabled flag, step counter, the applied valve
+voltage, the held command, the delay line and ``z``) is part of
+``mjSTATE_FULLPHYSICS``, so ``mujoco.rollout`` carries it and the runner can
+switch the card on mid-run (:func:`CardModel.set_enabled`).
+
+This module turns a :class:`samii.design.controller.LinearController` (in its
+design units, with ``input_scale`` converting SI to them) into that configuration.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from samii.design.controller import LinearController
+from samii.errors import InputError
+
+__all__ = ["CardModel", "CardLayout", "build_card_model", "si_matrices", "MAX_DELAY_STEPS", "MAX_STATES", "INPUTS"]
+
+#: Column order of the card's inputs (SI: rad, rad, m/s^2).
+INPUTS = ("theta_ref", "theta", "accel")
+#: Limits compiled into hydraulic.c (CTRL_MAX_STATES, CTRL_MAX_DELAY_STEPS).
+MAX_STATES = 64
+MAX_DELAY_STEPS = 200
+
+REFERENCE_ACTUATOR = "theta_ref"
+THETA_NOISE_ACTUATOR = "theta_noise"
+ACCEL_NOISE_ACTUATOR = "accel_noise"
+
+# plugin_state layout (hydraulic.c: ST_ENABLED, ST_COUNTER, ST_VALVE, ST_COMMAND, ST_BUFFER)
+_ST_ENABLED, _ST_COUNTER, _ST_VALVE, _ST_COMMAND, _ST_BUFFER = range(5)
+
+
+def si_matrices(controller: LinearController) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(A, B, C, D)`` with inputs ``INPUTS`` in SI: the controller's input scale folded into B and D."""
+    n = controller.n_states
+    B = np.zeros((n, 3))
+    D = np.zeros((1, 3))
+    scale = controller.input_scale or {}
+    for k, name in enumerate(controller.inputs):
+        col = INPUTS.index(name)
+        f = float(scale.get(name, 1.0))
+        B[:, col] = controller.B[:, k] * f
+        D[0, col] = controller.D[0, k] * f
+    return np.array(controller.A, float).reshape(n, n), B, np.array(controller.C, float).reshape(1, n), D
+
+
+@dataclass(frozen=True)
+class CardLayout:
+    """Where things are in a card model's state and ctrl vectors."""
+
+    nstate: int  #: mjSTATE_FULLPHYSICS size
+    plugin_adr: int  #: first plugin-state entry in the FULLPHYSICS vector (-1 without a card)
+    n_buffer: int  #: delay line length
+    n_states: int  #: controller states
+    act_adr: int  #: the hydraulic actuator's act (spool x, P/Ps) in the FULLPHYSICS vector
+    ctrl_names: tuple[str, ...]  #: ctrl columns: "u" (excitation, V), "theta_ref" (rad), "theta_noise" (rad), "accel_noise" (m/s^2)
+
+    def enabled_index(self) -> int:
+        return self.plugin_adr + _ST_ENABLED
+
+    def valve_index(self) -> int:
+        return self.plugin_adr + _ST_VALVE
+
+    def command_index(self) -> int:
+        return self.plugin_adr + _ST_COMMAND
+
+    def buffer_slice(self) -> slice:
+        a = self.plugin_adr + _ST_BUFFER
+        return slice(a, a + self.n_buffer)
+
+    def z_slice(self) -> slice:
+        a = self.plugin_adr + _ST_BUFFER + self.n_buffer
+        return slice(a, a + self.n_states)
+
+
+@dataclass(frozen=True)
+class CardModel:
+    """A compiled SAMII model with the reference input, noise inputs and (optionally) a controller card."""
+
+    model: mujoco.MjModel
+    controller: LinearController | None
+    replaces_servo: bool
+    delay_samples: float  #: computation delay in controller samples
+    steps_per_sample: int
+    layout: CardLayout
+
+    @property
+    def sample_time_s(self) -> float:
+        return self.steps_per_sample * float(self.model.opt.timestep)
+
+    def set_enabled(self, state: np.ndarray, enabled: bool, z0: np.ndarray | None = None) -> np.ndarray:
+        """A copy of the FULLPHYSICS ``state`` with the card switched on (counter 0, states ``z0``) or off."""
+        if self.controller is None:
+            raise ValueError("this model has no controller card")
+        s = np.array(state, float)
+        L = self.layout
+        s[L.enabled_index()] = 1.0 if enabled else 0.0
+        s[L.plugin_adr + _ST_COUNTER] = 0.0
+        if z0 is not None:
+            s[L.z_slice()] = z0
+        return s
+
+
+def _plugin_offset(model: mujoco.MjModel) -> int:
+    """Index of the first plugin-state entry in an mjSTATE_FULLPHYSICS vector (components are in bit order)."""
+    full = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    before = full & (int(mujoco.mjtState.mjSTATE_PLUGIN) - 1)
+    return int(mujoco.mj_stateSize(model, before))
+
+
+def _join(a: np.ndarray) -> str:
+    return " ".join(repr(float(x)) for x in np.asarray(a, float).ravel())
+
+
+def build_card_model(
+    spec: mujoco.MjSpec,
+    controller: LinearController | None,
+    *,
+    replaces_servo: bool = False,
+    delay_samples: float = 0.0,
+    theta_lsb_rad: float = 0.0,
+    accel_lsb_m_s2: float = 0.0,
+    home_qpos: np.ndarray | None = None,
+    home_act: np.ndarray | None = None,
+) -> CardModel:
+    """Compile ``spec`` (SAMII's, from :func:`samii.sim.model.load_spec`) with the card configured.
+
+    Parameters
+    ----------
+    spec : MjSpec
+        Modified in place (actuators ``theta_ref``, ``theta_noise``,
+        ``accel_noise`` added, the hydraulic actuator's config extended); pass a copy.
+    controller : LinearController or None
+        None: the servo amplifier alone (the reference input still works).
+    replaces_servo : bool
+        The controller is the whole position loop (the notebook's designs) rather than an addition to it.
+    delay_samples : float
+        Computation delay in controller samples (whole or fractional), at most
+        ``MAX_DELAY_STEPS`` physics steps.
+    theta_lsb_rad, accel_lsb_m_s2 : float
+        ADC quantisation steps (0: none).
+    home_qpos, home_act : array, optional
+        The ``home`` keyframe's values (static equilibrium) to keep: a generated
+        model's equilibrium is set after compilation (:func:`samii.sim.model.load_model`).
+
+    Raises
+    ------
+    InputError
+        If the controller's sample time is not a whole number of physics steps,
+        its delay is too long or it has too many states.
+    """
+    from samii.sim.model import ACTUATOR, JOINT
+    from samii.sim.plugin import compile_spec
+
+    dt = float(spec.option.timestep)
+    hyd = next((a for a in spec.actuators if a.name == ACTUATOR), None)
+    if hyd is None:
+        raise InputError(f"the model has no actuator named {ACTUATOR!r}")
+    config = dict(hyd.plugin.config)
+    if not config:
+        raise InputError(f"actuator {ACTUATOR!r} is not configured on the actuator element (an explicit plugin instance is not supported by the closed loop)")
+    for name in (REFERENCE_ACTUATOR, THETA_NOISE_ACTUATOR, ACCEL_NOISE_ACTUATOR):
+        a = spec.add_actuator(name=name, target=JOINT, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        a.gainprm[0] = 0.0  # force-free: only the plugin reads its ctrl
+        a.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
+    config["reference_actuator"] = REFERENCE_ACTUATOR
+    for key in spec.keys:
+        ctrl = list(key.ctrl)
+        if ctrl:
+            key.ctrl = ctrl + [0.0, 0.0, 0.0]
+
+    def compile_with(cfg: dict) -> mujoco.MjModel:
+        hyd.plugin.config = cfg
+        m = compile_spec(spec)
+        if home_qpos is not None:
+            m.key_qpos[0] = home_qpos
+        if home_act is not None:
+            m.key_act[0] = home_act
+        return m
+
+    model = compile_with(config)
+    steps, n_buffer, n = 1, 0, 0
+    if controller is not None:
+        from samii.sim.sensors import accel_offset, accel_weights
+
+        n = controller.n_states
+        if n > MAX_STATES:
+            raise InputError(f"controller {controller.name!r} has {n} states; the card holds at most {MAX_STATES}")
+        ratio = controller.sample_time_s / dt
+        steps = int(round(ratio))
+        if steps < 1 or abs(ratio - steps) > 1e-9 * max(1.0, ratio):
+            raise InputError(f"controller sample time {controller.sample_time_s:g} s is not a whole number of physics steps ({dt:g} s)")
+        delay_steps = float(delay_samples) * steps
+        if not (math.isfinite(delay_steps) and 0.0 <= delay_steps <= MAX_DELAY_STEPS):
+            raise InputError(f"delay of {delay_samples:g} samples ({delay_steps:g} physics steps) is outside 0...{MAX_DELAY_STEPS} physics steps")
+        A, B, C, D = si_matrices(controller)
+        # the accelerometer's measuring direction and rest reading, as samii.sim.simulate removes them
+        _, direction = accel_weights(model)
+        config.update({
+            "controller_states": str(n),
+            "controller_d": _join(D),
+            "controller_steps": str(steps),
+            "controller_delay_steps": repr(delay_steps),
+            "controller_replaces_servo": "1" if replaces_servo else "0",
+            "controller_theta_sensor": "theta",
+            "controller_accel_sensor": "base_accel",
+            "controller_accel_direction": _join(direction),
+            "controller_accel_offset": repr(float(accel_offset(model))),
+            "controller_theta_noise": THETA_NOISE_ACTUATOR,
+            "controller_accel_noise": ACCEL_NOISE_ACTUATOR,
+            "controller_theta_lsb": repr(float(theta_lsb_rad)),
+            "controller_accel_lsb": repr(float(accel_lsb_m_s2)),
+        })  # fmt: skip
+        if n:
+            config.update({"controller_a": _join(A), "controller_b": _join(B), "controller_c": _join(C)})
+        n_buffer = int(math.floor(delay_steps)) + 2
+        model = compile_with(config)
+
+    nstate = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    n_plugin = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_PLUGIN)
+    act_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, ACTUATOR)
+    layout = CardLayout(
+        nstate=nstate,
+        plugin_adr=_plugin_offset(model) if n_plugin else -1,
+        n_buffer=n_buffer,
+        n_states=n,
+        act_adr=1 + model.nq + model.nv + int(model.actuator_actadr[act_id]),
+        ctrl_names=("u", REFERENCE_ACTUATOR, THETA_NOISE_ACTUATOR, ACCEL_NOISE_ACTUATOR),
+    )
+    if controller is not None and n_plugin != 4 + n_buffer + n:
+        raise RuntimeError(f"the plugin's state has {n_plugin} entries, expected {4 + n_buffer + n}: plugin and samii.closedloop.card disagree")
+    # without a controller the servo amplifier runs alone: nothing replaces it, nothing is delayed
+    replaces = bool(replaces_servo) and controller is not None
+    return CardModel(model, controller, replaces, float(delay_samples) if controller is not None else 0.0, steps, layout)

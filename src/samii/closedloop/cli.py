@@ -1,0 +1,237 @@
+"""``samii closedloop``: run a controller in the nonlinear simulator through a scenario.
+
+Writes into ``--out`` (optional): ``timeseries.csv`` (DATA_FORMATS.md, with
+``theta_ref``, ``r`` and the controller's ``command``), ``run.json``, and the
+figures ``theta.png``, ``base_accel.png``, ``linear_vs_nonlinear.png``; with
+``--rerun FILE.rrd`` a Rerun recording. A run that is unstable by design is a
+result (``"stable": false``, its growth rate and frequency; exit 0), not an
+error. Imports nothing heavy at module level.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from samii.cli_args import float_in, nonempty_path, seed
+from samii.errors import InputError
+
+__all__ = ["add_arguments", "run", "BUILTIN_CONTROLLERS"]
+
+BUILTIN_CONTROLLERS = {
+    "unity": "the servo amplifier's position loop alone (1 V/deg), no digital controller",
+    "notebook-place": "chapter 8: digital pole placement with observer on eq 1.4, as the notebook built it (whole position loop)",
+    "notebook-cancel": "chapter 10: pole-cancelling compensator on eq 9.4, the notebook's gain 0.0666 (whole position loop)",
+}
+_FILES = ("timeseries.csv", "run.json")
+MAX_DURATION_S = 600.0
+MAX_STEP_DEG = 30.0
+MAX_IMPULSE_N_S = 20.0
+
+
+def _step_deg(text: str) -> float:
+    v = float_in(-MAX_STEP_DEG, MAX_STEP_DEG, unit="deg")(text)
+    if v == 0:
+        raise argparse.ArgumentTypeError(f"expected a nonzero step in -{MAX_STEP_DEG:g}...{MAX_STEP_DEG:g} deg, got {text!r}")
+    return v
+
+
+_step_deg.__name__ = "step"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from samii.closedloop.card import MAX_DELAY_STEPS
+    from samii.closedloop.scenario import DEFAULT_IMPULSE_N_S
+
+    specs = "; ".join(f"{k}: {v}" for k, v in BUILTIN_CONTROLLERS.items())
+    parser.add_argument("--controller", required=True, metavar="SPEC",
+                        help=f"{specs}; or a controller file written by samii design place|cancel --save")
+    parser.add_argument("--scenario", required=True, choices=("step", "loper", "release"),
+                        help="step: theta_ref steps by --step-deg at t = 1 s, controller on throughout; loper: the step under "
+                        "the servo loop alone, the controller switched on (bumplessly) at t = 2 s, compared with the run never "
+                        f"switched (free decay); release: a tip impulse of --impulse-n-s (default {DEFAULT_IMPULSE_N_S:g} N s) "
+                        "along the accelerometer at t = 0 sets the base vibrating, theta_ref held")  # fmt: skip
+    parser.add_argument("--step-deg", type=_step_deg, default=None, metavar="D",
+                        help=f"reference step [deg], nonzero, |D| <= {MAX_STEP_DEG:g} (default 5; step and loper only)")
+    parser.add_argument("--impulse-n-s", type=float_in(0.0, MAX_IMPULSE_N_S, lo_open=True, unit="N s"), default=None, metavar="P",
+                        help=f"release: tip impulse [N s], 0 < P <= {MAX_IMPULSE_N_S:g} (default {DEFAULT_IMPULSE_N_S:g}: about 4 m/s^2 at the base)")
+    parser.add_argument("--duration-s", type=float_in(3.0, MAX_DURATION_S, unit="s"), default=10.0, metavar="S",
+                        help=f"simulated time [s], 3...{MAX_DURATION_S:g} (default 10)")
+    parser.add_argument("--delay-samples", type=float_in(0.0, float(MAX_DELAY_STEPS), unit="samples"), default=0.0, metavar="N",
+                        help="computation delay of the controller [samples], whole or fractional (default 0; the command is "
+                        f"held from the sample on, zero-order hold); at most {MAX_DELAY_STEPS} physics steps")  # fmt: skip
+    parser.add_argument("--noise", action="store_true",
+                        help="seeded sensor noise and ADC quantisation on the controller's measurements (theta 5e-4 rad rms and "
+                        "4096-count/rev encoder steps; acceleration 0.01 m/s^2 rms and a 16-bit +-10 V ADC at 1 V/g)")  # fmt: skip
+    parser.add_argument("--seed", type=seed, default=None, help="seed of the sensor noise (with --noise; default 0)")
+    parser.add_argument("--model", metavar="XML", help="MJCF or parameter .json file (default: the embedded SAMII model)")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="override a model parameter, e.g. hydraulic.bulk_modulus=1e9 (repeatable; samii params lists them)")
+    parser.add_argument("--out", metavar="DIR", type=nonempty_path, help="write timeseries.csv, run.json and the figures here")
+    parser.add_argument("--no-plots", action="store_true", help="with --out, no figures")
+    parser.add_argument("--rerun", metavar="FILE.rrd", type=nonempty_path, help="also write a Rerun recording of the run")
+    parser.add_argument("--overwrite", "--force", dest="overwrite", action="store_true", help="replace existing output files")
+    parser.add_argument("--json", action="store_true", help="print the result as JSON")
+
+
+def _resolve_controller(spec: str):
+    from pathlib import Path
+
+    from samii.closedloop import controllers as cs
+
+    if spec == "unity":
+        return None
+    if spec == "notebook-place":
+        return cs.notebook_place()
+    if spec == "notebook-cancel":
+        return cs.notebook_cancel()
+    if spec in ("damping",):
+        raise InputError("--controller damping: the damping controller (issue 10, item 8) is not built yet; use unity, "
+                         "notebook-place, notebook-cancel or a saved controller file")  # fmt: skip
+    if Path(spec).suffix.lower() == ".json" or Path(spec).exists():
+        return cs.read_controller(spec)
+    raise InputError(f"--controller {spec!r}: expected {', '.join(BUILTIN_CONTROLLERS)} or a controller file (.json)")
+
+
+def _check_options(args) -> None:
+    if args.step_deg is not None and args.scenario == "release":
+        raise InputError("--step-deg: the release scenario holds theta_ref (use --impulse-n-s for its size)")
+    if args.impulse_n_s is not None and args.scenario != "release":
+        raise InputError("--impulse-n-s: only the release scenario starts with an impulse")
+    if args.seed is not None and not args.noise:
+        raise InputError("--seed: only meaningful with --noise")
+    if args.no_plots and args.out is None:
+        raise InputError("--no-plots: only meaningful with --out")
+    if args.scenario == "loper" and args.duration_s < 4.0:
+        raise InputError(f"--duration-s {args.duration_s:g}: the loper scenario switches the controller on at t = 2 s and needs at least 4 s")
+
+
+def _summary(r, out_names: list[str]) -> str:
+    lines = [f"closed loop: {r.controller}, {r.scenario.name} scenario, {r.scenario.duration_s:g} s"
+             + (f", delay {r.delay_samples:g} samples" if r.delay_samples else "") + (", sensor noise on" if r.noise else "")]
+    if r.stable:
+        lines.append("  stable in the nonlinear simulator")
+    else:
+        what = f" growing at {r.growth_rate_1_s:.4g} 1/s" if r.growth_rate_1_s is not None else ""
+        where = f", {r.unstable_mode_hz:.4g} Hz" if r.unstable_mode_hz is not None else ""
+        lines.append(f"  UNSTABLE:{what}{where}")
+    for n in r.notes:
+        lines.append(f"  note: {n}")
+    th = r.theta
+    if th.rise_s is not None or th.settle_s is not None:
+        f = lambda x, u: "n/a" if x is None else f"{x:.3g}{u}"  # noqa: E731
+        lines.append(f"  theta: rise {f(th.rise_s, ' s')}, overshoot {f(th.overshoot_pct, ' %')}, settle (2 %) {f(th.settle_s, ' s')}")
+    b = r.base
+    f = lambda x, u: "n/a" if x is None else f"{x:.3g}{u}"  # noqa: E731
+    lines.append(f"  base: peak {f(b.peak_m_s2, ' m/s^2')}, residual rms {f(b.residual_rms_m_s2, ' m/s^2')}, settle (5 %) "
+                 f"{f(b.settle_s, ' s')}, decay {f(b.decay_rate_1_s, ' 1/s')}"
+                 + (f" (free decay {f(r.free_decay_rate_1_s, ' 1/s')})" if r.free_decay_rate_1_s is not None else ""))  # fmt: skip
+    if r.comparison is not None:
+        from samii.closedloop.metrics import base_metrics
+
+        c = base_metrics(r.comparison.t, r.comparison.accel - r.accel_rest_m_s2, r.scenario.t_disturbance_s,
+                         t_decay_s=r.scenario.t_event_s, residual_from_s=r.scenario.t_disturbance_s + 2.0)  # fmt: skip
+        lines.append(f"  servo loop alone: peak {f(c.peak_m_s2, ' m/s^2')}, residual rms {f(c.residual_rms_m_s2, ' m/s^2')}, "
+                     f"settle (5 %) {f(c.settle_s, ' s')}")  # fmt: skip
+    if r.modes:
+        lines.append("  modes of the response: " + ", ".join(f"{m.freq_hz:.3g} Hz (zeta {m.zeta:.3f})" for m in r.modes))
+    e = r.rms_error_pct
+    lines.append(f"  linear prediction: {'stable' if r.linear_stable else 'UNSTABLE'}"
+                 + (f", rms error theta {f(e['theta'], ' %')}, accel {f(e['accel'], ' %')}" if r.linear is not None else ""))  # fmt: skip
+    if out_names:
+        lines.append("  wrote " + ", ".join(out_names))
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    _check_options(args)
+    from samii.outputs import OutputFolder, check_output_file
+
+    from samii.closedloop.plots import FIGURES
+
+    names = list(_FILES) + ([] if args.no_plots else list(FIGURES))
+    folder = OutputFolder(args.out, names, overwrite=args.overwrite) if args.out is not None else None
+    rerun_path = check_output_file(args.rerun, overwrite=args.overwrite, option="--rerun", beside=folder) if args.rerun else None
+
+    saved = _resolve_controller(args.controller)
+    if saved is None and args.delay_samples:
+        raise InputError("--delay-samples: the unity servo loop is analog (no digital controller to delay)")
+    if saved is None and args.noise:
+        raise InputError("--noise: the unity servo loop samples no sensors (its analog loop reads the joint angle directly)")
+
+    from samii.closedloop.scenario import NoiseSpec, default_spec_factory, run_closed_loop, scenario
+    from samii.sim.cli_modes import parse_overrides
+
+    overrides = parse_overrides(args.set)
+    factory = default_spec_factory(args.model, overrides or None)
+    kw = {"duration_s": args.duration_s}
+    if args.step_deg is not None:
+        kw["step_deg"] = args.step_deg
+    if args.impulse_n_s is not None:
+        kw["impulse_n_s"] = args.impulse_n_s
+    sc = scenario(args.scenario, **kw)
+    noise = NoiseSpec(seed=args.seed or 0) if args.noise else None
+    label = args.controller
+    result = run_closed_loop(saved, sc, label=label, spec_factory=factory, delay_samples=args.delay_samples, noise=noise,
+                             qpos_every=10 if rerun_path else None)  # fmt: skip
+
+    written: list[str] = []
+    if folder is not None:
+        from samii.json_output import dumps
+        from samii.measure.io import write_timeseries_csv
+
+        with folder:
+            ts = result.timeseries()
+            write_timeseries_csv(ts, folder.path("timeseries.csv"), overwrite=True)
+            doc = result.run_json()
+            doc["model"] = {"file": args.model or "embedded default", "overrides": overrides}
+            doc["controller_detail"] = None if saved is None else {
+                "name": saved.controller.name, "method": saved.controller.method, "model_units": saved.controller.model_units,
+                "servo_loop": "replaced" if saved.replaces_servo else "kept", "provenance": dict(saved.provenance)}  # fmt: skip
+            folder.path("run.json").write_text(dumps(doc, indent=1) + "\n")
+            if not args.no_plots:
+                from samii.closedloop.plots import plot_base, plot_linear, plot_theta
+
+                plot_theta(result, folder.path("theta.png"))
+                plot_base(result, folder.path("base_accel.png"))
+                plot_linear(result, folder.path("linear_vs_nonlinear.png"))
+        written = [str(folder.final(n)) for n in names]
+    if rerun_path is not None:
+        _write_rerun(result, rerun_path, factory)
+        written.append(str(rerun_path))
+
+    if args.json:
+        from samii.json_output import dumps
+
+        print(dumps(result.as_json()))
+    else:
+        print(_summary(result, written))
+    return 0
+
+
+def _write_rerun(result, path, factory) -> None:
+    import os
+
+    from samii.measure.recording import write_rerun_recording
+    from samii.sim.plugin import compile_spec
+
+    s = result.signals
+    if s.frame_t is None or s.frame_t.size == 0:
+        return
+    spec, _, _ = factory()
+    model = compile_spec(spec)
+    tmp = path.parent / f".{path.name}.{os.getpid()}.tmp"
+    try:
+        write_rerun_recording(tmp, model, result.timeseries(), frame_t_s=s.frame_t, frame_qpos=s.frame_qpos, application_id="samii_closedloop")
+        os.replace(tmp, path)
+    except RuntimeError as exc:
+        raise OSError(f"--rerun {path}: the recording could not be written ({' '.join(str(exc).split())})") from None
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    from samii.cli import main
+
+    sys.exit(main(["closedloop", *sys.argv[1:]]))

@@ -1,0 +1,215 @@
+"""Figures of a closed-loop response: step metrics of theta, decay of the base vibration, modes.
+
+All from the time series alone (what a rig gives), SI units:
+
+- theta: rise time (10 % to 90 % of the reference step), overshoot (beyond the
+  final value, in % of the step), settle time (last exit from a band of 2 % of
+  the step about the final value), each after the step.
+- base acceleration: the envelope is the magnitude of the analytic signal
+  (:func:`scipy.signal.hilbert`) of ``accel`` minus its value at rest,
+  smoothed over 0.2 s. ``settle_s``: time after the event until the envelope
+  stays below 5 % of its peak; ``decay_rate_1_s``: minus the slope of a
+  least-squares line through the log envelope, from its peak after the event to
+  where it first falls below 5 % of that peak (or the end).
+- modes: a sum of damped exponentials fitted to the base acceleration after
+  the event by the matrix pencil method (Hua & Sarkar, IEEE Trans. ASSP 38(5),
+  1990), on the signal decimated to 200 Hz; the model order from the singular
+  values (above 1e-3 of the largest, at most 16), pairs kept when their amplitude is at least
+  2 % of the largest; pairs closer than 3 % in frequency are one mode (the larger kept).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.signal
+
+__all__ = ["StepMetrics", "BaseMetrics", "FittedMode", "step_metrics", "base_metrics", "envelope", "matrix_pencil", "response_modes", "growth"]
+
+SETTLE_BAND = 0.02  #: theta settle band, fraction of the step
+BASE_SETTLE_FRACTION = 0.05  #: base settle threshold, fraction of the envelope's peak
+ENVELOPE_SMOOTH_S = 0.2
+MODES_RATE_HZ = 200.0
+
+
+@dataclass(frozen=True)
+class StepMetrics:
+    rise_s: float | None
+    overshoot_pct: float | None
+    settle_s: float | None
+
+
+@dataclass(frozen=True)
+class BaseMetrics:
+    peak_m_s2: float
+    residual_rms_m_s2: float | None
+    settle_s: float | None
+    decay_rate_1_s: float | None
+
+
+@dataclass(frozen=True)
+class FittedMode:
+    freq_hz: float
+    zeta: float
+    amplitude_m_s2: float
+
+    @property
+    def rate_1_s(self) -> float:
+        """Real part of the pole, sign flipped: positive for a decaying mode."""
+        return self.zeta * 2 * np.pi * self.freq_hz
+
+
+def step_metrics(t: np.ndarray, theta: np.ndarray, theta_ref: np.ndarray, t_step: float) -> StepMetrics:
+    """Rise, overshoot and settle of ``theta`` after a reference step at ``t_step`` (None where undefined)."""
+    k0 = int(np.searchsorted(t, t_step))
+    if k0 >= t.size - 2:
+        return StepMetrics(None, None, None)
+    before = float(theta_ref[max(k0 - 1, 0)])
+    step = float(theta_ref[-1]) - before
+    if step == 0:
+        return StepMetrics(None, None, None)
+    x = (theta[k0:] - theta[max(k0 - 1, 0)]) / step  # 0 -> 1
+    tt = t[k0:] - t[k0]
+    n_tail = max(1, int(0.05 * x.size))
+    final = float(np.mean(x[-n_tail:]))
+    rise = None
+    i10 = np.flatnonzero(x >= 0.1)
+    i90 = np.flatnonzero(x >= 0.9)
+    if i10.size and i90.size:
+        rise = float(tt[i90[0]] - tt[i10[0]])
+    overshoot = float(max(0.0, (np.max(x) - final) * 100.0))
+    out = np.flatnonzero(np.abs(x - final) > SETTLE_BAND)
+    settle = 0.0 if out.size == 0 else (float(tt[out[-1] + 1]) if out[-1] + 1 < tt.size else None)
+    return StepMetrics(rise, overshoot, settle)
+
+
+def envelope(x: np.ndarray, dt: float) -> np.ndarray:
+    """Smoothed magnitude of the analytic signal of ``x``."""
+    if x.size < 4:
+        return np.abs(x)
+    # the analytic signal of a finite record rings at its ends (the FFT wraps it round): mirror
+    # 2 s (or the whole record) onto each end first and crop after
+    pad = min(x.size - 1, int(round(2.0 / dt)))
+    env = np.abs(scipy.signal.hilbert(np.pad(x, pad, mode="reflect")))[pad:pad + x.size]
+    w = max(1, int(round(ENVELOPE_SMOOTH_S / dt)))
+    if w > 1 and env.size > w:
+        kernel = np.ones(w) / w
+        env = np.convolve(np.pad(env, (w // 2, w - 1 - w // 2), mode="edge"), kernel, mode="valid")
+    return env
+
+
+def base_metrics(t: np.ndarray, accel: np.ndarray, t_disturbance: float, *, t_decay_s: float | None = None,
+                 residual_from_s: float | None = None) -> BaseMetrics:
+    """Peak, residual rms, settle time and decay rate of the base acceleration.
+
+    ``accel`` is relative to the reading at rest (the static equilibrium). Peak
+    and settle time count from ``t_disturbance`` (the step, the impulse); the
+    decay rate is fitted from the envelope's peak after ``t_decay_s`` (default
+    ``t_disturbance``; the switch-on in a Loper test); the residual rms is over
+    ``t >= residual_from_s`` (None: not computed).
+    """
+    a = np.asarray(accel, float)
+    dt = float(t[1] - t[0])
+    k0 = int(np.searchsorted(t, t_disturbance))
+    seg = a[k0:]
+    if seg.size < 8:
+        return BaseMetrics(float(np.max(np.abs(a))) if a.size else 0.0, None, None, None)
+    peak = float(np.max(np.abs(seg)))
+    residual = None
+    if residual_from_s is not None:
+        kr = int(np.searchsorted(t, residual_from_s))
+        if kr < t.size:
+            residual = float(np.sqrt(np.mean(a[kr:] ** 2)))
+    env = envelope(seg, dt)
+    limit = BASE_SETTLE_FRACTION * float(np.max(env))
+    above = np.flatnonzero(env > limit)
+    settle = None if above.size == 0 or above[-1] + 1 >= env.size else float((above[-1] + 1) * dt)
+    kd = max(0, int(np.searchsorted(t, t_disturbance if t_decay_s is None else t_decay_s)) - k0)
+    rate = None
+    if kd < env.size - 8:
+        kp = kd + int(np.argmax(env[kd:]))
+        below = np.flatnonzero(env[kp:] < BASE_SETTLE_FRACTION * env[kp])
+        k_end = kp + (below[0] if below.size else env.size - kp)
+        if k_end - kp >= max(8, int(0.2 / dt)) and env[kp] > 0:
+            tt = np.arange(kp, k_end) * dt
+            rate = float(-np.polyfit(tt, np.log(np.maximum(env[kp:k_end], 1e-300)), 1)[0])
+    return BaseMetrics(peak, residual, settle, rate)
+
+
+def matrix_pencil(y: np.ndarray, dt: float, *, max_order: int = 16, rel_sv: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
+    """Poles ``s`` [1/s] and complex amplitudes of ``y[k] ~ sum a_i exp(s_i k dt)`` (matrix pencil method)."""
+    y = np.asarray(y, float)
+    N = y.size
+    L = N // 3
+    if L < 2:
+        return np.zeros(0, complex), np.zeros(0, complex)
+    Y = np.lib.stride_tricks.sliding_window_view(y, L + 1)  # (N - L) x (L + 1) Hankel
+    _, sv, Vh = np.linalg.svd(Y, full_matrices=False)
+    M = int(min(max_order, np.sum(sv > rel_sv * sv[0])))
+    if M == 0:
+        return np.zeros(0, complex), np.zeros(0, complex)
+    V = Vh.conj().T[:, :M]
+    z = np.linalg.eigvals(np.linalg.pinv(V[:-1]) @ V[1:])
+    # drop roots at 0 and any that would overflow over the record (|z|^N beyond 1e150)
+    z = z[(np.abs(z) > 1e-12) & (N * np.log(np.maximum(np.abs(z), 1e-300)) < 345.0)]
+    if z.size == 0:
+        return np.zeros(0, complex), np.zeros(0, complex)
+    Z = z[None, :] ** np.arange(N)[:, None]
+    amp = np.linalg.lstsq(Z, y.astype(complex), rcond=None)[0]
+    return np.log(z) / dt, amp
+
+
+def response_modes(t: np.ndarray, accel: np.ndarray, t_start: float, *, duration_s: float = 6.0,
+                   max_freq_hz: float = 45.0, min_rel_amplitude: float = 0.02) -> list[FittedMode]:
+    """Modes (frequency, damping, amplitude) of the base acceleration (relative to rest) from ``t_start`` on, by :func:`matrix_pencil`."""
+    dt = float(t[1] - t[0])
+    q = max(1, int(round(1.0 / (dt * MODES_RATE_HZ))))
+    k0 = int(np.searchsorted(t, t_start))
+    k1 = min(t.size, k0 + int(round(duration_s / dt)))
+    seg = np.asarray(accel[k0:k1], float)
+    if seg.size < 30 * q:
+        return []
+    y = scipy.signal.decimate(seg, q, ftype="fir", zero_phase=True) if q > 1 else seg
+    s, amp = matrix_pencil(y, dt * q)
+    keep = (s.imag > 0) & (s.imag / (2 * np.pi) <= max_freq_hz) & (np.abs(s) / (2 * np.pi) >= 0.3)
+    s, amp = s[keep], np.abs(amp[keep]) * 2
+    if s.size == 0:
+        return []
+    keep = amp >= min_rel_amplitude * np.max(amp)
+    modes = [FittedMode(float(abs(p) / (2 * np.pi)), float(-p.real / abs(p)), float(a)) for p, a in zip(s[keep], amp[keep])]
+    merged: list[FittedMode] = []
+    for m in sorted(modes, key=lambda m: -m.amplitude_m_s2):
+        if all(abs(m.freq_hz - o.freq_hz) > 0.03 * o.freq_hz for o in merged):
+            merged.append(m)
+    return sorted(merged, key=lambda m: m.freq_hz)
+
+
+def growth(t: np.ndarray, accel: np.ndarray, t_start: float) -> tuple[float, float] | None:
+    """``(growth_rate_1_s, freq_hz)`` of the fastest-growing significant mode after ``t_start``, None if none grows.
+
+    Short records (a run that diverged within a fraction of a second) are
+    fitted at the physics rate rather than decimated.
+    """
+    dt = float(t[1] - t[0])
+    k0 = int(np.searchsorted(t, t_start))
+    seg = np.asarray(accel[k0:], float)
+    if seg.size < 30:
+        return None
+    if seg.size * dt >= 1.0:
+        modes = response_modes(t, accel, t_start, duration_s=seg.size * dt, max_freq_hz=np.inf)
+        grow = [m for m in modes if m.zeta < 0]
+        if not grow:
+            return None
+        m = max(grow, key=lambda m: -m.rate_1_s)
+        return -m.rate_1_s, m.freq_hz
+    s, amp = matrix_pencil(seg[-min(seg.size, 3000):], dt)
+    if s.size == 0:
+        return None
+    amp = np.abs(amp)
+    sig = amp >= 0.02 * np.max(amp)
+    s = s[sig & (s.real > 0)]
+    if s.size == 0:
+        return None
+    p = s[np.argmax(s.real)]
+    return float(p.real), float(abs(p.imag) / (2 * np.pi))

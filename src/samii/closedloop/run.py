@@ -1,0 +1,235 @@
+"""Run a closed loop in the nonlinear simulator: the controller card stepped by ``mujoco.rollout``.
+
+The controller runs inside the hydraulic plugin (:mod:`samii.closedloop.card`),
+so a run is a plain rollout of four input columns per physics step: the
+excitation ``u`` [V], the reference offset ``theta_ref`` [rad] and the two
+sensor-noise channels. A switch-on mid-run (the Loper test) splits the run in
+two rollouts; between them the controller's state is initialised so that its
+first command continues what the valve was getting (:func:`bumpless_state`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import mujoco.rollout
+import numpy as np
+
+from samii.closedloop.card import CardModel, si_matrices
+from samii.errors import SimulationUnstable
+
+__all__ = ["LoopSignals", "bumpless_state", "run_loop", "measurements_at"]
+
+_FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
+
+
+@dataclass(frozen=True)
+class LoopSignals:
+    """A closed-loop run at the physics rate; sample k at ``t[k]`` (SI units)."""
+
+    t: np.ndarray  #: s
+    theta_ref: np.ndarray  #: rad, reference offset from the nominal pose
+    r: np.ndarray  #: V, the excitation added to the valve command
+    theta: np.ndarray  #: rad, joint-2 angle from the nominal pose (true, not the noisy sample)
+    accel: np.ndarray  #: m/s^2, base accelerometer (true)
+    v: np.ndarray  #: V, valve voltage during step k (after saturation; the later piece of a split step)
+    command: np.ndarray  #: V, the controller's held command after step k (NaN without a controller)
+    p_load: np.ndarray  #: Pa
+    spool: np.ndarray  #: -1...1
+    enabled: np.ndarray  #: bool, the controller ran during step k
+    final_state: np.ndarray  #: mjSTATE_FULLPHYSICS after the last step
+    switch_on_s: float | None = None  #: when the controller was switched on (None: from the start or never)
+    switch_jump_v: float | None = None  #: its first command minus what the valve got before (bumpless: ~0)
+    diverged_at_s: float | None = None  #: the run stopped here: the simulation diverged (signals end before)
+    frame_t: np.ndarray | None = None  #: s, times of kept qpos frames (``qpos_every``)
+    frame_qpos: np.ndarray | None = None  #: (frames, nq)
+
+    @property
+    def dt_s(self) -> float:
+        return float(self.t[1] - self.t[0]) if self.t.size > 1 else float("nan")
+
+
+def measurements_at(cm: CardModel, state: np.ndarray, theta_ref_rad: float) -> np.ndarray:
+    """``w = (theta_ref, theta, accel)`` (SI, noise-free) the card would sample in ``state``."""
+    from samii.sim.plugin import hydraulic_params
+    from samii.sim.sensors import accel_offset, accel_weights
+
+    m = cm.model
+    d = mujoco.MjData(m)
+    mujoco.mj_setState(m, d, np.asarray(state, float), _FULL)
+    d.ctrl[:] = 0.0
+    d.ctrl[1] = theta_ref_rad
+    mujoco.mj_forward(m, d)
+    theta_adr = int(m.sensor_adr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, "theta")])
+    adr, direction = accel_weights(m)
+    theta0 = hydraulic_params(m).reference_angle
+    return np.array([theta_ref_rad, d.sensordata[theta_adr] - theta0, d.sensordata[adr:adr + 3] @ direction - accel_offset(m)])
+
+
+def bumpless_state(matrices: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], w: np.ndarray, target_v: float) -> tuple[np.ndarray, float]:
+    """Controller state ``z0`` for a switch-on with inputs ``w`` whose first command is ``target_v``.
+
+    ``z0`` is the controller's steady state for constant inputs ``w``
+    (``(I - A) z = B w``: what it would hold had it run all along with the
+    loop at rest), moved along ``C^T`` just enough that ``C z0 + D w`` equals
+    ``target_v``: the command continues from what the valve was getting
+    (bumpless transfer). ``matrices`` are the controller's SI ``(A, B, C, D)``
+    (:func:`samii.closedloop.card.si_matrices`). Returns ``(z0, jump)``, ``jump``
+    the command step that remains (nonzero only for a static controller, which
+    has no state to absorb it).
+    """
+    A, B, C, D = matrices
+    n = A.shape[0]
+    w = np.asarray(w, float)
+    if n == 0:
+        return np.zeros(0), float(D[0] @ w - target_v)
+    z = np.linalg.lstsq(np.eye(n) - A, B @ w, rcond=None)[0]
+    c = C[0]
+    cc = float(c @ c)
+    if cc > 0:
+        z = z + c * (target_v - float(c @ z + D[0] @ w)) / cc
+    return z, float(c @ z + D[0] @ w - target_v)
+
+
+def run_loop(
+    cm: CardModel,
+    theta_ref_rad: np.ndarray,
+    *,
+    r_v: np.ndarray | None = None,
+    theta_noise_rad: np.ndarray | None = None,
+    accel_noise_m_s2: np.ndarray | None = None,
+    switch_on_step: int | None = None,
+    initial_state: np.ndarray | None = None,
+    chunk_steps: int = 2000,
+    keep_partial: bool = False,
+    qpos_every: int | None = None,
+) -> LoopSignals:
+    """Run ``len(theta_ref_rad)`` physics steps of the closed loop.
+
+    Parameters
+    ----------
+    cm : CardModel
+        From :func:`samii.closedloop.card.build_card_model`.
+    theta_ref_rad : array
+        Reference offset per physics step [rad].
+    r_v, theta_noise_rad, accel_noise_m_s2 : array, optional
+        Excitation [V] and sensor noise per physics step (the card samples the
+        noise at its sample instants); default zero.
+    switch_on_step : int, optional
+        The controller runs from this step on (bumplessly, :func:`bumpless_state`);
+        before it the servo amplifier runs alone. Default: from step 0.
+    initial_state : array, optional
+        mjSTATE_FULLPHYSICS start; default the ``home`` keyframe (static equilibrium).
+    keep_partial : bool
+        On divergence return the signals up to the last good chunk (with
+        ``diverged_at_s``) instead of raising :class:`SimulationUnstable`.
+    qpos_every : int, optional
+        Keep ``qpos`` every this many steps (``frame_t``, ``frame_qpos``: an animation).
+    """
+    from samii.sim.model import make_data
+    from samii.sim.plugin import hydraulic_params
+    from samii.sim.sensors import accel_offset, accel_weights
+    from samii.sim.simulate import check_rollout
+
+    m = cm.model
+    theta_ref_rad = np.asarray(theta_ref_rad, float)
+    n = theta_ref_rad.size
+    if theta_ref_rad.ndim != 1 or n == 0:
+        raise ValueError(f"theta_ref_rad must be a non-empty 1-D array, got shape {theta_ref_rad.shape}")
+    cols = [np.zeros(n) if x is None else np.asarray(x, float) for x in (r_v, theta_noise_rad, accel_noise_m_s2)]
+    for name, x in zip(("r_v", "theta_noise_rad", "accel_noise_m_s2"), cols):
+        if x.shape != (n,):
+            raise ValueError(f"{name} must have the shape of theta_ref_rad ({n},), got {x.shape}")
+    ctrl = np.column_stack([cols[0], theta_ref_rad, cols[1], cols[2]])
+    if not np.all(np.isfinite(ctrl)):
+        raise ValueError("the closed-loop inputs have a NaN or infinite value")
+    if switch_on_step is not None and cm.controller is None:
+        raise ValueError("switch_on_step needs a controller")
+    if switch_on_step is not None and not 0 <= switch_on_step < n:
+        raise ValueError(f"switch_on_step must lie in 0...{n - 1}, got {switch_on_step}")
+
+    data = make_data(m)
+    L = cm.layout
+    if initial_state is None:
+        initial_state = np.empty(L.nstate)
+        mujoco.mj_getState(m, data, initial_state, _FULL)
+    state = np.array(initial_state, float)
+    if cm.controller is not None:
+        state = cm.set_enabled(state, switch_on_step is None)
+
+    hp = hydraulic_params(m)
+    dt = float(m.opt.timestep)
+    t0 = float(state[0])
+    theta_adr = int(m.sensor_adr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, "theta")])
+    acc_adr, direction = accel_weights(m)
+    g_off = accel_offset(m)
+
+    segments = [(0, n)] if switch_on_step in (None, 0) else [(0, switch_on_step), (switch_on_step, n)]
+    if switch_on_step == 0:
+        segments = [(0, n)]
+    states, sensors = [], []
+    jump = None
+    diverged = None
+    done = 0
+    for si, (a, b) in enumerate(segments):
+        if switch_on_step is not None and a == switch_on_step:
+            w = measurements_at(cm, state, float(theta_ref_rad[a]))
+            target = hp.position_gain * (w[0] - w[1]) if cm.replaces_servo else 0.0
+            z0, jump = bumpless_state(si_matrices(cm.controller), w, target)
+            state = cm.set_enabled(state, True, z0)
+        lo, size = a, chunk_steps
+        while lo < b:
+            hi = min(lo + size, b)
+            s, sd = mujoco.rollout.rollout(m, data, state[None, :], ctrl[None, lo:hi])
+            s, sd = s[0], sd[0]
+            try:
+                check_rollout(data, s[-1], t0 + hi * dt, hi * dt)
+            except SimulationUnstable:
+                if not keep_partial:
+                    raise
+                if size > 10:  # keep what can be kept: step up to the divergence in shorter pieces
+                    size = max(10, size // 10)
+                    continue
+                diverged = t0 + lo * dt
+                break
+            states.append(np.vstack([state[None, :], s]))
+            sensors.append(sd)
+            state = s[-1]
+            done = lo = hi
+        if diverged is not None:
+            break
+
+    before = np.vstack([x[:-1] for x in states]) if states else np.zeros((0, L.nstate))
+    after = np.vstack([x[1:] for x in states]) if states else np.zeros((0, L.nstate))
+    sd = np.vstack(sensors) if sensors else np.zeros((0, m.nsensordata))
+    k = np.arange(done)
+    theta_abs = sd[:, theta_adr]
+    theta = theta_abs - hp.reference_angle
+    if cm.controller is not None:
+        v = after[:, L.valve_index()]
+        command = after[:, L.command_index()]
+        enabled = before[:, L.enabled_index()] != 0
+        # while disabled the card still records the servo loop's voltage
+    else:
+        v = np.clip(ctrl[:done, 0] + hp.position_gain * (theta_ref_rad[:done] - theta), -10.0, 10.0)
+        command = np.full(done, np.nan)
+        enabled = np.zeros(done, bool)
+    return LoopSignals(
+        t=t0 + k * dt,
+        theta_ref=theta_ref_rad[:done].copy(),
+        r=ctrl[:done, 0].copy(),
+        theta=theta,
+        accel=sd[:, acc_adr:acc_adr + 3] @ direction - g_off,
+        v=v,
+        command=command,
+        p_load=before[:, L.act_adr + 1] * hp.supply_pressure,
+        spool=before[:, L.act_adr],
+        enabled=enabled,
+        final_state=np.array(state, float),
+        switch_on_s=None if switch_on_step is None else t0 + switch_on_step * dt,
+        switch_jump_v=jump,
+        diverged_at_s=diverged,
+        frame_t=None if qpos_every is None else t0 + k[::qpos_every] * dt,
+        frame_qpos=None if qpos_every is None else before[::qpos_every, 1:1 + m.nq].copy(),
+    )

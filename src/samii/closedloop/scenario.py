@@ -1,0 +1,361 @@
+"""Closed-loop experiments: the scenarios, one run with its comparison and linear prediction, the result.
+
+Scenarios (times in s, angles as offsets from the nominal pose):
+
+- ``step``: the controller runs from t = 0; theta_ref steps by ``step_deg`` at
+  t = 1; the comparison is the same step under the servo amplifier alone.
+- ``loper``: the arm steps under the servo amplifier alone at t = 1 and the
+  controller is switched on (bumplessly) at t = 2; the comparison is the same
+  run never switched (the free decay). After Loper's thesis, as the notebook's
+  Figure 11.5 tried it.
+- ``release``: an impulse at the beam tip along the accelerometer's direction
+  (``impulse_n_s``) at t = 0 sets the base vibrating; the controller runs from
+  t = 0 with theta_ref held; the comparison is the servo amplifier alone.
+
+Every run is also predicted by the linearised loop (:mod:`samii.closedloop.linear`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from samii.closedloop.card import CardModel, build_card_model
+from samii.closedloop.controllers import SavedController
+from samii.closedloop.linear import LinearLoop, LinearResponse, linear_loop
+from samii.closedloop.metrics import BaseMetrics, FittedMode, StepMetrics, base_metrics, envelope, growth, response_modes, step_metrics
+from samii.closedloop.run import LoopSignals, run_loop
+
+__all__ = [
+    "SCENARIOS",
+    "Scenario",
+    "ClosedLoopResult",
+    "NoiseSpec",
+    "run_closed_loop",
+    "scenario",
+]
+
+SCENARIOS = ("step", "loper", "release")
+
+#: Release: the tip impulse [N s]. 0.5 N s starts the base at about 4 m/s^2 peak, the size of the
+#: vibration a 5 degree step leaves (3.2 m/s^2) and well inside the valve's linear range.
+DEFAULT_IMPULSE_N_S = 0.5
+
+#: Growth below this [1/s] (a time constant of 20 s) is not called unstable from a response: a
+#: 10 s record cannot tell it from a slowly decaying mode.
+MIN_GROWTH_1_S = 0.05
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    duration_s: float = 10.0
+    step_deg: float = 5.0
+    t_step_s: float = 1.0  #: step time (step, loper)
+    switch_on_s: float | None = None  #: loper: when the controller is switched on
+    impulse_n_s: float = 0.0  #: release: tip impulse at t = 0 [N s]
+
+    @property
+    def t_event_s(self) -> float:
+        """When the base vibration whose decay is measured starts (the step, the switch-on, the impulse)."""
+        if self.name == "loper":
+            return float(self.switch_on_s)
+        if self.name == "release":
+            return 0.0
+        return self.t_step_s
+
+    @property
+    def t_disturbance_s(self) -> float:
+        """When the vibration is excited (the step; the impulse): settle times count from here."""
+        return 0.0 if self.name == "release" else self.t_step_s
+
+
+def scenario(name: str, *, step_deg: float = 5.0, duration_s: float = 10.0, impulse_n_s: float = DEFAULT_IMPULSE_N_S) -> Scenario:
+    """The named scenario with its defaults (module docstring)."""
+    if name == "step":
+        return Scenario("step", duration_s, step_deg, 1.0)
+    if name == "loper":
+        return Scenario("loper", duration_s, step_deg, 1.0, switch_on_s=2.0)
+    if name == "release":
+        return Scenario("release", duration_s, 0.0, 0.0, impulse_n_s=impulse_n_s)
+    raise ValueError(f"unknown scenario {name!r}; expected one of {', '.join(SCENARIOS)}")
+
+
+@dataclass(frozen=True)
+class NoiseSpec:
+    """Sensor noise and ADC quantisation of the controller's measurements (seeded)."""
+
+    theta_std_rad: float = 5e-4  #: samii.measure.daq.SensorNoise: a 4096-count/rev encoder
+    accel_std_m_s2: float = 1e-2  #: about 1 mg rms
+    theta_lsb_rad: float = 2 * math.pi / 4096  #: the same encoder's count
+    accel_lsb_m_s2: float = 20.0 / 65536 * 9.80665  #: a 16-bit +-10 V ADC on a 1 V/g accelerometer
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class ClosedLoopResult:
+    controller: str
+    scenario: Scenario
+    signals: LoopSignals  #: the run
+    comparison: LoopSignals | None  #: the same scenario under the servo amplifier alone (None for the servo loop itself)
+    linear: LinearResponse | None  #: the linear prediction (None if the linear loop is unstable)
+    linear_stable: bool
+    linear_poles_s: np.ndarray
+    stable: bool
+    unstable_mode_hz: float | None
+    growth_rate_1_s: float | None
+    theta: StepMetrics
+    base: BaseMetrics
+    free_decay_rate_1_s: float | None
+    modes: list[FittedMode]
+    rms_error_pct: dict[str, float | None]
+    delay_samples: float
+    sample_time_s: float
+    replaces_servo: bool
+    noise: NoiseSpec | None
+    notes: list[str] = field(default_factory=list)
+    theta_rest_rad: float = 0.0  #: theta at the static equilibrium (the responses are relative to it)
+    accel_rest_m_s2: float = 0.0  #: accelerometer reading there (after the gravity offset is removed: ~0)
+
+    def as_json(self) -> dict:
+        from samii.json_output import finite_or_none as f
+
+        return {
+            "controller": self.controller,
+            "scenario": self.scenario.name,
+            "stable": self.stable,
+            "unstable_mode_hz": f(self.unstable_mode_hz),
+            "growth_rate_1_s": f(self.growth_rate_1_s),
+            "theta": {"rise_s": f(self.theta.rise_s), "overshoot_pct": f(self.theta.overshoot_pct), "settle_s": f(self.theta.settle_s)},
+            "base": {
+                "peak_m_s2": f(self.base.peak_m_s2),
+                "residual_rms_m_s2": f(self.base.residual_rms_m_s2),
+                "settle_s": f(self.base.settle_s),
+                "decay_rate_1_s": f(self.base.decay_rate_1_s),
+                "free_decay_rate_1_s": f(self.free_decay_rate_1_s),
+            },
+            "modes": [{"freq_hz": f(m.freq_hz), "zeta": f(m.zeta)} for m in self.modes],
+            "linear_prediction": {"stable": self.linear_stable, "rms_error_pct": {k: f(v) for k, v in self.rms_error_pct.items()}},
+        }
+
+    def run_json(self) -> dict:
+        """Everything of :meth:`as_json` and how the run was made (``run.json``)."""
+        from samii.json_output import finite_or_none as f
+
+        sc = self.scenario
+        return {
+            **self.as_json(),
+            "scenario_settings": {"duration_s": sc.duration_s, "step_deg": sc.step_deg, "t_step_s": sc.t_step_s,
+                                  "switch_on_s": sc.switch_on_s, "impulse_n_s": sc.impulse_n_s},
+            "sample_time_s": self.sample_time_s,
+            "delay_samples": self.delay_samples,
+            "servo_loop": "replaced" if self.replaces_servo else "kept",
+            "noise": None if self.noise is None else vars(self.noise),
+            "diverged_at_s": f(self.signals.diverged_at_s),
+            "switch_jump_v": f(self.signals.switch_jump_v),
+            "linear_poles": [[f(p.real), f(p.imag)] for p in self.linear_poles_s if p.imag >= 0],
+            "modes_detail": [{"freq_hz": m.freq_hz, "zeta": m.zeta, "amplitude_m_s2": m.amplitude_m_s2} for m in self.modes],
+            "notes": list(self.notes),
+        }  # fmt: skip
+
+    def timeseries(self):
+        """The run in the standard time-series format (physics rate); ``command`` and ``controller_on`` as extra columns."""
+        from samii.measure.timeseries import TimeSeries
+
+        s = self.signals
+        meta = {
+            "source": f"samii closedloop --controller {self.controller} --scenario {self.scenario.name} (simulated)",
+            "sample_rate_hz": f"{1.0 / s.dt_s:.12g}",
+            "controller_sample_time_s": f"{self.sample_time_s:.12g}",
+            "delay_samples": f"{self.delay_samples:.12g}",
+        }
+        extra = {"controller_on": s.enabled.astype(float)}
+        if np.any(np.isfinite(s.command)):
+            extra["command"] = s.command
+        return TimeSeries(t=s.t, v=s.v, theta=s.theta, accel=s.accel, r=s.r, theta_ref=s.theta_ref, p_load=s.p_load,
+                          spool=s.spool, extra=extra, metadata=meta)  # fmt: skip
+
+
+def _impulse_state(cm: CardModel, impulse_n_s: float) -> np.ndarray:
+    """The ``home`` state with the velocity change of an impulse at the accelerometer's site along its direction."""
+    from samii.sim.model import make_data
+    from samii.sim.sensors import accel_weights
+
+    m = cm.model
+    d = make_data(m)
+    full = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    state = np.empty(cm.layout.nstate)
+    mujoco.mj_getState(m, d, state, full)
+    if impulse_n_s == 0:
+        return state
+    sensor = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, "base_accel")
+    site = int(m.sensor_objid[sensor])
+    _, direction = accel_weights(m)
+    jacp = np.zeros((3, m.nv))
+    mujoco.mj_jacSite(m, d, jacp, None, site)
+    f = jacp.T @ (impulse_n_s * np.asarray(direction))
+    dq = np.zeros(m.nv)
+    mujoco.mj_solveM(m, d, dq.reshape(1, -1), f.reshape(1, -1))
+    state[1 + m.nq:1 + m.nq + m.nv] += dq
+    return state
+
+
+def _fd_deviation(cm: CardModel, state: np.ndarray) -> np.ndarray:
+    """``state`` as a deviation from ``home`` in mjd_transitionFD's coordinates (dqpos, qvel, act)."""
+    from samii.sim.model import make_data
+
+    m = cm.model
+    home = make_data(m)
+    qpos = state[1:1 + m.nq]
+    dq = np.zeros(m.nv)
+    mujoco.mj_differentiatePos(m, dq, 1.0, home.qpos, qpos)
+    qvel = state[1 + m.nq:1 + m.nq + m.nv] - home.qvel
+    act = state[1 + m.nq + m.nv:1 + m.nq + m.nv + m.na] - home.act
+    return np.concatenate([dq, qvel, act])
+
+
+def _inputs(cm: CardModel, sc: Scenario) -> tuple[np.ndarray, np.ndarray | None, int | None]:
+    dt = float(cm.model.opt.timestep)
+    n = int(round(sc.duration_s / dt))
+    theta_ref = np.zeros(n)
+    if sc.name in ("step", "loper"):
+        theta_ref[int(round(sc.t_step_s / dt)):] = math.radians(sc.step_deg)
+    initial = _impulse_state(cm, sc.impulse_n_s) if sc.name == "release" else None
+    switch = int(round(sc.switch_on_s / dt)) if sc.name == "loper" and cm.controller is not None else None
+    return theta_ref, initial, switch
+
+
+def _rms_error_pct(nl: np.ndarray, lin: np.ndarray) -> float | None:
+    den = float(np.sqrt(np.mean(lin**2)))
+    if den == 0 or not np.all(np.isfinite(lin)) or nl.size != lin.size:
+        return None
+    return float(np.sqrt(np.mean((nl - lin) ** 2)) / den * 100.0)
+
+
+def run_closed_loop(
+    saved: SavedController | None,
+    sc: Scenario,
+    *,
+    label: str,
+    spec_factory=None,
+    delay_samples: float = 0.0,
+    noise: NoiseSpec | None = None,
+    comparison: bool = True,
+    qpos_every: int | None = None,
+) -> ClosedLoopResult:
+    """Run ``saved`` (None: the servo amplifier alone) through scenario ``sc`` on the model from ``spec_factory``.
+
+    Parameters
+    ----------
+    spec_factory : callable() -> (MjSpec, home_qpos, home_act), optional
+        A fresh spec of the model and its equilibrium; default the embedded model.
+    comparison : bool
+        Also run the scenario under the servo amplifier alone (for the plots and the free decay).
+    qpos_every : int, optional
+        Keep the joint positions every this many physics steps (an animation).
+    """
+    if spec_factory is None:
+        spec_factory = default_spec_factory()
+    controller = saved.controller if saved is not None else None
+    replaces = bool(saved.replaces_servo) if saved is not None else False
+    q = noise or NoiseSpec(0.0, 0.0, 0.0, 0.0)
+    spec, qpos, act = spec_factory()
+    cm = build_card_model(spec, controller, replaces_servo=replaces, delay_samples=delay_samples,
+                          theta_lsb_rad=q.theta_lsb_rad, accel_lsb_m_s2=q.accel_lsb_m_s2, home_qpos=qpos, home_act=act)  # fmt: skip
+    theta_ref, initial, switch = _inputs(cm, sc)
+    n = theta_ref.size
+    noise_th = noise_ac = None
+    if noise is not None:
+        rng = np.random.default_rng(noise.seed)
+        noise_th = rng.normal(0.0, noise.theta_std_rad, n)
+        noise_ac = rng.normal(0.0, noise.accel_std_m_s2, n)
+    sig = run_loop(cm, theta_ref, theta_noise_rad=noise_th, accel_noise_m_s2=noise_ac, switch_on_step=switch,
+                   initial_state=initial, keep_partial=True, qpos_every=qpos_every)  # fmt: skip
+    notes: list[str] = []
+    # readings at rest (the static equilibrium): the responses are taken relative to them
+    from samii.closedloop.run import measurements_at
+
+    rest = measurements_at(cm, _impulse_state(cm, 0.0), 0.0)
+    th_rest, ac_rest = float(rest[1]), float(rest[2])
+    accel = sig.accel - ac_rest
+
+    comp = None
+    if comparison and controller is not None:
+        spec0, qpos0, act0 = spec_factory()
+        cm0 = build_card_model(spec0, None, home_qpos=qpos0, home_act=act0)
+        comp = run_loop(cm0, theta_ref, initial_state=_impulse_state(cm0, sc.impulse_n_s) if sc.name == "release" else None)
+
+    # linear prediction
+    ll: LinearLoop = linear_loop(cm)
+    poles_z = ll.poles_z()
+    linear_stable = bool(np.all(np.abs(poles_z) < 1.0))
+    poles_s = ll.poles_s()
+    lin = None
+    err: dict[str, float | None] = {"theta": None, "accel": None}
+    x0 = _fd_deviation(cm, initial) if initial is not None else None
+    enabled = np.zeros(n, bool)
+    if controller is not None:
+        enabled[(switch or 0):] = True
+    if linear_stable:
+        lin = ll.simulate(theta_ref, enabled=enabled, x0=x0)
+        k = sig.t.size
+        if sig.diverged_at_s is None:
+            err = {"theta": _rms_error_pct(sig.theta - th_rest, lin.theta[:k]), "accel": _rms_error_pct(accel, lin.accel[:k])}
+    else:
+        notes.append("the linear prediction is unstable: no linear response or error is given")
+
+    # stability from the nonlinear response
+    t_ev = sc.t_event_s
+    stable, mode_hz, rate = True, None, None
+    if sig.diverged_at_s is not None or sig.t.size < 30:
+        stable = False
+        g = growth(sig.t, accel, min(t_ev, sig.t[-1] if sig.t.size else 0.0)) if sig.t.size >= 30 else None
+        if g is None and not linear_stable:
+            worst = poles_s[np.argmax(poles_s.real)]
+            g = (float(worst.real), float(abs(worst.imag) / (2 * np.pi)))
+            notes.append("the run diverged too fast to fit its growth; growth rate and frequency are the linear prediction's")
+        if g is not None:
+            rate, mode_hz = g
+        notes.append(f"the simulation diverged at t = {sig.diverged_at_s:.4g} s" if sig.diverged_at_s is not None else "the simulation diverged at once")
+    else:
+        dt = sig.dt_s
+        k_ev = int(np.searchsorted(sig.t, t_ev))
+        env = envelope(accel[k_ev:], dt)
+        tail = env[int(0.8 * env.size):]
+        g = growth(sig.t, accel, t_ev + 0.5)
+        if g is not None and g[0] > MIN_GROWTH_1_S and tail.size and np.max(tail) > 0.1 * np.max(env):
+            stable, (rate, mode_hz) = False, g
+            if np.mean(np.abs(sig.v) >= 9.999) > 0.01:
+                notes.append("the growing oscillation is held by the valve's +-10 V saturation (a limit cycle)")
+
+    theta_m = step_metrics(sig.t, sig.theta, sig.theta_ref, sc.t_step_s) if sc.name in ("step", "loper") else StepMetrics(None, None, None)
+    residual_from = sc.t_disturbance_s + 2.0
+    base = base_metrics(sig.t, accel, sc.t_disturbance_s, t_decay_s=t_ev, residual_from_s=residual_from) if sig.t.size > 1 else BaseMetrics(0.0, None, None, None)
+    free = None
+    if comp is not None and sc.name in ("loper", "release"):
+        free = base_metrics(comp.t, comp.accel - ac_rest, sc.t_disturbance_s, t_decay_s=t_ev).decay_rate_1_s
+    modes = response_modes(sig.t, accel, t_ev + 0.1) if stable else []
+    return ClosedLoopResult(
+        controller=label, scenario=sc, signals=sig, comparison=comp, linear=lin, linear_stable=linear_stable,
+        linear_poles_s=poles_s, stable=stable, unstable_mode_hz=mode_hz, growth_rate_1_s=rate, theta=theta_m, base=base,
+        free_decay_rate_1_s=free, modes=modes, rms_error_pct=err, delay_samples=float(delay_samples),
+        sample_time_s=cm.sample_time_s, replaces_servo=cm.replaces_servo, noise=noise, notes=notes,
+        theta_rest_rad=th_rest, accel_rest_m_s2=ac_rest,
+    )  # fmt: skip
+
+
+def default_spec_factory(path=None, overrides=None):
+    """A factory of fresh specs of a model (default the embedded one) with its static equilibrium."""
+    from samii.sim.model import load_model, load_spec
+
+    model = load_model(path, overrides=overrides)
+    qpos, act = model.key_qpos[0].copy(), model.key_act[0].copy()
+
+    def factory():
+        spec, _ = load_spec(path, overrides=overrides)
+        return spec, qpos, act
+
+    return factory
