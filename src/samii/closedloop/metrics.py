@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.signal
 
-__all__ = ["StepMetrics", "BaseMetrics", "FittedMode", "step_metrics", "base_metrics", "envelope", "matrix_pencil", "response_modes", "growth"]
+__all__ = ["StepMetrics", "BaseMetrics", "FittedMode", "Instability", "step_metrics", "base_metrics", "envelope", "matrix_pencil", "response_modes", "growth", "sustained_oscillation"]
 
 SETTLE_BAND = 0.02  #: theta settle band, fraction of the step
 BASE_SETTLE_FRACTION = 0.05  #: base settle threshold, fraction of the envelope's peak
@@ -213,3 +213,68 @@ def growth(t: np.ndarray, accel: np.ndarray, t_start: float) -> tuple[float, flo
         return None
     p = s[np.argmax(s.real)]
     return float(p.real), float(abs(p.imag) / (2 * np.pi))
+
+
+@dataclass(frozen=True)
+class Instability:
+    """A base oscillation that does not decay: its growth while it grew, its frequency, what holds it."""
+
+    growth_rate_1_s: float | None  #: slope of the log envelope while it grew (None: it never grew, it only persisted)
+    freq_hz: float
+    kind: str  #: "growing" (still growing at the end) or "limit cycle" (grew, then held at a level by a nonlinearity)
+
+
+def _dominant_freq_hz(x: np.ndarray, dt: float) -> float:
+    """Frequency of the largest peak of the spectrum of ``x`` (Hann window, zero-padded 16 x, parabolic peak)."""
+    x = (x - np.mean(x)) * np.hanning(x.size)
+    nfft = 1 << int(np.ceil(np.log2(16 * x.size)))
+    spec = np.abs(np.fft.rfft(x, nfft))
+    k = int(np.argmax(spec[1:])) + 1
+    if 0 < k < spec.size - 1:
+        a, b, c = np.log(spec[k - 1:k + 2] + 1e-300)
+        k = k + 0.5 * (a - c) / (a - 2 * b + c) if (a - 2 * b + c) != 0 else k
+    return float(k / (nfft * dt))
+
+
+def sustained_oscillation(t: np.ndarray, accel: np.ndarray, t_event: float, *, min_decay_1_s: float = 0.05,
+                          tail_fraction: float = 0.4, min_tail_level: float = 0.3) -> Instability | None:
+    """The base oscillation after ``t_event`` if it does not decay, else None.
+
+    It does not decay when, over the last ``tail_fraction`` of the record, its
+    log envelope falls slower than ``min_decay_1_s`` and stays above
+    ``min_tail_level`` of its largest value (a 10 s record cannot tell a slower
+    decay from none). Its growth rate is the slope of the log envelope from
+    where it first exceeds twice its level just after the event to where it
+    first reaches 30 % of its largest value (still small-signal); the frequency is the spectrum's peak
+    over that growth (or over the tail when it did not grow).
+    """
+    dt = float(t[1] - t[0])
+    k0 = int(np.searchsorted(t, t_event))
+    seg = np.asarray(accel[k0:], float)
+    if seg.size < int(2.0 / dt):
+        return None
+    env = envelope(seg, dt)
+    k_tail = int((1 - tail_fraction) * env.size)
+    tail = env[k_tail:]
+    tt = np.arange(k_tail, env.size) * dt
+    slope = float(np.polyfit(tt, np.log(np.maximum(tail, 1e-300)), 1)[0])
+    if slope < -min_decay_1_s or np.mean(tail) < min_tail_level * np.max(env):
+        return None
+    # growth phase
+    k_ref = min(env.size - 1, int(round(0.3 / dt)))
+    start = np.flatnonzero(env[k_ref:] > 2.0 * env[k_ref])
+    top = np.flatnonzero(env >= 0.3 * np.max(env))
+    rate, k_a, k_b = None, None, None
+    if start.size and top.size:
+        k_a, k_b = k_ref + int(start[0]), int(top[0])
+        if k_b - k_a >= max(8, int(0.2 / dt)):
+            ta = np.arange(k_a, k_b) * dt
+            rate = float(np.polyfit(ta, np.log(env[k_a:k_b]), 1)[0])
+    if rate is not None and rate > min_decay_1_s:
+        # frequency while it grew (at least a second of signal around it)
+        lo = max(0, k_b - max(k_b - k_a, int(1.0 / dt)))
+        freq = _dominant_freq_hz(seg[lo:k_b], dt)
+    else:
+        rate, freq = None, _dominant_freq_hz(seg[k_tail:], dt)
+    kind = "growing" if slope > min_decay_1_s else "limit cycle"
+    return Instability(rate, freq, kind)

@@ -26,7 +26,7 @@ import numpy as np
 from samii.closedloop.card import CardModel, build_card_model
 from samii.closedloop.controllers import SavedController
 from samii.closedloop.linear import LinearLoop, LinearResponse, linear_loop
-from samii.closedloop.metrics import BaseMetrics, FittedMode, StepMetrics, base_metrics, envelope, growth, response_modes, step_metrics
+from samii.closedloop.metrics import BaseMetrics, FittedMode, StepMetrics, base_metrics, growth, response_modes, step_metrics, sustained_oscillation
 from samii.closedloop.run import LoopSignals, run_loop
 
 __all__ = [
@@ -43,10 +43,6 @@ SCENARIOS = ("step", "loper", "release")
 #: Release: the tip impulse [N s]. 0.5 N s starts the base at about 4 m/s^2 peak, the size of the
 #: vibration a 5 degree step leaves (3.2 m/s^2) and well inside the valve's linear range.
 DEFAULT_IMPULSE_N_S = 0.5
-
-#: Growth below this [1/s] (a time constant of 20 s) is not called unstable from a response: a
-#: 10 s record cannot tell it from a slowly decaying mode.
-MIN_GROWTH_1_S = 0.05
 
 
 @dataclass(frozen=True)
@@ -321,15 +317,14 @@ def run_closed_loop(
             rate, mode_hz = g
         notes.append(f"the simulation diverged at t = {sig.diverged_at_s:.4g} s" if sig.diverged_at_s is not None else "the simulation diverged at once")
     else:
-        dt = sig.dt_s
-        k_ev = int(np.searchsorted(sig.t, t_ev))
-        env = envelope(accel[k_ev:], dt)
-        tail = env[int(0.8 * env.size):]
-        g = growth(sig.t, accel, t_ev + 0.5)
-        if g is not None and g[0] > MIN_GROWTH_1_S and tail.size and np.max(tail) > 0.1 * np.max(env):
-            stable, (rate, mode_hz) = False, g
-            if np.mean(np.abs(sig.v) >= 9.999) > 0.01:
-                notes.append("the growing oscillation is held by the valve's +-10 V saturation (a limit cycle)")
+        osc = sustained_oscillation(sig.t, accel, t_ev)
+        if osc is not None:
+            stable, rate, mode_hz = False, osc.growth_rate_1_s, osc.freq_hz
+            held = "the valve's +-10 V saturation" if np.mean(np.abs(sig.v) >= 9.999) > 0.01 else "the valve's pressure-flow law (no saturation)"
+            if osc.kind == "limit cycle":
+                notes.append(f"the base oscillation at {osc.freq_hz:.3g} Hz grew and is held at a constant level by {held} (a limit cycle)")
+            else:
+                notes.append(f"the base oscillation at {osc.freq_hz:.3g} Hz is still growing at the end of the run")
 
     theta_m = step_metrics(sig.t, sig.theta, sig.theta_ref, sc.t_step_s) if sc.name in ("step", "loper") else StepMetrics(None, None, None)
     residual_from = sc.t_disturbance_s + 2.0

@@ -1,0 +1,219 @@
+"""The closed loop: the controller card against a hand-written loop, the linear prediction, switch-on, instability, saved controllers.
+
+Figures tested against and their sources:
+
+- eq 9.4's base coefficients B1, B2, B3 (samii.notebook.EQ9_4, from the notebook's eq 9.8 at phase
+  weight 0.1) against the simulator's; ft = 0.3048 m exactly (international foot).
+- the servo amplifier gain Kp = 57.2958 V/rad = 1 V/deg (models/samii/samii_params.json).
+"""
+
+from __future__ import annotations
+
+import math
+
+import control
+import mujoco
+import numpy as np
+import pytest
+
+from samii.closedloop.card import build_card_model
+from samii.closedloop.controllers import (
+    FT_PER_M,
+    NOTEBOOK_INPUT_SCALE,
+    SavedController,
+    accel_unit_evidence,
+    notebook_cancel,
+    read_controller,
+    write_controller,
+)
+from samii.closedloop.linear import linear_loop
+from samii.closedloop.run import run_loop
+from samii.closedloop.scenario import default_spec_factory, run_closed_loop, scenario
+from samii.design.controller import LinearController, mass_damping_controller
+from samii.sim.model import load_model, load_spec, make_data
+from samii.sim.sensors import accel_offset, accel_weights
+
+DEG = 180.0 / math.pi
+KP = 57.29577951308232  # V/rad, the servo amplifier (1 V/deg)
+
+
+@pytest.fixture(scope="module")
+def home():
+    m = load_model()
+    return m, m.key_qpos[0].copy(), m.key_act[0].copy()
+
+
+@pytest.fixture(scope="module")
+def factory():
+    return default_spec_factory()
+
+
+def _card(home, controller, **kw):
+    _, qpos, act = home
+    spec, _ = load_spec()
+    return build_card_model(spec, controller, home_qpos=qpos, home_act=act, **kw)
+
+
+def _filtered_md(sample_time_s=1e-3):
+    """A dynamic controller reading all three inputs: mass-damping feedback through a 20 Hz low-pass, theta in degrees."""
+    return mass_damping_controller(0.05, control.tf([1.0], [1 / (2 * np.pi * 20), 1.0]), sample_time_s=sample_time_s,
+                                   input_scale={"theta_ref": DEG, "theta": DEG})  # fmt: skip
+
+
+def _python_loop(controller, theta_ref, *, replaces, delay_samples, steps=1):
+    """The same loop written out by hand: mj_forward for the sensors at t_k, the controller every
+    ``steps`` physics steps, its command held and delayed by whole samples, mj_step with the
+    valve command as ctrl (the plugin adds Kp (theta_0 - theta) when the servo loop is kept)."""
+    m0 = load_model()
+    mp = load_model(overrides={"hydraulic.position_gain": 0.0}) if replaces else load_model()
+    mp.key_qpos[0], mp.key_act[0] = m0.key_qpos[0], m0.key_act[0]
+    d = make_data(mp)
+    adr, w = accel_weights(mp)
+    off = accel_offset(mp)
+    th_adr = mp.sensor_adr[mujoco.mj_name2id(mp, mujoco.mjtObj.mjOBJ_SENSOR, "theta")]
+    jq = mp.jnt_qposadr[mp.joint("joint2").id]
+    controller.reset()
+    held, commands, theta = 0.0, [], []
+    for k in range(theta_ref.size):
+        mujoco.mj_forward(mp, d)
+        if k % steps == 0:
+            meas = {"theta_ref": theta_ref[k], "theta": d.sensordata[th_adr] - math.pi / 2, "accel": d.sensordata[adr:adr + 3] @ w - off}
+            held = controller.step(meas)
+        commands.append(held)
+        j = k - int(delay_samples * steps)
+        d.ctrl[0] = (commands[j] if j >= 0 else 0.0) + (0.0 if replaces else KP * theta_ref[k])
+        mujoco.mj_step(mp, d)
+        theta.append(d.qpos[jq] - math.pi / 2)
+    return np.array(theta), np.array(commands)
+
+
+@pytest.mark.parametrize("replaces,delay,steps", [(True, 0, 1), (True, 1, 1), (False, 2, 1), (True, 0, 5), (False, 1, 4)])
+def test_card_equals_hand_written_loop(home, replaces, delay, steps):
+    """The plugin's controller card is the loop written out in Python: sampling at t_k, ZOH, whole delays, both connections."""
+    c = _filtered_md(1e-3 * steps)
+    cm = _card(home, c, replaces_servo=replaces, delay_samples=delay)
+    n = 1500
+    theta_ref = np.zeros(n)
+    theta_ref[300:] = math.radians(0.5)
+    sig = run_loop(cm, theta_ref)
+    theta_py, cmd_py = _python_loop(c, theta_ref, replaces=replaces, delay_samples=delay, steps=steps)
+    # the run's theta[k] is at t_k; the hand loop records theta after step k
+    assert np.max(np.abs(sig.theta[1:] - theta_py[:-1])) < 1e-8
+    np.testing.assert_allclose(sig.command, cmd_py, atol=1e-7)
+
+
+def test_zoh_and_fractional_delay_by_hand(home):
+    """A static gain with a 1.5-sample delay: the valve gets command[k-1] for the later part of step k, and the spool moves
+    exactly as a first-order lag driven for 0.5 h by command[k-2], then 0.5 h by command[k-1]."""
+    m, _, _ = home
+    c = LinearController(np.zeros((0, 0)), np.zeros((0, 2)), np.zeros((1, 0)), [[KP, -KP]], sample_time_s=1e-3, inputs=("theta_ref", "theta"))
+    cm = _card(home, c, replaces_servo=True, delay_samples=1.5)
+    n = 400
+    theta_ref = np.zeros(n)
+    theta_ref[100:] = math.radians(0.2)
+    sig = run_loop(cm, theta_ref)
+    np.testing.assert_allclose(sig.command, KP * (sig.theta_ref - sig.theta), rtol=0, atol=1e-12)  # sampled at t_k, D w
+    np.testing.assert_allclose(sig.v[2:], sig.command[1:-1], rtol=0, atol=1e-12)  # held, delayed one whole sample
+    from samii.sim.plugin import hydraulic_params
+
+    hp = hydraulic_params(cm.model)
+    h, tau = float(m.opt.timestep), hp.valve_time_constant
+    x = sig.spool
+    k = np.arange(2, n - 1)
+    x_mid = sig.command[k - 2] / 10.0 + (x[k] - sig.command[k - 2] / 10.0) * math.exp(-0.5 * h / tau)
+    x_next = sig.command[k - 1] / 10.0 + (x_mid - sig.command[k - 1] / 10.0) * math.exp(-0.5 * h / tau)
+    np.testing.assert_allclose(x[k + 1], x_next, rtol=0, atol=1e-12)
+
+
+def test_linear_prediction_at_small_amplitude(factory):
+    """0.5 deg step: theta within 5 % of the linear prediction; the acceleration's error is the valve's
+    square-root pressure-flow law (load pressure 10 % of supply: flow gain sqrt(0.9)), so it shrinks
+    with the step and with a stiffer supply."""
+    small = run_closed_loop(None, scenario("step", step_deg=0.5), label="unity", spec_factory=factory, comparison=False)
+    assert small.linear_stable and small.stable
+    assert small.rms_error_pct["theta"] <= 5.0
+    assert small.rms_error_pct["accel"] <= 8.0
+    tiny = run_closed_loop(None, scenario("step", step_deg=0.05), label="unity", spec_factory=factory, comparison=False)
+    assert tiny.rms_error_pct["theta"] <= 0.5 and tiny.rms_error_pct["accel"] <= 1.0
+    stiff = run_closed_loop(None, scenario("step", step_deg=0.5), label="unity", comparison=False,
+                            spec_factory=default_spec_factory(overrides={"hydraulic.supply_pressure": 7e7}))  # fmt: skip
+    assert stiff.rms_error_pct["accel"] <= small.rms_error_pct["accel"] / 5
+    cancel = run_closed_loop(notebook_cancel(), scenario("step", step_deg=0.5), label="notebook-cancel", spec_factory=factory, comparison=False)
+    assert cancel.rms_error_pct["theta"] <= 5.0 and cancel.rms_error_pct["accel"] <= 8.0
+
+
+@pytest.mark.parametrize("which", ["cancel", "accel feedback"])
+def test_linear_prediction_with_delay_and_slow_sampling(home, which):
+    """The linear loop follows the card through a fractional delay and a 4 ms sample time (tiny step: no nonlinearity),
+    replacing the servo loop (the chapter-10 compensator) or adding to it (filtered acceleration feedback)."""
+    if which == "cancel":
+        c, replaces = notebook_cancel(sample_time_s=4e-3).controller, True
+    else:
+        f = control.sample_system(control.tf([0.02], [1 / (2 * np.pi * 5), 1.0]), 4e-3, method="zoh")
+        ss = control.tf2ss(f)
+        A, B, C, D = (np.atleast_2d(np.asarray(x, float)) for x in (ss.A, ss.B, ss.C, ss.D))
+        c = LinearController(A, np.hstack([np.zeros((1, 2)), B]), C, np.hstack([np.zeros((1, 2)), D]), sample_time_s=4e-3,
+                             inputs=("theta_ref", "theta", "accel"))  # fmt: skip
+        replaces = False
+    cm = _card(home, c, replaces_servo=replaces, delay_samples=0.75)
+    ll = linear_loop(cm)
+    assert np.all(np.abs(ll.poles_z()) < 1)
+    n = 3000
+    theta_ref = np.zeros(n)
+    theta_ref[500:] = math.radians(0.01)
+    sig = run_loop(cm, theta_ref)
+    lin = ll.simulate(theta_ref)
+    rest = sig.theta[0]
+    assert np.sqrt(np.mean((sig.theta - rest - lin.theta) ** 2)) <= 0.01 * np.sqrt(np.mean(lin.theta**2))
+    acc = sig.accel - sig.accel[0]
+    assert np.sqrt(np.mean((acc - lin.accel) ** 2)) <= 0.02 * np.sqrt(np.mean(lin.accel**2))
+
+
+def test_switch_on_is_bumpless(factory):
+    """Loper test: the controller takes over the valve without a jump, and the run equals the free one up to the switch."""
+    r = run_closed_loop(notebook_cancel(), scenario("loper"), label="notebook-cancel", spec_factory=factory)
+    s, c = r.signals, r.comparison
+    k = int(round(s.switch_on_s / s.dt_s))
+    assert abs(r.signals.switch_jump_v) < 1e-9
+    np.testing.assert_array_equal(s.theta[:k], c.theta[:k])
+    step_v = np.max(np.abs(np.diff(s.v[k - 200:k])))  # how much v moves per step before the switch
+    assert abs(s.v[k] - s.v[k - 1]) <= 2 * step_v
+    assert s.enabled[k] and not s.enabled[k - 1]
+
+
+def test_unstable_gain_reported_with_its_frequency(factory):
+    """Three times the servo gain makes the servo pair unstable: the nonlinear run grows at the linear prediction's
+    frequency and rate, then sits in a limit cycle held by the valve's pressure-flow law."""
+    kp = 3 * KP
+    c = LinearController(np.zeros((0, 0)), np.zeros((0, 2)), np.zeros((1, 0)), [[kp, -kp]], sample_time_s=1e-3, inputs=("theta_ref", "theta"))
+    r = run_closed_loop(SavedController(c, True), scenario("step", step_deg=0.01), label="3x", spec_factory=factory, comparison=False)
+    worst = r.linear_poles_s[np.argmax(r.linear_poles_s.real)]
+    assert not r.linear_stable and worst.real > 1.0
+    assert not r.stable
+    assert r.unstable_mode_hz == pytest.approx(abs(worst.imag) / (2 * np.pi), rel=0.02)
+    assert r.growth_rate_1_s == pytest.approx(worst.real, rel=0.15)
+    assert r.as_json()["stable"] is False
+
+
+def test_saved_controller_round_trips_exactly(tmp_path):
+    saved = notebook_cancel()
+    saved = SavedController(saved.controller, saved.replaces_servo, {"designed_on": "test"})
+    path = write_controller(saved, tmp_path / "c.json")
+    back = read_controller(path)
+    for name in ("A", "B", "C", "D"):
+        assert np.array_equal(getattr(back.controller, name), getattr(saved.controller, name))
+    assert back.controller.sample_time_s == saved.controller.sample_time_s
+    assert back.controller.inputs == saved.controller.inputs
+    assert dict(back.controller.input_scale) == dict(saved.controller.input_scale)
+    assert back.replaces_servo is True and back.provenance["designed_on"] == "test"
+
+
+def test_notebook_acceleration_unit_is_feet():
+    """Eq 9.4's B_k over the simulator's (theta in degrees): ft/s^2 within the modes' spread, no other common unit near."""
+    ev = accel_unit_evidence()
+    assert ev.geometric_mean == pytest.approx(FT_PER_M, rel=0.03)
+    lo, hi = min(ev.units_per_m_s2), max(ev.units_per_m_s2)
+    assert lo < FT_PER_M < hi and hi / lo < 1.5
+    for other in (1 / 9.80665, 1.0, 1 / 0.0254):  # g, m/s^2, in/s^2
+        assert not 0.5 * lo < other < 2 * hi
+    assert NOTEBOOK_INPUT_SCALE["accel"] == FT_PER_M and NOTEBOOK_INPUT_SCALE["theta"] == pytest.approx(DEG)
