@@ -22,11 +22,16 @@ BUILTIN_CONTROLLERS = {
     "unity": "the servo amplifier's position loop alone (1 V/deg), no digital controller",
     "notebook-place": "chapter 8: digital pole placement with observer on eq 1.4, as the notebook built it (whole position loop)",
     "notebook-cancel": "chapter 10: pole-cancelling compensator on eq 9.4, the notebook's gain 0.0666 (whole position loop)",
+    "damping": "tuned acceleration feedback designed here from a simulated measurement of the model: measure, fit, design (about 3 s)",
 }
 _FILES = ("timeseries.csv", "run.json")
 MAX_DURATION_S = 600.0
 MAX_STEP_DEG = 30.0
 MAX_IMPULSE_N_S = 20.0
+#: Longest controller sample accepted [physics steps]: 1 s at 1 ms (base mode 1 has a 0.58 s period).
+MAX_SAMPLE_STEPS = 1000
+#: Animation frames of --rerun: every 10th physics step (100 frames/s at 1 ms).
+RERUN_FRAME_STEPS = 10
 
 
 def _step_deg(text: str) -> float:
@@ -39,10 +44,14 @@ def _step_deg(text: str) -> float:
 _step_deg.__name__ = "step"
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from samii.closedloop.card import MAX_DELAY_STEPS
-    from samii.closedloop.scenario import DEFAULT_IMPULSE_N_S
+#: The card's delay line (samii.closedloop.card.MAX_DELAY_STEPS) and the release scenario's impulse
+#: (samii.closedloop.scenario.DEFAULT_IMPULSE_N_S), repeated here so that building the parser stays
+#: cheap (those modules load MuJoCo); a test holds them equal.
+MAX_DELAY_STEPS = 200
+DEFAULT_IMPULSE_N_S = 0.5
 
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     specs = "; ".join(f"{k}: {v}" for k, v in BUILTIN_CONTROLLERS.items())
     parser.add_argument("--controller", required=True, metavar="SPEC",
                         help=f"{specs}; or a controller file written by samii design place|cancel --save")
@@ -74,20 +83,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
-def _resolve_controller(spec: str):
+def _resolve_controller(spec: str, factory=None, quiet: bool = False):
     from pathlib import Path
 
     from samii.closedloop import controllers as cs
 
+    if not spec.strip():
+        raise InputError(f"--controller: expected {', '.join(BUILTIN_CONTROLLERS)} or a controller file, got an empty string")
+    if spec == "damping":
+        from samii.closedloop.damping import damping_from_simulation
+        from samii.sim.plugin import compile_spec
+
+        spec_, qpos, act = factory()
+        model = compile_spec(spec_)
+        model.key_qpos[0], model.key_act[0] = qpos, act
+
+        def say(what: str) -> None:
+            if not quiet:
+                print(f"  damping controller: {what}", file=sys.stderr)
+
+        return damping_from_simulation(model, progress=say).controller
     if spec == "unity":
         return None
     if spec == "notebook-place":
         return cs.notebook_place()
     if spec == "notebook-cancel":
         return cs.notebook_cancel()
-    if spec in ("damping",):
-        raise InputError("--controller damping: the damping controller (issue 10, item 8) is not built yet; use unity, "
-                         "notebook-place, notebook-cancel or a saved controller file")  # fmt: skip
     if Path(spec).suffix.lower() == ".json" or Path(spec).exists():
         return cs.read_controller(spec)
     raise InputError(f"--controller {spec!r}: expected {', '.join(BUILTIN_CONTROLLERS)} or a controller file (.json)")
@@ -143,7 +164,27 @@ def _summary(r, out_names: list[str]) -> str:
     return "\n".join(lines)
 
 
+def _check_fits(saved, args, dt: float) -> None:
+    """The controller against the card's limits and the physics step, naming the file and field or the option."""
+    from samii.closedloop.card import MAX_STATES
+
+    c = saved.controller
+    where = f"controller file {args.controller}" if args.controller not in BUILTIN_CONTROLLERS else f"--controller {args.controller}"
+    if c.n_states > MAX_STATES:
+        raise InputError(f"{where}: {c.n_states} states; the controller card holds at most {MAX_STATES}")
+    ratio = c.sample_time_s / dt
+    steps = round(ratio)
+    if not (1 <= steps <= MAX_SAMPLE_STEPS and abs(ratio - steps) <= 1e-9 * max(1.0, ratio)):
+        raise InputError(f"{where}: field 'sample_time_s' = {c.sample_time_s:g} s must be a whole number (1...{MAX_SAMPLE_STEPS}) of the "
+                         f"model's physics step {dt:g} s")  # fmt: skip
+    if args.delay_samples * steps > MAX_DELAY_STEPS:
+        raise InputError(f"--delay-samples {args.delay_samples:g}: {args.delay_samples * steps:g} physics steps at this controller's "
+                         f"sample time {c.sample_time_s:g} s; at most {MAX_DELAY_STEPS} ({MAX_DELAY_STEPS / steps:g} samples)")  # fmt: skip
+
+
 def run(args) -> int:
+    import os
+
     _check_options(args)
     from samii.outputs import OutputFolder, check_output_file
 
@@ -152,11 +193,9 @@ def run(args) -> int:
     names = list(_FILES) + ([] if args.no_plots else list(FIGURES))
     folder = OutputFolder(args.out, names, overwrite=args.overwrite) if args.out is not None else None
     rerun_path = check_output_file(args.rerun, overwrite=args.overwrite, option="--rerun", beside=folder) if args.rerun else None
-
-    saved = _resolve_controller(args.controller)
-    if saved is None and args.delay_samples:
+    if args.controller == "unity" and args.delay_samples:
         raise InputError("--delay-samples: the unity servo loop is analog (no digital controller to delay)")
-    if saved is None and args.noise:
+    if args.controller == "unity" and args.noise:
         raise InputError("--noise: the unity servo loop samples no sensors (its analog loop reads the joint angle directly)")
 
     from samii.closedloop.scenario import NoiseSpec, default_spec_factory, run_closed_loop, scenario
@@ -164,6 +203,10 @@ def run(args) -> int:
 
     overrides = parse_overrides(args.set)
     factory = default_spec_factory(args.model, overrides or None)
+    saved = _resolve_controller(args.controller, factory, quiet=args.json)
+    if saved is not None:
+        spec, _, _ = factory()
+        _check_fits(saved, args, float(spec.option.timestep))
     kw = {"duration_s": args.duration_s}
     if args.step_deg is not None:
         kw["step_deg"] = args.step_deg
@@ -171,34 +214,41 @@ def run(args) -> int:
         kw["impulse_n_s"] = args.impulse_n_s
     sc = scenario(args.scenario, **kw)
     noise = NoiseSpec(seed=args.seed or 0) if args.noise else None
-    label = args.controller
-    result = run_closed_loop(saved, sc, label=label, spec_factory=factory, delay_samples=args.delay_samples, noise=noise,
-                             qpos_every=10 if rerun_path else None)  # fmt: skip
+    result = run_closed_loop(saved, sc, label=args.controller, spec_factory=factory, delay_samples=args.delay_samples, noise=noise,
+                             qpos_every=RERUN_FRAME_STEPS if rerun_path else None)  # fmt: skip
 
     written: list[str] = []
-    if folder is not None:
-        from samii.json_output import dumps
-        from samii.measure.io import write_timeseries_csv
+    rrd_tmp = rerun_path.parent / f".{rerun_path.name}.{os.getpid()}.tmp" if rerun_path else None
+    try:
+        if folder is not None:
+            from samii.json_output import dumps
+            from samii.measure.io import write_timeseries_csv
 
-        with folder:
-            ts = result.timeseries()
-            write_timeseries_csv(ts, folder.path("timeseries.csv"), overwrite=True)
-            doc = result.run_json()
-            doc["model"] = {"file": args.model or "embedded default", "overrides": overrides}
-            doc["controller_detail"] = None if saved is None else {
-                "name": saved.controller.name, "method": saved.controller.method, "model_units": saved.controller.model_units,
-                "servo_loop": "replaced" if saved.replaces_servo else "kept", "provenance": dict(saved.provenance)}  # fmt: skip
-            folder.path("run.json").write_text(dumps(doc, indent=1) + "\n")
-            if not args.no_plots:
-                from samii.closedloop.plots import plot_base, plot_linear, plot_theta
+            with folder:
+                write_timeseries_csv(result.timeseries(), folder.path("timeseries.csv"), overwrite=True)
+                doc = result.run_json()
+                doc["model"] = {"file": args.model or "embedded default", "overrides": overrides}
+                doc["controller_detail"] = None if saved is None else {
+                    "name": saved.controller.name, "method": saved.controller.method, "model_units": saved.controller.model_units,
+                    "servo_loop": "replaced" if saved.replaces_servo else "kept", "provenance": dict(saved.provenance)}  # fmt: skip
+                folder.path("run.json").write_text(dumps(doc, indent=1) + "\n")
+                if not args.no_plots:
+                    from samii.closedloop.plots import plot_base, plot_linear, plot_theta
 
-                plot_theta(result, folder.path("theta.png"))
-                plot_base(result, folder.path("base_accel.png"))
-                plot_linear(result, folder.path("linear_vs_nonlinear.png"))
-        written = [str(folder.final(n)) for n in names]
-    if rerun_path is not None:
-        _write_rerun(result, rerun_path, factory)
-        written.append(str(rerun_path))
+                    plot_theta(result, folder.path("theta.png"))
+                    plot_base(result, folder.path("base_accel.png"))
+                    plot_linear(result, folder.path("linear_vs_nonlinear.png"))
+                if rrd_tmp is not None:  # inside the folder's transaction: a failed recording leaves no folder behind
+                    _write_rerun(result, rrd_tmp, rerun_path, factory)
+            written = [str(folder.final(n)) for n in names]
+        elif rrd_tmp is not None:
+            _write_rerun(result, rrd_tmp, rerun_path, factory)
+        if rrd_tmp is not None:
+            os.replace(rrd_tmp, rerun_path)
+            written.append(str(rerun_path))
+    finally:
+        if rrd_tmp is not None and rrd_tmp.exists():
+            rrd_tmp.unlink()
 
     if args.json:
         from samii.json_output import dumps
@@ -209,26 +259,21 @@ def run(args) -> int:
     return 0
 
 
-def _write_rerun(result, path, factory) -> None:
-    import os
+def _write_rerun(result, tmp, final, factory) -> None:
+    import numpy as np
 
     from samii.measure.recording import write_rerun_recording
     from samii.sim.plugin import compile_spec
 
     s = result.signals
-    if s.frame_t is None or s.frame_t.size == 0:
-        return
-    spec, _, _ = factory()
+    spec, qpos, act = factory()
     model = compile_spec(spec)
-    tmp = path.parent / f".{path.name}.{os.getpid()}.tmp"
+    frame_t = s.frame_t if s.frame_t is not None else np.zeros(0)
+    frame_q = s.frame_qpos if s.frame_qpos is not None else np.zeros((0, model.nq))
     try:
-        write_rerun_recording(tmp, model, result.timeseries(), frame_t_s=s.frame_t, frame_qpos=s.frame_qpos, application_id="samii_closedloop")
-        os.replace(tmp, path)
-    except RuntimeError as exc:
-        raise OSError(f"--rerun {path}: the recording could not be written ({' '.join(str(exc).split())})") from None
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+        write_rerun_recording(tmp, model, result.timeseries(), frame_t_s=frame_t, frame_qpos=frame_q, application_id="samii_closedloop")
+    except RuntimeError as exc:  # rerun's writer reports file-system failures as RuntimeError
+        raise OSError(f"--rerun {final}: the recording could not be written ({' '.join(str(exc).split())})") from None
 
 
 if __name__ == "__main__":  # pragma: no cover

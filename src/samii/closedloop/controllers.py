@@ -192,6 +192,16 @@ def write_controller(saved: SavedController, path: str | Path) -> Path:
     return path
 
 
+def _finite_number(x) -> bool:
+    """A JSON number that is a finite double (not a bool, not an integer beyond the double range)."""
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        return False
+    try:
+        return math.isfinite(float(x))
+    except OverflowError:
+        return False
+
+
 def _matrix(doc: dict, key: str, where: str) -> np.ndarray:
     if key not in doc:
         raise InputError(f"{where}: field {key!r} is missing (expected a list of rows of numbers)")
@@ -202,8 +212,9 @@ def _matrix(doc: dict, key: str, where: str) -> np.ndarray:
         raise InputError(f"{where}: field {key!r} has rows of different lengths")
     for r in value:
         for x in r:
-            if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
-                raise InputError(f"{where}: field {key!r} has the entry {x!r}; expected finite numbers")
+            if not _finite_number(x):
+                shown = repr(x) if not isinstance(x, int) or abs(x) < 10**20 else f"an integer of {len(str(abs(x)))} digits"
+                raise InputError(f"{where}: field {key!r} has the entry {shown}; expected finite numbers")
     return np.array(value, float) if value and value[0] else np.zeros((len(value), 0))
 
 
@@ -218,31 +229,36 @@ def read_controller(path: str | Path) -> SavedController:
     if p.stat().st_size > _MAX_FILE_BYTES:
         raise InputError(f"controller file {where} is larger than {_MAX_FILE_BYTES // 1_000_000} MB; not a controller file")
     try:
-        doc = json.loads(p.read_text(encoding="utf-8-sig"), parse_constant=lambda s: float("nan"))
+        doc = json.loads(p.read_text(encoding="utf-8-sig"), parse_constant=float)
     except UnicodeDecodeError:
         raise InputError(f"{where}: not a text file (expected a samii controller JSON file)") from None
     except json.JSONDecodeError as exc:
         raise InputError(f"{where}: not valid JSON ({exc.msg} at line {exc.lineno}, column {exc.colno})") from None
+    except RecursionError:
+        raise InputError(f"{where}: not a controller file (its JSON is nested too deeply)") from None
+    except ValueError as exc:  # e.g. an integer longer than Python converts (4300 digits)
+        raise InputError(f"{where}: not a controller file (a number in it cannot be read: {' '.join(str(exc).split()[:8])} ...)") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise InputError(f"{where}: not a samii controller file (expected an object with \"format\": \"{FORMAT}\", "
                          "as written by samii design place|cancel --save)")  # fmt: skip
-    if doc.get("version") != VERSION:
+    if type(doc.get("version")) is not int or doc.get("version") != VERSION:
         raise InputError(f"{where}: field 'version' is {doc.get('version')!r}; this samii reads version {VERSION}")
     T = doc.get("sample_time_s")
-    if isinstance(T, bool) or not isinstance(T, (int, float)) or not (math.isfinite(T) and T > 0):
-        raise InputError(f"{where}: field 'sample_time_s' must be a positive number of seconds, got {T!r}")
+    if not _finite_number(T) or not float(T) > 0:
+        shown = repr(T) if not isinstance(T, int) or abs(T) < 10**20 else f"an integer of {len(str(abs(T)))} digits"
+        raise InputError(f"{where}: field 'sample_time_s' must be a positive number of seconds, got {shown}")
     inputs = doc.get("inputs")
     if not isinstance(inputs, list) or not inputs or not all(isinstance(s, str) for s in inputs):
         raise InputError(f"{where}: field 'inputs' must be a non-empty list of measurement names (theta_ref, theta, accel)")
     scale = doc.get("input_scale", {})
-    if not isinstance(scale, dict) or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v != 0 for v in scale.values()):
+    if not isinstance(scale, dict) or not all(_finite_number(v) and v != 0 for v in scale.values()):
         raise InputError(f"{where}: field 'input_scale' must map input names to finite nonzero factors")
     servo = doc.get("servo_loop")
     if servo not in ("replaced", "kept"):
         raise InputError(f"{where}: field 'servo_loop' must be \"replaced\" (the controller is the whole position loop) or \"kept\" (it adds to it), got {servo!r}")
     A, B, C, D = (_matrix(doc, k, where) for k in ("A", "B", "C", "D"))
     n = A.shape[0]
-    if n:
+    if n or B.size or C.size:
         if A.shape != (n, n) or B.shape != (n, len(inputs)) or C.shape != (1, n):
             raise InputError(f"{where}: matrix shapes A {A.shape}, B {B.shape}, C {C.shape} do not fit {n} states and "
                              f"{len(inputs)} inputs (expected A ({n}, {n}), B ({n}, {len(inputs)}), C (1, {n}))")  # fmt: skip

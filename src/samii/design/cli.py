@@ -25,6 +25,7 @@ import sys
 import numpy as np
 
 from samii.cli_args import finite_float, float_in, int_in, nonempty_path, positive_float
+from samii.cli_args import seed as seed_type
 from samii.errors import InputError
 
 __all__ = ["add_arguments", "run", "N_GAINS_RANGE", "MAX_ABS_CANCEL_GAIN", "PLOT_MAX_GAINS"]
@@ -142,6 +143,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help=f"sample time of the runnable controller (--save) [s], 0 < T <= {MAX_CANCEL_SAMPLE_TIME_S:g} (default 0.001): "
                    "10 samples per period of the fastest root, the cancelled third mode at 156.8 rad/s")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the design as JSON (non-finite values as null)")
+    _add_save(p)
+
+    p = sub.add_parser(
+        "damping",
+        help="a controller that damps the base: tuned acceleration feedback designed on a fit of Bode data",
+        description="Fit the notebook's 3-mode model to Bode data (--frf, as samii measure writes frf.csv; without it the "
+        "embedded model is measured first: swept sine with sensor noise, about 3 s) and design acceleration feedback through "
+        "a second-order low-pass tuned to base mode 1, added to the servo amplifier's command, its gain 6 dB below the "
+        "fitted model's stability limit (samii.closedloop.damping).",
+    )  # fmt: skip
+    p.add_argument("--frf", metavar="FRF.csv", type=nonempty_path, help="measured frequency response (DATA_FORMATS.md; act and base or total channels)")
+    p.add_argument("--sample-time-s", type=float_in(0.0, 5e-3, lo_open=True, unit="s"), default=1e-3, metavar="T",
+                   help="controller sample time [s], 0 < T <= 0.005 (default 0.001)")
+    p.add_argument("--delay-samples", type=int_in(0, 10), default=1, metavar="N",
+                   help="computation delay the design allows for [whole samples], 0-10 (default 1)")
+    p.add_argument("--gain-margin-db", type=float_in(1.0, 40.0, unit="dB"), default=6.0, metavar="DB",
+                   help="gain margin on the fitted model [dB], 1-40 (default 6)")
+    p.add_argument("--position-gain", type=float_in(0.0, 1e4, lo_open=True, unit="V/rad"), default=None, metavar="KP",
+                   help="the servo amplifier's position gain [V/rad] the data were measured with (default: the embedded model's, 57.3 = 1 V/deg)")
+    p.add_argument("--seed", type=seed_type, default=0, help="without --frf: seed of the simulated measurement's sensor noise (default 0)")
+    p.add_argument("--json", action="store_true", help="print the design as JSON")
     _add_save(p)
 
 
@@ -459,7 +481,66 @@ def run_cancel(args) -> int:
     return 0
 
 
-_RUN = {"seed-report": run_seed_report, "rlocus": run_rlocus, "canonical": run_canonical, "place": run_place, "cancel": run_cancel}
+def run_damping(args) -> int:
+    save = _save_target(args)
+    from samii.closedloop import damping as dm
+
+    if args.frf is not None:
+        from samii.measure.io import read_frf_csv
+
+        data = read_frf_csv(args.frf)
+        missing = [c for c in ("act",) if c not in data.channels] + ([] if ("base" in data.channels or "total" in data.channels) else ["base or total"])
+        if missing:
+            raise InputError(f"{args.frf}: the damping design needs the act channel and base or total; missing {', '.join(missing)}")
+        kp = args.position_gain
+        if kp is None:
+            from samii.sim.model import load_model
+            from samii.sim.plugin import hydraulic_params
+
+            kp = hydraulic_params(load_model()).position_gain
+        fr = dm.measured_fit(data)
+        summary = {"data": str(args.frf), "band_hz": list(fr.band_hz), "rms_mag_db": dict(fr.rms_mag_db),
+                   "rms_phase_deg": dict(fr.rms_phase_deg), "converged": bool(fr.converged)}  # fmt: skip
+        d = dm.design_damping(fr.params, position_gain_v_per_rad=kp, sample_time_s=args.sample_time_s, delay_samples=args.delay_samples,
+                              gain_margin_db=args.gain_margin_db, fit_summary=summary)  # fmt: skip
+    else:
+        if args.position_gain is not None:
+            raise InputError("--position-gain: only with --frf (the simulated measurement uses the model's own gain)")
+        from samii.sim.model import load_model
+
+        def say(what: str) -> None:
+            if not args.json:
+                print(f"  {what}", file=sys.stderr)
+
+        d = dm.damping_from_simulation(load_model(), seed=args.seed, sample_time_s=args.sample_time_s, delay_samples=args.delay_samples,
+                                       progress=say, gain_margin_db=args.gain_margin_db)  # fmt: skip
+    out = {
+        "method": "tuned acceleration feedback, added to the servo amplifier's command",
+        "fit": {k: (float(v) if isinstance(v, (int, float)) else v) for k, v in d.fit_summary.items()},
+        "fit_params": {k: float(v) for k, v in d.params.items()},
+        "sample_time_s": d.sample_time_s,
+        "delay_samples": d.delay_samples,
+        "filter_hz": d.filter_hz,
+        "filter_zeta": d.filter_zeta,
+        "gain_v_per_m_s2": d.gain_v_per_m_s2,
+        "gain_limit_v_per_m_s2": d.gain_limit_v_per_m_s2,
+        "gain_margin_db": d.gain_margin_db,
+        "modes_on_fitted_model": d.mode_table(),
+    }
+    if save is not None:
+        _save(d.controller, save, args, out)
+    if args.json:
+        print(_dumps(out))
+        return 0
+    print(f"tuned acceleration feedback on the fitted 3-mode model: v_added = -k F(s) xdd, F a 2nd-order low-pass at {d.filter_hz:.4g} Hz "
+          f"(zeta {d.filter_zeta:.3g})")  # fmt: skip
+    print(f"  k = {d.gain_v_per_m_s2:.4g} V/(m/s^2): {d.gain_margin_db:.3g} dB below the fitted model's stability limit {d.gain_limit_v_per_m_s2:.4g}")
+    for r in d.mode_table():
+        print(f"  mode {r['freq_hz']:6.3g} Hz: zeta {r['zeta_open']:.3f} -> {r['zeta_closed']:.3f} (at {r['freq_hz_closed']:.3g} Hz)")
+    return 0
+
+
+_RUN = {"seed-report": run_seed_report, "rlocus": run_rlocus, "canonical": run_canonical, "place": run_place, "cancel": run_cancel, "damping": run_damping}
 
 
 def run(args) -> int:
