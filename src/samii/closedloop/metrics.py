@@ -84,15 +84,15 @@ def step_metrics(t: np.ndarray, theta: np.ndarray, theta_ref: np.ndarray, t_step
     return StepMetrics(rise, overshoot, settle)
 
 
-def envelope(x: np.ndarray, dt: float) -> np.ndarray:
-    """Smoothed magnitude of the analytic signal of ``x``."""
+def envelope(x: np.ndarray, dt: float, smooth_s: float = ENVELOPE_SMOOTH_S) -> np.ndarray:
+    """Magnitude of the analytic signal of ``x``, smoothed by a moving average over ``smooth_s``."""
     if x.size < 4:
         return np.abs(x)
     # the analytic signal of a finite record rings at its ends (the FFT wraps it round): mirror
     # 2 s (or the whole record) onto each end first and crop after
     pad = min(x.size - 1, int(round(2.0 / dt)))
     env = np.abs(scipy.signal.hilbert(np.pad(x, pad, mode="reflect")))[pad:pad + x.size]
-    w = max(1, int(round(ENVELOPE_SMOOTH_S / dt)))
+    w = max(1, int(round(smooth_s / dt)))
     if w > 1 and env.size > w:
         kernel = np.ones(w) / w
         env = np.convolve(np.pad(env, (w // 2, w - 1 - w // 2), mode="edge"), kernel, mode="valid")
@@ -243,10 +243,13 @@ def sustained_oscillation(t: np.ndarray, accel: np.ndarray, t_event: float, *, m
     It does not decay when, over the last ``tail_fraction`` of the record, its
     log envelope falls slower than ``min_decay_1_s`` and stays above
     ``min_tail_level`` of its largest value (a 10 s record cannot tell a slower
-    decay from none). Its growth rate is the slope of the log envelope from
-    where it first exceeds twice its level just after the event to where it
-    first reaches 30 % of its largest value (still small-signal); the frequency is the spectrum's peak
-    over that growth (or over the tail when it did not grow).
+    decay from none). Its growth rate is the slope of the log envelope of the
+    signal band-passed around the tail's frequency (0.7-1.4 times), from the
+    envelope's lowest point after the event to where it first reaches 30 % of
+    its largest value (still small signal), or 80 % when that is too short to
+    fit (a fast growth); None when it did not grow (a disturbance that only
+    persisted). The frequency is the spectrum's peak over the growth (a limit
+    cycle's frequency can differ), else over the tail.
     """
     dt = float(t[1] - t[0])
     k0 = int(np.searchsorted(t, t_event))
@@ -260,21 +263,25 @@ def sustained_oscillation(t: np.ndarray, accel: np.ndarray, t_event: float, *, m
     slope = float(np.polyfit(tt, np.log(np.maximum(tail, 1e-300)), 1)[0])
     if slope < -min_decay_1_s or np.mean(tail) < min_tail_level * np.max(env):
         return None
-    # growth phase
-    k_ref = min(env.size - 1, int(round(0.3 / dt)))
-    start = np.flatnonzero(env[k_ref:] > 2.0 * env[k_ref])
-    top = np.flatnonzero(env >= 0.3 * np.max(env))
-    rate, k_a, k_b = None, None, None
-    if start.size and top.size:
-        k_a, k_b = k_ref + int(start[0]), int(top[0])
-        if k_b - k_a >= max(8, int(0.2 / dt)):
-            ta = np.arange(k_a, k_b) * dt
-            rate = float(np.polyfit(ta, np.log(env[k_a:k_b]), 1)[0])
-    if rate is not None and rate > min_decay_1_s:
-        # frequency while it grew (at least a second of signal around it)
-        lo = max(0, k_b - max(k_b - k_a, int(1.0 / dt)))
-        freq = _dominant_freq_hz(seg[lo:k_b], dt)
-    else:
-        rate, freq = None, _dominant_freq_hz(seg[k_tail:], dt)
+    # the oscillation's frequency from the tail, then its growth on the band around it (the other modes'
+    # transients removed): from the envelope's lowest point to where it first reaches 30 % of its largest
+    freq = _dominant_freq_hz(seg[k_tail:], dt)
+    rate = None
+    nyq = 0.5 / dt
+    if 0.7 * freq > 0.05 and 1.4 * freq < 0.95 * nyq:
+        sos = scipy.signal.butter(4, [0.7 * freq / nyq, 1.4 * freq / nyq], btype="bandpass", output="sos")
+        benv = envelope(scipy.signal.sosfiltfilt(sos, seg), dt, smooth_s=1.0 / freq)
+        for level in (0.3, 0.8):  # small-signal growth if it lasts long enough to fit, else up to the limit cycle
+            top = np.flatnonzero(benv >= level * np.max(benv))
+            k_b = int(top[0])
+            k_a = int(np.argmin(benv[:k_b])) if k_b > 0 else 0
+            if k_b - k_a >= max(8, int(0.1 / dt)) and benv[k_a] > 0:
+                ta = np.arange(k_a, k_b) * dt
+                rate = float(np.polyfit(ta, np.log(benv[k_a:k_b]), 1)[0])
+                if rate > min_decay_1_s:
+                    # the frequency while it grew (at least a second of signal up to the window's end)
+                    freq = _dominant_freq_hz(seg[max(0, k_b - max(k_b - k_a, int(1.0 / dt))):k_b], dt)
+                    break
+                rate = None
     kind = "growing" if slope > min_decay_1_s else "limit cycle"
     return Instability(rate, freq, kind)
