@@ -52,6 +52,25 @@
 // warning text, which names the attribute, its value and what was expected. samii.sim.plugin
 // checks the same rules on the MjSpec before compiling (HydraulicConfigError).
 //
+// Controller card (optional; samii/closedloop/card.py writes its config). The rig's digital
+// controller, run inside the step so that a closed loop costs what mj_step costs:
+//   - every `controller_steps` physics steps it samples w = (theta_r, theta, accel) at t_n from
+//     sensordata (valid in `advance`: mj_forward computed the sensors of t_n; accel does not depend
+//     on the valve command of the step, which only moves the spool), adds the ctrl of two force-free
+//     noise actuators and quantises to the ADC steps;
+//   - it computes c = C z + D w and z <- A z + B w (SI inputs; the caller folds unit scales in);
+//   - the command is held (ZOH) and reaches the valve `controller_delay_steps` later through a ring
+//     of held commands; a fractional delay splits the step: the spool is integrated exactly for the
+//     older command over the first fraction, then for the newer one;
+//   - the valve sees clamp(u + c [+ Kp (theta_0 + theta_r - theta)], +-10 V): the position loop is
+//     kept (`controller_replaces_servo` 0) or dropped while the card runs (1).
+// theta_r, the reference offset, is the ctrl of the actuator named by `reference_actuator` and also
+// feeds the position loop. The card's state lives in mjData.plugin_state (part of
+// mjSTATE_FULLPHYSICS, so rollouts carry it): [enabled, step counter, valve voltage of the last step,
+// held command, ring (delay_whole + 2, newest first), z]. `enabled` is 1 after a reset; the caller
+// sets it (0: the servo amplifier alone, the ring recording its command) to switch the card on
+// mid-run. The card needs the Euler or implicit integrators (RK4 does not call `advance` per step).
+//
 // No heap allocation per step: the parsed configuration is allocated once in `init`.
 
 #include <math.h>
