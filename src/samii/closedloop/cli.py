@@ -134,7 +134,12 @@ def _summary(r, out_names: list[str]) -> str:
         lines.append("  stable in the nonlinear simulator")
     else:
         what = f" growing at {r.growth_rate_1_s:.4g} 1/s" if r.growth_rate_1_s is not None else ""
-        where = f", {r.unstable_mode_hz:.4g} Hz" if r.unstable_mode_hz is not None else ""
+        if r.unstable_mode_hz is None:
+            where = ""
+        elif r.unstable_mode_hz < 0.01:
+            where = ", without oscillating (a real pole)"
+        else:
+            where = f", oscillating at {r.unstable_mode_hz:.4g} Hz"
         lines.append(f"  UNSTABLE:{what}{where}")
     for n in r.notes:
         lines.append(f"  note: {n}")

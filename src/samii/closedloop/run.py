@@ -128,9 +128,6 @@ def run_loop(
         Keep ``qpos`` every this many steps (``frame_t``, ``frame_qpos``: an animation).
     """
     from samii.sim.model import make_data
-    from samii.sim.plugin import hydraulic_params
-    from samii.sim.sensors import accel_offset, accel_weights
-    from samii.sim.simulate import check_rollout
 
     m = cm.model
     theta_ref_rad = np.asarray(theta_ref_rad, float)
@@ -158,13 +155,35 @@ def run_loop(
     if cm.controller is not None:
         state = cm.set_enabled(state, switch_on_step is None)
 
+    # MuJoCo prints "WARNING: Nan, Inf or huge value in QACC ..." when a run diverges; here divergence is
+    # detected (check_rollout) and reported as a result, so the text is silenced for the run's rollouts
+    # (they run in this thread) and the previous handler restored after.
+    previous_handler = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(_quiet)
+    try:
+        return _run_segments(cm, ctrl, theta_ref_rad, state, data, switch_on_step, chunk_steps, keep_partial, qpos_every)
+    finally:
+        mujoco.set_mju_user_warning(previous_handler)
+
+
+def _quiet(message: str) -> None:
+    del message
+
+
+def _run_segments(cm, ctrl, theta_ref_rad, state, data, switch_on_step, chunk_steps, keep_partial, qpos_every) -> LoopSignals:
+    from samii.sim.plugin import hydraulic_params
+    from samii.sim.sensors import accel_offset, accel_weights
+    from samii.sim.simulate import check_rollout
+
+    m = cm.model
+    L = cm.layout
+    n = theta_ref_rad.size
     hp = hydraulic_params(m)
     dt = float(m.opt.timestep)
     t0 = float(state[0])
     theta_adr = int(m.sensor_adr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, "theta")])
     acc_adr, direction = accel_weights(m)
     g_off = accel_offset(m)
-
     segments = [(0, n)] if switch_on_step in (None, 0) else [(0, switch_on_step), (switch_on_step, n)]
     if switch_on_step == 0:
         segments = [(0, n)]
