@@ -117,7 +117,11 @@ class ClosedLoopResult:
     accel_rest_m_s2: float = 0.0  #: accelerometer reading there (after the gravity offset is removed: ~0)
 
     def as_json(self) -> dict:
-        from samii.json_output import finite_or_none as f
+        from samii.json_output import finite_or_none
+
+        def f(x):  # 12 significant digits: times like 59 * 0.001 print as 0.059, not 0.05899999999999994
+            x = finite_or_none(x)
+            return None if x is None else float(f"{x:.12g}")
 
         return {
             "controller": self.controller,
