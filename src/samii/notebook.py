@@ -5,9 +5,11 @@ compare against. Equation numbers are the notebook's ("SAMII research
 notebook, Fall 2003", chapters 1-11). Frequencies are in rad/s unless a name
 says otherwise.
 
-The notebook does not state the units of theta and of the base acceleration
-(theta is most likely in degrees). Gains (K1, B1...) are therefore in the
-notebook's units; frequencies, damping ratios, loop gains and the signs and
+The notebook does not state the units of theta and of the base acceleration.
+Set against the simulator's linearisation (SI), its coefficients say theta in
+degrees and the acceleration in ft/s^2 (eq 9.4's B_k over the simulator's:
+3.85, 3.32, 2.85 per m/s^2, ft/s^2 = 3.281; samii.closedloop.controllers).
+Gains (K1, B1...) are in those units; frequencies, damping ratios, loop gains and the signs and
 ratios of the B coefficients are unit-free and are what the simulator is
 calibrated to.
 

@@ -103,8 +103,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p = sub.add_parser(
         "place",
         help="digital pole placement with observer (chapter 8) on the eq 1.4 model",
-        description="Chapter-8 digital pole placement on the eq 1.4 model (notebook units: theta most likely in degrees, "
-        "the acceleration unit unstated, v in volts), with an observer at twice the controller poles or a steady-state "
+        description="Chapter-8 digital pole placement on the eq 1.4 model (notebook units: theta in degrees, "
+        "the acceleration in ft/s^2, v in volts), with an observer at twice the controller poles or a steady-state "
         "Kalman filter. Every closed-loop pole outside the unit circle is flagged UNSTABLE.",
     )
     p.add_argument("--sample-time-s", type=positive_float, default=1e-3, metavar="T",
@@ -122,10 +122,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--input-noise-std", type=_noise_std, default=None, metavar="V",
                    help="kalman: standard deviation of the process noise entering with the valve command, per sample [V]")
     p.add_argument("--theta-noise-std", type=_noise_std, default=None, metavar="STD",
-                   help="kalman: standard deviation of the theta measurement noise [notebook units: most likely degrees]")
+                   help="kalman: standard deviation of the theta measurement noise [deg, the notebook's unit]")
     p.add_argument("--accel-noise-std", type=_noise_std, default=None, metavar="STD",
-                   help="kalman: standard deviation of the base-acceleration measurement noise [the notebook's acceleration "
-                   "unit, which it does not state]")  # fmt: skip
+                   help="kalman: standard deviation of the base-acceleration measurement noise [ft/s^2, the notebook's "
+                   "unit: samii.closedloop.controllers]")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the design as JSON")
     _add_save(p)
 
@@ -318,7 +318,7 @@ def _check_place_options(args) -> None:
             names = " and ".join([", ".join(missing[:-1]), missing[-1]] if len(missing) > 1 else missing)
             raise InputError(
                 f"--observer kalman: missing {names} (all three noise standard deviations are needed: --input-noise-std "
-                f"[V per sample], --theta-noise-std [notebook units, most likely degrees], --accel-noise-std [notebook units])"
+                f"[V per sample], --theta-noise-std [deg], --accel-noise-std [ft/s^2] (the notebook's units)"
             )
     elif given:
         raise InputError(f"{', '.join(given)}: only used with --observer kalman (the placement observer takes no noise model)")

@@ -10,7 +10,7 @@ Every implementation here is a :class:`LinearController`: a discrete-time
 state-space system, discretised explicitly by its designer (the method is
 stored in ``method``), evaluated with plain numpy (two matrix-vector
 products per step). Designs made on the notebook's own models carry the
-notebook's units (theta most likely in degrees, acceleration unstated); the
+notebook's units (theta in degrees, acceleration in ft/s^2: samii.closedloop.controllers); the
 ``input_scale`` converts the caller's SI signals to them, and ``model_units``
 says which they are.
 """
@@ -36,7 +36,7 @@ __all__ = [
 MEASUREMENTS = ("theta_ref", "theta", "accel")
 
 #: What a design on one of the notebook's fits works in (notebook.py: units not stated in the notebook).
-NOTEBOOK_UNITS = "notebook units: theta most likely in degrees, acceleration unit unstated; v in volts"
+NOTEBOOK_UNITS = "notebook units: theta in degrees, acceleration in ft/s^2 (samii.closedloop.controllers); v in volts"
 
 
 def unstable_poles(poles, *, discrete: bool) -> np.ndarray:
