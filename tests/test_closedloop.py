@@ -256,8 +256,28 @@ def test_damping_controller_meets_its_goals(damping_design, factory):
 
 
 def test_damping_design_on_the_fitted_model(damping_design):
-    """On the fitted model the design moves mode 1 from about 0.03 to above 0.2 and leaves no mode less damped."""
+    """On the fitted model the design moves mode 1 from about 0.03 to above 0.2 and no mode loses more than 2 % of
+    its damping; on the measured data above the fit band the loop does not amplify (|S| close to 1)."""
+    from samii.closedloop.damping import DAMPING_TOLERANCE
+
     table = damping_design.mode_table()
     first = min(table, key=lambda r: r["freq_hz"])
     assert first["zeta_open"] < 0.05 and first["zeta_closed"] > 0.2
-    assert all(r["zeta_closed"] >= r["zeta_open"] - 1e-9 for r in table)
+    assert all(r["zeta_closed"] >= (1 - DAMPING_TOLERANCE) * r["zeta_open"] for r in table)
+    assert damping_design.rolloff_hz == pytest.approx(damping_design.params["w3"] / (2 * np.pi))
+    assert damping_design.max_sensitivity_above_band is not None and damping_design.max_sensitivity_above_band < 1.1
+
+
+def test_damping_controller_keeps_every_mode_of_the_simulator(damping_design, home):
+    """In the simulator's own linearisation (not used by the design) with a one-sample delay, every pole pair below
+    50 Hz keeps at least 99 % of its open-loop damping: mode 1 and the servo pair gain, mode 3 and the actuator's
+    32 Hz pair (which the fitted structure lacks) hold."""
+    cm0 = _card(home, None)
+    cm = _card(home, damping_design.controller.controller, delay_samples=1)
+    ol = linear_loop(cm0).poles_s()
+    cl = linear_loop(cm).poles_s()
+    ol = ol[(ol.imag > 0.1) & (np.abs(ol) < 2 * np.pi * 50)]
+    cl = cl[cl.imag > 0.1]
+    for p in ol:
+        q = cl[np.argmin(np.abs(cl - p))]
+        assert -q.real / abs(q) >= 0.99 * (-p.real / abs(p)), (abs(p) / (2 * np.pi), -p.real / abs(p), -q.real / abs(q))

@@ -11,20 +11,28 @@ considering the third mode"), made robust rather than exact. The method:
 2. **Controller**: acceleration feedback through a second-order low-pass tuned
    to base mode 1 (Goh & Caughey, "On the stability problem caused by finite
    actuator dynamics in the collocated control of large space structures",
-   Int. J. Control 41(3), 1985; "acceleration feedback", AF)::
+   Int. J. Control 41(3), 1985; "acceleration feedback", AF), with one more
+   first-order roll-off at the fitted mode 3::
 
-       v_added = -k F(s) xdd,   F(s) = w_f^2 / (s^2 + 2 zeta_f w_f s + w_f^2),   w_f = w_1, zeta_f = 1/sqrt(2)
+       v_added = -k F(s) xdd,   F(s) = w_f^2 / (s^2 + 2 zeta_f w_f s + w_f^2) * w_3 / (s + w_3),
+       w_f = w_1, zeta_f = 1/sqrt(2)
 
-   At w_1 the filter lags 90 deg, so the command is in phase with the base
-   *velocity*: damping of mode 1. Above it the filter rolls off at 40 dB per
-   decade, so the servo pair, mode 3 and whatever the fit misses near 30 Hz see
-   little of the loop. It adds to the servo amplifier's position loop (the
-   reference is untouched: the loop's theta tracking stays the amplifier's).
+   At w_1 the filter lags about 90 deg, so the command is in phase with the
+   base *velocity*: damping of mode 1. Above it the filter rolls off at 40 dB
+   per decade, and at 60 dB beyond the last fitted mode, where the notebook's
+   structure no longer describes the data (the actuator's 32 Hz pair: without
+   that roll-off the measured loop's sensitivity reaches 1.13 near 31 Hz, so the
+   loop takes damping from that pair; with it 1.05). It adds to the servo
+   amplifier's position loop (the reference is untouched).
 3. **Gain**: the loop is discretised as the card runs it (``F`` and the plant
    by ZOH at the sample time, the computation delay as ``z^-d``); the sign is
    the one that moves mode 1 left; ``k`` is the stability limit on the fitted
-   model divided by the gain margin (default 6 dB), lowered further if any
-   closed-loop mode of the fitted model would be less damped than in open loop.
+   model divided by the gain margin (default 6 dB), lowered further while any
+   closed-loop mode of the fitted model is more than 2 % less damped than in
+   open loop (2 %: below what a damping fitted to a response resolves).
+4. **Check on the data**: with an FRF, the sensitivity ``|1/(1 + L)|`` of the
+   loop built from the *measured* theta/v and xdd/v (not the fit) is reported
+   above the fit band, where the model is not trusted (``max_sensitivity_above_band``).
 
 :func:`compare_methods` (used by ``experiments/closed_loop``) sets this against
 three-mode pole placement with an observer on the same fit.
@@ -41,7 +49,7 @@ import numpy as np
 from samii.closedloop.controllers import SavedController
 from samii.design.controller import LinearController
 
-__all__ = ["DampingDesign", "design_damping", "damping_plant", "measured_fit", "damping_from_simulation", "FIT_BAND_HZ"]
+__all__ = ["DampingDesign", "design_damping", "damping_plant", "measured_fit", "measured_sensitivity", "with_data_check", "damping_from_simulation", "FIT_BAND_HZ"]
 
 #: Fit band [Hz]: the base modes (1.7, 9.9, 25 Hz) and the servo pair (8 Hz); above 30 Hz the
 #: notebook's structure misses the actuator's 32 Hz pair (model card), below 0.5 Hz the
@@ -49,6 +57,8 @@ __all__ = ["DampingDesign", "design_damping", "damping_plant", "measured_fit", "
 FIT_BAND_HZ = (0.5, 30.0)
 GAIN_MARGIN_DB = 6.0
 FILTER_ZETA = 1.0 / math.sqrt(2.0)
+#: A fitted mode may lose this fraction of its open-loop damping (below a response fit's resolution).
+DAMPING_TOLERANCE = 0.02
 
 
 @dataclass(frozen=True)
@@ -59,6 +69,7 @@ class DampingDesign:
     delay_samples: int  #: computation delay the design allows for
     filter_hz: float
     filter_zeta: float
+    rolloff_hz: float | None  #: the first-order roll-off (the fitted mode 3), None without a mode 3
     gain_v_per_m_s2: float  #: k (sign included): v_added = -k F(s) xdd
     gain_limit_v_per_m_s2: float  #: the stability limit on the fitted model
     gain_margin_db: float  #: achieved
@@ -66,6 +77,9 @@ class DampingDesign:
     closed_loop_poles_s: np.ndarray  #: with the controller, on the fitted model
     controller: SavedController
     fit_summary: Mapping[str, object] = field(default_factory=dict)
+    #: largest |1/(1 + L)| of the loop built from the measured FRF above the fit band (None: not checked)
+    max_sensitivity_above_band: float | None = None
+    sensitivity_band_hz: tuple[float, float] | None = None
 
     def mode_table(self) -> list[dict[str, float]]:
         """Open- and closed-loop frequency and damping of each complex pole pair of the fitted model."""
@@ -100,10 +114,14 @@ def _discrete_loop(params, kp, T, delay):
     return Pd
 
 
-def _filter(wf: float, zf: float, T: float):
+def _filter(wf: float, zf: float, T: float, w_rolloff: float | None = None):
+    """F(s) of the module docstring, discretised by ZOH."""
     import control
 
-    return control.ss(control.c2d(control.tf([wf**2], [1.0, 2 * zf * wf, wf**2]), T, "zoh"))
+    F = control.tf([wf**2], [1.0, 2 * zf * wf, wf**2])
+    if w_rolloff is not None:
+        F = F * control.tf([w_rolloff], [1.0, w_rolloff])
+    return control.ss(control.c2d(F, T, "zoh"))
 
 
 def _closed_poles(Pd, Fd, k: float) -> np.ndarray:
@@ -119,12 +137,12 @@ def _stable(Pd, Fd, k: float) -> bool:
     return bool(np.all(_closed_poles(Pd, Fd, k).real < 0))
 
 
-def _no_mode_worse(ol: np.ndarray, cl: np.ndarray) -> bool:
-    """Every complex open-loop pole's nearest closed-loop pole is at least as damped."""
+def _no_mode_worse(ol: np.ndarray, cl: np.ndarray, tol: float = DAMPING_TOLERANCE) -> bool:
+    """Every complex open-loop pole's nearest closed-loop pole keeps at least ``1 - tol`` of its damping."""
     cl = cl[cl.imag > 1e-6]
     for p in ol[ol.imag > 1e-6]:
         q = cl[np.argmin(np.abs(cl - p))]
-        if -q.real / abs(q) < -p.real / abs(p) - 1e-9:
+        if -q.real / abs(q) < (1.0 - tol) * (-p.real / abs(p)):
             return False
     return True
 
@@ -143,7 +161,8 @@ def design_damping(
     T = float(sample_time_s)
     Pd = _discrete_loop(params, position_gain_v_per_rad, T, int(delay_samples))
     wf = float(params["w1"])
-    Fd = _filter(wf, filter_zeta, T)
+    w_roll = float(params["w3"]) if "w3" in params and np.isfinite(params["w3"]) else None
+    Fd = _filter(wf, filter_zeta, T, w_roll)
     ol = np.log(np.asarray(Pd.poles(), complex)[np.abs(Pd.poles()) > 1e-12]) / T
     # sign: the one that moves mode 1 to the left at a small gain
     p1 = ol[ol.imag > 0][np.argmin(np.abs(np.abs(ol[ol.imag > 0]) - wf))]
@@ -182,7 +201,8 @@ def design_damping(
     A, B, C, D = (np.atleast_2d(np.asarray(x, float)) for x in (Fd.A, Fd.B, Fd.C, Fd.D))
     c = LinearController(
         A, B, -gain * C, -gain * D, sample_time_s=T, inputs=("accel",),
-        name=f"tuned acceleration feedback: k = {gain:.4g} V/(m/s^2), 2nd-order low-pass at {wf / (2 * np.pi):.4g} Hz, zeta {filter_zeta:.3g}",
+        name=f"tuned acceleration feedback: k = {gain:.4g} V/(m/s^2), 2nd-order low-pass at {wf / (2 * np.pi):.4g} Hz, zeta {filter_zeta:.3g}"
+        + (f", roll-off at {w_roll / (2 * np.pi):.4g} Hz" if w_roll else ""),
         method="filter discretised by zero-order hold; gain from the fitted model's stability limit",
         model_units="SI: accel in m/s^2, v in volts (added to the servo amplifier's command)",
     )  # fmt: skip
@@ -198,10 +218,38 @@ def design_damping(
     }
     return DampingDesign(
         params=dict(params), position_gain_v_per_rad=position_gain_v_per_rad, sample_time_s=T, delay_samples=int(delay_samples),
-        filter_hz=wf / (2 * np.pi), filter_zeta=filter_zeta, gain_v_per_m_s2=gain, gain_limit_v_per_m_s2=sign * k_lim,
+        filter_hz=wf / (2 * np.pi), filter_zeta=filter_zeta, rolloff_hz=None if w_roll is None else w_roll / (2 * np.pi), gain_v_per_m_s2=gain, gain_limit_v_per_m_s2=sign * k_lim,
         gain_margin_db=20 * math.log10(k_lim / k), open_loop_poles_s=ol, closed_loop_poles_s=cl,
         controller=SavedController(c, False, prov), fit_summary=dict(fit_summary or {}),
     )  # fmt: skip
+
+
+def measured_sensitivity(design: DampingDesign, frf, *, above_hz: float) -> tuple[float | None, tuple[float, float] | None]:
+    """Largest ``|1/(1 - C P)|`` over the measured points above ``above_hz``, with ``P = (xdd/v) / (1 + Kp theta/v)``
+    from the data (not the fit) and ``C`` the controller with its design delay; ``(None, None)`` without such points."""
+    f = np.asarray(frf.freq_hz, float)
+    act = frf.act
+    total = frf.total if frf.total is not None else (act * frf.base if act is not None and frf.base is not None else None)
+    sel = f > above_hz
+    if act is None or total is None or not np.any(sel):
+        return None, None
+    c = design.controller.controller
+    T = c.sample_time_s
+    z = np.exp(2j * np.pi * f[sel] * T)
+    n = c.A.shape[0]
+    Cz = np.array([complex((c.C @ np.linalg.solve(zk * np.eye(n) - c.A, c.B) + c.D)[0, 0]) for zk in z]) * z ** (-design.delay_samples)
+    P = total[sel] / (1 + design.position_gain_v_per_rad * act[sel])
+    S = 1.0 / (1.0 - Cz * P)
+    return float(np.max(np.abs(S))), (float(f[sel].min()), float(f[sel].max()))
+
+
+def with_data_check(design: DampingDesign, frf) -> DampingDesign:
+    """``design`` with :func:`measured_sensitivity` above its fit band filled in."""
+    from dataclasses import replace
+
+    hi = float(design.fit_summary.get("band_hz", FIT_BAND_HZ)[1]) if design.fit_summary else FIT_BAND_HZ[1]
+    smax, band = measured_sensitivity(design, frf, above_hz=hi)
+    return replace(design, max_sensitivity_above_band=smax, sensitivity_band_hz=band)
 
 
 def measured_fit(frf, *, band_hz: tuple[float, float] = FIT_BAND_HZ):
@@ -231,5 +279,6 @@ def damping_from_simulation(model, *, seed: int = 0, sample_time_s: float = 1e-3
                "converged": bool(fr.converged), "measurement": "samii measure (swept sine, noise, seed %d)" % seed}  # fmt: skip
     if progress:
         progress("designing the acceleration feedback")
-    return design_damping(fr.params, position_gain_v_per_rad=hydraulic_params(model).position_gain, sample_time_s=sample_time_s,
-                          delay_samples=delay_samples, gain_margin_db=gain_margin_db, fit_summary=summary)  # fmt: skip
+    d = design_damping(fr.params, position_gain_v_per_rad=hydraulic_params(model).position_gain, sample_time_s=sample_time_s,
+                       delay_samples=delay_samples, gain_margin_db=gain_margin_db, fit_summary=summary)  # fmt: skip
+    return with_data_check(d, meas.frf)

@@ -503,6 +503,7 @@ def run_damping(args) -> int:
                    "rms_phase_deg": dict(fr.rms_phase_deg), "converged": bool(fr.converged)}  # fmt: skip
         d = dm.design_damping(fr.params, position_gain_v_per_rad=kp, sample_time_s=args.sample_time_s, delay_samples=args.delay_samples,
                               gain_margin_db=args.gain_margin_db, fit_summary=summary)  # fmt: skip
+        d = dm.with_data_check(d, data)
     else:
         if args.position_gain is not None:
             raise InputError("--position-gain: only with --frf (the simulated measurement uses the model's own gain)")
@@ -522,21 +523,29 @@ def run_damping(args) -> int:
         "delay_samples": d.delay_samples,
         "filter_hz": d.filter_hz,
         "filter_zeta": d.filter_zeta,
+        "rolloff_hz": d.rolloff_hz,
         "gain_v_per_m_s2": d.gain_v_per_m_s2,
         "gain_limit_v_per_m_s2": d.gain_limit_v_per_m_s2,
         "gain_margin_db": d.gain_margin_db,
         "modes_on_fitted_model": d.mode_table(),
+        "max_sensitivity_above_fit_band": d.max_sensitivity_above_band,
+        "sensitivity_band_hz": None if d.sensitivity_band_hz is None else list(d.sensitivity_band_hz),
     }
     if save is not None:
         _save(d.controller, save, args, out)
     if args.json:
         print(_dumps(out))
         return 0
+    roll = f", rolled off beyond {d.rolloff_hz:.4g} Hz" if d.rolloff_hz else ""
     print(f"tuned acceleration feedback on the fitted 3-mode model: v_added = -k F(s) xdd, F a 2nd-order low-pass at {d.filter_hz:.4g} Hz "
-          f"(zeta {d.filter_zeta:.3g})")  # fmt: skip
+          f"(zeta {d.filter_zeta:.3g}){roll}")  # fmt: skip
     print(f"  k = {d.gain_v_per_m_s2:.4g} V/(m/s^2): {d.gain_margin_db:.3g} dB below the fitted model's stability limit {d.gain_limit_v_per_m_s2:.4g}")
     for r in d.mode_table():
         print(f"  mode {r['freq_hz']:6.3g} Hz: zeta {r['zeta_open']:.3f} -> {r['zeta_closed']:.3f} (at {r['freq_hz_closed']:.3g} Hz)")
+    if d.max_sensitivity_above_band is not None:
+        lo, hi = d.sensitivity_band_hz
+        print(f"  on the measured data above the fit band ({lo:.3g}-{hi:.3g} Hz): largest |S| = {d.max_sensitivity_above_band:.3f}"
+              + (" (the loop amplifies what the fit does not describe there)" if d.max_sensitivity_above_band > 1.1 else ""))  # fmt: skip
     return 0
 
 
