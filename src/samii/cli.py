@@ -71,7 +71,7 @@ def _one_line(exc: BaseException) -> str:
 
 #: Signals received (set by the handlers): an exception raised while one was being handled (an
 #: import cut short by Ctrl-C raises ImportError) is reported as the interruption it is.
-_SIGNALLED: list[int] = []
+from samii.errors import SIGNALS_RECEIVED as _SIGNALLED  # noqa: E402  (samii.errors is light: no numpy)
 
 
 def _install_signal_handlers() -> dict:
@@ -142,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
 def _main(argv: list[str] | None) -> int:
     import os
 
-    from samii.errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_UNSTABLE, InputError, Interrupted, SimulationUnstable
+    from samii.errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_UNSTABLE, InputError, Interrupted, SimulationUnstable, raise_if_signalled
 
     prog = "samii"
     try:
@@ -155,11 +155,15 @@ def _main(argv: list[str] | None) -> int:
         if getattr(args, "design_command", None):
             prog += f" {args.design_command}"
         _one_line_warnings(prog)
+        raise_if_signalled()  # a Ctrl-C during the imports whose exception a library swallowed
         if args.command is None:
             from samii.main_job import run_main_job
 
-            return run_main_job()
-        return int(args._run(args) or 0)
+            code = run_main_job()
+        else:
+            code = int(args._run(args) or 0)
+        raise_if_signalled()
+        return code
     except Interrupted as exc:
         print(f"{prog}: stopped by signal {exc.signum}; nothing half-written was kept", file=sys.stderr)
         return 128 + exc.signum

@@ -55,3 +55,18 @@ class Interrupted(KeyboardInterrupt):
     def __init__(self, signum: int):
         super().__init__(signum)
         self.signum = signum
+
+
+#: Signals the command line has received (``samii.cli`` appends to it). A handler's exception can be
+#: swallowed by library code it interrupts (an optional import wrapped in a bare ``except``), so the
+#: places that make a run's results permanent check this list too (:func:`raise_if_signalled`).
+SIGNALS_RECEIVED: list[int] = []
+
+
+def raise_if_signalled() -> None:
+    """Raise the interruption for a signal received earlier whose exception did not get through."""
+    if SIGNALS_RECEIVED:
+        signum = SIGNALS_RECEIVED[0]
+        if signum == 2:  # SIGINT
+            raise KeyboardInterrupt
+        raise Interrupted(signum)

@@ -197,6 +197,9 @@ class OutputFolder:
         committed = False
         try:
             if exc_type is None:
+                from samii.errors import raise_if_signalled
+
+                raise_if_signalled()  # interrupted, though the exception was swallowed on the way: keep nothing
                 self._commit()
                 committed = True
         finally:
