@@ -24,9 +24,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import statistics
-import time
-
 import mujoco
 import numpy as np
 from mujoco import rollout
@@ -36,15 +33,11 @@ from samii.closedloop.controllers import notebook_cancel
 from samii.closedloop.run import run_loop
 from samii.sim.model import load_model, load_spec, make_data
 
+from _timing import median_time
+
 
 def _median_time(fn, repeats: int) -> float:
-    fn()  # warm-up
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times)
+    return median_time(fn, repeats, warm_up=True)
 
 
 def main() -> None:

@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -40,6 +39,8 @@ from samii.identify.fit import fit
 from samii.identify.studies import synthetic_rig_frf
 from samii.measure.io import read_frf_csv, write_frf_csv
 
+from _timing import median_time
+
 SIZES = (247, 10_000, 100_000)
 GOALS_S = {10_000: 2.0, 100_000: 20.0}
 
@@ -47,15 +48,6 @@ GOALS_S = {10_000: 2.0, 100_000: 20.0}
 def write_data(folder: Path, n: int, grid: str) -> Path:
     f = np.geomspace(0.1, 40.0, n) if grid == "log" else np.linspace(40.0 / n, 40.0, n)
     return write_frf_csv(synthetic_rig_frf(f, rng=np.random.default_rng(2003)), folder / f"frf_{n}.csv", overwrite=True)
-
-
-def median_time(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times)
 
 
 def command(path: Path, out: Path) -> None:

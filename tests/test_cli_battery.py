@@ -61,15 +61,6 @@ def files(tmp_path_factory):
     return out
 
 
-@pytest.fixture()
-def out_dir(tmp_path):
-    """An existing output folder holding a file of the user's: a failed run must leave it exactly so."""
-    d = tmp_path / "out"
-    d.mkdir()
-    (d / "keep.txt").write_text("the user's")
-    return d
-
-
 def _snapshot(folder) -> dict:
     return {p: (os.path.getsize(os.path.join(folder, p)), os.path.getmtime(os.path.join(folder, p))) for p in sorted(os.listdir(folder))}
 

@@ -78,24 +78,6 @@ def _run_bad(argv, capsys, needles=(), *, code=2, path=None, watch=()):
     return lines[0]
 
 
-@pytest.fixture()
-def cwd(tmp_path, monkeypatch):
-    """An empty working folder: a refused run must leave it empty (no output, no temp file)."""
-    d = tmp_path / "cwd"
-    d.mkdir()
-    monkeypatch.chdir(d)
-    return d
-
-
-@pytest.fixture()
-def out_dir(tmp_path):
-    """An existing output folder holding a file of the user's: a failed run must leave it exactly so."""
-    d = tmp_path / "out"
-    d.mkdir()
-    (d / "keep.txt").write_text("the user's")
-    return d
-
-
 @pytest.fixture(scope="module")
 def base_doc():
     """A valid controller file's content (notebook-cancel: 6 states, inputs theta_ref and theta)."""

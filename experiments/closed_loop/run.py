@@ -33,6 +33,7 @@ from samii.closedloop.linear import linear_loop  # noqa: E402
 from samii.closedloop.scenario import NoiseSpec, default_spec_factory, run_closed_loop, scenario  # noqa: E402
 from samii.design import canonical as cc  # noqa: E402
 from samii.design import placement as pl  # noqa: E402
+from samii.measure.daq import SensorNoise  # noqa: E402
 from samii.sim.model import load_model, load_spec  # noqa: E402
 
 
@@ -128,7 +129,7 @@ def damping_methods(model, factory, out: Path) -> dict:
     place = pl.design_placement(ccf3, sample_time_s=1e-3, zeta=1 / math.sqrt(2), observer="placement")
     candidates["3-mode placement, placement observer"] = SavedController(place.controller(model_units="SI"), True)
     kal = pl.design_placement(ccf3, sample_time_s=1e-3, zeta=1 / math.sqrt(2), observer="kalman", input_noise_std=0.1,
-                              measurement_noise_std=(5e-4, 1e-2))  # the simulated sensors' noise (samii.measure.daq.SensorNoise)
+                              measurement_noise_std=(SensorNoise.theta_rad, SensorNoise.accel_m_s2))  # the simulated sensors' noise
     candidates["3-mode placement, Kalman observer"] = SavedController(kal.controller(model_units="SI"), True)
     free_step = run_closed_loop(None, scenario("step"), label="unity", spec_factory=factory, comparison=False)
     rows = {}
@@ -137,7 +138,7 @@ def damping_methods(model, factory, out: Path) -> dict:
         step = run_closed_loop(sc, scenario("step"), label=name, spec_factory=factory, comparison=False, delay_samples=1, noise=NoiseSpec(seed=1))
         loper = run_closed_loop(sc, scenario("loper"), label=name, spec_factory=factory, delay_samples=1, noise=NoiseSpec(seed=2))
         runs[name] = step
-        m1 = [m for m in step.modes if abs(m.freq_hz - 1.73) < 0.3]
+        m1 = [m for m in step.modes if abs(m.freq_hz - nb.BASE_MODES_HZ[0]) < 0.3]
         rows[name] = {
             "stable": bool(step.stable and loper.stable),
             "diverged_at_s": step.signals.diverged_at_s,
@@ -147,7 +148,7 @@ def damping_methods(model, factory, out: Path) -> dict:
             "settle_ratio": (free_step.base.settle_s / step.base.settle_s) if step.stable and step.base.settle_s else None,
             "modes": _modes(step),
         }
-    rows["servo loop alone"] = {"stable": True, "mode1_zeta": [m.zeta for m in free_step.modes if abs(m.freq_hz - 1.73) < 0.3][0],
+    rows["servo loop alone"] = {"stable": True, "mode1_zeta": [m.zeta for m in free_step.modes if abs(m.freq_hz - nb.BASE_MODES_HZ[0]) < 0.3][0],
                                 "settle_s": free_step.base.settle_s, "modes": _modes(free_step)}  # fmt: skip
     _plot_methods(runs, free_step, out / "damping_methods.png")
     return {"fit": {k: float(v) for k, v in fit.items()}, "fit_summary": d.fit_summary, "gain_v_per_m_s2": d.gain_v_per_m_s2,

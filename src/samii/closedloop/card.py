@@ -35,7 +35,7 @@ import numpy as np
 from samii.design.controller import LinearController
 from samii.errors import InputError
 
-__all__ = ["CardModel", "CardLayout", "build_card_model", "si_matrices", "MAX_DELAY_STEPS", "MAX_STATES", "INPUTS"]
+__all__ = ["CardFitError", "CardModel", "CardLayout", "build_card_model", "check_fit", "si_matrices", "MAX_DELAY_STEPS", "MAX_SAMPLE_STEPS", "MAX_STATES", "INPUTS"]
 
 #: Column order of the card's inputs (SI: rad, rad, m/s^2).
 INPUTS = ("theta_ref", "theta", "accel")
@@ -49,6 +49,35 @@ ACCEL_NOISE_ACTUATOR = "accel_noise"
 
 # plugin_state layout (hydraulic.c: ST_ENABLED, ST_COUNTER, ST_VALVE, ST_COMMAND, ST_BUFFER)
 _ST_ENABLED, _ST_COUNTER, _ST_VALVE, _ST_COMMAND, _ST_BUFFER = range(5)
+
+
+#: Longest controller sample [physics steps]: 1 s at 1 ms (base mode 1 has a 0.58 s period).
+MAX_SAMPLE_STEPS = 1000
+
+
+class CardFitError(InputError):
+    """A controller the card cannot run: ``field`` is ``"states"``, ``"sample_time_s"`` or ``"delay_samples"``."""
+
+    def __init__(self, field: str, message: str):
+        super().__init__(message)
+        self.field = field
+
+
+def check_fit(controller: LinearController, dt: float, delay_samples: float) -> int:
+    """The controller's sample time in physics steps of ``dt``; :class:`CardFitError` if the card cannot run it."""
+    if controller.n_states > MAX_STATES:
+        raise CardFitError("states", f"{controller.n_states} states; the controller card holds at most {MAX_STATES}")
+    T = controller.sample_time_s
+    ratio = T / dt
+    steps = round(ratio)
+    if not (1 <= steps <= MAX_SAMPLE_STEPS and abs(ratio - steps) <= 1e-9 * max(1.0, ratio)):
+        raise CardFitError("sample_time_s", f"field 'sample_time_s' = {T:g} s must be a whole number (1...{MAX_SAMPLE_STEPS}) of "
+                                            f"the model's physics step {dt:g} s")  # fmt: skip
+    delay_steps = float(delay_samples) * steps
+    if not (math.isfinite(delay_steps) and 0.0 <= delay_steps <= MAX_DELAY_STEPS):
+        raise CardFitError("delay_samples", f"{delay_steps:g} physics steps at the sample time {T:g} s; at most {MAX_DELAY_STEPS} "
+                                            f"({MAX_DELAY_STEPS / steps:g} samples)")  # fmt: skip
+    return int(steps)
 
 
 def si_matrices(controller: LinearController) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -74,7 +103,6 @@ class CardLayout:
     n_buffer: int  #: delay line length
     n_states: int  #: controller states
     act_adr: int  #: the hydraulic actuator's act (spool x, P/Ps) in the FULLPHYSICS vector
-    ctrl_names: tuple[str, ...]  #: ctrl columns: "u" (excitation, V), "theta_ref" (rad), "theta_noise" (rad), "accel_noise" (m/s^2)
 
     def enabled_index(self) -> int:
         return self.plugin_adr + _ST_ENABLED
@@ -205,15 +233,8 @@ def build_card_model(
         from samii.sim.sensors import accel_offset, accel_weights
 
         n = controller.n_states
-        if n > MAX_STATES:
-            raise InputError(f"controller {controller.name!r} has {n} states; the card holds at most {MAX_STATES}")
-        ratio = controller.sample_time_s / dt
-        steps = int(round(ratio))
-        if steps < 1 or abs(ratio - steps) > 1e-9 * max(1.0, ratio):
-            raise InputError(f"controller sample time {controller.sample_time_s:g} s is not a whole number of physics steps ({dt:g} s)")
+        steps = check_fit(controller, dt, delay_samples)
         delay_steps = float(delay_samples) * steps
-        if not (math.isfinite(delay_steps) and 0.0 <= delay_steps <= MAX_DELAY_STEPS):
-            raise InputError(f"delay of {delay_samples:g} samples ({delay_steps:g} physics steps) is outside 0...{MAX_DELAY_STEPS} physics steps")
         A, B, C, D = si_matrices(controller)
         # the accelerometer's measuring direction and rest reading, as samii.sim.simulate removes them
         _, direction = accel_weights(model)
@@ -246,7 +267,6 @@ def build_card_model(
         n_buffer=n_buffer,
         n_states=n,
         act_adr=1 + model.nq + model.nv + int(model.actuator_actadr[act_id]),
-        ctrl_names=("u", REFERENCE_ACTUATOR, THETA_NOISE_ACTUATOR, ACCEL_NOISE_ACTUATOR),
     )
     if controller is not None and n_plugin != 4 + n_buffer + n:
         raise RuntimeError(f"the plugin's state has {n_plugin} entries, expected {4 + n_buffer + n}: plugin and samii.closedloop.card disagree")

@@ -202,6 +202,11 @@ def _finite_number(x) -> bool:
         return False
 
 
+def _shown(x) -> str:
+    """``x`` for a message: its repr, or its length for an integer too long to print usefully."""
+    return repr(x) if not isinstance(x, int) or abs(x) < 10**20 else f"an integer of {len(str(abs(x)))} digits"
+
+
 def _matrix(doc: dict, key: str, where: str) -> np.ndarray:
     if key not in doc:
         raise InputError(f"{where}: field {key!r} is missing (expected a list of rows of numbers)")
@@ -213,8 +218,7 @@ def _matrix(doc: dict, key: str, where: str) -> np.ndarray:
     for r in value:
         for x in r:
             if not _finite_number(x):
-                shown = repr(x) if not isinstance(x, int) or abs(x) < 10**20 else f"an integer of {len(str(abs(x)))} digits"
-                raise InputError(f"{where}: field {key!r} has the entry {shown}; expected finite numbers")
+                raise InputError(f"{where}: field {key!r} has the entry {_shown(x)}; expected finite numbers")
     return np.array(value, float) if value and value[0] else np.zeros((len(value), 0))
 
 
@@ -245,8 +249,7 @@ def read_controller(path: str | Path) -> SavedController:
         raise InputError(f"{where}: field 'version' is {doc.get('version')!r}; this samii reads version {VERSION}")
     T = doc.get("sample_time_s")
     if not _finite_number(T) or not float(T) > 0:
-        shown = repr(T) if not isinstance(T, int) or abs(T) < 10**20 else f"an integer of {len(str(abs(T)))} digits"
-        raise InputError(f"{where}: field 'sample_time_s' must be a positive number of seconds, got {shown}")
+        raise InputError(f"{where}: field 'sample_time_s' must be a positive number of seconds, got {_shown(T)}")
     inputs = doc.get("inputs")
     if not isinstance(inputs, list) or not inputs or not all(isinstance(s, str) for s in inputs):
         raise InputError(f"{where}: field 'inputs' must be a non-empty list of measurement names (theta_ref, theta, accel)")

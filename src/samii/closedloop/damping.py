@@ -234,10 +234,8 @@ def measured_sensitivity(design: DampingDesign, frf, *, above_hz: float) -> tupl
     if act is None or total is None or not np.any(sel):
         return None, None
     c = design.controller.controller
-    T = c.sample_time_s
-    z = np.exp(2j * np.pi * f[sel] * T)
-    n = c.A.shape[0]
-    Cz = np.array([complex((c.C @ np.linalg.solve(zk * np.eye(n) - c.A, c.B) + c.D)[0, 0]) for zk in z]) * z ** (-design.delay_samples)
+    z = np.exp(2j * np.pi * f[sel] * c.sample_time_s)
+    Cz = np.asarray(c.statespace()(z)).ravel() * z ** (-design.delay_samples)  # python-control evaluates C(z)
     P = total[sel] / (1 + design.position_gain_v_per_rad * act[sel])
     S = 1.0 / (1.0 - Cz * P)
     return float(np.max(np.abs(S))), (float(f[sel].min()), float(f[sel].max()))

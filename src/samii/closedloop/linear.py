@@ -73,6 +73,33 @@ class LinearLoop:
         full = 1 - math.exp(-h / tau)
         return (1 - math.exp(-f * h / tau)) * math.exp(-(1 - f) * h / tau) / full, (1 - math.exp(-(1 - f) * h / tau)) / full
 
+    def _step(self, x, z, buf, held: float, *, sample: bool, enabled: bool, theta_ref: float, r: float):
+        """One physics step as the card runs it: sample (every ``steps``), the delay line, the valve, the plant.
+
+        Returns ``(x, z, buf, held, theta, accel, v)``: the next plant and controller states and delay line,
+        the held command, the outputs at this step's start and the valve voltage (the step's later piece).
+        """
+        th, ac = float(self.c_theta @ x), float(self.c_accel @ x)
+        servo = self.kp * (theta_ref - th)
+        if enabled:
+            if sample:
+                w = np.array([theta_ref, th, ac])
+                held = float(self.C[0] @ z + self.D[0] @ w)
+                z = self.A @ z + self.B @ w
+        else:
+            held = servo if self.replaces else 0.0  # the card records what the servo loop commands
+        if buf.size:
+            buf = np.concatenate([[held], buf[:-1]])
+        if enabled:
+            m = int(math.floor(self.delay_steps))
+            a_old, a_new = self._weights()
+            base = r + (0.0 if self.replaces else servo)
+            v = base + buf[m]
+            u = a_new * v + a_old * (base + buf[m + 1])
+        else:
+            v = u = r + servo
+        return self.Ad @ x + self.bd * u, z, buf, held, th, ac, v
+
     def simulate(self, theta_ref: np.ndarray, r: np.ndarray | None = None, *, enabled: np.ndarray | None = None,
                  x0: np.ndarray | None = None) -> LinearResponse:
         """Step the linear loop per physics step, as the card does (``enabled[j]``: the controller runs in step j).
@@ -89,70 +116,32 @@ class LinearLoop:
         r = np.zeros(n) if r is None else np.asarray(r, float)
         enabled = np.full(n, self.has_controller) if enabled is None else np.asarray(enabled, bool)
         x = np.zeros(self.Ad.shape[0]) if x0 is None else np.array(x0, float)
-        nz = self.A.shape[0]
-        z = np.zeros(nz)
-        buf = np.zeros(max(self.n_buffer, 1))
-        m = int(math.floor(self.delay_steps))
-        a_old, a_new = self._weights()
-        held, counter, was = 0.0, 0, False
-        out_th, out_ac, out_v = np.empty(n), np.empty(n), np.empty(n)
+        z, buf = np.zeros(self.A.shape[0]), np.zeros(self.n_buffer)
+        held, counter = 0.0, 0
+        out = np.empty((3, n))
         for j in range(n):
-            th = float(self.c_theta @ x)
-            ac = float(self.c_accel @ x)
-            servo = self.kp * (theta_ref[j] - th)
-            if enabled[j]:
-                if not was:
-                    counter = 0
-                    if j > 0:
-                        w = np.array([theta_ref[j], th, ac])
-                        z, _ = bumpless_state((self.A, self.B, self.C, self.D), w, servo if self.replaces else 0.0)
-                if counter % self.steps == 0:
-                    w = np.array([theta_ref[j], th, ac])
-                    held = float(self.C[0] @ z + self.D[0] @ w) if nz else float(self.D[0] @ w)
-                    if nz:
-                        z = self.A @ z + self.B @ w
-                counter += 1
-            else:
-                held = servo if self.replaces else 0.0
-            if self.has_controller:
-                buf[1:] = buf[:-1]
-                buf[0] = held
-            if enabled[j]:
-                base = r[j] + (0.0 if self.replaces else servo)
-                v_new = base + buf[m]
-                u = a_new * v_new + (a_old * (base + buf[m + 1]) if a_old else 0.0)
-            else:
-                v_new = u = r[j] + servo
-            out_th[j], out_ac[j], out_v[j] = th, ac, v_new
-            x = self.Ad @ x + self.bd * u
-            was = bool(enabled[j])
-        return LinearResponse(np.arange(n) * self.dt_s, out_th, out_ac, out_v)
+            if enabled[j] and (j == 0 or not enabled[j - 1]):
+                counter = 0
+                if j > 0:  # switched on mid-run
+                    th, ac = float(self.c_theta @ x), float(self.c_accel @ x)
+                    target = self.kp * (theta_ref[j] - th) if self.replaces else 0.0
+                    z, _ = bumpless_state((self.A, self.B, self.C, self.D), np.array([theta_ref[j], th, ac]), target)
+            x, z, buf, held, *out[:, j] = self._step(x, z, buf, held, sample=counter % self.steps == 0, enabled=bool(enabled[j]),
+                                                     theta_ref=theta_ref[j], r=r[j])  # fmt: skip
+            counter += bool(enabled[j])
+        return LinearResponse(np.arange(n) * self.dt_s, out[0], out[1], out[2])
 
     def sample_map(self) -> np.ndarray:
         """The loop's one-sample map (controller running, zero inputs) on ``(x, z, delay line)``."""
         nx, nz, nb = self.Ad.shape[0], self.A.shape[0], self.n_buffer
         dim = nx + nz + nb
         Phi = np.empty((dim, dim))
-        m = int(math.floor(self.delay_steps))
-        a_old, a_new = self._weights()
         for col in range(dim):
             X = np.zeros(dim)
             X[col] = 1.0
-            x, z, buf = X[:nx].copy(), X[nx:nx + nz].copy(), X[nx + nz:].copy()
-            held = 0.0
+            x, z, buf, held = X[:nx], X[nx:nx + nz], X[nx + nz:], 0.0
             for k in range(self.steps):
-                th, ac = float(self.c_theta @ x), float(self.c_accel @ x)
-                if k == 0:
-                    w = np.array([0.0, th, ac])
-                    held = float(self.C[0] @ z + self.D[0] @ w) if nz else float(self.D[0] @ w)
-                    if nz:
-                        z = self.A @ z + self.B @ w
-                if nb:
-                    buf[1:] = buf[:-1]
-                    buf[0] = held
-                base = 0.0 if self.replaces else -self.kp * th
-                u = a_new * (base + (buf[m] if nb else 0.0)) + (a_old * (base + buf[m + 1]) if a_old else 0.0)
-                x = self.Ad @ x + self.bd * u
+                x, z, buf, held, *_ = self._step(x, z, buf, held, sample=k == 0, enabled=self.has_controller, theta_ref=0.0, r=0.0)
             Phi[:, col] = np.concatenate([x, z, buf])
         return Phi
 

@@ -32,9 +32,7 @@ def _mark_events(ax, r: ClosedLoopResult) -> None:
 
 
 def _title(r: ClosedLoopResult) -> str:
-    state = "stable" if r.stable else "UNSTABLE"
-    if not r.stable and r.unstable_mode_hz is not None:
-        state += f" ({r.unstable_mode_hz:.3g} Hz, growth {r.growth_rate_1_s:.3g} 1/s)"
+    state = "stable" if r.stable else f"UNSTABLE ({r.instability()})"
     return f"{r.controller}, {r.scenario.name} scenario: {state}"
 
 

@@ -27,7 +27,8 @@ from samii.closedloop.card import CardModel, build_card_model
 from samii.closedloop.controllers import SavedController
 from samii.closedloop.linear import LinearLoop, LinearResponse, linear_loop
 from samii.closedloop.metrics import BaseMetrics, FittedMode, StepMetrics, base_metrics, growth, response_modes, step_metrics, sustained_oscillation
-from samii.closedloop.run import LoopSignals, run_loop
+from samii.closedloop.run import LoopSignals, measurements_at, run_loop
+from samii.measure.daq import SensorNoise
 
 __all__ = [
     "SCENARIOS",
@@ -84,8 +85,8 @@ def scenario(name: str, *, step_deg: float = 5.0, duration_s: float = 10.0, impu
 class NoiseSpec:
     """Sensor noise and ADC quantisation of the controller's measurements (seeded)."""
 
-    theta_std_rad: float = 5e-4  #: samii.measure.daq.SensorNoise: a 4096-count/rev encoder
-    accel_std_m_s2: float = 1e-2  #: about 1 mg rms
+    theta_std_rad: float = SensorNoise.theta_rad  #: as the DAQ's (samii.measure.daq.SensorNoise): a 4096-count/rev encoder
+    accel_std_m_s2: float = SensorNoise.accel_m_s2  #: about 1 mg rms
     theta_lsb_rad: float = 2 * math.pi / 4096  #: the same encoder's count
     accel_lsb_m_s2: float = 20.0 / 65536 * 9.80665  #: a 16-bit +-10 V ADC on a 1 V/g accelerometer
     seed: int = 0
@@ -115,6 +116,18 @@ class ClosedLoopResult:
     notes: list[str] = field(default_factory=list)
     theta_rest_rad: float = 0.0  #: theta at the static equilibrium (the responses are relative to it)
     accel_rest_m_s2: float = 0.0  #: accelerometer reading there (after the gravity offset is removed: ~0)
+    comparison_base: BaseMetrics | None = None  #: the base figures of the comparison run, over the same windows
+
+    def instability(self) -> str:
+        """How the run is unstable, in words ("" when stable)."""
+        if self.stable:
+            return ""
+        what = f"growing at {self.growth_rate_1_s:.4g} 1/s" if self.growth_rate_1_s is not None else "not decaying"
+        if self.unstable_mode_hz is None:
+            return what
+        if self.unstable_mode_hz < 0.01:
+            return f"{what}, without oscillating (a real pole)"
+        return f"{what}, oscillating at {self.unstable_mode_hz:.4g} Hz"
 
     def as_json(self) -> dict:
         from samii.json_output import finite_or_none
@@ -276,8 +289,6 @@ def run_closed_loop(
                    initial_state=initial, keep_partial=True, qpos_every=qpos_every)  # fmt: skip
     notes: list[str] = []
     # readings at rest (the static equilibrium): the responses are taken relative to them
-    from samii.closedloop.run import measurements_at
-
     rest = measurements_at(cm, _impulse_state(cm, 0.0), 0.0)
     th_rest, ac_rest = float(rest[1]), float(rest[2])
     accel = sig.accel - ac_rest
@@ -333,16 +344,17 @@ def run_closed_loop(
     theta_m = step_metrics(sig.t, sig.theta, sig.theta_ref, sc.t_step_s) if sc.name in ("step", "loper") else StepMetrics(None, None, None)
     residual_from = sc.t_disturbance_s + 2.0
     base = base_metrics(sig.t, accel, sc.t_disturbance_s, t_decay_s=t_ev, residual_from_s=residual_from) if sig.t.size > 1 else BaseMetrics(0.0, None, None, None)
-    free = None
-    if comp is not None and sc.name in ("loper", "release"):
-        free = base_metrics(comp.t, comp.accel - ac_rest, sc.t_disturbance_s, t_decay_s=t_ev).decay_rate_1_s
+    comp_base = None
+    if comp is not None:
+        comp_base = base_metrics(comp.t, comp.accel - ac_rest, sc.t_disturbance_s, t_decay_s=t_ev, residual_from_s=residual_from)
+    free = comp_base.decay_rate_1_s if comp_base is not None and sc.name in ("loper", "release") else None
     modes = response_modes(sig.t, accel, t_ev + 0.1) if stable else []
     return ClosedLoopResult(
         controller=label, scenario=sc, signals=sig, comparison=comp, linear=lin, linear_stable=linear_stable,
         linear_poles_s=poles_s, stable=stable, unstable_mode_hz=mode_hz, growth_rate_1_s=rate, theta=theta_m, base=base,
         free_decay_rate_1_s=free, modes=modes, rms_error_pct=err, delay_samples=float(delay_samples),
         sample_time_s=cm.sample_time_s, replaces_servo=cm.replaces_servo, noise=noise, notes=notes,
-        theta_rest_rad=th_rest, accel_rest_m_s2=ac_rest,
+        theta_rest_rad=th_rest, accel_rest_m_s2=ac_rest, comparison_base=comp_base,
     )  # fmt: skip
 
 

@@ -489,7 +489,7 @@ def run_damping(args) -> int:
         from samii.measure.io import read_frf_csv
 
         data = read_frf_csv(args.frf)
-        missing = [c for c in ("act",) if c not in data.channels] + ([] if ("base" in data.channels or "total" in data.channels) else ["base or total"])
+        missing = ([] if "act" in data.channels else ["act"]) + ([] if {"base", "total"} & set(data.channels) else ["base or total"])
         if missing:
             raise InputError(f"{args.frf}: the damping design needs the act channel and base or total; missing {', '.join(missing)}")
         kp = args.position_gain
