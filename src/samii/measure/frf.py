@@ -48,7 +48,7 @@ import scipy.fft
 from samii.frequency_response import FrequencyResponse
 from samii.measure.timeseries import TimeSeries
 
-__all__ = ["estimate_frf", "split_records", "record_weights", "fourier_at", "log_frequency_grid"]
+__all__ = ["estimate_frf", "record_spectra", "split_records", "record_weights", "fourier_at", "log_frequency_grid"]
 
 # Output grid density: 100 points per decade puts >= 2 points inside the
 # half-power band of the lightest-damped base mode (2 zeta = 6 % wide, mode 1, eq 9.4).
@@ -81,7 +81,9 @@ def split_records(ts: TimeSeries, *, record_s: float, baseline_s: float) -> tupl
     if not (record_s > 0 and np.isfinite(record_s)):
         raise ValueError(f"record_s must be positive, got {record_s!r}")
     n_rec = int(np.floor(record_s * fs + 1e-6))
-    n_records = int(np.floor((len(ts) + 0.5) / (record_s * fs) + 1e-9))
+    n_records = int(np.floor((len(ts) + 0.5) / (record_s * fs) + 1e-9)) + 1
+    while n_records > 0 and int(round((n_records - 1) * record_s * fs)) + n_rec > len(ts):
+        n_records -= 1  # the last record must fit whole (records start at whole samples, k * record_s rounded)
     if n_records < 1 or n_rec < 2:
         raise ValueError(f"the time series ({len(ts) / fs:.6g} s) is shorter than one record of {record_s:.6g} s")
     n_base = int(round(baseline_s * fs))
@@ -146,6 +148,56 @@ def fourier_at(x: np.ndarray, freqs_hz: np.ndarray, sample_rate_hz: float) -> np
     return out
 
 
+def record_spectra(
+    ts: TimeSeries,
+    *,
+    record_s: float,
+    baseline_s: float,
+    band_hz: tuple[float, float] = (0.1, 40.0),
+    freqs_hz=None,
+    points_per_decade: float = _POINTS_PER_DECADE,
+    pad_factor: int = 2,
+) -> tuple[dict[str, np.ndarray], np.ndarray, str, int, int]:
+    """Spectra of every record of r, v, theta, accel at the output frequencies (see :func:`estimate_frf`).
+
+    Returns
+    -------
+    spectra : dict
+        Signal -> complex array (n_records, n_freqs); also ``"_r_time"`` (the
+        records of r, for :func:`record_weights`) and ``"_r_energy"`` (sum r^2 per record).
+    freqs : array
+        Output frequencies [Hz].
+    grid : str
+        How the frequencies were chosen.
+    n_records, n_samples : int
+        Records, and samples per record.
+    """
+    records, n_records = split_records(ts, record_s=record_s, baseline_s=baseline_s)
+    fs = ts.sample_rate_hz
+    n_rec = records["r"].shape[1]
+    if freqs_hz is None:
+        lo, hi = map(float, band_hz)
+        if not (0 < lo < hi < fs / 2):
+            raise ValueError(f"band_hz must satisfy 0 < lo < hi < {fs / 2:g} Hz (Nyquist), got {band_hz}")
+        n_fft = scipy.fft.next_fast_len(int(pad_factor) * n_rec, real=True)
+        bins = np.unique(np.round(log_frequency_grid(lo, hi, points_per_decade) * n_fft / fs).astype(int))
+        bins = bins[(bins >= np.ceil(lo * n_fft / fs - 1e-9)) & (bins <= np.floor(hi * n_fft / fs + 1e-9))]
+        freqs = bins * fs / n_fft
+        spectra = {k: scipy.fft.rfft(x, n=n_fft, axis=-1)[:, bins] for k, x in records.items()}
+        grid = f"FFT bins (zero-padded to {n_fft} samples, {fs / n_fft:.4g} Hz) nearest a {points_per_decade:g}-per-decade log grid"
+    else:
+        freqs = np.asarray(freqs_hz, float)
+        order = np.argsort(freqs)
+        if np.any(np.diff(freqs[order]) <= 0) or freqs[order][0] <= 0 or freqs[order][-1] >= fs / 2:
+            raise ValueError(f"freqs_hz must be distinct, positive and below {fs / 2:g} Hz (Nyquist)")
+        freqs = freqs[order]
+        spectra = {k: fourier_at(x, freqs, fs) for k, x in records.items()}
+        grid = "direct Fourier sums at the requested frequencies"
+    spectra["_r_time"] = records["r"]
+    spectra["_r_energy"] = np.sum(records["r"] ** 2, axis=1)
+    return spectra, freqs, grid, n_records, n_rec
+
+
 def estimate_frf(
     ts: TimeSeries,
     *,
@@ -193,35 +245,17 @@ def estimate_frf(
         No ``r`` column, data shorter than one record, or a frequency where ``r``
         has no energy (more than 40 dB below its mean spectral level).
     """
-    records, n_records = split_records(ts, record_s=record_s, baseline_s=baseline_s)
+    spectra, freqs, grid, n_records, n_rec = record_spectra(
+        ts, record_s=record_s, baseline_s=baseline_s, band_hz=band_hz, freqs_hz=freqs_hz, points_per_decade=points_per_decade, pad_factor=pad_factor
+    )
     fs = ts.sample_rate_hz
-    n_rec = records["r"].shape[1]
-    if freqs_hz is None:
-        lo, hi = map(float, band_hz)
-        if not (0 < lo < hi < fs / 2):
-            raise ValueError(f"band_hz must satisfy 0 < lo < hi < {fs / 2:g} Hz (Nyquist), got {band_hz}")
-        n_fft = scipy.fft.next_fast_len(int(pad_factor) * n_rec, real=True)
-        bins = np.unique(np.round(log_frequency_grid(lo, hi, points_per_decade) * n_fft / fs).astype(int))
-        bins = bins[(bins >= np.ceil(lo * n_fft / fs - 1e-9)) & (bins <= np.floor(hi * n_fft / fs + 1e-9))]
-        freqs = bins * fs / n_fft
-        spectra = {k: scipy.fft.rfft(x, n=n_fft, axis=-1)[:, bins] for k, x in records.items()}
-        grid = f"FFT bins (zero-padded to {n_fft} samples, {fs / n_fft:.4g} Hz) nearest a {points_per_decade:g}-per-decade log grid"
-    else:
-        freqs = np.asarray(freqs_hz, float)
-        order = np.argsort(freqs)
-        if np.any(np.diff(freqs[order]) <= 0) or freqs[order][0] <= 0 or freqs[order][-1] >= fs / 2:
-            raise ValueError(f"freqs_hz must be distinct, positive and below {fs / 2:g} Hz (Nyquist)")
-        freqs = freqs[order]
-        spectra = {k: fourier_at(x, freqs, fs) for k, x in records.items()}
-        grid = "direct Fourier sums at the requested frequencies"
-
-    w, weighting = record_weights(records["r"], record_signs)
+    w, weighting = record_weights(spectra.pop("_r_time"), record_signs)
     w = w[:, None]
     R = spectra["r"]
     s_rr = np.sum(w * np.abs(R) ** 2, axis=0)
     # Parseval: the mean of |R(f)|^2 over all frequencies is sum r^2. A sweep puts
     # |R(f)|^2 >~ sum r^2 inside its band (0.1-40 Hz: from 1x at 40 Hz to 3000x at 0.1 Hz).
-    weak = s_rr < _MIN_EXCITATION * np.sum(w * records["r"] ** 2)
+    weak = s_rr < _MIN_EXCITATION * np.sum(w[:, 0] * spectra.pop("_r_energy"))
     if np.any(weak):
         raise ValueError(
             f"the excitation r has no energy at {np.round(freqs[weak][:5], 4).tolist()} Hz (more than 40 dB below "

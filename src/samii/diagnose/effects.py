@@ -1,0 +1,189 @@
+"""The effect library: physical hypotheses about what a model lacks, each with parameters.
+
+An effect changes the model's two channels, theta/v (``act``) and xdd/theta
+(``base``), as a factor on a channel or, for a structural mode the base lacks,
+as a term added to it::
+
+    act'  = act  * M_act(s)
+    base' = (base + A_base(s)) * M_base(s)
+
+Each effect is the transfer function of its physics, stated with it below. The
+total channel xdd/v is their product and needs nothing of its own. Parameters
+are in SI units (s, Hz for frequencies a person reads, 1 for damping ratios,
+(m/s^2)/rad s^4 for a mode's residue); ``transform`` says how the optimiser
+sees each: ``log`` (positive, relative steps) or ``lin``.
+
+Categories and kinds (the ``--json`` names):
+
+* ``delay``: ``command`` (the valve acts on v(t - T): act x e^-sT),
+  ``theta_sensor`` (theta read T late: act x e^-sT, base x e^+sT),
+  ``accel_sensor`` (base x e^-sT).
+* ``extra_mode``: ``base_mode`` (a mode the modal sum lacks:
+  + B s^4/(s^2 + 2 z w s + w^2), the notebook's eq 9.2 term), ``act_mode`` (a
+  structural mode seen by the actuator: a lightly damped zero pair and pole
+  pair, act x (w_p^2/w_z^2)(s^2 + 2 z_z w_z s + w_z^2)/(s^2 + 2 z_p w_p s + w_p^2)).
+* ``sensor``: ``accel_lowpass`` (first-order roll-off 1/(1 + s/w_c)),
+  ``accel_lowpass2`` (second-order Butterworth anti-alias filter), ``accel_highpass``
+  (AC coupling s/(s + w_h)), ``accel_gain`` (a scale error k; only testable against
+  a fixed baseline, since the fitted gains B_k absorb it).
+* ``actuator``: ``pole_zero`` (a real pole and zero, (1 + s/w_z)/(1 + s/w_p)),
+  ``valve`` (second-order valve dynamics w_v^2/(s^2 + 2 z_v w_v s + w_v^2)).
+
+Nonlinear effects are not factors: :mod:`samii.diagnose.nonlinear` decides them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+__all__ = ["Param", "EffectKind", "LIBRARY", "library", "Effect"]
+
+TWO_PI = 2.0 * np.pi
+
+
+@dataclass(frozen=True)
+class Param:
+    name: str
+    unit: str
+    lo: float
+    hi: float
+    transform: str = "log"  # "log" or "lin"
+
+
+@dataclass(frozen=True)
+class EffectKind:
+    """One hypothesis of the library.
+
+    ``response(p, s) -> (M_act, M_base, A_base)`` with None for "no change".
+    ``needs_fixed_baseline``: only identifiable when the baseline's parameters are not refitted.
+    """
+
+    category: str
+    kind: str
+    channel: str  # "act", "base" or "both"
+    params: tuple[Param, ...]
+    response: Callable[[np.ndarray, np.ndarray], tuple]
+    describe: Callable[[dict], str]
+    needs_fixed_baseline: bool = False
+
+    @property
+    def label(self) -> str:
+        return f"{self.category}/{self.kind}"
+
+    @property
+    def affects(self) -> tuple[str, ...]:
+        return ("act", "base") if self.channel == "both" else (self.channel,)
+
+
+@dataclass(frozen=True)
+class Effect:
+    """An effect kind with parameter values (SI) and their standard errors."""
+
+    kind: EffectKind
+    values: dict
+    stderr: dict
+
+    def response(self, s: np.ndarray):
+        return self.kind.response(np.array([self.values[p.name] for p in self.kind.params]), s)
+
+
+def _second_order(s, f_hz, zeta):
+    w = TWO_PI * f_hz
+    return s * s + 2.0 * zeta * w * s + w * w
+
+
+def _delay_command(p, s):
+    return np.exp(-s * p[0]), None, None
+
+
+def _delay_theta(p, s):
+    return np.exp(-s * p[0]), np.exp(s * p[0]), None
+
+
+def _delay_accel(p, s):
+    return None, np.exp(-s * p[0]), None
+
+
+def _base_mode(p, s):
+    f, z, b = p
+    s2 = s * s
+    return None, None, b * s2 * s2 / _second_order(s, f, z)
+
+
+def _act_mode(p, s):
+    fp, zp, fz, zz = p
+    return (fp / fz) ** 2 * _second_order(s, fz, zz) / _second_order(s, fp, zp), None, None
+
+
+def _lowpass(p, s):
+    return None, 1.0 / (1.0 + s / (TWO_PI * p[0])), None
+
+
+def _lowpass2(p, s):
+    w = TWO_PI * p[0]
+    return None, w * w / (s * s + np.sqrt(2.0) * w * s + w * w), None
+
+
+def _highpass(p, s):
+    return None, s / (s + TWO_PI * p[0]), None
+
+
+def _gain(p, s):
+    return None, np.full(s.shape, p[0], complex), None
+
+
+def _pole_zero(p, s):
+    fz, fp = p
+    return (1.0 + s / (TWO_PI * fz)) / (1.0 + s / (TWO_PI * fp)), None, None
+
+
+def _valve(p, s):
+    f, z = p
+    w = TWO_PI * f
+    return w * w / _second_order(s, f, z), None, None
+
+
+_DELAY = (Param("delay_s", "s", 0.0, 0.05, "lin"),)
+
+LIBRARY: tuple[EffectKind, ...] = (
+    EffectKind("delay", "command", "act", _DELAY, _delay_command,
+               lambda v: f"the valve acts on the command {1e3 * v['delay_s']:.3g} ms late"),
+    EffectKind("delay", "theta_sensor", "both", _DELAY, _delay_theta,
+               lambda v: f"theta is read {1e3 * v['delay_s']:.3g} ms late"),
+    EffectKind("delay", "accel_sensor", "base", _DELAY, _delay_accel,
+               lambda v: f"the acceleration is read {1e3 * v['delay_s']:.3g} ms late"),
+    EffectKind("extra_mode", "base_mode", "base",
+               (Param("freq_hz", "Hz", 0.01, 1000.0), Param("zeta", "1", 1e-4, 0.5), Param("residue", "(m/s^2)/rad s^4", -1e12, 1e12, "lin")),
+               _base_mode, lambda v: f"a base mode at {v['freq_hz']:.4g} Hz, damping {v['zeta']:.3g}, that the modal sum lacks"),
+    EffectKind("extra_mode", "act_mode", "act",
+               (Param("freq_hz", "Hz", 0.01, 1000.0), Param("zeta", "1", 1e-4, 0.5),
+                Param("zero_freq_hz", "Hz", 0.01, 1000.0), Param("zero_zeta", "1", 1e-4, 0.5)),
+               _act_mode, lambda v: f"a structural mode at {v['freq_hz']:.4g} Hz (antiresonance at {v['zero_freq_hz']:.4g} Hz) seen by the actuator"),
+    EffectKind("sensor", "accel_lowpass", "base", (Param("corner_hz", "Hz", 0.5, 1e4),), _lowpass,
+               lambda v: f"the accelerometer rolls off above {v['corner_hz']:.3g} Hz (first order)"),
+    EffectKind("sensor", "accel_lowpass2", "base", (Param("corner_hz", "Hz", 0.5, 1e4),), _lowpass2,
+               lambda v: f"the accelerometer's anti-alias filter rolls off above {v['corner_hz']:.3g} Hz (second-order Butterworth)"),
+    EffectKind("sensor", "accel_highpass", "base", (Param("corner_hz", "Hz", 1e-4, 20.0),), _highpass,
+               lambda v: f"the accelerometer is AC coupled below {v['corner_hz']:.3g} Hz (first-order high-pass)"),
+    EffectKind("sensor", "accel_gain", "base", (Param("gain", "1", 0.01, 100.0),), _gain,
+               lambda v: f"the accelerometer reads {v['gain']:.4g} x the true acceleration", needs_fixed_baseline=True),
+    EffectKind("actuator", "pole_zero", "act", (Param("zero_hz", "Hz", 0.01, 1e4), Param("pole_hz", "Hz", 0.01, 1e4)), _pole_zero,
+               lambda v: f"theta/v has an extra real zero at {v['zero_hz']:.3g} Hz and pole at {v['pole_hz']:.3g} Hz"),
+    EffectKind("actuator", "valve", "act", (Param("freq_hz", "Hz", 1.0, 1e4), Param("zeta", "1", 0.05, 3.0)), _valve,
+               lambda v: f"valve dynamics: a second-order lag at {v['freq_hz']:.3g} Hz, damping {v['zeta']:.2g}"),
+)
+
+
+def library(*, fixed_baseline: bool, channels: tuple[str, ...]) -> list[EffectKind]:
+    """The kinds that can be tested on these channels and baseline."""
+    out = []
+    for k in LIBRARY:
+        if k.needs_fixed_baseline and not fixed_baseline:
+            continue
+        if not all(c in channels for c in k.affects):
+            continue
+        out.append(k)
+    return out

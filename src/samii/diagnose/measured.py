@@ -1,0 +1,245 @@
+"""Measured data for a diagnosis: a frequency response with the random error of every point.
+
+A diagnosis weighs the residual between data and model against the data's own
+noise, so each point carries ``var``: the variance of the complex relative error
+``E|H_est/H - 1|^2`` of the estimate (its log magnitude and phase each have half
+of it). Where it comes from, best first:
+
+* **Record-to-record spread** (a time series with >= 2 repetitions). Each record
+  ``k`` gives its own ratio ``H_k = Y_k / X_k`` (the excitation cancels); the
+  estimate is the weighted ratio of summed cross-spectra, whose relative error
+  is ``sum_k c_k^2 |H_k/H - 1|^2 n/(n-1)`` with ``c_k`` each record's share of the
+  denominator. With 3 records that has 4 degrees of freedom per point; it is
+  pooled over ``POOL`` neighbouring points (the noise varies slowly with
+  frequency). The same deviations give the correlation between neighbouring
+  points (``corr_length``, the number of points one independent error spans),
+  which the significance tests need: an FFT grid zero-padded 2x puts
+  correlated bins next to each other.
+* **Coherence** (an FRF file with ``*_coh``): Bendat & Piersol's
+  ``eps^2 = (1 - g)/(2 n g)`` for each of log magnitude and phase, so
+  ``var = 2 eps^2``; ``n`` from the file's ``frf_records`` or ``averages`` line,
+  else 3 (the rig's averages, notebook ch. 9), said so.
+* **Nothing** (no coherence, one record): ``var`` is None; the tests then take the
+  noise level from the residual of the richest model (an F-test needs only
+  the relative weights, here uniform).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from samii.frequency_response import FrequencyResponse
+from samii.measure.frf import record_spectra, record_weights
+from samii.measure.records import RecordLayout, find_records
+from samii.measure.timeseries import TimeSeries
+
+__all__ = ["Measured", "from_timeseries", "from_frf", "POOL", "timeseries_frf"]
+
+#: Neighbouring points the record-to-record variance is pooled over (odd).
+POOL = 9
+#: Averages assumed behind a coherence when a file does not say.
+DEFAULT_AVERAGES = 3
+_PAIRS = {"act": ("theta", "v"), "base": ("accel", "theta"), "total": ("accel", "v")}
+
+
+@dataclass(frozen=True, eq=False)
+class Measured:
+    """One file's frequency response and the random error of each point.
+
+    Attributes
+    ----------
+    source : str
+        The file (or a label).
+    frf : FrequencyResponse
+        act, base and total where the data have them.
+    var : mapping channel -> array or None
+        Variance of the complex relative error of each point (module docstring).
+    noise_source : str
+        Where ``var`` came from.
+    corr_length : float
+        Points one independent error spans (>= 1).
+    amplitude_v : float or None
+        Peak excitation [V] (the file's ``amplitude_v``, or the peak of ``r``).
+    sample_rate_hz : float or None
+    timeseries : TimeSeries or None
+    layout : RecordLayout or None
+        The records a time series was cut into.
+    """
+
+    source: str
+    frf: FrequencyResponse
+    var: Mapping[str, np.ndarray | None]
+    noise_source: str
+    corr_length: float = 1.0
+    amplitude_v: float | None = None
+    sample_rate_hz: float | None = None
+    timeseries: TimeSeries | None = None
+    layout: RecordLayout | None = None
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+
+def _float_meta(meta: Mapping[str, str], key: str) -> float | None:
+    text = meta.get(key)
+    if text is None:
+        return None
+    m = re.match(r"\s*([-+0-9.eE]+)", str(text))
+    try:
+        value = float(m.group(1)) if m else float("nan")
+    except ValueError:
+        return None
+    return value if np.isfinite(value) else None
+
+
+def _pool(x: np.ndarray, k: int = POOL) -> np.ndarray:
+    """Moving mean over ``k`` points, the window shrinking at the ends."""
+    kernel = np.ones(k)
+    num = np.convolve(x, kernel, mode="same")
+    den = np.convolve(np.ones_like(x), kernel, mode="same")
+    return num / den
+
+
+def _corr_length(dev: np.ndarray) -> float:
+    """Points one independent error spans, from the deviations ``dev`` (records, points) normalised to unit variance."""
+    total = float(np.sum(np.abs(dev) ** 2))
+    if total <= 0:
+        return 1.0
+    length = 1.0
+    for lag in range(1, 20):
+        rho = float(np.real(np.sum(dev[:, lag:] * np.conj(dev[:, :-lag])))) / total
+        if rho < 0.05:
+            break
+        length += 2.0 * rho
+    return length
+
+
+def timeseries_frf(ts: TimeSeries, layout: RecordLayout, *, band_hz: tuple[float, float]) -> tuple[FrequencyResponse, dict[str, np.ndarray | None], float, str]:
+    """Closed-loop FRF of ``ts`` cut as ``layout`` says, with the record-to-record variance of every point.
+
+    Returns (frf, var per channel, corr_length, how the noise was estimated).
+    """
+    fs = ts.sample_rate_hz
+    i0 = int(round(layout.start_s * fs))
+    n = int(round((layout.n_records - 1) * layout.record_s * fs)) + int(np.floor(layout.record_s * fs))
+    cols = {k: v[i0 : i0 + n] for k, v in ts.columns().items() if k in ("t", "v", "theta", "accel", "r")}
+    cut = TimeSeries(**cols, metadata=ts.metadata)
+    spectra, freqs, grid, n_records, n_rec = record_spectra(cut, record_s=layout.record_s, baseline_s=layout.baseline_s, band_hz=band_hz)
+    w, weighting = record_weights(spectra.pop("_r_time"))
+    spectra.pop("_r_energy")
+    R = spectra["r"]
+    cross = {k: np.sum(w[:, None] * np.conj(R) * spectra[k], axis=0) for k in ("v", "theta", "accel")}
+    kw, var = {}, {}
+    devs = []
+    for ch, (num, den) in _PAIRS.items():
+        h = cross[num] / cross[den]
+        kw[ch] = h
+        if n_records < 2:
+            var[ch] = None
+            continue
+        share = w[:, None] * np.conj(R) * spectra[den]
+        c = share / np.sum(share, axis=0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            hk = spectra[num] / spectra[den]
+            d = np.nan_to_num(hk / h - 1.0)
+        raw = np.sum(np.abs(c) ** 2 * np.abs(d) ** 2, axis=0) * n_records / (n_records - 1)
+        var[ch] = np.maximum(_pool(raw), 1e-30)
+        if ch != "total":
+            devs.append(d / np.sqrt(np.maximum(_pool(np.mean(np.abs(d) ** 2, axis=0)), 1e-30)))
+    corr = _corr_length(np.vstack(devs)) if devs else 1.0
+    how = (f"record-to-record spread of {n_records} records, pooled over {POOL} neighbouring points" if n_records >= 2
+           else "unknown (one record: no spread, no coherence)")
+    meta = dict(ts.metadata)
+    meta.update({
+        "frf_estimator": "instrument variable, excitation r: act=S_r,theta/S_r,v base=S_r,accel/S_r,theta total=S_r,accel/S_r,v",
+        "frf_records": f"{n_records} records of {layout.record_s:.6g} s from t = {layout.start_s:.6g} s ({layout.how})",
+        "frf_record_weights": weighting,
+        "frf_window": f"rectangular over each whole record; operating point = mean of the first {layout.baseline_s:.6g} s of each record, subtracted",
+        "frf_grid": grid,
+    })
+    return FrequencyResponse(freqs, metadata=meta, **kw), var, corr, how
+
+
+def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float] | None = None, record_s: float | None = None) -> Measured:
+    """A time series with its excitation ``r``: records found (or as stated), FRF and spread estimated."""
+    if ts.r is None:
+        raise ValueError(f"{source}: the time series has no column 'r' (the excitation added to the valve command); "
+                         "a closed-loop frequency response needs it as the instrument (DATA_FORMATS.md)")
+    fs = ts.sample_rate_hz
+    stated = record_s if record_s is not None else _float_meta(ts.metadata, "record_s")
+    layout = find_records(ts.r, fs, record_s=stated, where=source)
+    if band_hz is None:
+        lo = _float_meta(ts.metadata, "start_hz")
+        hi = _float_meta(ts.metadata, "stop_hz")
+        band_hz = (lo or 0.1, min(hi or 40.0, 0.45 * fs))
+    frf, var, corr, how = timeseries_frf(ts, layout, band_hz=band_hz)
+    amp = _float_meta(ts.metadata, "amplitude_v") or float(np.max(np.abs(ts.r)))
+    return Measured(source=source, frf=frf, var=var, noise_source=how, corr_length=corr, amplitude_v=amp, sample_rate_hz=fs,
+                    timeseries=ts, layout=layout)
+
+
+def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
+    """An FRF file: the error of each point from its coherence, if it has one."""
+    meta = frf.metadata
+    n = None
+    for key in ("frf_records", "averages", "records"):
+        if key in meta:
+            n = _float_meta(meta, key)
+            if n is not None and n >= 1:
+                break
+    notes = []
+    if n is None or n < 1:
+        n = DEFAULT_AVERAGES
+        averages = f"{DEFAULT_AVERAGES} averages assumed (the file does not say; the rig's, notebook ch. 9)"
+    else:
+        averages = f"{int(n)} averages (the file's metadata)"
+    var = {}
+    have = []
+    for ch in frf.channels:
+        coh = frf.coherence(ch)
+        if coh is None:
+            var[ch] = None
+            continue
+        g = np.clip(coh, 1e-6, 1.0 - 1e-12)
+        var[ch] = np.maximum((1.0 - g) / (n * g), 1e-30)  # 2 eps^2, eps^2 = (1 - g)/(2 n g)
+        have.append(ch)
+    how = f"coherence of {', '.join(have)} ({averages})" if have else "unknown (no coherence in the file)"
+    sr = _float_meta(meta, "sample_rate_hz")
+    amp = _float_meta(meta, "amplitude_v")
+    return Measured(source=source, frf=frf, var=var, noise_source=how, amplitude_v=amp, sample_rate_hz=sr, notes=tuple(notes))
+
+
+def load(path, *, band_hz: tuple[float, float] | None = None, record_s: float | None = None,
+         mat_freq_name: str | None = None, mat_freq_unit: str = "hz") -> Measured:
+    """Read a time-series CSV, an FRF CSV or a rig-era .mat file (chosen by content) as :class:`Measured`."""
+    from samii.measure.io import DataFormatError, read_frf_csv, read_mat_bode, read_timeseries_csv
+
+    path = Path(path)
+    source = str(path)
+    head = b""
+    if path.is_file():
+        with open(path, "rb") as fh:
+            head = fh.read(65536)
+    if path.suffix.lower() == ".mat" or head[:6] == b"MATLAB":
+        frf = read_mat_bode(path, freq_name=mat_freq_name, freq_unit=mat_freq_unit)
+        return from_frf(frf, source=source)
+    header = []
+    for line in head.decode("utf-8", errors="replace").lstrip("\ufeff").splitlines():
+        line = line.strip()
+        if line and not line.startswith("#"):
+            header = [c.strip() for c in line.split(",")]
+            break
+    if "t" in header and "freq_hz" not in header:
+        ts = read_timeseries_csv(path)
+        try:
+            return from_timeseries(ts, source=source, band_hz=band_hz, record_s=record_s)
+        except ValueError as exc:
+            text = str(exc)
+            raise DataFormatError(path, text[len(source) + 2:] if text.startswith(source + ": ") else text) from None
+    frf = read_frf_csv(path)
+    if band_hz is not None:
+        frf = frf.band(*band_hz)
+    return from_frf(frf, source=source)

@@ -1,0 +1,370 @@
+"""A baseline model with effects, fitted to one or more measured files by weighted least squares.
+
+The residual of a point is the log ratio of data to model,
+``e = ln(H_data / H_model)`` (real part: log magnitude, imaginary part: phase),
+divided by the point's random error: each part has variance ``var/2``
+(:mod:`samii.diagnose.measured`), so for a right model the weighted residuals
+are standard normal and their sum of squares is chi-square.
+
+The baseline is either the notebook's structure with its parameters refitted
+with the effects (each file its own parameters: files at different amplitudes
+may differ), or a fixed response (a saved fit, the simulator) that only the
+effects change. Effects are shared by all files: they are the rig's.
+
+Parameters are optimised transformed: positive ones as logarithms, the base
+gains B_k and a mode's residue relative to their start values, a delay in
+milliseconds. Standard errors come from the Jacobian at the optimum,
+``cov = s^2 (J'J)^-1``, with ``s^2`` the residual variance per degree of freedom
+times the correlation length of the noise (neighbouring points that share one
+error carry less information than their number says).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from samii.diagnose.effects import Effect, EffectKind
+from samii.identify.structures import ModelStructure
+
+__all__ = ["Dataset", "Baseline", "Fit", "fit_model", "MAX_VAR"]
+
+#: Points whose relative random error exceeds this variance (std 0.5: 4 dB, 29 deg) carry no usable
+#: information: there the estimate is dominated by noise and its spread says nothing about its error.
+MAX_VAR = 0.25
+
+
+@dataclass(frozen=True, eq=False)
+class Dataset:
+    """The usable points of one file's channels, prepared for fitting."""
+
+    source: str
+    freq_hz: np.ndarray
+    data: Mapping[str, np.ndarray]  # channel -> complex (usable points only)
+    keep: Mapping[str, np.ndarray]  # channel -> bool mask on freq_hz
+    inv_sigma: Mapping[str, np.ndarray]  # channel -> 1/sqrt(var/2)
+    known_noise: bool
+    corr_length: float
+    amplitude_v: float | None
+
+    @classmethod
+    def from_measured(cls, m, channels: Sequence[str] | None = None) -> "Dataset":
+        """The usable points of ``m``'s channels: by default theta/v and xdd/v (``total``), whose noise is
+        independent (theta's noise enters only the first), else theta/v and xdd/theta."""
+        if channels is None:
+            have = set(m.frf.channels)
+            channels = ("act", "total") if {"act", "total"} <= have else ("act", "base")
+        frf = m.frf
+        data, keep, inv = {}, {}, {}
+        known = True
+        for ch in channels:
+            if ch == "base" and "base" not in frf.channels and {"act", "total"} <= set(frf.channels):
+                h = frf.total / frf.act
+                va, vt = m.var.get("act"), m.var.get("total")
+                var = None if va is None or vt is None else va + vt
+            elif ch in frf.channels:
+                h = frf.response(ch)
+                var = m.var.get(ch)
+            else:
+                continue
+            if var is None:
+                known = False
+                var = np.full(h.shape, 1e-2)
+                k = np.ones(h.shape, bool)
+            else:
+                k = var <= MAX_VAR
+            keep[ch] = k
+            data[ch] = h[k]
+            inv[ch] = 1.0 / np.sqrt(var[k] / 2.0)
+        if not data:
+            raise ValueError(f"{m.source}: no act or base channel to diagnose (has {', '.join(frf.channels)})")
+        return cls(m.source, frf.freq_hz, data, keep, inv, known, float(m.corr_length), m.amplitude_v)
+
+    def s(self, ch: str) -> np.ndarray:
+        return 2j * np.pi * self.freq_hz[self.keep[ch]]
+
+    @property
+    def n_points(self) -> int:
+        return int(sum(v.size for v in self.data.values()))
+
+
+@dataclass(frozen=True)
+class Baseline:
+    """The model under test: the notebook's structure (refitted per file) or fixed responses per file."""
+
+    structure: ModelStructure | None = None
+    params: tuple[Mapping[str, float], ...] = ()  # per dataset, structure's parameters (start values when free)
+    fixed: tuple[Mapping[str, Mapping[str, np.ndarray]], ...] = ()  # per dataset: channel -> {act, base as it needs} on its usable points
+    label: str = "notebook"
+
+    @property
+    def free(self) -> bool:
+        return self.structure is not None and not self.fixed
+
+    def responses(self, i: int, ds: Dataset, ch: str, x: np.ndarray | None) -> dict[str, np.ndarray]:
+        """act and/or base (as channel ``ch`` needs) at ``ch``'s usable points of dataset ``i``."""
+        need = {"act": ("act",), "base": ("base",), "total": ("act", "base")}[ch]
+        if self.fixed:
+            return {c: self.fixed[i][ch][c] for c in need}
+        w = ds.freq_hz[ds.keep[ch]] * 2 * np.pi
+        return {c: self.structure.log_responses(x, w, (c,), derivatives=False)[c][0] for c in need}
+
+
+@dataclass(frozen=True, eq=False)
+class Fit:
+    """A fitted baseline + effects."""
+
+    baseline: Baseline
+    baseline_params: tuple[dict, ...]  # per dataset (empty for a fixed baseline)
+    baseline_stderr: tuple[dict, ...]
+    effects: tuple[Effect, ...]
+    chi2: float  # sum of squared weighted residuals over all datasets
+    n_residuals: int
+    n_params: int
+    residuals: tuple[dict, ...]  # per dataset: channel -> complex log ratio e (usable points)
+    models: tuple[dict, ...]  # per dataset: channel -> complex model response (usable points)
+
+    @property
+    def dof(self) -> int:
+        return max(self.n_residuals - self.n_params, 1)
+
+
+def _apply(effects: Sequence[tuple[EffectKind, np.ndarray]], base: dict[str, np.ndarray], s_of) -> dict[str, np.ndarray]:
+    out = dict(base)
+    add = None
+    mult = {"act": None, "base": None}
+    for kind, p in effects:
+        m_act, m_base, a_base = None, None, None
+        if "act" in out:
+            m_act, _, _ = kind.response(p, s_of("act"))
+        if "base" in out:
+            _, m_base, a_base = kind.response(p, s_of("base"))
+        if m_act is not None:
+            mult["act"] = m_act if mult["act"] is None else mult["act"] * m_act
+        if m_base is not None:
+            mult["base"] = m_base if mult["base"] is None else mult["base"] * m_base
+        if a_base is not None:
+            add = a_base if add is None else add + a_base
+    if "base" in out and add is not None:
+        out["base"] = out["base"] + add
+    for ch in ("act", "base"):
+        if ch in out and mult[ch] is not None:
+            out[ch] = out[ch] * mult[ch]
+    return out
+
+
+class _Layout:
+    """The optimiser's vector: baseline parameters per dataset (if free), then each effect's."""
+
+    def __init__(self, baseline: Baseline, n_data: int, effects: Sequence[EffectKind], starts_b: Sequence[np.ndarray], starts_e: Sequence[np.ndarray],
+                 free_baseline: bool):
+        self.baseline = baseline
+        self.free_baseline = free_baseline
+        self.effects = list(effects)
+        st = baseline.structure
+        self.nb = len(st.param_names) if (free_baseline and st is not None) else 0
+        self.n_data = n_data
+        self.pos = st.positive if st is not None else np.zeros(0, bool)
+        self.b_scale = [np.where(self.pos, 1.0, np.where(np.abs(b) > 0, np.abs(b), 1.0)) for b in starts_b]
+        self.e_scale = []
+        for kind, e0 in zip(self.effects, starts_e):
+            sc = []
+            for p, v in zip(kind.params, e0):
+                if p.transform == "log":
+                    sc.append(1.0)
+                elif p.name == "delay_s":
+                    sc.append(1e-3)
+                else:
+                    sc.append(abs(v) if v != 0 else 1.0)
+            self.e_scale.append(np.array(sc))
+
+    def to_z(self, xs_b: Sequence[np.ndarray], xs_e: Sequence[np.ndarray]) -> np.ndarray:
+        z = []
+        if self.nb:
+            for x, sc in zip(xs_b, self.b_scale):
+                z.append(np.where(self.pos, np.log(np.where(self.pos, x, 1.0)), x / sc))
+        for kind, x, sc in zip(self.effects, xs_e, self.e_scale):
+            z.append(np.array([np.log(v) if p.transform == "log" else v / s for p, v, s in zip(kind.params, x, sc)]))
+        return np.concatenate(z) if z else np.zeros(0)
+
+    def from_z(self, z: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        xs_b, xs_e = [], []
+        i = 0
+        if self.nb:
+            for sc in self.b_scale:
+                zz = z[i : i + self.nb]
+                xs_b.append(np.where(self.pos, np.exp(np.where(self.pos, zz, 0.0)), zz * sc))
+                i += self.nb
+        for kind, sc in zip(self.effects, self.e_scale):
+            n = len(kind.params)
+            zz = z[i : i + n]
+            xs_e.append(np.array([np.exp(v) if p.transform == "log" else v * s for p, v, s in zip(kind.params, zz, sc)]))
+            i += n
+        return xs_b, xs_e
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lo, hi = [], []
+        if self.nb:
+            for _ in range(self.n_data):
+                lo += [np.log(1e-4) if p else -np.inf for p in self.pos]
+                hi += [np.log(1e6) if p else np.inf for p in self.pos]
+        for kind, sc in zip(self.effects, self.e_scale):
+            for p, s in zip(kind.params, sc):
+                if p.transform == "log":
+                    lo.append(np.log(p.lo))
+                    hi.append(np.log(p.hi))
+                else:
+                    lo.append(p.lo / s)
+                    hi.append(p.hi / s)
+        return np.array(lo), np.array(hi)
+
+
+def _evaluate(datasets, baseline: Baseline, layout: _Layout, z: np.ndarray, fixed_b: Sequence[np.ndarray]):
+    xs_b, xs_e = layout.from_z(z)
+    if not layout.nb:
+        xs_b = list(fixed_b)
+    eff = list(zip(layout.effects, xs_e))
+    models, res = [], []
+    for i, ds in enumerate(datasets):
+        model = {}
+        for ch in ds.data:
+            parts = _apply(eff, baseline.responses(i, ds, ch, xs_b[i] if xs_b else None), lambda _c, ch=ch: ds.s(ch))
+            model[ch] = parts["act"] * parts["base"] if ch == "total" else parts[ch]
+        models.append(model)
+        res.append({ch: np.log(ds.data[ch] / model[ch]) for ch in ds.data})
+    return models, res, xs_b, xs_e
+
+
+def _vector(datasets, res) -> np.ndarray:
+    parts = []
+    for ds, r in zip(datasets, res):
+        for ch, e in r.items():
+            w = ds.inv_sigma[ch]
+            parts.append(e.real * w)
+            parts.append(e.imag * w)
+    return np.concatenate(parts)
+
+
+def fit_model(
+    datasets: Sequence[Dataset],
+    baseline: Baseline,
+    effects: Sequence[tuple[EffectKind, np.ndarray]],
+    *,
+    free_baseline: bool | None = None,
+    start_baseline: Sequence[np.ndarray] | None = None,
+    max_nfev: int = 200,
+) -> Fit:
+    """Fit the effects (and the baseline, if free) to the datasets.
+
+    Parameters
+    ----------
+    effects : sequence of (EffectKind, start values in the kind's parameter order)
+    free_baseline : bool, optional
+        Refit the baseline's parameters (default: when the baseline is a structure, not fixed responses).
+    start_baseline : per-dataset parameter vectors, optional
+        Default: ``baseline.params``.
+    """
+    free = baseline.free if free_baseline is None else (free_baseline and baseline.free)
+    st = baseline.structure
+    xb0 = list(start_baseline) if start_baseline is not None else ([st.vector(p) for p in baseline.params] if st is not None and baseline.params else [])
+    kinds = [k for k, _ in effects]
+    xe0 = [np.clip(np.asarray(v, float), [p.lo for p in k.params], [p.hi for p in k.params]) for k, v in effects]
+    layout = _Layout(baseline, len(datasets), kinds, xb0, xe0, free)
+    z0 = layout.to_z(xb0, xe0)
+    lo, hi = layout.bounds()
+    with np.errstate(invalid="ignore"):
+        z0 = np.clip(z0, np.where(np.isfinite(lo), lo + 1e-9 * (np.abs(lo) + 1), lo), np.where(np.isfinite(hi), hi - 1e-9 * (np.abs(hi) + 1), hi))
+    fixed_b = xb0
+
+    def fun(z):
+        with np.errstate(all="ignore"):
+            _, res, _, _ = _evaluate(datasets, baseline, layout, z, fixed_b)
+            v = _vector(datasets, res)
+        return np.where(np.isfinite(v), v, 1e6)
+
+    if z0.size:
+        sol = least_squares(fun, z0, bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=max_nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10)
+        z, jac = sol.x, sol.jac
+    else:
+        z, jac = z0, np.zeros((0, 0))
+    models, res, xs_b, xs_e = _evaluate(datasets, baseline, layout, z, fixed_b)
+    v = _vector(datasets, res)
+    chi2 = float(v @ v)
+    m, n = v.size, z.size
+    corr = max(ds.corr_length for ds in datasets)
+    # standard errors (transformed space -> values)
+    se_z = np.full(n, np.inf)
+    if n:
+        s2 = chi2 / max(m - n, 1) * corr
+        try:
+            jtj = jac.T @ jac
+            cov = np.linalg.pinv(jtj, rcond=1e-12) * s2
+            se_z = np.sqrt(np.clip(np.diag(cov), 0, None))
+        except np.linalg.LinAlgError:
+            pass
+    b_params, b_se = [], []
+    i = 0
+    if layout.nb:
+        for x, sc in zip(xs_b, layout.b_scale):
+            se = se_z[i : i + layout.nb]
+            b_params.append(st.params(x))
+            b_se.append({name: float(val * s if p else s * c) for name, val, s, p, c in zip(st.param_names, x, se, layout.pos, sc)})
+            i += layout.nb
+    elif st is not None and xs_b:
+        b_params = [st.params(x) for x in xs_b]
+        b_se = [{name: 0.0 for name in st.param_names} for _ in xs_b]
+    out_eff = []
+    for kind, x, sc in zip(layout.effects, xs_e, layout.e_scale):
+        k = len(kind.params)
+        se = se_z[i : i + k]
+        values = {p.name: float(val) for p, val in zip(kind.params, x)}
+        errs = {p.name: float(val * s if p.transform == "log" else s * c) for p, val, s, c in zip(kind.params, x, se, sc)}
+        out_eff.append(Effect(kind, values, errs))
+        i += k
+    return Fit(baseline, tuple(b_params), tuple(b_se), tuple(out_eff), chi2, m, n, tuple(res), tuple(models))
+
+
+def start_params(m, structure: ModelStructure, *, rng_seed: int = 0) -> dict[str, float]:
+    """Baseline parameters to start the weighted fit from: the better (by weighted chi-square, after
+    :func:`fit_model`) of samii's fit of the file and, for the notebook's 3-mode structure, eq 9.4
+    itself in SI (theta in rad: K1 x pi/180, B_k x 180/pi). A swept sine's noisy ends can lead the
+    first into a basin that loses a mode; the notebook's own model rarely is far from a rig like it.
+    """
+    cands = [_fitted_start(m, structure, rng_seed=rng_seed)]
+    if structure == ModelStructure.notebook_3mode():
+        from samii.notebook import EQ9_4
+
+        deg = np.pi / 180.0
+        cands.append({k: (v * deg if k == "K1" else v / deg if k.startswith("B") else v) for k, v in EQ9_4.items() if k in structure.param_names})
+    ds = Dataset.from_measured(m)
+    best = None
+    for p in cands:
+        f = fit_model([ds], Baseline(structure=structure, params=(p,)), [])
+        if best is None or f.chi2 < best.chi2:
+            best = f
+    return dict(best.baseline_params[0])
+
+
+def _fitted_start(m, structure: ModelStructure, *, rng_seed: int = 0) -> dict[str, float]:
+    """The structure fitted to one file by samii's fit (the notebook's cost), each point weighted by its random error.
+
+    The file's variances are passed as the coherence they imply with 3 averages,
+    ``g = 1/(1 + 3 var)``, so that noise-dominated points (a weak xdd at 0.1 Hz)
+    weigh nothing; the result starts the weighted fit of :func:`fit_model`.
+    """
+    from samii.frequency_response import FrequencyResponse
+    from samii.identify.fit import fit
+
+    frf = m.frf
+    kw = {}
+    for ch in frf.channels:
+        kw[ch] = frf.response(ch)
+        var = m.var.get(ch)
+        kw[f"{ch}_coh"] = np.ones(frf.freq_hz.size) if var is None else 1.0 / (1.0 + 3.0 * np.minimum(var, 1e6))
+    data = FrequencyResponse(frf.freq_hz, metadata={}, **kw)
+    weighted = all(m.var.get(ch) is not None for ch in frf.channels)
+    res = fit(data, structure, phase_weight=0.1, weighting="coherence" if weighted else "none", rng=np.random.default_rng(rng_seed), n_averages=3)
+    return dict(res.params)

@@ -1,0 +1,255 @@
+"""Forward selection of effects, each kept only when an F-test says the data need it.
+
+Rule (stated in every report): an effect is added when its F statistic,
+
+    F = ((chi2_without - chi2_with) / dp) / (chi2_with / (m - p_with)) / L,
+
+exceeds the ``1 - alpha/K`` quantile of F(dp, m - p_with): ``dp`` its
+parameters, ``m`` the weighted residuals, ``L`` the noise's correlation length
+(:mod:`samii.diagnose.measured`), ``K`` the kinds tried in that round
+(Bonferroni: the chance that any of them passes on noise alone stays
+``alpha``), ``alpha = ALPHA``. The test uses the measured noise only for the
+relative weights of the points; its level comes from the richer model's
+residual, so an error in the noise level does not make effects appear.
+
+Each round tries every kind of the library from several starts: the effect
+alone is first fitted with the current model held (cheap), the best start then
+refitted jointly with everything else. The kind with the smallest p-value
+joins, and the rounds go on until none passes (at most ``MAX_EFFECTS``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from samii.diagnose.effects import TWO_PI, EffectKind
+from samii.diagnose.model import Baseline, Dataset, Fit, fit_model
+
+__all__ = ["ALPHA", "Step", "forward_select", "starts_for"]
+
+#: Family-wise false-alarm rate of one round of the forward selection.
+ALPHA = 1e-3
+#: Effects a diagnosis adds at most.
+MAX_EFFECTS = 4
+#: Starts refitted jointly per kind.
+JOINT_STARTS = 2
+
+
+@dataclass(frozen=True)
+class Step:
+    """One accepted effect: the test that admitted it."""
+
+    label: str
+    f_stat: float
+    dof: tuple[int, int]
+    log10_p: float
+    chi2_before: float
+    chi2_after: float
+
+
+def _peaks(ds_list: list[Dataset], fit: Fit, ch: str, n: int = 3) -> list[float]:
+    """Frequencies [Hz] of the largest smoothed weighted residuals of channel ``ch``."""
+    out = []
+    for ds, res in zip(ds_list, fit.residuals):
+        if ch not in res:
+            continue
+        e = np.abs(res[ch]) * ds.inv_sigma[ch]
+        f = ds.freq_hz[ds.keep[ch]]
+        if e.size < 3:
+            continue
+        sm = np.convolve(e**2, np.ones(5) / 5, mode="same")
+        order = np.argsort(sm)[::-1]
+        for i in order:
+            if all(abs(np.log(f[i] / g)) > 0.15 for g in out):
+                out.append(float(f[i]))
+            if len(out) >= n:
+                break
+    return out
+
+
+def _phase_slope_delay(ds_list: list[Dataset], fit: Fit, ch: str) -> float | None:
+    """Delay [s] from the slope of the phase residual of ``ch`` against angular frequency (weighted)."""
+    num = den = 0.0
+    for ds, res in zip(ds_list, fit.residuals):
+        if ch not in res:
+            continue
+        w = TWO_PI * ds.freq_hz[ds.keep[ch]]
+        wt = ds.inv_sigma[ch] ** 2
+        num += float(np.sum(wt * w * -res[ch].imag))
+        den += float(np.sum(wt * w * w))
+    return num / den if den > 0 else None
+
+
+def starts_for(kind: EffectKind, ds_list: list[Dataset], fit: Fit) -> list[np.ndarray]:
+    """Start values of ``kind``'s parameters, read off the current residual where the physics allows."""
+    k = kind.kind
+    if kind.category == "delay":
+        ch = "act" if k != "accel_sensor" else ("base" if "base" in ds_list[0].data else "total")
+        cands = [5e-4, 2e-3, 8e-3]
+        d = _phase_slope_delay(ds_list, fit, ch)
+        if d is not None and 0 < d < 0.05:
+            cands.insert(0, d)
+        return [np.array([c]) for c in cands]
+    if k == "base_mode":
+        r0 = _residue_scale(fit)
+        starts = []
+        for f in _peaks(ds_list, fit, "total" if "total" in ds_list[0].data else "base"):
+            for sign in (1.0, -1.0):
+                starts.append(np.array([f, 0.02, sign * r0]))
+        return starts
+    if k == "act_mode":
+        starts = []
+        for f in _peaks(ds_list, fit, "act"):
+            for r in (1.03, 1 / 1.03):
+                starts.append(np.array([f * r, 0.02, f / r, 0.02]))
+        return starts
+    if k in ("accel_lowpass", "accel_lowpass2"):
+        return [np.array([c]) for c in (8.0, 25.0, 80.0, 300.0)]
+    if k == "accel_highpass":
+        return [np.array([c]) for c in (0.02, 0.1, 0.5, 2.0)]
+    if k == "accel_gain":
+        return [np.array([1.0])]
+    if k == "pole_zero":
+        return [np.array(c) for c in ((3.0, 6.0), (6.0, 3.0), (15.0, 30.0), (30.0, 15.0))]
+    if k == "valve":
+        return [np.array(c) for c in ((30.0, 0.7), (80.0, 0.7), (200.0, 0.7))]
+    raise ValueError(f"no starts for {kind.label}")
+
+
+def _residue_scale(fit: Fit) -> float:
+    """A start for a mode's residue: a tenth of the baseline's largest gain B_k (the optimiser finds sign and size)."""
+    gains = [abs(v) for p in fit.baseline_params for k, v in p.items() if k.startswith("B") and np.isfinite(v)]
+    return 0.1 * max(gains) if gains else 1e-2
+
+
+def _f_test(before: Fit, after: Fit, corr: float) -> tuple[float, tuple[int, int], float]:
+    dp = after.n_params - before.n_params
+    dof2 = max(after.n_residuals - after.n_params, 1)
+    if dp <= 0 or after.chi2 <= 0:
+        return 0.0, (max(dp, 1), dof2), 0.0
+    f = (before.chi2 - after.chi2) / dp / (after.chi2 / dof2) / corr
+    if f <= 0:
+        return float(f), (dp, dof2), 0.0
+    return float(f), (dp, dof2), float(stats.f.logsf(f, dp, dof2) / np.log(10))
+
+
+def _with(fit: Fit, extra: list[tuple[EffectKind, np.ndarray]]) -> list[tuple[EffectKind, np.ndarray]]:
+    cur = [(e.kind, np.array([e.values[p.name] for p in e.kind.params])) for e in fit.effects]
+    return cur + extra
+
+
+def _baseline_vectors(fit: Fit) -> list[np.ndarray] | None:
+    st = fit.baseline.structure
+    if st is None or not fit.baseline_params:
+        return None
+    return [st.vector(p) for p in fit.baseline_params]
+
+
+def _mode_freqs_hz(fit: Fit) -> list[float]:
+    st = fit.baseline.structure
+    out = []
+    if st is None:
+        return out
+    for p in fit.baseline_params:
+        for k in range(1, st.n_modes + 1):
+            wn, _ = st.mode_names(k)
+            out.append(p[wn] / TWO_PI)
+    return out
+
+
+def _duplicate_mode(fit: Fit) -> bool:
+    """The last effect is an extra base mode within 5 % of a mode the baseline has."""
+    e = fit.effects[-1]
+    if e.kind.kind != "base_mode":
+        return False
+    return any(abs(np.log(e.values["freq_hz"] / f)) < 0.05 for f in _mode_freqs_hz(fit))
+
+
+def _backward(ds_list, baseline, fit: Fit, corr: float, level: float, steps: list, reference: Fit | None = None) -> Fit:
+    """Drop earlier effects that the newest one has made unnecessary (their removal passes the F-test)."""
+    changed = True
+    while changed and len(fit.effects) > 1:
+        changed = False
+        for i in range(len(fit.effects) - 1):
+            rest = [e for j, e in enumerate(fit.effects) if j != i]
+            x_e = [(e.kind, np.array([e.values[p.name] for p in e.kind.params])) for e in rest]
+            without = fit_model(ds_list, baseline, x_e, start_baseline=_baseline_vectors(fit))
+            if reference is not None and baseline.free:  # the baseline may have parked a mode the dropped effect took over
+                again = fit_model(ds_list, baseline, x_e, start_baseline=_baseline_vectors(reference))
+                if again.chi2 < without.chi2:
+                    without = again
+            _, _, logp = _f_test(without, fit, corr)
+            if logp >= level:
+                steps.append(Step(f"removed {fit.effects[i].kind.label}", 0.0, (0, 0), logp, fit.chi2, without.chi2))
+                fit = without
+                changed = True
+                break
+    return fit
+
+
+def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[EffectKind], *, alpha: float = ALPHA,
+                   max_effects: int = MAX_EFFECTS, progress=None) -> tuple[Fit, Fit, list[Step], list[dict]]:
+    """Select effects from ``kinds`` (module docstring).
+
+    Returns (baseline fit, final fit, accepted steps, every candidate of every round as a record for the report).
+    """
+    corr = max(ds.corr_length for ds in ds_list)
+    base_fit = fit_model(ds_list, baseline, [])
+    current = base_fit
+    steps: list[Step] = []
+    tried: list[dict] = []
+    for _round in range(max_effects):
+        # an extra mode may join more than once; every other kind once
+        used = {e.kind.label for e in current.effects}
+        pool = [k for k in kinds if k.category == "extra_mode" or k.label not in used]
+        if not pool:
+            break
+        level = np.log10(alpha / len(pool))
+        candidates = []
+        for kind in pool:
+            starts = starts_for(kind, ds_list, current)
+            if not starts:
+                continue
+            held = []
+            for x0 in starts:
+                f = fit_model(ds_list, baseline, _with(current, [(kind, x0)]), free_baseline=False, start_baseline=_baseline_vectors(current), max_nfev=60)
+                held.append((f.chi2, f))
+            held.sort(key=lambda t: t[0])
+            cand = None
+            for _, f in held[:JOINT_STARTS]:
+                x_e = [np.array([e.values[p.name] for p in e.kind.params]) for e in f.effects]
+                joint = fit_model(ds_list, baseline, list(zip([e.kind for e in f.effects], x_e)), start_baseline=_baseline_vectors(current))
+                if cand is None or joint.chi2 < cand.chi2:
+                    cand = joint
+            # the candidate's refit may have found a better baseline than the current one: the
+            # test credits the effect only with what the baseline alone, started there, cannot do
+            alone = fit_model(ds_list, baseline, _with(current, []), start_baseline=_baseline_vectors(cand))
+            if alone.chi2 < current.chi2:
+                current = alone
+            fstat, dof, logp = _f_test(current, cand, corr)
+            eff = cand.effects[-1]
+            dup = _duplicate_mode(cand)
+            if dup:
+                logp = 0.0  # not a new mode: one the baseline has, split in two
+            tried.append({"round": _round + 1, "effect": kind.label, "params": dict(eff.values), "chi2": cand.chi2, "F": fstat,
+                          "dof": list(dof), "log10_p": logp, "threshold_log10_p": float(level)})
+            if progress:
+                progress(kind.label)
+            # smallest p-value first; beyond 1e-300 (where F's tail underflows) the smallest BIC on the
+            # noise scale of the richer model: chi2/s^2 + p ln m
+            s2 = cand.chi2 / cand.dof
+            key = (max(logp, -300.0), cand.chi2 / s2 + cand.n_params * np.log(cand.n_residuals) if logp <= -300 else 0.0)
+            if logp < level:
+                candidates.append((key, logp, fstat, dof, cand, kind))
+        if not candidates:
+            break
+        if any(c[0][0] <= -300 for c in candidates):  # compare BICs on one noise scale: the best candidate's
+            s2 = min(c[4].chi2 / c[4].dof for c in candidates)
+            candidates = [((max(c[1], -300.0), c[4].chi2 / s2 + c[4].n_params * np.log(c[4].n_residuals)), *c[1:]) for c in candidates]
+        _, logp, fstat, dof, cand, kind = min(candidates, key=lambda c: c[0])
+        steps.append(Step(kind.label, fstat, dof, logp, current.chi2, cand.chi2))
+        current = _backward(ds_list, baseline, cand, corr, level, steps, reference=base_fit)
+    return base_fit, current, steps, tried

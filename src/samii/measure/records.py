@@ -1,0 +1,214 @@
+"""Where the repetitions of an excitation lie in a record, read off the excitation itself.
+
+A rig's file often says only ``# excitation: swept sine 0.1-40 Hz, 3 sweeps``:
+no record length, no lead. The frequency-response estimator
+(:func:`samii.measure.frf.estimate_frf`) needs both: the records to average,
+and the rest before each sweep whose mean is the operating point. Both follow
+from ``r``:
+
+* **Repetition length.** The normalised autocorrelation of ``r``,
+  ``rho(tau) = sum r[n] r[n+tau] / sqrt(E_head(tau) E_tail(tau))`` (energies of the two
+  overlapping parts), is +-1 at a whole repetition and small elsewhere (a sweep
+  does not resemble itself shifted). The first lag where ``|rho| >= 0.9``,
+  with enough overlap, is the repetition (sign-alternating repetitions give -1);
+  its multiples refine it to a fraction of a sample (parabolic peak of ``|rho|``
+  at the largest multiple, divided by the multiple). Sweeps up or down, with or
+  without rest between them, are found alike.
+* **Where a record starts.** ``r^2`` folded modulo the repetition shows the quiet
+  arc (rest) and the active arc. A record starts a little before the sweep's
+  onset: a quarter of the rest, or what the file holds before its first onset
+  if that is less; that part is each record's operating point (``baseline_s``).
+  With no rest (sweeps back to back) a record starts where ``r`` is quietest and
+  no operating point is subtracted.
+
+A stated ``# record_s:`` is used as given (and checked against the data's own
+repetition); the start and the operating point are still read off ``r``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.fft
+
+__all__ = ["RecordLayout", "find_records"]
+
+#: |rho| above which a lag counts as a repetition.
+_MIN_CORRELATION = 0.9
+#: Both overlapping parts must hold this fraction of r's energy (a short overlap can correlate by chance).
+_MIN_OVERLAP_ENERGY = 0.2
+#: Shortest repetition considered [s]: a sweep down to 0.1 Hz lasts tens of seconds; 0.5 s leaves room for fast rigs.
+_MIN_RECORD_S = 0.5
+#: r^2 below this fraction of its largest folded value is rest (-40 dB in amplitude).
+_QUIET = 1e-4
+#: Rest shorter than this fraction of a record: the repetitions run back to back.
+_MIN_REST_FRACTION = 0.01
+
+
+@dataclass(frozen=True)
+class RecordLayout:
+    """Repetitions of the excitation in a time series.
+
+    Attributes
+    ----------
+    record_s : float
+        Length of one repetition [s].
+    start_s : float
+        Start of the first whole record, from the first sample [s].
+    n_records : int
+        Whole records from ``start_s``.
+    baseline_s : float
+        Rest at the start of every record, before the sweep's onset [s]: its mean is the operating point.
+    rest_s : float
+        Length of the rest between sweeps [s] (0: back to back).
+    how : str
+        Where ``record_s`` came from (stated or found) and how well the repetitions match.
+    """
+
+    record_s: float
+    start_s: float
+    n_records: int
+    baseline_s: float
+    rest_s: float
+    how: str
+
+
+def _normalised_autocorrelation(r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rho(tau), overlap fraction min(E_head, E_tail)/E) for tau = 0 ... n-1."""
+    n = r.size
+    nfft = scipy.fft.next_fast_len(2 * n, real=True)
+    spec = scipy.fft.rfft(r, nfft)
+    ac = scipy.fft.irfft(spec * np.conj(spec), nfft)[:n]
+    e = np.concatenate([[0.0], np.cumsum(r * r)])
+    total = e[-1]
+    tau = np.arange(n)
+    head = e[n - tau]  # sum of r[0 : n - tau]^2
+    tail = total - e[tau]  # sum of r[tau : n]^2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rho = ac / np.sqrt(head * tail)
+    overlap = np.minimum(head, tail) / total
+    return np.nan_to_num(rho), overlap
+
+
+def _peak(y: np.ndarray, i: int) -> float:
+    """Sub-sample position of the maximum of ``y`` near index ``i`` (parabola through three points)."""
+    i = int(np.clip(i, 1, y.size - 2))
+    i = i - 1 + int(np.argmax(y[i - 1 : i + 2]))
+    i = int(np.clip(i, 1, y.size - 2))
+    a, b, c = y[i - 1], y[i], y[i + 1]
+    den = a - 2 * b + c
+    return float(i + (0.5 * (a - c) / den if den < 0 else 0.0))
+
+
+def _repetition(r: np.ndarray, fs: float, where: str) -> tuple[float, float]:
+    """(repetition length [samples, fractional], |rho| at it) found from the autocorrelation of ``r``."""
+    rho, overlap = _normalised_autocorrelation(r)
+    a = np.abs(rho)
+    ok = (overlap >= _MIN_OVERLAP_ENERGY) & (np.arange(r.size) >= _MIN_RECORD_S * fs)
+    cand = np.flatnonzero(ok & (a >= _MIN_CORRELATION))
+    if cand.size == 0:
+        best = float(np.max(a[ok])) if np.any(ok) else 0.0
+        raise ValueError(
+            f"{where}: the excitation r does not repeat (largest correlation of r with itself shifted is {best:.2f}, "
+            f"a repetition needs {_MIN_CORRELATION}); give the length of one repetition with # record_s: (or --record-s), "
+            "or record at least two repetitions"
+        )
+    # the first run of lags above the threshold holds the first repetition; its peak is the lag
+    first = cand[0]
+    run_end = first
+    while run_end + 1 < r.size and ok[run_end + 1] and a[run_end + 1] >= _MIN_CORRELATION:
+        run_end += 1
+    t0 = _peak(a, first + int(np.argmax(a[first : run_end + 1])))
+    # refine on the largest multiple that still overlaps enough
+    k_best, t_best = 1, t0
+    k = 2
+    while True:
+        i = int(round(k * t0))
+        if i + 1 >= r.size or not ok[i] or a[i] < _MIN_CORRELATION:
+            break
+        k_best, t_best = k, _peak(a, i)
+        k += 1
+    return t_best / k_best, float(a[int(round(t0))])
+
+
+def _whole_records(n_samples: int, start: float, period: float) -> int:
+    """Records of ``floor(period)`` samples starting at ``start + round(k period)`` that fit in ``n_samples``
+    (as :func:`samii.measure.frf.split_records` cuts them)."""
+    s0 = int(round(start))
+    k = int(np.floor((n_samples - s0) / period)) + 1
+    while k > 0 and s0 + int(round((k - 1) * period)) + int(np.floor(period)) > n_samples:
+        k -= 1
+    return k
+
+
+def find_records(r: np.ndarray, sample_rate_hz: float, *, record_s: float | None = None, where: str = "r") -> RecordLayout:
+    """Find the repetitions of the excitation ``r`` (module docstring).
+
+    Parameters
+    ----------
+    r : array
+        Excitation samples [V].
+    sample_rate_hz : float
+    record_s : float, optional
+        Stated repetition length [s]; found from ``r`` when not given.
+    where : str
+        Names the data in error messages (e.g. the file).
+
+    Raises
+    ------
+    ValueError
+        ``r`` is zero, does not repeat, or holds less than one whole repetition.
+    """
+    r = np.asarray(r, float)
+    fs = float(sample_rate_hz)
+    if r.size < 4 or not np.any(r != 0):
+        raise ValueError(f"{where}: the excitation r is zero throughout: there is nothing to estimate a frequency response from")
+    if record_s is None:
+        period, rho = _repetition(r, fs, where)
+        how = f"found from r: repetition {period / fs:.6g} s (correlation {rho:.4f} between repetitions)"
+    else:
+        if not (np.isfinite(record_s) and record_s > 0):
+            raise ValueError(f"{where}: record_s must be a positive number of seconds, got {record_s!r}")
+        period = float(record_s) * fs
+        if period > r.size * (1 + 1e-9):
+            raise ValueError(f"{where}: record_s {record_s:.6g} s is longer than the data ({r.size / fs:.6g} s)")
+        how = f"stated: record_s {record_s:.6g} s"
+    n_bins = max(int(np.floor(period)), 2)
+    # fold r^2 over the repetition; phase bins of one sample
+    phase = np.floor(np.mod(np.arange(r.size), period)).astype(int)
+    phase = np.minimum(phase, n_bins - 1)
+    folded = np.bincount(phase, weights=r * r, minlength=n_bins) / np.maximum(np.bincount(phase, minlength=n_bins), 1)
+    quiet = folded <= _QUIET * folded.max()
+    # longest circular run of quiet bins
+    if quiet.all():
+        raise ValueError(f"{where}: the excitation r is too weak to tell its repetitions apart")
+    shift = int(np.flatnonzero(~quiet)[0])  # rotate so that the sequence starts active
+    q = np.roll(quiet, -shift)
+    best_len, best_end = 0, 0
+    run = 0
+    for i, v in enumerate(q):
+        run = run + 1 if v else 0
+        if run > best_len:
+            best_len, best_end = run, i
+    rest = best_len / fs
+    if best_len < _MIN_REST_FRACTION * period:
+        # back to back: start where r is quiet (within 30 dB of its quietest, smoothed over 51 samples),
+        # at the phase that leaves the most whole records; no operating point is subtracted
+        smooth = np.convolve(np.concatenate([folded[-25:], folded, folded[:25]]), np.ones(51) / 51, mode="valid")
+        cand = np.flatnonzero(smooth <= max(10.0 * smooth.min(), 1e-3 * smooth.max()))
+        counts = np.array([_whole_records(r.size, float(c), period) for c in cand])
+        best = cand[counts == counts.max()]
+        start = float(best[np.argmin(smooth[best])])
+        baseline = 0.0
+        rest = 0.0
+    else:
+        onset = float((best_end + 1 + shift) % n_bins)  # first active bin after the rest
+        lead_in_file = onset  # rest the file holds before its first onset
+        margin = min(0.25 * best_len, lead_in_file)
+        start = onset - margin
+        baseline = 0.9 * margin / fs  # stops short of the onset: r is below -40 dB there, not zero
+    n_records = _whole_records(r.size, start, period)
+    if n_records < 1:
+        raise ValueError(f"{where}: the data ({r.size / fs:.6g} s) hold no whole repetition of {period / fs:.6g} s")
+    return RecordLayout(record_s=period / fs, start_s=start / fs, n_records=n_records, baseline_s=baseline, rest_s=rest, how=how)
