@@ -93,7 +93,9 @@ def test_record_spread_predicts_the_error(sweep):
 def test_clean_data_nothing_missing(sweep, seed):
     _, (base, final, steps, tried) = _diagnose(sweep, seed=seed)
     assert final.effects == ()
-    assert base.chi2 / base.dof < 1.6  # the right model fits to the noise
+    # the right model fits to the noise: chi2/dof 1.16-1.26 over seeds 3-5, above 1 because inverse variances
+    # estimated from 3 records are biased high (E[1/s^2] > 1/sigma^2)
+    assert base.chi2 / base.dof < 1.6
 
 
 def test_command_delay_found(sweep):

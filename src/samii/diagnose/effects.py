@@ -86,9 +86,6 @@ class Effect:
     values: dict
     stderr: dict
 
-    def response(self, s: np.ndarray):
-        return self.kind.response(np.array([self.values[p.name] for p in self.kind.params]), s)
-
 
 def _second_order(s, f_hz, zeta):
     w = TWO_PI * f_hz

@@ -27,14 +27,15 @@ of it). Where it comes from, best first:
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Mapping
 
 import numpy as np
 
 from samii.frequency_response import FrequencyResponse
-from samii.measure.frf import record_spectra, record_weights
+from samii.identify.lack_of_fit import averages_from_metadata
+from samii.measure.frf import CHANNEL_PAIRS, estimate_frf, record_spectra, record_weights
 from samii.measure.records import RecordLayout, find_records
 from samii.measure.timeseries import TimeSeries
 
@@ -44,7 +45,6 @@ __all__ = ["Measured", "from_timeseries", "from_frf", "POOL", "timeseries_frf"]
 POOL = 9
 #: Averages assumed behind a coherence when a file does not say.
 DEFAULT_AVERAGES = 3
-_PAIRS = {"act": ("theta", "v"), "base": ("accel", "theta"), "total": ("accel", "v")}
 
 
 @dataclass(frozen=True, eq=False)
@@ -80,7 +80,6 @@ class Measured:
     sample_rate_hz: float | None = None
     timeseries: TimeSeries | None = None
     layout: RecordLayout | None = None
-    notes: tuple[str, ...] = field(default_factory=tuple)
 
 
 def _float_meta(meta: Mapping[str, str], key: str) -> float | None:
@@ -118,7 +117,7 @@ def _corr_length(dev: np.ndarray) -> float:
 
 
 def timeseries_frf(ts: TimeSeries, layout: RecordLayout, *, band_hz: tuple[float, float]) -> tuple[FrequencyResponse, dict[str, np.ndarray | None], float, str]:
-    """Closed-loop FRF of ``ts`` cut as ``layout`` says, with the record-to-record variance of every point.
+    """Closed-loop FRF of ``ts`` cut as ``layout`` says (:func:`estimate_frf`), with the record-to-record variance of every point.
 
     Returns (frf, var per channel, corr_length, how the noise was estimated).
     """
@@ -127,40 +126,25 @@ def timeseries_frf(ts: TimeSeries, layout: RecordLayout, *, band_hz: tuple[float
     n = int(round((layout.n_records - 1) * layout.record_s * fs)) + int(np.floor(layout.record_s * fs))
     cols = {k: v[i0 : i0 + n] for k, v in ts.columns().items() if k in ("t", "v", "theta", "accel", "r")}
     cut = TimeSeries(**cols, metadata=ts.metadata)
-    spectra, freqs, grid, n_records, n_rec = record_spectra(cut, record_s=layout.record_s, baseline_s=layout.baseline_s, band_hz=band_hz)
-    w, weighting = record_weights(spectra.pop("_r_time"))
-    spectra.pop("_r_energy")
-    R = spectra["r"]
-    cross = {k: np.sum(w[:, None] * np.conj(R) * spectra[k], axis=0) for k in ("v", "theta", "accel")}
-    kw, var = {}, {}
-    devs = []
-    for ch, (num, den) in _PAIRS.items():
-        h = cross[num] / cross[den]
-        kw[ch] = h
-        if n_records < 2:
-            var[ch] = None
-            continue
-        share = w[:, None] * np.conj(R) * spectra[den]
-        c = share / np.sum(share, axis=0)
+    frf = estimate_frf(cut, record_s=layout.record_s, baseline_s=layout.baseline_s, band_hz=band_hz)
+    frf = replace(frf, metadata={**frf.metadata, "frf_layout": f"records from t = {layout.start_s:.6g} s; {layout.how}"})
+    rs = record_spectra(cut, record_s=layout.record_s, baseline_s=layout.baseline_s, band_hz=band_hz)
+    n_records = rs.n_records
+    if n_records < 2:
+        return frf, dict.fromkeys(CHANNEL_PAIRS), 1.0, "unknown (one record: no spread, no coherence)"
+    w = record_weights(rs.r_records)[0][:, None]
+    R = rs.spectra["r"]
+    var, devs = {}, []
+    for ch, (num, den) in CHANNEL_PAIRS.items():
+        share = w * np.conj(R) * rs.spectra[den]
+        c = share / np.sum(share, axis=0)  # each record's share of the estimate's denominator
         with np.errstate(divide="ignore", invalid="ignore"):
-            hk = spectra[num] / spectra[den]
-            d = np.nan_to_num(hk / h - 1.0)
-        raw = np.sum(np.abs(c) ** 2 * np.abs(d) ** 2, axis=0) * n_records / (n_records - 1)
-        var[ch] = np.maximum(_pool(raw), 1e-30)
+            d = np.nan_to_num(rs.spectra[num] / rs.spectra[den] / frf.response(ch) - 1.0)
+        var[ch] = np.maximum(_pool(np.sum(np.abs(c) ** 2 * np.abs(d) ** 2, axis=0) * n_records / (n_records - 1)), 1e-30)
         if ch != "total":
             devs.append(d / np.sqrt(np.maximum(_pool(np.mean(np.abs(d) ** 2, axis=0)), 1e-30)))
-    corr = _corr_length(np.vstack(devs)) if devs else 1.0
-    how = (f"record-to-record spread of {n_records} records, pooled over {POOL} neighbouring points" if n_records >= 2
-           else "unknown (one record: no spread, no coherence)")
-    meta = dict(ts.metadata)
-    meta.update({
-        "frf_estimator": "instrument variable, excitation r: act=S_r,theta/S_r,v base=S_r,accel/S_r,theta total=S_r,accel/S_r,v",
-        "frf_records": f"{n_records} records of {layout.record_s:.6g} s from t = {layout.start_s:.6g} s ({layout.how})",
-        "frf_record_weights": weighting,
-        "frf_window": f"rectangular over each whole record; operating point = mean of the first {layout.baseline_s:.6g} s of each record, subtracted",
-        "frf_grid": grid,
-    })
-    return FrequencyResponse(freqs, metadata=meta, **kw), var, corr, how
+    how = f"record-to-record spread of {n_records} records, pooled over {POOL} neighbouring points"
+    return frf, var, _corr_length(np.vstack(devs)), how
 
 
 def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float] | None = None, record_s: float | None = None) -> Measured:
@@ -184,14 +168,8 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
 def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
     """An FRF file: the error of each point from its coherence, if it has one."""
     meta = frf.metadata
-    n = None
-    for key in ("frf_records", "averages", "records"):
-        if key in meta:
-            n = _float_meta(meta, key)
-            if n is not None and n >= 1:
-                break
-    notes = []
-    if n is None or n < 1:
+    n = averages_from_metadata(meta)
+    if n is None:
         n = DEFAULT_AVERAGES
         averages = f"{DEFAULT_AVERAGES} averages assumed (the file does not say; the rig's, notebook ch. 9)"
     else:
@@ -209,29 +187,19 @@ def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
     how = f"coherence of {', '.join(have)} ({averages})" if have else "unknown (no coherence in the file)"
     sr = _float_meta(meta, "sample_rate_hz")
     amp = _float_meta(meta, "amplitude_v")
-    return Measured(source=source, frf=frf, var=var, noise_source=how, amplitude_v=amp, sample_rate_hz=sr, notes=tuple(notes))
+    return Measured(source=source, frf=frf, var=var, noise_source=how, amplitude_v=amp, sample_rate_hz=sr)
 
 
 def load(path, *, band_hz: tuple[float, float] | None = None, record_s: float | None = None,
          mat_freq_name: str | None = None, mat_freq_unit: str = "hz") -> Measured:
     """Read a time-series CSV, an FRF CSV or a rig-era .mat file (chosen by content) as :class:`Measured`."""
-    from samii.measure.io import DataFormatError, read_frf_csv, read_mat_bode, read_timeseries_csv
+    from samii.measure.io import DataFormatError, csv_header, is_mat_file, read_frf_csv, read_mat_bode, read_timeseries_csv
 
     path = Path(path)
     source = str(path)
-    head = b""
-    if path.is_file():
-        with open(path, "rb") as fh:
-            head = fh.read(65536)
-    if path.suffix.lower() == ".mat" or head[:6] == b"MATLAB":
-        frf = read_mat_bode(path, freq_name=mat_freq_name, freq_unit=mat_freq_unit)
-        return from_frf(frf, source=source)
-    header = []
-    for line in head.decode("utf-8", errors="replace").lstrip("\ufeff").splitlines():
-        line = line.strip()
-        if line and not line.startswith("#"):
-            header = [c.strip() for c in line.split(",")]
-            break
+    if is_mat_file(path):
+        return from_frf(read_mat_bode(path, freq_name=mat_freq_name, freq_unit=mat_freq_unit), source=source)
+    header = csv_header(path)
     if "t" in header and "freq_hz" not in header:
         ts = read_timeseries_csv(path)
         try:

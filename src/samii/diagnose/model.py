@@ -124,27 +124,23 @@ class Fit:
     chi2: float  # sum of squared weighted residuals over all datasets
     n_residuals: int
     n_params: int
-    residuals: tuple[dict, ...]  # per dataset: channel -> complex log ratio e (usable points)
-    models: tuple[dict, ...]  # per dataset: channel -> complex model response (usable points)
+    residuals: tuple[dict, ...]  # per dataset: channel -> complex log ratio e = ln(data/model) (usable points)
 
     @property
     def dof(self) -> int:
         return max(self.n_residuals - self.n_params, 1)
 
 
-def _apply(effects: Sequence[tuple[EffectKind, np.ndarray]], base: dict[str, np.ndarray], s_of) -> dict[str, np.ndarray]:
+def _apply(effects: Sequence[tuple[EffectKind, np.ndarray]], base: dict[str, np.ndarray], s: np.ndarray) -> dict[str, np.ndarray]:
+    """The baseline's act and/or base at the points ``s`` with the effects applied (module docstring of effects)."""
     out = dict(base)
     add = None
     mult = {"act": None, "base": None}
     for kind, p in effects:
-        m_act, m_base, a_base = None, None, None
-        if "act" in out:
-            m_act, _, _ = kind.response(p, s_of("act"))
-        if "base" in out:
-            _, m_base, a_base = kind.response(p, s_of("base"))
-        if m_act is not None:
+        m_act, m_base, a_base = kind.response(p, s)
+        if m_act is not None and "act" in out:
             mult["act"] = m_act if mult["act"] is None else mult["act"] * m_act
-        if m_base is not None:
+        if m_base is not None and "base" in out:
             mult["base"] = m_base if mult["base"] is None else mult["base"] * m_base
         if a_base is not None:
             add = a_base if add is None else add + a_base
@@ -227,15 +223,15 @@ def _evaluate(datasets, baseline: Baseline, layout: _Layout, z: np.ndarray, fixe
     if not layout.nb:
         xs_b = list(fixed_b)
     eff = list(zip(layout.effects, xs_e))
-    models, res = [], []
+    res = []
     for i, ds in enumerate(datasets):
-        model = {}
+        r = {}
         for ch in ds.data:
-            parts = _apply(eff, baseline.responses(i, ds, ch, xs_b[i] if xs_b else None), lambda _c, ch=ch: ds.s(ch))
-            model[ch] = parts["act"] * parts["base"] if ch == "total" else parts[ch]
-        models.append(model)
-        res.append({ch: np.log(ds.data[ch] / model[ch]) for ch in ds.data})
-    return models, res, xs_b, xs_e
+            parts = _apply(eff, baseline.responses(i, ds, ch, xs_b[i] if xs_b else None), ds.s(ch))
+            model = parts["act"] * parts["base"] if ch == "total" else parts[ch]
+            r[ch] = np.log(ds.data[ch] / model)
+        res.append(r)
+    return res, xs_b, xs_e
 
 
 def _vector(datasets, res) -> np.ndarray:
@@ -281,7 +277,7 @@ def fit_model(
 
     def fun(z):
         with np.errstate(all="ignore"):
-            _, res, _, _ = _evaluate(datasets, baseline, layout, z, fixed_b)
+            res, _, _ = _evaluate(datasets, baseline, layout, z, fixed_b)
             v = _vector(datasets, res)
         return np.where(np.isfinite(v), v, 1e6)
 
@@ -290,7 +286,7 @@ def fit_model(
         z, jac = sol.x, sol.jac
     else:
         z, jac = z0, np.zeros((0, 0))
-    models, res, xs_b, xs_e = _evaluate(datasets, baseline, layout, z, fixed_b)
+    res, xs_b, xs_e = _evaluate(datasets, baseline, layout, z, fixed_b)
     v = _vector(datasets, res)
     chi2 = float(v @ v)
     m, n = v.size, z.size
@@ -324,7 +320,7 @@ def fit_model(
         errs = {p.name: float(val * s if p.transform == "log" else s * c) for p, val, s, c in zip(kind.params, x, se, sc)}
         out_eff.append(Effect(kind, values, errs))
         i += k
-    return Fit(baseline, tuple(b_params), tuple(b_se), tuple(out_eff), chi2, m, n, tuple(res), tuple(models))
+    return Fit(baseline, tuple(b_params), tuple(b_se), tuple(out_eff), chi2, m, n, tuple(res))
 
 
 def start_params(m, structure: ModelStructure, *, rng_seed: int = 0) -> dict[str, float]:

@@ -231,25 +231,22 @@ def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[Effec
                 current = alone
             fstat, dof, logp = _f_test(current, cand, corr)
             eff = cand.effects[-1]
-            dup = _duplicate_mode(cand)
-            if dup:
+            if _duplicate_mode(cand):
                 logp = 0.0  # not a new mode: one the baseline has, split in two
             tried.append({"round": _round + 1, "effect": kind.label, "params": dict(eff.values), "chi2": cand.chi2, "F": fstat,
                           "dof": list(dof), "log10_p": logp, "threshold_log10_p": float(level)})
             if progress:
                 progress(kind.label)
-            # smallest p-value first; beyond 1e-300 (where F's tail underflows) the smallest BIC on the
-            # noise scale of the richer model: chi2/s^2 + p ln m
-            s2 = cand.chi2 / cand.dof
-            key = (max(logp, -300.0), cand.chi2 / s2 + cand.n_params * np.log(cand.n_residuals) if logp <= -300 else 0.0)
             if logp < level:
-                candidates.append((key, logp, fstat, dof, cand, kind))
+                candidates.append((logp, fstat, dof, cand, kind))
         if not candidates:
             break
-        if any(c[0][0] <= -300 for c in candidates):  # compare BICs on one noise scale: the best candidate's
-            s2 = min(c[4].chi2 / c[4].dof for c in candidates)
-            candidates = [((max(c[1], -300.0), c[4].chi2 / s2 + c[4].n_params * np.log(c[4].n_residuals)), *c[1:]) for c in candidates]
-        _, logp, fstat, dof, cand, kind = min(candidates, key=lambda c: c[0])
+        # smallest p-value first; beyond 1e-300 (where F's tail underflows) the smallest BIC,
+        # chi2/s^2 + p ln m, on one noise scale: the best candidate's
+        s2 = min(c[3].chi2 / c[3].dof for c in candidates)
+        logp, fstat, dof, cand, kind = min(
+            candidates, key=lambda c: (max(c[0], -300.0), c[3].chi2 / s2 + c[3].n_params * np.log(c[3].n_residuals) if c[0] <= -300 else 0.0)
+        )
         steps.append(Step(kind.label, fstat, dof, logp, current.chi2, cand.chi2))
         current = _backward(ds_list, baseline, cand, corr, level, steps, reference=base_fit)
     return base_fit, current, steps, tried

@@ -96,32 +96,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 # --------------------------------------------------------------------------- reading the file
 
 
-def _head(path: Path, size: int = 65536) -> bytes:
-    """The first ``size`` bytes of a regular file (never opens a FIFO or a device), else b""."""
-    if not path.is_file():
-        return b""
-    try:
-        with open(path, "rb") as fh:
-            return fh.read(size)
-    except OSError:
-        return b""
-
-
-def _is_mat(path: Path) -> bool:
-    """A .mat suffix, or the header of a MATLAB v5+ file under another name."""
-    return path.suffix.lower() == ".mat" or _head(path, 6) == b"MATLAB"
-
-
-def _csv_header(path: Path) -> list[str]:
-    """Column names of a CSV's header row (the first line neither blank nor a comment), or [] if none is found."""
-    text = _head(path).decode("utf-8", errors="replace")
-    for line in text.splitlines():
-        line = line.strip()
-        if line and not line.startswith("#"):
-            return [c.strip() for c in line.split(",")]
-    return []
-
-
 def _csv_line_of_row(path: Path, row: int) -> int | None:
     """1-based file line of data row ``row`` (0-based) of a CSV read by ``read_frf_csv``."""
     seen_header = False
@@ -143,10 +117,10 @@ def _csv_line_of_row(path: Path, row: int) -> int | None:
 def _read(args):
     """The file as a FrequencyResponse; InputError naming the file for anything a user can fix."""
     from samii.identify.cost import frequency_out_of_range
-    from samii.measure.io import DataFormatError, read_frf_csv, read_mat_bode
+    from samii.measure.io import DataFormatError, csv_header, is_mat_file, read_frf_csv, read_mat_bode
 
     path = Path(args.frf)
-    mat = _is_mat(path)
+    mat = is_mat_file(path)
     if mat:
         try:
             data = read_mat_bode(path, freq_name=args.mat_freq_name, freq_unit=args.mat_freq_unit)
@@ -164,7 +138,7 @@ def _read(args):
         try:
             data = read_frf_csv(path)
         except DataFormatError:
-            header = _csv_header(path)
+            header = csv_header(path)
             if "t" in header and "freq_hz" not in header:
                 shown = ", ".join(header[:6]) + (", ..." if len(header) > 6 else "")
                 raise InputError(f"{path}: this is a time series (columns {shown}), not a frequency response; samii fit expects an FRF: "

@@ -42,13 +42,15 @@ coherence is 1 by construction and is not reported.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import scipy.fft
 
 from samii.frequency_response import FrequencyResponse
 from samii.measure.timeseries import TimeSeries
 
-__all__ = ["estimate_frf", "record_spectra", "split_records", "record_weights", "fourier_at", "log_frequency_grid"]
+__all__ = ["estimate_frf", "record_spectra", "RecordSpectra", "CHANNEL_PAIRS", "split_records", "record_weights", "fourier_at", "log_frequency_grid"]
 
 # Output grid density: 100 points per decade puts >= 2 points inside the
 # half-power band of the lightest-damped base mode (2 zeta = 6 % wide, mode 1, eq 9.4).
@@ -58,6 +60,8 @@ _POINTS_PER_DECADE = 100
 _MIN_EXCITATION = 1e-4
 
 _SIGNALS = ("r", "v", "theta", "accel")
+#: Channel -> (numerator, denominator) signals of its instrument-variable estimate.
+CHANNEL_PAIRS = {"act": ("theta", "v"), "base": ("accel", "theta"), "total": ("accel", "v")}
 
 
 def log_frequency_grid(lo_hz: float, hi_hz: float, points_per_decade: float) -> np.ndarray:
@@ -148,6 +152,32 @@ def fourier_at(x: np.ndarray, freqs_hz: np.ndarray, sample_rate_hz: float) -> np
     return out
 
 
+@dataclass(frozen=True, eq=False)
+class RecordSpectra:
+    """Per-record spectra of one time series.
+
+    Attributes
+    ----------
+    spectra : dict
+        Signal (r, v, theta, accel) -> complex array (n_records, n_freqs).
+    freq_hz : array
+        Output frequencies [Hz].
+    grid : str
+        How the frequencies were chosen.
+    r_records : array (n_records, samples per record)
+        The excitation's records in time (their signs and energy weigh the records).
+    """
+
+    spectra: dict
+    freq_hz: np.ndarray
+    grid: str
+    r_records: np.ndarray
+
+    @property
+    def n_records(self) -> int:
+        return int(self.r_records.shape[0])
+
+
 def record_spectra(
     ts: TimeSeries,
     *,
@@ -157,21 +187,8 @@ def record_spectra(
     freqs_hz=None,
     points_per_decade: float = _POINTS_PER_DECADE,
     pad_factor: int = 2,
-) -> tuple[dict[str, np.ndarray], np.ndarray, str, int, int]:
-    """Spectra of every record of r, v, theta, accel at the output frequencies (see :func:`estimate_frf`).
-
-    Returns
-    -------
-    spectra : dict
-        Signal -> complex array (n_records, n_freqs); also ``"_r_time"`` (the
-        records of r, for :func:`record_weights`) and ``"_r_energy"`` (sum r^2 per record).
-    freqs : array
-        Output frequencies [Hz].
-    grid : str
-        How the frequencies were chosen.
-    n_records, n_samples : int
-        Records, and samples per record.
-    """
+) -> "RecordSpectra":
+    """Spectra of every record of r, v, theta, accel at the output frequencies (see :func:`estimate_frf`)."""
     records, n_records = split_records(ts, record_s=record_s, baseline_s=baseline_s)
     fs = ts.sample_rate_hz
     n_rec = records["r"].shape[1]
@@ -193,9 +210,7 @@ def record_spectra(
         freqs = freqs[order]
         spectra = {k: fourier_at(x, freqs, fs) for k, x in records.items()}
         grid = "direct Fourier sums at the requested frequencies"
-    spectra["_r_time"] = records["r"]
-    spectra["_r_energy"] = np.sum(records["r"] ** 2, axis=1)
-    return spectra, freqs, grid, n_records, n_rec
+    return RecordSpectra(spectra, freqs, grid, records["r"])
 
 
 def estimate_frf(
@@ -245,17 +260,18 @@ def estimate_frf(
         No ``r`` column, data shorter than one record, or a frequency where ``r``
         has no energy (more than 40 dB below its mean spectral level).
     """
-    spectra, freqs, grid, n_records, n_rec = record_spectra(
+    rs = record_spectra(
         ts, record_s=record_s, baseline_s=baseline_s, band_hz=band_hz, freqs_hz=freqs_hz, points_per_decade=points_per_decade, pad_factor=pad_factor
     )
     fs = ts.sample_rate_hz
-    w, weighting = record_weights(spectra.pop("_r_time"), record_signs)
+    spectra, freqs, grid, n_records, n_rec = rs.spectra, rs.freq_hz, rs.grid, rs.n_records, rs.r_records.shape[1]
+    w, weighting = record_weights(rs.r_records, record_signs)
     w = w[:, None]
     R = spectra["r"]
     s_rr = np.sum(w * np.abs(R) ** 2, axis=0)
     # Parseval: the mean of |R(f)|^2 over all frequencies is sum r^2. A sweep puts
     # |R(f)|^2 >~ sum r^2 inside its band (0.1-40 Hz: from 1x at 40 Hz to 3000x at 0.1 Hz).
-    weak = s_rr < _MIN_EXCITATION * np.sum(w[:, 0] * spectra.pop("_r_energy"))
+    weak = s_rr < _MIN_EXCITATION * np.sum(w * rs.r_records**2)
     if np.any(weak):
         raise ValueError(
             f"the excitation r has no energy at {np.round(freqs[weak][:5], 4).tolist()} Hz (more than 40 dB below "
@@ -269,9 +285,8 @@ def estimate_frf(
             with np.errstate(invalid="ignore", divide="ignore"):
                 g = np.abs(cross[k]) ** 2 / (s_rr * s_yy)
             coh[k] = np.clip(np.nan_to_num(g, nan=0.0), 0.0, 1.0)  # y == 0 exactly: no coherent signal
-    pairs = {"act": ("theta", "v"), "base": ("accel", "theta"), "total": ("accel", "v")}
     kw = {}
-    for ch, (num, den) in pairs.items():
+    for ch, (num, den) in CHANNEL_PAIRS.items():
         kw[ch] = cross[num] / cross[den]
         if coh:
             kw[f"{ch}_coh"] = coh[num] * coh[den]

@@ -62,6 +62,9 @@ from samii.measure.timeseries import (
 
 __all__ = [
     "DataFormatError",
+    "csv_header",
+    "file_head",
+    "is_mat_file",
     "MAG_RANGE",
     "MAT_CHANNELS",
     "MAX_ABS_PHASE_DEG",
@@ -555,6 +558,35 @@ def _format_table(metadata: Mapping[str, str], columns: Mapping[str, np.ndarray]
 
 
 # --------------------------------------------------------------------------- time series
+
+
+# --------------------------------------------------------------------------- what a file is
+
+
+def file_head(path: Path, size: int = 65536) -> bytes:
+    """The first ``size`` bytes of a regular file (never opens a FIFO or a device), else b""."""
+    if not path.is_file():
+        return b""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(size)
+    except OSError:
+        return b""
+
+
+def is_mat_file(path: Path) -> bool:
+    """A .mat suffix, or the header of a MATLAB v5+ file under another name."""
+    return path.suffix.lower() == ".mat" or file_head(path, 6) == b"MATLAB"
+
+
+def csv_header(path: Path) -> list[str]:
+    """Column names of a CSV's header row (the first line neither blank nor a comment), or [] if none is found."""
+    text = file_head(path).decode("utf-8", errors="replace").lstrip("\ufeff")
+    for line in text.splitlines():
+        line = line.strip()
+        if line and not line.startswith("#"):
+            return [c.strip() for c in line.split(",")]
+    return []
 
 
 def read_timeseries_csv(path) -> TimeSeries:
