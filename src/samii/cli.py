@@ -18,9 +18,11 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "params": ("samii.sim.cli_params", "list the model parameters --set accepts, with values and units"),
     "measure": ("samii.measure.cli", "swept- or stepped-sine Bode measurement in the simulator"),
     "fit": ("samii.identify.cli", "fit the notebook's transfer-function models to an FRF file"),
+    "frf": ("samii.measure.cli_frf", "closed-loop frequency response of a measured time series (records of r found from the data)"),
     "calibrate": ("samii.calibrate.cli", "calibrate the simulator's physical parameters to FRF data"),
     "design": ("samii.design.cli", "control design: root loci, pole placement, pole cancellation, seed report"),
     "closedloop": ("samii.closedloop.cli", "run a controller in the nonlinear simulator: step, Loper and release tests"),
+    "diagnose": ("samii.diagnose.cli", "find what a model lacks in measured data: delays, modes, sensor and actuator dynamics"),
 }
 
 

@@ -17,8 +17,9 @@ of it). Where it comes from, best first:
   correlated bins next to each other.
 * **Coherence** (an FRF file with ``*_coh``): Bendat & Piersol's
   ``eps^2 = (1 - g)/(2 n g)`` for each of log magnitude and phase, so
-  ``var = 2 eps^2``; ``n`` from the file's ``frf_records`` or ``averages`` line,
-  else 3 (the rig's averages, notebook ch. 9), said so.
+  ``var = 2 eps^2``, pooled over ``POOL`` neighbouring points; ``n`` from the
+  file's ``frf_records`` or ``averages`` line, else 3 (the rig's averages,
+  notebook ch. 9), said so.
 * **Nothing** (no coherence, one record): ``var`` is None; the tests then take the
   noise level from the residual of the richest model (an F-test needs only
   the relative weights, here uniform).
@@ -182,9 +183,12 @@ def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
             var[ch] = None
             continue
         g = np.clip(coh, 1e-6, 1.0 - 1e-12)
-        var[ch] = np.maximum((1.0 - g) / (n * g), 1e-30)  # 2 eps^2, eps^2 = (1 - g)/(2 n g)
+        # 2 eps^2, eps^2 = (1 - g)/(2 n g), pooled as the spread is: a coherence from a few averages scatters
+        # widely (pure noise from 3 averages gives g > 0.57 one time in 5) and alone would give noise-dominated
+        # points a small error; its neighbours' mean of (1 - g)/g does not.
+        var[ch] = np.maximum(_pool((1.0 - g) / (n * g)), 1e-30)
         have.append(ch)
-    how = f"coherence of {', '.join(have)} ({averages})" if have else "unknown (no coherence in the file)"
+    how = f"coherence of {', '.join(have)} ({averages}), pooled over {POOL} neighbouring points" if have else "unknown (no coherence in the file)"
     sr = _float_meta(meta, "sample_rate_hz")
     amp = _float_meta(meta, "amplitude_v")
     return Measured(source=source, frf=frf, var=var, noise_source=how, amplitude_v=amp, sample_rate_hz=sr)

@@ -30,7 +30,7 @@ from scipy.optimize import least_squares
 from samii.diagnose.effects import Effect, EffectKind
 from samii.identify.structures import ModelStructure
 
-__all__ = ["Dataset", "Baseline", "Fit", "fit_model", "MAX_VAR"]
+__all__ = ["Dataset", "Baseline", "Fit", "fit_model", "relabel_modes", "notebook_reference", "MAX_VAR"]
 
 #: Points whose relative random error exceeds this variance (std 0.5: 4 dB, 29 deg) carry no usable
 #: information: there the estimate is dominated by noise and its spread says nothing about its error.
@@ -99,6 +99,9 @@ class Baseline:
     params: tuple[Mapping[str, float], ...] = ()  # per dataset, structure's parameters (start values when free)
     fixed: tuple[Mapping[str, Mapping[str, np.ndarray]], ...] = ()  # per dataset: channel -> {act, base as it needs} on its usable points
     label: str = "notebook"
+    #: The model the user holds (eq 9.4, a saved fit): which of the fitted modes are "the baseline's" and
+    #: which are extra is decided by nearness to its modes (:func:`relabel_modes`). Default: ``params[0]``.
+    reference: Mapping[str, float] | None = None
 
     @property
     def free(self) -> bool:
@@ -323,6 +326,80 @@ def fit_model(
     return Fit(baseline, tuple(b_params), tuple(b_se), tuple(out_eff), chi2, m, n, tuple(res))
 
 
+def relabel_modes(datasets: Sequence[Dataset], fit: Fit) -> Fit:
+    """The same model with its base modes named as the user would: the ones nearest the reference's
+    modes are the baseline's, the others extra.
+
+    A free baseline may move one of its modes onto a mode it lacks and leave its own to an extra
+    ``base_mode`` (the modal sum does not care which term is which): then "an extra mode at 25 Hz" is
+    reported where the rig has an extra mode at 15 Hz and eq 9.4's 25 Hz mode. The terms are swapped
+    (exact for the s^4 modal sum: B s^4/(s^2 + 2 z w s + w^2) either way) and refitted from there, which
+    leaves chi2 unchanged and gives the standard errors their new names. Modes tied to the actuator
+    (mode 2 = wz) stay where they are.
+    """
+    import itertools
+
+    bl = fit.baseline
+    st = bl.structure
+    ref = bl.reference if bl.reference is not None else (bl.params[0] if bl.params else None)
+    extras = [j for j, e in enumerate(fit.effects) if e.kind.kind == "base_mode"]
+    if st is None or not bl.free or st.power != 4 or ref is None or not extras or not fit.baseline_params:
+        return fit
+    free = [k for k in range(1, st.n_modes + 1) if not (k == 2 and st.tie_mode2)]
+    two_pi = 2.0 * np.pi
+    p0 = fit.baseline_params[0]
+    pool = [("b", k, p0[f"w{k}"] / two_pi) for k in free] + [("e", j, fit.effects[j].values["freq_hz"]) for j in extras]
+    ref_hz = [ref[f"w{k}"] / two_pi for k in free]
+
+    def cost(assign):
+        return sum(abs(np.log(pool[a][2] / f)) for a, f in zip(assign, ref_hz))
+
+    identity = tuple(range(len(free)))
+    best = min(itertools.permutations(range(len(pool)), len(free)), key=lambda a: (cost(a), a != identity))
+    if best == identity:
+        return fit
+
+    def gain_factor(w):
+        return w * w if st.w2_factors else 1.0
+
+    new_b = []
+    for p in fit.baseline_params:
+        q = dict(p)
+        for slot, a in zip(free, best):
+            src, idx, _ = pool[a]
+            if src == "b":
+                w, z, b = p[f"w{idx}"], p[f"z{idx}"], p[f"B{idx}"]
+            else:
+                v = fit.effects[idx].values
+                w, z = two_pi * v["freq_hz"], v["zeta"]
+                b = v["residue"] / gain_factor(w)
+            q[f"w{slot}"], q[f"z{slot}"], q[f"B{slot}"] = w, z, b
+        new_b.append(st.vector(q))
+    left = sorted((pool[a] for a in range(len(pool)) if a not in best), key=lambda t: t[2])
+    moved = []
+    for src, idx, _ in left:
+        if src == "b":
+            w = p0[f"w{idx}"]
+            moved.append(np.array([w / two_pi, p0[f"z{idx}"], p0[f"B{idx}"] * gain_factor(w)]))
+        else:
+            v = fit.effects[idx].values
+            moved.append(np.array([v["freq_hz"], v["zeta"], v["residue"]]))
+    effects = []
+    for e in fit.effects:
+        x = moved.pop(0) if e.kind.kind == "base_mode" else np.array([e.values[p.name] for p in e.kind.params])
+        effects.append((e.kind, x))
+    again = fit_model(datasets, bl, effects, start_baseline=new_b)
+    return again if again.chi2 <= fit.chi2 * (1.0 + 1e-6) + 1e-9 else fit
+
+
+def notebook_reference() -> dict[str, float]:
+    """Eq 9.4 in SI (theta in rad: K1 x pi/180, B_k x 180/pi): the notebook's model, the default baseline."""
+    from samii.notebook import EQ9_4
+
+    deg = np.pi / 180.0
+    return {k: (v * deg if k == "K1" else v / deg if k.startswith("B") else v) for k, v in EQ9_4.items()}
+
+
 def start_params(m, structure: ModelStructure, *, rng_seed: int = 0) -> dict[str, float]:
     """Baseline parameters to start the weighted fit from: the better (by weighted chi-square, after
     :func:`fit_model`) of samii's fit of the file and, for the notebook's 3-mode structure, eq 9.4
@@ -331,10 +408,7 @@ def start_params(m, structure: ModelStructure, *, rng_seed: int = 0) -> dict[str
     """
     cands = [_fitted_start(m, structure, rng_seed=rng_seed)]
     if structure == ModelStructure.notebook_3mode():
-        from samii.notebook import EQ9_4
-
-        deg = np.pi / 180.0
-        cands.append({k: (v * deg if k == "K1" else v / deg if k.startswith("B") else v) for k, v in EQ9_4.items() if k in structure.param_names})
+        cands.append({k: v for k, v in notebook_reference().items() if k in structure.param_names})
     ds = Dataset.from_measured(m)
     best = None
     for p in cands:

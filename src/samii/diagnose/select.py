@@ -26,7 +26,7 @@ import numpy as np
 from scipy import stats
 
 from samii.diagnose.effects import TWO_PI, EffectKind
-from samii.diagnose.model import Baseline, Dataset, Fit, fit_model
+from samii.diagnose.model import Baseline, Dataset, Fit, fit_model, relabel_modes
 
 __all__ = ["ALPHA", "Step", "forward_select", "starts_for"]
 
@@ -249,4 +249,4 @@ def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[Effec
         )
         steps.append(Step(kind.label, fstat, dof, logp, current.chi2, cand.chi2))
         current = _backward(ds_list, baseline, cand, corr, level, steps, reference=base_fit)
-    return base_fit, current, steps, tried
+    return base_fit, relabel_modes(ds_list, current), steps, tried

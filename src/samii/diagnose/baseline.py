@@ -1,0 +1,102 @@
+"""The model a diagnosis tests: the notebook's structure refitted to each file, or a saved fit held fixed.
+
+``notebook`` (the default): eq 9.1/9.2's structure (3 modes, s^4, mode 2 tied to
+the actuator's zero pair), its 13 parameters refitted to every file with the
+effects; the start is the better of samii's fit and eq 9.4 itself
+(:func:`samii.diagnose.model.start_params`). Which fitted modes are "the
+model's" is decided by eq 9.4's modes (:func:`samii.diagnose.model.relabel_modes`).
+
+A saved fit (``fit.json`` as ``samii fit --out`` writes it): its structure and
+parameters, held fixed; only the effects are fitted. Then a gain error of the
+accelerometer is testable (a refitted baseline's gains B_k absorb it).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from samii.diagnose.measured import Measured
+from samii.diagnose.model import Baseline, Dataset, notebook_reference, start_params
+from samii.errors import InputError
+from samii.identify.structures import ModelStructure
+
+__all__ = ["notebook_baseline", "saved_fit_baseline", "read_fit_json", "fit_json_concerns", "SIM_NOT_AVAILABLE"]
+
+SIM_NOT_AVAILABLE = ("--baseline sim: the calibrated simulator as the baseline is not available yet (issue 11, item 5); "
+                     "use --baseline notebook (the default) or a saved fit, --baseline FIT.json")
+
+
+def notebook_baseline(measured: Sequence[Measured]) -> Baseline:
+    st = ModelStructure.notebook_3mode()
+    return Baseline(structure=st, params=tuple(start_params(m, st) for m in measured), reference=notebook_reference(),
+                    label="notebook: eq 9.1/9.2's structure refitted to each file (started from eq 9.4 or samii's fit, the better)")
+
+
+def read_fit_json(path) -> tuple[ModelStructure, dict[str, float]]:
+    """Structure and parameters of a saved fit (``samii fit --out DIR`` writes DIR/fit.json); InputError naming the file and field."""
+    st, params, _ = _read_fit_json(path)
+    return st, params
+
+
+def fit_json_concerns(path) -> list[str]:
+    """What the saved fit itself says is wrong with it (``sound: false`` and its concerns), for the report."""
+    return _read_fit_json(path)[2]
+
+
+def _read_fit_json(path) -> tuple[ModelStructure, dict[str, float], list[str]]:
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text file; expected a saved fit (fit.json as samii fit --out writes it)") from None
+    try:
+        d = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: not JSON ({exc.msg} at line {exc.lineno}); expected a saved fit (fit.json as samii fit --out writes it)") from None
+    if isinstance(d, list) and len(d) == 1:
+        d = d[0]
+    if not isinstance(d, dict):
+        raise InputError(f"{path}: expected one fit (a JSON object with 'structure' and 'params'), got {type(d).__name__}")
+    for key in ("structure", "params"):
+        if not isinstance(d.get(key), dict):
+            raise InputError(f"{path}: field '{key}' missing or not an object; expected a saved fit (fit.json as samii fit --out writes it)")
+    s = d["structure"]
+    try:
+        st = ModelStructure(n_modes=int(s.get("n_modes", 3)), numerator=s.get("numerator", "s4"), tie_mode2=s.get("tie_mode2"),
+                            w2_factors=s.get("w2_factors"))
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{path}: field 'structure': {exc}") from None
+    params = {}
+    for name in st.param_names:
+        v = d["params"].get(name)
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not np.isfinite(v):
+            raise InputError(f"{path}: field 'params.{name}': expected a finite number, got {v!r} (a parameter not fitted cannot be a baseline)")
+        params[name] = float(v)
+    try:
+        st.vector(params)
+    except ValueError as exc:
+        raise InputError(f"{path}: field 'params': {exc}") from None
+    concerns = []
+    if d.get("sound") is False:
+        said = "; ".join(str(c) for c in d.get("concerns") or []) or "no reason given"
+        concerns.append(f"{path} says it is not a sound fit ({said}): effects found against it may be its own errors")
+    return st, params, concerns
+
+
+def saved_fit_baseline(path, datasets: Sequence[Dataset]) -> Baseline:
+    """A saved fit as fixed responses on every dataset's usable points."""
+    st, params = read_fit_json(path)
+    fixed = []
+    for ds in datasets:
+        per = {}
+        for ch in ds.data:
+            f = ds.freq_hz[ds.keep[ch]]
+            need = {"act": ("act",), "base": ("base",), "total": ("act", "base")}[ch]
+            per[ch] = {c: st.response(params, f, c) for c in need}
+        fixed.append(per)
+    return Baseline(structure=st, params=tuple(params for _ in datasets), fixed=tuple(fixed), reference=params,
+                    label=f"saved fit {path} (held fixed)")

@@ -1,0 +1,195 @@
+"""``samii diagnose DATA [DATA ...]``: what the model lacks, found in measured data.
+
+Each DATA is a time-series CSV (its FRF and noise estimated here, the records
+of ``r`` found from the data), an FRF CSV (noise from its coherence) or a
+rig-era .mat. The baseline (``--baseline``) is fitted, effects from the library
+are added by forward selection with an F-test against the data's noise, and
+the report gives each effect with its parameters and evidence, the error
+before and after per channel, and any band no effect explains.
+
+``--out DIR`` writes ``diagnosis.json``, ``residuals.png`` and ``bode.png``;
+``--json`` prints the JSON. Imports nothing heavy at module level.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from samii.cli_args import nonempty_path, positive_float
+from samii.errors import InputError
+
+__all__ = ["add_arguments", "run", "OUTPUTS", "MAX_FILES"]
+
+OUTPUTS = ("diagnosis.json", "residuals.png", "bode.png")
+#: Most files one diagnosis takes (each adds the baseline's 13 parameters to the joint fit).
+MAX_FILES = 8
+_NAMES = {"act": "theta/v", "base": "xdd/theta", "total": "xdd/v"}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("data", metavar="DATA", nargs="+", type=nonempty_path,
+                        help=f"measured files of one rig (at most {MAX_FILES}): time-series CSVs (t, v, theta, accel, r), FRF CSVs "
+                        "(DATA_FORMATS.md) or rig-era .mat; several amplitudes may be mixed")
+    parser.add_argument("--baseline", default="notebook", metavar="notebook|FIT.json",
+                        help="the model under test: notebook (default: eq 9.1/9.2's structure refitted to each file) or a saved fit "
+                        "(fit.json from samii fit --out), held fixed")
+    parser.add_argument("--record-s", type=positive_float, metavar="S",
+                        help="length of one repetition of the excitation in the time series [s] (default: the file's record_s, else found from r)")
+    parser.add_argument("--band-hz", type=positive_float, nargs=2, metavar=("LO", "HI"),
+                        help="frequency band (default: a time series' start_hz/stop_hz or 0.1-40 Hz; an FRF file's whole span)")
+    parser.add_argument("--mat-freq-name", metavar="NAME", default=None, help="name of the frequency vector in a .mat file")
+    parser.add_argument("--mat-freq-unit", choices=("hz", "rad/s"), default="hz", help="unit of that vector (default hz)")
+    parser.add_argument("--out", metavar="DIR", type=nonempty_path, help="write diagnosis.json, residuals.png and bode.png here")
+    parser.add_argument("--overwrite", action="store_true", help="replace files already in --out")
+    parser.add_argument("--json", action="store_true", help="print the diagnosis as JSON (numbers not defined are null)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress display on stderr")
+
+
+def _fmt(value: float, se: float, unit: str) -> str:
+    import math
+
+    scale, shown = (1e3, "ms") if unit == "s" else (1.0, unit)
+    v = value * scale
+    err = "" if not math.isfinite(se) else f" ± {se * scale:.2g}"
+    return f"{v:.4g}{err} {shown if shown != '1' else ''}".rstrip()
+
+
+def _load(args):
+    from samii.diagnose.measured import load
+    from samii.measure.io import DataFormatError
+
+    band = tuple(args.band_hz) if args.band_hz else None
+    out = []
+    for path in args.data:
+        try:
+            out.append(load(path, band_hz=band, record_s=args.record_s, mat_freq_name=args.mat_freq_name, mat_freq_unit=args.mat_freq_unit))
+        except DataFormatError:
+            raise
+        except ValueError as exc:
+            text = str(exc)
+            raise InputError(text if text.startswith(str(path)) else f"{path}: {text}") from None
+    return out
+
+
+class _Progress:
+    """Stages and candidates on stderr: a terminal only, after a second."""
+
+    def __init__(self, enabled: bool):
+        from tqdm import tqdm
+
+        self.bar = tqdm(total=None, desc="samii diagnose", unit="fit", delay=1.0, leave=False, file=sys.stderr, dynamic_ncols=True,
+                        disable=None if enabled else True, bar_format="{desc}: {n} fits {elapsed}{postfix}")
+
+    def stage(self, what: str) -> None:
+        self.bar.set_postfix_str(what)
+
+    def __call__(self, label: str) -> None:
+        self.bar.update(1)
+        self.bar.set_postfix_str(f"tried {label}")
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from samii.diagnose.baseline import SIM_NOT_AVAILABLE
+
+    if len(args.data) > MAX_FILES:
+        raise InputError(f"DATA: {len(args.data)} files given, at most {MAX_FILES} accepted")
+    if args.band_hz and not args.band_hz[0] < args.band_hz[1]:
+        raise InputError(f"--band-hz {args.band_hz[0]:g} {args.band_hz[1]:g}: expected LO < HI")
+    if args.baseline == "sim":
+        raise InputError(SIM_NOT_AVAILABLE)
+    if args.baseline != "notebook":
+        p = Path(args.baseline)
+        if not p.is_file():
+            raise InputError(f"--baseline {args.baseline}: expected notebook or a saved fit (fit.json from samii fit --out); "
+                             f"{'it is a folder' if p.is_dir() else 'no such file'}")
+        from samii.diagnose.baseline import read_fit_json
+
+        read_fit_json(p)  # bad input before any work
+    import os
+
+    seen: dict[str, str] = {}
+    for d in args.data:  # the same file under two spellings (clean.csv, ./clean.csv, a link) counts once
+        key = os.path.realpath(d)
+        if key in seen:
+            same = f"{d}" if seen[key] == d else f"{seen[key]} and {d}"
+            raise InputError(f"DATA: {same} given more than once (the same file); its data would count twice")
+        seen[key] = d
+    folder = None
+    if args.out is not None:
+        from samii.outputs import OutputFolder
+
+        folder = OutputFolder(args.out, OUTPUTS, overwrite=args.overwrite)
+
+    from samii.diagnose.diagnosis import diagnose
+    from samii.json_output import dumps
+
+    progress = _Progress(not args.no_progress)
+    try:
+        progress.stage("reading")
+        measured = _load(args)
+        progress.stage("fitting the baseline")
+        try:
+            d = diagnose(measured, baseline=args.baseline, progress=progress)
+        except ValueError as exc:
+            import numpy as np
+
+            if isinstance(exc, np.linalg.LinAlgError):
+                raise
+            raise InputError(str(exc)) from None
+        if folder is not None:
+            progress.stage("writing")
+            from samii.diagnose.plots import bode_figure, residual_figure
+            from samii.measure.io import write_text
+
+            with folder:
+                write_text(folder.path("diagnosis.json"), dumps(d.to_dict(), indent=2) + "\n")
+                residual_figure(d, folder.path("residuals.png"))
+                bode_figure(d, folder.path("bode.png"))
+    finally:
+        progress.close()
+    if args.json:
+        print(dumps(d.to_dict(), indent=2))
+        return 0
+    _print(d, folder.written if folder is not None else [])
+    return 0
+
+
+def _print(d, written) -> None:
+    print(f"samii diagnose: {len(d.measured)} file(s) against {d.baseline.label}")
+    for m in d.measured:
+        lay = "" if m.layout is None else f"; {m.layout.n_records} records of {m.layout.record_s:.6g} s ({m.layout.how})"
+        amp = "" if m.amplitude_v is None else f", {m.amplitude_v:.3g} V"
+        print(f"  {m.source}{amp}{lay}; noise: {m.noise_source}")
+    print(f"rule: {d.rule}")
+    real = [e for e in d.effects if not e.expected]
+    if not d.effects:
+        print("verdict: none: the baseline explains the data to within their noise")
+    else:
+        print(f"verdict: {d.verdict}" + (f": {len(real)} effect(s) the model lacks" if real else ": only what sampling explains"))
+    from samii.diagnose.effects import LIBRARY
+
+    units = {k.label: {p.name: p.unit for p in k.params} for k in LIBRARY}
+    for e in d.effects:
+        label = f"{e.category}/{e.kind}"
+        vals = ", ".join(f"{n} {_fmt(v, e.stderr.get(n, float('nan')), units[label][n])}" for n, v in e.params.items())
+        print(f"  {'(expected) ' if e.expected else ''}{label} [{e.channel}]: {vals}")
+        print(f"      {e.evidence}")
+    print("error: rms dB / rms deg / chi2 per residual (1 = at the noise), before -> after")
+    for ch, before in d.error_before.items():
+        after = d.error_after[ch]
+        print(f"  {_NAMES[ch]:>9}: {before.rms_db:7.3g} dB {before.rms_deg:7.3g} deg {before.chi2:9.3g}  ->  "
+              f"{after.rms_db:7.3g} dB {after.rms_deg:7.3g} deg {after.chi2:9.3g}")
+    if d.unexplained:
+        print("unexplained: a significant residual that nothing in the library explains:")
+        for b in d.unexplained:
+            print(f"  {b.source}: {_NAMES[b.channel]} {b.lo_hz:.3g}-{b.hi_hz:.3g} Hz, chi2 {b.chi2:.3g} over {b.n_points} points")
+    for n in d.notes:
+        print(f"note: {n}")
+    for p in written:
+        print(f"wrote {p}")

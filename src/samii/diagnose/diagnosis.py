@@ -1,0 +1,318 @@
+"""A diagnosis: what the model lacks, found in the residual against the data's own noise.
+
+:func:`diagnose` takes one or more measured files of one rig
+(:mod:`samii.diagnose.measured`), fits the baseline
+(:mod:`samii.diagnose.baseline`), selects effects from the library by F-test
+(:mod:`samii.diagnose.select`) and returns a :class:`Diagnosis`: the effects
+with their evidence, the error before and after per channel, and the bands
+where a significant residual remains that nothing in the library explains.
+
+Error per channel (``act`` theta/v, ``base`` xdd/theta, ``total`` xdd/v),
+pooled over the files: the residual ``e = ln(H_data/H_model)`` as rms dB
+(20 log10 e^Re e) and rms deg (Im e), and ``chi2``: the mean of the squared
+residual over its predicted random error, per real residual (1 when the
+model is right and the noise estimate too; 3-record spreads put it at about
+1.2, see tests/test_diagnose_core.py).
+
+A delay of at most one sample is the sampling itself (a zero-order hold
+delays the command by half a sample, a DAQ that computes the next command
+from this sample's reading by up to one): it is reported, flagged
+``expected``, and does not make the verdict "effects".
+
+Unexplained bands: after the selection, the squared normalised residual of
+each channel averaged over ``BAND_POINTS`` neighbouring points is compared
+with its chi-square quantile at ``ALPHA`` / (windows), with ``2 BAND_POINTS / L``
+degrees of freedom (``L`` the noise's correlation length) and the noise
+scale from the median (never below the predicted): windows beyond it,
+merged, are the bands.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+from scipy import stats
+
+from samii.diagnose.effects import library
+from samii.diagnose.measured import Measured
+from samii.diagnose.model import Baseline, Dataset, Fit, _apply
+from samii.diagnose.select import ALPHA, Step, forward_select
+
+__all__ = ["ChannelError", "FoundEffect", "Band", "Diagnosis", "diagnose", "CHANNELS", "BAND_POINTS", "RULE"]
+
+#: Channels reported: theta/v, xdd/theta, xdd/v.
+CHANNELS = ("act", "base", "total")
+#: Points averaged when looking for a band the final model leaves unexplained.
+BAND_POINTS = 9
+RULE = (f"an effect joins when its F-test against the model without it passes at alpha = {ALPHA:g} "
+        "(Bonferroni over the kinds tried in each round; F divided by the noise's correlation length), "
+        "then earlier effects it makes unnecessary are dropped; ties beyond p = 1e-300 go to the smallest BIC")
+
+_DB = 20.0 / np.log(10.0)
+_DEG = 180.0 / np.pi
+
+
+@dataclass(frozen=True)
+class ChannelError:
+    """Residual of one channel over the usable points of every file."""
+
+    rms_db: float
+    rms_deg: float
+    chi2: float  # mean squared normalised residual per real residual (1 at the noise)
+    n_points: int
+
+    def to_dict(self) -> dict:
+        return {"rms_db": self.rms_db, "rms_deg": self.rms_deg, "chi2": self.chi2, "n_points": self.n_points}
+
+
+@dataclass(frozen=True)
+class FoundEffect:
+    category: str
+    kind: str
+    channel: str
+    params: dict
+    stderr: dict
+    evidence: str
+    expected: bool = False
+
+    def to_dict(self) -> dict:
+        return {"category": self.category, "kind": self.kind, "channel": self.channel, "params": dict(self.params),
+                "stderr": dict(self.stderr), "evidence": self.evidence, "expected": self.expected}
+
+
+@dataclass(frozen=True)
+class Band:
+    """A frequency band where a significant residual remains."""
+
+    source: str
+    channel: str
+    lo_hz: float
+    hi_hz: float
+    chi2: float
+    n_points: int
+
+    def to_dict(self) -> dict:
+        return {"source": self.source, "channel": self.channel, "lo_hz": self.lo_hz, "hi_hz": self.hi_hz, "chi2": self.chi2, "n_points": self.n_points}
+
+
+@dataclass(frozen=True, eq=False)
+class Diagnosis:
+    measured: tuple[Measured, ...]
+    datasets: tuple[Dataset, ...]
+    baseline: Baseline
+    before: Fit
+    after: Fit
+    steps: tuple[Step, ...]
+    tried: tuple[dict, ...]
+    effects: tuple[FoundEffect, ...]
+    error_before: dict
+    error_after: dict
+    unexplained: tuple[Band, ...]
+    rule: str = RULE
+    notes: tuple[str, ...] = field(default=())
+
+    @property
+    def verdict(self) -> str:
+        return "effects" if any(not e.expected for e in self.effects) else "none"
+
+    def residuals(self, which: str = "after") -> list[dict[str, tuple[np.ndarray, np.ndarray]]]:
+        """Per file: channel -> (e on the full grid, NaN where unusable; its variance)."""
+        fit = self.after if which == "after" else self.before
+        return [_full_residuals(ds, res) for ds, res in zip(self.datasets, fit.residuals)]
+
+    def model(self, i: int, freq_hz: np.ndarray, which: str = "after") -> dict[str, np.ndarray]:
+        """act, base and total of the baseline (``before``) or the augmented model (``after``) of file ``i``."""
+        return model_response(self.after if which == "after" else self.before, i, freq_hz)
+
+    def to_dict(self) -> dict:
+        return {
+            "verdict": self.verdict,
+            "effects": [e.to_dict() for e in self.effects],
+            "error_before": {k: v.to_dict() for k, v in self.error_before.items()},
+            "error_after": {k: v.to_dict() for k, v in self.error_after.items()},
+            "simulator": None,
+            "unexplained": [b.to_dict() for b in self.unexplained],
+            "baseline": self.baseline.label,
+            "rule": self.rule,
+            "files": [{"source": m.source, "noise": m.noise_source, "amplitude_v": m.amplitude_v, "sample_rate_hz": m.sample_rate_hz,
+                       "records": None if m.layout is None else {"record_s": m.layout.record_s, "start_s": m.layout.start_s,
+                                                                   "n_records": m.layout.n_records, "how": m.layout.how},
+                       "corr_length": m.corr_length}
+                      for m in self.measured],
+            "baseline_params": [dict(p) for p in self.after.baseline_params] if self.baseline.free else None,
+            "baseline_stderr": [dict(p) for p in self.after.baseline_stderr] if self.baseline.free else None,
+            "chi2_per_dof": {"before": self.before.chi2 / self.before.dof, "after": self.after.chi2 / self.after.dof},
+            "steps": [{"effect": s.label, "F": s.f_stat, "dof": list(s.dof), "log10_p": s.log10_p, "chi2_before": s.chi2_before,
+                       "chi2_after": s.chi2_after} for s in self.steps],
+            "notes": list(self.notes),
+        }
+
+
+def model_response(fit: Fit, i: int, freq_hz: np.ndarray) -> dict[str, np.ndarray]:
+    """act, base and total of ``fit``'s model for file ``i`` at ``freq_hz`` (the baseline's structure with the effects)."""
+    st = fit.baseline.structure
+    if st is None or not fit.baseline_params:
+        raise ValueError("the baseline has no structure to evaluate off its data points")
+    f = np.asarray(freq_hz, float)
+    p = fit.baseline_params[i]
+    base = {c: st.response(p, f, c) for c in ("act", "base")}
+    eff = [(e.kind, np.array([e.values[q.name] for q in e.kind.params])) for e in fit.effects]
+    out = _apply(eff, base, 2j * np.pi * f)
+    out["total"] = out["act"] * out["base"]
+    return out
+
+
+def _full_residuals(ds: Dataset, res: dict) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """act, base and total residuals on ``ds``'s whole grid (NaN where a channel is not usable), any one derived from the other two."""
+    n = ds.freq_hz.size
+    e, var = {}, {}
+    for ch, r in res.items():
+        full = np.full(n, complex(np.nan, np.nan))
+        full[ds.keep[ch]] = r
+        v = np.full(n, np.nan)
+        v[ds.keep[ch]] = 2.0 / ds.inv_sigma[ch] ** 2
+        e[ch], var[ch] = full, v
+    if "base" not in e and {"act", "total"} <= set(e):
+        e["base"], var["base"] = e["total"] - e["act"], var["total"] + var["act"]
+    if "total" not in e and {"act", "base"} <= set(e):
+        e["total"], var["total"] = e["act"] + e["base"], var["act"] + var["base"]
+    return {ch: (e[ch], var[ch]) for ch in CHANNELS if ch in e}
+
+
+def channel_errors(datasets: Sequence[Dataset], fit: Fit) -> dict[str, ChannelError]:
+    pooled: dict[str, list] = {}
+    for ds, res in zip(datasets, fit.residuals):
+        for ch, (e, v) in _full_residuals(ds, res).items():
+            ok = np.isfinite(e) & np.isfinite(v)
+            pooled.setdefault(ch, []).append((e[ok], v[ok]))
+    out = {}
+    for ch in CHANNELS:
+        if ch not in pooled:
+            continue
+        e = np.concatenate([p[0] for p in pooled[ch]])
+        v = np.concatenate([p[1] for p in pooled[ch]])
+        if e.size == 0:
+            continue
+        out[ch] = ChannelError(rms_db=float(_DB * np.sqrt(np.mean(e.real**2))), rms_deg=float(_DEG * np.sqrt(np.mean(e.imag**2))),
+                               chi2=float(np.mean(np.abs(e) ** 2 / v)), n_points=int(e.size))
+    return out
+
+
+def unexplained_bands(datasets: Sequence[Dataset], fit: Fit, *, alpha: float = ALPHA, points: int = BAND_POINTS) -> list[Band]:
+    """Bands of each channel where the final model's residual exceeds the noise (module docstring).
+
+    xdd/v is tested too: where theta is noise-dominated (theta/v above some 9 Hz at 0.1 V) xdd/theta
+    is not usable, and a misfit there shows only in xdd/v."""
+    out = []
+    for ds, res in zip(datasets, fit.residuals):
+        full = _full_residuals(ds, res)
+        for ch in CHANNELS:
+            if ch not in full:
+                continue
+            e, v = full[ch]
+            ok = np.isfinite(e) & np.isfinite(v)
+            if ok.sum() < 2 * points:
+                continue
+            f = ds.freq_hz[ok]
+            z2 = np.abs(e[ok]) ** 2 / v[ok] * 2.0  # ~ chi2(2) per point
+            scale = max(1.0, float(np.median(z2)) / (2.0 * np.log(2.0)))
+            win = np.convolve(z2 / scale, np.ones(points), mode="valid") / (2.0 * points)  # mean per real residual
+            dof = 2.0 * points / max(ds.corr_length, 1.0)
+            limit = stats.chi2.isf(alpha / win.size, dof) / dof
+            flag = np.zeros(f.size, bool)
+            for j in np.flatnonzero(win > limit):
+                flag[j : j + points] = True
+            for a, b in _runs(flag):
+                out.append(Band(ds.source, ch, float(f[a]), float(f[b - 1]), float(np.mean(z2[a:b] / scale) / 2.0), int(b - a)))
+    return out
+
+
+def _runs(flag: np.ndarray) -> list[tuple[int, int]]:
+    edges = np.diff(np.concatenate([[0], flag.astype(int), [0]]))
+    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
+
+
+def _sample_delay_s(measured: Sequence[Measured]) -> float | None:
+    rates = [m.sample_rate_hz for m in measured if m.sample_rate_hz]
+    return 1.0 / min(rates) if rates else None
+
+
+def _effects(after: Fit, steps: Sequence[Step], measured: Sequence[Measured]) -> list[FoundEffect]:
+    sample = _sample_delay_s(measured)
+    added = [s for s in steps if not s.label.startswith("removed ")]
+    out = []
+    used: set[int] = set()
+    for e in after.effects:
+        k = e.kind
+        j = next((i for i, s in enumerate(added) if s.label == k.label and i not in used), None)
+        if j is not None:
+            used.add(j)
+            s = added[j]
+            p = "p < 1e-300" if s.log10_p <= -300 else f"p = 10^{s.log10_p:.1f}"
+            test = (f"adding it lowers chi2 from {s.chi2_before:.4g} to {s.chi2_after:.4g} for {s.dof[0]} parameter(s): "
+                    f"F = {s.f_stat:.3g} on ({s.dof[0]}, {s.dof[1]}) dof, {p}")
+        else:
+            test = "kept by the joint refit"
+        expected = False
+        text = f"{k.describe(e.values)}; {test}"
+        if k.category == "delay" and sample is not None:
+            d, se = e.values["delay_s"], e.stderr.get("delay_s", 0.0)
+            se = se if np.isfinite(se) else 0.0
+            if d - 2.0 * se <= sample:
+                expected = True
+                text += (f"; at most one sample ({1e3 * sample:.3g} ms at {1.0 / sample:.4g} Hz), the sampling itself "
+                         "(zero-order hold, a command computed from the last reading): expected, not a miss")
+        out.append(FoundEffect(k.category, k.kind, k.channel, dict(e.values), dict(e.stderr), text, expected))
+    return out
+
+
+#: An extra mode's frequencies may lie this factor beyond the measured band (a peak at its edge), no further:
+#: outside the band a "mode" is a shape the data cannot tell from noise.
+BAND_MARGIN = 1.25
+
+
+def _within_band(kind, datasets: Sequence[Dataset]):
+    """``kind`` with its mode frequencies bounded to the measured band (module constant BAND_MARGIN)."""
+    from dataclasses import replace
+
+    if kind.category != "extra_mode":
+        return kind
+    lo = min(float(ds.freq_hz[0]) for ds in datasets) / BAND_MARGIN
+    hi = max(float(ds.freq_hz[-1]) for ds in datasets) * BAND_MARGIN
+    params = tuple(replace(p, lo=max(p.lo, lo), hi=min(p.hi, hi)) if p.unit == "Hz" else p for p in kind.params)
+    return replace(kind, params=params)
+
+
+def diagnose(measured: Sequence[Measured], *, baseline: str = "notebook", alpha: float = ALPHA, progress=None) -> Diagnosis:
+    """Diagnose the files of one rig against ``baseline`` ("notebook" or the path of a saved fit.json).
+
+    ``progress(label)`` is called after every candidate tried.
+    """
+    from samii.diagnose.baseline import notebook_baseline, saved_fit_baseline
+
+    measured = tuple(measured)
+    if not measured:
+        raise ValueError("no data to diagnose")
+    datasets = tuple(Dataset.from_measured(m) for m in measured)
+    notes = []
+    for m, ds in zip(measured, datasets):
+        if not ds.known_noise:
+            notes.append(f"{m.source}: the noise of the points is unknown ({m.noise_source}); the tests take its level from the residual "
+                         "and weigh every point alike")
+    if baseline == "notebook":
+        bl = notebook_baseline(measured)
+    else:
+        from samii.diagnose.baseline import fit_json_concerns
+
+        bl = saved_fit_baseline(baseline, datasets)
+        notes += fit_json_concerns(baseline)
+    have = set().union(*(ds.data for ds in datasets))
+    channels = ("act", "base") if {"act", "base"} <= have or {"act", "total"} <= have else tuple(c for c in ("act", "base") if c in have)
+    kinds = [_within_band(k, datasets) for k in library(fixed_baseline=not bl.free, channels=channels)]
+    before, after, steps, tried = forward_select(list(datasets), bl, kinds, alpha=alpha, progress=progress)
+    effects = _effects(after, steps, measured)
+    return Diagnosis(measured, datasets, bl, before, after, tuple(steps), tuple(tried), tuple(effects),
+                     channel_errors(datasets, before), channel_errors(datasets, after), tuple(unexplained_bands(datasets, after, alpha=alpha)),
+                     notes=tuple(notes))

@@ -1,0 +1,137 @@
+"""Figures of a diagnosis: the residual with its noise band, and data, baseline and augmented model overlaid.
+
+Compute lives in :mod:`samii.diagnose.diagnosis`; these functions only draw.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from samii.diagnose.diagnosis import Diagnosis
+
+__all__ = ["residual_figure", "bode_figure"]
+
+_DB = 20.0 / np.log(10.0)
+_DEG = 180.0 / np.pi
+_NAMES = {"act": "θ/v", "base": "ẍ/θ", "total": "ẍ/v"}
+_UNITS = {"act": "rad/V", "base": "(m/s²)/rad", "total": "(m/s²)/V"}
+
+
+def _label(d: Diagnosis, i: int) -> str:
+    src = d.measured[i].source
+    return src if len(src) <= 40 else "…" + src[-39:]
+
+
+def residual_figure(d: Diagnosis, path=None):
+    """Residual ln(data/model) of θ/v, ẍ/θ and ẍ/v in dB and degrees, before and after, with ±2σ of the data's noise."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    before, after = d.residuals("before"), d.residuals("after")
+    chans = [c for c in ("act", "base", "total") if any(c in r for r in after)]
+    fig, axes = plt.subplots(2, len(chans), figsize=(5.5 * len(chans), 6.5), sharex=True, squeeze=False)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for col, ch in enumerate(chans):
+        ax_m, ax_p = axes[0, col], axes[1, col]
+        for i, ds in enumerate(d.datasets):
+            if ch not in after[i]:
+                continue
+            f = ds.freq_hz
+            eb, _ = before[i][ch]
+            ea, var = after[i][ch]
+            sig = np.sqrt(var / 2.0)
+            c = colors[i % len(colors)]
+            tag = f" ({_label(d, i)})" if len(d.datasets) > 1 else ""
+            ax_m.fill_between(f, -2 * _DB * sig, 2 * _DB * sig, color=c, alpha=0.15, lw=0, label=f"±2σ noise{tag}")
+            ax_p.fill_between(f, -2 * _DEG * sig, 2 * _DEG * sig, color=c, alpha=0.15, lw=0)
+            ax_m.plot(f, _DB * eb.real, color="0.55", lw=0.8, label=f"baseline{tag}")
+            ax_p.plot(f, _DEG * eb.imag, color="0.55", lw=0.8)
+            ax_m.plot(f, _DB * ea.real, color=c, lw=1.0, label=f"with the effects{tag}")
+            ax_p.plot(f, _DEG * ea.imag, color=c, lw=1.0)
+        for b in d.unexplained:
+            if b.channel == ch:
+                for ax in (ax_m, ax_p):
+                    ax.axvspan(b.lo_hz, b.hi_hz, color="tab:red", alpha=0.12, lw=0)
+        eb_, ea_ = d.error_before.get(ch), d.error_after.get(ch)
+        title = f"{_NAMES[ch]}: residual ln(data/model)"
+        if eb_ and ea_:
+            title += f"\nrms {eb_.rms_db:.2g} → {ea_.rms_db:.2g} dB, {eb_.rms_deg:.2g} → {ea_.rms_deg:.2g}°, χ² {eb_.chi2:.3g} → {ea_.chi2:.3g}"
+        ax_m.set_title(title, fontsize=10)
+        ax_m.set_ylabel("magnitude residual [dB]")
+        ax_p.set_ylabel("phase residual [deg]")
+        ax_p.set_xlabel("frequency [Hz]")
+        for ax in (ax_m, ax_p):
+            ax.set_xscale("log")
+            ax.axhline(0.0, color="k", lw=0.5)
+            ax.grid(True, which="both", alpha=0.3)
+            _clip(ax)
+        ax_m.legend(fontsize=8, loc="best")
+    found = ", ".join(f"{e.category}/{e.kind}" + (" (expected)" if e.expected else "") for e in d.effects) or "none"
+    fig.suptitle(f"Diagnosis: {d.verdict}; effects: {found}" + ("; red: unexplained" if d.unexplained else ""), fontsize=11)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+    return fig
+
+
+def _clip(ax) -> None:
+    """Keep a few wild noise points (ẍ at 0.1 Hz) from flattening everything else: limits at the 1-99 % of what is drawn, widened."""
+    ys = np.concatenate([ln.get_ydata()[np.isfinite(ln.get_ydata())] for ln in ax.get_lines() if len(ln.get_ydata()) > 2] or [np.zeros(1)])
+    if ys.size:
+        lo, hi = np.percentile(ys, [1, 99])
+        pad = 0.3 * (hi - lo) + 1e-3
+        ax.set_ylim(lo - pad, hi + pad)
+
+
+def bode_figure(d: Diagnosis, path=None):
+    """Magnitude and phase of θ/v, ẍ/θ and ẍ/v: data (points, where usable), baseline (dashed) and the augmented model (solid), every file."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    chans = [c for c in ("act", "base", "total") if any(c in r for r in d.residuals("after"))]
+    fig, axes = plt.subplots(2, len(chans), figsize=(5.5 * len(chans), 6.5), sharex=True, squeeze=False)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for i, (m, ds) in enumerate(zip(d.measured, d.datasets)):
+        c = colors[i % len(colors)]
+        f = ds.freq_hz
+        fm = np.geomspace(f[0], f[-1], 800)
+        mb, ma = d.model(i, fm, "before"), d.model(i, fm, "after")
+        full = d.residuals("after")[i]
+        tag = f" ({_label(d, i)})" if len(d.datasets) > 1 else ""
+        for col, ch in enumerate(chans):
+            if ch not in full:
+                continue
+            e, _ = full[ch]
+            ok = np.isfinite(e)
+            h = m.frf.response(ch) if ch in m.frf.channels else (m.frf.total / m.frf.act if ch == "base" else m.frf.act * m.frf.base)
+            ref = ma[ch]
+            ph_model = np.unwrap(np.angle(ref))
+            ph_data = np.angle(h[ok]) + 2 * np.pi * np.round((np.interp(f[ok], fm, ph_model) - np.angle(h[ok])) / (2 * np.pi))
+            ax_m, ax_p = axes[0, col], axes[1, col]
+            ax_m.plot(f[ok], _DB * np.log(np.abs(h[ok])), ".", ms=2.5, color=c, alpha=0.6, label=f"data{tag}")
+            ax_p.plot(f[ok], _DEG * ph_data, ".", ms=2.5, color=c, alpha=0.6)
+            ph_b = np.unwrap(np.angle(mb[ch]))
+            ph_b += 2 * np.pi * np.round((ph_model[0] - ph_b[0]) / (2 * np.pi))
+            ax_m.plot(fm, _DB * np.log(np.abs(mb[ch])), "--", color="0.35", lw=1.0, label=f"baseline{tag}")
+            ax_p.plot(fm, _DEG * ph_b, "--", color="0.35", lw=1.0)
+            ax_m.plot(fm, _DB * np.log(np.abs(ref)), "-", color=c, lw=1.2, label=f"with the effects{tag}")
+            ax_p.plot(fm, _DEG * ph_model, "-", color=c, lw=1.2)
+            ax_m.set_title(f"{_NAMES[ch]} [{_UNITS[ch]}]", fontsize=10)
+            ax_m.set_ylabel("magnitude [dB]")
+            ax_p.set_ylabel("phase [deg]")
+            ax_p.set_xlabel("frequency [Hz]")
+    for ax in axes.ravel():
+        ax.set_xscale("log")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0, 0].legend(fontsize=8, loc="best")
+    fig.suptitle("Data, baseline and the model with the effects found", fontsize=11)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+    return fig

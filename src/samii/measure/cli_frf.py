@@ -1,0 +1,102 @@
+"""``samii frf TIMESERIES.csv``: the closed-loop frequency response of a measured time series.
+
+The excitation ``r`` is the instrument (H = S_ry / S_rv per record, DATA_FORMATS.md);
+the repetition length of ``r`` is read off the data when the file has no
+``# record_s:`` line (``samii.measure.records``), or given with ``--record-s``.
+Writes ``frf.csv`` (with coherence, ready for ``samii fit``) and ``bode.png``
+into ``--out``. Imports nothing heavy at module level.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from samii.cli_args import nonempty_path, positive_float
+from samii.errors import InputError
+
+__all__ = ["add_arguments", "run"]
+
+OUTPUTS = ("frf.csv", "bode.png")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("timeseries", metavar="TIMESERIES", type=nonempty_path,
+                        help="time-series CSV (DATA_FORMATS.md: t, v, theta, accel and the excitation r)")
+    parser.add_argument("--out", metavar="DIR", type=nonempty_path, default="frf_out", help="output folder (default frf_out)")
+    parser.add_argument("--record-s", type=positive_float, metavar="S",
+                        help="length of one repetition of the excitation [s] (default: the file's record_s line, else found from r)")
+    parser.add_argument("--band-hz", type=positive_float, nargs=2, metavar=("LO", "HI"),
+                        help="frequency band (default: the file's start_hz/stop_hz, else 0.1-40 Hz below 0.45 x the sample rate)")
+    parser.add_argument("--overwrite", action="store_true", help="replace files already in --out")
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+
+def read_measured(path: str, *, record_s: float | None, band_hz):
+    """A time-series CSV as :class:`samii.diagnose.measured.Measured`; InputError naming the file for what a user can fix."""
+    from pathlib import Path
+
+    from samii.diagnose.measured import from_timeseries
+    from samii.measure.io import DataFormatError, csv_header, is_mat_file, read_timeseries_csv
+
+    p = Path(path)
+    if not is_mat_file(p):
+        header = csv_header(p)
+        if "freq_hz" in header and "t" not in header:
+            raise InputError(f"{path}: this is already a frequency response (columns {', '.join(header[:4])}, ...); samii frf expects a time series "
+                             "(t, v, theta, accel, r), as samii measure writes timeseries.csv")
+    else:
+        raise InputError(f"{path}: a MATLAB file; samii frf expects a time-series CSV (t, v, theta, accel, r)")
+    ts = read_timeseries_csv(p)
+    try:
+        return from_timeseries(ts, source=str(path), band_hz=band_hz, record_s=record_s)
+    except ValueError as exc:
+        text = str(exc)
+        raise DataFormatError(p, text[len(str(path)) + 2:] if text.startswith(str(path) + ": ") else text) from None
+
+
+def summary(m) -> dict:
+    lay = m.layout
+    frf = m.frf
+    return {
+        "source": m.source,
+        "sample_rate_hz": m.sample_rate_hz,
+        "records": {"record_s": lay.record_s, "start_s": lay.start_s, "n_records": lay.n_records, "operating_point_s": lay.baseline_s,
+                    "how": lay.how},
+        "band_hz": [float(frf.freq_hz[0]), float(frf.freq_hz[-1])],
+        "n_points": int(frf.freq_hz.size),
+        "channels": list(frf.channels),
+        "noise": m.noise_source,
+        "amplitude_v": m.amplitude_v,
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    from samii.outputs import OutputFolder
+
+    band = tuple(args.band_hz) if args.band_hz else None
+    if band is not None and not band[0] < band[1]:
+        raise InputError(f"--band-hz {band[0]:g} {band[1]:g}: expected LO < HI")
+    folder = OutputFolder(args.out, OUTPUTS, overwrite=args.overwrite)
+    m = read_measured(args.timeseries, record_s=args.record_s, band_hz=band)
+    from samii.measure.io import write_frf_csv
+    from samii.viz.bode_plot import bode_plot
+
+    with folder:
+        write_frf_csv(m.frf, folder.path("frf.csv"))
+        lay = m.layout
+        bode_plot(m.frf, title=f"{args.timeseries}: {lay.n_records} records of {lay.record_s:.6g} s", path=folder.path("bode.png"))
+    info = summary(m)
+    info["written"] = [str(p) for p in folder.written]
+    if args.json:
+        from samii.json_output import dumps
+
+        print(dumps(info, indent=2))
+        return 0
+    lay = m.layout
+    print(f"samii frf: {args.timeseries}: {lay.n_records} records of {lay.record_s:.6g} s from t = {lay.start_s:.6g} s ({lay.how})")
+    print(f"  operating point: the first {lay.baseline_s:.3g} s of each record; band {info['band_hz'][0]:.3g}-{info['band_hz'][1]:.3g} Hz, "
+          f"{info['n_points']} points, channels {', '.join(info['channels'])}")
+    print(f"  noise: {m.noise_source}")
+    for p in folder.written:
+        print(f"wrote {p}")
+    return 0
