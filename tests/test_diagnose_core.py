@@ -151,3 +151,45 @@ def test_frf_file_with_coherence_clean_and_delayed(sweep, tmp_path):
         if expect:
             assert d.effects[0].params["delay_s"] == pytest.approx(0.004, abs=5e-4)
             assert d.error_after["act"].rms_deg < d.error_before["act"].rms_deg
+
+
+def test_one_sample_delay_is_expected_from_the_series_and_its_frf(sweep):
+    """0.6 ms on the command at 1 kHz is within one sample: reported, flagged expected, verdict none -- also
+    from the FRF alone, which carries the sample rate in its metadata."""
+    from samii.diagnose.diagnosis import diagnose
+    from samii.diagnose.measured import from_frf
+
+    ts = EffectRig(command_delay_s=0.0006).simulate(sweep, sample_rate_hz=FS, rng=np.random.default_rng(4))
+    m = from_timeseries(ts, source="rig.csv")
+    assert float(m.frf.metadata["sample_rate_hz"]) == FS
+    for data in (m, from_frf(m.frf, source="frf.csv")):
+        d = diagnose([data])
+        assert d.verdict == "none"
+        assert [(e.kind, e.expected) for e in d.effects] == [("command", True)]
+        assert d.effects[0].params["delay_s"] == pytest.approx(0.0006, abs=3e-4)
+
+
+def test_files_without_coherence(sweep):
+    """FRF files with no coherence (a rig-era .mat): the noise is estimated from the residual's roughness.
+    Clean data: no false alarm (uniform weights gave 4 "modes" in theta/v's noise above 9 Hz). theta/v alone:
+    the base's parameters are undetermined (infinite standard error, not 0). theta/v + xdd/v: the delay found."""
+    from samii.diagnose.diagnosis import diagnose
+    from samii.diagnose.measured import from_frf
+    from samii.frequency_response import FrequencyResponse
+
+    for kw in ({}, {"command_delay_s": 0.004}):
+        ts = EffectRig(**kw).simulate(sweep, sample_rate_hz=FS, rng=np.random.default_rng(5))
+        frf = from_timeseries(ts, source="rig.csv").frf
+        both = diagnose([from_frf(FrequencyResponse(frf.freq_hz, metadata={}, act=frf.act, total=frf.total), source="both.csv")])
+        assert any("roughness" in n for n in both.notes)
+        if kw:
+            assert [f"{e.category}/{e.kind}" for e in both.effects] == ["delay/command"]
+            assert both.effects[0].params["delay_s"] == pytest.approx(0.004, abs=5e-4)
+            continue
+        assert both.effects == ()
+        act = diagnose([from_frf(FrequencyResponse(frf.freq_hz, metadata={}, act=frf.act), source="act.csv")])
+        assert act.effects == ()
+        se = act.after.baseline_stderr[0]
+        assert all(np.isinf(se[k]) for k in ("w1", "z1", "w3", "z3", "B1", "B2", "B3"))
+        assert all(np.isfinite(se[k]) and se[k] > 0 for k in ("K1", "wp", "tau"))
+        assert list(act.error_after) == ["act"] and 0.5 < act.error_after["act"].chi2 < 2.0

@@ -48,12 +48,23 @@ def test_every_kind_has_values():
 def test_tf_matches_the_fitted_response(kind, channel):
     fit = _fit(kind)
     f = np.geomspace(0.1, 40.0, 200)
+    if kind.label == "delay/theta_sensor" and channel == "base":
+        with pytest.raises(ValueError, match="augmented_frd"):
+            augmented_tf(fit, channel=channel)
+        return
     exact = augmented_frd(fit, f, channel=channel)
     h_exact = exact.frdata[0, 0] if hasattr(exact, "frdata") else exact.fresp[0, 0]
     tf = augmented_tf(fit, channel=channel, pade_order=5)
     h_tf = tf(2j * np.pi * f)
     tol = 2e-3 if kind.category == "delay" else 1e-9
     np.testing.assert_allclose(h_tf, h_exact, rtol=tol)
+
+
+@pytest.mark.parametrize("label", [k.label for k in LIBRARY])
+def test_exported_total_is_stable(label):
+    """The effects add no unstable pole to xdd/v (the Pade inverse of a theta delay would)."""
+    fit = _fit(next(k for k in LIBRARY if k.label == label))
+    assert np.all(np.real(augmented_tf(fit, channel="total", pade_order=3).poles()) < 1e-9)
 
 
 def test_total_is_proper_and_delay_needs_an_order():

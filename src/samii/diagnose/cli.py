@@ -141,7 +141,9 @@ def run(args: argparse.Namespace) -> int:
 
             if isinstance(exc, np.linalg.LinAlgError):
                 raise
-            raise InputError(str(exc)) from None
+            text = str(exc)
+            names = [str(m.source) for m in measured]
+            raise InputError(text if any(text.startswith(n) for n in names) else f"{', '.join(names)}: {text}") from None
         if folder is not None:
             progress.stage("writing")
             from samii.diagnose.plots import bode_figure, residual_figure
@@ -169,7 +171,8 @@ def _print(d, written) -> None:
     print(f"rule: {d.rule}")
     real = [e for e in d.effects if not e.expected]
     if not d.effects:
-        print("verdict: none: the baseline explains the data to within their noise")
+        print("verdict: none: " + ("no effect of the library is needed, but a residual beyond the noise remains (unexplained, below)"
+                                   if d.unexplained else "the baseline explains the data to within their noise"))
     else:
         print(f"verdict: {d.verdict}" + (f": {len(real)} effect(s) the model lacks" if real else ": only what sampling explains"))
     from samii.diagnose.effects import LIBRARY
@@ -181,10 +184,13 @@ def _print(d, written) -> None:
         print(f"  {'(expected) ' if e.expected else ''}{label} [{e.channel}]: {vals}")
         print(f"      {e.evidence}")
     print("error: rms dB / rms deg / chi2 per residual (1 = at the noise), before -> after")
+    def chi2(v):
+        return f"{v:9.3g}" if v is not None else "  unknown"
+
     for ch, before in d.error_before.items():
         after = d.error_after[ch]
-        print(f"  {_NAMES[ch]:>9}: {before.rms_db:7.3g} dB {before.rms_deg:7.3g} deg {before.chi2:9.3g}  ->  "
-              f"{after.rms_db:7.3g} dB {after.rms_deg:7.3g} deg {after.chi2:9.3g}")
+        print(f"  {_NAMES[ch]:>9}: {before.rms_db:7.3g} dB {before.rms_deg:7.3g} deg {chi2(before.chi2)}  ->  "
+              f"{after.rms_db:7.3g} dB {after.rms_deg:7.3g} deg {chi2(after.chi2)}")
     if d.unexplained:
         print("unexplained: a significant residual that nothing in the library explains:")
         for b in d.unexplained:

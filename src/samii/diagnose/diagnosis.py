@@ -16,15 +16,21 @@ model is right and the noise estimate too; 3-record spreads put it at about
 
 A delay of at most one sample is the sampling itself (a zero-order hold
 delays the command by half a sample, a DAQ that computes the next command
-from this sample's reading by up to one): it is reported, flagged
-``expected``, and does not make the verdict "effects".
+from this sample's reading by up to one, a multiplexed ADC reads its
+channels up to a sample apart): it is reported, flagged ``expected``, and
+does not make the verdict "effects". The sample is the fastest file's (the
+strictest); a file that does not state its rate gets no such allowance.
 
 Unexplained bands: after the selection, the squared normalised residual of
 each channel averaged over ``BAND_POINTS`` neighbouring points is compared
 with its chi-square quantile at ``ALPHA`` / (windows), with ``2 BAND_POINTS / L``
 degrees of freedom (``L`` the noise's correlation length) and the noise
-scale from the median (never below the predicted): windows beyond it,
-merged, are the bands.
+scale from the median (never below the predicted; when the file's noise is
+unknown, the median alone): windows beyond it, merged, are the bands.
+
+When a file's noise is unknown (no coherence, one record) its points are
+weighed alike and the reported ``chi2`` is None: there is no noise to be
+a multiple of.
 """
 
 from __future__ import annotations
@@ -60,7 +66,7 @@ class ChannelError:
 
     rms_db: float
     rms_deg: float
-    chi2: float  # mean squared normalised residual per real residual (1 at the noise)
+    chi2: float | None  # mean squared normalised residual per real residual (1 at the noise); None when the noise is unknown
     n_points: int
 
     def to_dict(self) -> dict:
@@ -183,6 +189,7 @@ def _full_residuals(ds: Dataset, res: dict) -> dict[str, tuple[np.ndarray, np.nd
 
 def channel_errors(datasets: Sequence[Dataset], fit: Fit) -> dict[str, ChannelError]:
     pooled: dict[str, list] = {}
+    known = all(ds.known_noise for ds in datasets)
     for ds, res in zip(datasets, fit.residuals):
         for ch, (e, v) in _full_residuals(ds, res).items():
             ok = np.isfinite(e) & np.isfinite(v)
@@ -196,7 +203,7 @@ def channel_errors(datasets: Sequence[Dataset], fit: Fit) -> dict[str, ChannelEr
         if e.size == 0:
             continue
         out[ch] = ChannelError(rms_db=float(_DB * np.sqrt(np.mean(e.real**2))), rms_deg=float(_DEG * np.sqrt(np.mean(e.imag**2))),
-                               chi2=float(np.mean(np.abs(e) ** 2 / v)), n_points=int(e.size))
+                               chi2=float(np.mean(np.abs(e) ** 2 / v)) if known else None, n_points=int(e.size))
     return out
 
 
@@ -217,7 +224,9 @@ def unexplained_bands(datasets: Sequence[Dataset], fit: Fit, *, alpha: float = A
                 continue
             f = ds.freq_hz[ok]
             z2 = np.abs(e[ok]) ** 2 / v[ok] * 2.0  # ~ chi2(2) per point
-            scale = max(1.0, float(np.median(z2)) / (2.0 * np.log(2.0)))
+            scale = float(np.median(z2)) / (2.0 * np.log(2.0))
+            if ds.known_noise:  # never judge against less noise than the data show
+                scale = max(1.0, scale)
             win = np.convolve(z2 / scale, np.ones(points), mode="valid") / (2.0 * points)  # mean per real residual
             dof = 2.0 * points / max(ds.corr_length, 1.0)
             limit = stats.chi2.isf(alpha / win.size, dof) / dof
@@ -235,8 +244,8 @@ def _runs(flag: np.ndarray) -> list[tuple[int, int]]:
 
 
 def _sample_delay_s(measured: Sequence[Measured]) -> float | None:
-    rates = [m.sample_rate_hz for m in measured if m.sample_rate_hz]
-    return 1.0 / min(rates) if rates else None
+    rates = [m.sample_rate_hz for m in measured]
+    return None if not rates or any(not r for r in rates) else 1.0 / max(rates)
 
 
 def _effects(after: Fit, steps: Sequence[Step], measured: Sequence[Measured]) -> list[FoundEffect]:
@@ -244,9 +253,16 @@ def _effects(after: Fit, steps: Sequence[Step], measured: Sequence[Measured]) ->
     added = [s for s in steps if not s.label.startswith("removed ")]
     out = []
     used: set[int] = set()
+
+    def distance(step: Step, values: dict) -> float:  # the step whose effect is nearest these values; later on ties
+        if not step.values:
+            return 0.0
+        return sum(abs(np.log(abs(values[n]) / abs(v))) if v and values.get(n) else 0.0 for n, v in step.values.items())
+
     for e in after.effects:
         k = e.kind
-        j = next((i for i, s in enumerate(added) if s.label == k.label and i not in used), None)
+        mine = [i for i, s in enumerate(added) if s.label == k.label and i not in used]
+        j = min(mine, key=lambda i: (distance(added[i], e.values), -i)) if mine else None
         if j is not None:
             used.add(j)
             s = added[j]
@@ -285,6 +301,22 @@ def _within_band(kind, datasets: Sequence[Dataset]):
     return replace(kind, params=params)
 
 
+def _noise_from_roughness(m: Measured, baseline: str) -> Measured:
+    """``m`` itself if its noise is known, else with the noise estimated from its residual against the baseline
+    fitted with uniform weights (:func:`samii.diagnose.measured.with_roughness_noise`)."""
+    from samii.diagnose.baseline import notebook_baseline, saved_fit_baseline
+    from samii.diagnose.measured import with_roughness_noise
+    from samii.diagnose.model import fit_model
+
+    ds = Dataset.from_measured(m)
+    if ds.known_noise:
+        return m
+    bl = notebook_baseline([m]) if baseline == "notebook" else saved_fit_baseline(baseline, [ds])
+    fit = fit_model([ds], bl, [])
+    model = model_response(fit, 0, m.frf.freq_hz)
+    return with_roughness_noise(m, {ch: model[ch] for ch in m.frf.channels})
+
+
 def diagnose(measured: Sequence[Measured], *, baseline: str = "notebook", alpha: float = ALPHA, progress=None) -> Diagnosis:
     """Diagnose the files of one rig against ``baseline`` ("notebook" or the path of a saved fit.json).
 
@@ -295,12 +327,12 @@ def diagnose(measured: Sequence[Measured], *, baseline: str = "notebook", alpha:
     measured = tuple(measured)
     if not measured:
         raise ValueError("no data to diagnose")
-    datasets = tuple(Dataset.from_measured(m) for m in measured)
     notes = []
-    for m, ds in zip(measured, datasets):
-        if not ds.known_noise:
-            notes.append(f"{m.source}: the noise of the points is unknown ({m.noise_source}); the tests take its level from the residual "
-                         "and weigh every point alike")
+    if any(not Dataset.from_measured(m).known_noise for m in measured):
+        measured = tuple(_noise_from_roughness(m, baseline) for m in measured)
+        notes += [f"{m.source}: no coherence and no records; the noise of each point is {m.noise_source}" for m in measured
+                  if m.noise_source.startswith("estimated from the roughness")]
+    datasets = tuple(Dataset.from_measured(m) for m in measured)
     if baseline == "notebook":
         bl = notebook_baseline(measured)
     else:

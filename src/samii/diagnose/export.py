@@ -43,8 +43,8 @@ def effect_tfs(kind: EffectKind, values: Mapping[str, float], *, pade_order: int
             return d, None, None
         if k == "accel_sensor":
             return None, d, None
-        if k == "theta_sensor":  # theta read late: theta/v x e^-sT, xdd/theta x e^+sT (total unchanged)
-            return d, 1 / d, None
+        if k == "theta_sensor":  # theta read late: theta/v x e^-sT, xdd/theta x e^+sT (xdd/v unchanged; see augmented_tf)
+            return d, None, None
     if k == "base_mode":
         w = TWO_PI * v["freq_hz"]
         return None, None, v["residue"] * s**4 / (s**2 + 2 * v["zeta"] * w * s + w * w)
@@ -70,14 +70,25 @@ def effect_tfs(kind: EffectKind, values: Mapping[str, float], *, pade_order: int
 
 def augmented_tf(fit, i: int = 0, channel: str = "total", *, pade_order: int = 3):
     """Channel ``act`` (theta/v), ``base`` (xdd/theta, improper with the s^4 numerator) or ``total``
-    (xdd/v) of ``fit``'s model for file ``i``, as a ``control.TransferFunction``."""
+    (xdd/v) of ``fit``'s model for file ``i``, as a ``control.TransferFunction``.
+
+    A theta-sensor delay is a lag in theta/v and an advance in xdd/theta: ``base`` is refused then,
+    and ``total`` leaves both out (they cancel exactly)."""
     st = fit.baseline.structure
     if st is None or not fit.baseline_params:
         raise ValueError("the baseline has no structure to export")
+    if channel not in ("act", "base", "total"):
+        raise ValueError(f"channel must be 'act', 'base' or 'total', got {channel!r}")
+    theta_late = [e for e in fit.effects if e.kind.label == "delay/theta_sensor"]
+    if theta_late and channel == "base":
+        raise ValueError("xdd/theta with theta read late is xdd/theta x e^+sT, a time advance with no causal transfer function "
+                         "(its Pade inverse has right-half-plane poles); use augmented_frd, or the act and total channels")
     p = fit.baseline_params[i]
     act, base = st.to_tf(p, "act"), st.to_tf(p, "base")
     m_act, m_base = [], []
     for e in fit.effects:
+        if e.kind.label == "delay/theta_sensor" and channel == "total":
+            continue  # theta's late reading cancels in xdd/v, which does not pass through theta
         a, b, add = effect_tfs(e.kind, e.values, pade_order=pade_order)
         if a is not None:
             m_act.append(a)
@@ -89,13 +100,7 @@ def augmented_tf(fit, i: int = 0, channel: str = "total", *, pade_order: int = 3
         act = act * m
     for m in m_base:
         base = base * m
-    if channel == "act":
-        return act
-    if channel == "base":
-        return base
-    if channel == "total":
-        return act * base
-    raise ValueError(f"channel must be 'act', 'base' or 'total', got {channel!r}")
+    return {"act": act, "base": base}.get(channel, act * base)
 
 
 def augmented_frd(fit, freq_hz, i: int = 0, channel: str = "total"):

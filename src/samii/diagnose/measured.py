@@ -20,9 +20,16 @@ of it). Where it comes from, best first:
   ``var = 2 eps^2``, pooled over ``POOL`` neighbouring points; ``n`` from the
   file's ``frf_records`` or ``averages`` line, else 3 (the rig's averages,
   notebook ch. 9), said so.
-* **Nothing** (no coherence, one record): ``var`` is None; the tests then take the
-  noise level from the residual of the richest model (an F-test needs only
-  the relative weights, here uniform).
+* **The residual's roughness** (no coherence, one record: a rig-era .mat):
+  the random error varies with frequency by orders of magnitude (theta/v is
+  noise above some 9 Hz at 0.1 V), so uniform weights would let noise pass
+  for modes. :func:`with_roughness_noise` estimates it from the residual
+  against the baseline fitted with uniform weights: the difference of
+  nearby points cancels a smooth misfit and keeps the noise,
+  ``var = pool(|e[k+2] - e[k]|^2) / 2`` over ``POOL`` points (two points
+  apart: on a zero-padded FFT grid neighbours share part of their error and
+  their difference would understate it). A narrow misfit (a few points)
+  raises it locally, so this is the weakest of the three.
 """
 
 from __future__ import annotations
@@ -40,10 +47,12 @@ from samii.measure.frf import CHANNEL_PAIRS, estimate_frf, record_spectra, recor
 from samii.measure.records import RecordLayout, find_records
 from samii.measure.timeseries import TimeSeries
 
-__all__ = ["Measured", "from_timeseries", "from_frf", "POOL", "timeseries_frf"]
+__all__ = ["Measured", "from_timeseries", "from_frf", "POOL", "timeseries_frf", "with_roughness_noise"]
 
 #: Neighbouring points the record-to-record variance is pooled over (odd).
 POOL = 9
+#: Points apart whose residuals are differenced to estimate an unknown noise (with_roughness_noise).
+ROUGHNESS_LAG = 2
 #: Averages assumed behind a coherence when a file does not say.
 DEFAULT_AVERAGES = 3
 
@@ -162,6 +171,13 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
         band_hz = (lo or 0.1, min(hi or 40.0, 0.45 * fs))
     frf, var, corr, how = timeseries_frf(ts, layout, band_hz=band_hz)
     amp = _float_meta(ts.metadata, "amplitude_v") or float(np.max(np.abs(ts.r)))
+    # what a diagnosis of the FRF file alone needs: the sampling (a delay of one sample is expected), the
+    # excitation's amplitude, and how many neighbouring points share one error on this grid
+    meta = dict(frf.metadata)
+    meta.setdefault("sample_rate_hz", f"{fs:.10g}")
+    meta.setdefault("amplitude_v", f"{amp:.6g}")
+    meta["frf_corr_length"] = f"{corr:.3g} (points one independent error spans, from the record-to-record deviations)"
+    frf = replace(frf, metadata=meta)
     return Measured(source=source, frf=frf, var=var, noise_source=how, corr_length=corr, amplitude_v=amp, sample_rate_hz=fs,
                     timeseries=ts, layout=layout)
 
@@ -189,9 +205,14 @@ def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
         var[ch] = np.maximum(_pool((1.0 - g) / (n * g)), 1e-30)
         have.append(ch)
     how = f"coherence of {', '.join(have)} ({averages}), pooled over {POOL} neighbouring points" if have else "unknown (no coherence in the file)"
+    if have and len(have) < len(frf.channels):  # one noise model for the whole file: a half-known one would mix real and placeholder weights
+        var = dict.fromkeys(frf.channels)
+        how = f"unknown (coherence for {', '.join(have)} only)"
     sr = _float_meta(meta, "sample_rate_hz")
     amp = _float_meta(meta, "amplitude_v")
-    return Measured(source=source, frf=frf, var=var, noise_source=how, amplitude_v=amp, sample_rate_hz=sr)
+    corr = _float_meta(meta, "frf_corr_length")
+    corr = corr if corr is not None and 1.0 <= corr <= 20.0 else 1.0
+    return Measured(source=source, frf=frf, var=var, noise_source=how, corr_length=corr, amplitude_v=amp, sample_rate_hz=sr)
 
 
 def load(path, *, band_hz: tuple[float, float] | None = None, record_s: float | None = None,
@@ -215,3 +236,24 @@ def load(path, *, band_hz: tuple[float, float] | None = None, record_s: float | 
     if band_hz is not None:
         frf = frf.band(*band_hz)
     return from_frf(frf, source=source)
+
+
+def with_roughness_noise(m: Measured, model: Mapping[str, np.ndarray]) -> Measured:
+    """``m`` with the variance of every point estimated from the roughness of its residual against ``model``
+    (channel -> complex response on ``m.frf.freq_hz``), for a file that says nothing of its noise (module docstring)."""
+    var = {}
+    for ch in m.frf.channels:
+        if ch not in model:
+            var[ch] = None
+            continue
+        with np.errstate(divide="ignore", invalid="ignore"):
+            e = np.log(m.frf.response(ch) / model[ch])
+        e = np.nan_to_num(e, nan=0.0, posinf=0.0, neginf=0.0)
+        lag = ROUGHNESS_LAG if e.size > ROUGHNESS_LAG else 1
+        d2 = np.abs(e[lag:] - e[:-lag]) ** 2 if e.size > 1 else np.zeros(1)
+        d2 = np.concatenate([d2, np.full(e.size - d2.size, d2[-1])])  # each point: the difference that starts at it
+        var[ch] = np.maximum(_pool(np.roll(d2, lag // 2)) / 2.0, 1e-30)
+    how = (f"estimated from the roughness of the residual against the baseline (differences of points {ROUGHNESS_LAG} apart, pooled over "
+           f"{POOL}): "
+           "the file gives no coherence and no records")
+    return replace(m, var=var, noise_source=how)

@@ -21,7 +21,7 @@ error carry less information than their number says).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -32,7 +32,8 @@ from samii.identify.structures import ModelStructure
 
 __all__ = ["Dataset", "Baseline", "Fit", "fit_model", "relabel_modes", "notebook_reference", "MAX_VAR"]
 
-#: Points whose relative random error exceeds this variance (std 0.5: 4 dB, 29 deg) carry no usable
+#: Points whose relative random error exceeds this variance (each of log magnitude and phase std
+#: sqrt(0.25/2) = 0.35: 3.1 dB, 20 deg) carry no usable
 #: information: there the estimate is dominated by noise and its spread says nothing about its error.
 MAX_VAR = 0.25
 
@@ -60,6 +61,8 @@ class Dataset:
         frf = m.frf
         data, keep, inv = {}, {}, {}
         known = True
+        if any(m.var.get(c) is None for c in frf.channels):  # one noise model per file: unknown for all if for one
+            m = replace(m, var=dict.fromkeys(frf.channels))
         for ch in channels:
             if ch == "base" and "base" not in frf.channels and {"act", "total"} <= set(frf.channels):
                 h = frf.total / frf.act
@@ -247,6 +250,21 @@ def _vector(datasets, res) -> np.ndarray:
     return np.concatenate(parts)
 
 
+#: Singular values of the Jacobian below this fraction of the largest are directions the data do not determine.
+NULL_RCOND = 1e-8
+
+
+def _standard_errors(jac: np.ndarray, s2: float) -> np.ndarray:
+    """sqrt(diag(s2 (J'J)^-1)) in the determined directions; infinite for a parameter with a share in a
+    direction the data do not determine (e.g. the base's parameters when a file has only theta/v)."""
+    _, sv, vt = np.linalg.svd(jac, full_matrices=False)
+    ok = sv > NULL_RCOND * (sv[0] if sv.size else 0.0)
+    inv = np.where(ok, 1.0 / np.where(ok, sv, 1.0) ** 2, 0.0)
+    se = np.sqrt(np.clip((vt.T**2) @ inv * s2, 0, None))
+    undetermined = np.any(np.abs(vt[~ok]) > 1e-3, axis=0) if np.any(~ok) else np.zeros(jac.shape[1], bool)
+    return np.where(undetermined, np.inf, se)
+
+
 def fit_model(
     datasets: Sequence[Dataset],
     baseline: Baseline,
@@ -299,9 +317,7 @@ def fit_model(
     if n:
         s2 = chi2 / max(m - n, 1) * corr
         try:
-            jtj = jac.T @ jac
-            cov = np.linalg.pinv(jtj, rcond=1e-12) * s2
-            se_z = np.sqrt(np.clip(np.diag(cov), 0, None))
+            se_z = _standard_errors(jac, s2)
         except np.linalg.LinAlgError:
             pass
     b_params, b_se = [], []
@@ -333,9 +349,12 @@ def relabel_modes(datasets: Sequence[Dataset], fit: Fit) -> Fit:
     A free baseline may move one of its modes onto a mode it lacks and leave its own to an extra
     ``base_mode`` (the modal sum does not care which term is which): then "an extra mode at 25 Hz" is
     reported where the rig has an extra mode at 15 Hz and eq 9.4's 25 Hz mode. The terms are swapped
-    (exact for the s^4 modal sum: B s^4/(s^2 + 2 z w s + w^2) either way) and refitted from there, which
-    leaves chi2 unchanged and gives the standard errors their new names. Modes tied to the actuator
-    (mode 2 = wz) stay where they are.
+    (the s^4 modal sum is B s^4/(s^2 + 2 z w s + w^2) either way) and refitted from there, which gives
+    the standard errors their new names. For one file the swap is exact and the refit leaves chi2 as it
+    was; with several, the baseline mode that becomes the shared extra one starts from the first file's
+    values and the refit has to agree. If the refit ends worse (also when a moved term falls outside its
+    bounds, a damping above 0.5 or a frequency beyond the band) the fit is kept as it was, names
+    unchanged. Modes tied to the actuator (mode 2 = wz) stay where they are.
     """
     import itertools
 
@@ -406,9 +425,12 @@ def start_params(m, structure: ModelStructure, *, rng_seed: int = 0) -> dict[str
     itself in SI (theta in rad: K1 x pi/180, B_k x 180/pi). A swept sine's noisy ends can lead the
     first into a basin that loses a mode; the notebook's own model rarely is far from a rig like it.
     """
-    cands = [_fitted_start(m, structure, rng_seed=rng_seed)]
+    ref = notebook_reference()
+    # parameters samii's fit leaves out (no xdd in a theta/v-only file) start at eq 9.4's values; the weighted
+    # fit then leaves them there, with an infinite standard error
+    cands = [{k: (v if np.isfinite(v) else ref.get(k, v)) for k, v in _fitted_start(m, structure, rng_seed=rng_seed).items()}]
     if structure == ModelStructure.notebook_3mode():
-        cands.append({k: v for k, v in notebook_reference().items() if k in structure.param_names})
+        cands.append({k: v for k, v in ref.items() if k in structure.param_names})
     ds = Dataset.from_measured(m)
     best = None
     for p in cands:

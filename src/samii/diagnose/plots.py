@@ -44,8 +44,9 @@ def residual_figure(d: Diagnosis, path=None):
             sig = np.sqrt(var / 2.0)
             c = colors[i % len(colors)]
             tag = f" ({_label(d, i)})" if len(d.datasets) > 1 else ""
-            ax_m.fill_between(f, -2 * _DB * sig, 2 * _DB * sig, color=c, alpha=0.15, lw=0, label=f"±2σ noise{tag}")
-            ax_p.fill_between(f, -2 * _DEG * sig, 2 * _DEG * sig, color=c, alpha=0.15, lw=0)
+            if ds.known_noise:  # else the weights are a placeholder, not the data's noise
+                ax_m.fill_between(f, -2 * _DB * sig, 2 * _DB * sig, color=c, alpha=0.15, lw=0, label=f"±2σ noise{tag}")
+                ax_p.fill_between(f, -2 * _DEG * sig, 2 * _DEG * sig, color=c, alpha=0.15, lw=0)
             ax_m.plot(f, _DB * eb.real, color="0.55", lw=0.8, label=f"baseline{tag}")
             ax_p.plot(f, _DEG * eb.imag, color="0.55", lw=0.8)
             ax_m.plot(f, _DB * ea.real, color=c, lw=1.0, label=f"with the effects{tag}")
@@ -57,7 +58,9 @@ def residual_figure(d: Diagnosis, path=None):
         eb_, ea_ = d.error_before.get(ch), d.error_after.get(ch)
         title = f"{_NAMES[ch]}: residual ln(data/model)"
         if eb_ and ea_:
-            title += f"\nrms {eb_.rms_db:.2g} → {ea_.rms_db:.2g} dB, {eb_.rms_deg:.2g} → {ea_.rms_deg:.2g}°, χ² {eb_.chi2:.3g} → {ea_.chi2:.3g}"
+            title += f"\nrms {eb_.rms_db:.2g} → {ea_.rms_db:.2g} dB, {eb_.rms_deg:.2g} → {ea_.rms_deg:.2g}°"
+            if eb_.chi2 is not None:
+                title += f", χ² {eb_.chi2:.3g} → {ea_.chi2:.3g}"
         ax_m.set_title(title, fontsize=10)
         ax_m.set_ylabel("magnitude residual [dB]")
         ax_p.set_ylabel("phase residual [deg]")
@@ -93,7 +96,8 @@ def bode_figure(d: Diagnosis, path=None):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    chans = [c for c in ("act", "base", "total") if any(c in r for r in d.residuals("after"))]
+    residuals = d.residuals("after")
+    chans = [c for c in ("act", "base", "total") if any(c in r for r in residuals)]
     fig, axes = plt.subplots(2, len(chans), figsize=(5.5 * len(chans), 6.5), sharex=True, squeeze=False)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for i, (m, ds) in enumerate(zip(d.measured, d.datasets)):
@@ -101,7 +105,7 @@ def bode_figure(d: Diagnosis, path=None):
         f = ds.freq_hz
         fm = np.geomspace(f[0], f[-1], 800)
         mb, ma = d.model(i, fm, "before"), d.model(i, fm, "after")
-        full = d.residuals("after")[i]
+        full = residuals[i]
         tag = f" ({_label(d, i)})" if len(d.datasets) > 1 else ""
         for col, ch in enumerate(chans):
             if ch not in full:

@@ -12,6 +12,12 @@ parameters, ``m`` the weighted residuals, ``L`` the noise's correlation length
 relative weights of the points; its level comes from the richer model's
 residual, so an error in the noise level does not make effects appear.
 
+Two candidates are refused whatever their F: an extra base mode within 5 % of
+a baseline mode (a mode split in two), and an actuator mode whose pole and
+zero lie closer than the data's frequency spacing (unresolvable: a bump that
+fits a wiggle of the noise; seen with noise estimated from the residual's
+roughness).
+
 Each round tries every kind of the library from several starts: the effect
 alone is first fitted with the current model held (cheap), the best start then
 refitted jointly with everything else. The kind with the smallest p-value
@@ -48,6 +54,7 @@ class Step:
     log10_p: float
     chi2_before: float
     chi2_after: float
+    values: dict | None = None  # the effect's parameters when it joined
 
 
 def _peaks(ds_list: list[Dataset], fit: Fit, ch: str, n: int = 3) -> list[float]:
@@ -168,6 +175,17 @@ def _duplicate_mode(fit: Fit) -> bool:
     return any(abs(np.log(e.values["freq_hz"] / f)) < 0.05 for f in _mode_freqs_hz(fit))
 
 
+def _unresolved_pair(fit: Fit, ds_list: list[Dataset]) -> bool:
+    """The last effect is an actuator mode whose pole and zero lie closer than the data's frequency spacing there:
+    no measurement on that grid can tell them apart, and such a pair is a bump that fits a local wiggle of the noise."""
+    e = fit.effects[-1]
+    if e.kind.kind != "act_mode":
+        return False
+    fp, fz = e.values["freq_hz"], e.values["zero_freq_hz"]
+    spacing = min(float(np.interp(fp, ds.freq_hz[1:], np.diff(ds.freq_hz))) for ds in ds_list)
+    return abs(fp - fz) < spacing
+
+
 def _backward(ds_list, baseline, fit: Fit, corr: float, level: float, steps: list, reference: Fit | None = None) -> Fit:
     """Drop earlier effects that the newest one has made unnecessary (their removal passes the F-test)."""
     changed = True
@@ -231,8 +249,8 @@ def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[Effec
                 current = alone
             fstat, dof, logp = _f_test(current, cand, corr)
             eff = cand.effects[-1]
-            if _duplicate_mode(cand):
-                logp = 0.0  # not a new mode: one the baseline has, split in two
+            if _duplicate_mode(cand) or _unresolved_pair(cand, ds_list):
+                logp = 0.0  # not a new mode: one the baseline has split in two, or a pole and zero the data cannot resolve
             tried.append({"round": _round + 1, "effect": kind.label, "params": dict(eff.values), "chi2": cand.chi2, "F": fstat,
                           "dof": list(dof), "log10_p": logp, "threshold_log10_p": float(level)})
             if progress:
@@ -247,6 +265,6 @@ def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[Effec
         logp, fstat, dof, cand, kind = min(
             candidates, key=lambda c: (max(c[0], -300.0), c[3].chi2 / s2 + c[3].n_params * np.log(c[3].n_residuals) if c[0] <= -300 else 0.0)
         )
-        steps.append(Step(kind.label, fstat, dof, logp, current.chi2, cand.chi2))
+        steps.append(Step(kind.label, fstat, dof, logp, current.chi2, cand.chi2, dict(cand.effects[-1].values)))
         current = _backward(ds_list, baseline, cand, corr, level, steps, reference=base_fit)
     return base_fit, relabel_modes(ds_list, current), steps, tried

@@ -35,23 +35,21 @@ def read_measured(path: str, *, record_s: float | None, band_hz):
     """A time-series CSV as :class:`samii.diagnose.measured.Measured`; InputError naming the file for what a user can fix."""
     from pathlib import Path
 
-    from samii.diagnose.measured import from_timeseries
-    from samii.measure.io import DataFormatError, csv_header, is_mat_file, read_timeseries_csv
+    from samii.diagnose.measured import load
+    from samii.measure.io import csv_header, is_mat_file
 
     p = Path(path)
-    if not is_mat_file(p):
-        header = csv_header(p)
-        if "freq_hz" in header and "t" not in header:
-            raise InputError(f"{path}: this is already a frequency response (columns {', '.join(header[:4])}, ...); samii frf expects a time series "
-                             "(t, v, theta, accel, r), as samii measure writes timeseries.csv")
-    else:
+    if is_mat_file(p):
         raise InputError(f"{path}: a MATLAB file; samii frf expects a time-series CSV (t, v, theta, accel, r)")
-    ts = read_timeseries_csv(p)
-    try:
-        return from_timeseries(ts, source=str(path), band_hz=band_hz, record_s=record_s)
-    except ValueError as exc:
-        text = str(exc)
-        raise DataFormatError(p, text[len(str(path)) + 2:] if text.startswith(str(path) + ": ") else text) from None
+    header = csv_header(p)
+    if "freq_hz" in header and "t" not in header:
+        raise InputError(f"{path}: this is already a frequency response (columns {', '.join(header[:4])}, ...); samii frf expects a time series "
+                         "(t, v, theta, accel, r), as samii measure writes timeseries.csv")
+    if "t" not in header:
+        from samii.measure.io import read_timeseries_csv
+
+        read_timeseries_csv(p)  # raises, naming the file and the columns it lacks
+    return load(p, band_hz=band_hz, record_s=record_s)
 
 
 def summary(m) -> dict:
