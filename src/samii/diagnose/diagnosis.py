@@ -44,7 +44,7 @@ from scipy import stats
 from samii.diagnose.effects import library
 from samii.diagnose.measured import Measured
 from samii.diagnose.model import Baseline, Dataset, Fit, _apply
-from samii.diagnose.select import ALPHA, Step, forward_select
+from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select
 
 __all__ = ["ChannelError", "FoundEffect", "Band", "Diagnosis", "diagnose", "CHANNELS", "BAND_POINTS", "RULE"]
 
@@ -248,9 +248,10 @@ def _sample_delay_s(measured: Sequence[Measured]) -> float | None:
     return None if not rates or any(not r for r in rates) else 1.0 / max(rates)
 
 
-def _effects(after: Fit, steps: Sequence[Step], measured: Sequence[Measured]) -> list[FoundEffect]:
+def _effects(after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured: Sequence[Measured]) -> list[FoundEffect]:
     sample = _sample_delay_s(measured)
     added = [s for s in steps if not s.label.startswith("removed ")]
+    swaps = [t for t in tried if t.get("round") == "swap"]
     out = []
     used: set[int] = set()
 
@@ -270,9 +271,17 @@ def _effects(after: Fit, steps: Sequence[Step], measured: Sequence[Measured]) ->
             test = (f"adding it lowers chi2 from {s.chi2_before:.4g} to {s.chi2_after:.4g} for {s.dof[0]} parameter(s): "
                     f"F = {s.f_stat:.3g} on ({s.dof[0]}, {s.dof[1]}) dof, {p}")
         else:
-            test = "kept by the joint refit"
+            swap = next((t for t in swaps if t.get("swapped") and t["effect"] == k.label), None)
+            test = (f"it replaced {swap['alternative_to']}, which had joined by F-test, with no more parameters: chi2 "
+                    f"{swap['chi2_current']:.4g} -> {swap['chi2']:.4g}" if swap else "kept by the joint refit")
         expected = False
         text = f"{k.describe(e.values)}; {test}"
+        rival = next((t for t in swaps if t["delta_in_noise"] < AMBIGUOUS_CHI2 and
+                      ((t.get("swapped") and t["effect"] == k.label) or (not t.get("swapped") and t["alternative_to"] == k.label))), None)
+        if rival is not None:
+            other = rival["alternative_to"] if rival.get("swapped") else rival["effect"]
+            text += (f"; but {other} in its place fits almost as well (chi2 differs by {rival['delta_in_noise']:.2g} noise variances): "
+                     "these data hardly tell the two apart")
         if k.category == "delay" and sample is not None:
             d, se = e.values["delay_s"], e.stderr.get("delay_s", 0.0)
             se = se if np.isfinite(se) else 0.0
@@ -344,7 +353,7 @@ def diagnose(measured: Sequence[Measured], *, baseline: str = "notebook", alpha:
     channels = ("act", "base") if {"act", "base"} <= have or {"act", "total"} <= have else tuple(c for c in ("act", "base") if c in have)
     kinds = [_within_band(k, datasets) for k in library(fixed_baseline=not bl.free, channels=channels)]
     before, after, steps, tried = forward_select(list(datasets), bl, kinds, alpha=alpha, progress=progress)
-    effects = _effects(after, steps, measured)
+    effects = _effects(after, steps, tried, measured)
     return Diagnosis(measured, datasets, bl, before, after, tuple(steps), tuple(tried), tuple(effects),
                      channel_errors(datasets, before), channel_errors(datasets, after), tuple(unexplained_bands(datasets, after, alpha=alpha)),
                      notes=tuple(notes))

@@ -13,15 +13,19 @@ relative weights of the points; its level comes from the richer model's
 residual, so an error in the noise level does not make effects appear.
 
 Two candidates are refused whatever their F: an extra base mode within 5 % of
-a baseline mode (a mode split in two), and an actuator mode whose pole and
-zero lie closer than the data's frequency spacing (unresolvable: a bump that
-fits a wiggle of the noise; seen with noise estimated from the residual's
-roughness).
+a baseline mode (a mode split in two), and an extra mode the data cannot
+resolve: an actuator mode whose pole and zero lie closer than the data's
+frequency spacing (a bump that fits a wiggle of the noise; seen with noise
+estimated from the residual's roughness), or a mode whose half-power
+bandwidth is under half that spacing (a 0.107 Hz "mode" with damping 1e-4,
+fitted to one point at the band's edge).
 
 Each round tries every kind of the library from several starts: the effect
 alone is first fitted with the current model held (cheap), the best start then
 refitted jointly with everything else. The kind with the smallest p-value
-joins, and the rounds go on until none passes (at most ``MAX_EFFECTS``).
+joins, and the rounds go on until none passes (at most ``MAX_EFFECTS``). Then
+each effect is swapped for every other kind on its channel with no more
+parameters, refitted jointly, and the better fit kept (``_swap``).
 """
 
 from __future__ import annotations
@@ -176,14 +180,17 @@ def _duplicate_mode(fit: Fit) -> bool:
 
 
 def _unresolved_pair(fit: Fit, ds_list: list[Dataset]) -> bool:
-    """The last effect is an actuator mode whose pole and zero lie closer than the data's frequency spacing there:
-    no measurement on that grid can tell them apart, and such a pair is a bump that fits a local wiggle of the noise."""
+    """The last effect is an extra mode the data cannot resolve: an actuator mode whose pole and zero lie closer
+    than the data's frequency spacing there (a bump that fits a local wiggle of the noise), or a mode whose
+    half-power bandwidth 2 zeta f is under half that spacing (it fits one point, not a resonance)."""
     e = fit.effects[-1]
-    if e.kind.kind != "act_mode":
+    if e.kind.category != "extra_mode":
         return False
-    fp, fz = e.values["freq_hz"], e.values["zero_freq_hz"]
-    spacing = min(float(np.interp(fp, ds.freq_hz[1:], np.diff(ds.freq_hz))) for ds in ds_list)
-    return abs(fp - fz) < spacing
+    f = e.values["freq_hz"]
+    spacing = min(float(np.interp(f, ds.freq_hz[1:], np.diff(ds.freq_hz))) for ds in ds_list)
+    if 2.0 * e.values["zeta"] * f < 0.5 * spacing:
+        return True
+    return e.kind.kind == "act_mode" and abs(f - e.values["zero_freq_hz"]) < spacing
 
 
 def _backward(ds_list, baseline, fit: Fit, corr: float, level: float, steps: list, reference: Fit | None = None) -> Fit:
@@ -208,6 +215,71 @@ def _backward(ds_list, baseline, fit: Fit, corr: float, level: float, steps: lis
     return fit
 
 
+#: A swap whose chi2 is within this many noise variances (s^2 x correlation length) of the chosen model's
+#: "fits almost as well": about two standard deviations of a one-parameter chi2 difference.
+AMBIGUOUS_CHI2 = 4.0
+
+
+def _swap(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, tried: list[dict]) -> Fit:
+    """Replace each effect by every other kind on the same channel (a mode by a mode on either) with no more parameters, refit jointly, and
+    keep whichever fits best (equal or fewer parameters: the lower chi2 is the likelier model). Forward
+    selection is greedy: a delay can join as an actuator mode at the band's edge, a first-order roll-off
+    as a second-order one with a shorter delay, and a later round cannot undo it. The best alternative of
+    each effect is recorded in ``tried`` (round "swap"), so the report can say when the data hardly tell
+    them apart."""
+    for i in range(len(fit.effects)):
+        if i >= len(fit.effects):
+            break
+        e = fit.effects[i]
+        rest = [f for j, f in enumerate(fit.effects) if j != i]
+        used = {f.kind.label for f in rest}
+        s2 = fit.chi2 / fit.dof * corr
+        best_alt = None
+        for k in kinds:
+            related = set(k.affects) & set(e.kind.affects) or k.category == e.kind.category == "extra_mode"
+            if (k.label == e.kind.label or len(k.params) > len(e.kind.params) or not related
+                    or (k.category != "extra_mode" and k.label in used)):
+                continue
+            base = Fit(fit.baseline, fit.baseline_params, fit.baseline_stderr, tuple(rest), fit.chi2, fit.n_residuals, fit.n_params,
+                       fit.residuals)
+            held = []
+            for x0 in starts_for(k, ds_list, fit):
+                h = fit_model(ds_list, baseline, _with(base, [(k, x0)]), free_baseline=False, start_baseline=_baseline_vectors(fit), max_nfev=60)
+                held.append(h)
+            if not held:
+                continue
+            h = min(held, key=lambda f: f.chi2)
+            x_e = [(f.kind, np.array([f.values[p.name] for p in f.kind.params])) for f in h.effects]
+            x_e = x_e[:i] + [x_e[-1]] + x_e[i:-1]  # the replacement in the replaced effect's place
+            alt = fit_model(ds_list, baseline, x_e, start_baseline=_baseline_vectors(fit))
+            if best_alt is None or alt.chi2 < best_alt.chi2:
+                best_alt = alt
+        if best_alt is None:
+            continue
+        new = best_alt.effects[i]
+        tried.append({"round": "swap", "effect": new.kind.label, "alternative_to": e.kind.label, "params": dict(new.values),
+                      "chi2": best_alt.chi2, "chi2_current": fit.chi2, "delta_in_noise": abs(best_alt.chi2 - fit.chi2) / s2})
+        if best_alt.chi2 < fit.chi2 and not _duplicate_mode_at(best_alt, i) and not _unresolved_pair_at(best_alt, i, ds_list):
+            tried[-1]["swapped"] = True
+            fit = best_alt
+    return fit
+
+
+def _duplicate_mode_at(fit: Fit, i: int) -> bool:
+    return _duplicate_mode(_last(fit, i))
+
+
+def _unresolved_pair_at(fit: Fit, i: int, ds_list) -> bool:
+    return _unresolved_pair(_last(fit, i), ds_list)
+
+
+def _last(fit: Fit, i: int) -> Fit:
+    """``fit`` with effect ``i`` moved last (the checks look at the newest effect)."""
+    eff = list(fit.effects)
+    eff.append(eff.pop(i))
+    return Fit(fit.baseline, fit.baseline_params, fit.baseline_stderr, tuple(eff), fit.chi2, fit.n_residuals, fit.n_params, fit.residuals)
+
+
 def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[EffectKind], *, alpha: float = ALPHA,
                    max_effects: int = MAX_EFFECTS, progress=None) -> tuple[Fit, Fit, list[Step], list[dict]]:
     """Select effects from ``kinds`` (module docstring).
@@ -216,6 +288,11 @@ def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[Effec
     """
     corr = max(ds.corr_length for ds in ds_list)
     base_fit = fit_model(ds_list, baseline, [])
+    reference_b = None
+    if baseline.free and baseline.reference is not None:
+        ref = {k: v for k, v in baseline.reference.items() if k in baseline.structure.param_names}
+        if len(ref) == len(baseline.structure.param_names):
+            reference_b = [baseline.structure.vector(ref) for _ in ds_list]
     current = base_fit
     steps: list[Step] = []
     tried: list[dict] = []
@@ -237,9 +314,15 @@ def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[Effec
                 held.append((f.chi2, f))
             held.sort(key=lambda t: t[0])
             cand = None
-            for _, f in held[:JOINT_STARTS]:
+            # the best held start is also refitted from the reference's baseline (eq 9.4) in the first round: the
+            # baseline fitted without the effect may have bent into a basin (two modes on top of each other with
+            # huge opposite gains) that absorbs the effect and from which the joint fit does not climb out
+            jobs = [(f, _baseline_vectors(current)) for _, f in held[:JOINT_STARTS]]
+            if _round == 0 and reference_b is not None:
+                jobs.append((held[0][1], reference_b))
+            for f, xb in jobs:
                 x_e = [np.array([e.values[p.name] for p in e.kind.params]) for e in f.effects]
-                joint = fit_model(ds_list, baseline, list(zip([e.kind for e in f.effects], x_e)), start_baseline=_baseline_vectors(current))
+                joint = fit_model(ds_list, baseline, list(zip([e.kind for e in f.effects], x_e)), start_baseline=xb)
                 if cand is None or joint.chi2 < cand.chi2:
                     cand = joint
             # the candidate's refit may have found a better baseline than the current one: the
@@ -267,4 +350,6 @@ def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[Effec
         )
         steps.append(Step(kind.label, fstat, dof, logp, current.chi2, cand.chi2, dict(cand.effects[-1].values)))
         current = _backward(ds_list, baseline, cand, corr, level, steps, reference=base_fit)
+    if current.effects:
+        current = _swap(ds_list, baseline, current, kinds, corr, tried)
     return base_fit, relabel_modes(ds_list, current), steps, tried

@@ -1,0 +1,224 @@
+"""The diagnosis on data with effects it is not told about: the confusion table (issue 11, item 6).
+
+Every case is a 3-sweep swept sine (0.1-40 Hz, samii measure's default layout) through
+``samii.diagnose.rig.EffectRig``, an independent linear rig: the notebook's eq 9.1/9.2 with
+its parameters drawn within +-15 % of eq 9.4 (so the baseline is never the rig's exact
+model), the position loop Kp = 180/pi V/rad, the DAQ's default white noise, sampled at
+1 kHz, written as a time-series CSV with no metadata (the records are found from r) and
+diagnosed with ``samii.diagnose.diagnosis.diagnose`` against the notebook baseline.
+
+Cases: clean controls at three amplitudes and several noise seeds, each single effect of
+the library at rig-like values, and combinations. Written to ``out/``:
+
+* ``results.json``: per case what was injected, what was found, parameter errors, the
+  error before and after, the time;
+* ``table.md``: the confusion table (category found against category injected), the
+  goals of issue 11 beside what the battery gives, and every case in one line.
+
+Run ``python experiments/diagnose_battery/run.py [--quick]`` (about 10 s a case).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from samii.diagnose.diagnosis import diagnose
+from samii.diagnose.measured import from_timeseries
+from samii.diagnose.rig import EffectRig
+from samii.measure.excitation import SweptSine
+from samii.notebook import EQ9_4
+
+HERE = Path(__file__).resolve().parent
+FS = 1000.0
+#: Spread of the rig's parameters around eq 9.4 (uniform, each parameter its own draw).
+SPREAD = 0.15
+
+# (name, EffectRig keywords, injected [(category, kind, {param: true value})])
+SINGLE = [
+    ("command delay 2 ms", {"command_delay_s": 0.002}, [("delay", "command", {"delay_s": 0.002})]),
+    ("command delay 4 ms", {"command_delay_s": 0.004}, [("delay", "command", {"delay_s": 0.004})]),
+    ("command delay 8 ms", {"command_delay_s": 0.008}, [("delay", "command", {"delay_s": 0.008})]),
+    ("theta delay 3 ms", {"theta_delay_s": 0.003}, [("delay", "theta_sensor", {"delay_s": 0.003})]),
+    ("accel delay 3 ms", {"accel_delay_s": 0.003}, [("delay", "accel_sensor", {"delay_s": 0.003})]),
+    ("base mode 15 Hz", {"base_mode": (15.0, 0.02, 0.02)}, [("extra_mode", "base_mode", {"freq_hz": 15.0})]),
+    ("base mode 6 Hz", {"base_mode": (6.0, 0.02, -0.01)}, [("extra_mode", "base_mode", {"freq_hz": 6.0})]),
+    ("base mode 35 Hz", {"base_mode": (35.0, 0.02, 0.02)}, [("extra_mode", "base_mode", {"freq_hz": 35.0})]),
+    ("act mode 15/14 Hz", {"act_mode": (15.0, 0.02, 14.0, 0.02)}, [("extra_mode", "act_mode", {"freq_hz": 15.0, "zero_freq_hz": 14.0})]),
+    ("accel LP1 30 Hz", {"accel_lowpass_hz": 30.0}, [("sensor", "accel_lowpass", {"corner_hz": 30.0})]),
+    ("accel LP2 60 Hz", {"accel_lowpass_hz": 60.0, "accel_lowpass_order": 2}, [("sensor", "accel_lowpass2", {"corner_hz": 60.0})]),
+    ("accel HP 0.3 Hz", {"accel_highpass_hz": 0.3}, [("sensor", "accel_highpass", {"corner_hz": 0.3})]),
+    ("accel HP 1 Hz", {"accel_highpass_hz": 1.0}, [("sensor", "accel_highpass", {"corner_hz": 1.0})]),
+    ("valve 50 Hz", {"valve_hz": 50.0, "valve_zeta": 0.7}, [("actuator", "valve", {"freq_hz": 50.0})]),
+    ("valve 80 Hz", {"valve_hz": 80.0, "valve_zeta": 0.5}, [("actuator", "valve", {"freq_hz": 80.0})]),
+]
+COMBOS = [
+    ("delay 4 ms + HP 0.3 Hz", {"command_delay_s": 0.004, "accel_highpass_hz": 0.3},
+     [("delay", "command", {"delay_s": 0.004}), ("sensor", "accel_highpass", {"corner_hz": 0.3})]),
+    ("delay 4 ms + LP1 30 Hz", {"command_delay_s": 0.004, "accel_lowpass_hz": 30.0},
+     [("delay", "command", {"delay_s": 0.004}), ("sensor", "accel_lowpass", {"corner_hz": 30.0})]),
+    ("base mode 15 Hz + accel delay 3 ms", {"base_mode": (15.0, 0.02, 0.02), "accel_delay_s": 0.003},
+     [("extra_mode", "base_mode", {"freq_hz": 15.0}), ("delay", "accel_sensor", {"delay_s": 0.003})]),
+]
+CLEAN = [(f"clean {a:g} V seed {s}", a, s) for a, seeds in ((0.05, (1, 2)), (0.1, (3, 4, 5, 6)), (0.3, (7, 8))) for s in seeds]
+#: Issue 11's goals: delay within 0.5 ms, extra-mode frequencies within 2 %, sensor corners within 15 %; the
+#: issue states none for the actuator, whose valve corner is judged like a sensor's (15 %).
+TOLERANCE = {("delay", "delay_s"): ("abs", 5e-4), ("extra_mode", "freq_hz"): ("rel", 0.02), ("extra_mode", "zero_freq_hz"): ("rel", 0.02),
+             ("sensor", "corner_hz"): ("rel", 0.15), ("actuator", "freq_hz"): ("rel", 0.15)}
+
+
+def _rig_params(rng: np.random.Generator) -> dict:
+    return {k: v * (1.0 + SPREAD * rng.uniform(-1.0, 1.0)) for k, v in EQ9_4.items()}
+
+
+def _sweep(amplitude_v: float) -> np.ndarray:
+    sw = SweptSine(repetitions=3, amplitude_v=amplitude_v)
+    return sw.signal(np.arange(int(round(sw.duration_s * FS))) / FS)
+
+
+def run_case(name: str, effects: dict, injected: list, *, amplitude_v: float, seed: int) -> dict:
+    rng = np.random.default_rng(seed)
+    rig = EffectRig(params=_rig_params(rng), **effects)
+    ts = rig.simulate(_sweep(amplitude_v), sample_rate_hz=FS, rng=rng)
+    t0 = time.perf_counter()
+    d = diagnose([from_timeseries(ts, source=name)])
+    elapsed = time.perf_counter() - t0
+    found = [e for e in d.effects if not e.expected]
+    rows = []
+    unmatched = list(found)
+    for cat, kind, truth in injected:
+        match = next((e for e in unmatched if e.category == cat and e.kind == kind), None) or next(
+            (e for e in unmatched if e.category == cat), None)
+        if match is not None:
+            unmatched.remove(match)
+        errors = {}
+        within = None
+        if match is not None and match.kind == kind:
+            within = True
+            for p, v in truth.items():
+                how, tol = TOLERANCE[(cat, p)]
+                err = match.params[p] - v if how == "abs" else match.params[p] / v - 1.0
+                errors[p] = err
+                within = within and abs(err) <= tol
+        rows.append({"category": cat, "kind": kind, "truth": truth, "found_category": None if match is None else match.category,
+                     "found_kind": None if match is None else match.kind, "found_params": None if match is None else match.params,
+                     "errors": errors, "within_tolerance": within})
+    return {
+        "name": name, "amplitude_v": amplitude_v, "seed": seed, "injected": rows,
+        "extra": [{"category": e.category, "kind": e.kind, "params": e.params} for e in unmatched],
+        "expected": [{"kind": e.kind, "params": e.params} for e in d.effects if e.expected],
+        "verdict": d.verdict, "unexplained": [b.to_dict() for b in d.unexplained],
+        "error_before": {k: v.to_dict() for k, v in d.error_before.items()},
+        "error_after": {k: v.to_dict() for k, v in d.error_after.items()},
+        "time_s": elapsed,
+    }
+
+
+def _confusion(results: list[dict]) -> str:
+    cats = ["delay", "extra_mode", "sensor", "actuator"]
+    cols = cats + ["missed"]
+    counts = {c: dict.fromkeys(cols, 0) for c in cats + ["(none)"]}
+    for r in results:
+        for row in r["injected"]:
+            counts[row["category"]][row["found_category"] or "missed"] += 1
+        for e in r["extra"]:
+            counts["(none)"][e["category"]] += 1
+    lines = ["| injected \\ found | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
+    for c in cats + ["(none)"]:
+        lines.append(f"| {c} | " + " | ".join(str(counts[c][k]) if not (c == "(none)" and k == "missed") else "" for k in cols) + " |")
+    return "\n".join(lines)
+
+
+def _summary(results: list[dict]) -> tuple[str, dict]:
+    inj = [row for r in results for row in r["injected"]]
+    right_cat = sum(row["found_category"] == row["category"] for row in inj)
+    right_kind = sum(row["found_kind"] == row["kind"] for row in inj)
+    clean = [r for r in results if not r["injected"]]
+    false_clean = sum(1 for r in clean if r["verdict"] != "none" or r["extra"])
+    extra = sum(len(r["extra"]) for r in results if r["injected"])
+    tol = [row for row in inj if row["within_tolerance"] is not None]
+    within = sum(bool(row["within_tolerance"]) for row in tol)
+    improved = [r for r in results if r["injected"]]
+
+    def better(r):
+        return all(r["error_after"][c]["chi2"] < r["error_before"][c]["chi2"] for c in ("act", "total"))
+
+    n_better = sum(better(r) for r in improved)
+    times = [r["time_s"] for r in results]
+    stats = {"effects_injected": len(inj), "category_right": right_cat, "kind_right": right_kind, "clean_cases": len(clean),
+             "clean_false_alarms": false_clean, "extra_effects_in_effect_cases": extra, "parameters_within_tolerance": within,
+             "parameters_judged": len(tol), "error_after_below_before": n_better, "effect_cases": len(improved),
+             "time_s_median": float(np.median(times)), "time_s_max": float(np.max(times))}
+    text = "\n".join([
+        "| goal (issue 11) | battery |",
+        "|---|---|",
+        f"| >= 90 % of effects classified right | category {right_cat}/{len(inj)} ({100 * right_cat / len(inj):.0f} %), kind {right_kind}/{len(inj)} |",
+        f"| 0 false alarms on clean data | {false_clean} of {len(clean)} clean cases |",
+        f"| delays 0.5 ms, mode frequencies 2 %, sensor corners 15 % | {within}/{len(tol)} effects found with the right kind within tolerance |",
+        f"| error after below before in every case with an effect | {n_better}/{len(improved)} (chi2 of theta/v and xdd/v) |",
+        f"| (not a goal) effects found beyond those injected | {extra} in {len(improved)} effect cases |",
+        f"| (speed) diagnosis time per case | median {stats['time_s_median']:.1f} s, max {stats['time_s_max']:.1f} s |",
+    ])
+    return text, stats
+
+
+def _line(r: dict) -> str:
+    def eff(row):
+        if row["found_kind"] is None:
+            return f"{row['kind']}: MISSED"
+        errs = ", ".join(f"{p} {1e3 * e:+.2f} ms" if p == "delay_s" else f"{p} {100 * e:+.1f} %" for p, e in row["errors"].items())
+        ok = "" if row["found_kind"] == row["kind"] else f" (as {row['found_kind']})"
+        return f"{row['kind']}{ok} {errs}"
+
+    found = "; ".join(eff(row) for row in r["injected"]) or "-"
+    extra = "; ".join(f"{e['category']}/{e['kind']} " + ", ".join(f"{k} {v:.4g}" for k, v in e["params"].items()) for e in r["extra"]) or "-"
+    eb, ea = r["error_before"], r["error_after"]
+    err = " / ".join(f"{eb[c]['chi2']:.3g} -> {ea[c]['chi2']:.3g}" for c in ("act", "total"))
+    return f"| {r['name']} | {r['verdict']} | {found} | {extra} | {err} | {r['time_s']:.1f} |"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="one clean case, three single effects, one combination")
+    ap.add_argument("--out", type=Path, default=HERE / "out")
+    ap.add_argument("--table-only", action="store_true", help="rewrite table.md from out/results.json (tolerances re-applied), no runs")
+    args = ap.parse_args()
+    if args.table_only:
+        results = json.loads((args.out / "results.json").read_text())["cases"]
+        for r in results:
+            for row in r["injected"]:
+                if row["errors"]:
+                    row["within_tolerance"] = all(abs(e) <= TOLERANCE[(row["category"], p)][1] for p, e in row["errors"].items())
+        _write(args.out, results)
+        return
+    plan = [(n, {}, [], a, s) for n, a, s in CLEAN]
+    plan += [(n, kw, inj, 0.1, 100 + i) for i, (n, kw, inj) in enumerate(SINGLE + COMBOS)]
+    if args.quick:
+        plan = plan[2:3] + plan[len(CLEAN) : len(CLEAN) + 3] + plan[-2:-1]
+    results = []
+    for name, kw, inj, amp, seed in plan:
+        r = run_case(name, kw, inj, amplitude_v=amp, seed=seed)
+        results.append(r)
+        print(_line(r), flush=True)
+    _write(args.out, results)
+
+
+def _write(out: Path, results: list[dict]) -> None:
+    summary, stats = _summary(results)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "results.json").write_text(json.dumps({"stats": stats, "cases": results}, indent=2) + "\n")
+    table = ["# Diagnosis battery (generated by run.py)", "", summary, "", "## Confusion table (category found against injected; "
+             "'(none)' counts effects found where none was injected, clean cases included)", "", _confusion(results), "",
+             "## Cases", "", "| case | verdict | injected: found, parameter errors | found beyond the injected | chi2 theta/v / xdd/v before -> after | time [s] |",
+             "|---|---|---|---|---|---|"] + [_line(r) for r in results]
+    (out / "table.md").write_text("\n".join(table) + "\n")
+    print(summary)
+    print(_confusion(results))
+
+
+if __name__ == "__main__":
+    main()
