@@ -135,7 +135,7 @@ def test_extra_base_mode_named_as_the_rig_has_it(sweep, seed, mode):
     assert v["zeta"] == pytest.approx(mode[1], rel=0.2)
     assert v["residue"] == pytest.approx(mode[2], rel=0.1)
     w3_hz = final.baseline_params[0]["w3"] / (2 * np.pi)
-    assert w3_hz == pytest.approx(24.9, rel=0.03)  # eq 9.4's mode 3 stays the baseline's
+    assert w3_hz == pytest.approx(notebook_reference()["w3"] / (2 * np.pi), rel=0.03)  # eq 9.4's mode 3 (24.9 Hz) stays the baseline's
 
 
 def test_frf_file_with_coherence_clean_and_delayed(sweep, tmp_path):
@@ -192,6 +192,8 @@ def test_files_without_coherence(sweep):
         se = act.after.baseline_stderr[0]
         assert all(np.isinf(se[k]) for k in ("w1", "z1", "w3", "z3", "B1", "B2", "B3"))
         assert all(np.isfinite(se[k]) and se[k] > 0 for k in ("K1", "wp", "tau"))
+        # chi2 per residual is 1 when the noise estimate is right; 0.78-1.21 seen over seeds 3-6 (lag-2 differences of
+        # a zero-padded grid's correlated points), the bounds a factor 2 either side
         assert list(act.error_after) == ["act"] and 0.5 < act.error_after["act"].chi2 < 2.0
 
 

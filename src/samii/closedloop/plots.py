@@ -23,6 +23,12 @@ def _figure(rows: int = 1, height: float = 3.6):
     return plt, fig, ax[:, 0]
 
 
+def _save(plt, fig, path: Path) -> None:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def _mark_events(ax, r: ClosedLoopResult) -> None:
     s = r.signals
     if s.switch_on_s is not None:
@@ -51,9 +57,7 @@ def plot_theta(r: ClosedLoopResult, path: Path) -> None:
     ax.set_title(_title(r))
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(plt, fig, path)
 
 
 def plot_base(r: ClosedLoopResult, path: Path) -> None:
@@ -74,9 +78,7 @@ def plot_base(r: ClosedLoopResult, path: Path) -> None:
     ax.set_title(f"{_title(r)}\n{extra}", fontsize=10)
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(plt, fig, path)
 
 
 def plot_linear(r: ClosedLoopResult, path: Path) -> None:
@@ -102,6 +104,4 @@ def plot_linear(r: ClosedLoopResult, path: Path) -> None:
     a1.set_ylabel("theta from rest [deg]")
     a2.set_ylabel("base acceleration [m/s^2]")
     a2.set_xlabel("time [s]")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(plt, fig, path)

@@ -14,6 +14,7 @@ accelerometer is testable (a refitted baseline's gains B_k absorb it).
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
@@ -24,7 +25,7 @@ from samii.diagnose.model import Baseline, Dataset, notebook_reference, start_pa
 from samii.errors import InputError
 from samii.identify.structures import ModelStructure
 
-__all__ = ["notebook_baseline", "saved_fit_baseline", "read_fit_json", "fit_json_concerns", "SIM_NOT_AVAILABLE"]
+__all__ = ["SavedFit", "notebook_baseline", "saved_fit_baseline", "read_fit_json", "SIM_NOT_AVAILABLE"]
 
 SIM_NOT_AVAILABLE = ("--baseline sim: the calibrated simulator as the baseline is not available yet (issue 11, item 5); "
                      "use --baseline notebook (the default) or a saved fit, --baseline FIT.json")
@@ -36,18 +37,18 @@ def notebook_baseline(measured: Sequence[Measured]) -> Baseline:
                     label="notebook: eq 9.1/9.2's structure refitted to each file (started from eq 9.4 or samii's fit, the better)")
 
 
-def read_fit_json(path) -> tuple[ModelStructure, dict[str, float]]:
-    """Structure and parameters of a saved fit (``samii fit --out DIR`` writes DIR/fit.json); InputError naming the file and field."""
-    st, params, _ = _read_fit_json(path)
-    return st, params
+@dataclass(frozen=True)
+class SavedFit:
+    """A fit saved by ``samii fit --out``: its structure, parameters, and what it says is wrong with itself."""
+
+    path: str
+    structure: ModelStructure
+    params: dict
+    concerns: tuple[str, ...] = ()
 
 
-def fit_json_concerns(path) -> list[str]:
-    """What the saved fit itself says is wrong with it (``sound: false`` and its concerns), for the report."""
-    return _read_fit_json(path)[2]
-
-
-def _read_fit_json(path) -> tuple[ModelStructure, dict[str, float], list[str]]:
+def read_fit_json(path) -> SavedFit:
+    """The saved fit at ``path`` (``samii fit --out DIR`` writes DIR/fit.json); InputError naming the file and field."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -84,12 +85,12 @@ def _read_fit_json(path) -> tuple[ModelStructure, dict[str, float], list[str]]:
     if d.get("sound") is False:
         said = "; ".join(str(c) for c in d.get("concerns") or []) or "no reason given"
         concerns.append(f"{path} says it is not a sound fit ({said}): effects found against it may be its own errors")
-    return st, params, concerns
+    return SavedFit(str(path), st, params, tuple(concerns))
 
 
-def saved_fit_baseline(path, datasets: Sequence[Dataset]) -> Baseline:
+def saved_fit_baseline(saved: SavedFit, datasets: Sequence[Dataset]) -> Baseline:
     """A saved fit as fixed responses on every dataset's usable points."""
-    st, params = read_fit_json(path)
+    st, params = saved.structure, saved.params
     fixed = []
     for ds in datasets:
         per = {}
@@ -99,4 +100,4 @@ def saved_fit_baseline(path, datasets: Sequence[Dataset]) -> Baseline:
             per[ch] = {c: st.response(params, f, c) for c in need}
         fixed.append(per)
     return Baseline(structure=st, params=tuple(params for _ in datasets), fixed=tuple(fixed), reference=params,
-                    label=f"saved fit {path} (held fixed)")
+                    label=f"saved fit {saved.path} (held fixed)")

@@ -110,7 +110,9 @@ def run(args: argparse.Namespace) -> int:
                              f"{'it is a folder' if p.is_dir() else 'no such file'}")
         from samii.diagnose.baseline import read_fit_json
 
-        read_fit_json(p)  # bad input before any work
+        baseline = read_fit_json(p)  # bad input before any work
+    else:
+        baseline = "notebook"
     import os
 
     seen: dict[str, str] = {}
@@ -135,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
         measured = _load(args)
         progress.stage("fitting the baseline")
         try:
-            d = diagnose(measured, baseline=args.baseline, progress=progress)
+            d = diagnose(measured, baseline=baseline, progress=progress)
         except ValueError as exc:
             import numpy as np
 

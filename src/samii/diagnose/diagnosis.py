@@ -310,7 +310,7 @@ def _within_band(kind, datasets: Sequence[Dataset]):
     return replace(kind, params=params)
 
 
-def _noise_from_roughness(m: Measured, baseline: str) -> Measured:
+def _noise_from_roughness(m: Measured, saved) -> Measured:
     """``m`` itself if its noise is known, else with the noise estimated from its residual against the baseline
     fitted with uniform weights (:func:`samii.diagnose.measured.with_roughness_noise`)."""
     from samii.diagnose.baseline import notebook_baseline, saved_fit_baseline
@@ -320,35 +320,32 @@ def _noise_from_roughness(m: Measured, baseline: str) -> Measured:
     ds = Dataset.from_measured(m)
     if ds.known_noise:
         return m
-    bl = notebook_baseline([m]) if baseline == "notebook" else saved_fit_baseline(baseline, [ds])
+    bl = notebook_baseline([m]) if saved is None else saved_fit_baseline(saved, [ds])
     fit = fit_model([ds], bl, [])
     model = model_response(fit, 0, m.frf.freq_hz)
     return with_roughness_noise(m, {ch: model[ch] for ch in m.frf.channels})
 
 
-def diagnose(measured: Sequence[Measured], *, baseline: str = "notebook", alpha: float = ALPHA, progress=None) -> Diagnosis:
-    """Diagnose the files of one rig against ``baseline`` ("notebook" or the path of a saved fit.json).
+def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float = ALPHA, progress=None) -> Diagnosis:
+    """Diagnose the files of one rig against ``baseline``: "notebook", a saved fit (:class:`SavedFit`) or its path.
 
     ``progress(label)`` is called after every candidate tried.
     """
-    from samii.diagnose.baseline import notebook_baseline, saved_fit_baseline
+    from samii.diagnose.baseline import SavedFit, notebook_baseline, read_fit_json, saved_fit_baseline
 
-    measured = tuple(measured)
-    if not measured:
+    saved = None if baseline == "notebook" else baseline if isinstance(baseline, SavedFit) else read_fit_json(baseline)
+    given = tuple(measured)
+    if not given:
         raise ValueError("no data to diagnose")
-    notes = []
-    if any(not Dataset.from_measured(m).known_noise for m in measured):
-        measured = tuple(_noise_from_roughness(m, baseline) for m in measured)
-        notes += [f"{m.source}: no coherence and no records; the noise of each point is {m.noise_source}" for m in measured
-                  if m.noise_source.startswith("estimated from the roughness")]
+    measured = tuple(_noise_from_roughness(m, saved) for m in given)
+    notes = [f"{m.source}: no coherence and no records; the noise of each point is {m.noise_source}"
+             for m, g in zip(measured, given) if m is not g]
     datasets = tuple(Dataset.from_measured(m) for m in measured)
-    if baseline == "notebook":
+    if saved is None:
         bl = notebook_baseline(measured)
     else:
-        from samii.diagnose.baseline import fit_json_concerns
-
-        bl = saved_fit_baseline(baseline, datasets)
-        notes += fit_json_concerns(baseline)
+        bl = saved_fit_baseline(saved, datasets)
+        notes += list(saved.concerns)
     have = set().union(*(ds.data for ds in datasets))
     channels = ("act", "base") if {"act", "base"} <= have or {"act", "total"} <= have else tuple(c for c in ("act", "base") if c in have)
     kinds = [_within_band(k, datasets) for k in library(fixed_baseline=not bl.free, channels=channels)]

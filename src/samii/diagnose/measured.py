@@ -249,10 +249,11 @@ def with_roughness_noise(m: Measured, model: Mapping[str, np.ndarray]) -> Measur
         with np.errstate(divide="ignore", invalid="ignore"):
             e = np.log(m.frf.response(ch) / model[ch])
         e = np.nan_to_num(e, nan=0.0, posinf=0.0, neginf=0.0)
-        lag = ROUGHNESS_LAG if e.size > ROUGHNESS_LAG else 1
-        d2 = np.abs(e[lag:] - e[:-lag]) ** 2 if e.size > 1 else np.zeros(1)
-        d2 = np.concatenate([d2, np.full(e.size - d2.size, d2[-1])])  # each point: the difference that starts at it
-        var[ch] = np.maximum(_pool(np.roll(d2, lag // 2)) / 2.0, 1e-30)
+        lag = min(ROUGHNESS_LAG, e.size - 1)
+        d2 = np.abs(e[lag:] - e[:-lag]) ** 2 if lag > 0 else np.zeros(1)
+        # each difference belongs to the point midway; the ends repeat the nearest one
+        d2 = np.pad(d2, (lag // 2, e.size - d2.size - lag // 2), mode="edge")
+        var[ch] = np.maximum(_pool(d2) / 2.0, 1e-30)
     how = (f"estimated from the roughness of the residual against the baseline (differences of points {ROUGHNESS_LAG} apart, pooled over "
            f"{POOL}): "
            "the file gives no coherence and no records")

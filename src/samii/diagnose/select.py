@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from samii.diagnose.effects import TWO_PI, EffectKind
+from samii.diagnose.effects import TWO_PI, Effect, EffectKind
 from samii.diagnose.model import Baseline, Dataset, Fit, fit_model, relabel_modes
 
 __all__ = ["ALPHA", "Step", "forward_select", "starts_for"]
@@ -147,9 +147,18 @@ def _f_test(before: Fit, after: Fit, corr: float) -> tuple[float, tuple[int, int
     return float(f), (dp, dof2), float(stats.f.logsf(f, dp, dof2) / np.log(10))
 
 
-def _with(fit: Fit, extra: list[tuple[EffectKind, np.ndarray]]) -> list[tuple[EffectKind, np.ndarray]]:
-    cur = [(e.kind, np.array([e.values[p.name] for p in e.kind.params])) for e in fit.effects]
-    return cur + extra
+def _vectors(effects) -> list[tuple[EffectKind, np.ndarray]]:
+    """Effects as (kind, parameter vector) pairs, the form :func:`fit_model` starts from."""
+    return [(e.kind, np.array([e.values[p.name] for p in e.kind.params])) for e in effects]
+
+
+def _held_fits(ds_list, baseline, fit: Fit, effects, kind: EffectKind) -> list[Fit]:
+    """``kind`` added to ``effects`` and fitted alone from each of its starts (read off ``fit``'s residual), the
+    rest held at ``fit``'s baseline (cheap); best first."""
+    xb = _baseline_vectors(fit)
+    fits = [fit_model(ds_list, baseline, _vectors(effects) + [(kind, x0)], free_baseline=False, start_baseline=xb, max_nfev=60)
+            for x0 in starts_for(kind, ds_list, fit)]
+    return sorted(fits, key=lambda f: f.chi2)
 
 
 def _baseline_vectors(fit: Fit) -> list[np.ndarray] | None:
@@ -171,19 +180,17 @@ def _mode_freqs_hz(fit: Fit) -> list[float]:
     return out
 
 
-def _duplicate_mode(fit: Fit) -> bool:
-    """The last effect is an extra base mode within 5 % of a mode the baseline has."""
-    e = fit.effects[-1]
+def _duplicate_mode(e: Effect, fit: Fit) -> bool:
+    """``e`` is an extra base mode within 5 % of a mode ``fit``'s baseline has."""
     if e.kind.kind != "base_mode":
         return False
     return any(abs(np.log(e.values["freq_hz"] / f)) < 0.05 for f in _mode_freqs_hz(fit))
 
 
-def _unresolved_pair(fit: Fit, ds_list: list[Dataset]) -> bool:
-    """The last effect is an extra mode the data cannot resolve: an actuator mode whose pole and zero lie closer
-    than the data's frequency spacing there (a bump that fits a local wiggle of the noise), or a mode whose
-    half-power bandwidth 2 zeta f is under half that spacing (it fits one point, not a resonance)."""
-    e = fit.effects[-1]
+def _unresolved_mode(e: Effect, ds_list: list[Dataset]) -> bool:
+    """``e`` is an extra mode the data cannot resolve: an actuator mode whose pole and zero lie closer than the
+    data's frequency spacing there (a bump that fits a local wiggle of the noise), or a mode whose half-power
+    bandwidth 2 zeta f is under half that spacing (it fits one point, not a resonance)."""
     if e.kind.category != "extra_mode":
         return False
     f = e.values["freq_hz"]
@@ -199,8 +206,7 @@ def _backward(ds_list, baseline, fit: Fit, corr: float, level: float, steps: lis
     while changed and len(fit.effects) > 1:
         changed = False
         for i in range(len(fit.effects) - 1):
-            rest = [e for j, e in enumerate(fit.effects) if j != i]
-            x_e = [(e.kind, np.array([e.values[p.name] for p in e.kind.params])) for e in rest]
+            x_e = _vectors(e for j, e in enumerate(fit.effects) if j != i)
             without = fit_model(ds_list, baseline, x_e, start_baseline=_baseline_vectors(fit))
             if reference is not None and baseline.free:  # the baseline may have parked a mode the dropped effect took over
                 again = fit_model(ds_list, baseline, x_e, start_baseline=_baseline_vectors(reference))
@@ -227,9 +233,7 @@ def _swap(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, tri
     as a second-order one with a shorter delay, and a later round cannot undo it. The best alternative of
     each effect is recorded in ``tried`` (round "swap"), so the report can say when the data hardly tell
     them apart."""
-    for i in range(len(fit.effects)):
-        if i >= len(fit.effects):
-            break
+    for i in range(len(fit.effects)):  # a swap replaces one effect by one: the count stays
         e = fit.effects[i]
         rest = [f for j, f in enumerate(fit.effects) if j != i]
         used = {f.kind.label for f in rest}
@@ -240,16 +244,10 @@ def _swap(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, tri
             if (k.label == e.kind.label or len(k.params) > len(e.kind.params) or not related
                     or (k.category != "extra_mode" and k.label in used)):
                 continue
-            base = Fit(fit.baseline, fit.baseline_params, fit.baseline_stderr, tuple(rest), fit.chi2, fit.n_residuals, fit.n_params,
-                       fit.residuals)
-            held = []
-            for x0 in starts_for(k, ds_list, fit):
-                h = fit_model(ds_list, baseline, _with(base, [(k, x0)]), free_baseline=False, start_baseline=_baseline_vectors(fit), max_nfev=60)
-                held.append(h)
+            held = _held_fits(ds_list, baseline, fit, rest, k)
             if not held:
                 continue
-            h = min(held, key=lambda f: f.chi2)
-            x_e = [(f.kind, np.array([f.values[p.name] for p in f.kind.params])) for f in h.effects]
+            x_e = _vectors(held[0].effects)
             x_e = x_e[:i] + [x_e[-1]] + x_e[i:-1]  # the replacement in the replaced effect's place
             alt = fit_model(ds_list, baseline, x_e, start_baseline=_baseline_vectors(fit))
             if best_alt is None or alt.chi2 < best_alt.chi2:
@@ -259,25 +257,10 @@ def _swap(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, tri
         new = best_alt.effects[i]
         tried.append({"round": "swap", "effect": new.kind.label, "alternative_to": e.kind.label, "params": dict(new.values),
                       "chi2": best_alt.chi2, "chi2_current": fit.chi2, "delta_in_noise": abs(best_alt.chi2 - fit.chi2) / s2})
-        if best_alt.chi2 < fit.chi2 and not _duplicate_mode_at(best_alt, i) and not _unresolved_pair_at(best_alt, i, ds_list):
+        if best_alt.chi2 < fit.chi2 and not _duplicate_mode(new, best_alt) and not _unresolved_mode(new, ds_list):
             tried[-1]["swapped"] = True
             fit = best_alt
     return fit
-
-
-def _duplicate_mode_at(fit: Fit, i: int) -> bool:
-    return _duplicate_mode(_last(fit, i))
-
-
-def _unresolved_pair_at(fit: Fit, i: int, ds_list) -> bool:
-    return _unresolved_pair(_last(fit, i), ds_list)
-
-
-def _last(fit: Fit, i: int) -> Fit:
-    """``fit`` with effect ``i`` moved last (the checks look at the newest effect)."""
-    eff = list(fit.effects)
-    eff.append(eff.pop(i))
-    return Fit(fit.baseline, fit.baseline_params, fit.baseline_stderr, tuple(eff), fit.chi2, fit.n_residuals, fit.n_params, fit.residuals)
 
 
 def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[EffectKind], *, alpha: float = ALPHA,
@@ -305,34 +288,28 @@ def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[Effec
         level = np.log10(alpha / len(pool))
         candidates = []
         for kind in pool:
-            starts = starts_for(kind, ds_list, current)
-            if not starts:
+            held = _held_fits(ds_list, baseline, current, current.effects, kind)
+            if not held:
                 continue
-            held = []
-            for x0 in starts:
-                f = fit_model(ds_list, baseline, _with(current, [(kind, x0)]), free_baseline=False, start_baseline=_baseline_vectors(current), max_nfev=60)
-                held.append((f.chi2, f))
-            held.sort(key=lambda t: t[0])
             cand = None
             # the best held start is also refitted from the reference's baseline (eq 9.4) in the first round: the
             # baseline fitted without the effect may have bent into a basin (two modes on top of each other with
             # huge opposite gains) that absorbs the effect and from which the joint fit does not climb out
-            jobs = [(f, _baseline_vectors(current)) for _, f in held[:JOINT_STARTS]]
+            jobs = [(f, _baseline_vectors(current)) for f in held[:JOINT_STARTS]]
             if _round == 0 and reference_b is not None:
-                jobs.append((held[0][1], reference_b))
+                jobs.append((held[0], reference_b))
             for f, xb in jobs:
-                x_e = [np.array([e.values[p.name] for p in e.kind.params]) for e in f.effects]
-                joint = fit_model(ds_list, baseline, list(zip([e.kind for e in f.effects], x_e)), start_baseline=xb)
+                joint = fit_model(ds_list, baseline, _vectors(f.effects), start_baseline=xb)
                 if cand is None or joint.chi2 < cand.chi2:
                     cand = joint
             # the candidate's refit may have found a better baseline than the current one: the
             # test credits the effect only with what the baseline alone, started there, cannot do
-            alone = fit_model(ds_list, baseline, _with(current, []), start_baseline=_baseline_vectors(cand))
+            alone = fit_model(ds_list, baseline, _vectors(current.effects), start_baseline=_baseline_vectors(cand))
             if alone.chi2 < current.chi2:
                 current = alone
             fstat, dof, logp = _f_test(current, cand, corr)
             eff = cand.effects[-1]
-            if _duplicate_mode(cand) or _unresolved_pair(cand, ds_list):
+            if _duplicate_mode(eff, cand) or _unresolved_mode(eff, ds_list):
                 logp = 0.0  # not a new mode: one the baseline has split in two, or a pole and zero the data cannot resolve
             tried.append({"round": _round + 1, "effect": kind.label, "params": dict(eff.values), "chi2": cand.chi2, "F": fstat,
                           "dof": list(dof), "log10_p": logp, "threshold_log10_p": float(level)})
