@@ -185,8 +185,8 @@ def test_diagnose_finds_the_command_delay(delay_diagnosis):
 def test_diagnose_out_writes_the_report(delay_diagnosis):
     rc, text, err, out = delay_diagnosis
     assert rc == 0, err
-    assert sorted(p.name for p in out.iterdir()) == ["bode.png", "diagnosis.json", "residuals.png"]
-    for name in ("bode.png", "residuals.png"):
+    assert sorted(p.name for p in out.iterdir()) == ["bode.png", "diagnosis.json", "harmonics.png", "residuals.png"]
+    for name in ("bode.png", "residuals.png", "harmonics.png"):
         assert (out / name).read_bytes()[:8] == PNG_MAGIC, name
     saved = strict_json((out / "diagnosis.json").read_text())
     printed = strict_json(text)
@@ -200,10 +200,10 @@ def test_diagnose_clean_text(clean_diagnosis_text):
     assert "verdict: none" in text
     assert "3 records of 84.2" in text  # the record length found from r
     assert f"wrote {out / 'diagnosis.json'}" in text
-    assert sorted(p.name for p in out.iterdir()) == ["bode.png", "diagnosis.json", "residuals.png"]
+    assert sorted(p.name for p in out.iterdir()) == ["bode.png", "diagnosis.json", "harmonics.png", "residuals.png"]
     saved = strict_json((out / "diagnosis.json").read_text())
     assert saved["verdict"] == "none" and saved["effects"] == [] and saved["unexplained"] == []
-    for name in ("bode.png", "residuals.png"):
+    for name in ("bode.png", "residuals.png", "harmonics.png"):
         assert (out / name).read_bytes()[:8] == PNG_MAGIC, name
 
 

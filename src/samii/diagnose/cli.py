@@ -21,7 +21,7 @@ from samii.errors import InputError
 
 __all__ = ["add_arguments", "run", "OUTPUTS", "MAX_FILES"]
 
-OUTPUTS = ("diagnosis.json", "residuals.png", "bode.png")
+OUTPUTS = ("diagnosis.json", "residuals.png", "bode.png", "harmonics.png")
 #: Most files one diagnosis takes (each adds the baseline's 13 parameters to the joint fit).
 MAX_FILES = 8
 _NAMES = {"act": "theta/v", "base": "xdd/theta", "total": "xdd/v"}
@@ -148,13 +148,14 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(text if any(text.startswith(n) for n in names) else f"{', '.join(names)}: {text}") from None
         if folder is not None:
             progress.stage("writing")
-            from samii.diagnose.plots import bode_figure, residual_figure
+            from samii.diagnose.plots import bode_figure, harmonic_figure, residual_figure
             from samii.measure.io import write_text
 
             with folder:
                 write_text(folder.path("diagnosis.json"), dumps(d.to_dict(), indent=2) + "\n")
                 residual_figure(d, folder.path("residuals.png"))
                 bode_figure(d, folder.path("bode.png"))
+                harmonic_figure(d, folder.path("harmonics.png"))
     finally:
         progress.close()
     if args.json:
@@ -179,10 +180,13 @@ def _print(d, written) -> None:
         print(f"verdict: {d.verdict}" + (f": {len(real)} effect(s) the model lacks" if real else ": only what sampling explains"))
     from samii.diagnose.effects import LIBRARY
 
+    from samii.diagnose.nonlinear import PARAM_UNITS
+
     units = {k.label: {p.name: p.unit for p in k.params} for k in LIBRARY}
     for e in d.effects:
         label = f"{e.category}/{e.kind}"
-        vals = ", ".join(f"{n} {_fmt(v, e.stderr.get(n, float('nan')), units[label][n])}" for n, v in e.params.items())
+        vals = ", ".join(f"{n} {_fmt(v, e.stderr.get(n, float('nan')), units.get(label, PARAM_UNITS).get(n, '1'))}"
+                         for n, v in e.params.items())
         print(f"  {'(expected) ' if e.expected else ''}{label} [{e.channel}]: {vals}")
         print(f"      {e.evidence}")
     print("error: rms dB / rms deg / chi2 per residual (1 = at the noise), before -> after")

@@ -35,7 +35,7 @@ a multiple of.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
@@ -44,6 +44,7 @@ from scipy import stats
 from samii.diagnose.effects import library
 from samii.diagnose.measured import Measured
 from samii.diagnose.model import Baseline, Dataset, Fit, _apply
+from samii.diagnose.nonlinear import find_nonlinear
 from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select
 
 __all__ = ["ChannelError", "FoundEffect", "Band", "Diagnosis", "diagnose", "CHANNELS", "BAND_POINTS", "RULE"]
@@ -118,6 +119,8 @@ class Diagnosis:
     unexplained: tuple[Band, ...]
     rule: str = RULE
     notes: tuple[str, ...] = field(default=())
+    harmonics: tuple = field(default=())  # HarmonicAnalysis per time-series file
+    amplitude_tests: tuple = field(default=())  # AmplitudeTest per pair of files
 
     @property
     def verdict(self) -> str:
@@ -152,8 +155,21 @@ class Diagnosis:
             "chi2_per_dof": {"before": self.before.chi2 / self.before.dof, "after": self.after.chi2 / self.after.dof},
             "steps": [{"effect": s.label, "F": s.f_stat, "dof": list(s.dof), "log10_p": s.log10_p, "chi2_before": s.chi2_before,
                        "chi2_after": s.chi2_after} for s in self.steps],
+            "nonlinear_tests": {
+                "harmonics": [{"source": h.source, "segments_tested": int(sum(np.isfinite(h.log10_p[k]).sum() for k in h.log10_p)),
+                               "significant": h.n_significant, "threshold_log10_p": h.threshold_log10_p,
+                               "max_ratio": {str(k): _max_tested(h, k) for k in h.ratio}} for h in self.harmonics],
+                "amplitude": [{"sources": list(t.sources), "amplitudes_v": list(t.amplitudes_v), "chi2": t.chi2, "dof": t.dof,
+                               "log10_p": t.log10_p, "gain_change_db": t.gain_change_db, "n_points": t.n_points}
+                              for t in self.amplitude_tests],
+            },
             "notes": list(self.notes),
         }
+
+
+def _max_tested(h, k: int) -> float | None:
+    tested = np.isfinite(h.log10_p[k])
+    return float(np.max(np.abs(h.ratio[k][tested]))) if tested.any() else None
 
 
 def model_response(fit: Fit, i: int, freq_hz: np.ndarray) -> dict[str, np.ndarray]:
@@ -300,8 +316,6 @@ BAND_MARGIN = 1.25
 
 def _within_band(kind, datasets: Sequence[Dataset]):
     """``kind`` with its mode frequencies bounded to the measured band (module constant BAND_MARGIN)."""
-    from dataclasses import replace
-
     if kind.category != "extra_mode":
         return kind
     lo = min(float(ds.freq_hz[0]) for ds in datasets) / BAND_MARGIN
@@ -338,6 +352,7 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     if not given:
         raise ValueError("no data to diagnose")
     measured = tuple(_noise_from_roughness(m, saved) for m in given)
+    nonlinear, nl_notes, harmonics, amp_tests = find_nonlinear(measured, alpha=alpha)
     notes = [f"{m.source}: no coherence and no records; the noise of each point is {m.noise_source}"
              for m, g in zip(measured, given) if m is not g]
     datasets = tuple(Dataset.from_measured(m) for m in measured)
@@ -351,6 +366,12 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     kinds = [_within_band(k, datasets) for k in library(fixed_baseline=not bl.free, channels=channels)]
     before, after, steps, tried = forward_select(list(datasets), bl, kinds, alpha=alpha, progress=progress)
     effects = _effects(after, steps, tried, measured)
+    if nonlinear:
+        effects = [e if e.expected else replace(e, evidence=e.evidence + "; found beside a nonlinearity: it may be that "
+                                                "nonlinearity's image in the best linear approximation") for e in effects]
+        notes.append("the data are nonlinear: the linear model is fitted to their best linear approximation at the amplitude "
+                     "measured, and linear effects found with it may be the nonlinearity's image (compare a file at another amplitude)")
+    effects += [FoundEffect("nonlinear", f.kind, "act", dict(f.params), dict(f.stderr), f.evidence) for f in nonlinear]
     return Diagnosis(measured, datasets, bl, before, after, tuple(steps), tuple(tried), tuple(effects),
                      channel_errors(datasets, before), channel_errors(datasets, after), tuple(unexplained_bands(datasets, after, alpha=alpha)),
-                     notes=tuple(notes))
+                     notes=tuple(notes + nl_notes), harmonics=tuple(harmonics), amplitude_tests=tuple(amp_tests))

@@ -9,7 +9,7 @@ import numpy as np
 
 from samii.diagnose.diagnosis import Diagnosis
 
-__all__ = ["residual_figure", "bode_figure"]
+__all__ = ["residual_figure", "bode_figure", "harmonic_figure"]
 
 _DB = 20.0 / np.log(10.0)
 _DEG = 180.0 / np.pi
@@ -134,6 +134,55 @@ def bode_figure(d: Diagnosis, path=None):
         ax.grid(True, which="both", alpha=0.3)
     axes[0, 0].legend(fontsize=8, loc="best")
     fig.suptitle("Data, baseline and the model with the effects found", fontsize=11)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+    return fig
+
+
+def harmonic_figure(d: Diagnosis, path=None):
+    """The sweep's 2nd and 3rd harmonics referred to the valve command, relative to its fundamental, per segment of
+    every time-series file, with twice their noise and the 1 % level below which none is claimed; significant
+    segments filled."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import matplotlib.ticker
+
+    from samii.diagnose.nonlinear import MATERIAL
+
+    hs = list(d.harmonics)
+    fig, axes = plt.subplots(1, max(len(hs), 1), figsize=(6.0 * max(len(hs), 1), 4.2), squeeze=False)
+    if not hs:
+        ax = axes[0, 0]
+        ax.text(0.5, 0.5, "no time series with records:\nno harmonic test (it needs the records and r)", ha="center", va="center",
+                transform=ax.transAxes)
+        ax.set_axis_off()
+    colors = {2: "tab:blue", 3: "tab:red"}
+    for ax, h in zip(axes[0], hs):
+        for k in sorted(h.ratio):
+            tested = np.isfinite(h.log10_p[k])
+            if not tested.any():
+                continue
+            f, r, sd = h.freq_hz[tested], np.abs(h.ratio[k][tested]), h.ratio_sd[k][tested]
+            sig = h.significant(k)[tested]
+            order = np.argsort(f)
+            ax.loglog(f[order], 100 * 2 * np.sqrt(2) * sd[order], ":", color=colors[k], lw=1, label=f"{k}× noise (2σ)")
+            ax.loglog(f[~sig], 100 * r[~sig], "o", mfc="none", color=colors[k], ms=5, label=f"{k}× harmonic")
+            if sig.any():
+                ax.loglog(f[sig], 100 * r[sig], "o", color=colors[k], ms=6, label=f"{k}× significant")
+        ax.axhline(100 * MATERIAL, color="k", lw=0.8, ls="--", label=f"{100 * MATERIAL:g} % (claimed above)")
+        ax.set_xlabel("sweep frequency (fundamental) [Hz]")
+        ax.set_ylabel("harmonic / fundamental at the valve command [%]")
+        ax.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        src = h.source if len(h.source) <= 40 else "…" + h.source[-39:]
+        ax.set_title(f"{src}: {h.n_significant} significant segment(s)", fontsize=9)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7, loc="best")
+    fig.suptitle("Harmonics of the sweep (a linear system makes none)")
     fig.tight_layout()
     if path is not None:
         fig.savefig(path, dpi=110)

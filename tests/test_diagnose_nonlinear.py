@@ -1,0 +1,173 @@
+"""The nonlinear category of the diagnosis (issue 11, item 3): harmonics of the sweep within a file,
+amplitude dependence across files, and never a claim from one clean amplitude.
+
+Data: samii.diagnose.rig.EffectRig (eq 9.4 under Kp = 180/pi V/rad, 0.1-40 Hz x 3, 1 kHz,
+the DAQ's default noise) with a static valve nonlinearity in its time-domain loop, and
+the simulator's own swept sine at 0.1 V (the amplitude its docstring keeps within
+0.5 dB of small-signal) and 1 V (load pressure near supply: the orifice law bends).
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from samii.diagnose.measured import from_frf, from_timeseries
+from samii.diagnose.nonlinear import (MATERIAL, amplitude_test, describing_ratio, find_nonlinear, harmonic_analysis)
+from samii.diagnose.rig import EffectRig, valve_law
+from samii.measure.excitation import SweptSine
+
+FS = 1000.0
+
+
+def _measured(rig: EffectRig, amplitude_v: float = 0.1, seed: int = 3, source: str = "rig.csv"):
+    sw = SweptSine(repetitions=3, amplitude_v=amplitude_v)
+    r = sw.signal(np.arange(int(round(sw.duration_s * FS))) / FS)
+    ts = rig.simulate(r, sample_rate_hz=FS, rng=np.random.default_rng(seed))
+    return from_timeseries(ts, source=source)
+
+
+def test_describing_ratio_signs_and_limits():
+    # a square wave (saturation at a vanishing level) has c3/c1 = -1/3 in the cosine convention: 4/pi (cos - cos3/3 + ...)
+    assert describing_ratio("saturation", [1e-6])[0] == pytest.approx(-1.0 / 3.0, rel=1e-3)
+    # a dead band keeps what a saturation at the same level removes: its 3rd harmonic has the opposite sign
+    for q in (0.1, 0.3, 0.6):
+        assert describing_ratio("dead_band", [q])[0] > 0 > describing_ratio("saturation", [q])[0]
+    # no distortion where the law is not reached
+    assert describing_ratio("saturation", [1.0])[0] == pytest.approx(0.0, abs=1e-9)
+    assert describing_ratio("dead_band", [1e-9])[0] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_valve_law_and_its_errors():
+    db, sat = valve_law("dead_band", 0.1), valve_law("saturation", 0.1)
+    assert [db(x) for x in (-0.3, -0.05, 0.0, 0.05, 0.3)] == pytest.approx([-0.2, 0.0, 0.0, 0.0, 0.2])
+    assert [sat(x) for x in (-0.3, 0.05, 0.3)] == pytest.approx([-0.1, 0.05, 0.1])
+    with pytest.raises(ValueError, match="'dead_band' or 'saturation'"):
+        valve_law("backlash", 0.1)
+    with pytest.raises(ValueError, match="positive number of volts"):
+        valve_law("dead_band", -1.0)
+
+
+def test_time_domain_loop_matches_the_frequency_domain_rig():
+    """The stepped loop with a law no command reaches is the linear rig: FRFs within 0.3 dB / 3 deg over 0.3-30 Hz
+    (the step's zero-order hold delays the valve by 0.125 ms: 1.4 deg at 30 Hz)."""
+    a = _measured(EffectRig(), seed=1)
+    b = _measured(EffectRig(valve_nonlinearity=("saturation", 100.0)), seed=1)
+    f = a.frf.freq_hz
+    band = (f > 0.3) & (f < 30.0)
+    for ch in ("act", "total"):
+        e = np.log(b.frf.response(ch)[band] / a.frf.response(ch)[band])
+        ok = a.var[ch][band] < 0.01  # where the noise is small enough to judge 0.3 dB
+        assert ok.sum() > 50
+        assert np.max(np.abs(e.real[ok])) * 20 / np.log(10) < 0.3
+        assert np.max(np.abs(e.imag[ok])) * 180 / np.pi < 3.0
+
+
+@pytest.mark.parametrize("rig, seed", [(EffectRig(), 3), (EffectRig(), 4), (EffectRig(valve_nonlinearity=("saturation", 100.0)), 5)])
+def test_clean_data_no_harmonics(rig, seed):
+    m = _measured(rig, seed=seed)
+    h = harmonic_analysis(m)
+    assert h is not None and h.n_records == 3
+    assert sum(np.isfinite(h.log10_p[k]).sum() for k in h.log10_p) >= 30  # the test has segments to look at
+    assert h.n_significant == 0
+    findings, notes, _, _ = find_nonlinear([m])
+    assert findings == [] and notes == []
+
+
+@pytest.mark.parametrize("kind, level", [("dead_band", 0.005), ("dead_band", 0.02), ("saturation", 0.08), ("saturation", 0.15)])
+def test_valve_nonlinearity_found_with_its_level(kind, level):
+    m = _measured(EffectRig(valve_nonlinearity=(kind, level)))
+    findings, _, analyses, _ = find_nonlinear([m])
+    assert len(findings) == 1
+    f = findings[0]
+    assert f.kind == kind
+    name = f"{kind}_v"
+    assert f.params[name] == pytest.approx(level, rel=0.15)
+    assert 0 < f.stderr[name] < 0.1 * level
+    assert f.params["max_ratio"] >= MATERIAL
+    assert "a linear system makes none" in f.evidence and "repeats in all 3 records" in f.evidence
+
+
+def test_a_file_without_records_has_no_harmonic_test():
+    m = _measured(EffectRig(valve_nonlinearity=("dead_band", 0.02)))
+    assert harmonic_analysis(from_frf(m.frf, source="frf.csv")) is None
+
+
+def test_amplitude_dependence_across_files():
+    """A dead band's best linear approximation grows with the amplitude; tested on the FRFs alone (no harmonics)."""
+    rig = EffectRig(valve_nonlinearity=("dead_band", 0.005))
+    lo = _measured(rig, 0.05, seed=1, source="a.csv")
+    hi = _measured(rig, 0.3, seed=2, source="b.csv")
+    t = amplitude_test(lo, hi)
+    assert t.significant and t.gain_change_db > 1.0
+    files = [from_frf(m.frf, source=m.source) for m in (lo, hi)]  # FRF files that state their amplitude (samii frf writes it)
+    assert [f.amplitude_v for f in files] == pytest.approx([0.05, 0.3])
+    findings, notes, analyses, tests = find_nonlinear(files)
+    assert analyses == [] and len(tests) == 1
+    assert [f.kind for f in findings] == ["dead_band"]
+    assert "grows with amplitude" in findings[0].evidence and notes == []
+
+
+def test_clean_files_at_two_amplitudes_agree():
+    rig = EffectRig()
+    t = amplitude_test(_measured(rig, 0.05, seed=1, source="a.csv"), _measured(rig, 0.3, seed=2, source="b.csv"))
+    assert not t.significant
+    assert 0.8 < t.chi2 / t.dof < 1.4  # the 3-record spread's inverse variance runs ~20 % high (Jensen)
+
+
+def test_same_amplitude_files_that_differ_are_a_changed_rig_not_a_nonlinearity():
+    from samii.notebook import EQ9_4
+
+    other = dict(EQ9_4, K1=EQ9_4["K1"] * 1.1)
+    a = _measured(EffectRig(), 0.1, seed=1, source="monday.csv")
+    b = _measured(EffectRig(params=other), 0.1, seed=2, source="tuesday.csv")
+    findings, notes, _, tests = find_nonlinear([a, b])
+    assert tests[0].significant
+    assert findings == []
+    assert len(notes) == 1 and "rig changed between the runs" in notes[0]
+
+
+def test_diagnose_reports_the_nonlinearity_and_flags_linear_effects_as_its_possible_image():
+    from samii.diagnose.diagnosis import diagnose
+
+    d = diagnose([_measured(EffectRig(valve_nonlinearity=("dead_band", 0.02)))])
+    assert d.verdict == "effects"
+    nl = [e for e in d.effects if e.category == "nonlinear"]
+    assert [e.kind for e in nl] == ["dead_band"] and nl[0].channel == "act"
+    for e in d.effects:
+        if e.category != "nonlinear" and not e.expected:
+            assert "may be that nonlinearity's image" in e.evidence
+    out = d.to_dict()
+    json.dumps(out, allow_nan=False)
+    assert out["nonlinear_tests"]["harmonics"][0]["significant"] >= 2
+
+
+@pytest.fixture(scope="module")
+def simulator_series():
+    from samii.measure.campaign import measure_swept
+    from samii.measure.daq import SensorNoise
+    from samii.sim.model import load_model
+
+    model = load_model()
+    out = {}
+    for amp in (0.1, 1.0):
+        meas = measure_swept(model, SweptSine(amplitude_v=amp), noise=SensorNoise(), rng=np.random.default_rng(0))
+        out[amp] = from_timeseries(meas.timeseries, source=f"sim {amp} V")
+    return out
+
+
+def test_simulator_at_its_default_amplitude_is_not_called_nonlinear(simulator_series):
+    findings, _, analyses, _ = find_nonlinear([simulator_series[0.1]])
+    assert findings == [] and analyses[0].n_significant == 0
+
+
+def test_simulator_at_1_volt_shows_the_orifice_law(simulator_series):
+    """At 1 V the load pressure near the hydraulic resonance (8.4 Hz) nears supply and the orifice law limits the
+    flow: a 3rd harmonic of several % around 6-13 Hz, flattening the peaks, not static in the command."""
+    findings, _, analyses, _ = find_nonlinear([simulator_series[1.0]])
+    assert len(findings) == 1 and findings[0].kind == "saturation"
+    assert 0.03 < findings[0].params["max_ratio"] < 0.3
+    assert 6.0 < findings[0].params["at_hz"] < 11.0
+    assert "depends on the loop's state" in findings[0].evidence
