@@ -44,7 +44,7 @@ from scipy import stats
 from samii.diagnose.effects import library
 from samii.diagnose.measured import Measured
 from samii.diagnose.model import Baseline, Dataset, Fit, _apply
-from samii.diagnose.nonlinear import find_nonlinear
+from samii.diagnose.nonlinear import find_nonlinear, linearised
 from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select
 
 __all__ = ["ChannelError", "FoundEffect", "Band", "Diagnosis", "diagnose", "CHANNELS", "BAND_POINTS", "RULE"]
@@ -160,7 +160,7 @@ class Diagnosis:
                                "significant": h.n_significant, "threshold_log10_p": h.threshold_log10_p,
                                "max_ratio": {str(k): _max_tested(h, k) for k in h.ratio}} for h in self.harmonics],
                 "amplitude": [{"sources": list(t.sources), "amplitudes_v": list(t.amplitudes_v), "chi2": t.chi2, "dof": t.dof,
-                               "log10_p": t.log10_p, "gain_change_db": t.gain_change_db, "n_points": t.n_points}
+                               "log10_p": t.log10_p, "gain_change_db": t.gain_change_db, "n_points": t.n_points, "channel": t.channel}
                               for t in self.amplitude_tests],
             },
             "notes": list(self.notes),
@@ -355,6 +355,14 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     nonlinear, nl_notes, harmonics, amp_tests = find_nonlinear(measured, alpha=alpha)
     notes = [f"{m.source}: no coherence and no records; the noise of each point is {m.noise_source}"
              for m, g in zip(measured, given) if m is not g]
+    raw = measured
+    for f in nonlinear:  # a law on the command that explains the harmonics: the linear model is fitted to the data without it
+        if f.harmonics and f.law_fits:
+            for h in f.harmonics:
+                measured = tuple(linearised(m, f, h) if m.source == h.source else m for m in measured)
+                notes.append(f"{h.source}: the linear fit, its error after and the figures use theta/v and xdd/v divided "
+                             f"by the {f.kind.replace('_', ' ')}'s describing function (the error before is the baseline's on "
+                             "the data as measured)")
     datasets = tuple(Dataset.from_measured(m) for m in measured)
     if saved is None:
         bl = notebook_baseline(measured)
@@ -365,6 +373,13 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     channels = ("act", "base") if {"act", "base"} <= have or {"act", "total"} <= have else tuple(c for c in ("act", "base") if c in have)
     kinds = [_within_band(k, datasets) for k in library(fixed_baseline=not bl.free, channels=channels)]
     before, after, steps, tried = forward_select(list(datasets), bl, kinds, alpha=alpha, progress=progress)
+    raw_datasets = tuple(Dataset.from_measured(m) for m in raw)
+    error_before = channel_errors(datasets, before)
+    if raw is not measured:  # the baseline on the data as measured, for the error before
+        from samii.diagnose.model import fit_model
+
+        error_before = channel_errors(raw_datasets, fit_model(list(raw_datasets), notebook_baseline(raw) if saved is None else
+                                                             saved_fit_baseline(saved, raw_datasets), []))
     effects = _effects(after, steps, tried, measured)
     if nonlinear:
         effects = [e if e.expected else replace(e, evidence=e.evidence + "; found beside a nonlinearity: it may be that "
@@ -373,5 +388,5 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
                      "measured, and linear effects found with it may be the nonlinearity's image (compare a file at another amplitude)")
     effects += [FoundEffect("nonlinear", f.kind, "act", dict(f.params), dict(f.stderr), f.evidence) for f in nonlinear]
     return Diagnosis(measured, datasets, bl, before, after, tuple(steps), tuple(tried), tuple(effects),
-                     channel_errors(datasets, before), channel_errors(datasets, after), tuple(unexplained_bands(datasets, after, alpha=alpha)),
+                     error_before, channel_errors(datasets, after), tuple(unexplained_bands(datasets, after, alpha=alpha)),
                      notes=tuple(notes + nl_notes), harmonics=tuple(harmonics), amplitude_tests=tuple(amp_tests))
