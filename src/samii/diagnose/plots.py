@@ -176,6 +176,7 @@ def harmonic_figure(d: Diagnosis, path=None):
         ax.axhline(100 * MATERIAL, color="k", lw=0.8, ls="--", label=f"{100 * MATERIAL:g} % (claimed above)")
         ax.set_xlabel("sweep frequency (fundamental) [Hz]")
         ax.set_ylabel("harmonic / fundamental at the valve command [%]")
+        ax.xaxis.set_major_locator(matplotlib.ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
         ax.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
         ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         src = h.source if len(h.source) <= 40 else "…" + h.source[-39:]
