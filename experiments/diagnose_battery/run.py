@@ -202,7 +202,7 @@ def _line(r: dict) -> str:
             return f"{row['kind']}: MISSED"
         errs = ", ".join(f"{p} {1e3 * e:+.2f} ms" if p == "delay_s" else f"{p} {100 * e:+.1f} %" for p, e in row["errors"].items())
         ok = "" if row["found_kind"] == row["kind"] else f" (as {row['found_kind']})"
-        return f"{row['kind']}{ok} {errs}"
+        return f"{row['kind']}{ok} {errs}".rstrip()
 
     found = "; ".join(eff(row) for row in r["injected"]) or "-"
     extra = "; ".join(f"{e['category']}/{e['kind']} " + ", ".join(f"{k} {v:.4g}" for k, v in e["params"].items()) for e in r["extra"]) or "-"

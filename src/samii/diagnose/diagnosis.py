@@ -121,15 +121,20 @@ class Diagnosis:
     notes: tuple[str, ...] = field(default=())
     harmonics: tuple = field(default=())  # HarmonicAnalysis per time-series file
     amplitude_tests: tuple = field(default=())  # AmplitudeTest per pair of files
+    #: The files as measured, when a nonlinearity was divided out of ``measured`` (``before`` is fitted to these).
+    raw_measured: tuple | None = None
 
     @property
     def verdict(self) -> str:
         return "effects" if any(not e.expected for e in self.effects) else "none"
 
     def residuals(self, which: str = "after") -> list[dict[str, tuple[np.ndarray, np.ndarray]]]:
-        """Per file: channel -> (e on the full grid, NaN where unusable; its variance)."""
-        fit = self.after if which == "after" else self.before
-        return [_full_residuals(ds, res) for ds, res in zip(self.datasets, fit.residuals)]
+        """Per file: channel -> (e on the full grid, NaN where unusable; its variance). ``before``: the baseline on the
+        data as measured; ``after``: the augmented model on the data with any nonlinearity divided out."""
+        if which == "after":
+            return [_full_residuals(ds, res) for ds, res in zip(self.datasets, self.after.residuals)]
+        datasets = self.datasets if self.raw_measured is None else [Dataset.from_measured(m) for m in self.raw_measured]
+        return [_full_residuals(ds, res) for ds, res in zip(datasets, self.before.residuals)]
 
     def model(self, i: int, freq_hz: np.ndarray, which: str = "after") -> dict[str, np.ndarray]:
         """act, base and total of the baseline (``before``) or the augmented model (``after``) of file ``i``."""
@@ -364,22 +369,24 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
                              f"by the {f.kind.replace('_', ' ')}'s describing function (the error before is the baseline's on "
                              "the data as measured)")
     datasets = tuple(Dataset.from_measured(m) for m in measured)
-    if saved is None:
-        bl = notebook_baseline(measured)
-    else:
-        bl = saved_fit_baseline(saved, datasets)
+
+    def baseline_for(ms, dss):
+        return notebook_baseline(ms) if saved is None else saved_fit_baseline(saved, dss)
+
+    bl = baseline_for(measured, datasets)
+    if saved is not None:
         notes += list(saved.concerns)
     have = set().union(*(ds.data for ds in datasets))
     channels = ("act", "base") if {"act", "base"} <= have or {"act", "total"} <= have else tuple(c for c in ("act", "base") if c in have)
     kinds = [_within_band(k, datasets) for k in library(fixed_baseline=not bl.free, channels=channels)]
     before, after, steps, tried = forward_select(list(datasets), bl, kinds, alpha=alpha, progress=progress)
-    raw_datasets = tuple(Dataset.from_measured(m) for m in raw)
     error_before = channel_errors(datasets, before)
     if raw is not measured:  # the baseline on the data as measured, for the error before
         from samii.diagnose.model import fit_model
 
-        error_before = channel_errors(raw_datasets, fit_model(list(raw_datasets), notebook_baseline(raw) if saved is None else
-                                                             saved_fit_baseline(saved, raw_datasets), []))
+        raw_datasets = tuple(Dataset.from_measured(m) for m in raw)
+        before = fit_model(list(raw_datasets), baseline_for(raw, raw_datasets), [])
+        error_before = channel_errors(raw_datasets, before)
     effects = _effects(after, steps, tried, measured)
     if nonlinear:
         effects = [e if e.expected else replace(e, evidence=e.evidence + "; found beside a nonlinearity: it may be that "
@@ -389,4 +396,5 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     effects += [FoundEffect("nonlinear", f.kind, "act", dict(f.params), dict(f.stderr), f.evidence) for f in nonlinear]
     return Diagnosis(measured, datasets, bl, before, after, tuple(steps), tuple(tried), tuple(effects),
                      error_before, channel_errors(datasets, after), tuple(unexplained_bands(datasets, after, alpha=alpha)),
-                     notes=tuple(notes + nl_notes), harmonics=tuple(harmonics), amplitude_tests=tuple(amp_tests))
+                     notes=tuple(notes + nl_notes), harmonics=tuple(harmonics), amplitude_tests=tuple(amp_tests),
+                     raw_measured=None if raw is measured else raw)

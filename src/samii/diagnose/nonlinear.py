@@ -78,7 +78,7 @@ __all__ = ["HarmonicAnalysis", "AmplitudeTest", "NonlinearFinding", "harmonic_an
 ALPHA = 1e-3
 #: Units of a nonlinear finding's parameters (for printing).
 PARAM_UNITS = {"harmonic": "1", "max_ratio": "1", "at_hz": "Hz", "phase_deg": "deg", "phase_spread_deg": "deg", "dead_band_v": "V",
-               "saturation_v": "V", "gain_change_db": "dB", "amplitude_low_v": "V", "amplitude_high_v": "V"}
+               "saturation_v": "V", "hysteresis_v": "V", "gain_change_db": "dB", "amplitude_low_v": "V", "amplitude_high_v": "V"}
 #: Smallest distortion, relative to the fundamental of the valve command, claimed as a nonlinearity.
 MATERIAL = 0.01
 #: Whole cycles of the sweep per segment (>= 2: with one cycle, Hann leaks the fundamental into k = 2).
@@ -109,7 +109,7 @@ class HarmonicAnalysis:
     freq_hz: np.ndarray  # fundamental of each segment
     command_v: np.ndarray  # |V_1|, the valve command's amplitude
     ratio: dict  # k -> complex D_k e^{-ik arg V_1} / |V_1| (the distortion in the fundamental's phase frame)
-    ratio_sd: dict  # k -> standard deviation of |ratio| from the spread
+    ratio_sd: dict  # k -> standard deviation of each real part of ratio, from the spread
     log10_p: dict  # k -> log10 p of each segment under linearity (NaN where not testable)
     n_records: int
     threshold_log10_p: float
@@ -202,20 +202,26 @@ def _ratio_table(kind: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return q, h, g
 
 
+def _from_table(kind: str, level_over_amplitude, column: int) -> tuple[np.ndarray, np.ndarray]:
+    """``level / amplitude`` as an array, and column 1 (c3/c1) or 2 (the gain c1) of ``kind``'s table interpolated there
+    (levels beyond 0.999 read at 0.999)."""
+    if kind not in ODD_KINDS:
+        raise ValueError(f"describing functions: kind must be one of {ODD_KINDS}, got {kind!r}")
+    x = np.atleast_1d(np.asarray(level_over_amplitude, float))
+    table = _ratio_table(kind)
+    q, values = table[0], table[column]
+    xc = np.clip(x, 0.0, 0.999)
+    return x, np.interp(xc, q, values.real) + 1j * np.interp(xc, q, values.imag)
+
+
 def describing_gain(kind: str, level_over_amplitude) -> np.ndarray:
     """The describing function ``N = c1 / a`` of ``kind`` at ``level / amplitude`` (complex: a play's lags).
 
     A saturation's is ``N(q)`` for ``q < 1`` and 1 beyond; a dead band's and a play's fall to 0 as ``q`` nears 1
     (the valve no longer moves)."""
-    if kind not in ODD_KINDS:
-        raise ValueError(f"describing_gain: kind must be one of {ODD_KINDS}, got {kind!r}")
-    x = np.atleast_1d(np.asarray(level_over_amplitude, float))
-    q, _, g = _ratio_table(kind)
-    xc = np.clip(x, 0.0, 0.999)
-    if kind == "saturation":  # gain/q is the clipped sine's: N(q) ~ 4q/pi for a vanishing level
-        out = np.interp(xc, q, g.real) + 1j * np.interp(xc, q, g.imag)
+    x, out = _from_table(kind, level_over_amplitude, 2)
+    if kind == "saturation":
         return np.where(x >= 1.0, 1.0, out)
-    out = np.interp(xc, q, g.real) + 1j * np.interp(xc, q, g.imag)
     return np.where(x >= 0.999, 0.0, out)
 
 
@@ -224,12 +230,7 @@ def describing_ratio(kind: str, level_over_amplitude) -> np.ndarray:
     complex 3rd and 1st harmonics in the input's phase frame (real for the static laws: + for a dead band, - for a
     saturation; a play's memory turns it), tabulated from the law's FFT on 4096 points over 401 levels and
     interpolated. A saturation not reached gives 0."""
-    if kind not in ODD_KINDS:
-        raise ValueError(f"describing_ratio: kind must be one of {ODD_KINDS}, got {kind!r}")
-    x = np.atleast_1d(np.asarray(level_over_amplitude, float))
-    q, h, _ = _ratio_table(kind)
-    xc = np.clip(x, 0.0, 0.999)
-    out = np.interp(xc, q, h.real) + 1j * np.interp(xc, q, h.imag)
+    x, out = _from_table(kind, level_over_amplitude, 1)
     if kind == "saturation":
         out = np.where(x >= 1.0, 0.0, out)
     return out if kind == "hysteresis" else out.real
@@ -551,7 +552,8 @@ def _harmonic_kind(h: HarmonicAnalysis) -> tuple[str, dict, dict, str, bool]:
 
 
 def find_nonlinear(measured: Sequence, *, alpha: float = ALPHA) -> tuple[list[NonlinearFinding], list[str], list[HarmonicAnalysis], list[AmplitudeTest]]:
-    """Nonlinear findings over the files (at most one per file from harmonics, one from amplitude dependence) and notes."""
+    """Nonlinear findings over the files (one per kind from the harmonics, files merged; the amplitude test merged into
+    the first odd-law finding, else one of its own), notes, the harmonic analyses and the amplitude tests."""
     findings, notes = [], []
     analyses = [h for h in (harmonic_analysis(m, alpha=alpha) for m in measured) if h is not None]
     by_kind: dict[str, list] = {}

@@ -47,9 +47,11 @@ def residual_figure(d: Diagnosis, path=None):
             if ds.known_noise:  # else the weights are a placeholder, not the data's noise
                 ax_m.fill_between(f, -2 * _DB * sig, 2 * _DB * sig, color=c, alpha=0.15, lw=0, label=f"±2σ noise{tag}")
                 ax_p.fill_between(f, -2 * _DEG * sig, 2 * _DEG * sig, color=c, alpha=0.15, lw=0)
-            ax_m.plot(f, _DB * eb.real, color="0.55", lw=0.8, label=f"baseline{tag}")
+            nl = d.raw_measured is not None
+            ax_m.plot(f, _DB * eb.real, color="0.55", lw=0.8, label=f"baseline{' (data as measured)' if nl else ''}{tag}")
             ax_p.plot(f, _DEG * eb.imag, color="0.55", lw=0.8)
-            ax_m.plot(f, _DB * ea.real, color=c, lw=1.0, label=f"with the effects{tag}")
+            ax_m.plot(f, _DB * ea.real, color=c, lw=1.0,
+                      label=f"with the effects{' (and the nonlinearity divided out)' if nl and ch != 'base' else ''}{tag}")
             ax_p.plot(f, _DEG * ea.imag, color=c, lw=1.0)
         for b in d.unexplained:
             if b.channel == ch:
@@ -117,7 +119,13 @@ def bode_figure(d: Diagnosis, path=None):
             ph_model = np.unwrap(np.angle(ref))
             ph_data = np.angle(h[ok]) + 2 * np.pi * np.round((np.interp(f[ok], fm, ph_model) - np.angle(h[ok])) / (2 * np.pi))
             ax_m, ax_p = axes[0, col], axes[1, col]
-            ax_m.plot(f[ok], _DB * np.log(np.abs(h[ok])), ".", ms=2.5, color=c, alpha=0.6, label=f"data{tag}")
+            if d.raw_measured is not None and ch != "base":  # the data as measured, before the nonlinearity was divided out
+                raw = d.raw_measured[i].frf.response(ch)[ok]
+                ph_raw = np.angle(raw) + 2 * np.pi * np.round((ph_data - np.angle(raw)) / (2 * np.pi))
+                ax_m.plot(f[ok], _DB * np.log(np.abs(raw)), ".", ms=2.5, color="0.6", label=f"data as measured{tag}")
+                ax_p.plot(f[ok], _DEG * ph_raw, ".", ms=2.5, color="0.6")
+            divided = " (nonlinearity divided out)" if d.raw_measured is not None and ch != "base" else ""
+            ax_m.plot(f[ok], _DB * np.log(np.abs(h[ok])), ".", ms=2.5, color=c, alpha=0.6, label=f"data{divided}{tag}")
             ax_p.plot(f[ok], _DEG * ph_data, ".", ms=2.5, color=c, alpha=0.6)
             ph_b = np.unwrap(np.angle(mb[ch]))
             ph_b += 2 * np.pi * np.round((ph_model[0] - ph_b[0]) / (2 * np.pi))
