@@ -46,15 +46,15 @@ _GAIN_CHANNELS = ("act", "base")
 
 def check_parameter_name(params: SamiiParams, name: str) -> None:
     """Raise ValueError unless ``name`` is a calibratable parameter: a float field
-    ``beam.*``, ``arm.*`` or ``hydraulic.*``, or a channel gain ``gain.act`` / ``gain.base``."""
+    ``beam.*``, ``arm.*``, ``hydraulic.*`` or ``sensor.*``, or a channel gain ``gain.act`` / ``gain.base``."""
     if name.startswith(GAIN_PREFIX):
         if name[len(GAIN_PREFIX):] not in _GAIN_CHANNELS:
             raise ValueError(f"parameter {name!r}: channel gains are {[GAIN_PREFIX + c for c in _GAIN_CHANNELS]}")
         return
     parts = name.split(".")
-    sections = ("beam", "arm", "hydraulic")
+    sections = ("beam", "arm", "hydraulic", "sensor")
     if len(parts) != 2 or parts[0] not in sections:
-        raise ValueError(f"parameter {name!r}: expected 'beam.<name>', 'arm.<name>', 'hydraulic.<name>' or a channel gain 'gain.act'/'gain.base'")
+        raise ValueError(f"parameter {name!r}: expected 'beam.<name>', 'arm.<name>', 'hydraulic.<name>', 'sensor.<name>' or a channel gain 'gain.act'/'gain.base'")
     section = getattr(params, parts[0])
     types = {f.name: f.type for f in fields(section)}
     if parts[1] not in types:

@@ -263,13 +263,17 @@ def build_card_model(
     act_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, ACTUATOR)
     layout = CardLayout(
         nstate=nstate,
-        plugin_adr=_plugin_offset(model) if n_plugin else -1,
+        plugin_adr=_plugin_offset(model) if controller is not None else -1,
         n_buffer=n_buffer,
         n_states=n,
         act_adr=1 + model.nq + model.nv + int(model.actuator_actadr[act_id]),
     )
-    if controller is not None and n_plugin != 4 + n_buffer + n:
-        raise RuntimeError(f"the plugin's state has {n_plugin} entries, expected {4 + n_buffer + n}: plugin and samii.closedloop.card disagree")
+    from samii.sim.plugin import command_ring_entries
+
+    # after the card's entries, the valve's command delay keeps its own (hydraulic.c)
+    expected = (4 + n_buffer + n if controller is not None else 0) + command_ring_entries(float(config.get("command_delay") or 0.0), dt)
+    if n_plugin != expected:
+        raise RuntimeError(f"the plugin's state has {n_plugin} entries, expected {expected}: plugin and samii.closedloop.card disagree")
     # without a controller the servo amplifier runs alone: nothing replaces it, nothing is delayed
     replaces = bool(replaces_servo) and controller is not None
     return CardModel(model, controller, replaces, float(delay_samples) if controller is not None else 0.0, steps, layout)

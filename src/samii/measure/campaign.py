@@ -22,6 +22,7 @@ from samii.measure.excitation import SteppedSine, SweptSine
 from samii.measure.frf import estimate_frf
 from samii.measure.stepped import estimate_stepped
 from samii.measure.timeseries import SIGNAL_COLUMNS, TimeSeries
+from samii.sim.sensor_dynamics import SensorDynamics
 
 __all__ = ["Run", "Measurement", "record", "measure", "measure_swept", "measure_stepped", "linearised_frf"]
 
@@ -125,7 +126,7 @@ def record(
     dt = float(model.opt.timestep)
     n = int(round(excitation.duration_s / dt))
     ctrl = excitation.signal(np.arange(n) * dt)
-    daq = Daq(1.0 / dt, sample_rate_hz=sample_rate_hz, noise=noise, rng=rng)
+    daq = Daq(1.0 / dt, sample_rate_hz=sample_rate_hz, noise=noise, rng=rng, sensors=SensorDynamics.from_model(model))
     meta = {"source": "samii simulator (MuJoCo + samii.hydraulic plugin)", "physics_timestep_s": f"{dt:g}"}
     daq_meta = {**meta, **daq.metadata(), **{k: str(v) for k, v in excitation.describe().items()}}
     writer = None
@@ -244,4 +245,11 @@ def linearised_frf(model, freqs_hz, *, linear_model=None) -> FrequencyResponse:
         theta[i] = (c_theta @ x)[0]
         accel[i] = (c_accel_ol @ x)[0] + d_accel
     meta = {"source": "linearised simulator, discrete time at the physics step (samii.sim.linearize)", "physics_timestep_s": f"{lm.dt_s:g}"}
+    # The valve's command delay (the held signal shifted by T exactly, hydraulic.c) and the
+    # sensors' own dynamics (the DAQ's filters at the physics rate) multiply the responses to v.
+    delay = np.exp(-2j * np.pi * f * lm.command_delay_s)
+    g_theta, g_accel = SensorDynamics.from_model(model).response(f, 1.0 / lm.dt_s)
+    theta, accel = theta * delay * g_theta, accel * delay * g_accel
+    if lm.command_delay_s:
+        meta["command_delay_s"] = f"{lm.command_delay_s:g}"
     return FrequencyResponse(f, act=theta, base=accel / theta, total=accel, metadata=meta)

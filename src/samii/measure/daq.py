@@ -16,6 +16,8 @@ import numpy as np
 from scipy import signal
 
 from samii.measure.timeseries import SIGNAL_COLUMNS, TimeSeries
+from samii.sim.sensor_dynamics import FIELDS as SENSOR_FIELDS
+from samii.sim.sensor_dynamics import SensorDynamics, SensorFilter
 
 __all__ = ["SensorNoise", "Daq", "acquire", "antialias_cutoff_hz", "daq_timeseries", "DEFAULT_SAMPLE_RATE_HZ"]
 
@@ -91,6 +93,10 @@ class Daq:
     rng : numpy.random.Generator
         Required with ``noise``; the caller seeds it. Each noisy channel draws
         from its own stream spawned from it (in the order of ``SensorNoise.std``).
+    sensors : SensorDynamics, optional
+        The sensors' own dynamics (``samii.sim.sensor_dynamics``), applied to
+        ``theta`` and ``accel`` at the physics rate before the anti-alias filter;
+        None or ideal for none.
     """
 
     def __init__(
@@ -100,6 +106,7 @@ class Daq:
         sample_rate_hz: float = DEFAULT_SAMPLE_RATE_HZ,
         noise: SensorNoise | None = None,
         rng: np.random.Generator | None = None,
+        sensors: SensorDynamics | None = None,
     ) -> None:
         if not (np.isfinite(sample_rate_hz) and sample_rate_hz > 0):
             raise ValueError(f"sample_rate_hz must be positive, got {sample_rate_hz!r}")
@@ -114,6 +121,8 @@ class Daq:
             raise ValueError("sensor noise needs a seeded numpy Generator: pass rng=np.random.default_rng(seed)")
         self.sample_rate_hz = float(sample_rate_hz)
         self.noise = noise
+        self.sensors = sensors if sensors is not None and not sensors.ideal else None
+        self._sensor_filter = None if self.sensors is None else SensorFilter(self.sensors, physics_rate_hz)
         self._q = q
         self.cutoff_hz = _AA_CUTOFF_RATIO * sample_rate_hz
         self._sos = signal.butter(_AA_ORDER, self.cutoff_hz, fs=physics_rate_hz, output="sos")
@@ -134,6 +143,8 @@ class Daq:
             "sample_rate_hz": f"{self.sample_rate_hz:g}",
             "antialias": f"Butterworth order {_AA_ORDER}, {self.cutoff_hz:g} Hz, causal, every channel, before sampling",
             "sensor_noise": "none" if noise is None else ", ".join(f"{k} {v:g}" for k, v in noise.std().items()) + " (std, SI)",
+            **({} if self.sensors is None else {"sensor_dynamics": ", ".join(
+                f"{n} {v:g}" for (n, _), v in zip(SENSOR_FIELDS, self.sensors.values())) + " (samii.sim.sensor_dynamics)"}),
         }
 
     def process(self, t0_s: float, columns: dict[str, np.ndarray]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -151,6 +162,8 @@ class Daq:
             self._t0 = float(t0_s)
         elif names != self._names:
             raise ValueError(f"a DAQ chunk must have the columns {self._names}, got {names}")
+        if self._sensor_filter is not None:  # the sensors come before the DAQ's front end
+            columns = self._sensor_filter.process(columns)
         stack = np.vstack([np.asarray(columns[k], float) for k in names])
         if self._zi is None:  # steady state for the first sample: start at the operating point
             self._zi = signal.sosfilt_zi(self._sos)[:, None, :] * stack[None, :, 0, None]

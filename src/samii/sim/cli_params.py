@@ -21,11 +21,15 @@ _UNITS = {
     "hydraulic.rated_voltage": "V",
     "hydraulic.position_gain": "V/rad",
     "hydraulic.reference_angle": "rad",
+    "hydraulic.command_delay": "s",
+    "hydraulic.valve_dead_band": "V",
+    "hydraulic.valve_saturation": "V",
+    "sensor.accel_gain": "1",
     "beam.n_segments": "-",
     "beam.accel_body_fixed": "0 or 1",
     "beam.section_side_m": "m",
 }
-_SUFFIX_UNITS = {"_m": "m", "_Nm2": "N m^2", "_kg_m": "kg/m", "_Nm_rad": "N m/rad", "_Nms_rad": "N m s/rad", "_s": "s",
+_SUFFIX_UNITS = {"_hz": "Hz", "_m": "m", "_Nm2": "N m^2", "_kg_m": "kg/m", "_Nm_rad": "N m/rad", "_Nms_rad": "N m s/rad", "_s": "s",
                  "_deg": "deg", "_kgm2": "kg m^2"}
 
 

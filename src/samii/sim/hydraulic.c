@@ -71,6 +71,20 @@
 // sets it (0: the servo amplifier alone, the ring recording its command) to switch the card on
 // mid-run. The card needs the Euler or implicit integrators (RK4 does not call `advance` per step).
 //
+// The valve (optional attributes, all absent or 0 by default: an ideal valve, the model as it was
+// before these options existed). Between the amplifier and the spool:
+//   command_delay    T [s]: the spool follows the amplifier output T late (transport or
+//                    computation delay on the valve command); whole physics steps through a ring
+//                    of held outputs, a fraction by splitting the step (the held signal shifted
+//                    exactly by T, as the card's delay); the recorded v is the amplifier output;
+//   valve_dead_band  d [V]: the valve's input is v - d sign(v) outside |v| <= d, 0 inside (spool
+//                    overlap referred to the command);
+//   valve_saturation s [V]: then limited to +-s (a drive current limit).
+// The ring lives in mjData.plugin_state after the card's state: [primed, amplifier output at the
+// latest act_dot, (a, b) per step, newest first]. A command delay needs Euler or implicit.
+// Linearisations (samii.sim.linearize) take the plant without the delay and the valve's law and
+// apply the delay as exp(-s T) to the responses to v.
+//
 // No heap allocation per step: the parsed configuration is allocated once in `init`.
 
 #include <math.h>
@@ -131,6 +145,9 @@ enum {
   OPT_CONTROLLER_ACCEL_NOISE,      // ... to the sampled accel [m/s^2]
   OPT_CONTROLLER_THETA_LSB,        // ADC step of theta [rad], 0 = no quantisation
   OPT_CONTROLLER_ACCEL_LSB,        // ADC step of accel [m/s^2], 0 = no quantisation
+  OPT_COMMAND_DELAY,               // [s] the valve acts on the amplifier output this late (0...1 s)
+  OPT_VALVE_DEAD_BAND,             // [V] dead band of the valve on its input (0 = none, < 10)
+  OPT_VALVE_SATURATION,            // [V] the valve's input is limited to +-this (0 = none, <= 10)
   NATTR_ALL
 };
 
@@ -141,12 +158,14 @@ static const char* const kAttributes[NATTR_ALL] = {
   "controller_d", "controller_steps", "controller_delay_steps", "controller_replaces_servo",
   "controller_theta_sensor", "controller_accel_sensor", "controller_accel_direction",
   "controller_accel_offset", "controller_theta_noise", "controller_accel_noise",
-  "controller_theta_lsb", "controller_accel_lsb",
+  "controller_theta_lsb", "controller_accel_lsb", "command_delay", "valve_dead_band",
+  "valve_saturation",
 };
 
 #define CTRL_NIN 3                 // controller inputs: theta_r [rad], theta [rad], accel [m/s^2]
 #define CTRL_MAX_STATES 64
 #define CTRL_MAX_DELAY_STEPS 200
+#define CMD_MAX_DELAY_S 1.0        // longest command delay [s]
 
 // Plugin state of an instance with a controller (mjData.plugin_state, part of
 // mjSTATE_FULLPHYSICS, so rollouts carry it): see the header comment.
@@ -196,7 +215,21 @@ typedef struct {
 
   int reference;      // actuator id of the reference input theta_r, or -1
   Card* card;         // the digital controller, or NULL
+
+  // the valve between the amplifier and the spool (all 0: an ideal valve, as before these options)
+  mjtNum dead_band;   // [V], 0 = none
+  mjtNum saturation;  // [V], 0 = none
+  int delay_whole;    // command delay = (delay_whole + delay_frac) physics steps
+  mjtNum delay_frac;
+  int nring;          // entries of the command ring (delay_whole + 2), 0 = no delay
+  int ring_adr;       // offset of the command ring's block in the instance's plugin_state
 } Hydraulic;
+
+// Command-ring block of plugin_state (after the card's): a flag set once the ring holds history,
+// the amplifier output at the latest act_dot (t_n, before integration moved qpos), then per
+// physics step, newest first, the amplifier output over the step in two pieces (a over [0, s),
+// b over [s, 1) of the step, s = the card's fractional delay, 0 without a card).
+enum { VR_PRIMED = 0, VR_VNOW, VR_RING };
 
 
 // Parse one attribute; on failure write a message naming attribute, value and expectation.
@@ -317,13 +350,37 @@ static int card_size(const mjModel* m, int instance, int* n, int* nbuf) {
   return 1;
 }
 
+// plugin_state entries of the card (0 without one)
+static int card_nstate(const mjModel* m, int instance) {
+  int n, nbuf;
+  if (!card_size(m, instance, &n, &nbuf)) return 0;
+  if (n < 0 || n > CTRL_MAX_STATES) n = 0;  // init reports it
+  return ST_BUFFER + nbuf + n;
+}
+
+// The command delay a config asks for, in physics steps (whole + fraction); returns the ring's
+// entries (0 = no delay; an invalid value also gives 0 here, and init reports it).
+static int delay_size(const mjModel* m, int instance, int* whole, mjtNum* frac) {
+  const char* text = optional_text(m, instance, OPT_COMMAND_DELAY);
+  *whole = 0;
+  *frac = 0;
+  double dl = text ? strtod(text, NULL) : 0;
+  if (!(dl > 0 && dl <= CMD_MAX_DELAY_S) || !(m->opt.timestep > 0)) return 0;
+  double steps = dl / m->opt.timestep;
+  double nearest = floor(steps + 0.5);
+  if (fabs(steps - nearest) < 1e-9 * (1 + steps)) steps = nearest;  // 4 ms / 1 ms is 4 steps
+  *whole = (int) floor(steps);
+  *frac = steps - *whole;
+  return *whole + 2;
+}
+
 // Build the controller card from the config; NULL (card_ok = 1) when none is configured,
 // NULL with card_ok = 0 (after mju_warning) when the config is wrong.
 static Card* card_create(const mjModel* m, int instance, int actuator, const char* name,
                          int* card_ok) {
   *card_ok = 0;
   if (!optional_text(m, instance, OPT_CONTROLLER_STATES)) {
-    for (int i = OPT_CONTROLLER_A; i < NATTR_ALL; i++) {
+    for (int i = OPT_CONTROLLER_A; i <= OPT_CONTROLLER_ACCEL_LSB; i++) {
       if (optional_text(m, instance, i)) {
         mju_warning("%s (actuator '%s'): config attribute '%s' given without controller_states",
                     SAMII_PLUGIN_NAME, name, kAttributes[i]);
@@ -527,6 +584,32 @@ static Hydraulic* hydraulic_create(const mjModel* m, int instance) {
     free(h);
     return NULL;
   }
+
+  // the valve: dead band, saturation, command delay
+  mjtNum delay;
+  if (parse_optional(m, instance, OPT_VALVE_DEAD_BAND, 0, SAMII_AMPLIFIER_LIMIT_V, 0, &h->dead_band, name) ||
+      parse_optional(m, instance, OPT_VALVE_SATURATION, 0, SAMII_AMPLIFIER_LIMIT_V, 0, &h->saturation, name) ||
+      parse_optional(m, instance, OPT_COMMAND_DELAY, 0, CMD_MAX_DELAY_S, 0, &delay, name)) {
+    card_free(h->card);
+    free(h);
+    return NULL;
+  }
+  if (h->dead_band >= SAMII_AMPLIFIER_LIMIT_V) {
+    mju_warning("%s (actuator '%s'): valve_dead_band = %g V leaves no command through (expected "
+                "0 <= dead band < %g V)", SAMII_PLUGIN_NAME, name, h->dead_band, SAMII_AMPLIFIER_LIMIT_V);
+    card_free(h->card);
+    free(h);
+    return NULL;
+  }
+  h->nring = delay_size(m, instance, &h->delay_whole, &h->delay_frac);
+  h->ring_adr = card_nstate(m, instance);
+  if (h->nring && m->opt.integrator == mjINT_RK4) {
+    mju_warning("%s (actuator '%s'): command_delay needs the Euler or implicit integrators (the "
+                "delay line runs in the advance callback), not RK4", SAMII_PLUGIN_NAME, name);
+    card_free(h->card);
+    free(h);
+    return NULL;
+  }
   return h;
 }
 
@@ -560,6 +643,39 @@ static mjtNum valve_voltage(const mjModel* m, const mjData* d, const Hydraulic* 
   return mju_clip(v, -SAMII_AMPLIFIER_LIMIT_V, SAMII_AMPLIFIER_LIMIT_V);
 }
 
+// the valve's own law on its input [V]: dead band (slope 1 outside it), then saturation
+static mjtNum valve_law(const Hydraulic* h, mjtNum v) {
+  mjtNum d = h->dead_band;
+  if (d > 0) v = v > d ? v - d : (v < -d ? v + d : 0);
+  if (h->saturation > 0) v = mju_clip(v, -h->saturation, h->saturation);
+  return v;
+}
+
+// the command ring block of this instance (only with a command delay)
+static mjtNum* command_ring(const mjModel* m, mjData* d, int instance, const Hydraulic* h) {
+  return d->plugin_state + m->plugin_stateadr[instance] + h->ring_adr;
+}
+
+// amplifier output stored for ring entry e at fraction `at` of its step
+static mjtNum ring_piece(const mjtNum* e, mjtNum at, mjtNum split) {
+  return at < split ? e[0] : e[1];
+}
+
+// the voltage the valve acts on at t_n (before its law): the amplifier output now, or
+// command_delay earlier from the ring (which holds steps n-1, n-2, ... until advance adds step n)
+static mjtNum delayed_voltage(const mjModel* m, mjData* d, int instance, const Hydraulic* h) {
+  mjtNum v = valve_voltage(m, d, h);
+  if (!h->nring) return v;
+  mjtNum* r = command_ring(m, d, instance, h);
+  r[VR_VNOW] = v;
+  if (r[VR_PRIMED] == 0) return v;  // no history yet: at rest since the reset
+  mjtNum split = h->card ? h->card->delay_frac : 0;
+  const mjtNum* ring = r + VR_RING;
+  if (h->delay_frac > 0) return ring_piece(ring + 2*h->delay_whole, 1 - h->delay_frac, split);
+  if (h->delay_whole > 0) return ring_piece(ring + 2*(h->delay_whole - 1), 0, split);
+  return v;
+}
+
 // orifice load flow Q [m^3/s] for spool x and pressure ratio p = P/Ps. The drop across the
 // metering orifices is (Ps - sign(x) P)/Ps; when the motor pumps the load pressure past the
 // supply (an inertial load braked through an open valve) it turns negative and the oil flows
@@ -585,7 +701,7 @@ static void hydraulic_act_dot(const mjModel* m, mjData* d, int instance) {
   mjtNum x = act[0], p = act[1];
 
   // spool lag with travel limit: no motion further into the stop
-  mjtNum v = valve_voltage(m, d, h);
+  mjtNum v = valve_law(h, delayed_voltage(m, d, instance, h));
   mjtNum x_dot = (v / h->value[ATTR_RATED_VOLTAGE] - x) / h->value[ATTR_VALVE_TIME_CONSTANT];
   if ((x >= 1 && x_dot > 0) || (x <= -1 && x_dot < 0)) {
     x_dot = 0;
@@ -621,11 +737,11 @@ static mjtNum quantise(mjtNum x, mjtNum lsb) {
 
 // One physics step of the controller card (from advance, after MuJoCo's integration): sample the
 // measurements of t_n (sensordata still holds them), update the controller every `steps` steps,
-// and step the spool from x_n under the voltage the valve sees over [t_n, t_n + h): the held,
-// delayed command (two pieces for a fractional delay), plus the excitation and, unless the
-// controller replaces it, the position loop, saturated at +-10 V.
+// and return the amplifier output over [t_n, t_n + h) in two pieces, *a over the first
+// delay_frac of the step and *b over the rest: the held, delayed command, plus the excitation
+// and, unless the controller replaces it, the position loop, saturated at +-10 V.
 static void card_step(const mjModel* m, mjData* d, int instance, const Hydraulic* h,
-                      mjtNum x_n) {
+                      mjtNum* a, mjtNum* b) {
   Card* c = h->card;
   mjtNum* s = d->plugin_state + m->plugin_stateadr[instance];
   mjtNum* buf = s + ST_BUFFER;
@@ -667,21 +783,63 @@ static void card_step(const mjModel* m, mjData* d, int instance, const Hydraulic
   }
   buf[0] = s[ST_COMMAND];
 
-  mjtNum dt = m->opt.timestep, x = x_n, v;
+  mjtNum v;
   if (!enabled) {
     v = mju_clip(u + servo, -SAMII_AMPLIFIER_LIMIT_V, SAMII_AMPLIFIER_LIMIT_V);
+    *a = v;
   } else {
     mjtNum base = u + (c->replaces ? 0 : servo);
-    if (c->delay_frac > 0) {
-      mjtNum v_old = mju_clip(base + buf[c->delay_whole + 1], -SAMII_AMPLIFIER_LIMIT_V,
-                              SAMII_AMPLIFIER_LIMIT_V);
-      x = mju_clip(spool_after(h, x, v_old, c->delay_frac * dt), -1, 1);
-      dt *= 1 - c->delay_frac;
-    }
     v = mju_clip(base + buf[c->delay_whole], -SAMII_AMPLIFIER_LIMIT_V, SAMII_AMPLIFIER_LIMIT_V);
+    *a = c->delay_frac > 0 ? mju_clip(base + buf[c->delay_whole + 1], -SAMII_AMPLIFIER_LIMIT_V,
+                                      SAMII_AMPLIFIER_LIMIT_V) : v;
   }
-  d->act[h->actadr] = spool_after(h, x, v, dt);
+  *b = v;
   s[ST_VALVE] = v;
+}
+
+// the spool after holding ring entry e's amplifier output from fraction `from` to `to` of its
+// step (the two pieces split at `split`), each through the valve's law
+static mjtNum spool_over(const Hydraulic* h, mjtNum x, const mjtNum* e, mjtNum from, mjtNum to,
+                         mjtNum split, mjtNum dt) {
+  if (from < split) {
+    mjtNum end = to < split ? to : split;
+    x = mju_clip(spool_after(h, x, valve_law(h, e[0]), (end - from) * dt), -1, 1);
+  }
+  if (to > split) {
+    mjtNum start = from > split ? from : split;
+    x = mju_clip(spool_after(h, x, valve_law(h, e[1]), (to - start) * dt), -1, 1);
+  }
+  return x;
+}
+
+// The spool at t_n + h from x_n, given the amplifier output over this step (a over its first
+// `split`, b over the rest): through the command delay (the ring) and the valve's law.
+static mjtNum valve_step(const mjModel* m, mjData* d, int instance, const Hydraulic* h,
+                         mjtNum x_n, mjtNum a, mjtNum b, mjtNum split) {
+  mjtNum dt = m->opt.timestep;
+  mjtNum now[2] = {a, b};
+  if (!h->nring) return spool_over(h, x_n, now, 0, 1, split, dt);
+  mjtNum* r = command_ring(m, d, instance, h);
+  mjtNum* ring = r + VR_RING;
+  if (r[VR_PRIMED] == 0) {  // first step since the reset: the amplifier held this output before
+    for (int i = 0; i < h->nring; i++) {
+      ring[2*i] = a;
+      ring[2*i + 1] = a;
+    }
+    r[VR_PRIMED] = 1;
+  } else {
+    memmove(ring + 2, ring, 2 * (h->nring - 1) * sizeof(mjtNum));
+  }
+  ring[0] = a;
+  ring[1] = b;
+  // this step [n, n+1) sees the amplifier output of [n - K - f, n + 1 - K - f), in steps
+  int K = h->delay_whole;
+  mjtNum f = h->delay_frac;
+  if (f > 0) {
+    mjtNum x = spool_over(h, x_n, ring + 2*(K + 1), 1 - f, 1, split, dt);
+    return spool_over(h, x, ring + 2*K, 0, 1 - f, split, dt);
+  }
+  return spool_over(h, x_n, ring + 2*K, 0, 1, split, dt);
 }
 
 // after MuJoCo's integration of act (explicit Euler), qvel and qpos (see the header comment)
@@ -705,7 +863,13 @@ static void hydraulic_advance(const mjModel* m, mjData* d, int instance) {
     act[1] -= dt * h->c_p * Dm * (d->qvel[h->dofadr] - qvel_n);
 
     if (h->card) {
-      card_step(m, d, instance, h, x_n);
+      mjtNum a, b;
+      card_step(m, d, instance, h, &a, &b);
+      act[0] = valve_step(m, d, instance, h, x_n, a, b, h->card->delay_frac);
+    } else if (h->nring) {
+      // the amplifier output of t_n, which act_dot saw before integration moved qpos
+      mjtNum v = command_ring(m, d, instance, h)[VR_VNOW];
+      act[0] = valve_step(m, d, instance, h, x_n, v, v, 0);
     } else if (act_dot[0] != 0) {
       // exact spool step: act_dot[0] = (target - x_n)/tau_v, or 0 against the stop
       mjtNum tau_v = h->value[ATTR_VALVE_TIME_CONSTANT];
@@ -723,11 +887,12 @@ static void hydraulic_advance(const mjModel* m, mjData* d, int instance) {
 // plugin callbacks
 
 static int hydraulic_nstate(const mjModel* m, int instance) {
-  // the actuator's states are in mjData.act; a controller card keeps its own here
-  int n, nbuf;
-  if (!card_size(m, instance, &n, &nbuf)) return 0;
-  if (n < 0 || n > CTRL_MAX_STATES) n = 0;  // init reports it
-  return ST_BUFFER + nbuf + n;
+  // the actuator's states are in mjData.act; a controller card and a command delay keep their
+  // own here
+  int whole;
+  mjtNum frac;
+  int nring = delay_size(m, instance, &whole, &frac);
+  return card_nstate(m, instance) + (nring ? VR_RING + 2*nring : 0);
 }
 
 static int hydraulic_init(const mjModel* m, mjData* d, int instance) {
@@ -749,12 +914,10 @@ static void hydraulic_destroy(mjData* d, int instance) {
 static void hydraulic_reset(const mjModel* m, mjtNum* plugin_state, void* plugin_data,
                             int instance) {
   // the actuator's states are in mjData.act, which mj_resetData zeroes (or a keyframe sets);
-  // a controller card starts enabled, at rest
-  int n, nbuf;
-  if (!card_size(m, instance, &n, &nbuf)) return;
-  if (n < 0 || n > CTRL_MAX_STATES) n = 0;
-  mju_zero(plugin_state, ST_BUFFER + nbuf + n);
-  plugin_state[ST_ENABLED] = 1;
+  // a controller card starts enabled, at rest; the command ring empty (primed by the first step)
+  int n = hydraulic_nstate(m, instance);
+  if (n) mju_zero(plugin_state, n);
+  if (card_nstate(m, instance)) plugin_state[ST_ENABLED] = 1;
 }
 
 mjPLUGIN_LIB_INIT(samii_hydraulic) {

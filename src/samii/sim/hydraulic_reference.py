@@ -35,6 +35,7 @@ __all__ = [
     "AMPLIFIER_LIMIT_V",
     "ATTRIBUTES",
     "OPTIONAL_ATTRIBUTES",
+    "VALVE_OPTIONS",
     "HydraulicConfigError",
     "HydraulicParams",
     "InertiaLoad",
@@ -67,6 +68,14 @@ ATTRIBUTES: Mapping[str, tuple[str, Rule]] = {
 }
 """Config attributes of the plugin: unit and rule. All are required."""
 
+#: The valve between the amplifier and the spool (hydraulic.c's header): optional attributes,
+#: absent or 0 for an ideal valve. name: (unit, lower bound, upper bound, upper bound included).
+VALVE_OPTIONS: Mapping[str, tuple[str, float, float, bool]] = {
+    "command_delay": ("s", 0.0, 1.0, True),
+    "valve_dead_band": ("V", 0.0, AMPLIFIER_LIMIT_V, False),
+    "valve_saturation": ("V", 0.0, AMPLIFIER_LIMIT_V, True),
+}
+
 #: Optional attributes after the ten physical ones (hydraulic.c, same order): the servo loop's
 #: reference input and the digital controller card (samii.closedloop.card writes them).
 OPTIONAL_ATTRIBUTES: tuple[str, ...] = (
@@ -74,7 +83,7 @@ OPTIONAL_ATTRIBUTES: tuple[str, ...] = (
     "controller_d", "controller_steps", "controller_delay_steps", "controller_replaces_servo",
     "controller_theta_sensor", "controller_accel_sensor", "controller_accel_direction",
     "controller_accel_offset", "controller_theta_noise", "controller_accel_noise",
-    "controller_theta_lsb", "controller_accel_lsb",
+    "controller_theta_lsb", "controller_accel_lsb", *VALVE_OPTIONS,
 )
 
 _EXPECTED = {
@@ -173,6 +182,19 @@ class HydraulicParams:
             raise HydraulicConfigError(
                 f"{source}: unknown config attribute '{unknown[0]}' (expected one of {', '.join([*ATTRIBUTES, *OPTIONAL_ATTRIBUTES])})"
             )
+        for name, (unit, lo, hi, closed) in VALVE_OPTIONS.items():
+            text = config.get(name)
+            if text is None or str(text).strip() == "":
+                continue
+            try:
+                value = math.nan if "_" in str(text) else float(text)
+            except ValueError:
+                value = math.nan
+            if not (math.isfinite(value) and lo <= value and (value <= hi if closed else value < hi)):
+                raise HydraulicConfigError(
+                    f"{source}: config attribute '{name}' = {text!r} is invalid (expected a number in {unit} "
+                    f"from {lo:g} to {hi:g}{'' if closed else ' (excluded)'}; 0 = none)"
+                )
         values = {}
         for name in ATTRIBUTES:
             text = config.get(name)

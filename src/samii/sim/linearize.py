@@ -56,6 +56,10 @@ class LinearModel:
     #: servo amplifier position gain [V/rad] the model was linearised with
     position_gain_v_per_rad: float
     outputs: tuple[str, ...] = ("theta", "accel")
+    #: The valve's command delay [s] (``hydraulic.command_delay``): not in A, B (the state space is
+    #: the plant with an ideal valve); the responses to v are multiplied by exp(-s T)
+    #: (``samii.measure.campaign.linearised_frf``). Poles and closed-loop responses here leave it out.
+    command_delay_s: float = 0.0
 
     @property
     def poles(self) -> np.ndarray:
@@ -70,14 +74,14 @@ class LinearModel:
         kp = self.position_gain_v_per_rad
         A = self.A + kp * self.B @ self.C[:1]
         C = self.C + kp * self.D @ self.C[:1]
-        return LinearModel(A, self.B, C, self.D, self.dt_s, 0.0, self.outputs)
+        return LinearModel(A, self.B, C, self.D, self.dt_s, 0.0, self.outputs, self.command_delay_s)
 
     def with_position_gain(self, kp_v_per_rad: float) -> "LinearModel":
         """Close the servo loop with gain ``kp_v_per_rad`` (from the open-loop form)."""
         ol = self.open_loop()
         A = ol.A - kp_v_per_rad * ol.B @ ol.C[:1]
         C = ol.C - kp_v_per_rad * ol.D @ ol.C[:1]
-        return LinearModel(A, ol.B, C, ol.D, self.dt_s, kp_v_per_rad, self.outputs)
+        return LinearModel(A, ol.B, C, ol.D, self.dt_s, kp_v_per_rad, self.outputs, self.command_delay_s)
 
     def frequency_response(self, freq_hz: np.ndarray) -> dict[str, np.ndarray]:
         """Complex response of each output to ctrl at ``freq_hz``: C (jw - A)^-1 B + D."""
@@ -144,7 +148,24 @@ def _sensor_rows(model: mujoco.MjModel) -> tuple[int, np.ndarray]:
     return int(model.sensor_adr[theta]), w
 
 
+def _small_signal(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[mujoco.MjModel, mujoco.MjData]:
+    """The model with an ideal valve (``plugin.ideal_valve_model``) and a copy of ``data``'s state
+    on it; ``(model, data)`` themselves when the valve is ideal already."""
+    from samii.sim.plugin import ideal_valve_model
+
+    ideal = ideal_valve_model(model) if model.nplugin else model
+    if ideal is model:
+        return model, data
+    out = mujoco.MjData(ideal)
+    out.time = data.time
+    out.qpos[:], out.qvel[:], out.act[:], out.ctrl[:] = data.qpos, data.qvel, data.act, data.ctrl
+    out.qacc_warmstart[:] = data.qacc_warmstart
+    mujoco.mj_forward(ideal, out)
+    return ideal, out
+
+
 def _discrete(model: mujoco.MjModel, data: mujoco.MjData, eps: float, with_sensors: bool):
+    model, data = _small_signal(model, data)
     nx = 2 * model.nv + model.na
     A = np.zeros((nx, nx))
     B = np.zeros((nx, model.nu))
@@ -165,7 +186,9 @@ def _to_continuous(Ad: np.ndarray, Bd: np.ndarray, dt: float) -> tuple[np.ndarra
 
 
 def linearize(model: mujoco.MjModel, data: mujoco.MjData | None = None, *, position_gain_v_per_rad: float | None = None, eps: float = 1e-6) -> LinearModel:
-    """Linearise ``model`` about ``data`` (default: its ``home`` keyframe).
+    """Linearise ``model`` about ``data`` (default: its ``home`` keyframe), with an ideal valve
+    (its command delay kept aside in ``command_delay_s``; a dead band or saturation left out:
+    the plant without the valve's law).
 
     ``position_gain_v_per_rad`` is the servo amplifier gain compiled into the
     model (read from the plugin config when not given).
@@ -185,7 +208,12 @@ def linearize(model: mujoco.MjModel, data: mujoco.MjData | None = None, *, posit
     D = np.vstack([Ds[r_theta], w_accel @ Ds])
     # Sensor derivatives are taken against the discrete state at the same instant,
     # so they carry over to continuous time unchanged.
-    return LinearModel(A, B, C, D, float(model.opt.timestep), float(position_gain_v_per_rad))
+    delay = 0.0
+    if model.nplugin:
+        from samii.sim.plugin import valve_options
+
+        delay = valve_options(model)["command_delay"]
+    return LinearModel(A, B, C, D, float(model.opt.timestep), float(position_gain_v_per_rad), command_delay_s=delay)
 
 
 #: Growth rate [1/s] above which a pole counts as unstable: a time constant of 11.6 days. Anything

@@ -40,6 +40,7 @@ import mujoco
 import numpy as np
 
 from samii.notebook import TMM
+from samii.sim.sensor_dynamics import SensorDynamics
 
 __all__ = ["BeamParams", "ArmParams", "HydraulicConfig", "SamiiParams", "NOMINAL_POSE_RAD", "samii_xml"]
 
@@ -173,9 +174,19 @@ class HydraulicConfig:
     #: 1 V per degree: the rig's unity position feedback with theta in degrees.
     position_gain: float = 180.0 / math.pi
     reference_angle: float = math.pi / 2
+    #: The valve between amplifier and spool (hydraulic_reference.VALVE_OPTIONS); 0 = none, the
+    #: default, and then not written to the MJCF (the model is as it was without these options).
+    command_delay: float = 0.0  #: [s] the spool follows the amplifier output this late
+    valve_dead_band: float = 0.0  #: [V] dead band on the valve's input
+    valve_saturation: float = 0.0  #: [V] the valve's input limited to +- this
 
     def __post_init__(self) -> None:
-        from samii.sim.hydraulic_reference import ATTRIBUTES
+        from samii.sim.hydraulic_reference import ATTRIBUTES, HydraulicConfigError, HydraulicParams
+
+        try:
+            HydraulicParams.from_config({**{k: "1" for k in ATTRIBUTES}, **self.valve_config()}, source="hydraulic")
+        except HydraulicConfigError as exc:
+            raise ValueError(str(exc).replace("hydraulic: config attribute '", "hydraulic parameter '")) from None
 
         for name, (unit, rule) in ATTRIBUTES.items():
             v = getattr(self, name)
@@ -186,12 +197,21 @@ class HydraulicConfig:
                                  .replace("  ", " "))
 
 
+    def valve_config(self) -> dict[str, str]:
+        """The valve options that are set (non-zero), as MJCF config text."""
+        from samii.sim.hydraulic_reference import VALVE_OPTIONS
+
+        return {k: _fmt(getattr(self, k)) for k in VALVE_OPTIONS if getattr(self, k) != 0}
+
+
 @dataclass(frozen=True)
 class SamiiParams:
     beam: BeamParams = field(default_factory=BeamParams)
     arm: ArmParams = field(default_factory=ArmParams)
     hydraulic: HydraulicConfig = field(default_factory=HydraulicConfig)
     timestep_s: float = 1e-3
+    #: The sensors' own dynamics (ideal by default; samii.sim.sensor_dynamics).
+    sensor: SensorDynamics = field(default_factory=SensorDynamics)
 
     #: Largest physics step accepted [s]: about the 4.5 ms valve time constant; longer steps cannot
     #: resolve the valve or the 45 Hz held-joint-3 mode (a 3 ms step already diverges: the
@@ -486,6 +506,10 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     }
     for key, unit in hyd_units.items():
         add(f'      <config key="{key}" value="{_fmt(getattr(h, key))}"/>  <!-- {unit} -->')
+    for key, value in h.valve_config().items():
+        from samii.sim.hydraulic_reference import VALVE_OPTIONS
+
+        add(f'      <config key="{key}" value="{value}"/>  <!-- {VALVE_OPTIONS[key][0]} -->')
     add("    </plugin>")
     add("  </actuator>")
     add("")
@@ -500,13 +524,21 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
         add('    <framelinacc name="base_accel" objtype="site" objname="base_accel"/>')
     add("  </sensor>")
     add("")
+    sensor = params.sensor
+    if not b.accel_body_fixed or not sensor.ideal:
+        add("  <custom>")
     if not b.accel_body_fixed:
         # w in the world frame at the nominal geometry: the site's x axis
         direction = np.zeros(3)
         mujoco.mju_rotVecQuat(direction, _X, _compose(q_beam, q_site))
-        add("  <custom>")
         add("    <!-- measuring direction of the base accelerometer, world frame (samii.sim.sensors) -->")
         add(f'    <numeric name="samii_accel_direction" data="{_vec(*direction)}"/>')
+    if not sensor.ideal:
+        from samii.sim.sensor_dynamics import FIELDS, NUMERIC
+
+        add(f"    <!-- the sensors' own dynamics (samii.sim.sensor_dynamics): {', '.join(f'{n} [{u}]' for n, u in FIELDS)} -->")
+        add(f'    <numeric name="{NUMERIC}" data="{" ".join(_fmt(v) for v in sensor.values())}"/>')
+    if not b.accel_body_fixed or not sensor.ideal:
         add("  </custom>")
         add("")
     per_body = 3 if spatial else 1

@@ -21,6 +21,7 @@ import numpy as np
 
 from samii.errors import InputError
 from samii.sim.mjcf import ArmParams, BeamParams, HydraulicConfig, SamiiParams, samii_xml
+from samii.sim.sensor_dynamics import SensorDynamics
 
 __all__ = [
     "model_dir",
@@ -37,6 +38,10 @@ __all__ = [
     "ACTUATOR",
     "JOINT",
 ]
+
+#: Parameters a complete parameter file may leave out: options whose default is "none" (the
+#: valve's and, as a whole section, the sensors'), which older files do not list.
+OPTIONAL_PARAMETERS = frozenset({"hydraulic.command_delay", "hydraulic.valve_dead_band", "hydraulic.valve_saturation"})
 
 ACTUATOR = "joint2"  #: name of the hydraulic actuator
 JOINT = "joint2"  #: the joint it drives
@@ -62,7 +67,7 @@ def default_model_path() -> Path:
 def params_from_dict(d: Mapping, *, complete: bool = False) -> SamiiParams:
     """Inverse of ``SamiiParams.as_dict``; unknown keys are an error, and with ``complete`` so is a
     missing one (a parameter file lists every parameter: nothing is silently taken from the defaults)."""
-    sections = {"beam": BeamParams, "arm": ArmParams, "hydraulic": HydraulicConfig}
+    sections = {"beam": BeamParams, "arm": ArmParams, "hydraulic": HydraulicConfig, "sensor": SensorDynamics}
     kw = {}
     for key, value in d.items():
         if key in sections:
@@ -82,12 +87,13 @@ def params_from_dict(d: Mapping, *, complete: bool = False) -> SamiiParams:
                 raise ValueError(f"timestep_s must be a number, got {value!r}")
             kw[key] = float(value)
         else:
-            raise ValueError(f"unknown parameter section {key!r}; expected beam, arm, hydraulic, timestep_s")
+            raise ValueError(f"unknown parameter section {key!r}; expected beam, arm, hydraulic, sensor, timestep_s")
     if complete:
+        # the options added with issue 11 default to "none" and files written before them lack them
         expected = {"beam": BeamParams, "arm": ArmParams, "hydraulic": HydraulicConfig}
         missing = [k for k in (*expected, "timestep_s") if k not in d]
         missing += [f"{k}.{f.name}" for k, cls in expected.items() if isinstance(d.get(k), Mapping)
-                    for f in fields(cls) if f.name not in d[k]]
+                    for f in fields(cls) if f.name not in d[k] and f"{k}.{f.name}" not in OPTIONAL_PARAMETERS]
         if missing:
             raise ValueError(f"missing {', '.join(missing[:4])}{', ...' if len(missing) > 4 else ''}: a parameter file lists every "
                              "parameter (samii params --json shows them; samii calibrate writes complete files)")
@@ -122,7 +128,7 @@ def params_with_overrides(params: SamiiParams, overrides: Mapping[str, float]) -
                 raise InputError(f"override timestep_s={float(value):g}: {exc}") from None
             continue
         if len(parts) != 2 or not hasattr(out, parts[0]) or not is_dataclass(getattr(out, parts[0])):
-            raise InputError(f"override {dotted!r}: expected 'beam.<name>', 'arm.<name>', 'hydraulic.<name>' or 'timestep_s'")
+            raise InputError(f"override {dotted!r}: expected 'beam.<name>', 'arm.<name>', 'hydraulic.<name>', 'sensor.<name>' or 'timestep_s'")
         section = getattr(out, parts[0])
         names = {f.name for f in fields(section)}
         if parts[1] not in names:

@@ -31,6 +31,7 @@ naming the actuator, the attribute, its value and what was expected.
 from __future__ import annotations
 
 import json
+import math
 import threading
 from pathlib import Path
 from typing import Mapping
@@ -40,6 +41,8 @@ import numpy as np
 
 from samii.sim.hydraulic_reference import (
     ATTRIBUTES,
+    OPTIONAL_ATTRIBUTES,
+    VALVE_OPTIONS,
     NOMINAL,
     HydraulicConfigError,
     HydraulicParams,
@@ -52,15 +55,18 @@ __all__ = [
     "HydraulicConfigError",
     "PluginBuildError",
     "build_info",
+    "command_ring_entries",
     "compile_spec",
     "hydraulic_actuators",
     "hydraulic_params",
     "hydraulic_state",
+    "ideal_valve_model",
     "load_plugin",
     "plugin_library_path",
     "probe_xml",
     "spec_hydraulic_params",
     "validate_spec",
+    "valve_options",
     "valve_voltage",
 ]
 
@@ -253,10 +259,65 @@ def hydraulic_actuators(model: mujoco.MjModel) -> list[int]:
 def _instance_attributes(model: mujoco.MjModel, instance: int) -> dict[str, str]:
     # mjModel.plugin_attr holds each instance's values, NUL-separated, in the plugin's attribute
     # order (mj_getPluginConfig, which the Python bindings do not expose, reads it the same way).
+    values = _instance_values(model, instance)
+    return {name: values[k].decode() for k, name in enumerate(ATTRIBUTES)}
+
+
+def valve_options(model: mujoco.MjModel, actuator: str | int = "joint2") -> dict[str, float]:
+    """The valve options of a compiled samii.hydraulic actuator (``VALVE_OPTIONS``; 0 = none)."""
+    i = _actuator_id(model, actuator)
+    instance = int(model.actuator_plugin[i])
+    values = _instance_values(model, instance)
+    out = {}
+    for name in VALVE_OPTIONS:
+        text = values[len(ATTRIBUTES) + OPTIONAL_ATTRIBUTES.index(name)].decode().strip()
+        out[name] = float(text) if text else 0.0
+    return out
+
+
+def command_ring_entries(delay_s: float, timestep_s: float) -> int:
+    """plugin_state entries of a command delay ``delay_s`` at physics step ``timestep_s``, after
+    the card's (hydraulic.c, delay_size and the command-ring block): 0 without a delay."""
+    if not delay_s > 0:
+        return 0
+    steps = delay_s / timestep_s
+    if abs(steps - round(steps)) < 1e-9 * (1 + steps):
+        steps = round(steps)
+    return 2 + 2 * (math.floor(steps) + 2)
+
+
+def ideal_valve_model(model: mujoco.MjModel) -> mujoco.MjModel:
+    """``model`` with an ideal valve in every samii.hydraulic actuator: no command delay, dead band
+    or saturation (a copy; ``model`` itself when none is set). The small-signal plant a
+    linearisation takes: a delay line in the plugin's state is invisible to MuJoCo's
+    finite-difference derivatives (they perturb qpos, qvel and act, not the plugin's state), and a
+    dead band has no slope at rest. The values are overwritten in place in ``plugin_attr`` by
+    "0" padded with spaces to the same length, which the plugin's parser reads as 0."""
+    import copy
+
+    edits = []
+    for i in hydraulic_actuators(model):
+        instance = int(model.actuator_plugin[i])
+        start = int(model.plugin_attradr[instance])
+        values = _instance_values(model, instance)
+        offset = start
+        for k, raw in enumerate(values):
+            name = OPTIONAL_ATTRIBUTES[k - len(ATTRIBUTES)] if len(ATTRIBUTES) <= k < len(ATTRIBUTES) + len(OPTIONAL_ATTRIBUTES) else ""
+            if name in VALVE_OPTIONS and raw.strip() and float(raw) != 0:
+                edits.append((offset, len(raw)))
+            offset += len(raw) + 1
+    if not edits:
+        return model
+    out = copy.copy(model)
+    for offset, size in edits:
+        out.plugin_attr[offset:offset + size] = np.frombuffer(b"0" + b" " * (size - 1), dtype=np.int8)
+    return out
+
+
+def _instance_values(model: mujoco.MjModel, instance: int) -> list[bytes]:
     start = int(model.plugin_attradr[instance])
     end = int(model.plugin_attradr[instance + 1]) if instance + 1 < model.nplugin else len(model.plugin_attr)
-    values = bytes(np.asarray(model.plugin_attr[start:end], dtype=np.uint8)).split(b"\0")
-    return {name: values[k].decode() for k, name in enumerate(ATTRIBUTES)}
+    return bytes(np.asarray(model.plugin_attr[start:end], dtype=np.uint8)).split(b"\0")
 
 
 def _actuator_id(model: mujoco.MjModel, actuator: str | int) -> int:
