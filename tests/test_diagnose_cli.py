@@ -301,7 +301,9 @@ def test_diagnose_bad_input(cwd, out_dir, bad_inputs, clean_csv, zero_r_csv, cap
     missing = bad_inputs / "missing.csv"
     _check_refused(capsys, ["diagnose", str(missing), *out], str(missing), "not found")
     _check_refused(capsys, ["diagnose", str(zero_r_csv), *out], str(zero_r_csv), "zero throughout")
-    _check_refused(capsys, ["diagnose", str(clean_csv), "--baseline", "sim", *out], "--baseline sim", "not available yet")
+    _check_refused(capsys, ["diagnose", str(clean_csv), "--model", str(bad_inputs / "notes.txt"), *out], "--model", "--baseline sim only")
+    _check_refused(capsys, ["diagnose", str(clean_csv), "--baseline", "sim", "--model", str(bad_inputs / "notes.txt"), *out],
+                   "--model", "parameter file (.json")
     notes = bad_inputs / "notes.txt"
     _check_refused(capsys, ["diagnose", str(clean_csv), "--baseline", str(notes), *out], str(notes), "not JSON")
     no_params = bad_inputs / "no_params.json"

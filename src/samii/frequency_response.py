@@ -21,7 +21,7 @@ from typing import Literal, Mapping, get_args
 
 import numpy as np
 
-__all__ = ["Channel", "CHANNELS", "FrequencyResponse", "max_deviation"]
+__all__ = ["Channel", "CHANNELS", "FrequencyResponse", "max_deviation", "interpolate_frf"]
 
 Channel = Literal["act", "base", "total"]
 CHANNELS: tuple[Channel, ...] = get_args(Channel)
@@ -167,4 +167,19 @@ def max_deviation(
         ratio = measured.response(ch)[keep] / reference.response(ch)[keep]
         out[ch] = {"max_abs_db": float(np.max(np.abs(20 * np.log10(np.abs(ratio))))),
                    "max_abs_deg": float(np.max(np.abs(np.angle(ratio, deg=True)))), "points": int(keep.sum())}
+    return out
+
+
+def interpolate_frf(src: FrequencyResponse, freq_hz: np.ndarray) -> dict[str, np.ndarray]:
+    """``src``'s channels at ``freq_hz`` (channel -> complex array): log |H| and unwrapped phase,
+    linear in log f; NaN outside ``src``'s span (no extrapolation, so a caller sees where it has
+    no value; a FrequencyResponse cannot hold NaN)."""
+    f = np.asarray(freq_hz, float)
+    lf, lq = np.log(src.freq_hz), np.log(f)
+    out = {}
+    for ch in src.channels:
+        h = src.response(ch)
+        mag = np.interp(lq, lf, np.log(np.abs(h)), left=np.nan, right=np.nan)
+        ph = np.interp(lq, lf, np.unwrap(np.angle(h)), left=np.nan, right=np.nan)
+        out[ch] = np.exp(mag + 1j * ph)
     return out

@@ -25,10 +25,7 @@ from samii.diagnose.model import Baseline, Dataset, notebook_reference, start_pa
 from samii.errors import InputError
 from samii.identify.structures import ModelStructure
 
-__all__ = ["SavedFit", "notebook_baseline", "saved_fit_baseline", "read_fit_json", "SIM_NOT_AVAILABLE"]
-
-SIM_NOT_AVAILABLE = ("--baseline sim: the calibrated simulator as the baseline is not available yet (issue 11, item 5); "
-                     "use --baseline notebook (the default) or a saved fit, --baseline FIT.json")
+__all__ = ["SavedFit", "notebook_baseline", "saved_fit_baseline", "read_fit_json"]
 
 
 def notebook_baseline(measured: Sequence[Measured]) -> Baseline:

@@ -7,7 +7,8 @@ are added by forward selection with an F-test against the data's noise, and
 the report gives each effect with its parameters and evidence, the error
 before and after per channel, and any band no effect explains.
 
-``--out DIR`` writes ``diagnosis.json``, ``residuals.png`` and ``bode.png``;
+``--out DIR`` writes ``diagnosis.json``, ``residuals.png``, ``bode.png`` and ``harmonics.png`` (and
+``simulator.png`` with ``--baseline sim``);
 ``--json`` prints the JSON. Imports nothing heavy at module level.
 """
 
@@ -22,6 +23,8 @@ from samii.errors import InputError
 __all__ = ["add_arguments", "run", "OUTPUTS", "MAX_FILES"]
 
 OUTPUTS = ("diagnosis.json", "residuals.png", "bode.png", "harmonics.png")
+#: Written with --baseline sim.
+SIM_OUTPUTS = ("simulator.png",)
 #: Most files one diagnosis takes (each adds the baseline's 13 parameters to the joint fit).
 MAX_FILES = 8
 _NAMES = {"act": "theta/v", "base": "xdd/theta", "total": "xdd/v"}
@@ -31,9 +34,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("data", metavar="DATA", nargs="+", type=nonempty_path,
                         help=f"measured files of one rig (at most {MAX_FILES}): time-series CSVs (t, v, theta, accel, r), FRF CSVs "
                         "(DATA_FORMATS.md) or rig-era .mat; several amplitudes may be mixed")
-    parser.add_argument("--baseline", default="notebook", metavar="notebook|FIT.json",
-                        help="the model under test: notebook (default: eq 9.1/9.2's structure refitted to each file) or a saved fit "
-                        "(fit.json from samii fit --out), held fixed")
+    parser.add_argument("--baseline", default="notebook", metavar="notebook|sim|FIT.json",
+                        help="the model under test: notebook (default: eq 9.1/9.2's structure refitted to each file), sim (the simulator "
+                        "calibrated to the first file; the effects found are carried into it as physics, it is recalibrated and "
+                        "re-measured, and its error before and after is reported) or a saved fit (fit.json from samii fit --out), held fixed")
+    parser.add_argument("--model", metavar="PARAMS.json", type=nonempty_path,
+                        help="with --baseline sim: the simulator to start from, a parameter file (samii calibrate --out writes one; "
+                        "default: the embedded model)")
     parser.add_argument("--record-s", type=positive_float, metavar="S",
                         help="length of one repetition of the excitation in the time series [s] (default: the file's record_s, else found from r)")
     parser.add_argument("--band-hz", type=positive_float, nargs=2, metavar=("LO", "HI"),
@@ -95,15 +102,26 @@ class _Progress:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from samii.diagnose.baseline import SIM_NOT_AVAILABLE
-
     if len(args.data) > MAX_FILES:
         raise InputError(f"DATA: {len(args.data)} files given, at most {MAX_FILES} accepted")
     if args.band_hz and not args.band_hz[0] < args.band_hz[1]:
         raise InputError(f"--band-hz {args.band_hz[0]:g} {args.band_hz[1]:g}: expected LO < HI")
+    sim_params = None
+    if args.model is not None:
+        if args.baseline != "sim":
+            raise InputError(f"--model {args.model}: the simulator to start from is used with --baseline sim only")
+        if not str(args.model).lower().endswith(".json"):
+            raise InputError(f"--model {args.model}: expected a parameter file (.json, as samii calibrate --out writes), "
+                             "the simulator's calibration moves its parameters")
+        from samii.sim.model import read_params_file
+
+        try:
+            sim_params = read_params_file(args.model)
+        except (OSError, ValueError) as exc:
+            raise InputError(f"--model {args.model}: {exc}") from None
     if args.baseline == "sim":
-        raise InputError(SIM_NOT_AVAILABLE)
-    if args.baseline != "notebook":
+        baseline = "sim"
+    elif args.baseline != "notebook":
         p = Path(args.baseline)
         if not p.is_file():
             raise InputError(f"--baseline {args.baseline}: expected notebook or a saved fit (fit.json from samii fit --out); "
@@ -126,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
     if args.out is not None:
         from samii.outputs import OutputFolder
 
-        folder = OutputFolder(args.out, OUTPUTS, overwrite=args.overwrite)
+        folder = OutputFolder(args.out, OUTPUTS + (SIM_OUTPUTS if baseline == "sim" else ()), overwrite=args.overwrite)
 
     from samii.diagnose.diagnosis import diagnose
     from samii.json_output import dumps
@@ -137,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
         measured = _load(args)
         progress.stage("fitting the baseline")
         try:
-            d = diagnose(measured, baseline=baseline, progress=progress)
+            d = diagnose(measured, baseline=baseline, progress=progress, simulator_params=sim_params)
         except ValueError as exc:
             import numpy as np
 
@@ -148,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(text if any(text.startswith(n) for n in names) else f"{', '.join(names)}: {text}") from None
         if folder is not None:
             progress.stage("writing")
-            from samii.diagnose.plots import bode_figure, harmonic_figure, residual_figure
+            from samii.diagnose.plots import bode_figure, harmonic_figure, residual_figure, simulator_figure
             from samii.measure.io import write_text
 
             with folder:
@@ -156,6 +174,8 @@ def run(args: argparse.Namespace) -> int:
                 residual_figure(d, folder.path("residuals.png"))
                 bode_figure(d, folder.path("bode.png"))
                 harmonic_figure(d, folder.path("harmonics.png"))
+                if d.simulator is not None:
+                    simulator_figure(d, folder.path("simulator.png"))
     finally:
         progress.close()
     if args.json:
@@ -197,6 +217,15 @@ def _print(d, written) -> None:
         after = d.error_after[ch]
         print(f"  {_NAMES[ch]:>9}: {before.rms_db:7.3g} dB {before.rms_deg:7.3g} deg {chi2(before.chi2)}  ->  "
               f"{after.rms_db:7.3g} dB {after.rms_deg:7.3g} deg {chi2(after.chi2)}")
+    if d.simulator is not None:
+        s = d.simulator
+        print(f"simulator: carried {', '.join(s.carried) if s.carried else 'nothing'}; measured like the data, before -> after")
+        for ch, before in s.error_before.items():
+            after = s.error_after[ch]
+            print(f"  {_NAMES[ch]:>9}: {before.rms_db:7.3g} dB {before.rms_deg:7.3g} deg {chi2(before.chi2)}  ->  "
+                  f"{after.rms_db:7.3g} dB {after.rms_deg:7.3g} deg {chi2(after.chi2)}")
+        for name, value in s.changes.items():
+            print(f"  {name} = {value:.6g}")
     if d.unexplained:
         print("unexplained: a significant residual that nothing in the library explains:")
         for b in d.unexplained:

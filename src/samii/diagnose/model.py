@@ -22,7 +22,7 @@ error carry less information than their number says).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Mapping, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -105,10 +105,29 @@ class Baseline:
     #: The model the user holds (eq 9.4, a saved fit): which of the fitted modes are "the baseline's" and
     #: which are extra is decided by nearness to its modes (:func:`relabel_modes`). Default: ``params[0]``.
     reference: Mapping[str, float] | None = None
+    #: A fixed baseline with no structure: (dataset index, freq_hz) -> {act, base, total}, its
+    #: response anywhere (for figures and exports off the data's points).
+    evaluate: Callable[[int, np.ndarray], Mapping[str, np.ndarray]] | None = None
+    #: Per dataset, a factor on the structure's act and base on that dataset's frequency grid (the
+    #: simulator's measured-over-linearised response, samii.diagnose.simulator.correction); none if empty.
+    correction: tuple = ()
 
     @property
     def free(self) -> bool:
         return self.structure is not None and not self.fixed
+
+    def factor(self, i: int, freq_hz: np.ndarray, c: str) -> np.ndarray | float:
+        """The correction of dataset ``i``'s channel ``c`` at ``freq_hz`` (1 without one)."""
+        if not self.correction:
+            return 1.0
+        from samii.frequency_response import interpolate_frf
+
+        corr = self.correction[i]
+        f = np.asarray(freq_hz, float)
+        if corr.freq_hz.size == f.size and np.array_equal(corr.freq_hz, f):
+            return corr.response(c)
+        h = interpolate_frf(corr, f)[c]
+        return np.where(np.isfinite(h), h, 1.0)
 
     def responses(self, i: int, ds: Dataset, ch: str, x: np.ndarray | None) -> dict[str, np.ndarray]:
         """act and/or base (as channel ``ch`` needs) at ``ch``'s usable points of dataset ``i``."""
@@ -116,7 +135,10 @@ class Baseline:
         if self.fixed:
             return {c: self.fixed[i][ch][c] for c in need}
         w = ds.freq_hz[ds.keep[ch]] * 2 * np.pi
-        return {c: self.structure.log_responses(x, w, (c,), derivatives=False)[c][0] for c in need}
+        out = {c: self.structure.log_responses(x, w, (c,), derivatives=False)[c][0] for c in need}
+        if self.correction:
+            out = {c: h * self.factor(i, ds.freq_hz, c)[ds.keep[ch]] for c, h in out.items()}
+        return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -210,7 +232,13 @@ class _Layout:
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = [], []
         if self.nb:
+            own = getattr(self.baseline.structure, "log_bounds", None)  # a structure with its own (LocalSimulator)
             for _ in range(self.n_data):
+                if own is not None:
+                    a, b = own()
+                    lo += list(a)
+                    hi += list(b)
+                    continue
                 lo += [np.log(1e-4) if p else -np.inf for p in self.pos]
                 hi += [np.log(1e6) if p else np.inf for p in self.pos]
         for kind, sc in zip(self.effects, self.e_scale):

@@ -9,7 +9,7 @@ import numpy as np
 
 from samii.diagnose.diagnosis import Diagnosis
 
-__all__ = ["residual_figure", "bode_figure", "harmonic_figure"]
+__all__ = ["residual_figure", "bode_figure", "harmonic_figure", "simulator_figure"]
 
 _DB = 20.0 / np.log(10.0)
 _DEG = 180.0 / np.pi
@@ -192,6 +192,65 @@ def harmonic_figure(d: Diagnosis, path=None):
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7, loc="best")
     fig.suptitle("Harmonics of the sweep (a linear system makes none)")
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+    return fig
+
+
+def simulator_figure(d: Diagnosis, path=None):
+    """``--baseline sim``: each file's data (points) beside the simulator measured like it, calibrated
+    without the effects (dashed) and with them carried and recalibrated (solid); θ/v and ẍ/v, the
+    channels the valve's command drives. None when the diagnosis has no simulator block."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rep = d.simulator
+    if rep is None:
+        return None
+    measured = d.raw_measured if d.raw_measured is not None else d.measured
+    chans = [c for c in ("act", "total") if any(c in m.frf.channels for m in measured)]
+    from samii.diagnose.model import Dataset
+
+    usable = [Dataset.from_measured(m, channels=chans) for m in measured]
+    fig, axes = plt.subplots(2, len(chans), figsize=(6.0 * len(chans), 6.5), sharex=True, squeeze=False)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for i, m in enumerate(measured):
+        c = colors[i % len(colors)]
+        tag = f" ({_label(d, i)})" if len(measured) > 1 else ""
+        before, after = rep.remeasured_before[i], rep.remeasured_after[i]
+        for col, ch in enumerate(chans):
+            if ch not in m.frf.channels:
+                continue
+            ax_m, ax_p = axes[0, col], axes[1, col]
+            h = m.frf.response(ch)
+            ok = usable[i].keep[ch] if ch in usable[i].keep else np.ones(h.size, bool)
+            ph_after = np.unwrap(np.angle(after.response(ch)))
+            ph_data = np.angle(h[ok]) + 2 * np.pi * np.round((np.interp(m.frf.freq_hz[ok], after.freq_hz, ph_after) - np.angle(h[ok])) / (2 * np.pi))
+            ph_before = np.unwrap(np.angle(before.response(ch)))
+            ph_before += 2 * np.pi * np.round((ph_after[0] - ph_before[0]) / (2 * np.pi))
+            ax_m.plot(m.frf.freq_hz[ok], _DB * np.log(np.abs(h[ok])), ".", ms=2.5, color=c, alpha=0.5, label=f"data{tag}")
+            ax_p.plot(m.frf.freq_hz[ok], _DEG * ph_data, ".", ms=2.5, color=c, alpha=0.5)
+            ax_m.plot(before.freq_hz, _DB * np.log(np.abs(before.response(ch))), "--", color="0.35", lw=1.0,
+                      label=f"simulator, calibrated{tag}")
+            ax_p.plot(before.freq_hz, _DEG * ph_before, "--", color="0.35", lw=1.0)
+            ax_m.plot(after.freq_hz, _DB * np.log(np.abs(after.response(ch))), "-", color=c, lw=1.2,
+                      label=f"simulator with the effects{tag}")
+            ax_p.plot(after.freq_hz, _DEG * ph_after, "-", color=c, lw=1.2)
+            ax_m.set_title(f"{_NAMES[ch]} [{_UNITS[ch]}]", fontsize=10)
+            ax_m.set_ylabel("magnitude [dB]")
+            ax_p.set_ylabel("phase [deg]")
+            ax_p.set_xlabel("frequency [Hz]")
+    for ax in axes.ravel():
+        ax.set_xscale("log")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0, 0].legend(fontsize=8, loc="best")
+    carried = ", ".join(rep.carried) or "nothing carried"
+    fig.suptitle(f"The simulator measured like the data: before and after carrying in {carried}\n"
+                 "(points: those the diagnosis uses, where the data's noise is small enough)", fontsize=11)
     fig.tight_layout()
     if path is not None:
         fig.savefig(path, dpi=110)
