@@ -196,15 +196,17 @@ def _summary(results: list[dict]) -> tuple[str, dict]:
     return text, stats
 
 
-def _line(r: dict) -> str:
-    def eff(row):
-        if row["found_kind"] is None:
-            return f"{row['kind']}: MISSED"
-        errs = ", ".join(f"{p} {1e3 * e:+.2f} ms" if p == "delay_s" else f"{p} {100 * e:+.1f} %" for p, e in row["errors"].items())
-        ok = "" if row["found_kind"] == row["kind"] else f" (as {row['found_kind']})"
-        return f"{row['kind']}{ok} {errs}".rstrip()
+def effect_text(row: dict) -> str:
+    """One injected effect of a case: what it was found as, and its parameters' errors."""
+    if row["found_kind"] is None:
+        return f"{row['kind']}: MISSED"
+    errs = ", ".join(f"{p} {1e3 * e:+.2f} ms" if p == "delay_s" else f"{p} {100 * e:+.1f} %" for p, e in row["errors"].items())
+    ok = "" if row["found_kind"] == row["kind"] else f" (as {row['found_kind']})"
+    return f"{row['kind']}{ok} {errs}".rstrip()
 
-    found = "; ".join(eff(row) for row in r["injected"]) or "-"
+
+def _line(r: dict) -> str:
+    found = "; ".join(effect_text(row) for row in r["injected"]) or "-"
     extra = "; ".join(f"{e['category']}/{e['kind']} " + ", ".join(f"{k} {v:.4g}" for k, v in e["params"].items()) for e in r["extra"]) or "-"
     eb, ea = r["error_before"], r["error_after"]
     err = " / ".join(f"{eb[c]['chi2']:.3g} -> {ea[c]['chi2']:.3g}" for c in ("act", "total"))
