@@ -95,3 +95,32 @@ def test_cli_baseline_sim_writes_the_simulator_block(clean, tmp_path, capsys):
         assert (out / name).is_file(), name
     d = json.loads((out / "diagnosis.json").read_text())
     assert d["verdict"] == "none" and d["simulator"]["changes"] == {}
+
+
+def test_carry_rules():
+    """What is carried into the simulator, and how: a delay adds to the simulator's own, a gain
+    error multiplies its gain, a corner beyond what the physics rate represents and a valve law
+    without a level are not carried, with the reason."""
+    from samii.diagnose.diagnosis import FoundEffect
+    from samii.diagnose.simulator import carry, found_value
+    from samii.sim.model import default_params, params_with_overrides
+
+    p = params_with_overrides(default_params(), {"hydraulic.command_delay": 0.001, "sensor.accel_gain": 2.0})
+    effects = [
+        FoundEffect("delay", "command", "act", {"delay_s": 0.003}, {}, ""),
+        FoundEffect("sensor", "accel_gain", "base", {"gain": 1.1}, {}, ""),
+        FoundEffect("sensor", "accel_lowpass", "base", {"corner_hz": 900.0}, {}, ""),
+        FoundEffect("nonlinear", "dead_band", "act", {"gain_change_db": 2.0}, {}, ""),
+        FoundEffect("extra_mode", "base_mode", "base", {"freq_hz": 15.0}, {}, ""),
+        FoundEffect("delay", "command", "act", {"delay_s": 0.0005}, {}, "", expected=True),
+    ]
+    options, carried, not_carried = carry(effects, p)
+    assert options == pytest.approx({"hydraulic.command_delay": 0.004, "sensor.accel_gain": 2.2})
+    assert carried == ["delay/command", "sensor/accel_gain"]
+    text = " | ".join(not_carried)
+    assert "accel_lowpass: 900 Hz is beyond" in text and "dead_band: no level" in text and "base_mode" in text
+    assert found_value("hydraulic.command_delay", p, 0.0041, 1e-4) == pytest.approx((0.0031, 1e-4))
+    assert found_value("sensor.accel_gain", p, 2.2, 0.02) == pytest.approx((1.1, 0.01))
+    options, carried, not_carried = carry([FoundEffect("nonlinear", "saturation", "act", {"saturation_v": 0.05}, {}, "")], p,
+                                          refuse={"nonlinear/saturation": "no level"})
+    assert not options and not_carried == ["nonlinear/saturation: no level"]

@@ -283,3 +283,41 @@ def test_a_measurement_through_the_sensor_options_matches_the_linearised_simulat
     assert np.max(np.abs(20 * np.log10(np.abs(r)))) < 0.05 and np.max(np.abs(np.angle(r, deg=True))) < 0.5
     r0 = frf.base[sel] / lin0.base[sel]  # the ideal sensors' model misses them by far more
     assert np.max(np.abs(np.angle(r0, deg=True))) > 20
+
+
+def test_a_timestep_shortened_after_compiling_is_refused():
+    """The command ring is sized in physics steps when the model is compiled: a shorter step later
+    would make it run past plugin_state (MuJoCo's compiler sizes it once)."""
+    m = load_model(overrides={"hydraulic.command_delay": 0.004})
+    m.opt.timestep = m.opt.timestep / 4
+    with pytest.raises(Exception, match="plugin->init failed"):
+        mujoco.MjData(m)
+    m.opt.timestep = m.opt.timestep * 8  # longer: fewer steps of delay, the ring fits
+    mujoco.MjData(m)
+
+
+def test_linearisation_keeps_a_switched_off_controller_card_off():
+    """``linear_loop`` switches the card off before linearising; the ideal-valve copy must keep the
+    whole state, the card's flag included, or a command delay changes the open-loop map."""
+    from samii.closedloop.card import build_card_model
+    from samii.design.controller import LinearController
+    from samii.sim.linearize import _discrete
+
+    kp = 57.29577951308232
+    m0 = load_model()
+    ctrl = LinearController(np.zeros((0, 0)), np.zeros((0, 3)), np.zeros((1, 0)), np.array([[kp, -2 * kp, 0.3]]), 1e-3,
+                            ("theta_ref", "theta", "accel"))
+    maps = []
+    for delay in (0.0, 0.002):
+        spec, _ = load_spec()
+        if delay:
+            hyd = spec.actuator("joint2")
+            hyd.plugin.config = {**dict(hyd.plugin.config), "command_delay": repr(delay)}
+        card = build_card_model(spec, ctrl, home_qpos=m0.key_qpos[0], home_act=m0.key_act[0])
+        d = make_data(card.model)
+        spec_full = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        state = np.empty(mujoco.mj_stateSize(card.model, spec_full))
+        mujoco.mj_getState(card.model, d, state, spec_full)
+        mujoco.mj_setState(card.model, d, card.set_enabled(state, False), spec_full)
+        maps.append(_discrete(card.model, d, 1e-6, False)[0])
+    assert np.max(np.abs(maps[1] - maps[0])) < 1e-6 * np.max(np.abs(maps[0]))

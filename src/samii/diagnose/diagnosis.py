@@ -358,19 +358,23 @@ def _noise_from_roughness(m: Measured, saved) -> Measured:
 
 
 def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alpha, progress):
-    """``--baseline sim`` after the first selection: carry the effects into the simulator, recalibrate,
-    and select again against the simulator with them (the first calibration, made without the
-    effects, bent the knobs to imitate them, so the first pass may report images of that bending
-    beside the real effect: only what the second pass still needs is kept, and the carried effects
-    are reported with the values the recalibration gives them).
+    """``--baseline sim`` after the first selection (which tried only what the simulator can take):
+    carry the effects into the simulator, recalibrate, and select again with the whole library
+    against the simulator with them. The first calibration, made without the effects, bent the knobs
+    to imitate them, so the first pass may report images of that bending beside the real effect:
+    only what the second pass still needs is kept, and the carried effects are reported with the
+    values the recalibration gives them. With nothing carried the second selection still runs, for
+    what the simulator cannot take (an extra mode, valve dynamics).
 
-    Returns (effects, (datasets, final fit), SimulatorReport, second-pass steps, second-pass candidates)."""
-    from samii.diagnose.simulator import CARRY, carry, correction, simulator_baseline, simulator_report
+    Returns (effects, (files, datasets, final fit), SimulatorReport, second-pass steps, second-pass candidates)."""
+    from samii.diagnose.simulator import CARRY, carry, correction, found_value, simulator_baseline, simulator_report
 
-    report = simulator_report(raw, measured, calibrated, effects, progress=progress)
-    if report.after is report.before:  # nothing carried: the first pass stands
-        return list(effects), (tuple(Dataset.from_measured(m) for m in measured), None), report, [], []
+    # a valve law is carried only at a level the harmonics fix (its describing function fits)
+    refuse = {f"nonlinear/{f.kind}": "its describing function does not fit the harmonics, so no level to carry"
+              for f in nonlinear if not (f.harmonics and f.law_fits)}
+    report = simulator_report(raw, measured, calibrated, effects, progress=progress, refuse=refuse)
     uncarried_law = any(f"nonlinear/{f.kind}" not in report.carried for f in nonlinear)
+    # with every law in the simulator, its correction holds their describing functions: the data as measured
     files = measured if uncarried_law else raw
     if progress is not None and hasattr(progress, "stage"):
         progress.stage("selecting again against the simulator with the effects")
@@ -389,10 +393,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
             continue
         name, key = CARRY[label]
         r = report.after.result
-        value, se = r.values[name], r.stderr[name]
-        if name == "sensor.accel_gain":  # the option is the sensor's gain; the effect, its error against the start
-            start = report.before.params.sensor.accel_gain
-            value, se = value / start, se / start
+        value, se = found_value(name, report.before.params, r.values[name], r.stderr[name])
         step = first.get(label)
         why = f"F = {step.f_stat:.3g}, log10 p = {step.log10_p:.3g} against the simulator calibrated without it; " if step else ""
         out.append(FoundEffect(e.category, e.kind, e.channel, {key: value}, {key: se},
@@ -400,19 +401,18 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
     second = _effects(after, steps2, tried2, files)
     if nonlinear:
         second = [e if e.expected else replace(e, evidence=e.evidence + "; found beside a nonlinearity: it may be that "
-                                               "nonlinearity's image (its law carried into the simulator at the level the "
-                                               "harmonics give)") for e in second]
+                                               "nonlinearity's image") for e in second]
     out += second
     out += [e for e in effects if e.category == "nonlinear"]
     # what stays uncarried is what the final list holds; the first pass's other proposals were images
     # of the simulator calibrated without the carried effects
     _, carriable, not_carried = carry(second, report.before.params)
     not_carried += [f"{label}: found by the second selection, after the carry (one round of carrying is made)" for label in carriable]
-    not_carried += [n for n in carry([e for e in effects if e.category == "nonlinear"], report.before.params)[2]]
-    dropped = [f"{e.category}/{e.kind}" for e in effects if e.category != "nonlinear" and f"{e.category}/{e.kind}" not in report.carried
-               and not any(f"{o.category}/{o.kind}" == f"{e.category}/{e.kind}" for o in out)]
+    not_carried += carry([e for e in effects if e.category == "nonlinear"], report.before.params, refuse=refuse)[2]
+    dropped = [f"{e.category}/{e.kind}" for e in effects if not e.expected and e.category != "nonlinear"
+               and f"{e.category}/{e.kind}" not in report.carried and not any(f"{o.category}/{o.kind}" == f"{e.category}/{e.kind}" for o in out)]
     report = replace(report, not_carried=tuple(not_carried), dropped=tuple(dropped))
-    return out, (datasets, after), report, list(steps2), list(tried2)
+    return out, (tuple(files), datasets, after), report, list(steps2), list(tried2)
 
 
 def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float = ALPHA, progress=None, simulator_params=None) -> Diagnosis:
@@ -498,11 +498,16 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     report = None
     final = (datasets, after)
     if sim:
-        effects, second, report, more_steps, more_tried = _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps,
-                                                                           alpha=alpha, progress=progress)
-        if second[1] is not None:
-            final = second
+        effects, (files, sim_datasets, sim_after), report, more_steps, more_tried = _simulator_pass(
+            raw, measured, calibrated, effects, nonlinear, steps, alpha=alpha, progress=progress)
+        final = (sim_datasets, sim_after)
         steps, tried = list(steps) + more_steps, list(tried) + more_tried
+        if files is raw and raw is not measured:
+            # every valve law is in the simulator: the final model and its figures are on the data as measured
+            measured, raw = raw, raw
+            notes = [n for n in notes if "divided by the" not in n]
+            notes.append("the valve law is carried into the simulator: the final fit, its error after and the figures are on "
+                         "the data as measured (the law inside the simulator's correction)")
         notes += [f"not carried into the simulator: {n}" for n in report.not_carried]
         if report.dropped:
             notes.append(f"against the simulator calibrated without the carried effects the first selection also proposed "

@@ -75,8 +75,8 @@ def augmented_tf(fit, i: int = 0, channel: str = "total", *, pade_order: int = 3
     A theta-sensor delay is a lag in theta/v and an advance in xdd/theta: ``base`` is refused then,
     and ``total`` leaves both out (they cancel exactly)."""
     st = fit.baseline.structure
-    if st is None or not fit.baseline_params:
-        raise ValueError("the baseline has no structure to export")
+    if st is None or not fit.baseline_params or not hasattr(st, "to_tf"):
+        raise ValueError("the baseline has no transfer function to export (the simulator as baseline: use augmented_frd)")
     if channel not in ("act", "base", "total"):
         raise ValueError(f"channel must be 'act', 'base' or 'total', got {channel!r}")
     theta_late = [e for e in fit.effects if e.kind.label == "delay/theta_sensor"]

@@ -168,9 +168,12 @@ def calibrate_simulator(m: Measured, *, start: SamiiParams | None = None, extra:
     laws = {k: v for k, v in extra.items() if k in _LAWS}
     linear = {k: v for k, v in extra.items() if k not in _LAWS}
     base = with_options(base, laws)
-    names = MODE_KNOBS + tuple(linear)
+    # a knob at 0 (no leakage, say) cannot be calibrated in its logarithm: it stays at 0
+    names = tuple(n for n in MODE_KNOBS if parameter_value(base, n) > 0) + tuple(linear)
     x0 = np.array([float(linear[n]) if n in linear else parameter_value(base, n) for n in names])
     bounds = [default_bounds(n, v) for n, v in zip(names, x0)]
+    top = _MAX_CORNER_OF_RATE / base.timestep_s  # sensor corners the physics rate represents
+    bounds = [(lo, min(hi, top) if n.endswith("_hz") else hi, why) for n, (lo, hi, why) in zip(names, bounds)]
     lo = np.log([b[0] for b in bounds])
     hi = np.log([b[1] for b in bounds])
     sim = SimulatorFRF(base, names)
@@ -330,28 +333,59 @@ def simulator_baseline(cal: SimulatorCalibration, corrections: Sequence[Frequenc
                     label=f"the simulator calibrated to {cal.source}, its mode knobs refitted with the effects", reference=None)
 
 
-def carry(effects: Sequence, params: SamiiParams) -> tuple[dict[str, float], list[str], list[str]]:
-    """(options to set, labels carried, "label: reason" not carried) for the found effects.
+#: Options that add to what the simulator has (a delay found is a delay beyond the simulator's own).
+_ADDITIVE = ("hydraulic.command_delay", "sensor.theta_delay_s", "sensor.accel_delay_s")
+#: Sensor corners the simulator's physics rate can represent: below this fraction of it.
+_MAX_CORNER_OF_RATE = 0.45
 
-    Expected effects (a delay the sampling explains) are not carried: the simulator samples too."""
+
+def carry(effects: Sequence, params: SamiiParams, *, refuse: Mapping[str, str] | None = None) -> tuple[dict[str, float], list[str], list[str]]:
+    """(options to set, labels carried, "label: reason" not carried) for the found effects, on the
+    simulator ``params``. A delay adds to the simulator's own; a gain error multiplies its gain.
+    ``refuse``: labels not to carry, with the reason (a valve law whose level the harmonics do not
+    fix). Expected effects (a delay the sampling explains) are not carried: the simulator samples too."""
     options, carried, not_carried = {}, [], []
+    refuse = dict(refuse or {})
     for e in effects:
         if getattr(e, "expected", False):
             continue
         label = f"{e.category}/{e.kind}"
-        if label in CARRY:
-            name, key = CARRY[label]
-            value = float(e.params[key])
-            if name == "sensor.accel_gain":  # a gain error multiplies what is there
-                value *= params.sensor.accel_gain
-            if name in options:
-                not_carried.append(f"{label}: a second {name} (kept the first, {options[name]:g})")
-                continue
-            options[name] = value
-            carried.append(label)
-        else:
+        if label in refuse:
+            not_carried.append(f"{label}: {refuse[label]}")
+            continue
+        if label not in CARRY:
             not_carried.append(f"{label}: {NOT_CARRIED.get(label, 'no simulator option for it')}")
+            continue
+        name, key = CARRY[label]
+        if key not in e.params:
+            not_carried.append(f"{label}: no level to carry (found from the amplitude dependence alone)")
+            continue
+        value = float(e.params[key])
+        if name == "sensor.accel_gain":
+            value *= params.sensor.accel_gain
+        elif name in _ADDITIVE:
+            value += _value(params, name)
+        elif name.endswith("_hz") and value >= _MAX_CORNER_OF_RATE / params.timestep_s:
+            not_carried.append(f"{label}: {value:.4g} Hz is beyond what the simulator's physics rate "
+                               f"({1 / params.timestep_s:g} Hz) represents")
+            continue
+        if name in options:
+            not_carried.append(f"{label}: a second {name} (kept the first, {options[name]:g})")
+            continue
+        options[name] = value
+        carried.append(label)
     return options, carried, not_carried
+
+
+def found_value(name: str, before: SamiiParams, value: float, se: float) -> tuple[float, float]:
+    """The effect's value from the simulator option's recalibrated ``value`` (and its stderr): what
+    :func:`carry` added to or multiplied into the simulator ``before``, undone."""
+    if name == "sensor.accel_gain":
+        g = before.sensor.accel_gain
+        return value / g, se / g
+    if name in _ADDITIVE:
+        return value - _value(before, name), se
+    return value, se
 
 
 def sweep_like(m: Measured):
@@ -380,8 +414,10 @@ def remeasure(params: SamiiParams, m: Measured) -> FrequencyResponse:
     from samii.sim.model import load_model
 
     sweep = sweep_like(m)
-    rate = float(m.sample_rate_hz or 1000.0)
-    return measure(load_model(params=params), sweep, sample_rate_hz=rate).frf
+    physics = 1.0 / params.timestep_s
+    # the DAQ needs a rate the physics rate is a whole multiple of: the file's, else the nearest such
+    ratio = max(1, round(physics / float(m.sample_rate_hz or physics)))
+    return measure(load_model(params=params), sweep, sample_rate_hz=physics / ratio).frf
 
 
 def _residuals(ds: Dataset, h: FrequencyResponse) -> dict[str, np.ndarray]:
@@ -396,14 +432,14 @@ CORRECTION_STEPS = 2
 
 
 def simulator_report(measured_raw: Sequence[Measured], measured_fit: Sequence[Measured], before: SimulatorCalibration,
-                     effects: Sequence, *, progress=None) -> SimulatorReport:
+                     effects: Sequence, *, progress=None, refuse: Mapping[str, str] | None = None) -> SimulatorReport:
     """Carry ``effects`` into the simulator calibrated as ``before``, recalibrate, re-measure both
     like each file, and compare with the files as measured (``measured_raw``); the calibration uses
     ``measured_fit[0]`` (the data with any nonlinearity divided out)."""
     from samii.diagnose.diagnosis import errors_from_residuals
 
     stage = progress.stage if progress is not None and hasattr(progress, "stage") else (lambda _: None)
-    options, carried, not_carried = carry(effects, before.params)
+    options, carried, not_carried = carry(effects, before.params, refuse=refuse)
     if options:
         stage("recalibrating the simulator with the effects")
         # the correction of the simulator with the options carried holds a carried valve law's

@@ -342,7 +342,8 @@ static int card_size(const mjModel* m, int instance, int* n, int* nbuf) {
   *n = 0;
   *nbuf = 0;
   if (!text) return 0;
-  *n = (int) strtol(text, NULL, 10);
+  double states = strtod(text, NULL);  // parsed as card_create parses it (which reports a bad value)
+  *n = (states >= 0 && states <= CTRL_MAX_STATES && states == floor(states)) ? (int) states : 0;
   const char* delay = optional_text(m, instance, OPT_CONTROLLER_DELAY);
   double dl = delay ? strtod(delay, NULL) : 0;
   if (!(dl >= 0 && dl <= CTRL_MAX_DELAY_STEPS)) dl = 0;  // init reports it
@@ -603,6 +604,19 @@ static Hydraulic* hydraulic_create(const mjModel* m, int instance) {
   }
   h->nring = delay_size(m, instance, &h->delay_whole, &h->delay_frac);
   h->ring_adr = card_nstate(m, instance);
+  // plugin_state was sized when the model was compiled; a timestep shortened since (the ring's
+  // length in steps depends on it) would make the ring read and write past it. More than needed is
+  // harmless (samii.sim.plugin.ideal_valve_model zeroes the delay of a copy and keeps the size).
+  int nstate = h->ring_adr + (h->nring ? VR_RING + 2*h->nring : 0);
+  if (nstate > m->plugin_statenum[instance]) {
+    mju_warning("%s (actuator '%s'): the plugin state has %d entries but its configuration at "
+                "timestep %g s needs %d: the timestep was shortened after compiling (command_delay "
+                "is counted in physics steps); recompile the model", SAMII_PLUGIN_NAME, name,
+                m->plugin_statenum[instance], m->opt.timestep, nstate);
+    card_free(h->card);
+    free(h);
+    return NULL;
+  }
   if (h->nring && m->opt.integrator == mjINT_RK4) {
     mju_warning("%s (actuator '%s'): command_delay needs the Euler or implicit integrators (the "
                 "delay line runs in the advance callback), not RK4", SAMII_PLUGIN_NAME, name);
@@ -915,7 +929,7 @@ static void hydraulic_reset(const mjModel* m, mjtNum* plugin_state, void* plugin
                             int instance) {
   // the actuator's states are in mjData.act, which mj_resetData zeroes (or a keyframe sets);
   // a controller card starts enabled, at rest; the command ring empty (primed by the first step)
-  int n = hydraulic_nstate(m, instance);
+  int n = m->plugin_statenum[instance];  // as compiled (init refuses a configuration that disagrees)
   if (n) mju_zero(plugin_state, n);
   if (card_nstate(m, instance)) plugin_state[ST_ENABLED] = 1;
 }

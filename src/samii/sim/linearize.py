@@ -157,9 +157,12 @@ def _small_signal(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[mujoco.Mj
     if ideal is model:
         return model, data
     out = mujoco.MjData(ideal)
-    out.time = data.time
-    out.qpos[:], out.qvel[:], out.act[:], out.ctrl[:] = data.qpos, data.qvel, data.act, data.ctrl
-    out.qacc_warmstart[:] = data.qacc_warmstart
+    # the whole state, the plugin's included (a controller card switched off stays off); the copy
+    # keeps the compiled plugin_state size, and the card's block comes first in both
+    spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS) | int(mujoco.mjtState.mjSTATE_USER) | int(mujoco.mjtState.mjSTATE_WARMSTART)
+    state = np.empty(mujoco.mj_stateSize(model, spec))
+    mujoco.mj_getState(model, data, state, spec)
+    mujoco.mj_setState(ideal, out, state, spec)
     mujoco.mj_forward(ideal, out)
     return ideal, out
 
