@@ -203,7 +203,8 @@ def test_linearisation_takes_the_ideal_valve_and_applies_the_delay():
 def test_a_measurement_sees_the_command_delay():
     """The swept-sine theta/v with a 4.3 ms command delay against the delay-free one: the phase
     difference over 0.5-10 Hz is w T (the servo loop runs through the delay, so the amplitude the
-    valve sees changes a little; the median is what is tested, the DAQ being the same)."""
+    valve sees changes a little; the median is what is tested, the DAQ being the same). Measured:
+    median off by 0.02 ms, magnitudes within 0.13 dB; the bounds are 2.5x and 2.3x those."""
     from samii.measure.campaign import measure_swept
     from samii.measure.excitation import SweptSine
 
@@ -266,6 +267,9 @@ def test_sensor_response_is_the_continuous_law_within_the_bilinear_warping():
 
 
 def test_a_measurement_through_the_sensor_options_matches_the_linearised_simulator():
+    """Measured: within 0.022 dB / 0.17 deg of the linearised simulator with the options (bounds
+    0.05 dB / 0.5 deg); the ideal sensors' model misses by 33 deg (20 Hz roll-off: atan(25/20) = 51
+    deg at 25 Hz less the 2 ms theta delay's 18 deg that xdd/theta gains back)."""
     from samii.measure.campaign import linearised_frf, measure_swept
     from samii.measure.excitation import SweptSine
 
@@ -296,28 +300,33 @@ def test_a_timestep_shortened_after_compiling_is_refused():
     mujoco.MjData(m)
 
 
-def test_linearisation_keeps_a_switched_off_controller_card_off():
-    """``linear_loop`` switches the card off before linearising; the ideal-valve copy must keep the
-    whole state, the card's flag included, or a command delay changes the open-loop map."""
+def test_the_ideal_valve_copy_keeps_the_whole_state():
+    """``linear_loop`` switches the controller card off before linearising; the copy on the
+    ideal-valve model must carry the whole state, the card's flag and delay line included (a copy
+    of qpos/qvel/act/ctrl alone came back with the card switched on by the plugin's reset)."""
     from samii.closedloop.card import build_card_model
     from samii.design.controller import LinearController
-    from samii.sim.linearize import _discrete
+    from samii.sim.linearize import _small_signal
 
     kp = 57.29577951308232
     m0 = load_model()
     ctrl = LinearController(np.zeros((0, 0)), np.zeros((0, 3)), np.zeros((1, 0)), np.array([[kp, -2 * kp, 0.3]]), 1e-3,
                             ("theta_ref", "theta", "accel"))
-    maps = []
-    for delay in (0.0, 0.002):
-        spec, _ = load_spec()
-        if delay:
-            hyd = spec.actuator("joint2")
-            hyd.plugin.config = {**dict(hyd.plugin.config), "command_delay": repr(delay)}
-        card = build_card_model(spec, ctrl, home_qpos=m0.key_qpos[0], home_act=m0.key_act[0])
-        d = make_data(card.model)
-        spec_full = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
-        state = np.empty(mujoco.mj_stateSize(card.model, spec_full))
-        mujoco.mj_getState(card.model, d, state, spec_full)
-        mujoco.mj_setState(card.model, d, card.set_enabled(state, False), spec_full)
-        maps.append(_discrete(card.model, d, 1e-6, False)[0])
-    assert np.max(np.abs(maps[1] - maps[0])) < 1e-6 * np.max(np.abs(maps[0]))
+    spec, _ = load_spec()
+    hyd = spec.actuator("joint2")
+    hyd.plugin.config = {**dict(hyd.plugin.config), "command_delay": "0.002"}
+    card = build_card_model(spec, ctrl, home_qpos=m0.key_qpos[0], home_act=m0.key_act[0])
+    d = make_data(card.model)
+    full = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    state = np.empty(mujoco.mj_stateSize(card.model, full))
+    mujoco.mj_getState(card.model, d, state, full)
+    off = card.set_enabled(state, False)
+    off[card.layout.buffer_slice()] = 0.25  # a delay line with history in it
+    mujoco.mj_setState(card.model, d, off, full)
+    ideal, copy = _small_signal(card.model, d)
+    assert ideal is not card.model
+    out = np.empty_like(off)
+    mujoco.mj_getState(ideal, copy, out, full)
+    assert out[card.layout.enabled_index()] == 0.0
+    assert np.array_equal(out[card.layout.buffer_slice()], off[card.layout.buffer_slice()])
+    assert np.array_equal(out[:card.layout.plugin_adr], off[:card.layout.plugin_adr])

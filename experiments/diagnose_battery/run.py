@@ -102,6 +102,30 @@ def _sweep(amplitude_v: float) -> np.ndarray:
     return sw.signal(np.arange(int(round(sw.duration_s * FS))) / FS)
 
 
+def match_injected(found: list, injected: list, tolerance: dict = TOLERANCE) -> tuple[list[dict], list]:
+    """Each injected (category, kind, truth) matched to a found effect (the same kind, else the same
+    category), its parameters' errors and whether they are within ``tolerance``; and the found
+    effects no injection matched."""
+    rows, unmatched = [], list(found)
+    for cat, kind, truth in injected:
+        match = next((e for e in unmatched if e.category == cat and e.kind == kind), None) or next(
+            (e for e in unmatched if e.category == cat), None)
+        if match is not None:
+            unmatched.remove(match)
+        errors = {}
+        if match is not None and match.kind == kind:
+            for p, v in truth.items():
+                if p in match.params:  # (an amplitude-only nonlinear finding has no level)
+                    how, _ = tolerance[(cat, p)]
+                    errors[p] = match.params[p] - v if how == "abs" else match.params[p] / v - 1.0
+        # nothing to judge when no parameter was injected or none found
+        within = all(abs(e) <= tolerance[(cat, p)][1] for p, e in errors.items()) if errors else None
+        rows.append({"category": cat, "kind": kind, "truth": truth, "found_category": None if match is None else match.category,
+                     "found_kind": None if match is None else match.kind, "found_params": None if match is None else match.params,
+                     "errors": errors, "within_tolerance": within})
+    return rows, unmatched
+
+
 def run_case(name: str, effects: dict, injected: list, *, amplitude_v: float | tuple, seed: int) -> dict:
     rng = np.random.default_rng(seed)
     rig = EffectRig(params=_rig_params(rng), **effects)
@@ -110,31 +134,7 @@ def run_case(name: str, effects: dict, injected: list, *, amplitude_v: float | t
     t0 = time.perf_counter()
     d = diagnose(files)
     elapsed = time.perf_counter() - t0
-    found = [e for e in d.effects if not e.expected]
-    rows = []
-    unmatched = list(found)
-    for cat, kind, truth in injected:
-        match = next((e for e in unmatched if e.category == cat and e.kind == kind), None) or next(
-            (e for e in unmatched if e.category == cat), None)
-        if match is not None:
-            unmatched.remove(match)
-        errors = {}
-        within = None
-        if match is not None and match.kind == kind:
-            within = True
-            for p, v in truth.items():
-                how, tol = TOLERANCE[(cat, p)]
-                if p not in match.params:  # (an amplitude-only nonlinear finding has no level)
-                    within = None
-                    continue
-                err = match.params[p] - v if how == "abs" else match.params[p] / v - 1.0
-                errors[p] = err
-                within = within if within is None else within and abs(err) <= tol
-        if not errors:  # nothing to judge (no parameter injected, or none found)
-            within = None
-        rows.append({"category": cat, "kind": kind, "truth": truth, "found_category": None if match is None else match.category,
-                     "found_kind": None if match is None else match.kind, "found_params": None if match is None else match.params,
-                     "errors": errors, "within_tolerance": within})
+    rows, unmatched = match_injected([e for e in d.effects if not e.expected], injected)
     return {
         "name": name, "amplitude_v": list(amps), "seed": seed, "injected": rows,
         "extra": [{"category": e.category, "kind": e.kind, "params": e.params} for e in unmatched],

@@ -30,7 +30,7 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from run import TOLERANCE, effect_text  # noqa: E402  (the main battery's tolerances, issue 11's goals)
+from run import TOLERANCE, effect_text, match_injected  # noqa: E402  (the main battery's tolerances, issue 11's goals)
 
 # (name, --set overrides, injected [(category, kind, {param: true value})], seed)
 CASES = [
@@ -66,23 +66,7 @@ def run_case(name: str, overrides: dict, injected: list, seed: int) -> dict:
     t0 = time.perf_counter()
     d = diagnose(files, baseline="sim")
     elapsed = time.perf_counter() - t0
-    found = [e for e in d.effects if not e.expected]
-    rows, unmatched = [], list(found)
-    for cat, kind, truth in injected:
-        match = next((e for e in unmatched if e.category == cat and e.kind == kind), None) or next(
-            (e for e in unmatched if e.category == cat), None)
-        if match is not None:
-            unmatched.remove(match)
-        errors = {}
-        if match is not None and match.kind == kind:
-            for p, v in truth.items():
-                if p in match.params:
-                    how, _ = {**TOLERANCE, **EXTRA_TOLERANCE}[(cat, p)]
-                    errors[p] = match.params[p] - v if how == "abs" else match.params[p] / v - 1.0
-        within = all(abs(e) <= {**TOLERANCE, **EXTRA_TOLERANCE}[(cat, p)][1] for p, e in errors.items()) if errors else None
-        rows.append({"category": cat, "kind": kind, "truth": truth, "found_category": None if match is None else match.category,
-                     "found_kind": None if match is None else match.kind, "found_params": None if match is None else match.params,
-                     "errors": errors, "within_tolerance": within})
+    rows, unmatched = match_injected([e for e in d.effects if not e.expected], injected, {**TOLERANCE, **EXTRA_TOLERANCE})
     s = d.simulator
     return {
         "name": name, "overrides": overrides, "seed": seed, "injected": rows,

@@ -183,14 +183,10 @@ def model_response(fit: Fit, i: int, freq_hz: np.ndarray) -> dict[str, np.ndarra
     """act, base and total of ``fit``'s model for file ``i`` at ``freq_hz`` (the baseline's structure with the effects)."""
     st = fit.baseline.structure
     f = np.asarray(freq_hz, float)
-    if fit.baseline.evaluate is not None:
-        full = fit.baseline.evaluate(i, f)
-        base = {c: np.asarray(full[c]) for c in ("act", "base")}
-    elif st is None or not fit.baseline_params:
+    if st is None or not fit.baseline_params:
         raise ValueError("the baseline has no structure to evaluate off its data points")
-    else:
-        p = fit.baseline_params[i]
-        base = {c: st.response(p, f, c) * fit.baseline.factor(i, f, c) for c in ("act", "base")}
+    p = fit.baseline_params[i]
+    base = {c: st.response(p, f, c) * fit.baseline.factor(i, f, c) for c in ("act", "base")}
     eff = [(e.kind, np.array([e.values[q.name] for q in e.kind.params])) for e in fit.effects]
     out = _apply(eff, base, 2j * np.pi * f)
     out["total"] = out["act"] * out["base"]
@@ -357,6 +353,13 @@ def _noise_from_roughness(m: Measured, saved) -> Measured:
     return with_roughness_noise(m, {ch: model[ch] for ch in m.frf.channels})
 
 
+def _kinds(datasets: Sequence[Dataset], *, fixed_baseline: bool) -> list:
+    """The library's kinds the datasets' channels can test, each bounded to their band."""
+    have = set().union(*(ds.data for ds in datasets))
+    channels = ("act", "base") if {"act", "base"} <= have or {"act", "total"} <= have else tuple(c for c in ("act", "base") if c in have)
+    return [_within_band(k, datasets) for k in library(fixed_baseline=fixed_baseline, channels=channels)]
+
+
 def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alpha, progress):
     """``--baseline sim`` after the first selection (which tried only what the simulator can take):
     carry the effects into the simulator, recalibrate, and select again with the whole library
@@ -381,9 +384,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
     corrections = [correction(report.after.params, m) for m in files]
     datasets = tuple(Dataset.from_measured(m) for m in files)
     bl = simulator_baseline(report.after, corrections)
-    have = set().union(*(ds.data for ds in datasets))
-    channels = ("act", "base") if {"act", "base"} <= have or {"act", "total"} <= have else tuple(c for c in ("act", "base") if c in have)
-    kinds = [_within_band(k, datasets) for k in library(fixed_baseline=True, channels=channels) if k.label not in report.carried]
+    kinds = [k for k in _kinds(datasets, fixed_baseline=True) if k.label not in report.carried]
     _, after, steps2, tried2 = forward_select(list(datasets), bl, kinds, alpha=alpha, progress=progress)
     first = {s.label: s for s in steps}
     out = []
@@ -434,22 +435,22 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     notes = [f"{m.source}: no coherence and no records; the noise of each point is {m.noise_source}"
              for m, g in zip(measured, given) if m is not g]
     raw = measured
+    divided_notes, at = [], len(notes)  # notes on the data divided by a law, in their place among the notes
     for f in nonlinear:  # a law on the command that explains the harmonics: the linear model is fitted to the data without it
         if f.harmonics and f.law_fits:
             for h in f.harmonics:
                 measured = tuple(linearised(m, f, h) if m.source == h.source else m for m in measured)
-                notes.append(f"{h.source}: the linear fit, its error after and the figures use theta/v and xdd/v divided "
-                             f"by the {f.kind.replace('_', ' ')}'s describing function (the error before is the baseline's on "
-                             "the data as measured)")
+                divided_notes.append(f"{h.source}: the linear fit, its error after and the figures use theta/v and xdd/v divided "
+                                     f"by the {f.kind.replace('_', ' ')}'s describing function (the error before is the baseline's on "
+                                     "the data as measured)")
     datasets = tuple(Dataset.from_measured(m) for m in measured)
     calibrated = None
     if sim:
-        from samii.diagnose.simulator import calibrate_simulator, simulator_baseline
+        from samii.diagnose.simulator import CARRY, calibrate_simulator, correction, simulator_baseline
+        from samii.sim.model import default_params
 
         if progress is not None and hasattr(progress, "stage"):
             progress.stage("calibrating the simulator")
-        from samii.diagnose.simulator import correction
-        from samii.sim.model import default_params
 
         start = default_params() if simulator_params is None else simulator_params
         corrections = [correction(start, m) for m in measured]
@@ -468,17 +469,13 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     bl = baseline_for(measured, datasets)
     if saved is not None:
         notes += list(saved.concerns)
-    have = set().union(*(ds.data for ds in datasets))
-    channels = ("act", "base") if {"act", "base"} <= have or {"act", "total"} <= have else tuple(c for c in ("act", "base") if c in have)
     # the simulator's knobs cannot make an accelerometer's gain error: testable against it
-    kinds = [_within_band(k, datasets) for k in library(fixed_baseline=sim or not bl.free, channels=channels)]
+    kinds = _kinds(datasets, fixed_baseline=sim or not bl.free)
     if sim:
         # first what the simulator can take as physics: against knobs a missing effect has bent, a
         # kind it cannot take imitates one it can (a 4 ms delay beside an AC coupling was taken as
         # 59 Hz valve dynamics, chi2 1299 against the delay's 1369); the second selection, after the
         # carry, has the whole library for what remains
-        from samii.diagnose.simulator import CARRY
-
         kinds = [k for k in kinds if k.label in CARRY]
     before, after, steps, tried = forward_select(list(datasets), bl, kinds, alpha=alpha, progress=progress)
     error_before = channel_errors(datasets, before)
@@ -505,9 +502,8 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
         if files is raw and raw is not measured:
             # every valve law is in the simulator: the final model and its figures are on the data as measured
             measured, raw = raw, raw
-            notes = [n for n in notes if "divided by the" not in n]
-            notes.append("the valve law is carried into the simulator: the final fit, its error after and the figures are on "
-                         "the data as measured (the law inside the simulator's correction)")
+            divided_notes = ["the valve law is carried into the simulator: the final fit, its error after and the figures are on "
+                             "the data as measured (the law inside the simulator's correction)"]
         notes += [f"not carried into the simulator: {n}" for n in report.not_carried]
         if report.dropped:
             notes.append(f"against the simulator calibrated without the carried effects the first selection also proposed "
@@ -516,5 +512,5 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     datasets, after = final
     return Diagnosis(measured, datasets, bl, before, after, tuple(steps), tuple(tried), tuple(effects),
                      error_before, channel_errors(datasets, after), tuple(unexplained_bands(datasets, after, alpha=alpha)),
-                     notes=tuple(notes + nl_notes), harmonics=tuple(harmonics), amplitude_tests=tuple(amp_tests),
+                     notes=tuple(notes[:at] + divided_notes + notes[at:] + nl_notes), harmonics=tuple(harmonics), amplitude_tests=tuple(amp_tests),
                      raw_measured=None if raw is measured else raw, simulator=report)

@@ -22,7 +22,7 @@ error carry less information than their number says).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Callable, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -105,9 +105,6 @@ class Baseline:
     #: The model the user holds (eq 9.4, a saved fit): which of the fitted modes are "the baseline's" and
     #: which are extra is decided by nearness to its modes (:func:`relabel_modes`). Default: ``params[0]``.
     reference: Mapping[str, float] | None = None
-    #: A fixed baseline with no structure: (dataset index, freq_hz) -> {act, base, total}, its
-    #: response anywhere (for figures and exports off the data's points).
-    evaluate: Callable[[int, np.ndarray], Mapping[str, np.ndarray]] | None = None
     #: Per dataset, a factor on the structure's act and base on that dataset's frequency grid (the
     #: simulator's measured-over-linearised response, samii.diagnose.simulator.correction); none if empty.
     correction: tuple = ()

@@ -17,6 +17,23 @@ _NAMES = {"act": "θ/v", "base": "ẍ/θ", "total": "ẍ/v"}
 _UNITS = {"act": "rad/V", "base": "(m/s²)/rad", "total": "(m/s²)/V"}
 
 
+def _finish(fig, title: str, path, fontsize: float | None = None):
+    """Title and lay out ``fig``; saved to ``path`` and closed when a path is given."""
+    import matplotlib.pyplot as plt
+
+    fig.suptitle(title, fontsize=fontsize)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+    return fig
+
+
+def _near(phase: np.ndarray, ref) -> np.ndarray:
+    """``phase`` [rad] shifted by the whole turns that bring it nearest ``ref`` (a phase or phases)."""
+    return phase + 2 * np.pi * np.round((ref - phase) / (2 * np.pi))
+
+
 def _label(d: Diagnosis, i: int) -> str:
     src = d.measured[i].source
     return src if len(src) <= 40 else "…" + src[-39:]
@@ -74,12 +91,7 @@ def residual_figure(d: Diagnosis, path=None):
             _clip(ax)
         ax_m.legend(fontsize=8, loc="best")
     found = ", ".join(f"{e.category}/{e.kind}" + (" (expected)" if e.expected else "") for e in d.effects) or "none"
-    fig.suptitle(f"Diagnosis: {d.verdict}; effects: {found}" + ("; red: unexplained" if d.unexplained else ""), fontsize=11)
-    fig.tight_layout()
-    if path is not None:
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-    return fig
+    return _finish(fig, f"Diagnosis: {d.verdict}; effects: {found}" + ("; red: unexplained" if d.unexplained else ""), path, fontsize=11)
 
 
 def _clip(ax) -> None:
@@ -117,18 +129,18 @@ def bode_figure(d: Diagnosis, path=None):
             h = m.frf.response(ch) if ch in m.frf.channels else (m.frf.total / m.frf.act if ch == "base" else m.frf.act * m.frf.base)
             ref = ma[ch]
             ph_model = np.unwrap(np.angle(ref))
-            ph_data = np.angle(h[ok]) + 2 * np.pi * np.round((np.interp(f[ok], fm, ph_model) - np.angle(h[ok])) / (2 * np.pi))
+            ph_data = _near(np.angle(h[ok]), np.interp(f[ok], fm, ph_model))
             ax_m, ax_p = axes[0, col], axes[1, col]
             if d.raw_measured is not None and ch != "base":  # the data as measured, before the nonlinearity was divided out
                 raw = d.raw_measured[i].frf.response(ch)[ok]
-                ph_raw = np.angle(raw) + 2 * np.pi * np.round((ph_data - np.angle(raw)) / (2 * np.pi))
+                ph_raw = _near(np.angle(raw), ph_data)
                 ax_m.plot(f[ok], _DB * np.log(np.abs(raw)), ".", ms=2.5, color="0.6", label=f"data as measured{tag}")
                 ax_p.plot(f[ok], _DEG * ph_raw, ".", ms=2.5, color="0.6")
             divided = " (nonlinearity divided out)" if d.raw_measured is not None and ch != "base" else ""
             ax_m.plot(f[ok], _DB * np.log(np.abs(h[ok])), ".", ms=2.5, color=c, alpha=0.6, label=f"data{divided}{tag}")
             ax_p.plot(f[ok], _DEG * ph_data, ".", ms=2.5, color=c, alpha=0.6)
             ph_b = np.unwrap(np.angle(mb[ch]))
-            ph_b += 2 * np.pi * np.round((ph_model[0] - ph_b[0]) / (2 * np.pi))
+            ph_b = ph_b + (_near(ph_b[0], ph_model[0]) - ph_b[0])
             ax_m.plot(fm, _DB * np.log(np.abs(mb[ch])), "--", color="0.35", lw=1.0, label=f"baseline{tag}")
             ax_p.plot(fm, _DEG * ph_b, "--", color="0.35", lw=1.0)
             ax_m.plot(fm, _DB * np.log(np.abs(ref)), "-", color=c, lw=1.2, label=f"with the effects{tag}")
@@ -141,12 +153,7 @@ def bode_figure(d: Diagnosis, path=None):
         ax.set_xscale("log")
         ax.grid(True, which="both", alpha=0.3)
     axes[0, 0].legend(fontsize=8, loc="best")
-    fig.suptitle("Data, baseline and the model with the effects found", fontsize=11)
-    fig.tight_layout()
-    if path is not None:
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-    return fig
+    return _finish(fig, "Data, baseline and the model with the effects found", path, fontsize=11)
 
 
 def harmonic_figure(d: Diagnosis, path=None):
@@ -191,12 +198,7 @@ def harmonic_figure(d: Diagnosis, path=None):
         ax.set_title(f"{src}: {h.n_significant} significant segment(s)", fontsize=9)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7, loc="best")
-    fig.suptitle("Harmonics of the sweep (a linear system makes none)")
-    fig.tight_layout()
-    if path is not None:
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-    return fig
+    return _finish(fig, "Harmonics of the sweep (a linear system makes none)", path)
 
 
 def simulator_figure(d: Diagnosis, path=None):
@@ -229,9 +231,9 @@ def simulator_figure(d: Diagnosis, path=None):
             h = m.frf.response(ch)
             ok = usable[i].keep[ch] if ch in usable[i].keep else np.ones(h.size, bool)
             ph_after = np.unwrap(np.angle(after.response(ch)))
-            ph_data = np.angle(h[ok]) + 2 * np.pi * np.round((np.interp(m.frf.freq_hz[ok], after.freq_hz, ph_after) - np.angle(h[ok])) / (2 * np.pi))
+            ph_data = _near(np.angle(h[ok]), np.interp(m.frf.freq_hz[ok], after.freq_hz, ph_after))
             ph_before = np.unwrap(np.angle(before.response(ch)))
-            ph_before += 2 * np.pi * np.round((ph_after[0] - ph_before[0]) / (2 * np.pi))
+            ph_before = ph_before + (_near(ph_before[0], ph_after[0]) - ph_before[0])
             ax_m.plot(m.frf.freq_hz[ok], _DB * np.log(np.abs(h[ok])), ".", ms=2.5, color=c, alpha=0.5, label=f"data{tag}")
             ax_p.plot(m.frf.freq_hz[ok], _DEG * ph_data, ".", ms=2.5, color=c, alpha=0.5)
             ax_m.plot(before.freq_hz, _DB * np.log(np.abs(before.response(ch))), "--", color="0.35", lw=1.0,
@@ -249,10 +251,5 @@ def simulator_figure(d: Diagnosis, path=None):
         ax.grid(True, which="both", alpha=0.3)
     axes[0, 0].legend(fontsize=8, loc="best")
     carried = ", ".join(rep.carried) or "nothing carried"
-    fig.suptitle(f"The simulator measured like the data: before and after carrying in {carried}\n"
-                 "(points: those the diagnosis uses, where the data's noise is small enough)", fontsize=11)
-    fig.tight_layout()
-    if path is not None:
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-    return fig
+    return _finish(fig, f"The simulator measured like the data: before and after carrying in {carried}\n"
+                   "(points: those the diagnosis uses, where the data's noise is small enough)", path, fontsize=11)

@@ -17,8 +17,11 @@ finds carried into it as physics.
    actuator pole-zero pair or valve dynamics, hysteresis, asymmetry) are listed as not carried,
    with the reason.
 4. **Recalibrate** the mode knobs together with the linear options carried (started at the values
-   found): a parameter the first calibration bent to imitate the missing effect goes back.
-5. **Re-measure** the nonlinear simulator like each file (the file's sweep when its metadata gives
+   found): a parameter the first calibration bent to imitate the missing effect goes back. The
+   correction is recomputed at the result, and the calibration repeated, while the cost falls.
+5. **Select again** (``samii.diagnose.diagnosis``) with the whole library against the recalibrated
+   simulator: what the simulator cannot take, and nothing the first calibration's bending made up.
+6. **Re-measure** the nonlinear simulator like each file (the file's sweep when its metadata gives
    it, else a sweep over its band at its amplitude), before and after, and report the
    simulator's error against the data as measured: rms dB, rms deg and chi2 per channel on the
    file's usable points, the same measure as the diagnosis's error. The re-measured response is
@@ -32,15 +35,17 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
-from typing import Callable, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
 from samii.calibrate.calibrate import MODE_KNOBS
+from samii.calibrate.simulator import parameter_value
 from samii.diagnose.measured import Measured
 from samii.diagnose.model import Baseline, Dataset
 from samii.frequency_response import FrequencyResponse, interpolate_frf
 from samii.sim.mjcf import SamiiParams
+from samii.sim.model import params_with_overrides
 
 __all__ = ["CARRY", "NOT_CARRIED", "LocalSimulator", "SimulatorCalibration", "SimulatorReport", "calibrate_simulator", "correction",
            "simulator_baseline", "carry", "sweep_like", "remeasure", "simulator_report"]
@@ -108,22 +113,16 @@ def _calibration_dict(c: SimulatorCalibration) -> dict:
             "rms": {ch: {"rms_db": db, "rms_deg": deg} for ch, (db, deg) in r.rms.items()}}
 
 
-def with_options(params: SamiiParams, options: Mapping[str, float]) -> SamiiParams:
-    from samii.sim.model import params_with_overrides
-
-    return params_with_overrides(params, options) if options else params
-
-
 def correction(params: SamiiParams, m: Measured) -> FrequencyResponse:
     """The simulator measured like ``m`` over its linearisation, per channel, on ``m``'s frequencies:
     what the nonlinear simulator does at the file's amplitude that its small-signal model does not
     (the orifice law, a valve law carried in, the estimator's own bias), to first order
     independent of the knobs a calibration moves."""
     measured = interpolate_frf(remeasure(params, m), m.frf.freq_hz)
-    lin = _evaluator(params)(0, m.frf.freq_hz)
+    lin = _linearised(params, m.frf.freq_hz)
     ch = {}
     for c in ("act", "base", "total"):
-        r = measured[c] / lin[c]
+        r = measured[c] / lin.response(c)
         ch[c] = np.where(np.isfinite(r), r, 1.0)  # outside the re-measured span: no correction
     return FrequencyResponse(m.frf.freq_hz, act=ch["act"], base=ch["base"], total=ch["total"],
                              metadata={"source": "simulator measured / linearised (samii diagnose --baseline sim)"})
@@ -160,14 +159,14 @@ def calibrate_simulator(m: Measured, *, start: SamiiParams | None = None, extra:
     from scipy.optimize import least_squares
 
     from samii.calibrate.calibrate import default_bounds
-    from samii.calibrate.simulator import SimulatorFRF, parameter_value
+    from samii.calibrate.simulator import SimulatorFRF
     from samii.sim.model import default_params
 
     base = default_params() if start is None else start
     extra = dict(extra or {})
     laws = {k: v for k, v in extra.items() if k in _LAWS}
     linear = {k: v for k, v in extra.items() if k not in _LAWS}
-    base = with_options(base, laws)
+    base = params_with_overrides(base, laws)
     # a knob at 0 (no leakage, say) cannot be calibrated in its logarithm: it stays at 0
     names = tuple(n for n in MODE_KNOBS if parameter_value(base, n) > 0) + tuple(linear)
     x0 = np.array([float(linear[n]) if n in linear else parameter_value(base, n) for n in names])
@@ -223,28 +222,14 @@ def calibrate_simulator(m: Measured, *, start: SamiiParams | None = None, extra:
     return SimulatorCalibration(sim.samii_params(x), result, m.source)
 
 
-def _evaluator(params: SamiiParams) -> Callable[[int, np.ndarray], dict[str, np.ndarray]]:
+def _linearised(params: SamiiParams, freq_hz: np.ndarray) -> FrequencyResponse:
+    """The linearised simulator with ``params`` at ``freq_hz``."""
     from samii.measure.campaign import linearised_frf
-    from samii.sim.linearize import linearize
     from samii.sim.model import load_model
 
-    model = load_model(params=params)
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # scipy logm accuracy notes, as linearised_frf
-        lm = linearize(model)
-
-    def evaluate(i: int, freq_hz: np.ndarray) -> dict[str, np.ndarray]:
-        h = linearised_frf(model, np.asarray(freq_hz, float), linear_model=lm)
-        return {"act": h.act, "base": h.base, "total": h.total}
-
-    return evaluate
-
-
-def _divided(frf: FrequencyResponse, by: FrequencyResponse) -> FrequencyResponse:
-    """``frf``'s channels divided by ``by``'s (on the same frequencies)."""
-    from dataclasses import replace
-
-    return replace(frf, **{c: frf.response(c) / by.response(c) for c in frf.channels})
+        warnings.simplefilter("ignore", RuntimeWarning)  # scipy logm accuracy notes
+        return linearised_frf(load_model(params=params), np.asarray(freq_hz, float))
 
 
 @dataclass(frozen=True, eq=False)  # holds a cache: compare by identity
@@ -263,7 +248,7 @@ class LocalSimulator:
     n_modes: int = 0
 
     def __post_init__(self) -> None:
-        from samii.calibrate.simulator import SimulatorFRF, parameter_value
+        from samii.calibrate.simulator import SimulatorFRF
 
         object.__setattr__(self, "_sim", SimulatorFRF(self.at, self.names))
         object.__setattr__(self, "x0", np.array([parameter_value(self.at, n) for n in self.names]))
@@ -364,7 +349,7 @@ def carry(effects: Sequence, params: SamiiParams, *, refuse: Mapping[str, str] |
         if name == "sensor.accel_gain":
             value *= params.sensor.accel_gain
         elif name in _ADDITIVE:
-            value += _value(params, name)
+            value += parameter_value(params, name)
         elif name.endswith("_hz") and value >= _MAX_CORNER_OF_RATE / params.timestep_s:
             not_carried.append(f"{label}: {value:.4g} Hz is beyond what the simulator's physics rate "
                                f"({1 / params.timestep_s:g} Hz) represents")
@@ -384,7 +369,7 @@ def found_value(name: str, before: SamiiParams, value: float, se: float) -> tupl
         g = before.sensor.accel_gain
         return value / g, se / g
     if name in _ADDITIVE:
-        return value - _value(before, name), se
+        return value - parameter_value(before, name), se
     return value, se
 
 
@@ -434,8 +419,9 @@ CORRECTION_STEPS = 2
 def simulator_report(measured_raw: Sequence[Measured], measured_fit: Sequence[Measured], before: SimulatorCalibration,
                      effects: Sequence, *, progress=None, refuse: Mapping[str, str] | None = None) -> SimulatorReport:
     """Carry ``effects`` into the simulator calibrated as ``before``, recalibrate, re-measure both
-    like each file, and compare with the files as measured (``measured_raw``); the calibration uses
-    ``measured_fit[0]`` (the data with any nonlinearity divided out)."""
+    like each file, and compare with the files as measured (``measured_raw``). The recalibration
+    uses the first file as measured when every valve law found is carried (the simulator's
+    correction then holds the law), else ``measured_fit[0]`` (the law divided out)."""
     from samii.diagnose.diagnosis import errors_from_residuals
 
     stage = progress.stage if progress is not None and hasattr(progress, "stage") else (lambda _: None)
@@ -449,11 +435,10 @@ def simulator_report(measured_raw: Sequence[Measured], measured_fit: Sequence[Me
         # the correction depends a little on the knobs near the modes: recomputed at the recalibrated
         # simulator and recalibrated, until the cost stops falling (a 20 Hz roll-off: 21.35 Hz with
         # the correction of the first calibration's knobs, 20.24 Hz after one such step, 20.19 after two)
-        params, after = with_options(before.params, options), None
+        params, after = params_with_overrides(before.params, options), None
         for _ in range(1 + CORRECTION_STEPS):
             corr = correction(params, data)
-            extra = {**options, **({} if after is None else {n: after.result.values[n] for n in options if n not in _LAWS})}
-            trial = calibrate_simulator(data, start=params if after is not None else before.params, extra=extra, corrected_by=corr)
+            trial = calibrate_simulator(data, start=params, extra={n: parameter_value(params, n) for n in options}, corrected_by=corr)
             done = after is not None and trial.result.cost > (1 - 0.01) * after.result.cost
             if after is None or trial.result.cost < after.result.cost:
                 after = trial
@@ -470,13 +455,8 @@ def simulator_report(measured_raw: Sequence[Measured], measured_fit: Sequence[Me
     err_after = errors_from_residuals(datasets, [_residuals(ds, h) for ds, h in zip(datasets, h_after)])
     changes = {}
     for name in sorted(set(after.result.values) | set(options)):
-        old = _value(before.params, name)
-        new = _value(after.params, name)
+        old = parameter_value(before.params, name)
+        new = parameter_value(after.params, name)
         if new != old:
             changes[name] = new
     return SimulatorReport(err_before, err_after, changes, tuple(carried), tuple(not_carried), before, after, h_before, h_after)
-
-
-def _value(params: SamiiParams, name: str) -> float:
-    section, field = name.split(".")
-    return float(getattr(getattr(params, section), field))

@@ -506,9 +506,9 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     }
     for key, unit in hyd_units.items():
         add(f'      <config key="{key}" value="{_fmt(getattr(h, key))}"/>  <!-- {unit} -->')
-    for key, value in h.valve_config().items():
-        from samii.sim.hydraulic_reference import VALVE_OPTIONS
+    from samii.sim.hydraulic_reference import VALVE_OPTIONS
 
+    for key, value in h.valve_config().items():
         add(f'      <config key="{key}" value="{value}"/>  <!-- {VALVE_OPTIONS[key][0]} -->')
     add("    </plugin>")
     add("  </actuator>")

@@ -20,6 +20,7 @@ import mujoco
 import numpy as np
 
 from samii.errors import InputError
+from samii.sim.hydraulic_reference import VALVE_OPTIONS
 from samii.sim.mjcf import ArmParams, BeamParams, HydraulicConfig, SamiiParams, samii_xml
 from samii.sim.sensor_dynamics import SensorDynamics
 
@@ -41,7 +42,7 @@ __all__ = [
 
 #: Parameters a complete parameter file may leave out: options whose default is "none" (the
 #: valve's and, as a whole section, the sensors'), which older files do not list.
-OPTIONAL_PARAMETERS = frozenset({"hydraulic.command_delay", "hydraulic.valve_dead_band", "hydraulic.valve_saturation"})
+OPTIONAL_PARAMETERS = frozenset(f"hydraulic.{name}" for name in VALVE_OPTIONS)
 
 ACTUATOR = "joint2"  #: name of the hydraulic actuator
 JOINT = "joint2"  #: the joint it drives

@@ -257,21 +257,16 @@ def hydraulic_actuators(model: mujoco.MjModel) -> list[int]:
 
 
 def _instance_attributes(model: mujoco.MjModel, instance: int) -> dict[str, str]:
-    # mjModel.plugin_attr holds each instance's values, NUL-separated, in the plugin's attribute
-    # order (mj_getPluginConfig, which the Python bindings do not expose, reads it the same way).
-    values = _instance_values(model, instance)
-    return {name: values[k].decode() for k, name in enumerate(ATTRIBUTES)}
+    return {name: raw.decode() for name, _, raw in _instance_fields(model, instance) if name in ATTRIBUTES}
 
 
 def valve_options(model: mujoco.MjModel, actuator: str | int = "joint2") -> dict[str, float]:
     """The valve options of a compiled samii.hydraulic actuator (``VALVE_OPTIONS``; 0 = none)."""
-    i = _actuator_id(model, actuator)
-    instance = int(model.actuator_plugin[i])
-    values = _instance_values(model, instance)
-    out = {}
-    for name in VALVE_OPTIONS:
-        text = values[len(ATTRIBUTES) + OPTIONAL_ATTRIBUTES.index(name)].decode().strip()
-        out[name] = float(text) if text else 0.0
+    instance = int(model.actuator_plugin[_actuator_id(model, actuator)])
+    out = dict.fromkeys(VALVE_OPTIONS, 0.0)
+    for name, _, raw in _instance_fields(model, instance):
+        if name in VALVE_OPTIONS and raw.strip():
+            out[name] = float(raw)
     return out
 
 
@@ -295,17 +290,9 @@ def ideal_valve_model(model: mujoco.MjModel) -> mujoco.MjModel:
     "0" padded with spaces to the same length, which the plugin's parser reads as 0."""
     import copy
 
-    edits = []
-    for i in hydraulic_actuators(model):
-        instance = int(model.actuator_plugin[i])
-        start = int(model.plugin_attradr[instance])
-        values = _instance_values(model, instance)
-        offset = start
-        for k, raw in enumerate(values):
-            name = OPTIONAL_ATTRIBUTES[k - len(ATTRIBUTES)] if len(ATTRIBUTES) <= k < len(ATTRIBUTES) + len(OPTIONAL_ATTRIBUTES) else ""
-            if name in VALVE_OPTIONS and raw.strip() and float(raw) != 0:
-                edits.append((offset, len(raw)))
-            offset += len(raw) + 1
+    edits = [(offset, len(raw)) for i in hydraulic_actuators(model)
+             for name, offset, raw in _instance_fields(model, int(model.actuator_plugin[i]))
+             if name in VALVE_OPTIONS and raw.strip() and float(raw) != 0]
     if not edits:
         return model
     out = copy.copy(model)
@@ -314,10 +301,18 @@ def ideal_valve_model(model: mujoco.MjModel) -> mujoco.MjModel:
     return out
 
 
-def _instance_values(model: mujoco.MjModel, instance: int) -> list[bytes]:
+def _instance_fields(model: mujoco.MjModel, instance: int) -> list[tuple[str, int, bytes]]:
+    """(attribute name, offset in ``plugin_attr``, raw value) of each config attribute of an
+    instance. ``plugin_attr`` holds each instance's values NUL-separated, in the plugin's attribute
+    order (mj_getPluginConfig, which the Python bindings do not expose, reads it the same way)."""
     start = int(model.plugin_attradr[instance])
     end = int(model.plugin_attradr[instance + 1]) if instance + 1 < model.nplugin else len(model.plugin_attr)
-    return bytes(np.asarray(model.plugin_attr[start:end], dtype=np.uint8)).split(b"\0")
+    values = bytes(np.asarray(model.plugin_attr[start:end], dtype=np.uint8)).split(b"\0")
+    out, offset = [], start
+    for name, raw in zip((*ATTRIBUTES, *OPTIONAL_ATTRIBUTES), values):
+        out.append((name, offset, raw))
+        offset += len(raw) + 1
+    return out
 
 
 def _actuator_id(model: mujoco.MjModel, actuator: str | int) -> int:
