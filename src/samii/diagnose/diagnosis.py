@@ -281,6 +281,7 @@ def _effects(after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured:
     sample = _sample_delay_s(measured)
     added = [s for s in steps if not s.label.startswith("removed ")]
     swaps = [t for t in tried if t.get("round") == "swap"]
+    final_swaps = [t for t in swaps if not t.get("interim")]  # an earlier round's rival described an earlier model
     out = []
     used: set[int] = set()
 
@@ -305,7 +306,7 @@ def _effects(after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured:
                     f"{swap['chi2_current']:.4g} -> {swap['chi2']:.4g}" if swap else "kept by the joint refit")
         expected = False
         text = f"{k.describe(e.values)}; {test}"
-        rival = next((t for t in swaps if t["delta_in_noise"] < AMBIGUOUS_CHI2 and
+        rival = next((t for t in final_swaps if t["delta_in_noise"] < AMBIGUOUS_CHI2 and
                       ((t.get("swapped") and t["effect"] == k.label) or (not t.get("swapped") and t["alternative_to"] == k.label))), None)
         if rival is not None:
             other = rival["alternative_to"] if rival.get("swapped") else rival["effect"]

@@ -58,6 +58,8 @@ class EffectKind:
     """One hypothesis of the library.
 
     ``response(p, s) -> (M_act, M_base, A_base)`` with None for "no change".
+    ``derivatives(p, s) -> (d ln M_act/dp, d ln M_base/dp, d A_base/dp)``, each (points, parameters) or None
+    where the response has none: analytic, derived from the same laws (the fit's Jacobian is built from them).
     ``needs_fixed_baseline``: only identifiable when the baseline's parameters are not refitted.
     """
 
@@ -67,6 +69,7 @@ class EffectKind:
     params: tuple[Param, ...]
     response: Callable[[np.ndarray, np.ndarray], tuple]
     describe: Callable[[dict], str]
+    derivatives: Callable[[np.ndarray, np.ndarray], tuple]
     needs_fixed_baseline: bool = False
 
     @property
@@ -143,34 +146,102 @@ def _valve(p, s):
     return w * w / _second_order(s, f, z), None, None
 
 
+# -- derivatives: d ln M / dp for the factors, dA/dp for the added term (columns in the parameters' order) ----------
+
+def _col(*cols):
+    return np.stack(cols, axis=1)
+
+
+def _d_delay_command(p, s):
+    return _col(-s), None, None
+
+
+def _d_delay_theta(p, s):
+    return _col(-s), _col(s), None
+
+
+def _d_delay_accel(p, s):
+    return None, _col(-s), None
+
+
+def _d_base_mode(p, s):
+    f, z, b = p
+    w = TWO_PI * f
+    s2 = s * s
+    inv_d = 1.0 / _second_order(s, f, z)
+    t = s2 * s2 * inv_d
+    # A = b s^4 / D,  dD/df = 2 pi (2 z s + 2 w),  dD/dz = 2 w s
+    return None, None, _col(-b * t * inv_d * TWO_PI * (2.0 * z * s + 2.0 * w), -b * t * inv_d * 2.0 * w * s, t)
+
+
+def _d_act_mode(p, s):
+    fp, zp, fz, zz = p
+    wp, wz = TWO_PI * fp, TWO_PI * fz
+    inv_p, inv_z = 1.0 / _second_order(s, fp, zp), 1.0 / _second_order(s, fz, zz)
+    # ln M = 2 ln fp - 2 ln fz + ln D(fz, zz) - ln D(fp, zp)
+    return _col(2.0 / fp - TWO_PI * (2.0 * zp * s + 2.0 * wp) * inv_p, -2.0 * wp * s * inv_p,
+                -2.0 / fz + TWO_PI * (2.0 * zz * s + 2.0 * wz) * inv_z, 2.0 * wz * s * inv_z), None, None
+
+
+def _d_lowpass(p, s):
+    u = s / (TWO_PI * p[0])  # ln M = -ln(1 + u), du/df = -u/f
+    return None, _col(u / (p[0] * (1.0 + u))), None
+
+
+def _d_lowpass2(p, s):
+    w = TWO_PI * p[0]  # ln M = 2 ln w - ln(s^2 + sqrt2 w s + w^2)
+    return None, _col(TWO_PI * (2.0 / w - (np.sqrt(2.0) * s + 2.0 * w) / (s * s + np.sqrt(2.0) * w * s + w * w))), None
+
+
+def _d_highpass(p, s):
+    return None, _col(-TWO_PI / (s + TWO_PI * p[0])), None  # ln M = ln s - ln(s + w_h)
+
+
+def _d_gain(p, s):
+    return None, _col(np.full(s.shape, 1.0 / p[0], complex)), None
+
+
+def _d_pole_zero(p, s):
+    fz, fp = p
+    uz, up = s / (TWO_PI * fz), s / (TWO_PI * fp)  # ln M = ln(1 + uz) - ln(1 + up)
+    return _col(-uz / (fz * (1.0 + uz)), up / (fp * (1.0 + up))), None, None
+
+
+def _d_valve(p, s):
+    f, z = p
+    w = TWO_PI * f
+    inv_d = 1.0 / _second_order(s, f, z)  # ln M = 2 ln w - ln D
+    return _col(2.0 / f - TWO_PI * (2.0 * z * s + 2.0 * w) * inv_d, -2.0 * w * s * inv_d), None, None
+
+
 _DELAY = (Param("delay_s", "s", 0.0, 0.05, "lin"),)
 
 LIBRARY: tuple[EffectKind, ...] = (
     EffectKind("delay", "command", "act", _DELAY, _delay_command,
-               lambda v: f"the valve acts on the command {1e3 * v['delay_s']:.3g} ms late"),
+               lambda v: f"the valve acts on the command {1e3 * v['delay_s']:.3g} ms late", _d_delay_command),
     EffectKind("delay", "theta_sensor", "both", _DELAY, _delay_theta,
-               lambda v: f"theta is read {1e3 * v['delay_s']:.3g} ms late"),
+               lambda v: f"theta is read {1e3 * v['delay_s']:.3g} ms late", _d_delay_theta),
     EffectKind("delay", "accel_sensor", "base", _DELAY, _delay_accel,
-               lambda v: f"the acceleration is read {1e3 * v['delay_s']:.3g} ms late"),
+               lambda v: f"the acceleration is read {1e3 * v['delay_s']:.3g} ms late", _d_delay_accel),
     EffectKind("extra_mode", "base_mode", "base",
                (Param("freq_hz", "Hz", 0.01, 1000.0), Param("zeta", "1", 1e-4, 0.5), Param("residue", "(m/s^2)/rad s^4", -1e12, 1e12, "lin")),
-               _base_mode, lambda v: f"a base mode at {v['freq_hz']:.4g} Hz, damping {v['zeta']:.3g}, that the modal sum lacks"),
+               _base_mode, lambda v: f"a base mode at {v['freq_hz']:.4g} Hz, damping {v['zeta']:.3g}, that the modal sum lacks", _d_base_mode),
     EffectKind("extra_mode", "act_mode", "act",
                (Param("freq_hz", "Hz", 0.01, 1000.0), Param("zeta", "1", 1e-4, 0.5),
                 Param("zero_freq_hz", "Hz", 0.01, 1000.0), Param("zero_zeta", "1", 1e-4, 0.5)),
-               _act_mode, lambda v: f"a structural mode at {v['freq_hz']:.4g} Hz (antiresonance at {v['zero_freq_hz']:.4g} Hz) seen by the actuator"),
+               _act_mode, lambda v: f"a structural mode at {v['freq_hz']:.4g} Hz (antiresonance at {v['zero_freq_hz']:.4g} Hz) seen by the actuator", _d_act_mode),
     EffectKind("sensor", "accel_lowpass", "base", (Param("corner_hz", "Hz", 0.5, 1e4),), _lowpass,
-               lambda v: f"the accelerometer rolls off above {v['corner_hz']:.3g} Hz (first order)"),
+               lambda v: f"the accelerometer rolls off above {v['corner_hz']:.3g} Hz (first order)", _d_lowpass),
     EffectKind("sensor", "accel_lowpass2", "base", (Param("corner_hz", "Hz", 0.5, 1e4),), _lowpass2,
-               lambda v: f"the accelerometer's anti-alias filter rolls off above {v['corner_hz']:.3g} Hz (second-order Butterworth)"),
+               lambda v: f"the accelerometer's anti-alias filter rolls off above {v['corner_hz']:.3g} Hz (second-order Butterworth)", _d_lowpass2),
     EffectKind("sensor", "accel_highpass", "base", (Param("corner_hz", "Hz", 1e-4, 20.0),), _highpass,
-               lambda v: f"the accelerometer is AC coupled below {v['corner_hz']:.3g} Hz (first-order high-pass)"),
+               lambda v: f"the accelerometer is AC coupled below {v['corner_hz']:.3g} Hz (first-order high-pass)", _d_highpass),
     EffectKind("sensor", "accel_gain", "base", (Param("gain", "1", 0.01, 100.0),), _gain,
-               lambda v: f"the accelerometer reads {v['gain']:.4g} x the true acceleration", needs_fixed_baseline=True),
+               lambda v: f"the accelerometer reads {v['gain']:.4g} x the true acceleration", _d_gain, needs_fixed_baseline=True),
     EffectKind("actuator", "pole_zero", "act", (Param("zero_hz", "Hz", 0.01, 1e4), Param("pole_hz", "Hz", 0.01, 1e4)), _pole_zero,
-               lambda v: f"theta/v has an extra real zero at {v['zero_hz']:.3g} Hz and pole at {v['pole_hz']:.3g} Hz"),
+               lambda v: f"theta/v has an extra real zero at {v['zero_hz']:.3g} Hz and pole at {v['pole_hz']:.3g} Hz", _d_pole_zero),
     EffectKind("actuator", "valve", "act", (Param("freq_hz", "Hz", 1.0, 1e4), Param("zeta", "1", 0.05, 3.0)), _valve,
-               lambda v: f"valve dynamics: a second-order lag at {v['freq_hz']:.3g} Hz, damping {v['zeta']:.2g}"),
+               lambda v: f"valve dynamics: a second-order lag at {v['freq_hz']:.3g} Hz, damping {v['zeta']:.2g}", _d_valve),
 )
 
 

@@ -86,9 +86,6 @@ class Dataset:
             raise ValueError(f"{m.source}: no act or base channel to diagnose (has {', '.join(frf.channels)})")
         return cls(m.source, frf.freq_hz, data, keep, inv, known, float(m.corr_length), m.amplitude_v)
 
-    def s(self, ch: str) -> np.ndarray:
-        return 2j * np.pi * self.freq_hz[self.keep[ch]]
-
     @property
     def n_points(self) -> int:
         return int(sum(v.size for v in self.data.values()))
@@ -125,17 +122,6 @@ class Baseline:
             return corr.response(c)
         h = interpolate_frf(corr, f)[c]
         return np.where(np.isfinite(h), h, 1.0)
-
-    def responses(self, i: int, ds: Dataset, ch: str, x: np.ndarray | None) -> dict[str, np.ndarray]:
-        """act and/or base (as channel ``ch`` needs) at ``ch``'s usable points of dataset ``i``."""
-        need = {"act": ("act",), "base": ("base",), "total": ("act", "base")}[ch]
-        if self.fixed:
-            return {c: self.fixed[i][ch][c] for c in need}
-        w = ds.freq_hz[ds.keep[ch]] * 2 * np.pi
-        out = {c: self.structure.log_responses(x, w, (c,), derivatives=False)[c][0] for c in need}
-        if self.correction:
-            out = {c: h * self.factor(i, ds.freq_hz, c)[ds.keep[ch]] for c, h in out.items()}
-        return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -249,30 +235,156 @@ class _Layout:
         return np.array(lo), np.array(hi)
 
 
-def _evaluate(datasets, baseline: Baseline, layout: _Layout, z: np.ndarray, fixed_b: Sequence[np.ndarray]):
-    xs_b, xs_e = layout.from_z(z)
-    if not layout.nb:
-        xs_b = list(fixed_b)
-    eff = list(zip(layout.effects, xs_e))
-    res = []
-    for i, ds in enumerate(datasets):
-        r = {}
-        for ch in ds.data:
-            parts = _apply(eff, baseline.responses(i, ds, ch, xs_b[i] if xs_b else None), ds.s(ch))
-            model = parts["act"] * parts["base"] if ch == "total" else parts[ch]
-            r[ch] = np.log(ds.data[ch] / model)
-        res.append(r)
-    return res, xs_b, xs_e
+#: Which of the baseline's channels each fitted channel needs.
+_NEED = {"act": ("act",), "base": ("base",), "total": ("act", "base")}
 
 
-def _vector(datasets, res) -> np.ndarray:
-    parts = []
-    for ds, r in zip(datasets, res):
-        for ch, e in r.items():
-            w = ds.inv_sigma[ch]
-            parts.append(e.real * w)
-            parts.append(e.imag * w)
-    return np.concatenate(parts)
+@dataclass(frozen=True, eq=False)
+class _Block:
+    """One channel of one dataset, what its residual needs precomputed."""
+
+    i: int  # dataset
+    ch: str
+    w: np.ndarray  # angular frequencies of the usable points [rad/s]
+    data: np.ndarray
+    inv_sigma: np.ndarray
+    fixed: Mapping[str, np.ndarray] | None  # a fixed baseline's responses
+    factor: Mapping[str, np.ndarray]  # the baseline's correction on these points (empty: none)
+
+
+class _Problem:
+    """The weighted residual vector of a fit, ``[Re e, Im e] / sigma`` per dataset and channel
+    (module docstring), and its Jacobian in the optimiser's variables.
+
+    The Jacobian is analytic: the baseline structure gives ``d ln H / dx`` (eq 9.1/9.2 term by term,
+    or the simulator's sensitivity), each effect kind ``d ln M / dp`` and ``dA/dp``
+    (:mod:`samii.diagnose.effects`); with the additive term the base is ``(H c + A) M``, so
+    ``d ln base / dx = (d ln H / dx) H c / (H c + A)`` and ``d ln base / dp = d ln M / dp + (dA/dp) / (H c + A)``.
+    The residual is ``ln data - ln model``: its derivative is minus the model's."""
+
+    def __init__(self, datasets: Sequence[Dataset], baseline: Baseline, layout: _Layout, fixed_b: Sequence[np.ndarray]):
+        self.baseline, self.layout, self.fixed_b = baseline, layout, list(fixed_b)
+        self.blocks = []
+        for i, ds in enumerate(datasets):
+            for ch in ds.data:
+                k = ds.keep[ch]
+                factor = {}
+                if baseline.correction:
+                    factor = {c: np.broadcast_to(baseline.factor(i, ds.freq_hz, c), ds.freq_hz.shape)[k] for c in _NEED[ch]}
+                fixed = {c: baseline.fixed[i][ch][c] for c in _NEED[ch]} if baseline.fixed else None
+                self.blocks.append(_Block(i, ch, 2.0 * np.pi * ds.freq_hz[k], ds.data[ch], ds.inv_sigma[ch], fixed, factor))
+
+    def _model(self, blk: _Block, xb, eff, derivatives: bool):
+        """(model, d ln model / d(baseline x) or None, [d ln model / d(effect p)] or None) of one block."""
+        need = _NEED[blk.ch]
+        s = 1j * blk.w
+        if blk.fixed is not None:
+            h = dict(blk.fixed)
+            dh = dict.fromkeys(need)
+        else:
+            r = self.baseline.structure.log_responses(xb, blk.w, need, derivatives=derivatives)
+            h = {c: r[c][0] * blk.factor[c] if blk.factor else r[c][0] for c in need}
+            dh = {c: r[c][1] for c in need}
+        m_act = m_base = add = None
+        for kind, p in eff:
+            ma, mb, a = kind.response(p, s)
+            if ma is not None and "act" in h:
+                m_act = ma if m_act is None else m_act * ma
+            if mb is not None and "base" in h:
+                m_base = mb if m_base is None else m_base * mb
+            if a is not None and "base" in h:
+                add = a if add is None else add + a
+        model = 1.0
+        if "act" in h:
+            model = h["act"] if m_act is None else h["act"] * m_act
+        base_sum = None
+        if "base" in h:
+            base_sum = h["base"] if add is None else h["base"] + add
+            model = model * (base_sum if m_base is None else base_sum * m_base)
+        if not derivatives:
+            return model, None, None
+        d_b = None
+        if blk.fixed is None:
+            d_b = 0.0
+            if "act" in h:
+                d_b = d_b + dh["act"]
+            if "base" in h:
+                d_b = d_b + (dh["base"] if add is None else dh["base"] * (h["base"] / base_sum)[:, None])
+        d_e = []
+        for kind, p in eff:
+            da, db, dA = kind.derivatives(p, s)
+            col = np.zeros((s.size, len(kind.params)), complex)
+            if da is not None and "act" in h:
+                col += da
+            if "base" in h:
+                if db is not None:
+                    col += db
+                if dA is not None:
+                    col += dA / base_sum[:, None]
+            d_e.append(col)
+        return model, d_b, d_e
+
+    def _split(self, z):
+        xs_b, xs_e = self.layout.from_z(z)
+        if not self.layout.nb:
+            xs_b = self.fixed_b
+        return xs_b, xs_e
+
+    def evaluate(self, z: np.ndarray):
+        """(per dataset: channel -> complex residual ln(data/model), baseline vectors, effect vectors) at ``z``."""
+        xs_b, xs_e = self._split(z)
+        eff = list(zip(self.layout.effects, xs_e))
+        res: list[dict] = [{} for _ in range(max((b.i for b in self.blocks), default=-1) + 1)]
+        for blk in self.blocks:
+            model, _, _ = self._model(blk, xs_b[blk.i] if xs_b else None, eff, False)
+            res[blk.i][blk.ch] = np.log(blk.data / model)  # one log of the ratio: its phase wrapped to (-pi, pi]
+        return res, xs_b, xs_e
+
+    def vector(self, res) -> np.ndarray:
+        parts = []
+        for blk in self.blocks:
+            e = res[blk.i][blk.ch]
+            parts.append(e.real * blk.inv_sigma)
+            parts.append(e.imag * blk.inv_sigma)
+        return np.concatenate(parts)
+
+    def residuals(self, z: np.ndarray) -> np.ndarray:
+        """The weighted residual vector (non-finite entries as 1e6: a model with a pole on a point)."""
+        with np.errstate(all="ignore"):
+            v = self.vector(self.evaluate(z)[0])
+        return np.where(np.isfinite(v), v, 1e6)
+
+    def jacobian(self, z: np.ndarray) -> np.ndarray:
+        """d(residual vector)/dz, analytic (class docstring); rows whose residual is not finite are zero."""
+        lay = self.layout
+        xs_b, xs_e = self._split(z)
+        eff = list(zip(lay.effects, xs_e))
+        # dx/dz of every variable: x for a log-transformed one, the scale for a linear one
+        dxdz_b = [np.where(lay.pos, x, sc) for x, sc in zip(xs_b, lay.b_scale)] if lay.nb else []
+        dxdz_e = [np.array([v if p.transform == "log" else c for p, v, c in zip(k.params, x, sc)])
+                  for k, x, sc in zip(lay.effects, xs_e, lay.e_scale)]
+        n = z.size
+        e_start = lay.nb * lay.n_data
+        rows = []
+        with np.errstate(all="ignore"):
+            for blk in self.blocks:
+                xb = xs_b[blk.i] if xs_b else None
+                model, d_b, d_e = self._model(blk, xb, eff, True)
+                d = np.zeros((blk.w.size, n), complex)
+                if lay.nb:
+                    j0 = blk.i * lay.nb
+                    d[:, j0 : j0 + lay.nb] = d_b * dxdz_b[blk.i]
+                j = e_start
+                for col, f in zip(d_e, dxdz_e):
+                    d[:, j : j + f.size] = col * f
+                    j += f.size
+                d *= -blk.inv_sigma[:, None]
+                bad = ~np.isfinite(np.log(blk.data / model))
+                d[bad] = 0.0
+                rows.append(d.real)
+                rows.append(d.imag)
+        jac = np.concatenate(rows, axis=0) if rows else np.zeros((0, n))
+        return np.where(np.isfinite(jac), jac, 0.0)
 
 
 #: Singular values of the Jacobian below this fraction of the largest are directions the data do not determine.
@@ -282,7 +394,9 @@ NULL_RCOND = 1e-8
 def _standard_errors(jac: np.ndarray, s2: float) -> np.ndarray:
     """sqrt(diag(s2 (J'J)^-1)) in the determined directions; infinite for a parameter with a share in a
     direction the data do not determine (e.g. the base's parameters when a file has only theta/v)."""
-    _, sv, vt = np.linalg.svd(jac, full_matrices=False)
+    import scipy.linalg
+
+    _, sv, vt = scipy.linalg.svd(jac, full_matrices=False, check_finite=False)
     ok = sv > NULL_RCOND * (sv[0] if sv.size else 0.0)
     inv = np.where(ok, 1.0 / np.where(ok, sv, 1.0) ** 2, 0.0)
     se = np.sqrt(np.clip((vt.T**2) @ inv * s2, 0, None))
@@ -319,21 +433,15 @@ def fit_model(
     lo, hi = layout.bounds()
     with np.errstate(invalid="ignore"):
         z0 = np.clip(z0, np.where(np.isfinite(lo), lo + 1e-9 * (np.abs(lo) + 1), lo), np.where(np.isfinite(hi), hi - 1e-9 * (np.abs(hi) + 1), hi))
-    fixed_b = xb0
-
-    def fun(z):
-        with np.errstate(all="ignore"):
-            res, _, _ = _evaluate(datasets, baseline, layout, z, fixed_b)
-            v = _vector(datasets, res)
-        return np.where(np.isfinite(v), v, 1e6)
-
+    problem = _Problem(datasets, baseline, layout, xb0)
     if z0.size:
-        sol = least_squares(fun, z0, bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=max_nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10)
+        sol = least_squares(problem.residuals, z0, jac=problem.jacobian, bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=max_nfev,
+                            xtol=1e-8, ftol=1e-8, gtol=1e-8)
         z, jac = sol.x, sol.jac
     else:
         z, jac = z0, np.zeros((0, 0))
-    res, xs_b, xs_e = _evaluate(datasets, baseline, layout, z, fixed_b)
-    v = _vector(datasets, res)
+    res, xs_b, xs_e = problem.evaluate(z)
+    v = problem.vector(res)
     chi2 = float(v @ v)
     m, n = v.size, z.size
     corr = max(ds.corr_length for ds in datasets)

@@ -39,7 +39,6 @@ from dataclasses import dataclass, fields
 
 import mujoco
 import numpy as np
-from scipy import signal
 
 __all__ = ["FIELDS", "NUMERIC", "SensorDynamics", "SensorFilter"]
 
@@ -114,6 +113,8 @@ class SensorDynamics:
 
     # -- discrete filters at the physics rate ---------------------------------------------
     def _accel_sos(self, rate_hz: float) -> np.ndarray | None:
+        from scipy import signal  # here, not at import: scipy.signal takes ~0.7 s and every command imports this module
+
         sections = []
         if self.accel_lowpass_hz > 0:
             sections.append(signal.butter(1, self.accel_lowpass_hz, "low", fs=rate_hz, output="sos"))
@@ -137,6 +138,8 @@ class SensorDynamics:
         accel = _fir_response(_delay_fir(self.accel_delay_s * rate_hz), w)
         sos = self._accel_sos(rate_hz)
         if sos is not None:
+            from scipy import signal
+
             accel = accel * signal.sosfreqz(sos, worN=w)[1]
         else:
             accel = accel * self.accel_gain
@@ -183,14 +186,17 @@ class SensorFilter:
         self._accel_fir = _delay_fir(dynamics.accel_delay_s * rate_hz)
         self._sos = dynamics._accel_sos(rate_hz)
         self._state: dict[str, np.ndarray] = {}
+        from scipy import signal
+
+        self._signal = signal
 
     def _fir(self, key: str, taps: np.ndarray, x: np.ndarray) -> np.ndarray:
         if taps.size == 1:
             return x * taps[0]
         zi = self._state.get(key)
         if zi is None:
-            zi = signal.lfilter_zi(taps, [1.0]) * x[0]
-        y, self._state[key] = signal.lfilter(taps, [1.0], x, zi=zi)
+            zi = self._signal.lfilter_zi(taps, [1.0]) * x[0]
+        y, self._state[key] = self._signal.lfilter(taps, [1.0], x, zi=zi)
         return y
 
     def process(self, columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -206,7 +212,7 @@ class SensorFilter:
             else:
                 zi = self._state.get("sos")
                 if zi is None:
-                    zi = signal.sosfilt_zi(self._sos) * x[0]
-                x, self._state["sos"] = signal.sosfilt(self._sos, x, zi=zi)
+                    zi = self._signal.sosfilt_zi(self._sos) * x[0]
+                x, self._state["sos"] = self._signal.sosfilt(self._sos, x, zi=zi)
             out["accel"] = x
         return out
