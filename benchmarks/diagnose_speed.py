@@ -57,10 +57,16 @@ def sweep() -> SweptSine:
 
 def write_case(folder: Path, name: str, effects: dict, seed: int) -> Path:
     rng = np.random.default_rng(seed)
-    params = {k: v * (1.0 + 0.15 * rng.uniform(-1.0, 1.0)) for k, v in EQ9_4.items()}
+    while True:  # drawn again while the position loop is unstable (no rig can be measured so)
+        rig = EffectRig(params={k: v * (1.0 + 0.15 * rng.uniform(-1.0, 1.0)) for k, v in EQ9_4.items()}, **effects)
+        try:
+            rig.check_stable()
+            break
+        except ValueError:
+            continue
     sw = sweep()
     r = sw.signal(np.arange(int(round(sw.duration_s * FS))) / FS)
-    ts = EffectRig(params=params, **effects).simulate(r, sample_rate_hz=FS, rng=rng, metadata={})
+    ts = rig.simulate(r, sample_rate_hz=FS, rng=rng, metadata={})
     path = folder / (name.replace(" ", "_").replace("+", "and") + ".csv")
     write_timeseries_csv(ts, path)
     return path

@@ -155,8 +155,34 @@ class EffectRig:
             ma = ma * signal.freqs(b, a, 2 * np.pi * f)[1]
         return ma, np.exp(-s * self.theta_delay_s)
 
+    def closed_loop_poles(self, pade_order: int = 8) -> np.ndarray:
+        """Poles [1/s] of the position loop ``theta/r = G/(1 + Kp G)`` with the linear plant (the valve
+        nonlinearity left out), the command delay as a Pade approximant of ``pade_order`` (exact to far above
+        the loop's crossover for the delays here: a phase error below 1e-6 rad at 8 ms and 40 Hz)."""
+        import control
+
+        from samii.identify.structures import ModelStructure
+
+        g = ModelStructure.notebook_3mode().to_tf(self._p(), "act") * DEG
+        num, den = self._loop_polys()
+        g = g * control.tf(num, den)
+        if self.command_delay_s > 0:
+            g = g * control.tf(*control.pade(self.command_delay_s, pade_order))
+        return np.asarray(control.poles(control.feedback(self.position_gain_v_per_rad * g, 1)))
+
+    def check_stable(self) -> None:
+        """Raise ``ValueError`` if the position loop is unstable: no rig can be measured so, and the
+        frequency-domain response of an unstable loop is not its time response (it wraps around in time)."""
+        worst = self.closed_loop_poles()
+        worst = worst[np.argmax(worst.real)]
+        if worst.real >= 0:
+            raise ValueError(f"EffectRig: the position loop (Kp = {self.position_gain_v_per_rad:.4g} V/rad) is unstable with these "
+                             f"parameters: a closed-loop pole at {worst.real:.3g} {worst.imag:+.3g}j 1/s")
+
     def simulate(self, r: np.ndarray, *, sample_rate_hz: float, rng: np.random.Generator | None = None, metadata: dict | None = None) -> TimeSeries:
-        """Closed-loop response to the rest-to-rest excitation ``r`` [V], with sensor noise when ``rng`` is given."""
+        """Closed-loop response to the rest-to-rest excitation ``r`` [V], with sensor noise when ``rng`` is given.
+        Refuses a rig whose position loop is unstable (:meth:`check_stable`)."""
+        self.check_stable()
         r = np.asarray(r, float)
         n = r.size
         nfft = scipy.fft.next_fast_len(2 * n, real=True)
