@@ -57,13 +57,15 @@ def sweep() -> SweptSine:
 
 def write_case(folder: Path, name: str, effects: dict, seed: int) -> Path:
     rng = np.random.default_rng(seed)
-    while True:  # drawn again while the position loop is unstable (no rig can be measured so)
+    for _ in range(100):  # drawn again while the position loop is unstable (no rig can be measured so)
         rig = EffectRig(params={k: v * (1.0 + 0.15 * rng.uniform(-1.0, 1.0)) for k, v in EQ9_4.items()}, **effects)
         try:
             rig.check_stable()
             break
         except ValueError:
             continue
+    else:
+        raise SystemExit(f"{name}: no stable rig in 100 draws")
     sw = sweep()
     r = sw.signal(np.arange(int(round(sw.duration_s * FS))) / FS)
     ts = rig.simulate(r, sample_rate_hz=FS, rng=rng, metadata={})

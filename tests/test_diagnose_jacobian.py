@@ -74,7 +74,7 @@ def _effects():
             (KINDS["actuator/valve"], np.array([60.0, 0.7]))]
 
 
-def _check(datasets, baseline, effects, free, xb):
+def _check(datasets, baseline, effects, free, xb, every_column=True):
     kinds = [k for k, _ in effects]
     xe = [v for _, v in effects]
     layout = _Layout(baseline, len(datasets), kinds, xb, xe, free)
@@ -84,7 +84,11 @@ def _check(datasets, baseline, effects, free, xb):
     numeric = approx_derivative(problem.residuals, z, method="3-point", rel_step=1e-6)
     assert analytic.shape == numeric.shape == (problem.residuals(z).size, z.size)
     scale = np.max(np.abs(numeric), axis=0)
-    assert np.all(scale > 0)
+    if every_column:
+        assert np.all(scale > 0)
+    # a column the data do not depend on (the actuator's parameters for xdd/theta alone, a theta delay in xdd/v,
+    # where it cancels) is zero analytically and round-off numerically: judged against the largest column
+    scale = np.maximum(scale, 1e-5 * scale.max())
     assert np.max(np.abs(analytic - numeric) / scale) < 1e-6
 
 
@@ -145,3 +149,24 @@ def test_fit_recovers_effects_with_the_analytic_jacobian():
     assert fit.chi2 < 1e-12
     assert fit.effects[0].values["delay_s"] == pytest.approx(0.004, rel=1e-6)
     assert fit.effects[1].values["corner_hz"] == pytest.approx(30.0, rel=1e-6)
+
+
+@pytest.mark.parametrize("channels", [("act",), ("base",), ("total",), ("act", "base"), ("base", "total")])
+def test_fit_jacobian_every_channel_set_every_kind(channels):
+    """One or two channels of a file, every kind of the library at once (two extra base modes among them), in a
+    shuffled order, the baseline free: the Jacobian still equals central differences (each kind's derivative
+    enters only the channels it affects)."""
+    rng = np.random.default_rng(5)
+    f = np.geomspace(0.2, 40.0, 80)
+    st = ModelStructure.notebook_3mode()
+    ref = notebook_reference()
+    data, keep, inv = {}, {}, {}
+    for ch in channels:
+        h = st.response(ref, f, ch) * np.exp(0.03 * (rng.standard_normal(f.size) + 1j * rng.standard_normal(f.size)))
+        data[ch], keep[ch], inv[ch] = h, np.ones(f.size, bool), np.full(f.size, 1 / 0.03)
+    ds = Dataset("one", f, data, keep, inv, True, 1.0, 0.1)
+    effects = [(k, _values(k)) for k in LIBRARY if not k.needs_fixed_baseline]
+    effects.append((KINDS["extra_mode/base_mode"], np.array([27.0, 0.04, -0.005])))
+    effects = [effects[i] for i in rng.permutation(len(effects))]
+    bl = Baseline(structure=st, params=(ref,), reference=ref)
+    _check([ds], bl, effects, True, [st.vector(ref) * 1.02], every_column=False)

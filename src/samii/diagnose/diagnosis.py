@@ -301,7 +301,7 @@ def _effects(after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured:
             test = (f"adding it lowers chi2 from {s.chi2_before:.4g} to {s.chi2_after:.4g} for {s.dof[0]} parameter(s): "
                     f"F = {s.f_stat:.3g} on ({s.dof[0]}, {s.dof[1]}) dof, {p}")
         else:
-            swap = next((t for t in swaps if t.get("swapped") and t["effect"] == k.label), None)
+            swap = next((t for t in reversed(swaps) if t.get("swapped") and t["effect"] == k.label), None)  # the latest
             test = (f"it replaced {swap['alternative_to']}, which had joined by F-test, with no more parameters: chi2 "
                     f"{swap['chi2_current']:.4g} -> {swap['chi2']:.4g}" if swap else "kept by the joint refit")
         expected = False

@@ -282,7 +282,8 @@ class _Problem:
             h = dict(blk.fixed)
             dh = dict.fromkeys(need)
         else:
-            r = self.baseline.structure.log_responses(xb, blk.w, need, derivatives=derivatives)
+            # the baseline's derivatives only when it is fitted (held, as in a candidate's first fit, they go unused)
+            r = self.baseline.structure.log_responses(xb, blk.w, need, derivatives=derivatives and self.layout.nb > 0)
             h = {c: r[c][0] * blk.factor[c] if blk.factor else r[c][0] for c in need}
             dh = {c: r[c][1] for c in need}
         m_act = m_base = add = None
@@ -304,7 +305,7 @@ class _Problem:
         if not derivatives:
             return model, None, None
         d_b = None
-        if blk.fixed is None:
+        if blk.fixed is None and self.layout.nb:
             d_b = 0.0
             if "act" in h:
                 d_b = d_b + dh["act"]

@@ -30,7 +30,8 @@ battery's stable linear rigs the term changed no verdict: 0 significant
 segments in 24 files either way; it matters where the FRF is noisier than
 the records, few averages or low coherence.) ``|mean D_k|^2 /
 (var_records/n + var_G)`` is F(2, dof) under linearity (dof by
-Welch-Satterthwaite from the segments actually pooled and the draws); a segment
+Welch-Satterthwaite, the FRF's share counted with the records' dof: it was
+estimated from them); a segment
 is significant at ``ALPHA`` / (segments x harmonics) (Bonferroni) and *material* when ``|D_k| / |V_1|`` is at least
 ``MATERIAL`` (1 %, -40 dB: below that no linear model's fit is affected
 beyond what a rig's own small nonlinearities, the orifice law's among them,
@@ -282,11 +283,15 @@ def _interp_response(freq_hz: np.ndarray, h: np.ndarray, f: np.ndarray) -> np.nd
     at 2-3 f, where the test looks for harmonics."""
     from scipy.interpolate import CubicSpline
 
-    lf = np.log(freq_hz)
     x = np.log(np.asarray(f, float))
     out = np.full(x.shape, np.nan, complex)
+    h = np.asarray(h, complex)
+    good = np.isfinite(h) & (h != 0) & np.isfinite(freq_hz) & (np.asarray(freq_hz) > 0)  # a zero or NaN point has no log
+    lf, h = np.log(np.asarray(freq_hz, float)[good]), h[good]
+    if lf.size < 2:
+        return out
     inside = (x >= lf[0]) & (x <= lf[-1])
-    if lf.size < 2 or not inside.any():
+    if not inside.any():
         return out
     mag = CubicSpline(lf, np.log(np.abs(h)))(x[inside])
     ph = CubicSpline(lf, np.unwrap(np.angle(h)))(x[inside])
@@ -346,7 +351,7 @@ def harmonic_analysis(m, *, alpha: float = ALPHA) -> HarmonicAnalysis | None:
     v_cut = ts.v[i_first:i_end]
     V = np.fft.rfft(v_cut - np.mean(v_cut), nfft)
     sigs = {"v": ts.v}
-    draws: dict[str, int] = {}  # route -> draws of the FRF's error propagated (class docstring of the test below)
+    draws: dict[str, int] = {}  # route -> draws of the FRF's error propagated (module docstring)
     rng = np.random.default_rng(0)  # the draws are part of the method: the same file gives the same answer
     f_pos = np.where(fgrid > 0, fgrid, 1.0)
 
@@ -450,10 +455,13 @@ def harmonic_analysis(m, *, alpha: float = ALPHA) -> HarmonicAnalysis | None:
             ratio[k] = d_mean * frame / np.abs(v1_mean)
             ratio_sd[k] = np.sqrt(d_var / 2.0) / np.abs(v1_mean)  # per real part
             stat = np.abs(d_mean) ** 2 / d_var
-            # degrees of freedom of the sum of the two variance estimates (Welch-Satterthwaite)
+            # degrees of freedom of the sum of the two variance estimates (Welch-Satterthwaite). The FRF's variance
+            # was itself estimated from the same records' spread: it carries no more information than they do, so
+            # its share counts with the records' dof, not with the number of draws (that overstated the dof up to
+            # 150 and made p-values of strong segments 10^-45 instead of 10^-21)
             a, b = pooled / n, np.where(np.isfinite(h_var), h_var, 0.0)
-            dof_a, dof_b = 2.0 * (n - 1) * count, 2.0 * (H_DRAWS - 1) * np.maximum(h_count, 1.0)
-            dof = (a + b) ** 2 / (a * a / np.maximum(dof_a, 1e-12) + b * b / dof_b)
+            dof_a = 2.0 * (n - 1) * count
+            dof = (a + b) ** 2 / ((a * a + b * b) / np.maximum(dof_a, 1e-12))
         test = strong & np.isfinite(stat) & (count > 0) & np.isfinite(dof)
         p = np.full(stat.shape, np.nan)
         p[test] = stats.f.logsf(stat[test], 2, dof[test]) / np.log(10.0)
