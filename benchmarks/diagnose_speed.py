@@ -34,7 +34,6 @@ from samii.diagnose.measured import load
 from samii.diagnose.rig import EffectRig
 from samii.measure.excitation import SweptSine
 from samii.measure.io import write_timeseries_csv
-from samii.notebook import EQ9_4
 
 FS = 1000.0
 GOAL_S = 20.0
@@ -57,15 +56,7 @@ def sweep() -> SweptSine:
 
 def write_case(folder: Path, name: str, effects: dict, seed: int) -> Path:
     rng = np.random.default_rng(seed)
-    for _ in range(100):  # drawn again while the position loop is unstable (no rig can be measured so)
-        rig = EffectRig(params={k: v * (1.0 + 0.15 * rng.uniform(-1.0, 1.0)) for k, v in EQ9_4.items()}, **effects)
-        try:
-            rig.check_stable()
-            break
-        except ValueError:
-            continue
-    else:
-        raise SystemExit(f"{name}: no stable rig in 100 draws")
+    rig = EffectRig.drawn(rng, spread=0.15, **effects)  # drawn again while the position loop is unstable
     sw = sweep()
     r = sw.signal(np.arange(int(round(sw.duration_s * FS))) / FS)
     ts = rig.simulate(r, sample_rate_hz=FS, rng=rng, metadata={})

@@ -33,7 +33,6 @@ from samii.diagnose.diagnosis import diagnose
 from samii.diagnose.measured import from_timeseries
 from samii.diagnose.rig import EffectRig
 from samii.measure.excitation import SweptSine
-from samii.notebook import EQ9_4
 
 HERE = Path(__file__).resolve().parent
 FS = 1000.0
@@ -95,29 +94,6 @@ TOLERANCE = {("delay", "delay_s"): ("abs", 5e-4), ("extra_mode", "freq_hz"): ("r
              ("nonlinear", "hysteresis_v"): ("rel", 0.15)}
 
 
-def _rig_params(rng: np.random.Generator) -> dict:
-    return {k: v * (1.0 + SPREAD * rng.uniform(-1.0, 1.0)) for k, v in EQ9_4.items()}
-
-
-#: Draws of a rig's parameters before giving up on an effect set no draw survives.
-MAX_DRAWS = 100
-
-
-def _stable_rig(rng: np.random.Generator, **effects) -> EffectRig:
-    """A rig with parameters drawn by :func:`_rig_params` and the effects, drawn again while its position loop is
-    unstable. About 7 % of draws are with no effect at all (eq 9.4's loop has a gain margin of only 3.04 at the
-    actuator's 8.9 Hz resonance, against 71.5 deg of phase margin), 11 % with a 4 ms delay, 15 % with 8 ms."""
-    last = None
-    for _ in range(MAX_DRAWS):
-        rig = EffectRig(params=_rig_params(rng), **effects)
-        try:
-            rig.check_stable()
-            return rig
-        except ValueError as exc:
-            last = exc
-    raise ValueError(f"no stable rig in {MAX_DRAWS} draws with {effects}: {last}")
-
-
 #: --long: three 120 s sweeps (6 minutes in all, issue 11 item 7's file) instead of samii measure's 84 s
 LONG_SWEEP = {"seconds_per_octave": 8.0, "cycles_per_octave": 4.0}
 _SWEEP_KW: dict = {}
@@ -154,7 +130,7 @@ def match_injected(found: list, injected: list, tolerance: dict = TOLERANCE) -> 
 
 def run_case(name: str, effects: dict, injected: list, *, amplitude_v: float | tuple, seed: int) -> dict:
     rng = np.random.default_rng(seed)
-    rig = _stable_rig(rng, **effects)
+    rig = EffectRig.drawn(rng, spread=SPREAD, **effects)
     amps = tuple(amplitude_v) if isinstance(amplitude_v, (tuple, list)) else (amplitude_v,)
     files = [from_timeseries(rig.simulate(_sweep(a), sample_rate_hz=FS, rng=rng), source=f"{name} @ {a:g} V") for a in amps]
     t0 = time.perf_counter()

@@ -142,24 +142,30 @@ class Fit:
         return max(self.n_residuals - self.n_params, 1)
 
 
-def _apply(effects: Sequence[tuple[EffectKind, np.ndarray]], base: dict[str, np.ndarray], s: np.ndarray) -> dict[str, np.ndarray]:
-    """The baseline's act and/or base at the points ``s`` with the effects applied (module docstring of effects)."""
-    out = dict(base)
-    add = None
-    mult = {"act": None, "base": None}
+def _effect_factors(effects: Sequence[tuple[EffectKind, np.ndarray]], s: np.ndarray) -> tuple:
+    """(M_act, M_base, A_base) of all the effects together at the points ``s``: the products of their factors and
+    the sum of their added terms (module docstring of effects), each None where no effect has one."""
+    m_act = m_base = add = None
     for kind, p in effects:
-        m_act, m_base, a_base = kind.response(p, s)
-        if m_act is not None and "act" in out:
-            mult["act"] = m_act if mult["act"] is None else mult["act"] * m_act
-        if m_base is not None and "base" in out:
-            mult["base"] = m_base if mult["base"] is None else mult["base"] * m_base
-        if a_base is not None:
-            add = a_base if add is None else add + a_base
-    if "base" in out and add is not None:
-        out["base"] = out["base"] + add
-    for ch in ("act", "base"):
-        if ch in out and mult[ch] is not None:
-            out[ch] = out[ch] * mult[ch]
+        ma, mb, a = kind.response(p, s)
+        if ma is not None:
+            m_act = ma if m_act is None else m_act * ma
+        if mb is not None:
+            m_base = mb if m_base is None else m_base * mb
+        if a is not None:
+            add = a if add is None else add + a
+    return m_act, m_base, add
+
+
+def _apply(effects: Sequence[tuple[EffectKind, np.ndarray]], base: dict[str, np.ndarray], s: np.ndarray) -> dict[str, np.ndarray]:
+    """The baseline's act and/or base at the points ``s`` with the effects applied: act M_act, (base + A_base) M_base."""
+    m_act, m_base, add = _effect_factors(effects, s)
+    out = dict(base)
+    if "act" in out and m_act is not None:
+        out["act"] = out["act"] * m_act
+    if "base" in out:
+        b = out["base"] if add is None else out["base"] + add
+        out["base"] = b if m_base is None else b * m_base
     return out
 
 
@@ -286,15 +292,7 @@ class _Problem:
             r = self.baseline.structure.log_responses(xb, blk.w, need, derivatives=derivatives and self.layout.nb > 0)
             h = {c: r[c][0] * blk.factor[c] if blk.factor else r[c][0] for c in need}
             dh = {c: r[c][1] for c in need}
-        m_act = m_base = add = None
-        for kind, p in eff:
-            ma, mb, a = kind.response(p, s)
-            if ma is not None and "act" in h:
-                m_act = ma if m_act is None else m_act * ma
-            if mb is not None and "base" in h:
-                m_base = mb if m_base is None else m_base * mb
-            if a is not None and "base" in h:
-                add = a if add is None else add + a
+        m_act, m_base, add = _effect_factors(eff, s)
         model = 1.0
         if "act" in h:
             model = h["act"] if m_act is None else h["act"] * m_act

@@ -351,7 +351,7 @@ def harmonic_analysis(m, *, alpha: float = ALPHA) -> HarmonicAnalysis | None:
     v_cut = ts.v[i_first:i_end]
     V = np.fft.rfft(v_cut - np.mean(v_cut), nfft)
     sigs = {"v": ts.v}
-    draws: dict[str, int] = {}  # route -> draws of the FRF's error propagated (module docstring)
+    drawn: set[str] = set()  # routes whose FRF error is drawn (module docstring)
     rng = np.random.default_rng(0)  # the draws are part of the method: the same file gives the same answer
     f_pos = np.where(fgrid > 0, fgrid, 1.0)
 
@@ -376,7 +376,7 @@ def harmonic_analysis(m, *, alpha: float = ALPHA) -> HarmonicAnalysis | None:
         for j in range(H_DRAWS):
             eta = sd * (rng.standard_normal(sd.size) + 1j * rng.standard_normal(sd.size))
             sigs[f"d_{sig}#{j}"] = referred(Y, h_grid * np.exp(eta))
-        draws[sig] = H_DRAWS
+        drawn.add(sig)
     ks = (1,) + HARMONICS
     per_record, per_cycle, cycle_f = [], [], None
     phi0 = None
@@ -440,7 +440,7 @@ def harmonic_analysis(m, *, alpha: float = ALPHA) -> HarmonicAnalysis | None:
         # the FRF's error referred: the spread of the record mean over the draws (each route drawn on its own)
         h_var = np.zeros(comb.shape[1])
         h_count = np.zeros(comb.shape[1])
-        if draws and len(draws) == len(routes):
+        if len(drawn) == len(routes):
             means = []
             for j in range(H_DRAWS):
                 dj = np.array([np.where(k * seg_f[None, :] <= top, amp[f"d_{sig}#{j}"][:, :, jk], np.nan) for sig, _ in routes])

@@ -91,7 +91,8 @@ def residual_figure(d: Diagnosis, path=None):
             _clip(ax)
         ax_m.legend(fontsize=8, loc="best")
     found = ", ".join(f"{e.category}/{e.kind}" + (" (expected)" if e.expected else "") for e in d.effects) or "none"
-    return _finish(fig, f"Diagnosis: {d.verdict}; effects: {found}" + ("; red: unexplained" if d.unexplained else ""), path, fontsize=11)
+    title = f"Diagnosis: effects found: {found}" if d.effects else "Diagnosis: no effect found"
+    return _finish(fig, title + ("; red: unexplained" if d.unexplained else ""), path, fontsize=11)
 
 
 def _clip(ax) -> None:
@@ -101,6 +102,30 @@ def _clip(ax) -> None:
         lo, hi = np.percentile(ys, [1, 99])
         pad = 0.3 * (hi - lo) + 1e-3
         ax.set_ylim(lo - pad, hi + pad)
+
+
+def _before_after(ax_m, ax_p, f_before, before, f_after, after, ph_after, color, before_label: str, after_label: str) -> None:
+    """A model before (dashed grey) and after (solid ``color``) on a magnitude and a phase axis; the before's phase
+    shifted by whole turns to start where the after's unwrapped phase ``ph_after`` does."""
+    ph_before = np.unwrap(np.angle(before))
+    ph_before = ph_before + (_near(ph_before[0], ph_after[0]) - ph_before[0])
+    ax_m.plot(f_before, _DB * np.log(np.abs(before)), "--", color="0.35", lw=1.0, label=before_label)
+    ax_p.plot(f_before, _DEG * ph_before, "--", color="0.35", lw=1.0)
+    ax_m.plot(f_after, _DB * np.log(np.abs(after)), "-", color=color, lw=1.2, label=after_label)
+    ax_p.plot(f_after, _DEG * ph_after, "-", color=color, lw=1.2)
+
+
+def _label_bode(axes, chans) -> None:
+    """Titles (channel and unit), axis labels, log frequency and a legend on a 2 x channels Bode grid."""
+    for col, ch in enumerate(chans):
+        axes[0, col].set_title(f"{_NAMES[ch]} [{_UNITS[ch]}]", fontsize=10)
+        axes[0, col].set_ylabel("magnitude [dB]")
+        axes[1, col].set_ylabel("phase [deg]")
+        axes[1, col].set_xlabel("frequency [Hz]")
+    for ax in axes.ravel():
+        ax.set_xscale("log")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0, 0].legend(fontsize=8, loc="best")
 
 
 def bode_figure(d: Diagnosis, path=None):
@@ -139,20 +164,8 @@ def bode_figure(d: Diagnosis, path=None):
             divided = " (nonlinearity divided out)" if d.raw_measured is not None and ch != "base" else ""
             ax_m.plot(f[ok], _DB * np.log(np.abs(h[ok])), ".", ms=2.5, color=c, alpha=0.6, label=f"data{divided}{tag}")
             ax_p.plot(f[ok], _DEG * ph_data, ".", ms=2.5, color=c, alpha=0.6)
-            ph_b = np.unwrap(np.angle(mb[ch]))
-            ph_b = ph_b + (_near(ph_b[0], ph_model[0]) - ph_b[0])
-            ax_m.plot(fm, _DB * np.log(np.abs(mb[ch])), "--", color="0.35", lw=1.0, label=f"baseline{tag}")
-            ax_p.plot(fm, _DEG * ph_b, "--", color="0.35", lw=1.0)
-            ax_m.plot(fm, _DB * np.log(np.abs(ref)), "-", color=c, lw=1.2, label=f"with the effects{tag}")
-            ax_p.plot(fm, _DEG * ph_model, "-", color=c, lw=1.2)
-            ax_m.set_title(f"{_NAMES[ch]} [{_UNITS[ch]}]", fontsize=10)
-            ax_m.set_ylabel("magnitude [dB]")
-            ax_p.set_ylabel("phase [deg]")
-            ax_p.set_xlabel("frequency [Hz]")
-    for ax in axes.ravel():
-        ax.set_xscale("log")
-        ax.grid(True, which="both", alpha=0.3)
-    axes[0, 0].legend(fontsize=8, loc="best")
+            _before_after(ax_m, ax_p, fm, mb[ch], fm, ref, ph_model, c, f"baseline{tag}", f"with the effects{tag}")
+    _label_bode(axes, chans)
     return _finish(fig, "Data, baseline and the model with the effects found", path, fontsize=11)
 
 
@@ -232,24 +245,11 @@ def simulator_figure(d: Diagnosis, path=None):
             ok = usable[i].keep[ch] if ch in usable[i].keep else np.ones(h.size, bool)
             ph_after = np.unwrap(np.angle(after.response(ch)))
             ph_data = _near(np.angle(h[ok]), np.interp(m.frf.freq_hz[ok], after.freq_hz, ph_after))
-            ph_before = np.unwrap(np.angle(before.response(ch)))
-            ph_before = ph_before + (_near(ph_before[0], ph_after[0]) - ph_before[0])
             ax_m.plot(m.frf.freq_hz[ok], _DB * np.log(np.abs(h[ok])), ".", ms=2.5, color=c, alpha=0.5, label=f"data{tag}")
             ax_p.plot(m.frf.freq_hz[ok], _DEG * ph_data, ".", ms=2.5, color=c, alpha=0.5)
-            ax_m.plot(before.freq_hz, _DB * np.log(np.abs(before.response(ch))), "--", color="0.35", lw=1.0,
-                      label=f"simulator, calibrated{tag}")
-            ax_p.plot(before.freq_hz, _DEG * ph_before, "--", color="0.35", lw=1.0)
-            ax_m.plot(after.freq_hz, _DB * np.log(np.abs(after.response(ch))), "-", color=c, lw=1.2,
-                      label=f"simulator with the effects{tag}")
-            ax_p.plot(after.freq_hz, _DEG * ph_after, "-", color=c, lw=1.2)
-            ax_m.set_title(f"{_NAMES[ch]} [{_UNITS[ch]}]", fontsize=10)
-            ax_m.set_ylabel("magnitude [dB]")
-            ax_p.set_ylabel("phase [deg]")
-            ax_p.set_xlabel("frequency [Hz]")
-    for ax in axes.ravel():
-        ax.set_xscale("log")
-        ax.grid(True, which="both", alpha=0.3)
-    axes[0, 0].legend(fontsize=8, loc="best")
+            _before_after(ax_m, ax_p, before.freq_hz, before.response(ch), after.freq_hz, after.response(ch), ph_after, c,
+                          f"simulator, calibrated{tag}", f"simulator with the effects{tag}")
+    _label_bode(axes, chans)
     carried = ", ".join(rep.carried) or "nothing carried"
     return _finish(fig, f"The simulator measured like the data: before and after carrying in {carried}\n"
                    "(points: those the diagnosis uses, where the data's noise is small enough)", path, fontsize=11)

@@ -186,17 +186,16 @@ class SensorFilter:
         self._accel_fir = _delay_fir(dynamics.accel_delay_s * rate_hz)
         self._sos = dynamics._accel_sos(rate_hz)
         self._state: dict[str, np.ndarray] = {}
-        from scipy import signal
-
-        self._signal = signal
 
     def _fir(self, key: str, taps: np.ndarray, x: np.ndarray) -> np.ndarray:
         if taps.size == 1:
             return x * taps[0]
+        from scipy import signal
+
         zi = self._state.get(key)
         if zi is None:
-            zi = self._signal.lfilter_zi(taps, [1.0]) * x[0]
-        y, self._state[key] = self._signal.lfilter(taps, [1.0], x, zi=zi)
+            zi = signal.lfilter_zi(taps, [1.0]) * x[0]
+        y, self._state[key] = signal.lfilter(taps, [1.0], x, zi=zi)
         return y
 
     def process(self, columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -210,9 +209,11 @@ class SensorFilter:
             if self._sos is None:
                 x = x * self.dynamics.accel_gain
             else:
+                from scipy import signal
+
                 zi = self._state.get("sos")
                 if zi is None:
-                    zi = self._signal.sosfilt_zi(self._sos) * x[0]
-                x, self._state["sos"] = self._signal.sosfilt(self._sos, x, zi=zi)
+                    zi = signal.sosfilt_zi(self._sos) * x[0]
+                x, self._state["sos"] = signal.sosfilt(self._sos, x, zi=zi)
             out["accel"] = x
         return out
