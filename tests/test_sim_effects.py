@@ -330,3 +330,68 @@ def test_the_ideal_valve_copy_keeps_the_whole_state():
     assert out[card.layout.enabled_index()] == 0.0
     assert np.array_equal(out[card.layout.buffer_slice()], off[card.layout.buffer_slice()])
     assert np.array_equal(out[:card.layout.plugin_adr], off[:card.layout.plugin_adr])
+
+
+# ------------------------------------------------------------------------------------------------
+# a body on a compliant mount at the beam's end (an extra structural mode)
+
+TIP_BODY = {"beam.tip_body_mass_kg": 0.5, "beam.tip_body_freq_hz": 15.0}
+
+
+def test_tip_body_absent_by_default_and_an_old_parameter_file_loads():
+    assert default_params().beam.tip_body_mass_kg == 0
+    assert "tip_body" not in samii_xml(default_params())
+    d = json.loads(json.dumps(default_params().as_dict()))
+    for name in ("tip_body_mass_kg", "tip_body_freq_hz", "tip_body_damping_ratio"):
+        del d["beam"][name]
+    assert params_from_dict(d, complete=True) == default_params()
+
+
+def test_tip_body_is_a_vibration_absorber_at_its_mount_frequency():
+    """Undamped, the mount's dynamic mass m w_a^2 / (w_a^2 - w^2) is infinite at w_a, so the section it
+    is fixed to stands still there: with the accelerometer on that section (``accel_offset_m`` 0),
+    xdd/theta has a zero at the mount's frequency whatever the mass (measured 15.007 Hz, 54 dB
+    deep, for 0.5 kg). The embedded model's accelerometer sits 0.26 m beyond the beam's end on the
+    post, where the tip's rotation adds to its motion: its notch moves with the mass (14.92 Hz
+    for 2 kg)."""
+    from samii.measure.campaign import linearised_frf
+
+    f = np.linspace(14.0, 16.0, 2001)
+    for mass in (0.2, 2.0):
+        h = linearised_frf(load_model(overrides={**TIP_BODY, "beam.tip_body_mass_kg": mass, "beam.tip_body_damping_ratio": 0.0,
+                                                 "beam.accel_offset_m": 0.0}), f)
+        k = int(np.argmin(np.abs(h.base)))
+        assert abs(f[k] / 15.0 - 1) < 1e-3, (mass, f[k])
+        assert np.abs(h.base[k]) < 1e-2 * np.abs(h.base[0]), mass
+
+
+def test_a_light_tip_body_adds_one_mode_at_its_own_frequency_and_damping():
+    """A body light against the tip's modal mass barely loads the beam: with joint 2 held, one mode
+    more, at the mount's frequency and damping ratio, and modes 1-3 where they were."""
+    from samii.sim.linearize import modes_report
+
+    without = modes_report().base_modes
+    light = modes_report(overrides={**TIP_BODY, "beam.tip_body_mass_kg": 0.01, "beam.tip_body_damping_ratio": 0.03}).base_modes
+    assert len(light) == len(without) + 1
+    extra = min(light, key=lambda m: abs(m.freq_hz - 15.0))
+    assert extra.freq_hz == pytest.approx(15.0, rel=2e-3) and extra.zeta == pytest.approx(0.03, rel=0.05)
+    rest = [m for m in light if m is not extra]
+    assert [m.freq_hz for m in rest] == pytest.approx([m.freq_hz for m in without], rel=2e-3)
+
+
+def test_tip_body_sags_on_its_spring_under_gravity():
+    """On a horizontal beam the mount is vertical: at rest the body hangs g / w_a^2 below its
+    nominal place (1.10 mm at 15 Hz), which gives back the spring's k = m w_a^2."""
+    m = load_model(overrides={**TIP_BODY, "beam.pitch_deg": 0.0})
+    j = m.joint("tip_body")
+    sag = float(m.key_qpos[0][m.jnt_qposadr[j.id]])
+    assert sag == pytest.approx(-9.81 / (2 * math.pi * 15.0) ** 2, rel=2e-3)
+
+
+def test_tip_body_too_fast_for_the_step_is_refused_with_its_name():
+    from samii.errors import InputError
+
+    with pytest.raises(InputError, match="tip_body_freq_hz"):
+        load_model(overrides={**TIP_BODY, "beam.tip_body_freq_hz": 400.0})
+    with pytest.raises(InputError, match="tip_body_mass_kg"):
+        load_model(overrides={"beam.tip_body_mass_kg": -1.0})

@@ -47,7 +47,7 @@ from samii.frequency_response import FrequencyResponse, interpolate_frf
 from samii.sim.mjcf import SamiiParams
 from samii.sim.model import params_with_overrides
 
-__all__ = ["CARRY", "NOT_CARRIED", "LocalSimulator", "SimulatorCalibration", "SimulatorReport", "calibrate_simulator", "correction",
+__all__ = ["CARRY", "BODY", "NOT_CARRIED", "tip_body_options", "body_effect_values", "LocalSimulator", "SimulatorCalibration", "SimulatorReport", "calibrate_simulator", "correction",
            "simulator_baseline", "carry", "sweep_like", "remeasure", "simulator_report"]
 
 #: effect label -> (simulator parameter, the effect's parameter giving its value)
@@ -62,11 +62,18 @@ CARRY: Mapping[str, tuple[str, str]] = {
     "nonlinear/dead_band": ("hydraulic.valve_dead_band", "dead_band_v"),
     "nonlinear/saturation": ("hydraulic.valve_saturation", "saturation_v"),
 }
+#: An extra base mode becomes a body on a compliant mount at the beam's end: its mass, and its
+#: frequency and damping ratio on a rigid mount (``samii.sim.mjcf.BeamParams``). All three are
+#: recalibrated; the effect is then reported as the recalibrated simulator's extra mode.
+BODY: Mapping[str, tuple[str, str, str]] = {
+    "extra_mode/base_mode": ("beam.tip_body_mass_kg", "beam.tip_body_freq_hz", "beam.tip_body_damping_ratio"),
+}
+#: The trial mass whose effect on xdd/theta, to first order in the mass, scales a found residue to a mass.
+_TRIAL_MASS_KG = 0.05
 #: Options of the valve's law: set, not recalibrated (the linearisation takes the ideal valve).
 _LAWS = ("hydraulic.valve_dead_band", "hydraulic.valve_saturation")
 #: Why a kind is not carried.
 NOT_CARRIED: Mapping[str, str] = {
-    "extra_mode/base_mode": "the simulator has no option for an extra structural body or compliance yet",
     "extra_mode/act_mode": "the simulator has no option for a compliance in joint 2's drive yet",
     "actuator/pole_zero": "the simulator's valve and lines have no extra pole-zero pair option yet",
     "actuator/valve": "the simulator's valve is first order; a second-order valve is not an option yet",
@@ -338,6 +345,17 @@ def carry(effects: Sequence, params: SamiiParams, *, refuse: Mapping[str, str] |
         if label in refuse:
             not_carried.append(f"{label}: {refuse[label]}")
             continue
+        if label in BODY:
+            body = tip_body_options(e, params)
+            if isinstance(body, str):
+                not_carried.append(f"{label}: {body}")
+            elif any(n in options for n in body):
+                not_carried.append(f"{label}: a second extra mode (the simulator takes one body on the tip; kept the first, "
+                                   f"{options[BODY[label][1]]:.4g} Hz)")
+            else:
+                options.update(body)
+                carried.append(label)
+            continue
         if label not in CARRY:
             not_carried.append(f"{label}: {NOT_CARRIED.get(label, 'no simulator option for it')}")
             continue
@@ -360,6 +378,88 @@ def carry(effects: Sequence, params: SamiiParams, *, refuse: Mapping[str, str] |
         options[name] = value
         carried.append(label)
     return options, carried, not_carried
+
+
+def _base_channel(params: SamiiParams, freq_hz: np.ndarray) -> np.ndarray:
+    return _linearised(params, freq_hz).response("base")
+
+
+def _fit_residue(dh: np.ndarray, freq_hz: np.ndarray, f: float, zeta: float) -> float:
+    """The real B whose ``B s^4 / (s^2 + 2 zeta w s + w^2)`` (the ``extra_mode/base_mode`` term) is
+    nearest ``dh`` in least squares."""
+    s, w = 2j * np.pi * freq_hz, 2 * np.pi * f
+    basis = s**4 / (s * s + 2 * zeta * w * s + w * w)
+    return float(np.sum((np.conj(basis) * dh).real) / np.sum(np.abs(basis) ** 2))
+
+
+def _near(f: float, zeta: float) -> np.ndarray:
+    """Frequencies across a mode at ``f``: its half-power band and more (the residue's fit)."""
+    half = max(3 * zeta, 0.05)
+    return f * np.linspace(1 - half, 1 + half, 61)
+
+
+def tip_body_options(effect, params: SamiiParams) -> dict[str, float] | str:
+    """The simulator options (``BODY``) for an extra base mode found as ``effect``, on ``params``, or
+    why it cannot be carried. The body's frequency and damping on its mount start at the mode's; its
+    mass is the residue over the residue a trial mass gives (the added term is first order in a
+    small mass: it is the base's response times the mount's dynamic mass times the tip's
+    compliance). A residue of the other sign is not a body on the tip."""
+    label = f"{effect.category}/{effect.kind}"
+    mass, freq, zeta = BODY[label]
+    if parameter_value(params, mass) > 0:
+        return "the simulator already has a body on the tip (it takes one)"
+    f, z, b = (float(effect.params[k]) for k in ("freq_hz", "zeta", "residue"))
+    if 2 * np.pi * f * params.timestep_s > 1.0:
+        return f"{f:.4g} Hz is beyond what the simulator's physics rate ({1 / params.timestep_s:g} Hz) represents"
+    trial = {mass: _TRIAL_MASS_KG, freq: f, zeta: max(z, 1e-3)}
+    grid = _near(f, z)
+    b1 = _fit_residue(_base_channel(params_with_overrides(params, trial), grid) - _base_channel(params, grid), grid, f, z)
+    if not (np.isfinite(b1) and b1 != 0 and b / b1 > 0):
+        return (f"its residue {b:.3g} has the sign of no body on the tip (a {_TRIAL_MASS_KG:g} kg trial body gives {b1:.3g}): "
+                "another structure's mode")
+    return {mass: _TRIAL_MASS_KG * b / b1, freq: f, zeta: max(z, 1e-3)}
+
+
+def _tip_body_mode(params: SamiiParams):
+    """The base mode (joint 2 held: the pole of xdd/theta) the tip body adds to ``params``: of the
+    modes with the body, the one whose removal leaves the modes without it best matched."""
+    from samii.sim.linearize import base_modes
+    from samii.sim.model import load_model, load_spec, make_data
+
+    def modes(p):
+        spec, _ = load_spec(params=p)
+        model = load_model(params=p)
+        data = make_data(model)
+        theta2 = float(data.qpos[model.jnt_qposadr[model.joint("joint2").id]])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return base_modes(spec, theta2, max_freq_hz=0.5 / params.timestep_s)
+
+    with_body = modes(params)
+    without = np.log([m.freq_hz for m in modes(params_with_overrides(params, {BODY["extra_mode/base_mode"][0]: 0.0}))])
+
+    def mismatch(i):
+        rest = np.log([m.freq_hz for j, m in enumerate(with_body) if j != i])
+        k = min(rest.size, without.size)
+        return float(np.sum(np.abs(rest[:k] - without[:k])))
+
+    return with_body[min(range(len(with_body)), key=mismatch)]
+
+
+def body_effect_values(after: SamiiParams, stderr: Mapping[str, float]) -> tuple[dict, dict]:
+    """(params, stderr) of the ``extra_mode/base_mode`` effect the recalibrated simulator ``after``
+    carries as its tip body: the mode it adds (frequency and damping, joint 2 held), and the
+    residue of the body's added term in xdd/theta there. The standard errors are the calibrated
+    options' scaled to the mode's (first order: the mode moves with the mount's frequency, its
+    residue with the mass)."""
+    mass, freq, zeta = BODY["extra_mode/base_mode"]
+    mode = _tip_body_mode(after)
+    grid = _near(mode.freq_hz, mode.zeta)
+    dh = _base_channel(after, grid) - _base_channel(params_with_overrides(after, {mass: 0.0}), grid)
+    b = _fit_residue(dh, grid, mode.freq_hz, mode.zeta)
+    rel = {n: float(stderr.get(n, np.nan)) / parameter_value(after, n) for n in (mass, freq, zeta)}
+    values = {"freq_hz": mode.freq_hz, "zeta": mode.zeta, "residue": b}
+    return values, {"freq_hz": mode.freq_hz * rel[freq], "zeta": mode.zeta * rel[zeta], "residue": abs(b) * rel[mass]}
 
 
 def found_value(name: str, before: SamiiParams, value: float, se: float) -> tuple[float, float]:

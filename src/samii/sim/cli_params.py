@@ -28,9 +28,10 @@ _UNITS = {
     "beam.n_segments": "-",
     "beam.accel_body_fixed": "0 or 1",
     "beam.section_side_m": "m",
+    "beam.tip_body_damping_ratio": "1",
 }
 _SUFFIX_UNITS = {"_hz": "Hz", "_m": "m", "_Nm2": "N m^2", "_kg_m": "kg/m", "_Nm_rad": "N m/rad", "_Nms_rad": "N m s/rad", "_s": "s",
-                 "_deg": "deg", "_kgm2": "kg m^2"}
+                 "_deg": "deg", "_kgm2": "kg m^2", "_kg": "kg"}
 
 
 def _unit(name: str) -> str:

@@ -101,6 +101,16 @@ class BeamParams:
     #: body-fixed accelerometer (MuJoCo accelerometer: specific force along an axis that tilts
     #: with the tip), whose horizontal axis also reads g sin(tilt); see the model card.
     accel_body_fixed: float = 0.0
+    #: A body on a compliant mount at the beam's end (a valve block, a cable carrier, an
+    #: instrument box on a bracket): a mass on a slider along the accelerometer's direction, on a
+    #: spring and a damper set by its own natural frequency and damping ratio on a rigid mount,
+    #: k = m (2 pi f)^2, c = 2 zeta (2 pi f) m. It adds one structural mode near f that the
+    #: modal model of modes 1-3 lacks, and a notch in the tip's response at f (the vibration
+    #: absorber's antiresonance). Mass 0 = none: no body in the MJCF (the model as without it).
+    #: ``samii diagnose --baseline sim`` carries an extra base mode into the simulator as this body.
+    tip_body_mass_kg: float = 0.0
+    tip_body_freq_hz: float = 15.0
+    tip_body_damping_ratio: float = 0.02
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -118,7 +128,8 @@ class BeamParams:
             elif f.name == "pitch_deg":
                 if not (math.isfinite(v) and 0 <= v <= 90):
                     raise ValueError(f"beam parameter pitch_deg must lie in 0...90 deg, got {v!r}")
-            elif not (math.isfinite(v) and v >= 0) or (v == 0 and f.name not in ("clamp_damping_Nms_rad", "beam_damping_time_s", "clamp_maxwell_stiffness_Nm_rad")):
+            elif not (math.isfinite(v) and v >= 0) or (v == 0 and f.name not in ("clamp_damping_Nms_rad", "beam_damping_time_s", "clamp_maxwell_stiffness_Nm_rad",
+                                                                                      "tip_body_mass_kg", "tip_body_damping_ratio")):
                 raise ValueError(f"beam parameter {f.name} must be finite and positive, got {v!r}")
 
 
@@ -222,6 +233,10 @@ class SamiiParams:
         dt = self.timestep_s
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and 0 < dt <= self.MAX_TIMESTEP_S):
             raise ValueError(f"timestep_s must be a number in (0, {self.MAX_TIMESTEP_S:g}] s, got {dt!r}")
+        b = self.beam
+        if b.tip_body_mass_kg > 0 and 2 * math.pi * b.tip_body_freq_hz * dt > 1.0:  # its spring is explicit: w dt <= 1
+            raise ValueError(f"beam.tip_body_freq_hz = {b.tip_body_freq_hz:g} Hz is too fast for the {dt:g} s physics step "
+                             f"(at most {1 / (2 * math.pi * dt):.4g} Hz)")
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -469,6 +484,20 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     add(f"{ind3}</body>")  # link2
     add(f"{ind}</body>")  # link1
     add(f"{indent}</body>")  # l0
+    tip_body = b.tip_body_mass_kg > 0
+    if tip_body:
+        mb, wb = b.tip_body_mass_kg, 2 * math.pi * b.tip_body_freq_hz
+        axis = np.zeros(3)  # along the accelerometer's measuring direction, in the tip's frame
+        mujoco.mju_rotVecQuat(axis, _X, q_site)
+        side = 0.05  # a cube of this half-side beside the beam's end, clear of the post l0
+        add(f"{indent}<!-- beam.tip_body: {_fmt(mb)} kg on a mount of {_fmt(b.tip_body_freq_hz)} Hz, damping ratio "
+            f"{_fmt(b.tip_body_damping_ratio)} (k = m w^2, c = 2 zeta w m), sliding along the accelerometer's direction -->")
+        add(f'{indent}<body name="tip_body" pos="{_vec(tip, s / 2 + side, 0)}">')
+        add(f'{indent}  <joint name="tip_body" type="slide" axis="{_vec(*axis)}" stiffness="{_fmt(mb * wb**2)}" '
+            f'damping="{_fmt(2 * b.tip_body_damping_ratio * wb * mb)}"/>')
+        add(f'{indent}  <inertial pos="0 0 0" mass="{_fmt(mb)}" diaginertia="{_vec(*[mb * (2 * side) ** 2 / 6] * 3)}"/>')
+        add(f'{indent}  <geom type="box" size="{_vec(side, side, side)}" rgba="0.2 0.6 0.3 1"/>')
+        add(f"{indent}</body>")
     for i in range(n + 1):
         indent = indent[:-2]
         add(f"{indent}</body>")
@@ -542,9 +571,9 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
         add("  </custom>")
         add("")
     per_body = 3 if spatial else 1
-    nq = per_body * (n + 1) + 6 + (1 if maxwell else 0)
-    if keyframe_qpos is None:
-        keyframe_qpos = [0.0] * (per_body * (n + 1)) + list(NOMINAL_POSE_RAD) + ([0.0] if maxwell else [])
+    nq = per_body * (n + 1) + 6 + (1 if tip_body else 0) + (1 if maxwell else 0)
+    if keyframe_qpos is None:  # in the tree's order: beam, arm, the tip body (after l0 in the last element), the Maxwell node
+        keyframe_qpos = [0.0] * (per_body * (n + 1)) + list(NOMINAL_POSE_RAD) + ([0.0] if tip_body else []) + ([0.0] if maxwell else [])
     if keyframe_act is None:
         keyframe_act = [0.0, 0.0]
     if len(keyframe_qpos) != nq:

@@ -41,8 +41,9 @@ __all__ = [
 ]
 
 #: Parameters a complete parameter file may leave out: options whose default is "none" (the
-#: valve's and, as a whole section, the sensors'), which older files do not list.
-OPTIONAL_PARAMETERS = frozenset(f"hydraulic.{name}" for name in VALVE_OPTIONS)
+#: valve's, the body on the beam's end and, as a whole section, the sensors'), which older files do not list.
+OPTIONAL_PARAMETERS = frozenset({f"hydraulic.{name}" for name in VALVE_OPTIONS}
+                                | {"beam.tip_body_mass_kg", "beam.tip_body_freq_hz", "beam.tip_body_damping_ratio"})
 
 ACTUATOR = "joint2"  #: name of the hydraulic actuator
 JOINT = "joint2"  #: the joint it drives
