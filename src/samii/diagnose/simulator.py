@@ -48,7 +48,7 @@ from samii.sim.mjcf import SamiiParams
 from samii.sim.model import params_with_overrides
 
 __all__ = ["CARRY", "BODY", "NOT_CARRIED", "tip_body_options", "body_effect_values", "LocalSimulator", "SimulatorCalibration", "SimulatorReport", "calibrate_simulator", "correction",
-           "simulator_baseline", "carry", "sweep_like", "remeasure", "simulator_report"]
+           "simulator_baseline", "carry", "carry_and_recalibrate", "sweep_like", "remeasure", "simulator_report"]
 
 #: effect label -> (simulator parameter, the effect's parameter giving its value)
 CARRY: Mapping[str, tuple[str, str]] = {
@@ -516,6 +516,37 @@ def _residuals(ds: Dataset, h: FrequencyResponse) -> dict[str, np.ndarray]:
 CORRECTION_STEPS = 2
 
 
+def carry_and_recalibrate(measured_raw: Sequence[Measured], measured_fit: Sequence[Measured], before: SimulatorCalibration,
+                          effects: Sequence, *, progress=None, refuse: Mapping[str, str] | None = None):
+    """(recalibrated simulator, options set, labels carried, "label: reason" not carried): ``effects``
+    carried into the simulator calibrated as ``before`` (:func:`carry`) and the knobs recalibrated
+    with the linear options (:func:`simulator_report`'s steps 3 and 4); ``before`` itself when
+    nothing is carried."""
+    stage = progress.stage if progress is not None and hasattr(progress, "stage") else (lambda _: None)
+    options, carried, not_carried = carry(effects, before.params, refuse=refuse)
+    if not options:
+        return before, options, carried, not_carried
+    stage("recalibrating the simulator with the effects")
+    # the correction of the simulator with the options carried holds a carried valve law's
+    # describing function; the data as measured then, unless a nonlinearity stays uncarried
+    uncarried_law = any(e.category == "nonlinear" and f"{e.category}/{e.kind}" not in carried for e in effects)
+    data = measured_fit[0] if uncarried_law else measured_raw[0]
+    # the correction depends a little on the knobs near the modes: recomputed at the recalibrated
+    # simulator and recalibrated, until the cost stops falling (a 20 Hz roll-off: 21.35 Hz with
+    # the correction of the first calibration's knobs, 20.24 Hz after one such step, 20.19 after two)
+    params, after = params_with_overrides(before.params, options), None
+    for _ in range(1 + CORRECTION_STEPS):
+        corr = correction(params, data)
+        trial = calibrate_simulator(data, start=params, extra={n: parameter_value(params, n) for n in options}, corrected_by=corr)
+        done = after is not None and trial.result.cost > (1 - 0.01) * after.result.cost
+        if after is None or trial.result.cost < after.result.cost:
+            after = trial
+        if done:
+            break
+        params = after.params
+    return after, options, carried, not_carried
+
+
 def simulator_report(measured_raw: Sequence[Measured], measured_fit: Sequence[Measured], before: SimulatorCalibration,
                      effects: Sequence, *, progress=None, refuse: Mapping[str, str] | None = None) -> SimulatorReport:
     """Carry ``effects`` into the simulator calibrated as ``before``, recalibrate, re-measure both
@@ -525,28 +556,8 @@ def simulator_report(measured_raw: Sequence[Measured], measured_fit: Sequence[Me
     from samii.diagnose.diagnosis import errors_from_residuals
 
     stage = progress.stage if progress is not None and hasattr(progress, "stage") else (lambda _: None)
-    options, carried, not_carried = carry(effects, before.params, refuse=refuse)
-    if options:
-        stage("recalibrating the simulator with the effects")
-        # the correction of the simulator with the options carried holds a carried valve law's
-        # describing function; the data as measured then, unless a nonlinearity stays uncarried
-        uncarried_law = any(e.category == "nonlinear" and f"{e.category}/{e.kind}" not in carried for e in effects)
-        data = measured_fit[0] if uncarried_law else measured_raw[0]
-        # the correction depends a little on the knobs near the modes: recomputed at the recalibrated
-        # simulator and recalibrated, until the cost stops falling (a 20 Hz roll-off: 21.35 Hz with
-        # the correction of the first calibration's knobs, 20.24 Hz after one such step, 20.19 after two)
-        params, after = params_with_overrides(before.params, options), None
-        for _ in range(1 + CORRECTION_STEPS):
-            corr = correction(params, data)
-            trial = calibrate_simulator(data, start=params, extra={n: parameter_value(params, n) for n in options}, corrected_by=corr)
-            done = after is not None and trial.result.cost > (1 - 0.01) * after.result.cost
-            if after is None or trial.result.cost < after.result.cost:
-                after = trial
-            if done:
-                break
-            params = after.params
-    else:
-        after = before
+    after, options, carried, not_carried = carry_and_recalibrate(measured_raw, measured_fit, before, effects, progress=progress,
+                                                                 refuse=refuse)
     datasets = [Dataset.from_measured(m) for m in measured_raw]
     stage("re-measuring the simulator")
     h_before = tuple(remeasure(before.params, m) for m in measured_raw)
