@@ -484,7 +484,17 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     if not given:
         raise ValueError("no data to diagnose")
     measured = tuple(_noise_from_roughness(m, saved) for m in given)
-    nonlinear, nl_notes, harmonics, amp_tests = find_nonlinear(measured, alpha=alpha)
+    references = None
+    if sim:  # the simulator's own harmonics (its orifice law) are not what it lacks: the data's are tested in excess of them
+        from samii.diagnose.simulator import measured_like
+        from samii.sim.model import default_params
+
+        if progress is not None and hasattr(progress, "stage"):
+            progress.stage("measuring the simulator's own harmonics")
+        own = default_params() if simulator_params is None else simulator_params
+        references = [measured_like(own, m) for m in measured]
+    nonlinear, nl_notes, harmonics, amp_tests = find_nonlinear(measured, alpha=alpha, references=references,
+                                                               reference_label="the simulator's own harmonics")
     notes = [f"{m.source}: no coherence and no records; the noise of each point is {m.noise_source}"
              for m, g in zip(measured, given) if m is not g]
     raw = measured
