@@ -697,10 +697,12 @@ def find_nonlinear(measured: Sequence, *, alpha: float = ALPHA, references: Sequ
                     sig = h.significant(k)
                     i = int(np.flatnonzero(sig)[np.argmax(np.abs(h.ratio[k][sig]))])
                     j = int(np.argmin(np.abs(own.freq_hz - h.freq_hz[i])))
+                    scale = float(np.clip(h.command_v[i] / own.command_v[j], *REFERENCE_SCALE))
                     notes.append(f"{m.source}: the sweep's harmonics ({'2nd' if k == 2 else '3rd'}, {int(sig.sum())} segments, up to "
                                  f"{100 * abs(h.ratio[k][i]):.2g} % at {h.freq_hz[i]:.3g} Hz, command {1e3 * h.command_v[i]:.3g} mV) "
                                  f"are {reference_label}: measured like the file it makes {100 * abs(own.ratio[k][j]):.2g} % there "
-                                 f"(command {1e3 * own.command_v[j]:.3g} mV), and none beyond its own is significant")
+                                 f"at a command of {1e3 * own.command_v[j]:.3g} mV ({100 * scale * abs(own.ratio[k][j]):.2g} % at the "
+                                 "file's, in proportion), and none beyond its own is significant")
                 h = excess
         analyses.append(h)
     by_kind: dict[str, list] = {}

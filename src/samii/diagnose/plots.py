@@ -198,12 +198,12 @@ def harmonic_figure(d: Diagnosis, path=None):
             sig = h.significant(k)[tested]
             order = np.argsort(f)
             ax.loglog(f[order], 100 * 2 * np.sqrt(2) * sd[order], ":", color=colors[k], lw=1, label=f"{k}× noise (2σ)")
-            ax.loglog(f[~sig], 100 * r[~sig], "o", mfc="none", color=colors[k], ms=5, label=f"{k}× harmonic")
+            ax.loglog(f[~sig], 100 * r[~sig], "o", mfc="none", color=colors[k], ms=5, label=f"{k}× {'excess' if h.reference else 'harmonic'}")
             if sig.any():
                 ax.loglog(f[sig], 100 * r[sig], "o", color=colors[k], ms=6, label=f"{k}× significant")
         ax.axhline(100 * MATERIAL, color="k", lw=0.8, ls="--", label=f"{100 * MATERIAL:g} % (claimed above)")
         ax.set_xlabel("sweep frequency (fundamental) [Hz]")
-        ax.set_ylabel("harmonic / fundamental at the valve command [%]")
+        ax.set_ylabel("harmonic excess / fundamental [%]" if h.reference else "harmonic / fundamental at the valve command [%]")
         ax.xaxis.set_major_locator(matplotlib.ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
         ax.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
         ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
@@ -211,7 +211,10 @@ def harmonic_figure(d: Diagnosis, path=None):
         ax.set_title(f"{src}: {h.n_significant} significant segment(s)", fontsize=9)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7, loc="best")
-    return _finish(fig, "Harmonics of the sweep (a linear system makes none)", path)
+    refs = sorted({h.reference for h in hs if h.reference})
+    title = (f"Harmonics of the sweep beyond {refs[0]}\n(measured like the file, scaled to its command; at the valve command)" if refs
+             else "Harmonics of the sweep (a linear system makes none)")
+    return _finish(fig, title, path)
 
 
 def simulator_figure(d: Diagnosis, path=None):
