@@ -395,3 +395,8 @@ def test_tip_body_too_fast_for_the_step_is_refused_with_its_name():
         load_model(overrides={**TIP_BODY, "beam.tip_body_freq_hz": 400.0})
     with pytest.raises(InputError, match="tip_body_mass_kg"):
         load_model(overrides={"beam.tip_body_mass_kg": -1.0})
+    # a shorter step given in the same overrides resolves it, whatever their order
+    from samii.sim.model import params_with_overrides
+
+    p = params_with_overrides(default_params(), {**TIP_BODY, "beam.tip_body_freq_hz": 400.0, "timestep_s": 2e-4})
+    assert p.timestep_s == 2e-4 and p.beam.tip_body_freq_hz == 400.0

@@ -492,7 +492,9 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
         if progress is not None and hasattr(progress, "stage"):
             progress.stage("measuring the simulator's own harmonics")
         own = default_params() if simulator_params is None else simulator_params
-        references = [measured_like(own, m) for m in measured]
+        # (only where the harmonic test can run: records found, theta/v measured)
+        references = [measured_like(own, m) if m.layout is not None and m.layout.n_records >= 2 and "act" in m.frf.channels else None
+                      for m in measured]
     nonlinear, nl_notes, harmonics, amp_tests = find_nonlinear(measured, alpha=alpha, references=references,
                                                                reference_label="the simulator's own harmonics")
     notes = [f"{m.source}: no coherence and no records; the noise of each point is {m.noise_source}"

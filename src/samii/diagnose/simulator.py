@@ -185,6 +185,10 @@ def calibrate_simulator(m: Measured, *, start: SamiiParams | None = None, extra:
     bounds = [default_bounds(n, v) for n, v in zip(names, x0)]
     top = _MAX_CORNER_OF_RATE / base.timestep_s  # sensor corners the physics rate represents
     bounds = [(lo, min(hi, top) if n.endswith("_hz") else hi, why) for n, (lo, hi, why) in zip(names, bounds)]
+    # a body's mount must stay resolved by the physics step (SamiiParams refuses 2 pi f dt > 1); 1 % margin for the
+    # derivatives' steps
+    mount = 0.99 / (2 * np.pi * base.timestep_s)
+    bounds = [(lo, min(hi, mount) if n == BODY["extra_mode/base_mode"][1] else hi, why) for n, (lo, hi, why) in zip(names, bounds)]
     lo = np.log([b[0] for b in bounds])
     hi = np.log([b[1] for b in bounds])
     sim = SimulatorFRF(base, names)

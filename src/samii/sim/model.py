@@ -121,7 +121,8 @@ def write_params(params: SamiiParams, path: Path, *, note: str = "") -> None:
 def params_with_overrides(params: SamiiParams, overrides: Mapping[str, float]) -> SamiiParams:
     """Replace dotted fields (``section.name`` or ``timestep_s``) of ``params``."""
     out = params
-    for dotted, value in overrides.items():
+    # the step first: other values are checked against it (a tip body's mount frequency)
+    for dotted, value in sorted(overrides.items(), key=lambda kv: kv[0] != "timestep_s"):
         parts = dotted.split(".")
         if len(parts) == 1 and parts[0] == "timestep_s":
             try:
