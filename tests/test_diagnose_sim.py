@@ -150,6 +150,8 @@ def test_extra_base_mode_found_and_carried_as_a_body_on_the_tip(tip_body):
     assert "body on the beam's end" in real[0].evidence
     s = d.simulator
     assert s.carried == ("extra_mode/base_mode",)
+    # measured on this seed: 0.465 kg carried (the mass is the least pinned of the three: 0.44-0.53 kg over the
+    # battery's seeds); xdd/v chi2 1.50 -> 0.98 (the clean cases' 0.97-1.08: at the noise)
     assert abs(s.changes["beam.tip_body_mass_kg"] / 0.5 - 1) < 0.3
     before, after = s.error_before["total"], s.error_after["total"]
     assert after.chi2 < before.chi2 and after.chi2 < 1.3

@@ -361,6 +361,24 @@ def _kinds(datasets: Sequence[Dataset], *, fixed_baseline: bool) -> list:
     return [_within_band(k, datasets) for k in library(fixed_baseline=fixed_baseline, channels=channels)]
 
 
+def _stage(progress, text: str) -> None:
+    """``progress.stage(text)`` when the progress display has stages."""
+    if progress is not None and hasattr(progress, "stage"):
+        progress.stage(text)
+
+
+def _select_against(cal, files, keep, *, alpha, progress):
+    """(datasets, fit, steps, candidates): the forward selection on ``files`` against the simulator
+    calibrated as ``cal`` (its correction recomputed at it), over the library's kinds ``keep`` accepts."""
+    from samii.diagnose.simulator import correction, simulator_baseline
+
+    datasets = tuple(Dataset.from_measured(m) for m in files)
+    bl = simulator_baseline(cal, [correction(cal.params, m) for m in files])
+    kinds = [k for k in _kinds(datasets, fixed_baseline=True) if keep(k.label)]
+    _, after, steps, tried = forward_select(list(datasets), bl, kinds, alpha=alpha, progress=progress)
+    return datasets, after, list(steps), list(tried)
+
+
 #: Rounds of carrying under ``--baseline sim``: the first carries what the first selection found (the
 #: kinds in ``CARRY``); a second runs when the selection after it finds an extra base mode, which is
 #: carried as a body on the tip (``BODY``) with what the first selection finds again beside it.
@@ -386,8 +404,8 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
     finds is carried with the body, from the first calibration, before the last selection.
 
     Returns (effects, (files, datasets, final fit), SimulatorReport, later steps, later candidates)."""
-    from samii.diagnose.simulator import (BODY, CARRY, body_effect_values, carry, carry_and_recalibrate, correction, found_value,
-                                          simulator_baseline, simulator_report)
+    from samii.calibrate.simulator import parameter_value
+    from samii.diagnose.simulator import BODY, CARRY, body_effect_values, carry, carry_and_recalibrate, found_value, simulator_report
 
     # a valve law is carried only at a level the harmonics fix (its describing function fits)
     refuse = {f"nonlinear/{f.kind}": "its describing function does not fit the harmonics, so no level to carry"
@@ -400,15 +418,11 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
         uncarried_law = any(f"nonlinear/{f.kind}" not in report.carried for f in nonlinear)
         # with every law in the simulator, its correction holds their describing functions: the data as measured
         files = measured if uncarried_law else raw
-        if progress is not None and hasattr(progress, "stage"):
-            progress.stage("selecting again against the simulator with the effects")
-        corrections = [correction(report.after.params, m) for m in files]
-        datasets = tuple(Dataset.from_measured(m) for m in files)
-        bl = simulator_baseline(report.after, corrections)
-        kinds = [k for k in _kinds(datasets, fixed_baseline=True) if k.label not in report.carried]
-        _, after, steps2, tried2 = forward_select(list(datasets), bl, kinds, alpha=alpha, progress=progress)
-        more_steps += list(steps2)
-        more_tried += list(tried2)
+        _stage(progress, "selecting again against the simulator with the effects")
+        datasets, after, steps2, tried2 = _select_against(report.after, files, lambda label: label not in report.carried,
+                                                          alpha=alpha, progress=progress)
+        more_steps += steps2
+        more_tried += tried2
         second = _effects(after, steps2, tried2, files)
         bodies = [e for e in second if not e.expected and f"{e.category}/{e.kind}" in BODY]
         if not bodies or nonlinear or round_ == CARRY_ROUNDS - 1:
@@ -418,18 +432,13 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
         with_body, _, body_carried, _ = carry_and_recalibrate(raw, measured, calibrated, [body], progress=progress)
         if not body_carried:
             break  # (a residue no body on the tip makes): reported as found, not carried
-        if progress is not None and hasattr(progress, "stage"):
-            progress.stage("selecting again against the simulator with the extra mode")
-        files_b = tuple(measured)
-        datasets_b = tuple(Dataset.from_measured(m) for m in files_b)
-        bl_b = simulator_baseline(with_body, [correction(with_body.params, m) for m in files_b])
-        kinds_b = [k for k in _kinds(datasets_b, fixed_baseline=True) if k.label in CARRY]
-        _, after_b, steps_b, tried_b = forward_select(list(datasets_b), bl_b, kinds_b, alpha=alpha, progress=progress)
-        more_steps += list(steps_b)
-        more_tried += list(tried_b)
+        _stage(progress, "selecting again against the simulator with the extra mode")
+        _, after_b, steps_b, tried_b = _select_against(with_body, measured, lambda label: label in CARRY, alpha=alpha, progress=progress)
+        more_steps += steps_b
+        more_tried += tried_b
         steps_by_label.update({s.label: s for s in steps_b})
         steps_by_label.update({s.label: s for s in steps2 if s.label in BODY})
-        to_carry = _effects(after_b, steps_b, tried_b, files_b) + [body]
+        to_carry = _effects(after_b, steps_b, tried_b, measured) + [body]
     out = []
     for e in to_carry:
         label = f"{e.category}/{e.kind}"
@@ -440,8 +449,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
         why = f"F = {step.f_stat:.3g}, log10 p = {step.log10_p:.3g} against the simulator calibrated without it; " if step else ""
         if label in BODY:
             values, se = body_effect_values(report.after.params, r.stderr)
-            mass, freq, zeta = (report.after.params.beam.tip_body_mass_kg, report.after.params.beam.tip_body_freq_hz,
-                                report.after.params.beam.tip_body_damping_ratio)
+            mass, freq, zeta = (parameter_value(report.after.params, n) for n in BODY[label])
             out.append(FoundEffect(e.category, e.kind, e.channel, values, se,
                                    f"{why}carried into the simulator as a body on the beam's end ({mass:.3g} kg on a mount of "
                                    f"{freq:.4g} Hz, damping ratio {zeta:.3g}: {', '.join(BODY[label])}) and recalibrated with its "
@@ -489,8 +497,7 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
         from samii.diagnose.simulator import measured_like
         from samii.sim.model import default_params
 
-        if progress is not None and hasattr(progress, "stage"):
-            progress.stage("measuring the simulator's own harmonics")
+        _stage(progress, "measuring the simulator's own harmonics")
         own = default_params() if simulator_params is None else simulator_params
         # (only where the harmonic test can run: records found, theta/v measured)
         references = [measured_like(own, m) if m.layout is not None and m.layout.n_records >= 2 and "act" in m.frf.channels else None
@@ -514,8 +521,7 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
         from samii.diagnose.simulator import CARRY, calibrate_simulator, correction, simulator_baseline
         from samii.sim.model import default_params
 
-        if progress is not None and hasattr(progress, "stage"):
-            progress.stage("calibrating the simulator")
+        _stage(progress, "calibrating the simulator")
 
         start = default_params() if simulator_params is None else simulator_params
         corrections = [correction(start, m) for m in measured]

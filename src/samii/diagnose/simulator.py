@@ -502,16 +502,21 @@ def sweep_like(m: Measured):
         return SweptSine(start_hz=float(f.min()), stop_hz=float(f.max()), amplitude_v=float(m.amplitude_v or 0.1), repetitions=2)
 
 
-def remeasure(params: SamiiParams, m: Measured) -> FrequencyResponse:
-    """The nonlinear simulator with ``params`` measured like file ``m`` (on its own frequencies)."""
+def _measure_like(params: SamiiParams, m: Measured, sweep, **kwargs):
+    """The nonlinear simulator with ``params`` measured with ``sweep`` at file ``m``'s DAQ rate
+    (``samii.measure.campaign.measure``; ``kwargs`` its noise and rng)."""
     from samii.measure.campaign import measure
     from samii.sim.model import load_model
 
-    sweep = sweep_like(m)
     physics = 1.0 / params.timestep_s
     # the DAQ needs a rate the physics rate is a whole multiple of: the file's, else the nearest such
     ratio = max(1, round(physics / float(m.sample_rate_hz or physics)))
-    return measure(load_model(params=params), sweep, sample_rate_hz=physics / ratio).frf
+    return measure(load_model(params=params), sweep, sample_rate_hz=physics / ratio, **kwargs)
+
+
+def remeasure(params: SamiiParams, m: Measured) -> FrequencyResponse:
+    """The nonlinear simulator with ``params`` measured like file ``m`` (on its own frequencies)."""
+    return _measure_like(params, m, sweep_like(m)).frf
 
 
 #: The simulator's own harmonics are measured with the DAQ's noise scaled by this (the harmonic test needs a
@@ -525,21 +530,15 @@ def measured_like(params: SamiiParams, m: Measured) -> Measured | None:
     """The nonlinear simulator with ``params`` measured like file ``m`` (:func:`sweep_like`, 3 sweeps,
     a tenth of the DAQ's noise, seeded): the reference for the simulator's own harmonics of the
     sweep (``samii.diagnose.nonlinear.excess_over``). None when ``m`` has no time series."""
-    from dataclasses import fields as dc_fields
     from dataclasses import replace
 
     from samii.diagnose.measured import from_timeseries
-    from samii.measure.campaign import measure
     from samii.measure.daq import SensorNoise
-    from samii.sim.model import load_model
 
     if m.timeseries is None:
         return None
-    sweep = replace(sweep_like(m), repetitions=OWN_HARMONICS_REPETITIONS)
-    physics = 1.0 / params.timestep_s
-    ratio = max(1, round(physics / float(m.sample_rate_hz or physics)))
-    noise = SensorNoise(**{f.name: getattr(SensorNoise(), f.name) * OWN_HARMONICS_NOISE for f in dc_fields(SensorNoise)})
-    meas = measure(load_model(params=params), sweep, sample_rate_hz=physics / ratio, noise=noise, rng=np.random.default_rng(0))
+    meas = _measure_like(params, m, replace(sweep_like(m), repetitions=OWN_HARMONICS_REPETITIONS),
+                         noise=SensorNoise().scaled(OWN_HARMONICS_NOISE), rng=np.random.default_rng(0))
     return from_timeseries(meas.timeseries, source=f"the simulator measured like {m.source}")
 
 

@@ -495,7 +495,7 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
         add(f'{indent}<body name="tip_body" pos="{_vec(tip, s / 2 + side, 0)}">')
         add(f'{indent}  <joint name="tip_body" type="slide" axis="{_vec(*axis)}" stiffness="{_fmt(mb * wb**2)}" '
             f'damping="{_fmt(2 * b.tip_body_damping_ratio * wb * mb)}"/>')
-        add(f'{indent}  <inertial pos="0 0 0" mass="{_fmt(mb)}" diaginertia="{_vec(*[mb * (2 * side) ** 2 / 6] * 3)}"/>')
+        add(f'{indent}  <inertial pos="0 0 0" mass="{_fmt(mb)}" diaginertia="{_vec(*_box_inertia(mb, 2 * side, 2 * side, 2 * side))}"/>')
         add(f'{indent}  <geom type="box" size="{_vec(side, side, side)}" rgba="0.2 0.6 0.3 1"/>')
         add(f"{indent}</body>")
     for i in range(n + 1):
