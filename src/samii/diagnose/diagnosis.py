@@ -277,6 +277,33 @@ def _sample_delay_s(measured: Sequence[Measured]) -> float | None:
     return None if not rates or any(not r for r in rates) else 1.0 / max(rates)
 
 
+def _values_text(label: str, values: dict) -> str:
+    """``values`` of the effect ``label`` in units a reader knows (a delay in ms)."""
+    from samii.diagnose.effects import LIBRARY
+
+    units = {p.name: p.unit for k in LIBRARY if k.label == label for p in k.params}
+    return ", ".join(f"{n} {1e3 * v:.3g} ms" if n == "delay_s" else f"{n} {v:.4g}{' ' + units[n] if units.get(n, '1') != '1' else ''}"
+                     for n, v in values.items())
+
+
+def _rival_values(rival: dict) -> str:
+    """The rival's parameters, and the other effects whose values it moves by more than 5 % (the found values
+    of those depend on which of the two is taken)."""
+    swapped = rival.get("swapped")
+    # a swap's record: "effect" is the kind tried in place of "alternative_to"; "others" are the rest as that fit has them
+    rival_rest, kept_rest = (rival.get("others_current"), rival.get("others")) if swapped else (rival.get("others"), rival.get("others_current"))
+    label = rival["alternative_to"] if swapped else rival["effect"]
+    params = rival.get("params_replaced") if swapped else rival["params"]
+    parts = [f"; its {_values_text(label, params)}"] if params else []
+    moved = []
+    for (lab, v_alt), (_, v_now) in zip(rival_rest or [], kept_rest or []):
+        if any(abs(v_alt[n] / v_now[n] - 1.0) > 0.05 for n in v_now if v_now[n]):
+            moved.append(f"{lab} {_values_text(lab, v_alt)}")
+    if moved:
+        parts.append("; with it " + ", ".join(moved))
+    return "".join(parts)
+
+
 def _effects(after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured: Sequence[Measured]) -> list[FoundEffect]:
     sample = _sample_delay_s(measured)
     added = [s for s in steps if not s.label.startswith("removed ")]
@@ -310,8 +337,18 @@ def _effects(after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured:
                       ((t.get("swapped") and t["effect"] == k.label) or (not t.get("swapped") and t["alternative_to"] == k.label))), None)
         if rival is not None:
             other = rival["alternative_to"] if rival.get("swapped") else rival["effect"]
-            text += (f"; but {other} in its place fits almost as well (chi2 differs by {rival['delta_in_noise']:.2g} noise variances): "
-                     "these data hardly tell the two apart")
+            text += (f"; but {other} in its place fits almost as well (chi2 differs by {rival['delta_in_noise']:.2g} noise variances"
+                     f"{_rival_values(rival)}): these data hardly tell the two apart")
+        for t in final_swaps:  # another effect's near-equal rival that moves this one's values
+            if t["delta_in_noise"] >= AMBIGUOUS_CHI2 or rival is t:
+                continue
+            swapped = t.get("swapped")
+            rest = t.get("others_current") if swapped else t.get("others")
+            moved = next((v for lab, v in rest or [] if lab == k.label
+                          and any(abs(v[n] / e.values[n] - 1.0) > 0.05 for n in v if e.values.get(n))), None)
+            if moved is not None:
+                mine, theirs = (t["effect"], t["alternative_to"]) if swapped else (t["alternative_to"], t["effect"])
+                text += f"; with {theirs} in place of {mine} (which fits almost as well) it is {_values_text(k.label, moved)}"
         if k.category == "delay" and sample is not None:
             d, se = e.values["delay_s"], e.stderr.get("delay_s", 0.0)
             se = se if np.isfinite(se) else 0.0

@@ -256,7 +256,11 @@ def _swap(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, tri
         if best_alt is None:
             continue
         new = best_alt.effects[i]
+        # the other effects as each of the two fits has them: with the one or the other in place, their values may differ
         tried.append({"round": "swap", "effect": new.kind.label, "alternative_to": e.kind.label, "params": dict(new.values),
+                      "params_replaced": dict(e.values),
+                      "others": [(f.kind.label, dict(f.values)) for j, f in enumerate(best_alt.effects) if j != i],
+                      "others_current": [(f.kind.label, dict(f.values)) for f in rest],
                       "chi2": best_alt.chi2, "chi2_current": fit.chi2, "delta_in_noise": abs(best_alt.chi2 - fit.chi2) / s2})
         if best_alt.chi2 < fit.chi2 and not _duplicate_mode(new, best_alt) and not _unresolved_mode(new, ds_list):
             tried[-1]["swapped"] = True
