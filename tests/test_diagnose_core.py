@@ -79,31 +79,38 @@ def _diagnose(r, seed=3, **effects):
 def test_record_spread_predicts_the_error(sweep):
     """The variance stated for every point is the error's (Monte Carlo: 30 noise draws of one rig against its exact
     response). The sign-alternating sweep weighs its records 1/4, 1/2, 1/4: the earlier estimate,
-    sum |c_k|^2 |d_k|^2 n/(n-1), came out 23 % short of the error (13/64 x 3/2 of s^2 against 3/8), ratios 1.15-1.25."""
-    from samii.diagnose.measured import timeseries_frf
+    sum |c_k|^2 |d_k|^2 n/(n-1), came out 19 % short of the error (13/64 x 3/2 of s^2 against 3/8: the error 23 % above it), ratios 1.15-1.25."""
+    from samii.diagnose.measured import from_frf, timeseries_frf
 
     rig = EffectRig()
     layout = from_timeseries(rig.simulate(sweep, sample_rate_hz=FS), source="rig.csv").layout
-    err, var = {"act": [], "total": []}, {"act": [], "total": []}
+    err, var, var_coh = {"act": [], "total": []}, {"act": [], "total": []}, {"act": [], "total": []}
     for i in range(30):
         ts = rig.simulate(sweep, sample_rate_hz=FS, rng=np.random.default_rng(500 + i))
         frf, v, _, _ = timeseries_frf(ts, layout, band_hz=(0.1, 40.0))
+        coh = from_frf(frf, source="frf.csv").var  # the same FRF as a file: its error from the coherence
         exact = rig.responses(frf.freq_hz)
         for ch, h in (("act", exact["G"]), ("total", exact["G"] * exact["B"])):
             err[ch].append(np.abs(frf.response(ch) / h - 1.0) ** 2)
             var[ch].append(v[ch])
+            var_coh[ch].append(coh[ch])
     f = frf.freq_hz
     for ch, band in (("act", (0.1, 8.0)), ("total", (1.0, 40.0))):
-        e, v = np.mean(err[ch], axis=0), np.mean(var[ch], axis=0)
+        e, v, vc = np.mean(err[ch], axis=0), np.mean(var[ch], axis=0), np.mean(var_coh[ch], axis=0)
         k = (f >= band[0]) & (f <= band[1]) & (v < 0.1)
         assert k.sum() > 50
         # ~100 points x 30 draws x 4 dof: the ratio of the means is known to a few %
         assert np.mean(e[k]) / np.mean(v[k]) == pytest.approx(1.0, abs=0.08), ch
-        lo, hi = np.flatnonzero(k)[[0, -1]]  # the band's ends: the excitation falls there, the pool is one-sided
-        assert 0.5 < e[lo] / v[lo] < 2.0 and 0.5 < e[hi] / v[hi] < 2.0
+        # from the coherence, with its bias allowed for: 1.03 and 0.88 (was 1.85 and 1.58 with (1 - g)/(n g))
+        assert 0.75 < np.mean(e[k]) / np.mean(vc[k]) < 1.25, ch
+    # the sweep's ends (0.1 Hz in theta/v, 40 Hz in xdd/v): the excitation falls there and the pool is one-sided; the first
+    # point's error was 2.7x its stated variance over 40 rigs when the pool was of the variance itself, not scaled by |R|^2
+    for ch, i in (("act", 0), ("total", -1)):
+        e, v = np.mean(err[ch], axis=0), np.mean(var[ch], axis=0)
+        assert 0.5 < e[i] / v[i] < 2.0, ch
 
 
-@pytest.mark.parametrize("seed", [1000, 1007, 1017, 1021, 1024, 1032])  # each kept a noise-dominated point under the old limit
+@pytest.mark.parametrize("seed", [1007, 1017, 1024])  # each keeps a noise-dominated point at the old limit (0.25)
 def test_no_point_of_pure_noise_is_kept(sweep, seed):
     """Where the response is buried in noise (xdd/v below ~0.5 Hz at 0.1 V, 50x under the accelerometer's noise)
     the spread of 3 records says nothing of the error: 1/var ~ F(2, 4). Pooled, islands of such points passed the
@@ -124,7 +131,7 @@ def test_clean_data_nothing_missing(sweep, seed):
     _, (base, final, steps, tried) = _diagnose(sweep, seed=seed)
     assert final.effects == ()
     # the right model fits to the noise: chi2/dof 0.99-1.08 over seeds 3-5 (1.16-1.26 while the spread of the
-    # sign-alternating sweep's unequally weighted records was taken 23 % short)
+    # sign-alternating sweep's unequally weighted records was taken 19 % short)
     assert base.chi2 / base.dof < 1.25
 
 
@@ -284,3 +291,22 @@ def test_effect_rig_refuses_an_unstable_loop():
     assert rig.closed_loop_poles().real.max() > 0
     with pytest.raises(ValueError, match="unstable"):
         rig.simulate(np.zeros(1000), sample_rate_hz=FS)
+
+
+def test_an_extra_mode_on_top_of_another_is_a_split_not_a_second_mode():
+    """Two base "modes" at 7.079 Hz with residues -1.908 and +1.905 joined beside an 80 mV saturation (held-out
+    battery, seed 504): a pair that cancels to a small remainder, one mode split in two. Refused like a mode within
+    5 % of a baseline mode; a mode 25 % away stays a second mode."""
+    from types import SimpleNamespace
+
+    from samii.diagnose.effects import Effect, library
+    from samii.diagnose.select import _duplicate_mode
+
+    kind = next(k for k in library(fixed_baseline=False, channels=("act", "base")) if k.label == "extra_mode/base_mode")
+    first = Effect(kind, {"freq_hz": 7.079, "zeta": 0.1218, "residue": -1.908}, {})
+    split = Effect(kind, {"freq_hz": 7.079, "zeta": 0.1215, "residue": 1.905}, {})
+    apart = Effect(kind, {"freq_hz": 8.9, "zeta": 0.05, "residue": 0.002}, {})
+    no_baseline = SimpleNamespace(structure=None)
+    assert _duplicate_mode(split, SimpleNamespace(effects=(first, split), baseline=no_baseline, baseline_params=()))
+    assert not _duplicate_mode(apart, SimpleNamespace(effects=(first, apart), baseline=no_baseline, baseline_params=()))
+    assert not _duplicate_mode(first, SimpleNamespace(effects=(first,), baseline=no_baseline, baseline_params=()))

@@ -286,19 +286,29 @@ def _values_text(label: str, values: dict) -> str:
                      for n, v in values.items())
 
 
+def _log_distance(a: dict, b: dict) -> float:
+    """How far apart two value sets of one kind lie (sum of |log ratio|; a zero or missing value counts 0)."""
+    return sum(abs(np.log(abs(a[n]) / abs(v))) if v and a.get(n) else 0.0 for n, v in b.items())
+
+
+#: A swap record describes a found effect when its kept values lie within this log distance of the effect's.
+MATCH_DISTANCE = 0.05
+
+
+def _record_for(records: Sequence[dict], label: str, values: dict, key: str = "kept") -> dict | None:
+    """The swap record whose ``key`` effect is ``label`` with values nearest ``values`` (within MATCH_DISTANCE):
+    an extra mode may be found more than once, so the label alone does not say which."""
+    near = [(_log_distance(t[key + "_params"], values), i) for i, t in enumerate(records) if t.get(key) == label]
+    near = [(d, i) for d, i in near if d < MATCH_DISTANCE]
+    return records[min(near)[1]] if near else None
+
+
 def _rival_values(rival: dict) -> str:
     """The rival's parameters, and the other effects whose values it moves by more than 5 % (the found values
     of those depend on which of the two is taken)."""
-    swapped = rival.get("swapped")
-    # a swap's record: "effect" is the kind tried in place of "alternative_to"; "others" are the rest as that fit has them
-    rival_rest, kept_rest = (rival.get("others_current"), rival.get("others")) if swapped else (rival.get("others"), rival.get("others_current"))
-    label = rival["alternative_to"] if swapped else rival["effect"]
-    params = rival.get("params_replaced") if swapped else rival["params"]
-    parts = [f"; its {_values_text(label, params)}"] if params else []
-    moved = []
-    for (lab, v_alt), (_, v_now) in zip(rival_rest or [], kept_rest or []):
-        if any(abs(v_alt[n] / v_now[n] - 1.0) > 0.05 for n in v_now if v_now[n]):
-            moved.append(f"{lab} {_values_text(lab, v_alt)}")
+    parts = [f"; its {_values_text(rival['rival'], rival['rival_params'])}"] if rival["rival_params"] else []
+    moved = [f"{lab} {_values_text(lab, v_alt)}" for (lab, v_alt), (_, v_now) in zip(rival["rival_rest"], rival["kept_rest"])
+             if any(abs(v_alt[n] / v_now[n] - 1.0) > 0.05 for n in v_now if v_now[n])]
     if moved:
         parts.append("; with it " + ", ".join(moved))
     return "".join(parts)
@@ -333,22 +343,19 @@ def _effects(after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured:
                     f"{swap['chi2_current']:.4g} -> {swap['chi2']:.4g}" if swap else "kept by the joint refit")
         expected = False
         text = f"{k.describe(e.values)}; {test}"
-        rival = next((t for t in final_swaps if t["delta_in_noise"] < AMBIGUOUS_CHI2 and
-                      ((t.get("swapped") and t["effect"] == k.label) or (not t.get("swapped") and t["alternative_to"] == k.label))), None)
+        near_equal = [t for t in final_swaps if t["delta_in_noise"] < AMBIGUOUS_CHI2 and "kept" in t]
+        rival = _record_for(near_equal, k.label, e.values)
         if rival is not None:
-            other = rival["alternative_to"] if rival.get("swapped") else rival["effect"]
-            text += (f"; but {other} in its place fits almost as well (chi2 differs by {rival['delta_in_noise']:.2g} noise variances"
+            text += (f"; but {rival['rival']} in its place fits almost as well (chi2 differs by {rival['delta_in_noise']:.2g} noise variances"
                      f"{_rival_values(rival)}): these data hardly tell the two apart")
-        for t in final_swaps:  # another effect's near-equal rival that moves this one's values
-            if t["delta_in_noise"] >= AMBIGUOUS_CHI2 or rival is t:
+        for t in near_equal:  # another effect's near-equal rival that moves this one's values
+            if t is rival:
                 continue
-            swapped = t.get("swapped")
-            rest = t.get("others_current") if swapped else t.get("others")
-            moved = next((v for lab, v in rest or [] if lab == k.label
-                          and any(abs(v[n] / e.values[n] - 1.0) > 0.05 for n in v if e.values.get(n))), None)
-            if moved is not None:
-                mine, theirs = (t["effect"], t["alternative_to"]) if swapped else (t["alternative_to"], t["effect"])
-                text += f"; with {theirs} in place of {mine} (which fits almost as well) it is {_values_text(k.label, moved)}"
+            pairs = [(v_now, v_alt) for (lab, v_now), (_, v_alt) in zip(t["kept_rest"], t["rival_rest"])
+                     if lab == k.label and _log_distance(v_now, e.values) < MATCH_DISTANCE]
+            if pairs and any(abs(pairs[0][1][n] / pairs[0][0][n] - 1.0) > 0.05 for n in pairs[0][0] if pairs[0][0][n]):
+                text += (f"; with {t['rival']} in place of {t['kept']} (which fits almost as well) it is "
+                         f"{_values_text(k.label, pairs[0][1])}")
         if k.category == "delay" and sample is not None:
             d, se = e.values["delay_s"], e.stderr.get("delay_s", 0.0)
             se = se if np.isfinite(se) else 0.0

@@ -9,23 +9,29 @@ of it). Where it comes from, best first:
   ``k`` gives its own ratio ``H_k = Y_k / X_k`` (the excitation cancels); the
   estimate is the weighted ratio of summed cross-spectra, ``sum_k c_k H_k`` with
   ``c_k`` each record's share of the denominator, whose relative error has
-  variance ``sum_k |c_k|^2 s^2``. With deviations ``d_k = H_k/H - 1``,
-  ``E sum_k |d_k|^2 = s^2 (n - 2 + n sum_k |c_k|^2)`` gives ``s^2`` (for equal
-  weights the familiar ``n - 1``; a sign-alternating sweep weighs its 3 records
-  1/4, 1/2, 1/4). The noise varies slowly with frequency, so this is pooled
-  over every FFT bin around the point (those nearer it than its neighbours on
-  the output grid, at least ``POOL``): at 40 Hz some 140 bins, at 0.1 Hz 9.
+  variance ``sum_k |c_k|^2 a_k s^2`` (``a_k`` each record's share of the noise,
+  ``|R|^2/|R_k|^2``: 1 for repeats). With deviations ``d_k = H_k/H - 1``,
+  ``E sum_k |d_k|^2 = s^2 (sum a_k - 2 Re sum c_k a_k + n sum_k |c_k|^2 a_k)``
+  gives ``s^2`` (for repeats with equal weights the familiar ``n - 1``; a
+  sign-alternating sweep weighs its 3 records 1/4, 1/2, 1/4, and the earlier
+  ``sum |c_k|^2 |d_k|^2 n/(n-1)`` was 19 % short for it). The noise varies slowly
+  with frequency, so this is pooled over every FFT bin around the point (those
+  nearer it than its neighbours on the output grid, at least ``POOL`` where the
+  grid is every bin, one-sided at the band's ends): at 40 Hz some 140 bins.
   The relative error goes as the noise over the excitation's power, so the pool
   is of the error times ``|R|^2`` (``r`` is known exactly), divided back at the
   point: the sweep's spectrum falls steeply at its ends. Checked by Monte Carlo
   (60 noise draws of one rig): the stated variance is the observed one to
-  +-1 % from 2 to 40 Hz. The same deviations on the output grid give the
+  a few % from 0.5 to 40 Hz. The same deviations on the output grid give the
   correlation between neighbouring points (``corr_length``, the number of
   points one independent error spans), which the significance tests need: an
   FFT grid zero-padded 2x puts correlated bins next to each other.
 * **Coherence** (an FRF file with ``*_coh``): Bendat & Piersol's
   ``eps^2 = (1 - g)/(2 n g)`` for each of log magnitude and phase, so
-  ``var = 2 eps^2``, pooled over ``POOL`` neighbouring points; ``n`` from the
+  ``var = 2 eps^2``, with the estimated coherence's bias allowed for
+  (``sum w^2/(1 - sum w^2)`` in place of ``1/n``: ``1/(n - 1)`` for equal weights, the
+  weights from the file's ``frf_record_weights`` line when it gives them),
+  pooled over ``POOL`` neighbouring points; ``n`` from the
   file's ``frf_records`` or ``averages`` line, else 3 (the rig's averages,
   notebook ch. 9), said so.
 * **The residual's roughness** (no coherence, one record: a rig-era .mat):
@@ -136,9 +142,16 @@ def _corr_length(dev: np.ndarray) -> float:
 
 
 def _window_means(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Mean of ``x[lo[j]:hi[j]]`` for every j (cumulative sums)."""
-    c = np.concatenate([[0.0], np.cumsum(x)])
-    return (c[hi] - c[lo]) / (hi - lo)
+    """Mean of the finite values of ``x[lo[j]:hi[j]]`` for every j; inf where there are none (a point without
+    a noise estimate is dropped, not weighed as exact). Slices, not running sums: one huge bin would take the
+    precision of every later window with it."""
+    out = np.full(lo.size, np.inf)
+    for j, (a, b) in enumerate(zip(lo, hi)):
+        seg = x[a:b]
+        seg = seg[np.isfinite(seg)]
+        if seg.size:
+            out[j] = seg.mean()
+    return out
 
 
 def _bin_windows(bins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -191,21 +204,25 @@ def timeseries_frf(ts: TimeSeries, layout: RecordLayout, *, band_hz: tuple[float
     # ripples within its band: the pool takes the error times |R|^2 (noise-free: r is known exactly) and divides it back
     r2 = np.maximum(np.mean(np.abs(R) ** 2, axis=0), 1e-300)
     var, devs = {}, []
+    # each record's share of the noise: its ratio Y_k/X_k errs as 1/|X_k|^2, and X_k goes as R_k (1 for repeats)
+    a = np.clip(r2 / np.maximum(np.abs(R) ** 2, 1e-300), 1e-6, 1e6)
     for ch, (num, den) in CHANNEL_PAIRS.items():
         share = w * np.conj(R) * full[den]
         total = np.sum(share, axis=0)
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             c = share / total  # each record's share of the estimate's denominator
             h = np.sum(w * np.conj(R) * full[num], axis=0) / total  # the estimate at every bin
-            d = np.nan_to_num(full[num] / full[den] / h - 1.0)
-        # the estimate is sum_k c_k H_k: its relative error has variance sum|c_k|^2 s^2, each record's error s^2, and
-        # E sum_k |d_k|^2 = s^2 (n - 2 + n sum|c_k|^2) (sum c_k = 1). Unequal weights (a sign-alternating sweep's
-        # 1/4, 1/2, 1/4) made the earlier sum_k |c_k|^2 |d_k|^2 n/(n-1) 23 % short: 13/64 * 3/2 of s^2 against 3/8.
-        c2 = np.sum(np.abs(c) ** 2, axis=0)
-        spread = c2 * np.sum(np.abs(d) ** 2, axis=0) / (n_records - 2.0 + n_records * c2)
-        var[ch] = np.maximum(_window_means(np.nan_to_num(spread * r2), lo, hi) / r2[at], 1e-30)
+            d = full[num] / full[den] / h - 1.0
+            # the estimate is sum_k c_k H_k, each record's relative error of variance a_k s^2: its own variance is
+            # sum |c_k|^2 a_k s^2, and E sum_k |d_k|^2 = s^2 (sum a_k - 2 Re sum c_k a_k + n sum |c_k|^2 a_k) (sum c_k = 1).
+            # For repeats (a_k = 1) that is n - 2 + n sum|c_k|^2; unequal weights (a sign-alternating sweep's 1/4, 1/2,
+            # 1/4) made the earlier sum_k |c_k|^2 |d_k|^2 n/(n-1) 19 % short: 13/64 * 3/2 of s^2 against 3/8.
+            ca = np.sum(np.abs(c) ** 2 * a, axis=0)
+            spread = ca * np.sum(np.abs(d) ** 2, axis=0) / (np.sum(a, axis=0) - 2.0 * np.sum(c.real * a, axis=0) + n_records * ca)
+        spread[~np.isfinite(spread)] = np.nan  # no estimate there (a zero spectrum): left out of the pool
+        var[ch] = np.maximum(_window_means(spread * r2, lo, hi) / r2[at], 1e-30)
         if ch != "total":
-            dg = d[:, at]
+            dg = np.nan_to_num(d[:, at])
             devs.append(dg / np.sqrt(np.maximum(_pool(np.mean(np.abs(dg) ** 2, axis=0)), 1e-30)))
     how = (f"record-to-record spread of {n_records} records, pooled over the FFT bins around each point "
            f"(at least {POOL}; weighted by the excitation's power)")
@@ -237,6 +254,20 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
                     timeseries=ts, layout=layout)
 
 
+def _weights_squared(meta: Mapping[str, str], n: int) -> tuple[float, str]:
+    """sum w_k^2 of the records' weights: from the file's ``frf_record_weights`` line ("..., weights 0.25, 0.5,
+    0.25: ...", what ``samii frf`` writes), else equal weights 1/n."""
+    m = re.search(r"weights\s+([0-9.eE+-]+(?:\s*,\s*[0-9.eE+-]+)+)", str(meta.get("frf_record_weights", "")))
+    if m:
+        try:
+            w = np.array([float(x) for x in m.group(1).split(",")])
+        except ValueError:
+            w = None
+        if w is not None and w.size == n and np.all(w > 0) and abs(w.sum() - 1.0) < 1e-3:
+            return float(np.sum(w**2)), f"records weighted {', '.join(f'{x:.4g}' for x in w)}"
+    return 1.0 / n, "equal weights"
+
+
 def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
     """An FRF file: the error of each point from its coherence, if it has one."""
     meta = frf.metadata
@@ -246,18 +277,23 @@ def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
         averages = f"{DEFAULT_AVERAGES} averages assumed (the file does not say; the rig's, notebook ch. 9)"
     else:
         averages = f"{int(n)} averages (the file's metadata)"
+    sw2, weighting = _weights_squared(meta, int(n))
+    averages += f", {weighting}"
     var = {}
     have = []
     for ch in frf.channels:
         coh = frf.coherence(ch)
-        if coh is None:
+        if coh is None or n < 2:  # (one average: the coherence is 1 whatever the noise)
             var[ch] = None
             continue
         g = np.clip(coh, 1e-6, 1.0 - 1e-12)
-        # 2 eps^2, eps^2 = (1 - g)/(2 n g), pooled as the spread is: a coherence from a few averages scatters
-        # widely (pure noise from 3 averages gives g > 0.57 one time in 5) and alone would give noise-dominated
-        # points a small error; its neighbours' mean of (1 - g)/g does not.
-        var[ch] = np.maximum(_pool((1.0 - g) / (n * g)), 1e-30)
+        # Bendat & Piersol: 2 eps^2 = (1 - g)/(n g) with the true coherence. The estimate is biased high, E(1 - g_est) =
+        # (1 - g)(1 - sum w^2), and the averaged estimate's error is sum w^2 (1 - g)/g: so var = sum w^2/(1 - sum w^2)
+        # (1 - g_est)/g_est, 1/(n - 1) for equal weights (Monte Carlo, the 3 records of a sign-alternating sweep
+        # weighted 1/4, 1/2, 1/4: (1 - g)/(n g) stated 1.6-1.85x short of the error). Pooled as the spread is: a
+        # coherence from a few averages scatters widely (pure noise from 3 averages gives g > 0.57 one time in 5) and
+        # alone would give noise-dominated points a small error; its neighbours' mean of (1 - g)/g does not.
+        var[ch] = np.maximum(_pool((1.0 - g) / g) * sw2 / (1.0 - sw2), 1e-30)
         have.append(ch)
     how = f"coherence of {', '.join(have)} ({averages}), pooled over {POOL} neighbouring points" if have else "unknown (no coherence in the file)"
     if have and len(have) < len(frf.channels):  # one noise model for the whole file: a half-known one would mix real and placeholder weights

@@ -13,7 +13,7 @@ relative weights of the points; its level comes from the richer model's
 residual, so an error in the noise level does not make effects appear.
 
 Two candidates are refused whatever their F: an extra base mode within 5 % of
-a baseline mode (a mode split in two), and an extra mode the data cannot
+a baseline mode or of another extra one (a mode split in two), and an extra mode the data cannot
 resolve: an actuator mode whose pole and zero lie closer than the data's
 frequency spacing (a bump that fits a wiggle of the noise; seen with noise
 estimated from the residual's roughness), or a mode whose half-power
@@ -182,10 +182,13 @@ def _mode_freqs_hz(fit: Fit) -> list[float]:
 
 
 def _duplicate_mode(e: Effect, fit: Fit) -> bool:
-    """``e`` is an extra base mode within 5 % of a mode ``fit``'s baseline has."""
+    """``e`` is an extra base mode within 5 % of a mode ``fit``'s baseline has, or of another extra base mode of
+    ``fit``: a mode split in two, not a second one (two "modes" at 7.08 Hz with residues +-1.9, cancelling to a
+    small remainder, joined beside an 80 mV saturation)."""
     if e.kind.kind != "base_mode":
         return False
-    return any(abs(np.log(e.values["freq_hz"] / f)) < 0.05 for f in _mode_freqs_hz(fit))
+    others = [x.values["freq_hz"] for x in fit.effects if x is not e and x.kind.kind == "base_mode"]
+    return any(abs(np.log(e.values["freq_hz"] / f)) < 0.05 for f in _mode_freqs_hz(fit) + others)
 
 
 def _unresolved_mode(e: Effect, ds_list: list[Dataset]) -> bool:
@@ -227,44 +230,62 @@ def _backward(ds_list, baseline, fit: Fit, corr: float, level: float, steps: lis
 AMBIGUOUS_CHI2 = 4.0
 
 
+#: Passes of the swap moves at most: after a swap the effects tried before it are tried again against the new model.
+SWAP_PASSES = 3
+
+
 def _swap(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, tried: list[dict]) -> Fit:
     """Replace each effect by every other kind on the same channel (a mode by a mode on either) with no more parameters, refit jointly, and
     keep whichever fits best (equal or fewer parameters: the lower chi2 is the likelier model). Forward
     selection is greedy: a delay can join as an actuator mode at the band's edge, a first-order roll-off
     as a second-order one with a shorter delay, and a later round cannot undo it. The best alternative of
     each effect is recorded in ``tried`` (round "swap"), so the report can say when the data hardly tell
-    them apart."""
-    for i in range(len(fit.effects)):  # a swap replaces one effect by one: the count stays
-        e = fit.effects[i]
-        rest = [f for j, f in enumerate(fit.effects) if j != i]
-        used = {f.kind.label for f in rest}
-        s2 = fit.chi2 / fit.dof * corr
-        best_alt = None
-        for k in kinds:
-            related = set(k.affects) & set(e.kind.affects) or k.category == e.kind.category == "extra_mode"
-            if (k.label == e.kind.label or len(k.params) > len(e.kind.params) or not related
-                    or (k.category != "extra_mode" and k.label in used)):
+    them apart: each record holds the kept effect and its rival with the other effects as each of the two
+    fits has them. A pass with a swap is done again (at most ``SWAP_PASSES``): its earlier records described
+    the model before the swap; they stay, marked ``interim``, for the swapped ones' "it replaced" only."""
+    for _pass in range(SWAP_PASSES):
+        records, changed = [], False
+        for i in range(len(fit.effects)):  # a swap replaces one effect by one: the count stays
+            e = fit.effects[i]
+            rest = [f for j, f in enumerate(fit.effects) if j != i]
+            used = {f.kind.label for f in rest}
+            s2 = fit.chi2 / fit.dof * corr
+            best_alt = None
+            for k in kinds:
+                related = set(k.affects) & set(e.kind.affects) or k.category == e.kind.category == "extra_mode"
+                if (k.label == e.kind.label or len(k.params) > len(e.kind.params) or not related
+                        or (k.category != "extra_mode" and k.label in used)):
+                    continue
+                held = _held_fits(ds_list, baseline, fit, rest, k)
+                if not held:
+                    continue
+                x_e = _vectors(held[0].effects)
+                x_e = x_e[:i] + [x_e[-1]] + x_e[i:-1]  # the replacement in the replaced effect's place
+                alt = fit_model(ds_list, baseline, x_e, start_baseline=_baseline_vectors(fit))
+                if best_alt is None or alt.chi2 < best_alt.chi2:
+                    best_alt = alt
+            if best_alt is None:
                 continue
-            held = _held_fits(ds_list, baseline, fit, rest, k)
-            if not held:
-                continue
-            x_e = _vectors(held[0].effects)
-            x_e = x_e[:i] + [x_e[-1]] + x_e[i:-1]  # the replacement in the replaced effect's place
-            alt = fit_model(ds_list, baseline, x_e, start_baseline=_baseline_vectors(fit))
-            if best_alt is None or alt.chi2 < best_alt.chi2:
-                best_alt = alt
-        if best_alt is None:
-            continue
-        new = best_alt.effects[i]
-        # the other effects as each of the two fits has them: with the one or the other in place, their values may differ
-        tried.append({"round": "swap", "effect": new.kind.label, "alternative_to": e.kind.label, "params": dict(new.values),
-                      "params_replaced": dict(e.values),
-                      "others": [(f.kind.label, dict(f.values)) for j, f in enumerate(best_alt.effects) if j != i],
-                      "others_current": [(f.kind.label, dict(f.values)) for f in rest],
-                      "chi2": best_alt.chi2, "chi2_current": fit.chi2, "delta_in_noise": abs(best_alt.chi2 - fit.chi2) / s2})
-        if best_alt.chi2 < fit.chi2 and not _duplicate_mode(new, best_alt) and not _unresolved_mode(new, ds_list):
-            tried[-1]["swapped"] = True
-            fit = best_alt
+            new = best_alt.effects[i]
+            swap = best_alt.chi2 < fit.chi2 and not _duplicate_mode(new, best_alt) and not _unresolved_mode(new, ds_list)
+            kept, rival = (best_alt, fit) if swap else (fit, best_alt)
+
+            def side(f: Fit) -> tuple[str, dict, list]:
+                return f.effects[i].kind.label, dict(f.effects[i].values), [(x.kind.label, dict(x.values)) for j, x in enumerate(f.effects) if j != i]
+
+            (k_label, k_values, k_rest), (r_label, r_values, r_rest) = side(kept), side(rival)
+            records.append({"round": "swap", "effect": new.kind.label, "alternative_to": e.kind.label, "params": dict(new.values),
+                            "kept": k_label, "kept_params": k_values, "kept_rest": k_rest,
+                            "rival": r_label, "rival_params": r_values, "rival_rest": r_rest,
+                            "chi2": best_alt.chi2, "chi2_current": fit.chi2, "delta_in_noise": abs(best_alt.chi2 - fit.chi2) / s2,
+                            **({"swapped": True} if swap else {})})
+            if swap:
+                fit, changed = best_alt, True
+        if not changed:
+            tried.extend(records)
+            break
+        # (if every pass swapped, no record describes the final model: no rival is reported)
+        tried.extend(dict(t, interim=True) for t in records if t.get("swapped"))
     return fit
 
 
