@@ -295,12 +295,17 @@ def _log_distance(a: dict, b: dict) -> float:
 MATCH_DISTANCE = 0.05
 
 
-def _record_for(records: Sequence[dict], label: str, values: dict, key: str = "kept") -> dict | None:
-    """The swap record whose ``key`` effect is ``label`` with values nearest ``values`` (within MATCH_DISTANCE):
+def _record_for(records: Sequence[dict], label: str, values: dict) -> dict | None:
+    """The swap record whose kept effect is ``label`` with values nearest ``values`` (within MATCH_DISTANCE):
     an extra mode may be found more than once, so the label alone does not say which."""
-    near = [(_log_distance(t[key + "_params"], values), i) for i, t in enumerate(records) if t.get(key) == label]
+    near = [(_log_distance(t["kept_params"], values), i) for i, t in enumerate(records) if t.get("kept") == label]
     near = [(d, i) for d, i in near if d < MATCH_DISTANCE]
     return records[min(near)[1]] if near else None
+
+
+def _moved(v_alt: dict, v_now: dict) -> bool:
+    """Any of an effect's values differs by more than 5 % between two fits."""
+    return any(abs(v_alt[n] / v_now[n] - 1.0) > 0.05 for n in v_now if v_now[n])
 
 
 def _rival_values(rival: dict) -> str:
@@ -308,7 +313,7 @@ def _rival_values(rival: dict) -> str:
     of those depend on which of the two is taken)."""
     parts = [f"; its {_values_text(rival['rival'], rival['rival_params'])}"] if rival["rival_params"] else []
     moved = [f"{lab} {_values_text(lab, v_alt)}" for (lab, v_alt), (_, v_now) in zip(rival["rival_rest"], rival["kept_rest"])
-             if any(abs(v_alt[n] / v_now[n] - 1.0) > 0.05 for n in v_now if v_now[n])]
+             if _moved(v_alt, v_now)]
     if moved:
         parts.append("; with it " + ", ".join(moved))
     return "".join(parts)
@@ -322,15 +327,11 @@ def _effects(after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured:
     out = []
     used: set[int] = set()
 
-    def distance(step: Step, values: dict) -> float:  # the step whose effect is nearest these values; later on ties
-        if not step.values:
-            return 0.0
-        return sum(abs(np.log(abs(values[n]) / abs(v))) if v and values.get(n) else 0.0 for n, v in step.values.items())
-
     for e in after.effects:
         k = e.kind
         mine = [i for i, s in enumerate(added) if s.label == k.label and i not in used]
-        j = min(mine, key=lambda i: (distance(added[i], e.values), -i)) if mine else None
+        # the step whose effect is nearest these values; the later on ties
+        j = min(mine, key=lambda i: (_log_distance(e.values, added[i].values or {}), -i)) if mine else None
         if j is not None:
             used.add(j)
             s = added[j]
@@ -351,11 +352,10 @@ def _effects(after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured:
         for t in near_equal:  # another effect's near-equal rival that moves this one's values
             if t is rival:
                 continue
-            pairs = [(v_now, v_alt) for (lab, v_now), (_, v_alt) in zip(t["kept_rest"], t["rival_rest"])
-                     if lab == k.label and _log_distance(v_now, e.values) < MATCH_DISTANCE]
-            if pairs and any(abs(pairs[0][1][n] / pairs[0][0][n] - 1.0) > 0.05 for n in pairs[0][0] if pairs[0][0][n]):
-                text += (f"; with {t['rival']} in place of {t['kept']} (which fits almost as well) it is "
-                         f"{_values_text(k.label, pairs[0][1])}")
+            v_alt = next((v_alt for (lab, v_now), (_, v_alt) in zip(t["kept_rest"], t["rival_rest"])
+                          if lab == k.label and _log_distance(v_now, e.values) < MATCH_DISTANCE and _moved(v_alt, v_now)), None)
+            if v_alt is not None:
+                text += f"; with {t['rival']} in place of {t['kept']} (which fits almost as well) it is {_values_text(k.label, v_alt)}"
         if k.category == "delay" and sample is not None:
             d, se = e.values["delay_s"], e.stderr.get("delay_s", 0.0)
             se = se if np.isfinite(se) else 0.0

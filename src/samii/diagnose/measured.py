@@ -58,7 +58,7 @@ import scipy.fft
 
 from samii.frequency_response import FrequencyResponse
 from samii.identify.lack_of_fit import averages_from_metadata
-from samii.measure.frf import CHANNEL_PAIRS, estimate_frf, record_spectra, record_weights, split_records
+from samii.measure.frf import CHANNEL_PAIRS, estimate_frf, record_weights, split_records
 from samii.measure.records import RecordLayout, find_records
 from samii.measure.timeseries import TimeSeries
 
@@ -185,16 +185,14 @@ def timeseries_frf(ts: TimeSeries, layout: RecordLayout, *, band_hz: tuple[float
     cut = TimeSeries(**cols, metadata=ts.metadata)
     frf = estimate_frf(cut, record_s=layout.record_s, baseline_s=layout.baseline_s, band_hz=band_hz)
     frf = replace(frf, metadata={**frf.metadata, "frf_layout": f"records from t = {layout.start_s:.6g} s; {layout.how}"})
-    rs = record_spectra(cut, record_s=layout.record_s, baseline_s=layout.baseline_s, band_hz=band_hz)
-    n_records = rs.n_records
+    records, n_records = split_records(cut, record_s=layout.record_s, baseline_s=layout.baseline_s)
     if n_records < 2:
         return frf, dict.fromkeys(CHANNEL_PAIRS), 1.0, "unknown (one record: no spread, no coherence)"
-    w = record_weights(rs.r_records)[0][:, None]
-    # every FFT bin of the band (record_spectra's grid is a subset of them, zero-padded alike)
-    records, _ = split_records(cut, record_s=layout.record_s, baseline_s=layout.baseline_s)
+    w = record_weights(records["r"])[0][:, None]
+    # every FFT bin of the band: the FRF's grid is a subset of them (record_spectra, zero-padded 2x)
     n_fft = scipy.fft.next_fast_len(2 * records["r"].shape[1], real=True)
-    bins = np.round(rs.freq_hz * n_fft / fs).astype(int)
-    if not np.allclose(bins * fs / n_fft, rs.freq_hz, rtol=1e-9, atol=1e-12):
+    bins = np.round(frf.freq_hz * n_fft / fs).astype(int)
+    if not np.allclose(bins * fs / n_fft, frf.freq_hz, rtol=1e-9, atol=1e-12):
         raise RuntimeError("the FRF's frequencies are not the FFT bins the noise is estimated on")  # record_spectra changed
     full = {k: scipy.fft.rfft(x, n=n_fft, axis=-1)[:, bins[0] : bins[-1] + 1] for k, x in records.items()}
     lo, hi = _bin_windows(bins)
