@@ -598,12 +598,12 @@ def test_closedloop_failure_in_a_new_out_folder_removes_it(tmp_path, cwd, capsys
 
 
 def test_closedloop_rerun_failure_leaves_out_untouched(tmp_path, out_dir, cwd, capsys, monkeypatch):
-    import samii.measure.recording as recording
+    import samii.viz.recording as recording
 
     def full_disk(*_a, **_k):
         raise RuntimeError("No space left on device (os error 28)")
 
-    monkeypatch.setattr(recording, "write_rerun_recording", full_disk)
+    monkeypatch.setattr(recording, "write_recording", full_disk)
     rec = tmp_path / "rec.rrd"
     _run_bad(["closedloop", "--controller", "notebook-cancel", *_STEP, "--duration-s", "3", "--out", out_dir, "--no-plots", "--rerun", rec],
              capsys, ["--rerun", "could not be written"], watch=[cwd, out_dir])  # fmt: skip

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from samii.cli_args import float_in, nonempty_path, seed
+from samii.cli_args import float_in, nonempty_path, positive_float, seed
 from samii.errors import InputError
 
 __all__ = ["add_arguments", "run", "BUILTIN_CONTROLLERS"]
@@ -28,8 +28,6 @@ _FILES = ("timeseries.csv", "run.json")
 MAX_DURATION_S = 600.0
 MAX_STEP_DEG = 30.0
 MAX_IMPULSE_N_S = 20.0
-#: Animation frames of --rerun: every 10th physics step (100 frames/s at 1 ms).
-RERUN_FRAME_STEPS = 10
 
 
 def _step_deg(text: str) -> float:
@@ -76,7 +74,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="override a model parameter, e.g. hydraulic.bulk_modulus=1e9 (repeatable; samii params lists them)")
     parser.add_argument("--out", metavar="DIR", type=nonempty_path, help="write timeseries.csv, run.json and the figures here")
     parser.add_argument("--no-plots", action="store_true", help="with --out, no figures")
-    parser.add_argument("--rerun", metavar="FILE.rrd", type=nonempty_path, help="also write a Rerun recording of the run")
+    parser.add_argument("--rerun", metavar="FILE.rrd", type=nonempty_path,
+                        help="also write a Rerun recording of the run: the beam and arm in 3D with their deflection magnified, the signals grouped by unit, "
+                             "the base modes' coordinates, the controller's switch-on, and a stored layout")
+    parser.add_argument("--rerun-fps", metavar="F", type=positive_float, default=None,
+                        help="animation frames per second in the recording (default: 4 per period of base mode 3, at least 100)")
     parser.add_argument("--overwrite", "--force", dest="overwrite", action="store_true", help="replace existing output files")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
 
@@ -199,8 +201,14 @@ def run(args) -> int:
         kw["impulse_n_s"] = args.impulse_n_s
     sc = scenario(args.scenario, **kw)
     noise = NoiseSpec(seed=args.seed or 0) if args.noise else None
+    frame_steps = None
+    if rerun_path:
+        from samii.sim.plugin import compile_spec
+        from samii.viz.recording import frame_steps_for
+
+        frame_steps = frame_steps_for(compile_spec(factory()[0]), args.rerun_fps)
     result = run_closed_loop(saved, sc, label=args.controller, spec_factory=factory, delay_samples=args.delay_samples, noise=noise,
-                             qpos_every=RERUN_FRAME_STEPS if rerun_path else None)  # fmt: skip
+                             qpos_every=frame_steps)  # fmt: skip
 
     written: list[str] = []
     rrd_tmp = rerun_path.parent / f".{rerun_path.name}.{os.getpid()}.tmp" if rerun_path else None
@@ -247,16 +255,18 @@ def run(args) -> int:
 def _write_rerun(result, tmp, final, factory) -> None:
     import numpy as np
 
-    from samii.measure.recording import write_rerun_recording
     from samii.sim.plugin import compile_spec
+    from samii.viz.recording import RunRecord, write_recording
 
     s = result.signals
-    spec, qpos, act = factory()
-    model = compile_spec(spec)
+    model = compile_spec(factory()[0])
     frame_t = s.frame_t if s.frame_t is not None else np.zeros(0)
     frame_q = s.frame_qpos if s.frame_qpos is not None else np.zeros((0, model.nq))
+    fps = 1.0 / float(np.median(np.diff(frame_t))) if len(frame_t) > 1 else None
+    run = RunRecord("closedloop", result.timeseries(), frame_t, frame_q, switch_on_s=s.switch_on_s,
+                    label=f"samii closedloop: controller {result.controller}, scenario {result.scenario.name}")
     try:
-        write_rerun_recording(tmp, model, result.timeseries(), frame_t_s=frame_t, frame_qpos=frame_q, application_id="samii_closedloop")
+        write_recording(tmp, model, [run], application_id="samii_closedloop", fps=fps)
     except RuntimeError as exc:  # rerun's writer reports file-system failures as RuntimeError
         raise OSError(f"--rerun {final}: the recording could not be written ({' '.join(str(exc).split())})") from None
 

@@ -19,8 +19,6 @@ __all__ = ["add_arguments", "run"]
 
 _OUTPUTS = {"swept": ("timeseries.csv", "frf.csv"), "stepped": ("timeseries.csv", "frf.csv"), "both": ("timeseries.csv", "frf.csv", "timeseries_stepped.csv", "frf_stepped.csv")}
 _METHOD_LABEL = {"swept": "swept sine", "stepped": "stepped sine", "both": "swept and stepped sine"}
-#: Animation rate of the Rerun recording: a frame every 40 physics steps (25 fps at 1 ms).
-_FRAME_STEPS = 40
 
 
 #: Longest run accepted [s of simulated time]: an hour (3.6 M physics steps, about 0.5 GB of
@@ -58,7 +56,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", metavar="XML", help="MJCF file (default: the embedded SAMII model)")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="override a model parameter, e.g. hydraulic.supply_pressure=2.1e7 (repeatable)")
-    parser.add_argument("--rerun", metavar="FILE.rrd", type=nonempty_path, help="also write a Rerun recording: the arm and beam moving and the measured signals (with --method both, of the swept run; the file must not exist unless --overwrite)")
+    parser.add_argument("--rerun", metavar="FILE.rrd", type=nonempty_path, help="also write a Rerun recording: the beam and arm in 3D with their deflection magnified, the signals grouped by unit, the base modes' coordinates, and a stored layout (with --method both, both runs; the file must not exist unless --overwrite)")
+    parser.add_argument("--rerun-fps", metavar="F", type=positive_float, default=None, help="animation frames per second in the recording (default: 4 per period of base mode 3, at least 100; lower it to shrink a long run's file)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print the run summary as JSON")
@@ -177,7 +176,11 @@ def run(args: argparse.Namespace) -> int:
     _check_loop_stable(model)
     noise = SensorNoise() if args.noise else None
     rng = np.random.default_rng(args.seed)
-    frame_steps = _FRAME_STEPS if rerun_path else None
+    frame_steps = None
+    if rerun_path:
+        from samii.viz.recording import frame_steps_for
+
+        frame_steps = frame_steps_for(model, args.rerun_fps)
 
     total_steps = sum(int(round(e.duration_s / dt)) for _, e in plan)
     bar = tqdm(total=total_steps, unit="step", unit_scale=True, desc="samii measure", disable=args.no_progress, file=sys.stderr)
@@ -286,11 +289,13 @@ def run(args: argparse.Namespace) -> int:
                 summary["warnings"] = warnings_out
             write_text(folder.path("run.json"), dumps(summary, indent=2) + "\n")
             if rerun_path is not None:
-                from samii.measure.recording import write_rerun_recording
+                from samii.viz.recording import RunRecord, write_recording
 
-                first = results[plan[0][0]]
+                runs = [RunRecord(kind, res.timeseries, res.run.frame_t_s, res.run.frame_qpos, sweep_hz=exc.frequency_hz(res.timeseries.t),
+                                  label=f"samii measure: {kind} sine, {exc.amplitude_v:g} V on the valve command, joint 2 under its position loop")
+                        for (kind, exc), res in ((p, results[p[0]]) for p in plan)]  # fmt: skip
                 try:
-                    write_rerun_recording(rrd_tmp, model, first.timeseries, frame_t_s=first.run.frame_t_s, frame_qpos=first.run.frame_qpos)
+                    write_recording(rrd_tmp, model, runs, application_id="samii_measure", fps=physics_hz / frame_steps)
                 except RuntimeError as exc:  # rerun's writer reports file-system failures as RuntimeError
                     raise OSError(f"--rerun {rerun_path}: the recording could not be written ({' '.join(str(exc).split())})") from None
         if rrd_tmp is not None:  # the recording lives outside --out: moved into place once the folder is complete

@@ -381,6 +381,14 @@ class SteppedSine:
     def duration_s(self) -> float:
         return float(self.lead_s + np.sum(self.dwell_s))
 
+    def frequency_hz(self, t_s) -> np.ndarray:
+        """Frequency of the dwell at campaign times ``t_s`` [Hz] (NaN before the first)."""
+        t = np.asarray(t_s, float)
+        out = np.full(t.shape, np.nan)
+        for f, start, dwell in zip(self.freqs_hz, self._starts, self.dwell_s):
+            out[(t >= start) & (t < start + dwell)] = f
+        return out
+
     def signal(self, t_s) -> np.ndarray:
         """Excitation r(t) [V] at campaign times ``t_s``."""
         t = np.asarray(t_s, float)

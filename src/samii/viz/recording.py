@@ -1,0 +1,335 @@
+"""Rerun recordings of simulated runs, one layout for every command that simulates.
+
+Logging only (rerun is imported when called): the figures logged are computed by
+:mod:`samii.sim.modal` and MuJoCo's kinematics. A recording holds one or more runs; run
+``NAME``'s entities are
+
+- ``NAME/deformed/<body>``: each body's world pose per animation frame, the joints' deviations
+  from the ``home`` pose multiplied by the deformation scale (the beam's by ``beam_scale``, the
+  arm's by ``arm_scale``; both in the 3D view's name and in ``NAME/about``); the geoms are
+  logged once, static, as children ``NAME/deformed/<body>/<geom>`` with their pose in the body;
+- ``NAME/deformed/tip_trail``: the beam tip's last ``TRAIL_S`` seconds as fading points;
+- ``NAME/true_scale/<body>``: the same at true scale (the beam's real motion is sub-millimetre);
+- time series grouped by unit, the unit in each group's name: ``NAME/angle_deg/{theta,theta_ref}``
+  (joint 2 from the nominal pose), ``NAME/accel_m_s2/base``, ``NAME/volts/{valve_command,
+  excitation,controller_command}``, ``NAME/pressure_mpa/load``, ``NAME/displacement_mm/{tip,
+  mode_1,mode_2,mode_3}`` (the tip's displacement along the accelerometer's axis and each base
+  mode's share of it: the modal coordinates), ``NAME/frequency_hz/sweep`` (a swept sine's
+  instantaneous frequency), ``NAME/events`` (the controller's switch-on, as a text log and a
+  marker on the command);
+- ``NAME/about``: a text document with the scales, the frame rate and the modes.
+
+Timeline ``time`` (seconds of the run). The blueprint stored with the recording puts the 3D
+views (deformed and true scale, as tabs) beside one time-series panel per unit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from samii.measure.timeseries import TimeSeries
+
+__all__ = ["RunRecord", "RecordingInfo", "write_recording", "frame_steps_for", "default_scales", "TRAIL_S", "BEAM_DEFLECTION_SHOWN"]
+
+#: The default deformation scale shows the run's largest tip deflection as this fraction of the beam's length.
+BEAM_DEFLECTION_SHOWN = 0.05
+#: The arm joints' largest deviation is shown at most this large [rad] (15 deg): scaled like the
+#: beam, a step of a few degrees would spin the arm round.
+ARM_DEVIATION_SHOWN_RAD = np.radians(15.0)
+#: Length of the tip's trail [s] and the number of points it is drawn with.
+TRAIL_S = 0.6
+TRAIL_POINTS = 20
+#: Frames per period of the fastest base mode shown (mode 3), and the lowest frame rate [1/s].
+FRAMES_PER_PERIOD = 4
+MIN_FPS = 100.0
+
+_BEAM_BODY_PREFIXES = ("beam_", "clamp")
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """One simulated run to record: its DAQ record and its animation frames (SI units)."""
+
+    name: str  #: entity root, e.g. "measure", "with_controller"
+    timeseries: TimeSeries
+    frame_t_s: np.ndarray  #: (frames,)
+    frame_qpos: np.ndarray  #: (frames, nq)
+    sweep_hz: np.ndarray | None = None  #: instantaneous sweep frequency at ``timeseries.t``
+    switch_on_s: float | None = None  #: the controller's switch-on (Loper test)
+    label: str = ""  #: one line on what the run is
+
+
+@dataclass(frozen=True)
+class RecordingInfo:
+    """What :func:`write_recording` wrote (also in each run's ``about`` document)."""
+
+    path: Path
+    beam_scale: float
+    arm_scale: float
+    fps: float
+    modes_hz: tuple[float, ...]
+    max_tip_deflection_m: float
+    runs: tuple[str, ...] = field(default_factory=tuple)
+
+
+def frame_steps_for(model: mujoco.MjModel, fps: float | None = None) -> int:
+    """Physics steps per animation frame: ``fps`` if given, else at least ``FRAMES_PER_PERIOD``
+    frames per period of base mode 3 and at least ``MIN_FPS`` (100 frames/s on the embedded model)."""
+    from samii.sim.modal import modal_projection
+
+    dt = float(model.opt.timestep)
+    if fps is None:
+        f3 = float(modal_projection(model).freq_hz[-1])
+        fps = max(MIN_FPS, FRAMES_PER_PERIOD * f3)
+        return max(1, int(np.floor(1.0 / (fps * dt))))
+    if not np.isfinite(fps) or fps <= 0:
+        raise ValueError(f"frame rate must be a positive number of frames per second, got {fps!r}")
+    return max(1, int(round(1.0 / (fps * dt))))
+
+
+def _beam_dofs(model: mujoco.MjModel) -> np.ndarray:
+    """qpos addresses of the beam's joints (the clamp, the hinges, the clamp's Maxwell node)."""
+    out = []
+    for j in range(model.njnt):
+        name = model.joint(j).name
+        if name.startswith(("clamp", "beam_")):
+            out.append(int(model.jnt_qposadr[j]))
+    return np.array(out, int)
+
+
+def _tip_site(model: mujoco.MjModel) -> int:
+    from samii.sim.sensors import SENSOR
+
+    return int(model.sensor_objid[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, SENSOR)])
+
+
+def _beam_length(model: mujoco.MjModel, data: mujoco.MjData) -> float:
+    site = _tip_site(model)
+    root = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "beam_0")
+    return float(np.linalg.norm(data.site_xpos[site] - data.xpos[root])) if root >= 0 else 1.0
+
+
+def _poses(model: mujoco.MjModel, qpos: np.ndarray, site: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Body positions (frames, nbody, 3), quaternions x,y,z,w (frames, nbody, 4), tip site (frames, 3)."""
+    data = mujoco.MjData(model)
+    n = len(qpos)
+    pos = np.empty((n, model.nbody, 3))
+    quat = np.empty((n, model.nbody, 4))
+    tip = np.empty((n, 3))
+    for i in range(n):
+        data.qpos[:] = qpos[i]
+        mujoco.mj_kinematics(model, data)
+        pos[i] = data.xpos
+        quat[i] = data.xquat
+        tip[i] = data.site_xpos[site]
+    return pos, quat[:, :, [1, 2, 3, 0]], tip
+
+
+def default_scales(model: mujoco.MjModel, runs, *, beam_scale: float | None = None, tips: list[np.ndarray] | None = None) -> tuple[float, float, float]:
+    """(beam scale, arm scale, largest tip deflection [m]) for ``runs``.
+
+    The beam's default: its largest tip deflection shown as ``BEAM_DEFLECTION_SHOWN`` of its
+    length (1 when the tip does not move). The arm joints get the same scale unless that would
+    show a joint's deviation beyond ``ARM_DEVIATION_SHOWN_RAD``; then the largest that does not
+    (never below 1). ``tips``: each run's tip-site positions (frames, 3), if computed already."""
+    from samii.sim.model import make_data
+
+    home = make_data(model)
+    site = _tip_site(model)
+    beam = _beam_dofs(model)
+    arm = np.setdiff1d(np.arange(model.nq), beam)
+    deflection, arm_dev = 0.0, 0.0
+    for i, run in enumerate(runs):
+        if len(run.frame_qpos) == 0:
+            continue
+        tip = tips[i] if tips is not None else _poses(model, run.frame_qpos, site)[2]
+        deflection = max(deflection, float(np.max(np.linalg.norm(tip - home.site_xpos[site], axis=1))))
+        arm_dev = max(arm_dev, float(np.max(np.abs(run.frame_qpos[:, arm] - home.qpos[arm]))))
+    if beam_scale is None:
+        beam_scale = BEAM_DEFLECTION_SHOWN * _beam_length(model, home) / deflection if deflection > 0 else 1.0
+    arm_scale = beam_scale if arm_dev * beam_scale <= ARM_DEVIATION_SHOWN_RAD else max(1.0, ARM_DEVIATION_SHOWN_RAD / arm_dev)
+    return float(beam_scale), float(arm_scale), deflection
+
+
+def _geom_archetype(rr, gtype: int, size: np.ndarray, rgba: np.ndarray):
+    color = [int(round(255 * c)) for c in rgba]
+    if gtype == mujoco.mjtGeom.mjGEOM_BOX:
+        return rr.Boxes3D(half_sizes=[size[:3]], colors=[color], fill_mode="solid")
+    if gtype == mujoco.mjtGeom.mjGEOM_CAPSULE:  # MuJoCo: centred, half-length size[1] along z
+        return rr.Capsules3D(lengths=[2 * size[1]], radii=[size[0]], translations=[[0, 0, -size[1]]], colors=[color])
+    if gtype == mujoco.mjtGeom.mjGEOM_CYLINDER:
+        return rr.Cylinders3D(lengths=[2 * size[1]], radii=[size[0]], centers=[[0, 0, 0]], colors=[color], fill_mode="solid")
+    if gtype == mujoco.mjtGeom.mjGEOM_SPHERE:
+        return rr.Ellipsoids3D(half_sizes=[[size[0]] * 3], colors=[color], fill_mode="solid")
+    return None  # planes, meshes: not drawn
+
+
+def _body_name(model: mujoco.MjModel, b: int) -> str:
+    return model.body(b).name or f"body_{b}"
+
+
+def _log_model(rec, rr, model: mujoco.MjModel, root: str, t_s: np.ndarray, pos: np.ndarray, quat: np.ndarray) -> None:
+    """Geoms once (static, in their body), one transform per body per frame."""
+    frames = rr.TimeColumn("time", duration=t_s)
+    for b in range(1, model.nbody):
+        entity = f"{root}/{_body_name(model, b)}"
+        geoms = range(model.body_geomadr[b], model.body_geomadr[b] + model.body_geomnum[b]) if model.body_geomnum[b] else ()
+        drawn = False
+        for g in geoms:
+            arch = _geom_archetype(rr, int(model.geom_type[g]), model.geom_size[g], model.geom_rgba[g])
+            if arch is None:
+                continue
+            q = model.geom_quat[g]
+            gname = model.geom(g).name or f"geom_{g}"
+            rec.log(f"{entity}/{gname}", rr.Transform3D(translation=model.geom_pos[g], quaternion=[q[1], q[2], q[3], q[0]]), arch, static=True)
+            drawn = True
+        if drawn:
+            rec.send_columns(entity, indexes=[frames], columns=rr.Transform3D.columns(translation=pos[:, b], quaternion=quat[:, b]))
+
+
+def _series(rec, rr, entity: str, t_s: np.ndarray, values: np.ndarray, name: str, color) -> None:
+    rec.log(entity, rr.SeriesLines(names=name, colors=[color]), static=True)
+    rec.send_columns(entity, indexes=[rr.TimeColumn("time", duration=t_s)], columns=rr.Scalars.columns(scalars=values))
+
+
+def _trail(rec, rr, entity: str, t_s: np.ndarray, tip: np.ndarray, fps: float) -> None:
+    """The tip's last ``TRAIL_S`` seconds at each frame, as ``TRAIL_POINTS`` points fading with age."""
+    n = len(t_s)
+    stride = max(1, int(round(TRAIL_S * fps / TRAIL_POINTS)))
+    lag = np.arange(TRAIL_POINTS) * stride
+    idx = np.clip(np.arange(n)[:, None] - lag[None, :], 0, None)
+    age = np.linspace(0.0, 1.0, TRAIL_POINTS)
+    colors = np.zeros((TRAIL_POINTS, 4), np.uint8)
+    colors[:, 0], colors[:, 1], colors[:, 2] = 255, 140, 0
+    colors[:, 3] = np.round(255 * (1 - 0.9 * age)).astype(np.uint8)
+    radii = 0.02 * (1 - 0.7 * age)
+    cols = rr.Points3D.columns(positions=tip[idx].reshape(-1, 3), colors=np.tile(colors, (n, 1)), radii=np.tile(radii, n))
+    rec.send_columns(entity, indexes=[rr.TimeColumn("time", duration=t_s)], columns=cols.partition(np.full(n, TRAIL_POINTS)))
+
+
+_COLORS = {"theta": (31, 119, 180), "theta_ref": (150, 150, 150), "accel": (214, 39, 40), "v": (44, 160, 44), "r": (148, 103, 189),
+           "command": (255, 127, 14), "p_load": (140, 86, 75), "tip": (0, 0, 0), "mode_1": (31, 119, 180), "mode_2": (255, 127, 14),
+           "mode_3": (44, 160, 44), "sweep": (23, 190, 207)}  # fmt: skip
+#: (group entity, its panel's title) in the blueprint's order
+GROUPS = (("angle_deg", "Angle [deg]"), ("accel_m_s2", "Acceleration [m/s²]"), ("volts", "Voltage [V]"), ("pressure_mpa", "Pressure [MPa]"),
+          ("displacement_mm", "Tip displacement and base modes [mm]"), ("frequency_hz", "Sweep frequency [Hz]"))  # fmt: skip
+
+
+def _log_signals(rec, rr, run: RunRecord, projection, q_t: np.ndarray, tip_m: np.ndarray) -> list[str]:
+    ts = run.timeseries
+    root = run.name
+    groups = set()
+
+    def put(group: str, key: str, values, name: str, t=None) -> None:
+        if values is None:
+            return
+        _series(rec, rr, f"{root}/{group}/{key}", ts.t if t is None else t, np.asarray(values, float), name, _COLORS[key])
+        groups.add(group)
+
+    put("angle_deg", "theta", np.degrees(ts.theta), "θ joint 2 [deg]")
+    put("angle_deg", "theta_ref", None if ts.theta_ref is None else np.degrees(ts.theta_ref), "θ_ref [deg]")
+    put("accel_m_s2", "accel", ts.accel, "base acceleration ẍ [m/s²]")
+    put("volts", "v", ts.v, "valve command v [V]")
+    put("volts", "r", ts.r, "excitation r [V]")
+    command = ts.extra.get("command") if ts.extra else None
+    if command is not None:  # shown while the controller runs
+        on = np.isfinite(command) & (ts.extra["controller_on"] > 0.5 if "controller_on" in ts.extra else True)
+        command = np.where(on, command, np.nan)
+        if np.any(on):
+            put("volts", "command", command[on], "controller command [V]", t=ts.t[on])
+    put("pressure_mpa", "p_load", None if ts.p_load is None else ts.p_load / 1e6, "load pressure [MPa]")
+    put("displacement_mm", "tip", 1e3 * tip_m, "tip displacement [mm]", t=q_t)
+    shares = projection.shares_m(run.frame_qpos) if len(run.frame_qpos) else np.zeros((0, len(projection.freq_hz)))
+    for k, f in enumerate(projection.freq_hz):
+        put("displacement_mm", f"mode_{k + 1}", 1e3 * shares[:, k], f"mode {k + 1} ({f:.2f} Hz) [mm]", t=q_t)
+    put("frequency_hz", "sweep", run.sweep_hz, "sweep frequency [Hz]")
+    if run.switch_on_s is not None:
+        rec.set_time("time", duration=float(run.switch_on_s))
+        rec.log(f"{root}/events", rr.TextLog(f"controller switched on at {run.switch_on_s:.3f} s", level="INFO"))
+        if command is not None and np.any(np.isfinite(command)):
+            k = int(np.argmax(np.isfinite(command)))
+            rec.log(f"{root}/volts/switch_on", rr.Scalars([float(command[k])]), rr.SeriesPoints(names="controller switched on", markers="diamond",
+                                                                                                marker_sizes=8, colors=[(0, 0, 0)]))  # fmt: skip
+        rec.reset_time()
+    return [g for g, _ in GROUPS if g in groups]
+
+
+def _blueprint(rrb, runs, groups_by_run: dict[str, list[str]], beam_scale: float, arm_scale: float):
+    views3d = []
+    for run in runs:
+        views3d.append(rrb.Spatial3DView(origin=f"/{run.name}/deformed", name=f"{run.name}: 3D, beam deflection ×{beam_scale:.3g}, arm joints ×{arm_scale:.3g}"))
+        views3d.append(rrb.Spatial3DView(origin=f"/{run.name}/true_scale", name=f"{run.name}: 3D, true scale"))
+    panels = []
+    for group, title in GROUPS:
+        contents = [f"/{run.name}/{group}/**" for run in runs if group in groups_by_run[run.name]]
+        if contents:
+            panels.append(rrb.TimeSeriesView(origin="/", contents=contents, name=title))
+    events = [f"/{run.name}/events" for run in runs if run.switch_on_s is not None]
+    left = [rrb.Tabs(*views3d)]
+    if events:
+        left.append(rrb.TextLogView(origin="/", contents=events, name="Events"))
+    left.append(rrb.TextDocumentView(origin="/", contents=[f"/{run.name}/about" for run in runs], name="About this recording"))
+    return rrb.Blueprint(rrb.Horizontal(rrb.Vertical(*left, row_shares=[4] + [1] * (len(left) - 1)), rrb.Vertical(*panels), column_shares=[3, 2]),
+                         rrb.TimePanel(expanded=True), collapse_panels=False)  # fmt: skip
+
+
+def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, beam_scale: float | None = None, fps: float | None = None) -> RecordingInfo:
+    """Write ``runs`` (:class:`RunRecord`) of ``model`` to the ``.rrd`` file ``path`` with the stored layout.
+
+    ``beam_scale``: the deformation scale (default :func:`default_scales`). ``fps``: the frame
+    rate the frames were kept at (for the trail; default from their times). The file is replaced
+    if it exists (the caller applies the overwrite rules).
+    """
+    import rerun as rr
+    import rerun.blueprint as rrb
+
+    from samii.sim.modal import modal_projection
+    from samii.sim.model import make_data
+
+    runs = list(runs)
+    path = Path(path)
+    projection = modal_projection(model)
+    site = _tip_site(model)
+    frames = [(np.asarray(r.frame_t_s, float), np.asarray(r.frame_qpos, float).reshape(len(r.frame_t_s), model.nq)) for r in runs]
+    true_poses = [_poses(model, q, site) for _, q in frames]
+    beam_scale, arm_scale, deflection = default_scales(model, runs, beam_scale=beam_scale, tips=[p[2] for p in true_poses])
+    home = make_data(model).qpos.copy()
+    beam = _beam_dofs(model)
+    scale = np.full(model.nq, arm_scale)
+    scale[beam] = beam_scale
+    length = _beam_length(model, make_data(model))
+
+    rec = rr.RecordingStream(application_id)
+    rec.set_log_time_enabled(False)  # the one timeline is the run's time
+    rec.save(path)
+    groups_by_run = {}
+    rate = fps
+    for run, (t, q), (pos_true, quat_true, _) in zip(runs, frames, true_poses):
+        if rate is None:
+            rate = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else MIN_FPS
+        rec.log(run.name, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        pos_def, quat_def, tip_def = _poses(model, home + (q - home) * scale, site)
+        _log_model(rec, rr, model, f"{run.name}/true_scale", t, pos_true, quat_true)
+        _log_model(rec, rr, model, f"{run.name}/deformed", t, pos_def, quat_def)
+        if len(t):
+            _trail(rec, rr, f"{run.name}/deformed/tip_trail", t, tip_def, rate)
+        groups_by_run[run.name] = _log_signals(rec, rr, run, projection, t, projection.tip_m(q) if len(q) else np.zeros(0))
+        modes = ", ".join(f"{f:.2f}" for f in projection.freq_hz)
+        about = (f"# {run.name}\n\n{run.label}\n\n"
+                 f"- **deformation scale**: beam deflection ×{beam_scale:.4g}, arm joints' deviations from the nominal pose ×{arm_scale:.4g} "
+                 f"(the run's largest tip deflection, {1e3 * deflection:.4g} mm, is shown as {100 * beam_scale * deflection / length:.3g} % of the beam's length); "
+                 f"the true-scale view is the other 3D tab\n"
+                 f"- **frames**: {rate:.4g} per second ({len(t)} frames); signals at the DAQ's rate\n"
+                 f"- **tip trail**: the last {TRAIL_S} s of the beam tip (deformed)\n"
+                 f"- **modal coordinates**: each base mode's share of the tip displacement along the accelerometer's axis, "
+                 f"from the undamped shapes of the structure with joint 2 held ({modes} Hz)\n")  # fmt: skip
+        rec.log(f"{run.name}/about", rr.TextDocument(about, media_type="text/markdown"), static=True)
+    rec.send_property("deformation", rr.AnyValues(beam_scale=beam_scale, arm_scale=arm_scale, max_tip_deflection_m=deflection, fps=float(rate or 0.0)))
+    rec.send_blueprint(_blueprint(rrb, runs, groups_by_run, beam_scale, arm_scale))
+    rec.flush()
+    rec.disconnect()
+    return RecordingInfo(path, beam_scale, arm_scale, float(rate or 0.0), tuple(float(f) for f in projection.freq_hz), deflection, tuple(r.name for r in runs))

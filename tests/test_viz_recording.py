@@ -1,0 +1,176 @@
+"""Rerun recordings read back (rerun-sdk's ``rerun.chunk.RrdReader``): entities, timeline, frame
+rate, values equal to the data they came from, the deformation scale, the blueprint.
+
+Physics checked on the way: the modal coordinates of an impulse at the beam's tip are mode 1's
+(the tip impulse excites mode 1 almost alone: it carries > 99 % of the tip's motion), their sum
+is the tip's displacement, and the deformed view's tip moves ``beam_scale`` times the true one.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from samii.cli import main
+
+rc = pytest.importorskip("rerun.chunk")
+
+
+def _read(path):
+    """{entity: {"static": [record batches], "time": [record batches]}} of the recording, and the blueprint's texts."""
+    reader = rc.RrdReader(str(path))
+    out: dict[str, dict[str, list]] = {}
+    for chunk in reader.store().stream():
+        kind = "static" if chunk.is_static else "time"
+        out.setdefault(chunk.entity_path, {"static": [], "time": []})[kind].append(chunk.to_record_batch())
+    blueprints = reader.blueprints()
+    names = []
+    for entry in blueprints:
+        for chunk in reader.store(store=entry).stream():
+            batch = chunk.to_record_batch()
+            for name in batch.schema.names:
+                if name.endswith(":name") or name.endswith("display_name"):
+                    names += [str(v) for v in batch.column(name).to_pylist()]
+    return out, names, blueprints
+
+
+def _column(batches, name):
+    """Time [s] and values of a component over all chunks, sorted by time."""
+    t, v = [], []
+    for b in batches:
+        t.append(b.column("time").cast("int64").to_numpy() * 1e-9)
+        v.append(np.asarray(b.column(name).to_pylist(), dtype=object))
+    t = np.concatenate(t)
+    order = np.argsort(t, kind="stable")
+    return t[order], np.concatenate(v)[order]
+
+
+def _scalars(batches):
+    t, v = _column(batches, "Scalars:scalars")
+    return t, np.array([x[0] for x in v], float)
+
+
+@pytest.fixture(scope="module")
+def loper(tmp_path_factory):
+    """``samii closedloop --controller damping --scenario loper --rerun``: the Loper test (switch-on mid-run)."""
+    d = tmp_path_factory.mktemp("loper")
+    rrd = d / "run.rrd"
+    assert main(["closedloop", "--controller", "damping", "--scenario", "loper", "--duration-s", "6", "--out", str(d / "out"),
+                 "--no-plots", "--rerun", str(rrd)]) == 0  # fmt: skip
+    from samii.measure.io import read_timeseries_csv
+
+    return _read(rrd) + (read_timeseries_csv(d / "out" / "timeseries.csv"),)
+
+
+def test_recording_has_the_layout_and_the_data(loper):
+    rec, names, blueprints = loper[:3]
+    ts = loper[3]
+    root = "/closedloop"
+    # 3D: one transform per body per frame, geoms static under their body, at both scales; the tip's trail
+    for view in ("deformed", "true_scale"):
+        for body in ("beam_0", "beam_4", "l0", "link2", "link6"):
+            assert rec[f"{root}/{view}/{body}"]["time"], f"{view}/{body} has no transforms"
+            assert not rec[f"{root}/{view}/{body}"]["static"]
+        geoms = [e for e in rec if e.startswith(f"{root}/{view}/link2/")]
+        assert geoms and all(rec[e]["static"] and not rec[e]["time"] for e in geoms)
+    assert rec[f"{root}/deformed/tip_trail"]["time"]
+    # frame rate: 4 frames per period of base mode 3 (~24-25 Hz), at least 100/s
+    t, _ = _column(rec[f"{root}/deformed/link2"]["time"], "Transform3D:translation")
+    assert np.allclose(np.diff(t), 0.01, atol=1e-9) and t[-1] >= 5.9
+    # signals grouped by unit, equal to the run's timeseries.csv (converted to the unit in the name)
+    for entity, values in ((f"{root}/angle_deg/theta", np.degrees(ts.theta)), (f"{root}/angle_deg/theta_ref", np.degrees(ts.theta_ref)),
+                           (f"{root}/accel_m_s2/accel", ts.accel), (f"{root}/volts/v", ts.v), (f"{root}/volts/r", ts.r),
+                           (f"{root}/pressure_mpa/p_load", ts.p_load / 1e6)):  # fmt: skip
+        tt, vv = _scalars(rec[entity]["time"])
+        assert np.allclose(tt, ts.t, atol=1e-9), entity
+        assert np.allclose(vv, values, rtol=1e-9, atol=1e-12), entity
+    # the controller's command only while it runs; the switch-on marked
+    tt, vv = _scalars(rec[f"{root}/volts/command"]["time"])
+    on = ts.extra["controller_on"] > 0.5
+    assert np.allclose(tt, ts.t[on], atol=1e-9) and np.allclose(vv, ts.extra["command"][on])
+    t_on, _ = _scalars(rec[f"{root}/volts/switch_on"]["time"])
+    assert t_on[0] == pytest.approx(ts.t[on][0], abs=1e-9)
+    _, text = _column(rec[f"{root}/events"]["time"], "TextLog:text")
+    assert "switched on" in str(text[0])
+    # modal coordinates and the tip, in mm
+    for k in (1, 2, 3):
+        assert rec[f"{root}/displacement_mm/mode_{k}"]["time"]
+    # the layout is stored: 3D views naming the scale, one time-series panel per unit
+    assert blueprints
+    joined = " | ".join(names)
+    for title in ("beam deflection ×", "true scale", "Angle [deg]", "Acceleration [m/s²]", "Voltage [V]", "Pressure [MPa]",
+                  "Tip displacement and base modes [mm]"):  # fmt: skip
+        assert title in joined, f"no view {title!r} in the blueprint: {joined}"
+
+
+def test_deformation_scale_magnifies_the_beam(loper):
+    """The deformed tip moves beam_scale times the true tip; the largest shown deflection is 5 % of the beam."""
+    from samii.sim.model import load_model, make_data
+
+    rec = loper[0]
+    props = rec["/__properties/deformation"]["static"][0]
+    beam_scale = props.column("beam_scale").to_pylist()[0][0]
+    model = load_model()
+    home = make_data(model)
+    l0 = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "l0")
+    _, true = _column(rec["/closedloop/true_scale/l0"]["time"], "Transform3D:translation")
+    _, shown = _column(rec["/closedloop/deformed/l0"]["time"], "Transform3D:translation")
+    true = np.array([np.asarray(x, float).ravel() for x in true]) - home.xpos[l0]
+    shown = np.array([np.asarray(x, float).ravel() for x in shown]) - home.xpos[l0]
+    big = np.linalg.norm(true, axis=1) > 0.3 * np.linalg.norm(true, axis=1).max()
+    ratio = np.linalg.norm(shown[big], axis=1) / np.linalg.norm(true[big], axis=1)
+    assert np.allclose(ratio, beam_scale, rtol=0.03), (beam_scale, ratio.min(), ratio.max())
+    beam = np.linalg.norm(home.xpos[l0] - home.xpos[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "beam_0")])
+    assert np.linalg.norm(shown, axis=1).max() == pytest.approx(0.05 * beam, rel=0.05)
+
+
+def test_modal_coordinates_of_a_tip_impulse_are_mode_1():
+    """An impulse at the tip excites base mode 1 almost alone; the modes' shares add up to the tip's displacement,
+    which agrees with the kinematic one (the projection is the linearisation about home)."""
+    from samii.sim.linearize import base_modes
+    from samii.sim.modal import modal_projection
+    from samii.sim.model import load_model, load_spec, make_data
+    from samii.sim.sensors import accel_weights
+
+    model = load_model()
+    proj = modal_projection(model)
+    spec, _ = load_spec()
+    data = make_data(model)
+    theta2 = data.qpos[model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, "joint2")]]
+    assert np.allclose(proj.freq_hz, [m.freq_hz for m in base_modes(spec, theta2)], rtol=0.06)
+    site = int(model.sensor_objid[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, "base_accel")])
+    _, direction = accel_weights(model)
+    jac = np.zeros((3, model.nv))
+    mujoco.mj_jacSite(model, data, jac, None, site)
+    c = direction @ jac
+    data.qvel[:] = c * 0.02 / (c @ c)  # a 0.02 m/s kick at the tip along the accelerometer's axis
+    home_tip = make_data(model).site_xpos[site].copy()
+    q, tip = [], []
+    for i in range(3000):
+        mujoco.mj_step(model, data)
+        if i % 5 == 0:
+            q.append(data.qpos.copy())
+            tip.append((data.site_xpos[site] - home_tip) @ direction)
+    q, tip = np.array(q), np.array(tip)
+    shares = proj.shares_m(q)
+    rms = np.sqrt(np.mean(shares**2, axis=0))
+    assert rms[0] > 0.99 * np.sqrt(np.mean(tip**2))
+    assert np.all(rms[1:] < 0.01 * rms[0])
+    assert np.sqrt(np.mean((proj.tip_m(q) - tip) ** 2)) < 0.02 * np.sqrt(np.mean(tip**2))
+    assert np.sqrt(np.mean((shares.sum(axis=1) - proj.tip_m(q)) ** 2)) < 0.01 * np.sqrt(np.mean(tip**2))
+
+
+def test_measure_both_records_both_runs_with_the_sweep_frequency(tmp_path):
+    rrd = tmp_path / "m.rrd"
+    assert main(["measure", "--method", "both", "--band-hz", "5", "10", "--averages", "1", "--freqs-hz", "6", "9", "--tail-s", "1",
+                 "--no-progress", "--out", str(tmp_path / "out"), "--rerun", str(rrd), "--rerun-fps", "50"]) == 0  # fmt: skip
+    rec, names, _ = _read(rrd)
+    for run in ("swept", "stepped"):
+        assert rec[f"/{run}/deformed/link2"]["time"]
+        t, f = _scalars(rec[f"/{run}/frequency_hz/sweep"]["time"])
+        finite = f[np.isfinite(f)]
+        assert finite.size and finite.min() >= 5 - 1e-9 and finite.max() <= 10 + 1e-9
+    t, _ = _column(rec["/swept/deformed/link2"]["time"], "Transform3D:translation")
+    assert np.allclose(np.diff(t), 0.02, atol=1e-9)  # --rerun-fps 50
+    assert any("swept: 3D" in n for n in names) and any("stepped: 3D" in n for n in names)
