@@ -203,10 +203,9 @@ def run(args) -> int:
     noise = NoiseSpec(seed=args.seed or 0) if args.noise else None
     frame_steps = None
     if rerun_path:
-        from samii.sim.plugin import compile_spec
         from samii.viz.recording import frame_steps_for
 
-        frame_steps = frame_steps_for(compile_spec(factory()[0]), args.rerun_fps)
+        frame_steps = frame_steps_for(_model_at_rest(factory), args.rerun_fps)
     result = run_closed_loop(saved, sc, label=args.controller, spec_factory=factory, delay_samples=args.delay_samples, noise=noise,
                              qpos_every=frame_steps)  # fmt: skip
 
@@ -252,21 +251,41 @@ def run(args) -> int:
     return 0
 
 
+def _model_at_rest(factory):
+    """The run's model with its ``home`` keyframe at the static equilibrium the factory found (a
+    model changed by ``--set`` or a parameter file is not at rest in its written keyframe)."""
+    import mujoco
+
+    from samii.sim.plugin import compile_spec
+
+    spec, qpos, act = factory()
+    model = compile_spec(spec)
+    key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
+    if key >= 0:
+        model.key_qpos[key] = qpos
+        if model.na:
+            model.key_act[key] = act
+    return model
+
+
 def _write_rerun(result, tmp, final, factory) -> None:
     import numpy as np
 
-    from samii.sim.plugin import compile_spec
     from samii.viz.recording import RunRecord, write_recording
 
     s = result.signals
-    model = compile_spec(factory()[0])
+    model = _model_at_rest(factory)
     frame_t = s.frame_t if s.frame_t is not None else np.zeros(0)
     frame_q = s.frame_qpos if s.frame_qpos is not None else np.zeros((0, model.nq))
     fps = 1.0 / float(np.median(np.diff(frame_t))) if len(frame_t) > 1 else None
-    run = RunRecord("closedloop", result.timeseries(), frame_t, frame_q, switch_on_s=s.switch_on_s,
-                    label=f"samii closedloop: controller {result.controller}, scenario {result.scenario.name}")
+    runs = [RunRecord("closedloop", result.timeseries(), frame_t, frame_q, switch_on_s=s.switch_on_s,
+                      label=f"samii closedloop: controller {result.controller}, scenario {result.scenario.name}")]
+    c = result.comparison
+    if c is not None and c.frame_t is not None:  # the same scenario under the servo amplifier alone (Figure 11.4 as a recording)
+        runs.append(RunRecord("servo_loop_alone", result.timeseries(comparison=True), c.frame_t, c.frame_qpos,
+                              label=f"the comparison: scenario {result.scenario.name} under the servo amplifier alone (no controller)"))
     try:
-        write_recording(tmp, model, [run], application_id="samii_closedloop", fps=fps)
+        write_recording(tmp, model, runs, application_id="samii_closedloop", fps=fps)
     except RuntimeError as exc:  # rerun's writer reports file-system failures as RuntimeError
         raise OSError(f"--rerun {final}: the recording could not be written ({' '.join(str(exc).split())})") from None
 

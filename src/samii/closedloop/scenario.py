@@ -174,11 +174,12 @@ class ClosedLoopResult:
             "notes": list(self.notes),
         }  # fmt: skip
 
-    def timeseries(self):
-        """The run in the standard time-series format (physics rate); ``command`` and ``controller_on`` as extra columns."""
+    def timeseries(self, *, comparison: bool = False):
+        """The run (``comparison``: the comparison run) in the standard time-series format (physics
+        rate); ``command`` and ``controller_on`` as extra columns."""
         from samii.measure.timeseries import TimeSeries
 
-        s = self.signals
+        s = self.comparison if comparison else self.signals
         meta = {
             "source": f"samii closedloop --controller {self.controller} --scenario {self.scenario.name} (simulated)",
             "sample_rate_hz": f"{1.0 / s.dt_s:.12g}",
@@ -297,7 +298,8 @@ def run_closed_loop(
     if comparison and controller is not None:
         spec0, qpos0, act0 = spec_factory()
         cm0 = build_card_model(spec0, None, home_qpos=qpos0, home_act=act0)
-        comp = run_loop(cm0, theta_ref, initial_state=_impulse_state(cm0, sc.impulse_n_s) if sc.name == "release" else None)
+        comp = run_loop(cm0, theta_ref, initial_state=_impulse_state(cm0, sc.impulse_n_s) if sc.name == "release" else None,
+                        qpos_every=qpos_every)
 
     # linear prediction
     ll: LinearLoop = linear_loop(cm)

@@ -3,7 +3,8 @@
 The base modes (``samii modes``) are those of the structure with joint 2 held. Here they are the
 undamped modes of that structure linearised at the ``home`` keyframe: mass matrix ``M`` from
 ``mj_fullM``, stiffness ``K = -M dqdd/dq`` by central differences, joint
-2's row and column removed (held), shapes from the generalised eigenproblem ``K phi = w^2 M phi``.
+2's row and column removed (held), shapes from the generalised symmetric eigenproblem ``K phi = w^2 M phi`` (``K`` symmetrised; it is
+symmetric to 1e-10 at rest), normalised so that ``phi^T M phi = I``, whence ``eta = phi^T M dq``.
 A configuration's deviation from ``home`` (joint 2 left out) is written in those shapes,
 ``dq = sum_k phi_k eta_k``; the recording shows each mode's share of the tip's displacement along
 the accelerometer's axis, ``c phi_k eta_k`` [m] (``c`` the site's Jacobian along that axis), so
@@ -77,11 +78,12 @@ def modal_projection(model: mujoco.MjModel, *, n_modes: int = 3) -> ModalProject
     K = -M @ _dqacc_dq(model, data)
     j2 = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, JOINT)
     keep = np.array([i for i in range(nv) if j2 < 0 or i != model.jnt_dofadr[j2]])
-    w2, phi = scipy.linalg.eig(K[np.ix_(keep, keep)], M[np.ix_(keep, keep)])
-    w2 = w2.real
+    Kh = K[np.ix_(keep, keep)]
+    Mh = M[np.ix_(keep, keep)]
+    w2, phi = scipy.linalg.eigh(0.5 * (Kh + Kh.T), 0.5 * (Mh + Mh.T))  # M-orthonormal shapes: phi.T M phi = I
     order = np.argsort(w2)
     order = order[w2[order] > 0][:n_modes]
-    psi = np.linalg.inv(phi.real)  # modal coordinates of a deviation: eta = psi @ dq
+    psi = phi.T @ Mh  # modal coordinates of a deviation: eta = phi.T M dq
 
     site = int(model.sensor_objid[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, SENSOR)])
     _, direction = accel_weights(model)
@@ -94,5 +96,5 @@ def modal_projection(model: mujoco.MjModel, *, n_modes: int = 3) -> ModalProject
     tip[keep] = c[keep]
     weights = np.zeros((len(order), model.nq))
     for row, k in enumerate(order):
-        weights[row, keep] = (c[keep] @ phi.real[:, k]) * psi[k]
+        weights[row, keep] = (c[keep] @ phi[:, k]) * psi[k]
     return ModalProjection(np.sqrt(w2[order]) / (2 * np.pi), weights, tip, data.qpos.copy())

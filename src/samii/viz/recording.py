@@ -19,8 +19,12 @@ Logging only (rerun is imported when called): the figures logged are computed by
   marker on the command);
 - ``NAME/about``: a text document with the scales, the frame rate and the modes.
 
+Several runs in one recording are a comparison (a closed-loop run and the same scenario under the
+servo amplifier alone, the notebook's Figure 11.4): one deformation scale for all, their series in
+the same panels, the later runs' names tagged with the run's and their colours lighter.
+
 Timeline ``time`` (seconds of the run). The blueprint stored with the recording puts the 3D
-views (deformed and true scale, as tabs) beside one time-series panel per unit.
+views (deformed beside true scale) beside one time-series panel per unit.
 """
 
 from __future__ import annotations
@@ -46,8 +50,6 @@ TRAIL_POINTS = 20
 #: Frames per period of the fastest base mode shown (mode 3), and the lowest frame rate [1/s].
 FRAMES_PER_PERIOD = 4
 MIN_FPS = 100.0
-
-_BEAM_BODY_PREFIXES = ("beam_", "clamp")
 
 
 @dataclass(frozen=True)
@@ -108,9 +110,17 @@ def _tip_site(model: mujoco.MjModel) -> int:
 
 
 def _beam_length(model: mujoco.MjModel, data: mujoco.MjData) -> float:
-    site = _tip_site(model)
+    """The beam's length [m]: the long sides of the ``beam_*`` bodies' geoms added up (else root to tip site)."""
+    total = 0.0
+    for b in range(model.nbody):
+        if model.body(b).name.startswith("beam_"):
+            for g in range(model.body_geomadr[b], model.body_geomadr[b] + model.body_geomnum[b]):
+                if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX:
+                    total += 2 * float(np.max(model.geom_size[g]))
+    if total > 0:
+        return total
     root = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "beam_0")
-    return float(np.linalg.norm(data.site_xpos[site] - data.xpos[root])) if root >= 0 else 1.0
+    return float(np.linalg.norm(data.site_xpos[_tip_site(model)] - data.xpos[root])) if root >= 0 else 1.0
 
 
 def _poses(model: mujoco.MjModel, qpos: np.ndarray, site: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -187,7 +197,11 @@ def _log_model(rec, rr, model: mujoco.MjModel, root: str, t_s: np.ndarray, pos: 
             gname = model.geom(g).name or f"geom_{g}"
             rec.log(f"{entity}/{gname}", rr.Transform3D(translation=model.geom_pos[g], quaternion=[q[1], q[2], q[3], q[0]]), arch, static=True)
             drawn = True
-        if drawn:
+        if not drawn:
+            continue
+        if model.body_weldid[b] == 0 and len(pos):  # fixed to the world: one static pose
+            rec.log(entity, rr.Transform3D(translation=pos[0, b], quaternion=quat[0, b]), static=True)
+        else:
             rec.send_columns(entity, indexes=[frames], columns=rr.Transform3D.columns(translation=pos[:, b], quaternion=quat[:, b]))
 
 
@@ -203,9 +217,10 @@ def _trail(rec, rr, entity: str, t_s: np.ndarray, tip: np.ndarray, fps: float) -
     lag = np.arange(TRAIL_POINTS) * stride
     idx = np.clip(np.arange(n)[:, None] - lag[None, :], 0, None)
     age = np.linspace(0.0, 1.0, TRAIL_POINTS)
-    colors = np.zeros((TRAIL_POINTS, 4), np.uint8)
-    colors[:, 0], colors[:, 1], colors[:, 2] = 255, 140, 0
-    colors[:, 3] = np.round(255 * (1 - 0.9 * age)).astype(np.uint8)
+    # Rerun draws points opaque (alpha is ignored, rerun-io/rerun#1611): the trail fades by blending
+    # its orange into the 3D view's dark background
+    fade = (1 - 0.85 * age)[:, None]
+    colors = np.round(fade * np.array([255.0, 140.0, 0.0]) + (1 - fade) * np.array([40.0, 40.0, 40.0])).astype(np.uint8)
     radii = 0.02 * (1 - 0.7 * age)
     cols = rr.Points3D.columns(positions=tip[idx].reshape(-1, 3), colors=np.tile(colors, (n, 1)), radii=np.tile(radii, n))
     rec.send_columns(entity, indexes=[rr.TimeColumn("time", duration=t_s)], columns=cols.partition(np.full(n, TRAIL_POINTS)))
@@ -219,7 +234,9 @@ GROUPS = (("angle_deg", "Angle [deg]"), ("accel_m_s2", "Acceleration [m/s²]"), 
           ("displacement_mm", "Tip displacement and base modes [mm]"), ("frequency_hz", "Sweep frequency [Hz]"))  # fmt: skip
 
 
-def _log_signals(rec, rr, run: RunRecord, projection, q_t: np.ndarray, tip_m: np.ndarray) -> list[str]:
+def _log_signals(rec, rr, run: RunRecord, projection, q_t: np.ndarray, tip_m: np.ndarray, *, tag: str = "", faded: bool = False) -> list[str]:
+    """Log ``run``'s time series; ``tag`` prefixes the series' names and ``faded`` lightens their
+    colours (the second run of a comparison, in the same panels)."""
     ts = run.timeseries
     root = run.name
     groups = set()
@@ -227,7 +244,10 @@ def _log_signals(rec, rr, run: RunRecord, projection, q_t: np.ndarray, tip_m: np
     def put(group: str, key: str, values, name: str, t=None) -> None:
         if values is None:
             return
-        _series(rec, rr, f"{root}/{group}/{key}", ts.t if t is None else t, np.asarray(values, float), name, _COLORS[key])
+        color = np.asarray(_COLORS[key], float)
+        if faded:
+            color = 0.45 * color + 0.55 * 255
+        _series(rec, rr, f"{root}/{group}/{key}", ts.t if t is None else t, np.asarray(values, float), tag + name, [int(x) for x in color])
         groups.add(group)
 
     put("angle_deg", "theta", np.degrees(ts.theta), "θ joint 2 [deg]")
@@ -260,20 +280,21 @@ def _log_signals(rec, rr, run: RunRecord, projection, q_t: np.ndarray, tip_m: np
 
 def _blueprint(rrb, runs, groups_by_run: dict[str, list[str]], beam_scale: float, arm_scale: float):
     views3d = []
-    for run in runs:
-        views3d.append(rrb.Spatial3DView(origin=f"/{run.name}/deformed", name=f"{run.name}: 3D, beam deflection ×{beam_scale:.3g}, arm joints ×{arm_scale:.3g}"))
-        views3d.append(rrb.Spatial3DView(origin=f"/{run.name}/true_scale", name=f"{run.name}: 3D, true scale"))
+    for run in runs:  # the deformed view beside the true-scale one, a row per run
+        views3d.append(rrb.Horizontal(
+            rrb.Spatial3DView(origin=f"/{run.name}/deformed", name=f"{run.name}: 3D, beam deflection ×{beam_scale:.3g}, arm joints ×{arm_scale:.3g}"),
+            rrb.Spatial3DView(origin=f"/{run.name}/true_scale", name=f"{run.name}: 3D, true scale"), column_shares=[3, 2]))  # fmt: skip
     panels = []
     for group, title in GROUPS:
         contents = [f"/{run.name}/{group}/**" for run in runs if group in groups_by_run[run.name]]
         if contents:
             panels.append(rrb.TimeSeriesView(origin="/", contents=contents, name=title))
     events = [f"/{run.name}/events" for run in runs if run.switch_on_s is not None]
-    left = [rrb.Tabs(*views3d)]
+    left = list(views3d)
     if events:
         left.append(rrb.TextLogView(origin="/", contents=events, name="Events"))
     left.append(rrb.TextDocumentView(origin="/", contents=[f"/{run.name}/about" for run in runs], name="About this recording"))
-    return rrb.Blueprint(rrb.Horizontal(rrb.Vertical(*left, row_shares=[4] + [1] * (len(left) - 1)), rrb.Vertical(*panels), column_shares=[3, 2]),
+    return rrb.Blueprint(rrb.Horizontal(rrb.Vertical(*left, row_shares=[4] * len(views3d) + [1] * (len(left) - len(views3d))), rrb.Vertical(*panels), column_shares=[3, 2]),
                          rrb.TimePanel(expanded=True), collapse_panels=False)  # fmt: skip
 
 
@@ -317,13 +338,17 @@ def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, b
         _log_model(rec, rr, model, f"{run.name}/deformed", t, pos_def, quat_def)
         if len(t):
             _trail(rec, rr, f"{run.name}/deformed/tip_trail", t, tip_def, rate)
-        groups_by_run[run.name] = _log_signals(rec, rr, run, projection, t, projection.tip_m(q) if len(q) else np.zeros(0))
+        first = run is runs[0]
+        tag = "" if len(runs) == 1 else f"{run.name}: "
+        groups_by_run[run.name] = _log_signals(rec, rr, run, projection, t, projection.tip_m(q) if len(q) else np.zeros(0), tag=tag, faded=not first)
         modes = ", ".join(f"{f:.2f}" for f in projection.freq_hz)
         about = (f"# {run.name}\n\n{run.label}\n\n"
                  f"- **deformation scale**: beam deflection ×{beam_scale:.4g}, arm joints' deviations from the nominal pose ×{arm_scale:.4g} "
-                 f"(the run's largest tip deflection, {1e3 * deflection:.4g} mm, is shown as {100 * beam_scale * deflection / length:.3g} % of the beam's length); "
-                 f"the true-scale view is the other 3D tab\n"
-                 f"- **frames**: {rate:.4g} per second ({len(t)} frames); signals at the DAQ's rate\n"
+                 f"(the largest tip deflection in this recording, {1e3 * deflection:.4g} mm, is shown as {100 * beam_scale * deflection / length:.3g} % "
+                 f"of the beam's {length:.3g} m; the arm's scale is the beam's unless a joint would turn more than "
+                 f"{np.degrees(ARM_DEVIATION_SHOWN_RAD):.0f}°, never below 1); the true-scale view is beside it\n"
+                 f"- **frames**: {rate:.4g} per second ({len(t)} frames): the 3D views, the tip and the modes; the other signals at their "
+                 f"record's rate ({1 / float(np.median(np.diff(run.timeseries.t))):.4g} samples/s)\n"
                  f"- **tip trail**: the last {TRAIL_S} s of the beam tip (deformed)\n"
                  f"- **modal coordinates**: each base mode's share of the tip displacement along the accelerometer's axis, "
                  f"from the undamped shapes of the structure with joint 2 held ({modes} Hz)\n")  # fmt: skip
