@@ -201,3 +201,20 @@ def test_measure_both_records_both_runs_with_the_sweep_frequency(tmp_path):
     t, _ = _column(rec["/swept/deformed/link2"]["time"], "Transform3D:translation")
     assert np.allclose(np.diff(t), 0.02, atol=1e-9)  # --rerun-fps 50
     assert any("swept: 3D" in n for n in names) and any("stepped: 3D" in n for n in names)
+
+
+def test_frame_rate_follows_base_mode_3():
+    """4 frames per period of mode 3, at least 100/s: a shorter, lighter beam's mode 3 needs more frames."""
+    from samii.sim.modal import modal_projection
+    from samii.sim.model import load_model
+    from samii.viz.recording import frame_steps_for
+
+    assert frame_steps_for(load_model()) == 10  # mode 3 at 23.8 Hz: 4 x 23.8 < 100/s, so 100/s
+    stiff = load_model(overrides={"beam.length_m": 2.5, "beam.mass_per_length_kg_m": 3.0})
+    f3 = float(modal_projection(stiff).freq_hz[-1])
+    steps = frame_steps_for(stiff)
+    assert f3 > 30.0
+    assert 1.0 / (steps * stiff.opt.timestep) >= 4 * f3 and 1.0 / ((steps + 1) * stiff.opt.timestep) < 4 * f3
+    assert frame_steps_for(stiff, 50.0) == 20
+    with pytest.raises(ValueError, match="positive"):
+        frame_steps_for(stiff, 0.0)
