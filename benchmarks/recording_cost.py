@@ -38,7 +38,7 @@ def measurement(repeats: int, folder: Path) -> None:
     def recorded():
         res = measure(model, sweep, timeseries_path=folder / "ts.csv", overwrite=True, frame_steps=steps)
         run = RunRecord("swept", res.timeseries, res.run.frame_t_s, res.run.frame_qpos, sweep_hz=sweep.frequency_hz(res.timeseries.t))
-        write_recording(folder / "m.rrd", model, [run], application_id="bench", fps=1.0 / (steps * model.opt.timestep))
+        write_recording(folder / "m.rrd", model, [run], application_id="bench")
 
     base = median_time(plain, repeats, warm_up=True)
     rec = median_time(recorded, repeats, warm_up=True)

@@ -92,11 +92,8 @@ def _resolve_controller(spec: str, factory=None, quiet: bool = False):
         raise InputError(f"--controller: expected {', '.join(BUILTIN_CONTROLLERS)} or a controller file, got an empty string")
     if spec == "damping":
         from samii.closedloop.damping import damping_from_simulation
-        from samii.sim.plugin import compile_spec
 
-        spec_, qpos, act = factory()
-        model = compile_spec(spec_)
-        model.key_qpos[0], model.key_act[0] = qpos, act
+        model = _model_at_rest(factory)
 
         def say(what: str) -> None:
             if not quiet:
@@ -261,10 +258,7 @@ def _model_at_rest(factory):
     spec, qpos, act = factory()
     model = compile_spec(spec)
     key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
-    if key >= 0:
-        model.key_qpos[key] = qpos
-        if model.na:
-            model.key_act[key] = act
+    model.key_qpos[key], model.key_act[key] = qpos, act
     return model
 
 
@@ -277,7 +271,6 @@ def _write_rerun(result, tmp, final, factory) -> None:
     model = _model_at_rest(factory)
     frame_t = s.frame_t if s.frame_t is not None else np.zeros(0)
     frame_q = s.frame_qpos if s.frame_qpos is not None else np.zeros((0, model.nq))
-    fps = 1.0 / float(np.median(np.diff(frame_t))) if len(frame_t) > 1 else None
     runs = [RunRecord("closedloop", result.timeseries(), frame_t, frame_q, switch_on_s=s.switch_on_s,
                       label=f"samii closedloop: controller {result.controller}, scenario {result.scenario.name}")]
     c = result.comparison
@@ -285,7 +278,7 @@ def _write_rerun(result, tmp, final, factory) -> None:
         runs.append(RunRecord("servo_loop_alone", result.timeseries(comparison=True), c.frame_t, c.frame_qpos,
                               label=f"the comparison: scenario {result.scenario.name} under the servo amplifier alone (no controller)"))
     try:
-        write_recording(tmp, model, runs, application_id="samii_closedloop", fps=fps)
+        write_recording(tmp, model, runs, application_id="samii_closedloop")
     except RuntimeError as exc:  # rerun's writer reports file-system failures as RuntimeError
         raise OSError(f"--rerun {final}: the recording could not be written ({' '.join(str(exc).split())})") from None
 

@@ -181,7 +181,8 @@ class ClosedLoopResult:
 
         s = self.comparison if comparison else self.signals
         meta = {
-            "source": f"samii closedloop --controller {self.controller} --scenario {self.scenario.name} (simulated)",
+            "source": (f"samii closedloop --controller {self.controller} --scenario {self.scenario.name} (simulated"
+                       + ("; the comparison: the servo amplifier alone)" if comparison else ")")),
             "sample_rate_hz": f"{1.0 / s.dt_s:.12g}",
             "controller_sample_time_s": f"{self.sample_time_s:.12g}",
             "delay_samples": f"{self.delay_samples:.12g}",

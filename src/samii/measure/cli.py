@@ -291,11 +291,12 @@ def run(args: argparse.Namespace) -> int:
             if rerun_path is not None:
                 from samii.viz.recording import RunRecord, write_recording
 
-                runs = [RunRecord(kind, res.timeseries, res.run.frame_t_s, res.run.frame_qpos, sweep_hz=exc.frequency_hz(res.timeseries.t),
+                runs = [RunRecord(kind, results[kind].timeseries, results[kind].run.frame_t_s, results[kind].run.frame_qpos,
+                                  sweep_hz=exc.frequency_hz(results[kind].timeseries.t),
                                   label=f"samii measure: {kind} sine, {exc.amplitude_v:g} V on the valve command, joint 2 under its position loop")
-                        for (kind, exc), res in ((p, results[p[0]]) for p in plan)]  # fmt: skip
+                        for kind, exc in plan]  # fmt: skip
                 try:
-                    write_recording(rrd_tmp, model, runs, application_id="samii_measure", fps=physics_hz / frame_steps)
+                    write_recording(rrd_tmp, model, runs, application_id="samii_measure")
                 except RuntimeError as exc:  # rerun's writer reports file-system failures as RuntimeError
                     raise OSError(f"--rerun {rerun_path}: the recording could not be written ({' '.join(str(exc).split())})") from None
         if rrd_tmp is not None:  # the recording lives outside --out: moved into place once the folder is complete

@@ -2,9 +2,10 @@
 
 The base modes (``samii modes``) are those of the structure with joint 2 held. Here they are the
 undamped modes of that structure linearised at the ``home`` keyframe: mass matrix ``M`` from
-``mj_fullM``, stiffness ``K = -M dqdd/dq`` by central differences, joint
-2's row and column removed (held), shapes from the generalised symmetric eigenproblem ``K phi = w^2 M phi`` (``K`` symmetrised; it is
-symmetric to 1e-10 at rest), normalised so that ``phi^T M phi = I``, whence ``eta = phi^T M dq``.
+``mj_fullM``, stiffness ``K`` the derivative of the generalised force in the positions at rest
+(``mjd_inverseFD``; symmetric to 1e-10), joint 2's row and column removed (held), shapes from
+the generalised symmetric eigenproblem ``K phi = w^2 M phi`` normalised so that
+``phi^T M phi = I``, whence ``eta = phi^T M dq``.
 A configuration's deviation from ``home`` (joint 2 left out) is written in those shapes,
 ``dq = sum_k phi_k eta_k``; the recording shows each mode's share of the tip's displacement along
 the accelerometer's axis, ``c phi_k eta_k`` [m] (``c`` the site's Jacobian along that axis), so
@@ -45,29 +46,13 @@ class ModalProjection:
         return (np.atleast_2d(qpos) - self.home_qpos) @ self.tip
 
 
-def _dqacc_dq(model: mujoco.MjModel, data: mujoco.MjData, eps: float = 1e-6) -> np.ndarray:
-    """Central differences of the accelerations in the joint positions, velocities and
-    actuator states held (at rest in ``home`` the mass matrix's own change multiplies qacc = 0)."""
-    d = mujoco.MjData(model)
-    out = np.zeros((model.nv, model.nv))
-    for i in range(model.nv):
-        acc = []
-        for sign in (1.0, -1.0):
-            d.qpos[:], d.qvel[:], d.act[:], d.ctrl[:] = data.qpos, data.qvel, data.act, data.ctrl
-            d.qpos[i] += sign * eps
-            mujoco.mj_forward(model, d)
-            acc.append(d.qacc.copy())
-        out[:, i] = (acc[0] - acc[1]) / (2 * eps)
-    return out
-
-
 def modal_projection(model: mujoco.MjModel, *, n_modes: int = 3) -> ModalProjection:
     """The first ``n_modes`` base modes of ``model`` (joint 2 held) as coordinates (see module doc).
 
     Needs hinge/slide joints only (``nq == nv``), as SAMII's model has.
     """
     from samii.sim.model import JOINT, make_data
-    from samii.sim.sensors import SENSOR, accel_weights
+    from samii.sim.sensors import accel_axis_world, accel_site
 
     if model.nq != model.nv:
         raise ValueError(f"modal coordinates need hinge or slide joints only (nq = {model.nq}, nv = {model.nv})")
@@ -75,26 +60,26 @@ def modal_projection(model: mujoco.MjModel, *, n_modes: int = 3) -> ModalProject
     nv = model.nv
     M = np.zeros((nv, nv))
     mujoco.mj_fullM(model, data, M)
-    K = -M @ _dqacc_dq(model, data)
+    # K = d(generalised force)/dq at rest: MuJoCo's inverse-dynamics derivative (qacc = 0; DfDq is stored transposed)
+    rest = make_data(model)
+    rest.qacc[:] = 0.0
+    dfdq = np.zeros((nv, nv))
+    mujoco.mjd_inverseFD(model, rest, 1e-6, 1, dfdq, None, None, None, None, None, None)
+    K = dfdq.T
     j2 = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, JOINT)
     keep = np.array([i for i in range(nv) if j2 < 0 or i != model.jnt_dofadr[j2]])
     Kh = K[np.ix_(keep, keep)]
     Mh = M[np.ix_(keep, keep)]
-    w2, phi = scipy.linalg.eigh(0.5 * (Kh + Kh.T), 0.5 * (Mh + Mh.T))  # M-orthonormal shapes: phi.T M phi = I
-    order = np.argsort(w2)
-    order = order[w2[order] > 0][:n_modes]
-    psi = phi.T @ Mh  # modal coordinates of a deviation: eta = phi.T M dq
+    w2, phi = scipy.linalg.eigh(0.5 * (Kh + Kh.T), 0.5 * (Mh + Mh.T))  # ascending; M-orthonormal shapes: phi.T M phi = I
+    modes = np.flatnonzero(w2 > 0)[:n_modes]
+    psi = phi[:, modes].T @ Mh  # modal coordinates of a deviation: eta = phi.T M dq
 
-    site = int(model.sensor_objid[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, SENSOR)])
-    _, direction = accel_weights(model)
-    if model.sensor_type[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, SENSOR)] == mujoco.mjtSensor.mjSENS_ACCELEROMETER:
-        direction = data.site_xmat[site].reshape(3, 3) @ direction  # the body-fixed axis, in the world at home
+    site = accel_site(model)
     jac = np.zeros((3, nv))
     mujoco.mj_jacSite(model, data, jac, None, site)
-    c = direction @ jac
+    c = accel_axis_world(model, data) @ jac
     tip = np.zeros(model.nq)
     tip[keep] = c[keep]
-    weights = np.zeros((len(order), model.nq))
-    for row, k in enumerate(order):
-        weights[row, keep] = (c[keep] @ phi[:, k]) * psi[k]
-    return ModalProjection(np.sqrt(w2[order]) / (2 * np.pi), weights, tip, data.qpos.copy())
+    weights = np.zeros((len(modes), model.nq))
+    weights[:, keep] = (c[keep] @ phi[:, modes])[:, None] * psi
+    return ModalProjection(np.sqrt(w2[modes]) / (2 * np.pi), weights, tip, data.qpos.copy())

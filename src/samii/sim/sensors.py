@@ -19,7 +19,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-__all__ = ["SENSOR", "accel_weights", "accel_offset", "ACCEL_DIRECTION"]
+__all__ = ["SENSOR", "accel_weights", "accel_offset", "accel_site", "accel_axis_world", "ACCEL_DIRECTION"]
 
 SENSOR = "base_accel"
 #: Custom numeric of legacy (framelinacc) models: measuring direction in the world frame.
@@ -50,6 +50,19 @@ def accel_weights(model: mujoco.MjModel) -> tuple[int, np.ndarray]:
             raise ValueError(f"custom numeric {ACCEL_DIRECTION!r} must hold a non-zero 3-vector, got {d.tolist()}")
         return adr, d / np.linalg.norm(d)
     raise ValueError(f"sensor {SENSOR!r} must be an accelerometer (or a framelinacc), got type {int(kind)}")
+
+
+def accel_site(model: mujoco.MjModel) -> int:
+    """Id of the site the accelerometer sits on (the beam's tip)."""
+    return int(model.sensor_objid[_sensor(model)])
+
+
+def accel_axis_world(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+    """The accelerometer's measuring axis in the world frame in ``data``'s pose (a body-fixed axis turned by its site)."""
+    _, direction = accel_weights(model)
+    if model.sensor_type[_sensor(model)] == mujoco.mjtSensor.mjSENS_ACCELEROMETER:
+        direction = data.site_xmat[accel_site(model)].reshape(3, 3) @ direction
+    return direction
 
 
 def accel_offset(model: mujoco.MjModel) -> float:

@@ -11,12 +11,12 @@ Logging only (rerun is imported when called): the figures logged are computed by
 - ``NAME/deformed/tip_trail``: the beam tip's last ``TRAIL_S`` seconds as fading points;
 - ``NAME/true_scale/<body>``: the same at true scale (the beam's real motion is sub-millimetre);
 - time series grouped by unit, the unit in each group's name: ``NAME/angle_deg/{theta,theta_ref}``
-  (joint 2 from the nominal pose), ``NAME/accel_m_s2/base``, ``NAME/volts/{valve_command,
-  excitation,controller_command}``, ``NAME/pressure_mpa/load``, ``NAME/displacement_mm/{tip,
-  mode_1,mode_2,mode_3}`` (the tip's displacement along the accelerometer's axis and each base
-  mode's share of it: the modal coordinates), ``NAME/frequency_hz/sweep`` (a swept sine's
-  instantaneous frequency), ``NAME/events`` (the controller's switch-on, as a text log and a
-  marker on the command);
+  (joint 2 from the nominal pose), ``NAME/accel_m_s2/accel``, ``NAME/volts/{v,r,command}`` (valve
+  command, excitation, the controller's command while it runs) and ``NAME/volts/switch_on`` (a
+  marker at the switch-on), ``NAME/pressure_mpa/p_load``, ``NAME/displacement_mm/{tip,mode_1,
+  mode_2,mode_3}`` (the tip's displacement along the accelerometer's axis and each base mode's
+  share of it: the modal coordinates), ``NAME/frequency_hz/sweep`` (the excitation's
+  instantaneous frequency), ``NAME/events`` (the switch-on as a text log);
 - ``NAME/about``: a text document with the scales, the frame rate and the modes.
 
 Several runs in one recording are a comparison (a closed-loop run and the same scenario under the
@@ -36,8 +36,9 @@ import mujoco
 import numpy as np
 
 from samii.measure.timeseries import TimeSeries
+from samii.sim.sensors import accel_site
 
-__all__ = ["RunRecord", "RecordingInfo", "write_recording", "frame_steps_for", "default_scales", "TRAIL_S", "BEAM_DEFLECTION_SHOWN"]
+__all__ = ["RunRecord", "RecordingInfo", "write_recording", "frame_steps_for", "TRAIL_S", "BEAM_DEFLECTION_SHOWN"]
 
 #: The default deformation scale shows the run's largest tip deflection as this fraction of the beam's length.
 BEAM_DEFLECTION_SHOWN = 0.05
@@ -103,12 +104,6 @@ def _beam_dofs(model: mujoco.MjModel) -> np.ndarray:
     return np.array(out, int)
 
 
-def _tip_site(model: mujoco.MjModel) -> int:
-    from samii.sim.sensors import SENSOR
-
-    return int(model.sensor_objid[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, SENSOR)])
-
-
 def _beam_length(model: mujoco.MjModel, data: mujoco.MjData) -> float:
     """The beam's length [m]: the long sides of the ``beam_*`` bodies' geoms added up (else root to tip site)."""
     total = 0.0
@@ -120,7 +115,7 @@ def _beam_length(model: mujoco.MjModel, data: mujoco.MjData) -> float:
     if total > 0:
         return total
     root = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "beam_0")
-    return float(np.linalg.norm(data.site_xpos[_tip_site(model)] - data.xpos[root])) if root >= 0 else 1.0
+    return float(np.linalg.norm(data.site_xpos[accel_site(model)] - data.xpos[root])) if root >= 0 else 1.0
 
 
 def _poses(model: mujoco.MjModel, qpos: np.ndarray, site: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -139,26 +134,18 @@ def _poses(model: mujoco.MjModel, qpos: np.ndarray, site: int) -> tuple[np.ndarr
     return pos, quat[:, :, [1, 2, 3, 0]], tip
 
 
-def default_scales(model: mujoco.MjModel, runs, *, beam_scale: float | None = None, tips: list[np.ndarray] | None = None) -> tuple[float, float, float]:
-    """(beam scale, arm scale, largest tip deflection [m]) for ``runs``.
+def _scales(model: mujoco.MjModel, home: mujoco.MjData, qpos: list[np.ndarray], tips: list[np.ndarray], beam_scale: float | None) -> tuple[float, float, float]:
+    """(beam scale, arm scale, largest tip deflection [m]) for runs with joint positions ``qpos``
+    and tip-site positions ``tips`` (each (frames, ...)).
 
     The beam's default: its largest tip deflection shown as ``BEAM_DEFLECTION_SHOWN`` of its
     length (1 when the tip does not move). The arm joints get the same scale unless that would
     show a joint's deviation beyond ``ARM_DEVIATION_SHOWN_RAD``; then the largest that does not
-    (never below 1). ``tips``: each run's tip-site positions (frames, 3), if computed already."""
-    from samii.sim.model import make_data
-
-    home = make_data(model)
-    site = _tip_site(model)
-    beam = _beam_dofs(model)
-    arm = np.setdiff1d(np.arange(model.nq), beam)
-    deflection, arm_dev = 0.0, 0.0
-    for i, run in enumerate(runs):
-        if len(run.frame_qpos) == 0:
-            continue
-        tip = tips[i] if tips is not None else _poses(model, run.frame_qpos, site)[2]
-        deflection = max(deflection, float(np.max(np.linalg.norm(tip - home.site_xpos[site], axis=1))))
-        arm_dev = max(arm_dev, float(np.max(np.abs(run.frame_qpos[:, arm] - home.qpos[arm]))))
+    (never below 1)."""
+    arm = np.setdiff1d(np.arange(model.nq), _beam_dofs(model))
+    tip0 = home.site_xpos[accel_site(model)]
+    deflection = max((float(np.max(np.linalg.norm(tip - tip0, axis=1))) for tip in tips if len(tip)), default=0.0)
+    arm_dev = max((float(np.max(np.abs(q[:, arm] - home.qpos[arm]))) for q in qpos if len(q)), default=0.0)
     if beam_scale is None:
         beam_scale = BEAM_DEFLECTION_SHOWN * _beam_length(model, home) / deflection if deflection > 0 else 1.0
     arm_scale = beam_scale if arm_dev * beam_scale <= ARM_DEVIATION_SHOWN_RAD else max(1.0, ARM_DEVIATION_SHOWN_RAD / arm_dev)
@@ -187,7 +174,7 @@ def _log_model(rec, rr, model: mujoco.MjModel, root: str, t_s: np.ndarray, pos: 
     frames = rr.TimeColumn("time", duration=t_s)
     for b in range(1, model.nbody):
         entity = f"{root}/{_body_name(model, b)}"
-        geoms = range(model.body_geomadr[b], model.body_geomadr[b] + model.body_geomnum[b]) if model.body_geomnum[b] else ()
+        geoms = range(model.body_geomadr[b], model.body_geomadr[b] + model.body_geomnum[b])
         drawn = False
         for g in geoms:
             arch = _geom_archetype(rr, int(model.geom_type[g]), model.geom_size[g], model.geom_rgba[g])
@@ -234,9 +221,10 @@ GROUPS = (("angle_deg", "Angle [deg]"), ("accel_m_s2", "Acceleration [m/s²]"), 
           ("displacement_mm", "Tip displacement and base modes [mm]"), ("frequency_hz", "Sweep frequency [Hz]"))  # fmt: skip
 
 
-def _log_signals(rec, rr, run: RunRecord, projection, q_t: np.ndarray, tip_m: np.ndarray, *, tag: str = "", faded: bool = False) -> list[str]:
-    """Log ``run``'s time series; ``tag`` prefixes the series' names and ``faded`` lightens their
-    colours (the second run of a comparison, in the same panels)."""
+def _log_signals(rec, rr, run: RunRecord, projection, *, tag: str = "", faded: bool = False) -> list[str]:
+    """Log ``run``'s time series (the tip and the modes at its frames, from ``projection``) and
+    return the groups it filled; ``tag`` prefixes the series' names and ``faded`` lightens their
+    colours (the later runs of a comparison, in the same panels)."""
     ts = run.timeseries
     root = run.name
     groups = set()
@@ -255,25 +243,25 @@ def _log_signals(rec, rr, run: RunRecord, projection, q_t: np.ndarray, tip_m: np
     put("accel_m_s2", "accel", ts.accel, "base acceleration ẍ [m/s²]")
     put("volts", "v", ts.v, "valve command v [V]")
     put("volts", "r", ts.r, "excitation r [V]")
-    command = ts.extra.get("command") if ts.extra else None
+    command = ts.extra.get("command")
+    on = np.zeros(ts.t.size, bool)
     if command is not None:  # shown while the controller runs
         on = np.isfinite(command) & (ts.extra["controller_on"] > 0.5 if "controller_on" in ts.extra else True)
-        command = np.where(on, command, np.nan)
         if np.any(on):
             put("volts", "command", command[on], "controller command [V]", t=ts.t[on])
     put("pressure_mpa", "p_load", None if ts.p_load is None else ts.p_load / 1e6, "load pressure [MPa]")
-    put("displacement_mm", "tip", 1e3 * tip_m, "tip displacement [mm]", t=q_t)
-    shares = projection.shares_m(run.frame_qpos) if len(run.frame_qpos) else np.zeros((0, len(projection.freq_hz)))
-    for k, f in enumerate(projection.freq_hz):
-        put("displacement_mm", f"mode_{k + 1}", 1e3 * shares[:, k], f"mode {k + 1} ({f:.2f} Hz) [mm]", t=q_t)
+    if len(run.frame_t_s):
+        put("displacement_mm", "tip", 1e3 * projection.tip_m(run.frame_qpos), "tip displacement [mm]", t=run.frame_t_s)
+        shares = projection.shares_m(run.frame_qpos)
+        for k, f in enumerate(projection.freq_hz):
+            put("displacement_mm", f"mode_{k + 1}", 1e3 * shares[:, k], f"mode {k + 1} ({f:.2f} Hz) [mm]", t=run.frame_t_s)
     put("frequency_hz", "sweep", run.sweep_hz, "sweep frequency [Hz]")
     if run.switch_on_s is not None:
         rec.set_time("time", duration=float(run.switch_on_s))
         rec.log(f"{root}/events", rr.TextLog(f"controller switched on at {run.switch_on_s:.3f} s", level="INFO"))
-        if command is not None and np.any(np.isfinite(command)):
-            k = int(np.argmax(np.isfinite(command)))
-            rec.log(f"{root}/volts/switch_on", rr.Scalars([float(command[k])]), rr.SeriesPoints(names="controller switched on", markers="diamond",
-                                                                                                marker_sizes=8, colors=[(0, 0, 0)]))  # fmt: skip
+        if np.any(on):
+            rec.log(f"{root}/volts/switch_on", rr.Scalars([float(command[np.argmax(on)])]),
+                    rr.SeriesPoints(names="controller switched on", markers="diamond", marker_sizes=8, colors=[(0, 0, 0)]))  # fmt: skip
         rec.reset_time()
     return [g for g, _ in GROUPS if g in groups]
 
@@ -301,7 +289,8 @@ def _blueprint(rrb, runs, groups_by_run: dict[str, list[str]], beam_scale: float
 def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, beam_scale: float | None = None, fps: float | None = None) -> RecordingInfo:
     """Write ``runs`` (:class:`RunRecord`) of ``model`` to the ``.rrd`` file ``path`` with the stored layout.
 
-    ``beam_scale``: the deformation scale (default :func:`default_scales`). ``fps``: the frame
+    ``beam_scale``: the deformation scale (default: the largest tip deflection shown as
+    ``BEAM_DEFLECTION_SHOWN`` of the beam's length). ``fps``: the frame
     rate the frames were kept at (for the trail; default from their times). The file is replaced
     if it exists (the caller applies the overwrite rules).
     """
@@ -311,36 +300,35 @@ def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, b
     from samii.sim.modal import modal_projection
     from samii.sim.model import make_data
 
-    runs = list(runs)
     path = Path(path)
+    runs = [RunRecord(r.name, r.timeseries, np.asarray(r.frame_t_s, float), np.asarray(r.frame_qpos, float).reshape(len(r.frame_t_s), model.nq),
+                      r.sweep_hz, r.switch_on_s, r.label) for r in runs]  # fmt: skip
     projection = modal_projection(model)
-    site = _tip_site(model)
-    frames = [(np.asarray(r.frame_t_s, float), np.asarray(r.frame_qpos, float).reshape(len(r.frame_t_s), model.nq)) for r in runs]
-    true_poses = [_poses(model, q, site) for _, q in frames]
-    beam_scale, arm_scale, deflection = default_scales(model, runs, beam_scale=beam_scale, tips=[p[2] for p in true_poses])
-    home = make_data(model).qpos.copy()
-    beam = _beam_dofs(model)
+    site = accel_site(model)
+    home = make_data(model)
+    true_poses = [_poses(model, r.frame_qpos, site) for r in runs]
+    beam_scale, arm_scale, deflection = _scales(model, home, [r.frame_qpos for r in runs], [p[2] for p in true_poses], beam_scale)
     scale = np.full(model.nq, arm_scale)
-    scale[beam] = beam_scale
-    length = _beam_length(model, make_data(model))
+    scale[_beam_dofs(model)] = beam_scale
+    length = _beam_length(model, home)
 
     rec = rr.RecordingStream(application_id)
     rec.set_log_time_enabled(False)  # the one timeline is the run's time
     rec.save(path)
     groups_by_run = {}
     rate = fps
-    for run, (t, q), (pos_true, quat_true, _) in zip(runs, frames, true_poses):
+    for run, (pos_true, quat_true, _) in zip(runs, true_poses):
+        t, q = run.frame_t_s, run.frame_qpos
         if rate is None:
             rate = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else MIN_FPS
         rec.log(run.name, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        pos_def, quat_def, tip_def = _poses(model, home + (q - home) * scale, site)
+        pos_def, quat_def, tip_def = _poses(model, home.qpos + (q - home.qpos) * scale, site)
         _log_model(rec, rr, model, f"{run.name}/true_scale", t, pos_true, quat_true)
         _log_model(rec, rr, model, f"{run.name}/deformed", t, pos_def, quat_def)
         if len(t):
             _trail(rec, rr, f"{run.name}/deformed/tip_trail", t, tip_def, rate)
-        first = run is runs[0]
         tag = "" if len(runs) == 1 else f"{run.name}: "
-        groups_by_run[run.name] = _log_signals(rec, rr, run, projection, t, projection.tip_m(q) if len(q) else np.zeros(0), tag=tag, faded=not first)
+        groups_by_run[run.name] = _log_signals(rec, rr, run, projection, tag=tag, faded=run is not runs[0])
         modes = ", ".join(f"{f:.2f}" for f in projection.freq_hz)
         about = (f"# {run.name}\n\n{run.label}\n\n"
                  f"- **deformation scale**: beam deflection ×{beam_scale:.4g}, arm joints' deviations from the nominal pose ×{arm_scale:.4g} "
