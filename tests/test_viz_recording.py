@@ -110,6 +110,12 @@ def test_recording_has_the_layout_and_the_data(loper):
     shares = np.array([_scalars(rec[f"{root}/displacement_mm/mode_{k}"]["time"])[1] for k in (1, 2, 3)])
     assert np.allclose(tt, t) and np.abs(tip).max() > 1.0  # mm: the Loper step moves the tip by millimetres
     assert np.sqrt(np.mean((shares.sum(axis=0) - tip) ** 2)) < 0.02 * np.sqrt(np.mean(tip**2))
+    # the comparison's tip beside it; its modes left out (one set of modes per panel)
+    assert rec["/servo_loop_alone/displacement_mm/tip"]["time"] and "/servo_loop_alone/displacement_mm/mode_1" not in rec
+    # one About document for the recording (a view shows one document), naming both runs and the scale
+    assert [e for e in rec if e.endswith("/about")] == ["/about"]
+    about = str(rec["/about"]["static"][0].column("TextDocument:text").to_pylist()[0])
+    assert "## closedloop" in about and "## servo_loop_alone" in about and "deformation scale" in about
     # poses: at t = 0 the run rests in home; Rerun's quaternions are x, y, z, w
     from samii.sim.model import load_model, make_data
 
@@ -124,7 +130,7 @@ def test_recording_has_the_layout_and_the_data(loper):
     # the layout is stored: 3D views naming the scale, one time-series panel per unit
     assert blueprints
     joined = " | ".join(names)
-    for title in ("beam deflection ×", "true scale", "Angle [deg]", "Acceleration [m/s²]", "Voltage [V]", "Pressure [MPa]",
+    for title in ("beam ×", "true scale", "Angle [deg]", "Acceleration [m/s²]", "Voltage [V]", "Pressure [MPa]",
                   "Tip displacement and base modes [mm]"):  # fmt: skip
         assert title in joined, f"no view {title!r} in the blueprint: {joined}"
 
@@ -200,7 +206,7 @@ def test_measure_both_records_both_runs_with_the_sweep_frequency(tmp_path):
         assert finite.size and finite.min() >= 5 - 1e-9 and finite.max() <= 10 + 1e-9
     t, _ = _column(rec["/swept/deformed/link2"]["time"], "Transform3D:translation")
     assert np.allclose(np.diff(t), 0.02, atol=1e-9)  # --rerun-fps 50
-    assert any("swept: 3D" in n for n in names) and any("stepped: 3D" in n for n in names)
+    assert any("swept: beam ×" in n for n in names) and any("stepped: beam ×" in n for n in names)
 
 
 def test_frame_rate_follows_base_mode_3():

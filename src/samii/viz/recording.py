@@ -6,7 +6,7 @@ Logging only (rerun is imported when called): the figures logged are computed by
 
 - ``NAME/deformed/<body>``: each body's world pose per animation frame, the joints' deviations
   from the ``home`` pose multiplied by the deformation scale (the beam's by ``beam_scale``, the
-  arm's by ``arm_scale``; both in the 3D view's name and in ``NAME/about``); the geoms are
+  arm's by ``arm_scale``; both in the 3D view's name and in ``about``); the geoms are
   logged once, static, as children ``NAME/deformed/<body>/<geom>`` with their pose in the body;
 - ``NAME/deformed/tip_trail``: the beam tip's last ``TRAIL_S`` seconds as fading points;
 - ``NAME/true_scale/<body>``: the same at true scale (the beam's real motion is sub-millimetre);
@@ -17,11 +17,12 @@ Logging only (rerun is imported when called): the figures logged are computed by
   mode_2,mode_3}`` (the tip's displacement along the accelerometer's axis and each base mode's
   share of it: the modal coordinates), ``NAME/frequency_hz/sweep`` (the excitation's
   instantaneous frequency), ``NAME/events`` (the switch-on as a text log);
-- ``NAME/about``: a text document with the scales, the frame rate and the modes.
+- ``about``: one text document with the scales, the modes, and each run's frame rate.
 
 Several runs in one recording are a comparison (a closed-loop run and the same scenario under the
 servo amplifier alone, the notebook's Figure 11.4): one deformation scale for all, their series in
-the same panels, the later runs' names tagged with the run's and their colours lighter.
+the same panels, the later runs' names tagged with the run's and their colours dimmed
+(and of the modal coordinates only the first run's, the later ones' tip beside it).
 
 Timeline ``time`` (seconds of the run). The blueprint stored with the recording puts the 3D
 views (deformed beside true scale) beside one time-series panel per unit.
@@ -68,7 +69,7 @@ class RunRecord:
 
 @dataclass(frozen=True)
 class RecordingInfo:
-    """What :func:`write_recording` wrote (also in each run's ``about`` document)."""
+    """What :func:`write_recording` wrote (also in the recording's ``about`` document)."""
 
     path: Path
     beam_scale: float
@@ -152,6 +153,10 @@ def _scales(model: mujoco.MjModel, home: mujoco.MjData, qpos: list[np.ndarray], 
     return float(beam_scale), float(arm_scale), deflection
 
 
+#: Geom types drawn (planes and meshes are not).
+_DRAWN = (mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_CYLINDER, mujoco.mjtGeom.mjGEOM_SPHERE)
+
+
 def _geom_archetype(rr, gtype: int, size: np.ndarray, rgba: np.ndarray):
     color = [int(round(255 * c)) for c in rgba]
     if gtype == mujoco.mjtGeom.mjGEOM_BOX:
@@ -214,7 +219,7 @@ def _trail(rec, rr, entity: str, t_s: np.ndarray, tip: np.ndarray, fps: float) -
 
 
 _COLORS = {"theta": (31, 119, 180), "theta_ref": (150, 150, 150), "accel": (214, 39, 40), "v": (44, 160, 44), "r": (148, 103, 189),
-           "command": (255, 127, 14), "p_load": (140, 86, 75), "tip": (0, 0, 0), "mode_1": (31, 119, 180), "mode_2": (255, 127, 14),
+           "command": (255, 127, 14), "p_load": (140, 86, 75), "tip": (230, 230, 230), "mode_1": (31, 119, 180), "mode_2": (255, 127, 14),
            "mode_3": (44, 160, 44), "sweep": (23, 190, 207)}  # fmt: skip
 #: (group entity, its panel's title) in the blueprint's order
 GROUPS = (("angle_deg", "Angle [deg]"), ("accel_m_s2", "Acceleration [m/s²]"), ("volts", "Voltage [V]"), ("pressure_mpa", "Pressure [MPa]"),
@@ -223,8 +228,8 @@ GROUPS = (("angle_deg", "Angle [deg]"), ("accel_m_s2", "Acceleration [m/s²]"), 
 
 def _log_signals(rec, rr, run: RunRecord, projection, *, tag: str = "", faded: bool = False) -> list[str]:
     """Log ``run``'s time series (the tip and the modes at its frames, from ``projection``) and
-    return the groups it filled; ``tag`` prefixes the series' names and ``faded`` lightens their
-    colours (the later runs of a comparison, in the same panels)."""
+    return the groups it filled; ``tag`` prefixes the series' names and ``faded`` dims their
+    colours towards the viewer's dark background and leaves out the modal coordinates (the later runs of a comparison, in the same panels)."""
     ts = run.timeseries
     root = run.name
     groups = set()
@@ -234,7 +239,7 @@ def _log_signals(rec, rr, run: RunRecord, projection, *, tag: str = "", faded: b
             return
         color = np.asarray(_COLORS[key], float)
         if faded:
-            color = 0.45 * color + 0.55 * 255
+            color = 0.55 * color + 0.45 * 40.0  # towards the dark background
         _series(rec, rr, f"{root}/{group}/{key}", ts.t if t is None else t, np.asarray(values, float), tag + name, [int(x) for x in color])
         groups.add(group)
 
@@ -253,7 +258,7 @@ def _log_signals(rec, rr, run: RunRecord, projection, *, tag: str = "", faded: b
     if len(run.frame_t_s):
         put("displacement_mm", "tip", 1e3 * projection.tip_m(run.frame_qpos), "tip displacement [mm]", t=run.frame_t_s)
         shares = projection.shares_m(run.frame_qpos)
-        for k, f in enumerate(projection.freq_hz):
+        for k, f in enumerate(() if faded else projection.freq_hz):
             put("displacement_mm", f"mode_{k + 1}", 1e3 * shares[:, k], f"mode {k + 1} ({f:.2f} Hz) [mm]", t=run.frame_t_s)
     put("frequency_hz", "sweep", run.sweep_hz, "sweep frequency [Hz]")
     if run.switch_on_s is not None:
@@ -266,24 +271,60 @@ def _log_signals(rec, rr, run: RunRecord, projection, *, tag: str = "", faded: b
     return [g for g, _ in GROUPS if g in groups]
 
 
-def _blueprint(rrb, runs, groups_by_run: dict[str, list[str]], beam_scale: float, arm_scale: float):
+def _eye(model: mujoco.MjModel, home: mujoco.MjData) -> dict:
+    """Where the 3D views' camera starts: the whole structure in view, looking across the
+    accelerometer's axis (the base's vibration lies in the picture's plane), turned 30 deg and
+    raised 15 deg for depth."""
+    from samii.sim.sensors import accel_axis_world
+
+    drawn = [g for g in range(model.ngeom) if model.geom_type[g] in _DRAWN]
+    if drawn:  # each geom's bounding sphere
+        r = model.geom_rbound[drawn][:, None]
+        lo, hi = (home.geom_xpos[drawn] - r).min(axis=0), (home.geom_xpos[drawn] + r).max(axis=0)
+    else:
+        lo, hi = home.xpos[1:].min(axis=0), home.xpos[1:].max(axis=0)
+    centre = (lo + hi) / 2
+    extent = max(float(np.max(hi - lo)), 0.5)
+    z = np.array([0.0, 0.0, 1.0])
+    a = np.asarray(accel_axis_world(model, home), float)
+    a = a - (a @ z) * z
+    a = a / np.linalg.norm(a) if np.linalg.norm(a) > 1e-9 else np.array([1.0, 0.0, 0.0])
+    across = np.cross(z, a)
+    turn, rise = np.radians(30.0), np.radians(15.0)
+    d = np.cos(turn) * across + np.sin(turn) * a
+    position = centre + 1.35 * extent * (np.cos(rise) * d + np.sin(rise) * z)
+    return {"position": position.tolist(), "look_target": centre.tolist(), "eye_up": z.tolist()}
+
+
+def _view3d_name(run: RunRecord, beam_scale: float, arm_scale: float) -> str:
+    return f"{run.name}: beam ×{beam_scale:.3g}, arm ×{arm_scale:.3g}"
+
+
+def _blueprint(rrb, runs, groups_by_run: dict[str, list[str]], beam_scale: float, arm_scale: float, eye: dict):
     views3d = []
-    for run in runs:  # the deformed view beside the true-scale one, a row per run
+    for run in runs:  # the deformed view beside the true-scale one, a row per run with frames
+        if not len(run.frame_t_s):
+            continue
         views3d.append(rrb.Horizontal(
-            rrb.Spatial3DView(origin=f"/{run.name}/deformed", name=f"{run.name}: 3D, beam deflection ×{beam_scale:.3g}, arm joints ×{arm_scale:.3g}"),
-            rrb.Spatial3DView(origin=f"/{run.name}/true_scale", name=f"{run.name}: 3D, true scale"), column_shares=[3, 2]))  # fmt: skip
+            rrb.Spatial3DView(origin=f"/{run.name}/deformed", name=_view3d_name(run, beam_scale, arm_scale), eye_controls=rrb.EyeControls3D(**eye)),
+            rrb.Spatial3DView(origin=f"/{run.name}/true_scale", name=f"{run.name}: true scale", eye_controls=rrb.EyeControls3D(**eye)),
+            column_shares=[3, 2]))  # fmt: skip
     panels = []
     for group, title in GROUPS:
         contents = [f"/{run.name}/{group}/**" for run in runs if group in groups_by_run[run.name]]
         if contents:
-            panels.append(rrb.TimeSeriesView(origin="/", contents=contents, name=title))
+            panels.append(rrb.TimeSeriesView(origin="/", contents=contents, name=title, plot_legend=rrb.PlotLegend(corner="RightTop")))
     events = [f"/{run.name}/events" for run in runs if run.switch_on_s is not None]
     left = list(views3d)
+    below = []
     if events:
-        left.append(rrb.TextLogView(origin="/", contents=events, name="Events"))
-    left.append(rrb.TextDocumentView(origin="/", contents=[f"/{run.name}/about" for run in runs], name="About this recording"))
-    return rrb.Blueprint(rrb.Horizontal(rrb.Vertical(*left, row_shares=[4] * len(views3d) + [1] * (len(left) - len(views3d))), rrb.Vertical(*panels), column_shares=[3, 2]),
-                         rrb.TimePanel(expanded=True), collapse_panels=False)  # fmt: skip
+        below.append(rrb.TextLogView(origin="/", contents=events, name="Events"))
+    below.append(rrb.TextDocumentView(origin="/about", name="About this recording"))
+    left.append(rrb.Tabs(*below) if len(below) > 1 else below[0])
+    shares = [4] * len(views3d) + [1 + len(views3d) // 2]
+    return rrb.Blueprint(rrb.Horizontal(rrb.Vertical(*left, row_shares=shares), rrb.Vertical(*panels), column_shares=[3, 2]),
+                         rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
+                         rrb.TimePanel(state="collapsed", timeline="time"))  # fmt: skip
 
 
 def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, beam_scale: float | None = None, fps: float | None = None) -> RecordingInfo:
@@ -317,32 +358,36 @@ def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, b
     rec.save(path)
     groups_by_run = {}
     rate = fps
+    modes = ", ".join(f"{f:.2f}" for f in projection.freq_hz)
+    about = [f"# {application_id}\n",
+             f"- **deformation scale**: beam deflection ×{beam_scale:.4g}, arm joints' deviations from the nominal pose ×{arm_scale:.4g} "
+             f"(the largest tip deflection in this recording, {1e3 * deflection:.4g} mm, is shown as {100 * beam_scale * deflection / length:.3g} % "
+             f"of the beam's {length:.3g} m; the arm's scale is the beam's unless a joint would turn more than "
+             f"{np.degrees(ARM_DEVIATION_SHOWN_RAD):.0f}°, never below 1); the true-scale view is beside it",
+             f"- **tip trail**: the last {TRAIL_S} s of the beam tip (deformed)",
+             f"- **modal coordinates**: each base mode's share of the tip displacement along the accelerometer's axis, "
+             f"from the undamped shapes of the structure with joint 2 held ({modes} Hz)\n"]  # fmt: skip
     for run, (pos_true, quat_true, _) in zip(runs, true_poses):
         t, q = run.frame_t_s, run.frame_qpos
-        if rate is None:
-            rate = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else MIN_FPS
-        rec.log(run.name, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        pos_def, quat_def, tip_def = _poses(model, home.qpos + (q - home.qpos) * scale, site)
-        _log_model(rec, rr, model, f"{run.name}/true_scale", t, pos_true, quat_true)
-        _log_model(rec, rr, model, f"{run.name}/deformed", t, pos_def, quat_def)
+        samples_per_s = 1 / float(np.median(np.diff(run.timeseries.t)))
         if len(t):
+            if rate is None:
+                rate = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else MIN_FPS
+            rec.log(run.name, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+            pos_def, quat_def, tip_def = _poses(model, home.qpos + (q - home.qpos) * scale, site)
+            _log_model(rec, rr, model, f"{run.name}/true_scale", t, pos_true, quat_true)
+            _log_model(rec, rr, model, f"{run.name}/deformed", t, pos_def, quat_def)
             _trail(rec, rr, f"{run.name}/deformed/tip_trail", t, tip_def, rate)
+            frames = (f"{rate:.4g} frames per second ({len(t)} frames): the 3D views, the tip and the modes; the other signals "
+                      f"at the record's {samples_per_s:.4g} samples/s")  # fmt: skip
+        else:
+            frames = f"no animation frames (no joint positions: e.g. measured data); the signals at {samples_per_s:.4g} samples/s"
         tag = "" if len(runs) == 1 else f"{run.name}: "
         groups_by_run[run.name] = _log_signals(rec, rr, run, projection, tag=tag, faded=run is not runs[0])
-        modes = ", ".join(f"{f:.2f}" for f in projection.freq_hz)
-        about = (f"# {run.name}\n\n{run.label}\n\n"
-                 f"- **deformation scale**: beam deflection ×{beam_scale:.4g}, arm joints' deviations from the nominal pose ×{arm_scale:.4g} "
-                 f"(the largest tip deflection in this recording, {1e3 * deflection:.4g} mm, is shown as {100 * beam_scale * deflection / length:.3g} % "
-                 f"of the beam's {length:.3g} m; the arm's scale is the beam's unless a joint would turn more than "
-                 f"{np.degrees(ARM_DEVIATION_SHOWN_RAD):.0f}°, never below 1); the true-scale view is beside it\n"
-                 f"- **frames**: {rate:.4g} per second ({len(t)} frames): the 3D views, the tip and the modes; the other signals at their "
-                 f"record's rate ({1 / float(np.median(np.diff(run.timeseries.t))):.4g} samples/s)\n"
-                 f"- **tip trail**: the last {TRAIL_S} s of the beam tip (deformed)\n"
-                 f"- **modal coordinates**: each base mode's share of the tip displacement along the accelerometer's axis, "
-                 f"from the undamped shapes of the structure with joint 2 held ({modes} Hz)\n")  # fmt: skip
-        rec.log(f"{run.name}/about", rr.TextDocument(about, media_type="text/markdown"), static=True)
+        about.append(f"## {run.name}\n\n{run.label}\n\n- {frames}\n")
+    rec.log("about", rr.TextDocument("\n".join(about), media_type="text/markdown"), static=True)
     rec.send_property("deformation", rr.AnyValues(beam_scale=beam_scale, arm_scale=arm_scale, max_tip_deflection_m=deflection, fps=float(rate or 0.0)))
-    rec.send_blueprint(_blueprint(rrb, runs, groups_by_run, beam_scale, arm_scale))
+    rec.send_blueprint(_blueprint(rrb, runs, groups_by_run, beam_scale, arm_scale, _eye(model, home)))
     rec.flush()
     rec.disconnect()
     return RecordingInfo(path, beam_scale, arm_scale, float(rate or 0.0), tuple(float(f) for f in projection.freq_hz), deflection, tuple(r.name for r in runs))
