@@ -16,16 +16,9 @@ pytestmark = pytest.mark.skipif(not graphics_available(), reason="no Vulkan driv
 
 def _tip(path, run):
     """(t [s], tip displacement [mm]) of ``run`` as logged."""
-    import rerun.chunk as rc
+    from samii.viz.recording import read_scalars
 
-    t, y = [], []
-    for chunk in rc.RrdReader(str(path)).store().stream():
-        if not chunk.is_static and chunk.entity_path == f"/{run}/displacement_mm/tip":
-            b = chunk.to_record_batch()
-            t.extend(b.column("time").cast("int64").to_numpy() * 1e-9)
-            y.extend(v[0] for v in b.column("Scalars:scalars").to_pylist())
-    order = np.argsort(t)
-    return np.asarray(t)[order], np.asarray(y)[order]
+    return read_scalars(path, f"/{run}/displacement_mm/tip")[f"/{run}/displacement_mm/tip"]
 
 
 def _changed(a, b) -> float:

@@ -30,18 +30,9 @@ ASSETS = ROOT / "assets"
 
 def tip_series(rrd: Path, run: str) -> tuple[np.ndarray, np.ndarray]:
     """(t [s], tip displacement [mm]) of run ``run`` as logged in ``rrd``."""
-    import rerun as rr
+    from samii.viz.recording import read_scalars
 
-    t, y = [], []
-    reader = rr.chunk.RrdReader(str(rrd))
-    for chunk in reader.store().stream():
-        if chunk.is_static or str(chunk.entity_path) != f"/{run}/displacement_mm/tip":
-            continue
-        batch = chunk.to_record_batch()
-        t.extend(batch.column("time").cast("int64").to_numpy() * 1e-9)
-        y.extend(v[0] for v in batch.column("Scalars:scalars").to_pylist())
-    order = np.argsort(t)
-    return np.asarray(t)[order], np.asarray(y)[order]
+    return read_scalars(rrd, f"/{run}/displacement_mm/tip")[f"/{run}/displacement_mm/tip"]
 
 
 def samii(*args: str) -> None:

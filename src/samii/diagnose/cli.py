@@ -9,7 +9,8 @@ before and after per channel, and any band no effect explains.
 
 ``--out DIR`` writes ``diagnosis.json``, ``residuals.png``, ``bode.png`` and ``harmonics.png`` (and
 ``simulator.png`` with ``--baseline sim``);
-``--json`` prints the JSON. Imports nothing heavy at module level.
+``--json`` prints the JSON. With ``--baseline sim``, ``--rerun FILE.rrd`` writes a Rerun recording
+of the simulator against the data (``samii.diagnose.recording``). Imports nothing heavy at module level.
 """
 
 from __future__ import annotations
@@ -48,7 +49,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mat-freq-name", metavar="NAME", default=None, help="name of the frequency vector in a .mat file")
     parser.add_argument("--mat-freq-unit", choices=("hz", "rad/s"), default="hz", help="unit of that vector (default hz)")
     parser.add_argument("--out", metavar="DIR", type=nonempty_path, help="write diagnosis.json, residuals.png and bode.png here")
-    parser.add_argument("--overwrite", action="store_true", help="replace files already in --out")
+    parser.add_argument("--rerun", metavar="FILE.rrd", type=nonempty_path,
+                        help="with --baseline sim: also write a Rerun recording of the simulator against the data: each file's "
+                        "record beside the simulator measured like it before and after the effects were carried (3D with the "
+                        "beam's deflection magnified, signals by unit; the file must not exist unless --overwrite)")
+    parser.add_argument("--rerun-fps", metavar="F", type=positive_float, default=None,
+                        help="animation frames per second in the recording (default: 4 per period of base mode 3, at least 100)")
+    parser.add_argument("--overwrite", action="store_true", help="replace files already in --out (and --rerun)")
     parser.add_argument("--json", action="store_true", help="print the diagnosis as JSON (numbers not defined are null)")
     parser.add_argument("--no-progress", action="store_true", help="no progress display on stderr")
 
@@ -145,6 +152,15 @@ def run(args: argparse.Namespace) -> int:
         from samii.outputs import OutputFolder
 
         folder = OutputFolder(args.out, OUTPUTS + (SIM_OUTPUTS if baseline == "sim" else ()), overwrite=args.overwrite)
+    rerun_path = None
+    if args.rerun is not None:
+        if baseline != "sim":
+            raise InputError(f"--rerun {args.rerun}: the recording shows the simulator against the data; use it with --baseline sim")
+        from samii.outputs import check_output_file
+
+        rerun_path = check_output_file(args.rerun, overwrite=args.overwrite, option="--rerun", beside=folder)
+    elif args.rerun_fps is not None:
+        raise InputError("--rerun-fps: sets the frame rate of a recording; give --rerun FILE.rrd too")
 
     from samii.diagnose.diagnosis import diagnose
     from samii.json_output import dumps
@@ -176,13 +192,34 @@ def run(args: argparse.Namespace) -> int:
                 harmonic_figure(d, folder.path("harmonics.png"))
                 if d.simulator is not None:
                     simulator_figure(d, folder.path("simulator.png"))
+        if rerun_path is not None:
+            progress.stage("recording")
+            _write_rerun(d, rerun_path, args.rerun_fps)
     finally:
         progress.close()
     if args.json:
         print(dumps(d.to_dict(), indent=2))
         return 0
-    _print(d, folder.written if folder is not None else [])
+    _print(d, (folder.written if folder is not None else []) + ([str(rerun_path)] if rerun_path is not None else []))
     return 0
+
+
+def _write_rerun(d, path, fps) -> None:
+    """The simulator against the data as a Rerun recording at ``path``: written beside it, then moved in."""
+    import os
+
+    from samii.diagnose.recording import write_diagnosis_recording
+
+    tmp = path.parent / f".{path.name}.{os.getpid()}.tmp"
+    try:
+        try:
+            write_diagnosis_recording(tmp, d, fps=fps)
+        except RuntimeError as exc:  # rerun's writer reports file-system failures as RuntimeError
+            raise OSError(f"--rerun {path}: the recording could not be written ({' '.join(str(exc).split())})") from None
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
 
 
 def _print(d, written) -> None:

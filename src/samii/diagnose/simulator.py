@@ -53,7 +53,7 @@ from samii.sim.mjcf import SamiiParams
 from samii.sim.model import params_with_overrides
 
 __all__ = ["CARRY", "BODY", "NOT_CARRIED", "tip_body_options", "body_effect_values", "LocalSimulator", "SimulatorCalibration", "SimulatorReport", "calibrate_simulator", "correction",
-           "simulator_baseline", "carry", "carry_and_recalibrate", "sweep_like", "measured_like", "remeasure", "simulator_report"]
+           "simulator_baseline", "carry", "carry_and_recalibrate", "sweep_like", "measured_like", "measurement_like", "remeasure", "simulator_report"]
 
 #: effect label -> (simulator parameter, the effect's parameter giving its value)
 CARRY: Mapping[str, tuple[str, str]] = {
@@ -514,9 +514,16 @@ def _measure_like(params: SamiiParams, m: Measured, sweep, **kwargs):
     return measure(load_model(params=params), sweep, sample_rate_hz=physics / ratio, **kwargs)
 
 
+def measurement_like(params: SamiiParams, m: Measured, *, frame_steps: int | None = None):
+    """The nonlinear simulator with ``params`` measured like file ``m`` (:func:`sweep_like`, no
+    noise): the whole ``samii.measure.campaign.Measurement``, with the joint positions every
+    ``frame_steps`` physics steps when given (for a recording)."""
+    return _measure_like(params, m, sweep_like(m), frame_steps=frame_steps)
+
+
 def remeasure(params: SamiiParams, m: Measured) -> FrequencyResponse:
     """The nonlinear simulator with ``params`` measured like file ``m`` (on its own frequencies)."""
-    return _measure_like(params, m, sweep_like(m)).frf
+    return measurement_like(params, m).frf
 
 
 #: The simulator's own harmonics are measured with the DAQ's noise scaled by this (the harmonic test needs a

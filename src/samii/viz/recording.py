@@ -39,7 +39,7 @@ import numpy as np
 from samii.measure.timeseries import TimeSeries
 from samii.sim.sensors import accel_site
 
-__all__ = ["RunRecord", "RecordingInfo", "write_recording", "frame_steps_for", "TRAIL_S", "BEAM_DEFLECTION_SHOWN"]
+__all__ = ["RunRecord", "RecordingInfo", "write_recording", "read_scalars", "frame_steps_for", "TRAIL_S", "BEAM_DEFLECTION_SHOWN"]
 
 #: The default deformation scale shows the run's largest tip deflection as this fraction of the beam's length.
 BEAM_DEFLECTION_SHOWN = 0.05
@@ -49,6 +49,8 @@ ARM_DEVIATION_SHOWN_RAD = np.radians(15.0)
 #: Length of the tip's trail [s] and the number of points it is drawn with.
 TRAIL_S = 0.6
 TRAIL_POINTS = 20
+#: Most runs whose 3D views are stacked in rows; beyond, they are tabs.
+MAX_3D_ROWS = 2
 #: Frames per period of the fastest base mode shown (mode 3), and the lowest frame rate [1/s].
 FRAMES_PER_PERIOD = 4
 MIN_FPS = 100.0
@@ -65,6 +67,7 @@ class RunRecord:
     sweep_hz: np.ndarray | None = None  #: instantaneous sweep frequency at ``timeseries.t``
     switch_on_s: float | None = None  #: the controller's switch-on (Loper test)
     label: str = ""  #: one line on what the run is
+    model: mujoco.MjModel | None = None  #: the run's own model when not the recording's (e.g. a simulator with a body added)
 
 
 @dataclass(frozen=True)
@@ -135,20 +138,48 @@ def _poses(model: mujoco.MjModel, qpos: np.ndarray, site: int) -> tuple[np.ndarr
     return pos, quat[:, :, [1, 2, 3, 0]], tip
 
 
-def _scales(model: mujoco.MjModel, home: mujoco.MjData, qpos: list[np.ndarray], tips: list[np.ndarray], beam_scale: float | None) -> tuple[float, float, float]:
-    """(beam scale, arm scale, largest tip deflection [m]) for runs with joint positions ``qpos``
-    and tip-site positions ``tips`` (each (frames, ...)).
+@dataclass(frozen=True, eq=False)
+class _Kinematics:
+    """A model's pieces the recording needs: its rest pose, the tip site, the modal projection,
+    and which joints are the beam's."""
+
+    model: mujoco.MjModel
+    home: mujoco.MjData
+    site: int
+    projection: object
+    beam: np.ndarray  #: qpos addresses of the beam's joints
+
+    @classmethod
+    def of(cls, model: mujoco.MjModel) -> "_Kinematics":
+        from samii.sim.modal import modal_projection
+        from samii.sim.model import make_data
+
+        return cls(model, make_data(model), accel_site(model), modal_projection(model), _beam_dofs(model))
+
+    def scale(self, beam_scale: float, arm_scale: float) -> np.ndarray:
+        out = np.full(self.model.nq, arm_scale)
+        out[self.beam] = beam_scale
+        return out
+
+
+def _scales(parts, length: float, beam_scale: float | None) -> tuple[float, float, float]:
+    """(beam scale, arm scale, largest tip deflection [m]) for runs ``parts``: (kinematics, joint
+    positions (frames, nq), tip-site positions (frames, 3)).
 
     The beam's default: its largest tip deflection shown as ``BEAM_DEFLECTION_SHOWN`` of its
-    length (1 when the tip does not move). The arm joints get the same scale unless that would
+    ``length`` (1 when the tip does not move). The arm joints get the same scale unless that would
     show a joint's deviation beyond ``ARM_DEVIATION_SHOWN_RAD``; then the largest that does not
     (never below 1)."""
-    arm = np.setdiff1d(np.arange(model.nq), _beam_dofs(model))
-    tip0 = home.site_xpos[accel_site(model)]
-    deflection = max((float(np.max(np.linalg.norm(tip - tip0, axis=1))) for tip in tips if len(tip)), default=0.0)
-    arm_dev = max((float(np.max(np.abs(q[:, arm] - home.qpos[arm]))) for q in qpos if len(q)), default=0.0)
+    deflection, arm_dev = 0.0, 0.0
+    for kin, q, tip in parts:
+        if not len(q):
+            continue
+        arm = np.setdiff1d(np.arange(kin.model.nq), kin.beam)
+        deflection = max(deflection, float(np.max(np.linalg.norm(tip - kin.home.site_xpos[kin.site], axis=1))))
+        if arm.size:
+            arm_dev = max(arm_dev, float(np.max(np.abs(q[:, arm] - kin.home.qpos[arm]))))
     if beam_scale is None:
-        beam_scale = BEAM_DEFLECTION_SHOWN * _beam_length(model, home) / deflection if deflection > 0 else 1.0
+        beam_scale = BEAM_DEFLECTION_SHOWN * length / deflection if deflection > 0 else 1.0
     arm_scale = beam_scale if arm_dev * beam_scale <= ARM_DEVIATION_SHOWN_RAD else max(1.0, ARM_DEVIATION_SHOWN_RAD / arm_dev)
     return float(beam_scale), float(arm_scale), deflection
 
@@ -226,10 +257,15 @@ GROUPS = (("angle_deg", "Angle [deg]"), ("accel_m_s2", "Acceleration [m/s²]"), 
           ("displacement_mm", "Tip displacement and base modes [mm]"), ("frequency_hz", "Sweep frequency [Hz]"))  # fmt: skip
 
 
-def _log_signals(rec, rr, run: RunRecord, projection, *, tag: str = "", faded: bool = False) -> list[str]:
+#: How far the later runs of a comparison are dimmed towards the viewer's dark background, by rank.
+DIMMED = (0.0, 0.45, 0.7)
+
+
+def _log_signals(rec, rr, run: RunRecord, projection, *, tag: str = "", rank: int = 0) -> list[str]:
     """Log ``run``'s time series (the tip and the modes at its frames, from ``projection``) and
-    return the groups it filled; ``tag`` prefixes the series' names and ``faded`` dims their
-    colours towards the viewer's dark background and leaves out the modal coordinates (the later runs of a comparison, in the same panels)."""
+    return the groups it filled; ``tag`` prefixes the series' names. The later runs of a comparison
+    (``rank`` > 0), in the same panels, have their colours dimmed (:data:`DIMMED`) towards the
+    viewer's dark background and no modal coordinates (their tip is beside the first's)."""
     ts = run.timeseries
     root = run.name
     groups = set()
@@ -238,8 +274,8 @@ def _log_signals(rec, rr, run: RunRecord, projection, *, tag: str = "", faded: b
         if values is None:
             return
         color = np.asarray(_COLORS[key], float)
-        if faded:
-            color = 0.55 * color + 0.45 * 40.0  # towards the dark background
+        dim = DIMMED[min(rank, len(DIMMED) - 1)]
+        color = (1 - dim) * color + dim * 40.0  # towards the dark background
         _series(rec, rr, f"{root}/{group}/{key}", ts.t if t is None else t, np.asarray(values, float), tag + name, [int(x) for x in color])
         groups.add(group)
 
@@ -258,7 +294,7 @@ def _log_signals(rec, rr, run: RunRecord, projection, *, tag: str = "", faded: b
     if len(run.frame_t_s):
         put("displacement_mm", "tip", 1e3 * projection.tip_m(run.frame_qpos), "tip displacement [mm]", t=run.frame_t_s)
         shares = projection.shares_m(run.frame_qpos)
-        for k, f in enumerate(() if faded else projection.freq_hz):
+        for k, f in enumerate(() if rank else projection.freq_hz):
             put("displacement_mm", f"mode_{k + 1}", 1e3 * shares[:, k], f"mode {k + 1} ({f:.2f} Hz) [mm]", t=run.frame_t_s)
     put("frequency_hz", "sweep", run.sweep_hz, "sweep frequency [Hz]")
     if run.switch_on_s is not None:
@@ -308,7 +344,9 @@ def _blueprint(rrb, runs, groups_by_run: dict[str, list[str]], beam_scale: float
         views3d.append(rrb.Horizontal(
             rrb.Spatial3DView(origin=f"/{run.name}/deformed", name=_view3d_name(run, beam_scale, arm_scale), eye_controls=rrb.EyeControls3D(**eye)),
             rrb.Spatial3DView(origin=f"/{run.name}/true_scale", name=f"{run.name}: true scale", eye_controls=rrb.EyeControls3D(**eye)),
-            column_shares=[3, 2]))  # fmt: skip
+            column_shares=[3, 2], name=run.name))  # fmt: skip
+    if len(views3d) > MAX_3D_ROWS:  # many runs: one row at a time, as tabs
+        views3d = [rrb.Tabs(*views3d)]
     panels = []
     for group, title in GROUPS:
         contents = [f"/{run.name}/{group}/**" for run in runs if group in groups_by_run[run.name]]
@@ -338,20 +376,20 @@ def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, b
     import rerun as rr
     import rerun.blueprint as rrb
 
-    from samii.sim.modal import modal_projection
-    from samii.sim.model import make_data
-
     path = Path(path)
-    runs = [RunRecord(r.name, r.timeseries, np.asarray(r.frame_t_s, float), np.asarray(r.frame_qpos, float).reshape(len(r.frame_t_s), model.nq),
-                      r.sweep_hz, r.switch_on_s, r.label) for r in runs]  # fmt: skip
-    projection = modal_projection(model)
-    site = accel_site(model)
-    home = make_data(model)
-    true_poses = [_poses(model, r.frame_qpos, site) for r in runs]
-    beam_scale, arm_scale, deflection = _scales(model, home, [r.frame_qpos for r in runs], [p[2] for p in true_poses], beam_scale)
-    scale = np.full(model.nq, arm_scale)
-    scale[_beam_dofs(model)] = beam_scale
-    length = _beam_length(model, home)
+    kin: dict[int, _Kinematics] = {id(model): _Kinematics.of(model)}
+    for r in runs:
+        if r.model is not None and id(r.model) not in kin:
+            kin[id(r.model)] = _Kinematics.of(r.model)
+    main = kin[id(model)]
+    runs = [RunRecord(r.name, r.timeseries, np.asarray(r.frame_t_s, float),
+                      np.asarray(r.frame_qpos, float).reshape(len(r.frame_t_s), (r.model or model).nq),
+                      r.sweep_hz, r.switch_on_s, r.label, r.model) for r in runs]  # fmt: skip
+    run_kin = [kin[id(r.model or model)] for r in runs]
+    true_poses = [_poses(k.model, r.frame_qpos, k.site) for r, k in zip(runs, run_kin)]
+    length = _beam_length(model, main.home)
+    beam_scale, arm_scale, deflection = _scales([(k, r.frame_qpos, p[2]) for r, k, p in zip(runs, run_kin, true_poses)], length, beam_scale)
+    projection = main.projection
 
     rec = rr.RecordingStream(application_id)
     rec.set_log_time_enabled(False)  # the one timeline is the run's time
@@ -367,27 +405,55 @@ def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, b
              f"- **tip trail**: the last {TRAIL_S} s of the beam tip (deformed)",
              f"- **modal coordinates**: each base mode's share of the tip displacement along the accelerometer's axis, "
              f"from the undamped shapes of the structure with joint 2 held ({modes} Hz)\n"]  # fmt: skip
-    for run, (pos_true, quat_true, _) in zip(runs, true_poses):
+    for i, (run, k, (pos_true, quat_true, _)) in enumerate(zip(runs, run_kin, true_poses)):
         t, q = run.frame_t_s, run.frame_qpos
         samples_per_s = 1 / float(np.median(np.diff(run.timeseries.t)))
         if len(t):
             if rate is None:
                 rate = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else MIN_FPS
             rec.log(run.name, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-            pos_def, quat_def, tip_def = _poses(model, home.qpos + (q - home.qpos) * scale, site)
-            _log_model(rec, rr, model, f"{run.name}/true_scale", t, pos_true, quat_true)
-            _log_model(rec, rr, model, f"{run.name}/deformed", t, pos_def, quat_def)
+            pos_def, quat_def, tip_def = _poses(k.model, k.home.qpos + (q - k.home.qpos) * k.scale(beam_scale, arm_scale), k.site)
+            _log_model(rec, rr, k.model, f"{run.name}/true_scale", t, pos_true, quat_true)
+            _log_model(rec, rr, k.model, f"{run.name}/deformed", t, pos_def, quat_def)
             _trail(rec, rr, f"{run.name}/deformed/tip_trail", t, tip_def, rate)
             frames = (f"{rate:.4g} frames per second ({len(t)} frames): the 3D views, the tip and the modes; the other signals "
                       f"at the record's {samples_per_s:.4g} samples/s")  # fmt: skip
         else:
             frames = f"no animation frames (no joint positions: e.g. measured data); the signals at {samples_per_s:.4g} samples/s"
         tag = "" if len(runs) == 1 else f"{run.name}: "
-        groups_by_run[run.name] = _log_signals(rec, rr, run, projection, tag=tag, faded=run is not runs[0])
-        about.append(f"## {run.name}\n\n{run.label}\n\n- {frames}\n")
+        groups_by_run[run.name] = _log_signals(rec, rr, run, k.projection, tag=tag, rank=i)
+        own = "" if k is main else f"\n- its own model: base modes {', '.join(f'{f:.2f}' for f in k.projection.freq_hz)} Hz"
+        about.append(f"## {run.name}\n\n{run.label}\n\n- {frames}{own}\n")
     rec.log("about", rr.TextDocument("\n".join(about), media_type="text/markdown"), static=True)
     rec.send_property("deformation", rr.AnyValues(beam_scale=beam_scale, arm_scale=arm_scale, max_tip_deflection_m=deflection, fps=float(rate or 0.0)))
-    rec.send_blueprint(_blueprint(rrb, runs, groups_by_run, beam_scale, arm_scale, _eye(model, home)))
+    rec.send_blueprint(_blueprint(rrb, runs, groups_by_run, beam_scale, arm_scale, _eye(model, main.home)))
     rec.flush()
     rec.disconnect()
     return RecordingInfo(path, beam_scale, arm_scale, float(rate or 0.0), tuple(float(f) for f in projection.freq_hz), deflection, tuple(r.name for r in runs))
+
+
+def read_scalars(path, entities) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Read time series back from a recording: {entity: (t [s], values)} for each entity path in
+    ``entities`` (e.g. ``"/swept/displacement_mm/tip"``) that holds scalars on the ``time``
+    timeline, sorted by time (``rerun.chunk.RrdReader``)."""
+    import rerun.chunk as rc
+
+    want = {e if e.startswith("/") else f"/{e}" for e in ([entities] if isinstance(entities, str) else entities)}
+    parts: dict[str, list] = {}
+    for chunk in rc.RrdReader(str(path)).store().stream():
+        entity = str(chunk.entity_path)
+        if chunk.is_static or entity not in want:
+            continue
+        batch = chunk.to_record_batch()
+        if "Scalars:scalars" not in batch.schema.names:
+            continue
+        t = batch.column("time").cast("int64").to_numpy() * 1e-9
+        v = np.array([x[0] if x else np.nan for x in batch.column("Scalars:scalars").to_pylist()], float)
+        parts.setdefault(entity, []).append((t, v))
+    out = {}
+    for entity, chunks in parts.items():
+        t = np.concatenate([c[0] for c in chunks])
+        v = np.concatenate([c[1] for c in chunks])
+        order = np.argsort(t, kind="stable")
+        out[entity] = (t[order], v[order])
+    return out

@@ -70,7 +70,7 @@ class HeadlessViewer:
     Raises RuntimeError when no viewer can start (see :func:`graphics_available`) or the
     recording does not load within ``timeout_s``."""
 
-    def __init__(self, rrd, *, timeout_s: float = 60.0, settle_s: float = 1.0):
+    def __init__(self, rrd, *, timeout_s: float = 60.0, settle_s: float = 0.4):
         self.rrd = Path(rrd).resolve()
         if not self.rrd.is_file():
             raise FileNotFoundError(f"{self.rrd}: no such recording")
@@ -95,6 +95,7 @@ class HeadlessViewer:
                     raise RuntimeError(f"{self.rrd}: the viewer did not finish loading it within {self.timeout_s:g} s")
                 time.sleep(0.2)
             self._viewer.set_time(play_state="paused")
+            self._settle()
         except BaseException:
             self._viewer.quit()
             raise
@@ -104,10 +105,22 @@ class HeadlessViewer:
         self._viewer.quit()
 
     def show(self, time_s: float) -> None:
-        """Put the time cursor at ``time_s`` on the ``time`` timeline, paused, and let the views paint."""
+        """Put the time cursor at ``time_s`` on the ``time`` timeline, paused, and wait until the
+        window stops changing: the viewer fetches a large recording's chunks for that time only
+        then (until they arrive, bodies sit at the origin)."""
         self._viewer.set_time("time", duration=float(time_s), play_state="paused")
         self.time_s = float(time_s)
-        time.sleep(self.settle_s)
+        self._settle()
+
+    def _settle(self) -> None:
+        """Wait until three small screenshots ``settle_s`` apart are identical (``timeout_s`` at most)."""
+        deadline = time.monotonic() + self.timeout_s
+        shots: list[bytes] = []
+        while time.monotonic() < deadline:
+            time.sleep(self.settle_s)
+            shots = (shots + [self._viewer.take_screenshot(max_size=640)])[-3:]
+            if len(shots) == 3 and shots[0] == shots[1] == shots[2]:
+                return
 
     def views(self) -> tuple[ViewState, ...]:
         """The stored layout's views as the viewer shows them, with what each failed to show."""
