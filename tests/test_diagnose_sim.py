@@ -264,3 +264,15 @@ def test_cli_recording_needs_the_simulator(clean, tmp_path, capsys):
     assert "--baseline sim" in capsys.readouterr().err and not rrd.exists()
     assert main(["diagnose", str(clean), "--baseline", "sim", "--rerun-fps", "10", "--no-progress"]) == 2
     assert "--rerun" in capsys.readouterr().err
+
+
+def test_the_data_sweep_frequency_from_the_file(delayed, tmp_path):
+    """The data's sweep frequency in a recording is the one its header states, over all its sweeps."""
+    from samii.diagnose.recording import _sweep_hz
+    from samii.measure.excitation import SweptSine
+
+    ts = load(delayed).timeseries
+    f = _sweep_hz(ts)
+    sweep = SweptSine.from_metadata(ts.metadata)
+    assert sweep.repetitions == 3 and np.array_equal(f, sweep.frequency_hz(ts.t), equal_nan=True)
+    assert np.isfinite(f[ts.t > 2 * sweep.record_s + sweep.lead_s + 1.0]).any()  # the third sweep too

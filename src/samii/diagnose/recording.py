@@ -24,14 +24,14 @@ import numpy as np
 __all__ = ["diagnosis_runs", "write_diagnosis_recording"]
 
 
-def _sweep_hz(m, ts) -> np.ndarray | None:
-    """The file's instantaneous sweep frequency at ``ts.t`` when its metadata states the sweep."""
-    from samii.diagnose.simulator import sweep_like
+def _sweep_hz(ts) -> np.ndarray | None:
+    """The record's instantaneous sweep frequency at ``ts.t`` when its metadata states the sweep."""
+    from samii.measure.excitation import SweptSine
 
-    meta = ts.metadata
-    if "start_hz" not in meta or "stop_hz" not in meta:
+    try:
+        return SweptSine.from_metadata(ts.metadata).frequency_hz(ts.t)
+    except (KeyError, ValueError, TypeError):
         return None
-    return sweep_like(m).frequency_hz(ts.t)
 
 
 def diagnosis_runs(d, *, fps: float | None = None):
@@ -50,7 +50,7 @@ def diagnosis_runs(d, *, fps: float | None = None):
     for i, m in enumerate(files):
         tag = "" if len(files) == 1 else f"_{i + 1}"
         if m.timeseries is not None:
-            runs.append(RunRecord(f"data{tag}", m.timeseries, np.zeros(0), np.zeros((0, before.nq)), sweep_hz=_sweep_hz(m, m.timeseries),
+            runs.append(RunRecord(f"data{tag}", m.timeseries, np.zeros(0), np.zeros((0, before.nq)), sweep_hz=_sweep_hz(m.timeseries),
                                   label=f"measured: {m.source}"))  # fmt: skip
         sweep = sweep_like(m)
         what = (f"{sweep.start_hz:g}-{sweep.stop_hz:g} Hz at {sweep.amplitude_v:g} V, {sweep.repetitions} sweep(s), no noise"

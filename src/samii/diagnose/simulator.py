@@ -486,17 +486,14 @@ def sweep_like(m: Measured):
     """The swept sine a file was measured with, from its metadata (``samii measure`` writes every
     setting), else one over its band at its amplitude (0.1 V when unknown), two sign-alternating
     repetitions. Repetitions are capped at 2: the simulator's re-measurement is noise-free."""
+    from dataclasses import replace
+
     from samii.measure.excitation import SweptSine
 
     meta = dict(m.timeseries.metadata) if m.timeseries is not None else dict(m.frf.metadata)
-    floats = ("start_hz", "stop_hz", "amplitude_v", "cycles_per_octave", "seconds_per_octave", "fade_low_cycles", "fade_high_cycles",
-              "lead_s", "tail_s")
     try:
-        kw = {k: float(meta[k]) for k in floats}
-        kw["repetitions"] = min(int(float(meta["repetitions"])), 2)
-        kw["direction"] = str(meta["direction"]).strip()
-        kw["alternate_sign"] = str(meta["alternate_sign"]).strip().lower() in ("true", "1", "yes")
-        return SweptSine(**kw)
+        sweep = SweptSine.from_metadata(meta)
+        return replace(sweep, repetitions=min(sweep.repetitions, 2))
     except (KeyError, ValueError, TypeError):
         f = m.frf.freq_hz
         return SweptSine(start_hz=float(f.min()), stop_hz=float(f.max()), amplitude_v=float(m.amplitude_v or 0.1), repetitions=2)

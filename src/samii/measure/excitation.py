@@ -295,6 +295,19 @@ class SweptSine:
             "duration_s": self.duration_s,
         }
 
+    @classmethod
+    def from_metadata(cls, meta) -> "SweptSine":
+        """The sweep a record's metadata (:meth:`describe`'s settings, as ``samii measure`` writes
+        them in a time series' header) states. Raises KeyError for a missing setting and
+        ValueError for one that is not a number (or not a valid sweep)."""
+        floats = ("start_hz", "stop_hz", "amplitude_v", "cycles_per_octave", "seconds_per_octave", "fade_low_cycles", "fade_high_cycles",
+                  "lead_s", "tail_s")  # fmt: skip
+        kw: dict = {k: float(meta[k]) for k in floats}
+        kw["repetitions"] = int(float(meta["repetitions"]))
+        kw["direction"] = str(meta["direction"]).strip()
+        kw["alternate_sign"] = str(meta["alternate_sign"]).strip().lower() in ("true", "1", "yes")
+        return cls(**kw)
+
 
 @dataclass(frozen=True)
 class SteppedSine:
