@@ -17,3 +17,23 @@ def median_time(fn: Callable[[], object], repeats: int, *, warm_up: bool = False
         fn()
         times.append(time.perf_counter() - t)
     return statistics.median(times)
+
+
+def paired_ratio(base: Callable[[], object], other: Callable[[], object], repeats: int) -> tuple[float, float, float, float, float]:
+    """``other``'s wall time over ``base``'s, measured in interleaved pairs (after one untimed call of
+    each) so that a slow spell of the machine weighs on both: (median ratio, lowest, highest,
+    median time of base [s], median time of other [s])."""
+    base()
+    other()
+    ratios, tb, to = [], [], []
+    for _ in range(max(1, repeats)):
+        t = time.perf_counter()
+        base()
+        a = time.perf_counter() - t
+        t = time.perf_counter()
+        other()
+        b = time.perf_counter() - t
+        ratios.append(b / a)
+        tb.append(a)
+        to.append(b)
+    return statistics.median(ratios), min(ratios), max(ratios), statistics.median(tb), statistics.median(to)
