@@ -61,7 +61,7 @@ def loper(tmp_path_factory):
                  "--no-plots", "--rerun", str(rrd)]) == 0  # fmt: skip
     from samii.measure.io import read_timeseries_csv
 
-    return _read(rrd) + (read_timeseries_csv(d / "out" / "timeseries.csv"),)
+    return _read(rrd) + (read_timeseries_csv(d / "out" / "timeseries.csv"), rrd)
 
 
 def test_recording_has_the_layout_and_the_data(loper):
@@ -224,3 +224,54 @@ def test_frame_rate_follows_base_mode_3():
     assert frame_steps_for(stiff, 50.0) == 20
     with pytest.raises(ValueError, match="positive"):
         frame_steps_for(stiff, 0.0)
+
+
+def test_tip_trail_follows_the_deformed_tip(loper):
+    """The trail at each frame: TRAIL_POINTS points, the newest the tip now, each older one the tip
+    ``stride`` frames earlier (0.6 s in all), fading from orange towards the background; the newest
+    point moves like the deformed beam (beam_scale times the true tip)."""
+    from samii.viz.recording import TRAIL_POINTS, TRAIL_S
+
+    rec = loper[0]
+    t, pos = _column(rec["/closedloop/deformed/tip_trail"]["time"], "Points3D:positions")
+    _, colors = _column(rec["/closedloop/deformed/tip_trail"]["time"], "Points3D:colors")
+    pts = np.array([np.asarray([np.asarray(p, float) for p in row]) for row in pos])  # (frames, points, 3)
+    assert pts.shape[1:] == (TRAIL_POINTS, 3)
+    fps = 1 / np.median(np.diff(t))
+    stride = int(round(TRAIL_S * fps / TRAIL_POINTS))
+    for k in (1, 5, TRAIL_POINTS - 1):
+        lag = k * stride
+        assert np.allclose(pts[lag:, k], pts[: len(pts) - lag, 0], atol=1e-6), k
+    c = np.array([int(x) for x in colors[100]], dtype=np.int64)  # packed RGBA: red in the top byte
+    red = (c >> 24) & 0xFF
+    assert red[0] == 255 and np.all(np.diff(red) < 0)  # the newest brightest, then fading
+    # the newest point against the true tip: the deformation scale
+    props = rec["/__properties/deformation"]["static"][0]
+    beam_scale = props.column("beam_scale").to_pylist()[0][0]
+    from samii.sim.model import load_model, make_data
+    from samii.sim.sensors import accel_site
+
+    model = load_model()
+    home_tip = make_data(model).site_xpos[accel_site(model)]
+    shown = np.linalg.norm(pts[:, 0] - home_tip, axis=1)
+    assert shown.max() == pytest.approx(0.05 * 4.29, rel=0.05)  # 5 % of the beam's length, by the default scale
+    assert beam_scale > 10
+
+
+def test_blueprint_views_look_at_each_run(loper):
+    """The stored layout's 3D views have the runs' deformed and true-scale roots as origins."""
+    rrd_views = loper[2]
+    assert rrd_views
+    import rerun.chunk as rc
+
+    origins = []
+    path = loper[4]
+    reader = rc.RrdReader(str(path))
+    for entry in reader.blueprints():
+        for chunk in reader.store(store=entry).stream():
+            batch = chunk.to_record_batch()
+            for name in batch.schema.names:
+                if name.endswith("origin"):
+                    origins += [str(v[0] if isinstance(v, list) else v) for v in batch.column(name).to_pylist() if v]
+    for o in ("/closedloop/deformed", "/closedloop/true_scale", "/servo_loop_alone/deformed", "/servo_loop_alone/true_scale", "/about"):
+        assert o in origins, (o, origins)
