@@ -231,9 +231,9 @@ def test_recording_of_the_simulator_against_the_data(delayed, tmp_path):
     d = diagnose([load(delayed)], baseline="sim")
     rrd = tmp_path / "d.rrd"
     info = write_diagnosis_recording(rrd, d, fps=10)
-    assert info.runs == ("data", "simulator_before", "simulator_after")
+    assert info.runs == ("data", "simulator_after", "simulator_before")
     s = _recorded(rrd, info.runs)
-    (td, rd), (tb, rb), (ta, ra) = (s[(r, "volts/r")] for r in info.runs)
+    (td, rd), (ta, ra), (tb, rb) = (s[(r, "volts/r")] for r in info.runs)
     n = len(tb)
     assert len(ta) == n and n < len(td) and np.allclose(td[:n], tb) and np.allclose(ta, tb)  # 2 of the file's 3 sweeps
     assert np.max(np.abs(rd[:n] - rb)) < 1e-6 and np.max(np.abs(rd[:n] - ra)) < 1e-6
@@ -246,6 +246,8 @@ def test_recording_of_the_simulator_against_the_data(delayed, tmp_path):
     entities = {str(c.entity_path) for c in rc.RrdReader(str(rrd)).store().stream()}
     assert not any(e.startswith("/data/deformed") for e in entities)  # measured data: no joint positions, no 3D
     assert "/simulator_after/deformed/beam_4" in entities and "/simulator_before/true_scale/link2" in entities
+    # the modal coordinates of the simulator after the carry (the first run with joint positions), only there
+    assert "/simulator_after/displacement_mm/mode_1" in entities and "/simulator_before/displacement_mm/mode_1" not in entities
 
 
 def test_cli_records_the_simulator_against_clean_data(clean, tmp_path, capsys):
@@ -267,12 +269,38 @@ def test_cli_recording_needs_the_simulator(clean, tmp_path, capsys):
 
 
 def test_the_data_sweep_frequency_from_the_file(delayed, tmp_path):
-    """The data's sweep frequency in a recording is the one its header states, over all its sweeps."""
-    from samii.diagnose.recording import _sweep_hz
-    from samii.measure.excitation import SweptSine
+    """The data's sweep frequency in a recording is the one its header states, over all its sweeps,
+    and a record whose time does not start at 0 is drawn from its first sample (as the simulator's)."""
+    from dataclasses import replace
+
+    from samii.diagnose.recording import _from_zero, _sweep_hz
 
     ts = load(delayed).timeseries
     f = _sweep_hz(ts)
-    sweep = SweptSine.from_metadata(ts.metadata)
-    assert sweep.repetitions == 3 and np.array_equal(f, sweep.frequency_hz(ts.t), equal_nan=True)
-    assert np.isfinite(f[ts.t > 2 * sweep.record_s + sweep.lead_s + 1.0]).any()  # the third sweep too
+    lead, record = float(ts.metadata["lead_s"]), float(ts.metadata["record_s"])
+    assert int(float(ts.metadata["repetitions"])) == 3
+    assert np.isnan(f[ts.t < lead - 0.01]).all() and np.isfinite(f[(ts.t > lead + 0.01) & (ts.t < lead + record - 25)]).all()
+    assert np.isfinite(f[ts.t > lead + 2 * record + 1.0]).any()  # the third sweep too
+    assert np.nanmax(f) == pytest.approx(float(ts.metadata["stop_hz"]), rel=0.01) and np.nanmin(f) < 0.2
+    later = replace(ts, t=ts.t + 100.0)
+    assert np.allclose(_sweep_hz(later), f, rtol=1e-9, equal_nan=True)
+    assert np.allclose(_from_zero(later).t, ts.t, atol=1e-9) and _from_zero(ts) is ts
+
+
+def test_recalibration_bounds_stay_about_the_starting_simulator(delayed):
+    """A recalibration's knob ranges are a factor 10 about the simulator the diagnosis started
+    from (``anchor``), not about the previous calibration's result: chained, the spans compounded
+    and took hydraulic.total_volume to 1/120 of nominal, where the simulator diverged."""
+    from samii.calibrate.simulator import parameter_value
+    from samii.diagnose.simulator import calibrate_simulator
+    from samii.sim.model import default_params, params_with_overrides
+
+    m = load(delayed)
+    nominal = default_params()
+    v0 = parameter_value(nominal, "hydraulic.total_volume")
+    bent = params_with_overrides(nominal, {"hydraulic.total_volume": v0 / 8})
+    free = calibrate_simulator(m, start=bent, max_nfev=1).result.bounds["hydraulic.total_volume"]
+    anchored = calibrate_simulator(m, start=bent, max_nfev=1, anchor={"hydraulic.total_volume": v0}).result
+    assert free == pytest.approx((v0 / 80, v0 * 10 / 8))
+    assert anchored.bounds["hydraulic.total_volume"] == pytest.approx((v0 / 10, v0 * 10))
+    assert anchored.values["hydraulic.total_volume"] >= v0 / 10 * (1 - 1e-9)

@@ -275,3 +275,39 @@ def test_blueprint_views_look_at_each_run(loper):
                     origins += [str(v[0] if isinstance(v, list) else v) for v in batch.column(name).to_pylist() if v]
     for o in ("/closedloop/deformed", "/closedloop/true_scale", "/servo_loop_alone/deformed", "/servo_loop_alone/true_scale", "/about"):
         assert o in origins, (o, origins)
+
+
+def test_a_run_with_its_own_model_and_a_run_without_frames(tmp_path):
+    """A run may bring its own model (a simulator with a body on a compliant mount at the beam's end:
+    one more joint, a slide, magnified like the beam), and a run of measured data has signals but no 3D."""
+    from samii.measure.timeseries import TimeSeries
+    from samii.sim.model import load_model, make_data
+    from samii.viz.recording import RunRecord, read_scalars, write_recording
+
+    plain = load_model()
+    body = load_model(overrides={"beam.tip_body_mass_kg": 0.5, "beam.tip_body_freq_hz": 15.0})
+    assert body.nq == plain.nq + 1
+    home = make_data(body)
+    j = body.jnt_qposadr[body.joint("tip_body").id]
+    t = np.arange(50) * 0.01
+    q = np.tile(home.qpos, (t.size, 1))
+    q[:, j] += 1e-4 * np.sin(2 * np.pi * 2 * t)  # the body alone moves, 0.1 mm
+    zeros = np.zeros(t.size)
+    ts = TimeSeries(t=t, v=zeros, theta=zeros, accel=zeros, r=zeros)
+    rrd = tmp_path / "x.rrd"
+    info = write_recording(rrd, plain, [RunRecord("data", ts, np.zeros(0), np.zeros((0, plain.nq))),
+                                        RunRecord("sim", ts, t, q, model=body)], application_id="t", beam_scale=200.0)
+    assert info.runs == ("data", "sim")
+    rec, names, _ = _read(rrd)
+    assert not any(e.startswith("/data/deformed") or e.startswith("/data/true_scale") for e in rec)
+    assert "/data/volts/r" in rec and "/sim/displacement_mm/mode_1" in rec  # modes of the first run with frames
+    b = body.body("tip_body").id
+    _, true = _column(rec["/sim/true_scale/tip_body"]["time"], "Transform3D:translation")
+    _, shown = _column(rec["/sim/deformed/tip_body"]["time"], "Transform3D:translation")
+    true = np.array([np.asarray(x, float).ravel() for x in true]) - home.xpos[b]
+    shown = np.array([np.asarray(x, float).ravel() for x in shown]) - home.xpos[b]
+    big = np.linalg.norm(true, axis=1) > 0.5e-4
+    assert np.allclose(np.linalg.norm(shown[big], axis=1) / np.linalg.norm(true[big], axis=1), 200.0, rtol=1e-3)
+    assert info.arm_scale == 200.0  # the arm does not move: the body's metres are not an arm joint's radians
+    assert not any("data: beam" in n for n in names) and any("sim: beam ×200" in n for n in names)
+    assert read_scalars(rrd, "/data/volts/r")["/data/volts/r"][0].size == t.size

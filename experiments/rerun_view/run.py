@@ -44,13 +44,21 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--keep", type=Path, help="keep the recordings in this folder")
     args = parser.parse_args(argv)
-    from samii.viz.viewer import graphics_available, view_recording
+    from samii.viz.viewer import graphics_available
 
     if not graphics_available():
         print("no Vulkan driver: install one (e.g. apt-get install mesa-vulkan-drivers)", file=sys.stderr)
         return 1
-    work = args.keep or Path(tempfile.mkdtemp(prefix="samii-rerun-view-"))
-    work.mkdir(parents=True, exist_ok=True)
+    if args.keep is None:
+        with tempfile.TemporaryDirectory(prefix="samii-rerun-view-") as tmp:
+            return make(Path(tmp))
+    args.keep.mkdir(parents=True, exist_ok=True)
+    return make(args.keep)
+
+
+def make(work: Path) -> int:
+    from samii.viz.viewer import view_recording
+
     ASSETS.mkdir(exist_ok=True)
 
     rrd = work / "measure.rrd"
@@ -58,6 +66,7 @@ def main(argv=None) -> int:
     t, tip = tip_series(rrd, "swept")
     t_peak = float(t[np.argmax(np.abs(tip))])
     report = view_recording(rrd, time_s=t_peak, screenshot=ASSETS / "rerun_measure.png")
+    reports = [report]
     print(f"measure: largest tip deflection {np.max(np.abs(tip)):.3g} mm at t = {t_peak:.2f} s; viewer {report.viewer_version}; "
           f"{len(report.views)} views; wrote {report.screenshot}")
 
@@ -65,7 +74,7 @@ def main(argv=None) -> int:
     samii("closedloop", "--controller", "damping", "--scenario", "release", "--out", str(work / "closedloop"), "--rerun", str(rrd), "--overwrite")
     report = view_recording(rrd, time_s=0.4, screenshot=ASSETS / "rerun_closedloop.png")
     print(f"closedloop: viewer {report.viewer_version}; {len(report.views)} views; wrote {report.screenshot}")
-    for r in (report,):
+    for r in reports + [report]:
         for v in r.views:
             if v.problems:
                 print(f"  view {v.name!r}: {'; '.join(v.problems)}")

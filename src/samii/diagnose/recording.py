@@ -1,18 +1,20 @@
 """``samii diagnose --baseline sim --rerun FILE.rrd``: the simulator against the measured data, as
 a Rerun recording (``samii.viz.recording``'s layout).
 
-For each file with a time series, the runs are
+For each file the runs are (with several files, suffixed ``_1``, ``_2``, ...)
 
-- ``data`` (``data_2``, ... for later files): the file's own record, signals only (measured data
-  have no joint positions, so no 3D);
-- ``simulator_before``: the calibrated simulator measured like the file (the same sweep when the
-  file's metadata gives it, noise-free: ``samii.diagnose.simulator.measurement_like``), in 3D;
-- ``simulator_after``: the same with the effects found carried into it and recalibrated (left out
-  when nothing was carried), in 3D with its own model (a carried mode adds a body).
+- ``data``: the file's own record, signals only (measured data have no joint positions, so no
+  3D), its time counted from its first sample; an FRF file has none;
+- ``simulator_after``: the simulator with the effects found carried into it and recalibrated,
+  measured like the file (``samii.diagnose.simulator.measurement_like``: the file's own sweep
+  when its header states it, as ``samii measure`` writes it, else one over the file's band at its
+  amplitude, not in step with the data; no noise), in 3D with its own model (a carried mode adds a
+  body), with the modal coordinates; left out when nothing was carried;
+- ``simulator_before``: the calibrated simulator before the carry, measured the same way, in 3D.
 
 These are the re-measurements whose FRFs the diagnosis's ``"simulator"`` block compares with the
-data, made again with the joint positions kept. An FRF file (no time series) gives only the
-simulator's runs, measured over its band.
+data, made again with the joint positions kept. The data are drawn brightest, the simulator after
+the carry dimmer, before it dimmest.
 """
 
 from __future__ import annotations
@@ -24,14 +26,28 @@ import numpy as np
 __all__ = ["diagnosis_runs", "write_diagnosis_recording"]
 
 
-def _sweep_hz(ts) -> np.ndarray | None:
-    """The record's instantaneous sweep frequency at ``ts.t`` when its metadata states the sweep."""
+def _stated_sweep(meta):
+    """The sweep a file's header states, or None."""
     from samii.measure.excitation import SweptSine
 
     try:
-        return SweptSine.from_metadata(ts.metadata).frequency_hz(ts.t)
+        return SweptSine.from_metadata(meta)
     except (KeyError, ValueError, TypeError):
         return None
+
+
+def _sweep_hz(ts) -> np.ndarray | None:
+    """The record's instantaneous sweep frequency at ``ts.t`` (from its first sample) when its
+    header states the sweep."""
+    sweep = _stated_sweep(ts.metadata)
+    return None if sweep is None else sweep.frequency_hz(ts.t - ts.t[0])
+
+
+def _from_zero(ts):
+    """``ts`` with its time counted from its first sample (the simulator's runs start at 0)."""
+    from dataclasses import replace
+
+    return ts if ts.t[0] == 0 else replace(ts, t=ts.t - ts.t[0])
 
 
 def diagnosis_runs(d, *, fps: float | None = None):
@@ -49,15 +65,18 @@ def diagnosis_runs(d, *, fps: float | None = None):
     runs = []
     for i, m in enumerate(files):
         tag = "" if len(files) == 1 else f"_{i + 1}"
-        if m.timeseries is not None:
-            runs.append(RunRecord(f"data{tag}", m.timeseries, np.zeros(0), np.zeros((0, before.nq)), sweep_hz=_sweep_hz(m.timeseries),
-                                  label=f"measured: {m.source}"))  # fmt: skip
+        ts = m.timeseries
+        if ts is not None:
+            shift = "" if ts.t[0] == 0 else f" (its time from its first sample, {ts.t[0]:.6g} s)"
+            runs.append(RunRecord(f"data{tag}", _from_zero(ts), np.zeros(0), np.zeros((0, before.nq)), sweep_hz=_sweep_hz(ts),
+                                  label=f"measured: {m.source}{shift}"))  # fmt: skip
         sweep = sweep_like(m)
+        stated = _stated_sweep(ts.metadata if ts is not None else m.frf.metadata) is not None
         what = (f"{sweep.start_hz:g}-{sweep.stop_hz:g} Hz at {sweep.amplitude_v:g} V, {sweep.repetitions} sweep(s), no noise"
-                + ("" if m.timeseries is not None and "start_hz" in m.timeseries.metadata else "; the file's sweep is not known: over its band"))
-        for name, model, params, how in (("simulator_before", before, rep.before.params, f"calibrated to {rep.before.source}"),
-                                         ("simulator_after", after, rep.after.params,
-                                          f"with {', '.join(rep.carried)} carried and recalibrated")):  # fmt: skip
+                + ("; the file's own sweep, in step with its record" if stated else
+                   "; the file's sweep is not stated in its header: one over its band, not in step with its record"))
+        for name, model, params, how in (("simulator_after", after, rep.after.params, f"with {', '.join(rep.carried)} carried and recalibrated"),
+                                         ("simulator_before", before, rep.before.params, f"calibrated to {rep.before.source}")):  # fmt: skip
             if model is None:
                 continue
             meas = measurement_like(params, m, frame_steps=frame_steps_for(model, fps))

@@ -122,7 +122,8 @@ def _calibration_dict(c: SimulatorCalibration) -> dict:
     r = c.result
     return {"values": dict(r.values), "stderr": dict(r.stderr), "converged": bool(r.converged), "status": r.status,
             "chi2_per_residual": r.cost / max(r.n_residuals, 1),
-            "rms": {ch: {"rms_db": db, "rms_deg": deg} for ch, (db, deg) in r.rms.items()}}
+            "rms": {ch: {"rms_db": db, "rms_deg": deg} for ch, (db, deg) in r.rms.items()},
+            "bounds": {n: list(b) for n, b in (r.bounds or {}).items()}}
 
 
 def correction(params: SamiiParams, m: Measured) -> FrequencyResponse:
@@ -153,10 +154,12 @@ class Calibration:
     converged: bool
     status: str
     rms: Mapping[str, tuple[float, float]]  #: channel -> (dB, deg) over the usable points
+    bounds: Mapping[str, tuple[float, float]] | None = None  #: name -> (lo, hi) the calibration kept it in
 
 
 def calibrate_simulator(m: Measured, *, start: SamiiParams | None = None, extra: Mapping[str, float] | None = None,
-                        corrected_by: FrequencyResponse | None = None, max_nfev: int = 60) -> SimulatorCalibration:
+                        corrected_by: FrequencyResponse | None = None, max_nfev: int = 60,
+                        anchor: Mapping[str, float] | None = None) -> SimulatorCalibration:
     """The simulator's mode knobs (and the ``extra`` options, started at their values; a valve law is
     set, not calibrated) calibrated to ``m``, divided by ``corrected_by`` (:func:`correction`) when
     given: the linearised simulator times the correction is then what matches the data.
@@ -167,6 +170,14 @@ def calibrate_simulator(m: Measured, *, start: SamiiParams | None = None, extra:
     ``default_bounds``, trust-region least squares in the logarithms of the parameters), not its
     cost: that takes every point of the band weighted by coherence, and the noise floor's points
     (xdd/v 40 dB off below 1 Hz) pulled a 20 Hz accelerometer roll-off to 21.3 Hz.
+
+    The bounds are ``default_bounds`` about ``anchor``'s value of each knob (default: the start's):
+    a recalibration passes the first calibration's start, so that its range stays about the
+    simulator the diagnosis began with. Chained from one calibration's result to the next, the
+    factor-10 spans compounded: on data from an independent rig (``samii.diagnose.rig.EffectRig``)
+    the first calibration took ``hydraulic.total_volume`` from 9.1e-6 to 3.9e-6 m^3, and the
+    recalibration's correction rounds, each bounded a factor 10 about the one before, to 7.7e-8
+    (1/120 of the start), where the simulator diverged at its 1 ms step; anchored, it stops at 1/10.
     """
     from scipy.optimize import least_squares
 
@@ -182,7 +193,7 @@ def calibrate_simulator(m: Measured, *, start: SamiiParams | None = None, extra:
     # a knob at 0 (no leakage, say) cannot be calibrated in its logarithm: it stays at 0
     names = tuple(n for n in MODE_KNOBS if parameter_value(base, n) > 0) + tuple(linear)
     x0 = np.array([float(linear[n]) if n in linear else parameter_value(base, n) for n in names])
-    bounds = [default_bounds(n, v) for n, v in zip(names, x0)]
+    bounds = [default_bounds(n, float(anchor[n]) if anchor and n in anchor else v) for n, v in zip(names, x0)]
     top = _MAX_CORNER_OF_RATE / base.timestep_s  # sensor corners the physics rate represents
     bounds = [(lo, min(hi, top) if n.endswith("_hz") else hi, why) for n, (lo, hi, why) in zip(names, bounds)]
     # a body's mount must stay resolved by the physics step (SamiiParams refuses 2 pi f dt > 1); 1 % margin for the
@@ -234,7 +245,8 @@ def calibrate_simulator(m: Measured, *, start: SamiiParams | None = None, extra:
     on_bound = [n for n, z, a, b in zip(names, sol.x, lo, hi) if min(z - a, b - z) < 1e-3]
     result = Calibration(names, dict(zip(names, map(float, x0))), dict(zip(names, map(float, x))), dict(zip(names, map(float, se))),
                          cost, int(r.size), bool(sol.success) and not on_bound,
-                         str(sol.message) + (f"; on a bound: {', '.join(on_bound)}" if on_bound else ""), rms)
+                         str(sol.message) + (f"; on a bound: {', '.join(on_bound)}" if on_bound else ""), rms,
+                         {n: (float(b[0]), float(b[1])) for n, b in zip(names, bounds)})
     return SimulatorCalibration(sim.samii_params(x), result, m.source)
 
 
@@ -578,7 +590,8 @@ def carry_and_recalibrate(measured_raw: Sequence[Measured], measured_fit: Sequen
     params, after = params_with_overrides(before.params, options), None
     for _ in range(1 + CORRECTION_STEPS):
         corr = correction(params, data)
-        trial = calibrate_simulator(data, start=params, extra={n: parameter_value(params, n) for n in options}, corrected_by=corr)
+        trial = calibrate_simulator(data, start=params, extra={n: parameter_value(params, n) for n in options}, corrected_by=corr,
+                                    anchor=before.result.start)
         done = after is not None and trial.result.cost > (1 - 0.01) * after.result.cost
         if after is None or trial.result.cost < after.result.cost:
             after = trial

@@ -99,11 +99,12 @@ def frame_steps_for(model: mujoco.MjModel, fps: float | None = None) -> int:
 
 
 def _beam_dofs(model: mujoco.MjModel) -> np.ndarray:
-    """qpos addresses of the beam's joints (the clamp, the hinges, the clamp's Maxwell node)."""
+    """qpos addresses of the beam's joints (the clamp, the hinges, the clamp's Maxwell node, and a
+    body on a compliant mount at its end, ``beam.tip_body_*``: part of the structure's deflection)."""
     out = []
     for j in range(model.njnt):
         name = model.joint(j).name
-        if name.startswith(("clamp", "beam_")):
+        if name.startswith(("clamp", "beam_", "tip_body")):
             out.append(int(model.jnt_qposadr[j]))
     return np.array(out, int)
 
@@ -276,11 +277,12 @@ GROUPS = (("angle_deg", "Angle [deg]"), ("accel_m_s2", "Acceleration [m/s²]"), 
 DIMMED = (0.0, 0.45, 0.7)
 
 
-def _log_signals(rec, rr, run: RunRecord, projection, *, tag: str = "", rank: int = 0) -> list[str]:
+def _log_signals(rec, rr, run: RunRecord, projection, *, tag: str = "", rank: int = 0, modes: bool = True) -> list[str]:
     """Log ``run``'s time series (the tip and the modes at its frames, from ``projection``) and
     return the groups it filled; ``tag`` prefixes the series' names. The later runs of a comparison
     (``rank`` > 0), in the same panels, have their colours dimmed (:data:`DIMMED`) towards the
-    viewer's dark background and no modal coordinates (their tip is beside the first's)."""
+    viewer's dark background; only one run's modal coordinates are logged (``modes``), the
+    others' tip beside them."""
     ts = run.timeseries
     root = run.name
     groups = set()
@@ -309,7 +311,7 @@ def _log_signals(rec, rr, run: RunRecord, projection, *, tag: str = "", rank: in
     if len(run.frame_t_s):
         put("displacement_mm", "tip", 1e3 * projection.tip_m(run.frame_qpos), "tip displacement [mm]", t=run.frame_t_s)
         shares = projection.shares_m(run.frame_qpos)
-        for k, f in enumerate(() if rank else projection.freq_hz):
+        for k, f in enumerate(projection.freq_hz if modes else ()):
             put("displacement_mm", f"mode_{k + 1}", 1e3 * shares[:, k], f"mode {k + 1} ({f:.2f} Hz) [mm]", t=run.frame_t_s)
     put("frequency_hz", "sweep", run.sweep_hz, "sweep frequency [Hz]")
     if run.switch_on_s is not None:
@@ -407,7 +409,10 @@ def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, b
     rec.set_log_time_enabled(False)  # the one timeline is the run's time
     rec.save(path)
     # the signals first: rerun encodes and writes them on its own thread while the poses are computed here
-    groups_by_run = {run.name: _log_signals(rec, rr, run, k.projection, tag="" if len(runs) == 1 else f"{run.name}: ", rank=i)
+    # the modal coordinates of the first run with frames (measured data have none)
+    with_modes = next((r.name for r in runs if len(r.frame_t_s)), None)
+    groups_by_run = {run.name: _log_signals(rec, rr, run, k.projection, tag="" if len(runs) == 1 else f"{run.name}: ", rank=i,
+                                            modes=run.name == with_modes)
                      for i, (run, k) in enumerate(zip(runs, run_kin))}  # fmt: skip
     true_poses = [_poses(k.model, r.frame_qpos, k.site) for r, k in zip(runs, run_kin)]
     length = _beam_length(model, main.home)

@@ -81,10 +81,23 @@ class HeadlessViewer:
     def __enter__(self) -> "HeadlessViewer":
         from rerun.experimental import ViewerClient
 
-        # the viewer writes its runtime files under XDG_RUNTIME_DIR; a container may not set one
-        os.environ.setdefault("XDG_RUNTIME_DIR", tempfile.mkdtemp(prefix="samii-rerun-"))
-        self._viewer = ViewerClient.spawn(headless=True, port=_free_port(), hide_welcome_screen=True)
+        # the viewer writes its runtime files under XDG_RUNTIME_DIR; a container may not set one:
+        # then a folder of its own for the spawned viewer, removed on exit (our environment unchanged)
+        self._runtime_dir = None
+        if not os.environ.get("XDG_RUNTIME_DIR"):
+            self._runtime_dir = tempfile.mkdtemp(prefix="samii-rerun-")
+            os.environ["XDG_RUNTIME_DIR"] = self._runtime_dir
         try:
+            self._viewer = ViewerClient.spawn(headless=True, port=_free_port(), hide_welcome_screen=True)
+        except Exception as exc:
+            self._cleanup()
+            raise RuntimeError(f"the Rerun viewer could not start headless (it needs a Vulkan driver, a software one will do: "
+                               f"Debian's mesa-vulkan-drivers): {' '.join(str(exc).split())}") from exc
+        finally:
+            if self._runtime_dir is not None:
+                del os.environ["XDG_RUNTIME_DIR"]  # the spawned viewer has it
+        try:
+            self._viewer.get_state()  # the viewer answers (not another program on the port): raises within 15 s
             self._viewer.open(str(self.rrd))
             deadline = time.monotonic() + self.timeout_s
             while True:
@@ -97,12 +110,27 @@ class HeadlessViewer:
             self._viewer.set_time(play_state="paused")
             self._settle()
         except BaseException:
-            self._viewer.quit()
+            self._close()
             raise
         return self
 
     def __exit__(self, *exc) -> None:
-        self._viewer.quit()
+        self._close()
+
+    def _close(self) -> None:
+        try:
+            self._viewer.quit()
+        except Exception:  # noqa: BLE001 - a viewer that will not quit must not hide the error that got us here
+            pass
+        finally:
+            self._cleanup()
+
+    def _cleanup(self) -> None:
+        if self._runtime_dir is not None:
+            import shutil
+
+            shutil.rmtree(self._runtime_dir, ignore_errors=True)
+            self._runtime_dir = None
 
     def show(self, time_s: float) -> None:
         """Put the time cursor at ``time_s`` on the ``time`` timeline, paused, and wait until the
@@ -113,7 +141,8 @@ class HeadlessViewer:
         self._settle()
 
     def _settle(self) -> None:
-        """Wait until three small screenshots ``settle_s`` apart are identical (``timeout_s`` at most)."""
+        """Wait until three small screenshots ``settle_s`` apart are identical (``timeout_s`` at most,
+        then go on with what is shown)."""
         deadline = time.monotonic() + self.timeout_s
         shots: list[bytes] = []
         while time.monotonic() < deadline:
