@@ -354,3 +354,41 @@ def test_version_mismatch_is_refused(monkeypatch):
     monkeypatch.setattr(plugin, "build_info", lambda: {"mujoco_version": "3.9.9", "mjVERSION_HEADER": 3009009})
     with pytest.raises(plugin.PluginBuildError, match=r"built against MuJoCo 3\.9\.9 .* MuJoCo 4\.0\.0"):
         plugin.load_plugin()
+
+
+def test_batched_models_keep_their_own_hydraulic_parameters():
+    """``mujoco.rollout`` with a list of models steps one MjData per thread with every model; the
+    plugin parsed its parameters once, for the model the data was made with, so every model ran
+    with the first one's oil and valve (two bulk moduli reproduced each other to 2e-16). Each model
+    batched must now reproduce its own run exactly: bulk modulus, command delay and valve saturation
+    differing, two threads."""
+    from mujoco import rollout
+
+    from samii.sim.model import load_model, make_data
+
+    models = [load_model(overrides={"hydraulic.bulk_modulus": 7e8}),
+              load_model(overrides={"hydraulic.bulk_modulus": 2e8}),
+              load_model(overrides={"hydraulic.command_delay": 0.004, "hydraulic.bulk_modulus": 3e8}),
+              load_model(overrides={"hydraulic.command_delay": 0.0045, "hydraulic.valve_saturation": 0.5})]  # fmt: skip
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    models_by_size: dict[int, list] = {}
+    for m in models:
+        models_by_size.setdefault(mujoco.mj_stateSize(m, spec), []).append(m)
+
+    def initial(m):
+        s = np.empty(mujoco.mj_stateSize(m, spec))
+        mujoco.mj_getState(m, make_data(m), s, spec)
+        return s
+
+    ctrl = np.zeros((1, 2000, 1))
+    ctrl[0, 500:600, 0] = 1.0  # a 1 V, 0.1 s valve pulse
+    theta = 1 + models[0].jnt_qposadr[models[0].joint("joint2").id]  # state[0] is time
+    alone = {id(m): rollout.rollout(m, mujoco.MjData(m), initial(m)[None], ctrl)[0][0] for m in models}
+    assert np.max(np.abs(alone[id(models[0])][:, theta] - alone[id(models[1])][:, theta])) > 0.01  # rad: they differ
+    for group in models_by_size.values():  # a batch shares the state's size (rollout checks)
+        if len(group) < 2:
+            continue
+        batched = rollout.rollout(group, [mujoco.MjData(group[0]), mujoco.MjData(group[0])], np.stack([initial(m) for m in group]), ctrl)[0]
+        for i, m in enumerate(group):
+            assert np.array_equal(batched[i], alone[id(m)]), i
+    assert sorted(len(g) for g in models_by_size.values()) == [2, 2]  # both pairs were batched

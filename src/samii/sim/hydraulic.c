@@ -199,6 +199,9 @@ typedef struct {
 static const int kRule[NATTR] = {1, 1, 1, 1, 0, 1, 1, 1, 0, -1};
 
 typedef struct {
+  const mjModel* model;  // the model this was parsed from (see for_model)
+  int broken;            // another model's configuration could not be taken: forces are NaN
+
   // where the instance acts
   int actuator;       // actuator id
   int actadr;         // first of the 2 act entries
@@ -559,7 +562,7 @@ static Hydraulic* hydraulic_create(const mjModel* m, int instance) {
     }
   }
 
-  Hydraulic* h = (Hydraulic*) malloc(sizeof(Hydraulic));
+  Hydraulic* h = (Hydraulic*) calloc(1, sizeof(Hydraulic));
   if (!h) {
     mju_warning("%s: out of memory", SAMII_PLUGIN_NAME);
     return NULL;
@@ -624,7 +627,42 @@ static Hydraulic* hydraulic_create(const mjModel* m, int instance) {
     free(h);
     return NULL;
   }
+  h->model = m;
   return h;
+}
+
+static void hydraulic_free(Hydraulic* h) {
+  if (h) card_free(h->card);
+  free(h);
+}
+
+// The instance's configuration for model m. An mjData is parsed once, in init, for the model it
+// was made with; mujoco.rollout with a list of models (and mujoco.batch) steps one mjData with
+// several models, which differ in their valve and oil parameters. So when the model stepping this
+// data is not the one its configuration came from, the configuration is parsed again from m
+// (once per switch: a rollout runs each model's steps in a row; the same model costs a pointer
+// comparison). Models batched together share the state's size, the plugin's included (rollout
+// checks), so the command ring and the card fit. Should m's configuration be refused (it cannot,
+// for a model that compiled), the forces turn NaN, which MuJoCo reports as an unstable
+// simulation, rather than going on with another model's parameters.
+static const Hydraulic* for_model(const mjModel* m, mjData* d, int instance) {
+  Hydraulic* h = (Hydraulic*) d->plugin_data[instance];
+  if (h && h->model == m) {
+    return h;
+  }
+  Hydraulic* fresh = hydraulic_create(m, instance);
+  if (!fresh) {
+    mju_warning("%s: plugin instance %d: the model stepping this data has a configuration that "
+                "cannot be used (above); its forces are NaN", SAMII_PLUGIN_NAME, instance);
+    if (h) {
+      h->model = m;
+      h->broken = 1;
+    }
+    return h;
+  }
+  hydraulic_free(h);
+  d->plugin_data[instance] = (uintptr_t) fresh;
+  return fresh;
 }
 
 
@@ -709,9 +747,13 @@ static int disabled(const mjModel* m, const Hydraulic* h) {
 }
 
 static void hydraulic_act_dot(const mjModel* m, mjData* d, int instance) {
-  const Hydraulic* h = (const Hydraulic*) d->plugin_data[instance];
+  const Hydraulic* h = for_model(m, d, instance);
   const mjtNum* act = d->act + h->actadr;
   mjtNum* act_dot = d->act_dot + h->actadr;
+  if (h->broken) {
+    act_dot[0] = act_dot[1] = NAN;
+    return;
+  }
   mjtNum x = act[0], p = act[1];
 
   // spool lag with travel limit: no motion further into the stop
@@ -730,7 +772,11 @@ static void hydraulic_act_dot(const mjModel* m, mjData* d, int instance) {
 }
 
 static void hydraulic_compute(const mjModel* m, mjData* d, int instance, int capability_bit) {
-  const Hydraulic* h = (const Hydraulic*) d->plugin_data[instance];
+  const Hydraulic* h = for_model(m, d, instance);
+  if (h->broken) {
+    d->actuator_force[h->actuator] = NAN;
+    return;
+  }
   if (disabled(m, h)) {
     d->actuator_force[h->actuator] = 0;
     return;
@@ -858,7 +904,7 @@ static mjtNum valve_step(const mjModel* m, mjData* d, int instance, const Hydrau
 
 // after MuJoCo's integration of act (explicit Euler), qvel and qpos (see the header comment)
 static void hydraulic_advance(const mjModel* m, mjData* d, int instance) {
-  const Hydraulic* h = (const Hydraulic*) d->plugin_data[instance];
+  const Hydraulic* h = for_model(m, d, instance);
   mjtNum* act = d->act + h->actadr;
   if (mjDISABLED(mjDSBL_ACTUATION)) {
     return;  // MuJoCo did not compute act_dot nor integrate act
@@ -919,9 +965,7 @@ static int hydraulic_init(const mjModel* m, mjData* d, int instance) {
 }
 
 static void hydraulic_destroy(mjData* d, int instance) {
-  Hydraulic* h = (Hydraulic*) d->plugin_data[instance];
-  if (h) card_free(h->card);
-  free(h);
+  hydraulic_free((Hydraulic*) d->plugin_data[instance]);
   d->plugin_data[instance] = 0;
 }
 
@@ -954,7 +998,7 @@ mjPLUGIN_LIB_INIT(samii_hydraulic) {
   plugin.compute = hydraulic_compute;
   plugin.advance = hydraulic_advance;
   plugin.actuator_act_dot = hydraulic_act_dot;
-  // copy: not needed; plugin_data holds only what init derives from the model, and mj_copyData
-  // keeps the destination's own plugin_data.
+  // copy: not needed; plugin_data holds only what init derives from the model (parsed again when
+  // another model steps the data: for_model), and mj_copyData keeps the destination's own plugin_data.
   mjp_registerPlugin(&plugin);
 }
