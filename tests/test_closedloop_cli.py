@@ -609,3 +609,22 @@ def test_closedloop_rerun_failure_leaves_out_untouched(tmp_path, out_dir, cwd, c
              capsys, ["--rerun", "could not be written"], watch=[cwd, out_dir])  # fmt: skip
     assert not rec.exists()
     assert sorted(os.listdir(tmp_path)) == sorted(["cwd", "out"])
+
+
+def test_release_impulse_along_the_accelerometer_in_the_world(tmp_path, capsys):
+    """The release scenario's tip impulse acts along the accelerometer's measuring axis in the world
+    frame: a body-fixed accelerometer (``beam.accel_body_fixed``: its axis +x in the site's frame,
+    -x in the world at home) gets the same impulse, and reads the same response, as the default
+    world-frame one (it used the body-frame axis as a world one: the impulse flipped)."""
+    from samii.measure.io import read_timeseries_csv
+
+    reads = {}
+    for name, extra in (("world", []), ("body", ["--set", "beam.accel_body_fixed=1"])):
+        out = tmp_path / name
+        assert main(["closedloop", "--controller", "unity", "--scenario", "release", "--duration-s", "3", *extra,
+                     "--out", str(out), "--no-plots"]) == 0  # fmt: skip
+        reads[name] = read_timeseries_csv(out / "timeseries.csv").accel
+    capsys.readouterr()
+    world, body = reads["world"], reads["body"]
+    assert np.max(np.abs(world)) > 1.0  # m/s^2: the impulse rings the base
+    assert np.sqrt(np.mean((body - world) ** 2)) < 0.05 * np.sqrt(np.mean(world**2))

@@ -195,9 +195,10 @@ class ClosedLoopResult:
 
 
 def _impulse_state(cm: CardModel, impulse_n_s: float) -> np.ndarray:
-    """The ``home`` state with the velocity change of an impulse at the accelerometer's site along its direction."""
+    """The ``home`` state with the velocity change of an impulse at the accelerometer's site along
+    its measuring axis in the world frame (a body-fixed accelerometer's axis turned by its site)."""
     from samii.sim.model import make_data
-    from samii.sim.sensors import accel_weights
+    from samii.sim.sensors import accel_axis_world
 
     m = cm.model
     d = make_data(m)
@@ -208,7 +209,7 @@ def _impulse_state(cm: CardModel, impulse_n_s: float) -> np.ndarray:
         return state
     sensor = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, "base_accel")
     site = int(m.sensor_objid[sensor])
-    _, direction = accel_weights(m)
+    direction = accel_axis_world(m, d)
     jacp = np.zeros((3, m.nv))
     mujoco.mj_jacSite(m, d, jacp, None, site)
     f = jacp.T @ (impulse_n_s * np.asarray(direction))
