@@ -70,11 +70,18 @@ def measurements_at(cm: CardModel, state: np.ndarray, theta_ref_rad: float) -> n
 def bumpless_state(matrices: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], w: np.ndarray, target_v: float) -> tuple[np.ndarray, float]:
     """Controller state ``z0`` for a switch-on with inputs ``w`` whose first command is ``target_v``.
 
-    ``z0`` is the controller's steady state for constant inputs ``w``
-    (``(I - A) z = B w``: what it would hold had it run all along with the
-    loop at rest), moved along ``C^T`` just enough that ``C z0 + D w`` equals
+    ``z0`` is the controller's steady state for the loop at rest at the angles
+    of ``w`` (``(I - A) z = B w_rest``, ``w_rest`` = ``w`` with the base's
+    acceleration 0: what it would hold had it run all along with the loop at
+    rest), moved along ``C^T`` just enough that ``C z0 + D w`` equals
     ``target_v``: the command continues from what the valve was getting
-    (bumpless transfer). ``matrices`` are the controller's SI ``(A, B, C, D)``
+    (bumpless transfer). The acceleration sampled at the switch-on is a moment
+    of a vibration, not a level: taken as constant, it gave the damping
+    controller (a low-pass of the acceleration, DC gain -8.3 V/(m/s^2)) a
+    steady command of 0.64 V for -0.077 m/s^2, and moving its state along its
+    small ``C`` (|C| ~ 1e-4) to cancel that command put 1e3-1e4 into the
+    filter's states: a transient that drove the valve to its 10 V rail for
+    0.3 s and joint 2 to 76 deg in the Loper test. ``matrices`` are the controller's SI ``(A, B, C, D)``
     (:func:`samii.closedloop.card.si_matrices`). Returns ``(z0, jump)``, ``jump``
     the command step that remains (nonzero only for a static controller, which
     has no state to absorb it).
@@ -84,7 +91,10 @@ def bumpless_state(matrices: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
     w = np.asarray(w, float)
     if n == 0:
         return np.zeros(0), float(D[0] @ w - target_v)
-    z = np.linalg.lstsq(np.eye(n) - A, B @ w, rcond=None)[0]
+    w_rest = w.copy()
+    if w_rest.size == 3:
+        w_rest[2] = 0.0  # (theta_ref, theta, accel): at rest the base does not accelerate
+    z = np.linalg.lstsq(np.eye(n) - A, B @ w_rest, rcond=None)[0]
     c = C[0]
     cc = float(c @ c)
     if cc > 0:
