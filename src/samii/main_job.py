@@ -1,43 +1,304 @@
-"""The main job of ``samii`` with no arguments, on the embedded default model.
+"""The main job: the whole pipeline on one model, into one output folder, with a short summary.
 
-For now: print the modes at the nominal pose and run a short simulation of a
-valve step under the servo position loop (later issues grow this into the
-full pipeline: measure, fit, design, closed loop).
+``samii`` with no arguments runs it on the embedded default model into ``./samii_run``;
+``samii run [--out DIR] [--model XML] [--set NAME=VALUE ...] [--seed S]`` on a user's model.
+The stages are samii's own commands, run in this process with the same options a user would give
+them, so each stage's files are what that command writes:
+
+1. ``modes``: the base modes and the servo-loop poles at the nominal pose (printed);
+2. ``measure/``: swept sine 0.1-40 Hz, 0.1 V, 3 sign-alternating records, sensor noise seeded
+   by ``--seed`` (``samii measure --noise``), and ``measure.rrd``, its Rerun recording;
+3. ``fit/``: the notebook's 3-mode model fitted to that FRF (``samii fit``);
+4. ``controllers/damping.json``: acceleration feedback designed on a fit of the same FRF
+   (``samii design damping --frf``);
+5. ``closedloop/<controller>_<scenario>/``: the notebook's pole-cancelling compensator (chapter 10)
+   and pole placement (chapter 8), as the notebook built them, and the damping controller, each in
+   the step and Loper tests in the nonlinear simulator (``samii closedloop``), and
+   ``closedloop.rrd``: the damping controller's Loper test beside the servo loop alone;
+6. ``diagnose/``: the fit diagnosed against the measured record (``samii diagnose --baseline
+   fit/fit.json``);
+7. ``summary.json``: the figures of the printed summary.
+
+The folder is written whole or not at all: the stages write into a staging folder beside it,
+which replaces ``--out`` at the end (an existing ``--out`` only with ``--overwrite``, or when it
+holds a previous main job's output).
+
+Not here yet (issue 13): ``report.html`` and ``samii robust``.
 """
 
 from __future__ import annotations
 
-import warnings
+import argparse
+import contextlib
+import io
+import json
+import os
+import shutil
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
 
-import numpy as np
+from samii.errors import InputError
 
-__all__ = ["run_main_job"]
+__all__ = ["add_arguments", "run", "run_main_job", "run_pipeline", "PipelineResult", "DEFAULT_OUT", "CONTROLLERS", "SCENARIOS"]
+
+#: Where ``samii`` with no arguments writes.
+DEFAULT_OUT = "samii_run"
+#: (name in the output, samii closedloop --controller) run closed loop; "damping" is designed here.
+CONTROLLERS = (("notebook_cancel", "notebook-cancel"), ("notebook_place", "notebook-place"), ("damping", None))
+SCENARIOS = ("step", "loper")
+#: summary.json says it is a main job's: a folder holding one may be replaced by the next main job.
+MARKER = "samii run"
+
+
+@dataclass
+class PipelineResult:
+    out: Path
+    summary: dict
+    lines: list[str] = field(default_factory=list)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from samii.cli_args import nonempty_path
+    from samii.cli_args import seed as seed_type
+
+    parser.add_argument("--out", metavar="DIR", type=nonempty_path, default=DEFAULT_OUT,
+                        help=f"output folder (default ./{DEFAULT_OUT}); replaced whole at the end")
+    parser.add_argument("--model", metavar="XML", type=nonempty_path, help="MJCF model (default: the embedded one)")
+    parser.add_argument("--set", metavar="NAME=VALUE", action="append", default=[],
+                        help="override a model parameter (samii params lists them); repeatable")
+    parser.add_argument("--seed", type=seed_type, default=0, help="seed of the measurement's sensor noise (default 0): "
+                        "the same seed gives the same outputs")
+    parser.add_argument("--overwrite", action="store_true", help="replace --out if it exists (a previous main job's output is replaced anyway)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress display on stderr")
+
+
+def run(args: argparse.Namespace) -> int:
+    result = run_pipeline(args.out, model=args.model, overrides=args.set, seed=args.seed, overwrite=args.overwrite,
+                          progress=not args.no_progress)
+    print("\n".join(result.lines))
+    return 0
 
 
 def run_main_job() -> int:
-    from samii.sim.linearize import modes_report
+    """``samii`` with no arguments: the pipeline on the embedded model into ``./samii_run``."""
+    return run(argparse.Namespace(out=DEFAULT_OUT, model=None, set=[], seed=0, overwrite=False, no_progress=False))
+
+
+def _is_previous_run(path: Path) -> bool:
+    try:
+        return json.loads((path / "summary.json").read_text()).get("written_by") == MARKER
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def _check_out(out: Path, overwrite: bool) -> None:
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: exists and is not a folder")
+    if out.exists() and any(out.iterdir()) and not overwrite and not _is_previous_run(out):
+        raise InputError(f"--out {out}: exists and is not a previous main job's output; pass --overwrite to replace it, or another --out")
+    parent = out.absolute().parent
+    if not parent.is_dir():
+        raise InputError(f"--out {out}: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"--out {out}: folder {parent} is not writable")
+
+
+class _Progress:
+    def __init__(self, enabled: bool, total: int):
+        from tqdm import tqdm
+
+        self.bar = tqdm(total=total, desc="samii", unit="stage", leave=False, file=sys.stderr, dynamic_ncols=True,
+                        disable=None if enabled else True, bar_format="{desc}: {n}/{total} stages {elapsed} {postfix}")
+
+    def start(self, what: str) -> None:
+        self.bar.set_postfix_str(what)
+
+    def done(self) -> None:
+        self.bar.update(1)
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+def _stage(argv: list[str]) -> str:
+    """Run ``samii ARGV`` in this process and return what it printed; a failure names the stage."""
+    from samii.cli import build_parser
+
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # pragma: no cover - the arguments are built here
+        raise RuntimeError(f"samii {' '.join(argv)}: rejected its arguments") from exc
+    buf = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(buf):
+            code = int(args._run(args) or 0)
+    except InputError as exc:
+        raise InputError(f"stage `samii {argv[0]}`: {exc}") from None
+    if code != 0:
+        raise RuntimeError(f"stage `samii {' '.join(argv)}` exited with {code}")
+    return buf.getvalue()
+
+
+def _model_args(model, overrides) -> list[str]:
+    out = ["--model", str(model)] if model else []
+    for s in overrides or ():
+        out += ["--set", s]
+    return out
+
+
+def run_pipeline(out, *, model=None, overrides=(), seed: int = 0, overwrite: bool = False, progress: bool = True) -> PipelineResult:
+    """Run the pipeline (module docstring) into ``out`` and return the summary."""
+    out = Path(out)
+    _check_out(out, overwrite)
+    stage_dir = out.absolute().parent / f".{out.name}.samii-run-{os.getpid()}"
+    if stage_dir.exists():
+        shutil.rmtree(stage_dir)
+    stage_dir.mkdir()
+    bar = _Progress(progress, 5 + len(CONTROLLERS) * len(SCENARIOS))
+    started = time.perf_counter()
+    try:
+        summary = _run_stages(stage_dir, model, list(overrides or ()), seed, bar)
+        summary["wall_s"] = time.perf_counter() - started
+        (stage_dir / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(stage_dir, out)
+    finally:
+        bar.close()
+        if stage_dir.exists():
+            shutil.rmtree(stage_dir)
+    return PipelineResult(out, summary, _lines(summary, out))
+
+
+def _run_stages(d: Path, model, overrides: list[str], seed: int, bar: _Progress) -> dict:
+    from samii import notebook as nb
+
+    margs = _model_args(model, overrides)
+    s: dict = {"written_by": MARKER, "seed": seed, "model": {"file": str(model) if model else "embedded default", "overrides": overrides}}
+
+    bar.start("modes")
+    s["modes"] = _modes(model, overrides)
+    bar.done()
+
+    bar.start("measuring (swept sine, 253 s simulated)")
+    _stage(["measure", "--noise", "--seed", str(seed), "--out", str(d / "measure"), "--rerun", str(d / "measure.rrd"), "--no-progress", *margs])
+    run = json.loads((d / "measure" / "run.json").read_text())
+    sweep = run["excitation"]["swept"]
+    s["measurement"] = {"excitation": sweep["excitation"], "amplitude_v": sweep["amplitude_v"], "sample_rate_hz": run["daq"]["sample_rate_hz"],
+                        "simulated_s": run["timing"]["simulated_s"], "sensor_noise": run["daq"]["sensor_noise"]}
+    bar.done()
+
+    bar.start("fitting the notebook's 3-mode model")
+    _stage(["fit", str(d / "measure" / "frf.csv"), "--out", str(d / "fit"), "--no-progress"])
+    fit = json.loads((d / "fit" / "fit.json").read_text())
+    p, se = fit["params"], fit["stderr"]
+    s["fit"] = {"params": p, "stderr": se, "sound": fit.get("sound"), "eq9_4": dict(nb.EQ9_4),
+                "rms_mag_db": fit.get("rms_mag_db"), "rms_phase_deg": fit.get("rms_phase_deg")}
+    bar.done()
+
+    bar.start("designing the damping controller")
+    (d / "controllers").mkdir()
+    from samii.sim.cli_modes import parse_overrides
     from samii.sim.model import load_model
-    from samii.sim.simulate import simulate
+    from samii.sim.plugin import hydraulic_params
+
+    kp = hydraulic_params(load_model(model, overrides=parse_overrides(overrides) or None)).position_gain  # what the data were measured with
+    design = json.loads(_stage(["design", "damping", "--frf", str(d / "measure" / "frf.csv"), "--position-gain", repr(float(kp)),
+                                "--save", str(d / "controllers" / "damping.json"), "--json"]))  # fmt: skip
+    s["damping_design"] = {k: design.get(k) for k in ("gain_v_per_m_s2", "gain_limit_v_per_m_s2", "gain_margin_db", "filter_hz", "rolloff_hz")}
+    bar.done()
+
+    s["closed_loop"] = {}
+    bar.start("closed loop: the servo loop alone, step")
+    res = json.loads(_stage(["closedloop", "--controller", "unity", "--scenario", "step", "--out", str(d / "closedloop" / "servo_loop_alone_step"),
+                             "--json", *margs]))  # fmt: skip
+    s["closed_loop"]["servo_loop_alone_step"] = {k: res.get(k) for k in ("stable", "unstable_mode_hz", "growth_rate_1_s", "theta", "base")}
+    bar.done()
+    for name, spec in CONTROLLERS:
+        spec = spec or str(d / "controllers" / "damping.json")
+        for sc in SCENARIOS:
+            bar.start(f"closed loop: {name}, {sc}")
+            extra = ["--rerun", str(d / "closedloop.rrd")] if (name, sc) == ("damping", "loper") else []
+            res = json.loads(_stage(["closedloop", "--controller", spec, "--scenario", sc, "--out", str(d / "closedloop" / f"{name}_{sc}"),
+                                     "--json", *extra, *margs]))  # fmt: skip
+            s["closed_loop"][f"{name}_{sc}"] = {k: res.get(k) for k in ("stable", "unstable_mode_hz", "growth_rate_1_s", "theta", "base")}
+            bar.done()
+
+    bar.start("diagnosing the fit against the measured record")
+    diag = json.loads(_stage(["diagnose", str(d / "measure" / "timeseries.csv"), "--baseline", str(d / "fit" / "fit.json"),
+                              "--out", str(d / "diagnose"), "--json", "--no-progress"]))  # fmt: skip
+    s["diagnosis"] = {"verdict": diag.get("verdict"), "effects": [e for e in diag.get("effects", []) if not e.get("expected")],
+                      "error_before": diag.get("error_before"), "error_after": diag.get("error_after")}
+    bar.done()
+    return s
+
+
+def _modes(model, overrides) -> dict:
+    import warnings
+
+    from samii.sim.cli_modes import parse_overrides
+    from samii.sim.linearize import modes_report
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        rep = modes_report()
-    print("SAMII on its flexible beam, nominal pose " + ", ".join(f"{a:.1f}" for a in rep.pose_deg) + " deg")
-    print("base modes with joint 2 held: " + ", ".join(f"{m.freq_hz:.2f} Hz (zeta {m.zeta:.3f})" for m in rep.base_modes[:3]))
-    pair = [s for s in rep.coupled_poles if 30 < abs(s.imag) < 80]
-    if pair:
-        print(f"servo-loop pole pair: {pair[0].real:.2f} ± {abs(pair[0].imag):.2f}j 1/s")
+        rep = modes_report(model, overrides=parse_overrides(overrides) or None)
+    pair = [z for z in rep.coupled_poles if 30 < abs(z.imag) < 80]
+    return {"pose_deg": [float(a) for a in rep.pose_deg],
+            "base_modes": [{"freq_hz": float(m.freq_hz), "zeta": float(m.zeta)} for m in rep.base_modes[:3]],
+            "servo_pair_1_s": [float(pair[0].real), float(abs(pair[0].imag))] if pair else None}
 
-    model = load_model()
-    dt = model.opt.timestep
-    n = int(round(3.0 / dt))
-    ctrl = np.zeros(n)
-    ctrl[int(0.5 / dt) : int(0.6 / dt)] = 1.0  # a 1 V, 0.1 s pulse on the valve
-    res = simulate(model, ctrl)
-    # no speed figure here: a 3 s run is dominated by set-up; benchmarks/ measures speed
-    print(
-        f"simulated {n * dt:.1f} s: 1 V x 0.1 s valve pulse -> "
-        f"joint 2 peak {np.degrees(np.max(np.abs(res.theta))):.2f} deg, base acceleration peak "
-        f"{np.max(np.abs(res.accel)):.3f} m/s^2, load pressure peak {np.max(np.abs(res.p_load)) / 1e6:.2f} MPa"
-    )
-    return 0
+
+def _lines(s: dict, out: Path) -> list[str]:
+    """The summary a person reads: at most 20 lines."""
+    import numpy as np
+
+    m = s["modes"]
+    lines = ["SAMII main job: " + ("embedded model" if s["model"]["file"] == "embedded default" else s["model"]["file"])
+             + (f" with {', '.join(s['model']['overrides'])}" if s["model"]["overrides"] else "")]
+    lines.append("base modes (joint 2 held): " + ", ".join(f"{b['freq_hz']:.2f} Hz (zeta {b['zeta']:.3f})" for b in m["base_modes"])
+                 + (f"; servo-loop pair {m['servo_pair_1_s'][0]:.1f} ± {m['servo_pair_1_s'][1]:.1f}j 1/s" if m["servo_pair_1_s"] else ""))
+    me = s["measurement"]
+    lines.append(f"measured: {me['excitation']}, {me['amplitude_v']:g} V on the valve command, {me['simulated_s']:.0f} s at "
+                 f"{me['sample_rate_hz']:g} samples/s, sensor noise (seed {s['seed']})")
+    f, se = s["fit"]["params"], s["fit"]["stderr"]
+    eq = s["fit"]["eq9_4"]
+
+    def hz(w):
+        return w / (2 * np.pi)
+
+    lines.append("fit of the notebook's 3-mode model beside eq 9.4" + ("" if s["fit"]["sound"] else " (not a sound fit: see fit/fit.json)") + ":")
+    lines.append(f"  modes {hz(f['w1']):.2f} / {hz(f['wz']):.2f} / {hz(f['w3']):.2f} Hz (eq 9.4: {hz(eq['w1']):.2f} / {hz(eq['wz']):.2f} / "
+                 f"{hz(eq['w3']):.2f}); zeta {f['z1']:.3f} / {f['zz']:.3f} / {f['z3']:.3f} ({eq['z1']:.3f} / {eq['zz']:.3f} / {eq['z3']:.3f})")
+    lines.append(f"  actuator pair {hz(f['wp']):.2f} Hz zeta {f['zp']:.3f} (eq 9.4: {hz(eq['wp']):.2f} Hz, {eq['zp']:.3f}); "
+                 f"B2/B1 {f['B2'] / f['B1']:.3f} ({eq['B2'] / eq['B1']:.3f}), B3/B1 {f['B3'] / f['B1']:.3f} ({eq['B3'] / eq['B1']:.3f})")
+    cl = s["closed_loop"]
+    names = {"notebook_cancel": "pole cancelling (ch 10)", "notebook_place": "pole placement (ch 8)", "damping": "damping controller"}
+    lines.append("closed loop in the nonlinear simulator (step 5 deg; Loper: switched on at 2 s):")
+    for name, _ in CONTROLLERS:
+        st, lo = cl[f"{name}_step"], cl[f"{name}_loper"]
+        if not st["stable"] or not lo["stable"]:
+            bad = st if not st["stable"] else lo
+            grow = f"growing at {bad['growth_rate_1_s']:.3g} 1/s" if bad.get("growth_rate_1_s") else "diverging"
+            hz_ = f" at {bad['unstable_mode_hz']:.3g} Hz" if bad.get("unstable_mode_hz") else ""
+            what = f"UNSTABLE ({grow}{hz_}; the run is in closedloop/{name}_{'step' if bad is st else 'loper'}/)"
+        else:
+            what = (f"stable; step: theta settles {st['theta']['settle_s']:.2f} s, base {st['base']['settle_s']:.2f} s; "
+                    f"Loper: base decays at {lo['base']['decay_rate_1_s']:.2f} 1/s")
+        lines.append(f"  {names[name]:<24} {what}")
+    dl, ds, alone = cl["damping_loper"], cl["damping_step"], cl["servo_loop_alone_step"]
+    if dl["stable"] and ds["stable"] and dl["base"].get("free_decay_rate_1_s"):
+        lines.append(f"damping controller: the base settles {alone['base']['settle_s'] / ds['base']['settle_s']:.1f}x sooner after the step "
+                     f"({ds['base']['settle_s']:.2f} s against {alone['base']['settle_s']:.2f} s under the servo loop alone); in the Loper test "
+                     f"its vibration decays {dl['base']['decay_rate_1_s'] / dl['base']['free_decay_rate_1_s']:.1f}x faster than free")
+    dg = s["diagnosis"]
+    eff = ", ".join(f"{e['category']}/{e['kind']}" for e in dg["effects"]) or "nothing"
+    b, a = dg["error_before"].get("total", {}), dg["error_after"].get("total", {})
+    lines.append(f"diagnosis of the fit against the measured record: {dg['verdict']}; found {eff}")
+    if b and a:
+        lines.append(f"  xdd/v error {b.get('rms_db', float('nan')):.2g} dB / {b.get('rms_deg', float('nan')):.2g} deg -> "
+                     f"{a.get('rms_db', float('nan')):.2g} dB / {a.get('rms_deg', float('nan')):.2g} deg with them")
+    lines.append(f"wrote {out}/ (summary.json; measure/, fit/, controllers/, closedloop/, diagnose/; measure.rrd and closedloop.rrd: "
+                 f"open with `rerun FILE`) in {s['wall_s']:.0f} s")
+    return lines[:20]

@@ -1,0 +1,85 @@
+"""The main job (``samii`` / ``samii run``): the whole pipeline on the embedded model into one
+folder, a summary of at most 20 lines, reproducible from ``--seed``, written whole or not at all."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from samii.cli import main
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """Two main jobs with the same seed (about 25 s each)."""
+    base = tmp_path_factory.mktemp("main")
+    out = []
+    for name in ("a", "b"):
+        assert main(["run", "--out", str(base / name), "--seed", "3", "--no-progress"]) == 0
+        out.append(base / name)
+    return out
+
+
+def test_main_job_writes_every_stage_and_a_short_summary(runs, capsys):
+    a = runs[0]
+    for path in ("measure/timeseries.csv", "measure/frf.csv", "measure/bode.png", "fit/fit.json", "controllers/damping.json",
+                 "closedloop/damping_loper/timeseries.csv", "closedloop/notebook_cancel_step/run.json", "closedloop/servo_loop_alone_step/run.json",
+                 "diagnose/diagnosis.json", "measure.rrd", "closedloop.rrd", "summary.json"):  # fmt: skip
+        assert (a / path).is_file(), path
+    s = json.loads((a / "summary.json").read_text())
+    assert s["written_by"] == "samii run" and s["seed"] == 3
+    # the embedded model's base modes (the notebook's 1.73 / 9.88 / 24.96 Hz within the model card's 1 %)
+    assert [round(m["freq_hz"], 1) for m in s["modes"]["base_modes"]] == pytest.approx([1.7, 9.9, 24.9], abs=0.11)
+    # the fit finds eq 9.4's modes: 1 and 2 within 1 %, 3 within 3 % (the 3-mode structure misses the
+    # simulator above 30 Hz; measured +0.2 % on seed 0, -2.4 % on seed 3)
+    p = s["fit"]["params"]
+    for k, tol in (("w1", 0.01), ("wz", 0.01), ("w3", 0.03)):
+        assert p[k] == pytest.approx(s["fit"]["eq9_4"][k], rel=tol), k
+    cl = s["closed_loop"]
+    assert cl["notebook_cancel_step"]["stable"] and cl["damping_step"]["stable"] and cl["damping_loper"]["stable"]
+    assert not cl["notebook_place_step"]["stable"]  # chapter 8's design on any plant but eq 1.4 (README)
+    # the damping controller shortens the base's vibration: >= 3x sooner after a step, >= 3x the free decay in the Loper test
+    assert cl["servo_loop_alone_step"]["base"]["settle_s"] > 3 * cl["damping_step"]["base"]["settle_s"]
+    assert cl["damping_loper"]["base"]["decay_rate_1_s"] > 3 * cl["damping_loper"]["base"]["free_decay_rate_1_s"]
+    assert s["diagnosis"]["verdict"] in ("none", "effects")
+    # the summary printed: at most 20 lines, naming what was done
+    from samii.main_job import _lines
+
+    lines = _lines(s, a)
+    assert len(lines) <= 20
+    text = "\n".join(lines)
+    for needle in ("base modes", "measured:", "eq 9.4", "damping controller", "diagnosis", "wrote"):
+        assert needle in text, needle
+
+
+def test_main_job_is_reproducible_from_its_seed(runs):
+    a, b = runs
+    sa, sb = (json.loads((r / "summary.json").read_text()) for r in runs)
+    sa.pop("wall_s"), sb.pop("wall_s")
+    assert sa == sb
+    assert (a / "measure" / "frf.csv").read_bytes() == (b / "measure" / "frf.csv").read_bytes()
+    from samii.measure.io import read_timeseries_csv
+
+    ta, tb = (read_timeseries_csv(r / "closedloop" / "damping_loper" / "timeseries.csv") for r in runs)
+    assert np.array_equal(ta.accel, tb.accel) and np.array_equal(ta.theta, tb.theta)
+
+
+def test_main_job_recordings_have_the_layout(runs):
+    from samii.viz.recording import read_scalars
+
+    got = read_scalars(runs[0] / "measure.rrd", ["/swept/accel_m_s2/accel", "/swept/displacement_mm/mode_1"])
+    assert len(got) == 2 and got["/swept/accel_m_s2/accel"][0].size > 200_000
+    got = read_scalars(runs[0] / "closedloop.rrd", ["/closedloop/volts/command", "/servo_loop_alone/accel_m_s2/accel"])
+    assert len(got) == 2
+
+
+def test_main_job_refuses_a_folder_that_is_not_its_own(tmp_path, capsys):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("keep me")
+    assert main(["run", "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "--overwrite" in err and (out / "notes.txt").read_text() == "keep me"
+    assert not list(tmp_path.glob(".*samii-run*"))
