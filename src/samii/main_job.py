@@ -262,7 +262,7 @@ def _lines(s: dict, out: Path) -> list[str]:
     me = s["measurement"]
     lines.append(f"measured: {me['excitation']}, {me['amplitude_v']:g} V on the valve command, {me['simulated_s']:.0f} s at "
                  f"{me['sample_rate_hz']:g} samples/s, sensor noise (seed {s['seed']})")
-    f, se = s["fit"]["params"], s["fit"]["stderr"]
+    f = s["fit"]["params"]
     eq = s["fit"]["eq9_4"]
 
     def hz(w):
