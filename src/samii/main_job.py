@@ -45,8 +45,9 @@ __all__ = ["add_arguments", "run", "run_main_job", "run_pipeline", "PipelineResu
 
 #: Where ``samii`` with no arguments writes.
 DEFAULT_OUT = "samii_run"
-#: (name in the output, samii closedloop --controller) run closed loop; "damping" is designed here.
-CONTROLLERS = (("notebook_cancel", "notebook-cancel"), ("notebook_place", "notebook-place"), ("damping", None))
+#: (name in the output, samii closedloop --controller, label in the summary) run closed loop; "damping" is designed here.
+CONTROLLERS = (("notebook_cancel", "notebook-cancel", "pole cancelling (ch 10)"), ("notebook_place", "notebook-place", "pole placement (ch 8)"),
+               ("damping", None, "damping controller"))
 SCENARIOS = ("step", "loper")
 #: summary.json says it is a main job's: a folder holding one may be replaced by the next main job.
 MARKER = "samii run"
@@ -122,8 +123,10 @@ class _Progress:
         self.bar.close()
 
 
-def _stage(argv: list[str]) -> str:
-    """Run ``samii ARGV`` in this process and return what it printed; a failure names the stage."""
+def _stage(d: Path, argv: list[str]) -> str:
+    """Run ``samii ARGV`` in this process, in the output folder ``d`` (the paths the stage's files
+    and figures name are the folder's own, not the staging folder's), and return what it printed;
+    a failure names the stage."""
     from samii.cli import build_parser
 
     try:
@@ -132,7 +135,7 @@ def _stage(argv: list[str]) -> str:
         raise RuntimeError(f"samii {' '.join(argv)}: rejected its arguments") from exc
     buf = io.StringIO()
     try:
-        with contextlib.redirect_stdout(buf):
+        with contextlib.chdir(d), contextlib.redirect_stdout(buf):
             code = int(args._run(args) or 0)
     except InputError as exc:
         raise InputError(f"stage `samii {argv[0]}`: {exc}") from None
@@ -141,8 +144,14 @@ def _stage(argv: list[str]) -> str:
     return buf.getvalue()
 
 
+def _closed_loop(d: Path, name: str, argv: list[str]) -> dict:
+    """``samii closedloop ARGV --out closedloop/NAME --json``: the result's figures the summary takes."""
+    res = json.loads(_stage(d, ["closedloop", *argv, "--out", f"closedloop/{name}", "--json"]))
+    return {k: res.get(k) for k in ("stable", "unstable_mode_hz", "growth_rate_1_s", "theta", "base")}
+
+
 def _model_args(model, overrides) -> list[str]:
-    out = ["--model", str(model)] if model else []
+    out = ["--model", str(Path(model).absolute())] if model else []  # absolute: the stages run in the output folder
     for s in overrides or ():
         out += ["--set", s]
     return out
@@ -183,7 +192,7 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, bar: _Progress)
     bar.done()
 
     bar.start("measuring (swept sine, 253 s simulated)")
-    _stage(["measure", "--noise", "--seed", str(seed), "--out", str(d / "measure"), "--rerun", str(d / "measure.rrd"), "--no-progress", *margs])
+    _stage(d, ["measure", "--noise", "--seed", str(seed), "--out", "measure", "--rerun", "measure.rrd", "--no-progress", *margs])
     run = json.loads((d / "measure" / "run.json").read_text())
     sweep = run["excitation"]["swept"]
     s["measurement"] = {"excitation": sweep["excitation"], "amplitude_v": sweep["amplitude_v"], "sample_rate_hz": run["daq"]["sample_rate_hz"],
@@ -191,7 +200,7 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, bar: _Progress)
     bar.done()
 
     bar.start("fitting the notebook's 3-mode model")
-    _stage(["fit", str(d / "measure" / "frf.csv"), "--out", str(d / "fit"), "--no-progress"])
+    _stage(d, ["fit", "measure/frf.csv", "--out", "fit", "--no-progress"])
     fit = json.loads((d / "fit" / "fit.json").read_text())
     p, se = fit["params"], fit["stderr"]
     s["fit"] = {"params": p, "stderr": se, "sound": fit.get("sound"), "eq9_4": dict(nb.EQ9_4),
@@ -205,30 +214,21 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, bar: _Progress)
     from samii.sim.plugin import hydraulic_params
 
     kp = hydraulic_params(load_model(model, overrides=parse_overrides(overrides) or None)).position_gain  # what the data were measured with
-    design = json.loads(_stage(["design", "damping", "--frf", str(d / "measure" / "frf.csv"), "--position-gain", repr(float(kp)),
-                                "--save", str(d / "controllers" / "damping.json"), "--json"]))  # fmt: skip
+    design = json.loads(_stage(d, ["design", "damping", "--frf", "measure/frf.csv", "--position-gain", repr(float(kp)),
+                                   "--save", "controllers/damping.json", "--json"]))  # fmt: skip
     s["damping_design"] = {k: design.get(k) for k in ("gain_v_per_m_s2", "gain_limit_v_per_m_s2", "gain_margin_db", "filter_hz", "rolloff_hz")}
     bar.done()
 
     s["closed_loop"] = {}
-    bar.start("closed loop: the servo loop alone, step")
-    res = json.loads(_stage(["closedloop", "--controller", "unity", "--scenario", "step", "--out", str(d / "closedloop" / "servo_loop_alone_step"),
-                             "--json", *margs]))  # fmt: skip
-    s["closed_loop"]["servo_loop_alone_step"] = {k: res.get(k) for k in ("stable", "unstable_mode_hz", "growth_rate_1_s", "theta", "base")}
-    bar.done()
-    for name, spec in CONTROLLERS:
-        spec = spec or str(d / "controllers" / "damping.json")
-        for sc in SCENARIOS:
-            bar.start(f"closed loop: {name}, {sc}")
-            extra = ["--rerun", str(d / "closedloop.rrd")] if (name, sc) == ("damping", "loper") else []
-            res = json.loads(_stage(["closedloop", "--controller", spec, "--scenario", sc, "--out", str(d / "closedloop" / f"{name}_{sc}"),
-                                     "--json", *extra, *margs]))  # fmt: skip
-            s["closed_loop"][f"{name}_{sc}"] = {k: res.get(k) for k in ("stable", "unstable_mode_hz", "growth_rate_1_s", "theta", "base")}
-            bar.done()
+    runs = [("servo_loop_alone", "unity", "step")] + [(name, spec or "controllers/damping.json", sc) for name, spec, _ in CONTROLLERS for sc in SCENARIOS]
+    for name, spec, sc in runs:
+        bar.start(f"closed loop: {name}, {sc}")
+        extra = ["--rerun", "closedloop.rrd"] if (name, sc) == ("damping", "loper") else []
+        s["closed_loop"][f"{name}_{sc}"] = _closed_loop(d, f"{name}_{sc}", ["--controller", spec, "--scenario", sc, *extra, *margs])
+        bar.done()
 
     bar.start("diagnosing the fit against the measured record")
-    diag = json.loads(_stage(["diagnose", str(d / "measure" / "timeseries.csv"), "--baseline", str(d / "fit" / "fit.json"),
-                              "--out", str(d / "diagnose"), "--json", "--no-progress"]))  # fmt: skip
+    diag = json.loads(_stage(d, ["diagnose", "measure/timeseries.csv", "--baseline", "fit/fit.json", "--out", "diagnose", "--json", "--no-progress"]))
     s["diagnosis"] = {"verdict": diag.get("verdict"), "effects": [e for e in diag.get("effects", []) if not e.get("expected")],
                       "error_before": diag.get("error_before"), "error_after": diag.get("error_after")}
     bar.done()
@@ -274,9 +274,8 @@ def _lines(s: dict, out: Path) -> list[str]:
     lines.append(f"  actuator pair {hz(f['wp']):.2f} Hz zeta {f['zp']:.3f} (eq 9.4: {hz(eq['wp']):.2f} Hz, {eq['zp']:.3f}); "
                  f"B2/B1 {f['B2'] / f['B1']:.3f} ({eq['B2'] / eq['B1']:.3f}), B3/B1 {f['B3'] / f['B1']:.3f} ({eq['B3'] / eq['B1']:.3f})")
     cl = s["closed_loop"]
-    names = {"notebook_cancel": "pole cancelling (ch 10)", "notebook_place": "pole placement (ch 8)", "damping": "damping controller"}
     lines.append("closed loop in the nonlinear simulator (step 5 deg; Loper: switched on at 2 s):")
-    for name, _ in CONTROLLERS:
+    for name, _, label in CONTROLLERS:
         st, lo = cl[f"{name}_step"], cl[f"{name}_loper"]
         if not st["stable"] or not lo["stable"]:
             bad = st if not st["stable"] else lo
@@ -286,7 +285,7 @@ def _lines(s: dict, out: Path) -> list[str]:
         else:
             what = (f"stable; step: theta settles {st['theta']['settle_s']:.2f} s, base {st['base']['settle_s']:.2f} s; "
                     f"Loper: base decays at {lo['base']['decay_rate_1_s']:.2f} 1/s")
-        lines.append(f"  {names[name]:<24} {what}")
+        lines.append(f"  {label:<24} {what}")
     dl, ds, alone = cl["damping_loper"], cl["damping_step"], cl["servo_loop_alone_step"]
     if dl["stable"] and ds["stable"] and dl["base"].get("free_decay_rate_1_s"):
         lines.append(f"damping controller: the base settles {alone['base']['settle_s'] / ds['base']['settle_s']:.1f}x sooner after the step "

@@ -50,6 +50,10 @@ class LoopSignals:
         return float(self.t[1] - self.t[0]) if self.t.size > 1 else float("nan")
 
 
+#: Index of the base's acceleration in the controller's inputs w = (theta_ref, theta, accel).
+ACCEL_INPUT = 2
+
+
 def measurements_at(cm: CardModel, state: np.ndarray, theta_ref_rad: float) -> np.ndarray:
     """``w = (theta_ref, theta, accel)`` (SI, noise-free) the card would sample in ``state``."""
     from samii.sim.plugin import hydraulic_params
@@ -92,8 +96,7 @@ def bumpless_state(matrices: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
     if n == 0:
         return np.zeros(0), float(D[0] @ w - target_v)
     w_rest = w.copy()
-    if w_rest.size == 3:
-        w_rest[2] = 0.0  # (theta_ref, theta, accel): at rest the base does not accelerate
+    w_rest[ACCEL_INPUT] = 0.0  # at rest the base does not accelerate
     z = np.linalg.lstsq(np.eye(n) - A, B @ w_rest, rcond=None)[0]
     c = C[0]
     cc = float(c @ c)

@@ -198,7 +198,7 @@ def _impulse_state(cm: CardModel, impulse_n_s: float) -> np.ndarray:
     """The ``home`` state with the velocity change of an impulse at the accelerometer's site along
     its measuring axis in the world frame (a body-fixed accelerometer's axis turned by its site)."""
     from samii.sim.model import make_data
-    from samii.sim.sensors import accel_axis_world
+    from samii.sim.sensors import accel_axis_world, accel_site
 
     m = cm.model
     d = make_data(m)
@@ -207,11 +207,9 @@ def _impulse_state(cm: CardModel, impulse_n_s: float) -> np.ndarray:
     mujoco.mj_getState(m, d, state, full)
     if impulse_n_s == 0:
         return state
-    sensor = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, "base_accel")
-    site = int(m.sensor_objid[sensor])
     direction = accel_axis_world(m, d)
     jacp = np.zeros((3, m.nv))
-    mujoco.mj_jacSite(m, d, jacp, None, site)
+    mujoco.mj_jacSite(m, d, jacp, None, accel_site(m))
     f = jacp.T @ (impulse_n_s * np.asarray(direction))
     dq = np.zeros(m.nv)
     mujoco.mj_solveM(m, d, dq.reshape(1, -1), f.reshape(1, -1))

@@ -30,7 +30,7 @@ views (deformed beside true scale) beside one time-series panel per unit.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import mujoco
@@ -49,6 +49,8 @@ ARM_DEVIATION_SHOWN_RAD = np.radians(15.0)
 #: Length of the tip's trail [s] and the number of points it is drawn with.
 TRAIL_S = 0.6
 TRAIL_POINTS = 20
+#: The viewer's dark background (grey level): what the trail fades into and later runs are dimmed towards.
+BACKGROUND = 40.0
 #: Most runs whose 3D views are stacked in rows; beyond, they are tabs.
 MAX_3D_ROWS = 2
 #: Frames per period of the fastest base mode shown (mode 3), and the lowest frame rate [1/s].
@@ -259,7 +261,7 @@ def _trail(rec, rr, entity: str, t_s: np.ndarray, tip: np.ndarray, fps: float) -
     # Rerun draws points opaque (alpha is ignored, rerun-io/rerun#1611): the trail fades by blending
     # its orange into the 3D view's dark background
     fade = (1 - 0.85 * age)[:, None]
-    colors = np.round(fade * np.array([255.0, 140.0, 0.0]) + (1 - fade) * np.array([40.0, 40.0, 40.0])).astype(np.uint8)
+    colors = np.round(fade * np.array([255.0, 140.0, 0.0]) + (1 - fade) * BACKGROUND).astype(np.uint8)
     radii = 0.02 * (1 - 0.7 * age)
     cols = rr.Points3D.columns(positions=tip[idx].reshape(-1, 3), colors=np.tile(colors, (n, 1)), radii=np.tile(radii, n))
     rec.send_columns(entity, indexes=[_time_column(rr, t_s)], columns=cols.partition(np.full(n, TRAIL_POINTS)))
@@ -292,7 +294,7 @@ def _log_signals(rec, rr, run: RunRecord, projection, *, tag: str = "", rank: in
             return
         color = np.asarray(_COLORS[key], float)
         dim = DIMMED[min(rank, len(DIMMED) - 1)]
-        color = (1 - dim) * color + dim * 40.0  # towards the dark background
+        color = (1 - dim) * color + dim * BACKGROUND
         _series(rec, rr, f"{root}/{group}/{key}", ts.t if t is None else t, np.asarray(values, float), tag + name, [int(x) for x in color])
         groups.add(group)
 
@@ -310,16 +312,17 @@ def _log_signals(rec, rr, run: RunRecord, projection, *, tag: str = "", rank: in
     put("pressure_mpa", "p_load", None if ts.p_load is None else ts.p_load / 1e6, "load pressure [MPa]")
     if len(run.frame_t_s):
         put("displacement_mm", "tip", 1e3 * projection.tip_m(run.frame_qpos), "tip displacement [mm]", t=run.frame_t_s)
-        shares = projection.shares_m(run.frame_qpos)
-        for k, f in enumerate(projection.freq_hz if modes else ()):
-            put("displacement_mm", f"mode_{k + 1}", 1e3 * shares[:, k], f"mode {k + 1} ({f:.2f} Hz) [mm]", t=run.frame_t_s)
+        if modes:
+            shares = projection.shares_m(run.frame_qpos)
+            for k, f in enumerate(projection.freq_hz):
+                put("displacement_mm", f"mode_{k + 1}", 1e3 * shares[:, k], f"mode {k + 1} ({f:.2f} Hz) [mm]", t=run.frame_t_s)
     put("frequency_hz", "sweep", run.sweep_hz, "sweep frequency [Hz]")
     if run.switch_on_s is not None:
         rec.set_time("time", duration=float(run.switch_on_s))
         rec.log(f"{root}/events", rr.TextLog(f"controller switched on at {run.switch_on_s:.3f} s", level="INFO"))
         if np.any(on):
             rec.log(f"{root}/volts/switch_on", rr.Scalars([float(command[np.argmax(on)])]),
-                    rr.SeriesPoints(names="controller switched on", markers="diamond", marker_sizes=8, colors=[(0, 0, 0)]))  # fmt: skip
+                    rr.SeriesPoints(names="controller switched on", markers="diamond", marker_sizes=8, colors=[_COLORS["tip"]]))  # fmt: skip
         rec.reset_time()
     return [g for g, _ in GROUPS if g in groups]
 
@@ -399,9 +402,8 @@ def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, b
         if r.model is not None and id(r.model) not in kin:
             kin[id(r.model)] = _Kinematics.of(r.model)
     main = kin[id(model)]
-    runs = [RunRecord(r.name, r.timeseries, np.asarray(r.frame_t_s, float),
-                      np.asarray(r.frame_qpos, float).reshape(len(r.frame_t_s), (r.model or model).nq),
-                      r.sweep_hz, r.switch_on_s, r.label, r.model) for r in runs]  # fmt: skip
+    runs = [replace(r, frame_t_s=np.asarray(r.frame_t_s, float),
+                    frame_qpos=np.asarray(r.frame_qpos, float).reshape(len(r.frame_t_s), (r.model or model).nq)) for r in runs]
     run_kin = [kin[id(r.model or model)] for r in runs]
     projection = main.projection
 
@@ -427,7 +429,7 @@ def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, b
              f"- **tip trail**: the last {TRAIL_S} s of the beam tip (deformed)",
              f"- **modal coordinates**: each base mode's share of the tip displacement along the accelerometer's axis, "
              f"from the undamped shapes of the structure with joint 2 held ({modes} Hz)\n"]  # fmt: skip
-    geoms_of: dict[int, dict] = {}
+    geoms_of = {key: _geoms(rr, k.model) for key, k in kin.items()}  # logged under each run's two views
     for run, k, (pos_true, quat_true, _) in zip(runs, run_kin, true_poses):
         t, q = run.frame_t_s, run.frame_qpos
         samples_per_s = 1 / float(np.median(np.diff(run.timeseries.t)))
@@ -436,8 +438,6 @@ def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, b
                 rate = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else MIN_FPS
             rec.log(run.name, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
             pos_def, quat_def, tip_def = _poses(k.model, k.home.qpos + (q - k.home.qpos) * k.scale(beam_scale, arm_scale), k.site)
-            if id(k.model) not in geoms_of:
-                geoms_of[id(k.model)] = _geoms(rr, k.model)
             geoms = geoms_of[id(k.model)]
             _log_model(rec, rr, k.model, geoms, f"{run.name}/true_scale", t, pos_true, quat_true)
             _log_model(rec, rr, k.model, geoms, f"{run.name}/deformed", t, pos_def, quat_def)

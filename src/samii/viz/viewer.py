@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import glob
 import os
+import shutil
 import socket
 import tempfile
 import time
@@ -60,12 +61,12 @@ def _free_port() -> int:
 
 
 class HeadlessViewer:
-    """The Rerun viewer without a window, showing one recording: a context manager.
+    """The Rerun viewer without a window, showing one recording: a context manager::
 
-    >>> with HeadlessViewer("run.rrd") as v:
-    ...     v.show(2.4)
-    ...     v.screenshot("run.png")                      # the whole window, 1920x1080
-    ...     v.screenshot("3d.png", view="closedloop: true scale")   # one view, by name
+        with HeadlessViewer("run.rrd") as v:
+            v.show(2.4)
+            v.screenshot("run.png")                                  # the whole window, 1920x1080
+            v.screenshot("3d.png", view="closedloop: true scale")    # one view, by name
 
     Raises RuntimeError when no viewer can start (see :func:`graphics_available`) or the
     recording does not load within ``timeout_s``."""
@@ -127,8 +128,6 @@ class HeadlessViewer:
 
     def _cleanup(self) -> None:
         if self._runtime_dir is not None:
-            import shutil
-
             shutil.rmtree(self._runtime_dir, ignore_errors=True)
             self._runtime_dir = None
 
