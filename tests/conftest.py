@@ -1,4 +1,4 @@
-"""Fixtures shared by the command-line batteries."""
+"""Fixtures shared by the command-line batteries and the main job's tests."""
 
 from __future__ import annotations
 
@@ -21,3 +21,16 @@ def cwd(tmp_path, monkeypatch):
     d.mkdir()
     monkeypatch.chdir(d)
     return d
+
+
+@pytest.fixture(scope="session")
+def runs(tmp_path_factory):
+    """Two main jobs with the same seed (about 25 s each), read by test_main_job.py and test_report.py."""
+    from samii.cli import main
+
+    base = tmp_path_factory.mktemp("main")
+    out = []
+    for name in ("a", "b"):
+        assert main(["run", "--out", str(base / name), "--seed", "3", "--no-progress"]) == 0
+        out.append(base / name)
+    return out

@@ -11,15 +11,7 @@ import pytest
 from samii.cli import main
 
 
-@pytest.fixture(scope="module")
-def runs(tmp_path_factory):
-    """Two main jobs with the same seed (about 25 s each)."""
-    base = tmp_path_factory.mktemp("main")
-    out = []
-    for name in ("a", "b"):
-        assert main(["run", "--out", str(base / name), "--seed", "3", "--no-progress"]) == 0
-        out.append(base / name)
-    return out
+# the `runs` fixture (two main jobs with seed 3) is in conftest.py: test_report.py reads them too
 
 
 def test_main_job_writes_every_stage_and_a_short_summary(runs, capsys):
@@ -45,9 +37,9 @@ def test_main_job_writes_every_stage_and_a_short_summary(runs, capsys):
     assert cl["damping_loper"]["base"]["decay_rate_1_s"] > 3 * cl["damping_loper"]["base"]["free_decay_rate_1_s"]
     assert s["diagnosis"]["verdict"] in ("none", "effects")
     # the summary printed: at most 20 lines, naming what was done
-    from samii.main_job import _lines
+    from samii.main_job import summary_lines
 
-    lines = _lines(s, a)
+    lines = summary_lines(s, a)
     assert len(lines) <= 20
     text = "\n".join(lines)
     for needle in ("base modes", "measured:", "eq 9.4", "damping controller", "diagnosis", "wrote"):

@@ -23,7 +23,7 @@ The folder is written whole or not at all: the stages write into a staging folde
 which replaces ``--out`` at the end (an existing ``--out`` only with ``--overwrite``, or when it
 holds a previous main job's output).
 
-Not here yet (issue 13): ``report.html`` and ``samii robust``.
+8. ``report.html``: one self-contained page with the figures and tables of all of it (``samii report``).
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ from pathlib import Path
 
 from samii.errors import InputError
 
-__all__ = ["add_arguments", "run", "run_main_job", "run_pipeline", "PipelineResult", "DEFAULT_OUT", "CONTROLLERS", "SCENARIOS"]
+__all__ = ["add_arguments", "run", "run_main_job", "run_pipeline", "summary_lines", "PipelineResult", "DEFAULT_OUT", "CONTROLLERS", "SCENARIOS"]
 
 #: Where ``samii`` with no arguments writes.
 DEFAULT_OUT = "samii_run"
@@ -165,12 +165,15 @@ def run_pipeline(out, *, model=None, overrides=(), seed: int = 0, overwrite: boo
     if stage_dir.exists():
         shutil.rmtree(stage_dir)
     stage_dir.mkdir()
-    bar = _Progress(progress, 5 + len(CONTROLLERS) * len(SCENARIOS))
+    bar = _Progress(progress, 6 + len(CONTROLLERS) * len(SCENARIOS))
     started = time.perf_counter()
     try:
         summary = _run_stages(stage_dir, model, list(overrides or ()), seed, bar)
         summary["wall_s"] = time.perf_counter() - started
         (stage_dir / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
+        bar.start("writing report.html")
+        _report(stage_dir, out)
+        bar.done()
         if out.exists():
             shutil.rmtree(out)
         os.replace(stage_dir, out)
@@ -178,7 +181,7 @@ def run_pipeline(out, *, model=None, overrides=(), seed: int = 0, overwrite: boo
         bar.close()
         if stage_dir.exists():
             shutil.rmtree(stage_dir)
-    return PipelineResult(out, summary, _lines(summary, out))
+    return PipelineResult(out, summary, summary_lines(summary, out))
 
 
 def _run_stages(d: Path, model, overrides: list[str], seed: int, bar: _Progress) -> dict:
@@ -235,6 +238,16 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, bar: _Progress)
     return s
 
 
+def _report(d: Path, out: Path) -> None:
+    """``report.html``, from the folder's own files (``samii report``), naming the folder as it will be called."""
+    from samii.report.content import read_run_folder
+    from samii.report.page import write_report
+
+    run = read_run_folder(d)
+    run.display_name = out.name
+    write_report(run)
+
+
 def _modes(model, overrides) -> dict:
     import warnings
 
@@ -250,7 +263,7 @@ def _modes(model, overrides) -> dict:
             "servo_pair_1_s": [float(pair[0].real), float(abs(pair[0].imag))] if pair else None}
 
 
-def _lines(s: dict, out: Path) -> list[str]:
+def summary_lines(s: dict, out) -> list[str]:
     """The summary a person reads: at most 20 lines."""
     import numpy as np
 
@@ -298,6 +311,6 @@ def _lines(s: dict, out: Path) -> list[str]:
     if b and a:
         lines.append(f"  xdd/v error {b.get('rms_db', float('nan')):.2g} dB / {b.get('rms_deg', float('nan')):.2g} deg -> "
                      f"{a.get('rms_db', float('nan')):.2g} dB / {a.get('rms_deg', float('nan')):.2g} deg with them")
-    lines.append(f"wrote {out}/ (summary.json; measure/, fit/, controllers/, closedloop/, diagnose/; measure.rrd and closedloop.rrd: "
-                 f"open with `rerun FILE`) in {s['wall_s']:.0f} s")
+    lines.append(f"wrote {out}/ in {s['wall_s']:.0f} s: report.html (open it in a browser), summary.json, measure/, fit/, controllers/, "
+                 "closedloop/, diagnose/; measure.rrd and closedloop.rrd (open with `rerun FILE`)")
     return lines[:20]

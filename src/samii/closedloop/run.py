@@ -22,6 +22,10 @@ from samii.errors import SimulationUnstable
 __all__ = ["LoopSignals", "bumpless_state", "run_loop", "measurements_at"]
 
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
+#: A controller output beyond this has diverged numerically: the valve saturates at 10 V, so no working
+#: controller's output comes within five orders of it, and a file reader refuses such a value as a
+#: measurement (samii.measure.io bounds numbers at 1e100). The run ends there (``diverged_at_s``).
+COMMAND_DIVERGED_V = 1e6
 
 
 @dataclass(frozen=True)
@@ -42,6 +46,7 @@ class LoopSignals:
     switch_on_s: float | None = None  #: when the controller was switched on (None: from the start or never)
     switch_jump_v: float | None = None  #: its first command minus what the valve got before (bumpless: ~0)
     diverged_at_s: float | None = None  #: the run stopped here: the simulation diverged (signals end before)
+    diverged_what: str = "the simulation"  #: what diverged at ``diverged_at_s``: the simulation, or the controller's output
     frame_t: np.ndarray | None = None  #: s, times of kept qpos frames (``qpos_every``)
     frame_qpos: np.ndarray | None = None  #: (frames, nq)
 
@@ -203,6 +208,7 @@ def _run_segments(cm, ctrl, theta_ref_rad, state, data, switch_on_step, chunk_st
     states, sensors = [], []
     jump = None
     diverged = None
+    what = "the simulation"
     done = 0
     for si, (a, b) in enumerate(segments):
         if switch_on_step is not None and a == switch_on_step:
@@ -243,6 +249,16 @@ def _run_segments(cm, ctrl, theta_ref_rad, state, data, switch_on_step, chunk_st
         command = after[:, L.command_index()]
         enabled = before[:, L.enabled_index()] != 0
         # while disabled the card still records the servo loop's voltage
+        runaway = np.flatnonzero(~(np.abs(command) <= COMMAND_DIVERGED_V))
+        if runaway.size:  # the controller's own states have diverged (the plant may still be on the valve's rails)
+            if not keep_partial:
+                raise SimulationUnstable(f"the controller's output diverged at t = {t0 + runaway[0] * dt:.4g} s "
+                                         f"(|command| above {COMMAND_DIVERGED_V:g} V); no result written")
+            done = int(runaway[0])
+            diverged = t0 + done * dt
+            what = f"the controller's output (|command| above {COMMAND_DIVERGED_V:g} V)"
+            before, after, sd, k = before[:done], after[:done], sd[:done], k[:done]
+            theta, v, command, enabled = theta[:done], v[:done], command[:done], enabled[:done]
     else:
         v = np.clip(ctrl[:done, 0] + hp.position_gain * (theta_ref_rad[:done] - theta), -10.0, 10.0)
         command = np.full(done, np.nan)
@@ -262,6 +278,7 @@ def _run_segments(cm, ctrl, theta_ref_rad, state, data, switch_on_step, chunk_st
         switch_on_s=None if switch_on_step is None else t0 + switch_on_step * dt,
         switch_jump_v=jump,
         diverged_at_s=diverged,
+        diverged_what=what,
         frame_t=None if qpos_every is None else t0 + k[::qpos_every] * dt,
         frame_qpos=None if qpos_every is None else before[::qpos_every, 1:1 + m.nq].copy(),
     )

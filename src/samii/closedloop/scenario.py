@@ -332,7 +332,7 @@ def run_closed_loop(
             notes.append("the run diverged too fast to fit its growth; growth rate and frequency are the linear prediction's")
         if g is not None:
             rate, mode_hz = g
-        notes.append(f"the simulation diverged at t = {sig.diverged_at_s:.4g} s" if sig.diverged_at_s is not None else "the simulation diverged at once")
+        notes.append(f"{sig.diverged_what} diverged at t = {sig.diverged_at_s:.4g} s" if sig.diverged_at_s is not None else "the simulation diverged at once")
     else:
         osc = sustained_oscillation(sig.t, accel, t_ev)
         if osc is not None:

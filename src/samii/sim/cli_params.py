@@ -7,7 +7,7 @@ import json
 
 from samii.cli_args import nonempty_path
 
-__all__ = ["add_arguments", "run", "parameter_table"]
+__all__ = ["add_arguments", "run", "parameter_table", "unit"]
 
 #: Units of the names that do not carry them in a suffix (SI; see samii.sim.mjcf and sim/hydraulic.c).
 _UNITS = {
@@ -34,12 +34,13 @@ _SUFFIX_UNITS = {"_hz": "Hz", "_m": "m", "_Nm2": "N m^2", "_kg_m": "kg/m", "_Nm_
                  "_deg": "deg", "_kgm2": "kg m^2", "_kg": "kg"}
 
 
-def _unit(name: str) -> str:
+def unit(name: str) -> str:
+    """The unit of a parameter name (SI; "" when it has none)."""
     if name in _UNITS:
         return _UNITS[name]
-    for suffix, unit in sorted(_SUFFIX_UNITS.items(), key=lambda kv: -len(kv[0])):
+    for suffix, u in sorted(_SUFFIX_UNITS.items(), key=lambda kv: -len(kv[0])):
         if name.endswith(suffix):
-            return unit
+            return u
     return ""
 
 
@@ -53,9 +54,9 @@ def parameter_table(model: str | None = None) -> list[dict]:
     rows = []
     for section, values in asdict(params).items():
         if isinstance(values, dict):
-            rows += [{"name": f"{section}.{k}", "value": v, "unit": _unit(f"{section}.{k}")} for k, v in values.items()]
+            rows += [{"name": f"{section}.{k}", "value": v, "unit": unit(f"{section}.{k}")} for k, v in values.items()]
         else:
-            rows.append({"name": section, "value": values, "unit": _unit(section)})
+            rows.append({"name": section, "value": values, "unit": unit(section)})
     return rows
 
 

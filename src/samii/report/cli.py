@@ -1,0 +1,53 @@
+"""``samii report DIR [--out FILE] [--overwrite] [--screenshot PNG]``: write a main job's ``report.html``
+again from its folder (the main job writes it itself), and optionally a screenshot of it in a headless
+browser."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from samii.cli_args import nonempty_path
+
+__all__ = ["add_arguments", "run"]
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("folder", metavar="DIR", type=nonempty_path, help="a main job's output folder (samii run --out DIR)")
+    p.add_argument("--out", metavar="FILE", type=nonempty_path, help="where to write the page (default DIR/report.html)")
+    p.add_argument("--overwrite", action="store_true", help="replace --out if it exists (DIR/report.html is always replaced)")
+    p.add_argument("--screenshot", metavar="PNG", type=nonempty_path,
+                   help="also save a screenshot of the page in a headless Chromium (chromium from your system's packages; "
+                        "SAMII_BROWSER names another)")
+    p.add_argument("--width", type=int, default=1200, help="screenshot width in pixels (default 1200)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from samii.errors import InputError
+    from samii.outputs import check_output_file
+    from samii.report.content import read_run_folder
+    from samii.report.page import REPORT_NAME, write_report
+
+    if args.screenshot and not str(args.screenshot).lower().endswith(".png"):
+        raise InputError(f"--screenshot {args.screenshot}: expected a .png file")
+    if not 320 <= args.width <= 4000:
+        raise InputError(f"--width {args.width}: expected 320...4000 pixels")
+    folder = Path(args.folder)
+    out = Path(args.out) if args.out else folder / REPORT_NAME
+    if args.out:
+        check_output_file(out, overwrite=args.overwrite, option="--out")
+    if args.screenshot:
+        from samii.report.browser import find_browser
+
+        check_output_file(Path(args.screenshot), overwrite=args.overwrite, option="--screenshot")
+        if find_browser() is None:
+            raise InputError("--screenshot: no Chromium found (install chromium, e.g. apt-get install chromium, or set SAMII_BROWSER)")
+    run_folder = read_run_folder(folder)
+    path = write_report(run_folder, out)
+    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB, self-contained: open it in a browser)")
+    if args.screenshot:
+        from samii.report.browser import screenshot
+
+        shot = screenshot(path, Path(args.screenshot), width=args.width)
+        print(f"wrote {shot.path} ({shot.width}x{shot.height} px, {shot.browser})")
+    return 0

@@ -1,0 +1,165 @@
+"""What a main job's output folder holds, read back for the report (no plotting, no HTML).
+
+:func:`read_run_folder` reads the files the stages wrote (``summary.json``, ``measure/run.json``,
+``fit/fit.json``, ``diagnose/diagnosis.json``, ``closedloop/*/run.json`` and ``timeseries.csv``) and
+returns them as a :class:`RunFolder`; a missing or unreadable file is an :class:`InputError` that
+names it. The figures the stages drew are referenced by path, to be embedded as they are.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from samii.errors import InputError
+
+__all__ = ["Trace", "RunFolder", "read_run_folder", "ParamRow", "parameter_rows", "STAGE_FIGURES", "RECORDINGS"]
+
+#: Figures a stage drew, embedded as they are: key -> path in the folder.
+STAGE_FIGURES = {
+    "bode_fit": "fit/bode_fit.png",
+    "measure_bode": "measure/bode.png",
+    "diagnose_bode": "diagnose/bode.png",
+    "diagnose_residuals": "diagnose/residuals.png",
+}
+#: The Rerun recordings the main job writes, linked (not embedded: tens of MB).
+RECORDINGS = {"measure.rrd": "the swept-sine measurement", "closedloop.rrd": "the damping controller's Loper test beside the servo loop alone"}
+
+
+@dataclass(frozen=True)
+class Trace:
+    """One closed-loop run's signals (SI: s, rad, m/s^2, V)."""
+
+    t: np.ndarray
+    theta: np.ndarray
+    theta_ref: np.ndarray
+    accel: np.ndarray
+    v: np.ndarray
+
+
+@dataclass
+class RunFolder:
+    path: Path
+    summary: dict
+    measurement: dict  #: measure/run.json
+    fit: dict  #: fit/fit.json
+    diagnosis: dict  #: diagnose/diagnosis.json
+    closed_loop: dict[str, dict]  #: "<controller>_<scenario>" -> its run.json
+    traces: dict[str, Trace]  #: "<controller>_<scenario>" -> its signals
+    figures: dict[str, Path] = field(default_factory=dict)  #: STAGE_FIGURES present
+    recordings: dict[str, int] = field(default_factory=dict)  #: recording -> size in bytes, those present
+    display_name: str | None = None  #: the folder's name as the reader knows it (the main job writes in a staging folder)
+
+
+def _json(folder: Path, rel: str) -> dict:
+    path = folder / rel
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"{path}: missing; is {folder} a main job's output (samii run)?") from None
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: not readable JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: expected a JSON object")
+    return data
+
+
+def _trace(path: Path) -> Trace:
+    from samii.measure.io import read_timeseries_csv
+
+    ts = read_timeseries_csv(path)
+    ref = ts.theta_ref if ts.theta_ref is not None else np.zeros_like(ts.t)
+    return Trace(t=ts.t, theta=ts.theta, theta_ref=ref, accel=ts.accel, v=ts.v)
+
+
+def read_run_folder(path) -> RunFolder:
+    """Read a main job's output folder (``samii run --out PATH``)."""
+    folder = Path(path)
+    if not folder.is_dir():
+        raise InputError(f"{folder}: not a folder (expected a main job's output, samii run --out)")
+    summary = _json(folder, "summary.json")
+    if summary.get("written_by") != "samii run":
+        raise InputError(f"{folder / 'summary.json'}: field 'written_by' is {summary.get('written_by')!r}, expected 'samii run'")
+    closed, traces = {}, {}
+    for name in sorted(summary.get("closed_loop", {})):
+        run_dir = folder / "closedloop" / name
+        closed[name] = _json(folder, f"closedloop/{name}/run.json")
+        traces[name] = _trace(run_dir / "timeseries.csv")
+    return RunFolder(
+        path=folder,
+        summary=summary,
+        measurement=_json(folder, "measure/run.json"),
+        fit=_json(folder, "fit/fit.json"),
+        diagnosis=_json(folder, "diagnose/diagnosis.json"),
+        closed_loop=closed,
+        traces=traces,
+        figures={k: folder / rel for k, rel in STAGE_FIGURES.items() if (folder / rel).is_file()},
+        recordings={name: (folder / name).stat().st_size for name in RECORDINGS if (folder / name).is_file()},
+    )
+
+
+@dataclass(frozen=True)
+class ParamRow:
+    """One fitted parameter beside eq 9.4's, in the unit shown."""
+
+    name: str
+    meaning: str
+    unit: str
+    value: float
+    stderr: float | None
+    notebook: float | None
+
+    @property
+    def rel_stderr_pct(self) -> float | None:
+        return None if self.stderr is None or self.value == 0 else 100.0 * abs(self.stderr / self.value)
+
+    @property
+    def diff_pct(self) -> float | None:
+        return None if self.notebook in (None, 0) else 100.0 * (self.value - self.notebook) / abs(self.notebook)
+
+    @property
+    def sigmas(self) -> float | None:
+        """How many standard errors the fit lies from eq 9.4."""
+        if self.notebook is None or not self.stderr:
+            return None
+        return abs(self.value - self.notebook) / self.stderr
+
+
+_FT_PER_M = 1.0 / 0.3048
+#: name -> (meaning, unit shown, factor from the fit's SI value to the unit shown, factor from the notebook's value to it).
+#: The notebook's gains read theta in degrees and the acceleration in ft/s^2 (experiments/closed_loop/README.md):
+#: K1 [deg/s/V] * pi/180 = rad/s/V; B_k [(ft/s^2)/deg] * 0.3048 * 180/pi = (m/s^2)/rad.
+_PARAMS = {
+    "K1": ("actuator gain", "rad/(s V)", 1.0, math.pi / 180.0),
+    "wp": ("actuator pole pair", "Hz", 1 / (2 * math.pi), 1 / (2 * math.pi)),
+    "zp": ("actuator pole pair damping", "1", 1.0, 1.0),
+    "wz": ("actuator zero pair = base mode 2", "Hz", 1 / (2 * math.pi), 1 / (2 * math.pi)),
+    "zz": ("its damping", "1", 1.0, 1.0),
+    "tau": ("actuator real pole", "1/s", 1.0, 1.0),
+    "w1": ("base mode 1", "Hz", 1 / (2 * math.pi), 1 / (2 * math.pi)),
+    "z1": ("base mode 1 damping", "1", 1.0, 1.0),
+    "w3": ("base mode 3", "Hz", 1 / (2 * math.pi), 1 / (2 * math.pi)),
+    "z3": ("base mode 3 damping", "1", 1.0, 1.0),
+    "B1": ("base mode 1 coefficient", "(m/s^2)/rad", 1.0, 180.0 / (math.pi * _FT_PER_M)),
+    "B2": ("base mode 2 coefficient", "(m/s^2)/rad", 1.0, 180.0 / (math.pi * _FT_PER_M)),
+    "B3": ("base mode 3 coefficient", "(m/s^2)/rad", 1.0, 180.0 / (math.pi * _FT_PER_M)),
+}
+
+
+def parameter_rows(fit: dict, notebook: dict) -> list[ParamRow]:
+    """The fit's parameters with standard errors beside eq 9.4's, in Hz, 1/s and SI gains."""
+    rows = []
+    params, stderr = fit.get("params", {}), fit.get("stderr", {}) or {}
+    for name, (meaning, unit, to_shown, nb_to_shown) in _PARAMS.items():
+        if name not in params or params[name] is None:
+            continue
+        se = stderr.get(name)
+        nb = notebook.get(name)
+        rows.append(ParamRow(name, meaning, unit, float(params[name]) * to_shown,
+                             None if se is None or not math.isfinite(se) else abs(float(se) * to_shown),
+                             None if nb is None else float(nb) * nb_to_shown))  # fmt: skip
+    return rows

@@ -1,0 +1,327 @@
+"""``report.html``: one self-contained page a person reads in a browser, from a main job's folder.
+
+Every figure is embedded (PNG as a ``data:`` URI), the style is inline, there is no script and no
+address outside the page but the links to the folder's own Rerun recordings: the page opens offline,
+and can be mailed or archived alone. All text from the folder's files is HTML-escaped.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import math
+import os
+from pathlib import Path
+
+from samii.report.content import RECORDINGS, RunFolder, parameter_rows
+from samii.report.figures import figure_ch11_loper, figure_ch11_step, figure_damping
+
+__all__ = ["render_report", "write_report", "REPORT_NAME"]
+
+REPORT_NAME = "report.html"
+
+#: Physical parameters shown in the model section (name in samii params -> what it is).
+_KEY_PARAMS = {
+    "beam.length_m": "beam free length",
+    "beam.EI_Nm2": "beam bending stiffness EI",
+    "beam.mass_per_length_kg_m": "beam mass per length",
+    "beam.clamp_stiffness_Nm_rad": "clamp torsional stiffness",
+    "arm.joint1_stiffness_Nm_rad": "joint 1 stiffness",
+    "hydraulic.supply_pressure": "supply pressure",
+    "hydraulic.bulk_modulus": "oil bulk modulus",
+    "hydraulic.total_volume": "oil volume",
+    "hydraulic.valve_time_constant": "valve time constant",
+    "hydraulic.position_gain": "servo amplifier gain",
+    "hydraulic.command_delay": "command delay",
+    "timestep_s": "simulation time step",
+}
+_CHANNELS = {"act": "θ/v", "base": "ẍ/θ", "total": "ẍ/v"}
+
+_CSS = """
+body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,"DejaVu Sans",sans-serif;margin:0;background:#fafafa;color:#222;line-height:1.45}
+main{max-width:1060px;margin:0 auto;padding:24px 28px 60px;background:#fff}
+h1{font-size:1.6em;margin:0 0 4px}h2{font-size:1.25em;margin:32px 0 8px;border-bottom:1px solid #ddd;padding-bottom:4px}
+h3{font-size:1.05em;margin:20px 0 6px}.lead{color:#555;margin:0 0 12px}
+table{border-collapse:collapse;margin:8px 0 12px;font-size:0.9em}th,td{border:1px solid #ddd;padding:3px 8px;text-align:right;vertical-align:top}
+th{background:#f0f0f0}td.l,th.l{text-align:left}pre{background:#f5f5f5;padding:10px;white-space:pre-wrap;font-size:0.82em;line-height:1.35}
+img{max-width:100%;height:auto;display:block;margin:6px 0 2px}figure{margin:12px 0 18px}figcaption{font-size:0.85em;color:#555}
+.bad{color:#b00020;font-weight:600}.ok{color:#1b6e20;font-weight:600}.warn{color:#8a5a00}nav{font-size:0.9em}nav a{margin-right:12px}
+code{background:#f2f2f2;padding:0 3px}
+"""
+
+
+def _e(x) -> str:
+    return html.escape(str(x), quote=True)
+
+
+def _num(x, fmt: str = ".4g", none: str = "–") -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return none
+    return format(float(x), fmt)
+
+
+def _img(data: bytes, alt: str) -> str:
+    return f'<img alt="{_e(alt)}" src="data:image/png;base64,{base64.b64encode(data).decode("ascii")}">'
+
+
+def _figure(data: bytes | None, alt: str, caption: str) -> str:
+    if data is None:
+        return f'<p class="warn">({_e(alt)}: not in the folder)</p>'
+    return f"<figure>{_img(data, alt)}<figcaption>{caption}</figcaption></figure>"
+
+
+def _table(header: list[str], rows: list[list[str]], left: int = 1) -> str:
+    """Cells are HTML already; the first ``left`` columns are left-aligned."""
+    cls = lambda i: ' class="l"' if i < left else ""  # noqa: E731
+    head = "".join(f"<th{cls(i)}>{h}</th>" for i, h in enumerate(header))
+    body = "".join("<tr>" + "".join(f"<td{cls(i)}>{c}</td>" for i, c in enumerate(r)) + "</tr>" for r in rows)
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _file_png(run: RunFolder, key: str) -> bytes | None:
+    p = run.figures.get(key)
+    return p.read_bytes() if p is not None else None
+
+
+# ---- sections ----
+
+
+def _header(run: RunFolder, lines: list[str]) -> str:
+    from samii.cli import _version
+
+    s = run.summary
+    model = s["model"]["file"] + (f" with {', '.join(s['model']['overrides'])}" if s["model"].get("overrides") else "")
+    sections = [("model", "Model"), ("measurement", "Measurement"), ("fit", "Identification"), ("control", "Control"),
+                ("diagnosis", "Diagnosis"), ("recordings", "Recordings")]  # fmt: skip
+    nav = "".join(f'<a href="#{k}">{v}</a>' for k, v in sections)
+    return (f"<h1>SAMII: main job report</h1><p class=\"lead\">Model: {_e(model)}. Sensor-noise seed {_e(s['seed'])}. "
+            f"samii {_e(_version())}; the whole pipeline took {_num(s.get('wall_s'), '.0f')} s. Every figure below is in this page; "
+            f"the numbers are the folder's own files (<code>summary.json</code> holds them all).</p><nav>{nav}</nav>"
+            f"<h2 id=\"summary\">Summary</h2><pre>{_e(chr(10).join(lines))}</pre>")  # fmt: skip
+
+
+def _model(run: RunFolder) -> str:
+    from samii import notebook as nb
+    from samii.sim.cli_params import unit
+
+    m = run.summary["modes"]
+    rows = []
+    for i, b in enumerate(m["base_modes"]):
+        tgt_f = nb.BASE_MODES_HZ[i] if i < len(nb.BASE_MODES_HZ) else None
+        tgt_z = nb.BASE_ZETAS[i] if i < len(nb.BASE_ZETAS) else None
+        diff = None if tgt_f is None else 100 * (b["freq_hz"] - tgt_f) / tgt_f
+        rows.append([f"base mode {i + 1}", _num(b["freq_hz"], ".3f"), _num(tgt_f, ".2f"), _num(diff, "+.2f"), _num(b["zeta"], ".3f"), _num(tgt_z, ".3f")])
+    out = ['<h2 id="model">Model</h2>', "<p>SAMII, a 6-DOF hydraulic arm at the tip of a flexible cantilevered beam, in MuJoCo. "
+           "The base modes are the linearised simulator's with joint 2 held, at the nominal pose (joints "
+           + _e(", ".join(str(round(a)) for a in m["pose_deg"])) + " deg); the notebook's eq 9.4 modes are the simulator's calibration targets.</p>",
+           _table(["", "simulator [Hz]", "eq 9.4 [Hz]", "difference [%]", "ζ simulator", "ζ eq 9.4"], rows)]  # fmt: skip
+    if m.get("servo_pair_1_s"):
+        re_, im = m["servo_pair_1_s"]
+        out.append(f"<p>Servo position loop (joint 2 free, unity feedback): the lightly damped pair at {_num(re_, '.2f')} ± {_num(im, '.1f')}j 1/s "
+                   f"({_num(im / (2 * math.pi), '.2f')} Hz, ζ {_num(-re_ / math.hypot(re_, im), '.3f')}).</p>")
+    params = run.measurement.get("model", {}).get("params") or {}
+    flat = {}
+    for section, vals in params.items():
+        if isinstance(vals, dict):
+            flat.update({f"{section}.{k}": v for k, v in vals.items()})
+        else:
+            flat[section] = vals
+    prow = [[_e(what), f"<code>{_e(name)}</code>", _num(flat[name], ".5g"), _e(unit(name))] for name, what in _KEY_PARAMS.items() if name in flat]
+    if prow:
+        out.append("<h3>Key physical parameters</h3>" + _table(["", "name (<code>--set NAME=VALUE</code>)", "value", "unit"], prow, left=2)
+                   + "<p>All of them: <code>samii params</code>; where each comes from: the model card (<code>models/samii/README.md</code> "
+                   "in the samii repository).</p>")
+    return "".join(out)
+
+
+def _measurement(run: RunFolder) -> str:
+    me = run.summary["measurement"]
+    noise = me.get("sensor_noise") or {}
+    noise_txt = ", ".join(f"{_e(k)} {_num(v, '.3g')}" for k, v in noise.items()) if isinstance(noise, dict) else _e(noise)
+    return ('<h2 id="measurement">Measurement</h2>'
+            f"<p>{_e(me['excitation'])}, {_num(me['amplitude_v'], 'g')} V on the valve command, {_num(me['simulated_s'], '.0f')} s simulated "
+            f"at {_num(me['sample_rate_hz'], 'g')} samples/s, recorded by the simulated DAQ with sensor noise (standard deviations: {noise_txt}; "
+            f"seed {_e(run.summary['seed'])}). Joint 2 runs under its unity position loop, as on the rig. The FRF (<code>measure/frf.csv</code>) "
+            "is estimated from the record with the excitation as the instrument.</p>")  # fmt: skip
+
+
+def _fit(run: RunFolder) -> str:
+    from samii import notebook as nb
+
+    f = run.fit
+    sound = f.get("sound")
+    verdict = ('<span class="ok">a sound fit</span>' if sound else '<span class="bad">not a sound fit</span>')
+    rows = []
+    for r in parameter_rows(f, dict(nb.EQ9_4)):
+        rows.append([f"<code>{_e(r.name)}</code>", _e(r.meaning), _num(r.value, ".5g"), _num(r.stderr, ".2g"), _num(r.rel_stderr_pct, ".2g"),
+                     _num(r.notebook, ".5g"), _num(r.diff_pct, "+.1f"), _num(r.sigmas, ".2g"), _e(r.unit)])  # fmt: skip
+    rms = f.get("rms_mag_db") or {}
+    ph = f.get("rms_phase_deg") or {}
+    rms_txt = "; ".join(f"{_CHANNELS.get(k, k)} {_num(rms[k], '.2f')} dB, {_num(ph.get(k), '.1f')} deg" for k in rms)
+    concerns = "".join(f"<li>{_e(c)}</li>" for c in f.get("concerns") or [])
+    return ('<h2 id="fit">Identification: the notebook\'s 3-mode model</h2>'
+            f"<p>The notebook's eq 9.1/9.2 structure fitted to the measured FRF (<code>samii fit</code>, phase weight {_num(f.get('phase_weight'), 'g')}, "
+            f"{_num((f.get('band_hz') or [None])[0], '.2g')}–{_num((f.get('band_hz') or [None, None])[1], '.3g')} Hz): {verdict}. "
+            f"RMS error {rms_txt}.</p>"
+            + (f"<ul class=\"warn\">{concerns}</ul>" if concerns else "")
+            + _figure(_file_png(run, "bode_fit"), "Bode data with the fit", "The measured FRF (points) with the fitted model (line), and the "
+                      "coherence. <code>fit/bode_fit.png</code>.")
+            + "<h3>Parameters beside eq 9.4</h3>"
+            + _table(["", "", "fit", "± std. error", "± %", "eq 9.4", "fit − eq 9.4 [%]", "[std. errors]", "unit"], rows, left=2)
+            + "<p>Frequencies in Hz (the fit's ω/2π). The gains are in SI; eq 9.4's are converted from the notebook's units (θ in degrees, "
+            "ẍ in ft/s², which its coefficients imply; <code>experiments/closed_loop/README.md</code>). Standard errors are the fit's, "
+            "from the Jacobian and the residual; the notebook gives none. A parameter many standard errors from eq 9.4 differs in the "
+            "simulator, not only in the data's noise.</p>")  # fmt: skip
+
+
+def _closed_loop(run: RunFolder) -> str:
+    from samii.main_job import CONTROLLERS
+
+    s = run.summary
+    cl = s["closed_loop"]
+    d = s.get("damping_design") or {}
+    out = ['<h2 id="control">Control: the notebook\'s controllers and the damping controller, closed loop in the nonlinear simulator</h2>',
+           f"<p>The damping controller is acceleration feedback designed on a fit of the measured FRF (<code>samii design damping --frf</code>): "
+           f"gain {_num(d.get('gain_v_per_m_s2'), '.3g')} V/(m/s²), {_num(d.get('gain_margin_db'), '.2g')} dB below the fitted model's "
+           f"stability limit of {_num(d.get('gain_limit_v_per_m_s2'), '.3g')}, a low-pass at {_num(d.get('filter_hz'), '.3g')} Hz and a roll-off "
+           f"at {_num(d.get('rolloff_hz'), '.3g')} Hz. The notebook's pole-cancelling compensator (chapter 10) and pole placement (chapter 8) run "
+           "as the notebook built them. Every controller runs at 1 kHz inside the simulator (sampled θ and ẍ, zero-order hold, the valve's "
+           "±10 V). Step: 5 deg on joint 2 at t = 1 s. Loper test: the same step under the servo loop alone, the controller switched on at "
+           "t = 2 s.</p>"]  # fmt: skip
+    rows = []
+    names = [("servo_loop_alone", "servo loop alone")] + [(n, label) for n, _, label in CONTROLLERS]
+    for name, label in names:
+        for sc in ("step", "loper"):
+            r = cl.get(f"{name}_{sc}")
+            if r is None:
+                continue
+            th, ba = r.get("theta") or {}, r.get("base") or {}
+            if r.get("stable"):
+                state = '<span class="ok">stable</span>'
+            else:
+                grow = f" (grows at {_num(r.get('growth_rate_1_s'), '.3g')} 1/s" + (f", {_num(r.get('unstable_mode_hz'), '.3g')} Hz)" if r.get("unstable_mode_hz") else ")")
+                state = f'<span class="bad">UNSTABLE</span>{grow}'
+            ok = bool(r.get("stable"))
+            rows.append([_e(label), sc, state,
+                         _num(th.get("overshoot_pct"), ".1f") if ok and sc == "step" else "–",
+                         _num(th.get("settle_s"), ".2f") if ok and sc == "step" else "–",
+                         _num(ba.get("peak_m_s2"), ".3g") if ok else "–",
+                         _num(ba.get("settle_s"), ".2f") if ok else "–",
+                         _num(ba.get("decay_rate_1_s"), ".3g") if ok and sc == "loper" else "–",
+                         _num(ba.get("free_decay_rate_1_s"), ".3g") if ok and sc == "loper" else "–"])  # fmt: skip
+    out.append(_table(["controller", "test", "", "θ overshoot [%]", "θ settles [s]", "base peak [m/s²]", "base settles [s]",
+                       "base decay after switch-on [1/s]", "free decay [1/s]"], rows, left=3))  # fmt: skip
+    out.append("<p>Settling: the last time the signal is outside 5 % of its peak excursion. Decay rate: the envelope's exponential rate "
+               "after the switch-on; the free decay is the servo loop alone's over the same time. Each run's own figures, its linear "
+               "prediction and its time series are in <code>closedloop/&lt;controller&gt;_&lt;test&gt;/</code>.</p>")
+    tr = run.traces
+    if {"servo_loop_alone_step", "notebook_cancel_step"} <= tr.keys():
+        out.append(_figure(figure_ch11_step(tr["servo_loop_alone_step"], tr["notebook_cancel_step"]), "Figures 11.1-11.4",
+                           "The notebook's Figures 11.1–11.4 as simulations (first 5 s of 10). As on the rig, the compensator shapes the "
+                           "step so that it excites little vibration, but it does not damp the base."))
+    loper_on = _switch_on(run, "notebook_cancel_loper")
+    if {"servo_loop_alone_step", "notebook_cancel_loper"} <= tr.keys():
+        out.append(_figure(figure_ch11_loper(tr["servo_loop_alone_step"], tr["notebook_cancel_loper"], loper_on), "Figure 11.5",
+                           "The notebook's Figure 11.5 as a simulation: switched on after the move, the pole-cancelling compensator leaves "
+                           "the vibration as it was (\"Obviously this didn't work very well\", chapter 11). The free decay is the servo loop "
+                           "alone's step run, identical to the Loper run until the switch-on."))
+    if {"servo_loop_alone_step", "damping_step", "damping_loper"} <= tr.keys():
+        out.append(_figure(figure_damping(tr["servo_loop_alone_step"], tr["damping_step"], tr["damping_loper"], _switch_on(run, "damping_loper")),
+                           "The damping controller", "The damping controller in the same tests: it shortens the base vibration after the "
+                           "step and damps it when switched on after the move, which the pole-cancelling compensator does not."))
+    place = cl.get("notebook_place_step")
+    if place is not None and not place.get("stable"):
+        out.append("<p>Pole placement (chapter 8) is unstable on every plant but the notebook's own 2-mode eq 1.4: its observer uses eq 1.4's "
+                   "direct feedthrough of ẍ/v, which no valve-driven actuator has, so any mismatch closes a loop at the sample rate with a "
+                   "gain far above 1 (<code>experiments/closed_loop/README.md</code>). Its runs stop where the controller's output diverges: "
+                   + _e("; ".join(n for n in run.closed_loop.get("notebook_place_step", {}).get("notes", []) if "diverged at" in n)) + ".</p>")
+    return "".join(out)
+
+
+def _worse(after, before, fmt: str) -> str:
+    """``after`` formatted, in red when it is above ``before``."""
+    txt = _num(after, fmt)
+    if after is not None and before is not None and math.isfinite(after) and math.isfinite(before) and after > before and txt != _num(before, fmt):
+        return f'<span class="bad">{txt}</span>'
+    return txt
+
+
+def _switch_on(run: RunFolder, name: str) -> float:
+    return float((run.closed_loop.get(name, {}).get("scenario_settings") or {}).get("switch_on_s", 2.0))
+
+
+def _diagnosis(run: RunFolder) -> str:
+    d = run.diagnosis
+    effects = [e for e in d.get("effects", []) if not e.get("expected")]
+    verdict = d.get("verdict")
+    out = ['<h2 id="diagnosis">Diagnosis: what the fit lacks, found in the measured record</h2>',
+           f"<p><code>samii diagnose measure/timeseries.csv --baseline fit/fit.json</code>: verdict <b>{_e(verdict)}</b>. Each effect is a physical "
+           f"hypothesis fitted jointly with the baseline; {_e(d.get('rule', ''))}.</p>"]
+    for n in d.get("notes") or []:
+        out.append(f'<p class="warn">{_e(n)}</p>')
+    if effects:
+        rows = []
+        for e in effects:
+            ps = ", ".join(f"{_e(k)} = {_num(v, '.4g')}" + (f" ± {_num(e.get('stderr', {}).get(k), '.2g')}" if e.get("stderr", {}).get(k) is not None else "")
+                           for k, v in (e.get("params") or {}).items())  # fmt: skip
+            rows.append([_e(e.get("category")), _e(e.get("kind")), _e(_CHANNELS.get(e.get("channel"), e.get("channel"))), ps, _e(e.get("evidence", ""))])
+        out.append(_table(["category", "kind", "channel", "parameters ± std. error", "evidence"], rows, left=5))
+    else:
+        out.append("<p>No effect beyond the baseline's noise.</p>")
+    eb, ea = d.get("error_before") or {}, d.get("error_after") or {}
+    rows = []
+    for ch in ("act", "base", "total"):
+        if ch in eb:
+            b, a = eb[ch], ea.get(ch, {})
+            rows.append([_CHANNELS[ch]] + [c for key, fmt in (("rms_db", ".2f"), ("rms_deg", ".1f"), ("chi2", ".3g"))
+                                            for c in (_num(b.get(key), fmt), _worse(a.get(key), b.get(key), fmt))])  # fmt: skip
+    if rows:
+        out.append("<h3>Error before and after the effects</h3><p>Residual over the data's usable points; "
+                   "an error that grows with the effects is in red.</p>" + _table(["channel", "rms dB before", "after", "rms deg before", "after",
+                                                                          "χ² per residual before (1: the noise)", "after"], rows))  # fmt: skip
+    un = d.get("unexplained") or []
+    if un:
+        items = "".join(f"<li>{_e(_CHANNELS.get(u.get('channel'), u.get('channel')))} over {_num(u.get('lo_hz'), '.3g')}–{_num(u.get('hi_hz'), '.3g')} Hz: "
+                        f"χ² {_num(u.get('chi2'), '.3g')} over {_e(u.get('n_points'))} points</li>" for u in un)  # fmt: skip
+        out.append(f"<p>Left unexplained by the effect library (red bands below):</p><ul>{items}</ul>")
+    out.append(_figure(_file_png(run, "diagnose_bode"), "data, baseline and the model with the effects",
+                       "Data, the baseline (the fit) and the model with the effects found. Where the data's coherence is below 0.5 "
+                       "(the identification figure above) there are no points, and the model there is an extrapolation. "
+                       "<code>diagnose/bode.png</code>."))
+    out.append(_figure(_file_png(run, "diagnose_residuals"), "residuals", "Residuals ln(data/model) with the noise band (±2σ from the "
+                       "coherence and the record-to-record spread), before and after the effects. <code>diagnose/residuals.png</code>."))
+    return "".join(out)
+
+
+def _recordings(run: RunFolder, page_dir: Path) -> str:
+    items = []
+    for name, what in RECORDINGS.items():
+        size = run.recordings.get(name)
+        if size is None:
+            continue
+        href = Path(os.path.relpath(run.path.absolute() / name, page_dir.absolute())).as_posix()
+        items.append(f'<li><a href="{_e(href)}">{_e(name)}</a> ({size / 1e6:.0f} MB): {_e(what)}</li>')
+    if not items:
+        return '<h2 id="recordings">Recordings</h2><p>No Rerun recording in this folder.</p>'
+    return ('<h2 id="recordings">Recordings</h2><p>The runs in 3D with the beam\'s deflection magnified, the tip\'s trail and every signal, '
+            "for the Rerun viewer (it comes with samii: <code>rerun closedloop.rrd</code> in this folder). The links open the files "
+            f"beside this page.</p><ul>{''.join(items)}</ul>")
+
+
+def render_report(run: RunFolder, page_dir: Path | None = None) -> str:
+    """The page's HTML; the links to the recordings are relative to ``page_dir`` (default: the run's folder)."""
+    from samii.main_job import summary_lines
+
+    body = "".join([_header(run, summary_lines(run.summary, run.display_name or run.path.name)), _model(run), _measurement(run), _fit(run), _closed_loop(run),
+                    _diagnosis(run), _recordings(run, page_dir if page_dir is not None else run.path)])  # fmt: skip
+    return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width, initial-scale=1">'
+            f"<title>SAMII main job report</title><style>{_CSS}</style></head><body><main>{body}</main></body></html>\n")
+
+
+def write_report(run: RunFolder, path: Path | None = None) -> Path:
+    """Write ``report.html`` (default: into the run's folder) and return its path."""
+    path = Path(path) if path is not None else run.path / REPORT_NAME
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(render_report(run, path.parent), encoding="utf-8")
+    tmp.replace(path)
+    return path
