@@ -23,6 +23,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "design": ("samii.design.cli", "control design: root loci, pole placement, pole cancellation, seed report"),
     "closedloop": ("samii.closedloop.cli", "run a controller in the nonlinear simulator: step, Loper and release tests"),
     "diagnose": ("samii.diagnose.cli", "find what a model lacks in measured data: delays, modes, sensor and actuator dynamics"),
+    "robust": ("samii.robust.cli", "Monte Carlo robustness of a controller: plants drawn from spreads or a calibration's covariance, in-process or on Dask"),
     "report": ("samii.report.cli", "write a main job's report.html again from its folder, with a browser screenshot if asked"),
     "run": ("samii.main_job", "the main job on a model: measure, fit, design, closed loop, diagnose, into one folder with a summary"),
 }

@@ -16,7 +16,7 @@ import sys
 from samii.cli_args import float_in, nonempty_path, positive_float, seed
 from samii.errors import InputError
 
-__all__ = ["add_arguments", "run", "BUILTIN_CONTROLLERS"]
+__all__ = ["add_arguments", "run", "BUILTIN_CONTROLLERS", "resolve_controller", "model_at_rest"]
 
 BUILTIN_CONTROLLERS = {
     "unity": "the servo amplifier's position loop alone (1 V/deg), no digital controller",
@@ -83,7 +83,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
-def _resolve_controller(spec: str, factory=None, quiet: bool = False):
+def resolve_controller(spec: str, factory=None, quiet: bool = False):
     from pathlib import Path
 
     from samii.closedloop import controllers as cs
@@ -93,7 +93,7 @@ def _resolve_controller(spec: str, factory=None, quiet: bool = False):
     if spec == "damping":
         from samii.closedloop.damping import damping_from_simulation
 
-        model = _model_at_rest(factory)
+        model = model_at_rest(factory)
 
         def say(what: str) -> None:
             if not quiet:
@@ -187,7 +187,7 @@ def run(args) -> int:
 
     overrides = parse_overrides(args.set)
     factory = default_spec_factory(args.model, overrides or None)
-    saved = _resolve_controller(args.controller, factory, quiet=args.json)
+    saved = resolve_controller(args.controller, factory, quiet=args.json)
     if saved is not None:
         spec, _, _ = factory()
         _check_fits(saved, args, float(spec.option.timestep))
@@ -202,7 +202,7 @@ def run(args) -> int:
     if rerun_path:
         from samii.viz.recording import frame_steps_for
 
-        frame_steps = frame_steps_for(_model_at_rest(factory), args.rerun_fps)
+        frame_steps = frame_steps_for(model_at_rest(factory), args.rerun_fps)
     result = run_closed_loop(saved, sc, label=args.controller, spec_factory=factory, delay_samples=args.delay_samples, noise=noise,
                              qpos_every=frame_steps)  # fmt: skip
 
@@ -248,7 +248,7 @@ def run(args) -> int:
     return 0
 
 
-def _model_at_rest(factory):
+def model_at_rest(factory):
     """The run's model with its ``home`` keyframe at the static equilibrium the factory found (a
     model changed by ``--set`` or a parameter file is not at rest in its written keyframe)."""
     import mujoco
@@ -268,7 +268,7 @@ def _write_rerun(result, tmp, final, factory) -> None:
     from samii.viz.recording import RunRecord, write_recording
 
     s = result.signals
-    model = _model_at_rest(factory)
+    model = model_at_rest(factory)
     frame_t = s.frame_t if s.frame_t is not None else np.zeros(0)
     frame_q = s.frame_qpos if s.frame_qpos is not None else np.zeros((0, model.nq))
     runs = [RunRecord("closedloop", result.timeseries(), frame_t, frame_q, switch_on_s=s.switch_on_s,

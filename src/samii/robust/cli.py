@@ -1,0 +1,244 @@
+"""``samii robust``: Monte Carlo robustness of a controller in the nonlinear simulator.
+
+Each sample is a plant drawn from the given spreads and/or a calibration's covariance
+(:mod:`samii.robust.sampling`), run closed loop (:mod:`samii.robust.task`) in this process or on
+Dask (:mod:`samii.robust.engine`). Writes into ``--out``: ``robust.json`` (the summary, the
+nominal plant's run, every sample), ``samples.csv`` (one line per sample: its parameters and
+results) and the figures ``histograms.png`` and ``influence.png``. Imports nothing heavy at module level.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+from samii.cli_args import float_in, nonempty_path, seed
+from samii.errors import InputError
+
+__all__ = ["add_arguments", "run", "MAX_SAMPLES"]
+
+MAX_SAMPLES = 100_000
+_FILES = ("robust.json", "samples.csv")
+
+
+def _samples(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of samples, got {text!r}") from None
+    if not 1 <= n <= MAX_SAMPLES:
+        raise argparse.ArgumentTypeError(f"expected 1...{MAX_SAMPLES} samples, got {n}")
+    return n
+
+
+def _workers(text: str) -> int:
+    if text == "auto":
+        return os.cpu_count() or 1
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of worker processes or 'auto', got {text!r}") from None
+    if not 0 <= n <= 1024:
+        raise argparse.ArgumentTypeError(f"expected 0...1024 workers, got {n}")
+    return n
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from samii.closedloop.cli import BUILTIN_CONTROLLERS, MAX_DELAY_STEPS
+
+    p.add_argument("--controller", required=True, metavar="SPEC",
+                   help=f"{', '.join(BUILTIN_CONTROLLERS)}, or a controller file (samii design ... --save); designed once, on the nominal plant")
+    p.add_argument("--scenario", choices=("step", "loper", "release"), default="step",
+                   help="the closed-loop test each sample runs (samii closedloop; default step: 5 deg at t = 1 s, 10 s)")
+    p.add_argument("--samples", type=_samples, default=100, metavar="N", help="number of plants drawn (default 100)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the draws (and of the sensor noise with --noise): the same seed "
+                   "gives the same table whatever runs it (default 0)")
+    p.add_argument("--spread", action="append", default=[], metavar="NAME=P%",
+                   help="a physical spread: NAME normal about its nominal value with standard deviation P %% of it (NAME=SIGMA: "
+                        "absolute, in its unit), truncated at 3 sigma and above 5 %% of a positive nominal; repeatable "
+                        "(samii params lists the names)")  # fmt: skip
+    p.add_argument("--covariance", metavar="CALIBRATION.json", type=nonempty_path,
+                   help="draw the calibrated parameters jointly from their standard errors and correlations (samii calibrate --out "
+                        "writes calibration.json); the calibrated plant is then the nominal one")  # fmt: skip
+    p.add_argument("--model", metavar="PARAMS.json", type=nonempty_path, help="the nominal plant's parameter file (default: the embedded model)")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a nominal parameter (repeatable)")
+    p.add_argument("--delay-samples", type=float_in(0.0, float(MAX_DELAY_STEPS), unit="samples"), default=0.0, metavar="N",
+                   help="the controller's computation delay [samples] (default 0)")
+    p.add_argument("--noise", action="store_true", help="sensor noise on the controller's measurements, seeded per sample from --seed")
+    p.add_argument("--workers", type=_workers, default=0, metavar="N",
+                   help="0 (default): run in this process; N or auto: on a local Dask cluster of N worker processes (auto: one per core)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run on this Dask cluster (tcp://host:8786); its workers need samii installed. Without --scheduler and "
+                        "--workers, Dask's own configured scheduler-address (DASK_SCHEDULER_ADDRESS) is used if set")  # fmt: skip
+    p.add_argument("--out", metavar="DIR", type=nonempty_path, help="write robust.json, samples.csv and the figures here")
+    p.add_argument("--overwrite", action="store_true", help="replace existing outputs in --out")
+    p.add_argument("--json", action="store_true", help="print robust.json's summary as JSON")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+
+
+def _nominal_params(args):
+    from samii.sim.cli_modes import parse_overrides
+    from samii.sim.model import default_params, params_from_dict, params_with_overrides, read_params_file
+
+    cov = None
+    if args.covariance:
+        from samii.robust.sampling import read_covariance
+
+        if args.model:
+            raise InputError("--model: with --covariance the nominal plant is the calibration's (its calibrated_params); give one of them")
+        cov = read_covariance(args.covariance)
+        try:
+            params = params_from_dict(cov.nominal)
+        except ValueError as exc:
+            raise InputError(f"--covariance {args.covariance}: field 'calibrated_params': {exc}") from None
+    elif args.model:
+        if not str(args.model).lower().endswith(".json"):
+            raise InputError(f"--model {args.model}: samii robust varies a parameter file's values (.json; samii params lists them), not an MJCF")
+        params = read_params_file(args.model)
+    else:
+        params = default_params()
+    overrides = parse_overrides(args.set)
+    if cov is not None and set(overrides) & set(cov.names):
+        raise InputError(f"--set {sorted(set(overrides) & set(cov.names))[0]}: also drawn by --covariance; give one of them")
+    return params_with_overrides(params, overrides) if overrides else params, cov
+
+
+def _flat(params) -> dict[str, float]:
+    out = {}
+    for section, values in params.as_dict().items():
+        if isinstance(values, dict):
+            out.update({f"{section}.{k}": v for k, v in values.items()})
+        else:
+            out[section] = values
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    from samii.outputs import OutputFolder
+    from samii.robust.plots import FIGURES
+
+    if args.scenario == "step" and args.controller == "unity" and args.noise:
+        raise InputError("--noise: the unity servo loop samples no sensors")
+    folder = OutputFolder(args.out, list(_FILES) + list(FIGURES), overwrite=args.overwrite) if args.out is not None else None
+    from samii.robust.engine import Engine, configured_scheduler
+    from samii.robust.sampling import draw_plants, parse_spread
+
+    spreads = [parse_spread(s) for s in args.spread]
+    params, cov = _nominal_params(args)
+    draws = draw_plants(args.samples, args.seed, _flat(params), spreads, cov)
+    from samii.sim.model import params_with_overrides
+
+    for i in range(args.samples):  # every drawn value is one the model accepts, checked before any run
+        try:
+            params_with_overrides(params, draws.overrides(i))
+        except InputError as exc:
+            raise InputError(f"sample {i}: {exc}: narrow the spread (or give it as an absolute value)") from None
+    scheduler = args.scheduler or (None if args.workers else configured_scheduler())
+    if args.scheduler and args.workers:
+        raise InputError("--workers: with --scheduler the cluster's own workers run the study; give one of them")
+    engine = Engine(workers=args.workers, scheduler=scheduler)
+
+    # the controller is designed (or read) once, on the nominal plant, in this process
+    from samii.closedloop.cli import resolve_controller
+    from samii.robust.task import SampleTask
+    from samii.sim.model import load_model, load_spec
+
+    nominal_model = load_model(params=params)
+    qpos, act = nominal_model.key_qpos[0].copy(), nominal_model.key_act[0].copy()
+    saved = resolve_controller(args.controller, lambda: (load_spec(params=params)[0], qpos, act), quiet=args.json)
+    import numpy as np
+
+    noise_seeds = [int(s.generate_state(1)[0]) for s in np.random.SeedSequence(args.seed).spawn(args.samples + 1)] if args.noise else None
+    base = params.as_dict()
+    tasks = [SampleTask(-1, base, {}, saved, args.scenario, {}, args.delay_samples, noise_seeds[-1] if noise_seeds else None)]
+    tasks += [SampleTask(i, base, draws.overrides(i), saved, args.scenario, {}, args.delay_samples, noise_seeds[i] if noise_seeds else None)
+              for i in range(args.samples)]  # fmt: skip
+
+    from tqdm import tqdm
+
+    if not args.json:
+        print(f"samii robust: {args.controller}, {args.scenario} test, {args.samples} plants (seed {args.seed}) {engine.describe()}", file=sys.stderr)
+    bar = tqdm(total=len(tasks), desc="samii robust", unit="run", file=sys.stderr, disable=True if args.no_progress else None, leave=False)
+    import time
+
+    t0 = time.perf_counter()
+    try:
+        results = engine.map(tasks, progress=bar.update)
+    finally:
+        bar.close()
+    wall = time.perf_counter() - t0
+    nominal, samples = results[0], results[1:]
+
+    from samii.robust.study import summarise
+
+    summary = summarise(draws, samples)
+    doc = {
+        "controller": args.controller, "scenario": args.scenario, "seed": args.seed, "n_samples": args.samples,
+        "engine": engine.describe(), "wall_s": wall,
+        "varied": [{"name": n, "nominal": float(v), "source": s} for n, v, s in zip(draws.names, draws.nominal, draws.sources)],
+        "nominal_plant": nominal.table_row(),
+        "summary": summary.as_json(),
+        "samples": [dict(r.table_row(), params=draws.overrides(r.index)) for r in samples],
+    }  # fmt: skip
+    lines = _lines(doc, summary)
+    if folder is not None:
+        with folder:
+            from samii.json_output import dumps
+            from samii.robust.plots import plot_histograms, plot_influence
+
+            folder.path("robust.json").write_text(dumps(doc, indent=1) + "\n")
+            _write_csv(folder.path("samples.csv"), draws, samples)
+            plot_histograms(samples, summary, f"{args.controller}, {args.scenario} test, {args.samples} plants", folder.path("histograms.png"))
+            plot_influence(draws, samples, summary, folder.path("influence.png"))
+        lines.append(f"wrote {args.out}/robust.json, samples.csv, {', '.join(FIGURES)}")
+    if args.json:
+        from samii.json_output import dumps
+
+        print(dumps({k: v for k, v in doc.items() if k != "samples"}, indent=1))
+    else:
+        print("\n".join(lines))
+    return 0
+
+
+def _fmt(x, spec: str) -> str:
+    return "n/a" if x is None else format(x, spec)
+
+
+def _lines(doc: dict, s) -> list[str]:
+    lo, hi = s.p_unstable_ci95
+    nom = doc["nominal_plant"]
+    out = [f"robustness of {doc['controller']} ({doc['scenario']} test), {doc['n_samples']} plants, seed {doc['seed']}, {doc['engine']}, "
+           f"{doc['wall_s']:.1f} s",
+           "varied: " + "; ".join(v["source"] for v in doc["varied"]),
+           f"nominal plant: {'stable' if nom['stable'] else 'UNSTABLE'}, least-damped mode zeta {_fmt(nom['zeta'], '.3f')} at "
+           f"{_fmt(nom['mode_hz'], '.3g')} Hz, base settles {_fmt(nom['base_settle_s'], '.2f')} s",
+           f"P(unstable) = {s.n_unstable}/{s.n} = {s.p_unstable:.3g} (95 % interval {lo:.3g}-{hi:.3g}, exact binomial)"]  # fmt: skip
+    if s.zeta_percentiles:
+        out.append("closed-loop damping (least-damped mode) 5/50/95 %: " + " / ".join(f"{v:.3f}" for v in s.zeta_percentiles.values())
+                   + f" (over {s.n_zeta} samples)")
+    if s.settle_percentiles:
+        out.append("base settling time 5/50/95 % [s]: " + " / ".join(f"{v:.2f}" for v in s.settle_percentiles.values()))
+    if s.influence:
+        out.append("influence on the damping (Spearman rho): " + ", ".join(f"{d['name']} {d['spearman']:+.2f}" for d in s.influence[:4]))
+    out.append("worst samples:")
+    if s.n_invalid:
+        out.append(f"{s.n_invalid} drawn plant(s) could not be built (no static equilibrium near the nominal pose) and are not counted")
+    for w in s.worst[:3]:
+        params = ", ".join(f"{k} {rel:+.1f} %" if rel is not None else f"{k} {w['params'][k]:.4g}" for k, rel in w["params_rel_pct"].items())
+        state = "UNSTABLE" if not w["stable"] else "stable"
+        out.append(f"  #{w['index']}: {state}, zeta {_fmt(w['zeta'], '.3f')} at {_fmt(w['mode_hz'], '.3g')} Hz; {params}")
+    return out
+
+
+def _write_csv(path, draws, samples) -> None:
+    import csv
+
+    cols = ["index", *draws.names, "stable", "zeta", "mode_hz", "growth_rate_1_s", "base_settle_s", "theta_settle_s", "theta_overshoot_pct"]
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(cols)
+        for r in samples:
+            row = r.table_row()
+            w.writerow([r.index, *(repr(float(v)) for v in draws.values[r.index]), int(r.stable),
+                        *("" if row[c] is None else repr(float(row[c])) for c in cols[len(draws.names) + 2:])])  # fmt: skip

@@ -1,0 +1,85 @@
+"""A robustness study's figures. Plotting only: the numbers come from :mod:`samii.robust.study`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from samii.robust.sampling import PlantDraws
+from samii.robust.study import StudySummary
+from samii.robust.task import SampleResult
+
+__all__ = ["plot_histograms", "plot_influence", "FIGURES"]
+
+FIGURES = ("histograms.png", "influence.png")
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_histograms(results: list[SampleResult], summary: StudySummary, title: str, path: Path) -> None:
+    plt = _plt()
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.8))
+    z_st = [r.zeta for r in results if r.stable and r.zeta is not None]
+    z_un = [r.zeta for r in results if not r.stable and r.zeta is not None]
+    allz = z_st + z_un
+    bins = np.linspace(min(allz), max(allz), 25) if allz and min(allz) < max(allz) else 10
+    if z_st:
+        a1.hist(z_st, bins=bins, color="tab:green", alpha=0.8, label=f"stable ({len(z_st)})")
+    if z_un:
+        a1.hist(z_un, bins=bins, color="tab:red", alpha=0.8, label=f"unstable ({len(z_un)})")
+    a1.axvline(0.0, color="k", lw=0.8)
+    for p, v in (summary.zeta_percentiles or {}).items():
+        a1.axvline(v, color="0.3", ls=":", lw=1)
+        a1.text(v, a1.get_ylim()[1] * 0.95, f" {p}%", fontsize=7, va="top")
+    a1.set_xlabel("closed-loop damping ratio of the least-damped mode (negative: growing)")
+    a1.set_ylabel("samples")
+    a1.legend(fontsize=8)
+    settle = [r.base_settle_s for r in results if r.stable and r.base_settle_s is not None]
+    if settle:
+        a2.hist(settle, bins=20, color="tab:blue", alpha=0.8)
+        for p, v in (summary.settle_percentiles or {}).items():
+            a2.axvline(v, color="0.3", ls=":", lw=1)
+            a2.text(v, a2.get_ylim()[1] * 0.95, f" {p}%", fontsize=7, va="top")
+    a2.set_xlabel("base settling time [s] (stable samples)")
+    a2.set_ylabel("samples")
+    lo, hi = summary.p_unstable_ci95
+    fig.suptitle(f"{title}: P(unstable) = {summary.n_unstable}/{summary.n} = {summary.p_unstable:.3g} (95 % CI {lo:.3g}-{hi:.3g})", fontsize=10)
+    for a in (a1, a2):
+        a.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_influence(draws: PlantDraws, results: list[SampleResult], summary: StudySummary, path: Path, top: int = 3) -> None:
+    """Closed-loop damping against the most influential parameters (in % from nominal), unstable samples in red."""
+    plt = _plt()
+    names = [d["name"] for d in summary.influence[:top]] or list(draws.names[:top])
+    fig, axes = plt.subplots(1, len(names), figsize=(4.0 * len(names), 3.6), squeeze=False, sharey=True)
+    for a, name in zip(axes[0], names):
+        j = draws.names.index(name)
+        rho = next((d["spearman"] for d in summary.influence if d["name"] == name), None)
+        for stable, color, label in ((True, "tab:green", "stable"), (False, "tab:red", "unstable")):
+            rs = [r for r in results if r.stable == stable and r.zeta is not None]
+            if not rs:
+                continue
+            x = 100.0 * (draws.values[[r.index for r in rs], j] / draws.nominal[j] - 1.0) if draws.nominal[j] else draws.values[[r.index for r in rs], j]
+            a.scatter(x, [r.zeta for r in rs], s=12, color=color, alpha=0.8, label=label)
+        a.axhline(0.0, color="k", lw=0.8)
+        a.set_xlabel(f"{name} [% from nominal]" if draws.nominal[j] else name)
+        a.set_title(f"Spearman rho {rho:+.2f}" if rho is not None else "", fontsize=9)
+        a.grid(True, alpha=0.3)
+    axes[0][0].set_ylabel("closed-loop damping ratio")
+    axes[0][0].legend(fontsize=8)
+    fig.suptitle("stability against the most influential parameters", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

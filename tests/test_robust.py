@@ -1,0 +1,216 @@
+"""``samii robust`` (issue 13, items 3 and 4): plants drawn from spreads or a calibration's covariance, reproducible
+from the seed; each a closed-loop run built inside its task; the same table in this process and on a local Dask
+cluster of fresh worker processes; the study's statistics."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import pickle
+
+import numpy as np
+import pytest
+
+from samii.cli import main
+from samii.errors import InputError
+from samii.robust.sampling import MIN_FRACTION, TRUNCATE_SIGMA, Covariance, draw_plants, parse_spread, read_covariance
+from samii.robust.study import summarise
+from samii.robust.task import SampleResult, SampleTask, closed_loop_damping
+
+NOMINAL = {"hydraulic.bulk_modulus": 7e8, "beam.clamp_stiffness_Nm_rad": 1.37e5, "hydraulic.command_delay": 0.0}
+
+
+def test_spreads_parse_and_refuse():
+    s = parse_spread("hydraulic.bulk_modulus=20%")
+    assert s.relative == pytest.approx(0.2) and s.sigma(7e8) == pytest.approx(1.4e8)
+    assert parse_spread("hydraulic.command_delay=0.002").sigma(0.0) == 0.002
+    for bad in ("hydraulic.bulk_modulus", "x=", "=5%", "x=abc%", "x=-5%", "x=0", "x=150%"):
+        with pytest.raises(InputError, match="--spread"):
+            parse_spread(bad)
+    with pytest.raises(InputError, match="no such parameter"):
+        draw_plants(3, 0, NOMINAL, [parse_spread("beam.nothing=5%")], None)
+    with pytest.raises(InputError, match="nominal value is 0"):
+        draw_plants(3, 0, NOMINAL, [parse_spread("hydraulic.command_delay=10%")], None)
+    with pytest.raises(InputError, match="already varied"):
+        draw_plants(3, 0, NOMINAL, [parse_spread("hydraulic.bulk_modulus=5%"), parse_spread("hydraulic.bulk_modulus=9%")], None)
+    with pytest.raises(InputError, match="discrete"):
+        draw_plants(3, 0, {"beam.n_segments": 4}, [parse_spread("beam.n_segments=10%")], None)
+
+
+def test_spread_draws_are_the_stated_truncated_normal_and_reproducible():
+    spreads = [parse_spread("hydraulic.bulk_modulus=20%"), parse_spread("hydraulic.command_delay=0.002")]
+    d = draw_plants(4000, 7, NOMINAL, spreads, None)
+    assert np.array_equal(d.values, draw_plants(4000, 7, NOMINAL, spreads, None).values)
+    assert not np.array_equal(d.values, draw_plants(4000, 8, NOMINAL, spreads, None).values)
+    k = d.values[:, 0]
+    # a normal truncated at +-3 sigma keeps 98.7 % of its standard deviation
+    assert np.mean(k) == pytest.approx(7e8, rel=0.01) and np.std(k) == pytest.approx(0.2 * 7e8 * 0.9866, rel=0.05)
+    assert np.all(np.abs(k - 7e8) <= TRUNCATE_SIGMA * 0.2 * 7e8)
+    # an absolute spread about a nominal 0 (a delay cannot be negative): the half-normal, mean sigma sqrt(2/pi)
+    delay = d.values[:, 1]
+    assert delay.min() >= 0 and np.mean(delay) == pytest.approx(0.002 * math.sqrt(2 / math.pi), rel=0.05)
+    # a positive parameter stays above 5 % of its nominal even with a wide spread
+    wide = draw_plants(2000, 1, NOMINAL, [parse_spread("beam.clamp_stiffness_Nm_rad=60%")], None).values[:, 0]
+    assert wide.min() >= MIN_FRACTION * 1.37e5
+
+
+def _calibration_file(tmp_path, corr=-0.8, low2=1e4):
+    doc = {"parameters": [{"name": "hydraulic.bulk_modulus", "value": 7e8, "stderr": 5e7, "bounds": [1e8, 2e9]},
+                          {"name": "beam.clamp_stiffness_Nm_rad", "value": 1.37e5, "stderr": 2e4, "bounds": [low2, 1e6]}],
+           "correlation": [[1.0, corr], [corr, 1.0]],
+           "calibrated_params": {"timestep_s": 0.001}}  # fmt: skip
+    p = tmp_path / "calibration.json"
+    p.write_text(json.dumps(doc))
+    return p
+
+
+def test_covariance_draws_keep_the_calibrations_correlation_and_bounds(tmp_path):
+    cov = read_covariance(_calibration_file(tmp_path))
+    assert isinstance(cov, Covariance) and cov.names == ("hydraulic.bulk_modulus", "beam.clamp_stiffness_Nm_rad")
+    d = draw_plants(3000, 3, NOMINAL, [], cov)
+    x, y = d.values.T
+    assert np.corrcoef(x, y)[0, 1] == pytest.approx(-0.8, abs=0.05)
+    assert np.std(x) == pytest.approx(5e7 * 0.9866, rel=0.08)
+    # a draw outside the calibration's bounds is drawn again
+    y_cut = draw_plants(500, 3, NOMINAL, [], read_covariance(_calibration_file(tmp_path, low2=1.2e5))).values[:, 1]
+    assert y_cut.min() >= 1.2e5 and y.min() < 1.2e5
+    # with a spread besides: the covariance's parameters first, then the spread's
+    d2 = draw_plants(10, 3, NOMINAL, [parse_spread("hydraulic.command_delay=0.001")], cov)
+    assert d2.names[-1] == "hydraulic.command_delay" and np.array_equal(d2.values[:, :2], d.values[:10])
+    with pytest.raises(InputError, match="already varied"):
+        draw_plants(3, 0, NOMINAL, [parse_spread("hydraulic.bulk_modulus=5%")], cov)
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"parameters": [{"name": "a", "value": 1, "stderr": None, "bounds": [0, 2]}], "correlation": [[1]],
+                               "calibrated_params": {}}))  # fmt: skip
+    with pytest.raises(InputError, match="no finite standard error"):
+        read_covariance(bad)
+    with pytest.raises(InputError, match="not positive semi-definite"):
+        read_covariance(_calibration_file(tmp_path, corr=-1.5))
+
+
+def test_closed_loop_damping_is_the_least_damped_pole_in_the_band():
+    def pole(hz, zeta):
+        w = 2 * math.pi * hz
+        return complex(-zeta * w, w * math.sqrt(1 - zeta**2))
+
+    poles = [pole(1.7, 0.03), pole(1.7, 0.03).conjugate(), pole(8.0, 0.01), pole(82.0, 0.001), 0.0, -3.0, -500.0]
+    z, hz = closed_loop_damping(True, poles, None, None)
+    assert z == pytest.approx(0.01) and hz == pytest.approx(8.0)  # 82 Hz lies above the band, 0 and -3 1/s below it
+    z, hz = closed_loop_damping(False, [*poles, complex(2.0, 2 * math.pi * 5)], 2.0, 5.0)
+    assert z == pytest.approx(-2 / math.hypot(2, 2 * math.pi * 5))  # a growing pole in the band: its negative damping
+    # the nonlinear run unstable, the linear loop stable (a limit cycle on the valve's rails): the growth's
+    z, hz = closed_loop_damping(False, poles, 1.0, 1.0)
+    assert z == pytest.approx(-1 / math.hypot(1, 2 * math.pi)) and hz == 1.0
+
+
+def test_study_statistics():
+    d = draw_plants(20, 0, NOMINAL, [parse_spread("hydraulic.bulk_modulus=20%")], None)
+    k = d.values[:, 0]
+    # damping rising with the bulk modulus; the 3 softest plants unstable
+    order = np.argsort(k)
+    res = []
+    for i in range(20):
+        rank = int(np.where(order == i)[0][0])
+        stable = rank >= 3
+        res.append(SampleResult(i, stable, 0.01 * (rank - 2.5), 1.7, None if stable else 0.5, 1.0 if stable else None, None, None))
+    s = summarise(d, res)
+    assert s.n_unstable == 3 and s.p_unstable == pytest.approx(0.15)
+    # exact (Clopper-Pearson) 95 % interval of 3/20: 0.0321 ... 0.3789
+    assert s.p_unstable_ci95 == pytest.approx((0.0321, 0.3789), abs=2e-4)
+    assert s.influence[0]["name"] == "hydraulic.bulk_modulus" and s.influence[0]["spearman"] == pytest.approx(1.0)
+    # the worst: the unstable ones first, then the least-damped stable one, with their parameters
+    assert sorted(w["index"] for w in s.worst[:3]) == sorted(order[:3].tolist())
+    assert s.worst[3]["stable"] and s.worst[3]["index"] == int(order[3])
+    assert s.worst[3]["params"]["hydraulic.bulk_modulus"] == pytest.approx(k[order[3]])
+    assert s.zeta_percentiles[50] == pytest.approx(np.percentile([r.zeta for r in res], 50))
+
+
+def test_a_task_ships_parameters_not_a_model():
+    from samii.closedloop.controllers import notebook_cancel
+    from samii.sim.model import default_params
+
+    t = SampleTask(0, default_params().as_dict(), {"hydraulic.bulk_modulus": 8e8}, notebook_cancel(), "step")
+    blob = pickle.dumps(t)
+    assert b"mujoco" not in blob and len(blob) < 20_000
+
+
+def _csv(path):
+    with open(path) as f:
+        return list(csv.reader(f))
+
+
+@pytest.fixture(scope="module")
+def robust_runs(tmp_path_factory):
+    """The same study in this process and on a local Dask cluster of 2 fresh worker processes."""
+    base = tmp_path_factory.mktemp("robust")
+    common = ["robust", "--controller", "notebook-cancel", "--samples", "8", "--seed", "11", "--spread",
+              "beam.clamp_stiffness_Nm_rad=20%", "--spread", "hydraulic.command_delay=0.002", "--no-progress"]  # fmt: skip
+    assert main([*common, "--out", str(base / "inproc")]) == 0
+    assert main([*common, "--workers", "2", "--out", str(base / "dask")]) == 0
+    return base / "inproc", base / "dask"
+
+
+def test_robust_gives_the_same_table_in_process_and_on_dask(robust_runs):
+    a, b = robust_runs
+    assert _csv(a / "samples.csv") == _csv(b / "samples.csv")
+    ja, jb = (json.loads((d / "robust.json").read_text()) for d in robust_runs)
+    assert ja["summary"] == jb["summary"] and ja["samples"] == jb["samples"]
+    assert "local Dask cluster, 2 worker processes" in jb["engine"]
+    for name in ("histograms.png", "influence.png"):
+        assert (a / name).stat().st_size > 10_000
+
+
+def test_robust_study_reads_as_physics(robust_runs):
+    """The pole-cancelling compensator with the clamp's stiffness spread 20 % and a command delay of 0-6 ms
+    (half-normal, 2 ms). The compensator cancels base mode 1, which leaves it in the closed loop as lightly
+    damped as the plant's (only unobservable from the reference: chapter 11, Figure 11.5): it is the least-damped
+    mode of every sample, and its frequency rises with the clamp's stiffness (f^2 ~ k)."""
+    from scipy import stats
+
+    doc = json.loads((robust_runs[0] / "robust.json").read_text())
+    rows = _csv(robust_runs[0] / "samples.csv")
+    assert rows[0][:3] == ["index", "beam.clamp_stiffness_Nm_rad", "hydraulic.command_delay"] and len(rows) == 9
+    assert all(float(r[2]) >= 0 for r in rows[1:])  # a delay is never negative
+    s = doc["summary"]
+    assert s["n_samples"] == 8 and s["n_invalid"] == 0 and s["n_unstable"] == 0
+    assert s["p_unstable_ci95"] == pytest.approx([0.0, 0.3694], abs=1e-3)  # exact 95 % upper bound of 0/8: 1 - 0.025^(1/8)
+    nominal = doc["nominal_plant"]
+    assert nominal["stable"] and nominal["mode_hz"] == pytest.approx(1.737, abs=0.01) and nominal["zeta"] == pytest.approx(0.025, abs=0.002)
+    for x in doc["samples"]:
+        assert 1.5 < x["mode_hz"] < 2.0 and 0 < x["zeta"] < 0.04, x
+    k = [x["params"]["beam.clamp_stiffness_Nm_rad"] for x in doc["samples"]]
+    assert stats.spearmanr(k, [x["mode_hz"] for x in doc["samples"]]).statistic > 0.9
+    assert s["influence"][0]["name"] == "beam.clamp_stiffness_Nm_rad"
+
+
+def test_dask_workers_start_fresh_and_register_the_plugin():
+    """A fresh worker process has not imported samii (the issue: a pickled plugin model crashes such a worker);
+    the worker plugin registers the hydraulic plugin there, and a task builds its model inside the worker."""
+    from distributed import Client, LocalCluster
+
+    from samii.robust.engine import SamiiWorkerPlugin
+    from samii.robust.task import run_sample
+    from samii.sim.model import default_params
+
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, Client(cluster) as client:
+        before = client.run(lambda: __import__("sys").modules.get("samii.sim.plugin") is not None)
+        assert not any(before.values())
+        client.register_plugin(SamiiWorkerPlugin())
+        after = client.run(lambda: __import__("sys").modules.get("samii.sim.plugin") is not None)
+        assert all(after.values())
+        r = client.submit(run_sample, SampleTask(0, default_params().as_dict(), {}, None, "step"), pure=False).result()
+        assert r.stable and r.zeta is not None and 0 < r.zeta < 0.2
+
+
+def test_robust_refusals(tmp_path, capsys):
+    base = ["robust", "--controller", "unity", "--samples", "2", "--no-progress"]
+    assert main(base) == 2
+    assert "nothing to vary" in capsys.readouterr().err
+    assert main([*base, "--spread", "beam.nothing=5%"]) == 2
+    assert "no such parameter" in capsys.readouterr().err
+    assert main([*base, "--spread", "hydraulic.bulk_modulus=5%", "--workers", "2", "--scheduler", "tcp://127.0.0.1:1"]) == 2
+    assert "--workers" in capsys.readouterr().err
+    assert main([*base, "--spread", "hydraulic.bulk_modulus=5%", "--covariance", str(tmp_path / "none.json")]) == 2
+    assert "no such file" in capsys.readouterr().err
+    assert main([*base[:-3], "--samples", "0", "--spread", "hydraulic.bulk_modulus=5%"]) == 2
