@@ -214,3 +214,22 @@ def test_robust_refusals(tmp_path, capsys):
     assert main([*base, "--spread", "hydraulic.bulk_modulus=5%", "--covariance", str(tmp_path / "none.json")]) == 2
     assert "no such file" in capsys.readouterr().err
     assert main([*base[:-3], "--samples", "0", "--spread", "hydraulic.bulk_modulus=5%"]) == 2
+
+
+def test_robust_from_a_calibrations_covariance(tmp_path, capsys):
+    """--covariance: the calibrated plant is the nominal one, its parameters drawn jointly."""
+    from samii.sim.model import default_params
+
+    doc = json.loads(_calibration_file(tmp_path).read_text())
+    doc["calibrated_params"] = default_params().as_dict()
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps(doc))
+    out = tmp_path / "r"
+    assert main(["robust", "--controller", "unity", "--covariance", str(cal), "--samples", "3", "--no-progress", "--out", str(out)]) == 0
+    r = json.loads((out / "robust.json").read_text())
+    assert [v["name"] for v in r["varied"]] == ["hydraulic.bulk_modulus", "beam.clamp_stiffness_Nm_rad"]
+    assert all("calibration covariance" in v["source"] for v in r["varied"])
+    assert r["nominal_plant"]["stable"] and len(r["samples"]) == 3
+    # with --model as well: which plant is nominal would be ambiguous
+    assert main(["robust", "--controller", "unity", "--covariance", str(cal), "--model", str(cal), "--samples", "3"]) == 2
+    assert "--model" in capsys.readouterr().err

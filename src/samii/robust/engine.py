@@ -103,7 +103,12 @@ class Engine:
                 self._client = Client(self.scheduler, timeout="30s")
             else:
                 # fresh worker processes, one thread each (a MuJoCo run is single-threaded), no dashboard
-                with dask.config.set({"distributed.worker.daemon": False}):
+                # Dask's statistical profiler samples each worker's stack every 10 ms, holding the GIL to do it:
+                # 20 % of a 0.3 s sample here. Off, and the event loop's watchdog and system monitor polled less
+                # often, the engine costs about what the study's own bookkeeping does (benchmarks/robust_scaling.py)
+                quiet = {"distributed.worker.daemon": False, "distributed.worker.profile.enabled": False,
+                         "distributed.admin.tick.interval": "1s", "distributed.admin.system-monitor.interval": "2s"}
+                with dask.config.set(quiet):
                     self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True, dashboard_address=None,
                                                  silence_logs=40)  # fmt: skip
                 self._client = Client(self._cluster)

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from samii.robust.sampling import PlantDraws
+from samii.sim.cli_params import unit as param_unit
 from samii.robust.study import StudySummary
 from samii.robust.task import SampleResult
 
@@ -25,8 +26,12 @@ def _plt():
 
 
 def plot_histograms(results: list[SampleResult], summary: StudySummary, title: str, path: Path) -> None:
+    from matplotlib.ticker import MaxNLocator
+
     plt = _plt()
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.8))
+    for a in (a1, a2):
+        a.yaxis.set_major_locator(MaxNLocator(integer=True))
     z_st = [r.zeta for r in results if r.stable and r.zeta is not None]
     z_un = [r.zeta for r in results if not r.stable and r.zeta is not None]
     allz = z_st + z_un
@@ -66,15 +71,18 @@ def plot_influence(draws: PlantDraws, results: list[SampleResult], summary: Stud
     fig, axes = plt.subplots(1, len(names), figsize=(4.0 * len(names), 3.6), squeeze=False, sharey=True)
     for a, name in zip(axes[0], names):
         j = draws.names.index(name)
+        unit = param_unit(name)
+        scale, shown = (1e3, "ms") if unit == "s" else (1.0, unit or "-")  # a delay about 0 reads in ms
         rho = next((d["spearman"] for d in summary.influence if d["name"] == name), None)
         for stable, color, label in ((True, "tab:green", "stable"), (False, "tab:red", "unstable")):
             rs = [r for r in results if r.stable == stable and r.zeta is not None]
             if not rs:
                 continue
-            x = 100.0 * (draws.values[[r.index for r in rs], j] / draws.nominal[j] - 1.0) if draws.nominal[j] else draws.values[[r.index for r in rs], j]
+            raw = draws.values[[r.index for r in rs], j]
+            x = 100.0 * (raw / draws.nominal[j] - 1.0) if draws.nominal[j] else raw * scale
             a.scatter(x, [r.zeta for r in rs], s=12, color=color, alpha=0.8, label=label)
         a.axhline(0.0, color="k", lw=0.8)
-        a.set_xlabel(f"{name} [% from nominal]" if draws.nominal[j] else name)
+        a.set_xlabel(f"{name} [% from nominal]" if draws.nominal[j] else f"{name} [{shown}]")
         a.set_title(f"Spearman rho {rho:+.2f}" if rho is not None else "", fontsize=9)
         a.grid(True, alpha=0.3)
     axes[0][0].set_ylabel("closed-loop damping ratio")

@@ -163,7 +163,9 @@ def draw_plants(n: int, seed: int, nominal: dict[str, float], spreads: list[Spre
             out[i] = x
         names += covariance.names
         cols += list(out.T)
-        sources += [f"calibration covariance ({covariance.source})"] * len(covariance.names)
+        for m, (b_lo, b_hi), sd in zip(covariance.mean, covariance.bounds, se):
+            edge = min(abs(m - b_lo), abs(b_hi - m)) < 1e-6 * max(abs(m), sd)
+            sources.append(f"calibration covariance ({covariance.source})" + (": calibrated on its bound, so drawn on one side of it" if edge else ""))
         nominals += list(covariance.mean)
     for sp in spreads:
         if sp.name in names:
