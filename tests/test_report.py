@@ -116,16 +116,20 @@ def test_closed_loop_records_read_back_even_when_the_controller_diverges(runs):
 
 
 def test_samii_report_rewrites_the_page_elsewhere_with_links_that_still_work(runs, tmp_path, capsys):
-    out = tmp_path / "elsewhere" / "r.html"
+    from urllib.parse import unquote, urljoin, urlparse
+
+    out = tmp_path / "else where #1 50%" / "r.html"  # a folder name that is no valid URL as it stands
     out.parent.mkdir()
     assert main(["report", str(runs[0]), "--out", str(out)]) == 0
     hrefs = [a["href"] for t, a in _parse(out).tags if t == "a" and not a["href"].startswith("#")]
-    assert len(hrefs) == 2 and all((out.parent / h).resolve().is_file() for h in hrefs), hrefs
+    # resolved the way a browser does: as URLs relative to the page's
+    targets = [Path(unquote(urlparse(urljoin(out.as_uri(), h)).path)) for h in hrefs]
+    assert len(hrefs) == 2 and all(t.is_file() for t in targets), (hrefs, targets)
     # the same page as the main job's, but for those links
     own = (runs[0] / "report.html").read_text(encoding="utf-8")
     again = out.read_text(encoding="utf-8")
     for h in hrefs:
-        again = again.replace(f'href="{h}"', f'href="{Path(h).name}"')
+        again = again.replace(f'href="{h}"', f'href="{Path(unquote(h)).name}"')
     assert again == own
     # an existing --out is kept without --overwrite
     assert main(["report", str(runs[0]), "--out", str(out)]) == 2
@@ -165,3 +169,18 @@ def test_report_in_a_real_headless_browser(runs, tmp_path):
     bands = [px[y:y + 200, 100:1100] for y in range(0, px.shape[0] - 200, 200)]
     inked = np.mean([np.mean(b < 128) > 0.002 for b in bands])
     assert inked > 0.8, inked
+
+
+def test_samii_report_names_what_a_damaged_folder_lacks(runs, tmp_path, capsys):
+    import shutil
+
+    d = tmp_path / "copy"
+    shutil.copytree(runs[0], d, ignore=shutil.ignore_patterns("*.rrd"))
+    s = json.loads((d / "summary.json").read_text())
+    del s["modes"]
+    (d / "summary.json").write_text(json.dumps(s))
+    (d / "report.html").unlink()
+    assert main(["report", str(d)]) == 2
+    err = capsys.readouterr().err
+    assert "'modes' missing" in err and "internal error" not in err
+    assert not (d / "report.html").exists()

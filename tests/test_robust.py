@@ -34,7 +34,7 @@ def test_spreads_parse_and_refuse():
         draw_plants(3, 0, NOMINAL, [parse_spread("hydraulic.command_delay=10%")], None)
     with pytest.raises(InputError, match="already varied"):
         draw_plants(3, 0, NOMINAL, [parse_spread("hydraulic.bulk_modulus=5%"), parse_spread("hydraulic.bulk_modulus=9%")], None)
-    with pytest.raises(InputError, match="discrete"):
+    with pytest.raises(InputError, match="not a physical quantity"):
         draw_plants(3, 0, {"beam.n_segments": 4}, [parse_spread("beam.n_segments=10%")], None)
 
 
@@ -43,6 +43,8 @@ def test_spread_draws_are_the_stated_truncated_normal_and_reproducible():
     d = draw_plants(4000, 7, NOMINAL, spreads, None)
     assert np.array_equal(d.values, draw_plants(4000, 7, NOMINAL, spreads, None).values)
     assert not np.array_equal(d.values, draw_plants(4000, 8, NOMINAL, spreads, None).values)
+    # sample i is the same plant in a study of any size: a worst sample can be run again alone
+    assert np.array_equal(draw_plants(3, 7, NOMINAL, spreads, None).values, d.values[:3])
     k = d.values[:, 0]
     # a normal truncated at +-3 sigma keeps 98.7 % of its standard deviation
     assert np.mean(k) == pytest.approx(7e8, rel=0.01) and np.std(k) == pytest.approx(0.2 * 7e8 * 0.9866, rel=0.05)
@@ -59,7 +61,7 @@ def _calibration_file(tmp_path, corr=-0.8, low2=1e4):
     doc = {"parameters": [{"name": "hydraulic.bulk_modulus", "value": 7e8, "stderr": 5e7, "bounds": [1e8, 2e9]},
                           {"name": "beam.clamp_stiffness_Nm_rad", "value": 1.37e5, "stderr": 2e4, "bounds": [low2, 1e6]}],
            "correlation": [[1.0, corr], [corr, 1.0]],
-           "calibrated_params": {"timestep_s": 0.001}}  # fmt: skip
+           "calibrated_params": {"hydraulic": {"bulk_modulus": 7e8}, "beam": {"clamp_stiffness_Nm_rad": 1.37e5}}}  # fmt: skip
     p = tmp_path / "calibration.json"
     p.write_text(json.dumps(doc))
     return p
@@ -83,10 +85,23 @@ def test_covariance_draws_keep_the_calibrations_correlation_and_bounds(tmp_path)
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"parameters": [{"name": "a", "value": 1, "stderr": None, "bounds": [0, 2]}], "correlation": [[1]],
                                "calibrated_params": {}}))  # fmt: skip
-    with pytest.raises(InputError, match="no finite standard error"):
+    with pytest.raises(InputError, match="no finite positive standard error"):
         read_covariance(bad)
-    with pytest.raises(InputError, match="not positive semi-definite"):
+    with pytest.raises(InputError, match="not a correlation matrix"):
         read_covariance(_calibration_file(tmp_path, corr=-1.5))
+    # the calibrated plant must hold the calibrated values; a measurement gain is no plant parameter
+    doc = json.loads(_calibration_file(tmp_path).read_text())
+    doc["calibrated_params"]["hydraulic"]["bulk_modulus"] = 9e8
+    bad.write_text(json.dumps(doc))
+    with pytest.raises(InputError, match="calibrated_params"):
+        read_covariance(bad)
+    doc["parameters"][0]["name"] = "gain.base"
+    bad.write_text(json.dumps(doc))
+    with pytest.raises(InputError, match="measurement gain"):
+        read_covariance(bad)
+    bad.write_text("[1, 2]")
+    with pytest.raises(InputError, match="JSON object"):
+        read_covariance(bad)
 
 
 def test_closed_loop_damping_is_the_least_damped_pole_in_the_band():
@@ -170,7 +185,7 @@ def test_robust_study_reads_as_physics(robust_runs):
 
     doc = json.loads((robust_runs[0] / "robust.json").read_text())
     rows = _csv(robust_runs[0] / "samples.csv")
-    assert rows[0][:3] == ["index", "beam.clamp_stiffness_Nm_rad", "hydraulic.command_delay"] and len(rows) == 9
+    assert rows[0][:6] == ["index", "beam.clamp_stiffness_Nm_rad", "hydraulic.command_delay", "valid", "stable", "linear_stable"] and len(rows) == 9
     assert all(float(r[2]) >= 0 for r in rows[1:])  # a delay is never negative
     s = doc["summary"]
     assert s["n_samples"] == 8 and s["n_invalid"] == 0 and s["n_unstable"] == 0
@@ -214,6 +229,23 @@ def test_robust_refusals(tmp_path, capsys):
     assert main([*base, "--spread", "hydraulic.bulk_modulus=5%", "--covariance", str(tmp_path / "none.json")]) == 2
     assert "no such file" in capsys.readouterr().err
     assert main([*base[:-3], "--samples", "0", "--spread", "hydraulic.bulk_modulus=5%"]) == 2
+    capsys.readouterr()
+    # the servo loop alone has no digital controller to delay, and "off" switches have no spread
+    assert main([*base, "--spread", "hydraulic.bulk_modulus=5%", "--delay-samples", "5"]) == 2
+    assert "--delay-samples" in capsys.readouterr().err
+    assert main([*base, "--spread", "sensor.accel_lowpass_hz=3"]) == 2
+    assert "0 for none" in capsys.readouterr().err
+
+
+def test_a_loop_held_only_by_the_valves_rails_is_unstable(tmp_path):
+    """The pole-cancelling compensator with a 200-sample computation delay: the linearised loop is unstable; the
+    nonlinear run stays bounded on the valve's rails (a limit cycle), which is no stable loop."""
+    out = tmp_path / "r"
+    assert main(["robust", "--controller", "notebook-cancel", "--delay-samples", "200", "--samples", "2", "--spread",
+                 "hydraulic.bulk_modulus=5%", "--no-progress", "--out", str(out)]) == 0  # fmt: skip
+    r = json.loads((out / "robust.json").read_text())
+    assert r["summary"]["n_unstable"] == 2 and not r["nominal_plant"]["stable"]
+    assert all(not x["linear_stable"] and x["zeta"] is None or x["zeta"] < 0 for x in r["samples"])
 
 
 def test_robust_from_a_calibrations_covariance(tmp_path, capsys):
@@ -222,6 +254,9 @@ def test_robust_from_a_calibrations_covariance(tmp_path, capsys):
 
     doc = json.loads(_calibration_file(tmp_path).read_text())
     doc["calibrated_params"] = default_params().as_dict()
+    for prm in doc["parameters"]:
+        section, _, key = prm["name"].partition(".")
+        prm["value"] = doc["calibrated_params"][section][key]
     cal = tmp_path / "cal.json"
     cal.write_text(json.dumps(doc))
     out = tmp_path / "r"
@@ -233,3 +268,16 @@ def test_robust_from_a_calibrations_covariance(tmp_path, capsys):
     # with --model as well: which plant is nominal would be ambiguous
     assert main(["robust", "--controller", "unity", "--covariance", str(cal), "--model", str(cal), "--samples", "3"]) == 2
     assert "--model" in capsys.readouterr().err
+
+
+def test_robust_on_a_cluster_given_by_its_address(robust_runs, tmp_path):
+    """--scheduler ADDRESS: the study on a running Dask cluster (here a local one standing in for a user's), the
+    same table as in this process."""
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        out = tmp_path / "remote"
+        assert main(["robust", "--controller", "notebook-cancel", "--samples", "8", "--seed", "11", "--spread", "beam.clamp_stiffness_Nm_rad=20%",
+                     "--spread", "hydraulic.command_delay=0.002", "--no-progress", "--scheduler", cluster.scheduler_address, "--out", str(out)]) == 0  # fmt: skip
+    assert _csv(out / "samples.csv") == _csv(robust_runs[0] / "samples.csv")
+    assert json.loads((out / "robust.json").read_text())["engine"].startswith("Dask cluster at tcp://")

@@ -172,7 +172,13 @@ def run_pipeline(out, *, model=None, overrides=(), seed: int = 0, overwrite: boo
         summary["wall_s"] = time.perf_counter() - started
         (stage_dir / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
         bar.start("writing report.html")
-        _report(stage_dir, out)
+        try:
+            _report(stage_dir, out)
+        except Exception as exc:  # noqa: BLE001 - the report is read from the stages' files: a fault in it loses none of them
+            summary["report_error"] = f"{type(exc).__name__}: {exc}"
+            print(f"samii run: warning: report.html not written ({summary['report_error']}); every other output is; "
+                  f"samii report {out} tries again", file=sys.stderr)
+            (stage_dir / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
         bar.done()
         if out.exists():
             shutil.rmtree(out)
@@ -311,6 +317,7 @@ def summary_lines(s: dict, out) -> list[str]:
     if b and a:
         lines.append(f"  xdd/v error {b.get('rms_db', float('nan')):.2g} dB / {b.get('rms_deg', float('nan')):.2g} deg -> "
                      f"{a.get('rms_db', float('nan')):.2g} dB / {a.get('rms_deg', float('nan')):.2g} deg with them")
-    lines.append(f"wrote {out}/ in {s['wall_s']:.0f} s: report.html (open it in a browser), summary.json, measure/, fit/, controllers/, "
+    report = "report.html (open it in a browser), " if not s.get("report_error") else "(NOT report.html: see the warning above) "
+    lines.append(f"wrote {out}/ in {s['wall_s']:.0f} s: {report}summary.json, measure/, fit/, controllers/, "
                  "closedloop/, diagnose/; measure.rrd and closedloop.rrd (open with `rerun FILE`)")
     return lines[:20]

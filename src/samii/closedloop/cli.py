@@ -16,7 +16,7 @@ import sys
 from samii.cli_args import float_in, nonempty_path, positive_float, seed
 from samii.errors import InputError
 
-__all__ = ["add_arguments", "run", "BUILTIN_CONTROLLERS", "resolve_controller", "model_at_rest"]
+__all__ = ["add_arguments", "run", "BUILTIN_CONTROLLERS", "resolve_controller", "model_at_rest", "check_fits"]
 
 BUILTIN_CONTROLLERS = {
     "unity": "the servo amplifier's position loop alone (1 V/deg), no digital controller",
@@ -153,7 +153,7 @@ def _summary(r, out_names: list[str]) -> str:
     return "\n".join(lines)
 
 
-def _check_fits(saved, args, dt: float) -> None:
+def check_fits(saved, args, dt: float) -> None:
     """The controller against the card's limits and the physics step, naming the file and field or the option."""
     from samii.closedloop.card import CardFitError, check_fit
 
@@ -190,7 +190,7 @@ def run(args) -> int:
     saved = resolve_controller(args.controller, factory, quiet=args.json)
     if saved is not None:
         spec, _, _ = factory()
-        _check_fits(saved, args, float(spec.option.timestep))
+        check_fits(saved, args, float(spec.option.timestep))
     kw = {"duration_s": args.duration_s}
     if args.step_deg is not None:
         kw["step_deg"] = args.step_deg

@@ -43,9 +43,10 @@ def find_browser() -> str | None:
 def screenshot(page: Path, png: Path, *, width: int = 1200, max_height: int = 16000, timeout_s: float = 30.0) -> Screenshot:
     """Render ``page`` (a local HTML file) headless at ``width`` px and save it as ``png``, cut below the page's end.
 
-    Raises ``RuntimeError`` when no browser is found or it fails; the browser runs without network
-    access to anything but the file (``--host-resolver-rules`` maps every host to nowhere), so a page
-    that needed the network would show it.
+    Raises ``RuntimeError`` when no browser is found or it fails. The browser reaches no network: every
+    host name resolves to nowhere (``--host-resolver-rules``) and every address, a literal IP or
+    loopback included, goes through a proxy on a closed port (the discard port, 9), so a page that
+    needed the network would show it.
     """
     from PIL import Image, ImageChops
 
@@ -58,7 +59,7 @@ def screenshot(page: Path, png: Path, *, width: int = 1200, max_height: int = 16
         with tempfile.TemporaryDirectory(prefix="samii-browser-", ignore_cleanup_errors=True) as profile:
             raw = Path(profile) / "shot.png"
             cmd = [browser, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--no-first-run", "--mute-audio",
-                   f"--user-data-dir={profile}", "--host-resolver-rules=MAP * ~NOTFOUND", "--run-all-compositor-stages-before-draw",
+                   f"--user-data-dir={profile}", "--host-resolver-rules=MAP * ~NOTFOUND", "--proxy-server=127.0.0.1:9", "--proxy-bypass-list=<-loopback>", "--run-all-compositor-stages-before-draw",
                    f"--window-size={width},{max_height}", f"--screenshot={raw}", page.as_uri()]  # fmt: skip
             ok, last = _run(cmd, raw, timeout_s)
             if ok:

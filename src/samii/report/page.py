@@ -11,8 +11,10 @@ import base64
 import html
 import math
 import os
+import urllib.parse
 from pathlib import Path
 
+from samii.errors import InputError
 from samii.report.content import RECORDINGS, RunFolder, parameter_rows
 from samii.report.figures import figure_ch11_loper, figure_ch11_step, figure_damping
 
@@ -157,7 +159,7 @@ def _fit(run: RunFolder) -> str:
                      _num(r.notebook, ".5g"), _num(r.diff_pct, "+.1f"), _num(r.sigmas, ".2g"), _e(r.unit)])  # fmt: skip
     rms = f.get("rms_mag_db") or {}
     ph = f.get("rms_phase_deg") or {}
-    rms_txt = "; ".join(f"{_CHANNELS.get(k, k)} {_num(rms[k], '.2f')} dB, {_num(ph.get(k), '.1f')} deg" for k in rms)
+    rms_txt = "; ".join(f"{_e(_CHANNELS.get(k, k))} {_num(rms[k], '.2f')} dB, {_num(ph.get(k), '.1f')} deg" for k in rms)
     concerns = "".join(f"<li>{_e(c)}</li>" for c in f.get("concerns") or [])
     return ('<h2 id="fit">Identification: the notebook\'s 3-mode model</h2>'
             f"<p>The notebook's eq 9.1/9.2 structure fitted to the measured FRF (<code>samii fit</code>, phase weight {_num(f.get('phase_weight'), 'g')}, "
@@ -299,7 +301,7 @@ def _recordings(run: RunFolder, page_dir: Path) -> str:
         size = run.recordings.get(name)
         if size is None:
             continue
-        href = Path(os.path.relpath(run.path.absolute() / name, page_dir.absolute())).as_posix()
+        href = urllib.parse.quote(Path(os.path.relpath(run.path.absolute() / name, page_dir.absolute())).as_posix())  # a URL: '#', '%', ' ' escaped
         items.append(f'<li><a href="{_e(href)}">{_e(name)}</a> ({size / 1e6:.0f} MB): {_e(what)}</li>')
     if not items:
         return '<h2 id="recordings">Recordings</h2><p>No Rerun recording in this folder.</p>'
@@ -309,7 +311,16 @@ def _recordings(run: RunFolder, page_dir: Path) -> str:
 
 
 def render_report(run: RunFolder, page_dir: Path | None = None) -> str:
-    """The page's HTML; the links to the recordings are relative to ``page_dir`` (default: the run's folder)."""
+    """The page's HTML; the links to the recordings are relative to ``page_dir`` (default: the run's folder).
+    A file of the folder that lacks a field the page needs, or holds a value of the wrong kind, is an InputError."""
+    try:
+        return _render(run, page_dir)
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
+        what = f"field {exc.args[0]!r} missing" if isinstance(exc, KeyError) else str(exc)
+        raise InputError(f"{run.path}: a file of this main job's folder is not as samii run writes it ({what}); run samii run again") from None
+
+
+def _render(run: RunFolder, page_dir: Path | None) -> str:
     from samii.main_job import summary_lines
 
     body = "".join([_header(run, summary_lines(run.summary, run.display_name or run.path.name)), _model(run), _measurement(run), _fit(run), _closed_loop(run),

@@ -66,8 +66,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--delay-samples", type=float_in(0.0, float(MAX_DELAY_STEPS), unit="samples"), default=0.0, metavar="N",
                    help="the controller's computation delay [samples] (default 0)")
     p.add_argument("--noise", action="store_true", help="sensor noise on the controller's measurements, seeded per sample from --seed")
-    p.add_argument("--workers", type=_workers, default=0, metavar="N",
-                   help="0 (default): run in this process; N or auto: on a local Dask cluster of N worker processes (auto: one per core)")
+    p.add_argument("--workers", type=_workers, default=None, metavar="N",
+                   help="0: run in this process (the default, unless Dask's configuration names a scheduler); N or auto: on a local "
+                        "Dask cluster of N worker processes (auto: one per core)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="run on this Dask cluster (tcp://host:8786); its workers need samii installed. Without --scheduler and "
                         "--workers, Dask's own configured scheduler-address (DASK_SCHEDULER_ADDRESS) is used if set")  # fmt: skip
@@ -89,7 +90,7 @@ def _nominal_params(args):
             raise InputError("--model: with --covariance the nominal plant is the calibration's (its calibrated_params); give one of them")
         cov = read_covariance(args.covariance)
         try:
-            params = params_from_dict(cov.nominal)
+            params = params_from_dict(cov.nominal, complete=True)
         except ValueError as exc:
             raise InputError(f"--covariance {args.covariance}: field 'calibrated_params': {exc}") from None
     elif args.model:
@@ -118,8 +119,10 @@ def run(args: argparse.Namespace) -> int:
     from samii.outputs import OutputFolder
     from samii.robust.plots import FIGURES
 
-    if args.scenario == "step" and args.controller == "unity" and args.noise:
-        raise InputError("--noise: the unity servo loop samples no sensors")
+    if args.controller == "unity" and args.delay_samples:
+        raise InputError("--delay-samples: the unity servo loop is analog (no digital controller to delay)")
+    if args.controller == "unity" and args.noise:
+        raise InputError("--noise: the unity servo loop samples no sensors (its analog loop reads the joint angle directly)")
     folder = OutputFolder(args.out, list(_FILES) + list(FIGURES), overwrite=args.overwrite) if args.out is not None else None
     from samii.robust.engine import Engine, configured_scheduler
     from samii.robust.sampling import draw_plants, parse_spread
@@ -134,10 +137,11 @@ def run(args: argparse.Namespace) -> int:
             params_with_overrides(params, draws.overrides(i))
         except InputError as exc:
             raise InputError(f"sample {i}: {exc}: narrow the spread (or give it as an absolute value)") from None
-    scheduler = args.scheduler or (None if args.workers else configured_scheduler())
-    if args.scheduler and args.workers:
+    if args.scheduler and args.workers is not None:
         raise InputError("--workers: with --scheduler the cluster's own workers run the study; give one of them")
-    engine = Engine(workers=args.workers, scheduler=scheduler)
+    # an explicit --workers (0 included) wins over Dask's configured scheduler address
+    scheduler = args.scheduler or (configured_scheduler() if args.workers is None else None)
+    engine = Engine(workers=args.workers or 0, scheduler=scheduler)
 
     # the controller is designed (or read) once, on the nominal plant, in this process
     from samii.closedloop.cli import resolve_controller
@@ -147,13 +151,19 @@ def run(args: argparse.Namespace) -> int:
     nominal_model = load_model(params=params)
     qpos, act = nominal_model.key_qpos[0].copy(), nominal_model.key_act[0].copy()
     saved = resolve_controller(args.controller, lambda: (load_spec(params=params)[0], qpos, act), quiet=args.json)
-    import numpy as np
+    if saved is not None:
+        from samii.closedloop.cli import check_fits
 
-    noise_seeds = [int(s.generate_state(1)[0]) for s in np.random.SeedSequence(args.seed).spawn(args.samples + 1)] if args.noise else None
+        check_fits(saved, args, float(nominal_model.opt.timestep))
+    from samii.robust.sampling import sample_seeds
+
     base = params.as_dict()
-    tasks = [SampleTask(-1, base, {}, saved, args.scenario, {}, args.delay_samples, noise_seeds[-1] if noise_seeds else None)]
-    tasks += [SampleTask(i, base, draws.overrides(i), saved, args.scenario, {}, args.delay_samples, noise_seeds[i] if noise_seeds else None)
-              for i in range(args.samples)]  # fmt: skip
+
+    def noise_seed(i: int) -> int | None:
+        return sample_seeds(args.seed, i)[1] if args.noise else None
+
+    tasks = [SampleTask(-1, base, {}, saved, args.scenario, {}, args.delay_samples, noise_seed(-1))]
+    tasks += [SampleTask(i, base, draws.overrides(i), saved, args.scenario, {}, args.delay_samples, noise_seed(i)) for i in range(args.samples)]
 
     from tqdm import tqdm
 
@@ -173,6 +183,9 @@ def run(args: argparse.Namespace) -> int:
     from samii.robust.study import summarise
 
     summary = summarise(draws, samples)
+    if summary.n == 0:
+        raise InputError(f"none of the {args.samples} drawn plants could be built (no static equilibrium near the nominal pose: "
+                         f"{samples[0].note}); narrow the spreads")
     doc = {
         "controller": args.controller, "scenario": args.scenario, "seed": args.seed, "n_samples": args.samples,
         "engine": engine.describe(), "wall_s": wall,
@@ -234,11 +247,11 @@ def _lines(doc: dict, s) -> list[str]:
 def _write_csv(path, draws, samples) -> None:
     import csv
 
-    cols = ["index", *draws.names, "stable", "zeta", "mode_hz", "growth_rate_1_s", "base_settle_s", "theta_settle_s", "theta_overshoot_pct"]
+    numbers = ["zeta", "mode_hz", "growth_rate_1_s", "base_settle_s", "theta_settle_s", "theta_overshoot_pct"]
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(cols)
+        w.writerow(["index", *draws.names, "valid", "stable", "linear_stable", *numbers, "note"])
         for r in samples:
             row = r.table_row()
-            w.writerow([r.index, *(repr(float(v)) for v in draws.values[r.index]), int(r.stable),
-                        *("" if row[c] is None else repr(float(row[c])) for c in cols[len(draws.names) + 2:])])  # fmt: skip
+            w.writerow([r.index, *(repr(float(v)) for v in draws.values[r.index]), int(r.valid), int(r.stable), int(r.linear_stable),
+                        *("" if row[c] is None else repr(float(row[c])) for c in numbers), r.note])  # fmt: skip

@@ -13,8 +13,9 @@ Two sources, combinable:
   standard errors and correlations, about the calibrated values; a draw outside the calibration's
   bounds or the positivity limit above is drawn again.
 
-Every draw is made up front from one ``numpy`` generator seeded with ``--seed``, in sample order,
-so the same seed gives the same plants whatever engine or number of workers runs them.
+Every draw is made up front, sample ``i``'s from its own generator (``numpy.random.SeedSequence(seed)``'s
+child ``i``), so the same seed gives the same plants whatever engine or number of workers runs them, and
+sample ``i`` is the same plant in a study of any size (a worst sample can be run again alone).
 """
 
 from __future__ import annotations
@@ -28,13 +29,19 @@ import numpy as np
 
 from samii.errors import InputError
 
-__all__ = ["Spread", "Covariance", "parse_spread", "read_covariance", "draw_plants", "PlantDraws", "TRUNCATE_SIGMA", "MIN_FRACTION"]
+__all__ = ["Spread", "Covariance", "parse_spread", "read_covariance", "draw_plants", "PlantDraws", "sample_seeds", "TRUNCATE_SIGMA", "MIN_FRACTION"]
 
 TRUNCATE_SIGMA = 3.0  #: draws beyond this many standard deviations are drawn again
 MIN_FRACTION = 0.05  #: a positive parameter stays above this fraction of its nominal value
 _MAX_REDRAWS = 1000
 _DISCRETE = {"beam.n_segments": "the number of beam elements", "beam.accel_body_fixed": "a 0/1 switch", "beam.pitch_deg": "the beam's orientation",
-             "arm.heading_deg": "the arm's heading", "timestep_s": "the simulation step"}
+             "arm.heading_deg": "the arm's heading", "timestep_s": "the simulation step",
+             # 0 means "off" for these: an absolute spread about 0 would switch a filter or a limit on, not perturb it
+             "sensor.accel_lowpass_hz": "a filter corner, 0 for none", "sensor.accel_antialias_hz": "a filter corner, 0 for none",
+             "sensor.accel_highpass_hz": "a filter corner, 0 for none", "hydraulic.valve_saturation": "a limit, 0 for none",
+             "beam.tip_body_mass_kg": "a body's mass, 0 for none"}
+#: Parameters that may be negative (samii.calibrate's table): not limited below.
+_SIGNED = ("beam.accel_offset_m", "arm.heading_deg", "beam.pitch_deg")
 
 
 @dataclass(frozen=True)
@@ -91,6 +98,8 @@ def read_covariance(path) -> Covariance:
         raise InputError(f"--covariance {path}: no such file") from None
     except (OSError, ValueError) as exc:
         raise InputError(f"--covariance {path}: not readable JSON ({exc})") from None
+    if not isinstance(d, dict):
+        raise InputError(f"--covariance {path}: expected samii calibrate's calibration.json (a JSON object)")
     params, corr, nominal = d.get("parameters"), d.get("correlation"), d.get("calibrated_params")
     if not isinstance(params, list) or not params or not isinstance(corr, list) or not isinstance(nominal, dict):
         raise InputError(f"--covariance {path}: expected samii calibrate's calibration.json (fields 'parameters', 'correlation', "
@@ -102,16 +111,30 @@ def read_covariance(path) -> Covariance:
             mean.append(float(p["value"]))
             s = p["stderr"]
             lo, hi = (float(b) for b in p.get("bounds", [-math.inf, math.inf])[:2])
-        except (KeyError, TypeError, ValueError):
-            raise InputError(f"--covariance {path}: field 'parameters'[{i}] lacks a name, value, stderr or bounds") from None
-        if s is None or not math.isfinite(float(s)) or float(s) <= 0:
-            raise InputError(f"--covariance {path}: parameter {names[-1]} has no finite standard error ({s!r}): the calibration could not "
-                             "determine it; calibrate without it, or give its spread with --spread")
-        se.append(float(s))
+        except (KeyError, TypeError, ValueError, AttributeError):
+            raise InputError(f"--covariance {path}: field 'parameters'[{i}] needs a name, a numeric value, stderr and bounds [lo, hi]") from None
+        if names[-1].startswith("gain."):
+            raise InputError(f"--covariance {path}: parameter {names[-1]} is a measurement gain of the calibration, not a property of the "
+                             "plant; calibrate without it, or vary the plant with --spread")
+        try:
+            s = float(s)
+        except (TypeError, ValueError):
+            s = math.nan
+        if not math.isfinite(s) or s <= 0:
+            raise InputError(f"--covariance {path}: parameter {names[-1]} has no finite positive standard error ({p['stderr']!r}): the "
+                             "calibration could not determine it; calibrate without it, or give its spread with --spread")
+        se.append(s)
         bounds.append((lo, hi))
     c = np.asarray(corr, dtype=float) if all(isinstance(r, list) for r in corr) else np.empty(0)
     if c.shape != (len(names), len(names)) or not np.all(np.isfinite(c)):
         raise InputError(f"--covariance {path}: field 'correlation' must be a finite {len(names)}x{len(names)} matrix")
+    if np.any(np.abs(np.diag(c) - 1.0) > 1e-6) or np.any(np.abs(c) > 1.0 + 1e-9):
+        raise InputError(f"--covariance {path}: field 'correlation' is not a correlation matrix (ones on its diagonal, |r| <= 1)")
+    for name, m in zip(names, mean):  # the nominal plant is the calibrated one: the values must agree
+        section, _, key = name.partition(".")
+        v = nominal.get(section, {}).get(key) if isinstance(nominal.get(section), dict) else None
+        if v is None or not math.isclose(float(v), m, rel_tol=1e-9, abs_tol=1e-12):
+            raise InputError(f"--covariance {path}: parameter {name} = {m:g} but field 'calibrated_params' holds {v!r}")
     s = np.asarray(se)
     cov = c * np.outer(s, s)
     cov = 0.5 * (cov + cov.T)
@@ -133,63 +156,77 @@ class PlantDraws:
         return {n: float(v) for n, v in zip(self.names, self.values[i])}
 
 
-def _lower_limit(nominal: float) -> float:
+def _lower_limit(nominal: float, name: str = "") -> float:
     """A positive quantity stays above 5 % of its nominal; one nominally 0 (a delay, a damping, a dead band) stays
-    non-negative (an absolute spread about 0 becomes a half-normal); a negative one is not limited."""
+    non-negative (an absolute spread about 0 becomes a half-normal); a signed one is not limited."""
+    if name in _SIGNED:
+        return -math.inf
     if nominal > 0:
         return MIN_FRACTION * nominal
     return 0.0 if nominal == 0 else -math.inf
 
 
+def sample_seeds(seed: int, index: int) -> tuple[np.random.Generator, int]:
+    """Sample ``index``'s own generator (for its plant) and its sensor-noise seed, from ``seed``'s child ``index``
+    (the same whatever the study's size). The nominal plant is index -1: child ``2**32 - 1``."""
+    child = np.random.SeedSequence(seed, spawn_key=(index if index >= 0 else 2**32 - 1,))
+    plant, noise = child.spawn(2)
+    return np.random.default_rng(plant), int(noise.generate_state(1)[0])
+
+
 def draw_plants(n: int, seed: int, nominal: dict[str, float], spreads: list[Spread], covariance: Covariance | None) -> PlantDraws:
-    """``n`` plants: the covariance's parameters jointly, then each spread's, in that order, from one generator."""
-    rng = np.random.default_rng(seed)
+    """``n`` plants; in each, the covariance's parameters jointly, then each spread's, from the sample's own generator."""
     names: list[str] = []
-    cols: list[np.ndarray] = []
     sources: list[str] = []
     nominals: list[float] = []
+    lows: list[float] = []
+    highs: list[float] = []
     if covariance is not None:
-        lo = np.array([max(b[0], _lower_limit(m)) for b, m in zip(covariance.bounds, covariance.mean)])
-        hi = np.array([b[1] for b in covariance.bounds])
         se = np.sqrt(np.diag(covariance.cov))
-        out = np.empty((n, len(covariance.names)))
-        for i in range(n):
-            for _ in range(_MAX_REDRAWS):
-                x = rng.multivariate_normal(covariance.mean, covariance.cov, method="eigh")
-                if np.all(x >= lo) and np.all(x <= hi) and np.all(np.abs(x - covariance.mean) <= TRUNCATE_SIGMA * se):
-                    break
-            else:
-                raise InputError(f"--covariance {covariance.source}: no draw within the bounds in {_MAX_REDRAWS} tries")
-            out[i] = x
-        names += covariance.names
-        cols += list(out.T)
-        for m, (b_lo, b_hi), sd in zip(covariance.mean, covariance.bounds, se):
+        for name, m, (b_lo, b_hi), sd in zip(covariance.names, covariance.mean, covariance.bounds, se):
             edge = min(abs(m - b_lo), abs(b_hi - m)) < 1e-6 * max(abs(m), sd)
+            names.append(name)
+            nominals.append(float(m))
+            lows.append(max(b_lo, _lower_limit(m, name), m - TRUNCATE_SIGMA * sd))
+            highs.append(min(b_hi, m + TRUNCATE_SIGMA * sd))
             sources.append(f"calibration covariance ({covariance.source})" + (": calibrated on its bound, so drawn on one side of it" if edge else ""))
-        nominals += list(covariance.mean)
+    sigmas: list[float] = []
     for sp in spreads:
         if sp.name in names:
-            raise InputError(f"--spread {sp.name}: already varied ({'given twice' if sp.name in [s.name for s in spreads[:spreads.index(sp)]] else 'by --covariance'})")
+            raise InputError(f"--spread {sp.name}: already varied ({'by --covariance' if covariance is not None and sp.name in covariance.names else 'given twice'})")
         if sp.name not in nominal:
             raise InputError(f"--spread {sp.name}: no such parameter (samii params lists them)")
         if sp.name in _DISCRETE:
-            raise InputError(f"--spread {sp.name}: a discrete setting ({_DISCRETE[sp.name]}), not a physical quantity with a spread")
+            raise InputError(f"--spread {sp.name}: {_DISCRETE[sp.name]}, not a physical quantity with a spread about its value")
         mu = float(nominal[sp.name])
         sigma = sp.sigma(mu)
         if sigma <= 0:
             raise InputError(f"--spread {sp.describe()}: the nominal value is 0, so a relative spread is 0; give an absolute one")
-        low = max(mu - TRUNCATE_SIGMA * sigma, _lower_limit(mu))
-        col = np.empty(n)
-        for i in range(n):
-            for _ in range(_MAX_REDRAWS):
-                x = rng.normal(mu, sigma)
-                if low <= x <= mu + TRUNCATE_SIGMA * sigma:
-                    break
-            col[i] = x
         names.append(sp.name)
-        cols.append(col)
-        sources.append(sp.describe())
         nominals.append(mu)
+        sigmas.append(sigma)
+        lows.append(max(mu - TRUNCATE_SIGMA * sigma, _lower_limit(mu, sp.name)))
+        highs.append(mu + TRUNCATE_SIGMA * sigma)
+        sources.append(sp.describe())
     if not names:
         raise InputError("nothing to vary: give --spread NAME=P% and/or --covariance calibration.json")
-    return PlantDraws(tuple(names), np.asarray(nominals), np.column_stack(cols), tuple(sources))
+    lo, hi = np.array(lows), np.array(highs)
+    k = len(covariance.names) if covariance is not None else 0
+    values = np.empty((n, len(names)))
+    for i in range(n):
+        rng, _ = sample_seeds(seed, i)
+        if covariance is not None:
+            for _ in range(_MAX_REDRAWS):
+                x = rng.multivariate_normal(covariance.mean, covariance.cov, method="eigh")
+                if np.all(x >= lo[:k]) and np.all(x <= hi[:k]):
+                    break
+            else:
+                raise InputError(f"--covariance {covariance.source}: no draw within the bounds in {_MAX_REDRAWS} tries")
+            values[i, :k] = x
+        for j, sigma in enumerate(sigmas, start=k):
+            for _ in range(_MAX_REDRAWS):  # the interval holds the nominal value: at least half the draws land in it
+                x = rng.normal(nominals[j], sigma)
+                if lo[j] <= x <= hi[j]:
+                    break
+            values[i, j] = x
+    return PlantDraws(tuple(names), np.asarray(nominals), values, tuple(sources))

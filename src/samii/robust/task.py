@@ -39,12 +39,13 @@ class SampleResult:
     theta_overshoot_pct: float | None
     note: str = ""  #: why the run is unstable or could not be judged, in words
     valid: bool = True  #: False: no plant could be built (no static equilibrium near the nominal pose); not counted
+    linear_stable: bool = True  #: the closed loop linearised about the rest state is stable
     wall_s: float = 0.0  #: the task's own time (not part of the study's results: it varies with the machine)
 
     def table_row(self) -> dict:
         return {"index": self.index, "stable": self.stable, "zeta": self.zeta, "mode_hz": self.mode_hz, "growth_rate_1_s": self.growth_rate_1_s,
                 "base_settle_s": self.base_settle_s, "theta_settle_s": self.theta_settle_s, "theta_overshoot_pct": self.theta_overshoot_pct,
-                "note": self.note, "valid": self.valid}  # fmt: skip
+                "note": self.note, "valid": self.valid, "linear_stable": self.linear_stable}  # fmt: skip
 
 
 #: The band whose poles count for the closed-loop damping [Hz]: the swept-sine band the notebook measured and modelled
@@ -121,16 +122,22 @@ def _run_sample(task: SampleTask) -> SampleResult:
         warnings.simplefilter("ignore", RuntimeWarning)
         r = run_closed_loop(task.controller, scenario(task.scenario, **task.scenario_kwargs), label=f"sample {task.index}",
                             spec_factory=factory, delay_samples=task.delay_samples, noise=noise, comparison=False)  # fmt: skip
-    zeta, hz = closed_loop_damping(r.stable, r.linear_poles_s, r.growth_rate_1_s, r.unstable_mode_hz)
+    # unstable: the nonlinear run diverges or oscillates without decaying, or its linearisation is unstable and only
+    # the valve's +-10 V rails bound it (a limit cycle is no stable loop)
+    stable = bool(r.stable and r.linear_stable)
+    zeta, hz = closed_loop_damping(stable, r.linear_poles_s, r.growth_rate_1_s, r.unstable_mode_hz)
+    note = r.instability() if not r.stable else ("" if r.linear_stable else "the linearised loop is unstable: the run is bounded only "
+                                                   "by the valve's limits")
     return SampleResult(
         index=task.index,
-        stable=bool(r.stable),
+        stable=stable,
+        linear_stable=bool(r.linear_stable),
         zeta=_num(zeta),
         mode_hz=_num(hz),
         growth_rate_1_s=_num(r.growth_rate_1_s),
-        base_settle_s=_num(r.base.settle_s) if r.stable else None,
-        theta_settle_s=_num(r.theta.settle_s) if r.stable else None,
-        theta_overshoot_pct=_num(r.theta.overshoot_pct) if r.stable else None,
-        note=r.instability(),
+        base_settle_s=_num(r.base.settle_s) if stable else None,
+        theta_settle_s=_num(r.theta.settle_s) if stable else None,
+        theta_overshoot_pct=_num(r.theta.overshoot_pct) if stable else None,
+        note=note,
         wall_s=time.perf_counter() - started,
     )
