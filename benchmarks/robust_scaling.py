@@ -29,11 +29,10 @@ def main() -> None:
     from samii.robust.engine import Engine
     from samii.robust.sampling import draw_plants, parse_spread
     from samii.robust.task import SampleTask
-    from samii.sim.model import default_params
+    from samii.sim.model import default_params, dotted
 
     params = default_params()
-    flat = {f"{s}.{k}": v for s, d in params.as_dict().items() if isinstance(d, dict) for k, v in d.items()}
-    draws = draw_plants(args.samples, 0, flat, [parse_spread("hydraulic.bulk_modulus=20%"), parse_spread("beam.clamp_stiffness_Nm_rad=10%")], None)
+    draws = draw_plants(args.samples, 0, dotted(params), [parse_spread("hydraulic.bulk_modulus=20%"), parse_spread("beam.clamp_stiffness_Nm_rad=10%")], None)
     ctrl = notebook_cancel()
     tasks = [SampleTask(i, params.as_dict(), draws.overrides(i), ctrl, "step") for i in range(args.samples)]
     print(f"{args.samples} samples per batch (10 s closed loop each), {args.repeats} batches per engine, {os.cpu_count()} cores, "

@@ -191,7 +191,11 @@ def test_robust_study_reads_as_physics(robust_runs):
     assert s["n_samples"] == 8 and s["n_invalid"] == 0 and s["n_unstable"] == 0
     assert s["p_unstable_ci95"] == pytest.approx([0.0, 0.3694], abs=1e-3)  # exact 95 % upper bound of 0/8: 1 - 0.025^(1/8)
     nominal = doc["nominal_plant"]
+    # the embedded model's base mode 1 (samii modes: 1.737 Hz, zeta 0.0254; the model card tunes it to eq 9.4's 1.73 Hz)
     assert nominal["stable"] and nominal["mode_hz"] == pytest.approx(1.737, abs=0.01) and nominal["zeta"] == pytest.approx(0.025, abs=0.002)
+    # these 8 plants (seed 11): base mode 1 is the least damped in each (1.5-2.0 Hz brackets the draws' clamp, -11 %...+27 %:
+    # f ~ sqrt(k) moves it by a few %); a clamp soft enough to damp it past the servo pair's zeta (0.037) would hand the
+    # title to that pair, so the bound 0.04 is the servo pair's with a margin, not a property of every draw
     for x in doc["samples"]:
         assert 1.5 < x["mode_hz"] < 2.0 and 0 < x["zeta"] < 0.04, x
     k = [x["params"]["beam.clamp_stiffness_Nm_rad"] for x in doc["samples"]]

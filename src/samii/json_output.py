@@ -1,4 +1,5 @@
-"""JSON that every parser reads: non-finite numbers become ``null``, never ``NaN`` or ``Infinity``.
+"""JSON that every parser reads: non-finite numbers become ``null``, never ``NaN`` or ``Infinity``;
+and JSON files read with an error that names the file (:func:`read_json`).
 
 Python's :mod:`json` writes ``NaN`` and ``Infinity`` by default, which are not JSON
 (RFC 8259) and break ``jq`` and JavaScript. Every command's ``--json`` and every
@@ -11,9 +12,28 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 from typing import Any
 
-__all__ = ["dumps", "finite_or_none"]
+__all__ = ["dumps", "finite_or_none", "read_json"]
+
+
+def read_json(path, what: str, *, missing: str | None = None) -> Any:
+    """The JSON value in file ``path``; a missing, unreadable or malformed file is an InputError naming
+    it as ``what`` (``missing``: the message for a file that is not there)."""
+    from samii.errors import InputError
+
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(missing or f"{what} {path} does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot be read as a {what} ({exc})") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: not valid JSON ({exc})") from None
+    except RecursionError:
+        raise InputError(f"{path}: JSON nested too deeply to be a {what}") from None
 
 
 def finite_or_none(obj: Any) -> Any:

@@ -8,13 +8,13 @@ names it. The figures the stages drew are referenced by path, to be embedded as 
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from samii.closedloop.controllers import FT_PER_M
 from samii.errors import InputError
 
 __all__ = ["Trace", "RunFolder", "read_run_folder", "ParamRow", "parameter_rows", "STAGE_FIGURES", "RECORDINGS"]
@@ -32,13 +32,12 @@ RECORDINGS = {"measure.rrd": "the swept-sine measurement", "closedloop.rrd": "th
 
 @dataclass(frozen=True)
 class Trace:
-    """One closed-loop run's signals (SI: s, rad, m/s^2, V)."""
+    """One closed-loop run's signals (SI: s, rad, m/s^2)."""
 
     t: np.ndarray
     theta: np.ndarray
     theta_ref: np.ndarray
     accel: np.ndarray
-    v: np.ndarray
 
 
 @dataclass
@@ -56,13 +55,10 @@ class RunFolder:
 
 
 def _json(folder: Path, rel: str) -> dict:
+    from samii.json_output import read_json
+
     path = folder / rel
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"{path}: missing; is {folder} a main job's output (samii run)?") from None
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: not readable JSON ({exc})") from None
+    data = read_json(path, "main job's file", missing=f"{path}: missing; is {folder} a main job's output (samii run)?")
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a JSON object")
     return data
@@ -73,7 +69,7 @@ def _trace(path: Path) -> Trace:
 
     ts = read_timeseries_csv(path)
     ref = ts.theta_ref if ts.theta_ref is not None else np.zeros_like(ts.t)
-    return Trace(t=ts.t, theta=ts.theta, theta_ref=ref, accel=ts.accel, v=ts.v)
+    return Trace(t=ts.t, theta=ts.theta, theta_ref=ref, accel=ts.accel)
 
 
 def read_run_folder(path) -> RunFolder:
@@ -129,7 +125,6 @@ class ParamRow:
         return abs(self.value - self.notebook) / self.stderr
 
 
-_FT_PER_M = 1.0 / 0.3048
 #: name -> (meaning, unit shown, factor from the fit's SI value to the unit shown, factor from the notebook's value to it).
 #: The notebook's gains read theta in degrees and the acceleration in ft/s^2 (experiments/closed_loop/README.md):
 #: K1 [deg/s/V] * pi/180 = rad/s/V; B_k [(ft/s^2)/deg] * 0.3048 * 180/pi = (m/s^2)/rad.
@@ -144,9 +139,9 @@ _PARAMS = {
     "z1": ("base mode 1 damping", "1", 1.0, 1.0),
     "w3": ("base mode 3", "Hz", 1 / (2 * math.pi), 1 / (2 * math.pi)),
     "z3": ("base mode 3 damping", "1", 1.0, 1.0),
-    "B1": ("base mode 1 coefficient", "(m/s^2)/rad", 1.0, 180.0 / (math.pi * _FT_PER_M)),
-    "B2": ("base mode 2 coefficient", "(m/s^2)/rad", 1.0, 180.0 / (math.pi * _FT_PER_M)),
-    "B3": ("base mode 3 coefficient", "(m/s^2)/rad", 1.0, 180.0 / (math.pi * _FT_PER_M)),
+    "B1": ("base mode 1 coefficient", "(m/s^2)/rad", 1.0, 180.0 / (math.pi * FT_PER_M)),
+    "B2": ("base mode 2 coefficient", "(m/s^2)/rad", 1.0, 180.0 / (math.pi * FT_PER_M)),
+    "B3": ("base mode 3 coefficient", "(m/s^2)/rad", 1.0, 180.0 / (math.pi * FT_PER_M)),
 }
 
 

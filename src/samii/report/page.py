@@ -105,6 +105,7 @@ def _header(run: RunFolder, lines: list[str]) -> str:
 def _model(run: RunFolder) -> str:
     from samii import notebook as nb
     from samii.sim.cli_params import unit
+    from samii.sim.model import dotted
 
     m = run.summary["modes"]
     rows = []
@@ -121,13 +122,7 @@ def _model(run: RunFolder) -> str:
         re_, im = m["servo_pair_1_s"]
         out.append(f"<p>Servo position loop (joint 2 free, unity feedback): the lightly damped pair at {_num(re_, '.2f')} ± {_num(im, '.1f')}j 1/s "
                    f"({_num(im / (2 * math.pi), '.2f')} Hz, ζ {_num(-re_ / math.hypot(re_, im), '.3f')}).</p>")
-    params = run.measurement.get("model", {}).get("params") or {}
-    flat = {}
-    for section, vals in params.items():
-        if isinstance(vals, dict):
-            flat.update({f"{section}.{k}": v for k, v in vals.items()})
-        else:
-            flat[section] = vals
+    flat = dotted(run.measurement.get("model", {}).get("params") or {})
     prow = [[_e(what), f"<code>{_e(name)}</code>", _num(flat[name], ".5g"), _e(unit(name))] for name, what in _KEY_PARAMS.items() if name in flat]
     if prow:
         out.append("<h3>Key physical parameters</h3>" + _table(["", "name (<code>--set NAME=VALUE</code>)", "value", "unit"], prow, left=2)
@@ -198,12 +193,9 @@ def _closed_loop(run: RunFolder) -> str:
             if r is None:
                 continue
             th, ba = r.get("theta") or {}, r.get("base") or {}
-            if r.get("stable"):
-                state = '<span class="ok">stable</span>'
-            else:
-                grow = f" (grows at {_num(r.get('growth_rate_1_s'), '.3g')} 1/s" + (f", {_num(r.get('unstable_mode_hz'), '.3g')} Hz)" if r.get("unstable_mode_hz") else ")")
-                state = f'<span class="bad">UNSTABLE</span>{grow}'
             ok = bool(r.get("stable"))
+            hz = f", {_num(r.get('unstable_mode_hz'), '.3g')} Hz" if r.get("unstable_mode_hz") else ""
+            state = '<span class="ok">stable</span>' if ok else f'<span class="bad">UNSTABLE</span> (grows at {_num(r.get("growth_rate_1_s"), ".3g")} 1/s{hz})'
             rows.append([_e(label), sc, state,
                          _num(th.get("overshoot_pct"), ".1f") if ok and sc == "step" else "–",
                          _num(th.get("settle_s"), ".2f") if ok and sc == "step" else "–",
@@ -221,9 +213,8 @@ def _closed_loop(run: RunFolder) -> str:
         out.append(_figure(figure_ch11_step(tr["servo_loop_alone_step"], tr["notebook_cancel_step"]), "Figures 11.1-11.4",
                            "The notebook's Figures 11.1–11.4 as simulations (first 5 s of 10). As on the rig, the compensator shapes the "
                            "step so that it excites little vibration, but it does not damp the base."))
-    loper_on = _switch_on(run, "notebook_cancel_loper")
     if {"servo_loop_alone_step", "notebook_cancel_loper"} <= tr.keys():
-        out.append(_figure(figure_ch11_loper(tr["servo_loop_alone_step"], tr["notebook_cancel_loper"], loper_on), "Figure 11.5",
+        out.append(_figure(figure_ch11_loper(tr["servo_loop_alone_step"], tr["notebook_cancel_loper"], _switch_on(run, "notebook_cancel_loper")), "Figure 11.5",
                            "The notebook's Figure 11.5 as a simulation: switched on after the move, the pole-cancelling compensator leaves "
                            "the vibration as it was (\"Obviously this didn't work very well\", chapter 11). The free decay is the servo loop "
                            "alone's step run, identical to the Loper run until the switch-on."))

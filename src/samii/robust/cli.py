@@ -13,7 +13,7 @@ import argparse
 import os
 import sys
 
-from samii.cli_args import float_in, nonempty_path, seed
+from samii.cli_args import float_in, int_in, nonempty_path, seed
 from samii.errors import InputError
 
 __all__ = ["add_arguments", "run", "MAX_SAMPLES"]
@@ -22,26 +22,9 @@ MAX_SAMPLES = 100_000
 _FILES = ("robust.json", "samples.csv")
 
 
-def _samples(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number of samples, got {text!r}") from None
-    if not 1 <= n <= MAX_SAMPLES:
-        raise argparse.ArgumentTypeError(f"expected 1...{MAX_SAMPLES} samples, got {n}")
-    return n
-
-
 def _workers(text: str) -> int:
-    if text == "auto":
-        return os.cpu_count() or 1
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number of worker processes or 'auto', got {text!r}") from None
-    if not 0 <= n <= 1024:
-        raise argparse.ArgumentTypeError(f"expected 0...1024 workers, got {n}")
-    return n
+    """A number of worker processes, or ``auto``: one per core."""
+    return (os.cpu_count() or 1) if text == "auto" else int_in(0, 1024)(text)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -51,7 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"{', '.join(BUILTIN_CONTROLLERS)}, or a controller file (samii design ... --save); designed once, on the nominal plant")
     p.add_argument("--scenario", choices=("step", "loper", "release"), default="step",
                    help="the closed-loop test each sample runs (samii closedloop; default step: 5 deg at t = 1 s, 10 s)")
-    p.add_argument("--samples", type=_samples, default=100, metavar="N", help="number of plants drawn (default 100)")
+    p.add_argument("--samples", type=int_in(1, MAX_SAMPLES), default=100, metavar="N", help="number of plants drawn (default 100)")
     p.add_argument("--seed", type=seed, default=0, help="seed of the draws (and of the sensor noise with --noise): the same seed "
                    "gives the same table whatever runs it (default 0)")
     p.add_argument("--spread", action="append", default=[], metavar="NAME=P%",
@@ -105,16 +88,6 @@ def _nominal_params(args):
     return params_with_overrides(params, overrides) if overrides else params, cov
 
 
-def _flat(params) -> dict[str, float]:
-    out = {}
-    for section, values in params.as_dict().items():
-        if isinstance(values, dict):
-            out.update({f"{section}.{k}": v for k, v in values.items()})
-        else:
-            out[section] = values
-    return out
-
-
 def run(args: argparse.Namespace) -> int:
     from samii.outputs import OutputFolder
     from samii.robust.plots import FIGURES
@@ -129,8 +102,9 @@ def run(args: argparse.Namespace) -> int:
 
     spreads = [parse_spread(s) for s in args.spread]
     params, cov = _nominal_params(args)
-    draws = draw_plants(args.samples, args.seed, _flat(params), spreads, cov)
-    from samii.sim.model import params_with_overrides
+    from samii.sim.model import dotted, params_with_overrides
+
+    draws = draw_plants(args.samples, args.seed, dotted(params), spreads, cov)
 
     for i in range(args.samples):  # every drawn value is one the model accepts, checked before any run
         try:
@@ -162,8 +136,8 @@ def run(args: argparse.Namespace) -> int:
     def noise_seed(i: int) -> int | None:
         return sample_seeds(args.seed, i)[1] if args.noise else None
 
-    tasks = [SampleTask(-1, base, {}, saved, args.scenario, {}, args.delay_samples, noise_seed(-1))]
-    tasks += [SampleTask(i, base, draws.overrides(i), saved, args.scenario, {}, args.delay_samples, noise_seed(i)) for i in range(args.samples)]
+    tasks = [SampleTask(-1, base, {}, saved, args.scenario, args.delay_samples, noise_seed(-1))]
+    tasks += [SampleTask(i, base, draws.overrides(i), saved, args.scenario, args.delay_samples, noise_seed(i)) for i in range(args.samples)]
 
     from tqdm import tqdm
 

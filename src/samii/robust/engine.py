@@ -15,6 +15,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
+import dask
+from distributed import Client, LocalCluster, as_completed
+from distributed.diagnostics.plugin import WorkerPlugin
+
+import samii
 from samii.robust.task import SampleResult, SampleTask, run_sample
 
 __all__ = ["Engine", "SamiiWorkerPlugin", "configured_scheduler"]
@@ -22,55 +27,26 @@ __all__ = ["Engine", "SamiiWorkerPlugin", "configured_scheduler"]
 
 def configured_scheduler() -> str | None:
     """The scheduler address in Dask's own configuration (``DASK_SCHEDULER_ADDRESS``, ``~/.config/dask``), if any."""
-    try:
-        import dask
-    except ImportError:  # pragma: no cover - dask is a dependency
-        return None
     addr = dask.config.get("scheduler-address", None)
     return str(addr) if addr else None
 
 
-def _worker_setup(version: str) -> str:
-    """Register samii's hydraulic plugin in this worker process and check samii's version; returns it."""
-    import samii
-    from samii.sim.plugin import load_plugin
+class SamiiWorkerPlugin(WorkerPlugin):
+    """At every worker's start (and on workers that join later): import samii, register its hydraulic plugin,
+    and refuse a worker whose samii is not the client's version."""
 
-    load_plugin()
-    have = getattr(samii, "__version__", None) or _installed_version()
-    if version and have != version:
-        raise RuntimeError(f"this worker has samii {have}, the client {version}: install the same samii on every worker")
-    return have
+    name = "samii"
 
+    def __init__(self, version: str = samii.__version__):
+        self.version = version
 
-def _installed_version() -> str:
-    from importlib import metadata
+    def setup(self, worker):
+        import samii as worker_samii  # the worker's own installation
+        from samii.sim.plugin import load_plugin
 
-    try:
-        return metadata.version("samii")
-    except metadata.PackageNotFoundError:  # pragma: no cover - a source tree on the path
-        return "unknown"
-
-
-def _worker_plugin_class():
-    from distributed.diagnostics.plugin import WorkerPlugin
-
-    class SamiiWorkerPlugin(WorkerPlugin):
-        """At every worker's start (and on workers that join later): import samii and register the hydraulic plugin."""
-
-        name = "samii"
-
-        def __init__(self, version: str):
-            self.version = version
-
-        def setup(self, worker):
-            _worker_setup(self.version)
-
-    return SamiiWorkerPlugin
-
-
-def SamiiWorkerPlugin(version: str | None = None):  # noqa: N802 - a factory named like the class it returns
-    """A Dask worker plugin registering samii's MuJoCo plugin in each worker (distributed is imported only here)."""
-    return _worker_plugin_class()(version if version is not None else _installed_version())
+        load_plugin()
+        if worker_samii.__version__ != self.version:
+            raise RuntimeError(f"this worker has samii {worker_samii.__version__}, the client {self.version}: install the same samii on every worker")
 
 
 @dataclass
@@ -96,9 +72,6 @@ class Engine:
 
     def __enter__(self) -> "Engine":
         if self.uses_dask and self._client is None:
-            import dask
-            from distributed import Client, LocalCluster
-
             if self.scheduler:
                 self._client = Client(self.scheduler, timeout="30s")
             else:
@@ -138,8 +111,6 @@ class Engine:
 
     def _dask(self, tasks, progress) -> list[SampleResult]:
         import uuid
-
-        from distributed import as_completed
 
         study = uuid.uuid4().hex[:12]  # keys unique to this study: a shared cluster may hold another study's results
         futures = self._client.map(run_sample, list(tasks), pure=False, key=[f"samii-sample-{study}-{t.index}" for t in tasks])

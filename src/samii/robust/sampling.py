@@ -20,7 +20,6 @@ sample ``i`` is the same plant in a study of any size (a worst sample can be run
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -91,13 +90,10 @@ def parse_spread(text: str) -> Spread:
 
 def read_covariance(path) -> Covariance:
     """The parameters, standard errors and correlations of ``samii calibrate``'s ``calibration.json``."""
+    from samii.json_output import read_json
+
     path = Path(path)
-    try:
-        d = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"--covariance {path}: no such file") from None
-    except (OSError, ValueError) as exc:
-        raise InputError(f"--covariance {path}: not readable JSON ({exc})") from None
+    d = read_json(path, "calibration file", missing=f"--covariance {path}: no such file")
     if not isinstance(d, dict):
         raise InputError(f"--covariance {path}: expected samii calibrate's calibration.json (a JSON object)")
     params, corr, nominal = d.get("parameters"), d.get("correlation"), d.get("calibrated_params")

@@ -1,7 +1,7 @@
 """One sample of a robustness study: a plant built from parameters, a closed-loop run, its figures.
 
 A :class:`SampleTask` holds only plain data (a parameter dictionary, overrides, the controller's
-matrices, the scenario's settings, a seed), so it pickles to any worker; :func:`run_sample` builds
+matrices, the scenario's name, a seed), so it pickles to any worker; :func:`run_sample` builds
 the MuJoCo model inside the task. An ``MjModel`` that uses the hydraulic plugin is never shipped:
 unpickled in a process where the plugin is not registered it crashes that process.
 """
@@ -9,8 +9,7 @@ unpickled in a process where the plugin is not registered it crashes that proces
 from __future__ import annotations
 
 import math
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 __all__ = ["SampleTask", "SampleResult", "run_sample", "closed_loop_damping", "DAMPING_BAND_HZ"]
 
@@ -21,8 +20,7 @@ class SampleTask:
     base_params: dict  #: SamiiParams.as_dict() of the nominal plant
     overrides: dict[str, float]  #: this sample's drawn values
     controller: object  #: a SavedController, or None for the servo loop alone
-    scenario: str
-    scenario_kwargs: dict = field(default_factory=dict)
+    scenario: str  #: samii closedloop's scenario, at its default settings
     delay_samples: float = 0.0
     noise_seed: int | None = None  #: sensor noise on, with this seed (None: off)
 
@@ -40,7 +38,6 @@ class SampleResult:
     note: str = ""  #: why the run is unstable or could not be judged, in words
     valid: bool = True  #: False: no plant could be built (no static equilibrium near the nominal pose); not counted
     linear_stable: bool = True  #: the closed loop linearised about the rest state is stable
-    wall_s: float = 0.0  #: the task's own time (not part of the study's results: it varies with the machine)
 
     def table_row(self) -> dict:
         return {"index": self.index, "stable": self.stable, "zeta": self.zeta, "mode_hz": self.mode_hz, "growth_rate_1_s": self.growth_rate_1_s,
@@ -103,14 +100,12 @@ def _run_sample(task: SampleTask) -> SampleResult:
     from samii.sim.model import load_model, load_spec, params_from_dict
     from samii.sim.plugin import load_plugin
 
-    started = time.perf_counter()
     load_plugin()  # idempotent; a fresh worker process has not registered the hydraulic plugin yet
     params = params_from_dict(task.base_params)
     try:
         model = load_model(params=params, overrides=task.overrides)
     except InputError as exc:  # no static equilibrium near the nominal pose: a plant the rig could not be
-        return SampleResult(task.index, False, None, None, None, None, None, None, note=f"no plant: {exc}", valid=False,
-                            wall_s=time.perf_counter() - started)
+        return SampleResult(task.index, False, None, None, None, None, None, None, note=f"no plant: {exc}", valid=False)
     qpos, act = model.key_qpos[0].copy(), model.key_act[0].copy()
 
     def factory():
@@ -120,7 +115,7 @@ def _run_sample(task: SampleTask) -> SampleResult:
     noise = NoiseSpec(seed=task.noise_seed) if task.noise_seed is not None else None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        r = run_closed_loop(task.controller, scenario(task.scenario, **task.scenario_kwargs), label=f"sample {task.index}",
+        r = run_closed_loop(task.controller, scenario(task.scenario), label=f"sample {task.index}",
                             spec_factory=factory, delay_samples=task.delay_samples, noise=noise, comparison=False)  # fmt: skip
     # unstable: the nonlinear run diverges or oscillates without decaying, or its linearisation is unstable and only
     # the valve's +-10 V rails bound it (a limit cycle is no stable loop)
@@ -139,5 +134,4 @@ def _run_sample(task: SampleTask) -> SampleResult:
         theta_settle_s=_num(r.theta.settle_s) if stable else None,
         theta_overshoot_pct=_num(r.theta.overshoot_pct) if stable else None,
         note=note,
-        wall_s=time.perf_counter() - started,
     )

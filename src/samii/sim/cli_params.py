@@ -46,18 +46,10 @@ def unit(name: str) -> str:
 
 def parameter_table(model: str | None = None) -> list[dict]:
     """``[{"name", "value", "unit"}]`` for the embedded default (or a parameter file's) parameters."""
-    from dataclasses import asdict
-
-    from samii.sim.model import default_params, read_params_file
+    from samii.sim.model import default_params, dotted, read_params_file
 
     params = read_params_file(model) if model else default_params()
-    rows = []
-    for section, values in asdict(params).items():
-        if isinstance(values, dict):
-            rows += [{"name": f"{section}.{k}", "value": v, "unit": unit(f"{section}.{k}")} for k, v in values.items()]
-        else:
-            rows.append({"name": section, "value": values, "unit": unit(section)})
-    return rows
+    return [{"name": name, "value": v, "unit": unit(name)} for name, v in dotted(params).items()]
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

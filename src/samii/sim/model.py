@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, fields, is_dataclass, replace
+from dataclasses import fields, is_dataclass, replace
 from pathlib import Path
 from typing import Mapping
 
@@ -30,6 +30,7 @@ __all__ = [
     "default_params",
     "params_from_dict",
     "params_with_overrides",
+    "dotted",
     "write_params",
     "read_params_file",
     "load_model",
@@ -118,6 +119,18 @@ def write_params(params: SamiiParams, path: Path, *, note: str = "") -> None:
     path.write_text(json.dumps({"note": note, "params": params.as_dict()}, indent=2) + "\n")
 
 
+def dotted(params: SamiiParams | Mapping) -> dict[str, float]:
+    """Every parameter by the name ``--set`` takes (``beam.length_m``, ``timestep_s``), from parameters or their ``as_dict``."""
+    d = params.as_dict() if isinstance(params, SamiiParams) else params
+    out = {}
+    for section, values in d.items():
+        if isinstance(values, Mapping):
+            out.update({f"{section}.{k}": v for k, v in values.items()})
+        else:
+            out[section] = values
+    return out
+
+
 def params_with_overrides(params: SamiiParams, overrides: Mapping[str, float]) -> SamiiParams:
     """Replace dotted fields (``section.name`` or ``timestep_s``) of ``params``."""
     out = params
@@ -157,17 +170,10 @@ def _load_plugin() -> None:
 def read_params_file(path: str | Path) -> SamiiParams:
     """Parameters from a parameter file (``{"params": {...}}``, as :func:`write_params` and
     ``samii calibrate`` write it; ``samii_params.json`` is one)."""
+    from samii.json_output import read_json
+
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"parameter file {path} does not exist") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot be read as a parameter file ({exc})") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path}: not valid JSON ({exc})") from None
-    except RecursionError:
-        raise InputError(f"{path}: JSON nested too deeply to be a parameter file") from None
+    data = read_json(path, "parameter file")
     if not isinstance(data, dict) or not isinstance(data.get("params"), dict):
         raise InputError(f"{path}: a parameter file is a JSON object with a 'params' object (sections beam, arm, hydraulic, timestep_s)")
     try:
