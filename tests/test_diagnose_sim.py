@@ -136,6 +136,11 @@ def test_carry_rules():
     options, carried, not_carried = carry([FoundEffect("nonlinear", "saturation", "act", {"saturation_v": 0.05}, {}, "")], p,
                                           refuse={"nonlinear/saturation": "no level"})
     assert not options and not_carried == ["nonlinear/saturation: no level"]
+    # valve dynamics: the spool (a first-order lag) takes the found lag's low-frequency group delay 2 zeta / omega
+    tau0 = p.hydraulic.valve_time_constant
+    options, carried, _ = carry([FoundEffect("actuator", "valve", "act", {"freq_hz": 50.0, "zeta": 0.7}, {}, "")], p)
+    assert carried == ["actuator/valve"]
+    assert options == pytest.approx({"hydraulic.valve_time_constant": tau0 + 1.4 / (2 * np.pi * 50.0)})
 
 
 def test_extra_base_mode_found_and_carried_as_a_body_on_the_tip(tip_body):

@@ -254,6 +254,10 @@ def _print(d, written) -> None:
         after = d.error_after[ch]
         print(f"  {_NAMES[ch]:>9}: {before.rms_db:7.3g} dB {before.rms_deg:7.3g} deg {chi2(before.chi2)}  ->  "
               f"{after.rms_db:7.3g} dB {after.rms_deg:7.3g} deg {chi2(after.chi2)}")
+    if d.harmonic_error is not None:
+        hb, ha = d.harmonic_error
+        print(f"  harmonics: {100 * hb.rms_ratio:7.3g} % of the fundamental, chi2 {hb.chi2:.3g}  ->  {100 * ha.rms_ratio:.3g} %, "
+              f"chi2 {ha.chi2:.3g} with the law ({hb.n_segments} segment harmonics; a linear model makes none)")
     if d.simulator is not None:
         s = d.simulator
         print(f"simulator: carried {', '.join(s.carried) if s.carried else 'nothing'}; measured like the data, before -> after")

@@ -94,6 +94,10 @@ class Measured:
     timeseries : TimeSeries or None
     layout : RecordLayout or None
         The records a time series was cut into.
+    model_var : mapping channel -> array, or None
+        Variance the model's own approximation adds to each point, beside the noise: the fit weighs
+        the point by ``var + model_var``, the error reported is against ``var`` alone (set by
+        :func:`samii.diagnose.nonlinear.linearised`: a describing function's neglected harmonics).
     """
 
     source: str
@@ -105,6 +109,7 @@ class Measured:
     sample_rate_hz: float | None = None
     timeseries: TimeSeries | None = None
     layout: RecordLayout | None = None
+    model_var: Mapping[str, np.ndarray] | None = None
 
 
 def _float_meta(meta: Mapping[str, str], key: str) -> float | None:

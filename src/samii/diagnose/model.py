@@ -50,10 +50,13 @@ class Dataset:
     freq_hz: np.ndarray
     data: Mapping[str, np.ndarray]  # channel -> complex (usable points only)
     keep: Mapping[str, np.ndarray]  # channel -> bool mask on freq_hz
-    inv_sigma: Mapping[str, np.ndarray]  # channel -> 1/sqrt(var/2)
+    inv_sigma: Mapping[str, np.ndarray]  # channel -> 1/sqrt(var/2), the fit's weights (noise and any model_var)
     known_noise: bool
     corr_length: float
     amplitude_v: float | None
+    #: channel -> 1/sqrt(var/2) of the noise alone, where the fit's weights also hold the model's own
+    #: approximation (Measured.model_var); None when they are the noise alone
+    noise_inv_sigma: Mapping[str, np.ndarray] | None = None
 
     @classmethod
     def from_measured(cls, m, channels: Sequence[str] | None = None) -> "Dataset":
@@ -63,7 +66,8 @@ class Dataset:
             have = set(m.frf.channels)
             channels = ("act", "total") if {"act", "total"} <= have else ("act", "base")
         frf = m.frf
-        data, keep, inv = {}, {}, {}
+        data, keep, inv, noise_inv = {}, {}, {}, {}
+        extra = m.model_var or {}
         known = True
         if any(m.var.get(c) is None for c in frf.channels):  # one noise model per file: unknown for all if for one
             m = replace(m, var=dict.fromkeys(frf.channels))
@@ -72,9 +76,11 @@ class Dataset:
                 h = frf.total / frf.act
                 va, vt = m.var.get("act"), m.var.get("total")
                 var = None if va is None or vt is None else va + vt
+                xv = extra["act"] + extra["total"] if {"act", "total"} <= set(extra) else None
             elif ch in frf.channels:
                 h = frf.response(ch)
                 var = m.var.get(ch)
+                xv = extra.get(ch)
             else:
                 continue
             if var is None:
@@ -85,10 +91,16 @@ class Dataset:
                 k = var <= MAX_VAR
             keep[ch] = k
             data[ch] = h[k]
-            inv[ch] = 1.0 / np.sqrt(var[k] / 2.0)
+            noise_inv[ch] = 1.0 / np.sqrt(var[k] / 2.0)
+            inv[ch] = noise_inv[ch] if xv is None else 1.0 / np.sqrt((var[k] + xv[k]) / 2.0)
         if not data:
             raise ValueError(f"{m.source}: no act or base channel to diagnose (has {', '.join(frf.channels)})")
-        return cls(m.source, frf.freq_hz, data, keep, inv, known, float(m.corr_length), m.amplitude_v)
+        return cls(m.source, frf.freq_hz, data, keep, inv, known, float(m.corr_length), m.amplitude_v,
+                   None if not extra else noise_inv)
+
+    def noise_sigma_inv(self, ch: str) -> np.ndarray:
+        """1/sqrt(var/2) of the noise alone on channel ``ch``'s usable points (the reported error's scale)."""
+        return self.inv_sigma[ch] if self.noise_inv_sigma is None else self.noise_inv_sigma[ch]
 
     @property
     def n_points(self) -> int:

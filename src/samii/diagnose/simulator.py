@@ -14,9 +14,10 @@ finds carried into it as physics.
 3. **Carry.** Each effect found becomes a simulator option (:data:`CARRY`): a command delay in the
    hydraulic plugin, the sensors' dynamics in the DAQ (``samii.sim.sensor_dynamics``), a dead
    band or saturation in the valve; an extra base mode a body on a compliant mount at the beam's
-   end (:data:`BODY`, :func:`tip_body_options`; in a second round, ``samii.diagnose.diagnosis``).
-   Kinds with no simulator counterpart yet (an actuator mode, an actuator pole-zero pair or valve
-   dynamics, hysteresis, asymmetry) are listed as not carried, with the reason.
+   end (:data:`BODY`, :func:`tip_body_options`), valve dynamics the spool's time constant
+   (:data:`SPOOL`); these two in a second round (``samii.diagnose.diagnosis``).
+   Kinds with no simulator counterpart yet (an actuator mode, an actuator pole-zero pair,
+   hysteresis, asymmetry) are listed as not carried, with the reason.
 4. **Recalibrate** the mode knobs together with the linear options carried (started at the values
    found): a parameter the first calibration bent to imitate the missing effect goes back. The
    correction is recomputed at the result, and the calibration repeated, while the cost falls.
@@ -52,7 +53,7 @@ from samii.frequency_response import FrequencyResponse, interpolate_frf
 from samii.sim.mjcf import SamiiParams
 from samii.sim.model import params_with_overrides
 
-__all__ = ["CARRY", "BODY", "NOT_CARRIED", "tip_body_options", "body_effect_values", "LocalSimulator", "SimulatorCalibration", "SimulatorReport", "calibrate_simulator", "correction",
+__all__ = ["CARRY", "BODY", "SPOOL", "LATE", "NOT_CARRIED", "tip_body_options", "body_effect_values", "LocalSimulator", "SimulatorCalibration", "SimulatorReport", "calibrate_simulator", "correction",
            "simulator_baseline", "carry", "carry_and_recalibrate", "sweep_like", "measured_like", "measurement_like", "remeasure", "simulator_report"]
 
 #: effect label -> (simulator parameter, the effect's parameter giving its value)
@@ -73,6 +74,14 @@ CARRY: Mapping[str, tuple[str, str]] = {
 BODY: Mapping[str, tuple[str, str, str]] = {
     "extra_mode/base_mode": ("beam.tip_body_mass_kg", "beam.tip_body_freq_hz", "beam.tip_body_damping_ratio"),
 }
+#: Valve dynamics become the simulator's spool time constant (its valve is a first-order lag): the
+#: found second-order lag at ``f`` with damping ``zeta`` adds its low-frequency group delay
+#: ``2 zeta / (2 pi f)`` to the spool's time constant, which is then recalibrated with the knobs.
+#: Like a body, it is carried in the second round only (diagnosis: a kind the first selection cannot
+#: carry is imitated by one it can, and the reverse).
+SPOOL: Mapping[str, str] = {"actuator/valve": "hydraulic.valve_time_constant"}
+#: Kinds carried in the second round, after the first selection's effects (samii.diagnose.diagnosis).
+LATE = (*BODY, *SPOOL)
 #: The trial mass whose effect on xdd/theta, to first order in the mass, scales a found residue to a mass.
 _TRIAL_MASS_KG = 0.05
 #: Options of the valve's law: set, not recalibrated (the linearisation takes the ideal valve).
@@ -81,7 +90,6 @@ _LAWS = ("hydraulic.valve_dead_band", "hydraulic.valve_saturation")
 NOT_CARRIED: Mapping[str, str] = {
     "extra_mode/act_mode": "the simulator has no option for a compliance in joint 2's drive yet",
     "actuator/pole_zero": "the simulator's valve and lines have no extra pole-zero pair option yet",
-    "actuator/valve": "the simulator's valve is first order; a second-order valve is not an option yet",
     "nonlinear/hysteresis": "the simulator's valve has no play (hysteresis) option yet",
     "nonlinear/asymmetry": "the simulator's valve has no asymmetry option yet",
 }
@@ -375,6 +383,15 @@ def carry(effects: Sequence, params: SamiiParams, *, refuse: Mapping[str, str] |
                                    f"{options[BODY[label][1]]:.4g} Hz)")
             else:
                 options.update(body)
+                carried.append(label)
+            continue
+        if label in SPOOL:
+            name = SPOOL[label]
+            tau = parameter_value(params, name) + 2.0 * float(e.params["zeta"]) / (2.0 * np.pi * float(e.params["freq_hz"]))
+            if name in options:
+                not_carried.append(f"{label}: a second {name} (kept the first, {options[name]:g})")
+            else:
+                options[name] = tau
                 carried.append(label)
             continue
         if label not in CARRY:

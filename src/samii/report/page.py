@@ -272,6 +272,14 @@ def _diagnosis(run: RunFolder) -> str:
         out.append("<h3>Error before and after the effects</h3><p>Residual over the data's usable points; "
                    "an error that grows with the effects is in red.</p>" + _table(["channel", "rms dB before", "after", "rms deg before", "after",
                                                                           "χ² per residual before (1: the noise)", "after"], rows))  # fmt: skip
+    he = d.get("harmonic_error")
+    if he and he.get("before") and he.get("after"):
+        b, a = he["before"], he["after"]
+        pct = (lambda x: None if x is None else 100.0 * x)  # noqa: E731
+        out.append(f"<p>The sweep's harmonics ({_e(b.get('n_segments'))} segment harmonics), which no linear model makes: rms "
+                   f"{_num(pct(b.get('rms_ratio')), '.3g')} % of the fundamental, χ² {_num(b.get('chi2'), '.3g')} per residual; with the "
+                   f"nonlinear law found {_worse(pct(a.get('rms_ratio')), pct(b.get('rms_ratio')), '.3g')} %, "
+                   f"χ² {_worse(a.get('chi2'), b.get('chi2'), '.3g')}.</p>")
     un = d.get("unexplained") or []
     if un:
         items = "".join(f"<li>{_e(_CHANNELS.get(u.get('channel'), u.get('channel')))} over {_num(u.get('lo_hz'), '.3g')}–{_num(u.get('hi_hz'), '.3g')} Hz: "
