@@ -172,16 +172,17 @@ def bode_figure(d: Diagnosis, path=None):
 def harmonic_figure(d: Diagnosis, path=None):
     """The sweep's 2nd and 3rd harmonics referred to the valve command, relative to its fundamental, per segment of
     every time-series file, with twice their noise and the 1 % level below which none is claimed; significant
-    segments filled."""
+    segments filled; the law found (its describing function's c3/c1, an asymmetry's c2/c1) as a line."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import matplotlib.ticker
 
-    from samii.diagnose.nonlinear import MATERIAL
+    from samii.diagnose.nonlinear import MATERIAL, predicted_ratio
 
     hs = list(d.harmonics)
+    laws = list(d.nonlinear)
     fig, axes = plt.subplots(1, max(len(hs), 1), figsize=(6.0 * max(len(hs), 1), 4.2), squeeze=False)
     if not hs:
         ax = axes[0, 0]
@@ -201,6 +202,13 @@ def harmonic_figure(d: Diagnosis, path=None):
             ax.loglog(f[~sig], 100 * r[~sig], "o", mfc="none", color=colors[k], ms=5, label=f"{k}× {'excess' if h.reference else 'harmonic'}")
             if sig.any():
                 ax.loglog(f[sig], 100 * r[sig], "o", color=colors[k], ms=6, label=f"{k}× significant")
+            for finding in laws:
+                if h.source not in {x.source for x in finding.harmonics}:
+                    continue
+                pred = predicted_ratio(finding, h, k)
+                if pred is not None and np.any(np.abs(pred[tested]) > 0):
+                    ax.loglog(f[order], 100 * np.abs(pred[tested][order]), "-", color=colors[k], lw=1.2,
+                              label=f"{k}× the {finding.kind.replace('_', ' ')} found")
         ax.axhline(100 * MATERIAL, color="k", lw=0.8, ls="--", label=f"{100 * MATERIAL:g} % (claimed above)")
         ax.set_xlabel("sweep frequency (fundamental) [Hz]")
         ax.set_ylabel("harmonic excess / fundamental [%]" if h.reference else "harmonic / fundamental at the valve command [%]")
