@@ -202,8 +202,8 @@ def model_response(fit: Fit, i: int, freq_hz: np.ndarray) -> dict[str, np.ndarra
 
 def _full_residuals(ds: Dataset, res: dict, *, noise_only: bool = True) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """act, base and total residuals on ``ds``'s whole grid (NaN where a channel is not usable), any one derived from
-    the other two; the variance the noise's alone, or with ``noise_only=False`` the fit's (with any describing
-    function's approximation, Measured.model_var)."""
+    the other two; the variance the noise's alone, or with ``noise_only=False`` the fit's (with the distortion's
+    and any describing function's approximation, Measured.model_var)."""
     n = ds.freq_hz.size
     e, var = {}, {}
     for ch, r in res.items():
@@ -286,13 +286,27 @@ def _file_chi2(ds: Dataset, res: Mapping[str, np.ndarray]) -> float:
     return float(sum(np.sum(np.abs(r * ds.inv_sigma[ch]) ** 2) for ch, r in res.items()))
 
 
-def _drop_amplitude_images(datasets: Sequence[Dataset], baseline: Baseline, fit: Fit) -> tuple[Fit, list[str]]:
+def _least_distorted(datasets: Sequence[Dataset], harmonics: Sequence) -> int:
+    """The file whose sweep harmonics are smallest (none significant counts 0; a file without a harmonic test last):
+    a saturation distorts the largest amplitude most, a dead band or a play the smallest."""
+    def distortion(ds: Dataset) -> float:
+        h = next((h for h in harmonics if h.source == ds.source), None)
+        if h is None:
+            return np.inf
+        sig = [np.abs(h.ratio[k][h.significant(k)]) for k in h.ratio]
+        return float(max((x.max() for x in sig if x.size), default=0.0))
+
+    return int(min(range(len(datasets)), key=lambda i: (distortion(datasets[i]), -(datasets[i].amplitude_v or 0.0))))
+
+
+def _drop_amplitude_images(datasets: Sequence[Dataset], baseline: Baseline, fit: Fit, harmonics: Sequence = ()) -> tuple[Fit, list[str]]:
     """With a nonlinearity found and files at amplitudes at least MIN_AMPLITUDE_RATIO apart: a linear effect holds
-    at every amplitude, so one whose removal lets the smallest amplitude's file fit better by more than
-    AMBIGUOUS_CHI2 noise variances is the nonlinearity's image at the larger (held-out battery rig, a 0.4 V saturation
-    at 0.1 and 0.3 V: a "base mode" at 8.57 Hz, damping 0.13, fitted to the 0.3 V file near the hydraulic resonance,
-    made the 0.1 V file's xdd/v chi2 there 3x its noise). Dropped one at a time, refitted, until none is.
-    Returns the fit and the dropped effects' descriptions."""
+    at every amplitude, so one whose removal lets the least distorted file (:func:`_least_distorted`) fit better by
+    more than AMBIGUOUS_CHI2 of the fit's variances (its weights: noise and distortion) is the nonlinearity's image
+    in the others (held-out battery rig, a 0.4 V saturation at 0.1 and 0.3 V: a "base mode" at 8.57 Hz, damping
+    0.13, fitted to the 0.3 V file near the hydraulic resonance, made the 0.1 V file's xdd/v chi2 there 3x its
+    noise). Dropped one at a time, the largest gain first, refitted, until none is. The threshold is one effect's,
+    with no correction for the effects tried. Returns the fit and the dropped effects' descriptions."""
     from samii.diagnose.model import fit_model, relabel_modes
     from samii.diagnose.nonlinear import MIN_AMPLITUDE_RATIO
     from samii.diagnose.select import _baseline_vectors, _vectors
@@ -300,7 +314,7 @@ def _drop_amplitude_images(datasets: Sequence[Dataset], baseline: Baseline, fit:
     amps = [ds.amplitude_v for ds in datasets]
     if len(datasets) < 2 or any(not a for a in amps) or max(amps) < MIN_AMPLITUDE_RATIO * min(amps):
         return fit, []
-    lo = int(np.argmin(amps))
+    lo = _least_distorted(datasets, harmonics)
     corr = max(ds.corr_length for ds in datasets)
     dropped = []
     while fit.effects:
@@ -315,8 +329,8 @@ def _drop_amplitude_images(datasets: Sequence[Dataset], baseline: Baseline, fit:
         if worst is None:
             break
         gain, e, fit = worst
-        dropped.append(f"{e.kind.label} ({_values_text(e.kind.label, dict(e.values))}): without it the {amps[lo]:.3g} V file fits "
-                       f"better by {gain / s2:.3g} noise variances")
+        dropped.append(f"{e.kind.label} ({_values_text(e.kind.label, dict(e.values))}): without it the {amps[lo]:.3g} V file, the "
+                       f"least distorted, fits better by {gain / s2:.3g} of the fit's variances")
         fit = relabel_modes(list(datasets), fit)
     return fit, dropped
 
@@ -389,8 +403,13 @@ def _effects(after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured:
                     f"F = {s.f_stat:.3g} on ({s.dof[0]}, {s.dof[1]}) dof, {p}")
         else:
             swap = next((t for t in reversed(swaps) if t.get("swapped") and t["effect"] == k.label), None)  # the latest
-            test = (f"it replaced {swap['alternative_to']}, which had joined by F-test, with no more parameters: chi2 "
-                    f"{swap['chi2_current']:.4g} -> {swap['chi2']:.4g}" if swap else "kept by the joint refit")
+            if swap and swap.get("richer"):
+                p = "p < 1e-300" if swap["log10_p"] <= -300 else f"p = 10^{swap['log10_p']:.1f}"
+                test = (f"it replaced {swap['alternative_to']}, which had joined by F-test, with {swap['extra_params']} more "
+                        f"parameter(s): chi2 {swap['chi2_current']:.4g} -> {swap['chi2']:.4g}, F = {swap['F']:.3g}, {p}")
+            else:
+                test = (f"it replaced {swap['alternative_to']}, which had joined by F-test, with no more parameters: chi2 "
+                        f"{swap['chi2_current']:.4g} -> {swap['chi2']:.4g}" if swap else "kept by the joint refit")
         expected = False
         text = f"{k.describe(e.values)}; {test}"
         near_equal = [t for t in final_swaps if t["delta_in_noise"] < AMBIGUOUS_CHI2 and "kept" in t]
@@ -679,10 +698,10 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
         before = fit_model(list(raw_datasets), baseline_for(raw, raw_datasets), [])
         error_before = channel_errors(raw_datasets, before)
     if nonlinear and not sim:
-        after, images = _drop_amplitude_images(datasets, bl, after)
+        after, images = _drop_amplitude_images(datasets, bl, after, harmonics)
         if images:
             notes.append("dropped as the nonlinearity's image (a linear effect holds at every amplitude, and these make the "
-                         "smallest amplitude's file fit worse): " + "; ".join(images))
+                         "least distorted file fit worse): " + "; ".join(images))
     effects = _effects(after, steps, tried, measured)
     if nonlinear:
         effects = [e if e.expected else replace(e, evidence=e.evidence + "; found beside a nonlinearity: it may be that "

@@ -97,6 +97,7 @@ class Measured:
     model_var : mapping channel -> array, or None
         Variance the model's own approximation adds to each point, beside the noise: the fit weighs
         the point by ``var + model_var``, the error reported is against ``var`` alone (set by
+        :func:`samii.diagnose.nonlinear.distortion_var`: the distortion measured, and
         :func:`samii.diagnose.nonlinear.linearised`: a describing function's neglected harmonics).
     """
 

@@ -252,6 +252,10 @@ def describing_ratio(kind: str, level_over_amplitude) -> np.ndarray:
     return out if kind == "hysteresis" else out.real
 
 
+#: Largest |c2/c1| a gain asymmetry gives (d -> 1 or -> -inf: one direction passes nothing, |cos|'s share 4/(3 pi)).
+ASYMMETRY_MAX_RATIO = 4.0 / (3.0 * np.pi)
+
+
 def asymmetry_ratio(delta):
     """``c2/c1`` of a gain 1 for positive commands and ``1 - delta`` for negative ones, fed ``cos theta``:
     ``u = (1 - delta/2) cos + (delta/2) |cos|``, and ``|cos|``'s cos 2theta term is ``4 / (3 pi)``."""
@@ -602,13 +606,19 @@ def excess_over(h: HarmonicAnalysis, ref: HarmonicAnalysis, *, label: str) -> Ha
 #: the loop feeds the harmonics back) is poor and the point is left out of the linear fit. On the battery's dead band of
 #: 20 mV, 0.1 left theta/v's chi2 at 38 after and a spurious pole/zero at 0.2-0.4 Hz; 0.5 leaves 9 and none there.
 MIN_GAIN = 0.5
+#: The fit's model variance on a point the law passes less than MIN_GAIN of (a log error of 30: no weight).
+LOST_VAR = 1e3
+#: Smallest |N| divided by (a law that passes nothing predicts no response; the residual is then large, not infinite).
+N_FLOOR = 1e-3
 
 
 def linearised(m, finding: NonlinearFinding, h: HarmonicAnalysis | None = None):
     """``m`` with theta/v and xdd/v divided by the finding's describing function at the command amplitude of each
     frequency (the measured ``|V_1|`` of the sweep's cycles, interpolated in log frequency, held beyond them): the
     best linear approximation of a law on the command is the linear plant times ``N(a)``, so what is left is the
-    plant, for the linear effects to be tested on. Points where ``|N|`` < ``MIN_GAIN`` are left out (variance 1).
+    plant, for the linear effects to be tested on. Points where ``|N|`` < ``MIN_GAIN`` weigh nothing in the fit
+    (model variance ``LOST_VAR``: there the division says little of the plant); the error after is still reported
+    on every point, against its noise (the augmented model, the plant times N, against the data as measured).
     ``h``: the analysis of ``m`` (its command amplitudes; default the finding's first)."""
     from dataclasses import replace
 
@@ -622,18 +632,22 @@ def linearised(m, finding: NonlinearFinding, h: HarmonicAnalysis | None = None):
     a = np.exp(np.interp(np.log(f), np.log(f_c), np.log(a_c)))
     n = describing_gain(finding.kind, level / a)
     lost = np.abs(n) < MIN_GAIN
-    n = np.where(lost, 1.0, n)
+    # divided everywhere (the augmented model predicts the plant times N on every point; a law that passes
+    # nothing, N = 0, is floored at N_FLOOR), but the fit takes no weight from the lost points
+    n = np.where(np.abs(n) < N_FLOOR, N_FLOOR * np.exp(1j * np.angle(n)), n)
     frf = replace(m.frf, **{ch: m.frf.response(ch) / n for ch in ("act", "total") if ch in m.frf.channels})
-    var = {ch: (None if v is None else np.where(lost, 1.0, v) if ch in ("act", "total") else v) for ch, v in m.var.items()}
+    var = dict(m.var)  # the noise stays: the error after is on the points the error before is on
     # the describing function keeps the law's fundamental only; the harmonics it neglects come back round the
     # loop into the fundamental at their own size relative to it: the law's |c3/c1| at each point, as a variance
     # (beside the distortion measured, distortion_var, whichever is larger)
-    rho2 = np.where(lost, 0.0, np.abs(describing_ratio(finding.kind, level / a)) ** 2)
+    # (where the law passes less than MIN_GAIN the division says nothing: the fit leaves those points out)
+    rho2 = np.where(lost, LOST_VAR, np.abs(describing_ratio(finding.kind, level / a)) ** 2)
     have = m.model_var or {}
     model_var = {ch: np.maximum(rho2, have[ch]) if ch in have else rho2 for ch in ("act", "total") if ch in m.frf.channels}
+    gain = np.abs(n)
     how = (f"{m.noise_source}; theta/v and xdd/v divided by the {finding.kind.replace('_', ' ')}'s describing function at "
-           f"{1e3 * level:.3g} mV (gain {np.abs(n[~lost]).min():.2f}-{np.abs(n[~lost]).max():.2f}; {int(lost.sum())} point(s) "
-           f"where it passes less than {MIN_GAIN:g} of the command left out)")
+           f"{1e3 * level:.3g} mV (gain {gain.min():.2f}-{gain.max():.2f}; {int(lost.sum())} point(s) where it passes less than "
+           f"{MIN_GAIN:g} of the command weigh nothing in the fit)")
     return replace(m, frf=frf, var=var, noise_source=how, model_var=model_var)
 
 
@@ -641,8 +655,10 @@ def distortion_var(m, h: HarmonicAnalysis):
     """``m`` with the fit's extra variance (Measured.model_var) on theta/v and xdd/v where its harmonic analysis
     ``h`` found distortion: at each point the sum over harmonics of ``|D_k/V_1|^2`` of the nearest segment (in
     log frequency) whose harmonic is significant and material, else 0. A linear model of nonlinear data fits
-    their best linear approximation, and that is uncertain by the distortion it leaves out (the "nonlinear
-    variance" of Pintelon and Schoukens' best linear approximation): near a lightly damped resonance, where
+    their best linear approximation, and that is uncertain by the distortion it leaves out (in the spirit of
+    the "nonlinear variance" of Pintelon and Schoukens' best linear approximation; a heuristic: a sweep's
+    distortion is deterministic, and its k-th harmonic lands at k f, not at f, so the size of the distortion
+    at f stands for the misfit the linear model may have there): near a lightly damped resonance, where
     the command is largest, a saturation's few per cent on a response measured to 0.1 % otherwise draws
     linear "effects" that make the rest of the band worse (held-out battery rig: theta/v chi2 1.15 -> 2.4)."""
     from dataclasses import replace
@@ -744,17 +760,27 @@ def _harmonic_kind(h: HarmonicAnalysis) -> tuple[str, dict, dict, str, bool]:
     stderr = {"max_ratio": float(h.ratio_sd[worst_k][sel][peak])}
     if worst_k == 2:
         # a gain that differs between the two directions is scale-free: its c2/c1 is one number at every amplitude
-        tested = np.isfinite(h.log10_p[2]) & (h.ratio_sd[2] > 0)
+        text = base + "; even harmonics dominate: the valve's two directions differ (its orifice law under load, unequal piston areas)"
+        tested = np.isfinite(h.log10_p[2]) & np.isfinite(h.ratio[2]) & (h.ratio_sd[2] > 0)
+        if tested.sum() < 2:
+            return "asymmetry", params, stderr, text, False
         w = 1.0 / h.ratio_sd[2][tested] ** 2
-        rho = float(np.sum(w * h.ratio[2][tested].real) / np.sum(w))
+        r2 = h.ratio[2][tested]
+        rho = float(np.sum(w * r2.real) / np.sum(w))
+        # a gain that differs between the directions is scale-free: its c2/c1 is real and one number at every amplitude
+        chi2 = float(np.sum(w * ((r2.real - rho) ** 2 + r2.imag**2)) / max(2 * r2.size - 1, 1))
+        if not abs(rho) < ASYMMETRY_MAX_RATIO:
+            return "asymmetry", params, stderr, text + f"; their mean ratio {100 * rho:+.2g} % is beyond any gain asymmetry's", False
         delta = asymmetry_fraction(rho)
-        se = float(abs(delta - asymmetry_fraction(rho + 1.0 / np.sqrt(np.sum(w)))))
+        se = float(abs(delta - asymmetry_fraction(rho + np.sqrt(max(chi2, 1.0) / np.sum(w)))))
         params["asymmetry_fraction"], stderr["asymmetry_fraction"] = delta, se
         weaker = "negative" if delta > 0 else "positive"
-        return "asymmetry", params, stderr, base + (
-            "; even harmonics dominate: the valve's two directions differ (its orifice law under load, unequal piston areas); "
-            f"their mean ratio {100 * rho:+.2g} % over {int(tested.sum())} segments is a gain {100 * abs(delta):.2g} +- {100 * se:.1g} % "
-            f"lower in the {weaker} direction (c2/c1 = 2 d / (3 pi (1 - d/2)), the same at every amplitude)"), False
+        text += (f"; their mean ratio {100 * rho:+.2g} % over {int(tested.sum())} segments is a gain {100 * abs(delta):.2g} +- {100 * se:.1g} % "
+                 f"lower in the {weaker} direction (c2/c1 = 2 d / (3 pi (1 - d/2)), real and the same at every amplitude; that constant "
+                 f"fits with chi2 {chi2:.3g} per degree of freedom")
+        if chi2 > MAX_DF_CHI2:
+            text += ": far from constant, so the two directions differ by more than a gain (the orifice law's share grows with the command)"
+        return "asymmetry", params, stderr, text + ")", False
     phase = np.angle(np.sum(r * np.abs(r)))  # amplitude-weighted phase of c3 in the fundamental's frame
     deg = float(np.degrees(phase))
     params["phase_deg"] = deg

@@ -27,8 +27,9 @@ joins, earlier effects it makes unnecessary are dropped, and each effect is
 swapped for every other kind on its channel with no more parameters, refitted
 jointly, the better fit kept (``_swap``); the rounds go on until none passes
 (at most ``MAX_EFFECTS``). At the end each effect's best rival with more
-parameters is refitted in its place and recorded when it fits as well but its
-extra parameters fail the F-test (``_richer``): the report names it.
+parameters is refitted in its place: it replaces the effect when its extra
+parameters pass the F-test, and is recorded when it fits as well but they fail
+it (``_richer``): the report names it.
 """
 
 from __future__ import annotations
@@ -291,19 +292,22 @@ def _swap(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, tri
     return fit
 
 
-def _richer(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, alpha: float, tried: list[dict]) -> None:
+def _richer(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, alpha: float, tried: list[dict]) -> Fit:
     """For each effect (a delay, a sensor or actuator kind), its best rival among the kinds on its channel with more
-    parameters, refitted jointly in its place: recorded (round "richer") when it fits as well or better but its
-    extra parameters do not pass the F-test at ``alpha``. The swap tries only rivals with no more parameters, so
-    without this a reading the data cannot tell from a richer one went unnamed: below 40 Hz an 80 Hz valve lag with
-    damping 0.5 is a 2 ms group delay and 0.9 dB at 40 Hz, and the one-parameter delay is kept."""
-    s2 = fit.chi2 / fit.dof * corr
-    for i, e in enumerate(fit.effects):
+    parameters, refitted jointly in its place. When its extra parameters pass the F-test (at ``alpha`` over the
+    rivals tried, Bonferroni) it replaces the effect (recorded as a swap); when it fits as well or better but they
+    do not, it is recorded (round "richer") and the report names it. The swap tries only rivals with no more
+    parameters, so without this a reading the data cannot tell from a richer one went unnamed: below 40 Hz an
+    80 Hz valve lag with damping 0.5 is a 2 ms group delay and 0.9 dB at 40 Hz, and the one-parameter delay is
+    kept. Returns the fit (with any replacement)."""
+    for i in range(len(fit.effects)):
+        e = fit.effects[i]
         if e.kind.category == "extra_mode":
             continue
+        s2 = fit.chi2 / fit.dof * corr
         rest = [f for j, f in enumerate(fit.effects) if j != i]
         used = {f.kind.label for f in rest}
-        best = None
+        best, n_tried = None, 0
         for k in kinds:
             if (k.category == "extra_mode" or k.label in used or len(k.params) <= len(e.kind.params)
                     or not set(k.affects) & set(e.kind.affects)):
@@ -311,25 +315,30 @@ def _richer(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, a
             held = _held_fits(ds_list, baseline, fit, rest, k)
             if not held:
                 continue
+            n_tried += 1
             x_e = _vectors(held[0].effects)
             alt = fit_model(ds_list, baseline, x_e[:i] + [x_e[-1]] + x_e[i:-1], start_baseline=_baseline_vectors(fit))
             if best is None or alt.chi2 < best.chi2:
                 best = alt
         if best is None or best.chi2 > fit.chi2 + AMBIGUOUS_CHI2 * s2:
             continue
-        dp = best.n_params - fit.n_params
-        dof2 = max(best.n_residuals - best.n_params, 1)
-        f = max(fit.chi2 - best.chi2, 0.0) / dp / (best.chi2 / dof2) / corr
-        logp = float(stats.f.logsf(f, dp, dof2) / np.log(10)) if f > 0 else 0.0
-        if logp < np.log10(alpha):
-            continue  # the richer kind is needed: not a near-equal reading (it is reported as found, not as a rival)
+        fstat, dof, logp = _f_test(fit, best, corr)
         new = best.effects[i]
-        tried.append({"round": "richer", "effect": new.kind.label, "kept": e.kind.label, "kept_params": dict(e.values),
-                      "kept_rest": [(x.kind.label, dict(x.values)) for x in rest],
-                      "rival": new.kind.label, "rival_params": dict(new.values),
-                      "rival_rest": [(x.kind.label, dict(x.values)) for j, x in enumerate(best.effects) if j != i],
-                      "chi2": best.chi2, "chi2_current": fit.chi2, "delta_in_noise": (fit.chi2 - best.chi2) / s2,
-                      "extra_params": dp, "log10_p": logp})
+        record = {"effect": new.kind.label, "kept": e.kind.label, "kept_params": dict(e.values),
+                  "kept_rest": [(x.kind.label, dict(x.values)) for x in rest],
+                  "rival": new.kind.label, "rival_params": dict(new.values),
+                  "rival_rest": [(x.kind.label, dict(x.values)) for j, x in enumerate(best.effects) if j != i],
+                  "chi2": best.chi2, "chi2_current": fit.chi2, "delta_in_noise": (fit.chi2 - best.chi2) / s2,
+                  "extra_params": dof[0], "F": fstat, "log10_p": logp}
+        if logp < np.log10(alpha / n_tried) and not _unresolved_mode(new, ds_list):
+            # the richer kind is needed: it replaces the effect (the report says what it replaced, and its test)
+            tried.append({**record, "round": "swap", "alternative_to": e.kind.label, "params": dict(new.values), "swapped": True,
+                          "richer": True, "kept": new.kind.label, "kept_params": dict(new.values), "kept_rest": record["rival_rest"],
+                          "rival": e.kind.label, "rival_params": dict(e.values), "rival_rest": record["kept_rest"]})
+            fit = best
+        else:
+            tried.append({**record, "round": "richer"})
+    return fit
 
 
 def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[EffectKind], *, alpha: float = ALPHA,
@@ -408,5 +417,5 @@ def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[Effec
         last_swap = []
         current = _swap(ds_list, baseline, current, kinds, corr, last_swap)
     tried.extend(last_swap)  # the final model's swaps: the report's "fits almost as well"
-    _richer(ds_list, baseline, current, kinds, corr, alpha, tried)
+    current = _richer(ds_list, baseline, current, kinds, corr, alpha, tried)
     return base_fit, relabel_modes(ds_list, current), steps, tried

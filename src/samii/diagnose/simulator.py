@@ -157,7 +157,7 @@ class Calibration:
     start: Mapping[str, float]
     values: Mapping[str, float]
     stderr: Mapping[str, float]
-    cost: float  #: chi2 of the diagnosis's residuals (1 per residual at the noise)
+    cost: float  #: chi2 of the diagnosis's residuals in the fit's weights (noise and any distortion; 1 per residual at the noise)
     n_residuals: int
     converged: bool
     status: str
@@ -174,7 +174,7 @@ def calibrate_simulator(m: Measured, *, start: SamiiParams | None = None, extra:
 
     The cost is the diagnosis's own chi2: log(data/model) on the file's usable points of theta/v
     and xdd/v (a command delay is in both, and only xdd/v holds it where it is large), each weighted
-    by its noise. ``samii calibrate``'s engine (``SimulatorFRF`` and its derivatives, the bounds of
+    by its noise (plus any distortion measured, Measured.model_var). ``samii calibrate``'s engine (``SimulatorFRF`` and its derivatives, the bounds of
     ``default_bounds``, trust-region least squares in the logarithms of the parameters), not its
     cost: that takes every point of the band weighted by coherence, and the noise floor's points
     (xdd/v 40 dB off below 1 Hz) pulled a 20 Hz accelerometer roll-off to 21.3 Hz.
