@@ -192,7 +192,9 @@ def test_diagnose_reports_the_nonlinearity_and_fits_the_plant_without_it():
     for e in d.effects:
         if e.category != "nonlinear" and not e.expected:
             assert "may be that nonlinearity's image" in e.evidence
-    assert d.error_before["act"].rms_db > 3.0 and d.error_after["act"].rms_db < 0.5 * d.error_before["act"].rms_db
+    # on the same points (those where the play passes less than half the command are left out of both)
+    assert d.error_before["act"].n_points == d.error_after["act"].n_points
+    assert d.error_before["act"].rms_db > 2.5 and d.error_after["act"].rms_db < 0.5 * d.error_before["act"].rms_db
     assert any("describing function" in n for n in d.notes) and "describing function" in d.measured[0].noise_source
     out = d.to_dict()
     json.dumps(out, allow_nan=False)

@@ -281,6 +281,23 @@ def _runs(flag: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
 
 
+def _on_points_of(raw: Measured, divided: Measured) -> Measured:
+    """``raw`` without the points ``divided`` (the same file, divided by a describing function) leaves out
+    (theta/v and xdd/v set to variance 1 where a law passes less than half the command), so that the error
+    before and after are on the same points; ``raw`` itself when none is left out."""
+    var = dict(raw.var)
+    changed = False
+    for ch in ("act", "total"):
+        v, d = raw.var.get(ch), divided.var.get(ch)
+        if v is None or d is None or d.shape != v.shape:
+            continue
+        out = d >= 1.0
+        if np.any(out & (v < 1.0)):
+            var[ch] = np.where(out, 1.0, v)
+            changed = True
+    return replace(raw, var=var) if changed else raw
+
+
 def _file_chi2(ds: Dataset, res: Mapping[str, np.ndarray]) -> float:
     """The fit's weighted chi2 on one file (its weights: noise and any model variance)."""
     return float(sum(np.sum(np.abs(r * ds.inv_sigma[ch]) ** 2) for ch, r in res.items()))
@@ -694,6 +711,8 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     if raw is not measured:  # the baseline on the data as measured, for the error before
         from samii.diagnose.model import fit_model
 
+        if not sim:  # on the points the divided data keep (where the law passes at least half the command)
+            raw = tuple(_on_points_of(r, m) for r, m in zip(raw, measured))
         raw_datasets = tuple(Dataset.from_measured(m) for m in raw)
         before = fit_model(list(raw_datasets), baseline_for(raw, raw_datasets), [])
         error_before = channel_errors(raw_datasets, before)

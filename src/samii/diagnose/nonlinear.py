@@ -606,19 +606,15 @@ def excess_over(h: HarmonicAnalysis, ref: HarmonicAnalysis, *, label: str) -> Ha
 #: the loop feeds the harmonics back) is poor and the point is left out of the linear fit. On the battery's dead band of
 #: 20 mV, 0.1 left theta/v's chi2 at 38 after and a spurious pole/zero at 0.2-0.4 Hz; 0.5 leaves 9 and none there.
 MIN_GAIN = 0.5
-#: The fit's model variance on a point the law passes less than MIN_GAIN of (a log error of 30: no weight).
-LOST_VAR = 1e3
-#: Smallest |N| divided by (a law that passes nothing predicts no response; the residual is then large, not infinite).
-N_FLOOR = 1e-3
 
 
 def linearised(m, finding: NonlinearFinding, h: HarmonicAnalysis | None = None):
     """``m`` with theta/v and xdd/v divided by the finding's describing function at the command amplitude of each
     frequency (the measured ``|V_1|`` of the sweep's cycles, interpolated in log frequency, held beyond them): the
     best linear approximation of a law on the command is the linear plant times ``N(a)``, so what is left is the
-    plant, for the linear effects to be tested on. Points where ``|N|`` < ``MIN_GAIN`` weigh nothing in the fit
-    (model variance ``LOST_VAR``: there the division says little of the plant); the error after is still reported
-    on every point, against its noise (the augmented model, the plant times N, against the data as measured).
+    plant, for the linear effects to be tested on. Points where ``|N|`` < ``MIN_GAIN`` are left out (variance 1):
+    there the describing function says little of the loop (a play at a command a few times its width). The
+    diagnosis leaves them out of the error before too, so that both are on the same points.
     ``h``: the analysis of ``m`` (its command amplitudes; default the finding's first)."""
     from dataclasses import replace
 
@@ -632,22 +628,21 @@ def linearised(m, finding: NonlinearFinding, h: HarmonicAnalysis | None = None):
     a = np.exp(np.interp(np.log(f), np.log(f_c), np.log(a_c)))
     n = describing_gain(finding.kind, level / a)
     lost = np.abs(n) < MIN_GAIN
-    # divided everywhere (the augmented model predicts the plant times N on every point; a law that passes
-    # nothing, N = 0, is floored at N_FLOOR), but the fit takes no weight from the lost points
-    n = np.where(np.abs(n) < N_FLOOR, N_FLOOR * np.exp(1j * np.angle(n)), n)
+    n = np.where(lost, 1.0, n)
     frf = replace(m.frf, **{ch: m.frf.response(ch) / n for ch in ("act", "total") if ch in m.frf.channels})
-    var = dict(m.var)  # the noise stays: the error after is on the points the error before is on
+    # where the law passes less than MIN_GAIN the describing function says little of the loop: those points are
+    # left out (variance 1), of the fit and of the error; the error before leaves them out too (diagnosis)
+    var = {ch: (None if v is None else np.where(lost, 1.0, v) if ch in ("act", "total") else v) for ch, v in m.var.items()}
     # the describing function keeps the law's fundamental only; the harmonics it neglects come back round the
     # loop into the fundamental at their own size relative to it: the law's |c3/c1| at each point, as a variance
     # (beside the distortion measured, distortion_var, whichever is larger)
-    # (where the law passes less than MIN_GAIN the division says nothing: the fit leaves those points out)
-    rho2 = np.where(lost, LOST_VAR, np.abs(describing_ratio(finding.kind, level / a)) ** 2)
+    rho2 = np.where(lost, 0.0, np.abs(describing_ratio(finding.kind, level / a)) ** 2)
     have = m.model_var or {}
     model_var = {ch: np.maximum(rho2, have[ch]) if ch in have else rho2 for ch in ("act", "total") if ch in m.frf.channels}
     gain = np.abs(n)
     how = (f"{m.noise_source}; theta/v and xdd/v divided by the {finding.kind.replace('_', ' ')}'s describing function at "
            f"{1e3 * level:.3g} mV (gain {gain.min():.2f}-{gain.max():.2f}; {int(lost.sum())} point(s) where it passes less than "
-           f"{MIN_GAIN:g} of the command weigh nothing in the fit)")
+           f"{MIN_GAIN:g} of the command left out, of the error before too)")
     return replace(m, frf=frf, var=var, noise_source=how, model_var=model_var)
 
 
