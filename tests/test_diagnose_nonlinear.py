@@ -251,7 +251,15 @@ def test_a_describing_function_s_approximation_weighs_the_fit_not_the_error():
     # the file whose command never reaches the law: not divided, no model variance, its fit as good as the baseline's
     lo, hi = d.measured
     assert lo.model_var is None
-    assert np.max(hi.model_var["act"]) == pytest.approx(np.max(np.abs(describing_ratio("saturation", 0.4 / 0.6))) ** 2, rel=1.0)
+    # distortion only near the hydraulic resonance (8.8 Hz), where the command passes 0.4 V: the model variance is
+    # there, of the order of the harmonics the law makes (its |c3/c1|), and nowhere else
+    f, mv = hi.frf.freq_hz, hi.model_var["act"]
+    assert np.all(mv[(f < 5.0) | (f > 12.0)] == 0.0)
+    near = (f > 6.0) & (f < 10.0)
+    [h] = [h for h in d.harmonics if h.source == hi.source]
+    law = float(np.abs(describing_ratio("saturation", 0.4 / np.max(h.cycle_command_v)))[0]) ** 2  # at the largest command
+    measured = sum(float(np.max(np.abs(h.ratio[k][h.significant(k)]), initial=0.0)) ** 2 for k in h.ratio)
+    assert 1e-3 < np.max(mv[near]) <= max(law, measured) * (1 + 1e-9)
     before, after = d.residuals("before")[0]["act"], d.residuals("after")[0]["act"]
     ok = np.isfinite(before[0]) & np.isfinite(after[0])
     assert np.mean(np.abs(after[0][ok]) ** 2 / after[1][ok]) < 1.05 * np.mean(np.abs(before[0][ok]) ** 2 / before[1][ok])

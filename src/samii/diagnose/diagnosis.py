@@ -43,7 +43,7 @@ from scipy import stats
 
 from samii.diagnose.effects import library
 from samii.diagnose.measured import Measured
-from samii.diagnose.model import Baseline, Dataset, Fit, _apply
+from samii.diagnose.model import MAX_VAR, Baseline, Dataset, Fit, _apply
 from samii.diagnose.nonlinear import distortion_var, find_nonlinear, harmonic_errors, linearised
 from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select
 
@@ -125,11 +125,14 @@ class Diagnosis:
     raw_measured: tuple | None = None
     #: ``--baseline sim``: the effects carried into the simulator, its error before and after (samii.diagnose.simulator).
     simulator: object | None = None
-    #: The sweep's harmonics before (a linear model makes none) and after (the nonlinear laws found), when a law
-    #: with a level was found (samii.diagnose.nonlinear.harmonic_errors): what a nonlinear effect explains.
-    harmonic_error: tuple | None = None
     #: The nonlinear findings (samii.diagnose.nonlinear.NonlinearFinding), with the analyses they rest on.
     nonlinear: tuple = field(default=())
+
+    @property
+    def harmonic_error(self) -> tuple | None:
+        """The sweep's harmonics' error before (a linear model makes none) and after (the nonlinear laws found), when a
+        law with a level was found (samii.diagnose.nonlinear.harmonic_errors): what a nonlinear effect explains."""
+        return harmonic_errors(self.nonlinear)
 
     @property
     def verdict(self) -> str:
@@ -148,14 +151,14 @@ class Diagnosis:
         return model_response(self.after if which == "after" else self.before, i, freq_hz)
 
     def to_dict(self) -> dict:
+        he = self.harmonic_error
         return {
             "verdict": self.verdict,
             "effects": [e.to_dict() for e in self.effects],
             "error_before": {k: v.to_dict() for k, v in self.error_before.items()},
             "error_after": {k: v.to_dict() for k, v in self.error_after.items()},
             "simulator": None if self.simulator is None else self.simulator.to_dict(),
-            "harmonic_error": None if self.harmonic_error is None else {"before": self.harmonic_error[0].to_dict(),
-                                                                         "after": self.harmonic_error[1].to_dict()},
+            "harmonic_error": None if he is None else {"before": he[0].to_dict(), "after": he[1].to_dict()},
             "unexplained": [b.to_dict() for b in self.unexplained],
             "baseline": self.baseline.label,
             "rule": self.rule,
@@ -283,17 +286,17 @@ def _runs(flag: np.ndarray) -> list[tuple[int, int]]:
 
 def _on_points_of(raw: Measured, divided: Measured) -> Measured:
     """``raw`` without the points ``divided`` (the same file, divided by a describing function) leaves out
-    (theta/v and xdd/v set to variance 1 where a law passes less than half the command), so that the error
-    before and after are on the same points; ``raw`` itself when none is left out."""
+    (variance above MAX_VAR: where a law passes less than half the command), so that the error before and after
+    are on the same points; ``raw`` itself when none is left out."""
     var = dict(raw.var)
     changed = False
     for ch in ("act", "total"):
         v, d = raw.var.get(ch), divided.var.get(ch)
         if v is None or d is None or d.shape != v.shape:
             continue
-        out = d >= 1.0
-        if np.any(out & (v < 1.0)):
-            var[ch] = np.where(out, 1.0, v)
+        out = d > MAX_VAR
+        if np.any(out & (v <= MAX_VAR)):
+            var[ch] = np.where(out, d, v)
             changed = True
     return replace(raw, var=var) if changed else raw
 
@@ -420,13 +423,14 @@ def _effects(after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured:
                     f"F = {s.f_stat:.3g} on ({s.dof[0]}, {s.dof[1]}) dof, {p}")
         else:
             swap = next((t for t in reversed(swaps) if t.get("swapped") and t["effect"] == k.label), None)  # the latest
-            if swap and swap.get("richer"):
-                p = "p < 1e-300" if swap["log10_p"] <= -300 else f"p = 10^{swap['log10_p']:.1f}"
-                test = (f"it replaced {swap['alternative_to']}, which had joined by F-test, with {swap['extra_params']} more "
-                        f"parameter(s): chi2 {swap['chi2_current']:.4g} -> {swap['chi2']:.4g}, F = {swap['F']:.3g}, {p}")
+            if swap is None:
+                test = "kept by the joint refit"
             else:
-                test = (f"it replaced {swap['alternative_to']}, which had joined by F-test, with no more parameters: chi2 "
-                        f"{swap['chi2_current']:.4g} -> {swap['chi2']:.4g}" if swap else "kept by the joint refit")
+                more = f"{swap['extra_params']} more parameter(s)" if swap.get("richer") else "no more parameters"
+                test = (f"it replaced {swap['alternative_to']}, which had joined by F-test, with {more}: chi2 "
+                        f"{swap['chi2_current']:.4g} -> {swap['chi2']:.4g}")
+                if swap.get("richer"):
+                    test += f", F = {swap['F']:.3g}, " + ("p < 1e-300" if swap["log10_p"] <= -300 else f"p = 10^{swap['log10_p']:.1f}")
         expected = False
         text = f"{k.describe(e.values)}; {test}"
         near_equal = [t for t in final_swaps if t["delta_in_noise"] < AMBIGUOUS_CHI2 and "kept" in t]
@@ -749,5 +753,4 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     return Diagnosis(measured, datasets, bl, before, after, tuple(steps), tuple(tried), tuple(effects),
                      error_before, channel_errors(datasets, after), tuple(unexplained_bands(datasets, after, alpha=alpha)),
                      notes=tuple(notes[:at] + divided_notes + notes[at:] + nl_notes), harmonics=tuple(harmonics), amplitude_tests=tuple(amp_tests),
-                     raw_measured=None if raw is measured else raw, simulator=report, harmonic_error=harmonic_errors(nonlinear),
-                     nonlinear=tuple(nonlinear))
+                     raw_measured=None if raw is measured else raw, simulator=report, nonlinear=tuple(nonlinear))

@@ -637,13 +637,11 @@ def linearised(m, finding: NonlinearFinding, h: HarmonicAnalysis | None = None):
     # loop into the fundamental at their own size relative to it: the law's |c3/c1| at each point, as a variance
     # (beside the distortion measured, distortion_var, whichever is larger)
     rho2 = np.where(lost, 0.0, np.abs(describing_ratio(finding.kind, level / a)) ** 2)
-    have = m.model_var or {}
-    model_var = {ch: np.maximum(rho2, have[ch]) if ch in have else rho2 for ch in ("act", "total") if ch in m.frf.channels}
     gain = np.abs(n)
     how = (f"{m.noise_source}; theta/v and xdd/v divided by the {finding.kind.replace('_', ' ')}'s describing function at "
            f"{1e3 * level:.3g} mV (gain {gain.min():.2f}-{gain.max():.2f}; {int(lost.sum())} point(s) where it passes less than "
            f"{MIN_GAIN:g} of the command left out, of the error before too)")
-    return replace(m, frf=frf, var=var, noise_source=how, model_var=model_var)
+    return replace(m, frf=frf, var=var, noise_source=how, model_var=_model_var_with(m, rho2))
 
 
 def distortion_var(m, h: HarmonicAnalysis):
@@ -669,11 +667,13 @@ def distortion_var(m, h: HarmonicAnalysis):
         sig = h.significant(k)[ok]
         r2 = np.where(sig, np.abs(np.nan_to_num(h.ratio[k][ok])) ** 2, 0.0)
         rho2 += r2[nearest]
-    if not rho2.any():
-        return m
+    return replace(m, model_var=_model_var_with(m, rho2)) if rho2.any() else m
+
+
+def _model_var_with(m, rho2: np.ndarray) -> dict:
+    """``m``'s model variance on theta/v and xdd/v with ``rho2`` beside it, the larger of the two at each point."""
     have = m.model_var or {}
-    var = {ch: np.maximum(rho2, have[ch]) if ch in have else rho2 for ch in ("act", "total") if ch in m.frf.channels}
-    return replace(m, model_var=var)
+    return {ch: np.maximum(rho2, have[ch]) if ch in have else rho2 for ch in ("act", "total") if ch in m.frf.channels}
 
 
 # -- amplitude dependence across files -------------------------------------------------------
@@ -754,7 +754,6 @@ def _harmonic_kind(h: HarmonicAnalysis) -> tuple[str, dict, dict, str, bool]:
     params = {"harmonic": float(worst_k), "max_ratio": float(abs(r[peak])), "at_hz": float(f[peak])}
     stderr = {"max_ratio": float(h.ratio_sd[worst_k][sel][peak])}
     if worst_k == 2:
-        # a gain that differs between the two directions is scale-free: its c2/c1 is one number at every amplitude
         text = base + "; even harmonics dominate: the valve's two directions differ (its orifice law under load, unequal piston areas)"
         tested = np.isfinite(h.log10_p[2]) & np.isfinite(h.ratio[2]) & (h.ratio_sd[2] > 0)
         if tested.sum() < 2:

@@ -237,6 +237,34 @@ AMBIGUOUS_CHI2 = 4.0
 SWAP_PASSES = 3
 
 
+def _best_in_place(ds_list, baseline, fit: Fit, i: int, kinds) -> tuple[Fit | None, int]:
+    """Each of ``kinds`` in the place of ``fit``'s effect ``i`` (its best held start, then refitted jointly with the
+    rest): the best such fit, and how many kinds could be fitted."""
+    rest = [f for j, f in enumerate(fit.effects) if j != i]
+    best, n = None, 0
+    for k in kinds:
+        held = _held_fits(ds_list, baseline, fit, rest, k)
+        if not held:
+            continue
+        n += 1
+        x_e = _vectors(held[0].effects)
+        x_e = x_e[:i] + [x_e[-1]] + x_e[i:-1]  # the replacement in the replaced effect's place
+        alt = fit_model(ds_list, baseline, x_e, start_baseline=_baseline_vectors(fit))
+        if best is None or alt.chi2 < best.chi2:
+            best = alt
+    return best, n
+
+
+def _pair_record(i: int, kept: Fit, rival: Fit) -> dict:
+    """Effect ``i`` of the fit kept and of its rival, each with the other effects as that fit has them (the report's
+    "fits almost as well" and the values that go with the other choice)."""
+    def side(f: Fit) -> tuple[str, dict, list]:
+        return f.effects[i].kind.label, dict(f.effects[i].values), [(x.kind.label, dict(x.values)) for j, x in enumerate(f.effects) if j != i]
+
+    (k_label, k_values, k_rest), (r_label, r_values, r_rest) = side(kept), side(rival)
+    return {"kept": k_label, "kept_params": k_values, "kept_rest": k_rest, "rival": r_label, "rival_params": r_values, "rival_rest": r_rest}
+
+
 def _swap(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, tried: list[dict]) -> Fit:
     """Replace each effect by every other kind on the same channel (a mode by a mode on either) with no more parameters, refit jointly, and
     keep whichever fits best (equal or fewer parameters: the lower chi2 is the likelier model). Forward
@@ -250,36 +278,19 @@ def _swap(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, tri
         records, changed = [], False
         for i in range(len(fit.effects)):  # a swap replaces one effect by one: the count stays
             e = fit.effects[i]
-            rest = [f for j, f in enumerate(fit.effects) if j != i]
-            used = {f.kind.label for f in rest}
+            used = {f.kind.label for j, f in enumerate(fit.effects) if j != i}
             s2 = fit.chi2 / fit.dof * corr
-            best_alt = None
-            for k in kinds:
-                related = set(k.affects) & set(e.kind.affects) or k.category == e.kind.category == "extra_mode"
-                if (k.label == e.kind.label or len(k.params) > len(e.kind.params) or not related
-                        or (k.category != "extra_mode" and k.label in used)):
-                    continue
-                held = _held_fits(ds_list, baseline, fit, rest, k)
-                if not held:
-                    continue
-                x_e = _vectors(held[0].effects)
-                x_e = x_e[:i] + [x_e[-1]] + x_e[i:-1]  # the replacement in the replaced effect's place
-                alt = fit_model(ds_list, baseline, x_e, start_baseline=_baseline_vectors(fit))
-                if best_alt is None or alt.chi2 < best_alt.chi2:
-                    best_alt = alt
+            rivals = [k for k in kinds if k.label != e.kind.label and len(k.params) <= len(e.kind.params)
+                      and (set(k.affects) & set(e.kind.affects) or k.category == e.kind.category == "extra_mode")
+                      and (k.category == "extra_mode" or k.label not in used)]
+            best_alt, _ = _best_in_place(ds_list, baseline, fit, i, rivals)
             if best_alt is None:
                 continue
             new = best_alt.effects[i]
             swap = best_alt.chi2 < fit.chi2 and not _duplicate_mode(new, best_alt) and not _unresolved_mode(new, ds_list)
             kept, rival = (best_alt, fit) if swap else (fit, best_alt)
-
-            def side(f: Fit) -> tuple[str, dict, list]:
-                return f.effects[i].kind.label, dict(f.effects[i].values), [(x.kind.label, dict(x.values)) for j, x in enumerate(f.effects) if j != i]
-
-            (k_label, k_values, k_rest), (r_label, r_values, r_rest) = side(kept), side(rival)
             records.append({"round": "swap", "effect": new.kind.label, "alternative_to": e.kind.label, "params": dict(new.values),
-                            "kept": k_label, "kept_params": k_values, "kept_rest": k_rest,
-                            "rival": r_label, "rival_params": r_values, "rival_rest": r_rest,
+                            **_pair_record(i, kept, rival),
                             "chi2": best_alt.chi2, "chi2_current": fit.chi2, "delta_in_noise": abs(best_alt.chi2 - fit.chi2) / s2,
                             **({"swapped": True} if swap else {})})
             if swap:
@@ -305,39 +316,23 @@ def _richer(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, a
         if e.kind.category == "extra_mode":
             continue
         s2 = fit.chi2 / fit.dof * corr
-        rest = [f for j, f in enumerate(fit.effects) if j != i]
-        used = {f.kind.label for f in rest}
-        best, n_tried = None, 0
-        for k in kinds:
-            if (k.category == "extra_mode" or k.label in used or len(k.params) <= len(e.kind.params)
-                    or not set(k.affects) & set(e.kind.affects)):
-                continue
-            held = _held_fits(ds_list, baseline, fit, rest, k)
-            if not held:
-                continue
-            n_tried += 1
-            x_e = _vectors(held[0].effects)
-            alt = fit_model(ds_list, baseline, x_e[:i] + [x_e[-1]] + x_e[i:-1], start_baseline=_baseline_vectors(fit))
-            if best is None or alt.chi2 < best.chi2:
-                best = alt
+        used = {f.kind.label for j, f in enumerate(fit.effects) if j != i}
+        rivals = [k for k in kinds if k.category != "extra_mode" and k.label not in used and len(k.params) > len(e.kind.params)
+                  and set(k.affects) & set(e.kind.affects)]
+        best, n_tried = _best_in_place(ds_list, baseline, fit, i, rivals)
         if best is None or best.chi2 > fit.chi2 + AMBIGUOUS_CHI2 * s2:
             continue
         fstat, dof, logp = _f_test(fit, best, corr)
         new = best.effects[i]
-        record = {"effect": new.kind.label, "kept": e.kind.label, "kept_params": dict(e.values),
-                  "kept_rest": [(x.kind.label, dict(x.values)) for x in rest],
-                  "rival": new.kind.label, "rival_params": dict(new.values),
-                  "rival_rest": [(x.kind.label, dict(x.values)) for j, x in enumerate(best.effects) if j != i],
-                  "chi2": best.chi2, "chi2_current": fit.chi2, "delta_in_noise": (fit.chi2 - best.chi2) / s2,
+        record = {"effect": new.kind.label, "chi2": best.chi2, "chi2_current": fit.chi2, "delta_in_noise": (fit.chi2 - best.chi2) / s2,
                   "extra_params": dof[0], "F": fstat, "log10_p": logp}
         if logp < np.log10(alpha / n_tried) and not _unresolved_mode(new, ds_list):
             # the richer kind is needed: it replaces the effect (the report says what it replaced, and its test)
-            tried.append({**record, "round": "swap", "alternative_to": e.kind.label, "params": dict(new.values), "swapped": True,
-                          "richer": True, "kept": new.kind.label, "kept_params": dict(new.values), "kept_rest": record["rival_rest"],
-                          "rival": e.kind.label, "rival_params": dict(e.values), "rival_rest": record["kept_rest"]})
+            tried.append({**record, **_pair_record(i, best, fit), "round": "swap", "alternative_to": e.kind.label,
+                          "params": dict(new.values), "swapped": True, "richer": True})
             fit = best
         else:
-            tried.append({**record, "round": "richer"})
+            tried.append({**record, **_pair_record(i, fit, best), "round": "richer"})
     return fit
 
 

@@ -385,23 +385,18 @@ def carry(effects: Sequence, params: SamiiParams, *, refuse: Mapping[str, str] |
                 options.update(body)
                 carried.append(label)
             continue
-        if label in SPOOL:
+        if label in SPOOL:  # the spool takes the lag's low-frequency group delay
             name = SPOOL[label]
-            tau = parameter_value(params, name) + 2.0 * float(e.params["zeta"]) / (2.0 * np.pi * float(e.params["freq_hz"]))
-            if name in options:
-                not_carried.append(f"{label}: a second {name} (kept the first, {options[name]:g})")
-            else:
-                options[name] = tau
-                carried.append(label)
-            continue
-        if label not in CARRY:
+            value = parameter_value(params, name) + 2.0 * float(e.params["zeta"]) / (2.0 * np.pi * float(e.params["freq_hz"]))
+        elif label not in CARRY:
             not_carried.append(f"{label}: {NOT_CARRIED.get(label, 'no simulator option for it')}")
             continue
-        name, key = CARRY[label]
-        if key not in e.params:
+        elif CARRY[label][1] not in e.params:
             not_carried.append(f"{label}: no level to carry (found from the amplitude dependence alone)")
             continue
-        value = float(e.params[key])
+        else:
+            name, key = CARRY[label]
+            value = float(e.params[key])
         if name == "sensor.accel_gain":
             value *= params.sensor.accel_gain
         elif name in _ADDITIVE:
