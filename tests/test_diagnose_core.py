@@ -161,6 +161,16 @@ def test_valve_dynamics_found(sweep):
     assert final.effects[0].values["freq_hz"] == pytest.approx(50.0, rel=0.15)
 
 
+@pytest.mark.parametrize("leak", [0.2, -0.5])
+def test_leaky_integrator_found(sweep, leak):
+    """theta/v's integrator a real pole at ``leak`` [1/s]: at 0.1 Hz (0.63 rad/s) a phase of -a/w, 18 deg at +0.2 1/s,
+    far above theta's noise there; found alone, within 15 %."""
+    _, (base, final, _, _) = _diagnose(sweep, leak_per_s=leak)
+    assert [e.kind.label for e in final.effects] == ["actuator/leak"]
+    assert final.effects[0].values["pole_per_s"] == pytest.approx(leak, rel=0.15)
+    assert final.chi2 < base.chi2
+
+
 def test_a_richer_reading_the_data_hardly_tell_apart_is_named(sweep):
     """Valve dynamics at 80 Hz, damping 0.5: below 40 Hz a group delay of 2 zeta / omega = 2.0 ms and 0.9 dB at
     40 Hz. On this noise the one-parameter command delay wins the F-test (seed 3 takes the valve); the swap tries

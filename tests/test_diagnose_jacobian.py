@@ -23,7 +23,7 @@ from samii.identify.structures import ModelStructure
 KINDS = {k.label: k for k in LIBRARY}
 #: a value inside every parameter's range, away from its bounds (Hz, s, 1, residue)
 VALUES = {"delay_s": 0.003, "freq_hz": 12.0, "zeta": 0.05, "residue": 0.02, "zero_freq_hz": 10.0, "zero_zeta": 0.03,
-          "gain": 1.1, "zero_hz": 5.0, "pole_hz": 9.0}
+          "gain": 1.1, "zero_hz": 5.0, "pole_hz": 9.0, "pole_per_s": 0.3}
 
 
 def _values(kind):

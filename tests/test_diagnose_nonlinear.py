@@ -68,14 +68,16 @@ def test_valve_law_and_its_errors():
         valve_law("dead_band", -1.0)
 
 
-def test_time_domain_loop_matches_the_frequency_domain_rig():
+@pytest.mark.parametrize("leak", [0.0, 0.2])
+def test_time_domain_loop_matches_the_frequency_domain_rig(leak):
     """The stepped loop with a law no command reaches is the linear rig delayed by its zero-order hold's half step
     (0.125 ms at 1 kHz x 4): FRFs within 0.01 dB / 0.02 deg of that over the whole band (before the fixes a polyphase
-    upsampling of r left 0.4 deg at 0.1 Hz, and a one-step buffer 0.25 ms more)."""
+    upsampling of r left 0.4 deg at 0.1 Hz, and a one-step buffer 0.25 ms more); also with a leaky integrator (its
+    pole moved to +0.2 1/s in both paths)."""
     from samii.diagnose.rig import OVERSAMPLE
 
-    a = _measured(EffectRig(command_delay_s=0.5 / (OVERSAMPLE * FS)), seed=1)
-    b = _measured(EffectRig(valve_nonlinearity=("saturation", 100.0)), seed=1)
+    a = _measured(EffectRig(command_delay_s=0.5 / (OVERSAMPLE * FS), leak_per_s=leak), seed=1)
+    b = _measured(EffectRig(valve_nonlinearity=("saturation", 100.0), leak_per_s=leak), seed=1)
     judged = []
     for ch in ("act", "total"):  # theta/v is judged at low frequency, xdd/v at high (where each is above the noise)
         e = np.log(b.frf.response(ch) / a.frf.response(ch))

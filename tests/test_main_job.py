@@ -46,6 +46,26 @@ def test_main_job_writes_every_stage_and_a_short_summary(runs, capsys):
         assert needle in text, needle
 
 
+def test_main_job_diagnosis_finds_the_simulator_s_leaky_integrator(runs):
+    """The notebook's theta/v is a pure integrator; the simulator's has its pole at +0.199 1/s (leakage against
+    gravity's pull at the nominal pose: proportional to hydraulic.leakage_coefficient, 0 without it). The
+    diagnosis of the fit against the measured record finds that pole, and with it theta/v fits to its noise."""
+    import warnings
+
+    from samii.sim.linearize import linearize
+    from samii.sim.model import load_model
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        poles = np.linalg.eigvals(linearize(load_model()).open_loop().A)
+    truth = float(poles[np.argmin(np.abs(poles))].real)
+    assert truth == pytest.approx(0.199, abs=0.01)
+    d = json.loads((runs[0] / "diagnose" / "diagnosis.json").read_text())
+    leak = [e for e in d["effects"] if e["kind"] == "leak"]
+    assert len(leak) == 1 and leak[0]["params"]["pole_per_s"] == pytest.approx(truth, rel=0.1)
+    assert d["error_after"]["act"]["chi2"] < 2.0 < 10.0 < d["error_before"]["act"]["chi2"]
+
+
 def test_main_job_is_reproducible_from_its_seed(runs):
     a, b = runs
     sa, sb = (json.loads((r / "summary.json").read_text()) for r in runs)

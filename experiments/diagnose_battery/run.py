@@ -65,6 +65,15 @@ COMBOS = [
     ("base mode 15 Hz + accel delay 3 ms", {"base_mode": (15.0, 0.02, 0.02), "accel_delay_s": 0.003},
      [("extra_mode", "base_mode", {"freq_hz": 15.0}), ("delay", "accel_sensor", {"delay_s": 0.003})]),
 ]
+#: Added later than the others (after them in the plan, so the others keep their seeds): a leaky actuator integrator,
+#: alone (gravity's pull making it a right-half-plane pole, as in samii's simulator; leakage against a restoring load)
+#: and beside the accelerometer's AC coupling, the other low-frequency effect.
+LATER = [
+    ("leak +0.2 1/s", {"leak_per_s": 0.2}, [("actuator", "leak", {"pole_per_s": 0.2})]),
+    ("leak -0.5 1/s", {"leak_per_s": -0.5}, [("actuator", "leak", {"pole_per_s": -0.5})]),
+    ("leak +0.2 1/s + HP 0.3 Hz", {"leak_per_s": 0.2, "accel_highpass_hz": 0.3},
+     [("actuator", "leak", {"pole_per_s": 0.2}), ("sensor", "accel_highpass", {"corner_hz": 0.3})]),
+]
 #: A valve nonlinearity (time-domain loop, samii.diagnose.rig.EffectRig.valve_nonlinearity); files at the amplitudes given.
 NONLINEAR = [
     ("dead band 5 mV", {"valve_nonlinearity": ("dead_band", 0.005)}, [("nonlinear", "dead_band", {"dead_band_v": 0.005})], (0.1,)),
@@ -89,7 +98,7 @@ CLEAN = [(f"clean {a:g} V seed {s}", a, s) for a, seeds in ((0.05, (1, 2)), (0.1
 #: issue states none for the actuator, whose valve corner is judged like a sensor's (15 %), nor for a nonlinearity's
 #: level (judged alike).
 TOLERANCE = {("delay", "delay_s"): ("abs", 5e-4), ("extra_mode", "freq_hz"): ("rel", 0.02), ("extra_mode", "zero_freq_hz"): ("rel", 0.02),
-             ("sensor", "corner_hz"): ("rel", 0.15), ("actuator", "freq_hz"): ("rel", 0.15),
+             ("sensor", "corner_hz"): ("rel", 0.15), ("actuator", "freq_hz"): ("rel", 0.15), ("actuator", "pole_per_s"): ("rel", 0.15),
              ("nonlinear", "dead_band_v"): ("rel", 0.15), ("nonlinear", "saturation_v"): ("rel", 0.15),
              ("nonlinear", "hysteresis_v"): ("rel", 0.15), ("nonlinear", "asymmetry_fraction"): ("rel", 0.15)}
 
@@ -252,7 +261,7 @@ def main() -> None:
         _write(args.out, results)
         return
     plan = [(n, {}, [], a, s) for n, a, s in CLEAN]
-    plan += [(n, kw, inj, 0.1, 100 + i) for i, (n, kw, inj) in enumerate(SINGLE + COMBOS)]
+    plan += [(n, kw, inj, 0.1, 100 + i) for i, (n, kw, inj) in enumerate(SINGLE + COMBOS + LATER)]
     plan += [(n, kw, inj, amps, 200 + i) for i, (n, kw, inj, amps) in enumerate(CLEAN_PATHS + NONLINEAR)]
     if args.quick:
         plan = plan[2:3] + plan[len(CLEAN) : len(CLEAN) + 3] + plan[-len(NONLINEAR) - 2 : -len(NONLINEAR)] + plan[-len(NONLINEAR):][:3]

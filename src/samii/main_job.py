@@ -312,11 +312,13 @@ def summary_lines(s: dict, out) -> list[str]:
                      f"its vibration decays {dl['base']['decay_rate_1_s'] / dl['base']['free_decay_rate_1_s']:.1f}x faster than free")
     dg = s["diagnosis"]
     eff = ", ".join(f"{e['category']}/{e['kind']}" for e in dg["effects"]) or "nothing"
-    b, a = dg["error_before"].get("total", {}), dg["error_after"].get("total", {})
     lines.append(f"diagnosis of the fit against the measured record: {dg['verdict']}; found {eff}")
-    if b and a:
-        lines.append(f"  xdd/v error {b.get('rms_db', float('nan')):.2g} dB / {b.get('rms_deg', float('nan')):.2g} deg -> "
-                     f"{a.get('rms_db', float('nan')):.2g} dB / {a.get('rms_deg', float('nan')):.2g} deg with them")
+    nan = float("nan")
+    for ch, name in (("act", "theta/v"), ("total", "xdd/v")):
+        b, a = dg["error_before"].get(ch, {}), dg["error_after"].get(ch, {})
+        if b and a:
+            lines.append(f"  {name} error {b.get('rms_db', nan):.2g} dB / {b.get('rms_deg', nan):.2g} deg, chi2 {b.get('chi2', nan):.3g} -> "
+                         f"{a.get('rms_db', nan):.2g} dB / {a.get('rms_deg', nan):.2g} deg, chi2 {a.get('chi2', nan):.3g} with them (chi2 1: the noise)")
     report = "report.html (open it in a browser), " if not s.get("report_error") else "(NOT report.html: see the warning above) "
     lines.append(f"wrote {out}/ in {s['wall_s']:.0f} s: {report}summary.json, measure/, fit/, controllers/, "
                  "closedloop/, diagnose/; measure.rrd and closedloop.rrd (open with `rerun FILE`)")

@@ -27,6 +27,12 @@ Categories and kinds (the ``--json`` names):
   (AC coupling s/(s + w_h)), ``accel_gain`` (a scale error k; only testable against
   a fixed baseline, since the fitted gains B_k absorb it).
 * ``actuator``: ``pole_zero`` (a real pole and zero, (1 + s/w_z)/(1 + s/w_p)),
+  ``leak`` (the integrator leaks: theta/v's 1/s is 1/(s - a), act x s/(s - a). Leakage
+  across the piston, Q = C_l P, against a load whose torque changes with theta by k turns
+  the integrator into a real pole at a = -C_l k / D^2 (D the displacement): a < 0 for a
+  restoring load, a > 0 where gravity pulls the arm further the further it moves, as in
+  samii's simulator at its nominal pose (+0.199 1/s). The notebook's model is a pure
+  integrator),
   ``valve`` (second-order valve dynamics w_v^2/(s^2 + 2 z_v w_v s + w_v^2)).
 
 Nonlinear effects are not factors: :mod:`samii.diagnose.nonlinear` decides them.
@@ -140,6 +146,10 @@ def _pole_zero(p, s):
     return (1.0 + s / (TWO_PI * fz)) / (1.0 + s / (TWO_PI * fp)), None, None
 
 
+def _leak(p, s):
+    return s / (s - p[0]), None, None
+
+
 def _valve(p, s):
     f, z = p
     w = TWO_PI * f
@@ -207,6 +217,10 @@ def _d_pole_zero(p, s):
     return _col(-uz / (fz * (1.0 + uz)), up / (fp * (1.0 + up))), None, None
 
 
+def _d_leak(p, s):
+    return _col(1.0 / (s - p[0])), None, None  # ln M = ln s - ln(s - a)
+
+
 def _d_valve(p, s):
     f, z = p
     w = TWO_PI * f
@@ -240,6 +254,8 @@ LIBRARY: tuple[EffectKind, ...] = (
                lambda v: f"the accelerometer reads {v['gain']:.4g} x the true acceleration", _d_gain, needs_fixed_baseline=True),
     EffectKind("actuator", "pole_zero", "act", (Param("zero_hz", "Hz", 0.01, 1e4), Param("pole_hz", "Hz", 0.01, 1e4)), _pole_zero,
                lambda v: f"theta/v has an extra real zero at {v['zero_hz']:.3g} Hz and pole at {v['pole_hz']:.3g} Hz", _d_pole_zero),
+    EffectKind("actuator", "leak", "act", (Param("pole_per_s", "1/s", -10.0, 10.0, "lin"),), _leak,
+               lambda v: f"theta/v's integrator is a real pole at s = {v['pole_per_s']:+.3g} 1/s (leakage across the actuator against the load's stiffness)", _d_leak),
     EffectKind("actuator", "valve", "act", (Param("freq_hz", "Hz", 1.0, 1e4), Param("zeta", "1", 0.05, 3.0)), _valve,
                lambda v: f"valve dynamics: a second-order lag at {v['freq_hz']:.3g} Hz, damping {v['zeta']:.2g}", _d_valve),
 )

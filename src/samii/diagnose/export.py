@@ -62,6 +62,8 @@ def effect_tfs(kind: EffectKind, values: Mapping[str, float], *, pade_order: int
         return None, control.tf([v["gain"]], [1.0]), None
     if k == "pole_zero":
         return (1 + s / (TWO_PI * v["zero_hz"])) / (1 + s / (TWO_PI * v["pole_hz"])), None, None
+    if k == "leak":
+        return s / (s - v["pole_per_s"]), None, None
     if k == "valve":
         w = TWO_PI * v["freq_hz"]
         return w * w / (s**2 + 2 * v["zeta"] * w * s + w * w), None, None
@@ -73,7 +75,10 @@ def augmented_tf(fit, i: int = 0, channel: str = "total", *, pade_order: int = 3
     (xdd/v) of ``fit``'s model for file ``i``, as a ``control.TransferFunction``.
 
     A theta-sensor delay is a lag in theta/v and an advance in xdd/theta: ``base`` is refused then,
-    and ``total`` leaves both out (they cancel exactly)."""
+    and ``total`` leaves both out (they cancel exactly). A leaky integrator moves theta/v's pole at 0
+    to ``a`` (no pole-zero pair at 0 left to cancel)."""
+    import control
+
     st = fit.baseline.structure
     if st is None or not fit.baseline_params or not hasattr(st, "to_tf"):
         raise ValueError("the baseline has no transfer function to export (the simulator as baseline: use augmented_frd)")
@@ -89,6 +94,9 @@ def augmented_tf(fit, i: int = 0, channel: str = "total", *, pade_order: int = 3
     for e in fit.effects:
         if e.kind.label == "delay/theta_sensor" and channel == "total":
             continue  # theta's late reading cancels in xdd/v, which does not pass through theta
+        if e.kind.label == "actuator/leak" and act.den[0][0][-1] == 0.0:  # 1/s becomes 1/(s - a) (no s/s left to cancel)
+            act = control.tf(act.num[0][0], np.polymul(act.den[0][0][:-1], [1.0, -e.values["pole_per_s"]]))
+            continue
         a, b, add = effect_tfs(e.kind, e.values, pade_order=pade_order)
         if a is not None:
             m_act.append(a)

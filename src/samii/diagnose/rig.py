@@ -6,6 +6,9 @@ have and a model may lack:
 
 * ``command_delay_s``: the valve acts on v(t - T) (inside the loop);
 * ``valve_hz, valve_zeta``: second-order valve dynamics (inside the loop);
+* ``leak_per_s``: the actuator's integrator a real pole at ``a`` [1/s], theta/v x s/(s - a)
+  (leakage across the piston against the load's stiffness about the pose; ``a`` > 0 when the
+  load's gravity pulls further the further the arm moves, as in samii's simulator);
 * ``act_mode``: (f_p, z_p, f_z, z_z), a structural pole/zero pair in theta/v (inside the loop);
 * ``base_mode``: (f, z, B), a base mode the modal sum lacks;
 * ``accel_lowpass_hz`` (+ ``accel_lowpass_order``): the accelerometer's Butterworth roll-off (recording only);
@@ -92,6 +95,7 @@ class EffectRig:
     command_delay_s: float = 0.0
     valve_hz: float | None = None
     valve_zeta: float = 0.7
+    leak_per_s: float = 0.0
     act_mode: tuple | None = None
     base_mode: tuple | None = None
     accel_lowpass_hz: float | None = None
@@ -119,7 +123,9 @@ class EffectRig:
             G = np.where(f > 0, st.response(p, np.where(f > 0, f, 1.0), "act") * DEG, 0.0)
             B = st.response(p, np.where(f > 0, f, 1.0), "base") / DEG
         B = np.where(f > 0, B, 0.0)
-        G = G * np.exp(-s * self.command_delay_s) * self._loop_factor(s)
+        with np.errstate(all="ignore"):
+            leak = np.where(f > 0, s / (s - self.leak_per_s), 0.0)
+        G = G * np.exp(-s * self.command_delay_s) * self._loop_factor(s) * leak
         if self.base_mode:
             fm, zm, bm = self.base_mode
             wm = 2 * np.pi * fm
@@ -139,6 +145,15 @@ class EffectRig:
             num = np.polymul(num, (wp / wz) ** 2 * np.array([1.0, 2 * zz * wz, wz * wz]))
             den = np.polymul(den, [1.0, 2 * zp * wp, wp * wp])
         return num, den
+
+    def _leaky(self, num: np.ndarray, den: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """theta/v's polynomials with its integrator 1/s replaced by 1/(s - a) (``leak_per_s``)."""
+        num, den = np.asarray(num, float), np.asarray(den, float)
+        if not self.leak_per_s:
+            return num, den
+        if den[-1] != 0.0:
+            raise ValueError("EffectRig: theta/v has no integrator to leak")
+        return num, np.polymul(den[:-1], [1.0, -self.leak_per_s])
 
     def _loop_factor(self, s: np.ndarray) -> np.ndarray:
         num, den = self._loop_polys()
@@ -164,6 +179,7 @@ class EffectRig:
         from samii.identify.structures import ModelStructure
 
         g = ModelStructure.notebook_3mode().to_tf(self._p(), "act") * DEG
+        g = control.tf(*self._leaky(g.num[0][0], g.den[0][0]))
         num, den = self._loop_polys()
         g = g * control.tf(num, den)
         if self.command_delay_s > 0:
@@ -233,8 +249,9 @@ class EffectRig:
         law = valve_law(*self.valve_nonlinearity)
         tf = actuator_tf(self._p())
         lnum, lden = self._loop_polys()
-        num = DEG * np.polymul(np.asarray(tf.num[0][0], float), lnum)
-        den = np.polymul(np.asarray(tf.den[0][0], float), lden)
+        anum, aden = self._leaky(tf.num[0][0], tf.den[0][0])
+        num = DEG * np.polymul(anum, lnum)
+        den = np.polymul(aden, lden)
         dt = 1.0 / (OVERSAMPLE * sample_rate_hz)
         # partial fractions, each first-order mode held exactly over a step (the integrator's pole stays at 0: a
         # companion-form realisation and eig moved it to -0.004 rad/s, a 0.4 deg phase lead at 0.1 Hz)
