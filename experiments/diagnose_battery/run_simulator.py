@@ -151,6 +151,12 @@ def _line(r: dict) -> str:
     return f"| {r['name']} | {r['verdict']} | {found} | {extra} | {carried} | {sim} | {r['time_s']:.0f} |"
 
 
+def _one_blas_thread() -> None:
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=1)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one clean case and the 4 ms delay")
@@ -158,7 +164,9 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=HERE / "out")
     args = ap.parse_args()
     plan = [CASES[0], CASES[3]] if args.quick else CASES
-    with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+    # one BLAS thread per case when cases run side by side: with two each on two cores, the small SVDs of the fits
+    # slowed some 10x (stop 20: a 6.7 s diagnosis took 57-113 s beside another)
+    with ProcessPoolExecutor(max_workers=max(1, args.jobs), initializer=_one_blas_thread if args.jobs > 1 else None) as pool:
         futures = [pool.submit(run_case, *case) for case in plan]
         results = []
         for f in futures:

@@ -85,16 +85,6 @@ def _peaks(ds_list: list[Dataset], fit: Fit, ch: str, n: int = 3) -> list[float]
     return out
 
 
-def _peaks_beyond(ds_list: list[Dataset], fit: Fit, ch: str, other: str, n: int = 2) -> list[float]:
-    """:func:`_peaks` of ``ch`` above the highest usable frequency of ``other`` (a theta/v mode above
-    theta's usable band shows only in xdd/v)."""
-    tops = [ds.freq_hz[ds.keep[other]].max() for ds in ds_list if other in ds.data and ds.keep[other].any()]
-    if not tops:
-        return []
-    top = max(tops)
-    return [f for f in _peaks(ds_list, fit, ch, n=n + 3) if f > top][:n]
-
-
 def _phase_slope_delay(ds_list: list[Dataset], fit: Fit, ch: str) -> float | None:
     """Delay [s] from the slope of the phase residual of ``ch`` against angular frequency (weighted)."""
     num = den = 0.0
@@ -127,7 +117,7 @@ def starts_for(kind: EffectKind, ds_list: list[Dataset], fit: Fit) -> list[np.nd
         return starts
     if k == "act_mode":
         starts = []
-        for f in _peaks(ds_list, fit, "act") + _peaks_beyond(ds_list, fit, "total", "act"):
+        for f in _peaks(ds_list, fit, "act"):
             for r in (1.03, 1 / 1.03):
                 starts.append(np.array([f * r, 0.02, f / r, 0.02]))
         return starts

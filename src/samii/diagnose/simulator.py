@@ -90,8 +90,9 @@ _LAWS = ("hydraulic.valve_dead_band", "hydraulic.valve_saturation")
 NOT_CARRIED: Mapping[str, str] = {
     "extra_mode/act_mode": "the simulator has no option for a compliance in joint 2's drive yet",
     "actuator/pole_zero": "the simulator's valve and lines have no extra pole-zero pair option yet",
-    "actuator/leak": "the simulator's real pole near 0 is its leakage coefficient against the arm's gravity stiffness about the pose; "
-                     "carrying it as the leakage coefficient is not done yet",
+    "actuator/leak": "the simulator's real pole near 0 is its leakage coefficient against gravity's pull about the pose, and that "
+                     "coefficient is already calibrated (a mode knob: it also damps the hydraulic pole pair); a leak found beyond it "
+                     "needs a second, separate leakage path, which the simulator does not have yet",
     "nonlinear/hysteresis": "the simulator's valve has no play (hysteresis) option yet",
     "nonlinear/asymmetry": "the simulator's valve has no asymmetry option yet",
 }
