@@ -494,11 +494,12 @@ def _noise_from_roughness(m: Measured, saved) -> Measured:
     return with_roughness_noise(m, {ch: model[ch] for ch in m.frf.channels})
 
 
-def _kinds(datasets: Sequence[Dataset], *, fixed_baseline: bool) -> list:
-    """The library's kinds the datasets' channels can test, each bounded to their band."""
+def _kinds(datasets: Sequence[Dataset], *, fixed_baseline: bool, simulator: bool = False) -> list:
+    """The library's kinds the datasets' channels can test against the baseline (``simulator``: the calibrated
+    simulator's), each bounded to their band."""
     have = set().union(*(ds.data for ds in datasets))
     channels = ("act", "base") if {"act", "base"} <= have or {"act", "total"} <= have else tuple(c for c in ("act", "base") if c in have)
-    return [_within_band(k, datasets) for k in library(fixed_baseline=fixed_baseline, channels=channels)]
+    return [_within_band(k, datasets) for k in library(fixed_baseline=fixed_baseline, channels=channels, pure_integrator=not simulator)]
 
 
 def _stage(progress, text: str) -> None:
@@ -514,7 +515,7 @@ def _select_against(cal, files, keep, *, alpha, progress):
 
     datasets = tuple(Dataset.from_measured(m) for m in files)
     bl = simulator_baseline(cal, [correction(cal.params, m) for m in files])
-    kinds = [k for k in _kinds(datasets, fixed_baseline=True) if keep(k.label)]
+    kinds = [k for k in _kinds(datasets, fixed_baseline=True, simulator=True) if keep(k.label)]
     _, after, steps, tried = forward_select(list(datasets), bl, kinds, alpha=alpha, progress=progress)
     return datasets, after, list(steps), list(tried)
 
@@ -537,10 +538,13 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
 
     Valve dynamics are not in the first selection either: with them, a 4 ms command delay beside an AC
     coupling was taken as valve dynamics (carried as a slower spool) and the delay as the accelerometer's.
-    The reverse holds too, and is not solved: on the simulator's data with its spool twice as slow
-    (8.97 ms), the first selection takes a theta delay, an accelerometer roll-off and gain for it.
-    Valve dynamics found after the first carry go the bodies' way: carried alone as the spool's time
-    constant (:data:`samii.diagnose.simulator.SPOOL`), then the first selection again.
+    The reverse holds too: on the simulator's data with its spool twice as slow (8.97 ms), the first
+    selection takes a theta delay, an accelerometer roll-off and a gain error for it. The selection after
+    that carry finds a real pole/zero pair, the exact ratio of two first-order spools, and it goes the
+    bodies' way with valve dynamics: carried alone as the spool's time constant
+    (:data:`samii.diagnose.simulator.SPOOL`), then the first selection again, which then needs none of
+    the three (8.90 ms carried). A pair in the first selection instead stood beside a 20 Hz roll-off and
+    a 4 ms delay as small changes of the spool.
 
     An extra base mode is not in the first selection: against knobs bent by a missing delay modes
     appear as its images (a 4 ms delay brought three; a 3 ms accelerometer delay two near mode 3,
@@ -553,7 +557,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
 
     Returns (effects, (files, datasets, final fit), SimulatorReport, later steps, later candidates)."""
     from samii.calibrate.simulator import parameter_value
-    from samii.diagnose.simulator import BODY, CARRY, LATE, SPOOL, body_effect_values, carry, carry_and_recalibrate, found_value, simulator_report
+    from samii.diagnose.simulator import BODY, CARRY, FIRST, LATE, SPOOL, body_effect_values, carry, carry_and_recalibrate, found_value, simulator_report, spool_lag_s
 
     # a valve law is carried only at a level the harmonics fix (its describing function fits)
     refuse = {f"nonlinear/{f.kind}": "its describing function does not fit the harmonics, so no level to carry"
@@ -581,7 +585,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
         if not body_carried:
             break  # (a residue no body on the tip makes): reported as found, not carried
         _stage(progress, "selecting again against the simulator with the extra mode")
-        _, after_b, steps_b, tried_b = _select_against(with_body, measured, lambda label: label in CARRY, alpha=alpha, progress=progress)
+        _, after_b, steps_b, tried_b = _select_against(with_body, measured, lambda label: label in FIRST, alpha=alpha, progress=progress)
         more_steps += steps_b
         more_tried += tried_b
         steps_by_label.update({s.label: s for s in steps_b})
@@ -608,11 +612,11 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
             tau, tau0, se = r.values[name], parameter_value(report.before.params, name), r.stderr[name]
             out.append(FoundEffect(e.category, e.kind, e.channel, {"spool_time_constant_s": tau, "added_lag_s": tau - tau0},
                                    {"spool_time_constant_s": se, "added_lag_s": se},
-                                   f"{why}the valve is slower than the simulator's: carried into the simulator as {name} (its "
+                                   f"{why}the valve is {'slower' if tau > tau0 else 'faster'} than the simulator's: carried into the simulator as {name} (its "
                                    f"first-order spool, {1e3 * tau0:.3g} -> {1e3 * tau:.3g} ms, corner {1 / (2 * np.pi * tau):.3g} Hz) "
-                                   f"and recalibrated with its mode knobs; found against it as valve dynamics at "
-                                   f"{e.params['freq_hz']:.3g} Hz, damping {e.params['zeta']:.2g}, whose low-frequency group delay "
-                                   "the spool's time constant takes (a resonant valve's peak it cannot)"))
+                                   f"and recalibrated with its mode knobs; found against it as {e.kind.replace('_', ' ')} ({_values_text(label, e.params)}), "
+                                   f"whose low-frequency group delay ({1e3 * spool_lag_s(e):.3g} ms) the spool's time constant takes"
+                                   + (" (a resonant valve's peak it cannot)" if e.kind == "valve" else "")))
             continue
         name, key = CARRY[label]
         value, se = found_value(name, report.before.params, r.values[name], r.stderr[name])
@@ -680,7 +684,7 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     datasets = tuple(Dataset.from_measured(m) for m in measured)
     calibrated = None
     if sim:
-        from samii.diagnose.simulator import CARRY, calibrate_simulator, correction, simulator_baseline
+        from samii.diagnose.simulator import FIRST, calibrate_simulator, correction, simulator_baseline
         from samii.sim.model import default_params
 
         _stage(progress, "calibrating the simulator")
@@ -703,13 +707,13 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     if saved is not None:
         notes += list(saved.concerns)
     # the simulator's knobs cannot make an accelerometer's gain error: testable against it
-    kinds = _kinds(datasets, fixed_baseline=sim or not bl.free)
+    kinds = _kinds(datasets, fixed_baseline=sim or not bl.free, simulator=sim)
     if sim:
         # first what the simulator can take as physics: against knobs a missing effect has bent, a
         # kind it cannot take imitates one it can (a 4 ms delay beside an AC coupling was taken as
         # 59 Hz valve dynamics, chi2 1299 against the delay's 1369); the second selection, after the
         # carry, has the whole library for what remains
-        kinds = [k for k in kinds if k.label in CARRY]
+        kinds = [k for k in kinds if k.label in FIRST]
     before, after, steps, tried = forward_select(list(datasets), bl, kinds, alpha=alpha, progress=progress)
     error_before = channel_errors(datasets, before)
     if raw is not measured:  # the baseline on the data as measured, for the error before

@@ -67,6 +67,9 @@ class EffectKind:
     ``derivatives(p, s) -> (d ln M_act/dp, d ln M_base/dp, d A_base/dp)``, each (points, parameters) or None
     where the response has none: analytic, derived from the same laws (the fit's Jacobian is built from them).
     ``needs_fixed_baseline``: only identifiable when the baseline's parameters are not refitted.
+    ``needs_pure_integrator``: only meaningful against a baseline whose theta/v integrates purely (the
+    notebook's structure, a saved fit); the simulator's own pole near 0 is its leakage coefficient, which
+    its calibration frees.
     """
 
     category: str
@@ -77,6 +80,7 @@ class EffectKind:
     describe: Callable[[dict], str]
     derivatives: Callable[[np.ndarray, np.ndarray], tuple]
     needs_fixed_baseline: bool = False
+    needs_pure_integrator: bool = False
 
     @property
     def label(self) -> str:
@@ -255,17 +259,18 @@ LIBRARY: tuple[EffectKind, ...] = (
     EffectKind("actuator", "pole_zero", "act", (Param("zero_hz", "Hz", 0.01, 1e4), Param("pole_hz", "Hz", 0.01, 1e4)), _pole_zero,
                lambda v: f"theta/v has an extra real zero at {v['zero_hz']:.3g} Hz and pole at {v['pole_hz']:.3g} Hz", _d_pole_zero),
     EffectKind("actuator", "leak", "act", (Param("pole_per_s", "1/s", -10.0, 10.0, "lin"),), _leak,
-               lambda v: f"theta/v's integrator is a real pole at s = {v['pole_per_s']:+.3g} 1/s (leakage across the actuator against the load's stiffness)", _d_leak),
+               lambda v: f"theta/v's integrator is a real pole at s = {v['pole_per_s']:+.3g} 1/s (leakage across the actuator against the load's stiffness)", _d_leak,
+               needs_pure_integrator=True),
     EffectKind("actuator", "valve", "act", (Param("freq_hz", "Hz", 1.0, 1e4), Param("zeta", "1", 0.05, 3.0)), _valve,
                lambda v: f"valve dynamics: a second-order lag at {v['freq_hz']:.3g} Hz, damping {v['zeta']:.2g}", _d_valve),
 )
 
 
-def library(*, fixed_baseline: bool, channels: tuple[str, ...]) -> list[EffectKind]:
-    """The kinds that can be tested on these channels and baseline."""
+def library(*, fixed_baseline: bool, channels: tuple[str, ...], pure_integrator: bool = True) -> list[EffectKind]:
+    """The kinds that can be tested on these channels and baseline (``pure_integrator``: its theta/v has one)."""
     out = []
     for k in LIBRARY:
-        if k.needs_fixed_baseline and not fixed_baseline:
+        if (k.needs_fixed_baseline and not fixed_baseline) or (k.needs_pure_integrator and not pure_integrator):
             continue
         if not all(c in channels for c in k.affects):
             continue

@@ -53,7 +53,7 @@ from samii.frequency_response import FrequencyResponse, interpolate_frf
 from samii.sim.mjcf import SamiiParams
 from samii.sim.model import params_with_overrides
 
-__all__ = ["CARRY", "BODY", "SPOOL", "LATE", "NOT_CARRIED", "tip_body_options", "body_effect_values", "LocalSimulator", "SimulatorCalibration", "SimulatorReport", "calibrate_simulator", "correction",
+__all__ = ["CARRY", "BODY", "SPOOL", "FIRST", "LATE", "spool_lag_s", "NOT_CARRIED", "tip_body_options", "body_effect_values", "LocalSimulator", "SimulatorCalibration", "SimulatorReport", "calibrate_simulator", "correction",
            "simulator_baseline", "carry", "carry_and_recalibrate", "sweep_like", "measured_like", "measurement_like", "remeasure", "simulator_report"]
 
 #: effect label -> (simulator parameter, the effect's parameter giving its value)
@@ -78,8 +78,17 @@ BODY: Mapping[str, tuple[str, str, str]] = {
 #: found second-order lag at ``f`` with damping ``zeta`` adds its low-frequency group delay
 #: ``2 zeta / (2 pi f)`` to the spool's time constant, which is then recalibrated with the knobs.
 #: Like a body, it is carried in the second round only (diagnosis: a kind the first selection cannot
-#: carry is imitated by one it can, and the reverse).
-SPOOL: Mapping[str, str] = {"actuator/valve": "hydraulic.valve_time_constant"}
+#: carry is imitated by one it can, and the reverse). A real pole/zero pair is the exact ratio of two
+#: first-order spools, (1 + s tau0)/(1 + s tau): its low-frequency group delay 1/w_p - 1/w_z is added
+#: the same way.
+SPOOL: Mapping[str, str] = {"actuator/valve": "hydraulic.valve_time_constant", "actuator/pole_zero": "hydraulic.valve_time_constant"}
+#: Kinds the first selection against the simulator tries: what it carries as an option set directly. Neither
+#: valve dynamics (near damping 0.7 a flat magnitude with a nearly linear phase: a 4 ms delay beside an AC
+#: coupling was taken as a 59 Hz valve) nor a real pole/zero pair (tried here, it stood beside a 20 Hz
+#: accelerometer roll-off and a 4 ms delay as a 5 % and 2 % change of the spool, with a gain error and a
+#: theta delay of 0.08 ms) is in it; a spool twice as slow is then imitated by a theta delay, an
+#: accelerometer roll-off and a gain error, and found as the pair only in the second round.
+FIRST = tuple(CARRY)
 #: Kinds carried in the second round, after the first selection's effects (samii.diagnose.diagnosis).
 LATE = (*BODY, *SPOOL)
 #: The trial mass whose effect on xdd/theta, to first order in the mass, scales a found residue to a mass.
@@ -89,10 +98,6 @@ _LAWS = ("hydraulic.valve_dead_band", "hydraulic.valve_saturation")
 #: Why a kind is not carried.
 NOT_CARRIED: Mapping[str, str] = {
     "extra_mode/act_mode": "the simulator has no option for a compliance in joint 2's drive yet",
-    "actuator/pole_zero": "the simulator's valve and lines have no extra pole-zero pair option yet",
-    "actuator/leak": "the simulator's real pole near 0 is its leakage coefficient against gravity's pull about the pose, and that "
-                     "coefficient is already calibrated (a mode knob: it also damps the hydraulic pole pair); a leak found beyond it "
-                     "needs a second, separate leakage path, which the simulator does not have yet",
     "nonlinear/hysteresis": "the simulator's valve has no play (hysteresis) option yet",
     "nonlinear/asymmetry": "the simulator's valve has no asymmetry option yet",
 }
@@ -390,7 +395,11 @@ def carry(effects: Sequence, params: SamiiParams, *, refuse: Mapping[str, str] |
             continue
         if label in SPOOL:  # the spool takes the lag's low-frequency group delay
             name = SPOOL[label]
-            value = parameter_value(params, name) + 2.0 * float(e.params["zeta"]) / (2.0 * np.pi * float(e.params["freq_hz"]))
+            value = parameter_value(params, name) + spool_lag_s(e)
+            if value <= 0.0:
+                not_carried.append(f"{label}: a phase lead of {-1e3 * spool_lag_s(e):.3g} ms, more than the simulator's spool lag "
+                                   f"({1e3 * parameter_value(params, name):.3g} ms) can give up")
+                continue
         elif label not in CARRY:
             not_carried.append(f"{label}: {NOT_CARRIED.get(label, 'no simulator option for it')}")
             continue
@@ -414,6 +423,15 @@ def carry(effects: Sequence, params: SamiiParams, *, refuse: Mapping[str, str] |
         options[name] = value
         carried.append(label)
     return options, carried, not_carried
+
+
+def spool_lag_s(effect) -> float:
+    """The low-frequency group delay [s] a valve-dynamics or pole/zero effect adds to theta/v: 2 zeta / w for a
+    second-order lag, 1/w_p - 1/w_z for a real pole/zero pair (negative for a lead)."""
+    p = effect.params
+    if effect.kind == "pole_zero":
+        return 1.0 / (2.0 * np.pi * float(p["pole_hz"])) - 1.0 / (2.0 * np.pi * float(p["zero_hz"]))
+    return 2.0 * float(p["zeta"]) / (2.0 * np.pi * float(p["freq_hz"]))
 
 
 def _base_channel(params: SamiiParams, freq_hz: np.ndarray) -> np.ndarray:
