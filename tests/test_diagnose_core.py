@@ -316,6 +316,10 @@ def test_effect_rig_refuses_an_unstable_loop():
     crossover, python-control's margin); a 60 ms command delay adds 360 x 4.63 x 0.06 = 100 deg of lag there, and an
     unstable loop's frequency-domain response is not a measurement (it wraps around in time): simulate refuses it."""
     assert EffectRig().closed_loop_poles().real.max() < 0
+    # a leaky integrator's right-half-plane pole is held by the loop while Kp x the actuator's gain (about the loop's
+    # 29 1/s crossover) exceeds it: +0.2 1/s is, +60 1/s is not
+    assert EffectRig(leak_per_s=0.2).closed_loop_poles().real.max() < 0
+    assert EffectRig(leak_per_s=60.0).closed_loop_poles().real.max() > 0
     rig = EffectRig(command_delay_s=0.06)
     assert rig.closed_loop_poles().real.max() > 0
     with pytest.raises(ValueError, match="unstable"):

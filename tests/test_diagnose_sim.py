@@ -143,13 +143,16 @@ def test_carry_rules():
     assert carried == ["actuator/valve"]
     assert options == pytest.approx({"hydraulic.valve_time_constant": tau0 + 1.4 / (2 * np.pi * 50.0)})
     # a real pole/zero pair is the ratio of two first-order spools, (1 + s tau0)/(1 + s tau): with its zero at the
-    # simulator's corner the spool becomes 1/w_p exactly; a lead gives up lag, but no more than the spool has
+    # simulator's corner the spool becomes 1/w_p exactly; a lead gives up lag, but the spool stays within its physical
+    # limits (0.2-50 ms), and so does a lag (a pair at 0.3/0.4 Hz would be a 130 ms spool)
     w0 = 1.0 / tau0
     options, carried, _ = carry([FoundEffect("actuator", "pole_zero", "act", {"zero_hz": w0 / (2 * np.pi), "pole_hz": 10.0}, {}, "")], p)
     assert carried == ["actuator/pole_zero"]
     assert options == pytest.approx({"hydraulic.valve_time_constant": 1.0 / (2 * np.pi * 10.0)})
     options, carried, not_carried = carry([FoundEffect("actuator", "pole_zero", "act", {"zero_hz": 5.0, "pole_hz": 500.0}, {}, "")], p)
-    assert not options and not carried and "phase lead" in not_carried[0]
+    assert not options and not carried and "outside 0.2-50 ms" in not_carried[0]
+    options, carried, not_carried = carry([FoundEffect("actuator", "pole_zero", "act", {"zero_hz": 0.4, "pole_hz": 0.3}, {}, "")], p)
+    assert not options and not carried and "outside 0.2-50 ms" in not_carried[0]
 
 
 def test_extra_base_mode_found_and_carried_as_a_body_on_the_tip(tip_body):

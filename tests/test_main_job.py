@@ -48,18 +48,26 @@ def test_main_job_writes_every_stage_and_a_short_summary(runs, capsys):
 
 def test_main_job_diagnosis_finds_the_simulator_s_leaky_integrator(runs):
     """The notebook's theta/v is a pure integrator; the simulator's has its pole at +0.199 1/s (leakage against
-    gravity's pull at the nominal pose: proportional to hydraulic.leakage_coefficient, 0 without it). The
+    gravity's pull at the nominal pose: twice the leakage coefficient doubles it, gravity off puts it at 0). The
     diagnosis of the fit against the measured record finds that pole, and with it theta/v fits to its noise."""
     import warnings
 
     from samii.sim.linearize import linearize
-    from samii.sim.model import load_model
+    from samii.sim.model import default_params, dotted, load_model
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        poles = np.linalg.eigvals(linearize(load_model()).open_loop().A)
-    truth = float(poles[np.argmin(np.abs(poles))].real)
+    def pole(model) -> float:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            poles = np.linalg.eigvals(linearize(model).open_loop().A)
+        return float(poles[np.argmin(np.abs(poles))].real)
+
+    truth = pole(load_model())
     assert truth == pytest.approx(0.199, abs=0.01)
+    leak = dotted(default_params())["hydraulic.leakage_coefficient"]
+    assert pole(load_model(overrides={"hydraulic.leakage_coefficient": 2 * leak})) == pytest.approx(2 * truth, rel=0.02)
+    weightless = load_model()
+    weightless.opt.gravity[:] = 0.0
+    assert abs(pole(weightless)) < 1e-3
     d = json.loads((runs[0] / "diagnose" / "diagnosis.json").read_text())
     leak = [e for e in d["effects"] if e["kind"] == "leak"]
     assert len(leak) == 1 and leak[0]["params"]["pole_per_s"] == pytest.approx(truth, rel=0.1)

@@ -313,12 +313,15 @@ def summary_lines(s: dict, out) -> list[str]:
     dg = s["diagnosis"]
     eff = ", ".join(f"{e['category']}/{e['kind']}" for e in dg["effects"]) or "nothing"
     lines.append(f"diagnosis of the fit against the measured record: {dg['verdict']}; found {eff}")
-    nan = float("nan")
-    for ch, name in (("act", "theta/v"), ("total", "xdd/v")):
+    def num(d: dict, key: str) -> float:  # (a figure may be null: chi2 with no noise estimate)
+        v = d.get(key)
+        return float("nan") if v is None else float(v)
+
+    for ch, name, note in (("act", "theta/v", " (chi2 1: the noise)"), ("total", "xdd/v", "")):
         b, a = dg["error_before"].get(ch, {}), dg["error_after"].get(ch, {})
         if b and a:
-            lines.append(f"  {name} error {b.get('rms_db', nan):.2g} dB / {b.get('rms_deg', nan):.2g} deg, chi2 {b.get('chi2', nan):.3g} -> "
-                         f"{a.get('rms_db', nan):.2g} dB / {a.get('rms_deg', nan):.2g} deg, chi2 {a.get('chi2', nan):.3g} with them (chi2 1: the noise)")
+            lines.append(f"  {name} error {num(b, 'rms_db'):.2g} dB / {num(b, 'rms_deg'):.2g} deg, chi2 {num(b, 'chi2'):.3g} -> "
+                         f"{num(a, 'rms_db'):.2g} dB / {num(a, 'rms_deg'):.2g} deg, chi2 {num(a, 'chi2'):.3g} with them{note}")
     report = "report.html (open it in a browser), " if not s.get("report_error") else "(NOT report.html: see the warning above) "
     lines.append(f"wrote {out}/ in {s['wall_s']:.0f} s: {report}summary.json, measure/, fit/, controllers/, "
                  "closedloop/, diagnose/; measure.rrd and closedloop.rrd (open with `rerun FILE`)")

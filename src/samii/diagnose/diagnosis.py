@@ -614,7 +614,9 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
                                    {"spool_time_constant_s": se, "added_lag_s": se},
                                    f"{why}the valve is {'slower' if tau > tau0 else 'faster'} than the simulator's: carried into the simulator as {name} (its "
                                    f"first-order spool, {1e3 * tau0:.3g} -> {1e3 * tau:.3g} ms, corner {1 / (2 * np.pi * tau):.3g} Hz) "
-                                   f"and recalibrated with its mode knobs; found against it as {e.kind.replace('_', ' ')} ({_values_text(label, e.params)}), "
+                                   f"and recalibrated with its mode knobs; found against it as {'a real pole/zero pair' if e.kind == 'pole_zero' else 'valve dynamics'} "
+                                   f"({_values_text(label, e.params)}"
+                                   + (f"; the simulator's spool corner is {1 / (2 * np.pi * tau0):.3g} Hz" if e.kind == "pole_zero" else "") + "), "
                                    f"whose low-frequency group delay ({1e3 * spool_lag_s(e):.3g} ms) the spool's time constant takes"
                                    + (" (a resonant valve's peak it cannot)" if e.kind == "valve" else "")))
             continue

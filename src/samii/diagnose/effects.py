@@ -27,12 +27,14 @@ Categories and kinds (the ``--json`` names):
   (AC coupling s/(s + w_h)), ``accel_gain`` (a scale error k; only testable against
   a fixed baseline, since the fitted gains B_k absorb it).
 * ``actuator``: ``pole_zero`` (a real pole and zero, (1 + s/w_z)/(1 + s/w_p)),
-  ``leak`` (the integrator leaks: theta/v's 1/s is 1/(s - a), act x s/(s - a). Leakage
-  across the piston, Q = C_l P, against a load whose torque changes with theta by k turns
-  the integrator into a real pole at a = -C_l k / D^2 (D the displacement): a < 0 for a
-  restoring load, a > 0 where gravity pulls the arm further the further it moves, as in
-  samii's simulator at its nominal pose (+0.199 1/s). The notebook's model is a pure
-  integrator),
+  ``leak`` (the integrator leaks: theta/v's 1/s is 1/(s - a), act x s/(s - a). A flow
+  lost with the load pressure, Q = K_ce P (leakage across the piston, plus the valve's own
+  flow-pressure coefficient), against a holding torque D P = tau_0 + k theta that changes with
+  theta (k = d(holding torque)/d theta), gives D theta' = K_q v - K_ce (tau_0 + k theta)/D: a
+  real pole at a = -K_ce k / D^2 (D the displacement). a < 0 for a restoring load, a > 0 for a
+  destabilising one (negative stiffness: gravity on a link near upright), as in samii's
+  simulator at its nominal pose (+0.199 1/s, proportional to its leakage coefficient, ~0 with
+  gravity off). The notebook's model is a pure integrator),
   ``valve`` (second-order valve dynamics w_v^2/(s^2 + 2 z_v w_v s + w_v^2)).
 
 Nonlinear effects are not factors: :mod:`samii.diagnose.nonlinear` decides them.

@@ -253,8 +253,8 @@ class EffectRig:
         num = DEG * np.polymul(anum, lnum)
         den = np.polymul(aden, lden)
         dt = 1.0 / (OVERSAMPLE * sample_rate_hz)
-        # partial fractions, each first-order mode held exactly over a step (the integrator's pole stays at 0: a
-        # companion-form realisation and eig moved it to -0.004 rad/s, a 0.4 deg phase lead at 0.1 Hz)
+        # partial fractions, each first-order mode held exactly over a step (the integrator's pole stays at 0, or at
+        # leak_per_s: a companion-form realisation and eig moved it to -0.004 rad/s, a 0.4 deg phase lead at 0.1 Hz)
         res, poles, direct = signal.residue(num, den)
         if np.asarray(direct).size and np.any(np.abs(direct) > 0):
             raise ValueError("EffectRig: theta/v must be strictly proper")

@@ -14,10 +14,11 @@ finds carried into it as physics.
 3. **Carry.** Each effect found becomes a simulator option (:data:`CARRY`): a command delay in the
    hydraulic plugin, the sensors' dynamics in the DAQ (``samii.sim.sensor_dynamics``), a dead
    band or saturation in the valve; an extra base mode a body on a compliant mount at the beam's
-   end (:data:`BODY`, :func:`tip_body_options`), valve dynamics the spool's time constant
-   (:data:`SPOOL`); these two in a second round (``samii.diagnose.diagnosis``).
-   Kinds with no simulator counterpart yet (an actuator mode, an actuator pole-zero pair,
-   hysteresis, asymmetry) are listed as not carried, with the reason.
+   end (:data:`BODY`, :func:`tip_body_options`), valve dynamics or a real pole-zero pair the
+   spool's time constant (:data:`SPOOL`); these in a second round (``samii.diagnose.diagnosis``).
+   Kinds with no simulator counterpart yet (an actuator mode, hysteresis, asymmetry) are listed as
+   not carried, with the reason. A leaky integrator is not tried against the simulator: its pole
+   near 0 is the leakage coefficient, a mode knob.
 4. **Recalibrate** the mode knobs together with the linear options carried (started at the values
    found): a parameter the first calibration bent to imitate the missing effect goes back. The
    correction is recomputed at the result, and the calibration repeated, while the cost falls.
@@ -45,7 +46,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from samii.calibrate.calibrate import MODE_KNOBS
+from samii.calibrate.calibrate import MODE_KNOBS, PHYSICAL_LIMITS
 from samii.calibrate.simulator import parameter_value
 from samii.diagnose.measured import Measured
 from samii.diagnose.model import Baseline, Dataset
@@ -396,9 +397,11 @@ def carry(effects: Sequence, params: SamiiParams, *, refuse: Mapping[str, str] |
         if label in SPOOL:  # the spool takes the lag's low-frequency group delay
             name = SPOOL[label]
             value = parameter_value(params, name) + spool_lag_s(e)
-            if value <= 0.0:
-                not_carried.append(f"{label}: a phase lead of {-1e3 * spool_lag_s(e):.3g} ms, more than the simulator's spool lag "
-                                   f"({1e3 * parameter_value(params, name):.3g} ms) can give up")
+            lo, hi, why = PHYSICAL_LIMITS[name]
+            if not lo <= value <= hi:
+                not_carried.append(f"{label}: as the spool's lag ({1e3 * parameter_value(params, name):.3g} ms "
+                                   f"{'+' if spool_lag_s(e) >= 0 else '-'} {1e3 * abs(spool_lag_s(e)):.3g} ms) it would be "
+                                   f"{1e3 * value:.3g} ms, outside {1e3 * lo:g}-{1e3 * hi:g} ms ({why})")
                 continue
         elif label not in CARRY:
             not_carried.append(f"{label}: {NOT_CARRIED.get(label, 'no simulator option for it')}")
