@@ -153,6 +153,13 @@ def test_carry_rules():
     assert not options and not carried and "outside 0.2-50 ms" in not_carried[0]
     options, carried, not_carried = carry([FoundEffect("actuator", "pole_zero", "act", {"zero_hz": 0.4, "pole_hz": 0.3}, {}, "")], p)
     assert not options and not carried and "outside 0.2-50 ms" in not_carried[0]
+    # a gain asymmetry: the negative direction's gains multiply, (1 - a) = (1 - a0)(1 - a_found)
+    asym = FoundEffect("nonlinear", "asymmetry", "act", {"asymmetry_fraction": 0.1}, {}, "")
+    options, carried, _ = carry([asym], params_with_overrides(p, {"hydraulic.valve_asymmetry": 0.2}))
+    assert carried == ["nonlinear/asymmetry"] and options == pytest.approx({"hydraulic.valve_asymmetry": 1 - 0.8 * 0.9})
+    stronger = FoundEffect("nonlinear", "asymmetry", "act", {"asymmetry_fraction": -0.5}, {}, "")  # gains 1.8 x 1.5 > 2
+    options, carried, not_carried = carry([stronger], params_with_overrides(p, {"hydraulic.valve_asymmetry": -0.8}))
+    assert not options and "beyond" in not_carried[0]
 
 
 def test_extra_base_mode_found_and_carried_as_a_body_on_the_tip(tip_body):

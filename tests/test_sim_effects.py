@@ -90,7 +90,7 @@ def test_defaults_leave_the_model_unchanged():
     params = default_params()
     assert params.hydraulic.command_delay == 0 and params.sensor.ideal
     xml = samii_xml(params)
-    for word in ("command_delay", "valve_dead_band", "valve_saturation", "samii_sensor_dynamics"):
+    for word in ("command_delay", "valve_dead_band", "valve_saturation", "valve_asymmetry", "samii_sensor_dynamics"):
         assert word not in xml
     m = load_model()
     assert int(m.plugin_statenum[0]) == 0
@@ -100,7 +100,7 @@ def test_defaults_leave_the_model_unchanged():
 
 def test_parameter_file_without_the_new_options_still_loads():
     d = json.loads(json.dumps(default_params().as_dict()))
-    for name in ("command_delay", "valve_dead_band", "valve_saturation"):
+    for name in ("command_delay", "valve_dead_band", "valve_saturation", "valve_asymmetry"):
         del d["hydraulic"][name]
     del d["sensor"]
     assert params_from_dict(d, complete=True) == default_params()
@@ -131,6 +131,21 @@ def test_dead_band_then_saturation(command):
     # and the laws compose with the delay
     x = _spool(_probe(valve_dead_band=d, valve_saturation=s, command_delay=0.0031), command)
     assert np.max(np.abs(x - _exact_spool(command, 0.0031, law))) < 1e-12
+
+
+@pytest.mark.parametrize("a", [0.3, -0.5])
+def test_asymmetry_after_dead_band_and_saturation(command, a):
+    """A negative input passes with gain 1 - a (the two directions' flow gains differ), after the dead band and the
+    saturation, which act on the input symmetrically."""
+    d, s = 0.8, 4.0
+
+    def law(v):
+        v = v - d if v > d else (v + d if v < -d else 0.0)
+        v = min(max(v, -s), s)
+        return v if v >= 0 else (1.0 - a) * v
+
+    x = _spool(_probe(valve_dead_band=d, valve_saturation=s, valve_asymmetry=a), command)
+    assert np.max(np.abs(x - _exact_spool(command, 0.0, law))) < 1e-12
 
 
 def test_command_delay_adds_to_the_controller_cards_delay():
@@ -174,6 +189,10 @@ def test_valve_options_refused_with_their_name():
     # the C plugin's own checks (MuJoCo's compiler alone)
     with pytest.raises(ValueError, match="valve_saturation"):
         mujoco.MjModel.from_xml_string(plugin.probe_xml(config={**NOMINAL.to_config(), "valve_saturation": "11"}))
+    with pytest.raises(ValueError, match="valve_asymmetry"):  # gain 1 - a: a = 1 passes nothing one way
+        mujoco.MjModel.from_xml_string(plugin.probe_xml(config={**NOMINAL.to_config(), "valve_asymmetry": "1"}))
+    with pytest.raises(ValueError, match="valve_asymmetry.*-1 to 1"):
+        SamiiParams(hydraulic=SamiiParams().hydraulic.__class__(valve_asymmetry=-1.5))
     with pytest.raises(ValueError, match="command_delay needs the Euler or implicit"):
         mujoco.MjModel.from_xml_string(plugin.probe_xml(config={**NOMINAL.to_config(), "command_delay": "0.002"}, integrator="RK4"))
 
@@ -187,8 +206,8 @@ def test_linearisation_takes_the_ideal_valve_and_applies_the_delay():
     from samii.sim.linearize import linearize
 
     m0 = load_model()
-    m = load_model(overrides={"hydraulic.command_delay": 0.0043, "hydraulic.valve_dead_band": 0.05})
-    assert plugin.valve_options(m) == {"command_delay": 0.0043, "valve_dead_band": 0.05, "valve_saturation": 0.0}
+    m = load_model(overrides={"hydraulic.command_delay": 0.0043, "hydraulic.valve_dead_band": 0.05, "hydraulic.valve_asymmetry": 0.2})
+    assert plugin.valve_options(m) == {"command_delay": 0.0043, "valve_dead_band": 0.05, "valve_saturation": 0.0, "valve_asymmetry": 0.2}
     lm0, lm = linearize(m0), linearize(m)
     assert lm.command_delay_s == 0.0043 and lm0.command_delay_s == 0.0
     assert np.allclose(np.sort_complex(lm.poles), np.sort_complex(lm0.poles), rtol=1e-6, atol=1e-6)

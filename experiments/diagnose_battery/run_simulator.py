@@ -83,6 +83,8 @@ CASES = [
      [("actuator", "pole_zero", {"spool_time_constant_s": 0.00897})], 26),
     ("spool 2x faster (2.24 ms)", {"hydraulic.valve_time_constant": 0.00224},
      [("actuator", "pole_zero", {"spool_time_constant_s": 0.00224})], 27),
+    # the valve's negative direction 10 % weaker (hydraulic.valve_asymmetry): found from the sweep's 2nd harmonic
+    ("asymmetry 10 %", {"hydraulic.valve_asymmetry": 0.1}, [("nonlinear", "asymmetry", {"asymmetry_fraction": 0.1})], 28),
 ]
 #: Tolerances beyond the main battery's: a gain error and the spool's time constant (the issue states none; judged
 #: like a corner).

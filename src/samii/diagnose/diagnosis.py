@@ -560,8 +560,9 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
     from samii.diagnose.simulator import BODY, CARRY, FIRST, LATE, SPOOL, body_effect_values, carry, carry_and_recalibrate, found_value, simulator_report, spool_lag_s
 
     # a valve law is carried only at a level the harmonics fix (its describing function fits)
+    # (an asymmetry's level is its 2nd harmonic's constant ratio, found or not; its describing function is a gain)
     refuse = {f"nonlinear/{f.kind}": "its describing function does not fit the harmonics, so no level to carry"
-              for f in nonlinear if not (f.harmonics and f.law_fits)}
+              for f in nonlinear if not (f.harmonics and (f.law_fits or f.kind == "asymmetry"))}
     to_carry = list(effects)
     steps_by_label = {s.label: s for s in steps}
     more_steps, more_tried = [], []

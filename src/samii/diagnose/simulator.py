@@ -14,10 +14,11 @@ finds carried into it as physics.
 3. **Carry.** Each effect found becomes a simulator option (:data:`CARRY`): a command delay in the
    hydraulic plugin, the sensors' dynamics in the DAQ (``samii.sim.sensor_dynamics``), a dead
    band or saturation in the valve; an extra base mode a body on a compliant mount at the beam's
-   end (:data:`BODY`, :func:`tip_body_options`), valve dynamics or a real pole-zero pair the
+   end (:data:`BODY`, :func:`tip_body_options`), a gain asymmetry the valve's negative direction's
+   gain, valve dynamics or a real pole-zero pair the
    spool's time constant (:data:`SPOOL`); these in a second round (``samii.diagnose.diagnosis``).
-   Kinds with no simulator counterpart yet (an actuator mode, hysteresis, asymmetry) are listed as
-   not carried, with the reason. A leaky integrator is not tried against the simulator: its pole
+   Kinds with no simulator counterpart yet (an actuator mode, hysteresis) are listed as not
+   carried, with the reason. A leaky integrator is not tried against the simulator: its pole
    near 0 is the leakage coefficient, a mode knob.
 4. **Recalibrate** the mode knobs together with the linear options carried (started at the values
    found): a parameter the first calibration bent to imitate the missing effect goes back. The
@@ -68,6 +69,7 @@ CARRY: Mapping[str, tuple[str, str]] = {
     "sensor/accel_gain": ("sensor.accel_gain", "gain"),
     "nonlinear/dead_band": ("hydraulic.valve_dead_band", "dead_band_v"),
     "nonlinear/saturation": ("hydraulic.valve_saturation", "saturation_v"),
+    "nonlinear/asymmetry": ("hydraulic.valve_asymmetry", "asymmetry_fraction"),
 }
 #: An extra base mode becomes a body on a compliant mount at the beam's end: its mass, and its
 #: frequency and damping ratio on a rigid mount (``samii.sim.mjcf.BeamParams``). All three are
@@ -95,12 +97,11 @@ LATE = (*BODY, *SPOOL)
 #: The trial mass whose effect on xdd/theta, to first order in the mass, scales a found residue to a mass.
 _TRIAL_MASS_KG = 0.05
 #: Options of the valve's law: set, not recalibrated (the linearisation takes the ideal valve).
-_LAWS = ("hydraulic.valve_dead_band", "hydraulic.valve_saturation")
+_LAWS = ("hydraulic.valve_dead_band", "hydraulic.valve_saturation", "hydraulic.valve_asymmetry")
 #: Why a kind is not carried.
 NOT_CARRIED: Mapping[str, str] = {
     "extra_mode/act_mode": "the simulator has no option for a compliance in joint 2's drive yet",
     "nonlinear/hysteresis": "the simulator's valve has no play (hysteresis) option yet",
-    "nonlinear/asymmetry": "the simulator's valve has no asymmetry option yet",
 }
 
 
@@ -414,6 +415,11 @@ def carry(effects: Sequence, params: SamiiParams, *, refuse: Mapping[str, str] |
             value = float(e.params[key])
         if name == "sensor.accel_gain":
             value *= params.sensor.accel_gain
+        elif name == "hydraulic.valve_asymmetry":  # the negative direction's gains multiply: 1 - a = (1 - a0)(1 - a_found)
+            value = 1.0 - (1.0 - parameter_value(params, name)) * (1.0 - value)
+            if not -1.0 <= value < 1.0:
+                not_carried.append(f"{label}: a negative direction's gain of {1 - value:.3g} is beyond the valve option's 0-2")
+                continue
         elif name in _ADDITIVE:
             value += parameter_value(params, name)
         elif name.endswith("_hz") and value >= _MAX_CORNER_OF_RATE / params.timestep_s:

@@ -24,6 +24,7 @@ _UNITS = {
     "hydraulic.command_delay": "s",
     "hydraulic.valve_dead_band": "V",
     "hydraulic.valve_saturation": "V",
+    "hydraulic.valve_asymmetry": "1",
     "sensor.accel_gain": "1",
     "beam.n_segments": "-",
     "beam.accel_body_fixed": "0 or 1",

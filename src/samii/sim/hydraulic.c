@@ -79,7 +79,9 @@
 //                    exactly by T, as the card's delay); the recorded v is the amplifier output;
 //   valve_dead_band  d [V]: the valve's input is v - d sign(v) outside |v| <= d, 0 inside (spool
 //                    overlap referred to the command);
-//   valve_saturation s [V]: then limited to +-s (a drive current limit).
+//   valve_saturation s [V]: then limited to +-s (a drive current limit);
+//   valve_asymmetry  a [1]: then a negative input passes with gain 1 - a (-1 <= a < 1: the two
+//                    directions' flow gains differ, unequal ports or piston areas, a worn edge).
 // The ring lives in mjData.plugin_state after the card's state: [primed, amplifier output at the
 // latest act_dot, (a, b) per step, newest first]. A command delay needs Euler or implicit.
 // Linearisations (samii.sim.linearize) take the plant without the delay and the valve's law and
@@ -148,6 +150,7 @@ enum {
   OPT_COMMAND_DELAY,               // [s] the valve acts on the amplifier output this late (0...1 s)
   OPT_VALVE_DEAD_BAND,             // [V] dead band of the valve on its input (0 = none, < 10)
   OPT_VALVE_SATURATION,            // [V] the valve's input is limited to +-this (0 = none, <= 10)
+  OPT_VALVE_ASYMMETRY,             // [1] a negative input passes with gain 1 - this (0 = none, -1...<1)
   NATTR_ALL
 };
 
@@ -159,7 +162,7 @@ static const char* const kAttributes[NATTR_ALL] = {
   "controller_theta_sensor", "controller_accel_sensor", "controller_accel_direction",
   "controller_accel_offset", "controller_theta_noise", "controller_accel_noise",
   "controller_theta_lsb", "controller_accel_lsb", "command_delay", "valve_dead_band",
-  "valve_saturation",
+  "valve_saturation", "valve_asymmetry",
 };
 
 #define CTRL_NIN 3                 // controller inputs: theta_r [rad], theta [rad], accel [m/s^2]
@@ -222,6 +225,7 @@ typedef struct {
   // the valve between the amplifier and the spool (all 0: an ideal valve, as before these options)
   mjtNum dead_band;   // [V], 0 = none
   mjtNum saturation;  // [V], 0 = none
+  mjtNum asymmetry;   // [1], 0 = none: a negative input's gain is 1 - asymmetry
   int delay_whole;    // command delay = (delay_whole + delay_frac) physics steps
   mjtNum delay_frac;
   int nring;          // entries of the command ring (delay_whole + 2), 0 = no delay
@@ -593,7 +597,15 @@ static Hydraulic* hydraulic_create(const mjModel* m, int instance) {
   mjtNum delay;
   if (parse_optional(m, instance, OPT_VALVE_DEAD_BAND, 0, SAMII_AMPLIFIER_LIMIT_V, 0, &h->dead_band, name) ||
       parse_optional(m, instance, OPT_VALVE_SATURATION, 0, SAMII_AMPLIFIER_LIMIT_V, 0, &h->saturation, name) ||
+      parse_optional(m, instance, OPT_VALVE_ASYMMETRY, -1, 1, 0, &h->asymmetry, name) ||
       parse_optional(m, instance, OPT_COMMAND_DELAY, 0, CMD_MAX_DELAY_S, 0, &delay, name)) {
+    card_free(h->card);
+    free(h);
+    return NULL;
+  }
+  if (h->asymmetry >= 1) {
+    mju_warning("%s (actuator '%s'): valve_asymmetry = %g passes nothing in the negative direction "
+                "(expected -1 <= asymmetry < 1)", SAMII_PLUGIN_NAME, name, h->asymmetry);
     card_free(h->card);
     free(h);
     return NULL;
@@ -695,11 +707,13 @@ static mjtNum valve_voltage(const mjModel* m, const mjData* d, const Hydraulic* 
   return mju_clip(v, -SAMII_AMPLIFIER_LIMIT_V, SAMII_AMPLIFIER_LIMIT_V);
 }
 
-// the valve's own law on its input [V]: dead band (slope 1 outside it), then saturation
+// the valve's own law on its input [V]: dead band (slope 1 outside it), then saturation, then the
+// negative direction's gain
 static mjtNum valve_law(const Hydraulic* h, mjtNum v) {
   mjtNum d = h->dead_band;
   if (d > 0) v = v > d ? v - d : (v < -d ? v + d : 0);
   if (h->saturation > 0) v = mju_clip(v, -h->saturation, h->saturation);
+  if (v < 0) v *= 1 - h->asymmetry;
   return v;
 }
 

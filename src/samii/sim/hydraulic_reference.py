@@ -74,6 +74,7 @@ VALVE_OPTIONS: Mapping[str, tuple[str, float, float, bool]] = {
     "command_delay": ("s", 0.0, 1.0, True),
     "valve_dead_band": ("V", 0.0, AMPLIFIER_LIMIT_V, False),
     "valve_saturation": ("V", 0.0, AMPLIFIER_LIMIT_V, True),
+    "valve_asymmetry": ("1", -1.0, 1.0, False),
 }
 
 #: Optional attributes after the ten physical ones (hydraulic.c, same order): the servo loop's

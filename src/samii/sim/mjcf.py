@@ -190,6 +190,8 @@ class HydraulicConfig:
     command_delay: float = 0.0  #: [s] the spool follows the amplifier output this late
     valve_dead_band: float = 0.0  #: [V] dead band on the valve's input
     valve_saturation: float = 0.0  #: [V] the valve's input limited to +- this
+    #: [1] then a negative input passes with gain 1 - this (unequal flow gains of the two directions)
+    valve_asymmetry: float = 0.0
 
     def __post_init__(self) -> None:
         from samii.sim.hydraulic_reference import ATTRIBUTES, HydraulicConfigError, HydraulicParams
