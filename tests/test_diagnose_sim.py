@@ -153,11 +153,16 @@ def test_carry_rules():
     assert not options and not carried and "outside 0.2-50 ms" in not_carried[0]
     options, carried, not_carried = carry([FoundEffect("actuator", "pole_zero", "act", {"zero_hz": 0.4, "pole_hz": 0.3}, {}, "")], p)
     assert not options and not carried and "outside 0.2-50 ms" in not_carried[0]
-    # a gain asymmetry: the negative direction's gains multiply, (1 - a) = (1 - a0)(1 - a_found)
+    # a gain asymmetry, found in excess of the simulator's own 2nd harmonic: the ratios c2/c1 add
+    from samii.diagnose.nonlinear import asymmetry_fraction, asymmetry_ratio
+
     asym = FoundEffect("nonlinear", "asymmetry", "act", {"asymmetry_fraction": 0.1}, {}, "")
+    options, carried, _ = carry([asym], p)
+    assert carried == ["nonlinear/asymmetry"] and options == pytest.approx({"hydraulic.valve_asymmetry": 0.1})
     options, carried, _ = carry([asym], params_with_overrides(p, {"hydraulic.valve_asymmetry": 0.2}))
-    assert carried == ["nonlinear/asymmetry"] and options == pytest.approx({"hydraulic.valve_asymmetry": 1 - 0.8 * 0.9})
-    stronger = FoundEffect("nonlinear", "asymmetry", "act", {"asymmetry_fraction": -0.5}, {}, "")  # gains 1.8 x 1.5 > 2
+    assert options == pytest.approx({"hydraulic.valve_asymmetry": asymmetry_fraction(asymmetry_ratio(0.2) + asymmetry_ratio(0.1))})
+    assert options["hydraulic.valve_asymmetry"] == pytest.approx(0.2814, abs=1e-4)  # ratios 4.72 % + 2.23 % (gains: 0.280)
+    stronger = FoundEffect("nonlinear", "asymmetry", "act", {"asymmetry_fraction": -2.0}, {}, "")
     options, carried, not_carried = carry([stronger], params_with_overrides(p, {"hydraulic.valve_asymmetry": -0.8}))
     assert not options and "beyond" in not_carried[0]
 

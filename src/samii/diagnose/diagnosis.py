@@ -44,7 +44,7 @@ from scipy import stats
 from samii.diagnose.effects import library
 from samii.diagnose.measured import Measured
 from samii.diagnose.model import MAX_VAR, Baseline, Dataset, Fit, _apply
-from samii.diagnose.nonlinear import distortion_var, find_nonlinear, harmonic_errors, linearised
+from samii.diagnose.nonlinear import MAX_DF_CHI2, distortion_var, find_nonlinear, harmonic_errors, linearised
 from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select
 
 __all__ = ["ChannelError", "FoundEffect", "Band", "Diagnosis", "diagnose", "CHANNELS", "BAND_POINTS", "RULE"]
@@ -560,9 +560,10 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
     from samii.diagnose.simulator import BODY, CARRY, FIRST, LATE, SPOOL, body_effect_values, carry, carry_and_recalibrate, found_value, simulator_report, spool_lag_s
 
     # a valve law is carried only at a level the harmonics fix (its describing function fits)
-    # (an asymmetry's level is its 2nd harmonic's constant ratio, found or not; its describing function is a gain)
-    refuse = {f"nonlinear/{f.kind}": "its describing function does not fit the harmonics, so no level to carry"
-              for f in nonlinear if not (f.harmonics and (f.law_fits or f.kind == "asymmetry"))}
+    # (an asymmetry's level is its 2nd harmonic's ratio where one constant fits it: its describing function is a gain)
+    refuse = {f"nonlinear/{f.kind}": ("its 2nd harmonic's ratio is far from one constant: the two directions differ by more than a gain"
+                                      if f.kind == "asymmetry" else "its describing function does not fit the harmonics, so no level to carry")
+              for f in nonlinear if not (f.harmonics and (f.law_fits or (f.kind == "asymmetry" and f.params.get("ratio_chi2", np.inf) <= MAX_DF_CHI2)))}
     to_carry = list(effects)
     steps_by_label = {s.label: s for s in steps}
     more_steps, more_tried = [], []

@@ -87,7 +87,7 @@ __all__ = ["HarmonicAnalysis", "AmplitudeTest", "NonlinearFinding", "harmonic_an
 
 ALPHA = 1e-3
 #: Units of a nonlinear finding's parameters (for printing).
-PARAM_UNITS = {"asymmetry_fraction": "1", "harmonic": "1", "max_ratio": "1", "at_hz": "Hz", "phase_deg": "deg", "phase_spread_deg": "deg", "dead_band_v": "V",
+PARAM_UNITS = {"asymmetry_fraction": "1", "ratio_chi2": "1", "harmonic": "1", "max_ratio": "1", "at_hz": "Hz", "phase_deg": "deg", "phase_spread_deg": "deg", "dead_band_v": "V",
                "saturation_v": "V", "hysteresis_v": "V", "gain_change_db": "dB", "amplitude_low_v": "V", "amplitude_high_v": "V"}
 #: Smallest distortion, relative to the fundamental of the valve command, claimed as a nonlinearity.
 MATERIAL = 0.01
@@ -768,6 +768,7 @@ def _harmonic_kind(h: HarmonicAnalysis) -> tuple[str, dict, dict, str, bool]:
         delta = asymmetry_fraction(rho)
         se = float(abs(delta - asymmetry_fraction(rho + np.sqrt(max(chi2, 1.0) / np.sum(w)))))
         params["asymmetry_fraction"], stderr["asymmetry_fraction"] = delta, se
+        params["ratio_chi2"] = chi2  # how well one constant ratio fits: a gain asymmetry's is one number
         weaker = "negative" if delta > 0 else "positive"
         text += (f"; their mean ratio {100 * rho:+.2g} % over {int(tested.sum())} segments is a gain {100 * abs(delta):.2g} +- {100 * se:.1g} % "
                  f"lower in the {weaker} direction (c2/c1 = 2 d / (3 pi (1 - d/2)), real and the same at every amplitude; that constant "

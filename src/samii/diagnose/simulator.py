@@ -408,17 +408,23 @@ def carry(effects: Sequence, params: SamiiParams, *, refuse: Mapping[str, str] |
             not_carried.append(f"{label}: {NOT_CARRIED.get(label, 'no simulator option for it')}")
             continue
         elif CARRY[label][1] not in e.params:
-            not_carried.append(f"{label}: no level to carry (found from the amplitude dependence alone)")
+            not_carried.append(f"{label}: no level to carry (found from the amplitude dependence alone)" if e.kind != "asymmetry"
+                               else f"{label}: no level to carry (its 2nd harmonic's ratio not measured in enough segments)")
             continue
         else:
             name, key = CARRY[label]
             value = float(e.params[key])
         if name == "sensor.accel_gain":
             value *= params.sensor.accel_gain
-        elif name == "hydraulic.valve_asymmetry":  # the negative direction's gains multiply: 1 - a = (1 - a0)(1 - a_found)
-            value = 1.0 - (1.0 - parameter_value(params, name)) * (1.0 - value)
+        elif name == "hydraulic.valve_asymmetry":
+            # found in excess of the simulator's own 2nd harmonic (samii.diagnose.nonlinear.excess_over): the ratios add
+            from samii.diagnose.nonlinear import ASYMMETRY_MAX_RATIO, asymmetry_fraction, asymmetry_ratio
+
+            rho = float(asymmetry_ratio(parameter_value(params, name)) + asymmetry_ratio(value))
+            value = asymmetry_fraction(rho) if abs(rho) < ASYMMETRY_MAX_RATIO else np.inf
             if not -1.0 <= value < 1.0:
-                not_carried.append(f"{label}: a negative direction's gain of {1 - value:.3g} is beyond the valve option's 0-2")
+                not_carried.append(f"{label}: with the simulator's own asymmetry, a 2nd-harmonic ratio of {100 * rho:.3g} % "
+                                   "is beyond the valve option's (a negative direction's gain of 0-2)")
                 continue
         elif name in _ADDITIVE:
             value += parameter_value(params, name)

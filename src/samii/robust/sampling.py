@@ -39,7 +39,8 @@ _DISCRETE = {"beam.n_segments": "the number of beam elements", "beam.accel_body_
              "sensor.accel_lowpass_hz": "a filter corner, 0 for none", "sensor.accel_antialias_hz": "a filter corner, 0 for none",
              "sensor.accel_highpass_hz": "a filter corner, 0 for none", "hydraulic.valve_saturation": "a limit, 0 for none",
              "beam.tip_body_mass_kg": "a body's mass, 0 for none"}
-#: Parameters that may be negative (samii.calibrate's table): not limited below.
+#: Parameters that may be negative (samii.calibrate's table, and the valve's asymmetry, which the model's own check
+#: bounds to -1...<1): not limited below.
 _SIGNED = ("beam.accel_offset_m", "arm.heading_deg", "beam.pitch_deg", "hydraulic.valve_asymmetry")
 
 

@@ -282,8 +282,8 @@ def command_ring_entries(delay_s: float, timestep_s: float) -> int:
 
 
 def ideal_valve_model(model: mujoco.MjModel) -> mujoco.MjModel:
-    """``model`` with an ideal valve in every samii.hydraulic actuator: no command delay, dead band
-    or saturation (a copy; ``model`` itself when none is set). The small-signal plant a
+    """``model`` with an ideal valve in every samii.hydraulic actuator: no command delay, dead band,
+    saturation or asymmetry (a copy; ``model`` itself when none is set). The small-signal plant a
     linearisation takes: a delay line in the plugin's state is invisible to MuJoCo's
     finite-difference derivatives (they perturb qpos, qvel and act, not the plugin's state), and a
     dead band has no slope at rest. The values are overwritten in place in ``plugin_attr`` by
