@@ -313,6 +313,7 @@ def summary_lines(s: dict, out) -> list[str]:
     dg = s["diagnosis"]
     eff = ", ".join(f"{e['category']}/{e['kind']}" for e in dg["effects"]) or "nothing"
     lines.append(f"diagnosis of the fit against the measured record: {dg['verdict']}; found {eff}")
+
     def num(d: dict, key: str) -> float:  # (a figure may be null: chi2 with no noise estimate)
         v = d.get(key)
         return float("nan") if v is None else float(v)

@@ -527,6 +527,19 @@ def _select_against(cal, files, keep, *, alpha, progress):
 CARRY_ROUNDS = 2
 
 
+def _no_level(finding) -> str | None:
+    """Why a valve law found is not carried into the simulator, or None: it is carried only at a level the
+    harmonics fix, where its describing function fits them; an asymmetry's describing function is a gain, and its
+    level is its 2nd harmonic's ratio where one constant fits it."""
+    if finding.kind == "asymmetry":
+        if finding.harmonics and finding.params.get("ratio_chi2", np.inf) <= MAX_DF_CHI2:
+            return None
+        return "its 2nd harmonic's ratio is far from one constant: the two directions differ by more than a gain"
+    if finding.harmonics and finding.law_fits:
+        return None
+    return "its describing function does not fit the harmonics, so no level to carry"
+
+
 def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alpha, progress):
     """``--baseline sim`` after the first selection (which tried only what the simulator can take):
     carry the effects into the simulator, recalibrate, and select again with the whole library
@@ -557,13 +570,9 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
 
     Returns (effects, (files, datasets, final fit), SimulatorReport, later steps, later candidates)."""
     from samii.calibrate.simulator import parameter_value
-    from samii.diagnose.simulator import BODY, CARRY, FIRST, LATE, SPOOL, body_effect_values, carry, carry_and_recalibrate, found_value, simulator_report, spool_lag_s
+    from samii.diagnose.simulator import BODY, CARRY, LATE, SPOOL, body_effect_values, carry, carry_and_recalibrate, found_value, simulator_report, spool_lag_s
 
-    # a valve law is carried only at a level the harmonics fix (its describing function fits)
-    # (an asymmetry's level is its 2nd harmonic's ratio where one constant fits it: its describing function is a gain)
-    refuse = {f"nonlinear/{f.kind}": ("its 2nd harmonic's ratio is far from one constant: the two directions differ by more than a gain"
-                                      if f.kind == "asymmetry" else "its describing function does not fit the harmonics, so no level to carry")
-              for f in nonlinear if not (f.harmonics and (f.law_fits or (f.kind == "asymmetry" and f.params.get("ratio_chi2", np.inf) <= MAX_DF_CHI2)))}
+    refuse = {f"nonlinear/{f.kind}": reason for f in nonlinear if (reason := _no_level(f)) is not None}
     to_carry = list(effects)
     steps_by_label = {s.label: s for s in steps}
     more_steps, more_tried = [], []
@@ -587,7 +596,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
         if not body_carried:
             break  # (a residue no body on the tip makes): reported as found, not carried
         _stage(progress, "selecting again against the simulator with the extra mode")
-        _, after_b, steps_b, tried_b = _select_against(with_body, measured, lambda label: label in FIRST, alpha=alpha, progress=progress)
+        _, after_b, steps_b, tried_b = _select_against(with_body, measured, lambda label: label in CARRY, alpha=alpha, progress=progress)
         more_steps += steps_b
         more_tried += tried_b
         steps_by_label.update({s.label: s for s in steps_b})
@@ -615,12 +624,13 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
             out.append(FoundEffect(e.category, e.kind, e.channel, {"spool_time_constant_s": tau, "added_lag_s": tau - tau0},
                                    {"spool_time_constant_s": se, "added_lag_s": se},
                                    f"{why}the valve is {'slower' if tau > tau0 else 'faster'} than the simulator's: carried into the simulator as {name} (its "
-                                   f"first-order spool, {1e3 * tau0:.3g} -> {1e3 * tau:.3g} ms, corner {1 / (2 * np.pi * tau):.3g} Hz) "
-                                   f"and recalibrated with its mode knobs; found against it as {'a real pole/zero pair' if e.kind == 'pole_zero' else 'valve dynamics'} "
+                                   f"first-order spool, {1e3 * tau0:.3g} -> {1e3 * tau:.3g} ms, corner {1 / (2 * np.pi * tau):.3g} Hz), "
+                                   f"found after the first carry as {'a real pole/zero pair' if e.kind == 'pole_zero' else 'valve dynamics'} "
                                    f"({_values_text(label, e.params)}"
-                                   + (f"; the simulator's spool corner is {1 / (2 * np.pi * tau0):.3g} Hz" if e.kind == "pole_zero" else "") + "), "
-                                   f"whose low-frequency group delay ({1e3 * spool_lag_s(e):.3g} ms) the spool's time constant takes"
-                                   + (" (a resonant valve's peak it cannot)" if e.kind == "valve" else "")))
+                                   + (f"; the simulator's spool corner is {1 / (2 * np.pi * tau0):.3g} Hz" if e.kind == "pole_zero" else "") + "); "
+                                   f"the spool started at {1e3 * (tau0 + spool_lag_s(e)):.3g} ms, its low-frequency group delay "
+                                   f"({1e3 * spool_lag_s(e):+.3g} ms) added, and was recalibrated with the mode knobs"
+                                   + (" (a resonant valve's peak it cannot take)" if e.kind == "valve" else "")))
             continue
         name, key = CARRY[label]
         value, se = found_value(name, report.before.params, r.values[name], r.stderr[name])
@@ -688,7 +698,7 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     datasets = tuple(Dataset.from_measured(m) for m in measured)
     calibrated = None
     if sim:
-        from samii.diagnose.simulator import FIRST, calibrate_simulator, correction, simulator_baseline
+        from samii.diagnose.simulator import CARRY, calibrate_simulator, correction, simulator_baseline
         from samii.sim.model import default_params
 
         _stage(progress, "calibrating the simulator")
@@ -717,7 +727,7 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
         # kind it cannot take imitates one it can (a 4 ms delay beside an AC coupling was taken as
         # 59 Hz valve dynamics, chi2 1299 against the delay's 1369); the second selection, after the
         # carry, has the whole library for what remains
-        kinds = [k for k in kinds if k.label in FIRST]
+        kinds = [k for k in kinds if k.label in CARRY]
     before, after, steps, tried = forward_select(list(datasets), bl, kinds, alpha=alpha, progress=progress)
     error_before = channel_errors(datasets, before)
     if raw is not measured:  # the baseline on the data as measured, for the error before

@@ -215,6 +215,9 @@ def harmonic_figure(d: Diagnosis, path=None):
         ax.xaxis.set_major_locator(matplotlib.ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
         ax.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
         ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        ax.yaxis.set_major_locator(matplotlib.ticker.LogLocator(subs=(1.0, 2.0, 5.0)))  # (not 2x10^0 under a decade)
+        ax.yaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+        ax.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         src = h.source if len(h.source) <= 40 else "…" + h.source[-39:]
         ax.set_title(f"{src}: {h.n_significant} significant segment(s)", fontsize=9)
         ax.grid(True, which="both", alpha=0.3)

@@ -7,8 +7,8 @@ have and a model may lack:
 * ``command_delay_s``: the valve acts on v(t - T) (inside the loop);
 * ``valve_hz, valve_zeta``: second-order valve dynamics (inside the loop);
 * ``leak_per_s``: the actuator's integrator a real pole at ``a`` [1/s], theta/v x s/(s - a)
-  (leakage across the piston against the load's stiffness about the pose; ``a`` > 0 when the
-  load's gravity pulls further the further the arm moves, as in samii's simulator);
+  (flow lost with the load pressure against a holding torque that changes with theta; ``a`` > 0
+  for a destabilising load, as gravity on samii's simulator's arm: ``samii.diagnose.effects``);
 * ``act_mode``: (f_p, z_p, f_z, z_z), a structural pole/zero pair in theta/v (inside the loop);
 * ``base_mode``: (f, z, B), a base mode the modal sum lacks;
 * ``accel_lowpass_hz`` (+ ``accel_lowpass_order``): the accelerometer's Butterworth roll-off (recording only);

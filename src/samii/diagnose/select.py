@@ -129,7 +129,7 @@ def starts_for(kind: EffectKind, ds_list: list[Dataset], fit: Fit) -> list[np.nd
         return [np.array([1.0])]
     if k == "pole_zero":
         return [np.array(c) for c in ((3.0, 6.0), (6.0, 3.0), (15.0, 30.0), (30.0, 15.0))]
-    if k == "leak":
+    if k == "leak":  # either sign, within and beyond the band's lowest 0.63 rad/s (0.1 Hz), where its phase -a/w shows
         return [np.array([c]) for c in (-0.5, 0.5, -3.0, 3.0)]
     if k == "valve":
         return [np.array(c) for c in ((30.0, 0.7), (80.0, 0.7), (200.0, 0.7))]

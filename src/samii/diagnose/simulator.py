@@ -55,7 +55,7 @@ from samii.frequency_response import FrequencyResponse, interpolate_frf
 from samii.sim.mjcf import SamiiParams
 from samii.sim.model import params_with_overrides
 
-__all__ = ["CARRY", "BODY", "SPOOL", "FIRST", "LATE", "spool_lag_s", "NOT_CARRIED", "tip_body_options", "body_effect_values", "LocalSimulator", "SimulatorCalibration", "SimulatorReport", "calibrate_simulator", "correction",
+__all__ = ["CARRY", "BODY", "SPOOL", "LATE", "spool_lag_s", "NOT_CARRIED", "tip_body_options", "body_effect_values", "LocalSimulator", "SimulatorCalibration", "SimulatorReport", "calibrate_simulator", "correction",
            "simulator_baseline", "carry", "carry_and_recalibrate", "sweep_like", "measured_like", "measurement_like", "remeasure", "simulator_report"]
 
 #: effect label -> (simulator parameter, the effect's parameter giving its value)
@@ -85,13 +85,12 @@ BODY: Mapping[str, tuple[str, str, str]] = {
 #: first-order spools, (1 + s tau0)/(1 + s tau): its low-frequency group delay 1/w_p - 1/w_z is added
 #: the same way.
 SPOOL: Mapping[str, str] = {"actuator/valve": "hydraulic.valve_time_constant", "actuator/pole_zero": "hydraulic.valve_time_constant"}
-#: Kinds the first selection against the simulator tries: what it carries as an option set directly. Neither
-#: valve dynamics (near damping 0.7 a flat magnitude with a nearly linear phase: a 4 ms delay beside an AC
-#: coupling was taken as a 59 Hz valve) nor a real pole/zero pair (tried here, it stood beside a 20 Hz
-#: accelerometer roll-off and a 4 ms delay as a 5 % and 2 % change of the spool, with a gain error and a
-#: theta delay of 0.08 ms) is in it; a spool twice as slow is then imitated by a theta delay, an
+#: The first selection against the simulator tries only :data:`CARRY`'s kinds, what it carries as an option set
+#: directly. Neither valve dynamics (near damping 0.7 a flat magnitude with a nearly linear phase: a 4 ms delay
+#: beside an AC coupling was taken as a 59 Hz valve) nor a real pole/zero pair (tried there, it stood beside a
+#: 20 Hz accelerometer roll-off and a 4 ms delay as a 5 % and 2 % change of the spool, with a gain error and a
+#: theta delay of 0.08 ms) is among them; a spool twice as slow is then imitated by a theta delay, an
 #: accelerometer roll-off and a gain error, and found as the pair only in the second round.
-FIRST = tuple(CARRY)
 #: Kinds carried in the second round, after the first selection's effects (samii.diagnose.diagnosis).
 LATE = (*BODY, *SPOOL)
 #: The trial mass whose effect on xdd/theta, to first order in the mass, scales a found residue to a mass.
