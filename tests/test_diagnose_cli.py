@@ -350,3 +350,46 @@ def test_diagnose_same_file_under_two_names(clean_csv, cwd, monkeypatch, capsys)
     assert rc == 2, err
     _one_line_error(err)
     assert "more than once" in err
+
+
+def test_refused_what_a_rig_file_gets_wrong(clean_csv, frf_clean, tmp_path, capsys):
+    """Mistakes users make with rig files, each refused in one line that says what to fix, where each was taken
+    as data before: theta recorded with the opposite sign (the notebook's gains sat on their bounds and "modes"
+    at 0.1 Hz were reported; the simulator calibrated to it diverged), time in milliseconds (a numpy message), a
+    header whose record_s is the sweep's length (4 "records" of 60 s across 84 s repetitions, no note), time
+    stamps rounded to single precision, and an FRF file whose phase is in radians."""
+    from dataclasses import replace
+
+    from samii.measure.io import read_timeseries_csv
+
+    ts = read_timeseries_csv(clean_csv)
+
+    def write(name, **changes):
+        path = tmp_path / name
+        write_timeseries_csv(replace(ts, **changes), path)
+        return str(path)
+
+    flipped = write("flipped.csv", theta=-ts.theta)
+    _check_refused(capsys, ["diagnose", flipped], flipped, "theta/v's phase below 1 Hz is +", "opposite sign (multiply that column by -1)")
+    in_ms = write("in_ms.csv", t=1e3 * ts.t)
+    _check_refused(capsys, ["diagnose", in_ms], in_ms, "1 samples per second", "is t in milliseconds?")
+    _check_refused(capsys, ["frf", in_ms, "--out", str(tmp_path / "x")], in_ms, "is t in milliseconds?", prog="samii frf")
+    sweep_s = write("sweep_s.csv", metadata={**ts.metadata, "record_s": "60.4579"})
+    _check_refused(capsys, ["diagnose", sweep_s], sweep_s, "the stated record_s (60.4579 s", "r repeats every 84.2")
+    _check_refused(capsys, ["diagnose", str(clean_csv), "--record-s", "80"], str(clean_csv), "the stated record_s (80 s")
+    single = tmp_path / "float32.csv"
+    t32 = (ts.t + 100.0).astype(np.float32)
+    single.write_text("t,v,theta,accel,r\n" + "\n".join(f"{a:.9g},{b:.6g},{c:.6g},{d:.6g},{e:.6g}"
+                                                         for a, b, c, d, e in zip(t32, ts.v, ts.theta, ts.accel, ts.r)) + "\n")
+    _check_refused(capsys, ["diagnose", str(single)], str(single), "7 significant digits (single precision)")
+    frf = (frf_clean[3] / "frf.csv").read_text().splitlines()
+    head = [i for i, line in enumerate(frf) if not line.startswith("#")][0]
+    cols = frf[head].split(",")
+    k = cols.index("act_phase_deg")
+    rows = [line.split(",") for line in frf[head + 1 :]]
+    for row in rows:
+        row[k] = f"{math.radians(float(row[k])):.9g}"
+    radians = tmp_path / "radians.csv"
+    radians.write_text("\n".join(frf[: head + 1] + [",".join(row) for row in rows]) + "\n")
+    for prog in ("diagnose", "fit"):
+        _check_refused(capsys, [prog, str(radians)], str(radians), "'act_phase_deg'", "that is a phase in radians", prog=f"samii {prog}")

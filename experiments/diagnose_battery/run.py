@@ -140,11 +140,33 @@ def match_injected(found: list, injected: list, tolerance: dict = TOLERANCE) -> 
     return rows, unmatched
 
 
+#: A saturation the command never reaches is not in the data: its rig is drawn again (like an unstable one) until
+#: the command's peak in some file passes the level by this factor. Seed 905 (--seed-offset 700): the drawn rig's
+#: resonance kept the 0.1 V sweep's command to 117 mV, under a 150 mV saturation; "missed" there was right.
+ACTIVE = 1.1
+MAX_DRAWS = 50
+
+
+def _law_reached(effects: dict, series: list) -> float | None:
+    """The commands' peak over a saturation's level (None without one): a saturation acts only above it."""
+    law = effects.get("valve_nonlinearity")
+    if law is None or law[0] != "saturation":
+        return None
+    return max(float(np.max(np.abs(ts.v))) for ts in series) / law[1]
+
+
 def run_case(name: str, effects: dict, injected: list, *, amplitude_v: float | tuple, seed: int) -> dict:
     rng = np.random.default_rng(seed)
-    rig = EffectRig.drawn(rng, spread=SPREAD, **effects)
     amps = tuple(amplitude_v) if isinstance(amplitude_v, (tuple, list)) else (amplitude_v,)
-    files = [from_timeseries(rig.simulate(_sweep(a), sample_rate_hz=FS, rng=rng), source=f"{name} @ {a:g} V") for a in amps]
+    for draw in range(1, MAX_DRAWS + 1):
+        rig = EffectRig.drawn(rng, spread=SPREAD, **effects)
+        series = [rig.simulate(_sweep(a), sample_rate_hz=FS, rng=rng) for a in amps]
+        reached = _law_reached(effects, series)
+        if reached is None or reached >= ACTIVE or not injected:  # (a clean control's law is meant not to act)
+            break
+    else:
+        raise RuntimeError(f"{name}: no rig in {MAX_DRAWS} draws whose command reaches its saturation")
+    files = [from_timeseries(ts, source=f"{name} @ {a:g} V") for ts, a in zip(series, amps)]
     t0 = time.perf_counter()
     d = diagnose(files)
     elapsed = time.perf_counter() - t0
@@ -158,6 +180,7 @@ def run_case(name: str, effects: dict, injected: list, *, amplitude_v: float | t
         "error_after": {k: v.to_dict() for k, v in d.error_after.items()},
         "harmonic_error": None if d.harmonic_error is None else {"before": d.harmonic_error[0].to_dict(), "after": d.harmonic_error[1].to_dict()},
         "time_s": elapsed,
+        "rig_draws": draw, "command_peak_over_level": reached,
     }
 
 

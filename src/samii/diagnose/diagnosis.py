@@ -42,7 +42,7 @@ import numpy as np
 from scipy import stats
 
 from samii.diagnose.effects import library
-from samii.diagnose.measured import Measured
+from samii.diagnose.measured import Measured, check_actuator_sign
 from samii.diagnose.model import MAX_VAR, Baseline, Dataset, Fit, _apply
 from samii.diagnose.nonlinear import MAX_DF_CHI2, distortion_var, find_nonlinear, harmonic_errors, linearised
 from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select
@@ -370,8 +370,13 @@ def _values_text(label: str, values: dict) -> str:
 
 
 def _log_distance(a: dict, b: dict) -> float:
-    """How far apart two value sets of one kind lie (sum of |log ratio|; a zero or missing value counts 0)."""
-    return sum(abs(np.log(abs(a[n]) / abs(v))) if v and a.get(n) else 0.0 for n, v in b.items())
+    """How far apart two value sets of one kind lie (sum of |log ratio|; a zero or missing value counts 0; values
+    of opposite sign, a leak's pole at +0.2 and -0.2 1/s or a residue's, are infinitely far apart)."""
+    def one(x, v):
+        if not x or not v:
+            return 0.0
+        return abs(np.log(x / v)) if (x > 0) == (v > 0) else np.inf
+    return sum(one(a.get(n), v) for n, v in b.items())
 
 
 #: A swap record describes a found effect when its kept values lie within this log distance of the effect's.
@@ -609,7 +614,8 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
             continue
         r = report.after.result
         step = steps_by_label.get(label)
-        why = f"F = {step.f_stat:.3g}, log10 p = {step.log10_p:.3g} against the simulator calibrated without it; " if step else ""
+        p_text = "" if step is None else "p < 1e-300" if step.log10_p <= -300 else f"p = 10^{step.log10_p:.1f}"
+        why = f"F = {step.f_stat:.3g}, {p_text} against the simulator calibrated without it; " if step else ""
         if label in BODY:
             values, se = body_effect_values(report.after.params, r.stderr)
             mass, freq, zeta = (parameter_value(report.after.params, n) for n in BODY[label])
@@ -668,6 +674,8 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     given = tuple(measured)
     if not given:
         raise ValueError("no data to diagnose")
+    for m in given:
+        check_actuator_sign(m)
     measured = tuple(_noise_from_roughness(m, saved) for m in given)
     references = None
     if sim:  # the simulator's own harmonics (its orifice law) are not what it lacks: the data's are tested in excess of them

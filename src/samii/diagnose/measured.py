@@ -233,12 +233,20 @@ def timeseries_frf(ts: TimeSeries, layout: RecordLayout, *, band_hz: tuple[float
     return frf, var, _corr_length(np.vstack(devs)), how
 
 
+#: Slowest sampling a time series is analysed at [samples/s]: SAMII's base modes reach 25 Hz and the sweep 40 Hz; a
+#: file whose t is in milliseconds reads as 1 sample per second.
+MIN_SAMPLE_RATE_HZ = 10.0
+
+
 def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float] | None = None, record_s: float | None = None) -> Measured:
     """A time series with its excitation ``r``: records found (or as stated), FRF and spread estimated."""
     if ts.r is None:
         raise ValueError(f"{source}: the time series has no column 'r' (the excitation added to the valve command); "
                          "a closed-loop frequency response needs it as the instrument (DATA_FORMATS.md)")
     fs = ts.sample_rate_hz
+    if fs < MIN_SAMPLE_RATE_HZ:
+        raise ValueError(f"{source}: t steps by {1.0 / fs:.6g} s, {fs:.6g} samples per second: too slow for a frequency response of "
+                         "this arm (its modes lie between 1.7 and 25 Hz); is t in milliseconds? t must be in seconds (DATA_FORMATS.md)")
     stated = record_s if record_s is not None else _float_meta(ts.metadata, "record_s")
     layout = find_records(ts.r, fs, record_s=stated, where=source)
     if band_hz is None:
@@ -353,3 +361,34 @@ def with_roughness_noise(m: Measured, model: Mapping[str, np.ndarray]) -> Measur
            f"{POOL}): "
            "the file gives no coherence and no records")
     return replace(m, var=var, noise_source=how)
+
+
+#: theta/v's phase is checked below this frequency [Hz], well below the actuator's resonance (8.8 Hz in eq 9.4),
+#: where a valve-controlled actuator is an integrator: -90 deg, between -180 and 0 with a leak either way.
+SIGN_CHECK_HZ = 1.0
+#: A phase within this of +90 deg there is theta/v with its sign flipped [deg] (a valid one lies in -180...0).
+SIGN_MARGIN_DEG = 60.0
+
+
+def check_actuator_sign(m: Measured) -> None:
+    """Refuse data whose theta/v is an integrator of the wrong sign: below ``SIGN_CHECK_HZ`` a valve-controlled
+    actuator's theta/v is 1/s (-90 deg), or 1/(s - a) with a leak (between -180 and 0 deg, whichever the sign of a).
+    A phase near +90 deg there says theta (or v) is recorded with the opposite sign, and every model would be fitted
+    upside down (the notebook's gains on their bounds, "modes" at 0.1 Hz; the simulator calibrated to it diverges)."""
+    if "act" not in m.frf.channels:
+        return
+    f = m.frf.freq_hz
+    h = m.frf.response("act")
+    use = (f < SIGN_CHECK_HZ) & np.isfinite(h) & (np.abs(h) > 0)
+    var = m.var.get("act") if m.var else None
+    if var is not None:
+        use &= np.asarray(var) < 0.1  # (Measured's noise-only points are left out)
+    if use.sum() < 5:
+        return
+    u = h[use] / np.abs(h[use])
+    phase = float(np.degrees(np.angle(np.sum(u))))
+    if abs(phase - 90.0) < SIGN_MARGIN_DEG:
+        raise ValueError(f"{m.source}: theta/v's phase below {SIGN_CHECK_HZ:g} Hz is {phase:+.0f} deg over {int(use.sum())} points, where "
+                         "a valve-controlled actuator integrates (-90 deg; -180...0 with a leak): theta or v is recorded with the "
+                         "opposite sign (multiply that column by -1)")
+

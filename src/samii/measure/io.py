@@ -614,6 +614,10 @@ def read_timeseries_csv(path) -> TimeSeries:
             elif step / ref >= 1.5 and abs(step / ref - round(step / ref)) < 0.1:
                 missing = round(step / ref) - 1
                 hint = f"; {missing} sample{'s' if missing > 1 else ''} missing?"
+            elif _rounded_time(t):
+                mean = (t[-1] - t[0]) / (t.size - 1)
+                hint = (f"; the steps scatter about {mean:.9g} s by no more than the rounding of 7 significant digits (single "
+                        "precision): write t with more digits")
             message = (f"expected uniformly increasing time (every step within {TIME_UNIFORMITY_RTOL:g} of the typical step "
                        f"{ref:.9g} s), got a step of {step:.9g} s from line {int(table.lines[i - 1])}{hint}")
         raise table.error(message, row=i, column="t")
@@ -633,6 +637,14 @@ def read_timeseries_csv(path) -> TimeSeries:
         )
     except ValueError as exc:  # the checks above should have said it first
         raise DataFormatError(table.path, str(exc)) from None
+
+
+def _rounded_time(t: np.ndarray) -> bool:
+    """The steps of ``t`` differ from their mean by no more than rounding ``t`` to single precision does (a
+    logger's float32 time stamps): a few units of 2^-23 of the largest time."""
+    mean = (t[-1] - t[0]) / (t.size - 1)
+    quantum = float(np.max(np.abs(t))) * 2.0**-23
+    return bool(mean > 0 and np.max(np.abs(np.diff(t) - mean)) <= 4.0 * quantum)
 
 
 def _check_sample_rate(table: _Table, t: np.ndarray) -> None:
@@ -847,6 +859,12 @@ def read_frf_csv(path) -> FrequencyResponse:
         k, message = _bad_phase(phase)
         if message:
             raise table.error(message, row=k, column=ph_name)
+        if ch == "act" and phase.size >= RADIAN_CHECK_POINTS and np.all(np.abs(phase) <= RADIAN_CHECK_MAX):
+            # theta/v integrates (-90 deg at low frequency) and lags further past the actuator's resonance: in
+            # degrees it does not stay within +-9.4 over a band; in radians (wrapped or not) over 0.1-40 Hz it does
+            raise DataFormatError(table.path, f"every value of {ph_name!r} lies within +-{RADIAN_CHECK_MAX:.3g} ({phase.size} points): "
+                                              "that is a phase in radians; expected degrees (theta/v's phase is near -90 deg at "
+                                              "low frequency)", line=table.header_line, column=ph_name)
         kw[ch] = mag * np.exp(1j * np.unwrap(np.radians(phase)))
         if table.has(coh_name):
             coh = table.col(coh_name)
@@ -878,6 +896,12 @@ def _bad_magnitude(mag: np.ndarray) -> tuple[int, str]:
         return k, f"expected a non-negative linear magnitude (not dB), got {_num(mag[k])}"
     return k, (f"expected a linear magnitude within {lo:g}...{hi:g} ({20 * np.log10(lo):+.0f}...{20 * np.log10(hi):+.0f} dB), "
                f"got {_num(mag[k])}" + (" (a magnitude of 0 has no dB value: is the channel connected?)" if mag[k] == 0 else ""))
+
+
+#: theta/v phase columns this long are checked for radians: every value within RADIAN_CHECK_MAX (3 pi: an
+#: unwrapped phase in radians to -540 deg) is not a phase in degrees of an integrator.
+RADIAN_CHECK_POINTS = 10
+RADIAN_CHECK_MAX = 3.0 * np.pi
 
 
 def _bad_phase(phase: np.ndarray) -> tuple[int, str]:

@@ -21,8 +21,10 @@ from ``r``:
   With no rest (sweeps back to back) a record starts where ``r`` is quietest and
   no operating point is subtracted.
 
-A stated ``# record_s:`` is used as given (and checked against the data's own
-repetition); the start and the operating point are still read off ``r``.
+A stated ``# record_s:`` is used as given once it is checked to be a repetition of
+``r`` (``r`` shifted by it matches itself; a file whose header gives the sweep's
+length for the record's is refused, naming both); the start and the operating
+point are still read off ``r``.
 """
 
 from __future__ import annotations
@@ -40,6 +42,8 @@ _MIN_CORRELATION = 0.9
 _MIN_OVERLAP_ENERGY = 0.2
 #: Shortest repetition considered [s]: a sweep down to 0.1 Hz lasts tens of seconds; 0.5 s leaves room for fast rigs.
 _MIN_RECORD_S = 0.5
+#: Fewest samples in a repetition: below it the time column is not in seconds (a file in ms read as 1 sample/s).
+_MIN_RECORD_SAMPLES = 16
 #: r^2 below this fraction of its largest folded value is rest (-40 dB in amplitude).
 _QUIET = 1e-4
 #: Rest shorter than this fraction of a record: the repetitions run back to back.
@@ -142,6 +146,27 @@ def _whole_records(n_samples: int, start: float, period: float) -> int:
     return k
 
 
+def _check_stated(r: np.ndarray, fs: float, period: float, where: str) -> None:
+    """A stated repetition must be one of r: r shifted by it matches itself (|rho| >= 0.9, as when it is found).
+    When r does not repeat within the data (one record) nothing can be checked. A multiple of the repetition is a
+    repetition too (two sign-alternating sweeps are one period of r), and passes."""
+    if 2 * period > r.size:
+        return  # one record: r cannot show its own repetition
+    rho, overlap = _normalised_autocorrelation(r)
+    i = int(round(period))
+    near = np.abs(rho[max(i - 1, 0) : i + 2])
+    if overlap[i] >= _MIN_OVERLAP_ENERGY and near.max() >= _MIN_CORRELATION:
+        return
+    try:
+        found, c = _repetition(r, fs, where)
+        own = f"r repeats every {found / fs:.6g} s (correlation {c:.4f})"
+    except ValueError:
+        own = "r does not repeat at any shift"
+    raise ValueError(f"{where}: the stated record_s ({period / fs:.6g} s, from '# record_s:' or --record-s) is not a repetition "
+                     f"of the excitation: r shifted by it correlates with itself by only {near.max():.2f} (a repetition gives "
+                     f"{_MIN_CORRELATION} or more), while {own}; correct the stated length, or leave it out to have it found from r")
+
+
 def find_records(r: np.ndarray, sample_rate_hz: float, *, record_s: float | None = None, where: str = "r") -> RecordLayout:
     """Find the repetitions of the excitation ``r`` (module docstring).
 
@@ -166,6 +191,9 @@ def find_records(r: np.ndarray, sample_rate_hz: float, *, record_s: float | None
         raise ValueError(f"{where}: the excitation r is zero throughout: there is nothing to estimate a frequency response from")
     if record_s is None:
         period, rho = _repetition(r, fs, where)
+        if period < _MIN_RECORD_SAMPLES:
+            raise ValueError(f"{where}: r repeats every {period:.3g} samples ({period / fs:.3g} s at {fs:.6g} samples/s): too short "
+                             "for a record of a sweep; is t in seconds?")
         how = f"found from r: repetition {period / fs:.6g} s (correlation {rho:.4f} between repetitions)"
     else:
         if not (np.isfinite(record_s) and record_s > 0):
@@ -173,6 +201,7 @@ def find_records(r: np.ndarray, sample_rate_hz: float, *, record_s: float | None
         period = float(record_s) * fs
         if period > r.size * (1 + 1e-9):
             raise ValueError(f"{where}: record_s {record_s:.6g} s is longer than the data ({r.size / fs:.6g} s)")
+        _check_stated(r, fs, period, where)
         how = f"stated: record_s {record_s:.6g} s"
     n_bins = max(int(np.floor(period)), 2)
     # fold r^2 over the repetition; phase bins of one sample
@@ -206,6 +235,17 @@ def find_records(r: np.ndarray, sample_rate_hz: float, *, record_s: float | None
         onset = float((best_end + 1 + shift) % n_bins)  # first active bin after the rest
         lead_in_file = onset  # rest the file holds before its first onset
         margin = min(0.25 * best_len, lead_in_file)
+        # a record may start anywhere in the rest before its sweep: where a quarter of the rest would leave the
+        # last record past the file's end (a file of exactly n repetitions whose lead is under a quarter of the
+        # rest: samii measure --tail-s 2 lost one of its 3 records), the smallest margin that keeps them all
+        widest = min(float(best_len), lead_in_file)
+        most = _whole_records(r.size, onset - widest, period)
+        if _whole_records(r.size, onset - margin, period) < most:
+            lo, hi = margin, widest  # the count rises as the start moves earlier: bisect for the smallest margin
+            for _ in range(60):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (lo, mid) if _whole_records(r.size, onset - mid, period) >= most else (mid, hi)
+            margin = hi
         start = onset - margin
         baseline = 0.9 * margin / fs  # stops short of the onset: r is below -40 dB there, not zero
     n_records = _whole_records(r.size, start, period)
