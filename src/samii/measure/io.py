@@ -617,7 +617,7 @@ def read_timeseries_csv(path) -> TimeSeries:
             elif _rounded_time(t):
                 mean = (t[-1] - t[0]) / (t.size - 1)
                 hint = (f"; the steps scatter about {mean:.9g} s by no more than the rounding of 7 significant digits (single "
-                        "precision): write t with more digits")
+                        "precision): write t with more digits, or as the sample index over the sample rate")
             message = (f"expected uniformly increasing time (every step within {TIME_UNIFORMITY_RTOL:g} of the typical step "
                        f"{ref:.9g} s), got a step of {step:.9g} s from line {int(table.lines[i - 1])}{hint}")
         raise table.error(message, row=i, column="t")

@@ -42,8 +42,10 @@ _MIN_CORRELATION = 0.9
 _MIN_OVERLAP_ENERGY = 0.2
 #: Shortest repetition considered [s]: a sweep down to 0.1 Hz lasts tens of seconds; 0.5 s leaves room for fast rigs.
 _MIN_RECORD_S = 0.5
-#: Fewest samples in a repetition: below it the time column is not in seconds (a file in ms read as 1 sample/s).
+#: Fewest samples in a repetition found: a repetition of a few samples is no sweep (a time column far from seconds).
 _MIN_RECORD_SAMPLES = 16
+#: A stated repetition may differ from a whole multiple of the one found by this fraction (or 2 samples).
+_STATED_RTOL = 1e-4
 #: r^2 below this fraction of its largest folded value is rest (-40 dB in amplitude).
 _QUIET = 1e-4
 #: Rest shorter than this fraction of a record: the repetitions run back to back.
@@ -147,24 +149,34 @@ def _whole_records(n_samples: int, start: float, period: float) -> int:
 
 
 def _check_stated(r: np.ndarray, fs: float, period: float, where: str) -> None:
-    """A stated repetition must be one of r: r shifted by it matches itself (|rho| >= 0.9, as when it is found).
-    When r does not repeat within the data (one record) nothing can be checked. A multiple of the repetition is a
-    repetition too (two sign-alternating sweeps are one period of r), and passes."""
-    if 2 * period > r.size:
-        return  # one record: r cannot show its own repetition
-    rho, overlap = _normalised_autocorrelation(r)
-    i = int(round(period))
-    near = np.abs(rho[max(i - 1, 0) : i + 2])
-    if overlap[i] >= _MIN_OVERLAP_ENERGY and near.max() >= _MIN_CORRELATION:
-        return
+    """A stated repetition must be one of r: a whole multiple of the repetition r shows (two sign-alternating
+    sweeps are one period of r, and pass), to within ``_STATED_RTOL`` or 2 samples. When r shows none (one
+    record, or too little of a second), r shifted by the stated length must match itself (|rho| >= 0.9) where
+    the data hold two of it; with less nothing can be checked."""
+    if period < _MIN_RECORD_S * fs:
+        raise ValueError(f"{where}: the stated record_s ({period / fs:.6g} s, from '# record_s:' or --record-s) is shorter than "
+                         f"any sweep's record ({_MIN_RECORD_S:g} s at least)")
     try:
         found, c = _repetition(r, fs, where)
-        own = f"r repeats every {found / fs:.6g} s (correlation {c:.4f})"
     except ValueError:
-        own = "r does not repeat at any shift"
+        found = None
+    if found is not None:
+        k = max(round(period / found), 1)
+        if abs(period - k * found) <= max(2.0, _STATED_RTOL * period):
+            return
+        why = (f"r repeats every {found / fs:.6g} s (correlation {c:.4f} between repetitions), and the stated length is "
+               f"{period / found:.5g} of that, not a whole number")
+    else:
+        if 2 * period > r.size:
+            return  # r shows no repetition and the data hold less than two of the stated one
+        rho, overlap = _normalised_autocorrelation(r)
+        i = int(round(period))
+        near = float(np.max(np.abs(rho[max(i - 1, 1) : i + 2])))
+        if overlap[i] >= _MIN_OVERLAP_ENERGY and near >= _MIN_CORRELATION:
+            return
+        why = f"r shifted by it correlates with itself by only {near:.2f} (a repetition gives {_MIN_CORRELATION} or more)"
     raise ValueError(f"{where}: the stated record_s ({period / fs:.6g} s, from '# record_s:' or --record-s) is not a repetition "
-                     f"of the excitation: r shifted by it correlates with itself by only {near.max():.2f} (a repetition gives "
-                     f"{_MIN_CORRELATION} or more), while {own}; correct the stated length, or leave it out to have it found from r")
+                     f"of the excitation: {why}; correct the stated length, or leave it out to have it found from r")
 
 
 def find_records(r: np.ndarray, sample_rate_hz: float, *, record_s: float | None = None, where: str = "r") -> RecordLayout:
