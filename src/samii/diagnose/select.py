@@ -12,9 +12,10 @@ parameters, ``m`` the weighted residuals, ``L`` the noise's correlation length
 relative weights of the points; its level comes from the richer model's
 residual, so an error in the noise level does not make effects appear.
 
-Three candidates are refused whatever their F: one with a parameter on an end
-of its kind's range (the data want a value the kind cannot take: it imitates
-something else), an extra base mode within 5 % of
+Three candidates are refused whatever their F: one with a shape parameter (a
+damping ratio, a gain, a leak's pole; not a frequency, whose range ends lie far
+outside the band) on an end of its kind's range (the data want a value the kind
+cannot take: it imitates something else), an extra base mode within 5 % of
 a baseline mode or of another extra one (a mode split in two), and an extra mode the data cannot
 resolve: an actuator mode whose pole and zero lie closer than the data's
 frequency spacing (a bump that fits a wiggle of the noise; seen with noise
@@ -234,12 +235,17 @@ ON_BOUND = 1e-3
 
 
 def _on_bound(e: Effect) -> bool:
-    """A parameter of ``e`` sits on an end of its kind's range: the data want a value the kind cannot take, and the
-    effect is something else bent to imitate it (an actuator "mode" at 0.22 Hz with damping 0.5 beside a 20 mV
-    play, held-out battery seeds 615 and 915). Checked when an effect joins or swaps in; a later joint refit may
-    still carry a value onto an end (a pole/zero pair's pole onto 0.01 Hz once the leak it stood in for was
-    dropped, on an FRF file without its metadata), and dropping it there left a far worse fit: it stays."""
+    """A shape parameter of ``e`` (a damping ratio, a gain, a leak's pole: not a frequency) sits on an end of its
+    kind's range: the data want a value the kind cannot take, and the effect is something else bent to imitate
+    it (an actuator "mode" at 0.22 Hz with its damping on 0.5 beside a 20 mV play, held-out battery seeds 615
+    and 915). A frequency on its range's end lies far outside the band, where it does not act: a pole/zero pair
+    with its pole on 10 kHz is a lead in the band (the simulator battery's spool twice as slow is found so after
+    the first carry, and refusing it lost the spool). Checked when an effect joins or swaps in; a later joint
+    refit may still carry a value onto an end, and it stays (dropping it there, on a helper's FRF file without
+    its metadata, left a far worse fit)."""
     for p in e.kind.params:
+        if p.unit == "Hz":
+            continue
         v = e.values[p.name]
         if p.transform == "log" and p.lo > 0:
             if min(abs(np.log(v / p.lo)), abs(np.log(p.hi / v))) < ON_BOUND:
