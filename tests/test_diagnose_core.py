@@ -400,21 +400,3 @@ def test_effect_values_of_opposite_sign_do_not_match():
                {"kept": "actuator/leak", "kept_params": {"pole_per_s": 0.2 * np.exp(MATCH_DISTANCE / 2)}}]
     assert _record_for(records, "actuator/leak", {"pole_per_s": 0.2}) is records[1]
     assert _record_for(records[:1], "actuator/leak", {"pole_per_s": 0.2}) is None
-
-
-def test_an_effect_with_a_value_on_its_range_end_is_refused():
-    """A fitted shape value (damping, gain, a leak's pole) on an end of its kind's range is something else bent to
-    imitate it (an actuator "mode" with damping 0.5 beside a play, held-out seeds 615 and 915); a frequency on its
-    range's end lies far outside the band, and a delay's range starts at 0, where the effect is none."""
-    from samii.diagnose.effects import LIBRARY, Effect
-    from samii.diagnose.select import _on_bound
-
-    kind = {k.label: k for k in LIBRARY}
-    assert _on_bound(Effect(kind["extra_mode/act_mode"], {"freq_hz": 0.22, "zeta": 0.49999999, "zero_freq_hz": 0.33, "zero_zeta": 0.24}, {}))
-    assert not _on_bound(Effect(kind["extra_mode/act_mode"], {"freq_hz": 15.0, "zeta": 0.03, "zero_freq_hz": 14.0, "zero_zeta": 0.03}, {}))
-    # a frequency on its range's end lies far outside the band: a pole on 10 kHz is a lead (the spool found so)
-    assert not _on_bound(Effect(kind["actuator/pole_zero"], {"zero_hz": 178.0, "pole_hz": 9999.99999}, {}))
-    assert _on_bound(Effect(kind["actuator/valve"], {"freq_hz": 847.0, "zeta": 2.9999999}, {}))
-    assert _on_bound(Effect(kind["actuator/leak"], {"pole_per_s": -9.99999}, {}))
-    assert not _on_bound(Effect(kind["actuator/leak"], {"pole_per_s": 0.2}, {}))
-    assert not _on_bound(Effect(kind["delay/command"], {"delay_s": 1e-6}, {}))
