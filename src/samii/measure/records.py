@@ -21,10 +21,10 @@ from ``r``:
   With no rest (sweeps back to back) a record starts where ``r`` is quietest and
   no operating point is subtracted.
 
-A stated ``# record_s:`` is used as given once it is checked to be a repetition of
-``r`` (``r`` shifted by it matches itself; a file whose header gives the sweep's
-length for the record's is refused, naming both); the start and the operating
-point are still read off ``r``.
+A stated ``# record_s:`` is used as given once it is checked to be a whole number
+of ``r``'s repetitions (or, where ``r`` shows none, ``r`` shifted by it matches
+itself; a file whose header gives the sweep's length for the record's is refused,
+naming both); the start and the operating point are still read off ``r``.
 """
 
 from __future__ import annotations
