@@ -267,10 +267,16 @@ def _print(d, written) -> None:
                   f"{after.rms_db:7.3g} dB {after.rms_deg:7.3g} deg {chi2(after.chi2)}")
         for name, value in s.changes.items():
             print(f"  {name} = {value:.6g}")
+    if d.refused:
+        print("refused: passed the F-test, but the data do not show them:")
+        for r in d.refused:
+            vals = ", ".join(f"{n} {v:.4g}" for n, v in r["params"].items())
+            print(f"  round {r['round']}: {r['effect']} ({vals}): {r['reason']}")
     if d.unexplained:
         print("unexplained: a significant residual that nothing in the library explains:")
         for b in d.unexplained:
-            print(f"  {b.source}: {_NAMES[b.channel]} {b.lo_hz:.3g}-{b.hi_hz:.3g} Hz, chi2 {b.chi2:.3g} over {b.n_points} points")
+            why = "" if b.why == "residual" else f" ({b.why}: the rig changed during the file)"
+            print(f"  {b.source}: {_NAMES[b.channel]} {b.lo_hz:.3g}-{b.hi_hz:.3g} Hz, chi2 {b.chi2:.3g} over {b.n_points} points{why}")
     for n in d.notes:
         print(f"note: {n}")
     for p in written:

@@ -99,9 +99,13 @@ class Band:
     hi_hz: float
     chi2: float
     n_points: int
+    #: "residual": the final model's residual beyond the noise; "records differ": the file's records are not repeats
+    #: there (samii.diagnose.stationarity: the rig changed during the file)
+    why: str = "residual"
 
     def to_dict(self) -> dict:
-        return {"source": self.source, "channel": self.channel, "lo_hz": self.lo_hz, "hi_hz": self.hi_hz, "chi2": self.chi2, "n_points": self.n_points}
+        return {"source": self.source, "channel": self.channel, "lo_hz": self.lo_hz, "hi_hz": self.hi_hz, "chi2": self.chi2,
+                "n_points": self.n_points, "why": self.why}
 
 
 @dataclass(frozen=True, eq=False)
@@ -135,6 +139,13 @@ class Diagnosis:
         return harmonic_errors(self.nonlinear)
 
     @property
+    def refused(self) -> list[dict]:
+        """Every candidate that passed the F-test but was refused, with its reason (below the excited band, cancels
+        within its uncertainty, smaller than the measurement's floor, indistinguishable from the sampling...)."""
+        return [{"round": t["round"], "effect": t["effect"], "params": dict(t["params"]), "reason": t["refused"],
+                 "log10_p": t["log10_p_test"]} for t in self.tried if t.get("refused")]
+
+    @property
     def verdict(self) -> str:
         return "effects" if any(not e.expected for e in self.effects) else "none"
 
@@ -160,6 +171,9 @@ class Diagnosis:
             "simulator": None if self.simulator is None else self.simulator.to_dict(),
             "harmonic_error": None if he is None else {"before": he[0].to_dict(), "after": he[1].to_dict()},
             "unexplained": [b.to_dict() for b in self.unexplained],
+            "refused": self.refused,
+            "floor": [{"source": m.source, "how": None if m.floor is None else m.floor.how,
+                       "quantisation_steps": None if m.floor is None else dict(m.floor.quant_steps)} for m in self.measured],
             "baseline": self.baseline.label,
             "rule": self.rule,
             "files": [{"source": m.source, "noise": m.noise_source, "amplitude_v": m.amplitude_v, "sample_rate_hz": m.sample_rate_hz,
@@ -499,6 +513,23 @@ def _noise_from_roughness(m: Measured, saved) -> Measured:
     return with_roughness_noise(m, {ch: model[ch] for ch in m.frf.channels})
 
 
+def _with_floor(m: Measured) -> Measured:
+    """``m`` with its systematic floor (:mod:`samii.diagnose.floor`): the estimator's bias measured through the
+    notebook's structure fitted to the file alone (a description of its dynamics, whatever the baseline), the
+    quantisation of its columns and the stated relative floor."""
+    from samii.diagnose.baseline import notebook_baseline
+    from samii.diagnose.floor import with_floor
+    from samii.diagnose.model import fit_model
+
+    if m.timeseries is None or m.layout is None or any(m.var.get(ch) is None for ch in m.frf.channels):
+        return with_floor(m)
+    try:
+        fit = fit_model([Dataset.from_measured(m)], notebook_baseline([m]), [])
+    except ValueError:
+        return with_floor(m)
+    return with_floor(m, lambda f: model_response(fit, 0, f))
+
+
 def _kinds(datasets: Sequence[Dataset], *, fixed_baseline: bool, simulator: bool = False) -> list:
     """The library's kinds the datasets' channels can test against the baseline (``simulator``: the calibrated
     simulator's), each bounded to their band."""
@@ -677,6 +708,13 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     for m in given:
         check_actuator_sign(m)
     measured = tuple(_noise_from_roughness(m, saved) for m in given)
+    notes = [f"{m.source}: no coherence and no records; the noise of each point is {m.noise_source}"
+             for m, g in zip(measured, given) if m is not g]
+    _stage(progress, "measuring the systematic floor")
+    measured = tuple(_with_floor(m) for m in measured)
+    from samii.diagnose.stationarity import record_changes
+
+    changes = [c for m in measured for c in record_changes(m, alpha=alpha)]
     references = None
     if sim:  # the simulator's own harmonics (its orifice law) are not what it lacks: the data's are tested in excess of them
         from samii.diagnose.simulator import measured_like
@@ -689,8 +727,6 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
                       for m in measured]
     nonlinear, nl_notes, harmonics, amp_tests = find_nonlinear(measured, alpha=alpha, references=references,
                                                                reference_label="the simulator's own harmonics")
-    notes = [f"{m.source}: no coherence and no records; the noise of each point is {m.noise_source}"
-             for m, g in zip(measured, given) if m is not g]
     for f in nonlinear:  # where the data show distortion, their best linear approximation is uncertain by it
         for h in f.harmonics:
             measured = tuple(distortion_var(m, h) if m.source == h.source else m for m in measured)
@@ -776,7 +812,11 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
                          f"{', '.join(report.dropped)}; with them carried and the simulator recalibrated these were no longer needed "
                          "(images of the first calibration's compromise)")
     datasets, after = final
+    notes += [c.text() for c in changes]
+    unexplained = unexplained_bands(datasets, after, alpha=alpha)
+    unexplained += [Band(c.source, c.channel, c.lo_hz, c.hi_hz, c.chi2, int(np.sum((m.frf.freq_hz >= c.lo_hz) & (m.frf.freq_hz <= c.hi_hz))),
+                         "records differ") for c in changes for m in measured if m.source == c.source]
     return Diagnosis(measured, datasets, bl, before, after, tuple(steps), tuple(tried), tuple(effects),
-                     error_before, channel_errors(datasets, after), tuple(unexplained_bands(datasets, after, alpha=alpha)),
+                     error_before, channel_errors(datasets, after), tuple(unexplained),
                      notes=tuple(notes[:at] + divided_notes + notes[at:] + nl_notes), harmonics=tuple(harmonics), amplitude_tests=tuple(amp_tests),
                      raw_measured=None if raw is measured else raw, simulator=report, nonlinear=tuple(nonlinear))

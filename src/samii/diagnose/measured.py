@@ -99,6 +99,9 @@ class Measured:
         the point by ``var + model_var``, the error reported is against ``var`` alone (set by
         :func:`samii.diagnose.nonlinear.distortion_var`: the distortion measured, and
         :func:`samii.diagnose.nonlinear.linearised`: a describing function's neglected harmonics).
+    floor : samii.diagnose.floor.Floor or None
+        The systematic floor already added to ``var`` (what repeats in every record: the estimator's bias,
+        quantisation, a stated relative floor; :mod:`samii.diagnose.floor`), None before it is added.
     """
 
     source: str
@@ -111,6 +114,9 @@ class Measured:
     timeseries: TimeSeries | None = None
     layout: RecordLayout | None = None
     model_var: Mapping[str, np.ndarray] | None = None
+    floor: object | None = None
+    #: The band [Hz] a time series' FRF was estimated over (its grid is made from it).
+    band_hz: tuple[float, float] | None = None
 
 
 def _float_meta(meta: Mapping[str, str], key: str) -> float | None:
@@ -238,6 +244,26 @@ def timeseries_frf(ts: TimeSeries, layout: RecordLayout, *, band_hz: tuple[float
 MIN_SAMPLE_RATE_HZ = 10.0
 
 
+def _without_mains(ts: TimeSeries) -> tuple[TimeSeries, list[str]]:
+    """``ts`` with the mains lines of v, theta and accel subtracted (:mod:`samii.measure.lines`: leaking through the
+    records' rectangular window they repeat in every record that lasts whole mains periods), and what was removed."""
+    from samii.diagnose.floor import quantisation_step
+    from samii.measure.lines import remove_lines
+
+    fs = ts.sample_rate_hz
+    cols, said = {}, []
+    for name, unit in (("v", "V"), ("theta", "rad"), ("accel", "m/s^2")):
+        x = getattr(ts, name)
+        if quantisation_step(x) is not None:
+            continue  # (rounded after any hum it picked up: its lattice is kept for the floor)
+        y, lines = remove_lines(x, fs, excitation=ts.r)
+        if lines:
+            cols[name] = y
+            said.append(f"{name}: " + ", ".join(f"{ln.freq_hz:.2f} Hz ({ln.amplitude:.3g} {unit})"
+                                                 + ("" if ln.removed else ", NOT removed: it drifts beyond one sinusoid") for ln in lines))
+    return (replace(ts, **cols) if cols else ts), said
+
+
 def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float] | None = None, record_s: float | None = None) -> Measured:
     """A time series with its excitation ``r``: records found (or as stated), FRF and spread estimated."""
     if ts.r is None:
@@ -247,6 +273,7 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
     if fs < MIN_SAMPLE_RATE_HZ:
         raise ValueError(f"{source}: t steps by {1.0 / fs:.6g} s, {fs:.6g} samples per second: too slow for a frequency response of "
                          "this arm (its modes lie between 1.7 and 25 Hz); is t in milliseconds? t must be in seconds (DATA_FORMATS.md)")
+    ts, hum = _without_mains(ts)
     stated = record_s if record_s is not None else _float_meta(ts.metadata, "record_s")
     layout = find_records(ts.r, fs, record_s=stated, where=source)
     if band_hz is None:
@@ -254,6 +281,8 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
         hi = _float_meta(ts.metadata, "stop_hz")
         band_hz = (lo or 0.1, min(hi or 40.0, 0.45 * fs))
     frf, var, corr, how = timeseries_frf(ts, layout, band_hz=band_hz)
+    if hum:
+        how += "; mains hum subtracted first (" + "; ".join(hum) + ")"
     amp = _float_meta(ts.metadata, "amplitude_v") or float(np.max(np.abs(ts.r)))
     # what a diagnosis of the FRF file alone needs: the sampling (a delay of one sample is expected), the
     # excitation's amplitude, and how many neighbouring points share one error on this grid
@@ -263,7 +292,7 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
     meta["frf_corr_length"] = f"{corr:.3g} (points one independent error spans, from the record-to-record deviations)"
     frf = replace(frf, metadata=meta)
     return Measured(source=source, frf=frf, var=var, noise_source=how, corr_length=corr, amplitude_v=amp, sample_rate_hz=fs,
-                    timeseries=ts, layout=layout)
+                    timeseries=ts, layout=layout, band_hz=(float(band_hz[0]), float(band_hz[1])))
 
 
 def _weights_squared(meta: Mapping[str, str], n: int) -> tuple[float, str]:

@@ -57,6 +57,12 @@ class Dataset:
     #: channel -> 1/sqrt(var/2) of the noise alone, where the fit's weights also hold the model's own
     #: approximation (Measured.model_var); None when they are the noise alone
     noise_inv_sigma: Mapping[str, np.ndarray] | None = None
+    #: channel -> variance of the systematic floor on its usable points (part of the noise above;
+    #: samii.diagnose.floor), None when the file's has none
+    floor_var: Mapping[str, np.ndarray] | None = None
+    #: The file's record length [s] (a time series cut into records) and sample rate [Hz], when known.
+    record_s: float | None = None
+    sample_rate_hz: float | None = None
 
     @classmethod
     def from_measured(cls, m, channels: Sequence[str] | None = None) -> "Dataset":
@@ -66,8 +72,9 @@ class Dataset:
             have = set(m.frf.channels)
             channels = ("act", "total") if {"act", "total"} <= have else ("act", "base")
         frf = m.frf
-        data, keep, inv, noise_inv = {}, {}, {}, {}
+        data, keep, inv, noise_inv, floor = {}, {}, {}, {}, {}
         extra = m.model_var or {}
+        fl = getattr(m.floor, "var", None) or {}
         known = True
         if any(m.var.get(c) is None for c in frf.channels):  # one noise model per file: unknown for all if for one
             m = replace(m, var=dict.fromkeys(frf.channels))
@@ -77,10 +84,12 @@ class Dataset:
                 va, vt = m.var.get("act"), m.var.get("total")
                 var = None if va is None or vt is None else va + vt
                 xv = extra["act"] + extra["total"] if {"act", "total"} <= set(extra) else None
+                fv = fl["act"] + fl["total"] if {"act", "total"} <= set(fl) else None
             elif ch in frf.channels:
                 h = frf.response(ch)
                 var = m.var.get(ch)
                 xv = extra.get(ch)
+                fv = fl.get(ch)
             else:
                 continue
             if var is None:
@@ -92,11 +101,14 @@ class Dataset:
             keep[ch] = k
             data[ch] = h[k]
             noise_inv[ch] = 1.0 / np.sqrt(var[k] / 2.0)
+            if fv is not None and known:
+                floor[ch] = np.asarray(fv)[k]
             inv[ch] = noise_inv[ch] if xv is None else 1.0 / np.sqrt((var[k] + xv[k]) / 2.0)
         if not data:
             raise ValueError(f"{m.source}: no act or base channel to diagnose (has {', '.join(frf.channels)})")
         return cls(m.source, frf.freq_hz, data, keep, inv, known, float(m.corr_length), m.amplitude_v,
-                   None if not extra else noise_inv)
+                   None if not extra else noise_inv, floor if floor and known else None,
+                   None if getattr(m, "layout", None) is None else float(m.layout.record_s), getattr(m, "sample_rate_hz", None))
 
     def noise_sigma_inv(self, ch: str) -> np.ndarray:
         """1/sqrt(var/2) of the noise alone on channel ``ch``'s usable points (the reported error's scale)."""

@@ -26,7 +26,7 @@ refitted jointly with everything else. The kind with the smallest p-value
 joins, earlier effects it makes unnecessary are dropped, and each effect is
 swapped for every other kind on its channel with no more parameters, refitted
 jointly, the better fit kept (``_swap``); the best candidate and the next two
-best with fewer parameters are each carried through this, and the one whose
+best with no more parameters are each carried through this, and the one whose
 result has the smallest BIC goes on (``READINGS``); the rounds go on until none passes
 (at most ``MAX_EFFECTS``). At the end each effect's best rival with more
 parameters is refitted in its place: it replaces the effect when its extra
@@ -53,8 +53,10 @@ MAX_EFFECTS = 4
 #: Starts refitted jointly per kind.
 JOINT_STARTS = 2
 #: Readings of each round carried through its drops and swaps: the best candidate by p-value and the next best
-#: ones with fewer parameters than it (one with as many as the best, or more, that lowers chi2 less is dominated
-#: by it), the one whose result has the smallest BIC going on. The p-value favours a richer effect that takes
+#: ones with no more parameters than it (one with more that lowers chi2 less is dominated by it), the one whose
+#: result has the smallest BIC going on. (Stop 22 carried only sparser ones; with the refusals of stop 23 the
+#: same rig's second round is led by a theta delay (one parameter) once the pair is refused as cancelling within
+#: its uncertainty, and the command delay's reading, as sparse, must be carried to reach the truth.) The p-value favours a richer effect that takes
 #: more at once, and one reading is greedy: on a rig with a 4 ms command delay and a 30 Hz first-order
 #: accelerometer roll-off (battery seed 816) the first round takes the roll-off as second-order (chi2 794, one
 #: parameter) and the second a real pole/zero pair in theta/v (749, two), then a theta delay (764, one), then
@@ -227,11 +229,146 @@ def _unresolved_mode(e: Effect, ds_list: list[Dataset]) -> bool:
     return e.kind.kind == "act_mode" and abs(f - e.values["zero_freq_hz"]) < spacing
 
 
-def _refused(e: Effect, fit: Fit, ds_list: list[Dataset]) -> bool:
-    """``e`` (in ``fit``) is not an effect these data show, whatever its F: a mode split in two, or one the data
-    cannot resolve. (A value on an end of its kind's range is not refused: stop 22 tried it; a valve with its
-    damping on 3 is the first-order spool lag the data want, and refusing it lost a slow spool's carry.)"""
-    return _duplicate_mode(e, fit) or _unresolved_mode(e, ds_list)
+#: A corner, pole or zero may lie this factor beyond the excited band and still be identified as such: an octave
+#: beyond it a first-order corner still turns the response by 27 deg and 1 dB at the band's end, and its
+#: magnitude and phase together fix it. Further out, below the band a factor is a constant gain there (the
+#: baseline's gain holds it), above it a group delay and a magnitude change too small to tell its order.
+CORNER_MARGIN = 2.0
+
+
+def _excited_band(ds_list: list[Dataset]) -> tuple[float, float]:
+    """The lowest and highest frequency [Hz] any channel of the datasets uses (the whole grid if none uses a point)."""
+    lo = min((float(ds.freq_hz[k][0]) for ds in ds_list for k in ds.keep.values() if k.any()), default=float(ds_list[0].freq_hz[0]))
+    hi = max((float(ds.freq_hz[k][-1]) for ds in ds_list for k in ds.keep.values() if k.any()), default=float(ds_list[0].freq_hz[-1]))
+    return lo, hi
+
+
+def _record_s(ds_list: list[Dataset]) -> float | None:
+    """The shortest record [s] of the datasets, or None when none was cut into records."""
+    rec = [ds.record_s for ds in ds_list if ds.record_s]
+    return min(rec) if rec else None
+
+
+def _sample_s(ds_list: list[Dataset]) -> float | None:
+    rates = [ds.sample_rate_hz for ds in ds_list]
+    return None if not rates or any(not r for r in rates) else 1.0 / max(rates)
+
+
+def _log_se(e: Effect, name: str) -> float:
+    """Standard error of ln(value) of ``e``'s parameter ``name`` (inf where not determined)."""
+    v, se = e.values[name], e.stderr.get(name, np.inf)
+    return float(se / abs(v)) if v and np.isfinite(se) else np.inf
+
+
+def _unidentifiable(e: Effect, ds_list: list[Dataset], free: bool = True) -> str | None:
+    """Why the data cannot identify ``e`` as what it says it is, or None (module docstring; CORNER_MARGIN); ``free``:
+    the baseline is refitted (its gain holds a constant factor). A pair's cancellation is left to the floor
+    (:func:`_below_floor`, on the change it makes): its corners' errors are strongly correlated, and their marginal
+    standard errors refused real pairs 5 joint standard errors apart."""
+    k, v = e.kind.kind, e.values
+    lo, hi = _excited_band(ds_list)
+    band = f"the excited band {lo:.3g}-{hi:.3g} Hz"
+    rec = _record_s(ds_list)
+    sample = _sample_s(ds_list)
+    if k == "pole_zero":
+        fz, fp = v["zero_hz"], v["pole_hz"]
+        inside = [f for f in (fz, fp) if lo / CORNER_MARGIN <= f <= hi * CORNER_MARGIN]
+        below, above = max(fz, fp) < lo / CORNER_MARGIN, min(fz, fp) > hi * CORNER_MARGIN
+        # (below the band the pair is a constant gain there, which a refitted baseline's gain holds; against a fixed
+        # one it is a gain error the data do show. Straddling the band it is a tilt the data show too.)
+        if (below and free) or above:
+            return (f"{'below' if below else 'above'} the excited band: neither its zero ({fz:.3g} Hz) nor its pole ({fp:.3g} Hz) lies "
+                    f"within a factor {CORNER_MARGIN:g} of {band}" + ("" if below else " (there it is a group delay or lead)"))
+        worst = max(_log_se(e, "zero_hz"), _log_se(e, "pole_hz"))
+        if len(inside) == 2 and worst > 1.0:
+            return (f"not determined by the data: its corners ({fz:.3g} and {fp:.3g} Hz) have a standard error of {worst:.2g} in ln "
+                    "(more than a factor e either way)")
+    if e.kind.category == "extra_mode":
+        top = max(p.hi for p in e.kind.params if p.name == "zeta")
+        if v["zeta"] >= top * (1.0 - 1e-3):
+            return (f"not a resonance: its damping sits on the library's bound ({top:g}), the data want a broader shape than a mode "
+                    "(a tilt or a bump)")
+    if k == "act_mode":
+        se = np.hypot(_log_se(e, "freq_hz"), _log_se(e, "zero_freq_hz"))
+        if abs(np.log(v["freq_hz"] / v["zero_freq_hz"])) < 2.0 * se:
+            return (f"cancels within its uncertainty: its pole and zero pairs ({v['freq_hz']:.3g} and {v['zero_freq_hz']:.3g} Hz) differ "
+                    f"by less than twice their standard error")
+    if k == "leak":
+        a = v["pole_per_s"]
+        if rec is not None and abs(a) * rec < 1.0:
+            return f"its time constant ({1.0 / abs(a):.3g} s) is longer than a record ({rec:.3g} s): the data cannot see it settle"
+    if k == "accel_highpass":
+        tc = 1.0 / (2.0 * np.pi * v["corner_hz"])
+        if rec is not None and tc > rec:
+            return f"its time constant ({tc:.3g} s) is longer than a record ({rec:.3g} s): the data cannot see it settle"
+    if k in ("accel_lowpass", "accel_lowpass2", "valve"):
+        fc = v["corner_hz"] if "corner_hz" in v else v["freq_hz"]
+        if fc > hi * CORNER_MARGIN:
+            w = 2.0 * np.pi * fc
+            lag = 1.0 / w if k == "accel_lowpass" else np.sqrt(2.0) / w if k == "accel_lowpass2" else 2.0 * v["zeta"] / w
+            if sample is not None and lag <= sample:
+                return (f"indistinguishable from the sampling: its corner ({fc:.3g} Hz) lies beyond a factor {CORNER_MARGIN:g} of {band}, "
+                        f"where it is a group delay of {1e3 * lag:.3g} ms, at most one sample ({1e3 * sample:.3g} ms)")
+            return (f"above the excited band: its corner ({fc:.3g} Hz) lies beyond a factor {CORNER_MARGIN:g} of {band}, where it is a "
+                    f"group delay of {1e3 * lag:.3g} ms (a delay, not a corner the data can place)")
+    return None
+
+
+#: A finding must change the response by more than the floor's PRACTICAL_FACTOR standard deviations (and the
+#: point's whole error) at no fewer than this many points, or twice the noise's correlation length.
+PRACTICAL_POINTS = 3
+
+
+def _below_floor(before: Fit, after: Fit, ds_list: list[Dataset]) -> str | None:
+    """Why the change ``after`` makes to ``before``'s model is not practically significant, or None: it must exceed
+    PRACTICAL_FACTOR x the systematic floor's standard deviation (samii.diagnose.floor) at PRACTICAL_POINTS points,
+    or twice the correlation length. The F-test weighs the change against the noise over every point, and many
+    points make a tiny change significant; this asks that somewhere it stand clear of what repeats in every record,
+    which no number of points averages away. (Asking it also to stand clear of each point's noise refused a real
+    1 ms delay that only the band's noisy top shows, together.)"""
+    from samii.diagnose.floor import PRACTICAL_FACTOR
+
+    if any(ds.floor_var is None for ds in ds_list):
+        return None
+    count, largest, where = 0, 0.0, None
+    for ds, r0, r1 in zip(ds_list, before.residuals, after.residuals):
+        for ch, e0 in r0.items():
+            if ch not in r1 or ch not in ds.floor_var:
+                continue
+            change = np.abs(e0 - r1[ch])
+            limit = PRACTICAL_FACTOR * np.sqrt(ds.floor_var[ch])
+            ratio = change / limit
+            if ratio.size == 0:
+                continue
+            count += int(np.sum(ratio > 1.0))
+            j = int(np.argmax(ratio))
+            if ratio[j] > largest:
+                largest, where = float(ratio[j]), (ch, float(ds.freq_hz[ds.keep[ch]][j]), float(change[j]))
+    need = max(PRACTICAL_POINTS, int(np.ceil(2.0 * max(ds.corr_length for ds in ds_list))))
+    if count >= need:
+        return None
+    if where is None:
+        return "smaller than the measurement's floor: it changes no usable point"
+    ch, f, change = where
+    return (f"smaller than the measurement's floor: it changes the response by more than {PRACTICAL_FACTOR:g} x the systematic floor "
+            f"at {count} point(s), fewer than {need} (at most {100 * change:.2g} % at {f:.3g} Hz on {ch}, "
+            f"{largest:.2g} x that limit)")
+
+
+def _refused(e: Effect, fit: Fit, ds_list: list[Dataset], before: Fit | None = None) -> str | None:
+    """Why ``e`` (in ``fit``) is not an effect these data show, whatever its F, or None: a mode split in two, one the
+    data cannot resolve, one they cannot identify (:func:`_unidentifiable`), or, against ``before`` (the model
+    without it), a change smaller than the measurement's floor (:func:`_below_floor`). (A value on an end of its
+    kind's range is not refused: stop 22 tried it; a valve with its damping on 3 is the first-order spool lag the
+    data want, and refusing it lost a slow spool's carry.)"""
+    if _duplicate_mode(e, fit):
+        return "a mode split in two: within 5 % of a mode the model has"
+    if _unresolved_mode(e, ds_list):
+        return "a mode the data cannot resolve: narrower than the frequency spacing, or its pole and zero closer than it"
+    why = _unidentifiable(e, ds_list, fit.baseline.free)
+    if why is None and before is not None:
+        why = _below_floor(before, fit, ds_list)
+    return why
 
 
 def _backward(ds_list, baseline, fit: Fit, corr: float, level: float, steps: list, reference: Fit | None = None) -> Fit:
@@ -314,7 +451,7 @@ def _swap(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, tri
             if best_alt is None:
                 continue
             new = best_alt.effects[i]
-            swap = best_alt.chi2 < fit.chi2 and not _refused(new, best_alt, ds_list)
+            swap = best_alt.chi2 < fit.chi2 and _refused(new, best_alt, ds_list) is None
             kept, rival = (best_alt, fit) if swap else (fit, best_alt)
             records.append({"round": "swap", "effect": new.kind.label, "alternative_to": e.kind.label, "params": dict(new.values),
                             **_pair_record(i, kept, rival),
@@ -353,7 +490,7 @@ def _richer(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, a
         new = best.effects[i]
         record = {"effect": new.kind.label, "chi2": best.chi2, "chi2_current": fit.chi2, "delta_in_noise": (fit.chi2 - best.chi2) / s2,
                   "extra_params": dof[0], "F": fstat, "log10_p": logp}
-        if logp < np.log10(alpha / n_tried) and not _refused(new, best, ds_list):
+        if logp < np.log10(alpha / n_tried) and _refused(new, best, ds_list, before=fit) is None:
             # the richer kind is needed: it replaces the effect (the report says what it replaced, and its test)
             tried.append({**record, **_pair_record(i, best, fit), "round": "swap", "alternative_to": e.kind.label,
                           "params": dict(new.values), "swapped": True, "richer": True})
@@ -414,10 +551,13 @@ def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[Effec
                     base_fit = current
             fstat, dof, logp = _f_test(current, cand, corr)
             eff = cand.effects[-1]
-            if _refused(eff, cand, ds_list):
-                logp = 0.0  # not a new mode: one the baseline has split in two, or a pole and zero the data cannot resolve
-            tried.append({"round": _round + 1, "effect": kind.label, "params": dict(eff.values), "chi2": cand.chi2, "F": fstat,
-                          "dof": list(dof), "log10_p": logp, "threshold_log10_p": float(level)})
+            why = _refused(eff, cand, ds_list, before=current) if logp < level else None
+            record = {"round": _round + 1, "effect": kind.label, "params": dict(eff.values), "chi2": cand.chi2, "F": fstat,
+                      "dof": list(dof), "log10_p": logp, "threshold_log10_p": float(level)}
+            if why is not None:  # it passed the F-test, but the data do not show it (its reason is reported)
+                record.update(refused=why, log10_p=0.0, log10_p_test=logp)
+                logp = 0.0
+            tried.append(record)
             if progress:
                 progress(kind.label)
             if logp < level:
@@ -432,8 +572,8 @@ def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[Effec
         # every round, not only at the end (a 4 ms delay beside a 30 Hz roll-off joins as a 45 Hz second-order
         # roll-off and a 2 ms delay; left alone, two more "modes" join to make up for them and no single swap at
         # the end undoes it): the reading with the smallest BIC goes on (_bic)
-        # (a candidate with as many parameters as the best, or more, lowers chi2 less: dominated; only sparser ones are carried)
-        readings = ranked[:1] + [c for c in ranked[1:] if c[3].n_params < ranked[0][3].n_params][: READINGS - 1]
+        # (a candidate with more parameters than the best lowers chi2 less: dominated; as many or fewer are carried)
+        readings = ranked[:1] + [c for c in ranked[1:] if c[3].n_params <= ranked[0][3].n_params][: READINGS - 1]
         best = None
         for logp, fstat, dof, cand, kind in readings:
             r_steps = [Step(kind.label, fstat, dof, logp, current.chi2, cand.chi2, dict(cand.effects[-1].values))]
@@ -449,4 +589,35 @@ def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[Effec
         last_swap = r_swap
     tried.extend(last_swap)  # the final model's swaps: the report's "fits almost as well"
     current = _richer(ds_list, baseline, current, kinds, corr, alpha, tried)
+    current = _drop_unidentified(ds_list, baseline, current, steps, tried)
     return base_fit, relabel_modes(ds_list, current), steps, tried
+
+
+def _drop_unidentified(ds_list, baseline, fit: Fit, steps: list, tried: list) -> Fit:
+    """``fit`` without the effects the data cannot identify as they ended (:func:`_unidentifiable`), or whose share
+    of the final model is smaller than the measurement's floor (:func:`_below_floor` against the final model refitted
+    without it), one at a time, refitted; each recorded as refused (round "final"). A candidate is checked when it
+    joins, but the later joint refits and swaps move it: on the second rig a base "mode" that joined at 0.2 damping
+    ended on the bound, 0.5, and a leak of -0.027 1/s swapped in for a sampling delay that joined again later (its
+    share, 3 % of theta/v at 0.14 Hz, under the floor of a 9-count encoder there)."""
+    while True:
+        bad = next(((i, why, None) for i, e in enumerate(fit.effects) if (why := _unidentifiable(e, ds_list, fit.baseline.free)) is not None), None)
+        if bad is None:
+            for i, e in enumerate(fit.effects):
+                rest = [x for j, x in enumerate(fit.effects) if j != i]
+                without = fit_model(ds_list, baseline, _vectors(rest), start_baseline=_baseline_vectors(fit))
+                why = _below_floor(without, fit, ds_list)
+                if why is not None:
+                    bad = (i, why, without)
+                    break
+        if bad is None:
+            return fit
+        i, why, without = bad
+        e = fit.effects[i]
+        if without is None:
+            rest = [x for j, x in enumerate(fit.effects) if j != i]
+            without = fit_model(ds_list, baseline, _vectors(rest), start_baseline=_baseline_vectors(fit))
+        steps.append(Step(f"removed {e.kind.label}", 0.0, (0, 0), 0.0, fit.chi2, without.chi2))
+        tried.append({"round": "final", "effect": e.kind.label, "params": dict(e.values), "chi2": without.chi2, "log10_p": 0.0,
+                      "log10_p_test": None, "refused": why})
+        fit = without

@@ -280,10 +280,19 @@ def _diagnosis(run: RunFolder) -> str:
                    f"{_num(pct(b.get('rms_ratio')), '.3g')} % of the fundamental, χ² {_num(b.get('chi2'), '.3g')} per residual; with the "
                    f"nonlinear law found {_worse(pct(a.get('rms_ratio')), pct(b.get('rms_ratio')), '.3g')} %, "
                    f"χ² {_worse(a.get('chi2'), b.get('chi2'), '.3g')}.</p>")
+    refused = d.get("refused") or []
+    if refused:
+        items = "".join(f"<li>{_e(r.get('effect'))} ("
+                        + ", ".join(f"{_e(k)} = {_num(v, '.4g')}" for k, v in (r.get("params") or {}).items())
+                        + f"): {_e(r.get('reason'))}</li>" for r in refused)  # fmt: skip
+        out.append("<p>Candidates that passed the F-test but that these data do not show (not identifiable, or smaller than "
+                   f"the measurement's systematic floor), refused:</p><ul>{items}</ul>")
     un = d.get("unexplained") or []
     if un:
         items = "".join(f"<li>{_e(_CHANNELS.get(u.get('channel'), u.get('channel')))} over {_num(u.get('lo_hz'), '.3g')}–{_num(u.get('hi_hz'), '.3g')} Hz: "
-                        f"χ² {_num(u.get('chi2'), '.3g')} over {_e(u.get('n_points'))} points</li>" for u in un)  # fmt: skip
+                        f"χ² {_num(u.get('chi2'), '.3g')} over {_e(u.get('n_points'))} points"
+                        + ("" if u.get("why", "residual") == "residual" else f" ({_e(u.get('why'))}: the rig changed during the file)")
+                        + "</li>" for u in un)  # fmt: skip
         out.append(f"<p>Left unexplained by the effect library (red bands below):</p><ul>{items}</ul>")
     out.append(_figure(_file_png(run, "diagnose_bode"), "data, baseline and the model with the effects",
                        "Data, the baseline (the fit) and the model with the effects found. Where the data's coherence is below 0.5 "

@@ -1,0 +1,191 @@
+"""The systematic floor (samii.diagnose.floor) and the identifiability and practical-significance refusals
+(samii.diagnose.select): what repeats in every record is measured, and a candidate the data cannot identify
+or that the floor could produce is refused with its reason."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from samii.diagnose.effects import LIBRARY, Effect
+from samii.diagnose.floor import REL_FLOOR, controller_fir, estimator_bias, quantisation_step, with_floor
+from samii.diagnose.measured import from_timeseries
+from samii.diagnose.rig import EffectRig
+from samii.diagnose.select import _below_floor, _unidentifiable
+from samii.measure.excitation import SweptSine
+
+FS = 1000.0
+KIND = {k.kind: k for k in LIBRARY}
+
+
+def test_quantisation_step_finds_an_encoders_count_and_nothing_in_smooth_data():
+    rng = np.random.default_rng(0)
+    x = np.cumsum(rng.standard_normal(20000)) * 1e-4
+    q = 2 * np.pi / 2**16  # a 16-bit encoder over one revolution
+    assert quantisation_step(np.round(x / q) * q + 0.3) == pytest.approx(q, rel=1e-6)
+    assert quantisation_step(x) is None
+    assert quantisation_step(np.array([float(f"{v:.6g}") for v in x])) is None  # a CSV's rounding is no lattice
+
+
+def test_controller_fir_reads_an_analogue_and_a_digital_loop():
+    rng = np.random.default_rng(1)
+    n = 60000
+    t = np.arange(n) / FS
+    r = 0.1 * np.sin(2 * np.pi * (0.2 + 0.5 * t / t[-1] * 20) * t)
+    theta = np.convolve(r, np.ones(200) / 200, mode="same")  # any smooth motion driven by r
+    kp = 180 / np.pi
+    noisy = theta + 5e-5 * rng.standard_normal(n)  # the recorded theta
+    c, explained = controller_fir(noisy, r - kp * theta, r, FS)  # an analogue loop acts on the true theta
+    assert c.size == 1 and c[0] == pytest.approx(kp, rel=2e-3) and explained > 0.99
+    v = r.copy()
+    v[1:] -= kp * noisy[:-1]  # a digital loop acting on the last reading
+    c, explained = controller_fir(noisy, v, r, FS)
+    assert c.size == 2 and c[0] == pytest.approx(0.0, abs=0.01 * kp) and c[1] == pytest.approx(kp, rel=2e-3)
+
+
+def _sweep(**kw):
+    sw = SweptSine(repetitions=3, amplitude_v=0.1, seconds_per_octave=4.0, **kw)
+    return sw.signal(np.arange(int(round(sw.duration_s * FS))) / FS)
+
+
+def test_estimator_bias_is_the_estimators_own_error_on_noise_free_data():
+    """Sweeps up with no rest between them: base mode 1 rings into the next record, and the weak low-frequency
+    xdd/v is biased by it (SweptSine's docstring). The bias measured through the rig's own model is the error
+    the estimator makes on that rig's noise-free data, point by point; with rest between the sweeps it is nil."""
+    rig = EffectRig.drawn(np.random.default_rng(5))
+    truth = lambda f: {"act": rig.responses(f)["G"], "base": rig.responses(f)["B"]}  # noqa: E731
+    worst = []
+    for kw in ({"direction": "up", "tail_s": 0.0, "lead_s": 0.0}, {"tail_s": 20.0}):
+        m = from_timeseries(rig.simulate(_sweep(**kw), sample_rate_hz=FS), source="rig.csv")
+        bias, how = estimator_bias(m, truth)
+        assert bias is not None, how
+        f = m.frf.freq_hz
+        t = truth(f)
+        actual = m.frf.total / (t["act"] * t["base"]) - 1.0
+        np.testing.assert_allclose(bias["total"], actual, rtol=1e-4, atol=1e-7)
+        np.testing.assert_allclose(bias["act"], m.frf.act / t["act"] - 1.0, rtol=1e-4, atol=1e-6)
+        worst.append(np.max(np.abs(actual[(f > 1.0) & (f < 3.0)])))
+    print(worst)
+    assert worst[0] > 1e-2 and worst[1] < 1e-3  # 5 % near base mode 1 without rest; 2e-5 with 20 s of it
+
+
+def test_with_floor_adds_the_relative_floor_and_quantisation_to_every_point():
+    rng = np.random.default_rng(2)
+    rig = EffectRig.drawn(rng)
+    ts = rig.simulate(_sweep(), sample_rate_hz=FS, rng=rng)
+    q = 2 * np.pi / 2**14
+    from dataclasses import replace
+
+    coarse = replace(ts, theta=np.round(ts.theta / q) * q)
+    for series, quantised in ((ts, False), (coarse, True)):
+        m = from_timeseries(series, source="rig.csv")
+        fl = with_floor(m)
+        assert fl.floor is not None and ("theta" in fl.floor.quant_steps) is quantised
+        for ch in m.frf.channels:
+            added = fl.var[ch] - m.var[ch]
+            assert np.all(added >= REL_FLOOR**2 * (1 - 1e-9))
+            np.testing.assert_allclose(added, fl.floor.var[ch])
+        if quantised:
+            assert fl.floor.quant_steps["theta"] == pytest.approx(q, rel=1e-6)
+            # theta's rounding error over theta's power: largest where theta is smallest (the band's top)
+            assert fl.floor.var["act"][-1] > 10 * REL_FLOOR**2
+
+
+def _effect(kind, se=None, **values):
+    k = KIND[kind]
+    return Effect(k, values, se or {p.name: 0.01 * abs(values[p.name]) for p in k.params})
+
+
+def _datasets(lo=0.1, hi=40.0, record_s=120.0, fs=1000.0):
+    f = np.geomspace(lo, hi, 300)
+    return [SimpleNamespace(freq_hz=f, keep={"act": np.ones(f.size, bool)}, record_s=record_s, sample_rate_hz=fs)]
+
+
+@pytest.mark.parametrize("effect, reason", [
+    (_effect("pole_zero", zero_hz=0.01, pole_hz=0.012), "below the excited band"),  # a constant gain in the band
+    (_effect("pole_zero", zero_hz=23.0, pole_hz=62.7, se={"zero_hz": 80.0, "pole_hz": 300.0}), "not determined by the data"),
+    (_effect("leak", pole_per_s=-0.0015), "longer than a record"),  # an 11-minute time constant from 2-minute records
+    (_effect("accel_highpass", corner_hz=0.001), "longer than a record"),
+    (_effect("accel_lowpass", corner_hz=327.0), "indistinguishable from the sampling"),  # 0.49 ms: under a sample
+    (_effect("accel_lowpass", corner_hz=120.0), "above the excited band"),  # 1.3 ms: a delay, not a corner
+    (_effect("base_mode", freq_hz=35.6, zeta=0.5, residue=-1e-3), "not a resonance"),  # a broad bump on the damping's bound
+])
+def test_what_the_data_cannot_identify_is_refused_with_its_reason(effect, reason):
+    assert reason in _unidentifiable(effect, _datasets())
+
+
+@pytest.mark.parametrize("effect", [
+    _effect("pole_zero", zero_hz=23.0, pole_hz=35.0),  # a spool's lag against the simulator's
+    _effect("pole_zero", zero_hz=30.0, pole_hz=1e4),  # a lead: its pole beyond the band
+    _effect("leak", pole_per_s=0.2),  # the simulator's own (5 s)
+    _effect("leak", pole_per_s=-0.5),
+    _effect("accel_highpass", corner_hz=0.3),
+    _effect("accel_lowpass", corner_hz=30.0),
+    _effect("accel_lowpass2", corner_hz=60.0),  # within an octave of the band's top
+    _effect("valve", freq_hz=50.0, zeta=0.7),
+    _effect("valve", freq_hz=25.0, zeta=3.0),  # a valve on its damping's bound is a first-order spool lag: kept
+    _effect("base_mode", freq_hz=15.0, zeta=0.02, residue=6e-3),
+])
+def test_what_the_data_identify_is_not_refused(effect):
+    assert _unidentifiable(effect, _datasets()) is None
+
+
+def test_a_pair_below_the_band_is_a_gain_a_fixed_baseline_cannot_hold():
+    pair = _effect("pole_zero", zero_hz=0.01, pole_hz=0.012)
+    assert "below the excited band" in _unidentifiable(pair, _datasets(), free=True)
+    assert _unidentifiable(pair, _datasets(), free=False) is None
+    # straddling the band: a tilt of +20 dB/decade the data show, whatever the corners
+    assert _unidentifiable(_effect("pole_zero", zero_hz=0.01, pole_hz=500.0), _datasets()) is None
+
+
+def test_a_change_under_the_floor_is_refused_and_one_over_it_is_not():
+    f = np.geomspace(0.1, 40.0, 300)
+    floor = np.full(f.size, REL_FLOOR**2)
+    ds = [SimpleNamespace(freq_hz=f, keep={"act": np.ones(f.size, bool)}, floor_var={"act": floor}, corr_length=1.0,
+                          inv_sigma={"act": np.full(f.size, 1e3)})]
+    before = SimpleNamespace(residuals=({"act": np.zeros(f.size, complex)},))
+    small = SimpleNamespace(residuals=({"act": np.full(f.size, 2.0 * REL_FLOOR + 0j)},))  # 1 %: under 3 x 0.5 %
+    assert "smaller than the measurement's floor" in _below_floor(before, small, ds)
+    bump = np.zeros(f.size, complex)
+    bump[100:104] = 4.0j * REL_FLOOR  # 2 % of phase at four points
+    assert _below_floor(before, SimpleNamespace(residuals=({"act": bump},)), ds) is None
+
+
+def test_mains_lines_are_found_and_subtracted_and_a_sweep_is_left_alone():
+    from samii.measure.lines import remove_lines
+
+    fs = 1000.0
+    t = np.arange(int(140 * fs)) / fs
+    sweep = 0.1 * np.sin(2 * np.pi * (0.1 * t + 0.5 * (40.0 - 0.1) / t[-1] * t**2))
+    hum = 0.01 * np.sin(2 * np.pi * 50.02 * t + 0.3) + 0.003 * np.sin(2 * np.pi * 150.06 * t)
+    noise = 1e-3 * np.random.default_rng(0).standard_normal(t.size)
+    cleaned, lines = remove_lines(sweep + hum + noise, fs)
+    assert [round(x.freq_hz, 1) for x in lines] == [50.0, 150.1]
+    assert lines[0].amplitude == pytest.approx(0.01, rel=0.02)
+    assert np.std(cleaned - sweep - noise) < 0.05 * np.std(hum)
+    same, none = remove_lines(sweep + noise, fs)
+    assert none == [] and np.array_equal(same, sweep + noise)
+
+
+def test_records_that_are_not_repeats_are_found_and_repeats_are_not():
+    """A 10 % step of the accelerometer's gain after the second of three records: the records differ smoothly over
+    frequency (samii.diagnose.stationarity); the same rig without it does not."""
+    from dataclasses import replace
+
+    from samii.diagnose.stationarity import record_changes
+
+    rng = np.random.default_rng(4)
+    rig = EffectRig.drawn(rng)
+    sw = SweptSine(repetitions=3, amplitude_v=0.1, seconds_per_octave=4.0)
+    ts = rig.simulate(sw.signal(np.arange(int(round(sw.duration_s * FS))) / FS), sample_rate_hz=FS, rng=rng)
+    assert record_changes(from_timeseries(ts, source="repeats.csv")) == []
+    step = np.where(ts.t > 2 * sw.record_s, 1.1, 1.0)
+    changed = record_changes(from_timeseries(replace(ts, accel=ts.accel * step), source="step.csv"))
+    assert changed and {c.channel for c in changed} == {"total"}
+    # records of one sign are compared (+, -, +: the first and the third): 1.1 / 1.05 - 1 = 4.8 % against their mean;
+    # the largest window of the band holds its noise too
+    assert 100 * (1.1 / 1.05 - 1) * 0.8 < max(c.largest_pct for c in changed) < 100 * (1.1 / 1.05 - 1) * 1.5
+    assert {c.record for c in changed} <= {0, 2}
+    assert "the rig changed during the file" in changed[0].text()
