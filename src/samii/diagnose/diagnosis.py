@@ -45,7 +45,7 @@ from samii.diagnose.effects import library
 from samii.diagnose.measured import Measured, check_actuator_sign
 from samii.diagnose.model import MAX_VAR, Baseline, Dataset, Fit, _apply
 from samii.diagnose.nonlinear import MAX_DF_CHI2, distortion_var, find_nonlinear, harmonic_errors, linearised
-from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select
+from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select, sample_s
 
 __all__ = ["ChannelError", "FoundEffect", "Band", "Diagnosis", "diagnose", "CHANNELS", "BAND_POINTS", "RULE"]
 
@@ -369,11 +369,6 @@ def _drop_amplitude_images(datasets: Sequence[Dataset], baseline: Baseline, fit:
     return fit, dropped
 
 
-def _sample_delay_s(measured: Sequence[Measured]) -> float | None:
-    rates = [m.sample_rate_hz for m in measured]
-    return None if not rates or any(not r for r in rates) else 1.0 / max(rates)
-
-
 def _values_text(label: str, values: dict) -> str:
     """``values`` of the effect ``label`` in units a reader knows (a delay in ms)."""
     from samii.diagnose.effects import LIBRARY
@@ -422,7 +417,7 @@ def _rival_values(rival: dict) -> str:
 
 
 def _effects(after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured: Sequence[Measured]) -> list[FoundEffect]:
-    sample = _sample_delay_s(measured)
+    sample = sample_s(measured)
     added = [s for s in steps if not s.label.startswith("removed ")]
     swaps = [t for t in tried if t.get("round") == "swap"]
     final_swaps = [t for t in swaps if not t.get("interim")]  # an earlier round's rival described an earlier model

@@ -36,12 +36,15 @@ effect the floor could produce is not one the data show.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Callable, Mapping
+from typing import TYPE_CHECKING, Callable, Mapping
 
 import numpy as np
 import scipy.fft
 
-from samii.measure.frf import CHANNEL_PAIRS, split_records
+from samii.measure.frf import CHANNEL_PAIRS
+
+if TYPE_CHECKING:
+    from samii.measure.timeseries import TimeSeries
 
 __all__ = ["REL_FLOOR", "PRACTICAL_FACTOR", "Floor", "quantisation_step", "controller_fir", "estimator_bias", "with_floor"]
 
@@ -71,7 +74,7 @@ class Floor:
     #: The model's noise-free response to the file's own r, as the file was recorded (the bias was measured on it);
     #: None when not measured. The records of a run that does not rest between sweeps differ by the tails they
     #: inherit, and this says by how much (samii.diagnose.stationarity)
-    simulated: object | None = None
+    simulated: TimeSeries | None = None
 
 
 def quantisation_step(x: np.ndarray) -> float | None:
@@ -204,23 +207,15 @@ def _quantisation_var(m, steps: Mapping[str, float]) -> dict[str, np.ndarray]:
 
     In the loop, theta's rounding enters the command too, but theta/v's error is still the rounding over theta
     (``dTheta/Theta - dV/V = E_q / Theta`` with v = r - C theta_q), and xdd/v has none of it."""
-    from samii.diagnose.measured import POOL, _pool
-    from samii.measure.timeseries import TimeSeries
+    from samii.diagnose.measured import POOL, _pool, spectra_at
 
-    ts, layout = m.timeseries, m.layout
-    fs = ts.sample_rate_hz
-    i0 = int(round(layout.start_s * fs))
-    n = int(round((layout.n_records - 1) * layout.record_s * fs)) + int(np.floor(layout.record_s * fs))
-    cut = {k: np.asarray(getattr(ts, k))[i0 : i0 + n] for k in ("t", "v", "theta", "accel", "r")}
-    records, _ = split_records(TimeSeries(**cut), record_s=layout.record_s, baseline_s=layout.baseline_s)
-    n_rec = records["r"].shape[1]
-    nfft = scipy.fft.next_fast_len(2 * n_rec, real=True)
-    bins = np.round(m.frf.freq_hz * nfft / fs).astype(int)
-    R = np.abs(scipy.fft.rfft(records["r"], n=nfft, axis=-1)[:, bins])
-    r_peak = float(np.max(np.abs(cut["r"] - np.mean(cut["r"]))))
+    spec, r_records = spectra_at(m.timeseries, m.layout, m.frf.freq_hz)
+    n_rec = r_records.shape[1]
+    R = np.abs(spec["r"])
+    r_peak = float(np.max(np.abs(r_records)))
     rel = {}
     for sig, q in steps.items():
-        Y = np.abs(scipy.fft.rfft(records[sig], n=nfft, axis=-1)[:, bins])
+        Y = np.abs(spec[sig])
         with np.errstate(divide="ignore", invalid="ignore"):
             broadband = q * q / 12.0 * n_rec / np.maximum(np.mean(Y**2, axis=0), 1e-300)
             amp = np.mean(Y / np.maximum(R, 1e-300), axis=0) * r_peak  # the signal's amplitude as the sweep passes f

@@ -51,7 +51,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Mapping
+from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 import scipy.fft
@@ -62,7 +62,10 @@ from samii.measure.frf import CHANNEL_PAIRS, estimate_frf, record_weights, split
 from samii.measure.records import RecordLayout, find_records
 from samii.measure.timeseries import TimeSeries
 
-__all__ = ["Measured", "from_timeseries", "from_frf", "POOL", "timeseries_frf", "with_roughness_noise"]
+if TYPE_CHECKING:
+    from samii.diagnose.floor import Floor
+
+__all__ = ["Measured", "from_timeseries", "from_frf", "POOL", "timeseries_frf", "cut_to_records", "spectra_at", "with_roughness_noise"]
 
 #: Neighbouring points the record-to-record variance is pooled over (odd).
 POOL = 9
@@ -114,7 +117,7 @@ class Measured:
     timeseries: TimeSeries | None = None
     layout: RecordLayout | None = None
     model_var: Mapping[str, np.ndarray] | None = None
-    floor: object | None = None
+    floor: Floor | None = None
     #: The band [Hz] a time series' FRF was estimated over (its grid is made from it).
     band_hz: tuple[float, float] | None = None
 
@@ -180,6 +183,25 @@ def _bin_windows(bins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return lo - b[0], hi - b[0]
 
 
+def cut_to_records(ts: TimeSeries, layout: RecordLayout) -> TimeSeries:
+    """The part of ``ts`` that ``layout``'s records cover (t, v, theta, accel, r), from the first record's start."""
+    fs = ts.sample_rate_hz
+    i0 = int(round(layout.start_s * fs))
+    n = int(round((layout.n_records - 1) * layout.record_s * fs)) + int(np.floor(layout.record_s * fs))
+    cols = {k: v[i0 : i0 + n] for k, v in ts.columns().items() if k in ("t", "v", "theta", "accel", "r")}
+    return TimeSeries(**cols, metadata=ts.metadata)
+
+
+def spectra_at(ts: TimeSeries, layout: RecordLayout, freq_hz: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Each record's spectrum of r, v, theta and accel at ``freq_hz`` (the FFT bins of a :func:`timeseries_frf` grid of
+    the same layout), as (signal -> (records, points), r's records in time)."""
+    fs = ts.sample_rate_hz
+    records, _ = split_records(cut_to_records(ts, layout), record_s=layout.record_s, baseline_s=layout.baseline_s)
+    n_fft = scipy.fft.next_fast_len(2 * records["r"].shape[1], real=True)
+    bins = np.round(np.asarray(freq_hz) * n_fft / fs).astype(int)
+    return {k: scipy.fft.rfft(x, n=n_fft, axis=-1)[:, bins] for k, x in records.items()}, records["r"]
+
+
 def timeseries_frf(ts: TimeSeries, layout: RecordLayout, *, band_hz: tuple[float, float]) -> tuple[FrequencyResponse, dict[str, np.ndarray | None], float, str]:
     """Closed-loop FRF of ``ts`` cut as ``layout`` says (:func:`estimate_frf`), with the record-to-record variance of every point.
 
@@ -191,10 +213,7 @@ def timeseries_frf(ts: TimeSeries, layout: RecordLayout, *, band_hz: tuple[float
     Returns (frf, var per channel, corr_length, how the noise was estimated).
     """
     fs = ts.sample_rate_hz
-    i0 = int(round(layout.start_s * fs))
-    n = int(round((layout.n_records - 1) * layout.record_s * fs)) + int(np.floor(layout.record_s * fs))
-    cols = {k: v[i0 : i0 + n] for k, v in ts.columns().items() if k in ("t", "v", "theta", "accel", "r")}
-    cut = TimeSeries(**cols, metadata=ts.metadata)
+    cut = cut_to_records(ts, layout)
     frf = estimate_frf(cut, record_s=layout.record_s, baseline_s=layout.baseline_s, band_hz=band_hz)
     frf = replace(frf, metadata={**frf.metadata, "frf_layout": f"records from t = {layout.start_s:.6g} s; {layout.how}"})
     records, n_records = split_records(cut, record_s=layout.record_s, baseline_s=layout.baseline_s)

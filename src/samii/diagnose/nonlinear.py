@@ -507,13 +507,13 @@ def harmonic_analysis(m, *, alpha: float = ALPHA) -> HarmonicAnalysis | None:
     ratio, ratio_sd, logp, dofs = {}, {}, {}, {}
     top = float(frf.freq_hz[-1])
     tested = {}
-    # an encoder's or converter's rounding (a column on a lattice) makes harmonics of its own, the same in every record
-    # (QUANT_HARMONIC): per route, the bound of the column's harmonic referred to the valve's input, as a variance
-    from samii.diagnose.floor import quantisation_step
-
+    # an encoder's or converter's rounding (a column on a lattice, found with the file's floor) makes harmonics of its
+    # own, the same in every record (QUANT_HARMONIC): per route, the bound of the column's harmonic referred to the
+    # valve's input, as a variance
+    steps = m.floor.quant_steps if getattr(m, "floor", None) is not None else {}
     quant = {}
     for sig, ch in routes:
-        q = quantisation_step(getattr(ts, sig))
+        q = steps.get(sig)
         if q is None:
             continue
         with np.errstate(invalid="ignore", divide="ignore"):

@@ -40,7 +40,8 @@ def _label(d: Diagnosis, i: int) -> str:
 
 
 def residual_figure(d: Diagnosis, path=None):
-    """Residual ln(data/model) of θ/v, ẍ/θ and ẍ/v in dB and degrees, before and after, with ±2σ of the data's noise."""
+    """Residual ln(data/model) of θ/v, ẍ/θ and ẍ/v in dB and degrees, before and after, with ±2σ of the data's noise (and
+    systematic floor); unexplained bands in red, bands where the records differ in orange."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -62,7 +63,8 @@ def residual_figure(d: Diagnosis, path=None):
             c = colors[i % len(colors)]
             tag = f" ({_label(d, i)})" if len(d.datasets) > 1 else ""
             if ds.known_noise:  # else the weights are a placeholder, not the data's noise
-                ax_m.fill_between(f, -2 * _DB * sig, 2 * _DB * sig, color=c, alpha=0.15, lw=0, label=f"±2σ noise{tag}")
+                what = "noise and floor" if ds.floor_var is not None else "noise"  # (the floor is part of each point's error)
+                ax_m.fill_between(f, -2 * _DB * sig, 2 * _DB * sig, color=c, alpha=0.15, lw=0, label=f"±2σ {what}{tag}")
                 ax_p.fill_between(f, -2 * _DEG * sig, 2 * _DEG * sig, color=c, alpha=0.15, lw=0)
             nl = d.raw_measured is not None
             ax_m.plot(f, _DB * eb.real, color="0.55", lw=0.8, label=f"baseline{' (data as measured)' if nl else ''}{tag}")
@@ -73,7 +75,7 @@ def residual_figure(d: Diagnosis, path=None):
         for b in d.unexplained:
             if b.channel == ch:
                 for ax in (ax_m, ax_p):
-                    ax.axvspan(b.lo_hz, b.hi_hz, color="tab:red", alpha=0.12, lw=0)
+                    ax.axvspan(b.lo_hz, b.hi_hz, color="tab:red" if b.why == "residual" else "tab:orange", alpha=0.12, lw=0)
         eb_, ea_ = d.error_before.get(ch), d.error_after.get(ch)
         title = f"{_NAMES[ch]}: residual ln(data/model)"
         if eb_ and ea_:
@@ -92,7 +94,10 @@ def residual_figure(d: Diagnosis, path=None):
         ax_m.legend(fontsize=8, loc="best")
     found = ", ".join(f"{e.category}/{e.kind}" + (" (expected)" if e.expected else "") for e in d.effects) or "none"
     title = f"Diagnosis: effects found: {found}" if d.effects else "Diagnosis: no effect found"
-    return _finish(fig, title + ("; red: unexplained" if d.unexplained else ""), path, fontsize=11)
+    kinds = {b.why for b in d.unexplained}
+    keys = (["red: unexplained"] if "residual" in kinds else []) + (["orange: the records differ (the rig changed)"]
+                                                                      if kinds - {"residual"} else [])
+    return _finish(fig, title + "".join(f"; {k}" for k in keys), path, fontsize=11)
 
 
 def _clip(ax) -> None:

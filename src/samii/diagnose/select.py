@@ -44,7 +44,7 @@ from scipy import stats
 from samii.diagnose.effects import TWO_PI, Effect, EffectKind
 from samii.diagnose.model import Baseline, Dataset, Fit, fit_model, relabel_modes
 
-__all__ = ["ALPHA", "Step", "forward_select", "starts_for"]
+__all__ = ["ALPHA", "Step", "forward_select", "starts_for", "sample_s"]
 
 #: Family-wise false-alarm rate of one round of the forward selection.
 ALPHA = 1e-3
@@ -249,8 +249,10 @@ def _record_s(ds_list: list[Dataset]) -> float | None:
     return min(rec) if rec else None
 
 
-def _sample_s(ds_list: list[Dataset]) -> float | None:
-    rates = [ds.sample_rate_hz for ds in ds_list]
+def sample_s(files) -> float | None:
+    """One sample [s] of the fastest of ``files`` (datasets or measured files: anything with ``sample_rate_hz``), the
+    strictest allowance for the sampling's own delay; None when any file does not state its rate."""
+    rates = [f.sample_rate_hz for f in files]
     return None if not rates or any(not r for r in rates) else 1.0 / max(rates)
 
 
@@ -262,14 +264,15 @@ def _log_se(e: Effect, name: str) -> float:
 
 def _unidentifiable(e: Effect, ds_list: list[Dataset], free: bool = True) -> str | None:
     """Why the data cannot identify ``e`` as what it says it is, or None (module docstring; CORNER_MARGIN); ``free``:
-    the baseline is refitted (its gain holds a constant factor). A pair's cancellation is left to the floor
-    (:func:`_below_floor`, on the change it makes): its corners' errors are strongly correlated, and their marginal
-    standard errors refused real pairs 5 joint standard errors apart."""
+    the baseline is refitted (its gain holds a constant factor). A real pole/zero pair's cancellation is left to the
+    floor (:func:`_below_floor`, on the change it makes): its corners' errors are strongly correlated, and their
+    marginal standard errors refused real pairs 5 joint standard errors apart. An actuator mode's pole and zero
+    pairs are still compared on their marginal errors (conservative: it refuses more than the joint error would)."""
     k, v = e.kind.kind, e.values
     lo, hi = _excited_band(ds_list)
     band = f"the excited band {lo:.3g}-{hi:.3g} Hz"
     rec = _record_s(ds_list)
-    sample = _sample_s(ds_list)
+    sample = sample_s(ds_list)
     if k == "pole_zero":
         fz, fp = v["zero_hz"], v["pole_hz"]
         inside = [f for f in (fz, fp) if lo / CORNER_MARGIN <= f <= hi * CORNER_MARGIN]
@@ -600,24 +603,26 @@ def _drop_unidentified(ds_list, baseline, fit: Fit, steps: list, tried: list) ->
     joins, but the later joint refits and swaps move it: on the second rig a base "mode" that joined at 0.2 damping
     ended on the bound, 0.5, and a leak of -0.027 1/s swapped in for a sampling delay that joined again later (its
     share, 3 % of theta/v at 0.14 Hz, under the floor of a 9-count encoder there)."""
-    while True:
-        bad = next(((i, why, None) for i, e in enumerate(fit.effects) if (why := _unidentifiable(e, ds_list, fit.baseline.free)) is not None), None)
-        if bad is None:
-            for i, e in enumerate(fit.effects):
-                rest = [x for j, x in enumerate(fit.effects) if j != i]
-                without = fit_model(ds_list, baseline, _vectors(rest), start_baseline=_baseline_vectors(fit))
-                why = _below_floor(without, fit, ds_list)
-                if why is not None:
-                    bad = (i, why, without)
-                    break
-        if bad is None:
-            return fit
-        i, why, without = bad
+
+    def without(i: int) -> Fit:
+        rest = [x for j, x in enumerate(fit.effects) if j != i]
+        return fit_model(ds_list, baseline, _vectors(rest), start_baseline=_baseline_vectors(fit))
+
+    def first_refused() -> tuple[int, str, Fit] | None:
+        for i, e in enumerate(fit.effects):
+            if (why := _unidentifiable(e, ds_list, fit.baseline.free)) is not None:
+                return i, why, without(i)
+        for i in range(len(fit.effects)):
+            less = without(i)
+            if (why := _below_floor(less, fit, ds_list)) is not None:
+                return i, why, less
+        return None
+
+    while (bad := first_refused()) is not None:
+        i, why, less = bad
         e = fit.effects[i]
-        if without is None:
-            rest = [x for j, x in enumerate(fit.effects) if j != i]
-            without = fit_model(ds_list, baseline, _vectors(rest), start_baseline=_baseline_vectors(fit))
-        steps.append(Step(f"removed {e.kind.label}", 0.0, (0, 0), 0.0, fit.chi2, without.chi2))
-        tried.append({"round": "final", "effect": e.kind.label, "params": dict(e.values), "chi2": without.chi2, "log10_p": 0.0,
+        steps.append(Step(f"removed {e.kind.label}", 0.0, (0, 0), 0.0, fit.chi2, less.chi2))
+        tried.append({"round": "final", "effect": e.kind.label, "params": dict(e.values), "chi2": less.chi2, "log10_p": 0.0,
                       "log10_p_test": None, "refused": why})
-        fit = without
+        fit = less
+    return fit

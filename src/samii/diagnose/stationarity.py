@@ -33,10 +33,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.fft
 from scipy import stats
 
-from samii.measure.frf import CHANNEL_PAIRS, split_records
+from samii.measure.frf import CHANNEL_PAIRS
 
 __all__ = ["RecordChange", "record_changes", "WINDOW"]
 
@@ -75,26 +74,16 @@ def record_changes(m, *, alpha: float = ALPHA) -> list[RecordChange]:
     """The bands where ``m``'s records differ (module docstring); none for a file that is not a time series of at
     least 3 records."""
     from samii.diagnose.floor import PRACTICAL_FACTOR, REL_FLOOR
-    from samii.measure.timeseries import TimeSeries
+    from samii.diagnose.measured import spectra_at
 
     ts, layout = m.timeseries, m.layout
     if ts is None or layout is None or layout.n_records < 3 or ts.r is None:
         return []
-    fs = ts.sample_rate_hz
-    i0 = int(round(layout.start_s * fs))
-    n = int(round((layout.n_records - 1) * layout.record_s * fs)) + int(np.floor(layout.record_s * fs))
     f = m.frf.freq_hz
-
-    def spectra(series):
-        cut = {k: np.asarray(getattr(series, k))[i0 : i0 + n] for k in ("t", "v", "theta", "accel", "r")}
-        records, n_rec = split_records(TimeSeries(**cut), record_s=layout.record_s, baseline_s=layout.baseline_s)
-        nfft = scipy.fft.next_fast_len(2 * records["r"].shape[1], real=True)
-        bins = np.round(f * nfft / fs).astype(int)
-        return {k: scipy.fft.rfft(x, n=nfft, axis=-1)[:, bins] for k, x in records.items()}, records["r"], n_rec
-
-    spec, r_records, n_rec = spectra(ts)
+    spec, r_records = spectra_at(ts, layout, f)
+    n_rec = r_records.shape[0]
     sim = getattr(m.floor, "simulated", None)
-    sim_spec = spectra(sim)[0] if sim is not None else None
+    sim_spec = spectra_at(sim, layout, f)[0] if sim is not None else None
     # records compared within each sign (the estimate of a group: its mean ratio), each group of at least 2
     norms = np.linalg.norm(r_records, axis=1)
     signs = np.sign(r_records @ r_records[0] / np.maximum(norms * norms[0], 1e-300))

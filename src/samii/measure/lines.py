@@ -112,12 +112,12 @@ def remove_lines(x: np.ndarray, fs: float, excitation: np.ndarray | None = None)
     away: that one is left in)."""
     lines = find_lines(x, fs, excitation)
     y = np.asarray(x, float).copy()
+    nfft = scipy.fft.next_fast_len(2 * y.size, real=True)
+    f = np.fft.rfftfreq(nfft, 1.0 / fs)
     out = []
     for line in lines:
         fitted, _ = _fit(y, fs, line.freq_hz)
         # what is left at the line, over a tenth of its power: the mains drifted (judged on the spectrum's peak)
-        nfft = scipy.fft.next_fast_len(2 * y.size, real=True)
-        f = np.fft.rfftfreq(nfft, 1.0 / fs)
         near = np.abs(f - line.freq_hz) <= SEARCH_HZ
         before_pk = np.max(np.abs(scipy.fft.rfft(y - y.mean(), nfft)[near]))
         after_pk = np.max(np.abs(scipy.fft.rfft(y - fitted - (y - fitted).mean(), nfft)[near]))

@@ -293,7 +293,7 @@ def _diagnosis(run: RunFolder) -> str:
                         f"χ² {_num(u.get('chi2'), '.3g')} over {_e(u.get('n_points'))} points"
                         + ("" if u.get("why", "residual") == "residual" else f" ({_e(u.get('why'))}: the rig changed during the file)")
                         + "</li>" for u in un)  # fmt: skip
-        out.append(f"<p>Left unexplained by the effect library (red bands below):</p><ul>{items}</ul>")
+        out.append(f"<p>Left unexplained by the effect library (red bands below; orange where the records differ):</p><ul>{items}</ul>")
     out.append(_figure(_file_png(run, "diagnose_bode"), "data, baseline and the model with the effects",
                        "Data, the baseline (the fit) and the model with the effects found. Where the data's coherence is below 0.5 "
                        "(the identification figure above) there are no points, and the model there is an extrapolation. "
