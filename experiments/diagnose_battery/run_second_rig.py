@@ -229,8 +229,15 @@ def run_case(case: dict, csv_dir: str | None = None) -> dict:
             out["records"] = None if m.layout is None else {"record_s": m.layout.record_s, "n_records": m.layout.n_records,
                                                             "start_s": m.layout.start_s}
             t0 = time.perf_counter()
-            d = diagnose([m])
+            d = diagnose([m], baseline=case.get("baseline", "notebook"))
             out["time_s"] = time.perf_counter() - t0
+            if d.simulator is not None:
+                s = d.simulator
+                out["simulator"] = {"carried": list(s.carried), "not_lowering": list(s.not_lowering), "worse": s.worse,
+                                    "verdict": s.verdict_text(), "cannot_represent": [x.text() for x in s.misfit_after],
+                                    "misfit_before": [x.text() for x in s.misfit_before],
+                                    "error_before": {k: v.to_dict() for k, v in s.error_before.items()},
+                                    "error_after": {k: v.to_dict() for k, v in s.error_after.items()}}
         rows, unmatched = match_injected([e for e in d.effects if not e.expected], case["injected"], _hold_s(case))
         out.update({
             "injected": rows,
@@ -383,6 +390,20 @@ def write(out: Path, results: list[dict], meta: dict) -> None:
              "| case | verdict | injected: found, parameter errors | found beyond the injected | chi2 theta/v / xdd/theta / xdd/v before -> after "
              "| chi2 harmonics before -> after | unexplained bands | time sim + diagnosis [s] |", "|---|---|---|---|---|---|---|---|"]
     table += [_line(r) for r in results]
+    sims = [r for r in results if r.get("simulator")]
+    if sims:
+        def err(e: dict) -> str:
+            return " / ".join(f"{e[c]['rms_db']:.2g} dB {e[c]['rms_deg']:.2g} deg" for c in ("act", "base", "total") if c in e)
+
+        table += ["", "## Against the simulator (--baseline sim): what was carried, what was not for not lowering its error, "
+                  "what the carry made worse, where it cannot represent the data", "",
+                  "| case | carried | not carried: did not lower the error | worse after the carry | cannot represent (largest 3) "
+                  "| simulator theta/v / xdd/theta / xdd/v before -> after |", "|---|---|---|---|---|---|"]
+        for r in sims:
+            s = r["simulator"]
+            table.append(f"| {r['name']} | {', '.join(s['carried']) or '-'} | "
+                         f"{'; '.join(x.split(':')[0] for x in s['not_lowering']) or '-'} | {', '.join(s['worse']) or '-'} | "
+                         f"{s['verdict'].split('; carrying')[0] or '-'} | {err(s['error_before'])} -> {err(s['error_after'])} |")
     (out / "table.md").write_text("\n".join(table) + "\n")
     print(summary)
     print(_confusion(results))
@@ -400,6 +421,9 @@ def main() -> None:
     ap.add_argument("--list", action="store_true", help="print the cases and exit")
     ap.add_argument("--encoder-bits", default=None, metavar="N|none",
                     help="override every case's encoder (none: no quantisation), e.g. to see what the quantised loop costs")
+    ap.add_argument("--baseline", choices=("notebook", "sim"), default="notebook",
+                    help="the model under test: the notebook's structure (default) or the calibrated simulator (samii diagnose "
+                    "--baseline sim: what it carries, what it cannot represent)")
     ap.add_argument("--valve-noise", type=float, default=0.0, metavar="V",
                     help="white process noise [V] on the valve input in every case (off by default)")
     args = ap.parse_args()
@@ -409,6 +433,7 @@ def main() -> None:
             c["daq"] = {**c["daq"], "encoder_bits": None if args.encoder_bits.lower() == "none" else int(args.encoder_bits)}
         if args.valve_noise:
             c["daq"] = {**c["daq"], "valve_noise_sd": args.valve_noise}
+        c["baseline"] = args.baseline
     if args.quick:
         cases = [c for c in cases if any(c["name"].startswith(q) for q in QUICK)]
     if args.only:
@@ -431,7 +456,7 @@ def main() -> None:
         for c in cases:
             results.append(run_case(c, csv_dir))
             print(_line(results[-1]), flush=True)
-    meta = {"seed_offset": args.seed_offset, "spread": SPREAD, "encoder_bits_override": args.encoder_bits, "valve_noise_sd": args.valve_noise}
+    meta = {"seed_offset": args.seed_offset, "baseline": args.baseline, "spread": SPREAD, "encoder_bits_override": args.encoder_bits, "valve_noise_sd": args.valve_noise}
     if args.merge and (args.out / "results.json").exists():
         old = json.loads((args.out / "results.json").read_text())
         if old.get("meta", {}).get("seed_offset") == args.seed_offset:

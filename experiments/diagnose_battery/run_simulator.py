@@ -114,6 +114,8 @@ def run_case(name: str, overrides: dict, injected: list, seed: int) -> dict:
         "error_after": {k: v.to_dict() for k, v in d.error_after.items()},
         "simulator": None if s is None else {"carried": list(s.carried), "changes": dict(s.changes),
                                              "not_carried": list(s.not_carried), "dropped": list(s.dropped),
+                                             "not_lowering": list(s.not_lowering), "worse": s.worse,
+                                             "cannot_represent": [m.text() for m in s.misfit_after],
                                              "error_before": {k: v.to_dict() for k, v in s.error_before.items()},
                                              "error_after": {k: v.to_dict() for k, v in s.error_after.items()}},
         "time_s": elapsed,
@@ -147,6 +149,12 @@ def _summary(results: list[dict]) -> str:
         f"| delays 0.5 ms, sensor corners 15 % (gain 15 %, nonlinear levels 15 %) | {within}/{len(judged)} |",
         f"| the simulator's error drops (chi2 of theta/v and xdd/v, re-measured, after carrying) | {better}/{len(effect_cases)} |",
         f"| (not a goal) effects found beyond those injected | {extra} in {len(effect_cases)} effect cases |",
+        f"| (issue 31) carries that did not lower the simulator's error (not carried) | "
+        f"{sum(len((r['simulator'] or {}).get('not_lowering', [])) for r in results)} |",
+        f"| (issue 31) cases whose carry made a channel's rms dB, rms deg or chi2 worse (said in the verdict) | "
+        f"{sum(bool((r['simulator'] or {}).get('worse')) for r in results)} of {len(results)} |",
+        f"| (issue 31) cases where the simulator, with the carry, cannot represent a band of the data | "
+        f"{sum(bool((r['simulator'] or {}).get('cannot_represent')) for r in results)} of {len(results)} |",
         f"| (speed) diagnosis time per case | median {np.median(times):.0f} s, max {np.max(times):.0f} s |",
     ])
 

@@ -232,9 +232,11 @@ def _print(d, written) -> None:
     real = [e for e in d.effects if not e.expected]
     if not d.effects:
         print("verdict: none: " + ("no effect of the library is needed, but a residual beyond the noise remains (unexplained, below)"
-                                   if d.unexplained else "the baseline explains the data to within their noise"))
+                                   if d.unexplained else "the baseline explains the data to within their noise")
+              + (f"; {d.simulator.verdict_text()}" if d.simulator is not None and d.simulator.verdict_text() else ""))
     else:
-        print(f"verdict: {d.verdict}" + (f": {len(real)} effect(s) the model lacks" if real else ": only what sampling explains"))
+        print(f"verdict: {d.verdict}" + (f": {len(real)} effect(s) the model lacks" if real else ": only what sampling explains")
+              + (f"; {d.simulator.verdict_text()}" if d.simulator is not None and d.simulator.verdict_text() else ""))
     from samii.diagnose.effects import LIBRARY
 
     from samii.diagnose.nonlinear import PARAM_UNITS
@@ -267,6 +269,13 @@ def _print(d, written) -> None:
                   f"{after.rms_db:7.3g} dB {after.rms_deg:7.3g} deg {chi2(after.chi2)}")
         for name, value in s.changes.items():
             print(f"  {name} = {value:.6g}")
+        for label, misfit in (("before anything was carried it missed", s.misfit_before), ("it cannot represent the data at", s.misfit_after)):
+            if misfit:
+                print(f"  {label}:")
+                for m in misfit:
+                    print(f"    {m.source}: {m.text()}")
+        if s.worse:
+            print(f"  worse after the carry: {', '.join(s.worse)}")
     if d.refused:
         print("refused: passed the F-test, but the data do not show them:")
         for r in d.refused:

@@ -51,6 +51,8 @@ __all__ = ["ChannelError", "FoundEffect", "Band", "Diagnosis", "diagnose", "CHAN
 
 #: Channels reported: theta/v, xdd/theta, xdd/v.
 CHANNELS = ("act", "base", "total")
+#: How the channels are named in text.
+CHANNEL_NAMES = {"act": "theta/v", "base": "xdd/theta", "total": "xdd/v"}
 #: Points averaged when looking for a band the final model leaves unexplained.
 BAND_POINTS = 9
 RULE = (f"an effect joins when its F-test against the model without it passes at alpha = {ALPHA:g} "
@@ -680,6 +682,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
                f"found by the last selection, after {round_ + 1} round{'s' if round_ else ''} of carrying")
     not_carried += [f"{label}: {why_not}" for label in carriable]
     not_carried += carry([e for e in effects if e.category == "nonlinear"], report.before.params, refuse=refuse)[2]
+    not_carried += [n for n in report.not_lowering if n not in not_carried]
     dropped = [f"{e.category}/{e.kind}" for e in effects if not e.expected and e.category != "nonlinear"
                and f"{e.category}/{e.kind}" not in report.carried and not any(f"{o.category}/{o.kind}" == f"{e.category}/{e.kind}" for o in out)]
     report = replace(report, not_carried=tuple(not_carried), dropped=tuple(dropped))

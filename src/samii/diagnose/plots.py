@@ -203,10 +203,13 @@ def harmonic_figure(d: Diagnosis, path=None):
             f, r, sd = h.freq_hz[tested], np.abs(h.ratio[k][tested]), h.ratio_sd[k][tested]
             sig = h.significant(k)[tested]
             order = np.argsort(f)
-            ax.loglog(f[order], 100 * 2 * np.sqrt(2) * sd[order], ":", color=colors[k], lw=1, label=f"{k}× noise (2σ)")
-            ax.loglog(f[~sig], 100 * r[~sig], "o", mfc="none", color=colors[k], ms=5, label=f"{k}× {'excess' if h.reference else 'harmonic'}")
-            if sig.any():
-                ax.loglog(f[sig], 100 * r[sig], "o", color=colors[k], ms=6, label=f"{k}× significant")
+            # a log axis takes positive values only (an excess over a reference can be exactly 0, a noise-free sd too)
+            pos = sd[order] > 0
+            ax.loglog(f[order][pos], 100 * 2 * np.sqrt(2) * sd[order][pos], ":", color=colors[k], lw=1, label=f"{k}× noise (2σ)")
+            ax.loglog(f[~sig & (r > 0)], 100 * r[~sig & (r > 0)], "o", mfc="none", color=colors[k], ms=5,
+                      label=f"{k}× {'excess' if h.reference else 'harmonic'}")
+            if (sig & (r > 0)).any():
+                ax.loglog(f[sig & (r > 0)], 100 * r[sig & (r > 0)], "o", color=colors[k], ms=6, label=f"{k}× significant")
             for finding in laws:
                 if h.source not in {x.source for x in finding.harmonics}:
                     continue

@@ -31,6 +31,14 @@ finds carried into it as physics.
    file's usable points, the same measure as the diagnosis's error. The re-measured response is
    interpolated onto the file's frequencies (log |H| and unwrapped phase, linear in log f).
 
+7. **Carry only what lowers its error** (:func:`simulator_report`): each carried effect is taken out
+   again, knobs kept, and the simulator re-measured; one whose carry does not lower the chi2 of the
+   channels it acts on is not carried, the rest recalibrated without it; a carry that raises the chi2
+   over every channel is undone.
+8. **Say what it cannot represent** (:func:`misfits`): bands where the simulator, before and after
+   the carry, misses the data beyond their noise and floor by a practical amount, with their size;
+   :meth:`SimulatorReport.verdict_text` names them and whatever the carry made worse.
+
 The simulator's own sensor noise is off in the re-measurement: the error is the model's, against
 the data's noise.
 
@@ -55,7 +63,7 @@ from samii.frequency_response import FrequencyResponse, interpolate_frf
 from samii.sim.mjcf import SamiiParams
 from samii.sim.model import params_with_overrides
 
-__all__ = ["CARRY", "BODY", "SPOOL", "LATE", "spool_lag_s", "NOT_CARRIED", "tip_body_options", "body_effect_values", "LocalSimulator", "SimulatorCalibration", "SimulatorReport", "calibrate_simulator", "correction",
+__all__ = ["CARRY", "BODY", "SPOOL", "LATE", "spool_lag_s", "NOT_CARRIED", "tip_body_options", "body_effect_values", "LocalSimulator", "Misfit", "misfits", "SimulatorCalibration", "SimulatorReport", "calibrate_simulator", "correction",
            "simulator_baseline", "carry", "carry_and_recalibrate", "sweep_like", "measured_like", "measurement_like", "remeasure", "simulator_report"]
 
 #: effect label -> (simulator parameter, the effect's parameter giving its value)
@@ -125,11 +133,46 @@ class SimulatorReport:
     remeasured_before: tuple[FrequencyResponse, ...]  #: per file, on the re-measurement's own frequencies
     remeasured_after: tuple[FrequencyResponse, ...]
     dropped: tuple[str, ...] = ()  #: first-pass proposals the second pass did not need
+    #: where the calibrated simulator, before anything is carried, misses the data beyond their noise and floor
+    misfit_before: tuple["Misfit", ...] = ()
+    #: ... and with the effects carried: where it cannot represent the data
+    misfit_after: tuple["Misfit", ...] = ()
+    #: "label: reason" for effects whose carry did not lower the simulator's error on their own channels (not carried)
+    not_lowering: tuple[str, ...] = ()
+
+    @property
+    def worse(self) -> list[str]:
+        """Each channel and measure (rms dB, rms deg, chi2) the carry makes worse, as text: what the verdict must say."""
+        out = []
+        for ch, b in self.error_before.items():
+            a = self.error_after.get(ch)
+            if a is None:
+                continue
+            from samii.diagnose.diagnosis import CHANNEL_NAMES
+
+            for name, x, y, unit in (("rms dB", b.rms_db, a.rms_db, " dB"), ("rms deg", b.rms_deg, a.rms_deg, " deg"),
+                                     ("chi2", b.chi2, a.chi2, "")):
+                if x is not None and y is not None and y > x * (1 + WORSE_TOLERANCE):
+                    out.append(f"{CHANNEL_NAMES[ch]} {name} {x:.3g} -> {y:.3g}{unit}")
+        return out
+
+    def verdict_text(self) -> str:
+        """What the verdict line says of the simulator: whether it can represent the data, and any error the carry raised."""
+        parts = []
+        if self.misfit_after:
+            parts.append("the simulator" + (" with them" if self.carried else "") + " cannot represent the data at "
+                         + "; ".join(m.text() for m in _largest(self.misfit_after)))
+        if self.worse:
+            parts.append("carrying them makes its error worse: " + ", ".join(self.worse))
+        return "; ".join(parts)
 
     def to_dict(self) -> dict:
         return {"error_before": {k: v.to_dict() for k, v in self.error_before.items()},
                 "error_after": {k: v.to_dict() for k, v in self.error_after.items()},
                 "changes": dict(self.changes), "carried": list(self.carried), "not_carried": list(self.not_carried),
+                "not_lowering": list(self.not_lowering), "worse": self.worse, "verdict": self.verdict_text(),
+                "misfit_before": [m.to_dict() for m in self.misfit_before],
+                "cannot_represent": [m.to_dict() for m in self.misfit_after],
                 "first_pass_dropped": list(self.dropped),
                 "calibrated_to": self.before.source,
                 "calibration": {"before": _calibration_dict(self.before), "after": _calibration_dict(self.after)}}
@@ -606,9 +649,91 @@ def measured_like(params: SamiiParams, m: Measured) -> Measured | None:
 
 
 def _residuals(ds: Dataset, h: FrequencyResponse) -> dict[str, np.ndarray]:
-    """log(data/simulator) on ``ds``'s usable points (NaN where the re-measurement does not reach)."""
+    """log(data/simulator) on ``ds``'s usable points (NaN where the re-measurement does not reach: its sweep's
+    estimate starts a little inside the file's band, 0.1007 Hz against 0.1 Hz)."""
     on = interpolate_frf(h, ds.freq_hz)
-    return {ch: np.log(ds.data[ch] / on[ch][ds.keep[ch]]) for ch in ds.data}
+    out = {}
+    for ch in ds.data:
+        model = on[ch][ds.keep[ch]]
+        e = np.full(model.size, complex(np.nan, np.nan))
+        ok = np.isfinite(model) & (model != 0)
+        e[ok] = np.log(ds.data[ch][ok] / model[ok])
+        out[ch] = e
+    return out
+
+
+#: A carry makes a channel's measure worse when it rises by more than this fraction (the re-measurement is
+#: noise-free and deterministic: smaller changes are interpolation's).
+WORSE_TOLERANCE = 0.01
+#: Channels of the residuals an effect on a model channel changes: theta/v's is in xdd/v too, xdd/theta's too;
+#: one on both (a theta sensor's delay) cancels in xdd/v.
+RESIDUAL_CHANNELS: Mapping[str, tuple[str, ...]] = {"act": ("act", "total"), "base": ("base", "total"), "both": ("act", "base")}
+#: A carry lowers its channels' error when their chi2 (summed over points) falls by at least this fraction.
+LOWERS = 0.01
+
+
+@dataclass(frozen=True)
+class Misfit:
+    """A band where the simulator measured like the data misses them beyond their noise and floor
+    (``samii.diagnose.diagnosis.unexplained_bands``' test) by a practical amount: the rms of
+    |log(data/simulator)| over the band above ``PRACTICAL_FACTOR`` x the relative floor (1.5 %)."""
+
+    source: str
+    channel: str
+    lo_hz: float
+    hi_hz: float
+    rms_db: float
+    rms_deg: float
+    chi2: float  #: per residual, against the data's noise and floor
+    n_points: int
+
+    def to_dict(self) -> dict:
+        return {"source": self.source, "channel": self.channel, "lo_hz": self.lo_hz, "hi_hz": self.hi_hz, "rms_db": self.rms_db,
+                "rms_deg": self.rms_deg, "chi2": self.chi2, "n_points": self.n_points}
+
+    def text(self) -> str:
+        from samii.diagnose.diagnosis import CHANNEL_NAMES
+
+        return (f"{CHANNEL_NAMES[self.channel]} {self.lo_hz:.3g}-{self.hi_hz:.3g} Hz (by {self.rms_db:.2g} dB, {self.rms_deg:.2g} deg "
+                f"rms; chi2 {self.chi2:.3g})")
+
+
+def _largest(misfits: Sequence[Misfit], n: int = 3) -> list[Misfit]:
+    """The ``n`` misfits with the most chi2 (per residual times points), in frequency order per channel."""
+    top = sorted(misfits, key=lambda m: -m.chi2 * m.n_points)[:n]
+    return sorted(top, key=lambda m: (m.channel, m.lo_hz))
+
+
+def misfits(datasets: Sequence[Dataset], residuals: Sequence[Mapping[str, np.ndarray]]) -> tuple[Misfit, ...]:
+    """Where residuals log(data/simulator) (one mapping per dataset, on its usable points) exceed the data's
+    noise and floor, significantly (the diagnosis's band test) and practically (:class:`Misfit`)."""
+    from types import SimpleNamespace
+
+    from samii.diagnose.diagnosis import _full_residuals, unexplained_bands
+    from samii.diagnose.floor import PRACTICAL_FACTOR, REL_FLOOR
+
+    out = []
+    for b in unexplained_bands(datasets, SimpleNamespace(residuals=list(residuals))):
+        ds, res = next((ds, r) for ds, r in zip(datasets, residuals) if ds.source == b.source)
+        e, _ = _full_residuals(ds, res, noise_only=False)[b.channel]
+        sel = (ds.freq_hz >= b.lo_hz) & (ds.freq_hz <= b.hi_hz) & np.isfinite(e)
+        if not sel.any() or np.sqrt(np.mean(np.abs(e[sel]) ** 2)) < PRACTICAL_FACTOR * REL_FLOOR:
+            continue
+        out.append(Misfit(b.source, b.channel, b.lo_hz, b.hi_hz, float(20 / np.log(10) * np.sqrt(np.mean(e[sel].real ** 2))),
+                          float(np.degrees(np.sqrt(np.mean(e[sel].imag ** 2)))), b.chi2, b.n_points))
+    return tuple(out)
+
+
+def _chi2_sum(err: Mapping[str, object], channels: Sequence[str]) -> float:
+    """chi2 summed over the points of ``channels`` (ChannelError's per-residual chi2 times its points); rms in dB and
+    degrees when the noise is not known (their squares' sum, in the same proportion)."""
+    total = 0.0
+    for ch in channels:
+        e = err.get(ch)
+        if e is None:
+            continue
+        total += e.n_points * (e.chi2 if e.chi2 is not None else (e.rms_db / 8.686) ** 2 + np.radians(e.rms_deg) ** 2)
+    return total
 
 
 #: Times the correction is recomputed at the recalibrated simulator (each: one simulated measurement
@@ -653,22 +778,66 @@ def simulator_report(measured_raw: Sequence[Measured], measured_fit: Sequence[Me
     """Carry ``effects`` into the simulator calibrated as ``before``, recalibrate, re-measure both
     like each file, and compare with the files as measured (``measured_raw``). The recalibration
     uses the first file as measured when every valve law found is carried (the simulator's
-    correction then holds the law), else ``measured_fit[0]`` (the law divided out)."""
-    from samii.diagnose.diagnosis import errors_from_residuals
+    correction then holds the law), else ``measured_fit[0]`` (the law divided out).
+
+    Before anything is carried, where the calibrated simulator misses the data is measured band by
+    band (:func:`misfits`); after, where it still does (it cannot represent the data there).
+    Only what lowers the simulator's error is carried: each carried effect is taken out again (its
+    options back at the calibration's values, the recalibrated knobs kept) and the simulator
+    re-measured; an effect whose carry does not lower the chi2 of the channels it acts on
+    (:data:`RESIDUAL_CHANNELS` of its own channel) by :data:`LOWERS` is not carried, and the rest are
+    recalibrated without it. A carry that still raises the chi2 summed over the channels is undone."""
+    from samii.diagnose.diagnosis import CHANNELS, errors_from_residuals
 
     stage = progress.stage if progress is not None and hasattr(progress, "stage") else (lambda _: None)
+    refuse = dict(refuse or {})
+    datasets = [Dataset.from_measured(m) for m in measured_raw]
+
+    def measured_error(params):
+        h = tuple(remeasure(params, m) for m in measured_raw)
+        res = [_residuals(ds, x) for ds, x in zip(datasets, h)]
+        return h, res, errors_from_residuals(datasets, res)
+
+    stage("re-measuring the simulator")
+    h_before, res_before, err_before = measured_error(before.params)
     after, options, carried, not_carried = carry_and_recalibrate(measured_raw, measured_fit, before, effects, progress=progress,
                                                                  refuse=refuse)
-    datasets = [Dataset.from_measured(m) for m in measured_raw]
-    stage("re-measuring the simulator")
-    h_before = tuple(remeasure(before.params, m) for m in measured_raw)
-    h_after = h_before if after is before else tuple(remeasure(after.params, m) for m in measured_raw)
-    err_before = errors_from_residuals(datasets, [_residuals(ds, h) for ds, h in zip(datasets, h_before)])
-    err_after = errors_from_residuals(datasets, [_residuals(ds, h) for ds, h in zip(datasets, h_after)])
+    h_after, res_after, err_after = (h_before, res_before, err_before) if after is before else measured_error(after.params)
+    not_lowering = []
+    if carried:
+        stage("testing each carried effect against the simulator's error")
+        for e in effects:
+            label = f"{e.category}/{e.kind}"
+            if label not in carried or label in refuse:
+                continue
+            names = carry([e], before.params)[0]
+            chans = RESIDUAL_CHANNELS.get(e.channel, CHANNELS)
+            _, _, err_without = measured_error(params_with_overrides(after.params, {n: parameter_value(before.params, n) for n in names}))
+            with_it, without = _chi2_sum(err_after, chans), _chi2_sum(err_without, chans)
+            if not with_it < (1 - LOWERS) * without:
+                from samii.diagnose.diagnosis import CHANNEL_NAMES
+
+                refuse[label] = (f"carried, it does not lower the simulator's error on {' and '.join(CHANNEL_NAMES[c] for c in chans)} "
+                                 f"(chi2 {without:.4g} without it, {with_it:.4g} with it, the knobs recalibrated with it)")
+                not_lowering.append(f"{label}: {refuse[label]}")
+        if not_lowering:
+            after, options, carried, not_carried = carry_and_recalibrate(measured_raw, measured_fit, before, effects, progress=progress,
+                                                                         refuse=refuse)
+            h_after, res_after, err_after = (h_before, res_before, err_before) if after is before else measured_error(after.params)
+        b, a = _chi2_sum(err_before, CHANNELS), _chi2_sum(err_after, CHANNELS)
+        if carried and not a < b:
+            not_lowering += [f"{label}: carried with {', '.join(x for x in carried if x != label) or 'nothing else'}, the "
+                             f"effects raise the simulator's error (chi2 over every channel {b:.4g} -> {a:.4g}): none carried"
+                             for label in carried]
+            not_carried = list(not_carried) + not_lowering[-len(carried):]
+            after, options, carried = before, {}, []
+            h_after, res_after, err_after = h_before, res_before, err_before
     changes = {}
     for name in sorted(set(after.result.values) | set(options)):
         old = parameter_value(before.params, name)
         new = parameter_value(after.params, name)
         if new != old:
             changes[name] = new
-    return SimulatorReport(err_before, err_after, changes, tuple(carried), tuple(not_carried), before, after, h_before, h_after)
+    return SimulatorReport(err_before, err_after, changes, tuple(carried), tuple(not_carried), before, after, h_before, h_after,
+                           misfit_before=misfits(datasets, res_before), misfit_after=misfits(datasets, res_after),
+                           not_lowering=tuple(not_lowering))

@@ -196,6 +196,31 @@ def linearize(model: mujoco.MjModel, data: mujoco.MjData | None = None, *, posit
     ``position_gain_v_per_rad`` is the servo amplifier gain compiled into the
     model (read from the plugin config when not given).
     """
+    d = linearize_discrete(model, data, position_gain_v_per_rad=position_gain_v_per_rad, eps=eps)
+    A, B = _to_continuous(d.A, d.B, d.dt_s)
+    # Sensor derivatives are taken against the discrete state at the same instant,
+    # so they carry over to continuous time unchanged.
+    return LinearModel(A, B, d.C, d.D, d.dt_s, d.position_gain_v_per_rad, command_delay_s=d.command_delay_s)
+
+
+@dataclass(frozen=True)
+class DiscreteLinearModel:
+    """The one-step map ``x[k+1] = A x[k] + B ctrl[k]``, ``y = C x + D ctrl`` at the physics step (what
+    :func:`linearize` takes the matrix logarithm of): for responses of the sampled simulator, which need
+    no continuous-time model (``samii.measure.campaign.linearised_frf``)."""
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray  #: rows: theta, accel
+    D: np.ndarray
+    dt_s: float
+    position_gain_v_per_rad: float
+    command_delay_s: float = 0.0
+
+
+def linearize_discrete(model: mujoco.MjModel, data: mujoco.MjData | None = None, *, position_gain_v_per_rad: float | None = None,
+                       eps: float = 1e-6) -> DiscreteLinearModel:
+    """:func:`linearize`'s one-step map, before its conversion to continuous time."""
     from samii.sim.model import make_data
 
     if data is None:
@@ -205,18 +230,15 @@ def linearize(model: mujoco.MjModel, data: mujoco.MjData | None = None, *, posit
 
         position_gain_v_per_rad = hydraulic_params(model).position_gain
     Ad, Bd, Cs, Ds = _discrete(model, data, eps, True)
-    A, B = _to_continuous(Ad, Bd, model.opt.timestep)
     r_theta, w_accel = _sensor_rows(model)
     C = np.vstack([Cs[r_theta], w_accel @ Cs])
     D = np.vstack([Ds[r_theta], w_accel @ Ds])
-    # Sensor derivatives are taken against the discrete state at the same instant,
-    # so they carry over to continuous time unchanged.
     delay = 0.0
     if model.nplugin:
         from samii.sim.plugin import valve_options
 
         delay = valve_options(model)["command_delay"]
-    return LinearModel(A, B, C, D, float(model.opt.timestep), float(position_gain_v_per_rad), command_delay_s=delay)
+    return DiscreteLinearModel(Ad, Bd, C, D, float(model.opt.timestep), float(position_gain_v_per_rad), delay)
 
 
 #: Growth rate [1/s] above which a pole counts as unstable: a time constant of 11.6 days. Anything
