@@ -196,6 +196,13 @@ def harmonic_figure(d: Diagnosis, path=None):
         ax.set_axis_off()
     colors = {2: "tab:blue", 3: "tab:red"}
     for ax, h in zip(axes[0], hs):
+        if not any(np.isfinite(h.log10_p[k]).any() for k in h.ratio):
+            src = h.source if len(h.source) <= 40 else "…" + h.source[-39:]
+            ax.text(0.5, 0.5, "no segment could be tested\n(the fundamental or the noise too small in every one)", ha="center",
+                    va="center", transform=ax.transAxes)
+            ax.set_title(src, fontsize=9)
+            ax.set_axis_off()
+            continue
         for k in sorted(h.ratio):
             tested = np.isfinite(h.log10_p[k])
             if not tested.any():
