@@ -28,7 +28,6 @@ OUTPUTS = ("diagnosis.json", "residuals.png", "bode.png", "harmonics.png")
 SIM_OUTPUTS = ("simulator.png",)
 #: Most files one diagnosis takes (each adds the baseline's 13 parameters to the joint fit).
 MAX_FILES = 8
-_NAMES = {"act": "theta/v", "base": "xdd/theta", "total": "xdd/v"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -223,6 +222,8 @@ def _write_rerun(d, path, fps) -> None:
 
 
 def _print(d, written) -> None:
+    from samii.diagnose.diagnosis import CHANNEL_NAMES as _NAMES
+
     print(f"samii diagnose: {len(d.measured)} file(s) against {d.baseline.label}")
     for m in d.measured:
         lay = "" if m.layout is None else f"; {m.layout.n_records} records of {m.layout.record_s:.6g} s ({m.layout.how})"
@@ -230,13 +231,13 @@ def _print(d, written) -> None:
         print(f"  {m.source}{amp}{lay}; noise: {m.noise_source}")
     print(f"rule: {d.rule}")
     real = [e for e in d.effects if not e.expected]
+    sim = d.simulator.verdict_text() if d.simulator is not None else ""
     if not d.effects:
         print("verdict: none: " + ("no effect of the library is needed, but a residual beyond the noise remains (unexplained, below)"
-                                   if d.unexplained else "the baseline explains the data to within their noise")
-              + (f"; {d.simulator.verdict_text()}" if d.simulator is not None and d.simulator.verdict_text() else ""))
+                                   if d.unexplained else "the baseline explains the data to within their noise") + (f"; {sim}" if sim else ""))
     else:
         print(f"verdict: {d.verdict}" + (f": {len(real)} effect(s) the model lacks" if real else ": only what sampling explains")
-              + (f"; {d.simulator.verdict_text()}" if d.simulator is not None and d.simulator.verdict_text() else ""))
+              + (f"; {sim}" if sim else ""))
     from samii.diagnose.effects import LIBRARY
 
     from samii.diagnose.nonlinear import PARAM_UNITS

@@ -693,7 +693,7 @@ class Misfit:
                 f"rms; chi2 {self.chi2:.3g})")
 
 
-def _worse(before: Mapping[str, object], after: Mapping[str, object], tolerance: float = None) -> list[str]:
+def _worse(before: Mapping[str, object], after: Mapping[str, object], tolerance: float | None = None) -> list[str]:
     """Each channel and measure (rms dB, rms deg, chi2) higher in ``after`` than in ``before`` by more than
     ``tolerance`` (default :data:`WORSE_TOLERANCE`), as text ("theta/v rms deg 20.2 -> 24 deg")."""
     tolerance = WORSE_TOLERANCE if tolerance is None else tolerance
@@ -745,7 +745,7 @@ def _chi2_sum(err: Mapping[str, object], channels: Sequence[str]) -> float:
         e = err.get(ch)
         if e is None:
             continue
-        total += e.n_points * (e.chi2 if e.chi2 is not None else (e.rms_db / 8.686) ** 2 + np.radians(e.rms_deg) ** 2)
+        total += e.n_points * (e.chi2 if e.chi2 is not None else (e.rms_db * np.log(10) / 20) ** 2 + np.radians(e.rms_deg) ** 2)
     return total
 
 
