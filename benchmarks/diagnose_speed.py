@@ -1,10 +1,10 @@
 """samii diagnose on a 6-minute 1 kHz time series (three sweeps), timed in one run.
 
-Goal (issue 11, item 7): a diagnosis of a 6-minute 1 kHz time series of three
-sweeps takes under 20 s on 2 cores, most of it reading the file. The baseline
-measured in the same run is reading the file alone (``samii.diagnose.measured.load``:
-parse the CSV, find the records from r, estimate the FRFs and their noise), the
-part the goal says should dominate.
+Goal (issue 31, item 5): every diagnosis of a 6-minute 1 kHz time series of three
+sweeps at most 30 s on 2 cores, the median at most 10 s (issue 11's was 20 s a
+file, most of it reading the file). The baseline measured in the same run is
+reading the file alone (``samii.diagnose.measured.load``: parse the CSV, find the
+records from r, estimate the FRFs and their noise).
 
 Each case is written as a time-series CSV with no metadata (the records are
 found from r, as from a rig's file) by ``samii.diagnose.rig.EffectRig``, the
@@ -36,7 +36,8 @@ from samii.measure.excitation import SweptSine
 from samii.measure.io import write_timeseries_csv
 
 FS = 1000.0
-GOAL_S = 20.0
+GOAL_MAX_S = 30.0
+GOAL_MEDIAN_S = 10.0
 #: (name, EffectRig keywords): clean data, one effect in each category that costs the selection most, and a combination
 CASES = [
     ("clean", {}),
@@ -93,7 +94,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=4)
     args = ap.parse_args()
     cases = [c for c in CASES if not args.cases or c[0] in args.cases]
-    print(f"sweep: {sweep().duration_s:.0f} s at {FS:g} Hz, 3 records; goal: under {GOAL_S:g} s a file, most of it reading")
+    print(f"sweep: {sweep().duration_s:.0f} s at {FS:g} Hz, 3 records; goal: at most {GOAL_MAX_S:g} s a file, median at most {GOAL_MEDIAN_S:g} s")
     print(f"{'case':<26} {'read [s]':>9} {'total [s]':>10} {'total/read':>11}  found")
     totals = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -104,7 +105,7 @@ def main() -> None:
             totals.append(r["total_s"])
             print(f"{name:<26} {r['read_s']:9.2f} {r['total_s']:10.2f} {r['total_s'] / r['read_s']:11.1f}  {', '.join(r['found']) or '-'}",
                   flush=True)
-    print(f"median {np.median(totals):.1f} s, max {np.max(totals):.1f} s (goal {GOAL_S:g} s)")
+    print(f"median {np.median(totals):.1f} s (goal {GOAL_MEDIAN_S:g} s), max {np.max(totals):.1f} s (goal {GOAL_MAX_S:g} s)")
 
 
 if __name__ == "__main__":

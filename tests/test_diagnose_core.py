@@ -400,3 +400,27 @@ def test_effect_values_of_opposite_sign_do_not_match():
                {"kept": "actuator/leak", "kept_params": {"pole_per_s": 0.2 * np.exp(MATCH_DISTANCE / 2)}}]
     assert _record_for(records, "actuator/leak", {"pole_per_s": 0.2}) is records[1]
     assert _record_for(records[:1], "actuator/leak", {"pole_per_s": 0.2}) is None
+
+
+def test_a_kind_is_refitted_jointly_once_per_optimum_its_held_starts_reached():
+    """The joint refits start from a kind's best held fits that ended on different optima: two starts that reached
+    the same delay (to a thousandth) are one start; a delay twice as long, or another effect beside it, is another."""
+    from types import SimpleNamespace
+
+    from samii.diagnose.effects import LIBRARY, Effect
+    from samii.diagnose.select import JOINT_STARTS, SAME_OPTIMUM, _distinct
+
+    kinds = {k.label: k for k in LIBRARY}
+    delay, lp = kinds["delay/command"], kinds["sensor/accel_lowpass"]
+
+    def held(*effects):
+        return SimpleNamespace(effects=tuple(Effect(k, {p.name: v for p, v in zip(k.params, vals)}, {}) for k, vals in effects))
+
+    a = held((delay, [0.004]))
+    same = held((delay, [0.004 * (1 + 0.5 * SAME_OPTIMUM)]))
+    other = held((delay, [0.008]))
+    assert _distinct([a, same, other], 2) == [a]  # the second start is the first's optimum; the third is not looked at
+    assert _distinct([a, other, same], 2) == [a, other]
+    with_lp = [held((lp, [30.0]), (delay, [0.004])), held((lp, [45.0]), (delay, [0.004]))]
+    assert _distinct(with_lp, JOINT_STARTS) == with_lp  # the same new delay beside another roll-off: another optimum
+    assert _distinct([], JOINT_STARTS) == []

@@ -280,6 +280,7 @@ class _Block:
     i: int  # dataset
     ch: str
     w: np.ndarray  # angular frequencies of the usable points [rad/s]
+    at: np.ndarray  # their indices on the dataset's grid
     data: np.ndarray
     inv_sigma: np.ndarray
     fixed: Mapping[str, np.ndarray] | None  # a fixed baseline's responses
@@ -299,6 +300,8 @@ class _Problem:
     def __init__(self, datasets: Sequence[Dataset], baseline: Baseline, layout: _Layout, fixed_b: Sequence[np.ndarray]):
         self.baseline, self.layout, self.fixed_b = baseline, layout, list(fixed_b)
         self.blocks = []
+        #: per dataset: its grid [rad/s] and the baseline channels its blocks need (computed once for all of them)
+        self.grids: list[tuple[np.ndarray, tuple[str, ...]]] = []
         for i, ds in enumerate(datasets):
             for ch in ds.data:
                 k = ds.keep[ch]
@@ -306,20 +309,44 @@ class _Problem:
                 if baseline.correction:
                     factor = {c: np.broadcast_to(baseline.factor(i, ds.freq_hz, c), ds.freq_hz.shape)[k] for c in _NEED[ch]}
                 fixed = {c: baseline.fixed[i][ch][c] for c in _NEED[ch]} if baseline.fixed else None
-                self.blocks.append(_Block(i, ch, 2.0 * np.pi * ds.freq_hz[k], ds.data[ch], ds.inv_sigma[ch], fixed, factor))
+                self.blocks.append(_Block(i, ch, 2.0 * np.pi * ds.freq_hz[k], np.flatnonzero(k), ds.data[ch], ds.inv_sigma[ch], fixed, factor))
+            need = tuple(c for c in ("act", "base") if any(c in _NEED[ch] for ch in ds.data))
+            self.grids.append((2.0 * np.pi * np.asarray(ds.freq_hz, float), need))
+        #: the held baseline's responses per dataset (a fit with the baseline held evaluates them once)
+        self._held: dict[int, dict] = {}
 
-    def _model(self, blk: _Block, xb, eff, derivatives: bool):
-        """(model, d ln model / d(baseline x) or None, [d ln model / d(effect p)] or None) of one block."""
+    def _all_responses(self, xs_b, derivatives: bool) -> list[dict | None]:
+        """:meth:`_responses` of every dataset (None where the baseline is fixed responses)."""
+        if self.baseline.fixed or not xs_b:
+            return [None] * len(self.grids)
+        return [self._responses(i, xb, derivatives) for i, xb in enumerate(xs_b)]
+
+    def _responses(self, i: int, xb, derivatives: bool) -> dict:
+        """The baseline's (H, dlogH/dx or None) of dataset ``i`` on its whole grid, for every channel its blocks need:
+        one evaluation of the structure per dataset, which its blocks index (theta/v and xdd/v share act, xdd/theta
+        and xdd/v share base)."""
+        derivatives = derivatives and self.layout.nb > 0  # held, its derivatives go unused
+        if not self.layout.nb:
+            if i not in self._held:
+                w, need = self.grids[i]
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    self._held[i] = self.baseline.structure.log_responses(xb, w, need, derivatives=False)
+            return self._held[i]
+        w, need = self.grids[i]
+        with np.errstate(divide="ignore", invalid="ignore"):  # a point no block uses may sit on a pole
+            return self.baseline.structure.log_responses(xb, w, need, derivatives=derivatives)
+
+    def _model(self, blk: _Block, resp: dict | None, eff, derivatives: bool):
+        """(model, d ln model / d(baseline x) or None, [d ln model / d(effect p)] or None) of one block; ``resp``: its
+        dataset's baseline responses (:meth:`_responses`; None for a fixed baseline)."""
         need = _NEED[blk.ch]
         s = 1j * blk.w
         if blk.fixed is not None:
             h = dict(blk.fixed)
             dh = dict.fromkeys(need)
         else:
-            # the baseline's derivatives only when it is fitted (held, as in a candidate's first fit, they go unused)
-            r = self.baseline.structure.log_responses(xb, blk.w, need, derivatives=derivatives and self.layout.nb > 0)
-            h = {c: r[c][0] * blk.factor[c] if blk.factor else r[c][0] for c in need}
-            dh = {c: r[c][1] for c in need}
+            h = {c: resp[c][0][blk.at] * blk.factor[c] if blk.factor else resp[c][0][blk.at] for c in need}
+            dh = {c: None if resp[c][1] is None else resp[c][1][blk.at] for c in need}
         m_act, m_base, add = _effect_factors(eff, s)
         model = 1.0
         if "act" in h:
@@ -362,8 +389,9 @@ class _Problem:
         xs_b, xs_e = self._split(z)
         eff = list(zip(self.layout.effects, xs_e))
         res: list[dict] = [{} for _ in range(max((b.i for b in self.blocks), default=-1) + 1)]
+        resp = self._all_responses(xs_b, False)
         for blk in self.blocks:
-            model, _, _ = self._model(blk, xs_b[blk.i] if xs_b else None, eff, False)
+            model, _, _ = self._model(blk, resp[blk.i], eff, False)
             res[blk.i][blk.ch] = np.log(blk.data / model)  # one log of the ratio: its phase wrapped to (-pi, pi]
         return res, xs_b, xs_e
 
@@ -394,9 +422,9 @@ class _Problem:
         e_start = lay.nb * lay.n_data
         rows = []
         with np.errstate(all="ignore"):
+            resp = self._all_responses(xs_b, True)
             for blk in self.blocks:
-                xb = xs_b[blk.i] if xs_b else None
-                model, d_b, d_e = self._model(blk, xb, eff, True)
+                model, d_b, d_e = self._model(blk, resp[blk.i], eff, True)
                 d = np.zeros((blk.w.size, n), complex)
                 if lay.nb:
                     j0 = blk.i * lay.nb
@@ -431,6 +459,14 @@ def _standard_errors(jac: np.ndarray, s2: float) -> np.ndarray:
     return np.where(undetermined, np.inf, se)
 
 
+#: The optimiser stops when a step lowers chi2 by less than this fraction of it (or moves the parameters by less
+#: than this fraction): with chi2 near the number of residuals (about 700 for a 0.1-40 Hz file) that is 1e-3 of
+#: one noise variance, a thousandth of the smallest difference a selection acts on (an F-test's or
+#: AMBIGUOUS_CHI2's few variances), and far inside any parameter's standard error. At 1e-8 three of the speed
+#: benchmark's files took 10-30 % longer for the same findings and values.
+FIT_TOL = 1e-6
+
+
 def fit_model(
     datasets: Sequence[Dataset],
     baseline: Baseline,
@@ -463,7 +499,7 @@ def fit_model(
     problem = _Problem(datasets, baseline, layout, xb0)
     if z0.size:
         sol = least_squares(problem.residuals, z0, jac=problem.jacobian, bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=max_nfev,
-                            xtol=1e-8, ftol=1e-8, gtol=1e-8)
+                            xtol=FIT_TOL, ftol=FIT_TOL, gtol=1e-8)
         z, jac = sol.x, sol.jac
     else:
         z, jac = z0, np.zeros((0, 0))
