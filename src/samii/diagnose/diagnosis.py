@@ -264,13 +264,15 @@ def errors_from_residuals(datasets: Sequence[Dataset], residuals: Sequence[Mappi
     return out
 
 
-def unexplained_bands(datasets: Sequence[Dataset], fit: Fit, *, alpha: float = ALPHA, points: int = BAND_POINTS) -> list[Band]:
-    """Bands of each channel where the final model's residual exceeds the noise (module docstring).
+def unexplained_bands(datasets: Sequence[Dataset], residuals: Sequence[Mapping[str, np.ndarray]], *, alpha: float = ALPHA,
+                      points: int = BAND_POINTS) -> list[Band]:
+    """Bands of each channel where a model's residual (per dataset: channel -> log(data/model) on its usable
+    points, as ``Fit.residuals``) exceeds the noise (module docstring).
 
     xdd/v is tested too: where theta is noise-dominated (theta/v above some 9 Hz at 0.1 V) xdd/theta
     is not usable, and a misfit there shows only in xdd/v."""
     out = []
-    for ds, res in zip(datasets, fit.residuals):
+    for ds, res in zip(datasets, residuals):
         full = _full_residuals(ds, res, noise_only=False)  # a describing function's approximation is no miss
         for ch in CHANNELS:
             if ch not in full:
@@ -811,7 +813,7 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
                          "(images of the first calibration's compromise)")
     datasets, after = final
     notes += [c.text() for c in changes]
-    unexplained = unexplained_bands(datasets, after, alpha=alpha)
+    unexplained = unexplained_bands(datasets, after.residuals, alpha=alpha)
     unexplained += [Band(c.source, c.channel, c.lo_hz, c.hi_hz, c.chi2, int(np.sum((m.frf.freq_hz >= c.lo_hz) & (m.frf.freq_hz <= c.hi_hz))),
                          "records differ") for c in changes for m in measured if m.source == c.source]
     return Diagnosis(measured, datasets, bl, before, after, tuple(steps), tuple(tried), tuple(effects),

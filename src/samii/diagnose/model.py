@@ -325,8 +325,7 @@ class _Problem:
         """The baseline's (H, dlogH/dx or None) of dataset ``i`` on its whole grid, for every channel its blocks need:
         one evaluation of the structure per dataset, which its blocks index (theta/v and xdd/v share act, xdd/theta
         and xdd/v share base)."""
-        derivatives = derivatives and self.layout.nb > 0  # held, its derivatives go unused
-        if not self.layout.nb:
+        if not self.layout.nb:  # held: its derivatives go unused
             if i not in self._held:
                 w, need = self.grids[i]
                 with np.errstate(divide="ignore", invalid="ignore"):

@@ -213,10 +213,10 @@ def harmonic_figure(d: Diagnosis, path=None):
             # a log axis takes positive values only (an excess over a reference can be exactly 0, a noise-free sd too)
             pos = sd[order] > 0
             ax.loglog(f[order][pos], 100 * 2 * np.sqrt(2) * sd[order][pos], ":", color=colors[k], lw=1, label=f"{k}× noise (2σ)")
-            ax.loglog(f[~sig & (r > 0)], 100 * r[~sig & (r > 0)], "o", mfc="none", color=colors[k], ms=5,
-                      label=f"{k}× {'excess' if h.reference else 'harmonic'}")
-            if (sig & (r > 0)).any():
-                ax.loglog(f[sig & (r > 0)], 100 * r[sig & (r > 0)], "o", color=colors[k], ms=6, label=f"{k}× significant")
+            plain, marked = ~sig & (r > 0), sig & (r > 0)
+            ax.loglog(f[plain], 100 * r[plain], "o", mfc="none", color=colors[k], ms=5, label=f"{k}× {'excess' if h.reference else 'harmonic'}")
+            if marked.any():
+                ax.loglog(f[marked], 100 * r[marked], "o", color=colors[k], ms=6, label=f"{k}× significant")
             for finding in laws:
                 if h.source not in {x.source for x in finding.harmonics}:
                     continue

@@ -720,13 +720,11 @@ def _largest(misfits: Sequence[Misfit], n: int = 3) -> list[Misfit]:
 def misfits(datasets: Sequence[Dataset], residuals: Sequence[Mapping[str, np.ndarray]]) -> tuple[Misfit, ...]:
     """Where residuals log(data/simulator) (one mapping per dataset, on its usable points) exceed the data's
     noise and floor, significantly (the diagnosis's band test) and practically (:class:`Misfit`)."""
-    from types import SimpleNamespace
-
     from samii.diagnose.diagnosis import _full_residuals, unexplained_bands
     from samii.diagnose.floor import PRACTICAL_FACTOR, REL_FLOOR
 
     out = []
-    for b in unexplained_bands(datasets, SimpleNamespace(residuals=list(residuals))):
+    for b in unexplained_bands(datasets, residuals):
         ds, res = next((ds, r) for ds, r in zip(datasets, residuals) if ds.source == b.source)
         e, _ = _full_residuals(ds, res, noise_only=False)[b.channel]
         sel = (ds.freq_hz >= b.lo_hz) & (ds.freq_hz <= b.hi_hz) & np.isfinite(e)
@@ -802,7 +800,7 @@ def simulator_report(measured_raw: Sequence[Measured], measured_fit: Sequence[Me
     rms deg or chi2 by more than :data:`UNDO_TOLERANCE`, is not carried, and the rest are
     recalibrated without it. A carry that still raises the chi2 summed over the channels, or any channel's
     rms dB, rms deg or chi2 by more than :data:`UNDO_TOLERANCE`, is undone."""
-    from samii.diagnose.diagnosis import CHANNELS, errors_from_residuals
+    from samii.diagnose.diagnosis import CHANNEL_NAMES, CHANNELS, errors_from_residuals
 
     stage = progress.stage if progress is not None and hasattr(progress, "stage") else (lambda _: None)
     refuse = dict(refuse or {})
@@ -813,11 +811,14 @@ def simulator_report(measured_raw: Sequence[Measured], measured_fit: Sequence[Me
         res = [_residuals(ds, x) for ds, x in zip(datasets, h)]
         return h, res, errors_from_residuals(datasets, res)
 
+    def carried_and_measured():
+        """carry_and_recalibrate with ``refuse`` as it stands, and the result re-measured (the same as before when nothing is carried)."""
+        out = carry_and_recalibrate(measured_raw, measured_fit, before, effects, progress=progress, refuse=refuse)
+        return out, (measured_before if out[0] is before else measured_error(out[0].params))
+
     stage("re-measuring the simulator")
-    h_before, res_before, err_before = measured_error(before.params)
-    after, options, carried, not_carried = carry_and_recalibrate(measured_raw, measured_fit, before, effects, progress=progress,
-                                                                 refuse=refuse)
-    h_after, res_after, err_after = (h_before, res_before, err_before) if after is before else measured_error(after.params)
+    measured_before = h_before, res_before, err_before = measured_error(before.params)
+    (after, options, carried, not_carried), (h_after, res_after, err_after) = carried_and_measured()
     not_lowering = []
     if carried:
         stage("testing each carried effect against the simulator's error")
@@ -830,19 +831,16 @@ def simulator_report(measured_raw: Sequence[Measured], measured_fit: Sequence[Me
             _, _, err_without = measured_error(params_with_overrides(after.params, {n: parameter_value(before.params, n) for n in names}))
             with_it, without = _chi2_sum(err_after, chans), _chi2_sum(err_without, chans)
             raised = _worse(err_without, err_after, UNDO_TOLERANCE)  # (a tenth: rises of a few % at the noise are no harm)
-            if not with_it < (1 - LOWERS) * without or raised:
-                from samii.diagnose.diagnosis import CHANNEL_NAMES
-
+            lowers = with_it < (1 - LOWERS) * without
+            if not lowers or raised:
                 refuse[label] = (f"carried, it does not lower the simulator's error on {' and '.join(CHANNEL_NAMES[c] for c in chans)} "
                                  f"(chi2 {without:.4g} without it, {with_it:.4g} with it, the knobs recalibrated with it)"
-                                 if not with_it < (1 - LOWERS) * without else
+                                 if not lowers else
                                  f"carried, it raises the simulator's {', '.join(raised)} (without it -> with it; the knobs recalibrated "
                                  "with it)")
                 not_lowering.append(f"{label}: {refuse[label]}")
         if not_lowering:
-            after, options, carried, not_carried = carry_and_recalibrate(measured_raw, measured_fit, before, effects, progress=progress,
-                                                                         refuse=refuse)
-            h_after, res_after, err_after = (h_before, res_before, err_before) if after is before else measured_error(after.params)
+            (after, options, carried, not_carried), (h_after, res_after, err_after) = carried_and_measured()
         b, a = _chi2_sum(err_before, CHANNELS), _chi2_sum(err_after, CHANNELS)
         traded = _worse(err_before, err_after, UNDO_TOLERANCE)
         if carried and (not a < b or traded):
@@ -852,7 +850,7 @@ def simulator_report(measured_raw: Sequence[Measured], measured_fit: Sequence[Me
                              f"effects raise the simulator's error ({why}): none carried" for label in carried]
             not_carried = list(not_carried) + not_lowering[-len(carried):]
             after, options, carried = before, {}, []
-            h_after, res_after, err_after = h_before, res_before, err_before
+            h_after, res_after, err_after = measured_before
     changes = {}
     for name in sorted(set(after.result.values) | set(options)):
         old = parameter_value(before.params, name)

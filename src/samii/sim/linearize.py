@@ -45,8 +45,9 @@ class BaseCoefficient:
 
 
 @dataclass(frozen=True)
-class LinearModel:
-    """Continuous-time linearisation. Input: ctrl [V]; outputs: theta [rad], accel [m/s^2]."""
+class _StateSpace:
+    """``A, B, C, D`` of the simulator about its equilibrium at the physics step ``dt_s``. Input: ctrl [V]; outputs:
+    theta [rad], accel [m/s^2]."""
 
     A: np.ndarray
     B: np.ndarray
@@ -55,6 +56,12 @@ class LinearModel:
     dt_s: float
     #: servo amplifier position gain [V/rad] the model was linearised with
     position_gain_v_per_rad: float
+
+
+@dataclass(frozen=True)
+class LinearModel(_StateSpace):
+    """Continuous-time linearisation. Input: ctrl [V]; outputs: theta [rad], accel [m/s^2]."""
+
     outputs: tuple[str, ...] = ("theta", "accel")
     #: The valve's command delay [s] (``hydraulic.command_delay``): not in A, B (the state space is
     #: the plant with an ideal valve); the responses to v are multiplied by exp(-s T)
@@ -204,18 +211,12 @@ def linearize(model: mujoco.MjModel, data: mujoco.MjData | None = None, *, posit
 
 
 @dataclass(frozen=True)
-class DiscreteLinearModel:
+class DiscreteLinearModel(_StateSpace):
     """The one-step map ``x[k+1] = A x[k] + B ctrl[k]``, ``y = C x + D ctrl`` at the physics step (what
     :func:`linearize` takes the matrix logarithm of): for responses of the sampled simulator, which need
     no continuous-time model (``samii.measure.campaign.linearised_frf``)."""
 
-    A: np.ndarray
-    B: np.ndarray
-    C: np.ndarray  #: rows: theta, accel
-    D: np.ndarray
-    dt_s: float
-    position_gain_v_per_rad: float
-    command_delay_s: float = 0.0
+    command_delay_s: float = 0.0  #: as :attr:`LinearModel.command_delay_s`
 
 
 def linearize_discrete(model: mujoco.MjModel, data: mujoco.MjData | None = None, *, position_gain_v_per_rad: float | None = None,
