@@ -45,7 +45,9 @@ def test_default_fit_of_noisy_data_is_sensible(noisy, tmp_path, capsys):
     assert p["w1"] / (2 * np.pi) == pytest.approx(1.737, rel=0.03)
     assert p["wz"] / (2 * np.pi) == pytest.approx(9.86, rel=0.03)
     assert p["B1"] < 0 < p["B2"] and p["B3"] > 0
-    assert not any("sits where the data are noise" in c for c in res["concerns"])
+    # only mode 3 is where the data are noise: 0.1 V moves theta less than its noise above the hydraulic
+    # resonance (~9 Hz), so xdd/theta is noise there and mode 3 is not determined by these data
+    assert [c.split(" = ")[0] for c in res["concerns"] if "sits where the data are noise" in c] == ["mode w3"]
 
     assert main(["fit", str(path), "--weighting", "none"]) == 0
     out = capsys.readouterr().out

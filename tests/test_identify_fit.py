@@ -62,7 +62,7 @@ def test_default_starts_recover_eq9_4_from_si_data():
         assert _max_rel_err(res, si) < 1e-6, start
     res = fit(data, ST3, phase_weight=0.1)
     labels = [s[0] for s in res.starts]
-    assert labels[:2] == ["notebook", "auto"] and [lab[:11] for lab in labels[2:]] == ["perturbed 1", "perturbed 2"]
+    assert labels[:2] == ["notebook", "auto"] and [lab[:11] for lab in labels[2:]] == ["modes scann", "perturbed 1", "perturbed 2"]
 
 
 def test_auto_start_reads_modes_off_noisy_data():
@@ -260,8 +260,8 @@ def test_a_start_that_cannot_be_built_is_skipped():
     st4 = ModelStructure(n_modes=4)
     res = fit(data, st4, phase_weight=0.1, n_perturbed=0)
     assert "notebook start skipped" in res.message
-    assert [s[0] for s in res.starts] == ["auto"]
+    assert [s[0] for s in res.starts] == ["auto", "modes scanned from auto"]
     res = fit(data, st4, phase_weight=0.1, start="notebook", n_perturbed=0)  # the only start asked for
-    assert "falling back to the automatic start" in res.message and [s[0] for s in res.starts] == ["auto"]
+    assert "falling back to the automatic start" in res.message and [s[0] for s in res.starts] == ["auto", "modes scanned from auto"]
     for k in ("w1", "wz", "w3"):  # the three modes the data have are still found (measured within 0.05 %; 5 %: as the peak reading above)
         assert res.params[k] == pytest.approx(nb.EQ9_4[k], rel=0.05), k

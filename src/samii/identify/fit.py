@@ -54,9 +54,9 @@ import numpy as np
 
 from samii.frequency_response import Channel, FrequencyResponse
 from samii.identify.cost import FitProblem, Weighting, thinning_step
-from samii.identify.lack_of_fit import LackOfFit, lack_of_fit
+from samii.identify.lack_of_fit import LackOfFit, averages_from_metadata, lack_of_fit
 from samii.identify.notebook_loop import NOTEBOOK_TOL_PCT, PercentChange, percent_change
-from samii.identify.starts import auto_start, notebook_start, perturbed_start, snap_to_peaks
+from samii.identify.starts import auto_start, notebook_start, perturbed_start, scan_modes, snap_to_peaks
 from samii.identify.structures import ModelStructure
 
 __all__ = ["FitResult", "fit", "fit_problem", "resolve_weighting", "BOUNDS"]
@@ -406,6 +406,12 @@ def _solve(problem: FitProblem, x0: np.ndarray, *, max_nfev: int, on_evaluation:
 
     ix = np.ix_(free, free)
     n_eval = [0]
+    # the modes keep their order (mode k below mode k+1; mode 2 of the tied structure is the actuator zero):
+    # a step that would carry one across another is rejected like one where the model overflows, so a mode
+    # cannot leave the resonance it was started on for a floor of unmodelled response below the others
+    order = np.array([st.param_names.index(st.mode_names(k)[0]) for k in range(1, st.n_modes + 1)])
+    order = order[free[order]]
+    keep_order = order.size > 1 and bool(np.all(np.diff(x0[order]) > 0))
 
     def evaluate(z):
         """(r, J'J, J'r) in the solver's variables z, the Jacobian J in x (all columns), dx/dz and whether the model was finite at ``z``.
@@ -426,6 +432,7 @@ def _solve(problem: FitProblem, x0: np.ndarray, *, max_nfev: int, on_evaluation:
                 A = (jx.T @ jx)[ix] * np.outer(d, d)
                 g = (jx.T @ r)[free] * d
             ok = bool(np.all(np.isfinite(r)) and np.all(np.isfinite(A)) and np.all(np.isfinite(g)))
+            ok = ok and not (keep_order and np.any(np.diff(x[order]) <= 0))
             if not ok:
                 r, A, g = np.full_like(r, _PENALTY), np.zeros_like(A), np.zeros_like(g)
             cache[key] = (r, A, g, jx, d, ok)
@@ -544,38 +551,148 @@ def _band_warnings(problem: FitProblem, params: Mapping[str, float]) -> list[str
     return out
 
 
-#: Channels whose coherence tells whether a mode's frequency was measured (the best of them:
-#: xdd/theta's coherence drops at theta/v's zeros, which sit at the base modes; xdd/v's does not).
-_MODE_CHANNELS = {"wp": ("act", "total"), "w1": ("base", "total"), "wz": ("base", "total"), "w3": ("base", "total")}
+#: Channels whose coherence tells whether a base mode was measured (the best of those fitted).
+_MODE_CHANNELS = ("base", "total")
 
 
-def _concerns(problem: FitProblem, params: Mapping[str, float], lof: LackOfFit) -> list[str]:
-    """Reasons a converged fit is still not a sound one, each with what to try."""
+def _resonance_coherence(problem: FitProblem, w: float, zeta: float, n_averages: int | None) -> tuple[float, str] | None:
+    """The best fitted channel's coherence over a base mode's half-power band, and that channel.
+
+    A resonance the data measured raises the response, so the coherence around
+    it is high. The band is +-zeta, at least +-10 % (8 points on a 100-per-decade
+    grid: one point's coherence scatters too much to judge) and at most +-30 % (a
+    broad term is judged near its centre). Where the response is noise alone, an
+    estimate from n records is not 0 but Beta(1, n - 1) distributed (mean 1/n;
+    above 0.9 at one point in a hundred for n = 3), and a fit that weights points
+    by it is drawn to where it happens to be high. So the band's mean is
+    corrected for that bias to first order, (n g - 1) / (n - 1), clipped at 0: 0
+    for noise, 1 for a noise-free response (``n_averages`` None: as given).
+    Only the channels the fit used count: a mode the accelerometer saw (high
+    coherence in xdd/v) but theta did not (xdd/theta noise above the hydraulic
+    resonance) is not determined by a fit of theta/v and xdd/theta.
+    """
+    data = problem.data
+    f = data.freq_hz
+    fz = w / (2 * np.pi)
+    half = min(max(zeta if np.isfinite(zeta) else 0.0, 0.1), 0.3)
+    dist = np.abs(np.log(f / fz))
+    near = dist <= half
+    if not near.any():
+        near = dist == dist.min()
+    g = {}
+    for c in _MODE_CHANNELS:
+        coh = data.coherence(c) if c in problem.channels else None
+        if coh is not None:
+            m = float(np.mean(coh[near]))
+            g[c] = max((n_averages * m - 1) / (n_averages - 1), 0.0) if n_averages and n_averages > 1 else m
+    if not g:
+        return None
+    best = max(g, key=g.get)
+    return g[best], best
+
+
+def _unresolved_pairs(params: Mapping[str, float], structure: ModelStructure) -> list[tuple[str, str]]:
+    """Pairs of base modes closer than the narrower one's half-power half-width (zeta w): one resonance, two modes.
+
+    (Not the sum of the half-widths: a broad, heavily damped term beside a resonance is a shape the fit chose,
+    not a second mode on the same peak.)"""
+    modes = []
+    for k in range(1, structure.n_modes + 1):
+        wn, zn = structure.mode_names(k)
+        w, z = params.get(wn, np.nan), params.get(zn, np.nan)
+        if np.isfinite(w) and np.isfinite(z):
+            modes.append((w, z, wn))
+    modes.sort()
+    return [(a[2], b[2]) for a, b in zip(modes, modes[1:]) if b[0] - a[0] < min(a[1] * a[0], b[1] * b[0])]
+
+
+#: A second-order mode with a damping ratio above 1/sqrt(2) has no resonant peak.
+OVERDAMPED = 1 / np.sqrt(2)
+
+
+def _defects(problem: FitProblem, params: Mapping[str, float], n_averages: int | None = None) -> list[tuple[str, str]]:
+    """Reasons the parameters of a minimum should not be used, each (kind, reason with what to try).
+
+    ``"misplaced"``: a damping ratio on its bound, modes out of their order
+    (mode 2 of the tied structure is the second base mode), two modes on one
+    resonance, a mode in the noise below a base mode the data place (the lowest
+    modes are the lowest resonances: one below them fits a floor of unmodelled
+    response, such as the tilt an accelerometer sees below 1 Hz): the solver put
+    a parameter where no reading of the data would. ``"unmeasured"``: a mode
+    outside the band (only its tail is seen) or where the fitted channels are
+    noise above the modes the data place, or that has no resonant peak (damping
+    above 1/sqrt(2)): the data do not determine it wherever it is put. The fit
+    keeps the lowest minimum among those with the fewest misplaced parameters
+    (``fit_problem``); unmeasured ones are said, not ranked (where the data are
+    noise no place is better than another).
+    """
     from samii.identify.lack_of_fit import MIN_COHERENCE
 
     data = problem.data
     f = data.freq_hz
     lo, hi = f[0], f[-1]
+    st = problem.structure
+    damping = {st.mode_names(k)[0]: st.mode_names(k)[1] for k in range(1, st.n_modes + 1)} | {"wp": "zp"}
+    weighable = problem.weighting == "none" and all(data.coherence(c) is not None for c in problem.channels)
+    noise: list[tuple[float, str, str]] = []  # modes where the fitted channels are noise
+    placed: list[float] = []  # base modes the data place
+    reweigh = "fit with --weighting coherence (the noise floor counts as much as the resonances in the notebook's cost), " if weighable else ""
     out = []
     for n, v in params.items():
         if not np.isfinite(v) or not (n.startswith("w")):
             continue
         fz = v / (2 * np.pi)
         if not lo <= fz <= hi:
-            out.append(f"mode {n} = {fz:.3g} Hz lies outside the fitted band {lo:.3g}-{hi:.3g} Hz: widen --band-hz to include it, or fit fewer --modes")
+            out.append(("unmeasured", f"mode {n} = {fz:.3g} Hz lies outside the fitted band {lo:.3g}-{hi:.3g} Hz: widen --band-hz to include it, or fit fewer --modes"))
             continue
-        cohs = {c: data.coherence(c) for c in _MODE_CHANNELS.get(n, ("base", "total")) if c in data.channels and data.coherence(c) is not None}
-        if cohs:
-            g = {c: float(np.interp(np.log(fz), np.log(f), v)) for c, v in cohs.items()}
-            best = max(g, key=g.get)
-            if g[best] < MIN_COHERENCE:
-                out.append(f"mode {n} = {fz:.3g} Hz sits where the data are noise (coherence {g[best]:.2f} in {best}), not at a measured resonance: "
-                           f"try --weighting coherence, or --band-hz where the coherence is high")
+        # only base modes are read off their own resonance: wp sits where theta/v starts to roll off into the
+        # noise (its place is read from the phase below it), wz at theta/v's zero, which makes theta, and so
+        # both fitted channels, small exactly there (its place is read from the slopes on either side)
+        if n in ("wp", "wz"):
+            if n == "wz" and st.tie_mode2:
+                placed.append(v)
+            continue
+        zeta = params.get(damping.get(n, ""), np.nan)
+        if zeta > OVERDAMPED:
+            out.append(("unmeasured", f"mode {n} = {fz:.3g} Hz has damping {damping[n]} = {zeta:.3g}, above 1/sqrt(2): it has no resonant peak, "
+                                      f"so it is a shape the fit chose, not a mode the data show; {reweigh}fit --band-hz where the structure "
+                                      f"holds, or fewer --modes"))
+            continue
+        found = _resonance_coherence(problem, v, zeta, n_averages)
+        if found is not None and found[0] < MIN_COHERENCE:
+            noise.append((v, n, f"mode {n} = {fz:.3g} Hz sits where the data are noise (coherence {found[0]:.2f} in {found[1]} around it, "
+                                f"corrected for the bias of {n_averages or 'its'} averages), not at a measured resonance: the data do not "
+                                f"determine it; {reweigh}measure with more excitation there, fit --band-hz where the coherence is high, "
+                                f"or fewer --modes"))
+        else:
+            placed.append(v)
+    for v, n, text in noise:
+        out.append(("misplaced" if any(p > v for p in placed) else "unmeasured", text))
     lz, hz = BOUNDS["z"]
+    undetermined = {text.split(" = ")[0].removeprefix("mode ") for _, text in out}
     for n, v in params.items():
         if n.startswith("z") and np.isfinite(v) and (v < 1.01 * lz or v > 0.99 * hz):
-            out.append(f"damping {n} = {v:.4g} is on its bound {BOUNDS['z']}: the mode is not in the data as modelled; "
-                       f"try another --start, a narrower --band-hz, or fewer --modes")
+            # the damping of a mode the data do not determine follows the noise: said, not held against the minimum
+            owner = next((w for w, z in damping.items() if z == n), "")
+            kind = "unmeasured" if owner in undetermined else "misplaced"
+            out.append((kind, f"damping {n} = {v:.4g} is on its bound {BOUNDS['z']}: the mode is not in the data as modelled; "
+                              f"try a narrower --band-hz, or fewer --modes"))
+    order = [(params.get(st.mode_names(k)[0], np.nan), st.mode_names(k)[0]) for k in range(1, st.n_modes + 1)]
+    order = [(w, n) for w, n in order if np.isfinite(w)]
+    for (wa, a), (wb, b) in zip(order, order[1:]):
+        if not wb > wa:
+            out.append(("misplaced", f"mode {b} = {wb / (2 * np.pi):.3g} Hz lies below mode {a} = {wa / (2 * np.pi):.3g} Hz: the structure numbers "
+                                     f"its modes upward{' (mode 2 is the actuator zero wz)' if st.tie_mode2 else ''}, so a mode has left the place "
+                                     f"the data give it; try a narrower --band-hz, or fewer --modes"))
+    for a, b in _unresolved_pairs(params, st):
+        out.append(("misplaced", f"modes {a} = {params[a] / (2 * np.pi):.3g} Hz and {b} = {params[b] / (2 * np.pi):.3g} Hz are closer than their "
+                                 f"half-power bandwidths: one resonance fitted by two modes; try fewer --modes"))
+    return out
+
+
+def _concerns(problem: FitProblem, params: Mapping[str, float], lof: LackOfFit, n_averages: int | None) -> list[str]:
+    """Reasons a converged fit is still not a sound one, each with what to try."""
+    out = [text for _, text in _defects(problem, params, n_averages)]
     if lof.found:
         ratio = ", ".join(f"{c} {v:.3g}" for c, v in lof.noise_ratio.items() if v is not None)
         out.append(f"the residuals are far above the data's noise in {len(lof.bands)} band(s) ({lof.summary()})"
@@ -619,6 +736,7 @@ def fit_problem(
     *,
     start: StartSpec = "both",
     n_perturbed: int = 2,
+    mode_scan: bool = True,
     rng: np.random.Generator | None = None,
     max_nfev: int = 200,
     n_averages: int | None = None,
@@ -630,7 +748,8 @@ def fit_problem(
     search = problem.thinned(SEARCH_POINTS)
     thinned = search is not problem
     n_labels = 1 if not isinstance(start, str) else (2 if start == "both" else 1)
-    total = n_labels + n_perturbed + int(thinned) + 1  # starts, perturbed starts, refinement, diagnosis
+    scan = mode_scan and isinstance(start, str) and any(free[st.param_names.index(st.mode_names(k)[0])] for k in range(1, st.n_modes + 1))
+    total = n_labels + int(bool(scan)) + n_perturbed + int(thinned) + 1  # starts, scan, perturbed starts, refinement, diagnosis
     step = [0]
 
     def done(what: str) -> None:
@@ -639,6 +758,7 @@ def fit_problem(
             progress(step[0], total, what)
 
     starts, notes = _build_starts(search, start)
+    averages = n_averages if n_averages is not None else averages_from_metadata(problem.data.metadata)
     total += len(starts) - n_labels  # a start skipped, or the fallback added
     runs = []
 
@@ -648,14 +768,30 @@ def fit_problem(
         runs.append((label, search.cost(x0), float(r @ r), x, sol, prev, (r, jx)))
         done(f"start {label}")
 
+    defects: dict[int, list[tuple[str, str]]] = {}
+
+    def n_defects(r) -> int:
+        if id(r) not in defects:
+            defects[id(r)] = _defects(search, st.params(np.where(free, r[3], np.nan)), averages)
+        return sum(kind == "misplaced" for kind, _ in defects[id(r)])
+
+    def best_run():
+        """The lowest minimum among those with the fewest misplaced parameters (``_defects``)."""
+        return min(runs, key=lambda r: (n_defects(r), r[2]))
+
     for label, p in starts:
         run(label, p)
+    if scan:
+        best = best_run()
+        run(f"modes scanned from {best[0]}", st.params(scan_modes(search, best[3])))
     if n_perturbed:
         rng = rng if rng is not None else np.random.default_rng(0)
-        best = min(runs, key=lambda r: r[2])
+        best = best_run()
         for k in range(n_perturbed):
             run(f"perturbed {k + 1} of {best[0]}", perturbed_start(search, st.params(best[3]), rng=rng))
-    label, _, cost, x, sol, (x_prev, cost_prev), rj = min(runs, key=lambda r: r[2])
+    chosen = best_run()
+    label, _, cost, x, sol, (x_prev, cost_prev), rj = chosen
+    discarded = [r for r in runs if r[2] < cost * (1 - 1e-6)]
     nfev = sum(int(r[4].nfev) for r in runs)
     agree = sum(1 for r in runs if r[2] <= cost * (1 + 1e-6) + 1e-12)
     if thinned:
@@ -680,6 +816,11 @@ def fit_problem(
     else:
         where = f"best of {len(runs)} starts ({label}; {agree} reached it)"
     parts = [f"{where}: solver: {sol.message} {crit.describe()}."]
+    if discarded:
+        low = min(discarded, key=lambda r: r[2])
+        why = next(text for kind, text in defects[id(low)] if kind == "misplaced")
+        parts.append(f"{len(discarded)} lower minim{'um' if len(discarded) == 1 else 'a'} discarded, the lowest ({low[0]}, cost {low[2]:.4g}) because "
+                     f"{why.split(':')[0]}.")
     parts += [f"{n}." for n in notes]
     if not_fitted:
         parts.append(f"Not fitted (the fitted channel{'s' if len(problem.channels) > 1 else ''} {', '.join(problem.channels)} do not depend on them): {', '.join(not_fitted)}.")
@@ -692,7 +833,7 @@ def fit_problem(
     x_report = np.where(free, x, np.nan)
     params = dict(zip(st.param_names, map(float, x_report)))
     warnings = lof.warnings() + warnings + _band_warnings(problem, params)
-    concerns = _concerns(problem, params, lof)
+    concerns = _concerns(problem, params, lof, averages)
     done("uncertainty and lack of fit")
     rms_m = {c: float(np.sqrt(np.mean(e[0] ** 2))) for c, e in errs.items()}
     rms_p = {c: float(np.sqrt(np.mean(e[1] ** 2))) for c, e in errs.items()}
@@ -776,7 +917,14 @@ def fit(
         message; if no start remains, the automatic one is used.
     n_perturbed : int
         Extra starts around the best result so far (frequencies, dampings and tau
-        scaled by exp(0.2 N(0,1)), gains re-solved).
+        scaled by exp(0.2 N(0,1)), modes kept in order, gains re-solved). Before
+        them, unless ``start`` is a mapping, a start whose every base-mode
+        frequency is moved by a global scan between its neighbours
+        (``starts.scan_modes``). The solver keeps the modes in their order. Of all
+        minima the lowest among those with the fewest misplaced parameters is
+        kept (a damping on its bound, modes out of order, two modes on one
+        resonance, a mode in the noise below a mode the data place); the message
+        says which lower minimum was discarded and why.
     rng : numpy Generator, optional
         For the perturbed starts (default: seed 0, so a fit is reproducible).
     n_averages : int, optional

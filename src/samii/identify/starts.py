@@ -31,7 +31,7 @@ from samii import notebook as nb
 from samii.identify.cost import FitProblem
 from samii.identify.structures import ModelStructure
 
-__all__ = ["solve_gains", "notebook_start", "auto_start", "snap_to_peaks", "perturbed_start"]
+__all__ = ["solve_gains", "notebook_start", "auto_start", "scan_modes", "snap_to_peaks", "perturbed_start"]
 
 #: Damping ratios and lag used before the grid search of ``auto_start``
 #: (order of eq 9.4: zp 0.14, base modes 0.03-0.05; tau/wp = 158.9/55.3 = 2.9).
@@ -226,6 +226,48 @@ def _grid_refine(problem: FitProblem, x: np.ndarray, *, sweeps: int = 2) -> np.n
     return best
 
 
+#: Points of the log grid on which ``scan_modes`` tries each mode frequency, and the least ratio between neighbouring modes.
+_SCAN_POINTS = 24
+_SCAN_SEPARATION = 1.15
+
+
+def scan_modes(problem: FitProblem, x: np.ndarray, *, points: int = _SCAN_POINTS) -> np.ndarray:
+    """``x`` with each fitted base-mode frequency moved to the best point of a global 1-D search.
+
+    The modes are numbered in frequency order (mode 2 is the actuator zero wz in
+    the tied structure), so mode k is searched on a log grid between modes k-1
+    and k+1 (a factor 1.75 beyond the band's edges for the first and last, whose
+    tail alone may be in the data; at least a factor
+    ``_SCAN_SEPARATION`` from each neighbour), with damping ratio 0.04 and the
+    gains re-solved at every point; the lowest cost is kept, then the damping
+    ratios and tau are refined on their grid (``_grid_refine``). A local solver
+    cannot move a mode across a neighbour's resonance or out of a noise floor it
+    fell into; this search does, in the order of the modes, from mode 1 up.
+    """
+    st = problem.structure
+    idx = {n: i for i, n in enumerate(st.param_names)}
+    best = solve_gains(problem, np.array(x, float))
+    best_cost = problem.cost(best)
+    lo_w, hi_w = problem.w[0] / _SCAN_SEPARATION**4, problem.w[-1] * _SCAN_SEPARATION**4  # a mode just outside shows its tail
+    names = [st.mode_names(k) for k in range(1, st.n_modes + 1)]
+    for k, (wn, zn) in enumerate(names):
+        if not problem.fitted[idx[wn]]:
+            continue
+        below = best[idx[names[k - 1][0]]] * _SCAN_SEPARATION if k > 0 else lo_w
+        above = best[idx[names[k + 1][0]]] / _SCAN_SEPARATION if k + 1 < len(names) else hi_w
+        below, above = max(below, lo_w), min(above, hi_w)
+        if not above > below:
+            continue
+        for w in np.geomspace(below, above, points):
+            trial = best.copy()
+            trial[idx[wn]], trial[idx[zn]] = w, _DEFAULT_ZETA_MODE
+            trial = solve_gains(problem, trial)
+            c = problem.cost(trial)
+            if c < best_cost:
+                best, best_cost = trial, c
+    return _grid_refine(problem, best)
+
+
 def snap_to_peaks(problem: FitProblem, params: Mapping[str, float], *, max_ratio: float = 1.6) -> dict[str, float]:
     """``params`` with each base-mode frequency moved onto the nearest prominent peak of the data.
 
@@ -253,10 +295,12 @@ def snap_to_peaks(problem: FitProblem, params: Mapping[str, float], *, max_ratio
 
 
 def perturbed_start(problem: FitProblem, params: Mapping[str, float], *, rng: np.random.Generator, scale: float = 0.2) -> dict[str, float]:
-    """``params`` with every frequency, damping and tau scaled by exp(scale * N(0,1)); gains re-solved."""
+    """``params`` with every frequency, damping and tau scaled by exp(scale * N(0,1)), the modes in order; gains re-solved."""
     st = problem.structure
     x = st.vector(params)
     pos = st.positive.copy()
     pos[st.param_names.index("K1")] = False
     x[pos] *= np.exp(scale * rng.standard_normal(int(pos.sum())))
+    modes = [st.param_names.index(st.mode_names(k)[0]) for k in range(1, st.n_modes + 1)]
+    x[modes] = np.sort(x[modes])  # modes keep their order (the solver keeps a start's order)
     return st.params(solve_gains(problem, x))

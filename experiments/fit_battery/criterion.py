@@ -1,0 +1,33 @@
+"""When a fit of the battery is right (issue 32, item 1), shared by both draws.
+
+A fit is right when wp, w1, wz and w3 are each within ``REL_TOL`` of the truth or within
+``N_SE`` of the fit's own standard errors of it. Where it is not, it may still have said so:
+every parameter it missed is named in its concerns (the data do not determine it).
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+
+KEYS = ("wp", "w1", "wz", "w3")
+REL_TOL = 0.02
+N_SE = 3.0
+
+
+def judge(res, truth: Mapping[str, float]) -> tuple[bool, dict[str, tuple[float, float, bool]]]:
+    """(right, {name: (relative error, error in standard errors, within either)})."""
+    errs, ok = {}, True
+    for k in KEYS:
+        v, t, se = res.params[k], truth[k], res.stderr[k]
+        n_se = abs(v - t) / se if np.isfinite(se) and se > 0 else np.inf
+        good = bool(abs(v / t - 1) <= REL_TOL or n_se <= N_SE)
+        errs[k] = (v / t - 1, n_se, good)
+        ok &= good
+    return ok, errs
+
+
+def said(res, errs) -> bool:
+    """Every parameter that missed is named in the fit's concerns (the fit said it cannot tell)."""
+    return all(any(f"{k} = " in c for c in res.concerns) for k, (_, _, good) in errs.items() if not good)
