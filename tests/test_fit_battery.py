@@ -41,9 +41,9 @@ def test_notebook_plants_spread_40_percent_reach_the_true_minimum():
 
 
 @pytest.mark.parametrize("case", [0, 1, 2, 3])
-def test_simulator_rigs_with_spread_parameters_are_fitted_in_their_physical_minimum(case):
+def test_simulator_rigs_with_spread_parameters_are_fitted_in_their_physical_minimum(case, tmp_path):
     spread = _load("simulator_spread")
-    rec = spread.measure_case(case, seed=11, cache=None)
+    rec = spread.measure_case(case, seed=11, cache=tmp_path)
     if "error" in rec:  # a rig whose servo loop is unstable is refused, as `samii measure` refuses it
         assert "unstable" in rec["error"]
         pytest.skip(rec["error"])
