@@ -56,9 +56,8 @@ def test_simulator_rigs_with_spread_parameters_are_fitted_in_their_physical_mini
 def test_a_mode_put_in_an_unmodelled_floor_is_discarded_for_the_physical_minimum():
     """The README's --set example (clamp 2e5 N m/rad, seed 1 of `samii run`): the lowest minimum of the cost put
     the hydraulic pair on base mode 1 and mode 1 at 0.22 Hz, in xdd/theta's floor below 1 Hz (the tilt the
-    accelerometer sees, which the s^4 structure lacks). The fit must keep the physical minimum and say what it
-    discarded. Its data: the frequency response of that rig, linearised (noise-free), with the measured record's
-    coherence profile, is not enough to reproduce the trap, so the rig is measured (about 3 s)."""
+    accelerometer sees, which the s^4 structure lacks). The fit must keep the physical minimum. The rig is
+    measured as the main job measures it (about 3 s): the trap lives in that record's floor and noise."""
     from samii.measure.campaign import measure_swept
     from samii.measure.daq import SensorNoise
     from samii.sim.model import load_model

@@ -82,6 +82,8 @@ def truth(model, overrides, data) -> dict:
     best = None
     for p in pairs:
         wp = float(abs(p))
+        # K1 and the B's are placeholders (a given start's gains are read off the data, starts.snap_to_peaks); tau = 3 wp
+        # as auto_start (eq 9.4: 2.9); dampings floored so that no start is a razor-sharp mode
         start = dict(K1=0.4, wp=wp, zp=max(-p.real / wp, 0.05), wz=modes[1], zz=max(zetas[1], 0.01), tau=3 * wp,
                      w1=modes[0], z1=max(zetas[0], 0.01), w3=modes[2], z3=max(zetas[2], 0.01), B1=-0.02, B2=0.02, B3=0.003)
         res = fit(frf, st, phase_weight=0.1, weighting="coherence", start=start, n_perturbed=0)
@@ -90,10 +92,8 @@ def truth(model, overrides, data) -> dict:
     return {"params": dict(best.params), "base_modes_hz": [w / 2 / np.pi for w in modes], "cost": best.cost}
 
 
-def measure_case(case: int, seed: int, cache: Path | None = OUT / "sim_cache") -> dict:
-    """Draw rig ``case`` of ``seed``, measure it and find its truth; cached in ``cache`` (None: no files written)."""
-    import tempfile
-
+def measure_case(case: int, seed: int, cache: Path = OUT / "sim_cache") -> dict:
+    """Draw rig ``case`` of ``seed``, measure it and find its truth; its FRF and record cached in ``cache``."""
     from samii.measure.campaign import measure_swept
     from samii.measure.daq import SensorNoise
     from samii.measure.io import write_frf_csv
@@ -102,11 +102,10 @@ def measure_case(case: int, seed: int, cache: Path | None = OUT / "sim_cache") -
     from samii.sim.plugin import load_plugin
 
     load_plugin()
-    folder = Path(tempfile.mkdtemp(prefix="samii_fit_battery_")) if cache is None else cache
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"seed{seed}_case{case:03d}.csv"
+    cache.mkdir(parents=True, exist_ok=True)
+    path = cache / f"seed{seed}_case{case:03d}.csv"
     meta_path = path.with_suffix(".json")
-    if cache is not None and meta_path.exists():
+    if meta_path.exists():
         return json.loads(meta_path.read_text())
     factors = draw(case, seed)
     ov = _overrides(factors)

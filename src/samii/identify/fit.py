@@ -409,8 +409,7 @@ def _solve(problem: FitProblem, x0: np.ndarray, *, max_nfev: int, on_evaluation:
     # the modes keep their order (mode k below mode k+1; mode 2 of the tied structure is the actuator zero):
     # a step that would carry one across another is rejected like one where the model overflows, so a mode
     # cannot leave the resonance it was started on for a floor of unmodelled response below the others
-    order = np.array([st.param_names.index(st.mode_names(k)[0]) for k in range(1, st.n_modes + 1)])
-    order = order[free[order]]
+    order = st.mode_index[0][free[st.mode_index[0]]]
     keep_order = order.size > 1 and bool(np.all(np.diff(x0[order]) > 0))
 
     def evaluate(z):
@@ -596,22 +595,34 @@ def _unresolved_pairs(params: Mapping[str, float], structure: ModelStructure) ->
 
     (Not the sum of the half-widths: a broad, heavily damped term beside a resonance is a shape the fit chose,
     not a second mode on the same peak.)"""
-    modes = []
-    for k in range(1, structure.n_modes + 1):
-        wn, zn = structure.mode_names(k)
-        w, z = params.get(wn, np.nan), params.get(zn, np.nan)
-        if np.isfinite(w) and np.isfinite(z):
-            modes.append((w, z, wn))
-    modes.sort()
+    modes = sorted((params[wn], params[zn], wn) for wn, zn in _mode_names(structure) if np.isfinite(params[wn]) and np.isfinite(params[zn]))
     return [(a[2], b[2]) for a, b in zip(modes, modes[1:]) if b[0] - a[0] < min(a[1] * a[0], b[1] * b[0])]
+
+
+def _mode_names(structure: ModelStructure) -> list[tuple[str, str]]:
+    """(frequency, damping) names of every base mode, mode 1 first."""
+    return [structure.mode_names(k) for k in range(1, structure.n_modes + 1)]
 
 
 #: A second-order mode with a damping ratio above 1/sqrt(2) has no resonant peak.
 OVERDAMPED = 1 / np.sqrt(2)
 
 
-def _defects(problem: FitProblem, params: Mapping[str, float], n_averages: int | None = None) -> list[tuple[str, str]]:
-    """Reasons the parameters of a minimum should not be used, each (kind, reason with what to try).
+@dataclass(frozen=True)
+class _Defect:
+    """Why a minimum's parameter should not be used: ``kind`` "misplaced" or "unmeasured" (``_defects``)."""
+
+    kind: str
+    finding: str
+    advice: str
+
+    @property
+    def text(self) -> str:
+        return f"{self.finding}: {self.advice}"
+
+
+def _defects(problem: FitProblem, params: Mapping[str, float], n_averages: int | None = None) -> list[_Defect]:
+    """Reasons the parameters of a minimum should not be used.
 
     ``"misplaced"``: a damping ratio on its bound, modes out of their order
     (mode 2 of the tied structure is the second base mode), two modes on one
@@ -621,78 +632,79 @@ def _defects(problem: FitProblem, params: Mapping[str, float], n_averages: int |
     a parameter where no reading of the data would. ``"unmeasured"``: a mode
     outside the band (only its tail is seen) or where the fitted channels are
     noise above the modes the data place, or that has no resonant peak (damping
-    above 1/sqrt(2)): the data do not determine it wherever it is put. The fit
-    keeps the lowest minimum among those with the fewest misplaced parameters
-    (``fit_problem``); unmeasured ones are said, not ranked (where the data are
-    noise no place is better than another).
+    above 1/sqrt(2)), and the damping of such a mode on its bound: the data do
+    not determine it wherever it is put. The fit keeps the lowest minimum among
+    those with the fewest misplaced parameters (``fit_problem``); unmeasured
+    ones are said, not ranked (where the data are noise no place is better than
+    another).
     """
     from samii.identify.lack_of_fit import MIN_COHERENCE
 
     data = problem.data
-    f = data.freq_hz
-    lo, hi = f[0], f[-1]
+    lo, hi = data.freq_hz[0], data.freq_hz[-1]
     st = problem.structure
-    damping = {st.mode_names(k)[0]: st.mode_names(k)[1] for k in range(1, st.n_modes + 1)} | {"wp": "zp"}
     weighable = problem.weighting == "none" and all(data.coherence(c) is not None for c in problem.channels)
-    noise: list[tuple[float, str, str]] = []  # modes where the fitted channels are noise
-    placed: list[float] = []  # base modes the data place
     reweigh = "fit with --weighting coherence (the noise floor counts as much as the resonances in the notebook's cost), " if weighable else ""
-    out = []
-    for n, v in params.items():
-        if not np.isfinite(v) or not (n.startswith("w")):
+    out: list[_Defect] = []
+    undetermined: set[str] = set()  # modes the data do not determine
+    noise: list[tuple[float, str, str]] = []  # modes where the fitted channels are noise: (w, name, finding)
+    placed: list[float] = []  # base modes the data place
+    # wp and wz are not read off a resonance of their own: wp sits where theta/v starts to roll off into the noise
+    # (its place is read from the phase below it), wz at theta/v's zero, which makes theta, and so both fitted
+    # channels, small exactly there (its place is read from the slopes on either side)
+    named = [("wp", "zp")] + _mode_names(st) + ([] if st.tie_mode2 else [("wz", "zz")])
+    for wn, zn in named:
+        v, zeta = params.get(wn, np.nan), params.get(zn, np.nan)
+        if not np.isfinite(v):
             continue
         fz = v / (2 * np.pi)
         if not lo <= fz <= hi:
-            out.append(("unmeasured", f"mode {n} = {fz:.3g} Hz lies outside the fitted band {lo:.3g}-{hi:.3g} Hz: widen --band-hz to include it, or fit fewer --modes"))
-            continue
-        # only base modes are read off their own resonance: wp sits where theta/v starts to roll off into the
-        # noise (its place is read from the phase below it), wz at theta/v's zero, which makes theta, and so
-        # both fitted channels, small exactly there (its place is read from the slopes on either side)
-        if n in ("wp", "wz"):
-            if n == "wz" and st.tie_mode2:
-                placed.append(v)
-            continue
-        zeta = params.get(damping.get(n, ""), np.nan)
-        if zeta > OVERDAMPED:
-            out.append(("unmeasured", f"mode {n} = {fz:.3g} Hz has damping {damping[n]} = {zeta:.3g}, above 1/sqrt(2): it has no resonant peak, "
-                                      f"so it is a shape the fit chose, not a mode the data show; {reweigh}fit --band-hz where the structure "
-                                      f"holds, or fewer --modes"))
-            continue
-        found = _resonance_coherence(problem, v, zeta, n_averages)
-        if found is not None and found[0] < MIN_COHERENCE:
-            noise.append((v, n, f"mode {n} = {fz:.3g} Hz sits where the data are noise (coherence {found[0]:.2f} in {found[1]} around it, "
-                                f"corrected for the bias of {n_averages or 'its'} averages), not at a measured resonance: the data do not "
-                                f"determine it; {reweigh}measure with more excitation there, fit --band-hz where the coherence is high, "
-                                f"or fewer --modes"))
+            undetermined.add(wn)
+            out.append(_Defect("unmeasured", f"mode {wn} = {fz:.3g} Hz lies outside the fitted band {lo:.3g}-{hi:.3g} Hz",
+                               "widen --band-hz to include it, or fit fewer --modes"))
+        elif wn == "wz":
+            placed += [v] if st.tie_mode2 else []
+        elif wn == "wp":
+            pass
+        elif zeta > OVERDAMPED:
+            undetermined.add(wn)
+            out.append(_Defect("unmeasured", f"mode {wn} = {fz:.3g} Hz has damping {zn} = {zeta:.3g}, above 1/sqrt(2): it has no resonant peak, "
+                                             "so it is a shape the fit chose, not a mode the data show",
+                               f"{reweigh}fit --band-hz where the structure holds, or fewer --modes"))
+        elif (found := _resonance_coherence(problem, v, zeta, n_averages)) is not None and found[0] < MIN_COHERENCE:
+            undetermined.add(wn)
+            noise.append((v, wn, f"mode {wn} = {fz:.3g} Hz sits where the data are noise (coherence {found[0]:.2f} in {found[1]} around it, "
+                                 f"corrected for the bias of {n_averages or 'its'} averages), not at a measured resonance"))
         else:
             placed.append(v)
-    for v, n, text in noise:
-        out.append(("misplaced" if any(p > v for p in placed) else "unmeasured", text))
+    for v, _, finding in noise:
+        out.append(_Defect("misplaced" if any(p > v for p in placed) else "unmeasured", finding,
+                           f"the data do not determine it; {reweigh}measure with more excitation there, "
+                           "fit --band-hz where the coherence is high, or fewer --modes"))
     lz, hz = BOUNDS["z"]
-    undetermined = {text.split(" = ")[0].removeprefix("mode ") for _, text in out}
+    owner = {zn: wn for wn, zn in named}
     for n, v in params.items():
         if n.startswith("z") and np.isfinite(v) and (v < 1.01 * lz or v > 0.99 * hz):
             # the damping of a mode the data do not determine follows the noise: said, not held against the minimum
-            owner = next((w for w, z in damping.items() if z == n), "")
-            kind = "unmeasured" if owner in undetermined else "misplaced"
-            out.append((kind, f"damping {n} = {v:.4g} is on its bound {BOUNDS['z']}: the mode is not in the data as modelled; "
-                              f"try a narrower --band-hz, or fewer --modes"))
-    order = [(params.get(st.mode_names(k)[0], np.nan), st.mode_names(k)[0]) for k in range(1, st.n_modes + 1)]
-    order = [(w, n) for w, n in order if np.isfinite(w)]
+            out.append(_Defect("unmeasured" if owner.get(n) in undetermined else "misplaced",
+                               f"damping {n} = {v:.4g} is on its bound {BOUNDS['z']}",
+                               "the mode is not in the data as modelled; try a narrower --band-hz, or fewer --modes"))
+    order = [(params[wn], wn) for wn, _ in _mode_names(st) if np.isfinite(params[wn])]
     for (wa, a), (wb, b) in zip(order, order[1:]):
         if not wb > wa:
-            out.append(("misplaced", f"mode {b} = {wb / (2 * np.pi):.3g} Hz lies below mode {a} = {wa / (2 * np.pi):.3g} Hz: the structure numbers "
-                                     f"its modes upward{' (mode 2 is the actuator zero wz)' if st.tie_mode2 else ''}, so a mode has left the place "
-                                     f"the data give it; try a narrower --band-hz, or fewer --modes"))
+            out.append(_Defect("misplaced", f"mode {b} = {wb / (2 * np.pi):.3g} Hz lies below mode {a} = {wa / (2 * np.pi):.3g} Hz",
+                               f"the structure numbers its modes upward{' (mode 2 is the actuator zero wz)' if st.tie_mode2 else ''}, so a "
+                               "mode has left the place the data give it; try a narrower --band-hz, or fewer --modes"))
     for a, b in _unresolved_pairs(params, st):
-        out.append(("misplaced", f"modes {a} = {params[a] / (2 * np.pi):.3g} Hz and {b} = {params[b] / (2 * np.pi):.3g} Hz are closer than their "
-                                 f"half-power bandwidths: one resonance fitted by two modes; try fewer --modes"))
+        out.append(_Defect("misplaced", f"modes {a} = {params[a] / (2 * np.pi):.3g} Hz and {b} = {params[b] / (2 * np.pi):.3g} Hz are closer "
+                                        "than their half-power bandwidths",
+                           "one resonance fitted by two modes; try fewer --modes"))
     return out
 
 
 def _concerns(problem: FitProblem, params: Mapping[str, float], lof: LackOfFit, n_averages: int | None) -> list[str]:
     """Reasons a converged fit is still not a sound one, each with what to try."""
-    out = [text for _, text in _defects(problem, params, n_averages)]
+    out = [d.text for d in _defects(problem, params, n_averages)]
     if lof.found:
         ratio = ", ".join(f"{c} {v:.3g}" for c, v in lof.noise_ratio.items() if v is not None)
         out.append(f"the residuals are far above the data's noise in {len(lof.bands)} band(s) ({lof.summary()})"
@@ -748,7 +760,7 @@ def fit_problem(
     search = problem.thinned(SEARCH_POINTS)
     thinned = search is not problem
     n_labels = 1 if not isinstance(start, str) else (2 if start == "both" else 1)
-    scan = mode_scan and isinstance(start, str) and any(free[st.param_names.index(st.mode_names(k)[0])] for k in range(1, st.n_modes + 1))
+    scan = mode_scan and isinstance(start, str) and bool(free[st.mode_index[0]].any())
     total = n_labels + int(bool(scan)) + n_perturbed + int(thinned) + 1  # starts, scan, perturbed starts, refinement, diagnosis
     step = [0]
 
@@ -765,19 +777,13 @@ def fit_problem(
     def run(label: str, p: Mapping[str, float]) -> None:
         x0 = st.vector(p)
         x, sol, prev, (r, jx) = _solve(search, x0, max_nfev=max_nfev)
-        runs.append((label, search.cost(x0), float(r @ r), x, sol, prev, (r, jx)))
+        misplaced = [d for d in _defects(search, st.params(np.where(free, x, np.nan)), averages) if d.kind == "misplaced"]
+        runs.append((label, search.cost(x0), float(r @ r), x, sol, prev, (r, jx), misplaced))
         done(f"start {label}")
-
-    defects: dict[int, list[tuple[str, str]]] = {}
-
-    def n_defects(r) -> int:
-        if id(r) not in defects:
-            defects[id(r)] = _defects(search, st.params(np.where(free, r[3], np.nan)), averages)
-        return sum(kind == "misplaced" for kind, _ in defects[id(r)])
 
     def best_run():
         """The lowest minimum among those with the fewest misplaced parameters (``_defects``)."""
-        return min(runs, key=lambda r: (n_defects(r), r[2]))
+        return min(runs, key=lambda r: (len(r[7]), r[2]))
 
     for label, p in starts:
         run(label, p)
@@ -790,7 +796,7 @@ def fit_problem(
         for k in range(n_perturbed):
             run(f"perturbed {k + 1} of {best[0]}", perturbed_start(search, st.params(best[3]), rng=rng))
     chosen = best_run()
-    label, _, cost, x, sol, (x_prev, cost_prev), rj = chosen
+    label, _, cost, x, sol, (x_prev, cost_prev), rj, _ = chosen
     discarded = [r for r in runs if r[2] < cost * (1 - 1e-6)]
     nfev = sum(int(r[4].nfev) for r in runs)
     agree = sum(1 for r in runs if r[2] <= cost * (1 + 1e-6) + 1e-12)
@@ -818,9 +824,8 @@ def fit_problem(
     parts = [f"{where}: solver: {sol.message} {crit.describe()}."]
     if discarded:
         low = min(discarded, key=lambda r: r[2])
-        why = next(text for kind, text in defects[id(low)] if kind == "misplaced")
         parts.append(f"{len(discarded)} lower minim{'um' if len(discarded) == 1 else 'a'} discarded, the lowest ({low[0]}, cost {low[2]:.4g}) because "
-                     f"{why.split(':')[0]}.")
+                     f"{low[7][0].finding}.")
     parts += [f"{n}." for n in notes]
     if not_fitted:
         parts.append(f"Not fitted (the fitted channel{'s' if len(problem.channels) > 1 else ''} {', '.join(problem.channels)} do not depend on them): {', '.join(not_fitted)}.")

@@ -185,6 +185,13 @@ def auto_start(problem: FitProblem) -> dict[str, float]:
     return st.params(_grid_refine(problem, x))
 
 
+def _keep_better(problem: FitProblem, trial: np.ndarray, best: np.ndarray, best_cost: float) -> tuple[np.ndarray, float]:
+    """``trial`` with its gains re-solved, if its cost is below ``best_cost``; else (best, best_cost)."""
+    trial = solve_gains(problem, trial)
+    c = problem.cost(trial)
+    return (trial, c) if c < best_cost else (best, best_cost)
+
+
 def _scan_wp(problem: FitProblem, x: np.ndarray, n: int = 40) -> np.ndarray:
     """Global 1-D search for the hydraulic resonance wp over the band (tau = 3 wp, gains re-solved).
 
@@ -197,10 +204,7 @@ def _scan_wp(problem: FitProblem, x: np.ndarray, n: int = 40) -> np.ndarray:
     for wp in np.geomspace(problem.w[0], problem.w[-1], n):
         trial = x.copy()
         trial[iwp], trial[itau] = wp, _DEFAULT_TAU_OVER_WP * wp
-        trial = solve_gains(problem, trial)
-        c = problem.cost(trial)
-        if c < best_cost:
-            best, best_cost = trial, c
+        best, best_cost = _keep_better(problem, trial, best, best_cost)
     return best
 
 
@@ -219,10 +223,7 @@ def _grid_refine(problem: FitProblem, x: np.ndarray, *, sweeps: int = 2) -> np.n
                 trial[idx[n]] = best[idx[n]] * f
                 if n.startswith("z") and trial[idx[n]] > 2.0:
                     continue
-                trial = solve_gains(problem, trial)
-                c = problem.cost(trial)
-                if c < best_cost:
-                    best, best_cost = trial, c
+                best, best_cost = _keep_better(problem, trial, best, best_cost)
     return best
 
 
@@ -245,26 +246,19 @@ def scan_modes(problem: FitProblem, x: np.ndarray, *, points: int = _SCAN_POINTS
     fell into; this search does, in the order of the modes, from mode 1 up.
     """
     st = problem.structure
-    idx = {n: i for i, n in enumerate(st.param_names)}
     best = solve_gains(problem, np.array(x, float))
     best_cost = problem.cost(best)
     lo_w, hi_w = problem.w[0] / _SCAN_SEPARATION**4, problem.w[-1] * _SCAN_SEPARATION**4  # a mode just outside shows its tail
-    names = [st.mode_names(k) for k in range(1, st.n_modes + 1)]
-    for k, (wn, zn) in enumerate(names):
-        if not problem.fitted[idx[wn]]:
+    wi, zi = st.mode_index[:2]
+    for k in range(st.n_modes):
+        if not problem.fitted[wi[k]]:
             continue
-        below = best[idx[names[k - 1][0]]] * _SCAN_SEPARATION if k > 0 else lo_w
-        above = best[idx[names[k + 1][0]]] / _SCAN_SEPARATION if k + 1 < len(names) else hi_w
-        below, above = max(below, lo_w), min(above, hi_w)
-        if not above > below:
-            continue
-        for w in np.geomspace(below, above, points):
+        below = max(best[wi[k - 1]] * _SCAN_SEPARATION if k > 0 else lo_w, lo_w)
+        above = min(best[wi[k + 1]] / _SCAN_SEPARATION if k + 1 < st.n_modes else hi_w, hi_w)
+        for w in np.geomspace(below, above, points) if above > below else ():
             trial = best.copy()
-            trial[idx[wn]], trial[idx[zn]] = w, _DEFAULT_ZETA_MODE
-            trial = solve_gains(problem, trial)
-            c = problem.cost(trial)
-            if c < best_cost:
-                best, best_cost = trial, c
+            trial[wi[k]], trial[zi[k]] = w, _DEFAULT_ZETA_MODE
+            best, best_cost = _keep_better(problem, trial, best, best_cost)
     return _grid_refine(problem, best)
 
 
@@ -301,6 +295,6 @@ def perturbed_start(problem: FitProblem, params: Mapping[str, float], *, rng: np
     pos = st.positive.copy()
     pos[st.param_names.index("K1")] = False
     x[pos] *= np.exp(scale * rng.standard_normal(int(pos.sum())))
-    modes = [st.param_names.index(st.mode_names(k)[0]) for k in range(1, st.n_modes + 1)]
-    x[modes] = np.sort(x[modes])  # modes keep their order (the solver keeps a start's order)
+    wi = st.mode_index[0]
+    x[wi] = np.sort(x[wi])  # modes keep their order (the solver keeps a start's order)
     return st.params(solve_gains(problem, x))

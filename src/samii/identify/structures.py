@@ -263,8 +263,8 @@ class ModelStructure:
         return {c: out[c] for c in channels}
 
     @cached_property
-    def _mode_index(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Positions in ``param_names`` of every mode's frequency, damping and gain (mode order)."""
+    def mode_index(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Positions in ``param_names`` of every base mode's frequency, damping and gain, mode 1 first."""
         idx = self._index
         names = [self.mode_names(k) for k in range(1, self.n_modes + 1)]
         return tuple(np.array([idx[n] for n in col]) for col in (*zip(*names), [f"B{k}" for k in range(1, self.n_modes + 1)]))
@@ -279,7 +279,7 @@ class ModelStructure:
 
     def modal_columns(self, x: np.ndarray, w: np.ndarray) -> np.ndarray:
         """xdd/theta of each mode with unit gain, (m, N): column k is s^n g_k / D_k, so base = columns @ B."""
-        wi, zi, _ = self._mode_index
+        wi, zi, _ = self.mode_index
         x = np.asarray(x, float)
         t, g, _ = self._modal_terms(x[wi], x[zi], 1j * np.asarray(w, float))
         return t * g
