@@ -84,8 +84,15 @@ def _run_bad(argv, capsys, code, needle, out_dir=None):
 
 TOP = [
     (["nonsense"], "invalid choice"),
-    (["--bogus"], "unrecognized arguments"),
-    (["modes", "--bogus"], "unrecognized arguments"),
+    (["--bogus"], "unrecognized option --bogus"),
+    (["modes", "--bogus"], "unrecognized option --bogus"),
+    # a misspelling is named with the closest option, before the required option it displaced
+    (["closedloop", "--controller", "unity", "--scenerio", "step"], "unrecognized option --scenerio: did you mean --scenario?"),
+    # no abbreviations: --amplitude is not silently --amplitude-v
+    (["measure", "--amplitude", "0.5"], "unrecognized option --amplitude: did you mean --amplitude-v?"),
+    (["run", "--sed=1"], "did you mean --seed?"),
+    (["mesure"], "did you mean 'measure'?"),
+    (["design", "rootlocus"], "did you mean 'rlocus'?"),
 ]
 
 
@@ -288,8 +295,9 @@ def test_measure_out_read_only(tmp_path, capsys):
 
 
 def test_measure_rerun_paths(files, out_dir, capsys):
-    _run_bad(["measure", "--out", str(out_dir), "--no-progress", "--rerun", os.path.join(files["dir"], "nope", "x.rrd")], capsys, 2,
-             "does not exist", out_dir)
+    # a missing folder is created (test_closedloop_rerun_into_a_new_folder_creates_it); a file in its way is refused
+    _run_bad(["measure", "--out", str(out_dir), "--no-progress", "--rerun", os.path.join(files["a_file"], "nope", "x.rrd")], capsys, 2,
+             "which is a file", out_dir)
     _run_bad(["measure", "--out", str(out_dir), "--no-progress", "--rerun", files["dir"]], capsys, 2, "is a folder", out_dir)
     _run_bad(["measure", "--out", str(out_dir), "--no-progress", "--rerun", ""], capsys, 2, "--rerun", out_dir)
     _run_bad(["measure", "--out", str(out_dir), "--no-progress", "--rerun", files["a_file"]], capsys, 2, "--overwrite", out_dir)

@@ -139,7 +139,7 @@ OPTIONS = [
     ("no-plots-without-out", ["--controller", "unity", *_STEP, "--no-plots"], ["--no-plots", "--out"]),
     ("out-empty", ["--controller", "unity", *_STEP, "--out", ""], ["--out", "empty"]),
     ("rerun-empty", ["--controller", "unity", *_STEP, "--rerun", ""], ["--rerun", "empty"]),
-    ("rerun-missing-folder", ["--controller", "unity", *_STEP, "--rerun", "nowhere/x.rrd"], ["--rerun", "does not exist"]),
+    ("rerun-under-a-file", ["--controller", "unity", *_STEP, "--rerun", "/dev/null/x.rrd"], ["--rerun", "/dev/null", "not a folder"]),
     ("rerun-folder", ["--controller", "unity", *_STEP, "--rerun", "."], ["--rerun", "is a folder"]),
     ("bad-set", ["--controller", "unity", *_STEP, "--set", "beam.length_m=-1"], ["length_m"]),
     ("missing-model", ["--controller", "unity", *_STEP, "--model", "nope.xml"], ["nope.xml", "does not exist"]),
@@ -198,6 +198,19 @@ def test_closedloop_rerun_into_an_existing_file(tmp_path, out_dir, cwd, capsys):
     _run_bad(["closedloop", "--controller", "unity", *_STEP, "--duration-s", "3", "--rerun", rec, "--out", out_dir], capsys,
              ["--rerun", "--overwrite"], path=rec, watch=[cwd, tmp_path, out_dir])  # fmt: skip
     assert rec.read_bytes() == b"the user's recording"
+
+
+def test_closedloop_rerun_into_a_new_folder_creates_it(tmp_path, cwd, capsys):
+    """A single-file output's folder is created as every --out folder is, and only once the file is written."""
+    rec = tmp_path / "new" / "sub" / "rec.rrd"
+    assert main(["closedloop", "--controller", "unity", *_STEP, "--duration-s", "3", "--rerun", str(rec), "--rerun-fps", "5"]) == 0
+    assert rec.is_file() and rec.stat().st_size > 0
+    assert sorted(p.name for p in rec.parent.iterdir()) == ["rec.rrd"]
+    capsys.readouterr()
+    refused = tmp_path / "other" / "rec.rrd"  # refused before any work: no folder left behind
+    _run_bad(["closedloop", "--controller", "unity", *_STEP, "--duration-s", "2", "--rerun", refused], capsys, ["--duration-s"],
+             watch=[cwd, tmp_path])  # fmt: skip
+    assert not refused.parent.exists()
 
 
 @pytest.mark.parametrize("name", ["run.json", "theta.png", "timeseries.csv"])

@@ -221,8 +221,8 @@ def test_diagnose_against_a_saved_fit(saved_fit_diagnosis):
     """A fit of the delayed data, held fixed: what does the diagnosis make of it?
 
     samii fit fits act (theta/v) and base (xdd/theta), both noise-dominated above ~9 Hz
-    (theta is small there), so its fit of these data is a compromise it marks itself as
-    not sound. The delay is absorbed into it (the act residual before the effects is a few
+    (theta is small there), so mode 3 is not determined by these data, which the fit says
+    itself (a caveat naming w3 and z3). The delay is absorbed into it (the act residual before the effects is a few
     degrees where act is usable, <= 8.6 Hz), but xdd/v, clean up to 40 Hz, is far off
     (chi2 ~ 7700 per residual). So the verdict is "effects" -- the saved fit does lack
     something -- but the effects found are the library's best patches for a distorted fit
@@ -232,12 +232,13 @@ def test_diagnose_against_a_saved_fit(saved_fit_diagnosis):
     """
     rc, text, err, fit_json, fit = saved_fit_diagnosis
     assert rc == 0, err
-    assert fit["sound"] is False  # samii fit says so itself
+    # samii fit says itself that these data do not determine mode 3 (a caveat: the rest is to be used)
+    assert fit["verdict"] == "caveats" and fit["undetermined"] == ["w3", "z3"]
     d = strict_json(text)
     assert d["simulator"] is None
     assert str(fit_json) in d["baseline"] and "held fixed" in d["baseline"]
     assert d["baseline_params"] is None  # a saved fit is not refitted
-    assert any("not a sound fit" in n for n in d["notes"])  # the report passes on what the fit says of itself
+    assert any("do not determine w3, z3" in n for n in d["notes"])  # the report passes on what the fit says of itself
     assert d["verdict"] == "effects"
     before, after = d["error_before"], d["error_after"]
     assert before["total"]["chi2"] > 100  # the saved fit misses xdd/v
@@ -393,3 +394,27 @@ def test_refused_what_a_rig_file_gets_wrong(clean_csv, frf_clean, tmp_path, caps
     radians.write_text("\n".join(frf[: head + 1] + [",".join(row) for row in rows]) + "\n")
     for prog in ("diagnose", "fit"):
         _check_refused(capsys, [prog, str(radians)], str(radians), "'act_phase_deg'", "that is a phase in radians", prog=f"samii {prog}")
+
+
+# --------------------------------------------------------------------------- noise-free data (issue 32 item 3)
+
+
+@pytest.mark.parametrize("effects, found", [({}, []), ({"command_delay_s": DELAY_S}, ["command"])], ids=["clean", "delay"])
+def test_noise_free_data_are_said_so_and_judged_against_the_floor(tmp_path, sweep, effects, found, capsys):
+    """A simulation without noise (as `samii measure` writes by default): its records repeat exactly, so the
+    diagnosis says so and judges the data against the stated floor (0.5 % relative and the estimator's own
+    bias) in place of a noise they do not have. Nothing is invented by a zero denominator: the clean rig
+    gets no effect, the delayed one its delay, exactly."""
+    ts = EffectRig(**effects).simulate(sweep[1], sample_rate_hz=FS)  # no rng: no noise
+    path = tmp_path / "noise_free.csv"
+    write_timeseries_csv(ts, path)
+    assert main(["diagnose", str(path), "--json", "--no-progress"]) == 0
+    d = strict_json(capsys.readouterr().out)
+    assert d["files"][0]["noise_free"] is True and "NO NOISE" in d["files"][0]["noise"]
+    assert [e["kind"] for e in d["effects"]] == found and d["unexplained"] == []
+    for ch, after in d["error_after"].items():
+        assert after["chi2"] < 1.0, ch  # within the floor: nothing left to find
+    if found:
+        assert d["effects"][0]["params"]["delay_s"] == pytest.approx(DELAY_S, rel=1e-3)
+    assert main(["diagnose", str(path), "--no-progress"]) == 0
+    assert f"NO NOISE in {path}" in capsys.readouterr().out

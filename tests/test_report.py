@@ -119,8 +119,7 @@ def test_samii_report_rewrites_the_page_elsewhere_with_links_that_still_work(run
     from urllib.parse import unquote, urljoin, urlparse
 
     out = tmp_path / "else where #1 50%" / "r.html"  # a folder name that is no valid URL as it stands
-    out.parent.mkdir()
-    assert main(["report", str(runs[0]), "--out", str(out)]) == 0
+    assert main(["report", str(runs[0]), "--out", str(out)]) == 0  # its folder created, as every --out's
     hrefs = [a["href"] for t, a in _parse(out).tags if t == "a" and not a["href"].startswith("#")]
     # resolved the way a browser does: as URLs relative to the page's
     targets = [Path(unquote(urlparse(urljoin(out.as_uri(), h)).path)) for h in hrefs]
@@ -134,6 +133,19 @@ def test_samii_report_rewrites_the_page_elsewhere_with_links_that_still_work(run
     # an existing --out is kept without --overwrite
     assert main(["report", str(runs[0]), "--out", str(out)]) == 2
     assert "--overwrite" in capsys.readouterr().err
+
+
+def test_samii_report_keeps_the_main_jobs_page_without_overwrite(runs, tmp_path, capsys):
+    import shutil
+
+    d = tmp_path / "copy"
+    shutil.copytree(runs[0], d, ignore=shutil.ignore_patterns("*.rrd"))
+    page = d / "report.html"
+    page.write_text("kept")
+    assert main(["report", str(d)]) == 2
+    assert "--overwrite" in capsys.readouterr().err and page.read_text() == "kept"
+    assert main(["report", str(d), "--overwrite"]) == 0
+    assert page.read_text(encoding="utf-8").startswith("<!DOCTYPE html>")
 
 
 def test_samii_report_refuses_a_folder_that_is_not_a_main_jobs(tmp_path, capsys):

@@ -2,7 +2,7 @@
 
 A fit is right when wp, w1, wz and w3 are each within ``REL_TOL`` of the truth or within
 ``N_SE`` of the fit's own standard errors of it. Where it is not, it may still have said so:
-every parameter it missed is named in its concerns (the data do not determine it).
+every parameter it missed is named as not determined by the data, or the fit is not sound.
 """
 
 from __future__ import annotations
@@ -29,5 +29,7 @@ def judge(res, truth: Mapping[str, float]) -> tuple[bool, dict[str, tuple[float,
 
 
 def said(res, errs) -> bool:
-    """Every parameter that missed is named in the fit's concerns (the fit said it cannot tell)."""
-    return all(any(f"{k} = " in c for c in res.concerns) for k, (_, _, good) in errs.items() if not good)
+    """The fit said not to use what missed: every parameter that missed is one it names as not
+    determined by the data (``FitResult.undetermined``), or it is not a sound fit (none of its
+    parameters to be used)."""
+    return not res.sound or all(k in res.undetermined for k, (_, _, good) in errs.items() if not good)

@@ -57,7 +57,7 @@ def run_plant(i: int, seed: int) -> dict:
     ok, errs = judge(res, p)
     return {"plant": i, "ok": ok, "said": not ok and said(res, errs), "sound": res.sound, "errs": errs, "wall_s": wall,
             "params_hz": {k: res.params[k] / 2 / np.pi for k in KEYS}, "truth_hz": {k: p[k] / 2 / np.pi for k in KEYS},
-            "concerns": list(res.concerns)}
+            "concerns": list(res.concerns), "caveats": list(res.caveats), "undetermined": list(res.undetermined)}
 
 
 def main() -> None:

@@ -139,7 +139,7 @@ def fit_case(rec: dict) -> dict:
     ok, errs = judge(res, rec["truth"]["params"])
     return {"case": rec["case"], "ok": ok, "said": not ok and said(res, errs), "errs": errs, "sound": res.sound, "wall_s": wall, "cost": res.cost,
             "params_hz": {k: res.params[k] / 2 / np.pi for k in KEYS}, "truth_hz": {k: rec["truth"]["params"][k] / 2 / np.pi for k in KEYS},
-            "concerns": list(res.concerns), "starts": res.starts}
+            "concerns": list(res.concerns), "caveats": list(res.caveats), "undetermined": list(res.undetermined), "starts": res.starts}
 
 
 def main() -> None:
@@ -162,7 +162,7 @@ def main() -> None:
         cells = [f"{r['params_hz'][k]:6.2f}/{r['truth_hz'][k]:6.2f}{'' if r['errs'][k][2] else '*':1}" for k in KEYS]
         verdict = "yes" if r["ok"] else ("said" if r["said"] else "NO")
         print(f"{r['case']:4d} {verdict:>5} {'yes' if r['sound'] else 'no':>5}  " + "  ".join(f"{c:>16}" for c in cells) + f"  {r['wall_s']:5.1f} s")
-    print(f"\n(* missed: not within {REL_TOL:.0%} or {N_SE:g} standard errors of the truth; 'said': every miss named in the fit's concerns)")
+    print(f"\n(* missed: not within {REL_TOL:.0%} or {N_SE:g} standard errors of the truth; 'said': every miss named as not determined by the data, or the fit not sound)")
     print(f"right minimum in {n_ok} of {len(rows)} measured rigs, {n_said} more where the fit said which parameter it cannot tell, "
           f"{len(rows) - n_ok - n_said} wrong without saying so ({len(recs) - len(rows)} rigs not measurable); "
           f"sound {sum(r['sound'] for r in rows)}; fit wall median {np.median([r['wall_s'] for r in rows]):.1f} s")

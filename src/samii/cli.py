@@ -39,12 +39,54 @@ def _version() -> str:
 
 
 class _Parser(argparse.ArgumentParser):
-    """An argparse parser whose errors are one line (``samii CMD: error: argument --x: why``), no usage dump."""
+    """An argparse parser whose errors are one line (``samii CMD: error: argument --x: why``), no usage dump.
+
+    Options are never abbreviated (``--amplitude`` is not taken for ``--amplitude-v``), and an option
+    the command does not have is named with the closest one it has, before any complaint about a
+    missing required option (``--scenerio step`` is a misspelling, not a missing ``--scenario``).
+    """
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str):  # noqa: D401 - argparse API
-        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
+        import difflib
+        import re
+
+        message = " ".join(message.split())
+        choice = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)", message)
+        if choice:  # a misspelt subcommand or choice: name the closest
+            options = re.findall(r"'([^']*)'", choice.group(2))
+            close = difflib.get_close_matches(choice.group(1), options, n=1, cutoff=0.6)
+            if close:
+                message = message.replace(choice.group(0), f"invalid choice: '{choice.group(1)}': did you mean '{close[0]}'? "
+                                          f"(choose from {choice.group(2)})")
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+    def _reject_unknown_options(self, args: list[str]) -> None:
+        """Stop at the first ``--option`` this parser does not know, naming the closest it does know.
+
+        A parser with subcommands checks only what comes before the subcommand: the rest is its
+        subcommand's to check."""
+        import difflib
+
+        has_subcommands = any(isinstance(a, argparse._SubParsersAction) for a in self._actions)
+        known = [o for o in self._option_string_actions if o.startswith("--")]
+        for token in args:
+            if token == "--" or (has_subcommands and not token.startswith("-")):
+                return
+            if not token.startswith("--"):
+                continue
+            name = token.split("=", 1)[0]
+            if name in self._option_string_actions:
+                continue
+            close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+            self.error(f"unrecognized option {name}" + (f": did you mean {close[0]}?" if close else ""))
 
     def parse_known_args(self, args=None, namespace=None):
+        args = sys.argv[1:] if args is None else list(args)
+        self._reject_unknown_options(args)
         # an option of another subcommand (e.g. `design seed-report --out`) is reported by the
         # subcommand that got it, not by the top-level parser
         ns, extras = super().parse_known_args(args, namespace)

@@ -212,7 +212,9 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, bar: _Progress)
     _stage(d, ["fit", "measure/frf.csv", "--out", "fit", "--no-progress"])
     fit = json.loads((d / "fit" / "fit.json").read_text())
     p, se = fit["params"], fit["stderr"]
-    s["fit"] = {"params": p, "stderr": se, "sound": fit.get("sound"), "eq9_4": dict(nb.EQ9_4),
+    s["fit"] = {"params": p, "stderr": se, "sound": fit.get("sound"), "verdict": fit.get("verdict"), "concerns": fit.get("concerns"),
+                "caveats": fit.get("caveats"), "undetermined": fit.get("undetermined"), "lack_of_fit": fit.get("lack_of_fit"),
+                "eq9_4": dict(nb.EQ9_4),
                 "rms_mag_db": fit.get("rms_mag_db"), "rms_phase_deg": fit.get("rms_phase_deg")}
     bar.done()
 
@@ -287,7 +289,9 @@ def summary_lines(s: dict, out) -> list[str]:
     def hz(w):
         return w / (2 * np.pi)
 
-    lines.append("fit of the notebook's 3-mode model beside eq 9.4" + ("" if s["fit"]["sound"] else " (not a sound fit: see fit/fit.json)") + ":")
+    from samii.identify.report import verdict_text
+
+    lines.append(f"fit of the notebook's 3-mode model beside eq 9.4: {verdict_text(s['fit'])} (fit/fit.json):")
     lines.append(f"  modes {hz(f['w1']):.2f} / {hz(f['wz']):.2f} / {hz(f['w3']):.2f} Hz (eq 9.4: {hz(eq['w1']):.2f} / {hz(eq['wz']):.2f} / "
                  f"{hz(eq['w3']):.2f}); zeta {f['z1']:.3f} / {f['zz']:.3f} / {f['z3']:.3f} ({eq['z1']:.3f} / {eq['zz']:.3f} / {eq['z3']:.3f})")
     lines.append(f"  actuator pair {hz(f['wp']):.2f} Hz zeta {f['zp']:.3f} (eq 9.4: {hz(eq['wp']):.2f} Hz, {eq['zp']:.3f}); "

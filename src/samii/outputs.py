@@ -35,7 +35,7 @@ from typing import Iterable
 
 from samii.errors import InputError
 
-__all__ = ["OutputFolder", "check_output_file"]
+__all__ = ["OutputFolder", "check_output_file", "create_parent"]
 
 _STAGE_PREFIX = ".samii-stage-"
 
@@ -95,12 +95,21 @@ def check_output_file(path, *, overwrite: bool, option: str, beside: "OutputFold
     if p.exists() and not overwrite:
         raise InputError(f"{option} {p}: exists; pass --overwrite to replace it")
     parent = p.parent if str(p.parent) else Path(".")
-    if not parent.is_dir():
-        raise InputError(f"{option} {p}: folder {parent} does not exist")
-    if not _can_create_in(parent):
-        raise InputError(f"{option} {p}: folder {parent} is not writable")
+    if parent.is_dir():
+        if not _can_create_in(parent):
+            raise InputError(f"{option} {p}: folder {parent} is not writable")
+    else:  # created when the file is written (create_parent), as a run's --out folder is
+        _check_creatable_dir(parent, f"{option} {p}: folder")
     if beside is not None and p.absolute().parent == beside.root.absolute() and (p.name in beside.names or p.name.startswith(_STAGE_PREFIX)):
         raise InputError(f"{option} {p}: would replace the run's own output {p.name}; give it another name")
+    return p
+
+
+def create_parent(path) -> Path:
+    """Create the folder of a single output file that :func:`check_output_file` accepted, just before
+    the file is written (so a run refused or failed before then leaves no empty folder)."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
     return p
 
 

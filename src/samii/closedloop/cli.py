@@ -265,8 +265,10 @@ def model_at_rest(factory):
 def _write_rerun(result, tmp, final, factory) -> None:
     import numpy as np
 
+    from samii.outputs import create_parent
     from samii.viz.recording import RunRecord, write_recording
 
+    create_parent(tmp)
     s = result.signals
     model = model_at_rest(factory)
     frame_t = s.frame_t if s.frame_t is not None else np.zeros(0)

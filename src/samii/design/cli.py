@@ -337,8 +337,9 @@ def _save_target(args):
 
 def _save(saved, path, args, out: dict) -> None:
     from samii.closedloop.controllers import write_controller
+    from samii.outputs import create_parent
 
-    write_controller(saved, path)
+    write_controller(saved, create_parent(path))
     out["saved"] = str(path)
     args.saved_controller = str(path)  # the text report names it last (run)
 

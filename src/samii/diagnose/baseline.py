@@ -82,6 +82,9 @@ def read_fit_json(path) -> SavedFit:
     if d.get("sound") is False:
         said = "; ".join(str(c) for c in d.get("concerns") or []) or "no reason given"
         concerns.append(f"{path} says it is not a sound fit ({said}): effects found against it may be its own errors")
+    elif d.get("undetermined"):
+        named = ", ".join(str(n) for n in d["undetermined"])
+        concerns.append(f"{path} says its data do not determine {named}: effects found where those act may be the fit's own errors")
     return SavedFit(str(path), st, params, tuple(concerns))
 
 

@@ -208,8 +208,9 @@ def _write_rerun(d, path, fps) -> None:
     import os
 
     from samii.diagnose.recording import write_diagnosis_recording
+    from samii.outputs import create_parent
 
-    tmp = path.parent / f".{path.name}.{os.getpid()}.tmp"
+    tmp = create_parent(path.parent / f".{path.name}.{os.getpid()}.tmp")
     try:
         try:
             write_diagnosis_recording(tmp, d, fps=fps)
@@ -229,6 +230,9 @@ def _print(d, written) -> None:
         lay = "" if m.layout is None else f"; {m.layout.n_records} records of {m.layout.record_s:.6g} s ({m.layout.how})"
         amp = "" if m.amplitude_v is None else f", {m.amplitude_v:.3g} V"
         print(f"  {m.source}{amp}{lay}; noise: {m.noise_source}")
+        if m.floor is not None and m.floor.noise_free:
+            print(f"  NO NOISE in {m.source}: its records repeat exactly (a simulation without noise?), so it is judged against "
+                  "the stated floor alone (above), not against a noise it does not have: chi2 is per the floor, not per the noise")
     print(f"rule: {d.rule}")
     real = [e for e in d.effects if not e.expected]
     sim = d.simulator.verdict_text() if d.simulator is not None else ""
@@ -260,7 +264,8 @@ def _print(d, written) -> None:
     if d.harmonic_error is not None:
         hb, ha = d.harmonic_error
         print(f"  harmonics: {100 * hb.rms_ratio:7.3g} % of the fundamental, chi2 {hb.chi2:.3g}  ->  {100 * ha.rms_ratio:.3g} %, "
-              f"chi2 {ha.chi2:.3g} with the law ({hb.n_segments} segment harmonics; a linear model makes none)")
+              f"chi2 {ha.chi2:.3g} with the law ({hb.n_segments} segment harmonics; a linear model makes none)"
+              + ("; the law predicts harmonics the data do not have: its level is not to be used" if ha.chi2 > hb.chi2 else ""))
     if d.simulator is not None:
         s = d.simulator
         print(f"simulator: carried {', '.join(s.carried) if s.carried else 'nothing'}; measured like the data, before -> after")

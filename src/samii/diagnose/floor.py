@@ -75,6 +75,9 @@ class Floor:
     #: None when not measured. The records of a run that does not rest between sweeps differ by the tails they
     #: inherit, and this says by how much (samii.diagnose.stationarity)
     simulated: TimeSeries | None = None
+    #: The records repeat to within 1 % of the floor at most points (a simulation without noise): the data are
+    #: judged against the floor alone, which the diagnosis says first
+    noise_free: bool = False
 
 
 def quantisation_step(x: np.ndarray) -> float | None:
@@ -272,10 +275,11 @@ def with_floor(m, model: Callable[[np.ndarray], Mapping[str, np.ndarray]] | None
                              + ", ".join(f"{ch} {100 * w:.2g} %" for ch, w in worst.items()) + ")")
     spread = np.concatenate([np.asarray(m.var[ch]) for ch in floor])
     against = np.concatenate([floor[ch] for ch in floor])
-    if np.median(spread / against) < 1e-2:
+    noise_free = bool(np.median(spread / against) < 1e-2)
+    if noise_free:
         parts.insert(0, "NO NOISE: the records repeat to within 1 % of the floor's size at most points (a simulation without "
                         "noise?), so the data are judged against the floor alone")
     how = "; ".join(parts)
     var = {ch: (None if v is None else np.asarray(v) + floor[ch]) if ch in floor else v for ch, v in m.var.items()}
-    floor_ = Floor(floor, bias_var, steps, how, sims[0] if bias_var is not None and sims else None)
+    floor_ = Floor(floor, bias_var, steps, how, sims[0] if bias_var is not None and sims else None, noise_free)
     return replace(m, var=var, floor=floor_, noise_source=f"{m.noise_source}; plus the systematic floor: {how}")

@@ -309,9 +309,13 @@ def harmonic_errors(findings: Sequence[NonlinearFinding]) -> tuple[HarmonicError
     """The harmonics' error before (a linear model: none) and after (the findings' laws), pooled over every
     file a law was found in, each segment tested for each harmonic; None when no finding has a law with a level.
     The linear model's error is the harmonic a linear model cannot make; the nonlinear effect's is what its law
-    leaves of it."""
+    leaves of it. An odd law that does not fit (``law_fits`` False: its kind and level are indicative only) is
+    not a model of the harmonics, so it has no "after": its describing function at that level predicts
+    harmonics wherever the command is small, which the data need not have."""
     by_file: dict[str, tuple[HarmonicAnalysis, list]] = {}
     for f in findings:
+        if f.kind in ODD_KINDS and not f.law_fits:
+            continue
         for h in f.harmonics:
             if predicted_ratio(f, h, 3) is not None:
                 by_file.setdefault(h.source, (h, []))[1].append(f)

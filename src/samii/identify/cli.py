@@ -264,7 +264,8 @@ def run(args: argparse.Namespace) -> int:
     if r0.not_fitted:
         print(f"samii fit: {args.frf} has no {' or '.join(missing)} channel: {', '.join(r0.not_fitted)} not fitted")
     for r in results:
-        verdict = "yes" if r.sound else ("yes, BUT NOT A SOUND FIT (below)" if r.converged else "NO")
+        verdict = ("yes" if r.verdict == "sound" else "yes, a sound fit with caveats (below)" if r.verdict == "caveats"
+                   else "yes, BUT NOT A SOUND FIT (below)" if r.converged else "NO")
         print(f"\nphase weight {r.phase_weight:g}: cost {r.cost:.6g}, converged {verdict}")
         print(r.table())
         rms = ", ".join(f"{c} {r.rms_mag_db[c]:.3g} dB / {r.rms_phase_deg[c]:.3g} deg" for c in r.channels)
@@ -276,10 +277,16 @@ def run(args: argparse.Namespace) -> int:
         print(r.message)
         for w in r.warnings:
             print(f"warning: {w}")
-        if r.concerns:
-            print(f"NOT A SOUND FIT{'' if r.converged else ' (and not converged)'}: do not take these parameters at face value:")
+        if not r.sound:
+            print(f"NOT A SOUND FIT{'' if r.converged else ' (and not converged)'}: its parameters should not be used"
+                  + (":" if r.concerns else " (the solver stopped before a minimum)"))
             for c in r.concerns:
                 print(f"  !! {c}")
+        if r.caveats:
+            said = f" but {', '.join(r.undetermined)}, which the data do not determine" if r.undetermined else ""
+            print(f"caveats (the parameters can be used{said}):")
+            for c in r.caveats:
+                print(f"  - {c}")
     for p in written:
         print(f"wrote {p}")
     return 0

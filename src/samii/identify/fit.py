@@ -153,14 +153,28 @@ class FitResult:
     metadata: Mapping[str, str] = field(default_factory=dict)
     lack_of_fit: LackOfFit | None = None
     not_fitted: tuple[str, ...] = ()
-    #: Why the fit should not be taken at face value even if converged, each with what to try
-    #: (a mode outside the band or in the noise, a damping on its bound, lack of fit).
+    #: Why the fit's parameters should not be used even if converged, each with what to try (a
+    #: parameter put where no reading of the data would: a damping on its bound, modes out of their
+    #: order, two modes on one resonance, a mode in the noise below modes the data place).
     concerns: tuple[str, ...] = ()
+    #: What to know before using them, each with what to try: a mode the data do not determine
+    #: (outside the band, in the noise above the modes the data place, no resonant peak: its
+    #: parameters are in ``undetermined``), residuals far above the noise in bands (the structure
+    #: misses an effect there).
+    caveats: tuple[str, ...] = ()
+    #: Parameters the data do not determine (named in ``caveats``): not to be used.
+    undetermined: tuple[str, ...] = ()
 
     @property
     def sound(self) -> bool:
-        """Converged and nothing in ``concerns``."""
+        """Converged and nothing in ``concerns``: the parameters can be used (but ``undetermined``)."""
         return self.converged and not self.concerns
+
+    @property
+    def verdict(self) -> str:
+        """``"sound"``, ``"caveats"`` (sound, with caveats to read) or ``"not sound"`` (converged or not:
+        the parameters should not be used)."""
+        return "not sound" if not self.sound else ("caveats" if self.caveats else "sound")
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "params", MappingProxyType(dict(self.params)))
@@ -222,7 +236,10 @@ class FitResult:
             "rms_phase_deg": {k: float(v) for k, v in self.rms_phase_deg.items()},
             "converged": bool(self.converged),
             "sound": bool(self.sound),
+            "verdict": self.verdict,
             "concerns": list(self.concerns),
+            "caveats": list(self.caveats),
+            "undetermined": list(self.undetermined),
             "message": self.message,
             "warnings": list(self.warnings),
             "not_fitted": list(self.not_fitted),
@@ -610,11 +627,13 @@ OVERDAMPED = 1 / np.sqrt(2)
 
 @dataclass(frozen=True)
 class _Defect:
-    """Why a minimum's parameter should not be used: ``kind`` "misplaced" or "unmeasured" (``_defects``)."""
+    """Why a minimum's parameter should not be used: ``kind`` "misplaced" or "unmeasured" (``_defects``);
+    ``names`` the parameters it concerns (a mode's frequency and damping)."""
 
     kind: str
     finding: str
     advice: str
+    names: tuple[str, ...] = ()
 
     @property
     def text(self) -> str:
@@ -645,6 +664,7 @@ def _defects(problem: FitProblem, params: Mapping[str, float], n_averages: int |
     st = problem.structure
     weighable = problem.weighting == "none" and all(data.coherence(c) is not None for c in problem.channels)
     reweigh = "fit with --weighting coherence (the noise floor counts as much as the resonances in the notebook's cost), " if weighable else ""
+    fewer = ", or fewer --modes" if st.n_modes > 1 else ""  # advice never names what cannot be done
     out: list[_Defect] = []
     undetermined: set[str] = set()  # modes the data do not determine
     noise: list[tuple[float, str, str]] = []  # modes where the fitted channels are noise: (w, name, finding)
@@ -661,7 +681,7 @@ def _defects(problem: FitProblem, params: Mapping[str, float], n_averages: int |
         if not lo <= fz <= hi:
             undetermined.add(wn)
             out.append(_Defect("unmeasured", f"mode {wn} = {fz:.3g} Hz lies outside the fitted band {lo:.3g}-{hi:.3g} Hz",
-                               "widen --band-hz to include it, or fit fewer --modes"))
+                               f"widen --band-hz to include it{fewer}", (wn, zn)))
         elif wn == "wz":
             placed += [v] if st.tie_mode2 else []
         elif wn == "wp":
@@ -670,17 +690,17 @@ def _defects(problem: FitProblem, params: Mapping[str, float], n_averages: int |
             undetermined.add(wn)
             out.append(_Defect("unmeasured", f"mode {wn} = {fz:.3g} Hz has damping {zn} = {zeta:.3g}, above 1/sqrt(2): it has no resonant peak, "
                                              "so it is a shape the fit chose, not a mode the data show",
-                               f"{reweigh}fit --band-hz where the structure holds, or fewer --modes"))
+                               f"{reweigh}fit --band-hz where the structure holds{fewer}", (wn, zn)))
         elif (found := _resonance_coherence(problem, v, zeta, n_averages)) is not None and found[0] < MIN_COHERENCE:
             undetermined.add(wn)
-            noise.append((v, wn, f"mode {wn} = {fz:.3g} Hz sits where the data are noise (coherence {found[0]:.2f} in {found[1]} around it, "
+            noise.append((v, (wn, zn), f"mode {wn} = {fz:.3g} Hz sits where the data are noise (coherence {found[0]:.2f} in {found[1]} around it, "
                                  f"corrected for the bias of {n_averages or 'its'} averages), not at a measured resonance"))
         else:
             placed.append(v)
-    for v, _, finding in noise:
+    for v, names, finding in noise:
         out.append(_Defect("misplaced" if any(p > v for p in placed) else "unmeasured", finding,
                            f"the data do not determine it; {reweigh}measure with more excitation there, "
-                           "fit --band-hz where the coherence is high, or fewer --modes"))
+                           f"fit --band-hz where the coherence is high{fewer}", names))
     lz, hz = BOUNDS["z"]
     owner = {zn: wn for wn, zn in named}
     for n, v in params.items():
@@ -688,31 +708,42 @@ def _defects(problem: FitProblem, params: Mapping[str, float], n_averages: int |
             # the damping of a mode the data do not determine follows the noise: said, not held against the minimum
             out.append(_Defect("unmeasured" if owner.get(n) in undetermined else "misplaced",
                                f"damping {n} = {v:.4g} is on its bound {BOUNDS['z']}",
-                               "the mode is not in the data as modelled; try a narrower --band-hz, or fewer --modes"))
+                               f"the mode is not in the data as modelled; try a narrower --band-hz{fewer}", (owner.get(n, n), n)))
     order = [(params[wn], wn) for wn, _ in _mode_names(st) if np.isfinite(params[wn])]
     for (wa, a), (wb, b) in zip(order, order[1:]):
         if not wb > wa:
             out.append(_Defect("misplaced", f"mode {b} = {wb / (2 * np.pi):.3g} Hz lies below mode {a} = {wa / (2 * np.pi):.3g} Hz",
                                f"the structure numbers its modes upward{' (mode 2 is the actuator zero wz)' if st.tie_mode2 else ''}, so a "
-                               "mode has left the place the data give it; try a narrower --band-hz, or fewer --modes"))
+                               f"mode has left the place the data give it; try a narrower --band-hz{fewer}", (a, b)))
     for a, b in _unresolved_pairs(params, st):
         out.append(_Defect("misplaced", f"modes {a} = {params[a] / (2 * np.pi):.3g} Hz and {b} = {params[b] / (2 * np.pi):.3g} Hz are closer "
                                         "than their half-power bandwidths",
-                           "one resonance fitted by two modes; try fewer --modes"))
+                           "one resonance fitted by two modes; try fewer --modes", (a, b)))
     return out
 
 
-def _concerns(problem: FitProblem, params: Mapping[str, float], lof: LackOfFit, n_averages: int | None) -> list[str]:
-    """Reasons a converged fit is still not a sound one, each with what to try."""
-    out = [d.text for d in _defects(problem, params, n_averages)]
+def _assess(problem: FitProblem, params: Mapping[str, float], lof: LackOfFit,
+            n_averages: int | None) -> tuple[list[str], list[str], tuple[str, ...]]:
+    """``(concerns, caveats, undetermined)`` of a converged minimum, each reason with what to try.
+
+    A concern: a parameter the solver put where no reading of the data would (``_defects``'
+    "misplaced"): the fit's parameters should not be used. A caveat: a mode the data do not determine
+    ("unmeasured": its parameters, listed in ``undetermined``, are not to be used, the others are),
+    or residuals far above the noise in bands (the structure misses an effect there, such as the
+    arm's own dynamics above 30 Hz in the simulator's data: the parameters are the structure's
+    best compromise, usable where it holds).
+    """
+    defects = _defects(problem, params, n_averages)
+    concerns = [d.text for d in defects if d.kind == "misplaced"]
+    caveats = [d.text for d in defects if d.kind == "unmeasured"]
+    undetermined = tuple(dict.fromkeys(n for d in defects if d.kind == "unmeasured" for n in d.names))
     if lof.found:
         ratio = ", ".join(f"{c} {v:.3g}" for c, v in lof.noise_ratio.items() if v is not None)
-        out.append(f"the residuals are far above the data's noise in {len(lof.bands)} band(s) ({lof.summary()})"
-                   + (f"; RMS residual / random error: {ratio}" if ratio else "")
-                   + ": the model structure misses an effect there, and the parameters are this structure's best compromise, "
-                   "not the system's; try --band-hz to fit where the structure holds, --modes for another mode, "
-                   "or look at the bands for the missing effect")
-    return out
+        caveats.append(f"the residuals are far above the data's noise in {len(lof.bands)} band(s) ({lof.summary()})"
+                       + (f"; RMS residual / random error: {ratio}" if ratio else "")
+                       + ": the model structure misses an effect there, and the parameters are this structure's best compromise, "
+                       "not the system's; fit --band-hz where the structure holds, or look at the bands for the missing effect")
+    return concerns, caveats, undetermined
 
 
 def _build_starts(problem: FitProblem, start: StartSpec) -> tuple[list[tuple[str, dict]], list[str]]:
@@ -838,7 +869,7 @@ def fit_problem(
     x_report = np.where(free, x, np.nan)
     params = dict(zip(st.param_names, map(float, x_report)))
     warnings = lof.warnings() + warnings + _band_warnings(problem, params)
-    concerns = _concerns(problem, params, lof, averages)
+    concerns, caveats, undetermined = _assess(problem, params, lof, averages)
     done("uncertainty and lack of fit")
     rms_m = {c: float(np.sqrt(np.mean(e[0] ** 2))) for c, e in errs.items()}
     rms_p = {c: float(np.sqrt(np.mean(e[1] ** 2))) for c, e in errs.items()}
@@ -867,6 +898,8 @@ def fit_problem(
         lack_of_fit=lof,
         not_fitted=not_fitted,
         concerns=tuple(concerns),
+        caveats=tuple(caveats),
+        undetermined=undetermined,
     )
 
 

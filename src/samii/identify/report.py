@@ -33,9 +33,28 @@ def summary_dict(result: FitResult) -> dict:
     """The ``--json`` object of one fit."""
     d = result.to_dict()
     out = {k: d[k] for k in CLI_KEYS}
-    for k in ("sound", "concerns", "phase_weight", "weighting", "band_hz", "channels", "not_fitted", "lack_of_fit", "warnings"):
+    for k in ("sound", "verdict", "concerns", "caveats", "undetermined", "phase_weight", "weighting", "band_hz", "channels", "not_fitted", "lack_of_fit", "warnings"):
         out[k] = d[k]
     return out
+
+
+def verdict_text(d: Mapping) -> str:
+    """A fit's verdict in one phrase, from its ``to_dict()`` (or the main job's summary of it): a
+    failure, whose parameters should not be used, told apart from a sound fit with caveats."""
+    verdict = d.get("verdict") or ("sound" if d.get("sound") else "not sound")  # a fit.json written before verdicts
+    if verdict == "not sound":
+        first = (d.get("concerns") or [""])[0].split(": ")[0] or "the solver stopped before a minimum"
+        return f"NOT A SOUND FIT, its parameters should not be used ({first})"
+    if verdict == "sound":
+        return "a sound fit"
+    said = []
+    if d.get("undetermined"):
+        said.append(f"the data do not determine {', '.join(d['undetermined'])}")
+    bands = ((d.get("lack_of_fit") or {}).get("bands")) or []
+    if bands:
+        where = ", ".join(f"{b['channel']} {b['f_lo_hz']:.2g}-{b['f_hi_hz']:.2g} Hz" for b in bands[:2])
+        said.append(f"the structure misses the data in {where}" + (f" and {len(bands) - 2} more band(s)" if len(bands) > 2 else ""))
+    return "a sound fit, with caveats" + (f" ({'; '.join(said)})" if said else "")
 
 
 def json_text(obj) -> str:

@@ -148,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from samii.outputs import OutputFolder, check_output_file
+    from samii.outputs import OutputFolder, check_output_file, create_parent
 
     t_start = time.perf_counter()
     sweep, stepped, plan = _excitations(args)
@@ -295,6 +295,7 @@ def run(args: argparse.Namespace) -> int:
                                   sweep_hz=exc.frequency_hz(results[kind].timeseries.t),
                                   label=f"samii measure: {kind} sine, {exc.amplitude_v:g} V on the valve command, joint 2 under its position loop")
                         for kind, exc in plan]  # fmt: skip
+                create_parent(rrd_tmp)
                 try:
                     write_recording(rrd_tmp, model, runs, application_id="samii_measure")
                 except RuntimeError as exc:  # rerun's writer reports file-system failures as RuntimeError

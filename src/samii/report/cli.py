@@ -15,7 +15,8 @@ __all__ = ["add_arguments", "run"]
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("folder", metavar="DIR", type=nonempty_path, help="a main job's output folder (samii run --out DIR)")
     p.add_argument("--out", metavar="FILE", type=nonempty_path, help="where to write the page (default DIR/report.html)")
-    p.add_argument("--overwrite", action="store_true", help="replace --out if it exists (DIR/report.html is always replaced)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the page (and --screenshot) if it exists; the main job's own DIR/report.html too")
     p.add_argument("--screenshot", metavar="PNG", type=nonempty_path,
                    help="also save a screenshot of the page in a headless Chromium (chromium from your system's packages; "
                         "SAMII_BROWSER names another)")
@@ -36,6 +37,8 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else folder / REPORT_NAME
     if args.out:
         check_output_file(out, overwrite=args.overwrite, option="--out")
+    elif out.exists() and not args.overwrite:  # as every command's --out: nothing replaced unless asked
+        raise InputError(f"{out}: exists (the main job wrote it); pass --overwrite to write it again, or --out FILE to write it elsewhere")
     if args.screenshot:
         from samii.report.browser import find_browser
 

@@ -146,8 +146,10 @@ def _fit(run: RunFolder) -> str:
     from samii import notebook as nb
 
     f = run.fit
-    sound = f.get("sound")
-    verdict = ('<span class="ok">a sound fit</span>' if sound else '<span class="bad">not a sound fit</span>')
+    from samii.identify.report import verdict_text
+
+    text = verdict_text(f)
+    verdict = f'<span class="{"bad" if text.startswith("NOT") else "ok"}">{_e(text)}</span>'  # a failure told apart from caveats
     rows = []
     for r in parameter_rows(f, dict(nb.EQ9_4)):
         rows.append([f"<code>{_e(r.name)}</code>", _e(r.meaning), _num(r.value, ".5g"), _num(r.stderr, ".2g"), _num(r.rel_stderr_pct, ".2g"),
@@ -156,11 +158,13 @@ def _fit(run: RunFolder) -> str:
     ph = f.get("rms_phase_deg") or {}
     rms_txt = "; ".join(f"{_e(_CHANNELS.get(k, k))} {_num(rms[k], '.2f')} dB, {_num(ph.get(k), '.1f')} deg" for k in rms)
     concerns = "".join(f"<li>{_e(c)}</li>" for c in f.get("concerns") or [])
+    caveats = "".join(f"<li>{_e(c)}</li>" for c in f.get("caveats") or [])
     return ('<h2 id="fit">Identification: the notebook\'s 3-mode model</h2>'
             f"<p>The notebook's eq 9.1/9.2 structure fitted to the measured FRF (<code>samii fit</code>, phase weight {_num(f.get('phase_weight'), 'g')}, "
             f"{_num((f.get('band_hz') or [None])[0], '.2g')}–{_num((f.get('band_hz') or [None, None])[1], '.3g')} Hz): {verdict}. "
             f"RMS error {rms_txt}.</p>"
-            + (f"<ul class=\"warn\">{concerns}</ul>" if concerns else "")
+            + (f"<p>Why its parameters should not be used:</p><ul class=\"warn\">{concerns}</ul>" if concerns else "")
+            + (f"<p>Caveats (the parameters can be used but those the data do not determine):</p><ul>{caveats}</ul>" if caveats else "")
             + _figure(_file_png(run, "bode_fit"), "Bode data with the fit", "The measured FRF (points) with the fitted model (line), and the "
                       "coherence. <code>fit/bode_fit.png</code>.")
             + "<h3>Parameters beside eq 9.4</h3>"
@@ -340,6 +344,7 @@ def _render(run: RunFolder, page_dir: Path | None) -> str:
 def write_report(run: RunFolder, path: Path | None = None) -> Path:
     """Write ``report.html`` (default: into the run's folder) and return its path."""
     path = Path(path) if path is not None else run.path / REPORT_NAME
+    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp")
     tmp.write_text(render_report(run, path.parent), encoding="utf-8")
     tmp.replace(path)
