@@ -492,8 +492,12 @@ def test_design_force_without_save(action, flag, cwd, capsys):
 @pytest.mark.parametrize("action", ["place", "cancel"])
 def test_design_save_bad_paths(action, tmp_path, cwd, capsys):
     _run_bad(["design", action, "--save", tmp_path], capsys, ["--save", "is a folder"], watch=[cwd, tmp_path])
-    _run_bad(["design", action, "--save", tmp_path / "nowhere" / "f.json"], capsys, ["--save", "does not exist"], watch=[cwd, tmp_path])
+    (tmp_path / "a_file").write_text("")
+    _run_bad(["design", action, "--save", tmp_path / "a_file" / "f.json"], capsys, ["--save", "is not a folder"], watch=[cwd, tmp_path])
     _run_bad(["design", action, "--save", ""], capsys, ["--save", "empty"], watch=[cwd])
+    new = tmp_path / "new" / "f.json"  # a folder that does not exist is created, as every --out is
+    assert main(["design", action, "--save", str(new)]) == 0 and new.is_file()
+    capsys.readouterr()
 
 
 def test_design_save_nothing_when_the_design_is_refused(cwd, capsys):

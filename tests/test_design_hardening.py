@@ -364,7 +364,7 @@ def test_place_help_states_the_model_derived_sample_time_bounds(capsys):
         t_max_ms = pl._floor_digits(pl.max_sample_time_s(model, observer=observer) * 1e3, 4)
         assert f"T <= {t_max_ms:g} ms" in text
     # the Kalman options say what they are and in which units
-    for option, unit in (("--input-noise-std", "[V]"), ("--theta-noise-std", "[deg"), ("--accel-noise-std", "[ft/s^2")):
+    for option, unit in (("--input-noise-std", "[V]"), ("--theta-noise-std", "[deg"), ("--accel-noise-std", "[ft/s²")):
         assert option in text
         assert unit in text
 

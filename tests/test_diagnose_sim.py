@@ -285,7 +285,7 @@ def test_recording_of_the_simulator_against_the_data(delayed, tmp_path):
 
     d = diagnose([load(delayed)], baseline="sim")
     rrd = tmp_path / "d.rrd"
-    info = write_diagnosis_recording(rrd, d, fps=10)
+    info = write_diagnosis_recording(rrd, d, fps=10, thin=False)  # every sample, to compare them (thinned: samii.viz.thinning)
     assert info.runs == ("data", "simulator_after", "simulator_before")
     s = _recorded(rrd, info.runs)
     (td, rd), (ta, ra), (tb, rb) = (s[(r, "volts/r")] for r in info.runs)

@@ -70,9 +70,10 @@ def test_report_is_self_contained(runs):
             if href.startswith("#"):
                 assert any(b.get("id") == href[1:] for _, b in page.tags), href
     assert {a["href"] for t, a in page.tags if t == "a" and not a["href"].startswith("#")} == {"measure.rrd", "closedloop.rrd"}
-    # the figures: the Bode data with the fit, Figures 11.1-11.4, 11.5, the damping controller, the diagnosis's two
+    # the figures: the measured FRF and the sweep's harmonics, the Bode data with the fit, Figures 11.1-11.4, 11.5,
+    # the damping controller, the diagnosis's two
     sizes = _images(page)
-    assert len(sizes) == 6 and all(w >= 800 and h >= 250 for w, h in sizes), sizes
+    assert len(sizes) == 8 and all(w >= 600 and h >= 250 for w, h in sizes), sizes
 
 
 def test_report_states_the_folders_numbers(runs):
@@ -100,6 +101,14 @@ def test_report_states_the_folders_numbers(runs):
         assert e["kind"] in text
     b = s["diagnosis"]["error_before"]["total"]["rms_db"]
     assert f"{b:.2f}" in text
+    # the fit's verdict as the summary says it, and why its theta/v error is larger than the diagnosis's (issue 32 item 5)
+    from samii.identify.report import verdict_text
+
+    assert " ".join(verdict_text(s["fit"]).split()) in text
+    assert f"θ/v {s['fit']['rms_mag_db']['act']:.2f} dB" in text and "counts only the points its noise estimate says are usable" in text
+    # what the damping controller costs the joint
+    over = s["closed_loop"]["damping_step"]["theta"]["overshoot_pct"]
+    assert f"θ overshoots the step by {over:.0f} %" in text
 
 
 def test_closed_loop_records_read_back_even_when_the_controller_diverges(runs):

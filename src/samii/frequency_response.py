@@ -6,8 +6,8 @@ Channels follow DATA_FORMATS.md:
 channel    transfer function unit of magnitude
 =========  ================  =================
 ``act``    theta / v         rad/V
-``base``   xdd / theta       (m/s^2)/rad
-``total``  xdd / v           (m/s^2)/V
+``base``   xdd / theta       (m/s²)/rad
+``total``  xdd / v           (m/s²)/V
 =========  ================  =================
 
 Values are complex; magnitude and phase (degrees, unwrapped) are derived.
@@ -47,7 +47,7 @@ class FrequencyResponse:
     freq_hz : array
         Strictly increasing, positive frequencies [Hz].
     act, base, total : array of complex, optional
-        theta/v [rad/V], xdd/theta [(m/s^2)/rad], xdd/v [(m/s^2)/V].
+        theta/v [rad/V], xdd/theta [(m/s²)/rad], xdd/v [(m/s²)/V].
     act_coh, base_coh, total_coh : array, optional
         Coherence of each channel, 0...1.
     metadata : mapping of str to str

@@ -170,6 +170,7 @@ def run_pipeline(out, *, model=None, overrides=(), seed: int = 0, overwrite: boo
     try:
         summary = _run_stages(stage_dir, model, list(overrides or ()), seed, bar)
         summary["wall_s"] = time.perf_counter() - started
+        summary["recordings_mb"] = {n: (stage_dir / n).stat().st_size / 1e6 for n in ("measure.rrd", "closedloop.rrd") if (stage_dir / n).is_file()}
         (stage_dir / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
         bar.start("writing report.html")
         try:
@@ -313,7 +314,10 @@ def summary_lines(s: dict, out) -> list[str]:
     if dl["stable"] and ds["stable"] and dl["base"].get("free_decay_rate_1_s"):
         lines.append(f"damping controller: the base settles {alone['base']['settle_s'] / ds['base']['settle_s']:.1f}x sooner after the step "
                      f"({ds['base']['settle_s']:.2f} s against {alone['base']['settle_s']:.2f} s under the servo loop alone); in the Loper test "
-                     f"its vibration decays {dl['base']['decay_rate_1_s'] / dl['base']['free_decay_rate_1_s']:.1f}x faster than free")
+                     f"its vibration decays {dl['base']['decay_rate_1_s'] / dl['base']['free_decay_rate_1_s']:.1f}x faster than free"
+                     + (f"; theta overshoots the step by {ds['theta']['overshoot_pct']:.0f} % ({alone['theta']['overshoot_pct']:.0f} % alone)"
+                        if (ds.get("theta") or {}).get("overshoot_pct") is not None and (alone.get("theta") or {}).get("overshoot_pct") is not None
+                        else ""))
     dg = s["diagnosis"]
     eff = ", ".join(f"{e['category']}/{e['kind']}" for e in dg["effects"]) or "nothing"
     lines.append(f"diagnosis of the fit against the measured record: {dg['verdict']}; found {eff}")
@@ -328,6 +332,8 @@ def summary_lines(s: dict, out) -> list[str]:
             lines.append(f"  {name} error {num(b, 'rms_db'):.2g} dB / {num(b, 'rms_deg'):.2g} deg, chi2 {num(b, 'chi2'):.3g} -> "
                          f"{num(a, 'rms_db'):.2g} dB / {num(a, 'rms_deg'):.2g} deg, chi2 {num(a, 'chi2'):.3g} with them{note}")
     report = "report.html (open it in a browser), " if not s.get("report_error") else "(NOT report.html: see the warning above) "
+    rrd = " and ".join(f"{n} ({s['recordings_mb'][n]:.0f} MB)" if (s.get("recordings_mb") or {}).get(n) is not None else n
+                       for n in ("measure.rrd", "closedloop.rrd"))
     lines.append(f"wrote {out}/ in {s['wall_s']:.0f} s: {report}summary.json, measure/, fit/, controllers/, "
-                 "closedloop/, diagnose/; measure.rrd and closedloop.rrd (open with `rerun FILE`)")
+                 f"closedloop/, diagnose/; {rrd} (open with `rerun FILE`)")
     return lines[:20]

@@ -7,8 +7,8 @@ says otherwise.
 
 The notebook does not state the units of theta and of the base acceleration.
 Set against the simulator's linearisation (SI), its coefficients say theta in
-degrees and the acceleration in ft/s^2 (eq 9.4's B_k over the simulator's:
-3.85, 3.32, 2.85 per m/s^2, ft/s^2 = 3.281; samii.closedloop.controllers).
+degrees and the acceleration in ft/s² (eq 9.4's B_k over the simulator's:
+3.85, 3.32, 2.85 per m/s², ft/s² = 3.281; samii.closedloop.controllers).
 Gains (K1, B1...) are in those units; frequencies, damping ratios, loop gains and the signs and
 ratios of the B coefficients are unit-free and are what the simulator is
 calibrated to.

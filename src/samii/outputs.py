@@ -35,7 +35,7 @@ from typing import Iterable
 
 from samii.errors import InputError
 
-__all__ = ["OutputFolder", "check_output_file", "create_parent"]
+__all__ = ["OutputFolder", "check_output_file", "create_parent", "with_size"]
 
 _STAGE_PREFIX = ".samii-stage-"
 
@@ -111,6 +111,14 @@ def create_parent(path) -> Path:
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     return p
+
+
+def with_size(path) -> str:
+    """``path`` as printed after ``wrote``: a recording (``.rrd``) with its size, which a user keeps or not by it."""
+    p = Path(path)
+    if p.suffix == ".rrd" and p.is_file():
+        return f"{p} ({p.stat().st_size / 1e6:.1f} MB)"
+    return str(p)
 
 
 def _pid_alive(pid: int) -> bool:

@@ -219,7 +219,7 @@ def calibrate(
     Parameters
     ----------
     data : FrequencyResponse
-        Measured (or model) FRF: act = theta/v [rad/V], base = xdd/theta [(m/s^2)/rad].
+        Measured (or model) FRF: act = theta/v [rad/V], base = xdd/theta [(m/s²)/rad].
     names : sequence of str
         Dotted parameter names (``beam.clamp_stiffness_Nm_rad``, ``hydraulic.total_volume``,
         ..., or ``gain.base`` for an accelerometer of unknown unit).

@@ -37,7 +37,7 @@ from samii.errors import InputError
 
 __all__ = ["CardFitError", "CardModel", "CardLayout", "build_card_model", "check_fit", "si_matrices", "MAX_DELAY_STEPS", "MAX_SAMPLE_STEPS", "MAX_STATES", "INPUTS"]
 
-#: Column order of the card's inputs (SI: rad, rad, m/s^2).
+#: Column order of the card's inputs (SI: rad, rad, m/s²).
 INPUTS = ("theta_ref", "theta", "accel")
 #: Limits compiled into hydraulic.c (CTRL_MAX_STATES, CTRL_MAX_DELAY_STEPS).
 MAX_STATES = 64

@@ -59,7 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--step-deg", type=_step_deg, default=None, metavar="D",
                         help=f"reference step [deg], nonzero, |D| <= {MAX_STEP_DEG:g} (default 5; step and loper only)")
     parser.add_argument("--impulse-n-s", type=float_in(0.0, MAX_IMPULSE_N_S, lo_open=True, unit="N s"), default=None, metavar="P",
-                        help=f"release: tip impulse [N s], 0 < P <= {MAX_IMPULSE_N_S:g} (default {DEFAULT_IMPULSE_N_S:g}: about 4 m/s^2 at the base)")
+                        help=f"release: tip impulse [N s], 0 < P <= {MAX_IMPULSE_N_S:g} (default {DEFAULT_IMPULSE_N_S:g}: about 4 m/s² at the base)")
     parser.add_argument("--duration-s", type=float_in(3.0, MAX_DURATION_S, unit="s"), default=10.0, metavar="S",
                         help=f"simulated time [s], 3...{MAX_DURATION_S:g} (default 10)")
     parser.add_argument("--delay-samples", type=float_in(0.0, float(MAX_DELAY_STEPS), unit="samples"), default=0.0, metavar="N",
@@ -67,7 +67,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         f"held from the sample on, zero-order hold); at most {MAX_DELAY_STEPS} physics steps")  # fmt: skip
     parser.add_argument("--noise", action="store_true",
                         help="seeded sensor noise and ADC quantisation on the controller's measurements (theta 5e-4 rad rms and "
-                        "4096-count/rev encoder steps; acceleration 0.01 m/s^2 rms and a 16-bit +-10 V ADC at 1 V/g)")  # fmt: skip
+                        "4096-count/rev encoder steps; acceleration 0.01 m/s² rms and a 16-bit +-10 V ADC at 1 V/g)")  # fmt: skip
     parser.add_argument("--seed", type=seed, default=None, help="seed of the sensor noise (with --noise; default 0)")
     parser.add_argument("--model", metavar="XML", help="MJCF or parameter .json file (default: the embedded SAMII model)")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
@@ -136,12 +136,12 @@ def _summary(r, out_names: list[str]) -> str:
         lines.append(f"  theta: rise {f(th.rise_s, ' s')}, overshoot {f(th.overshoot_pct, ' %')}, settle (2 %) {f(th.settle_s, ' s')}")
     b = r.base
     f = lambda x, u: "n/a" if x is None else f"{x:.3g}{u}"  # noqa: E731
-    lines.append(f"  base: peak {f(b.peak_m_s2, ' m/s^2')}, residual rms {f(b.residual_rms_m_s2, ' m/s^2')}, settle (5 %) "
+    lines.append(f"  base: peak {f(b.peak_m_s2, ' m/s²')}, residual rms {f(b.residual_rms_m_s2, ' m/s²')}, settle (5 %) "
                  f"{f(b.settle_s, ' s')}, decay {f(b.decay_rate_1_s, ' 1/s')}"
                  + (f" (free decay {f(r.free_decay_rate_1_s, ' 1/s')})" if r.free_decay_rate_1_s is not None else ""))  # fmt: skip
     c = r.comparison_base
     if c is not None:
-        lines.append(f"  servo loop alone: peak {f(c.peak_m_s2, ' m/s^2')}, residual rms {f(c.residual_rms_m_s2, ' m/s^2')}, "
+        lines.append(f"  servo loop alone: peak {f(c.peak_m_s2, ' m/s²')}, residual rms {f(c.residual_rms_m_s2, ' m/s²')}, "
                      f"settle (5 %) {f(c.settle_s, ' s')}")  # fmt: skip
     if r.modes:
         lines.append("  modes of the response: " + ", ".join(f"{m.freq_hz:.3g} Hz (zeta {m.zeta:.3f})" for m in r.modes))
@@ -149,7 +149,9 @@ def _summary(r, out_names: list[str]) -> str:
     lines.append(f"  linear prediction: {'stable' if r.linear_stable else 'UNSTABLE'}"
                  + (f", rms error theta {f(e['theta'], ' %')}, accel {f(e['accel'], ' %')}" if r.linear is not None else ""))  # fmt: skip
     if out_names:
-        lines.append("  wrote " + ", ".join(out_names))
+        from samii.outputs import with_size
+
+        lines.append("  wrote " + ", ".join(with_size(n) for n in out_names))
     return "\n".join(lines)
 
 

@@ -6,12 +6,12 @@ simulator's linearisation (SI) names them. For eq 9.4's base-acceleration
 coefficients B_k (xdd/theta = s^4 sum B_k / (s^2 + 2 zeta_k w_k s + w_k^2)), the
 ratio B_k(eq 9.4) / B_k(simulator, m/rad) converted with theta in degrees
 (:func:`accel_unit_evidence`) is 3.85, 3.32 and 2.85 acceleration units per
-m/s^2 for modes 1, 2 and 3 (geometric mean 3.32): within the spread of the
-three modes, ft/s^2 (3.281 per m/s^2) and no other common unit (g: 0.102,
-m/s^2: 1, in/s^2: 39.4; with theta in radians the ratios would be 0.050 to
+m/s² for modes 1, 2 and 3 (geometric mean 3.32): within the spread of the
+three modes, ft/s² (3.281 per m/s²) and no other common unit (g: 0.102,
+m/s²: 1, in/s²: 39.4; with theta in radians the ratios would be 0.050 to
 0.067, again no common unit). The spread between modes is the simulator's
 mode shapes at the sensor against the rig's (not a unit). So the notebook's
-designs read theta in degrees and the acceleration in ft/s^2:
+designs read theta in degrees and the acceleration in ft/s²:
 ``input_scale = {"theta_ref": 180/pi, "theta": 180/pi, "accel": 1/0.3048}``
 (:data:`NOTEBOOK_INPUT_SCALE`).
 
@@ -59,9 +59,9 @@ FORMAT = "samii-controller"
 VERSION = 1
 FT_PER_M = 1.0 / 0.3048  #: international foot (exact definition)
 
-#: SI -> the notebook's units: theta in degrees, acceleration in ft/s^2 (module docstring).
+#: SI -> the notebook's units: theta in degrees, acceleration in ft/s² (module docstring).
 NOTEBOOK_INPUT_SCALE: Mapping[str, float] = {"theta_ref": 180.0 / math.pi, "theta": 180.0 / math.pi, "accel": FT_PER_M}
-NOTEBOOK_UNITS_SI = ("notebook units: theta in degrees, acceleration in ft/s^2 (from eq 9.4's B_k against the simulator's, "
+NOTEBOOK_UNITS_SI = ("notebook units: theta in degrees, acceleration in ft/s² (from eq 9.4's B_k against the simulator's, "
                      "samii.closedloop.controllers), v in volts")  # fmt: skip
 
 _MAX_FILE_BYTES = 10_000_000
@@ -81,7 +81,7 @@ class NotebookUnitEvidence:
     freq_hz: tuple[float, ...]  #: the simulator's base modes
     b_notebook: tuple[float, ...]  #: eq 9.4's B_k [notebook accel unit * s^2 / deg]
     b_simulator: tuple[float, ...]  #: the simulator's B_k [m/rad]
-    units_per_m_s2: tuple[float, ...]  #: B_nb / (B_sim * pi/180): notebook acceleration units per m/s^2, per mode
+    units_per_m_s2: tuple[float, ...]  #: B_nb / (B_sim * pi/180): notebook acceleration units per m/s², per mode
 
     @property
     def geometric_mean(self) -> float:

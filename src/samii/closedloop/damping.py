@@ -63,7 +63,7 @@ DAMPING_TOLERANCE = 0.02
 
 @dataclass(frozen=True)
 class DampingDesign:
-    params: Mapping[str, float]  #: the fitted notebook parameters (SI: theta in rad, xdd in m/s^2)
+    params: Mapping[str, float]  #: the fitted notebook parameters (SI: theta in rad, xdd in m/s²)
     position_gain_v_per_rad: float
     sample_time_s: float
     delay_samples: int  #: computation delay the design allows for
@@ -184,7 +184,7 @@ def design_damping(
             hi = k
             break
     if hi is None:
-        raise RuntimeError("the fitted model stays stable for any acceleration-feedback gain up to 1e6 V/(m/s^2): check the fit")
+        raise RuntimeError("the fitted model stays stable for any acceleration-feedback gain up to 1e6 V/(m/s²): check the fit")
     for _ in range(50):
         mid = math.sqrt(lo * hi)
         if _stable(Pd, Fd, sign * mid):
@@ -201,10 +201,10 @@ def design_damping(
     A, B, C, D = (np.atleast_2d(np.asarray(x, float)) for x in (Fd.A, Fd.B, Fd.C, Fd.D))
     c = LinearController(
         A, B, -gain * C, -gain * D, sample_time_s=T, inputs=("accel",),
-        name=f"tuned acceleration feedback: k = {gain:.4g} V/(m/s^2), 2nd-order low-pass at {wf / (2 * np.pi):.4g} Hz, zeta {filter_zeta:.3g}"
+        name=f"tuned acceleration feedback: k = {gain:.4g} V/(m/s²), 2nd-order low-pass at {wf / (2 * np.pi):.4g} Hz, zeta {filter_zeta:.3g}"
         + (f", roll-off at {w_roll / (2 * np.pi):.4g} Hz" if w_roll else ""),
         method="filter discretised by zero-order hold; gain from the fitted model's stability limit",
-        model_units="SI: accel in m/s^2, v in volts (added to the servo amplifier's command)",
+        model_units="SI: accel in m/s², v in volts (added to the servo amplifier's command)",
     )  # fmt: skip
     prov = {
         "designed_on": "a fit of the notebook's 3-mode structure to measured Bode data",

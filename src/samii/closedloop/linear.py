@@ -36,7 +36,7 @@ __all__ = ["LinearLoop", "linear_loop", "LinearResponse"]
 class LinearResponse:
     t: np.ndarray  #: s
     theta: np.ndarray  #: rad
-    accel: np.ndarray  #: m/s^2
+    accel: np.ndarray  #: m/s²
     v: np.ndarray  #: V, unsaturated
 
 
@@ -47,7 +47,7 @@ class LinearLoop:
     Ad: np.ndarray  #: plant one-step map without the position loop (input: valve voltage)
     bd: np.ndarray  #: its input column [per V]
     c_theta: np.ndarray  #: theta row [rad]
-    c_accel: np.ndarray  #: accel row [m/s^2]
+    c_accel: np.ndarray  #: accel row [m/s²]
     kp: float  #: servo amplifier gain [V/rad]
     dt_s: float  #: physics step
     A: np.ndarray  #: controller (SI inputs theta_ref, theta, accel), empty without one

@@ -36,7 +36,7 @@ class LoopSignals:
     theta_ref: np.ndarray  #: rad, reference offset from the nominal pose
     r: np.ndarray  #: V, the excitation added to the valve command
     theta: np.ndarray  #: rad, joint-2 angle from the nominal pose (true, not the noisy sample)
-    accel: np.ndarray  #: m/s^2, base accelerometer (true)
+    accel: np.ndarray  #: m/s², base accelerometer (true)
     v: np.ndarray  #: V, valve voltage during step k (after saturation; the later piece of a split step)
     command: np.ndarray  #: V, the controller's held command after step k (NaN without a controller)
     p_load: np.ndarray  #: Pa
@@ -86,8 +86,8 @@ def bumpless_state(matrices: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
     ``target_v``: the command continues from what the valve was getting
     (bumpless transfer). The acceleration sampled at the switch-on is a moment
     of a vibration, not a level: taken as constant, it gave the damping
-    controller (a low-pass of the acceleration, DC gain -8.3 V/(m/s^2)) a
-    steady command of 0.64 V for -0.077 m/s^2, and moving its state along its
+    controller (a low-pass of the acceleration, DC gain -8.3 V/(m/s²)) a
+    steady command of 0.64 V for -0.077 m/s², and moving its state along its
     small ``C`` (|C| ~ 1e-4) to cancel that command put 1e3-1e4 into the
     filter's states: a transient that drove the valve to its 10 V rail for
     0.3 s and joint 2 to 76 deg in the Loper test. ``matrices`` are the controller's SI ``(A, B, C, D)``

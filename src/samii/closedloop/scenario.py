@@ -41,8 +41,8 @@ __all__ = [
 
 SCENARIOS = ("step", "loper", "release")
 
-#: Release: the tip impulse [N s]. 0.5 N s starts the base at about 4 m/s^2 peak, the size of the
-#: vibration a 5 degree step leaves (3.2 m/s^2) and well inside the valve's linear range.
+#: Release: the tip impulse [N s]. 0.5 N s starts the base at about 4 m/s² peak, the size of the
+#: vibration a 5 degree step leaves (3.2 m/s²) and well inside the valve's linear range.
 DEFAULT_IMPULSE_N_S = 0.5
 
 

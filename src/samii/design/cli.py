@@ -104,7 +104,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "place",
         help="digital pole placement with observer (chapter 8) on the eq 1.4 model",
         description="Chapter-8 digital pole placement on the eq 1.4 model (notebook units: theta in degrees, "
-        "the acceleration in ft/s^2, v in volts), with an observer at twice the controller poles or a steady-state "
+        "the acceleration in ft/s², v in volts), with an observer at twice the controller poles or a steady-state "
         "Kalman filter. Every closed-loop pole outside the unit circle is flagged UNSTABLE.",
     )
     p.add_argument("--sample-time-s", type=positive_float, default=1e-3, metavar="T",
@@ -124,7 +124,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--theta-noise-std", type=_noise_std, default=None, metavar="STD",
                    help="kalman: standard deviation of the theta measurement noise [deg, the notebook's unit]")
     p.add_argument("--accel-noise-std", type=_noise_std, default=None, metavar="STD",
-                   help="kalman: standard deviation of the base-acceleration measurement noise [ft/s^2, the notebook's "
+                   help="kalman: standard deviation of the base-acceleration measurement noise [ft/s², the notebook's "
                    "unit: samii.closedloop.controllers]")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the design as JSON")
     _add_save(p)
@@ -318,7 +318,7 @@ def _check_place_options(args) -> None:
             names = " and ".join([", ".join(missing[:-1]), missing[-1]] if len(missing) > 1 else missing)
             raise InputError(
                 f"--observer kalman: missing {names} (all three noise standard deviations are needed: --input-noise-std "
-                f"[V per sample], --theta-noise-std [deg], --accel-noise-std [ft/s^2] (the notebook's units)"
+                f"[V per sample], --theta-noise-std [deg], --accel-noise-std [ft/s²] (the notebook's units)"
             )
     elif given:
         raise InputError(f"{', '.join(given)}: only used with --observer kalman (the placement observer takes no noise model)")
@@ -540,7 +540,7 @@ def run_damping(args) -> int:
     roll = f", rolled off beyond {d.rolloff_hz:.4g} Hz" if d.rolloff_hz else ""
     print(f"tuned acceleration feedback on the fitted 3-mode model: v_added = -k F(s) xdd, F a 2nd-order low-pass at {d.filter_hz:.4g} Hz "
           f"(zeta {d.filter_zeta:.3g}){roll}")  # fmt: skip
-    print(f"  k = {d.gain_v_per_m_s2:.4g} V/(m/s^2): {d.gain_margin_db:.3g} dB below the fitted model's stability limit {d.gain_limit_v_per_m_s2:.4g}")
+    print(f"  k = {d.gain_v_per_m_s2:.4g} V/(m/s²): {d.gain_margin_db:.3g} dB below the fitted model's stability limit {d.gain_limit_v_per_m_s2:.4g}")
     for r in d.mode_table():
         print(f"  mode {r['freq_hz']:6.3g} Hz: zeta {r['zeta_open']:.3f} -> {r['zeta_closed']:.3f} (at {r['freq_hz_closed']:.3g} Hz)")
     if d.max_sensitivity_above_band is not None:

@@ -4,13 +4,13 @@ A controller is called once per sample: it reads the measurements taken at
 ``t_k`` and returns the valve command ``v[k]`` [V], which the caller holds
 (zero-order hold) until ``t_{k+1}``. Measurement names are those of
 DATA_FORMATS.md: ``theta`` [rad, relative to the nominal pose], ``accel``
-[m/s^2] and ``theta_ref`` [rad] when a reference is used.
+[m/s²] and ``theta_ref`` [rad] when a reference is used.
 
 Every implementation here is a :class:`LinearController`: a discrete-time
 state-space system, discretised explicitly by its designer (the method is
 stored in ``method``), evaluated with plain numpy (two matrix-vector
 products per step). Designs made on the notebook's own models carry the
-notebook's units (theta in degrees, acceleration in ft/s^2: samii.closedloop.controllers); the
+notebook's units (theta in degrees, acceleration in ft/s²: samii.closedloop.controllers); the
 ``input_scale`` converts the caller's SI signals to them, and ``model_units``
 says which they are.
 """
@@ -36,7 +36,7 @@ __all__ = [
 MEASUREMENTS = ("theta_ref", "theta", "accel")
 
 #: What a design on one of the notebook's fits works in (notebook.py: units not stated in the notebook).
-NOTEBOOK_UNITS = "notebook units: theta in degrees, acceleration in ft/s^2 (samii.closedloop.controllers); v in volts"
+NOTEBOOK_UNITS = "notebook units: theta in degrees, acceleration in ft/s² (samii.closedloop.controllers); v in volts"
 
 
 def unstable_poles(poles, *, discrete: bool) -> np.ndarray:

@@ -294,5 +294,7 @@ def _print(d, written) -> None:
             print(f"  {b.source}: {_NAMES[b.channel]} {b.lo_hz:.3g}-{b.hi_hz:.3g} Hz, chi2 {b.chi2:.3g} over {b.n_points} points{why}")
     for n in d.notes:
         print(f"note: {n}")
+    from samii.outputs import with_size
+
     for p in written:
-        print(f"wrote {p}")
+        print(f"wrote {with_size(p)}")

@@ -10,7 +10,7 @@ as a term added to it::
 Each effect is the transfer function of its physics, stated with it below. The
 total channel xdd/v is their product and needs nothing of its own. Parameters
 are in SI units (s, Hz for frequencies a person reads, 1 for damping ratios,
-(m/s^2)/rad s^4 for a mode's residue); ``transform`` says how the optimiser
+(m/s²)/rad s^4 for a mode's residue); ``transform`` says how the optimiser
 sees each: ``log`` (positive, relative steps) or ``lin``.
 
 Categories and kinds (the ``--json`` names):
@@ -244,7 +244,7 @@ LIBRARY: tuple[EffectKind, ...] = (
     EffectKind("delay", "accel_sensor", "base", _DELAY, _delay_accel,
                lambda v: f"the acceleration is read {1e3 * v['delay_s']:.3g} ms late", _d_delay_accel),
     EffectKind("extra_mode", "base_mode", "base",
-               (Param("freq_hz", "Hz", 0.01, 1000.0), Param("zeta", "1", 1e-4, 0.5), Param("residue", "(m/s^2)/rad s^4", -1e12, 1e12, "lin")),
+               (Param("freq_hz", "Hz", 0.01, 1000.0), Param("zeta", "1", 1e-4, 0.5), Param("residue", "(m/s²)/rad s^4", -1e12, 1e12, "lin")),
                _base_mode, lambda v: f"a base mode at {v['freq_hz']:.4g} Hz, damping {v['zeta']:.3g}, that the modal sum lacks", _d_base_mode),
     EffectKind("extra_mode", "act_mode", "act",
                (Param("freq_hz", "Hz", 0.01, 1000.0), Param("zeta", "1", 1e-4, 0.5),

@@ -271,7 +271,7 @@ def _without_mains(ts: TimeSeries) -> tuple[TimeSeries, list[str]]:
 
     fs = ts.sample_rate_hz
     cols, said = {}, []
-    for name, unit in (("v", "V"), ("theta", "rad"), ("accel", "m/s^2")):
+    for name, unit in (("v", "V"), ("theta", "rad"), ("accel", "m/s²")):
         x = getattr(ts, name)
         if quantisation_step(x) is not None:
             continue  # (rounded after any hum it picked up: its lattice is kept for the floor)

@@ -40,7 +40,7 @@ def _label(d: Diagnosis, i: int) -> str:
 
 
 def residual_figure(d: Diagnosis, path=None):
-    """Residual ln(data/model) of θ/v, ẍ/θ and ẍ/v in dB and degrees, before and after, with ±2σ of the data's noise (and
+    """Residual data/model of θ/v, ẍ/θ and ẍ/v, its magnitude in dB and its phase in degrees, before and after, with ±2σ of the data's noise (and
     systematic floor); unexplained bands in red, bands where the records differ in orange."""
     import matplotlib
 
@@ -48,6 +48,7 @@ def residual_figure(d: Diagnosis, path=None):
     import matplotlib.pyplot as plt
 
     before, after = d.residuals("before"), d.residuals("after")
+    same = not d.effects and d.raw_measured is None  # nothing found: the residual before is the residual after
     chans = [c for c in ("act", "base", "total") if any(c in r for r in after)]
     fig, axes = plt.subplots(2, len(chans), figsize=(5.5 * len(chans), 6.5), sharex=True, squeeze=False)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
@@ -67,6 +68,10 @@ def residual_figure(d: Diagnosis, path=None):
                 ax_m.fill_between(f, -2 * _DB * sig, 2 * _DB * sig, color=c, alpha=0.15, lw=0, label=f"±2σ {what}{tag}")
                 ax_p.fill_between(f, -2 * _DEG * sig, 2 * _DEG * sig, color=c, alpha=0.15, lw=0)
             nl = d.raw_measured is not None
+            if same:  # nothing found: one residual, no "with the effects" to tell from it
+                ax_m.plot(f, _DB * ea.real, color=c, lw=1.0, label=f"against the baseline{tag}")
+                ax_p.plot(f, _DEG * ea.imag, color=c, lw=1.0)
+                continue
             ax_m.plot(f, _DB * eb.real, color="0.55", lw=0.8, label=f"baseline{' (data as measured)' if nl else ''}{tag}")
             ax_p.plot(f, _DEG * eb.imag, color="0.55", lw=0.8)
             ax_m.plot(f, _DB * ea.real, color=c, lw=1.0,
@@ -77,8 +82,10 @@ def residual_figure(d: Diagnosis, path=None):
                 for ax in (ax_m, ax_p):
                     ax.axvspan(b.lo_hz, b.hi_hz, color="tab:red" if b.why == "residual" else "tab:orange", alpha=0.12, lw=0)
         eb_, ea_ = d.error_before.get(ch), d.error_after.get(ch)
-        title = f"{_NAMES[ch]}: residual ln(data/model)"
-        if eb_ and ea_:
+        title = f"{_NAMES[ch]}: residual data/model (magnitude in dB, phase in deg)"
+        if eb_ and ea_ and same:
+            title += f"\nrms {ea_.rms_db:.2g} dB, {ea_.rms_deg:.2g}°" + (f", χ² {ea_.chi2:.3g}" if ea_.chi2 is not None else "")
+        elif eb_ and ea_:
             title += f"\nrms {eb_.rms_db:.2g} → {ea_.rms_db:.2g} dB, {eb_.rms_deg:.2g} → {ea_.rms_deg:.2g}°"
             if eb_.chi2 is not None:
                 title += f", χ² {eb_.chi2:.3g} → {ea_.chi2:.3g}"
@@ -276,9 +283,13 @@ def simulator_figure(d: Diagnosis, path=None):
             ph_data = _near(np.angle(h[ok]), np.interp(m.frf.freq_hz[ok], after.freq_hz, ph_after))
             ax_m.plot(m.frf.freq_hz[ok], _DB * np.log(np.abs(h[ok])), ".", ms=2.5, color=c, alpha=0.5, label=f"data{tag}")
             ax_p.plot(m.frf.freq_hz[ok], _DEG * ph_data, ".", ms=2.5, color=c, alpha=0.5)
-            _before_after(ax_m, ax_p, before.freq_hz, before.response(ch), after.freq_hz, after.response(ch), ph_after, c,
-                          f"simulator, calibrated{tag}", f"simulator with the effects{tag}")
+            if rep.carried:
+                _before_after(ax_m, ax_p, before.freq_hz, before.response(ch), after.freq_hz, after.response(ch), ph_after, c,
+                              f"simulator, calibrated{tag}", f"simulator with the effects{tag}")
+            else:  # nothing carried: one simulator, no "after" to tell from it
+                ax_m.plot(after.freq_hz, _DB * np.log(np.abs(after.response(ch))), "-", color=c, lw=1.2, label=f"simulator, calibrated{tag}")
+                ax_p.plot(after.freq_hz, _DEG * ph_after, "-", color=c, lw=1.2)
     _label_bode(axes, chans)
-    carried = ", ".join(rep.carried) or "nothing carried"
-    return _finish(fig, f"The simulator measured like the data: before and after carrying in {carried}\n"
-                   "(points: those the diagnosis uses, where the data's noise is small enough)", path, fontsize=11)
+    head = (f"The simulator measured like the data: before and after carrying in {', '.join(rep.carried)}" if rep.carried else
+            "The simulator measured like the data (calibrated; the diagnosis found nothing to carry into it)")
+    return _finish(fig, f"{head}\n(points: those the diagnosis uses, where the data's noise is small enough)", path, fontsize=11)

@@ -86,9 +86,10 @@ def diagnosis_runs(d, *, fps: float | None = None):
     return before, runs
 
 
-def write_diagnosis_recording(path, d, *, fps: float | None = None):
-    """Write diagnosis ``d``'s data and simulator runs (:func:`diagnosis_runs`) to the ``.rrd`` ``path``."""
+def write_diagnosis_recording(path, d, *, fps: float | None = None, thin: bool = True):
+    """Write diagnosis ``d``'s data and simulator runs (:func:`diagnosis_runs`) to the ``.rrd`` ``path``; ``thin``:
+    where the sweep is slow keep what the eye needs (:mod:`samii.viz.thinning`), else every sample and frame."""
     from samii.viz.recording import write_recording
 
     model, runs = diagnosis_runs(d, fps=fps)
-    return write_recording(Path(path), model, runs, application_id="samii_diagnose")
+    return write_recording(Path(path), model, runs, application_id="samii_diagnose", thin_frames=thin and fps is None, thin_signals=thin)

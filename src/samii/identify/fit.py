@@ -268,16 +268,19 @@ class FitResult:
         return dumps(self.to_dict(), **kwargs)
 
     def table(self) -> str:
-        """Plain-text parameter table: value, standard error, relative error."""
+        """Plain-text parameter table: value, standard error, relative error; a frequency (rad/s inside,
+        in ``params``) shown in Hz as ``w/2pi``, as every user-facing number in samii is."""
         units = self.structure.units()
-        lines = [f"{'name':>5} {'value':>13} {'stderr':>11} {'rel':>8}  unit"]
+        lines = [f"{'name':>8} {'value':>13} {'stderr':>11} {'rel':>8}  unit"]
         for n in self.structure.param_names:
-            v, e = self.params[n], self.stderr[n]
+            v, e, unit, name = self.params[n], self.stderr[n], units[n], n
             if n in self.not_fitted:
-                lines.append(f"{n:>5} {'not fitted':>13}")
+                lines.append(f"{name:>8} {'not fitted':>13}")
                 continue
             rel = abs(e / v) if v != 0 else np.inf
-            lines.append(f"{n:>5} {v:13.6g} {e:11.3g} {100 * rel:7.3g}%  {units[n]}")
+            if unit == "rad/s":
+                v, e, unit, name = v / (2 * np.pi), e / (2 * np.pi), "Hz", f"{n}/2pi"
+            lines.append(f"{name:>8} {v:13.6g} {e:11.3g} {100 * rel:7.3g}%  {unit}")
         return "\n".join(lines)
 
 
@@ -559,7 +562,7 @@ def _band_warnings(problem: FitProblem, params: Mapping[str, float]) -> list[str
     out = []
     for n, v in params.items():
         if (n.startswith("w") or n == "tau") and not lo <= v / (2 * np.pi) <= hi:
-            out.append(f"{n} = {v:.4g} rad/s ({v / (2 * np.pi):.3g} Hz) lies outside the fitted band {lo:.3g}-{hi:.3g} Hz: only its tail is seen")
+            out.append(f"{n}/2pi = {v / (2 * np.pi):.3g} Hz lies outside the fitted band {lo:.3g}-{hi:.3g} Hz: only its tail is seen")
     lz, hz = BOUNDS["z"]
     for n, v in params.items():
         if n.startswith("z") and (v < 1.01 * lz or v > 0.99 * hz):

@@ -1,6 +1,6 @@
 """Starting points for a fit: the notebook's values, guesses read off the data, perturbations.
 
-Units. Data in samii are SI (theta in rad, acceleration in m/s^2); the notebook
+Units. Data in samii are SI (theta in rad, acceleration in m/s²); the notebook
 does not state its units (theta was most likely in degrees). Frequencies and
 damping ratios carry over unchanged, gains (K1, B_k) need not. Every start
 here therefore takes only frequencies, damping ratios and tau from its source

@@ -57,7 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="override a model parameter, e.g. hydraulic.supply_pressure=2.1e7 (repeatable)")
     parser.add_argument("--rerun", metavar="FILE.rrd", type=nonempty_path, help="also write a Rerun recording: the beam and arm in 3D with their deflection magnified, the signals grouped by unit, the base modes' coordinates, and a stored layout (with --method both, both runs; the file must not exist unless --overwrite)")
-    parser.add_argument("--rerun-fps", metavar="F", type=positive_float, default=None, help="animation frames per second in the recording (default: 4 per period of base mode 3, at least 100; lower it to shrink a long run's file)")
+    parser.add_argument("--rerun-fps", metavar="F", type=positive_float, default=None, help="animation frames per second in the recording, every frame kept (default: 4 per period of base mode 3, at least 100, thinned where the sweep is slow: samii.viz.thinning)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print the run summary as JSON")
@@ -148,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from samii.outputs import OutputFolder, check_output_file, create_parent
+    from samii.outputs import OutputFolder, check_output_file, create_parent, with_size
 
     t_start = time.perf_counter()
     sweep, stepped, plan = _excitations(args)
@@ -297,7 +297,7 @@ def run(args: argparse.Namespace) -> int:
                         for kind, exc in plan]  # fmt: skip
                 create_parent(rrd_tmp)
                 try:
-                    write_recording(rrd_tmp, model, runs, application_id="samii_measure")
+                    write_recording(rrd_tmp, model, runs, application_id="samii_measure", thin_frames=args.rerun_fps is None)
                 except RuntimeError as exc:  # rerun's writer reports file-system failures as RuntimeError
                     raise OSError(f"--rerun {rerun_path}: the recording could not be written ({' '.join(str(exc).split())})") from None
         if rrd_tmp is not None:  # the recording lives outside --out: moved into place once the folder is complete
@@ -323,5 +323,5 @@ def run(args: argparse.Namespace) -> int:
             print(f"{kind} {ch}: within {st['max_abs_db']:.2f} dB and {st['max_abs_deg']:.2f} deg of the linearised simulator "
                   f"over 0.5-35 Hz ({cond}, {st['points']} points)")
     for p in summary["outputs"]:
-        print(f"wrote {p}")
+        print(f"wrote {with_size(p)}")
     return 0

@@ -45,7 +45,7 @@ class SensorNoise:
       lab front end is a few LSB.
     - ``theta_rad`` 5e-4 rad: quantisation of a 4096-count/rev encoder,
       2 pi / 4096 / sqrt(12) = 4.4e-4 rad.
-    - ``accel_m_s2`` 0.01 m/s^2: ~1 mg rms broadband, a general-purpose accelerometer.
+    - ``accel_m_s2`` 0.01 m/s²: ~1 mg rms broadband, a general-purpose accelerometer.
     - ``p_load_pa`` 2e4 Pa: 0.1 % of a 21 MPa pressure transducer.
     - ``spool`` 1e-3: 0.1 % of spool travel.
 

@@ -7,8 +7,8 @@ experiments. Not a model of SAMII's physics: that is :mod:`samii.sim`.
 The loop is the rig's: ``v = r + Kp (theta_ref - theta)`` with ``theta_ref = 0``,
 ``theta = G(s) v`` (eq 9.1) and ``xdd = B(s) theta`` (eq 9.2). The notebook does
 not state its units; like the rest of samii we read theta in degrees
-(:mod:`samii.notebook`) and the acceleration in m/s^2, so in SI
-``G = G_nb * pi/180`` [rad/V], ``B = B_nb * 180/pi`` [(m/s^2)/rad], and the
+(:mod:`samii.notebook`) and the acceleration in m/s², so in SI
+``G = G_nb * pi/180`` [rad/V], ``B = B_nb * 180/pi`` [(m/s²)/rad], and the
 notebook's unity feedback (1 V per degree) is ``Kp = 180/pi`` V/rad.
 
 Because ``B`` is improper (s^4 over second order), the loop is assembled from
@@ -68,7 +68,7 @@ class LinearRig:
             raise ValueError(f"position_gain_v_per_rad must be positive, got {self.position_gain_v_per_rad!r}")
 
     def open_loop_tf(self):
-        """(G, B) as python-control transfer functions in SI: theta/v [rad/V], xdd/theta [(m/s^2)/rad]."""
+        """(G, B) as python-control transfer functions in SI: theta/v [rad/V], xdd/theta [(m/s²)/rad]."""
         from samii.notebook import actuator_tf, base_tf
 
         return actuator_tf(self.params) * DEG, base_tf(self.params) * (1.0 / DEG)
@@ -82,7 +82,7 @@ class LinearRig:
         return FrequencyResponse(f, act=g, base=b, total=g * b, metadata={"source": "LinearRig exact (notebook tfs, SI)"})
 
     def closed_loop(self):
-        """python-control state space, input r [V], outputs v [V], theta [rad], accel [m/s^2]."""
+        """python-control state space, input r [V], outputs v [V], theta [rad], accel [m/s²]."""
         import control
 
         p = self.params

@@ -8,7 +8,7 @@ stationary line leaks through that window's sidelobes to every frequency,
 falling only as 1/(f_line - f). When the record lasts a whole number of mains
 periods (120 s sweeps and 20 s of rest: 7000 cycles of 50 Hz) the line's phase
 is the same in every record, its leakage repeats, and the records' spread
-cannot see it: on a second, independent rig a 0.01 m/s^2 hum at 50 Hz put xdd/theta
+cannot see it: on a second, independent rig a 0.01 m/s² hum at 50 Hz put xdd/theta
 100x off at 0.4 Hz (where the acceleration of a 0.05 V sweep is tiny) with a
 stated error of 13 %.
 

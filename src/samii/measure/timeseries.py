@@ -2,7 +2,7 @@
 
 Required signals: ``t`` [s] (uniform), ``v`` [V] (everything the joint-2
 servo-valve received), ``theta`` [rad] (joint 2 relative to the nominal pose),
-``accel`` [m/s^2] (base acceleration at the beam tip, gravity removed).
+``accel`` [m/s²] (base acceleration at the beam tip, gravity removed).
 Optional: ``r`` [V] (the excitation added to the valve command),
 ``theta_ref`` [rad], ``p_load`` [Pa], ``spool`` (-1...1). Any other column is
 kept in ``extra`` and ignored by samii.
@@ -84,7 +84,7 @@ class TimeSeries:
     theta : array
         Joint-2 angle relative to the nominal pose [rad].
     accel : array
-        Base acceleration at the beam tip along the bending direction, gravity removed [m/s^2].
+        Base acceleration at the beam tip along the bending direction, gravity removed [m/s²].
     r, theta_ref, p_load, spool : array, optional
         Excitation [V], angle reference [rad], load pressure [Pa], spool position (-1...1).
     extra : mapping of str to array

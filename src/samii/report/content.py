@@ -25,6 +25,7 @@ STAGE_FIGURES = {
     "measure_bode": "measure/bode.png",
     "diagnose_bode": "diagnose/bode.png",
     "diagnose_residuals": "diagnose/residuals.png",
+    "diagnose_harmonics": "diagnose/harmonics.png",
 }
 #: The Rerun recordings the main job writes, linked (not embedded: tens of MB).
 RECORDINGS = {"measure.rrd": "the swept-sine measurement", "closedloop.rrd": "the damping controller's Loper test beside the servo loop alone"}
@@ -32,7 +33,7 @@ RECORDINGS = {"measure.rrd": "the swept-sine measurement", "closedloop.rrd": "th
 
 @dataclass(frozen=True)
 class Trace:
-    """One closed-loop run's signals (SI: s, rad, m/s^2)."""
+    """One closed-loop run's signals (SI: s, rad, m/s²)."""
 
     t: np.ndarray
     theta: np.ndarray
@@ -126,8 +127,8 @@ class ParamRow:
 
 
 #: name -> (meaning, unit shown, factor from the fit's SI value to the unit shown, factor from the notebook's value to it).
-#: The notebook's gains read theta in degrees and the acceleration in ft/s^2 (experiments/closed_loop/README.md):
-#: K1 [deg/s/V] * pi/180 = rad/s/V; B_k [(ft/s^2)/deg] * 0.3048 * 180/pi = (m/s^2)/rad.
+#: The notebook's gains read theta in degrees and the acceleration in ft/s² (experiments/closed_loop/README.md):
+#: K1 [deg/s/V] * pi/180 = rad/s/V; B_k [(ft/s²)/deg] * 0.3048 * 180/pi = (m/s²)/rad.
 _PARAMS = {
     "K1": ("actuator gain", "rad/(s V)", 1.0, math.pi / 180.0),
     "wp": ("actuator pole pair", "Hz", 1 / (2 * math.pi), 1 / (2 * math.pi)),
@@ -139,9 +140,9 @@ _PARAMS = {
     "z1": ("base mode 1 damping", "1", 1.0, 1.0),
     "w3": ("base mode 3", "Hz", 1 / (2 * math.pi), 1 / (2 * math.pi)),
     "z3": ("base mode 3 damping", "1", 1.0, 1.0),
-    "B1": ("base mode 1 coefficient", "(m/s^2)/rad", 1.0, 180.0 / (math.pi * FT_PER_M)),
-    "B2": ("base mode 2 coefficient", "(m/s^2)/rad", 1.0, 180.0 / (math.pi * FT_PER_M)),
-    "B3": ("base mode 3 coefficient", "(m/s^2)/rad", 1.0, 180.0 / (math.pi * FT_PER_M)),
+    "B1": ("base mode 1 coefficient", "(m/s²)/rad", 1.0, 180.0 / (math.pi * FT_PER_M)),
+    "B2": ("base mode 2 coefficient", "(m/s²)/rad", 1.0, 180.0 / (math.pi * FT_PER_M)),
+    "B3": ("base mode 3 coefficient", "(m/s²)/rad", 1.0, 180.0 / (math.pi * FT_PER_M)),
 }
 
 

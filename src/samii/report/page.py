@@ -139,7 +139,15 @@ def _measurement(run: RunFolder) -> str:
             f"<p>{_e(me['excitation'])}, {_num(me['amplitude_v'], 'g')} V on the valve command, {_num(me['simulated_s'], '.0f')} s simulated "
             f"at {_num(me['sample_rate_hz'], 'g')} samples/s, recorded by the simulated DAQ with sensor noise (standard deviations: {noise_txt}; "
             f"seed {_e(run.summary['seed'])}). Joint 2 runs under its unity position loop, as on the rig. The FRF (<code>measure/frf.csv</code>) "
-            "is estimated from the record with the excitation as the instrument.</p>")  # fmt: skip
+            "is estimated from the record with the excitation as the instrument.</p>"
+            + _figure(_file_png(run, "measure_bode"), "the measured FRF", "The measured FRF (solid; pale where the coherence is below 0.95) "
+                      "beside the linearised simulator (dashed), and the coherence. A 0.1 V sweep moves θ less than its noise above the "
+                      "hydraulic resonance (about 9 Hz), so θ/v and ẍ/θ are noise there while ẍ/v, read by the accelerometer, is not; below "
+                      "about 1.5 Hz the base hardly moves and ẍ is noise. <code>measure/bode.png</code>.")
+            + _figure(_file_png(run, "diagnose_harmonics"), "the sweep's harmonics", "The sweep's 2nd and 3rd harmonics in the measured "
+                      "record, referred to the valve command, segment by segment, with twice their noise (dotted): a linear system makes "
+                      "none, and one repeated in every record beyond its noise is a nonlinearity (the diagnosis below tests it). "
+                      "<code>diagnose/harmonics.png</code>."))  # fmt: skip
 
 
 def _fit(run: RunFolder) -> str:
@@ -225,7 +233,8 @@ def _closed_loop(run: RunFolder) -> str:
     if {"servo_loop_alone_step", "damping_step", "damping_loper"} <= tr.keys():
         out.append(_figure(figure_damping(tr["servo_loop_alone_step"], tr["damping_step"], tr["damping_loper"], _switch_on(run, "damping_loper")),
                            "The damping controller", "The damping controller in the same tests: it shortens the base vibration after the "
-                           "step and damps it when switched on after the move, which the pole-cancelling compensator does not."))
+                           "step and damps it when switched on after the move, which the pole-cancelling compensator does not."
+                           + _overshoot(cl)))
     place = cl.get("notebook_place_step")
     if place is not None and not place.get("stable"):
         out.append("<p>Pole placement (chapter 8) is unstable on every plant but the notebook's own 2-mode eq 1.4: its observer uses eq 1.4's "
@@ -233,6 +242,17 @@ def _closed_loop(run: RunFolder) -> str:
                    "gain far above 1 (<code>experiments/closed_loop/README.md</code>). Its runs stop where the controller's output diverges: "
                    + _e("; ".join(n for n in run.closed_loop.get("notebook_place_step", {}).get("notes", []) if "diverged at" in n)) + ".</p>")
     return "".join(out)
+
+
+def _overshoot(cl: dict) -> str:
+    """What the damping controller costs the joint: its θ overshoot beside the servo loop alone's, said when larger."""
+    mine = ((cl.get("damping_step") or {}).get("theta") or {}).get("overshoot_pct")
+    alone = ((cl.get("servo_loop_alone_step") or {}).get("theta") or {}).get("overshoot_pct")
+    if mine is None or alone is None or not mine > alone:
+        return ""
+    return (f" The price is the joint's: θ overshoots the step by {_num(mine, '.0f')} % against {_num(alone, '.0f')} % under the servo loop "
+            "alone, since the acceleration feedback drives the valve against the base's motion, which the joint feels as a disturbance "
+            "(the design sets its gain for the base's damping, with a gain margin; the step's shape is not in its objective).")
 
 
 def _worse(after, before, fmt: str) -> str:
@@ -273,8 +293,15 @@ def _diagnosis(run: RunFolder) -> str:
             rows.append([_CHANNELS[ch]] + [c for key, fmt in (("rms_db", ".2f"), ("rms_deg", ".1f"), ("chi2", ".3g"))
                                             for c in (_num(b.get(key), fmt), _worse(a.get(key), b.get(key), fmt))])  # fmt: skip
     if rows:
+        fr, fp = run.fit.get("rms_mag_db") or {}, run.fit.get("rms_phase_deg") or {}
+        why = ""
+        if "act" in fr and "act" in eb:
+            why = (f" These are smaller than the Identification section's RMS error (θ/v {_num(fr['act'], '.2f')} dB, {_num(fp.get('act'), '.1f')} deg "
+                   f"there, {_num(eb['act'].get('rms_db'), '.2f')} dB, {_num(eb['act'].get('rms_deg'), '.1f')} deg here before the effects) "
+                   "for one reason: the fit's is over every point of its band, those where the channel is noise (coherence below 0.5: θ/v above "
+                   "about 9 Hz) included, while the diagnosis counts only the points its noise estimate says are usable.")
         out.append("<h3>Error before and after the effects</h3><p>Residual over the data's usable points; "
-                   "an error that grows with the effects is in red.</p>" + _table(["channel", "rms dB before", "after", "rms deg before", "after",
+                   f"an error that grows with the effects is in red.{why}</p>" + _table(["channel", "rms dB before", "after", "rms deg before", "after",
                                                                           "χ² per residual before (1: the noise)", "after"], rows))  # fmt: skip
     he = d.get("harmonic_error")
     if he and he.get("before") and he.get("after"):
@@ -302,7 +329,7 @@ def _diagnosis(run: RunFolder) -> str:
                        "Data, the baseline (the fit) and the model with the effects found. Where the data's coherence is below 0.5 "
                        "(the identification figure above) there are no points, and the model there is an extrapolation. "
                        "<code>diagnose/bode.png</code>."))
-    out.append(_figure(_file_png(run, "diagnose_residuals"), "residuals", "Residuals ln(data/model) with the noise band (±2σ from the "
+    out.append(_figure(_file_png(run, "diagnose_residuals"), "residuals", "Residuals data/model (magnitude in dB, phase in degrees) with the noise band (±2σ from the "
                        "coherence and the record-to-record spread), before and after the effects. <code>diagnose/residuals.png</code>."))
     return "".join(out)
 

@@ -25,11 +25,25 @@ def _plt():
     return plt
 
 
+def _percentiles(ax, percentiles, fmt: str, unit: str = "") -> None:
+    """Dotted lines at the percentiles, each labelled at its own height (close percentiles never overprint),
+    and their values in the legend."""
+    if not percentiles:
+        return
+    top = ax.get_ylim()[1]
+    ax.set_ylim(0, 1.3 * top)  # headroom for the labels, above the bars
+    items = list(percentiles.items())
+    for i, (p, v) in enumerate(items):
+        ax.axvline(v, color="0.3", ls=":", lw=1, label=("percentiles " + " / ".join(f"{q}" for q, _ in items) + " %: "
+                                                        + " / ".join(f"{w:{fmt}}" for _, w in items) + unit) if i == 0 else None)
+        ax.text(v, top * (1.27 - 0.09 * i), f" {p}%", fontsize=7, va="top")
+
+
 def plot_histograms(results: list[SampleResult], summary: StudySummary, title: str, path: Path) -> None:
     from matplotlib.ticker import MaxNLocator
 
     plt = _plt()
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.8))
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4.3))
     for a in (a1, a2):
         a.yaxis.set_major_locator(MaxNLocator(integer=True))
     z_st = [r.zeta for r in results if r.stable and r.zeta is not None]
@@ -40,19 +54,17 @@ def plot_histograms(results: list[SampleResult], summary: StudySummary, title: s
         a1.hist(z_st, bins=bins, color="tab:green", alpha=0.8, label=f"stable ({len(z_st)})")
     if z_un:
         a1.hist(z_un, bins=bins, color="tab:red", alpha=0.8, label=f"unstable ({len(z_un)})")
-    a1.axvline(0.0, color="k", lw=0.8)
-    for p, v in (summary.zeta_percentiles or {}).items():
-        a1.axvline(v, color="0.3", ls=":", lw=1)
-        a1.text(v, a1.get_ylim()[1] * 0.95, f" {p}%", fontsize=7, va="top")
+    if allz and min(allz) <= 0.0:  # the stability boundary, drawn when a sample reaches it (else it squeezes the histogram)
+        a1.axvline(0.0, color="k", lw=0.8, label="zeta = 0: stability boundary")
+    _percentiles(a1, summary.zeta_percentiles, ".3g")
     a1.set_xlabel("closed-loop damping ratio of the least-damped mode (negative: growing)")
     a1.set_ylabel("samples")
-    a1.legend(fontsize=8)
+    a1.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, frameon=False)
     settle = [r.base_settle_s for r in results if r.stable and r.base_settle_s is not None]
     if settle:
         a2.hist(settle, bins=20, color="tab:blue", alpha=0.8)
-        for p, v in (summary.settle_percentiles or {}).items():
-            a2.axvline(v, color="0.3", ls=":", lw=1)
-            a2.text(v, a2.get_ylim()[1] * 0.95, f" {p}%", fontsize=7, va="top")
+        _percentiles(a2, summary.settle_percentiles, ".3g", " s")
+        a2.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.2), frameon=False)
     a2.set_xlabel("base settling time [s] (stable samples)")
     a2.set_ylabel("samples")
     lo, hi = summary.p_unstable_ci95

@@ -13,11 +13,11 @@ __all__ = ["add_arguments", "run", "parameter_table", "unit"]
 _UNITS = {
     "hydraulic.supply_pressure": "Pa",
     "hydraulic.bulk_modulus": "Pa",
-    "hydraulic.total_volume": "m^3",
-    "hydraulic.displacement": "m^3/rad",
-    "hydraulic.leakage_coefficient": "m^3/(s Pa)",
+    "hydraulic.total_volume": "m³",
+    "hydraulic.displacement": "m³/rad",
+    "hydraulic.leakage_coefficient": "m³/(s Pa)",
     "hydraulic.valve_time_constant": "s",
-    "hydraulic.rated_flow": "m^3/s",
+    "hydraulic.rated_flow": "m³/s",
     "hydraulic.rated_voltage": "V",
     "hydraulic.position_gain": "V/rad",
     "hydraulic.reference_angle": "rad",
@@ -31,8 +31,8 @@ _UNITS = {
     "beam.section_side_m": "m",
     "beam.tip_body_damping_ratio": "1",
 }
-_SUFFIX_UNITS = {"_hz": "Hz", "_m": "m", "_Nm2": "N m^2", "_kg_m": "kg/m", "_Nm_rad": "N m/rad", "_Nms_rad": "N m s/rad", "_s": "s",
-                 "_deg": "deg", "_kgm2": "kg m^2", "_kg": "kg"}
+_SUFFIX_UNITS = {"_hz": "Hz", "_m": "m", "_Nm2": "N m²", "_kg_m": "kg/m", "_Nm_rad": "N m/rad", "_Nms_rad": "N m s/rad", "_s": "s",
+                 "_deg": "deg", "_kgm2": "kg m²", "_kg": "kg"}
 
 
 def unit(name: str) -> str:

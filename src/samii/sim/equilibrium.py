@@ -15,7 +15,7 @@ __all__ = ["Equilibrium", "static_equilibrium"]
 class Equilibrium:
     qpos: np.ndarray
     act: np.ndarray
-    #: max |qacc| [rad/s^2] and max |act_dot| [1/s] left at the solution
+    #: max |qacc| [rad/s²] and max |act_dot| [1/s] left at the solution
     residual_qacc: float
     residual_act_dot: float
 
@@ -50,5 +50,5 @@ def static_equilibrium(model: mujoco.MjModel, *, qpos0: np.ndarray | None = None
     qacc_res = float(np.max(np.abs(r[: model.nv]))) if model.nv else 0.0
     act_res = float(np.max(np.abs(r[model.nv :]))) if model.na else 0.0
     if not np.all(np.isfinite(sol.x)) or qacc_res > 1e-6:
-        raise RuntimeError(f"static equilibrium not found: max |qacc| = {qacc_res:.3g} rad/s^2 after {sol.nfev} evaluations ({sol.message})")
+        raise RuntimeError(f"static equilibrium not found: max |qacc| = {qacc_res:.3g} rad/s² after {sol.nfev} evaluations ({sol.message})")
     return Equilibrium(qpos=sol.x[:nq].copy(), act=sol.x[nq:].copy(), residual_qacc=qacc_res, residual_act_dot=act_res)

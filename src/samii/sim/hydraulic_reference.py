@@ -10,7 +10,7 @@ critical-centre valve driving a motor through two compressible lines), with
 
     v     = clip(u + Kp*(theta_ref - theta), -10, 10)          servo amplifier [V]
     x_dot = (v/V_rated - x)/tau_v,   |x| <= 1                  spool, 1 = full opening
-    Q     = Kq * x * ssqrt((Ps - sign(x)*P)/Ps)                orifice flow [m^3/s], ssqrt(u) = sign(u) sqrt(|u|)
+    Q     = Kq * x * ssqrt((Ps - sign(x)*P)/Ps)                orifice flow [m³/s], ssqrt(u) = sign(u) sqrt(|u|)
     P_dot = 4*beta_e/Vt * (Q - Dm*theta_dot - Ctp*P)           load pressure [Pa/s]
     tau   = Dm*P                                               torque [N m]
 
@@ -57,11 +57,11 @@ ATTRIBUTES: Mapping[str, tuple[str, Rule]] = {
     # name: (unit, rule); the order is the plugin's attribute order (hydraulic.c, kAttributes)
     "supply_pressure": ("Pa", "positive"),
     "bulk_modulus": ("Pa", "positive"),
-    "total_volume": ("m^3", "positive"),
-    "displacement": ("m^3/rad", "positive"),
-    "leakage_coefficient": ("m^3/(s Pa)", "nonnegative"),
+    "total_volume": ("m³", "positive"),
+    "displacement": ("m³/rad", "positive"),
+    "leakage_coefficient": ("m³/(s Pa)", "nonnegative"),
     "valve_time_constant": ("s", "positive"),
-    "rated_flow": ("m^3/s", "positive"),
+    "rated_flow": ("m³/s", "positive"),
     "rated_voltage": ("V", "positive"),
     "position_gain": ("V/rad", "nonnegative"),
     "reference_angle": ("rad", "finite"),
@@ -136,13 +136,13 @@ class HydraulicParams:
     total_volume : float
         Total oil volume of both lines and chambers Vt [m^3], > 0.
     displacement : float
-        Motor displacement Dm [m^3/rad], > 0.
+        Motor displacement Dm [m³/rad], > 0.
     leakage_coefficient : float
-        Total leakage coefficient Ctp [m^3/(s Pa)], >= 0.
+        Total leakage coefficient Ctp [m³/(s Pa)], >= 0.
     valve_time_constant : float
         Spool lag tau_v [s], > 0.
     rated_flow : float
-        Kq [m^3/s]: load flow at full opening and zero load pressure, > 0.
+        Kq [m³/s]: load flow at full opening and zero load pressure, > 0.
     rated_voltage : float
         Command giving full opening [V], > 0.
     position_gain : float
@@ -234,7 +234,7 @@ NOMINAL = HydraulicParams(
     supply_pressure=7e6,  # Ps 7-21 MPa: lower end
     bulk_modulus=0.7e9,  # beta_e ~ 0.7 GPa (oil with entrained air)
     total_volume=20e-6,  # Vt ~ 20 cm^3
-    displacement=1.7e-6,  # Dm ~ 1.7 cm^3/rad
+    displacement=1.7e-6,  # Dm ~ 1.7 cm³/rad
     valve_time_constant=6.3e-3,  # 1/tau = 159 rad/s, eq 9.4 (tau = 158.869 rad/s)
     rated_voltage=10.0,  # full opening at the +-10 V amplifier limit
     # K1 = Kq/(V_rated*Dm) = 0.488 rad/s/V = 28.0 deg/s/V, eq 9.4 K1 = 27.9 (theta in degrees)
@@ -262,7 +262,7 @@ def valve_voltage(params: HydraulicParams, u, theta, *, ctrlrange: tuple[float, 
 
 
 def load_flow(params: HydraulicParams, spool, p_ratio):
-    """Orifice load flow Q [m^3/s] for spool position ``x`` (-1..1) and ``p_ratio`` = P/Ps."""
+    """Orifice load flow Q [m³/s] for spool position ``x`` (-1..1) and ``p_ratio`` = P/Ps."""
     x = np.clip(spool, -1.0, 1.0)
     drop = 1.0 - np.sign(x) * np.asarray(p_ratio, float)  # (Ps - sign(x) P) / Ps
     return params.rated_flow * x * np.sign(drop) * np.sqrt(np.abs(drop))  # reverse flow past supply (hydraulic.c)
@@ -312,7 +312,7 @@ class InertiaLoad:
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.inertia) and self.inertia > 0):
-            raise ValueError(f"inertia must be a finite number > 0 in kg m^2, got {self.inertia!r}")
+            raise ValueError(f"inertia must be a finite number > 0 in kg m², got {self.inertia!r}")
         if not (math.isfinite(self.damping) and self.damping >= 0):
             raise ValueError(f"damping must be a finite number >= 0 in N m s/rad, got {self.damping!r}")
 

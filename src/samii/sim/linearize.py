@@ -47,7 +47,7 @@ class BaseCoefficient:
 @dataclass(frozen=True)
 class _StateSpace:
     """``A, B, C, D`` of the simulator about its equilibrium at the physics step ``dt_s``. Input: ctrl [V]; outputs:
-    theta [rad], accel [m/s^2]."""
+    theta [rad], accel [m/s²]."""
 
     A: np.ndarray
     B: np.ndarray
@@ -60,7 +60,7 @@ class _StateSpace:
 
 @dataclass(frozen=True)
 class LinearModel(_StateSpace):
-    """Continuous-time linearisation. Input: ctrl [V]; outputs: theta [rad], accel [m/s^2]."""
+    """Continuous-time linearisation. Input: ctrl [V]; outputs: theta [rad], accel [m/s²]."""
 
     outputs: tuple[str, ...] = ("theta", "accel")
     #: The valve's command delay [s] (``hydraulic.command_delay``): not in A, B (the state space is
@@ -109,7 +109,7 @@ class LinearModel(_StateSpace):
         The poles of xdd/theta are the zeros of theta/v (joint 2 held still); B_k is the residue
         of xdd/theta at the upper pole p_k times (p_k - conj p_k)/p_k^4, taken as a contour
         integral on a small circle about p_k (exact for a simple pole, no polynomial fitting).
-        Units: xdd/theta is (m/s^2)/rad and s^4/(s^2 + ...) is s^-2, so B_k is in m/rad
+        Units: xdd/theta is (m/s²)/rad and s^4/(s^2 + ...) is s^-2, so B_k is in m/rad
         (the tip displacement per radian of joint 2 that mode k contributes above its
         frequency). Its imaginary part (``B_imag``) measures how far the true response is from
         the real-coefficient form of eq 9.2.

@@ -28,7 +28,7 @@ class SimResult:
     ctrl: np.ndarray  #: V, the excitation r added to the servo amplifier's position loop
     v: np.ndarray  #: V, valve voltage the valve received (after the loop and saturation)
     theta: np.ndarray  #: rad, joint-2 angle relative to the nominal pose (reference angle)
-    accel: np.ndarray  #: m/s^2, the base accelerometer along its measuring direction minus its reading at rest (samii.sim.sensors)
+    accel: np.ndarray  #: m/s², the base accelerometer along its measuring direction minus its reading at rest (samii.sim.sensors)
     p_load: np.ndarray  #: Pa, load pressure
     spool: np.ndarray  #: -1...1, spool position
     final_state: np.ndarray  #: mjSTATE_FULLPHYSICS after the last step (to continue a run)

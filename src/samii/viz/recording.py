@@ -38,6 +38,7 @@ import numpy as np
 
 from samii.measure.timeseries import TimeSeries
 from samii.sim.sensors import accel_site
+from samii.viz.thinning import BUCKETS_PER_PERIOD, FRAMES_PER_PERIOD_SWEPT, MIN_BUCKET_RATE_HZ, MIN_THINNED_FPS, RING_S, buckets, envelope, kept
 
 __all__ = ["RunRecord", "RecordingInfo", "write_recording", "read_scalars", "frame_steps_for", "TRAIL_S", "BEAM_DEFLECTION_SHOWN"]
 
@@ -251,12 +252,15 @@ def _series(rec, rr, entity: str, t_s: np.ndarray, values: np.ndarray, name: str
     rec.send_columns(entity, indexes=[_time_column(rr, t_s)], columns=rr.Scalars.columns(scalars=values))
 
 
-def _trail(rec, rr, entity: str, t_s: np.ndarray, tip: np.ndarray, fps: float) -> None:
-    """The tip's last ``TRAIL_S`` seconds at each frame, as ``TRAIL_POINTS`` points fading with age."""
-    n = len(t_s)
+def _trail(rec, rr, entity: str, t_s: np.ndarray, tip: np.ndarray, fps: float, keep: np.ndarray | None = None) -> None:
+    """The tip's last ``TRAIL_S`` seconds at each frame (of the uniformly spaced ``t_s``, those in ``keep``),
+    as ``TRAIL_POINTS`` points fading with age."""
+    keep = np.ones(len(t_s), bool) if keep is None else keep
     stride = max(1, int(round(TRAIL_S * fps / TRAIL_POINTS)))
     lag = np.arange(TRAIL_POINTS) * stride
-    idx = np.clip(np.arange(n)[:, None] - lag[None, :], 0, None)
+    idx = np.clip(np.flatnonzero(keep)[:, None] - lag[None, :], 0, None)
+    t_s = t_s[keep]
+    n = len(t_s)
     age = np.linspace(0.0, 1.0, TRAIL_POINTS)
     # Rerun draws points opaque (alpha is ignored, rerun-io/rerun#1611): the trail fades by blending
     # its orange into the 3D view's dark background
@@ -279,23 +283,47 @@ GROUPS = (("angle_deg", "Angle [deg]"), ("accel_m_s2", "Acceleration [m/s²]"), 
 DIMMED = (0.0, 0.45, 0.7)
 
 
-def _log_signals(rec, rr, run: RunRecord, projection, *, tag: str = "", rank: int = 0, modes: bool = True) -> list[str]:
+def _thinning(run: RunRecord, thin_frames: bool = True, thin_signals: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
+    """``(sample buckets, frames kept)`` of a swept run (:mod:`samii.viz.thinning`): None and every frame
+    for any other run (every sample unless ``thin_signals``, every frame unless ``thin_frames``)."""
+    nf = len(run.frame_t_s)
+    if run.sweep_hz is None:
+        return None, np.ones(nf, bool)
+    drive = np.asarray(run.sweep_hz, float)
+    bucket = buckets(run.timeseries.t, drive, per_period=BUCKETS_PER_PERIOD, min_rate=MIN_BUCKET_RATE_HZ) if thin_signals else None
+    if nf == 0 or not thin_frames:
+        return bucket, np.ones(nf, bool)
+    at_frames = np.interp(run.frame_t_s, run.timeseries.t, np.nan_to_num(drive, nan=0.0))
+    return bucket, kept(run.frame_t_s, at_frames, per_period=FRAMES_PER_PERIOD_SWEPT, min_rate=MIN_THINNED_FPS)
+
+
+def _log_signals(rec, rr, run: RunRecord, projection, *, tag: str = "", rank: int = 0, modes: bool = True,
+                 bucket: np.ndarray | None = None, frame_keep: np.ndarray | None = None) -> list[str]:
     """Log ``run``'s time series (the tip and the modes at its frames, from ``projection``) and
     return the groups it filled; ``tag`` prefixes the series' names. The later runs of a comparison
     (``rank`` > 0), in the same panels, have their colours dimmed (:data:`DIMMED`) towards the
     viewer's dark background; only one run's modal coordinates are logged (``modes``), the
-    others' tip beside them."""
+    others' tip beside them. ``bucket``: the record's samples in buckets, of which each signal keeps
+    its envelope; ``frame_keep``: the frames kept (:mod:`samii.viz.thinning`; default all)."""
     ts = run.timeseries
     root = run.name
     groups = set()
+    frame_keep = np.ones(len(run.frame_t_s), bool) if frame_keep is None else frame_keep
 
-    def put(group: str, key: str, values, name: str, t=None) -> None:
+    def put(group: str, key: str, values, name: str, t=None, mask=None) -> None:
         if values is None:
             return
         color = np.asarray(_COLORS[key], float)
         dim = DIMMED[min(rank, len(DIMMED) - 1)]
         color = (1 - dim) * color + dim * BACKGROUND
-        _series(rec, rr, f"{root}/{group}/{key}", ts.t if t is None else t, np.asarray(values, float), tag + name, [int(x) for x in color])
+        values = np.asarray(values, float)
+        if t is None:  # at the record's samples: its envelope in each bucket
+            t, m = ts.t, (None if bucket is None else envelope(values, bucket))
+        else:
+            m = mask
+        if m is not None:
+            t, values = t[m], values[m]
+        _series(rec, rr, f"{root}/{group}/{key}", t, values, tag + name, [int(x) for x in color])
         groups.add(group)
 
     put("angle_deg", "theta", np.degrees(ts.theta), "θ joint 2 [deg]")
@@ -308,14 +336,16 @@ def _log_signals(rec, rr, run: RunRecord, projection, *, tag: str = "", rank: in
     if command is not None:  # shown while the controller runs
         on = np.isfinite(command) & (ts.extra["controller_on"] > 0.5 if "controller_on" in ts.extra else True)
         if np.any(on):
-            put("volts", "command", command[on], "controller command [V]", t=ts.t[on])
+            put("volts", "command", command, "controller command [V]", t=ts.t,
+                mask=on if bucket is None else on & envelope(np.where(on, command, np.nan), bucket))
     put("pressure_mpa", "p_load", None if ts.p_load is None else ts.p_load / 1e6, "load pressure [MPa]")
     if len(run.frame_t_s):
-        put("displacement_mm", "tip", 1e3 * projection.tip_m(run.frame_qpos), "tip displacement [mm]", t=run.frame_t_s)
+        q = run.frame_qpos[frame_keep]
+        put("displacement_mm", "tip", 1e3 * projection.tip_m(q), "tip displacement [mm]", t=run.frame_t_s[frame_keep])
         if modes:
-            shares = projection.shares_m(run.frame_qpos)
+            shares = projection.shares_m(q)
             for k, f in enumerate(projection.freq_hz):
-                put("displacement_mm", f"mode_{k + 1}", 1e3 * shares[:, k], f"mode {k + 1} ({f:.2f} Hz) [mm]", t=run.frame_t_s)
+                put("displacement_mm", f"mode_{k + 1}", 1e3 * shares[:, k], f"mode {k + 1} ({f:.2f} Hz) [mm]", t=run.frame_t_s[frame_keep])
     put("frequency_hz", "sweep", run.sweep_hz, "sweep frequency [Hz]")
     if run.switch_on_s is not None:
         rec.set_time("time", duration=float(run.switch_on_s))
@@ -385,13 +415,17 @@ def _blueprint(rrb, runs, groups_by_run: dict[str, list[str]], beam_scale: float
                          rrb.TimePanel(state="collapsed", timeline="time"))  # fmt: skip
 
 
-def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, beam_scale: float | None = None, fps: float | None = None) -> RecordingInfo:
+def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, beam_scale: float | None = None, fps: float | None = None,
+                    thin_frames: bool = True, thin_signals: bool = True) -> RecordingInfo:
     """Write ``runs`` (:class:`RunRecord`) of ``model`` to the ``.rrd`` file ``path`` with the stored layout.
 
     ``beam_scale``: the deformation scale (default: the largest tip deflection shown as
     ``BEAM_DEFLECTION_SHOWN`` of the beam's length). ``fps``: the frame
     rate the frames were kept at (for the trail; default from their times). The file is replaced
-    if it exists (the caller applies the overwrite rules).
+    if it exists (the caller applies the overwrite rules). A swept run (``sweep_hz`` given) is thinned
+    where the sweep is slow (:mod:`samii.viz.thinning`): its signals keep their envelope, its frames
+    the motion (``thin_frames`` False: every frame, as a frame rate the user asked for;
+    ``thin_signals`` False: every sample).
     """
     import rerun as rr
     import rerun.blueprint as rrb
@@ -413,9 +447,10 @@ def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, b
     # the signals first: rerun encodes and writes them on its own thread while the poses are computed here
     # the modal coordinates of the first run with frames (measured data have none)
     with_modes = next((r.name for r in runs if len(r.frame_t_s)), None)
+    keeps = [_thinning(r, thin_frames, thin_signals) for r in runs]
     groups_by_run = {run.name: _log_signals(rec, rr, run, k.projection, tag="" if len(runs) == 1 else f"{run.name}: ", rank=i,
-                                            modes=run.name == with_modes)
-                     for i, (run, k) in enumerate(zip(runs, run_kin))}  # fmt: skip
+                                            modes=run.name == with_modes, bucket=bucket, frame_keep=frame_keep)
+                     for i, (run, k, (bucket, frame_keep)) in enumerate(zip(runs, run_kin, keeps))}  # fmt: skip
     true_poses = [_poses(k.model, r.frame_qpos, k.site) for r, k in zip(runs, run_kin)]
     length = _beam_length(model, main.home)
     beam_scale, arm_scale, deflection = _scales([(k, r.frame_qpos, p[2]) for r, k, p in zip(runs, run_kin, true_poses)], length, beam_scale)
@@ -430,20 +465,28 @@ def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, b
              f"- **modal coordinates**: each base mode's share of the tip displacement along the accelerometer's axis, "
              f"from the undamped shapes of the structure with joint 2 held ({modes} Hz)\n"]  # fmt: skip
     geoms_of = {key: _geoms(rr, k.model) for key, k in kin.items()}  # logged under each run's two views
-    for run, k, (pos_true, quat_true, _) in zip(runs, run_kin, true_poses):
+    for run, k, (pos_true, quat_true, _), (bucket, fk) in zip(runs, run_kin, true_poses, keeps):
         t, q = run.frame_t_s, run.frame_qpos
         samples_per_s = 1 / float(np.median(np.diff(run.timeseries.t)))
+        thinned = bucket is not None
         if len(t):
             if rate is None:
                 rate = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else MIN_FPS
             rec.log(run.name, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
             pos_def, quat_def, tip_def = _poses(k.model, k.home.qpos + (q - k.home.qpos) * k.scale(beam_scale, arm_scale), k.site)
             geoms = geoms_of[id(k.model)]
-            _log_model(rec, rr, k.model, geoms, f"{run.name}/true_scale", t, pos_true, quat_true)
-            _log_model(rec, rr, k.model, geoms, f"{run.name}/deformed", t, pos_def, quat_def)
-            _trail(rec, rr, f"{run.name}/deformed/tip_trail", t, tip_def, rate)
+            _log_model(rec, rr, k.model, geoms, f"{run.name}/true_scale", t[fk], pos_true[fk], quat_true[fk])
+            _log_model(rec, rr, k.model, geoms, f"{run.name}/deformed", t[fk], pos_def[fk], quat_def[fk])
+            _trail(rec, rr, f"{run.name}/deformed/tip_trail", t, tip_def, rate, keep=fk)
             frames = (f"{rate:.4g} frames per second ({len(t)} frames): the 3D views, the tip and the modes; the other signals "
                       f"at the record's {samples_per_s:.4g} samples/s")  # fmt: skip
+            if thinned:
+                frames = (f"the 3D views, the tip and the modes in {int(fk.sum())} of the run's {len(t)} frames ({rate:.4g} per second), "
+                          f"at least {FRAMES_PER_PERIOD_SWEPT} per period of the highest frequency the sweep drove in the last {RING_S:g} s "
+                          f"and {MIN_THINNED_FPS:g} per second; the other signals at the record's {samples_per_s:.4g} samples/s where the sweep "
+                          f"is fast, and where it is slow each one's smallest and largest sample in every {BUCKETS_PER_PERIOD}th of that "
+                          f"period (at least every {1 / MIN_BUCKET_RATE_HZ:g} s): the curves' peaks and the noise's width are the record's; "
+                          "every sample is in the run's time series file")
         else:
             frames = f"no animation frames (no joint positions: e.g. measured data); the signals at {samples_per_s:.4g} samples/s"
         own = "" if k is main else f"\n- its own model: base modes {', '.join(f'{f:.2f}' for f in k.projection.freq_hz)} Hz"
