@@ -89,3 +89,18 @@ def test_lack_of_fit_does_not_call_noise_a_missing_effect(noisy):
         if band.channel == "base":
             inside = (noisy.freq_hz >= band.f_lo_hz) & (noisy.freq_hz <= band.f_hi_hz)
             assert np.median(g[inside]) >= MIN_COHERENCE
+
+
+def test_verdict_text_tells_a_failure_from_a_caveat():
+    """The main job's summary and the report say which a fit is (issue 32 item 2), from its fit.json alone."""
+    from samii.identify.report import verdict_text
+
+    assert verdict_text({"verdict": "sound"}) == "a sound fit"
+    caveat = verdict_text({"verdict": "caveats", "undetermined": ["w3", "z3"],
+                           "lack_of_fit": {"bands": [{"channel": "act", "f_lo_hz": 0.1, "f_hi_hz": 0.5}] * 3}})
+    assert caveat == "a sound fit, with caveats (the data do not determine w3, z3; the structure misses the data in act 0.1-0.5 Hz, " \
+                     "act 0.1-0.5 Hz and 1 more band(s))"
+    assert verdict_text({"verdict": "not sound", "concerns": ["damping z1 = 0.0001 is on its bound: ..."]}) == \
+        "NOT A SOUND FIT, its parameters should not be used (1 reason given)"
+    assert verdict_text({"verdict": "not sound", "concerns": []}).endswith("(the solver stopped before a minimum)")
+    assert verdict_text({"sound": False}).startswith("NOT A SOUND FIT")  # a fit.json written before verdicts

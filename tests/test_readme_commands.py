@@ -31,8 +31,8 @@ WRITES = {
     "diagnose": {"diagnosis.json"},
     "robust": {"robust.json"},
 }
-#: inputs that are not files
-BUILT_IN = {"eq9.4", "damping", "notebook-cancel", "notebook-place", "unity"}
+#: inputs that are not files (built-in controllers, baselines and data)
+BUILT_IN = {"eq9.4", "damping", "notebook-cancel", "notebook-place", "unity", "notebook", "sim"}
 
 
 def _example_lines(text: str) -> list[tuple[int, str]]:
@@ -64,7 +64,7 @@ def _example_lines(text: str) -> list[tuple[int, str]]:
 def _commands() -> list[tuple[int, list[str]]]:
     cmds = []
     for no, line in _example_lines(README.read_text(encoding="utf-8")):
-        code = line.split("  #", 1)[0] if "  #" in line else line
+        code = line.split("  #", 1)[0]
         if "[" in code or "..." in code:  # a synopsis, not a command
             continue
         cmds.append((no, shlex.split(code, comments=True)[1:]))
@@ -92,7 +92,7 @@ def _inputs(args) -> list[str]:
     for name in ("frf", "timeseries", "data", "model", "covariance", "baseline", "controller"):
         value = getattr(args, name, None)
         for v in value if isinstance(value, list) else [value]:
-            if isinstance(v, str) and v not in BUILT_IN and v not in ("notebook", "sim"):
+            if isinstance(v, str) and v not in BUILT_IN:
                 found.append(v)
     return found
 

@@ -33,3 +33,11 @@ def said(res, errs) -> bool:
     determined by the data (``FitResult.undetermined``), or it is not a sound fit (none of its
     parameters to be used)."""
     return not res.sound or all(k in res.undetermined for k, (_, _, good) in errs.items() if not good)
+
+
+def row(res, truth: Mapping[str, float], wall_s: float) -> dict:
+    """One fit's line of a battery's table and JSON: right or not, said or not, each key's error, the verdict."""
+    ok, errs = judge(res, truth)
+    return {"ok": ok, "said": not ok and said(res, errs), "errs": errs, "sound": res.sound, "wall_s": wall_s, "cost": res.cost,
+            "params_hz": {k: res.params[k] / 2 / np.pi for k in KEYS}, "truth_hz": {k: truth[k] / 2 / np.pi for k in KEYS},
+            "concerns": list(res.concerns), "caveats": list(res.caveats), "undetermined": list(res.undetermined)}

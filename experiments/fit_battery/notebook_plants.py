@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from criterion import KEYS, N_SE, REL_TOL, judge, said
+from criterion import KEYS, row
 
 OUT = Path(__file__).resolve().parent / "out"
 SPREAD = 0.4
@@ -54,10 +54,7 @@ def run_plant(i: int, seed: int) -> dict:
     t0 = time.perf_counter()
     res = fit(data, st, phase_weight=0.1, weighting="coherence")
     wall = time.perf_counter() - t0
-    ok, errs = judge(res, p)
-    return {"plant": i, "ok": ok, "said": not ok and said(res, errs), "sound": res.sound, "errs": errs, "wall_s": wall,
-            "params_hz": {k: res.params[k] / 2 / np.pi for k in KEYS}, "truth_hz": {k: p[k] / 2 / np.pi for k in KEYS},
-            "concerns": list(res.concerns), "caveats": list(res.caveats), "undetermined": list(res.undetermined)}
+    return {"plant": i, **row(res, p, wall)}
 
 
 def main() -> None:

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from criterion import KEYS, N_SE, REL_TOL, judge, said
+from criterion import KEYS, N_SE, REL_TOL, row
 
 OUT = Path(__file__).resolve().parent / "out"
 #: (name, low factor, high factor) of each spread parameter, drawn log-uniformly
@@ -136,10 +136,7 @@ def fit_case(rec: dict) -> dict:
     t0 = time.perf_counter()
     res = fit(data, ModelStructure.notebook_3mode(), phase_weight=0.1, weighting=resolve_weighting(data, None, "auto"))
     wall = time.perf_counter() - t0
-    ok, errs = judge(res, rec["truth"]["params"])
-    return {"case": rec["case"], "ok": ok, "said": not ok and said(res, errs), "errs": errs, "sound": res.sound, "wall_s": wall, "cost": res.cost,
-            "params_hz": {k: res.params[k] / 2 / np.pi for k in KEYS}, "truth_hz": {k: rec["truth"]["params"][k] / 2 / np.pi for k in KEYS},
-            "concerns": list(res.concerns), "caveats": list(res.caveats), "undetermined": list(res.undetermined), "starts": res.starts}
+    return {"case": rec["case"], **row(res, rec["truth"]["params"], wall), "starts": res.starts}
 
 
 def main() -> None:

@@ -38,6 +38,14 @@ def _version() -> str:
         return "unknown"
 
 
+def _closest(word: str, options: list[str]) -> str | None:
+    """The valid option or choice a misspelling most likely meant (difflib's ratio >= 0.6), or None."""
+    import difflib
+
+    close = difflib.get_close_matches(word, options, n=1, cutoff=0.6)
+    return close[0] if close else None
+
+
 class _Parser(argparse.ArgumentParser):
     """An argparse parser whose errors are one line (``samii CMD: error: argument --x: why``), no usage dump.
 
@@ -51,16 +59,14 @@ class _Parser(argparse.ArgumentParser):
         super().__init__(*args, **kwargs)
 
     def error(self, message: str):  # noqa: D401 - argparse API
-        import difflib
         import re
 
         message = " ".join(message.split())
         choice = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)", message)
         if choice:  # a misspelt subcommand or choice: name the closest
-            options = re.findall(r"'([^']*)'", choice.group(2))
-            close = difflib.get_close_matches(choice.group(1), options, n=1, cutoff=0.6)
+            close = _closest(choice.group(1), re.findall(r"'([^']*)'", choice.group(2)))
             if close:
-                message = message.replace(choice.group(0), f"invalid choice: '{choice.group(1)}': did you mean '{close[0]}'? "
+                message = message.replace(choice.group(0), f"invalid choice: '{choice.group(1)}': did you mean '{close}'? "
                                           f"(choose from {choice.group(2)})")
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
@@ -69,8 +75,6 @@ class _Parser(argparse.ArgumentParser):
 
         A parser with subcommands checks only what comes before the subcommand: the rest is its
         subcommand's to check."""
-        import difflib
-
         has_subcommands = any(isinstance(a, argparse._SubParsersAction) for a in self._actions)
         known = [o for o in self._option_string_actions if o.startswith("--")]
         for token in args:
@@ -81,8 +85,8 @@ class _Parser(argparse.ArgumentParser):
             name = token.split("=", 1)[0]
             if name in self._option_string_actions:
                 continue
-            close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
-            self.error(f"unrecognized option {name}" + (f": did you mean {close[0]}?" if close else ""))
+            close = _closest(name, known)
+            self.error(f"unrecognized option {name}" + (f": did you mean {close}?" if close else ""))
 
     def parse_known_args(self, args=None, namespace=None):
         args = sys.argv[1:] if args is None else list(args)

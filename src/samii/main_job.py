@@ -213,10 +213,8 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, bar: _Progress)
     _stage(d, ["fit", "measure/frf.csv", "--out", "fit", "--no-progress"])
     fit = json.loads((d / "fit" / "fit.json").read_text())
     p, se = fit["params"], fit["stderr"]
-    s["fit"] = {"params": p, "stderr": se, "sound": fit.get("sound"), "verdict": fit.get("verdict"), "concerns": fit.get("concerns"),
-                "caveats": fit.get("caveats"), "undetermined": fit.get("undetermined"), "lack_of_fit": fit.get("lack_of_fit"),
-                "eq9_4": dict(nb.EQ9_4),
-                "rms_mag_db": fit.get("rms_mag_db"), "rms_phase_deg": fit.get("rms_phase_deg")}
+    s["fit"] = {"params": p, "stderr": se, "eq9_4": dict(nb.EQ9_4),
+                **{k: fit.get(k) for k in ("sound", "verdict", "concerns", "caveats", "undetermined", "lack_of_fit", "rms_mag_db", "rms_phase_deg")}}
     bar.done()
 
     bar.start("designing the damping controller")
@@ -311,13 +309,12 @@ def summary_lines(s: dict, out) -> list[str]:
                     f"Loper: base decays at {lo['base']['decay_rate_1_s']:.2f} 1/s")
         lines.append(f"  {label:<24} {what}")
     dl, ds, alone = cl["damping_loper"], cl["damping_step"], cl["servo_loop_alone_step"]
+    over = [(r.get("theta") or {}).get("overshoot_pct") for r in (ds, alone)]  # what damping the base costs the joint
     if dl["stable"] and ds["stable"] and dl["base"].get("free_decay_rate_1_s"):
         lines.append(f"damping controller: the base settles {alone['base']['settle_s'] / ds['base']['settle_s']:.1f}x sooner after the step "
                      f"({ds['base']['settle_s']:.2f} s against {alone['base']['settle_s']:.2f} s under the servo loop alone); in the Loper test "
                      f"its vibration decays {dl['base']['decay_rate_1_s'] / dl['base']['free_decay_rate_1_s']:.1f}x faster than free"
-                     + (f"; theta overshoots the step by {ds['theta']['overshoot_pct']:.0f} % ({alone['theta']['overshoot_pct']:.0f} % alone)"
-                        if (ds.get("theta") or {}).get("overshoot_pct") is not None and (alone.get("theta") or {}).get("overshoot_pct") is not None
-                        else ""))
+                     + ("" if None in over else f"; theta overshoots the step by {over[0]:.0f} % ({over[1]:.0f} % alone)"))
     dg = s["diagnosis"]
     eff = ", ".join(f"{e['category']}/{e['kind']}" for e in dg["effects"]) or "nothing"
     lines.append(f"diagnosis of the fit against the measured record: {dg['verdict']}; found {eff}")

@@ -38,13 +38,20 @@ def summary_dict(result: FitResult) -> dict:
     return out
 
 
+def verdict_of(d: Mapping) -> str:
+    """``FitResult.verdict`` from a fit's ``to_dict()`` (or the main job's summary of it); a fit.json
+    written before verdicts has only ``sound``."""
+    return d.get("verdict") or ("sound" if d.get("sound") else "not sound")
+
+
 def verdict_text(d: Mapping) -> str:
     """A fit's verdict in one phrase, from its ``to_dict()`` (or the main job's summary of it): a
     failure, whose parameters should not be used, told apart from a sound fit with caveats."""
-    verdict = d.get("verdict") or ("sound" if d.get("sound") else "not sound")  # a fit.json written before verdicts
+    verdict = verdict_of(d)
     if verdict == "not sound":
-        first = (d.get("concerns") or [""])[0].split(": ")[0] or "the solver stopped before a minimum"
-        return f"NOT A SOUND FIT, its parameters should not be used ({first})"
+        n = len(d.get("concerns") or [])
+        why = f"{n} reason{'s' if n > 1 else ''} given" if n else "the solver stopped before a minimum"
+        return f"NOT A SOUND FIT, its parameters should not be used ({why})"
     if verdict == "sound":
         return "a sound fit"
     said = []

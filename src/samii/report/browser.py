@@ -71,8 +71,9 @@ def screenshot(page: Path, png: Path, *, width: int = 1200, max_height: int = 16
     box = ImageChops.difference(img, Image.new("RGB", img.size, bg)).point(lambda v: 255 if v > 6 else 0).getbbox()
     bottom = box[3] + 24 if box else img.height
     img = img.crop((0, 0, img.width, min(bottom, img.height)))
-    png.parent.mkdir(parents=True, exist_ok=True)
-    img.save(png, optimize=True)
+    from samii.outputs import create_parent
+
+    img.save(create_parent(png), optimize=True)
     return Screenshot(png, img.width, img.height, Path(browser).name)
 
 

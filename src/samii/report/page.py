@@ -141,9 +141,9 @@ def _measurement(run: RunFolder) -> str:
             f"seed {_e(run.summary['seed'])}). Joint 2 runs under its unity position loop, as on the rig. The FRF (<code>measure/frf.csv</code>) "
             "is estimated from the record with the excitation as the instrument.</p>"
             + _figure(_file_png(run, "measure_bode"), "the measured FRF", "The measured FRF (solid; pale where the coherence is below 0.95) "
-                      "beside the linearised simulator (dashed), and the coherence. A 0.1 V sweep moves θ less than its noise above the "
-                      "hydraulic resonance (about 9 Hz), so θ/v and ẍ/θ are noise there while ẍ/v, read by the accelerometer, is not; below "
-                      "about 1.5 Hz the base hardly moves and ẍ is noise. <code>measure/bode.png</code>.")
+                      "beside the linearised simulator (dashed), and the coherence. Where the coherence falls the channel is noise: a "
+                      "small sweep moves θ less than its noise above the hydraulic resonance (θ/v and ẍ/θ there), while ẍ/v, read by the "
+                      "accelerometer, is not; below base mode 1 the base hardly moves and ẍ is noise. <code>measure/bode.png</code>.")
             + _figure(_file_png(run, "diagnose_harmonics"), "the sweep's harmonics", "The sweep's 2nd and 3rd harmonics in the measured "
                       "record, referred to the valve command, segment by segment, with twice their noise (dotted): a linear system makes "
                       "none, and one repeated in every record beyond its noise is a nonlinearity (the diagnosis below tests it). "
@@ -154,10 +154,9 @@ def _fit(run: RunFolder) -> str:
     from samii import notebook as nb
 
     f = run.fit
-    from samii.identify.report import verdict_text
+    from samii.identify.report import verdict_of, verdict_text
 
-    text = verdict_text(f)
-    verdict = f'<span class="{"bad" if text.startswith("NOT") else "ok"}">{_e(text)}</span>'  # a failure told apart from caveats
+    verdict = f'<span class="{"bad" if verdict_of(f) == "not sound" else "ok"}">{_e(verdict_text(f))}</span>'  # a failure told apart from caveats
     rows = []
     for r in parameter_rows(f, dict(nb.EQ9_4)):
         rows.append([f"<code>{_e(r.name)}</code>", _e(r.meaning), _num(r.value, ".5g"), _num(r.stderr, ".2g"), _num(r.rel_stderr_pct, ".2g"),
@@ -251,8 +250,8 @@ def _overshoot(cl: dict) -> str:
     if mine is None or alone is None or not mine > alone:
         return ""
     return (f" The price is the joint's: θ overshoots the step by {_num(mine, '.0f')} % against {_num(alone, '.0f')} % under the servo loop "
-            "alone, since the acceleration feedback drives the valve against the base's motion, which the joint feels as a disturbance "
-            "(the design sets its gain for the base's damping, with a gain margin; the step's shape is not in its objective).")
+            "alone: its command is added to the servo loop's on the same valve, so what it does to damp the base moves the joint "
+            "too (the design sets its gain for the base's damping, with a gain margin; the step's shape is not in its objective).")
 
 
 def _worse(after, before, fmt: str) -> str:
@@ -298,8 +297,8 @@ def _diagnosis(run: RunFolder) -> str:
         if "act" in fr and "act" in eb:
             why = (f" These are smaller than the Identification section's RMS error (θ/v {_num(fr['act'], '.2f')} dB, {_num(fp.get('act'), '.1f')} deg "
                    f"there, {_num(eb['act'].get('rms_db'), '.2f')} dB, {_num(eb['act'].get('rms_deg'), '.1f')} deg here before the effects) "
-                   "for one reason: the fit's is over every point of its band, those where the channel is noise (coherence below 0.5: θ/v above "
-                   "about 9 Hz) included, while the diagnosis counts only the points its noise estimate says are usable.")
+                   "for one reason: the fit's is over every point of its band, those where the channel is noise (coherence below 0.5) "
+                   "included, while the diagnosis counts only the points its noise estimate says are usable.")
         out.append("<h3>Error before and after the effects</h3><p>Residual over the data's usable points; "
                    f"an error that grows with the effects is in red.{why}</p>" + _table(["channel", "rms dB before", "after", "rms deg before", "after",
                                                                           "χ² per residual before (1: the noise)", "after"], rows))  # fmt: skip
@@ -370,8 +369,9 @@ def _render(run: RunFolder, page_dir: Path | None) -> str:
 
 def write_report(run: RunFolder, path: Path | None = None) -> Path:
     """Write ``report.html`` (default: into the run's folder) and return its path."""
-    path = Path(path) if path is not None else run.path / REPORT_NAME
-    path.parent.mkdir(parents=True, exist_ok=True)
+    from samii.outputs import create_parent
+
+    path = create_parent(Path(path) if path is not None else run.path / REPORT_NAME)
     tmp = path.with_name(f".{path.name}.tmp")
     tmp.write_text(render_report(run, path.parent), encoding="utf-8")
     tmp.replace(path)

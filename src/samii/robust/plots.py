@@ -32,10 +32,10 @@ def _percentiles(ax, percentiles, fmt: str, unit: str = "") -> None:
         return
     top = ax.get_ylim()[1]
     ax.set_ylim(0, 1.3 * top)  # headroom for the labels, above the bars
-    items = list(percentiles.items())
-    for i, (p, v) in enumerate(items):
-        ax.axvline(v, color="0.3", ls=":", lw=1, label=("percentiles " + " / ".join(f"{q}" for q, _ in items) + " %: "
-                                                        + " / ".join(f"{w:{fmt}}" for _, w in items) + unit) if i == 0 else None)
+    label = (f"percentiles {' / '.join(str(p) for p in percentiles)} %: "
+             + " / ".join(f"{v:{fmt}}" for v in percentiles.values()) + unit)
+    for i, (p, v) in enumerate(percentiles.items()):
+        ax.axvline(v, color="0.3", ls=":", lw=1, label=label if i == 0 else None)
         ax.text(v, top * (1.27 - 0.09 * i), f" {p}%", fontsize=7, va="top")
 
 
