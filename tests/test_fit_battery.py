@@ -73,3 +73,54 @@ def test_a_mode_put_in_an_unmodelled_floor_is_discarded_for_the_physical_minimum
     assert hz["wz"] == pytest.approx(9.91, rel=0.03)
     assert 7.0 < hz["wp"] < 9.5
     assert res.sound and not {"w1", "z1", "wp", "zp", "wz"} & set(res.undetermined)
+
+
+def test_base_modes_above_the_hydraulic_resonance_are_read_off_xdd_v_where_xdd_theta_is_noise():
+    """Above the hydraulic resonance a small sweep moves theta less than its noise: xdd/theta (theta in its
+    denominator) is noise there, xdd/v is not. Eq 9.4's responses with xdd/theta and theta/v replaced by noise of
+    coherence 0.3 above 1.3 wp: the peaks of xdd/theta are anywhere, those of xdd/v divided by the theta/v model
+    are the plant's modes, and the fit finds mode 3. Mode 3 is moved to 20 Hz (0.8 of eq 9.4's): eq 9.4's own
+    24.96 Hz is where ``auto_start`` pads a mode it cannot see (2.5 times the highest peak, wz), by chance."""
+    from samii import notebook as nb
+    from samii.frequency_response import FrequencyResponse
+    from samii.identify.cost import FitProblem
+    from samii.identify.starts import auto_start, modes_from_total
+
+    st = ModelStructure.notebook_3mode()
+    f = np.geomspace(0.1, 40.0, 500)
+    true = {k: nb.EQ9_4[k] for k in st.param_names} | {"w3": 2 * np.pi * 20.0}
+    act, base, total = (st.response(true, f, c) for c in ("act", "base", "total"))
+    rng = np.random.default_rng(3)
+    noisy = 2 * np.pi * f > 1.3 * true["wp"]
+    coh = np.where(noisy, 0.3, 0.999)
+
+    def swamp(h):  # noise of coherence 0.3 (noise power 2.3x the signal's) where theta is under its noise
+        z = (rng.standard_normal(f.size) + 1j * rng.standard_normal(f.size)) * np.abs(h) * np.sqrt(0.7 / 0.3 / 2)
+        return np.where(noisy, h + z, h)
+
+    data = FrequencyResponse(f, act=swamp(act), base=swamp(base), total=total, act_coh=coh, base_coh=coh, total_coh=np.full(f.size, 0.999))
+    problem = FitProblem(data, st, phase_weight=0.1, weighting="coherence")
+    auto = auto_start(problem)
+    assert abs(np.log(auto["w3"] / true["w3"])) > np.log(1.1), auto["w3"] / 2 / np.pi  # what xdd/theta's peaks give
+    start = modes_from_total(problem, auto)
+    assert start is not None
+    for k in ("w1", "wz", "w3"):
+        assert abs(np.log(start[k] / true[k])) < np.log(1.1), (k, start[k] / 2 / np.pi, true[k] / 2 / np.pi)
+    res = fit(data, st, phase_weight=0.1, weighting="coherence")
+    assert abs(res.params["w3"] / true["w3"] - 1) < 0.02, res.params["w3"] / 2 / np.pi
+    # without xdd/v no such start exists
+    assert modes_from_total(FitProblem(FrequencyResponse(f, act=act, base=base), st, phase_weight=0.1), true) is None
+
+
+def test_a_mode_3_that_xdd_theta_hides_in_its_noise_is_found_from_xdd_v():
+    """Simulator rig 23 of the battery's seed 0 (the only silent miss of that draw before the xdd/v start): the
+    0.1 V sweep leaves xdd/theta noise above 10 Hz, every start read off it put mode 3 at 10 Hz beside the
+    actuator pair (wz 5.4 % off, said of w3 only); its true minimum is lower and the xdd/v start reaches it."""
+    spread = _load("simulator_spread")
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        rec = spread.measure_case(23, seed=0, cache=Path(tmp))
+        row = spread.fit_case(rec)
+    assert row["ok"], row
+    assert any(label.startswith("auto, modes from xdd/v") for label, *_ in row["starts"])

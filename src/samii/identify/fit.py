@@ -56,7 +56,7 @@ from samii.frequency_response import Channel, FrequencyResponse
 from samii.identify.cost import FitProblem, Weighting, thinning_step
 from samii.identify.lack_of_fit import LackOfFit, averages_from_metadata, lack_of_fit
 from samii.identify.notebook_loop import NOTEBOOK_TOL_PCT, PercentChange, percent_change
-from samii.identify.starts import auto_start, notebook_start, perturbed_start, scan_modes, snap_to_peaks
+from samii.identify.starts import auto_start, modes_from_total, notebook_start, perturbed_start, scan_modes, snap_to_peaks
 from samii.identify.structures import ModelStructure
 
 __all__ = ["FitResult", "fit", "fit_problem", "resolve_weighting", "BOUNDS"]
@@ -771,6 +771,9 @@ def _build_starts(problem: FitProblem, start: StartSpec) -> tuple[list[tuple[str
             starts.append((label, builders[label]()))
         except ValueError as exc:
             notes.append(f"{label} start skipped ({exc})")
+    auto = next((p for label, p in starts if label == "auto"), None)
+    if auto is not None and (through := modes_from_total(problem, auto)) is not None:
+        starts.append(("auto, modes from xdd/v", through))
     if not starts and "auto" not in labels:
         notes.append("falling back to the automatic start (modes beyond the data's peaks padded above the highest)")
         starts.append(("auto", builders["auto"]()))

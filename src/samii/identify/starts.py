@@ -31,7 +31,7 @@ from samii import notebook as nb
 from samii.identify.cost import FitProblem
 from samii.identify.structures import ModelStructure
 
-__all__ = ["solve_gains", "notebook_start", "auto_start", "scan_modes", "snap_to_peaks", "perturbed_start"]
+__all__ = ["solve_gains", "notebook_start", "auto_start", "modes_from_total", "scan_modes", "snap_to_peaks", "perturbed_start"]
 
 #: Damping ratios and lag used before the grid search of ``auto_start``
 #: (order of eq 9.4: zp 0.14, base modes 0.03-0.05; tau/wp = 158.9/55.3 = 2.9).
@@ -182,6 +182,42 @@ def auto_start(problem: FitProblem) -> dict[str, float]:
     x = st.vector(_assemble(problem, act, modes))
     if "act" in problem.channels:
         x = _scan_wp(problem, x)
+    return st.params(_grid_refine(problem, x))
+
+
+def modes_from_total(problem: FitProblem, params: Mapping[str, float]) -> dict[str, float] | None:
+    """``params`` with the base modes read off xdd/v divided by ``params``' theta/v model, or None
+    if the data have no xdd/v measured well enough (coherence 0.9 at 10 points or more).
+
+    Above the hydraulic resonance theta/v rolls off (as 1/w^3 in eq 9.1) and a
+    small sweep moves theta less than its sensor noise: xdd/theta, estimated
+    with theta in its denominator, is noise there, and so are the peaks
+    ``auto_start`` reads off it. xdd/v is not (v is the command, known
+    exactly, and the accelerometer sees the base directly). Divided by the
+    theta/v *model* (smooth there) it is xdd/theta without theta's noise, and
+    its peaks are the base modes, mode 2 included (the actuator zero wz, which
+    cancels in xdd/v, is a notch of the model divided out). The dampings and
+    tau are grid-refined as in ``auto_start``.
+    """
+    st, data = problem.structure, problem.data
+    if "total" not in data.channels or not {"act", "base"} <= set(problem.channels):
+        return None
+    coh = data.coherence("total")
+    keep = np.ones(problem.w.size, bool) if coh is None else coh >= _PEAK_MIN_COHERENCE
+    if keep.sum() < 10:
+        return None
+    x = st.vector(params)
+    w = problem.w[keep]
+    base = data.response("total")[keep] / _response(st, x, w, "act")
+    peaks = [float(w[i]) for i in _prominent(_smooth(np.log(np.abs(base)) - st.power * np.log(w)), st.n_modes)]
+    if not peaks:
+        return None
+    while len(peaks) < st.n_modes:
+        peaks.append(peaks[-1] * 2.5)
+    wi, zi = st.mode_index[:2]
+    x[wi], x[zi] = peaks, _DEFAULT_ZETA_MODE
+    if st.tie_mode2:
+        x[st.param_names.index("wz")] = peaks[1]
     return st.params(_grid_refine(problem, x))
 
 
