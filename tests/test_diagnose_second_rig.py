@@ -56,6 +56,19 @@ def test_a_clean_rig_gets_no_effect_and_its_error_is_at_the_floor(seed, fs, swee
         assert d.error_before[ch].chi2 < 2.0
 
 
+def test_without_a_usable_theta_no_effect_is_placed_and_the_misfit_is_left_unexplained():
+    """A 12-bit encoder (1.5 mrad a count) under a 0.1 V sweep: theta moves about one count, so theta/v has no usable
+    point. In xdd/v alone an actuator, a base and a sensor effect multiply the same response: the battery's clean rig
+    N02 got an actuator pole/zero pair at 57/152 Hz "on theta/v" from xdd/v's misfit. Every candidate is refused with
+    that reason, and the file and the channel are named."""
+    m = _measure(73, 1000.0, dict(direction="up", n_records=3, sweep_s=60.0, rest_s=10.0, amplitude_v=0.1), daq=dict(encoder_bits=12))
+    d = diagnose([m])
+    assert not d.datasets[0].keep["act"].any()
+    assert [e.kind for e in d.effects if not e.expected] == [], [e.evidence for e in d.effects]
+    assert d.refused and all(r["reason"].startswith("cannot be placed") for r in d.refused), d.refused
+    assert d.to_dict()["files"][0]["usable_points"]["act"] == 0
+
+
 def test_a_command_delay_is_found_beside_the_holds_half_sample():
     """4 ms on the valve's command; the zero-order hold adds half a sample (0.25 ms at 2 kHz) that the data cannot
     tell from it. (At 1 kHz this rig's xdd aliases the held command's steps, which pass straight through eq 9.1/9.2's

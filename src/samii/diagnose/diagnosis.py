@@ -181,8 +181,9 @@ class Diagnosis:
             "files": [{"source": m.source, "noise": m.noise_source, "amplitude_v": m.amplitude_v, "sample_rate_hz": m.sample_rate_hz,
                        "records": None if m.layout is None else {"record_s": m.layout.record_s, "start_s": m.layout.start_s,
                                                                    "n_records": m.layout.n_records, "how": m.layout.how},
-                       "corr_length": m.corr_length, "noise_free": bool(m.floor is not None and m.floor.noise_free)}
-                      for m in self.measured],
+                       "corr_length": m.corr_length, "noise_free": bool(m.floor is not None and m.floor.noise_free),
+                       "usable_points": {ch: int(k.sum()) for ch, k in ds.keep.items()}}
+                      for m, ds in zip(self.measured, self.datasets)],
             "baseline_params": [dict(p) for p in self.after.baseline_params] if self.baseline.free else None,
             "baseline_stderr": [dict(p) for p in self.after.baseline_stderr] if self.baseline.free else None,
             "chi2_per_dof": {"before": self.before.chi2 / self.before.dof, "after": self.after.chi2 / self.after.dof},
