@@ -251,7 +251,8 @@ def _print(d, written) -> None:
         print("verdict: none: " + ("no effect of the library is needed, but a residual beyond the noise remains (unexplained, below)"
                                    if d.unexplained else "the baseline explains the data to within their noise") + (f"; {sim}" if sim else ""))
     else:
-        print(f"verdict: {d.verdict}" + (f": {len(real)} effect(s) the model lacks" if real else ": only what sampling explains")
+        left = ", but a residual beyond the noise remains (unexplained, below)" if d.unexplained and not real else ""
+        print(f"verdict: {d.verdict}" + (f": {len(real)} effect(s) the model lacks" if real else f": only what sampling explains{left}")
               + (f"; {sim}" if sim else ""))
     from samii.diagnose.effects import LIBRARY
 
