@@ -7,6 +7,10 @@ pole-cancelling compensator on a plant with a bulk modulus and clamp stiffness d
 the 1-worker cluster's time per sample over the in-process time per sample, less 1. The clusters are
 started before the timing (their start-up, a few seconds, is printed apart) and warmed on one batch.
 
+Goal (issue 34, item 1): a sample at most 1.3x the plain stepping of its steps: ``mujoco.rollout`` of the
+embedded model from its ``home`` keyframe for the same 10 s (10,000 physics steps, zero command), in
+this process, the baseline measured in the same run.
+
     python benchmarks/robust_scaling.py [--samples 16] [--repeats 3]
 """
 
@@ -24,6 +28,9 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=16, help="samples per timed batch (default 16)")
     ap.add_argument("--repeats", type=int, default=3, help="timed batches per engine; the median is kept (default 3)")
     args = ap.parse_args()
+
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from _timing import paired_ratio
 
     from samii.closedloop.controllers import notebook_cancel
     from samii.robust.engine import Engine
@@ -61,6 +68,34 @@ def main() -> None:
     print(f"2 workers / 1 worker: {speedup:.2f}x (goal >= 1.7x)")
     print(f"engine overhead per sample (1 worker against in-process): {100 * overhead:+.1f} % of a sample (goal < 10 %)")
     print(f"the same table from every engine: {'yes' if same else 'NO'}")
+    plain = _plain_stepping(10.0)
+    k = min(4, args.samples)
+    with Engine() as engine:
+        ratio, lo, hi, t_plain, t_samples = paired_ratio(lambda: [plain() for _ in range(k)], lambda: engine.map(tasks[:k]),
+                                                         max(args.repeats, 5))
+    print(f"a sample in this process against plain stepping of its steps ({1e3 * t_plain / k:.0f} ms for 10 s; "
+          f"{1e3 * t_samples / k:.0f} ms a sample): {ratio:.2f}x, {lo:.2f}-{hi:.2f} over {max(args.repeats, 5)} interleaved pairs "
+          f"of {k} (goal <= 1.3x)")
+
+
+def _plain_stepping(seconds: float):
+    """A function that steps the embedded model from its ``home`` keyframe for ``seconds`` (zero command) with
+    ``mujoco.rollout``: the plain stepping a sample's closed loop does as many steps of."""
+    import mujoco
+    import numpy as np
+    from mujoco import rollout
+
+    from samii.sim.model import load_model, make_data
+    from samii.sim.plugin import load_plugin
+
+    load_plugin()
+    model = load_model()
+    data = make_data(model)
+    full = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    state = np.empty(mujoco.mj_stateSize(model, full))
+    mujoco.mj_getState(model, data, state, full)
+    ctrl = np.zeros((1, int(round(seconds / model.opt.timestep)), model.nu))
+    return lambda: rollout.rollout(model, data, state[None, :], ctrl)
 
 
 if __name__ == "__main__":

@@ -196,6 +196,20 @@ def test_unstable_gain_reported_with_its_frequency(factory):
     assert r.as_json()["stable"] is False
 
 
+@pytest.mark.parametrize("controller, sc", [(notebook_cancel, "step"), (notebook_cancel, "loper"), (None, "step")])
+def test_a_run_without_details_has_the_same_stability_and_metrics(factory, controller, sc):
+    """``details=False`` (what ``samii robust`` asks for) skips the linear response and the fitted modes, three
+    times the run's own cost, and nothing else: every figure robust reads is the same, bit for bit."""
+    ctrl = controller() if controller is not None else None
+    full = run_closed_loop(ctrl, scenario(sc), label="x", spec_factory=factory, comparison=False)
+    lean = run_closed_loop(ctrl, scenario(sc), label="x", spec_factory=factory, comparison=False, details=False)
+    assert full.linear is not None and full.modes and lean.linear is None and lean.modes == []
+    assert lean.rms_error_pct == {"theta": None, "accel": None}
+    assert (lean.stable, lean.linear_stable, lean.growth_rate_1_s, lean.unstable_mode_hz) == (full.stable, full.linear_stable, full.growth_rate_1_s, full.unstable_mode_hz)
+    assert np.array_equal(lean.linear_poles_s, full.linear_poles_s)
+    assert (lean.theta, lean.base) == (full.theta, full.base)
+
+
 def test_saved_controller_round_trips_exactly(tmp_path):
     saved = notebook_cancel()
     saved = SavedController(saved.controller, saved.replaces_servo, {"designed_on": "test"})

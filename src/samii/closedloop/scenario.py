@@ -259,6 +259,7 @@ def run_closed_loop(
     noise: NoiseSpec | None = None,
     comparison: bool = True,
     qpos_every: int | None = None,
+    details: bool = True,
 ) -> ClosedLoopResult:
     """Run ``saved`` (None: the servo amplifier alone) through scenario ``sc`` on the model from ``spec_factory``.
 
@@ -270,6 +271,11 @@ def run_closed_loop(
         Also run the scenario under the servo amplifier alone (for the plots and the free decay).
     qpos_every : int, optional
         Keep the joint positions every this many physics steps (an animation).
+    details : bool
+        Also compute the linear prediction's response (and its error against the run) and the response's
+        fitted modes (matrix pencil). Off, the result has ``linear`` None, no errors and no ``modes``; its
+        stability, growth, poles and step and base metrics are the same: what ``samii robust`` reads (the
+        two cost about three times the nonlinear run itself).
     """
     if spec_factory is None:
         spec_factory = default_spec_factory()
@@ -312,12 +318,12 @@ def run_closed_loop(
     enabled = np.zeros(n, bool)
     if controller is not None:
         enabled[(switch or 0):] = True
-    if linear_stable:
+    if linear_stable and details:
         lin = ll.simulate(theta_ref, enabled=enabled, x0=x0)
         k = sig.t.size
         if sig.diverged_at_s is None:
             err = {"theta": _rms_error_pct(sig.theta - th_rest, lin.theta[:k]), "accel": _rms_error_pct(accel, lin.accel[:k])}
-    else:
+    elif not linear_stable:
         notes.append("the linear prediction is unstable: no linear response or error is given")
 
     # stability from the nonlinear response
@@ -350,7 +356,7 @@ def run_closed_loop(
     if comp is not None:
         comp_base = base_metrics(comp.t, comp.accel - ac_rest, sc.t_disturbance_s, t_decay_s=t_ev, residual_from_s=residual_from)
     free = comp_base.decay_rate_1_s if comp_base is not None and sc.name in ("loper", "release") else None
-    modes = response_modes(sig.t, accel, t_ev + 0.1) if stable else []
+    modes = response_modes(sig.t, accel, t_ev + 0.1) if stable and details else []
     return ClosedLoopResult(
         controller=label, scenario=sc, signals=sig, comparison=comp, linear=lin, linear_stable=linear_stable,
         linear_poles_s=poles_s, stable=stable, unstable_mode_hz=mode_hz, growth_rate_1_s=rate, theta=theta_m, base=base,

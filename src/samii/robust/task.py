@@ -116,7 +116,8 @@ def _run_sample(task: SampleTask) -> SampleResult:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         r = run_closed_loop(task.controller, scenario(task.scenario), label=f"sample {task.index}",
-                            spec_factory=factory, delay_samples=task.delay_samples, noise=noise, comparison=False)  # fmt: skip
+                            spec_factory=factory, delay_samples=task.delay_samples, noise=noise, comparison=False,
+                            details=False)  # fmt: skip
     # unstable: the nonlinear run diverges or oscillates without decaying, or its linearisation is unstable and only
     # the valve's +-10 V rails bound it (a limit cycle is no stable loop)
     stable = bool(r.stable and r.linear_stable)
