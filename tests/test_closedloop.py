@@ -196,6 +196,31 @@ def test_unstable_gain_reported_with_its_frequency(factory):
     assert r.as_json()["stable"] is False
 
 
+@pytest.mark.parametrize("replaces, delay, sample_time_s", [(True, 1.5, 1e-3), (False, 0.7, 1e-3), (True, 0.0, 4e-3)])
+def test_linear_prediction_by_step_maps_is_the_cards_step_applied_one_by_one(home, replaces, delay, sample_time_s):
+    """``LinearLoop.simulate`` applies each physics step as one matrix product (``step_map``, built from ``_step``);
+    the same run stepped through ``_step`` itself, with a switch-on mid-run, an initial state, a reference step and
+    a noisy input, agrees to rounding."""
+    from samii.closedloop.run import bumpless_state
+
+    ll = linear_loop(_card(home, _filtered_md(sample_time_s), replaces_servo=replaces, delay_samples=delay))
+    n, rng = 3000, np.random.default_rng(1)
+    ref = np.where(np.arange(n) >= 500, math.radians(2.0), 0.0)
+    r, x0 = 0.01 * rng.standard_normal(n), 1e-4 * rng.standard_normal(ll.Ad.shape[0])
+    enabled = np.arange(n) >= 1000
+    got = ll.simulate(ref, r, enabled=enabled, x0=x0)
+    x, z, buf, held, counter, want = x0.copy(), np.zeros(ll.A.shape[0]), np.zeros(ll.n_buffer), 0.0, 0, np.empty((3, n))
+    for j in range(n):
+        if enabled[j] and not enabled[j - 1]:
+            th, ac = float(ll.c_theta @ x), float(ll.c_accel @ x)
+            z, _ = bumpless_state((ll.A, ll.B, ll.C, ll.D), np.array([ref[j], th, ac]), ll.kp * (ref[j] - th) if replaces else 0.0)
+            counter = 0
+        x, z, buf, held, *want[:, j] = ll._step(x, z, buf, held, sample=counter % ll.steps == 0, enabled=bool(enabled[j]), theta_ref=ref[j], r=r[j])
+        counter += bool(enabled[j])
+    for k, y in enumerate((got.theta, got.accel, got.v)):
+        assert np.max(np.abs(y - want[k])) <= 1e-10 * np.max(np.abs(want[k]))
+
+
 @pytest.mark.parametrize("controller, sc", [(notebook_cancel, "step"), (notebook_cancel, "loper"), (None, "step")])
 def test_a_run_without_details_has_the_same_stability_and_metrics(factory, controller, sc):
     """``details=False`` (what ``samii robust`` asks for) skips the linear response and the fitted modes, three

@@ -102,7 +102,8 @@ class LinearLoop:
 
     def simulate(self, theta_ref: np.ndarray, r: np.ndarray | None = None, *, enabled: np.ndarray | None = None,
                  x0: np.ndarray | None = None) -> LinearResponse:
-        """Step the linear loop per physics step, as the card does (``enabled[j]``: the controller runs in step j).
+        """Step the linear loop per physics step, as the card does (``enabled[j]``: the controller runs in step j),
+        each step one matrix product (:meth:`step_map`; 3x faster than calling :meth:`_step`, the same to rounding).
 
         A run that starts enabled starts with the controller at rest; a
         switch-on mid-run initialises it bumplessly, as the nonlinear runner
@@ -115,21 +116,47 @@ class LinearLoop:
         n = theta_ref.size
         r = np.zeros(n) if r is None else np.asarray(r, float)
         enabled = np.full(n, self.has_controller) if enabled is None else np.asarray(enabled, bool)
-        x = np.zeros(self.Ad.shape[0]) if x0 is None else np.array(x0, float)
-        z, buf = np.zeros(self.A.shape[0]), np.zeros(self.n_buffer)
-        held, counter = 0.0, 0
+        nx, nz = self.Ad.shape[0], self.A.shape[0]
+        dim = nx + nz + self.n_buffer + 1
+        state = np.zeros(dim)  # (x, z, delay line, held command)
+        if x0 is not None:
+            state[:nx] = x0
+        inputs = np.stack([theta_ref, r])
+        maps: dict[tuple[bool, bool], tuple[np.ndarray, np.ndarray]] = {}
+        counter = 0
         out = np.empty((3, n))
         for j in range(n):
             if enabled[j] and (j == 0 or not enabled[j - 1]):
                 counter = 0
                 if j > 0:  # switched on mid-run
+                    x = state[:nx]
                     th, ac = float(self.c_theta @ x), float(self.c_accel @ x)
                     target = self.kp * (theta_ref[j] - th) if self.replaces else 0.0
-                    z, _ = bumpless_state((self.A, self.B, self.C, self.D), np.array([theta_ref[j], th, ac]), target)
-            x, z, buf, held, *out[:, j] = self._step(x, z, buf, held, sample=counter % self.steps == 0, enabled=bool(enabled[j]),
-                                                     theta_ref=theta_ref[j], r=r[j])  # fmt: skip
+                    state[nx:nx + nz], _ = bumpless_state((self.A, self.B, self.C, self.D), np.array([theta_ref[j], th, ac]), target)
+            key = (bool(enabled[j]), counter % self.steps == 0)
+            if key not in maps:
+                maps[key] = self.step_map(*key)
+            m_state, m_input = maps[key]
+            nxt = m_state @ state + m_input @ inputs[:, j]
+            state, out[:, j] = nxt[:dim], nxt[dim:]
             counter += bool(enabled[j])
         return LinearResponse(np.arange(n) * self.dt_s, out[0], out[1], out[2])
+
+    def step_map(self, enabled: bool, sample: bool) -> tuple[np.ndarray, np.ndarray]:
+        """One physics step (:meth:`_step`) as the linear map it is: ``[X'; y] = Ms X + Mu (theta_ref, r)``, ``X`` the
+        plant state, the controller state, the delay line and the held command, ``y`` theta, accel and the valve
+        voltage at the step's start. Built column by column from :meth:`_step` itself (exact: the step has no
+        constant term), so the loop that applies it is the card's logic, one matrix product per step."""
+        nx, nz, nb = self.Ad.shape[0], self.A.shape[0], self.n_buffer
+        dim = nx + nz + nb + 1
+        M = np.empty((dim + 3, dim + 2))
+        for col in range(dim + 2):
+            e = np.zeros(dim + 2)
+            e[col] = 1.0
+            x, z, buf, held = e[:nx], e[nx:nx + nz], e[nx + nz:dim - 1], float(e[dim - 1])
+            x2, z2, buf2, held2, th, ac, v = self._step(x, z, buf, held, sample=sample, enabled=enabled, theta_ref=float(e[dim]), r=float(e[dim + 1]))
+            M[:, col] = np.concatenate([x2, z2, buf2, [held2, th, ac, v]])
+        return M[:, :dim], M[:, dim:]
 
     def sample_map(self) -> np.ndarray:
         """The loop's one-sample map (controller running, zero inputs) on ``(x, z, delay line)``."""
