@@ -37,3 +37,17 @@ def paired_ratio(base: Callable[[], object], other: Callable[[], object], repeat
         tb.append(a)
         to.append(b)
     return statistics.median(ratios), min(ratios), max(ratios), statistics.median(tb), statistics.median(to)
+
+
+def plain_rollout(model, data, n_steps: int) -> Callable[[], object]:
+    """A function that steps ``model`` ``n_steps`` times from ``data``'s present state (zero command) with one
+    ``mujoco.rollout`` call: plain ``mj_step``, the baseline the closed-loop benchmarks divide by."""
+    import mujoco
+    import numpy as np
+    from mujoco import rollout
+
+    full = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    state = np.empty(mujoco.mj_stateSize(model, full))
+    mujoco.mj_getState(model, data, state, full)
+    ctrl = np.zeros((1, int(n_steps), model.nu))
+    return lambda: rollout.rollout(model, data, state[None, :], ctrl)

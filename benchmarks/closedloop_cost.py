@@ -26,14 +26,13 @@ import argparse
 import math
 import mujoco
 import numpy as np
-from mujoco import rollout
 
 from samii.closedloop.card import build_card_model
 from samii.closedloop.controllers import notebook_cancel
 from samii.closedloop.run import run_loop
 from samii.sim.model import load_model, load_spec, make_data
 
-from _timing import median_time
+from _timing import median_time, plain_rollout
 
 
 def _median_time(fn, repeats: int) -> float:
@@ -50,14 +49,7 @@ def main() -> None:
     qpos, act = model.key_qpos[0].copy(), model.key_act[0].copy()
     dt = float(model.opt.timestep)
     n = int(round(args.seconds / dt))
-    data = make_data(model)
-    full = mujoco.mjtState.mjSTATE_FULLPHYSICS
-    state = np.empty(mujoco.mj_stateSize(model, full))
-    mujoco.mj_getState(model, data, state, full)
-    ctrl = np.zeros((1, n, 1))
-
-    def open_loop():
-        rollout.rollout(model, data, state[None, :], ctrl)
+    open_loop = plain_rollout(model, make_data(model), n)
 
     theta_ref = np.zeros(n)
     theta_ref[int(1.0 / dt):] = math.radians(5.0)

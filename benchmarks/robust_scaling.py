@@ -69,34 +69,24 @@ def main() -> None:
     print(f"engine overhead per sample (1 worker against in-process): {100 * overhead:+.1f} % of a sample (goal < 10 %)")
     print(f"the same table from every engine: {'yes' if same else 'NO'}")
     plain = _plain_stepping(10.0)
-    k = min(4, args.samples)
+    k, pairs = min(4, args.samples), max(args.repeats, 5)
     with Engine() as engine:
-        ratio, lo, hi, t_plain, t_samples = paired_ratio(lambda: [plain() for _ in range(k)], lambda: engine.map(tasks[:k]),
-                                                         max(args.repeats, 5))
+        ratio, lo, hi, t_plain, t_samples = paired_ratio(lambda: [plain() for _ in range(k)], lambda: engine.map(tasks[:k]), pairs)
     print(f"a sample in this process against plain stepping of its steps ({1e3 * t_plain / k:.0f} ms for 10 s; "
-          f"{1e3 * t_samples / k:.0f} ms a sample): {ratio:.2f}x, {lo:.2f}-{hi:.2f} over {max(args.repeats, 5)} interleaved pairs "
-          f"of {k} (goal <= 1.3x)")
+          f"{1e3 * t_samples / k:.0f} ms a sample): {ratio:.2f}x, {lo:.2f}-{hi:.2f} over {pairs} interleaved pairs of {k} (goal <= 1.3x)")
 
 
 def _plain_stepping(seconds: float):
-    """A function that steps the embedded model from its ``home`` keyframe for ``seconds`` (zero command) with
-    ``mujoco.rollout``: the plain stepping a sample's closed loop does as many steps of."""
-    import mujoco
-    import numpy as np
-    from mujoco import rollout
+    """Steps the embedded model from its ``home`` keyframe for ``seconds`` (zero command) with ``mujoco.rollout``:
+    the plain stepping a sample's closed loop does as many steps of."""
+    from _timing import plain_rollout
 
     from samii.sim.model import load_model, make_data
     from samii.sim.plugin import load_plugin
 
     load_plugin()
     model = load_model()
-    data = make_data(model)
-    full = mujoco.mjtState.mjSTATE_FULLPHYSICS
-    state = np.empty(mujoco.mj_stateSize(model, full))
-    mujoco.mj_getState(model, data, state, full)
-    ctrl = np.zeros((1, int(round(seconds / model.opt.timestep)), model.nu))
-    return lambda: rollout.rollout(model, data, state[None, :], ctrl)
-
+    return plain_rollout(model, make_data(model), int(round(seconds / model.opt.timestep)))
 
 if __name__ == "__main__":
     main()

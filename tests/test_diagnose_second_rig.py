@@ -67,6 +67,19 @@ def test_without_a_usable_theta_no_effect_is_placed_and_the_misfit_is_left_unexp
     assert [e.kind for e in d.effects if not e.expected] == [], [e.evidence for e in d.effects]
     assert d.refused and all(r["reason"].startswith("cannot be placed") for r in d.refused), d.refused
     assert d.to_dict()["files"][0]["usable_points"]["act"] == 0
+    # the figures say why theta/v and xdd/theta are empty, and draw one model (the baseline) when nothing was found
+    import matplotlib.pyplot as plt
+
+    from samii.diagnose.plots import bode_figure, residual_figure
+
+    for fig in (residual_figure(d), bode_figure(d)):
+        said = [ax for ax in fig.axes if any(t.get_text().startswith("no usable data point") for t in ax.texts)]
+        assert len(said) == 4  # theta/v and xdd/theta, magnitude and phase
+        plt.close(fig)
+    fig = bode_figure(d)
+    assert fig._suptitle.get_text() == "Data and the baseline (no effect found)"
+    assert all(len(ax.get_lines()) <= 2 for ax in fig.axes)  # data points (where usable) and the baseline
+    plt.close(fig)
 
 
 def test_a_command_delay_is_found_beside_the_holds_half_sample():

@@ -112,15 +112,11 @@ def test_base_modes_above_the_hydraulic_resonance_are_read_off_xdd_v_where_xdd_t
     assert modes_from_total(FitProblem(FrequencyResponse(f, act=act, base=base), st, phase_weight=0.1), true) is None
 
 
-def test_a_mode_3_that_xdd_theta_hides_in_its_noise_is_found_from_xdd_v():
+def test_a_mode_3_that_xdd_theta_hides_in_its_noise_is_found_from_xdd_v(tmp_path):
     """Simulator rig 23 of the battery's seed 0 (the only silent miss of that draw before the xdd/v start): the
     0.1 V sweep leaves xdd/theta noise above 10 Hz, every start read off it put mode 3 at 10 Hz beside the
     actuator pair (wz 5.4 % off, said of w3 only); its true minimum is lower and the xdd/v start reaches it."""
     spread = _load("simulator_spread")
-    import tempfile
-
-    with tempfile.TemporaryDirectory() as tmp:
-        rec = spread.measure_case(23, seed=0, cache=Path(tmp))
-        row = spread.fit_case(rec)
+    row = spread.fit_case(spread.measure_case(23, seed=0, cache=tmp_path))
     assert row["ok"], row
     assert any(label.startswith("auto, modes from xdd/v") for label, *_ in row["starts"])

@@ -159,18 +159,16 @@ class LinearLoop:
         return M[:, :dim], M[:, dim:]
 
     def sample_map(self) -> np.ndarray:
-        """The loop's one-sample map (controller running, zero inputs) on ``(x, z, delay line)``."""
-        nx, nz, nb = self.Ad.shape[0], self.A.shape[0], self.n_buffer
-        dim = nx + nz + nb
-        Phi = np.empty((dim, dim))
-        for col in range(dim):
-            X = np.zeros(dim)
-            X[col] = 1.0
-            x, z, buf, held = X[:nx], X[nx:nx + nz], X[nx + nz:], 0.0
-            for k in range(self.steps):
-                x, z, buf, held, *_ = self._step(x, z, buf, held, sample=k == 0, enabled=self.has_controller, theta_ref=0.0, r=0.0)
-            Phi[:, col] = np.concatenate([x, z, buf])
-        return Phi
+        """The loop's one-sample map (controller running, zero inputs) on ``(x, z, delay line)``: the sampling
+        step's map, then ``steps - 1`` steps holding the command (:meth:`step_map`). The held command starts
+        no sample's map: the sampling step overwrites it, controller running or not."""
+        first, _ = self.step_map(self.has_controller, True)
+        hold, _ = self.step_map(self.has_controller, False)
+        dim = first.shape[1]
+        phi = first[:dim]
+        for _ in range(self.steps - 1):
+            phi = hold[:dim] @ phi
+        return phi[:-1, :-1]
 
     def poles_z(self) -> np.ndarray:
         """Eigenvalues of the one-sample map (stable when all ``|z| < 1``)."""

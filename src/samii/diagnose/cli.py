@@ -223,11 +223,11 @@ def _write_rerun(d, path, fps) -> None:
 
 
 def _print(d, written) -> None:
-    from samii.diagnose.diagnosis import CHANNEL_NAMES as _NAMES
     import numpy as np
 
+    from samii.diagnose.diagnosis import CHANNEL_NAMES as _NAMES
     from samii.diagnose.model import MAX_VAR
-    from samii.diagnose.select import THETA_CHANNELS
+    from samii.diagnose.select import theta_usable
 
     print(f"samii diagnose: {len(d.measured)} file(s) against {d.baseline.label}")
     for m, ds in zip(d.measured, d.datasets):
@@ -237,11 +237,11 @@ def _print(d, written) -> None:
         empty = [_NAMES.get(ch, ch) for ch, k in ds.keep.items() if not k.any()]
         if empty:
             print(f"  {m.source}: no usable point in {', '.join(empty)} (its relative error, noise and floor, is over "
-                  f"{np.sqrt(MAX_VAR):.2g} at every point: theta moves less than its noise or its encoder's step)")
+                  f"{np.sqrt(MAX_VAR):.2g} at every point)")
         if m.floor is not None and m.floor.noise_free:
             print(f"  NO NOISE in {m.source}: its records repeat exactly (a simulation without noise?), so it is judged against "
                   "the stated floor alone (above), not against a noise it does not have: chi2 is per the floor, not per the noise")
-    if not any(ds.keep[ch].any() for ds in d.datasets for ch in THETA_CHANNELS if ch in ds.keep):
+    if not theta_usable(d.datasets):
         print("  no point with theta in it is usable: in xdd/v alone an actuator, a base and a sensor effect multiply the same "
               "response, so no effect can be placed (every candidate is refused; what the model misses is left unexplained)")
     print(f"rule: {d.rule}")

@@ -29,6 +29,22 @@ def _finish(fig, title: str, path, fontsize: float | None = None):
     return fig
 
 
+def _unusable(residuals, ch: str) -> bool:
+    """No file has a usable point in channel ``ch`` (``residuals``: per file, channel -> (residual, NaN where unusable;
+    variance), :meth:`Diagnosis.residuals`)."""
+    return not any(np.isfinite(r[ch][0]).any() for r in residuals if ch in r)
+
+
+def _say_unusable(axes, y: float = 0.5) -> None:
+    """Write on each of ``axes``, at height ``y`` (axes fraction), that its channel has no usable point (an empty
+    panel with no word reads as a bug)."""
+    from samii.diagnose.model import MAX_VAR
+
+    for ax in axes:
+        ax.text(0.5, y, f"no usable data point: the error (noise and floor)\nis over {np.sqrt(MAX_VAR):.2g} at every point",
+                transform=ax.transAxes, ha="center", va="center", fontsize=9, color="0.35")
+
+
 def _near(phase: np.ndarray, ref) -> np.ndarray:
     """``phase`` [rad] shifted by the whole turns that bring it nearest ``ref`` (a phase or phases)."""
     return phase + 2 * np.pi * np.round((ref - phase) / (2 * np.pi))
@@ -89,6 +105,8 @@ def residual_figure(d: Diagnosis, path=None):
             title += f"\nrms {eb_.rms_db:.2g} → {ea_.rms_db:.2g} dB, {eb_.rms_deg:.2g} → {ea_.rms_deg:.2g}°"
             if eb_.chi2 is not None:
                 title += f", χ² {eb_.chi2:.3g} → {ea_.chi2:.3g}"
+        if _unusable(after, ch):
+            _say_unusable((ax_m, ax_p))
         ax_m.set_title(title, fontsize=10)
         ax_m.set_ylabel("magnitude residual [dB]")
         ax_p.set_ylabel("phase residual [deg]")
@@ -98,7 +116,8 @@ def residual_figure(d: Diagnosis, path=None):
             ax.axhline(0.0, color="k", lw=0.5)
             ax.grid(True, which="both", alpha=0.3)
             _clip(ax)
-        ax_m.legend(fontsize=8, loc="best")
+        if not _unusable(after, ch):
+            ax_m.legend(fontsize=8, loc="best")
     found = ", ".join(f"{e.category}/{e.kind}" + (" (expected)" if e.expected else "") for e in d.effects) or "none"
     title = f"Diagnosis: effects found: {found}" if d.effects else "Diagnosis: no effect found"
     kinds = {b.why for b in d.unexplained}
@@ -137,7 +156,9 @@ def _label_bode(axes, chans) -> None:
     for ax in axes.ravel():
         ax.set_xscale("log")
         ax.grid(True, which="both", alpha=0.3)
-    axes[0, 0].legend(fontsize=8, loc="best")
+    # the legend where every kind of curve is drawn (a first channel with no usable point has no data points)
+    top = max(axes[0], key=lambda ax: len(ax.get_legend_handles_labels()[0]))
+    top.legend(fontsize=8, loc="best")
 
 
 def bode_figure(d: Diagnosis, path=None):
@@ -148,6 +169,7 @@ def bode_figure(d: Diagnosis, path=None):
     import matplotlib.pyplot as plt
 
     residuals = d.residuals("after")
+    same = not d.effects and d.raw_measured is None  # nothing found: the augmented model is the baseline
     chans = [c for c in ("act", "base", "total") if any(c in r for r in residuals)]
     fig, axes = plt.subplots(2, len(chans), figsize=(5.5 * len(chans), 6.5), sharex=True, squeeze=False)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
@@ -174,11 +196,20 @@ def bode_figure(d: Diagnosis, path=None):
                 ax_m.plot(f[ok], _DB * np.log(np.abs(raw)), ".", ms=2.5, color="0.6", label=f"data as measured{tag}")
                 ax_p.plot(f[ok], _DEG * ph_raw, ".", ms=2.5, color="0.6")
             divided = " (nonlinearity divided out)" if d.raw_measured is not None and ch != "base" else ""
-            ax_m.plot(f[ok], _DB * np.log(np.abs(h[ok])), ".", ms=2.5, color=c, alpha=0.6, label=f"data{divided}{tag}")
-            ax_p.plot(f[ok], _DEG * ph_data, ".", ms=2.5, color=c, alpha=0.6)
-            _before_after(ax_m, ax_p, fm, mb[ch], fm, ref, ph_model, c, f"baseline{tag}", f"with the effects{tag}")
+            if ok.any():  # (no legend entry for points that are not there)
+                ax_m.plot(f[ok], _DB * np.log(np.abs(h[ok])), ".", ms=2.5, color=c, alpha=0.6, label=f"data{divided}{tag}")
+                ax_p.plot(f[ok], _DEG * ph_data, ".", ms=2.5, color=c, alpha=0.6)
+            if same:  # nothing found: the model is the baseline, one curve
+                ax_m.plot(fm, _DB * np.log(np.abs(ref)), "-", color=c, lw=1.2, label=f"baseline (no effect found){tag}")
+                ax_p.plot(fm, _DEG * ph_model, "-", color=c, lw=1.2)
+            else:
+                _before_after(ax_m, ax_p, fm, mb[ch], fm, ref, ph_model, c, f"baseline{tag}", f"with the effects{tag}")
+    for col, ch in enumerate(chans):
+        if _unusable(residuals, ch):
+            _say_unusable(axes[:, col], y=0.12)
     _label_bode(axes, chans)
-    return _finish(fig, "Data, baseline and the model with the effects found", path, fontsize=11)
+    title = "Data and the baseline (no effect found)" if same else "Data, baseline and the model with the effects found"
+    return _finish(fig, title, path, fontsize=11)
 
 
 def harmonic_figure(d: Diagnosis, path=None):

@@ -280,13 +280,18 @@ def _log_se(e: Effect, name: str) -> float:
 THETA_CHANNELS = ("act", "base")
 
 
+def theta_usable(ds_list) -> bool:
+    """Whether any dataset has a usable point in a channel with theta in it (THETA_CHANNELS)."""
+    return any(ds.keep[ch].any() for ds in ds_list for ch in THETA_CHANNELS if ch in ds.keep)
+
+
 def _unidentifiable(e: Effect, ds_list: list[Dataset], free: bool = True) -> str | None:
     """Why the data cannot identify ``e`` as what it says it is, or None (module docstring; CORNER_MARGIN); ``free``:
     the baseline is refitted (its gain holds a constant factor). A real pole/zero pair's cancellation is left to the
     floor (:func:`_below_floor`, on the change it makes): its corners' errors are strongly correlated, and their
     marginal standard errors refused real pairs 5 joint standard errors apart. An actuator mode's pole and zero
     pairs are still compared on their marginal errors (conservative: it refuses more than the joint error would)."""
-    if not any(ds.keep[ch].any() for ds in ds_list for ch in THETA_CHANNELS if ch in ds.keep):
+    if not theta_usable(ds_list):
         return ("cannot be placed: no point of theta/v or xdd/theta is usable (theta under its noise or its encoder's step), "
                 "and in xdd/v alone an actuator, a base and a sensor effect multiply the same response")
     k, v = e.kind.kind, e.values

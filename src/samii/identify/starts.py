@@ -128,13 +128,17 @@ def _prominent(logmag: np.ndarray, n: int) -> np.ndarray:
 _PEAK_MIN_COHERENCE = 0.9
 
 
-def _reliable(problem: FitProblem, channel: str) -> np.ndarray:
-    """Mask of the points trustworthy enough to pick peaks from (all if no coherence)."""
+def _coherent(problem: FitProblem, channel: str) -> np.ndarray | None:
+    """Mask of the points trustworthy enough to pick peaks from (all if no coherence), or None when fewer than 10 are."""
     coh = problem.data.coherence(channel)
-    if coh is None:
-        return np.ones(problem.w.size, bool)
-    keep = coh >= _PEAK_MIN_COHERENCE
-    return keep if keep.sum() >= 10 else np.ones(problem.w.size, bool)
+    keep = np.ones(problem.w.size, bool) if coh is None else coh >= _PEAK_MIN_COHERENCE
+    return keep if keep.sum() >= 10 else None
+
+
+def _reliable(problem: FitProblem, channel: str) -> np.ndarray:
+    """:func:`_coherent`'s mask, or every point when too few are coherent."""
+    keep = _coherent(problem, channel)
+    return keep if keep is not None else np.ones(problem.w.size, bool)
 
 
 def _smooth(y: np.ndarray, k: int = 5) -> np.ndarray:
@@ -144,14 +148,24 @@ def _smooth(y: np.ndarray, k: int = 5) -> np.ndarray:
     return c
 
 
+def _peaks(st: ModelStructure, w: np.ndarray, base: np.ndarray, n: int) -> list[float]:
+    """The ``n`` most prominent resonances [rad/s] of an xdd/theta ``base`` at ``w``, its s^n trend taken out, ascending."""
+    return [float(w[i]) for i in _prominent(_smooth(np.log(np.abs(base)) - st.power * np.log(w)), n)]
+
+
+def _padded(peaks: list[float], n: int) -> list[float]:
+    """``peaks`` with the modes beyond them (outside the band) put above the highest, 2.5x apart, to ``n``."""
+    peaks = list(peaks)
+    while len(peaks) < n:
+        peaks.append(peaks[-1] * 2.5)
+    return peaks
+
+
 def _base_peaks(problem: FitProblem, n: int) -> list[float]:
-    st = problem.structure
     if "base" not in problem.channels:
         return []
     keep = _reliable(problem, "base")
-    w = problem.w[keep]
-    y = _smooth(np.log(np.abs(problem.data.response("base")[keep])) - st.power * np.log(w))
-    return [float(w[i]) for i in _prominent(y, n)]
+    return _peaks(problem.structure, problem.w[keep], problem.data.response("base")[keep], n)
 
 
 def auto_start(problem: FitProblem) -> dict[str, float]:
@@ -172,9 +186,7 @@ def auto_start(problem: FitProblem) -> dict[str, float]:
     modes = _notebook_modes(nb.EQ9_4)
     peaks = _base_peaks(problem, st.n_modes)
     if peaks:
-        while len(peaks) < st.n_modes:  # a mode outside the band: put it above the highest peak found
-            peaks.append(peaks[-1] * 2.5)
-        modes = [(wk, _DEFAULT_ZETA_MODE) for wk in peaks]
+        modes = [(wk, _DEFAULT_ZETA_MODE) for wk in _padded(peaks, st.n_modes)]
         if st.tie_mode2:
             act["wz"] = modes[1][0]
     while len(modes) < st.n_modes:
@@ -189,8 +201,8 @@ def modes_from_total(problem: FitProblem, params: Mapping[str, float]) -> dict[s
     """``params`` with the base modes read off xdd/v divided by ``params``' theta/v model, or None
     if the data have no xdd/v measured well enough (coherence 0.9 at 10 points or more).
 
-    Above the hydraulic resonance theta/v rolls off (as 1/w^3 in eq 9.1) and a
-    small sweep moves theta less than its sensor noise: xdd/theta, estimated
+    Above the hydraulic resonance theta/v falls (as 1/w, and 1/w^2 beyond the
+    lag tau, in eq 9.1) and a small sweep moves theta less than its sensor noise: xdd/theta, estimated
     with theta in its denominator, is noise there, and so are the peaks
     ``auto_start`` reads off it. xdd/v is not (v is the command, known
     exactly, and the accelerometer sees the base directly). Divided by the
@@ -202,22 +214,16 @@ def modes_from_total(problem: FitProblem, params: Mapping[str, float]) -> dict[s
     st, data = problem.structure, problem.data
     if "total" not in data.channels or not {"act", "base"} <= set(problem.channels):
         return None
-    coh = data.coherence("total")
-    keep = np.ones(problem.w.size, bool) if coh is None else coh >= _PEAK_MIN_COHERENCE
-    if keep.sum() < 10:
+    keep = _coherent(problem, "total")
+    if keep is None:
         return None
     x = st.vector(params)
     w = problem.w[keep]
-    base = data.response("total")[keep] / _response(st, x, w, "act")
-    peaks = [float(w[i]) for i in _prominent(_smooth(np.log(np.abs(base)) - st.power * np.log(w)), st.n_modes)]
+    peaks = _peaks(st, w, data.response("total")[keep] / _response(st, x, w, "act"), st.n_modes)
     if not peaks:
         return None
-    while len(peaks) < st.n_modes:
-        peaks.append(peaks[-1] * 2.5)
-    wi, zi = st.mode_index[:2]
-    x[wi], x[zi] = peaks, _DEFAULT_ZETA_MODE
-    if st.tie_mode2:
-        x[st.param_names.index("wz")] = peaks[1]
+    wi, zi = st.mode_index[:2]  # (with eq 9.2's tie, mode 2's frequency is wz)
+    x[wi], x[zi] = _padded(peaks, st.n_modes), _DEFAULT_ZETA_MODE
     return st.params(_grid_refine(problem, x))
 
 
