@@ -182,15 +182,19 @@ def run(args: argparse.Namespace) -> int:
         if folder is not None:
             progress.stage("writing")
             from samii.diagnose.plots import bode_figure, harmonic_figure, residual_figure, simulator_figure
+            from samii.forkmap import fork_map
             from samii.measure.io import write_text
 
             with folder:
                 write_text(folder.path("diagnosis.json"), dumps(d.to_dict(), indent=2) + "\n")
-                residual_figure(d, folder.path("residuals.png"))
-                bode_figure(d, folder.path("bode.png"))
-                harmonic_figure(d, folder.path("harmonics.png"))
+                figures = [(residual_figure, "residuals.png"), (bode_figure, "bode.png"), (harmonic_figure, "harmonics.png")]
                 if d.simulator is not None:
-                    simulator_figure(d, folder.path("simulator.png"))
+                    figures.append((simulator_figure, "simulator.png"))
+
+                def draw(job) -> None:
+                    job[0](d, folder.path(job[1]))
+
+                fork_map(draw, figures)  # drawn at once on the machine's cores (samii.forkmap)
         if rerun_path is not None:
             progress.stage("recording")
             _write_rerun(d, rerun_path, args.rerun_fps)

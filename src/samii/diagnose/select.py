@@ -22,7 +22,11 @@ fitted to one point at the band's edge).
 
 Each round tries every kind of the library from several starts: the effect
 alone is first fitted with the current model held (cheap), the best start then
-refitted jointly with everything else. The kind with the smallest p-value
+refitted jointly with everything else. The kinds of a round are fitted against
+the same model, at once on the machine's cores (:mod:`samii.forkmap`; the result
+is the same bit for bit on one), and each is tested against the best fit of the
+current effects alone started from any candidate's baseline: an effect is
+credited only with what the baseline, however started, cannot do. The kind with the smallest p-value
 joins, earlier effects it makes unnecessary are dropped, and each effect is
 swapped for every other kind on its channel with no more parameters, refitted
 jointly, the better fit kept (``_swap``); the best candidate and the next two
@@ -43,6 +47,7 @@ from scipy import stats
 
 from samii.diagnose.effects import TWO_PI, Effect, EffectKind
 from samii.diagnose.model import Baseline, Dataset, Fit, fit_model, relabel_modes
+from samii.forkmap import fork_map, sharing
 
 __all__ = ["ALPHA", "Step", "forward_select", "starts_for", "sample_s"]
 
@@ -432,17 +437,22 @@ SWAP_PASSES = 3
 
 def _best_in_place(ds_list, baseline, fit: Fit, i: int, kinds) -> tuple[Fit | None, int]:
     """Each of ``kinds`` in the place of ``fit``'s effect ``i`` (its best held start, then refitted jointly with the
-    rest): the best such fit, and how many kinds could be fitted."""
+    rest; the kinds in parallel): the best such fit (the first of equals), and how many kinds could be fitted."""
     rest = [f for j, f in enumerate(fit.effects) if j != i]
-    best, n = None, 0
-    for k in kinds:
+
+    def in_place(k: EffectKind) -> Fit | None:
         held = _held_fits(ds_list, baseline, fit, rest, k)
         if not held:
-            continue
-        n += 1
+            return None
         x_e = _vectors(held[0].effects)
         x_e = x_e[:i] + [x_e[-1]] + x_e[i:-1]  # the replacement in the replaced effect's place
-        alt = fit_model(ds_list, baseline, x_e, start_baseline=_baseline_vectors(fit))
+        return fit_model(ds_list, baseline, x_e, start_baseline=_baseline_vectors(fit))
+
+    best, n = None, 0
+    for alt in fork_map(in_place, kinds):
+        if alt is None:
+            continue
+        n += 1
         if best is None or alt.chi2 < best.chi2:
             best = alt
     return best, n
@@ -529,6 +539,28 @@ def _richer(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, a
     return fit
 
 
+def _candidate(ds_list, baseline, current: Fit, kind: EffectKind, reference_b) -> tuple[Fit, Fit] | None:
+    """``kind`` added to ``current``: (its best joint fit, the current effects refitted alone from that fit's baseline),
+    or None when no start of it could be fitted. The best held starts (:func:`_distinct`) are refitted jointly; the best
+    also from ``reference_b`` (eq 9.4's baseline, in the first round: the baseline fitted without the effect may have
+    bent into a basin, two modes on top of each other with huge opposite gains, that absorbs the effect and from
+    which the joint fit does not climb out). The refit alone credits the effect only with what the baseline alone,
+    started where the candidate's refit went, cannot do."""
+    held = _held_fits(ds_list, baseline, current, current.effects, kind)
+    if not held:
+        return None
+    jobs = [(f, _baseline_vectors(current)) for f in _distinct(held, JOINT_STARTS)]
+    if reference_b is not None:
+        jobs.append((held[0], reference_b))
+    cand = None
+    for f, xb in jobs:
+        joint = fit_model(ds_list, baseline, _vectors(f.effects), start_baseline=xb)
+        if cand is None or joint.chi2 < cand.chi2:
+            cand = joint
+    alone = fit_model(ds_list, baseline, _vectors(current.effects), start_baseline=_baseline_vectors(cand))
+    return cand, alone
+
+
 def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[EffectKind], *, alpha: float = ALPHA,
                    max_effects: int = MAX_EFFECTS, progress=None) -> tuple[Fit, Fit, list[Step], list[dict]]:
     """Select effects from ``kinds`` (module docstring).
@@ -537,6 +569,11 @@ def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[Effec
     The baseline fit is the best the baseline alone reached: its first fit, or a refit started from a
     candidate's baseline that went further (a mode parked on another is a local minimum).
     """
+    with sharing(baseline, *kinds, *ds_list):  # fits computed in workers come back holding these very objects
+        return _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress)
+
+
+def _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress):
     corr = max(ds.corr_length for ds in ds_list)
     base_fit = fit_model(ds_list, baseline, [])
     reference_b = None
@@ -555,29 +592,28 @@ def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[Effec
         if not pool:
             break
         level = np.log10(alpha / len(pool))
+        # every kind is fitted against the same model (in parallel, samii.forkmap); the best "alone" refit then
+        # becomes the model each candidate is tested against. When it went far beyond the model the round started
+        # from (more than AMBIGUOUS_CHI2 noise variances: the baseline had been parked in a worse basin), the
+        # kinds are fitted again from there, once
+        for _attempt in range(2):
+            start = current
+            results = fork_map(lambda kind: _candidate(ds_list, baseline, start, kind, reference_b if _round == 0 else None), pool)
+            alones = [r[1] for r in results if r is not None]
+            best_alone = min(alones, key=lambda f: f.chi2, default=None)
+            if best_alone is None or best_alone.chi2 >= current.chi2:
+                break
+            gain = (current.chi2 - best_alone.chi2) / (current.chi2 / current.dof * corr)
+            current = best_alone
+            if not current.effects:  # the baseline alone, better than its first fit: the error before is its best
+                base_fit = current
+            if gain <= AMBIGUOUS_CHI2:
+                break
         candidates = []
-        for kind in pool:
-            held = _held_fits(ds_list, baseline, current, current.effects, kind)
-            if not held:
+        for kind, result in zip(pool, results):
+            if result is None:
                 continue
-            cand = None
-            # the best held start is also refitted from the reference's baseline (eq 9.4) in the first round: the
-            # baseline fitted without the effect may have bent into a basin (two modes on top of each other with
-            # huge opposite gains) that absorbs the effect and from which the joint fit does not climb out
-            jobs = [(f, _baseline_vectors(current)) for f in _distinct(held, JOINT_STARTS)]
-            if _round == 0 and reference_b is not None:
-                jobs.append((held[0], reference_b))
-            for f, xb in jobs:
-                joint = fit_model(ds_list, baseline, _vectors(f.effects), start_baseline=xb)
-                if cand is None or joint.chi2 < cand.chi2:
-                    cand = joint
-            # the candidate's refit may have found a better baseline than the current one: the
-            # test credits the effect only with what the baseline alone, started there, cannot do
-            alone = fit_model(ds_list, baseline, _vectors(current.effects), start_baseline=_baseline_vectors(cand))
-            if alone.chi2 < current.chi2:
-                current = alone
-                if not current.effects:  # the baseline alone, better than its first fit: the error before is its best
-                    base_fit = current
+            cand = result[0]
             fstat, dof, logp = _f_test(current, cand, corr)
             eff = cand.effects[-1]
             why = _refused(eff, cand, ds_list, before=current) if logp < level else None

@@ -1,0 +1,103 @@
+"""samii.forkmap: computations of one stage in forked workers, equal to computing them in turn.
+
+The forward selection's fits run through it (samii.diagnose.select): the diagnosis must be the same bit for bit
+whatever the number of workers, and a fit must come back holding the parent's own kinds and baseline.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from samii import forkmap
+from samii.diagnose.effects import library
+from samii.diagnose.measured import from_timeseries
+from samii.diagnose.model import Baseline, Dataset, notebook_reference, start_params
+from samii.diagnose.rig import EffectRig
+from samii.diagnose.select import forward_select
+from samii.errors import InputError
+from samii.identify.structures import ModelStructure
+from samii.measure.excitation import SweptSine
+
+pytestmark = pytest.mark.skipif("fork" not in __import__("multiprocessing").get_all_start_methods(), reason="no fork here")
+
+
+@pytest.fixture
+def two_workers(monkeypatch):
+    monkeypatch.setenv("SAMII_WORKERS", "2")
+
+
+class _Unpicklable:
+    """Holds a lambda: pickling it fails, as pickling an effect kind would."""
+
+    def __init__(self, k):
+        self.k = k
+        self.law = lambda x: x * k
+
+
+def test_results_in_order_closures_and_shared_objects_by_reference(two_workers):
+    shared = [_Unpicklable(k) for k in range(5)]
+    scale = np.arange(3.0)  # a closure over the parent's data: the workers have it without pickling
+    with forkmap.sharing(*shared):
+        out = forkmap.fork_map(lambda s: (s, s.law(scale), os.getpid()), shared)
+    assert [o[0] for o in out] == shared and all(o[0] is s for o, s in zip(out, shared))  # the parent's own objects
+    for (_, v, _), s in zip(out, shared):
+        np.testing.assert_array_equal(v, scale * s.k)
+    assert {pid for *_, pid in out} - {os.getpid()}, "computed in workers"
+
+
+def test_an_unshared_object_that_cannot_travel_fails_loudly(two_workers):
+    with pytest.raises(Exception, match="pickle|lambda"):
+        forkmap.fork_map(lambda k: _Unpicklable(k), [1, 2])
+
+
+def test_an_exception_in_a_worker_is_raised_in_the_parent(two_workers):
+    def f(x):
+        if x == 2:
+            raise InputError(f"item {x}: bad")
+        return x
+
+    with pytest.raises(InputError, match="item 2: bad"):
+        forkmap.fork_map(f, [1, 2, 3])
+
+
+def test_nested_maps_run_serially_in_the_worker(two_workers):
+    out = forkmap.fork_map(lambda x: (os.getpid(), forkmap.fork_map(lambda y: (os.getpid(), x * y), [1, 2, 3])), [1, 2])
+    for pid, inner in out:
+        assert [p for p, _ in inner] == [pid] * 3  # the inner map ran in the worker itself
+    assert [[v for _, v in inner] for _, inner in out] == [[1, 2, 3], [2, 4, 6]]
+
+
+def test_workers_from_the_environment(monkeypatch):
+    monkeypatch.setenv("SAMII_WORKERS", "1")
+    assert forkmap.workers() == 1
+    assert forkmap.fork_map(lambda x: os.getpid(), [1, 2]) == [os.getpid()] * 2  # serial in this process
+    for bad in ("0", "two", "-1"):
+        monkeypatch.setenv("SAMII_WORKERS", bad)
+        with pytest.raises(InputError, match="SAMII_WORKERS: expected a positive integer"):
+            forkmap.workers()
+    monkeypatch.delenv("SAMII_WORKERS")
+    assert forkmap.workers() >= 1
+
+
+def test_forward_selection_is_the_same_bit_for_bit_on_one_worker_or_two(monkeypatch):
+    """A 4 ms command delay on EffectRig (eq 9.4), 3 short sweeps: selection, values and every candidate's chi2
+    the same whether the fits run in turn or in two workers."""
+    fs = 1000.0
+    sw = SweptSine(amplitude_v=0.1, start_hz=0.3, stop_hz=40.0, repetitions=3, seconds_per_octave=4.0, cycles_per_octave=4.0)
+    r = sw.signal(np.arange(int(round(sw.duration_s * fs))) / fs)
+    ts = EffectRig(command_delay_s=0.004).simulate(r, sample_rate_hz=fs, rng=np.random.default_rng(3))
+    m = from_timeseries(ts, source="rig.csv")
+    st = ModelStructure.notebook_3mode()
+    kinds = library(fixed_baseline=False, channels=("act", "base"))
+    runs = []
+    for n in ("1", "2"):
+        monkeypatch.setenv("SAMII_WORKERS", n)
+        b = Baseline(structure=st, params=(start_params(m, st),), reference=notebook_reference())
+        base, final, steps, tried = forward_select([Dataset.from_measured(m)], b, kinds)
+        assert all(e.kind is k for e in final.effects for k in kinds if k.label == e.kind.label)  # the parent's kinds
+        runs.append((base.chi2, final.chi2, [(e.kind.label, e.values) for e in final.effects], [t.get("chi2") for t in tried]))
+    assert runs[0] == runs[1]
+    assert [label for label, _ in runs[0][2]] == ["delay/command"]
