@@ -101,3 +101,11 @@ def test_forward_selection_is_the_same_bit_for_bit_on_one_worker_or_two(monkeypa
         runs.append((base.chi2, final.chi2, [(e.kind.label, e.values) for e in final.effects], [t.get("chi2") for t in tried]))
     assert runs[0] == runs[1]
     assert [label for label, _ in runs[0][2]] == ["delay/command"]
+
+
+def test_read_only_views_travel_as_views(two_workers):
+    """A measured file's metadata is a read-only view (MappingProxyType), which pickle cannot take by itself."""
+    from types import MappingProxyType
+
+    out = forkmap.fork_map(lambda k: MappingProxyType({"k": k, "fs": 1000.0}), [1, 2])
+    assert all(isinstance(o, MappingProxyType) for o in out) and [dict(o) for o in out] == [{"k": 1, "fs": 1000.0}, {"k": 2, "fs": 1000.0}]

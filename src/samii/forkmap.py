@@ -18,11 +18,13 @@ and stops them (no traceback per worker).
 from __future__ import annotations
 
 import contextlib
+import copyreg
 import io
 import multiprocessing
 import os
 import pickle
 import signal
+import types
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any, TypeVar
@@ -73,7 +75,18 @@ def sharing(*objects: Any) -> Iterator[None]:
             _SHARED.pop(k, None)
 
 
+def _proxy_of(d: dict) -> types.MappingProxyType:
+    return types.MappingProxyType(d)
+
+
+def _mappingproxy(mp: types.MappingProxyType) -> tuple:
+    return _proxy_of, (dict(mp),)
+
+
 class _Pickler(pickle.Pickler):
+    #: read-only views (a file's metadata) travel as views of a copy
+    dispatch_table = {**copyreg.dispatch_table, types.MappingProxyType: _mappingproxy}
+
     def persistent_id(self, obj: Any) -> int | None:
         i = id(obj)
         return i if i in _SHARED and _SHARED[i] is obj else None

@@ -711,21 +711,25 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     measured = tuple(_noise_from_roughness(m, saved) for m in given)
     notes = [f"{m.source}: no coherence and no records; the noise of each point is {m.noise_source}"
              for m, g in zip(measured, given) if m is not g]
-    _stage(progress, "measuring the systematic floor")
-    measured = tuple(_with_floor(m) for m in measured)
-    from samii.diagnose.stationarity import record_changes
+    from samii.forkmap import fork_map
 
-    changes = [c for m in measured for c in record_changes(m, alpha=alpha)]
-    references = None
+    jobs = [lambda m=m: _with_floor(m) for m in measured]
     if sim:  # the simulator's own harmonics (its orifice law) are not what it lacks: the data's are tested in excess of them
         from samii.diagnose.simulator import measured_like
         from samii.sim.model import default_params
 
-        _stage(progress, "measuring the simulator's own harmonics")
+        _stage(progress, "measuring the systematic floor and the simulator's own harmonics")
         own = default_params() if simulator_params is None else simulator_params
-        # (only where the harmonic test can run: records found, theta/v measured)
-        references = [measured_like(own, m) if m.layout is not None and m.layout.n_records >= 2 and "act" in m.frf.channels else None
-                      for m in measured]
+        # (only where the harmonic test can run: records found, theta/v measured; the floor changes none of these)
+        jobs += [lambda m=m: measured_like(own, m) if m.layout is not None and m.layout.n_records >= 2 and "act" in m.frf.channels else None
+                 for m in measured]
+    else:
+        _stage(progress, "measuring the systematic floor")
+    done = fork_map(lambda job: job(), jobs)  # each file's floor (and the simulator like it) at once
+    measured, references = tuple(done[: len(measured)]), (done[len(measured):] if sim else None)
+    from samii.diagnose.stationarity import record_changes
+
+    changes = [c for m in measured for c in record_changes(m, alpha=alpha)]
     nonlinear, nl_notes, harmonics, amp_tests = find_nonlinear(measured, alpha=alpha, references=references,
                                                                reference_label="the simulator's own harmonics")
     for f in nonlinear:  # where the data show distortion, their best linear approximation is uncertain by it

@@ -60,6 +60,7 @@ from samii.calibrate.calibrate import MODE_KNOBS, PHYSICAL_LIMITS
 from samii.calibrate.simulator import parameter_value
 from samii.diagnose.measured import Measured
 from samii.diagnose.model import Baseline, Dataset
+from samii.forkmap import fork_map, sharing
 from samii.frequency_response import FrequencyResponse, interpolate_frf
 from samii.sim.mjcf import SamiiParams
 from samii.sim.model import params_with_overrides
@@ -610,9 +611,33 @@ def measurement_like(params: SamiiParams, m: Measured, *, frame_steps: int | Non
     return _measure_like(params, m, sweep_like(m), frame_steps=frame_steps)
 
 
+#: The simulator's re-measurements kept (params, file) -> FRF: a measurement without noise is a function of its
+#: parameters and the file's sweep, and the selection's correction at a calibration re-measures what the report
+#: just measured at it (two to four simulated measurements of ~15 in a diagnosis).
+_REMEASURED: dict = {}
+REMEASURED_KEPT = 16
+
+
+def _remeasured_key(params: SamiiParams, m: Measured) -> tuple:
+    return repr(params), id(m)
+
+
+def remember_remeasured(params: SamiiParams, m: Measured, frf: FrequencyResponse) -> None:
+    """Keep ``frf`` as :func:`remeasure`'s result for ``params`` and ``m`` (computed elsewhere: in a worker)."""
+    while len(_REMEASURED) >= REMEASURED_KEPT:
+        _REMEASURED.pop(next(iter(_REMEASURED)))
+    _REMEASURED[_remeasured_key(params, m)] = (m, frf)  # (m held: its id stays its own while kept)
+
+
 def remeasure(params: SamiiParams, m: Measured) -> FrequencyResponse:
-    """The nonlinear simulator with ``params`` measured like file ``m`` (on its own frequencies)."""
-    return measurement_like(params, m).frf
+    """The nonlinear simulator with ``params`` measured like file ``m`` (on its own frequencies); a measurement
+    made already for the same parameters and file is returned again (:data:`_REMEASURED`)."""
+    kept = _REMEASURED.get(_remeasured_key(params, m))
+    if kept is not None and kept[0] is m:
+        return kept[1]
+    frf = measurement_like(params, m).frf
+    remember_remeasured(params, m, frf)
+    return frf
 
 
 #: The simulator's own harmonics are measured with the DAQ's noise scaled by this (the harmonic test needs a
@@ -807,28 +832,44 @@ def simulator_report(measured_raw: Sequence[Measured], measured_fit: Sequence[Me
     datasets = [Dataset.from_measured(m) for m in measured_raw]
 
     def measured_error(params):
-        h = tuple(remeasure(params, m) for m in measured_raw)
+        h = tuple(fork_map(lambda m: remeasure(params, m), measured_raw))  # the files' simulations at once
+        for m, x in zip(measured_raw, h):  # (kept here too when a worker measured them)
+            remember_remeasured(params, m, x)
         res = [_residuals(ds, x) for ds, x in zip(datasets, h)]
         return h, res, errors_from_residuals(datasets, res)
 
+    def carry_now(progress=progress):
+        return carry_and_recalibrate(measured_raw, measured_fit, before, effects, progress=progress, refuse=refuse)
+
     def carried_and_measured():
         """carry_and_recalibrate with ``refuse`` as it stands, and the result re-measured (the same as before when nothing is carried)."""
-        out = carry_and_recalibrate(measured_raw, measured_fit, before, effects, progress=progress, refuse=refuse)
+        out = carry_now()
         return out, (measured_before if out[0] is before else measured_error(out[0].params))
 
-    stage("re-measuring the simulator")
-    measured_before = h_before, res_before, err_before = measured_error(before.params)
-    (after, options, carried, not_carried), (h_after, res_after, err_after) = carried_and_measured()
+    stage("re-measuring the simulator and carrying the effects")
+    # the simulator as calibrated is re-measured while the effects are carried and recalibrated (samii.forkmap; the
+    # worker that carries reports no stages; nothing carried, it returns ``before`` itself)
+    with sharing(before):
+        measured_before, first = fork_map(lambda job: job(), [lambda: measured_error(before.params), lambda: carry_now(progress=None)])
+    h_before, res_before, err_before = measured_before
+    for m, x in zip(measured_raw, h_before):  # (measured in a worker: kept here for the selection's correction)
+        remember_remeasured(before.params, m, x)
+    after, options, carried, not_carried = first
+    h_after, res_after, err_after = measured_before if after is before else measured_error(after.params)
     not_lowering = []
     if carried:
         stage("testing each carried effect against the simulator's error")
-        for e in effects:
-            label = f"{e.category}/{e.kind}"
-            if label not in carried or label in refuse:
-                continue
+        tested = [e for e in effects if f"{e.category}/{e.kind}" in carried and f"{e.category}/{e.kind}" not in refuse]
+
+        def error_without(e):
             names = carry([e], before.params)[0]
+            return measured_error(params_with_overrides(after.params, {n: parameter_value(before.params, n) for n in names}))[2]
+
+        for e, err_without in zip(tested, fork_map(error_without, tested)):  # each taken out, re-measured at once
+            label = f"{e.category}/{e.kind}"
+            if label in refuse:  # (an effect of the same label refused just before)
+                continue
             chans = RESIDUAL_CHANNELS.get(e.channel, CHANNELS)
-            _, _, err_without = measured_error(params_with_overrides(after.params, {n: parameter_value(before.params, n) for n in names}))
             with_it, without = _chi2_sum(err_after, chans), _chi2_sum(err_without, chans)
             raised = _worse(err_without, err_after, UNDO_TOLERANCE)  # (a tenth: rises of a few % at the noise are no harm)
             lowers = with_it < (1 - LOWERS) * without
