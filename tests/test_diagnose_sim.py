@@ -405,3 +405,26 @@ def test_the_verdict_says_when_a_carry_makes_the_simulator_worse():
     assert "cannot represent the data at theta/v 10-40 Hz" in text and "worse: theta/v rms dB 2.36 -> 2.83 dB" in text
     quiet = SimulatorReport(before, before, {}, (), (), None, None, (), ())
     assert quiet.worse == [] and quiet.verdict_text() == ""
+
+
+def test_a_carry_the_simulator_cannot_run_is_not_carried_and_says_why(monkeypatch):
+    """--baseline sim: when the simulator with an effect carried diverges as it is measured like the file (a tip body
+    proposed from data the simulator cannot represent, on the second rig's 8 ms delay file), nothing is carried and the
+    reason is given; the diagnosis goes on (it ended with SimulationUnstable, exit 3)."""
+    from types import SimpleNamespace
+
+    from samii.diagnose import simulator
+    from samii.errors import SimulationUnstable
+
+    def diverges(params, m):
+        raise SimulationUnstable("simulation diverged before t = 20 s (mjWARN_BADQACC); no result written")
+
+    monkeypatch.setattr(simulator, "carry", lambda effects, params, refuse=None: ({"beam.tip_body_mass_kg": 40.0}, ["extra_mode/base_mode"], []))
+    monkeypatch.setattr(simulator, "params_with_overrides", lambda params, options: params)
+    monkeypatch.setattr(simulator, "correction", diverges)
+    before = SimpleNamespace(params="calibrated", result=SimpleNamespace(start={}))
+    body = SimpleNamespace(category="extra_mode", kind="base_mode")
+    out, options, carried, not_carried = simulator.carry_and_recalibrate([SimpleNamespace(source="rig.csv")], [None], before, [body])
+    assert out is before and options == {} and carried == []
+    assert not_carried == ["extra_mode/base_mode: the simulator with it carried diverges when measured like rig.csv "
+                           "(simulation diverged before t = 20 s (mjWARN_BADQACC); no result written)"]

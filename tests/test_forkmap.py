@@ -109,3 +109,4 @@ def test_read_only_views_travel_as_views(two_workers):
 
     out = forkmap.fork_map(lambda k: MappingProxyType({"k": k, "fs": 1000.0}), [1, 2])
     assert all(isinstance(o, MappingProxyType) for o in out) and [dict(o) for o in out] == [{"k": 1, "fs": 1000.0}, {"k": 2, "fs": 1000.0}]
+

@@ -612,6 +612,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
     to_carry = list(effects)
     steps_by_label = {s.label: s for s in steps}
     more_steps, more_tried = [], []
+    body_not_carried: list[str] = []
     for round_ in range(CARRY_ROUNDS):
         report = simulator_report(raw, measured, calibrated, to_carry, progress=progress, refuse=refuse)
         uncarried_law = any(f"nonlinear/{f.kind}" not in report.carried for f in nonlinear)
@@ -628,8 +629,9 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
             break  # beside a nonlinearity a mode found may be its image: not carried
         # the mode alone in the first calibration, recalibrated; the first selection again against it
         body = bodies[0]
-        with_body, _, body_carried, _ = carry_and_recalibrate(raw, measured, calibrated, [body], progress=progress)
+        with_body, _, body_carried, body_not = carry_and_recalibrate(raw, measured, calibrated, [body], progress=progress)
         if not body_carried:
+            body_not_carried = list(body_not)  # (its reason: the simulator with it diverges)
             break  # (a residue no body on the tip makes): reported as found, not carried
         _stage(progress, "selecting again against the simulator with the extra mode")
         _, after_b, steps_b, tried_b = _select_against(with_body, measured, lambda label: label in CARRY, alpha=alpha, progress=progress)
@@ -685,7 +687,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
                f"found by the last selection, after {round_ + 1} round{'s' if round_ else ''} of carrying")
     not_carried += [f"{label}: {why_not}" for label in carriable]
     not_carried += carry([e for e in effects if e.category == "nonlinear"], report.before.params, refuse=refuse)[2]
-    not_carried += [n for n in report.not_lowering if n not in not_carried]
+    not_carried += [n for n in report.not_lowering + tuple(body_not_carried) if n not in not_carried]
     dropped = [f"{e.category}/{e.kind}" for e in effects if not e.expected and e.category != "nonlinear"
                and f"{e.category}/{e.kind}" not in report.carried and not any(f"{o.category}/{o.kind}" == f"{e.category}/{e.kind}" for o in out)]
     report = replace(report, not_carried=tuple(not_carried), dropped=tuple(dropped))

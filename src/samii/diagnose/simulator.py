@@ -60,6 +60,7 @@ from samii.calibrate.calibrate import MODE_KNOBS, PHYSICAL_LIMITS
 from samii.calibrate.simulator import parameter_value
 from samii.diagnose.measured import Measured
 from samii.diagnose.model import Baseline, Dataset
+from samii.errors import SimulationUnstable
 from samii.forkmap import fork_map, sharing
 from samii.frequency_response import FrequencyResponse, interpolate_frf
 from samii.sim.mjcf import SamiiParams
@@ -797,7 +798,13 @@ def carry_and_recalibrate(measured_raw: Sequence[Measured], measured_fit: Sequen
     # the correction of the first calibration's knobs, 20.24 Hz after one such step, 20.19 after two)
     params, after = params_with_overrides(before.params, options), None
     for _ in range(1 + CORRECTION_STEPS):
-        corr = correction(params, data)
+        try:
+            corr = correction(params, data)
+        except SimulationUnstable as exc:
+            # the simulator with them (or with its knobs recalibrated to them) diverges when measured like the file:
+            # nothing is carried (a carry the simulator cannot run is not what it lacks), and the reason is said
+            why = f"the simulator with {'it' if len(carried) == 1 else 'them'} carried diverges when measured like {data.source} ({exc})"
+            return before, {}, [], list(not_carried) + [f"{label}: {why}" for label in carried]
         trial = calibrate_simulator(data, start=params, extra={n: parameter_value(params, n) for n in options}, corrected_by=corr,
                                     anchor=before.result.start)
         done = after is not None and trial.result.cost > (1 - 0.01) * after.result.cost
