@@ -31,7 +31,7 @@ from typing import Any, TypeVar
 
 from samii.errors import InputError
 
-__all__ = ["fork_map", "sharing", "workers"]
+__all__ = ["fork_calls", "fork_map", "sharing", "workers"]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -128,21 +128,30 @@ def fork_map(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
     """``[fn(x) for x in items]``, computed in forked workers (module docstring); an exception in ``fn`` is raised here."""
     global _TASK
     items = list(items)
+    if _IN_WORKER:  # nested: in turn, in this worker (its BLAS already on one thread)
+        return [fn(x) for x in items]
     n = min(workers(), len(items))
-    if n <= 1 or _IN_WORKER or _TASK is not None or "fork" not in multiprocessing.get_all_start_methods():
-        if _IN_WORKER or _TASK is not None:
+    # one BLAS thread a worker: two workers of two threads each on two cores spin against each other (a diagnosis
+    # took 2-3x longer); the serial path does the same, so the bits do not depend on the workers
+    with _one_blas_thread():
+        if n <= 1 or "fork" not in multiprocessing.get_all_start_methods():
             return [fn(x) for x in items]
-        with _one_blas_thread():
-            return [fn(x) for x in items]
-    _TASK = (fn, items)
-    try:
-        # one BLAS thread a worker: two workers of two threads each on two cores spin against each other (a
-        # diagnosis took 2-3x longer); the serial path does the same, so the bits do not depend on the workers
-        with _one_blas_thread(), warnings.catch_warnings():
-            # Python 3.12+ warns that forking a process with threads (BLAS's) may deadlock; the workers run numpy only
-            warnings.simplefilter("ignore", DeprecationWarning)
-            with multiprocessing.get_context("fork").Pool(n, initializer=_init_worker) as pool:
-                blobs = pool.map(_run, range(len(items)), chunksize=1)
-    finally:
-        _TASK = None
+        _TASK = (fn, items)
+        try:
+            with warnings.catch_warnings():
+                # Python 3.12+ warns that forking a process with threads (BLAS's) may deadlock; the workers run numpy only
+                warnings.simplefilter("ignore", DeprecationWarning)
+                with multiprocessing.get_context("fork").Pool(n, initializer=_init_worker) as pool:
+                    blobs = pool.map(_run, range(len(items)), chunksize=1)
+        finally:
+            _TASK = None
     return [_Unpickler(io.BytesIO(b)).load() for b in blobs]
+
+
+def _call(job: Callable[[], R]) -> R:
+    return job()
+
+
+def fork_calls(jobs: Iterable[Callable[[], R]]) -> list[R]:
+    """``[job() for job in jobs]``, computed as :func:`fork_map` computes (different computations at once)."""
+    return fork_map(_call, jobs)

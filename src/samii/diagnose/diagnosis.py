@@ -631,7 +631,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
         body = bodies[0]
         with_body, _, body_carried, body_not = carry_and_recalibrate(raw, measured, calibrated, [body], progress=progress)
         if not body_carried:
-            body_not_carried = list(body_not)  # (its reason: the simulator with it diverges)
+            body_not_carried = list(body_not)  # (why: its residue's sign, or the simulator with it diverges)
             break  # (a residue no body on the tip makes): reported as found, not carried
         _stage(progress, "selecting again against the simulator with the extra mode")
         _, after_b, steps_b, tried_b = _select_against(with_body, measured, lambda label: label in CARRY, alpha=alpha, progress=progress)
@@ -713,7 +713,7 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     measured = tuple(_noise_from_roughness(m, saved) for m in given)
     notes = [f"{m.source}: no coherence and no records; the noise of each point is {m.noise_source}"
              for m, g in zip(measured, given) if m is not g]
-    from samii.forkmap import fork_map
+    from samii.forkmap import fork_calls
 
     jobs = [lambda m=m: _with_floor(m) for m in measured]
     if sim:  # the simulator's own harmonics (its orifice law) are not what it lacks: the data's are tested in excess of them
@@ -727,7 +727,7 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
                  for m in measured]
     else:
         _stage(progress, "measuring the systematic floor")
-    done = fork_map(lambda job: job(), jobs)  # each file's floor (and the simulator like it) at once
+    done = fork_calls(jobs)  # each file's floor (and the simulator like it) at once
     measured, references = tuple(done[: len(measured)]), (done[len(measured):] if sim else None)
     from samii.diagnose.stationarity import record_changes
 

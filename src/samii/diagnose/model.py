@@ -620,7 +620,7 @@ def start_params(m, structure: ModelStructure, *, rng_seed: int = 0) -> dict[str
     itself in SI (theta in rad: K1 x pi/180, B_k x 180/pi). A swept sine's noisy ends can lead the
     first into a basin that loses a mode; the notebook's own model rarely is far from a rig like it.
     """
-    from samii.forkmap import fork_map
+    from samii.forkmap import fork_calls
 
     ref = notebook_reference()
     ds = Dataset.from_measured(m)
@@ -637,7 +637,7 @@ def start_params(m, structure: ModelStructure, *, rng_seed: int = 0) -> dict[str
     jobs = [from_samii_fit]
     if structure == ModelStructure.notebook_3mode():
         jobs.append(lambda: fitted({k: v for k, v in ref.items() if k in structure.param_names}))
-    results = fork_map(lambda job: job(), jobs)  # the two starts at once (samii.forkmap)
+    results = fork_calls(jobs)  # the two starts at once (samii.forkmap)
     return min(results, key=lambda r: r[0])[1]  # the better (the first of equals)
 
 

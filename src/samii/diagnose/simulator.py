@@ -61,7 +61,7 @@ from samii.calibrate.simulator import parameter_value
 from samii.diagnose.measured import Measured
 from samii.diagnose.model import Baseline, Dataset
 from samii.errors import SimulationUnstable
-from samii.forkmap import fork_map, sharing
+from samii.forkmap import fork_calls, fork_map, sharing
 from samii.frequency_response import FrequencyResponse, interpolate_frf
 from samii.sim.mjcf import SamiiParams
 from samii.sim.model import params_with_overrides
@@ -857,7 +857,7 @@ def simulator_report(measured_raw: Sequence[Measured], measured_fit: Sequence[Me
     # the simulator as calibrated is re-measured while the effects are carried and recalibrated (samii.forkmap; the
     # worker that carries reports no stages; nothing carried, it returns ``before`` itself)
     with sharing(before):
-        measured_before, first = fork_map(lambda job: job(), [lambda: measured_error(before.params), lambda: carry_now(progress=None)])
+        measured_before, first = fork_calls([lambda: measured_error(before.params), lambda: carry_now(progress=None)])
     h_before, res_before, err_before = measured_before
     for m, x in zip(measured_raw, h_before):  # (measured in a worker: kept here for the selection's correction)
         remember_remeasured(before.params, m, x)
