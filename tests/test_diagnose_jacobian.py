@@ -151,20 +151,24 @@ def test_fit_recovers_effects_with_the_analytic_jacobian():
     assert fit.effects[1].values["corner_hz"] == pytest.approx(30.0, rel=1e-6)
 
 
+def _eq94_dataset(channels, f, rng, **kw) -> Dataset:
+    """Eq 9.4 (SI) on ``channels`` with 3 % log noise, every point usable."""
+    st, ref = ModelStructure.notebook_3mode(), notebook_reference()
+    data, keep, inv = {}, {}, {}
+    for ch in channels:
+        h = st.response(ref, f, ch) * np.exp(0.03 * (rng.standard_normal(f.size) + 1j * rng.standard_normal(f.size)))
+        data[ch], keep[ch], inv[ch] = h, np.ones(f.size, bool), np.full(f.size, 1 / 0.03)
+    return Dataset("one", f, data, keep, inv, True, 1.0, 0.1, **kw)
+
+
 @pytest.mark.parametrize("channels", [("act",), ("base",), ("total",), ("act", "base"), ("base", "total")])
 def test_fit_jacobian_every_channel_set_every_kind(channels):
     """One or two channels of a file, every kind of the library at once (two extra base modes among them), in a
     shuffled order, the baseline free: the Jacobian still equals central differences (each kind's derivative
     enters only the channels it affects)."""
     rng = np.random.default_rng(5)
-    f = np.geomspace(0.2, 40.0, 80)
-    st = ModelStructure.notebook_3mode()
-    ref = notebook_reference()
-    data, keep, inv = {}, {}, {}
-    for ch in channels:
-        h = st.response(ref, f, ch) * np.exp(0.03 * (rng.standard_normal(f.size) + 1j * rng.standard_normal(f.size)))
-        data[ch], keep[ch], inv[ch] = h, np.ones(f.size, bool), np.full(f.size, 1 / 0.03)
-    ds = Dataset("one", f, data, keep, inv, True, 1.0, 0.1)
+    st, ref = ModelStructure.notebook_3mode(), notebook_reference()
+    ds = _eq94_dataset(channels, np.geomspace(0.2, 40.0, 80), rng)
     effects = [(k, _values(k)) for k in LIBRARY if not k.needs_fixed_baseline]
     effects.append((KINDS["extra_mode/base_mode"], np.array([27.0, 0.04, -0.005])))
     effects = [effects[i] for i in rng.permutation(len(effects))]
@@ -208,3 +212,33 @@ def test_each_channel_is_judged_on_its_own_usable_points(free):
         assert res[0][ch].shape == (k.sum(),)
         assert np.allclose(res[0][ch], np.log(ds.data[ch] / model), rtol=0, atol=1e-12)
     _check([ds], layout.baseline, effect, free, xb)
+
+
+@pytest.mark.parametrize("channels", [("act", "total"), ("act", "base"), ("base", "total")])
+@pytest.mark.parametrize("free_lag", [True, False])
+def test_fit_jacobian_with_the_sampled_feedthrough(channels, free_lag):
+    """The sampled feedthrough's term (model.feedthrough_term) on xdd/v and xdd/theta, every kind of the library
+    (delays delay the step; a low-pass, a valve or an extra mode change what reaches it), the baseline free and the
+    lag free or held: the Jacobian equals central differences, the lag's column included."""
+    rng = np.random.default_rng(11)
+    st, ref = ModelStructure.notebook_3mode(), notebook_reference()
+    ds = _eq94_dataset(channels, np.geomspace(0.2, 40.0, 70), rng, sample_rate_hz=500.0)
+    effects = [(k, _values(k)) for k in LIBRARY if not k.needs_fixed_baseline and k.kind not in ("accel_lowpass", "accel_lowpass2", "valve")]
+    effects.append((KINDS["sensor/accel_lowpass"], np.array([4000.0])))  # a corner near FEEDTHROUGH_AT_FS: D neither whole nor zero
+    effects = [effects[i] for i in rng.permutation(len(effects))]
+    bl = Baseline(structure=st, params=(ref,), reference=ref, feedthrough_lag_samples=(0.4,), sample_rates_hz=(500.0,))
+    xb = [st.vector(ref) * 1.02]
+    xe = [v for _, v in effects]
+    layout = _Layout(bl, 1, [k for k, _ in effects], xb, xe, True, 0.3 if free_lag else None)
+    problem = _Problem([ds], bl, layout, xb, held_lag=None if free_lag else 0.4)
+    z = layout.to_z(xb, xe)
+    if free_lag:
+        z = np.append(z, 0.3)
+    z = z + 0.01 * rng.standard_normal(z.size)
+    analytic = problem.jacobian(z)
+    numeric = approx_derivative(problem.residuals, z, method="3-point", rel_step=1e-6)
+    scale = np.max(np.abs(numeric), axis=0)
+    if free_lag:
+        assert scale[-1] > 1e-2 * scale.max()  # the lag moves the residual: at 500 Hz the feedthrough is material
+    scale = np.maximum(scale, 1e-5 * scale.max())
+    assert np.max(np.abs(analytic - numeric) / scale) < 1e-6

@@ -43,9 +43,10 @@ from scipy import stats
 
 from samii.diagnose.effects import library
 from samii.diagnose.measured import Measured, check_actuator_sign
-from samii.diagnose.model import MAX_VAR, Baseline, Dataset, Fit, _apply
+from samii.diagnose.model import FEEDTHROUGH_KEY, MAX_VAR, Baseline, Dataset, Fit, _apply, feedthrough_term
 from samii.diagnose.nonlinear import MAX_DF_CHI2, distortion_var, find_nonlinear, harmonic_errors, linearised
 from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select, sample_s
+from samii.diagnose.sampling import feedthrough_note, feedthrough_of, with_feedthrough
 
 __all__ = ["ChannelError", "FoundEffect", "Band", "Diagnosis", "diagnose", "CHANNELS", "BAND_POINTS", "RULE"]
 
@@ -177,6 +178,10 @@ class Diagnosis:
             "floor": [{"source": m.source, "how": None if m.floor is None else m.floor.how,
                        "quantisation_steps": None if m.floor is None else dict(m.floor.quant_steps)} for m in self.measured],
             "baseline": self.baseline.label,
+            "sampling": {"feedthrough_lag_samples": None if feedthrough_of(self.after) is None else feedthrough_of(self.after)[0],
+                         "stderr": None if feedthrough_of(self.after) is None else feedthrough_of(self.after)[1],
+                         "how": "xdd/v's direct feedthrough (a held command's steps) reaches the data this many samples after the rest "
+                                "of its response (samii.diagnose.sampling; null: not modelled, or no feedthrough the data see)"},
             "rule": self.rule,
             "files": [{"source": m.source, "noise": m.noise_source, "amplitude_v": m.amplitude_v, "sample_rate_hz": m.sample_rate_hz,
                        "records": None if m.layout is None else {"record_s": m.layout.record_s, "start_s": m.layout.start_s,
@@ -206,8 +211,9 @@ def _max_tested(h, k: int) -> float | None:
     return float(np.max(np.abs(h.ratio[k][tested]))) if tested.any() else None
 
 
-def model_response(fit: Fit, i: int, freq_hz: np.ndarray) -> dict[str, np.ndarray]:
-    """act, base and total of ``fit``'s model for file ``i`` at ``freq_hz`` (the baseline's structure with the effects)."""
+def model_response(fit: Fit, i: int, freq_hz: np.ndarray, *, sampled: bool = True) -> dict[str, np.ndarray]:
+    """act, base and total of ``fit``'s model for file ``i`` at ``freq_hz`` (the baseline's structure with the effects),
+    as the file's DAQ samples it (the feedthrough's lag, samii.diagnose.sampling) or, ``sampled=False``, the rig's alone."""
     st = fit.baseline.structure
     f = np.asarray(freq_hz, float)
     if st is None or not fit.baseline_params:
@@ -217,6 +223,11 @@ def model_response(fit: Fit, i: int, freq_hz: np.ndarray) -> dict[str, np.ndarra
     eff = [(e.kind, np.array([e.values[q.name] for q in e.kind.params])) for e in fit.effects]
     out = _apply(eff, base, 2j * np.pi * f)
     out["total"] = out["act"] * out["base"]
+    lag, rate = p.get(FEEDTHROUGH_KEY), fit.baseline.sample_rates_hz
+    if sampled and lag and rate and rate[i]:  # the sampled feedthrough (samii.diagnose.sampling)
+        term, _, _, _ = feedthrough_term(st, st.vector(p), eff, 2j * np.pi * f, lag, rate[i])
+        out["total"] = out["total"] + term
+        out["base"] = out["total"] / out["act"]
     return out
 
 
@@ -523,7 +534,7 @@ def _with_floor(m: Measured) -> Measured:
 
     if m.timeseries is None or m.layout is None or any(m.var.get(ch) is None for ch in m.frf.channels):
         return with_floor(m)
-    try:
+    try:  # (the sampled feedthrough left out: the estimator's bias is a difference of the model, second order in it)
         fit = fit_model([Dataset.from_measured(m)], notebook_baseline([m]), [])
     except ValueError:
         return with_floor(m)
@@ -766,7 +777,9 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     def baseline_for(ms, dss):
         if sim:
             return simulator_baseline(calibrated, corrections)
-        return notebook_baseline(ms) if saved is None else saved_fit_baseline(saved, dss)
+        if saved is not None:
+            return saved_fit_baseline(saved, dss)
+        return with_feedthrough(dss, notebook_baseline(ms))  # how the DAQ samples xdd's feedthrough: the measurement's
 
     bl = baseline_for(measured, datasets)
     if saved is not None:
@@ -780,6 +793,8 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
         # carry, has the whole library for what remains
         kinds = [k for k in kinds if k.label in CARRY]
     before, after, steps, tried = forward_select(list(datasets), bl, kinds, alpha=alpha, progress=progress)
+    if feedthrough_of(after) is not None:
+        notes.append(feedthrough_note(*feedthrough_of(after)))
     error_before = channel_errors(datasets, before)
     if raw is not measured:  # the baseline on the data as measured, for the error before
         from samii.diagnose.model import fit_model

@@ -112,10 +112,11 @@ def augmented_tf(fit, i: int = 0, channel: str = "total", *, pade_order: int = 3
 
 
 def augmented_frd(fit, freq_hz, i: int = 0, channel: str = "total"):
-    """The same model as an exact ``control.FRD`` (delays exact) at ``freq_hz`` [Hz] (e.g. ``Diagnosis.datasets[i].freq_hz``)."""
+    """The same model as an exact ``control.FRD`` (delays exact) at ``freq_hz`` [Hz] (e.g. ``Diagnosis.datasets[i].freq_hz``):
+    the rig's, without the DAQ's sampling of xdd/v's feedthrough (samii.diagnose.sampling), as augmented_tf."""
     import control
 
     from samii.diagnose.diagnosis import model_response
 
     f = np.asarray(freq_hz, float)
-    return control.frd(model_response(fit, i, f)[channel], TWO_PI * f)
+    return control.frd(model_response(fit, i, f, sampled=False)[channel], TWO_PI * f)

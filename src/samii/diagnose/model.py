@@ -133,6 +133,11 @@ class Baseline:
     #: Per dataset, a factor on the structure's act and base on that dataset's frequency grid (the
     #: simulator's measured-over-linearised response, samii.diagnose.simulator.correction); none if empty.
     correction: tuple = ()
+    #: Per dataset, the start of the lag [samples] by which xdd/v's direct feedthrough reaches the data after the rest
+    #: of it (:func:`feedthrough_term`, fitted with the baseline; samii.diagnose.sampling); empty: not modelled.
+    feedthrough_lag_samples: tuple[float, ...] = ()
+    #: Per dataset, its sample rate [Hz] where the feedthrough is modelled (for responses off its data points).
+    sample_rates_hz: tuple[float, ...] = ()
 
     @property
     def free(self) -> bool:
@@ -152,6 +157,92 @@ class Baseline:
         return np.where(np.isfinite(h), h, 1.0)
 
 
+#: The key of the sampled feedthrough's lag [samples] in a fit's per-file baseline parameters.
+FEEDTHROUGH_KEY = "feedthrough_lag_samples"
+
+
+def models_feedthrough(datasets: Sequence[Dataset], baseline: Baseline) -> bool:
+    """Whether fits of ``baseline`` to ``datasets`` model the sampled feedthrough (:func:`feedthrough_term`): the
+    baseline says so (``feedthrough_lag_samples``, samii.diagnose.sampling), is a structure refitted (a saved fit's or
+    the simulator's responses are held as they are), and a file states its sample rate and has xdd in a channel."""
+    return (bool(baseline.feedthrough_lag_samples) and baseline.structure is not None and not baseline.fixed and not baseline.correction
+            and any(ds.sample_rate_hz and any(ch in ds.data for ch in ("base", "total")) for ds in datasets))
+
+
+def start_vectors(fit: Fit) -> list[np.ndarray] | None:
+    """``fit``'s per-file baseline vectors as a start for another fit, each with the feedthrough's lag after the
+    structure's parameters where the fit has one (fit_model splits it off); None without a structure."""
+    st = fit.baseline.structure
+    if st is None or not fit.baseline_params:
+        return None
+    return [np.append(st.vector(p), p[FEEDTHROUGH_KEY]) if FEEDTHROUGH_KEY in p else st.vector(p) for p in fit.baseline_params]
+
+
+#: The feedthrough's "infinite" frequency, in sample rates: a path whose corners lie above it settles within a
+#: sixtieth of a sample (1/(2 pi 10)), so the held command's step reaches the next sample whole through it.
+FEEDTHROUGH_AT_FS = 10.0
+#: The feedthrough's lag lies within half a sample of the rest's: a DAQ that reads before it writes (+0.5), one
+#: that writes first (-0.5), an analogue command (0); a fractional command delay moves it in between.
+FEEDTHROUGH_LAG_MAX = 0.5
+
+
+def feedthrough_term(structure, xb, effects, s: np.ndarray, lag_samples: float, sample_rate_hz: float, *, derivatives: bool = False):
+    """The sampling's correction to xdd/v where xdd/v has a direct feedthrough: ``S = D Md (e^{-s lag T} - 1)``.
+
+    Physics. The notebook's theta/v has relative degree 2 and its xdd/theta grows as s^2, so xdd/v tends to a constant
+    D at high frequency: a held (zero-order hold) command's steps pass straight into xdd. Sampled, the smooth part of
+    xdd/v is the continuous response behind the hold's half-sample delay (within (w T)^2 / 24), but the steps of the
+    feedthrough are read whole at the next sample when the DAQ reads its channels before it writes the command (D
+    e^{-s T}, a full sample), in the same sample when it writes first (D, none), and as the rest when the command is
+    analogue (no hold). So the data's xdd/v is the model's plus ``D Md (e^{-s lag T} - 1)`` with ``lag`` the
+    feedthrough's delay beyond the rest in samples (+0.5, -0.5, 0; a command delay that is not a whole number of
+    samples moves it between), Md the model's delays (they delay the step too). Near xdd/v's antiresonance, where D and
+    the modes cancel, this is decibels at 500 Hz (eq 9.4: -2.8 dB and +16 deg at 20 Hz with lag 0.5; with S the model is
+    within 0.2 dB and 2 deg of the exact alias sum from 0.7 Hz up, tests/test_diagnose_sampling.py). Left out: the
+    smooth part's own aliasing, a term in w T^2 that matters only where xdd/v is under a thousandth of its peak (below
+    0.5 Hz), where no accelerometer resolves it. D is the model (the structure and the effects other than delays) at
+    FEEDTHROUGH_AT_FS sample rates: zero behind a low-pass or valve, where no step passes.
+
+    ``effects``: (kind, values) pairs. Returns (S, dlnS/dx_b (n_b,) or None, [dlnS/dp per effect] or None, dS/dlag).
+    """
+    w_inf = np.array([2.0 * np.pi * FEEDTHROUGH_AT_FS * sample_rate_hz])
+    s_inf = 1j * w_inf
+    with np.errstate(all="ignore"):
+        h = structure.log_responses(xb, w_inf, ("act", "base"), derivatives=derivatives)
+    smooth = [(k, p) for k, p in effects if k.category != "delay"]
+    m_act, m_base, add = _effect_factors(smooth, s_inf)
+    hb = h["base"][0]
+    base_sum = hb if add is None else hb + add
+    d0 = h["act"][0] * (1.0 if m_act is None else m_act) * base_sum * (1.0 if m_base is None else m_base)
+    md = 1.0
+    for k, p in effects:
+        if k.category == "delay":
+            ma, mb, _ = k.response(p, s)
+            for m in (ma, mb):
+                if m is not None:
+                    md = md * m
+    period = 1.0 / sample_rate_hz
+    shift = np.exp(-s * lag_samples * period)
+    term = d0[0] * md * (shift - 1.0)
+    d_lag = d0[0] * md * shift * (-s * period)
+    if not derivatives:
+        return term, None, None, d_lag
+    d_b = None
+    if h["act"][1] is not None:
+        d_b = h["act"][1][0] + h["base"][1][0] * (hb / base_sum)[0]
+    d_e = []
+    for k, p in effects:
+        da, db, dA = k.derivatives(p, s if k.category == "delay" else s_inf)
+        col = np.zeros(len(k.params), complex) if k.category != "delay" else np.zeros((s.size, len(k.params)), complex)
+        for part in (da, db):
+            if part is not None:
+                col = col + (part if k.category == "delay" else part[0])
+        if dA is not None and k.category != "delay":
+            col = col + dA[0] / base_sum[0]
+        d_e.append(col)
+    return term, d_b, d_e, d_lag
+
+
 @dataclass(frozen=True, eq=False)
 class Fit:
     """A fitted baseline + effects."""
@@ -164,6 +255,8 @@ class Fit:
     n_residuals: int
     n_params: int
     residuals: tuple[dict, ...]  # per dataset: channel -> complex log ratio e = ln(data/model) (usable points)
+    #: (value, standard error) of the sampled feedthrough's lag [samples] where it is modelled (error 0 when held)
+    feedthrough_lag: tuple[float, float] | None = None
 
     @property
     def dof(self) -> int:
@@ -201,9 +294,11 @@ class _Layout:
     """The optimiser's vector: baseline parameters per dataset (if free), then each effect's."""
 
     def __init__(self, baseline: Baseline, n_data: int, effects: Sequence[EffectKind], starts_b: Sequence[np.ndarray], starts_e: Sequence[np.ndarray],
-                 free_baseline: bool):
+                 free_baseline: bool, lag_start: float | None = None):
         self.baseline = baseline
         self.free_baseline = free_baseline
+        #: the feedthrough's lag [samples] is a variable (the last) when started (feedthrough_term)
+        self.n_lag = 0 if lag_start is None else 1
         self.effects = list(effects)
         st = baseline.structure
         self.nb = len(st.param_names) if (free_baseline and st is not None) else 0
@@ -230,6 +325,10 @@ class _Layout:
         for kind, x, sc in zip(self.effects, xs_e, self.e_scale):
             z.append(np.array([np.log(v) if p.transform == "log" else v / s for p, v, s in zip(kind.params, x, sc)]))
         return np.concatenate(z) if z else np.zeros(0)
+
+    def lag(self, z: np.ndarray) -> float | None:
+        """The feedthrough's lag [samples] in ``z`` (None when it is not a variable)."""
+        return float(z[-1]) if self.n_lag else None
 
     def from_z(self, z: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
         xs_b, xs_e = [], []
@@ -266,6 +365,9 @@ class _Layout:
                 else:
                     lo.append(p.lo / s)
                     hi.append(p.hi / s)
+        if self.n_lag:
+            lo.append(-FEEDTHROUGH_LAG_MAX)
+            hi.append(FEEDTHROUGH_LAG_MAX)
         return np.array(lo), np.array(hi)
 
 
@@ -297,12 +399,20 @@ class _Problem:
     ``d ln base / dx = (d ln H / dx) H c / (H c + A)`` and ``d ln base / dp = d ln M / dp + (dA/dp) / (H c + A)``.
     The residual is ``ln data - ln model``: its derivative is minus the model's."""
 
-    def __init__(self, datasets: Sequence[Dataset], baseline: Baseline, layout: _Layout, fixed_b: Sequence[np.ndarray]):
+    def __init__(self, datasets: Sequence[Dataset], baseline: Baseline, layout: _Layout, fixed_b: Sequence[np.ndarray],
+                 held_lag: float | None = None):
+        """``held_lag``: the sampled feedthrough's lag [samples] held (feedthrough_term); it is modelled when that is
+        given or the layout frees it, on the datasets that state their sample rate and have xdd in a channel."""
         self.baseline, self.layout, self.fixed_b = baseline, layout, list(fixed_b)
         self.blocks = []
         #: per dataset: its grid [rad/s] and the baseline channels its blocks need (computed once for all of them)
         self.grids: list[tuple[np.ndarray, tuple[str, ...]]] = []
+        #: per dataset: (lag [samples] when held, sample rate [Hz]) of the sampled feedthrough (feedthrough_term), or None
+        self.ft: list[tuple[float | None, float] | None] = []
+        models_ft = baseline.structure is not None and not baseline.fixed and (bool(layout.n_lag) or held_lag is not None)
         for i, ds in enumerate(datasets):
+            on = models_ft and bool(ds.sample_rate_hz) and any(ch in ds.data for ch in ("base", "total"))
+            self.ft.append((None if layout.n_lag else held_lag, float(ds.sample_rate_hz)) if on and (layout.n_lag or held_lag) else None)
             for ch in ds.data:
                 k = ds.keep[ch]
                 factor = {}
@@ -310,10 +420,20 @@ class _Problem:
                     factor = {c: np.broadcast_to(baseline.factor(i, ds.freq_hz, c), ds.freq_hz.shape)[k] for c in _NEED[ch]}
                 fixed = {c: baseline.fixed[i][ch][c] for c in _NEED[ch]} if baseline.fixed else None
                 self.blocks.append(_Block(i, ch, 2.0 * np.pi * ds.freq_hz[k], np.flatnonzero(k), ds.data[ch], ds.inv_sigma[ch], fixed, factor))
-            need = tuple(c for c in ("act", "base") if any(c in _NEED[ch] for ch in ds.data))
+            need = tuple(c for c in ("act", "base") if any(c in self._need(i, ch) for ch in ds.data))
             self.grids.append((2.0 * np.pi * np.asarray(ds.freq_hz, float), need))
         #: the held baseline's responses per dataset (a fit with the baseline held evaluates them once)
         self._held: dict[int, dict] = {}
+
+    def _need(self, i: int, ch: str) -> tuple[str, ...]:
+        """The baseline channels block ``ch`` of dataset ``i`` needs: xdd/theta with the feedthrough needs act too."""
+        return ("act", "base") if ch == "base" and self.ft[i] is not None else _NEED[ch]
+
+    def _feedthrough(self, xs_b, z) -> list:
+        """Per dataset: what :meth:`_model` needs of the feedthrough term (None where it is not modelled)."""
+        lag = self.layout.lag(z)
+        return [None if ft is None else (self.baseline.structure, xs_b[i], ft[0] if lag is None else lag, ft[1])
+                for i, ft in enumerate(self.ft)]
 
     def _all_responses(self, xs_b, derivatives: bool) -> list[dict | None]:
         """:meth:`_responses` of every dataset (None where the baseline is fixed responses)."""
@@ -335,10 +455,13 @@ class _Problem:
         with np.errstate(divide="ignore", invalid="ignore"):  # a point no block uses may sit on a pole
             return self.baseline.structure.log_responses(xb, w, need, derivatives=derivatives)
 
-    def _model(self, blk: _Block, resp: dict | None, eff, derivatives: bool):
-        """(model, d ln model / d(baseline x) or None, [d ln model / d(effect p)] or None) of one block; ``resp``: its
-        dataset's baseline responses (:meth:`_responses`; None for a fixed baseline)."""
-        need = _NEED[blk.ch]
+    def _model(self, blk: _Block, resp: dict | None, eff, derivatives: bool, ft=None):
+        """(model, d ln model / d(baseline x) or None, [d ln model / d(effect p)] or None, d ln model / d(lag) or None)
+        of one block; ``resp``: its dataset's baseline responses (:meth:`_responses`; None for a fixed baseline);
+        ``ft``: its dataset's feedthrough (:meth:`_feedthrough`), whose term xdd/v and xdd/theta carry."""
+        if ft is not None and blk.ch == "act":
+            ft = None
+        need = _NEED[blk.ch] if ft is None else ("act", "base")
         s = 1j * blk.w
         if blk.fixed is not None:
             h = dict(blk.fixed)
@@ -347,24 +470,39 @@ class _Problem:
             h = {c: resp[c][0][blk.at] * blk.factor[c] if blk.factor else resp[c][0][blk.at] for c in need}
             dh = {c: None if resp[c][1] is None else resp[c][1][blk.at] for c in need}
         m_act, m_base, add = _effect_factors(eff, s)
-        model = 1.0
+        act = base = base_sum = None
         if "act" in h:
-            model = h["act"] if m_act is None else h["act"] * m_act
-        base_sum = None
+            act = h["act"] if m_act is None else h["act"] * m_act
         if "base" in h:
             base_sum = h["base"] if add is None else h["base"] + add
-            model = model * (base_sum if m_base is None else base_sum * m_base)
+            base = base_sum if m_base is None else base_sum * m_base
+        term = d_lag = None
+        if ft is None:
+            model = base if act is None else act if base is None else act * base
+        else:  # xdd/v = act base + S; xdd/theta = xdd/v / act
+            structure, xb, lag, fs = ft
+            term, dt_b, dt_e, d_lag = feedthrough_term(structure, xb, eff, s, lag, fs, derivatives=derivatives)
+            total = act * base + term
+            model = total if blk.ch == "total" else total / act
         if not derivatives:
-            return model, None, None
+            return model, None, None, None
+        # d ln(act base) = d ln act + d ln base; with the term: w_P d ln(act base) + w_S d ln S (- d ln act for xdd/theta)
+        w_p = w_s = None
+        if term is not None:
+            w_s = term / total
+            w_p = 1.0 - w_s
         d_b = None
         if blk.fixed is None and self.layout.nb:
-            d_b = 0.0
-            if "act" in h:
-                d_b = d_b + dh["act"]
-            if "base" in h:
-                d_b = d_b + (dh["base"] if add is None else dh["base"] * (h["base"] / base_sum)[:, None])
+            d_act = dh["act"] if "act" in h else 0.0
+            d_base = 0.0 if "base" not in h else (dh["base"] if add is None else dh["base"] * (h["base"] / base_sum)[:, None])
+            if term is None:
+                d_b = d_act + d_base
+            else:
+                d_b = w_p[:, None] * (d_act + d_base) + w_s[:, None] * dt_b[None, :]
+                if blk.ch == "base":
+                    d_b = d_b - d_act
         d_e = []
-        for kind, p in eff:
+        for j, (kind, p) in enumerate(eff):
             da, db, dA = kind.derivatives(p, s)
             col = np.zeros((s.size, len(kind.params)), complex)
             if da is not None and "act" in h:
@@ -374,8 +512,14 @@ class _Problem:
                     col += db
                 if dA is not None:
                     col += dA / base_sum[:, None]
+            if term is not None:
+                own = dt_e[j] if dt_e[j].ndim == 2 else dt_e[j][None, :]
+                col = w_p[:, None] * col + w_s[:, None] * own
+                if blk.ch == "base" and da is not None:
+                    col = col - da
             d_e.append(col)
-        return model, d_b, d_e
+        dl = None if d_lag is None else d_lag / total
+        return model, d_b, d_e, dl
 
     def _split(self, z):
         xs_b, xs_e = self.layout.from_z(z)
@@ -389,8 +533,9 @@ class _Problem:
         eff = list(zip(self.layout.effects, xs_e))
         res: list[dict] = [{} for _ in range(max((b.i for b in self.blocks), default=-1) + 1)]
         resp = self._all_responses(xs_b, False)
+        fts = self._feedthrough(xs_b, z)
         for blk in self.blocks:
-            model, _, _ = self._model(blk, resp[blk.i], eff, False)
+            model, _, _, _ = self._model(blk, resp[blk.i], eff, False, fts[blk.i])
             res[blk.i][blk.ch] = np.log(blk.data / model)  # one log of the ratio: its phase wrapped to (-pi, pi]
         return res, xs_b, xs_e
 
@@ -422,8 +567,9 @@ class _Problem:
         rows = []
         with np.errstate(all="ignore"):
             resp = self._all_responses(xs_b, True)
+            fts = self._feedthrough(xs_b, z)
             for blk in self.blocks:
-                model, d_b, d_e = self._model(blk, resp[blk.i], eff, True)
+                model, d_b, d_e, d_lag = self._model(blk, resp[blk.i], eff, True, fts[blk.i])
                 d = np.zeros((blk.w.size, n), complex)
                 if lay.nb:
                     j0 = blk.i * lay.nb
@@ -432,6 +578,8 @@ class _Problem:
                 for col, f in zip(d_e, dxdz_e):
                     d[:, j : j + f.size] = col * f
                     j += f.size
+                if lay.n_lag and d_lag is not None:
+                    d[:, n - 1] = d_lag
                 d *= -blk.inv_sigma[:, None]
                 bad = ~np.isfinite(np.log(blk.data / model))
                 d[bad] = 0.0
@@ -474,6 +622,7 @@ def fit_model(
     free_baseline: bool | None = None,
     start_baseline: Sequence[np.ndarray] | None = None,
     max_nfev: int = 200,
+    lag_start: float | None = None,
 ) -> Fit:
     """Fit the effects (and the baseline, if free) to the datasets.
 
@@ -484,18 +633,34 @@ def fit_model(
         Refit the baseline's parameters (default: when the baseline is a structure, not fixed responses).
     start_baseline : per-dataset parameter vectors, optional
         Default: ``baseline.params``.
+    lag_start : float, optional
+        Start the sampled feedthrough's lag [samples] here (:func:`feedthrough_term`), and fit it even when the baseline
+        is held. By default it is modelled where the baseline says so (``feedthrough_lag_samples``), started from the
+        start vectors' (:func:`start_vectors`) or the baseline's, and free when the baseline is; the result's
+        ``feedthrough_lag`` and each file's parameters (``FEEDTHROUGH_KEY``) hold it.
     """
     free = baseline.free if free_baseline is None else (free_baseline and baseline.free)
     st = baseline.structure
     xb0 = list(start_baseline) if start_baseline is not None else ([st.vector(p) for p in baseline.params] if st is not None and baseline.params else [])
+    # the sampled feedthrough's lag (feedthrough_term): free with the baseline, else held; a start vector one longer than
+    # the structure's carries it (start_vectors)
+    lag0 = None
+    if st is not None and xb0 and len(xb0[0]) == len(st.param_names) + 1:
+        lag0, xb0 = float(xb0[0][-1]), [np.asarray(x[:-1], float) for x in xb0]
+    modelled = models_feedthrough(datasets, baseline) or (lag_start is not None and st is not None and not baseline.fixed)
+    if modelled:
+        lag0 = lag_start if lag_start is not None else lag0 if lag0 is not None else float(baseline.feedthrough_lag_samples[0])
+    free_lag = modelled and (free or lag_start is not None)
     kinds = [k for k, _ in effects]
     xe0 = [np.clip(np.asarray(v, float), [p.lo for p in k.params], [p.hi for p in k.params]) for k, v in effects]
-    layout = _Layout(baseline, len(datasets), kinds, xb0, xe0, free)
+    layout = _Layout(baseline, len(datasets), kinds, xb0, xe0, free, lag0 if free_lag else None)
     z0 = layout.to_z(xb0, xe0)
+    if layout.n_lag:
+        z0 = np.append(z0, lag0)
     lo, hi = layout.bounds()
     with np.errstate(invalid="ignore"):
         z0 = np.clip(z0, np.where(np.isfinite(lo), lo + 1e-9 * (np.abs(lo) + 1), lo), np.where(np.isfinite(hi), hi - 1e-9 * (np.abs(hi) + 1), hi))
-    problem = _Problem(datasets, baseline, layout, xb0)
+    problem = _Problem(datasets, baseline, layout, xb0, held_lag=lag0 if modelled and not free_lag else None)
     if z0.size:
         sol = least_squares(problem.residuals, z0, jac=problem.jacobian, bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=max_nfev,
                             xtol=FIT_TOL, ftol=FIT_TOL, gtol=1e-8)
@@ -534,7 +699,11 @@ def fit_model(
         errs = {p.name: float(val * s if p.transform == "log" else s * c) for p, val, s, c in zip(kind.params, x, se, sc)}
         out_eff.append(Effect(kind, values, errs))
         i += k
-    return Fit(baseline, tuple(b_params), tuple(b_se), tuple(out_eff), chi2, m, n, tuple(res))
+    lag = None if not modelled else (float(z[-1]), float(se_z[-1])) if layout.n_lag else (float(lag0), 0.0)
+    if lag is not None:  # each file's parameters carry it (start_vectors, model_response)
+        b_params = [{**p, FEEDTHROUGH_KEY: lag[0]} for p in b_params]
+        b_se = [{**e, FEEDTHROUGH_KEY: lag[1]} for e in b_se]
+    return Fit(baseline, tuple(b_params), tuple(b_se), tuple(out_eff), chi2, m, n, tuple(res), lag)
 
 
 def relabel_modes(datasets: Sequence[Dataset], fit: Fit) -> Fit:
@@ -588,7 +757,7 @@ def relabel_modes(datasets: Sequence[Dataset], fit: Fit) -> Fit:
                 w, z = two_pi * v["freq_hz"], v["zeta"]
                 b = v["residue"] / gain_factor(w)
             q[f"w{slot}"], q[f"z{slot}"], q[f"B{slot}"] = w, z, b
-        new_b.append(st.vector(q))
+        new_b.append(np.append(st.vector(q), q[FEEDTHROUGH_KEY]) if FEEDTHROUGH_KEY in q else st.vector(q))
     left = sorted((pool[a] for a in range(len(pool)) if a not in best), key=lambda t: t[2])
     moved = []
     for src, idx, _ in left:

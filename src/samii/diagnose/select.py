@@ -46,7 +46,7 @@ import numpy as np
 from scipy import stats
 
 from samii.diagnose.effects import TWO_PI, Effect, EffectKind
-from samii.diagnose.model import Baseline, Dataset, Fit, fit_model, relabel_modes
+from samii.diagnose.model import Baseline, Dataset, Fit, fit_model, relabel_modes, start_vectors
 from samii.forkmap import fork_map, sharing
 
 __all__ = ["ALPHA", "Step", "forward_select", "starts_for", "sample_s"]
@@ -207,10 +207,7 @@ def _distinct(held: list[Fit], n: int) -> list[Fit]:
 
 
 def _baseline_vectors(fit: Fit) -> list[np.ndarray] | None:
-    st = fit.baseline.structure
-    if st is None or not fit.baseline_params:
-        return None
-    return [st.vector(p) for p in fit.baseline_params]
+    return start_vectors(fit)
 
 
 def _mode_freqs_hz(fit: Fit) -> list[float]:
