@@ -226,7 +226,7 @@ def test_fit_jacobian_with_the_sampled_feedthrough(channels, free_lag):
     effects = [(k, _values(k)) for k in LIBRARY if not k.needs_fixed_baseline and k.kind not in ("accel_lowpass", "accel_lowpass2", "valve")]
     effects.append((KINDS["sensor/accel_lowpass"], np.array([4000.0])))  # a corner near FEEDTHROUGH_AT_FS: D neither whole nor zero
     effects = [effects[i] for i in rng.permutation(len(effects))]
-    bl = Baseline(structure=st, params=(ref,), reference=ref, feedthrough_lag_samples=(0.4,), sample_rates_hz=(500.0,))
+    bl = Baseline(structure=st, params=(ref,), reference=ref, feedthrough_lag=0.4, sample_rates_hz=(500.0,))
     xb = [st.vector(ref) * 1.02]
     xe = [v for _, v in effects]
     layout = _Layout(bl, 1, [k for k, _ in effects], xb, xe, True, 0.3 if free_lag else None)

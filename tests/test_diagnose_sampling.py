@@ -39,6 +39,8 @@ def _db_deg(e):
     return float(np.max(np.abs(e.real)) * 20 / np.log(10)), float(np.degrees(np.max(np.abs(e.imag))))
 
 
+# tolerances: the term's measured agreement (0.32 dB / 1.7 deg at 500 Hz, 0.063 dB / 0.39 deg at 1 kHz, this test at
+# stop 30) with a tenth to spare; it falls as (w T)^2, the left-out smooth aliasing's order
 @pytest.mark.parametrize("fs, tol_db, tol_deg", [(500.0, 0.35, 2.0), (1000.0, 0.08, 0.5)])
 def test_the_feedthrough_term_matches_the_exact_sampled_response(fs, tol_db, tol_deg):
     """0.5-40 Hz. (Below, where xdd/v falls under a thousandth of its peak (0.5 Hz; it goes as s at low frequency),

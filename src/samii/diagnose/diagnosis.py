@@ -178,8 +178,7 @@ class Diagnosis:
             "floor": [{"source": m.source, "how": None if m.floor is None else m.floor.how,
                        "quantisation_steps": None if m.floor is None else dict(m.floor.quant_steps)} for m in self.measured],
             "baseline": self.baseline.label,
-            "sampling": {"feedthrough_lag_samples": None if feedthrough_of(self.after) is None else feedthrough_of(self.after)[0],
-                         "stderr": None if feedthrough_of(self.after) is None else feedthrough_of(self.after)[1],
+            "sampling": {**dict(zip(("feedthrough_lag_samples", "stderr"), feedthrough_of(self.after) or (None, None))),
                          "how": "xdd/v's direct feedthrough (a held command's steps) reaches the data this many samples after the rest "
                                 "of its response (samii.diagnose.sampling; null: not modelled, or no feedthrough the data see)"},
             "rule": self.rule,
@@ -357,9 +356,9 @@ def _drop_amplitude_images(datasets: Sequence[Dataset], baseline: Baseline, fit:
     0.13, fitted to the 0.3 V file near the hydraulic resonance, made the 0.1 V file's xdd/v chi2 there 3x its
     noise). Dropped one at a time, the largest gain first, refitted, until none is. The threshold is one effect's,
     with no correction for the effects tried. Returns the fit and the dropped effects' descriptions."""
-    from samii.diagnose.model import fit_model, relabel_modes
+    from samii.diagnose.model import fit_model, relabel_modes, start_vectors
     from samii.diagnose.nonlinear import MIN_AMPLITUDE_RATIO
-    from samii.diagnose.select import _baseline_vectors, _vectors
+    from samii.diagnose.select import _vectors
 
     amps = [ds.amplitude_v for ds in datasets]
     if len(datasets) < 2 or any(not a for a in amps) or max(amps) < MIN_AMPLITUDE_RATIO * min(amps):
@@ -372,7 +371,7 @@ def _drop_amplitude_images(datasets: Sequence[Dataset], baseline: Baseline, fit:
         worst = None
         for i, e in enumerate(fit.effects):
             rest = [x for j, x in enumerate(fit.effects) if j != i]
-            without = fit_model(list(datasets), baseline, _vectors(rest), start_baseline=_baseline_vectors(fit))
+            without = fit_model(list(datasets), baseline, _vectors(rest), start_baseline=start_vectors(fit))
             gain = _file_chi2(datasets[lo], fit.residuals[lo]) - _file_chi2(datasets[lo], without.residuals[lo])
             if gain > AMBIGUOUS_CHI2 * s2 and (worst is None or gain > worst[0]):
                 worst = (gain, e, without)

@@ -133,9 +133,9 @@ class Baseline:
     #: Per dataset, a factor on the structure's act and base on that dataset's frequency grid (the
     #: simulator's measured-over-linearised response, samii.diagnose.simulator.correction); none if empty.
     correction: tuple = ()
-    #: Per dataset, the start of the lag [samples] by which xdd/v's direct feedthrough reaches the data after the rest
-    #: of it (:func:`feedthrough_term`, fitted with the baseline; samii.diagnose.sampling); empty: not modelled.
-    feedthrough_lag_samples: tuple[float, ...] = ()
+    #: The start of the lag [samples] by which xdd/v's direct feedthrough reaches the data after the rest of it, one
+    #: for the files (:func:`feedthrough_term`, fitted with the baseline; samii.diagnose.sampling); None: not modelled.
+    feedthrough_lag: float | None = None
     #: Per dataset, its sample rate [Hz] where the feedthrough is modelled (for responses off its data points).
     sample_rates_hz: tuple[float, ...] = ()
 
@@ -163,9 +163,9 @@ FEEDTHROUGH_KEY = "feedthrough_lag_samples"
 
 def models_feedthrough(datasets: Sequence[Dataset], baseline: Baseline) -> bool:
     """Whether fits of ``baseline`` to ``datasets`` model the sampled feedthrough (:func:`feedthrough_term`): the
-    baseline says so (``feedthrough_lag_samples``, samii.diagnose.sampling), is a structure refitted (a saved fit's or
+    baseline says so (``feedthrough_lag``, samii.diagnose.sampling), is a structure refitted (a saved fit's or
     the simulator's responses are held as they are), and a file states its sample rate and has xdd in a channel."""
-    return (bool(baseline.feedthrough_lag_samples) and baseline.structure is not None and not baseline.fixed and not baseline.correction
+    return (baseline.feedthrough_lag is not None and baseline.structure is not None and not baseline.fixed and not baseline.correction
             and any(ds.sample_rate_hz and any(ch in ds.data for ch in ("base", "total")) for ds in datasets))
 
 
@@ -203,7 +203,8 @@ def feedthrough_term(structure, xb, effects, s: np.ndarray, lag_samples: float, 
     0.5 Hz), where no accelerometer resolves it. D is the model (the structure and the effects other than delays) at
     FEEDTHROUGH_AT_FS sample rates: zero behind a low-pass or valve, where no step passes.
 
-    ``effects``: (kind, values) pairs. Returns (S, dlnS/dx_b (n_b,) or None, [dlnS/dp per effect] or None, dS/dlag).
+    ``effects``: (kind, values) pairs. Returns (S, dlnS/dx_b (n_b,) or None, [dlnS/dp (points, params) per effect] or
+    None, dS/dlag).
     """
     w_inf = np.array([2.0 * np.pi * FEEDTHROUGH_AT_FS * sample_rate_hz])
     s_inf = 1j * w_inf
@@ -231,15 +232,16 @@ def feedthrough_term(structure, xb, effects, s: np.ndarray, lag_samples: float, 
     if h["act"][1] is not None:
         d_b = h["act"][1][0] + h["base"][1][0] * (hb / base_sum)[0]
     d_e = []
-    for k, p in effects:
-        da, db, dA = k.derivatives(p, s if k.category == "delay" else s_inf)
-        col = np.zeros(len(k.params), complex) if k.category != "delay" else np.zeros((s.size, len(k.params)), complex)
+    for k, p in effects:  # a delay's at the points (it delays the step), any other's through D (at s_inf, the same at every point)
+        delay = k.category == "delay"
+        da, db, dA = k.derivatives(p, s if delay else s_inf)
+        col = np.zeros((s.size if delay else 1, len(k.params)), complex)
         for part in (da, db):
             if part is not None:
-                col = col + (part if k.category == "delay" else part[0])
-        if dA is not None and k.category != "delay":
-            col = col + dA[0] / base_sum[0]
-        d_e.append(col)
+                col = col + part
+        if dA is not None and not delay:
+            col = col + dA / base_sum[0]
+        d_e.append(np.broadcast_to(col, (s.size, len(k.params))))
     return term, d_b, d_e, d_lag
 
 
@@ -407,12 +409,13 @@ class _Problem:
         self.blocks = []
         #: per dataset: its grid [rad/s] and the baseline channels its blocks need (computed once for all of them)
         self.grids: list[tuple[np.ndarray, tuple[str, ...]]] = []
-        #: per dataset: (lag [samples] when held, sample rate [Hz]) of the sampled feedthrough (feedthrough_term), or None
-        self.ft: list[tuple[float | None, float] | None] = []
-        models_ft = baseline.structure is not None and not baseline.fixed and (bool(layout.n_lag) or held_lag is not None)
+        #: the sampled feedthrough (feedthrough_term): its lag when held, and per dataset its sample rate [Hz] where it is
+        #: modelled (None where not: no rate stated, no xdd, a fixed baseline, a held lag of 0)
+        self.held_lag = held_lag
+        models_ft = baseline.structure is not None and not baseline.fixed and (bool(layout.n_lag) or bool(held_lag))
+        self.ft_rate: list[float | None] = [float(ds.sample_rate_hz) if models_ft and ds.sample_rate_hz and
+                                            any(ch in ds.data for ch in ("base", "total")) else None for ds in datasets]
         for i, ds in enumerate(datasets):
-            on = models_ft and bool(ds.sample_rate_hz) and any(ch in ds.data for ch in ("base", "total"))
-            self.ft.append((None if layout.n_lag else held_lag, float(ds.sample_rate_hz)) if on and (layout.n_lag or held_lag) else None)
             for ch in ds.data:
                 k = ds.keep[ch]
                 factor = {}
@@ -427,13 +430,16 @@ class _Problem:
 
     def _need(self, i: int, ch: str) -> tuple[str, ...]:
         """The baseline channels block ``ch`` of dataset ``i`` needs: xdd/theta with the feedthrough needs act too."""
-        return ("act", "base") if ch == "base" and self.ft[i] is not None else _NEED[ch]
+        return ("act", "base") if ch == "base" and self.ft_rate[i] is not None else _NEED[ch]
 
-    def _feedthrough(self, xs_b, z) -> list:
-        """Per dataset: what :meth:`_model` needs of the feedthrough term (None where it is not modelled)."""
+    def _feedthrough(self, blk: _Block, xs_b, z) -> tuple | None:
+        """(baseline vector, lag [samples], sample rate [Hz]) of ``blk``'s feedthrough term, None where it has none
+        (theta/v; a dataset where it is not modelled)."""
+        rate = self.ft_rate[blk.i]
+        if rate is None or blk.ch == "act":
+            return None
         lag = self.layout.lag(z)
-        return [None if ft is None else (self.baseline.structure, xs_b[i], ft[0] if lag is None else lag, ft[1])
-                for i, ft in enumerate(self.ft)]
+        return xs_b[blk.i], self.held_lag if lag is None else lag, rate
 
     def _all_responses(self, xs_b, derivatives: bool) -> list[dict | None]:
         """:meth:`_responses` of every dataset (None where the baseline is fixed responses)."""
@@ -458,9 +464,7 @@ class _Problem:
     def _model(self, blk: _Block, resp: dict | None, eff, derivatives: bool, ft=None):
         """(model, d ln model / d(baseline x) or None, [d ln model / d(effect p)] or None, d ln model / d(lag) or None)
         of one block; ``resp``: its dataset's baseline responses (:meth:`_responses`; None for a fixed baseline);
-        ``ft``: its dataset's feedthrough (:meth:`_feedthrough`), whose term xdd/v and xdd/theta carry."""
-        if ft is not None and blk.ch == "act":
-            ft = None
+        ``ft``: its feedthrough (:meth:`_feedthrough`), the term xdd/v and xdd/theta carry."""
         need = _NEED[blk.ch] if ft is None else ("act", "base")
         s = 1j * blk.w
         if blk.fixed is not None:
@@ -480,8 +484,8 @@ class _Problem:
         if ft is None:
             model = base if act is None else act if base is None else act * base
         else:  # xdd/v = act base + S; xdd/theta = xdd/v / act
-            structure, xb, lag, fs = ft
-            term, dt_b, dt_e, d_lag = feedthrough_term(structure, xb, eff, s, lag, fs, derivatives=derivatives)
+            xb, lag, fs = ft
+            term, dt_b, dt_e, d_lag = feedthrough_term(self.baseline.structure, xb, eff, s, lag, fs, derivatives=derivatives)
             total = act * base + term
             model = total if blk.ch == "total" else total / act
         if not derivatives:
@@ -513,8 +517,7 @@ class _Problem:
                 if dA is not None:
                     col += dA / base_sum[:, None]
             if term is not None:
-                own = dt_e[j] if dt_e[j].ndim == 2 else dt_e[j][None, :]
-                col = w_p[:, None] * col + w_s[:, None] * own
+                col = w_p[:, None] * col + w_s[:, None] * dt_e[j]
                 if blk.ch == "base" and da is not None:
                     col = col - da
             d_e.append(col)
@@ -533,9 +536,8 @@ class _Problem:
         eff = list(zip(self.layout.effects, xs_e))
         res: list[dict] = [{} for _ in range(max((b.i for b in self.blocks), default=-1) + 1)]
         resp = self._all_responses(xs_b, False)
-        fts = self._feedthrough(xs_b, z)
         for blk in self.blocks:
-            model, _, _, _ = self._model(blk, resp[blk.i], eff, False, fts[blk.i])
+            model, _, _, _ = self._model(blk, resp[blk.i], eff, False, self._feedthrough(blk, xs_b, z))
             res[blk.i][blk.ch] = np.log(blk.data / model)  # one log of the ratio: its phase wrapped to (-pi, pi]
         return res, xs_b, xs_e
 
@@ -567,9 +569,8 @@ class _Problem:
         rows = []
         with np.errstate(all="ignore"):
             resp = self._all_responses(xs_b, True)
-            fts = self._feedthrough(xs_b, z)
             for blk in self.blocks:
-                model, d_b, d_e, d_lag = self._model(blk, resp[blk.i], eff, True, fts[blk.i])
+                model, d_b, d_e, d_lag = self._model(blk, resp[blk.i], eff, True, self._feedthrough(blk, xs_b, z))
                 d = np.zeros((blk.w.size, n), complex)
                 if lay.nb:
                     j0 = blk.i * lay.nb
@@ -635,7 +636,7 @@ def fit_model(
         Default: ``baseline.params``.
     lag_start : float, optional
         Start the sampled feedthrough's lag [samples] here (:func:`feedthrough_term`), and fit it even when the baseline
-        is held. By default it is modelled where the baseline says so (``feedthrough_lag_samples``), started from the
+        is held. By default it is modelled where the baseline says so (``feedthrough_lag``), started from the
         start vectors' (:func:`start_vectors`) or the baseline's, and free when the baseline is; the result's
         ``feedthrough_lag`` and each file's parameters (``FEEDTHROUGH_KEY``) hold it.
     """
@@ -649,7 +650,7 @@ def fit_model(
         lag0, xb0 = float(xb0[0][-1]), [np.asarray(x[:-1], float) for x in xb0]
     modelled = models_feedthrough(datasets, baseline) or (lag_start is not None and st is not None and not baseline.fixed)
     if modelled:
-        lag0 = lag_start if lag_start is not None else lag0 if lag0 is not None else float(baseline.feedthrough_lag_samples[0])
+        lag0 = lag_start if lag_start is not None else lag0 if lag0 is not None else float(baseline.feedthrough_lag)
     free_lag = modelled and (free or lag_start is not None)
     kinds = [k for k, _ in effects]
     xe0 = [np.clip(np.asarray(v, float), [p.lo for p in k.params], [p.hi for p in k.params]) for k, v in effects]

@@ -52,8 +52,7 @@ def with_feedthrough(ds_list: Sequence[Dataset], baseline: Baseline, *, alpha: f
     _, _, log10_p = _f_test(without, with_lag, max(ds.corr_length for ds in ds_list))
     if not log10_p < np.log10(alpha):
         return baseline
-    return replace(baseline, feedthrough_lag_samples=tuple(with_lag.feedthrough_lag[0] for _ in ds_list),
-                   sample_rates_hz=tuple(float(ds.sample_rate_hz) for ds in ds_list))
+    return replace(baseline, feedthrough_lag=with_lag.feedthrough_lag[0], sample_rates_hz=tuple(float(ds.sample_rate_hz) for ds in ds_list))
 
 
 def feedthrough_of(fit: Fit) -> tuple[float, float] | None:

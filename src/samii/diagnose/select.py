@@ -190,7 +190,7 @@ def _vectors(effects) -> list[tuple[EffectKind, np.ndarray]]:
 def _held_fits(ds_list, baseline, fit: Fit, effects, kind: EffectKind) -> list[Fit]:
     """``kind`` added to ``effects`` and fitted alone from each of its starts (read off ``fit``'s residual), the
     rest held at ``fit``'s baseline (cheap); best first."""
-    xb = _baseline_vectors(fit)
+    xb = start_vectors(fit)
     fits = [fit_model(ds_list, baseline, _vectors(effects) + [(kind, x0)], free_baseline=False, start_baseline=xb, max_nfev=60)
             for x0 in starts_for(kind, ds_list, fit)]
     return sorted(fits, key=lambda f: f.chi2)
@@ -204,10 +204,6 @@ def _distinct(held: list[Fit], n: int) -> list[Fit]:
         if not any(x.size == y.size and np.all(np.abs(x - y) <= SAME_OPTIMUM * np.maximum(np.abs(x), np.abs(y))) for _, y in out):
             out.append((f, x))
     return [f for f, _ in out]
-
-
-def _baseline_vectors(fit: Fit) -> list[np.ndarray] | None:
-    return start_vectors(fit)
 
 
 def _mode_freqs_hz(fit: Fit) -> list[float]:
@@ -409,9 +405,9 @@ def _backward(ds_list, baseline, fit: Fit, corr: float, level: float, steps: lis
         changed = False
         for i in range(len(fit.effects) - 1):
             x_e = _vectors(e for j, e in enumerate(fit.effects) if j != i)
-            without = fit_model(ds_list, baseline, x_e, start_baseline=_baseline_vectors(fit))
+            without = fit_model(ds_list, baseline, x_e, start_baseline=start_vectors(fit))
             if reference is not None and baseline.free:  # the baseline may have parked a mode the dropped effect took over
-                again = fit_model(ds_list, baseline, x_e, start_baseline=_baseline_vectors(reference))
+                again = fit_model(ds_list, baseline, x_e, start_baseline=start_vectors(reference))
                 if again.chi2 < without.chi2:
                     without = again
             _, _, logp = _f_test(without, fit, corr)
@@ -443,7 +439,7 @@ def _best_in_place(ds_list, baseline, fit: Fit, i: int, kinds) -> tuple[Fit | No
             return None
         x_e = _vectors(held[0].effects)
         x_e = x_e[:i] + [x_e[-1]] + x_e[i:-1]  # the replacement in the replaced effect's place
-        return fit_model(ds_list, baseline, x_e, start_baseline=_baseline_vectors(fit))
+        return fit_model(ds_list, baseline, x_e, start_baseline=start_vectors(fit))
 
     best, n = None, 0
     for alt in fork_map(in_place, kinds):
@@ -546,7 +542,7 @@ def _candidate(ds_list, baseline, current: Fit, kind: EffectKind, reference_b) -
     held = _held_fits(ds_list, baseline, current, current.effects, kind)
     if not held:
         return None
-    jobs = [(f, _baseline_vectors(current)) for f in _distinct(held, JOINT_STARTS)]
+    jobs = [(f, start_vectors(current)) for f in _distinct(held, JOINT_STARTS)]
     if reference_b is not None:
         jobs.append((held[0], reference_b))
     cand = None
@@ -554,7 +550,7 @@ def _candidate(ds_list, baseline, current: Fit, kind: EffectKind, reference_b) -
         joint = fit_model(ds_list, baseline, _vectors(f.effects), start_baseline=xb)
         if cand is None or joint.chi2 < cand.chi2:
             cand = joint
-    alone = fit_model(ds_list, baseline, _vectors(current.effects), start_baseline=_baseline_vectors(cand))
+    alone = fit_model(ds_list, baseline, _vectors(current.effects), start_baseline=start_vectors(cand))
     return cand, alone
 
 
@@ -665,7 +661,7 @@ def _drop_unidentified(ds_list, baseline, fit: Fit, steps: list, tried: list) ->
 
     def without(i: int) -> Fit:
         rest = [x for j, x in enumerate(fit.effects) if j != i]
-        return fit_model(ds_list, baseline, _vectors(rest), start_baseline=_baseline_vectors(fit))
+        return fit_model(ds_list, baseline, _vectors(rest), start_baseline=start_vectors(fit))
 
     def first_refused() -> tuple[int, str, Fit] | None:
         for i, e in enumerate(fit.effects):
