@@ -22,7 +22,9 @@ def _finish(fig, title: str, path, fontsize: float | None = None):
     import matplotlib.pyplot as plt
 
     fig.suptitle(title, fontsize=fontsize)
-    fig.tight_layout()
+    # laid out as it is drawn (the same layout as tight_layout(), without a second pass over every tick label first:
+    # the residual figure's six log axes took 1.5 s to save, 1.0 s so)
+    fig.set_layout_engine("tight")
     if path is not None:
         fig.savefig(path, dpi=110)
         plt.close(fig)

@@ -405,9 +405,13 @@ def _backward(ds_list, baseline, fit: Fit, corr: float, level: float, steps: lis
         changed = False
         for i in range(len(fit.effects) - 1):
             x_e = _vectors(e for j, e in enumerate(fit.effects) if j != i)
-            without = fit_model(ds_list, baseline, x_e, start_baseline=start_vectors(fit))
+            # the fit without effect i matters only if its removal passes the F-test (_f_test): below this chi2
+            dp = len(fit.effects[i].kind.params)
+            dof2 = max(fit.n_residuals - fit.n_params, 1)
+            beat = fit.chi2 * (1.0 + float(stats.f.isf(10.0**level, dp, dof2)) * dp * corr / dof2)
+            without = fit_model(ds_list, baseline, x_e, start_baseline=start_vectors(fit), beat=beat)
             if reference is not None and baseline.free:  # the baseline may have parked a mode the dropped effect took over
-                again = fit_model(ds_list, baseline, x_e, start_baseline=start_vectors(reference))
+                again = fit_model(ds_list, baseline, x_e, start_baseline=start_vectors(reference), beat=beat)
                 if again.chi2 < without.chi2:
                     without = again
             _, _, logp = _f_test(without, fit, corr)
@@ -430,8 +434,12 @@ SWAP_PASSES = 3
 
 def _best_in_place(ds_list, baseline, fit: Fit, i: int, kinds) -> tuple[Fit | None, int]:
     """Each of ``kinds`` in the place of ``fit``'s effect ``i`` (its best held start, then refitted jointly with the
-    rest; the kinds in parallel): the best such fit (the first of equals), and how many kinds could be fitted."""
+    rest; the kinds in parallel): the best such fit (the first of equals), and how many kinds could be fitted.
+    A rival matters only if it fits better than ``fit`` or within AMBIGUOUS_CHI2 noise variances of it (a swap, a
+    "fits almost as well"): its joint fit stops when it cannot come that near (``fit_model``'s ``beat``; the
+    result's ``stopped``)."""
     rest = [f for j, f in enumerate(fit.effects) if j != i]
+    beat = fit.chi2 + AMBIGUOUS_CHI2 * fit.chi2 / fit.dof * max(ds.corr_length for ds in ds_list)
 
     def in_place(k: EffectKind) -> Fit | None:
         held = _held_fits(ds_list, baseline, fit, rest, k)
@@ -439,7 +447,7 @@ def _best_in_place(ds_list, baseline, fit: Fit, i: int, kinds) -> tuple[Fit | No
             return None
         x_e = _vectors(held[0].effects)
         x_e = x_e[:i] + [x_e[-1]] + x_e[i:-1]  # the replacement in the replaced effect's place
-        return fit_model(ds_list, baseline, x_e, start_baseline=start_vectors(fit))
+        return fit_model(ds_list, baseline, x_e, start_baseline=start_vectors(fit), beat=beat)
 
     best, n = None, 0
     for alt in fork_map(in_place, kinds):
@@ -488,7 +496,7 @@ def _swap(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, tri
             records.append({"round": "swap", "effect": new.kind.label, "alternative_to": e.kind.label, "params": dict(new.values),
                             **_pair_record(i, kept, rival),
                             "chi2": best_alt.chi2, "chi2_current": fit.chi2, "delta_in_noise": abs(best_alt.chi2 - fit.chi2) / s2,
-                            **({"swapped": True} if swap else {})})
+                            **({"swapped": True} if swap else {}), **({"stopped": True} if best_alt.stopped else {})})
             if swap:
                 fit, changed = best_alt, True
         if not changed:
@@ -521,7 +529,7 @@ def _richer(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, a
         fstat, dof, logp = _f_test(fit, best, corr)
         new = best.effects[i]
         record = {"effect": new.kind.label, "chi2": best.chi2, "chi2_current": fit.chi2, "delta_in_noise": (fit.chi2 - best.chi2) / s2,
-                  "extra_params": dof[0], "F": fstat, "log10_p": logp}
+                  "extra_params": dof[0], "F": fstat, "log10_p": logp, **({"stopped": True} if best.stopped else {})}
         if logp < np.log10(alpha / n_tried) and _refused(new, best, ds_list, before=fit) is None:
             # the richer kind is needed: it replaces the effect (the report says what it replaced, and its test)
             tried.append({**record, **_pair_record(i, best, fit), "round": "swap", "alternative_to": e.kind.label,
@@ -550,7 +558,13 @@ def _candidate(ds_list, baseline, current: Fit, kind: EffectKind, reference_b) -
         joint = fit_model(ds_list, baseline, _vectors(f.effects), start_baseline=xb)
         if cand is None or joint.chi2 < cand.chi2:
             cand = joint
-    alone = fit_model(ds_list, baseline, _vectors(current.effects), start_baseline=start_vectors(cand))
+    # it matters only if it gets below the current fit by a gain the selection acts on (AMBIGUOUS_CHI2 noise
+    # variances: a baseline parked in a worse basin); it stops when it cannot (fit_model's beat). From a candidate's
+    # baseline bent round a strong effect it walks back towards the current fit's basin and, without this, crawls
+    # there for its whole budget (on the benchmark's 4 ms delay file 8 of 11 such refits, ending 7 chi2 units above)
+    s2 = current.chi2 / current.dof * max(ds.corr_length for ds in ds_list)
+    alone = fit_model(ds_list, baseline, _vectors(current.effects), start_baseline=start_vectors(cand),
+                      beat=current.chi2 - AMBIGUOUS_CHI2 * s2)
     return cand, alone
 
 

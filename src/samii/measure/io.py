@@ -414,6 +414,10 @@ def _read_table(path) -> _Table:
             dupes = sorted(n for n, count in Counter(header).items() if count > 1)  # not header.count: O(n^2) on a huge header
             if dupes:
                 raise DataFormatError(path, f"duplicate column name(s) {_names(dupes)} in the header", line=number)
+            plain = _plain_rows(all_lines, number)
+            if plain is not None:  # every line after the header a data row as it stands: no loop over them
+                data_lines, line_numbers = plain
+                break
             continue
         data_lines.append(line)
         line_numbers.append(number)
@@ -433,6 +437,23 @@ def _read_table(path) -> _Table:
             message = f"expected a finite number, got {_cell(cell)}"
         raise DataFormatError(path, message, line=line_numbers[row], column=header[col])
     return _Table(path, metadata, header, header_line, data, np.asarray(line_numbers), metadata_lines)
+
+
+def _plain_rows(all_lines: list[str], header_line: int) -> tuple[list[str], np.ndarray] | None:
+    """The lines after the header (``header_line``, 1-based) and their numbers when every one of them is a data row as it
+    stands (no blank or comment line, no space around it; blank lines at the end dropped), found with string searches
+    over them at once; else None (the reader's loop takes each line as it comes)."""
+    end = len(all_lines)
+    while end > header_line and not all_lines[end - 1].strip():
+        end -= 1
+    body = all_lines[header_line:end]
+    if not body:
+        return None
+    text = "\n".join(body)
+    # (plain ASCII: no other space str.strip would take off)
+    if not text.isascii() or any(c in text for c in ("#", "\n\n", " ", "\t", "\f", "\v")):
+        return None
+    return body, np.arange(header_line + 1, end + 1)
 
 
 def _loadtxt(lines: list[str]) -> np.ndarray:
