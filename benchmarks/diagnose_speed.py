@@ -74,9 +74,14 @@ SECOND_CASES = [
 ]
 
 
+#: The second rig and its battery's cases (not a package: imported from their folder)
+BATTERY = Path(__file__).resolve().parents[1] / "experiments" / "diagnose_battery"
+
+
 def write_second_case(folder: Path, name: str, effects: dict, seed: int) -> Path:
     """A second-rig file (experiments/diagnose_battery/run_second_rig.py's nuisance set N01) of ``effects``."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments" / "diagnose_battery"))
+    if str(BATTERY) not in sys.path:
+        sys.path.insert(0, str(BATTERY))
     from run_second_rig import NUISANCES, simulate_case
     from second_rig import write_csv
 

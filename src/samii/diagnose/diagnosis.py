@@ -743,13 +743,12 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
 
     changes = [c for m in measured for c in record_changes(m, alpha=alpha)]
     floored = measured
-    stage = [lambda: find_nonlinear(floored, alpha=alpha, references=references, reference_label="the simulator's own harmonics")]
+    jobs = [lambda: find_nonlinear(floored, alpha=alpha, references=references, reference_label="the simulator's own harmonics")]
     if not sim and saved is None:
         # the notebook baseline's start on these data, meanwhile on the other core: used when the nonlinearity leaves
         # them as they are (no law to divide out, no distortion to add to the noise), else computed again below
-        stage.append(lambda: notebook_baseline(floored))
-    stage = fork_calls(stage)
-    nonlinear, nl_notes, harmonics, amp_tests = stage[0]
+        jobs.append(lambda: notebook_baseline(floored))
+    (nonlinear, nl_notes, harmonics, amp_tests), *early = fork_calls(jobs)
     for f in nonlinear:  # where the data show distortion, their best linear approximation is uncertain by it
         for h in f.harmonics:
             measured = tuple(distortion_var(m, h) if m.source == h.source else m for m in measured)
@@ -784,9 +783,9 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
             return simulator_baseline(calibrated, corrections)
         if saved is not None:
             return saved_fit_baseline(saved, dss)
-        same = len(stage) > 1 and len(ms) == len(floored) and all(a is b for a, b in zip(ms, floored))
+        same = bool(early) and len(ms) == len(floored) and all(a is b for a, b in zip(ms, floored))
         # how the DAQ samples xdd's feedthrough: the measurement's
-        return with_feedthrough(dss, stage[1] if same else notebook_baseline(ms))
+        return with_feedthrough(dss, early[0] if same else notebook_baseline(ms))
 
     bl = baseline_for(measured, datasets)
     if saved is not None:

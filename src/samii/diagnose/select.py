@@ -171,6 +171,16 @@ def _residue_scale(fit: Fit) -> float:
     return 0.1 * max(gains) if gains else 1e-2
 
 
+def _noise_var(fit: Fit, corr: float) -> float:
+    """One noise variance on ``fit``'s chi2 scale (per residual, times the noise's correlation length): what a chi2
+    difference is counted in (AMBIGUOUS_CHI2)."""
+    return fit.chi2 / fit.dof * corr
+
+
+def _corr(ds_list: list[Dataset]) -> float:
+    return max(ds.corr_length for ds in ds_list)
+
+
 def _f_test(before: Fit, after: Fit, corr: float) -> tuple[float, tuple[int, int], float]:
     dp = after.n_params - before.n_params
     dof2 = max(after.n_residuals - after.n_params, 1)
@@ -180,6 +190,13 @@ def _f_test(before: Fit, after: Fit, corr: float) -> tuple[float, tuple[int, int
     if f <= 0:
         return float(f), (dp, dof2), 0.0
     return float(f), (dp, dof2), float(stats.f.logsf(f, dp, dof2) / np.log(10))
+
+
+def _f_limit(after: Fit, dp: int, corr: float, level: float) -> float:
+    """The chi2 of a model with ``dp`` fewer parameters than ``after`` below which :func:`_f_test` finds the ``dp``
+    not needed at ``level`` (log10 p): the inverse of the test."""
+    dof2 = max(after.n_residuals - after.n_params, 1)
+    return after.chi2 * (1.0 + float(stats.f.isf(10.0**level, dp, dof2)) * dp * corr / dof2)
 
 
 def _vectors(effects) -> list[tuple[EffectKind, np.ndarray]]:
@@ -371,7 +388,7 @@ def _below_floor(before: Fit, after: Fit, ds_list: list[Dataset]) -> str | None:
             j = int(np.argmax(ratio))
             if ratio[j] > largest:
                 largest, where = float(ratio[j]), (ch, float(ds.freq_hz[ds.keep[ch]][j]), float(change[j]))
-    need = max(PRACTICAL_POINTS, int(np.ceil(2.0 * max(ds.corr_length for ds in ds_list))))
+    need = max(PRACTICAL_POINTS, int(np.ceil(2.0 * _corr(ds_list))))
     if count >= need:
         return None
     if where is None:
@@ -405,10 +422,8 @@ def _backward(ds_list, baseline, fit: Fit, corr: float, level: float, steps: lis
         changed = False
         for i in range(len(fit.effects) - 1):
             x_e = _vectors(e for j, e in enumerate(fit.effects) if j != i)
-            # the fit without effect i matters only if its removal passes the F-test (_f_test): below this chi2
-            dp = len(fit.effects[i].kind.params)
-            dof2 = max(fit.n_residuals - fit.n_params, 1)
-            beat = fit.chi2 * (1.0 + float(stats.f.isf(10.0**level, dp, dof2)) * dp * corr / dof2)
+            # the fit without effect i matters only if its removal passes the F-test: below this chi2
+            beat = _f_limit(fit, len(fit.effects[i].kind.params), corr, level)
             without = fit_model(ds_list, baseline, x_e, start_baseline=start_vectors(fit), beat=beat)
             if reference is not None and baseline.free:  # the baseline may have parked a mode the dropped effect took over
                 again = fit_model(ds_list, baseline, x_e, start_baseline=start_vectors(reference), beat=beat)
@@ -439,7 +454,7 @@ def _best_in_place(ds_list, baseline, fit: Fit, i: int, kinds) -> tuple[Fit | No
     "fits almost as well"): its joint fit stops when it cannot come that near (``fit_model``'s ``beat``; the
     result's ``stopped``)."""
     rest = [f for j, f in enumerate(fit.effects) if j != i]
-    beat = fit.chi2 + AMBIGUOUS_CHI2 * fit.chi2 / fit.dof * max(ds.corr_length for ds in ds_list)
+    beat = fit.chi2 + AMBIGUOUS_CHI2 * _noise_var(fit, _corr(ds_list))
 
     def in_place(k: EffectKind) -> Fit | None:
         held = _held_fits(ds_list, baseline, fit, rest, k)
@@ -483,7 +498,7 @@ def _swap(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, tri
         for i in range(len(fit.effects)):  # a swap replaces one effect by one: the count stays
             e = fit.effects[i]
             used = {f.kind.label for j, f in enumerate(fit.effects) if j != i}
-            s2 = fit.chi2 / fit.dof * corr
+            s2 = _noise_var(fit, corr)
             rivals = [k for k in kinds if k.label != e.kind.label and len(k.params) <= len(e.kind.params)
                       and (set(k.affects) & set(e.kind.affects) or k.category == e.kind.category == "extra_mode")
                       and (k.category == "extra_mode" or k.label not in used)]
@@ -519,7 +534,7 @@ def _richer(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, a
         e = fit.effects[i]
         if e.kind.category == "extra_mode":
             continue
-        s2 = fit.chi2 / fit.dof * corr
+        s2 = _noise_var(fit, corr)
         used = {f.kind.label for j, f in enumerate(fit.effects) if j != i}
         rivals = [k for k in kinds if k.category != "extra_mode" and k.label not in used and len(k.params) > len(e.kind.params)
                   and set(k.affects) & set(e.kind.affects)]
@@ -562,9 +577,8 @@ def _candidate(ds_list, baseline, current: Fit, kind: EffectKind, reference_b) -
     # variances: a baseline parked in a worse basin); it stops when it cannot (fit_model's beat). From a candidate's
     # baseline bent round a strong effect it walks back towards the current fit's basin and, without this, crawls
     # there for its whole budget (on the benchmark's 4 ms delay file 8 of 11 such refits, ending 7 chi2 units above)
-    s2 = current.chi2 / current.dof * max(ds.corr_length for ds in ds_list)
     alone = fit_model(ds_list, baseline, _vectors(current.effects), start_baseline=start_vectors(cand),
-                      beat=current.chi2 - AMBIGUOUS_CHI2 * s2)
+                      beat=current.chi2 - AMBIGUOUS_CHI2 * _noise_var(current, _corr(ds_list)))
     return cand, alone
 
 
@@ -581,7 +595,7 @@ def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[Effec
 
 
 def _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress):
-    corr = max(ds.corr_length for ds in ds_list)
+    corr = _corr(ds_list)
     base_fit = fit_model(ds_list, baseline, [])
     reference_b = None
     if baseline.free and baseline.reference is not None:
@@ -610,7 +624,7 @@ def _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress):
             best_alone = min(alones, key=lambda f: f.chi2, default=None)
             if best_alone is None or best_alone.chi2 >= current.chi2:
                 break
-            gain = (current.chi2 - best_alone.chi2) / (current.chi2 / current.dof * corr)
+            gain = (current.chi2 - best_alone.chi2) / _noise_var(current, corr)
             current = best_alone
             if not current.effects:  # the baseline alone, better than its first fit: the error before is its best
                 base_fit = current
