@@ -13,7 +13,7 @@ from samii.diagnose.effects import LIBRARY, Effect
 from samii.diagnose.floor import REL_FLOOR, controller_fir, estimator_bias, quantisation_step, with_floor
 from samii.diagnose.measured import from_timeseries
 from samii.diagnose.rig import EffectRig
-from samii.diagnose.select import _below_floor, _unidentifiable
+from samii.diagnose.select import _below_floor, _f_limit, _f_test, _refused, _unidentifiable, within_sampling
 from samii.measure.excitation import SweptSine
 
 FS = 1000.0
@@ -151,6 +151,45 @@ def test_a_change_under_the_floor_is_refused_and_one_over_it_is_not():
     bump = np.zeros(f.size, complex)
     bump[100:104] = 4.0j * REL_FLOOR  # 2 % of phase at four points
     assert _below_floor(before, SimpleNamespace(residuals=({"act": bump},)), ds) is None
+
+
+def test_the_f_tests_level_is_the_residuals_above_the_stated_noise_and_never_below_it():
+    """The F-test counts a chi2 difference in the richer model's chi2 per degree of freedom where that is above 1 (an
+    understated noise makes no effect), and in the stated noise where it is below (a floor that overstates one
+    channel, theta/v's quantisation at chi2 0.47, does not lower the bar for a "mode" in xdd/v: the second rig's
+    clean seed 5004 got one at p = 10^-4.9 that way). _f_limit stays the test's inverse on both sides."""
+    def fit(chi2, n_params):
+        return SimpleNamespace(chi2=chi2, n_residuals=1003, n_params=n_params, dof=1003 - n_params)
+
+    for chi2_per_dof, level in ((0.5, 1.0), (1.0, 1.0), (2.0, 2.0)):
+        after = fit(chi2_per_dof * 1000.0, 3)
+        before = fit(after.chi2 + 30.0, 0)
+        f, dof, logp = _f_test(before, after, corr=1.5)
+        assert dof == (3, 1000)
+        assert f == pytest.approx(30.0 / 3 / level / 1.5)
+        # the chi2 without the 3 parameters that the test finds just needed at its p
+        limit = _f_limit(after, 3, 1.5, logp)
+        assert limit == pytest.approx(before.chi2, rel=1e-9)
+
+
+def test_the_samplings_own_delay_is_not_held_to_the_floor_and_a_longer_one_is():
+    """A delay of at most one sample is the sampling's own (the hold's half sample): there whatever the data say,
+    reported as expected, so a change under the floor does not refuse it (at 500 Hz the hold's 1 ms, refused beside
+    an accelerometer delay, left a 30 Hz roll-off read at 39 Hz); a longer delay is a finding and is held to it."""
+    f = np.geomspace(0.1, 40.0, 300)
+    ds = [SimpleNamespace(freq_hz=f, keep={"act": np.ones(f.size, bool)}, floor_var={"act": np.full(f.size, REL_FLOOR**2)},
+                          corr_length=1.0, record_s=120.0, sample_rate_hz=500.0)]
+    before = SimpleNamespace(residuals=({"act": np.zeros(f.size, complex)},))
+    small = SimpleNamespace(residuals=({"act": np.full(f.size, 2.0 * REL_FLOOR + 0j)},), baseline=SimpleNamespace(free=True),
+                            effects=())  # 1 %: under 3 x 0.5 % everywhere
+    hold = _effect("command", delay_s=0.001)  # half a sample at 500 Hz
+    late = _effect("command", delay_s=0.004, se={"delay_s": 1e-4})  # two samples
+    edge = _effect("command", delay_s=0.0021, se={"delay_s": 1e-4})  # one sample within two standard errors
+    assert within_sampling(hold, 0.002) and within_sampling(edge, 0.002) and not within_sampling(late, 0.002)
+    assert not within_sampling(hold, None)  # a file that does not state its rate gets no allowance
+    assert _refused(hold, small, ds, before=before) is None
+    assert _refused(edge, small, ds, before=before) is None
+    assert "smaller than the measurement's floor" in _refused(late, small, ds, before=before)
 
 
 def test_mains_lines_are_found_and_subtracted_and_a_sweep_is_left_alone():

@@ -45,7 +45,7 @@ from samii.diagnose.effects import library
 from samii.diagnose.measured import Measured, check_actuator_sign
 from samii.diagnose.model import FEEDTHROUGH_KEY, MAX_VAR, Baseline, Dataset, Fit, _apply, feedthrough_term
 from samii.diagnose.nonlinear import MAX_DF_CHI2, distortion_var, find_nonlinear, harmonic_errors, linearised
-from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select, sample_s
+from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select, sample_s, within_sampling
 from samii.diagnose.sampling import feedthrough_note, feedthrough_of, with_feedthrough
 
 __all__ = ["ChannelError", "FoundEffect", "Band", "Diagnosis", "diagnose", "CHANNELS", "BAND_POINTS", "RULE"]
@@ -57,7 +57,8 @@ CHANNEL_NAMES = {"act": "theta/v", "base": "xdd/theta", "total": "xdd/v"}
 #: Points averaged when looking for a band the final model leaves unexplained.
 BAND_POINTS = 9
 RULE = (f"an effect joins when its F-test against the model without it passes at alpha = {ALPHA:g} "
-        "(Bonferroni over the kinds tried in each round; F divided by the noise's correlation length), "
+        "(Bonferroni over the kinds tried in each round; F in the richer model's chi2 per degree of freedom, never below "
+        "the stated noise's, and divided by the noise's correlation length), "
         "then earlier effects it makes unnecessary are dropped; ties beyond p = 1e-300 go to the smallest BIC")
 
 _DB = 20.0 / np.log(10.0)
@@ -358,7 +359,7 @@ def _drop_amplitude_images(datasets: Sequence[Dataset], baseline: Baseline, fit:
     with no correction for the effects tried. Returns the fit and the dropped effects' descriptions."""
     from samii.diagnose.model import fit_model, relabel_modes, start_vectors
     from samii.diagnose.nonlinear import MIN_AMPLITUDE_RATIO
-    from samii.diagnose.select import _vectors
+    from samii.diagnose.select import _noise_var, _vectors
 
     amps = [ds.amplitude_v for ds in datasets]
     if len(datasets) < 2 or any(not a for a in amps) or max(amps) < MIN_AMPLITUDE_RATIO * min(amps):
@@ -367,7 +368,7 @@ def _drop_amplitude_images(datasets: Sequence[Dataset], baseline: Baseline, fit:
     corr = max(ds.corr_length for ds in datasets)
     dropped = []
     while fit.effects:
-        s2 = fit.chi2 / fit.dof * corr
+        s2 = _noise_var(fit, corr)
         worst = None
         for i, e in enumerate(fit.effects):
             rest = [x for j, x in enumerate(fit.effects) if j != i]
@@ -481,13 +482,10 @@ def _effects(after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured:
                           if lab == k.label and _log_distance(v_now, e.values) < MATCH_DISTANCE and _moved(v_alt, v_now)), None)
             if v_alt is not None:
                 text += f"; with {t['rival']} in place of {t['kept']} (which fits almost as well) it is {_values_text(k.label, v_alt)}"
-        if k.category == "delay" and sample is not None:
-            d, se = e.values["delay_s"], e.stderr.get("delay_s", 0.0)
-            se = se if np.isfinite(se) else 0.0
-            if d - 2.0 * se <= sample:
-                expected = True
-                text += (f"; at most one sample ({1e3 * sample:.3g} ms at {1.0 / sample:.4g} Hz), the sampling itself "
-                         "(zero-order hold, a command computed from the last reading): expected, not a miss")
+        if within_sampling(e, sample):
+            expected = True
+            text += (f"; at most one sample ({1e3 * sample:.3g} ms at {1.0 / sample:.4g} Hz), the sampling itself "
+                     "(zero-order hold, a command computed from the last reading): expected, not a miss")
         out.append(FoundEffect(k.category, k.kind, k.channel, dict(e.values), dict(e.stderr), text, expected))
     return out
 

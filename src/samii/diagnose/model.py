@@ -647,6 +647,14 @@ def _hopeless(beat: float):
     return callback
 
 
+def noise_level(chi2: float, dof: int) -> float:
+    """The noise's level on a fit's chi2 scale (per residual): chi2 per degree of freedom, never below the stated
+    noise's 1. Above 1 the data (or the model) are worse than stated and every test and standard error counts in
+    that; below 1 the stated noise, floors included (samii.diagnose.floor), is larger than the scatter somewhere,
+    which is not a reason to trust the rest more (samii.diagnose.select._level)."""
+    return max(chi2 / dof, 1.0)
+
+
 def fit_model(
     datasets: Sequence[Dataset],
     baseline: Baseline,
@@ -713,7 +721,7 @@ def fit_model(
     # standard errors (transformed space -> values)
     se_z = np.full(n, np.inf)
     if n:
-        s2 = chi2 / max(m - n, 1) * corr
+        s2 = noise_level(chi2, max(m - n, 1)) * corr
         try:
             se_z = _standard_errors(jac, s2)
         except np.linalg.LinAlgError:
