@@ -13,7 +13,7 @@ from samii.diagnose.effects import LIBRARY, Effect
 from samii.diagnose.floor import REL_FLOOR, controller_fir, estimator_bias, quantisation_step, with_floor
 from samii.diagnose.measured import from_timeseries
 from samii.diagnose.rig import EffectRig
-from samii.diagnose.select import _below_floor, _f_limit, _f_test, _refused, _unidentifiable, within_sampling
+from samii.diagnose.select import _below_floor, _f_limit, _f_test, _refused, _unidentifiable, search_places, within_sampling
 from samii.measure.excitation import SweptSine
 
 FS = 1000.0
@@ -190,6 +190,22 @@ def test_the_samplings_own_delay_is_not_held_to_the_floor_and_a_longer_one_is():
     assert _refused(hold, small, ds, before=before) is None
     assert _refused(edge, small, ds, before=before) is None
     assert "smaller than the measurement's floor" in _refused(late, small, ds, before=before)
+
+
+def test_a_modes_p_counts_the_places_its_frequency_was_searched_over():
+    """An extra mode's frequency is the best of the band (Davies 1987: not identified under the null): its p is
+    multiplied by the places a mode of its damping has in the band, ln(hi/lo) / (2 zeta), at most the usable points
+    over the correlation length; a corner or a delay has no narrow shape to put anywhere: 1."""
+    f = np.geomspace(0.1, 40.0, 300)
+    ds = [SimpleNamespace(freq_hz=f, keep={"act": f < 20.0, "total": f > 1.0}, corr_length=1.5)]
+    broad = _effect("base_mode", freq_hz=33.5, zeta=0.14, residue=-1.5e-4)
+    assert search_places(broad, ds) == pytest.approx(np.log(400.0) / 0.28)  # 21
+    sharp = _effect("base_mode", freq_hz=33.0, zeta=0.001, residue=-1e-5)
+    assert search_places(sharp, ds) == pytest.approx(300 / 1.5)  # the points, not 2996 cells
+    act = _effect("act_mode", freq_hz=15.0, zeta=0.2, zero_freq_hz=14.0, zero_zeta=0.02)
+    assert search_places(act, ds) == pytest.approx(np.log(400.0) / 0.04)  # the narrower of its pole and zero
+    assert search_places(_effect("accel_lowpass", corner_hz=30.0), ds) == 1.0
+    assert search_places(_effect("command", delay_s=0.004), ds) == 1.0
 
 
 def test_mains_lines_are_found_and_subtracted_and_a_sweep_is_left_alone():

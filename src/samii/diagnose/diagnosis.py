@@ -57,8 +57,9 @@ CHANNEL_NAMES = {"act": "theta/v", "base": "xdd/theta", "total": "xdd/v"}
 #: Points averaged when looking for a band the final model leaves unexplained.
 BAND_POINTS = 9
 RULE = (f"an effect joins when its F-test against the model without it passes at alpha = {ALPHA:g} "
-        "(Bonferroni over the kinds tried in each round; F in the richer model's chi2 per degree of freedom, never below "
-        "the stated noise's, and divided by the noise's correlation length), "
+        "(Bonferroni over the kinds tried in each round, and over the places an extra mode's frequency was searched; F in "
+        "the richer model's chi2 per degree of freedom, never below the stated noise's, and divided by the noise's "
+        "correlation length), "
         "then earlier effects it makes unnecessary are dropped; ties beyond p = 1e-300 go to the smallest BIC")
 
 _DB = 20.0 / np.log(10.0)
@@ -193,7 +194,7 @@ class Diagnosis:
             "baseline_stderr": [dict(p) for p in self.after.baseline_stderr] if self.baseline.free else None,
             "chi2_per_dof": {"before": self.before.chi2 / self.before.dof, "after": self.after.chi2 / self.after.dof},
             "steps": [{"effect": s.label, "F": s.f_stat, "dof": list(s.dof), "log10_p": s.log10_p, "chi2_before": s.chi2_before,
-                       "chi2_after": s.chi2_after} for s in self.steps],
+                       "chi2_after": s.chi2_after, **({"places_searched": s.places} if s.places > 1.0 else {})} for s in self.steps],
             "nonlinear_tests": {
                 "harmonics": [{"source": h.source, "segments_tested": int(sum(np.isfinite(h.log10_p[k]).sum() for k in h.log10_p)),
                                "significant": h.n_significant, "threshold_log10_p": h.threshold_log10_p,
@@ -449,6 +450,8 @@ def _effects(after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured:
             used.add(j)
             s = added[j]
             p = "p < 1e-300" if s.log10_p <= -300 else f"p = 10^{s.log10_p:.1f}"
+            if s.places > 1.0 and s.log10_p > -300:
+                p += f" (the best of the {s.places:.0f} places a mode this broad has in the band)"
             test = (f"adding it lowers chi2 from {s.chi2_before:.4g} to {s.chi2_after:.4g} for {s.dof[0]} parameter(s): "
                     f"F = {s.f_stat:.3g} on ({s.dof[0]}, {s.dof[1]}) dof, {p}")
         else:

@@ -8,7 +8,8 @@ exceeds the ``1 - alpha/K`` quantile of F(dp, m - p_with): ``dp`` its
 parameters, ``m`` the weighted residuals, ``L`` the noise's correlation length
 (:mod:`samii.diagnose.measured`), ``K`` the kinds tried in that round
 (Bonferroni: the chance that any of them passes on noise alone stays
-``alpha``), ``alpha = ALPHA``. The noise's level is the richer model's
+``alpha``), ``alpha = ALPHA``; an extra mode's p is multiplied by the places
+its frequency was searched over (:func:`search_places`). The noise's level is the richer model's
 residual where that is above the stated noise, so an understated noise does
 not make effects appear; never below it (:func:`_level`), so a floor that
 overstates one channel's noise does not lower the bar on another.
@@ -93,6 +94,8 @@ class Step:
     chi2_before: float
     chi2_after: float
     values: dict | None = None  # the effect's parameters when it joined
+    #: Independent places the effect's frequency was searched over (:func:`search_places`); ``log10_p`` includes them
+    places: float = 1.0
 
 
 def _peaks(ds_list: list[Dataset], fit: Fit, ch: str, n: int = 3) -> list[float]:
@@ -423,6 +426,26 @@ def within_sampling(e: Effect, sample: float | None) -> bool:
     return e.values["delay_s"] - 2.0 * (se if np.isfinite(se) else 0.0) <= sample
 
 
+def search_places(e: Effect, ds_list: list[Dataset]) -> float:
+    """How many independent places an extra mode's frequency was searched over: its p-value is multiplied by them.
+
+    The F-test's p is that of a mode put at one frequency. Its frequency is not known under the null (no mode), the
+    selection takes the best over the band, and the largest of many chance bumps is larger than one (Davies 1987,
+    Biometrika 74:33: the parameter not identified under the null; Bonferroni over the places is his bound's simple
+    form). A mode of damping zeta spans 2 zeta in ln f (its half-power band), so the band holds ln(hi/lo)/(2 zeta)
+    places, and no more than the usable points it could sit on, counted over the noise's correlation length
+    (narrower than a point, it is refused as unresolved). On the second rig's clean seed 5004 a 33.5 Hz "mode" of
+    damping 0.14 fitted a stretch of xdd/v's noise at p = 10^-5.0 at one place; the band holds 21 places for it.
+    Other kinds have no narrow shape to put anywhere (a corner's turn spans a decade): 1."""
+    if e.kind.category != "extra_mode":
+        return 1.0
+    lo, hi = _excited_band(ds_list)
+    zeta = min(v for name, v in e.values.items() if name.endswith("zeta"))
+    cells = np.log(hi / lo) / (2.0 * max(zeta, 1e-6))
+    points = max(int(np.logical_or.reduce([k for k in ds.keep.values()]).sum()) for ds in ds_list) / _corr(ds_list)
+    return float(max(1.0, min(cells, points)))
+
+
 def _refused(e: Effect, fit: Fit, ds_list: list[Dataset], before: Fit | None = None) -> str | None:
     """Why ``e`` (in ``fit``) is not an effect these data show, whatever its F, or None: a mode split in two, one the
     data cannot resolve, one they cannot identify (:func:`_unidentifiable`), or, against ``before`` (the model
@@ -451,15 +474,18 @@ def _backward(ds_list, baseline, fit: Fit, corr: float, level: float, steps: lis
         for i in range(len(fit.effects) - 1):
             x_e = _vectors(e for j, e in enumerate(fit.effects) if j != i)
             # the fit without effect i matters only if its removal passes the F-test: below this chi2
-            beat = _f_limit(fit, len(fit.effects[i].kind.params), corr, level)
+            places = search_places(fit.effects[i], ds_list)
+            to_remove = level - np.log10(places)  # the test it joined by (its places searched), inverted
+            beat = _f_limit(fit, len(fit.effects[i].kind.params), corr, to_remove)
             without = fit_model(ds_list, baseline, x_e, start_baseline=start_vectors(fit), beat=beat)
             if reference is not None and baseline.free:  # the baseline may have parked a mode the dropped effect took over
                 again = fit_model(ds_list, baseline, x_e, start_baseline=start_vectors(reference), beat=beat)
                 if again.chi2 < without.chi2:
                     without = again
             _, _, logp = _f_test(without, fit, corr)
-            if logp >= level:
-                steps.append(Step(f"removed {fit.effects[i].kind.label}", 0.0, (0, 0), logp, fit.chi2, without.chi2))
+            if logp >= to_remove:
+                steps.append(Step(f"removed {fit.effects[i].kind.label}", 0.0, (0, 0), min(logp + np.log10(places), 0.0), fit.chi2,
+                                  without.chi2, places=places))
                 fit = without
                 changed = True
                 break
@@ -665,9 +691,12 @@ def _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress):
             cand = result[0]
             fstat, dof, logp = _f_test(current, cand, corr)
             eff = cand.effects[-1]
+            places = search_places(eff, ds_list)
+            logp = min(logp + np.log10(places), 0.0)  # the best of its places (search_places)
             why = _refused(eff, cand, ds_list, before=current) if logp < level else None
             record = {"round": _round + 1, "effect": kind.label, "params": dict(eff.values), "chi2": cand.chi2, "F": fstat,
-                      "dof": list(dof), "log10_p": logp, "threshold_log10_p": float(level)}
+                      "dof": list(dof), "log10_p": logp, "threshold_log10_p": float(level),
+                      **({"places": places} if places > 1.0 else {})}
             if why is not None:  # it passed the F-test, but the data do not show it (its reason is reported)
                 record.update(refused=why, log10_p=0.0, log10_p_test=logp)
                 logp = 0.0
@@ -675,7 +704,7 @@ def _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress):
             if progress:
                 progress(kind.label)
             if logp < level:
-                candidates.append((logp, fstat, dof, cand, kind))
+                candidates.append((logp, fstat, dof, cand, kind, places))
         if not candidates:
             break
         # smallest p-value first; beyond 1e-300 (where F's tail underflows) the smallest BIC,
@@ -689,8 +718,8 @@ def _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress):
         # (a candidate with more parameters than the best lowers chi2 less: dominated; as many or fewer are carried)
         readings = ranked[:1] + [c for c in ranked[1:] if c[3].n_params <= ranked[0][3].n_params][: READINGS - 1]
         best = None
-        for logp, fstat, dof, cand, kind in readings:
-            r_steps = [Step(kind.label, fstat, dof, logp, current.chi2, cand.chi2, dict(cand.effects[-1].values))]
+        for logp, fstat, dof, cand, kind, places in readings:
+            r_steps = [Step(kind.label, fstat, dof, logp, current.chi2, cand.chi2, dict(cand.effects[-1].values), places)]
             fit = _backward(ds_list, baseline, cand, corr, level, r_steps, reference=base_fit)
             r_swap: list[dict] = []
             fit = _swap(ds_list, baseline, fit, kinds, corr, r_swap)
