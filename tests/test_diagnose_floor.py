@@ -170,6 +170,11 @@ def test_the_f_tests_level_is_the_residuals_above_the_stated_noise_and_never_bel
         # the chi2 without the 3 parameters that the test finds just needed at its p
         limit = _f_limit(after, 3, 1.5, logp)
         assert limit == pytest.approx(before.chi2, rel=1e-9)
+        # a mode searched over 21 places: its p 21 times larger, and the inverse the same test's
+        _, _, logp21 = _f_test(before, after, corr=1.5, places=21.0)
+        assert logp21 == pytest.approx(min(logp + np.log10(21.0), 0.0))
+        if logp21 < 0.0:
+            assert _f_limit(after, 3, 1.5, logp21, 21.0) == pytest.approx(before.chi2, rel=1e-9)
 
 
 def test_the_samplings_own_delay_is_not_held_to_the_floor_and_a_longer_one_is():

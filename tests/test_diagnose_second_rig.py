@@ -52,7 +52,7 @@ def _measure(seed: int, fs: float, sweep: dict, daq: dict | None = None, **effec
     # the speed benchmark's clean second-rig file (its nuisance set N01, rig seed 5004: three 120 s sweeps): theta/v's
     # quantisation floor puts its chi2 at 0.47, and with the F-test's level taken from the pooled residual (0.61) a
     # base "mode" at 33.04 Hz (damping 0.01, a thousandth of eq 9.4's residue) fitted one rough point of xdd/v at
-    # p = 10^-4.9; the level is never below the stated noise now (samii.diagnose.select._level)
+    # p = 10^-4.9; the level is never below the stated noise now (samii.diagnose.model.noise_level)
     (5004, 1000.0, dict(direction="up", n_records=3, sweep_s=120.0, rest_s=0.0, amplitude_v=0.1)),
 ])
 def test_a_clean_rig_gets_no_effect_and_its_error_is_at_the_floor(seed, fs, sweep):

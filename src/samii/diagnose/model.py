@@ -649,9 +649,14 @@ def _hopeless(beat: float):
 
 def noise_level(chi2: float, dof: int) -> float:
     """The noise's level on a fit's chi2 scale (per residual): chi2 per degree of freedom, never below the stated
-    noise's 1. Above 1 the data (or the model) are worse than stated and every test and standard error counts in
-    that; below 1 the stated noise, floors included (samii.diagnose.floor), is larger than the scatter somewhere,
-    which is not a reason to trust the rest more (samii.diagnose.select._level)."""
+    noise's 1; the standard errors here and every test of samii.diagnose.select count in it.
+
+    Above 1 the data (or the model) are worse than stated: counted in that, an understated noise does not make
+    effects appear. Below 1 the stated noise is larger than the scatter somewhere (a systematic floor,
+    samii.diagnose.floor, on a channel an effect does not touch: a 16-bit encoder's quantisation held theta/v's chi2
+    at 0.47 beside xdd/v's 0.78), not smaller where the effect acts: counted in that smaller level a 3-parameter
+    "mode" fitted to one rough point of a clean xdd/v passed at p = 10^-4.9 (F 8.6; 5.3 in the stated noise). The
+    floors are what the measurement vouches for; the level does not undo them."""
     return max(chi2 / dof, 1.0)
 
 

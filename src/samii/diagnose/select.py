@@ -11,7 +11,7 @@ parameters, ``m`` the weighted residuals, ``L`` the noise's correlation length
 ``alpha``), ``alpha = ALPHA``; an extra mode's p is multiplied by the places
 its frequency was searched over (:func:`search_places`). The noise's level is the richer model's
 residual where that is above the stated noise, so an understated noise does
-not make effects appear; never below it (:func:`_level`), so a floor that
+not make effects appear; never below it (``model.noise_level``), so a floor that
 overstates one channel's noise does not lower the bar on another.
 
 Two candidates are refused whatever their F: an extra base mode within 5 % of
@@ -175,45 +175,35 @@ def _residue_scale(fit: Fit) -> float:
     return 0.1 * max(gains) if gains else 1e-2
 
 
-def _level(fit: Fit) -> float:
-    """The noise's level on ``fit``'s chi2 scale (per residual): its chi2 per degree of freedom, but never below 1.
-
-    A residual above the stated noise says the noise (or the model) is worse than stated: the tests count in it, so
-    an understated noise does not make effects appear. A residual below it says the stated noise is larger than the
-    scatter somewhere (a systematic floor, samii.diagnose.floor, on a channel the effect does not touch: the 16-bit
-    encoder's quantisation made theta/v's chi2 0.47 beside xdd/v's 0.78), not that the noise is smaller where the
-    effect acts: counted in that smaller level a 3-parameter "mode" fitted to one rough point of a clean xdd/v
-    passed at p = 10^-4.9 (F 8.6; 5.3 in the stated noise). The floors are what the measurement vouches for; the
-    level does not undo them."""
-    return noise_level(fit.chi2, fit.dof)
-
-
 def _noise_var(fit: Fit, corr: float) -> float:
-    """One noise variance on ``fit``'s chi2 scale (its :func:`_level` times the noise's correlation length): what a
-    chi2 difference is counted in (AMBIGUOUS_CHI2)."""
-    return _level(fit) * corr
+    """One noise variance on ``fit``'s chi2 scale (its level, :func:`samii.diagnose.model.noise_level`, times the
+    noise's correlation length): what a chi2 difference is counted in (AMBIGUOUS_CHI2)."""
+    return noise_level(fit.chi2, fit.dof) * corr
 
 
 def _corr(ds_list: list[Dataset]) -> float:
     return max(ds.corr_length for ds in ds_list)
 
 
-def _f_test(before: Fit, after: Fit, corr: float) -> tuple[float, tuple[int, int], float]:
+def _f_test(before: Fit, after: Fit, corr: float, places: float = 1.0) -> tuple[float, tuple[int, int], float]:
+    """(F, its dof, log10 p) of ``after``'s extra parameters against ``before`` (module docstring); the p is multiplied
+    by the ``places`` the added effect was searched over (:func:`search_places`), at most 1."""
     dp = after.n_params - before.n_params
     dof2 = max(after.n_residuals - after.n_params, 1)
     if dp <= 0 or after.chi2 <= 0:
         return 0.0, (max(dp, 1), dof2), 0.0
-    f = (before.chi2 - after.chi2) / dp / _level(after) / corr
+    f = (before.chi2 - after.chi2) / dp / noise_level(after.chi2, after.dof) / corr
     if f <= 0:
         return float(f), (dp, dof2), 0.0
-    return float(f), (dp, dof2), float(stats.f.logsf(f, dp, dof2) / np.log(10))
+    return float(f), (dp, dof2), min(float(stats.f.logsf(f, dp, dof2) / np.log(10)) + float(np.log10(places)), 0.0)
 
 
-def _f_limit(after: Fit, dp: int, corr: float, level: float) -> float:
-    """The chi2 of a model with ``dp`` fewer parameters than ``after`` below which :func:`_f_test` finds the ``dp``
-    not needed at ``level`` (log10 p): the inverse of the test."""
+def _f_limit(after: Fit, dp: int, corr: float, level: float, places: float = 1.0) -> float:
+    """The chi2 of a model with ``dp`` fewer parameters than ``after`` below which :func:`_f_test` (with the same
+    ``places``) finds the ``dp`` not needed at ``level`` (log10 p): the inverse of the test."""
     dof2 = max(after.n_residuals - after.n_params, 1)
-    return after.chi2 + float(stats.f.isf(10.0**level, dp, dof2)) * dp * corr * _level(after)
+    f = float(stats.f.isf(10.0 ** (level - np.log10(places)), dp, dof2))
+    return after.chi2 + f * dp * corr * noise_level(after.chi2, after.dof)
 
 
 def _vectors(effects) -> list[tuple[EffectKind, np.ndarray]]:
@@ -473,19 +463,17 @@ def _backward(ds_list, baseline, fit: Fit, corr: float, level: float, steps: lis
         changed = False
         for i in range(len(fit.effects) - 1):
             x_e = _vectors(e for j, e in enumerate(fit.effects) if j != i)
-            # the fit without effect i matters only if its removal passes the F-test: below this chi2
+            # the fit without effect i matters only if its removal passes the F-test it joined by: below this chi2
             places = search_places(fit.effects[i], ds_list)
-            to_remove = level - np.log10(places)  # the test it joined by (its places searched), inverted
-            beat = _f_limit(fit, len(fit.effects[i].kind.params), corr, to_remove)
+            beat = _f_limit(fit, len(fit.effects[i].kind.params), corr, level, places)
             without = fit_model(ds_list, baseline, x_e, start_baseline=start_vectors(fit), beat=beat)
             if reference is not None and baseline.free:  # the baseline may have parked a mode the dropped effect took over
                 again = fit_model(ds_list, baseline, x_e, start_baseline=start_vectors(reference), beat=beat)
                 if again.chi2 < without.chi2:
                     without = again
-            _, _, logp = _f_test(without, fit, corr)
-            if logp >= to_remove:
-                steps.append(Step(f"removed {fit.effects[i].kind.label}", 0.0, (0, 0), min(logp + np.log10(places), 0.0), fit.chi2,
-                                  without.chi2, places=places))
+            _, _, logp = _f_test(without, fit, corr, places)
+            if logp >= level:
+                steps.append(Step(f"removed {fit.effects[i].kind.label}", 0.0, (0, 0), logp, fit.chi2, without.chi2, places=places))
                 fit = without
                 changed = True
                 break
@@ -689,10 +677,9 @@ def _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress):
             if result is None:
                 continue
             cand = result[0]
-            fstat, dof, logp = _f_test(current, cand, corr)
             eff = cand.effects[-1]
             places = search_places(eff, ds_list)
-            logp = min(logp + np.log10(places), 0.0)  # the best of its places (search_places)
+            fstat, dof, logp = _f_test(current, cand, corr, places)
             why = _refused(eff, cand, ds_list, before=current) if logp < level else None
             record = {"round": _round + 1, "effect": kind.label, "params": dict(eff.values), "chi2": cand.chi2, "F": fstat,
                       "dof": list(dof), "log10_p": logp, "threshold_log10_p": float(level),
