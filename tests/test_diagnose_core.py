@@ -63,6 +63,22 @@ def test_find_records_keeps_every_record_when_the_rest_is_short(tail_s):
     assert window.size > 0 and np.max(np.abs(window)) < 0.01 * np.max(np.abs(r))
 
 
+@pytest.mark.parametrize("fs, n_rec", [(500.0, 5), (1000.0, 3)])
+def test_find_records_keeps_every_record_of_sweeps_back_to_back_from_the_first_sample(fs, n_rec):
+    """Sweeps back to back with no fade at their end (the second rig's, experiments/diagnose_battery/second_rig.py),
+    alternating in sign, the file exactly n_rec of them from its first sample: the record starts at 0. Started where
+    r is quietest first, it began 25 samples in (the smoothing carries the previous sweep's loud end into phase 0)
+    and the last record was cut: 4 of 5 and 2 of 3 records used."""
+    t = np.arange(int(20.0 * fs)) / fs
+    sweep = 0.1 * np.sin(2 * np.pi * 0.1 * 20.0 / np.log(400.0) * (400.0 ** (t / 20.0) - 1.0))  # 0.1-40 Hz, ends loud
+    r = np.concatenate([(-1) ** j * sweep for j in range(n_rec)])
+    lay = find_records(r, fs)
+    assert lay.record_s == pytest.approx(20.0, abs=0.5 / fs)
+    assert lay.n_records == n_rec and lay.start_s == 0.0 and lay.rest_s == 0.0
+    # one sample short of the last sweep: one record fewer, whatever the start
+    assert find_records(r[:-1], fs).n_records == n_rec - 1
+
+
 def test_find_records_refuses_a_stated_length_r_does_not_repeat_at():
     """A header giving the sweep's length for the record's (sweep_s for record_s), or a wrong --record-s, was used
     as given: 4 "records" of 60 s cut across 84 s repetitions. It is refused, naming both lengths; a multiple of

@@ -111,6 +111,11 @@ def _datasets(lo=0.1, hi=40.0, record_s=120.0, fs=1000.0):
     (_effect("accel_lowpass", corner_hz=327.0), "indistinguishable from the sampling"),  # 0.49 ms: under a sample
     (_effect("accel_lowpass", corner_hz=120.0), "above the excited band"),  # 1.3 ms: a delay, not a corner
     (_effect("base_mode", freq_hz=35.6, zeta=0.5, residue=-1e-3), "not a resonance"),  # a broad bump on the damping's bound
+    # the held-out second rig's 1 Hz AC coupling (seed offset 300, N01): a base "mode" at 0.08 +- 5.9 Hz, damping 0.27
+    (_effect("base_mode", freq_hz=0.08, zeta=0.2745, residue=-6.2e-4, se={"freq_hz": 5.9, "zeta": 21.0, "residue": 1e-4}),
+     "not determined by the data: its frequency"),
+    (_effect("act_mode", freq_hz=3.0, zeta=0.1, zero_freq_hz=1.0, zero_zeta=0.1,
+             se={"freq_hz": 9.0, "zeta": 0.01, "zero_freq_hz": 0.01, "zero_zeta": 0.01}), "not determined by the data: its frequency"),
 ])
 def test_what_the_data_cannot_identify_is_refused_with_its_reason(effect, reason):
     assert reason in _unidentifiable(effect, _datasets())
@@ -127,6 +132,10 @@ def test_what_the_data_cannot_identify_is_refused_with_its_reason(effect, reason
     _effect("valve", freq_hz=50.0, zeta=0.7),
     _effect("valve", freq_hz=25.0, zeta=3.0),  # a valve on its damping's bound is a first-order spool lag: kept
     _effect("base_mode", freq_hz=15.0, zeta=0.02, residue=6e-3),
+    # a mode's frequency known to within a factor e either way is placed (0.9 in ln), and one whose error is not on
+    # record is not refused for it
+    _effect("base_mode", freq_hz=15.0, zeta=0.02, residue=6e-3, se={"freq_hz": 13.5, "zeta": 0.01, "residue": 1e-3}),
+    Effect(KIND["base_mode"], {"freq_hz": 15.0, "zeta": 0.02, "residue": 6e-3}, {}),
 ])
 def test_what_the_data_identify_is_not_refused(effect):
     assert _unidentifiable(effect, _datasets()) is None
