@@ -342,9 +342,10 @@ def _unidentifiable(e: Effect, ds_list: list[Dataset], free: bool = True) -> str
         # a mode is where it is: one whose frequency the data do not place (as a pole/zero pair's corners above) is a
         # shape, not a resonance (on the held-out second rig's 1 Hz AC coupling a base "mode" at 0.08 +- 5.9 Hz, damping
         # 0.27 +- 21, below the excited band, took up the low end of xdd/v)
-        if "freq_hz" in e.stderr and _log_se(e, "freq_hz") > 1.0:
-            return (f"not determined by the data: its frequency ({v['freq_hz']:.3g} Hz) has a standard error of "
-                    f"{_log_se(e, 'freq_hz'):.2g} in ln (more than a factor e either way)")
+        spread = _log_se(e, "freq_hz") if "freq_hz" in e.stderr else 0.0
+        if spread > 1.0:
+            return (f"not determined by the data: its frequency ({v['freq_hz']:.3g} Hz) has a standard error of {spread:.2g} "
+                    "in ln (more than a factor e either way)")
     if k == "act_mode":
         se = np.hypot(_log_se(e, "freq_hz"), _log_se(e, "zero_freq_hz"))
         if abs(np.log(v["freq_hz"] / v["zero_freq_hz"])) < 2.0 * se:

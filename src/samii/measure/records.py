@@ -240,11 +240,8 @@ def find_records(r: np.ndarray, sample_rate_hz: float, *, record_s: float | None
         # from its first sample: the smoothing carries the previous sweep's loud end into phase 0.
         smooth = np.convolve(np.concatenate([folded[-25:], folded, folded[:25]]), np.ones(51) / 51, mode="valid")
         most = _whole_records(r.size, 0.0, period)
-        lo, hi = 0, n_bins  # the last phase that keeps them all: bisect between lo (keeps) and hi (beyond)
-        while hi - lo > 1:
-            mid = (lo + hi) // 2
-            lo, hi = (mid, hi) if _whole_records(r.size, float(mid), period) >= most else (lo, mid)
-        start = float(np.argmin(smooth[: lo + 1]))
+        last = r.size - int(round((most - 1) * period)) - int(np.floor(period))  # the latest start that keeps them all
+        start = float(np.argmin(smooth[: min(last, n_bins - 1) + 1]))
         baseline = 0.0
         rest = 0.0
     else:
