@@ -113,10 +113,13 @@ def _sweep(amplitude_v: float) -> np.ndarray:
     return sw.signal(np.arange(int(round(sw.duration_s * FS))) / FS)
 
 
-def match_injected(found: list, injected: list, tolerance: dict = TOLERANCE) -> tuple[list[dict], list]:
+def match_injected(found: list, injected: list, tolerance: dict = TOLERANCE, modelled_hold_s: float = 0.0) -> tuple[list[dict], list]:
     """Each injected (category, kind, truth) matched to a found effect (the same kind, else the same
     category), its parameters' errors and whether they are within ``tolerance``; and the found
-    effects no injection matched."""
+    effects no injection matched. ``modelled_hold_s``: the command's hold the diagnosis's baseline carries
+    (samii.diagnose.sampling); the EffectRig's command is analogue, so a command delay found beyond it is judged
+    with it (hold + found against the injected: the data hold the sum, and a delay as long as the hold cannot be
+    told from it)."""
     rows, unmatched = [], list(found)
     for cat, kind, truth in injected:
         alt = f"{cat}/{kind} in its place fits almost as well"
@@ -129,7 +132,8 @@ def match_injected(found: list, injected: list, tolerance: dict = TOLERANCE) -> 
             for p, v in truth.items():
                 if p in match.params:  # (an amplitude-only nonlinear finding has no level)
                     how, _ = tolerance[(cat, p)]
-                    errors[p] = match.params[p] - v if how == "abs" else match.params[p] / v - 1.0
+                    found_v = match.params[p] + (modelled_hold_s if (cat, kind, p) == ("delay", "command", "delay_s") else 0.0)
+                    errors[p] = found_v - v if how == "abs" else found_v / v - 1.0
         # nothing to judge when no parameter was injected or none found
         within = all(abs(e) <= tolerance[(cat, p)][1] for p, e in errors.items()) if errors else None
         # found as another kind whose evidence names the injected one as fitting almost as well: the data cannot tell them apart
@@ -170,8 +174,10 @@ def run_case(name: str, effects: dict, injected: list, *, amplitude_v: float | t
     t0 = time.perf_counter()
     d = diagnose(files)
     elapsed = time.perf_counter() - t0
-    rows, unmatched = match_injected([e for e in d.effects if not e.expected], injected)
+    hold = d.after.baseline.hold_s[0] if d.after.baseline.hold_s else 0.0
+    rows, unmatched = match_injected([e for e in d.effects if not e.expected], injected, modelled_hold_s=hold)
     return {
+        "modelled_hold_s": hold,
         "name": name, "amplitude_v": list(amps), "seed": seed, "injected": rows,
         "extra": [{"category": e.category, "kind": e.kind, "params": e.params} for e in unmatched],
         "expected": [{"kind": e.kind, "params": e.params} for e in d.effects if e.expected],

@@ -18,7 +18,9 @@ A delay of at most one sample is the sampling itself (a zero-order hold
 delays the command by half a sample, a DAQ that computes the next command
 from this sample's reading by up to one, a multiplexed ADC reads its
 channels up to a sample apart): it is reported, flagged ``expected``, and
-does not make the verdict "effects". The sample is the fastest file's (the
+does not make the verdict "effects". Where every file states its rate the
+baseline carries the hold itself, with the images it folds back
+(samii.diagnose.sampling), and a delay found is the rig's beyond it. The sample is the fastest file's (the
 strictest); a file that does not state its rate gets no such allowance.
 
 Unexplained bands: after the selection, the squared normalised residual of
@@ -43,10 +45,11 @@ from scipy import stats
 
 from samii.diagnose.effects import library
 from samii.diagnose.measured import Measured, check_actuator_sign
-from samii.diagnose.model import FEEDTHROUGH_KEY, MAX_VAR, Baseline, Dataset, Fit, _apply, feedthrough_term
+from samii.diagnose.model import (FEEDTHROUGH_KEY, MAX_VAR, Baseline, Dataset, Fit, _apply, feedthrough_term, hold_factor,
+                                  sampled_images)
 from samii.diagnose.nonlinear import MAX_DF_CHI2, distortion_var, find_nonlinear, harmonic_errors, linearised
 from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select, sample_s, within_sampling
-from samii.diagnose.sampling import feedthrough_note, feedthrough_of, with_feedthrough
+from samii.diagnose.sampling import feedthrough_note, feedthrough_of, hold_note, with_hold_found, with_sampling
 
 __all__ = ["ChannelError", "FoundEffect", "Band", "Diagnosis", "diagnose", "CHANNELS", "BAND_POINTS", "RULE"]
 
@@ -180,9 +183,13 @@ class Diagnosis:
             "floor": [{"source": m.source, "how": None if m.floor is None else m.floor.how,
                        "quantisation_steps": None if m.floor is None else dict(m.floor.quant_steps)} for m in self.measured],
             "baseline": self.baseline.label,
-            "sampling": {**dict(zip(("feedthrough_lag_samples", "stderr"), feedthrough_of(self.after) or (None, None))),
-                         "how": "xdd/v's direct feedthrough (a held command's steps) reaches the data this many samples after the rest "
-                                "of its response (samii.diagnose.sampling; null: not modelled, or no feedthrough the data see)"},
+            "sampling": {"hold_s": list(self.after.baseline.hold_s) or None,
+                         "hold_seen": bool(self.after.baseline.hold_s) and self.after.baseline.hold_seen,
+                         **dict(zip(("feedthrough_lag_samples", "stderr"), feedthrough_of(self.after) or (None, None))),
+                         "how": "hold_s: per file, the command's zero-order hold (half a sample) in the model, on the command of every fit "
+                                "(null: not modelled; hold_seen: it fits better with it by the F-test, else as well with fewer effects); xdd/v's direct feedthrough (a held command's steps) reaches the data "
+                                "feedthrough_lag_samples after the rest of its response (null: not modelled, or no feedthrough the data "
+                                "see; samii.diagnose.sampling)"},
             "rule": self.rule,
             "files": [{"source": m.source, "noise": m.noise_source, "amplitude_v": m.amplitude_v, "sample_rate_hz": m.sample_rate_hz,
                        "records": None if m.layout is None else {"record_s": m.layout.record_s, "start_s": m.layout.start_s,
@@ -214,7 +221,8 @@ def _max_tested(h, k: int) -> float | None:
 
 def model_response(fit: Fit, i: int, freq_hz: np.ndarray, *, sampled: bool = True) -> dict[str, np.ndarray]:
     """act, base and total of ``fit``'s model for file ``i`` at ``freq_hz`` (the baseline's structure with the effects),
-    as the file's DAQ samples it (the feedthrough's lag, samii.diagnose.sampling) or, ``sampled=False``, the rig's alone."""
+    as the file's DAQ samples it (the command's hold and the feedthrough's lag, samii.diagnose.sampling) or,
+    ``sampled=False``, the rig's alone."""
     st = fit.baseline.structure
     f = np.asarray(freq_hz, float)
     if st is None or not fit.baseline_params:
@@ -222,11 +230,21 @@ def model_response(fit: Fit, i: int, freq_hz: np.ndarray, *, sampled: bool = Tru
     p = fit.baseline_params[i]
     base = {c: st.response(p, f, c) * fit.baseline.factor(i, f, c) for c in ("act", "base")}
     eff = [(e.kind, np.array([e.values[q.name] for q in e.kind.params])) for e in fit.effects]
-    out = _apply(eff, base, 2j * np.pi * f)
-    out["total"] = out["act"] * out["base"]
+    s = 2j * np.pi * f
+    out = _apply(eff, base, s)
+    hold = fit.baseline.hold(i) if sampled and not fit.baseline.fixed else 0.0
     lag, rate = p.get(FEEDTHROUGH_KEY), fit.baseline.sample_rates_hz
+    if hold:  # the command's hold, its images and the steps (samii.diagnose.sampling, model._Problem._model)
+        images_act, images_total, _ = sampled_images(st, st.vector(p), eff, 2.0 * np.pi * f, hold, total=True)
+        act = out["act"] * hold_factor(s, hold)
+        term, _, _, _ = feedthrough_term(st, st.vector(p), eff, s, lag or 0.0, 0.5 / hold, hold_s=hold)
+        out["total"] = act * out["base"] + term + images_total
+        out["act"] = act + images_act
+        out["base"] = out["total"] / out["act"]
+        return out
+    out["total"] = out["act"] * out["base"]
     if sampled and lag and rate and rate[i]:  # the sampled feedthrough (samii.diagnose.sampling)
-        term, _, _, _ = feedthrough_term(st, st.vector(p), eff, 2j * np.pi * f, lag, rate[i])
+        term, _, _, _ = feedthrough_term(st, st.vector(p), eff, s, lag, rate[i])
         out["total"] = out["total"] + term
         out["base"] = out["total"] / out["act"]
     return out
@@ -433,7 +451,12 @@ def _rival_values(rival: dict) -> str:
     return "".join(parts)
 
 
-def _effects(after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured: Sequence[Measured]) -> list[FoundEffect]:
+def _effects(after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured: Sequence[Measured],
+             pre: Mapping[str, dict] | None = None) -> list[FoundEffect]:
+    """The found effects with their evidence. ``pre``: where the command's hold joined the model after the selection
+    (samii.diagnose.sampling.with_hold_found), each effect's values in the model the selection found (label -> values,
+    the labels found once): the rivals were fitted against it, and are looked up by them."""
+    pre = pre or {}
     sample = sample_s(measured)
     added = [s for s in steps if not s.label.startswith("removed ")]
     swaps = [t for t in tried if t.get("round") == "swap"]
@@ -467,16 +490,18 @@ def _effects(after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured:
         expected = False
         text = f"{k.describe(e.values)}; {test}"
         near_equal = [t for t in final_swaps if t["delta_in_noise"] < AMBIGUOUS_CHI2 and "kept" in t]
-        rival = _record_for(near_equal, k.label, e.values)
+        lookup = pre.get(k.label, e.values)
+        without_hold = " in the model without the command's hold" if k.label in pre else ""
+        rival = _record_for(near_equal, k.label, lookup)
         if rival is not None:
             text += (f"; but {rival['rival']} in its place fits almost as well (chi2 differs by {rival['delta_in_noise']:.2g} noise variances"
-                     f"{_rival_values(rival)}): these data hardly tell the two apart")
-        richer = _record_for([t for t in tried if t.get("round") == "richer"], k.label, e.values)
+                     f"{_rival_values(rival)}{without_hold}): these data hardly tell the two apart")
+        richer = _record_for([t for t in tried if t.get("round") == "richer"], k.label, lookup)
         if richer is not None:
             better = richer["delta_in_noise"]
             how = (f"lower by {better:.2g} noise variances" if better > 0 else f"higher by {-better:.2g} noise variances")
             text += (f"; but {richer['rival']} in its place fits almost as well (with {richer['extra_params']} more parameter(s) its chi2 "
-                     f"is {how}, which its extra parameters do not justify by the F-test{_rival_values(richer)}): these data "
+                     f"is {how}, which its extra parameters do not justify by the F-test{_rival_values(richer)}{without_hold}): these data "
                      "hardly tell the two apart, and the simpler is kept")
         for t in near_equal:  # another effect's near-equal rival that moves this one's values
             if t is rival:
@@ -779,14 +804,16 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
                      f"({'converged' if calibrated.result.converged else 'NOT converged'}); the effects are fitted with those knobs refitted "
                      "through the simulator's first-order sensitivity to them")
 
+    held = [False]  # the command's hold: tried on the model found (samii.diagnose.sampling.with_hold_found)
+
     def baseline_for(ms, dss):
         if sim:
             return simulator_baseline(calibrated, corrections)
         if saved is not None:
             return saved_fit_baseline(saved, dss)
         same = bool(early) and len(ms) == len(floored) and all(a is b for a, b in zip(ms, floored))
-        # how the DAQ samples xdd's feedthrough: the measurement's
-        return with_feedthrough(dss, early[0] if same else notebook_baseline(ms))
+        # how the DAQ samples (its command's hold, xdd's feedthrough): the measurement's
+        return with_sampling(dss, early[0] if same else notebook_baseline(ms), hold=held[0])
 
     bl = baseline_for(measured, datasets)
     if saved is not None:
@@ -800,6 +827,18 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
         # carry, has the whole library for what remains
         kinds = [k for k in kinds if k.label in CARRY]
     before, after, steps, tried = forward_select(list(datasets), bl, kinds, alpha=alpha, progress=progress)
+    pre: dict[str, dict] = {}
+    if (with_hold := with_hold_found(datasets, after, steps, alpha=alpha, n_kinds=len(kinds))) is not None:
+        # the command's hold on the model found: the model with it, and the baseline alone with it for the error before
+        from samii.diagnose.model import fit_model, relabel_modes, start_vectors
+
+        labels = [e.kind.label for e in after.effects]
+        pre = {e.kind.label: dict(e.values) for e in after.effects if labels.count(e.kind.label) == 1}
+        held[0] = True
+        after = relabel_modes(list(datasets), with_hold)
+        before = fit_model(list(datasets), after.baseline, [], start_baseline=start_vectors(before))
+    if (hold_text := hold_note(after.baseline, [m.source for m in measured])) is not None:
+        notes.append(hold_text)
     if feedthrough_of(after) is not None:
         notes.append(feedthrough_note(*feedthrough_of(after)))
     error_before = channel_errors(datasets, before)
@@ -816,7 +855,7 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
         if images:
             notes.append("dropped as the nonlinearity's image (a linear effect holds at every amplitude, and these make the "
                          "least distorted file fit worse): " + "; ".join(images))
-    effects = _effects(after, steps, tried, measured)
+    effects = _effects(after, steps, tried, measured, pre)
     if nonlinear:
         effects = [e if e.expected else replace(e, evidence=e.evidence + "; found beside a nonlinearity: it may be that "
                                                 "nonlinearity's image in the best linear approximation") for e in effects]

@@ -138,6 +138,16 @@ class Baseline:
     feedthrough_lag: float | None = None
     #: Per dataset, its sample rate [Hz] where the feedthrough is modelled (for responses off its data points).
     sample_rates_hz: tuple[float, ...] = ()
+    #: Per dataset, the delay [s] of the command's zero-order hold, half a sample, where the measurement holds its
+    #: command (samii.diagnose.sampling.with_hold_found): the DAQ's, never an effect of the rig; empty: not modelled.
+    hold_s: tuple[float, ...] = ()
+    #: The data show the hold (the model found fits better with it by the F-test's level); False: it is kept for
+    #: explaining the sampling's delay with fewer effects, as well as without it (samii.diagnose.sampling.with_hold_found).
+    hold_seen: bool = False
+
+    def hold(self, i: int) -> float:
+        """Dataset ``i``'s hold delay [s] (0 where not modelled)."""
+        return float(self.hold_s[i]) if self.hold_s else 0.0
 
     @property
     def free(self) -> bool:
@@ -186,7 +196,8 @@ FEEDTHROUGH_AT_FS = 10.0
 FEEDTHROUGH_LAG_MAX = 0.5
 
 
-def feedthrough_term(structure, xb, effects, s: np.ndarray, lag_samples: float, sample_rate_hz: float, *, derivatives: bool = False):
+def feedthrough_term(structure, xb, effects, s: np.ndarray, lag_samples: float, sample_rate_hz: float, *, derivatives: bool = False,
+                     hold_s: float = 0.0):
     """The sampling's correction to xdd/v where xdd/v has a direct feedthrough: ``S = D Md (e^{-s lag T} - 1)``.
 
     Physics. The notebook's theta/v has relative degree 2 and its xdd/theta grows as s^2, so xdd/v tends to a constant
@@ -198,33 +209,21 @@ def feedthrough_term(structure, xb, effects, s: np.ndarray, lag_samples: float, 
     feedthrough's delay beyond the rest in samples (+0.5, -0.5, 0; a command delay that is not a whole number of
     samples moves it between), Md the model's delays (they delay the step too). Near xdd/v's antiresonance, where D and
     the modes cancel, this is decibels at 500 Hz (eq 9.4: -2.8 dB and +16 deg at 20 Hz with lag 0.5; with S the model is
-    within 0.2 dB and 2 deg of the exact alias sum from 0.7 Hz up, tests/test_diagnose_sampling.py). Left out: the
-    smooth part's own aliasing, a term in w T^2 that matters only where xdd/v is under a thousandth of its peak (below
-    0.5 Hz), where no accelerometer resolves it. D is the model (the structure and the effects other than delays) at
-    FEEDTHROUGH_AT_FS sample rates: zero behind a low-pass or valve, where no step passes.
+    within 0.2 dB and 2 deg of the exact alias sum from 0.7 Hz up, tests/test_diagnose_sampling.py). Left out here: the
+    smooth part's own images (sampled_images, which a baseline carrying the hold adds; there the smooth part carries
+    the hold's sinc and the steps, read whole, do not: ``S = D Md (e^{-s lag T} - sinc)``). D is the model (the
+    structure and the effects other than delays) at FEEDTHROUGH_AT_FS sample rates: zero behind a low-pass or valve,
+    where no step passes. ``hold_s``: the hold's delay where the baseline models it (Baseline.hold_s), one of Md.
 
     ``effects``: (kind, values) pairs. Returns (S, dlnS/dx_b (n_b,) or None, [dlnS/dp (points, params) per effect] or
     None, dS/dlag).
     """
-    w_inf = np.array([2.0 * np.pi * FEEDTHROUGH_AT_FS * sample_rate_hz])
-    s_inf = 1j * w_inf
-    with np.errstate(all="ignore"):
-        h = structure.log_responses(xb, w_inf, ("act", "base"), derivatives=derivatives)
-    smooth = [(k, p) for k, p in effects if k.category != "delay"]
-    m_act, m_base, add = _effect_factors(smooth, s_inf)
-    hb = h["base"][0]
-    base_sum = hb if add is None else hb + add
-    d0 = h["act"][0] * (1.0 if m_act is None else m_act) * base_sum * (1.0 if m_base is None else m_base)
-    md = 1.0
-    for k, p in effects:
-        if k.category == "delay":
-            ma, mb, _ = k.response(p, s)
-            for m in (ma, mb):
-                if m is not None:
-                    md = md * m
+    d0, h, hb, base_sum, s_inf = _feedthrough_gain(structure, xb, effects, sample_rate_hz, derivatives=derivatives)
+    md = np.exp(-s * hold_s) * _delays(effects, s) if hold_s else _delays(effects, s)
     period = 1.0 / sample_rate_hz
     shift = np.exp(-s * lag_samples * period)
-    term = d0[0] * md * (shift - 1.0)
+    # the smooth part carries the hold's sinc (hold_factor); the steps are read whole, without it
+    term = d0[0] * md * (shift - (_sinc(s, hold_s) if hold_s else 1.0))
     d_lag = d0[0] * md * shift * (-s * period)
     if not derivatives:
         return term, None, None, d_lag
@@ -243,6 +242,128 @@ def feedthrough_term(structure, xb, effects, s: np.ndarray, lag_samples: float, 
             col = col + dA / base_sum[0]
         d_e.append(np.broadcast_to(col, (s.size, len(k.params))))
     return term, d_b, d_e, d_lag
+
+
+def _feedthrough_gain(structure, xb, effects, sample_rate_hz: float, *, derivatives: bool = False):
+    """D, xdd/v's direct feedthrough: the model (the structure and the effects other than delays) at FEEDTHROUGH_AT_FS
+    sample rates (feedthrough_term). Returns (D (1,), the structure's responses there, its base, base + added, s)."""
+    s_inf = 1j * np.array([2.0 * np.pi * FEEDTHROUGH_AT_FS * sample_rate_hz])
+    with np.errstate(all="ignore"):
+        h = structure.log_responses(xb, s_inf.imag, ("act", "base"), derivatives=derivatives)
+    smooth = [(k, p) for k, p in effects if k.category != "delay"]
+    m_act, m_base, add = _effect_factors(smooth, s_inf)
+    hb = h["base"][0]
+    base_sum = hb if add is None else hb + add
+    d0 = h["act"][0] * (1.0 if m_act is None else m_act) * base_sum * (1.0 if m_base is None else m_base)
+    return d0, h, hb, base_sum, s_inf
+
+
+def _delays(effects, s: np.ndarray):
+    """The product of the delays' factors on xdd/v at ``s`` (1 without one)."""
+    md = 1.0
+    for k, p in effects:
+        if k.category == "delay":
+            ma, mb, _ = k.response(p, s)
+            for m in (ma, mb):
+                if m is not None:
+                    md = md * m
+    return md
+
+
+def _sinc(s: np.ndarray, hold_s: float) -> np.ndarray:
+    """The hold's magnitude, sin(w h) / (w h) (h half a sample)."""
+    return np.sinc(s.imag * hold_s / np.pi)
+
+
+def hold_factor(s: np.ndarray, hold_s: float) -> np.ndarray:
+    """A zero-order hold of a sample 2 ``hold_s`` long at the points ``s``: e^{-s h} sin(w h) / (w h), the held
+    command's response in the band (its images are :func:`sampled_images`)."""
+    return np.exp(-s * hold_s) * _sinc(s, hold_s)
+
+
+#: The images of a held command summed either side of the band (k = +-1 .. +-ALIAS_BANDS; sampled_images).
+ALIAS_BANDS = 8
+
+
+def sampled_images(structure, xb, effects, w: np.ndarray, hold_s: float, *, total: bool, derivatives: bool = False):
+    """What sampling adds to the held command's response in the band: the images of the rest of the spectrum.
+
+    Physics. A command held for a sample T = 2 h reaches the rig as ``Z(w) = (1 - e^{-j w T}) / (j w T)`` times the
+    samples' spectrum, which repeats every 2 pi / T; the outputs read at the sample instants fold the spectrum back, so
+    the data's response is ``sum_k H(j w_k) Z(w_k)``, w_k = w + 2 pi k / T (Franklin, Powell & Workman, Digital
+    Control of Dynamic Systems, sec. 6.2: the pulse transfer function). k = 0 is ``H hold_factor``; the rest, the
+    images, is what this returns. theta/v rolls off at least as 1/w^2 and its images are a few hundredths of a per cent
+    of it; xdd/v rolls off at most as 1/w beyond its constant (behind a first-order accelerometer, 1/w from the
+    corner on), and its images are ``(x / sin x)^2 - 1 ~ x^2 / 3`` of the 1/w part, x = w h: 1.7 % at 36 Hz at
+    500 Hz (the second rig's 30 Hz roll-off, measured at 500 Hz, left them as a broad base "mode" at 36.7 Hz). Its
+    constant D is taken out (its steps are feedthrough_term's, summed exactly there). The terms fall as 1/k^2: the
+    first ALIAS_BANDS either side hold all but 7 % of a 1/w tail's images.
+
+    ``total``: also xdd/v's, of (act base - D Md). Returns (theta/v's images, xdd/v's or None, derivatives or None) at
+    ``w`` [rad/s]; with ``derivatives``, {"act" | "total": (d/dx_b (points, n_b) or None, [d/dp (points, params) per
+    effect])}, of the images themselves (not their logs: they pass through zero)."""
+    period = 2.0 * hold_s
+    ws = 2.0 * np.pi / period
+    ks = np.concatenate([-np.arange(ALIAS_BANDS, 0, -1), np.arange(1, ALIAS_BANDS + 1)])
+    w = np.asarray(w, float)
+    wk = w[None, :] + ks[:, None] * ws
+    flat = wk.ravel()
+    sk = 1j * flat
+    zk = ((1.0 - np.exp(-1j * w * period))[None, :] / (1j * wk * period)).ravel()
+
+    def fold(x: np.ndarray) -> np.ndarray:  # sum over the bands, each weighted by the hold: (bands x points, ...) -> (points, ...)
+        x = x * zk.reshape((-1,) + (1,) * (x.ndim - 1))
+        return x.reshape(wk.shape + x.shape[1:]).sum(axis=0)
+
+    with np.errstate(all="ignore"):
+        h = structure.log_responses(xb, flat, ("act", "base") if total else ("act",), derivatives=derivatives)
+    m_act, m_base, add = _effect_factors(effects, sk)
+    act = h["act"][0] if m_act is None else h["act"][0] * m_act
+    images_act = fold(act)
+    images_total = base = mb = d0 = md = None
+    if total:
+        mb = 1.0 if m_base is None else m_base
+        base = (h["base"][0] if add is None else h["base"][0] + add) * mb
+        d0, h_inf, hb_inf, base_inf, s_inf = _feedthrough_gain(structure, xb, effects, 0.5 / hold_s, derivatives=derivatives)
+        d0 = d0[0]
+        md = _delays(effects, sk) * np.ones(flat.size)
+        images_total = fold(act * base - d0 * md)
+    if not derivatives:
+        return images_act, images_total, None
+    out = {}
+    col = lambda x: x[:, None]
+    d_b_act = None if h["act"][1] is None else fold(col(act) * h["act"][1])
+    d_b_total = None
+    if total and h["act"][1] is not None:
+        dd0 = d0 * (h_inf["act"][1][0] + h_inf["base"][1][0] * (hb_inf / base_inf)[0])  # dD/dx_b (feedthrough_term's)
+        d_b_total = fold(col(act * base) * h["act"][1] + col(act * mb * h["base"][0]) * h["base"][1] - col(md) * dd0[None, :])
+    d_e_act, d_e_total = [], []
+    for kind, p in effects:
+        da, db, dA = kind.derivatives(p, sk)
+        zero = np.zeros((flat.size, len(kind.params)), complex)
+        d_e_act.append(fold(zero if da is None else col(act) * da))
+        if not total:
+            continue
+        c = zero
+        for part in (da, db):
+            if part is not None:
+                c = c + col(act * base) * part
+        if dA is not None:
+            c = c + col(act * mb) * dA
+        if kind.category == "delay":  # D Md: the delay's own factor in Md
+            c = c - col(d0 * md) * sum(part for part in (da, db) if part is not None)
+        else:  # D: the effect's at FEEDTHROUGH_AT_FS sample rates
+            ia, ib, iA = kind.derivatives(p, s_inf)
+            dln = sum(part for part in (ia, ib) if part is not None) if (ia is not None or ib is not None) else 0.0
+            if iA is not None:
+                dln = dln + iA / base_inf[0]
+            if not np.isscalar(dln):
+                c = c - col(d0 * md) * dln[0][None, :]
+        d_e_total.append(fold(c))
+    out["act"] = (d_b_act, d_e_act)
+    if total:
+        out["total"] = (d_b_total, d_e_total)
+    return images_act, images_total, out
 
 
 @dataclass(frozen=True, eq=False)
@@ -418,6 +539,9 @@ class _Problem:
         models_ft = baseline.structure is not None and not baseline.fixed and (bool(layout.n_lag) or bool(held_lag))
         self.ft_rate: list[float | None] = [float(ds.sample_rate_hz) if models_ft and ds.sample_rate_hz and
                                             any(ch in ds.data for ch in ("base", "total")) else None for ds in datasets]
+        #: per dataset, the command's hold [s] where the baseline models it (Baseline.hold_s; a structure refitted):
+        #: its blocks are the sampled response (hold_factor, sampled_images, the feedthrough with its lag or none)
+        self.hold = [baseline.hold(i) if baseline.structure is not None and not baseline.fixed else 0.0 for i in range(len(datasets))]
         for i, ds in enumerate(datasets):
             for ch in ds.data:
                 k = ds.keep[ch]
@@ -433,14 +557,16 @@ class _Problem:
 
     def _need(self, i: int, ch: str) -> tuple[str, ...]:
         """The baseline channels block ``ch`` of dataset ``i`` needs: xdd/theta with the feedthrough needs act too."""
-        return ("act", "base") if ch == "base" and self.ft_rate[i] is not None else _NEED[ch]
+        return ("act", "base") if ch == "base" and (self.ft_rate[i] is not None or self.hold[i]) else _NEED[ch]
 
     def _feedthrough(self, blk: _Block, xs_b, z) -> tuple | None:
         """(baseline vector, lag [samples], sample rate [Hz]) of ``blk``'s feedthrough term, None where it has none
         (theta/v; a dataset where it is not modelled)."""
         rate = self.ft_rate[blk.i]
-        if rate is None or blk.ch == "act":
+        if blk.ch == "act":
             return None
+        if rate is None:  # with the hold the steps are still read, as the rest where no lag is modelled
+            return (xs_b[blk.i], 0.0, 0.5 / self.hold[blk.i]) if self.hold[blk.i] else None
         lag = self.layout.lag(z)
         return xs_b[blk.i], self.held_lag if lag is None else lag, rate
 
@@ -464,10 +590,11 @@ class _Problem:
         with np.errstate(divide="ignore", invalid="ignore"):  # a point no block uses may sit on a pole
             return self.baseline.structure.log_responses(xb, w, need, derivatives=derivatives)
 
-    def _model(self, blk: _Block, resp: dict | None, eff, derivatives: bool, ft=None):
+    def _model(self, blk: _Block, resp: dict | None, eff, derivatives: bool, ft=None, xb=None):
         """(model, d ln model / d(baseline x) or None, [d ln model / d(effect p)] or None, d ln model / d(lag) or None)
         of one block; ``resp``: its dataset's baseline responses (:meth:`_responses`; None for a fixed baseline);
-        ``ft``: its feedthrough (:meth:`_feedthrough`), the term xdd/v and xdd/theta carry."""
+        ``ft``: its feedthrough (:meth:`_feedthrough`), the term xdd/v and xdd/theta carry; ``xb``: its dataset's
+        baseline vector (the sampled images need it)."""
         need = _NEED[blk.ch] if ft is None else ("act", "base")
         s = 1j * blk.w
         if blk.fixed is not None:
@@ -478,36 +605,55 @@ class _Problem:
             dh = {c: None if resp[c][1] is None else resp[c][1][blk.at] for c in need}
         m_act, m_base, add = _effect_factors(eff, s)
         act = base = base_sum = None
+        hold = self.hold[blk.i]
         if "act" in h:
             act = h["act"] if m_act is None else h["act"] * m_act
         if "base" in h:
             base_sum = h["base"] if add is None else h["base"] + add
             base = base_sum if m_base is None else base_sum * m_base
+        # the command's hold (Baseline.hold_s): the held command's response in the band, a constant factor, and the
+        # images of the rest of the spectrum (sampled_images)
+        w_a = 1.0  # d ln(theta/v as sampled) = w_a d ln act + d(images)/act_s
+        act_s = act
+        images_total = d_images = None
+        if hold:
+            act = act * hold_factor(s, hold)
+            images_act, images_total, d_images = sampled_images(self.baseline.structure, xb if ft is None else ft[0], eff, blk.w,
+                                                                hold, total=blk.ch != "act", derivatives=derivatives)
+            act_s = act + images_act
+            w_a = act / act_s
         term = d_lag = None
         if ft is None:
-            model = base if act is None else act if base is None else act * base
-        else:  # xdd/v = act base + S; xdd/theta = xdd/v / act
+            model = base if act is None else act_s if base is None else act * base
+        else:  # xdd/v = act base + S (+ the images); xdd/theta = xdd/v / theta/v
             xb, lag, fs = ft
-            term, dt_b, dt_e, d_lag = feedthrough_term(self.baseline.structure, xb, eff, s, lag, fs, derivatives=derivatives)
+            term, dt_b, dt_e, d_lag = feedthrough_term(self.baseline.structure, xb, eff, s, lag, fs, derivatives=derivatives, hold_s=hold)
             total = act * base + term
-            model = total if blk.ch == "total" else total / act
+            if images_total is not None:
+                total = total + images_total
+            model = total if blk.ch == "total" else total / act_s
         if not derivatives:
             return model, None, None, None
-        # d ln(act base) = d ln act + d ln base; with the term: w_P d ln(act base) + w_S d ln S (- d ln act for xdd/theta)
+        # d ln(act base) = d ln act + d ln base; with the term: w_P d ln(act base) + w_S d ln S (- w_a d ln act for
+        # xdd/theta); with the hold each channel's images too: + d(images)/(its response)
         w_p = w_s = None
         if term is not None:
             w_s = term / total
-            w_p = 1.0 - w_s
+            w_p = act * base / total
         d_b = None
         if blk.fixed is None and self.layout.nb:
             d_act = dh["act"] if "act" in h else 0.0
             d_base = 0.0 if "base" not in h else (dh["base"] if add is None else dh["base"] * (h["base"] / base_sum)[:, None])
             if term is None:
                 d_b = d_act + d_base
+                if hold and blk.ch == "act":
+                    d_b = w_a[:, None] * d_b + d_images["act"][0] / act_s[:, None]
             else:
                 d_b = w_p[:, None] * (d_act + d_base) + w_s[:, None] * dt_b[None, :]
+                if hold:
+                    d_b = d_b + d_images["total"][0] / total[:, None]
                 if blk.ch == "base":
-                    d_b = d_b - d_act
+                    d_b = d_b - (w_a[:, None] * d_act + d_images["act"][0] / act_s[:, None] if hold else d_act)
         d_e = []
         for j, (kind, p) in enumerate(eff):
             da, db, dA = kind.derivatives(p, s)
@@ -521,8 +667,15 @@ class _Problem:
                     col += dA / base_sum[:, None]
             if term is not None:
                 col = w_p[:, None] * col + w_s[:, None] * dt_e[j]
-                if blk.ch == "base" and da is not None:
-                    col = col - da
+                if hold:
+                    col = col + d_images["total"][1][j] / total[:, None]
+                if blk.ch == "base":
+                    if da is not None:
+                        col = col - (w_a[:, None] * da if hold else da)
+                    if hold:
+                        col = col - d_images["act"][1][j] / act_s[:, None]
+            elif hold and blk.ch == "act":
+                col = w_a[:, None] * col + d_images["act"][1][j] / act_s[:, None]
             d_e.append(col)
         dl = None if d_lag is None else d_lag / total
         return model, d_b, d_e, dl
@@ -540,7 +693,7 @@ class _Problem:
         res: list[dict] = [{} for _ in range(max((b.i for b in self.blocks), default=-1) + 1)]
         resp = self._all_responses(xs_b, False)
         for blk in self.blocks:
-            model, _, _, _ = self._model(blk, resp[blk.i], eff, False, self._feedthrough(blk, xs_b, z))
+            model, _, _, _ = self._model(blk, resp[blk.i], eff, False, self._feedthrough(blk, xs_b, z), xs_b[blk.i] if xs_b else None)
             res[blk.i][blk.ch] = np.log(blk.data / model)  # one log of the ratio: its phase wrapped to (-pi, pi]
         return res, xs_b, xs_e
 
@@ -573,7 +726,8 @@ class _Problem:
         with np.errstate(all="ignore"):
             resp = self._all_responses(xs_b, True)
             for blk in self.blocks:
-                model, d_b, d_e, d_lag = self._model(blk, resp[blk.i], eff, True, self._feedthrough(blk, xs_b, z))
+                model, d_b, d_e, d_lag = self._model(blk, resp[blk.i], eff, True, self._feedthrough(blk, xs_b, z),
+                                                     xs_b[blk.i] if xs_b else None)
                 d = np.zeros((blk.w.size, n), complex)
                 if lay.nb:
                     j0 = blk.i * lay.nb
