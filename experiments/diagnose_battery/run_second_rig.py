@@ -17,9 +17,9 @@ Cases:
   gain stepping 10 % at mid-file), which the diagnosis should leave unexplained rather than name.
 
 A command delay is judged against the injected delay plus the hold's half sample where the diagnosis did not
-model the hold itself (the data hold both and cannot tell them apart; since stop 34 the baseline carries the hold,
-samii.diagnose.sampling, and the injected delay alone is the truth); the error against the injected delay alone is
-reported too.
+model the hold itself (the data hold both and cannot tell them apart); where its model carries the hold
+(samii.diagnose.sampling.with_hold_found) the injected delay alone is the truth. The error against the injected
+delay alone is reported too.
 
 Writes ``out_second_rig/results.json`` and ``out_second_rig/table.md`` (or ``--out DIR``).
 ``python experiments/diagnose_battery/run_second_rig.py [--quick] [--only TEXT] [--jobs N] [--seed-offset N]``.

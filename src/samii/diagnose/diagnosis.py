@@ -18,10 +18,12 @@ A delay of at most one sample is the sampling itself (a zero-order hold
 delays the command by half a sample, a DAQ that computes the next command
 from this sample's reading by up to one, a multiplexed ADC reads its
 channels up to a sample apart): it is reported, flagged ``expected``, and
-does not make the verdict "effects". Where every file states its rate the
-baseline carries the hold itself, with the images it folds back
-(samii.diagnose.sampling), and a delay found is the rig's beyond it. The sample is the fastest file's (the
+does not make the verdict "effects". The sample is the fastest file's (the
 strictest); a file that does not state its rate gets no such allowance.
+Where every file states its rate the command's hold, with the images it
+folds back, is tried on the model found and kept by BIC
+(samii.diagnose.sampling.with_hold_found); with it, a delay found is the
+rig's beyond it.
 
 Unexplained bands: after the selection, the squared normalised residual of
 each channel averaged over ``BAND_POINTS`` neighbouring points is compared
@@ -184,12 +186,12 @@ class Diagnosis:
                        "quantisation_steps": None if m.floor is None else dict(m.floor.quant_steps)} for m in self.measured],
             "baseline": self.baseline.label,
             "sampling": {"hold_s": list(self.after.baseline.hold_s) or None,
-                         "hold_seen": bool(self.after.baseline.hold_s) and self.after.baseline.hold_seen,
+                         "hold_seen": self.after.baseline.hold_seen,
                          **dict(zip(("feedthrough_lag_samples", "stderr"), feedthrough_of(self.after) or (None, None))),
                          "how": "hold_s: per file, the command's zero-order hold (half a sample) in the model, on the command of every fit "
-                                "(null: not modelled; hold_seen: it fits better with it by the F-test, else as well with fewer effects); xdd/v's direct feedthrough (a held command's steps) reaches the data "
-                                "feedthrough_lag_samples after the rest of its response (null: not modelled, or no feedthrough the data "
-                                "see; samii.diagnose.sampling)"},
+                                "(null: not modelled; hold_seen: it fits better with it by the F-test, else as well with fewer effects); "
+                                "xdd/v's direct feedthrough (a held command's steps) reaches the data feedthrough_lag_samples after the "
+                                "rest of its response (null: not modelled, or no feedthrough the data see; samii.diagnose.sampling)"},
             "rule": self.rule,
             "files": [{"source": m.source, "noise": m.noise_source, "amplitude_v": m.amplitude_v, "sample_rate_hz": m.sample_rate_hz,
                        "records": None if m.layout is None else {"record_s": m.layout.record_s, "start_s": m.layout.start_s,
@@ -804,7 +806,7 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
                      f"({'converged' if calibrated.result.converged else 'NOT converged'}); the effects are fitted with those knobs refitted "
                      "through the simulator's first-order sensitivity to them")
 
-    held = [False]  # the command's hold: tried on the model found (samii.diagnose.sampling.with_hold_found)
+    held = False  # the command's hold: tried on the model found (samii.diagnose.sampling.with_hold_found)
 
     def baseline_for(ms, dss):
         if sim:
@@ -813,7 +815,7 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
             return saved_fit_baseline(saved, dss)
         same = bool(early) and len(ms) == len(floored) and all(a is b for a, b in zip(ms, floored))
         # how the DAQ samples (its command's hold, xdd's feedthrough): the measurement's
-        return with_sampling(dss, early[0] if same else notebook_baseline(ms), hold=held[0])
+        return with_sampling(dss, early[0] if same else notebook_baseline(ms), hold=held)
 
     bl = baseline_for(measured, datasets)
     if saved is not None:
@@ -834,7 +836,7 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
 
         labels = [e.kind.label for e in after.effects]
         pre = {e.kind.label: dict(e.values) for e in after.effects if labels.count(e.kind.label) == 1}
-        held[0] = True
+        held = True
         after = relabel_modes(list(datasets), with_hold)
         before = fit_model(list(datasets), after.baseline, [], start_baseline=start_vectors(before))
     if (hold_text := hold_note(after.baseline, [m.source for m in measured])) is not None:

@@ -218,35 +218,28 @@ def feedthrough_term(structure, xb, effects, s: np.ndarray, lag_samples: float, 
     ``effects``: (kind, values) pairs. Returns (S, dlnS/dx_b (n_b,) or None, [dlnS/dp (points, params) per effect] or
     None, dS/dlag).
     """
-    d0, h, hb, base_sum, s_inf = _feedthrough_gain(structure, xb, effects, sample_rate_hz, derivatives=derivatives)
+    d0, d_ln_b, d_ln_e = _feedthrough_gain(structure, xb, effects, sample_rate_hz, derivatives=derivatives)
     md = np.exp(-s * hold_s) * _delays(effects, s) if hold_s else _delays(effects, s)
     period = 1.0 / sample_rate_hz
     shift = np.exp(-s * lag_samples * period)
     # the smooth part carries the hold's sinc (hold_factor); the steps are read whole, without it
-    term = d0[0] * md * (shift - (_sinc(s, hold_s) if hold_s else 1.0))
-    d_lag = d0[0] * md * shift * (-s * period)
+    term = d0 * md * (shift - (_sinc(s, hold_s) if hold_s else 1.0))
+    d_lag = d0 * md * shift * (-s * period)
     if not derivatives:
         return term, None, None, d_lag
-    d_b = None
-    if h["act"][1] is not None:
-        d_b = h["act"][1][0] + h["base"][1][0] * (hb / base_sum)[0]
     d_e = []
-    for k, p in effects:  # a delay's at the points (it delays the step), any other's through D (at s_inf, the same at every point)
-        delay = k.category == "delay"
-        da, db, dA = k.derivatives(p, s if delay else s_inf)
-        col = np.zeros((s.size if delay else 1, len(k.params)), complex)
-        for part in (da, db):
-            if part is not None:
-                col = col + part
-        if dA is not None and not delay:
-            col = col + dA / base_sum[0]
-        d_e.append(np.broadcast_to(col, (s.size, len(k.params))))
-    return term, d_b, d_e, d_lag
+    for (k, p), d_ln in zip(effects, d_ln_e):  # a delay's at the points (it delays the step), any other's through D
+        if d_ln is None:
+            da, db, _ = k.derivatives(p, s)
+            d_ln = sum(part for part in (da, db) if part is not None)
+        d_e.append(np.broadcast_to(d_ln, (s.size, len(k.params))))
+    return term, d_ln_b, d_e, d_lag
 
 
 def _feedthrough_gain(structure, xb, effects, sample_rate_hz: float, *, derivatives: bool = False):
     """D, xdd/v's direct feedthrough: the model (the structure and the effects other than delays) at FEEDTHROUGH_AT_FS
-    sample rates (feedthrough_term). Returns (D (1,), the structure's responses there, its base, base + added, s)."""
+    sample rates (feedthrough_term). Returns (D, d ln D/dx_b (n_b,) or None, [d ln D/dp (params,) per effect, None for
+    a delay (D has none: a delay delays the step, at the points)]); the derivatives None without ``derivatives``."""
     s_inf = 1j * np.array([2.0 * np.pi * FEEDTHROUGH_AT_FS * sample_rate_hz])
     with np.errstate(all="ignore"):
         h = structure.log_responses(xb, s_inf.imag, ("act", "base"), derivatives=derivatives)
@@ -254,8 +247,24 @@ def _feedthrough_gain(structure, xb, effects, sample_rate_hz: float, *, derivati
     m_act, m_base, add = _effect_factors(smooth, s_inf)
     hb = h["base"][0]
     base_sum = hb if add is None else hb + add
-    d0 = h["act"][0] * (1.0 if m_act is None else m_act) * base_sum * (1.0 if m_base is None else m_base)
-    return d0, h, hb, base_sum, s_inf
+    d0 = (h["act"][0] * (1.0 if m_act is None else m_act) * base_sum * (1.0 if m_base is None else m_base))[0]
+    if not derivatives:
+        return d0, None, None
+    d_ln_b = None if h["act"][1] is None else h["act"][1][0] + h["base"][1][0] * (hb / base_sum)[0]
+    d_ln_e = []
+    for k, p in effects:
+        if k.category == "delay":
+            d_ln_e.append(None)
+            continue
+        da, db, dA = k.derivatives(p, s_inf)
+        d_ln = np.zeros(len(k.params), complex)
+        for part in (da, db):
+            if part is not None:
+                d_ln = d_ln + part[0]
+        if dA is not None:
+            d_ln = d_ln + dA[0] / base_sum[0]
+        d_ln_e.append(d_ln)
+    return d0, d_ln_b, d_ln_e
 
 
 def _delays(effects, s: np.ndarray):
@@ -320,12 +329,11 @@ def sampled_images(structure, xb, effects, w: np.ndarray, hold_s: float, *, tota
     m_act, m_base, add = _effect_factors(effects, sk)
     act = h["act"][0] if m_act is None else h["act"][0] * m_act
     images_act = fold(act)
-    images_total = base = mb = d0 = md = None
+    images_total = None
     if total:
         mb = 1.0 if m_base is None else m_base
         base = (h["base"][0] if add is None else h["base"][0] + add) * mb
-        d0, h_inf, hb_inf, base_inf, s_inf = _feedthrough_gain(structure, xb, effects, 0.5 / hold_s, derivatives=derivatives)
-        d0 = d0[0]
+        d0, d_ln_d0_b, d_ln_d0_e = _feedthrough_gain(structure, xb, effects, 0.5 / hold_s, derivatives=derivatives)
         md = _delays(effects, sk) * np.ones(flat.size)
         images_total = fold(act * base - d0 * md)
     if not derivatives:
@@ -335,10 +343,10 @@ def sampled_images(structure, xb, effects, w: np.ndarray, hold_s: float, *, tota
     d_b_act = None if h["act"][1] is None else fold(col(act) * h["act"][1])
     d_b_total = None
     if total and h["act"][1] is not None:
-        dd0 = d0 * (h_inf["act"][1][0] + h_inf["base"][1][0] * (hb_inf / base_inf)[0])  # dD/dx_b (feedthrough_term's)
-        d_b_total = fold(col(act * base) * h["act"][1] + col(act * mb * h["base"][0]) * h["base"][1] - col(md) * dd0[None, :])
+        d_b_total = fold(col(act * base) * h["act"][1] + col(act * mb * h["base"][0]) * h["base"][1]
+                         - col(d0 * md) * d_ln_d0_b[None, :])
     d_e_act, d_e_total = [], []
-    for kind, p in effects:
+    for j, (kind, p) in enumerate(effects):
         da, db, dA = kind.derivatives(p, sk)
         zero = np.zeros((flat.size, len(kind.params)), complex)
         d_e_act.append(fold(zero if da is None else col(act) * da))
@@ -350,16 +358,9 @@ def sampled_images(structure, xb, effects, w: np.ndarray, hold_s: float, *, tota
                 c = c + col(act * base) * part
         if dA is not None:
             c = c + col(act * mb) * dA
-        if kind.category == "delay":  # D Md: the delay's own factor in Md
-            c = c - col(d0 * md) * sum(part for part in (da, db) if part is not None)
-        else:  # D: the effect's at FEEDTHROUGH_AT_FS sample rates
-            ia, ib, iA = kind.derivatives(p, s_inf)
-            dln = sum(part for part in (ia, ib) if part is not None) if (ia is not None or ib is not None) else 0.0
-            if iA is not None:
-                dln = dln + iA / base_inf[0]
-            if not np.isscalar(dln):
-                c = c - col(d0 * md) * dln[0][None, :]
-        d_e_total.append(fold(c))
+        # D Md: a delay's own factor in Md, any other effect's in D (at FEEDTHROUGH_AT_FS sample rates)
+        d_ln_md = sum(part for part in (da, db) if part is not None) if d_ln_d0_e[j] is None else d_ln_d0_e[j][None, :]
+        d_e_total.append(fold(c - col(d0 * md) * d_ln_md))
     out["act"] = (d_b_act, d_e_act)
     if total:
         out["total"] = (d_b_total, d_e_total)
