@@ -104,7 +104,9 @@ def write_case(folder: Path, name: str, effects: dict, seed: int) -> Path:
     return path
 
 
-def time_case(path: Path, out: Path) -> dict:
+def time_case(path: Path, out: Path, options: tuple[str, ...] = ()) -> dict:
+    """``samii diagnose PATH --out OUT [options]`` run in this process, its output silenced: reading the file alone
+    and the whole command timed [s], and the effects found (exit if it fails)."""
     from samii.cli import main
 
     t0 = time.perf_counter()
@@ -114,12 +116,12 @@ def time_case(path: Path, out: Path) -> dict:
     with open(os.devnull, "w") as null:
         stdout, sys.stdout = sys.stdout, null
         try:
-            rc = main(["diagnose", str(path), "--out", str(out), "--no-progress", "--overwrite"])
+            rc = main(["diagnose", str(path), *options, "--out", str(out), "--no-progress", "--overwrite"])
         finally:
             sys.stdout = stdout
     total_s = time.perf_counter() - t0
     if rc != 0:
-        raise SystemExit(f"samii diagnose {path} exited {rc}")
+        raise SystemExit(f"samii diagnose {path} {' '.join(options)} exited {rc}")
     import json
 
     d = json.loads((out / "diagnosis.json").read_text())

@@ -235,6 +235,11 @@ def test_an_extra_mode_becomes_a_body_of_the_mass_its_residue_needs():
     assert "beyond what the simulator's physics rate" in tip_body_options(fast, p)
     options, carried, not_carried = carry([e, e], p)
     assert carried == ["extra_mode/base_mode"] and "a second extra mode" in not_carried[0]
+    # a heavily damped "mode" (proposed from data the simulator cannot represent: the second rig's 8 ms delay file,
+    # 4.86 Hz at damping 0.41) is fitted over positive frequencies (its band had reached -4.8 Hz: a ValueError)
+    broad = FoundEffect("extra_mode", "base_mode", "base", {"freq_hz": 4.86, "zeta": 0.41, "residue": 0.0049}, {}, "")
+    options = tip_body_options(broad, p)
+    assert isinstance(options, str) or (options[mass] > 0 and options[zeta] == 0.41)
 
 
 def test_the_simulators_own_harmonics_are_not_a_missing_nonlinearity(tmp_path_factory):
@@ -428,3 +433,30 @@ def test_a_carry_the_simulator_cannot_run_is_not_carried_and_says_why(monkeypatc
     assert out is before and options == {} and carried == []
     assert not_carried == ["extra_mode/base_mode: the simulator with it carried diverges when measured like rig.csv "
                            "(simulation diverged before t = 20 s (mjWARN_BADQACC); no result written)"]
+
+
+def test_with_nothing_carried_the_second_selection_is_against_the_first_selections_simulator(monkeypatch):
+    """Issue 31 item 4, on data the simulator cannot represent (the battery's second rig: eq 9.4 under a digital loop,
+    a 2 ms command delay; three 20 s sweeps here). Nothing is carried, so the second selection must run against the
+    simulator of the first, with the correction its knobs were calibrated with. With the correction recomputed at the
+    calibrated knobs (bent far: the simulator misses these data by 4-9 dB) the baseline no longer matched them, and
+    the error after came out 2-5x the error before on every channel (theta/v chi2 532 -> 2309), a 2 ms delay missed.
+    Here with no kind in the library (the selections add nothing) the error after is the error before, exactly."""
+    from test_diagnose_second_rig import _second_rig
+
+    from samii.diagnose import diagnosis
+    from samii.diagnose.measured import from_timeseries
+    from samii.measure.timeseries import TimeSeries
+
+    sr = _second_rig()
+    fs = 1000.0
+    rng = np.random.default_rng(1100)
+    r, _ = sr.swept_sine(fs, direction="up", n_records=3, sweep_s=20.0, rest_s=0.0, amplitude_v=0.1)
+    d = sr.Rig.drawn(rng, spread=0.15, fs=fs, command_delay_s=0.002).simulate(r, fs, rng=rng)
+    m = from_timeseries(TimeSeries(t=d["t"], v=d["v"], theta=d["theta"], accel=d["accel"], r=d["r"]), source="second rig")
+    monkeypatch.setattr(diagnosis, "_kinds", lambda *a, **k: [])
+    dg = diagnosis.diagnose([m], baseline="sim")
+    assert dg.simulator.carried == () and dg.effects == ()
+    assert dg.simulator.misfit_before  # (the simulator cannot represent these data, and says where)
+    for ch, before in dg.error_before.items():
+        assert dg.error_after[ch].chi2 == pytest.approx(before.chi2, rel=1e-9), ch

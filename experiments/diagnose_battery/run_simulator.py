@@ -13,7 +13,7 @@ found, carried and recalibrated. Written to ``out/``:
   recalibration), the simulator's changes, its error before and after, the time;
 * ``simulator.md``: the goals beside what the cases give, and every case in one line.
 
-Run ``python experiments/diagnose_battery/run_simulator.py [--jobs 2] [--quick]`` (about a minute
+Run ``python experiments/diagnose_battery/run_simulator.py [--jobs 2] [--quick] [--only TEXT ...]`` (about a minute
 a case; two at a time on two cores).
 """
 
@@ -179,8 +179,13 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="one clean case and the 4 ms delay")
     ap.add_argument("--jobs", type=int, default=2, help="cases run at once (default 2: two cores)")
     ap.add_argument("--out", type=Path, default=HERE / "out")
+    ap.add_argument("--only", action="append", default=[], metavar="TEXT", help="only cases whose name contains TEXT (repeatable)")
     args = ap.parse_args()
     plan = [CASES[0], CASES[3]] if args.quick else CASES
+    if args.only:
+        plan = [c for c in plan if any(t in c[0] for t in args.only)]
+        if not plan:
+            sys.exit("no case matches")
     # one BLAS thread per case when cases run side by side: with two each on two cores, the small SVDs of the fits
     # slowed some 10x (stop 20: a 6.7 s diagnosis took 57-113 s beside another)
     with ProcessPoolExecutor(max_workers=max(1, args.jobs), initializer=_one_blas_thread if args.jobs > 1 else None) as pool:

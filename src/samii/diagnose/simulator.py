@@ -496,8 +496,9 @@ def _fit_residue(dh: np.ndarray, freq_hz: np.ndarray, f: float, zeta: float) -> 
 
 
 def _near(f: float, zeta: float) -> np.ndarray:
-    """Frequencies across a mode at ``f``: its half-power band and more (the residue's fit)."""
-    half = max(3 * zeta, 0.05)
+    """Frequencies across a mode at ``f``: its half-power band and more (the residue's fit), at most f/10 to 1.9 f
+    (a "mode" of damping 0.41, proposed from data the simulator cannot represent, reached -4.8 Hz)."""
+    half = min(max(3 * zeta, 0.05), 0.9)
     return f * np.linspace(1 - half, 1 + half, 61)
 
 
@@ -779,11 +780,12 @@ CORRECTION_STEPS = 2
 
 
 def carry_and_recalibrate(measured_raw: Sequence[Measured], measured_fit: Sequence[Measured], before: SimulatorCalibration,
-                          effects: Sequence, *, progress=None, refuse: Mapping[str, str] | None = None):
+                          effects: Sequence, *, progress=None, refuse: Mapping[str, str] | None = None,
+                          correction_steps: int = CORRECTION_STEPS):
     """(recalibrated simulator, options set, labels carried, "label: reason" not carried): ``effects``
     carried into the simulator calibrated as ``before`` (:func:`carry`) and the knobs recalibrated
-    with the linear options (:func:`simulator_report`'s steps 3 and 4); ``before`` itself when
-    nothing is carried."""
+    with the linear options (:func:`simulator_report`'s steps 3 and 4), the correction recomputed at
+    most ``correction_steps`` times; ``before`` itself when nothing is carried."""
     stage = progress.stage if progress is not None and hasattr(progress, "stage") else (lambda _: None)
     options, carried, not_carried = carry(effects, before.params, refuse=refuse)
     if not options:
@@ -797,7 +799,7 @@ def carry_and_recalibrate(measured_raw: Sequence[Measured], measured_fit: Sequen
     # simulator and recalibrated, until the cost stops falling (a 20 Hz roll-off: 21.35 Hz with
     # the correction of the first calibration's knobs, 20.24 Hz after one such step, 20.19 after two)
     params, after = params_with_overrides(before.params, options), None
-    for _ in range(1 + CORRECTION_STEPS):
+    for _ in range(1 + correction_steps):
         try:
             corr = correction(params, data)
         except SimulationUnstable as exc:
