@@ -237,9 +237,10 @@ def test_an_extra_mode_becomes_a_body_of_the_mass_its_residue_needs():
     assert carried == ["extra_mode/base_mode"] and "a second extra mode" in not_carried[0]
     # a heavily damped "mode" (proposed from data the simulator cannot represent: the second rig's 8 ms delay file,
     # 4.86 Hz at damping 0.41) is fitted over positive frequencies (its band had reached -4.8 Hz: a ValueError)
-    broad = FoundEffect("extra_mode", "base_mode", "base", {"freq_hz": 4.86, "zeta": 0.41, "residue": 0.0049}, {}, "")
-    options = tip_body_options(broad, p)
-    assert isinstance(options, str) or (options[mass] > 0 and options[zeta] == 0.41)
+    broad = {"freq_hz": 4.86, "zeta": 0.41, "residue": 0.0049}  # (that file's residue: no body on the tip makes its sign)
+    assert "sign of no body" in tip_body_options(FoundEffect("extra_mode", "base_mode", "base", broad, {}, ""), p)
+    options = tip_body_options(FoundEffect("extra_mode", "base_mode", "base", {**broad, "residue": -1e-5}, {}, ""), p)
+    assert options[mass] > 0 and options[freq] == 4.86 and options[zeta] == 0.41
 
 
 def test_the_simulators_own_harmonics_are_not_a_missing_nonlinearity(tmp_path_factory):

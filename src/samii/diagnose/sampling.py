@@ -52,7 +52,7 @@ from scipy import stats
 
 from samii.diagnose.effects import LIBRARY
 from samii.diagnose.model import Baseline, Dataset, Fit, fit_model, noise_level, start_vectors
-from samii.diagnose.select import ALPHA, _f_test
+from samii.diagnose.select import ALPHA, _backward, _bic, _f_test, _vectors
 from samii.forkmap import fork_calls, sharing
 
 __all__ = ["with_sampling", "with_hold_found", "with_feedthrough", "feedthrough_of", "feedthrough_note", "hold_note"]
@@ -64,6 +64,11 @@ def _sampled(ds_list: Sequence[Dataset], baseline: Baseline) -> bool:
     """The sampling can be modelled: a structure refitted (a saved fit's or the simulator's responses are held as they
     are, their own sampling in them) and files that all state their sample rate."""
     return baseline.free and not baseline.correction and all(ds.sample_rate_hz for ds in ds_list)
+
+
+def _holds(ds_list: Sequence[Dataset]) -> tuple[float, ...]:
+    """Per file, its command's hold [s]: half a sample."""
+    return tuple(0.5 / float(ds.sample_rate_hz) for ds in ds_list)
 
 
 def _command_delay(ds_list, baseline: Baseline, start_s: float, **kwargs) -> Fit:
@@ -95,7 +100,7 @@ def with_sampling(ds_list: Sequence[Dataset], baseline: Baseline, *, alpha: floa
     (:func:`with_feedthrough`), and the command's hold where ``hold`` (:func:`with_hold_found` found it on the model;
     the selection runs without it), half a sample of each file's rate."""
     if hold and _sampled(ds_list, baseline):
-        baseline = replace(baseline, hold_s=tuple(0.5 / float(ds.sample_rate_hz) for ds in ds_list))
+        baseline = replace(baseline, hold_s=_holds(ds_list))
     return with_feedthrough(ds_list, baseline, alpha=alpha)
 
 
@@ -118,20 +123,17 @@ def with_hold_found(ds_list: Sequence[Dataset], fit: Fit, steps: list, *, alpha:
     bl = fit.baseline
     if bl.hold_s or not _sampled(ds_list, bl):
         return None
-    from samii.diagnose.select import _backward, _bic
-
-    hold = max(0.5 / float(ds.sample_rate_hz) for ds in ds_list)
+    held = replace(bl, hold_s=_holds(ds_list))
+    hold = max(held.hold_s)
     delays = {e.kind.label: e.values["delay_s"] for e in fit.effects if e.kind.category == "delay"}
     deficit = max(hold - delays.get(_DELAY.label, 0.0), 0.0)
     vectors = []
-    for e in fit.effects:
-        x = np.array([e.values[q.name] for q in e.kind.params])
-        if e.kind.category == "delay":
-            x = x - (hold if e.kind.label == _DELAY.label else deficit)
+    for kind, x in _vectors(fit.effects):
+        if kind.category == "delay":
+            x = x - (hold if kind.label == _DELAY.label else deficit)
             if x[0] <= 0.1 * hold:  # (all but a twentieth of a sample of it) the hold's
                 continue
-        vectors.append((e.kind, x))
-    held = replace(bl, hold_s=tuple(0.5 / float(ds.sample_rate_hz) for ds in ds_list))
+        vectors.append((kind, x))
     corr = max(ds.corr_length for ds in ds_list)
     refit = fit_model(list(ds_list), held, vectors, start_baseline=start_vectors(fit))
     removed: list = []
