@@ -141,6 +141,21 @@ def test_what_the_data_identify_is_not_refused(effect):
     assert _unidentifiable(effect, _datasets()) is None
 
 
+def test_a_mode_on_an_end_of_the_range_searched_is_not_placed():
+    """A mode's frequencies are searched over the measured band widened by diagnosis.BAND_MARGIN; one that ends on
+    an end of that range is where the data want it further out (against a simulator that cannot represent the
+    second rig's plants, base "modes" at exactly 50.0 Hz from 0.1-40 Hz data). Just inside, it is placed."""
+    from samii.diagnose.diagnosis import BAND_MARGIN, _within_band
+
+    ds = _datasets()
+    base, act = _within_band(KIND["base_mode"], ds), _within_band(KIND["act_mode"], ds)
+    top, bottom = 40.0 * BAND_MARGIN, 0.1 / BAND_MARGIN
+    assert "not placed by the data: its freq_hz" in _unidentifiable(Effect(base, {"freq_hz": top, "zeta": 0.15, "residue": 0.035}, {}), ds)
+    assert _unidentifiable(Effect(base, {"freq_hz": 0.97 * top, "zeta": 0.15, "residue": 0.035}, {}), ds) is None
+    low_zero = {"freq_hz": 0.0866, "zeta": 0.41, "zero_freq_hz": bottom, "zero_zeta": 0.36}
+    assert "its zero_freq_hz" in _unidentifiable(Effect(act, low_zero, {}), ds)
+
+
 def test_a_pair_below_the_band_is_a_gain_a_fixed_baseline_cannot_hold():
     pair = _effect("pole_zero", zero_hz=0.01, pole_hz=0.012)
     assert "below the excited band" in _unidentifiable(pair, _datasets(), free=True)

@@ -252,7 +252,10 @@ def _print(d, written) -> None:
     real = [e for e in d.effects if not e.expected]
     sim = d.simulator.verdict_text() if d.simulator is not None else ""
     if not d.effects:
-        print("verdict: none: " + ("no effect of the library is needed, but a residual beyond the noise remains (unexplained, below)"
+        unattributed = d.simulator is not None and bool(d.simulator.unattributed)
+        print("verdict: none: " + ("no effect of the library is attributed, and a residual beyond the noise remains (unexplained, below)"
+                                   if unattributed else
+                                   "no effect of the library is needed, but a residual beyond the noise remains (unexplained, below)"
                                    if d.unexplained else "the baseline explains the data to within their noise") + (f"; {sim}" if sim else ""))
     else:
         left = ", but a residual beyond the noise remains (unexplained, below)" if d.unexplained and not real else ""

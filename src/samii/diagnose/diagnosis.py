@@ -645,7 +645,9 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
 
     Returns (effects, (files, datasets, final fit), SimulatorReport, later steps, later candidates)."""
     from samii.calibrate.simulator import parameter_value
-    from samii.diagnose.simulator import BODY, CARRY, LATE, SPOOL, body_effect_values, carry, carry_and_recalibrate, found_value, simulator_report, spool_lag_s
+    from samii.diagnose.attribution import unattributed as unattributed_why
+    from samii.diagnose.simulator import (BODY, CARRY, LATE, SPOOL, body_effect_values, carry, carry_and_recalibrate, found_value, misfits,
+                                          simulator_report, spool_lag_s)
 
     refuse = {f"nonlinear/{f.kind}": reason for f in nonlinear if (reason := _no_level(f)) is not None}
     to_carry = list(effects)
@@ -669,7 +671,10 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
         more_steps += steps2
         more_tried += tried2
         second = _effects(after, steps2, tried2, files)
-        bodies = [e for e in second if not e.expected and f"{e.category}/{e.kind}" in LATE]
+        # (one the simulator with it would still miss the data around cannot be told from an image: not carried)
+        left = misfits(datasets, after.residuals)
+        bodies = [e for e in second if not e.expected and f"{e.category}/{e.kind}" in LATE
+                  and (not left or unattributed_why(after, datasets, left, f"{e.category}/{e.kind}", e.params) is None)]
         if not bodies or nonlinear or round_ == CARRY_ROUNDS - 1:
             break  # beside a nonlinearity a mode found may be its image: not carried
         # the mode alone in the first calibration, recalibrated; the first selection again against it. That simulator
@@ -690,10 +695,12 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
         steps_by_label.update({s.label: s for s in steps2 if s.label in LATE})
         to_carry = _effects(after_b, steps_b, tried_b, measured) + [body]
     out = []
+    shown: dict[int, dict] = {}  # a carried effect's values as its selection found them: what its change is judged by
     for e in to_carry:
         label = f"{e.category}/{e.kind}"
         if label not in report.carried or e.category == "nonlinear":
             continue
+        shown[len(out)] = dict(e.params)
         r = report.after.result
         step = steps_by_label.get(label)
         p_text = "" if step is None else "p < 1e-300" if step.log10_p <= -300 else f"p = 10^{step.log10_p:.1f}"
@@ -727,11 +734,35 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
     if nonlinear:
         second = [e if e.expected else replace(e, evidence=e.evidence + "; found beside a nonlinearity: it may be that "
                                                "nonlinearity's image") for e in second]
+    shown.update({len(out) + j: dict(e.params) for j, e in enumerate(second)})
     out += second
+    # where the simulator with everything found still cannot represent the data, what was found there must explain
+    # most of the misfit it acts in, or it is not told from an image of the structure the simulator lacks
+    left = misfits(datasets, after.residuals)
+    unattributed, keep, gone = [], [], []
+    for j, e in enumerate(out):
+        label = f"{e.category}/{e.kind}"
+        why = None if e.expected or not left else unattributed_why(after, datasets, left, label, shown[j])
+        if why is None:
+            keep.append(e)
+            continue
+        unattributed.append(f"{label}: {why}")
+        gone.append(e)
+        step = steps_by_label.get(label) or next((s for s in more_steps if s.label == label), None)
+        more_tried.append({"round": "attribution", "effect": label, "params": dict(e.params), "refused": why,
+                           "log10_p_test": None if step is None else step.log10_p})
+    out = keep
+    rest = [x for x in after.effects if not any(x.kind.label == f"{e.category}/{e.kind}" and dict(x.values) == e.params for e in gone)]
+    if len(rest) < len(after.effects):
+        # the final model without them: the error after and the bands left are of what is reported
+        from samii.diagnose.model import fit_model, start_vectors
+        from samii.diagnose.select import _vectors
+
+        after = fit_model(list(datasets), after.baseline, _vectors(rest), start_baseline=start_vectors(after))
     out += [e for e in effects if e.category == "nonlinear"]
     # what stays uncarried is what the final list holds; the first pass's other proposals were images
     # of the simulator calibrated without the carried effects
-    _, carriable, not_carried = carry(second, report.before.params)
+    _, carriable, not_carried = carry([e for e in second if any(e is k for k in out)], report.before.params)
     why_not = ("found beside a nonlinearity (it may be the nonlinearity's image)" if nonlinear else
                f"found by the last selection, after {round_ + 1} round{'s' if round_ else ''} of carrying")
     not_carried += [f"{label}: {why_not}" for label in carriable]
@@ -739,7 +770,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
     not_carried += [n for n in report.not_lowering + tuple(body_not_carried) if n not in not_carried]
     dropped = [f"{e.category}/{e.kind}" for e in effects if not e.expected and e.category != "nonlinear"
                and f"{e.category}/{e.kind}" not in report.carried and not any(f"{o.category}/{o.kind}" == f"{e.category}/{e.kind}" for o in out)]
-    report = replace(report, not_carried=tuple(not_carried), dropped=tuple(dropped))
+    report = replace(report, not_carried=tuple(not_carried), dropped=tuple(dropped), unattributed=tuple(unattributed))
     return out, (tuple(files), datasets, after), report, more_steps, more_tried
 
 
@@ -814,7 +845,7 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
         # the correction stays the start's here: recomputed at knobs a missing effect has bent (a 20 Hz
         # roll-off moved joint 1's damping 2.3x) it misled the selection; after the carry it is iterated
         notes.append(f"the simulator's {', '.join(calibrated.result.names)} were calibrated to {measured[0].source} "
-                     f"({'converged' if calibrated.result.converged else 'NOT converged'}); the effects are fitted with those knobs refitted "
+                     f"({'converged' if calibrated.result.converged else 'NOT converged: ' + calibrated.result.status}); the effects are fitted with those knobs refitted "
                      "through the simulator's first-order sensitivity to them")
 
     held = False  # the command's hold: tried on the model found (samii.diagnose.sampling.with_hold_found)

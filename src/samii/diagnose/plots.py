@@ -137,11 +137,24 @@ def _clip(ax) -> None:
         ax.set_ylim(lo - pad, hi + pad)
 
 
-def _before_after(ax_m, ax_p, f_before, before, f_after, after, ph_after, color, before_label: str, after_label: str) -> None:
+def _phase_over(f: np.ndarray, h: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """The phase [rad] of ``h`` unwrapped over ``lo``..``hi`` Hz (the data's usable points), NaN outside: unwrapped
+    through a band where the response is under the estimator's own error (a simulator's xdd/v below 1 Hz, 40 dB
+    down) the phase walks by whole turns, and the curve where it can be compared went to -3000 deg."""
+    out = np.full(f.size, np.nan)
+    inside = (f >= lo) & (f <= hi)
+    out[inside] = np.unwrap(np.angle(h[inside]))
+    return out
+
+
+def _before_after(ax_m, ax_p, f_before, before, f_after, after, ph_after, color, before_label: str, after_label: str,
+                  band: tuple[float, float] = (0.0, np.inf)) -> None:
     """A model before (dashed grey) and after (solid ``color``) on a magnitude and a phase axis; the before's phase
-    shifted by whole turns to start where the after's unwrapped phase ``ph_after`` does."""
-    ph_before = np.unwrap(np.angle(before))
-    ph_before = ph_before + (_near(ph_before[0], ph_after[0]) - ph_before[0])
+    (over ``band``, as ``ph_after``'s) shifted by whole turns to start where the after's unwrapped phase ``ph_after`` does."""
+    ph_before = _phase_over(f_before, before, *band)
+    a, b = np.flatnonzero(np.isfinite(ph_after)), np.flatnonzero(np.isfinite(ph_before))
+    if a.size and b.size:
+        ph_before = ph_before + (_near(ph_before[b[0]], np.interp(f_before[b[0]], f_after[a], ph_after[a])) - ph_before[b[0]])
     ax_m.plot(f_before, _DB * np.log(np.abs(before)), "--", color="0.35", lw=1.0, label=before_label)
     ax_p.plot(f_before, _DEG * ph_before, "--", color="0.35", lw=1.0)
     ax_m.plot(f_after, _DB * np.log(np.abs(after)), "-", color=color, lw=1.2, label=after_label)
@@ -312,13 +325,17 @@ def simulator_figure(d: Diagnosis, path=None):
             ax_m, ax_p = axes[0, col], axes[1, col]
             h = m.frf.response(ch)
             ok = usable[i].keep[ch] if ch in usable[i].keep else np.ones(h.size, bool)
-            ph_after = np.unwrap(np.angle(after.response(ch)))
-            ph_data = _near(np.angle(h[ok]), np.interp(m.frf.freq_hz[ok], after.freq_hz, ph_after))
+            f_ok = m.frf.freq_hz[ok]
+            band = (float(f_ok.min()), float(f_ok.max())) if f_ok.size else (0.0, np.inf)
+            ph_after = _phase_over(after.freq_hz, after.response(ch), *band)
+            inside = np.isfinite(ph_after)
+            ph_data = (_near(np.angle(h[ok]), np.interp(f_ok, after.freq_hz[inside], ph_after[inside])) if inside.any()
+                       else np.angle(h[ok]))
             ax_m.plot(m.frf.freq_hz[ok], _DB * np.log(np.abs(h[ok])), ".", ms=2.5, color=c, alpha=0.5, label=f"data{tag}")
             ax_p.plot(m.frf.freq_hz[ok], _DEG * ph_data, ".", ms=2.5, color=c, alpha=0.5)
             if rep.carried:
                 _before_after(ax_m, ax_p, before.freq_hz, before.response(ch), after.freq_hz, after.response(ch), ph_after, c,
-                              f"simulator, calibrated{tag}", f"simulator with the effects{tag}")
+                              f"simulator, calibrated{tag}", f"simulator with the effects{tag}", band)
             else:  # nothing carried: one simulator, no "after" to tell from it
                 ax_m.plot(after.freq_hz, _DB * np.log(np.abs(after.response(ch))), "-", color=c, lw=1.2, label=f"simulator, calibrated{tag}")
                 ax_p.plot(after.freq_hz, _DEG * ph_after, "-", color=c, lw=1.2)

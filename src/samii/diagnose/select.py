@@ -235,6 +235,8 @@ def _mode_freqs_hz(fit: Fit) -> list[float]:
     out = []
     if st is None:
         return out
+    if hasattr(st, "mode_freqs_hz"):  # a structure without modal parameters that knows its modes (the simulator's)
+        return list(st.mode_freqs_hz())
     for p in fit.baseline_params:
         for k in range(1, st.n_modes + 1):
             wn, _ = st.mode_names(k)
@@ -339,6 +341,13 @@ def _unidentifiable(e: Effect, ds_list: list[Dataset], free: bool = True) -> str
         if v["zeta"] >= top * (1.0 - 1e-3):
             return (f"not a resonance: its damping sits on the library's bound ({top:g}), the data want a broader shape than a mode "
                     "(a tilt or a bump)")
+        # a frequency on an end of its search range (the measured band widened by diagnosis.BAND_MARGIN) is not placed
+        # either: the data want it further out, where a mode is a shape they cannot tell (against a simulator that
+        # cannot represent the second rig's plants, base "modes" at exactly 50.0 Hz from 0.1-40 Hz data)
+        for p in e.kind.params:
+            if p.unit == "Hz" and np.isfinite(p.hi) and not p.lo * (1.0 + 1e-3) < v[p.name] < p.hi * (1.0 - 1e-3):
+                return (f"not placed by the data: its {p.name} ({v[p.name]:.4g} Hz) sits on an end of the range searched "
+                        f"({p.lo:.3g}-{p.hi:.3g} Hz, the measured band widened by a factor): the data want it further out")
         # a mode is where it is: one whose frequency the data do not place (as a pole/zero pair's corners above) is a
         # shape, not a resonance (on the held-out second rig's 1 Hz AC coupling a base "mode" at 0.08 +- 5.9 Hz, damping
         # 0.27 +- 21, below the excited band, took up the low end of xdd/v)
