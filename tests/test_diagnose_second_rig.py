@@ -206,3 +206,21 @@ def test_a_saturation_named_by_where_its_harmonic_is_absent_too_is_divided_out()
     for ch in ("act", "total"):
         assert d.error_after[ch].chi2 < d.error_before[ch].chi2
     assert d.harmonic_error is not None and d.harmonic_error[1].chi2 < d.harmonic_error[0].chi2
+
+
+def test_the_simulator_calibrated_to_a_rig_it_cannot_represent_stays_stable():
+    """The battery's 2 ms command delay on a 1 kHz rig (run_second_rig.py, seed 1100, N01): eq 9.4's actuator is not
+    the simulator's valve and orifice, and calibrated to it the simulator's knobs went where its position loop grows
+    (a pole at +3.0 1/s, 8.0 Hz: its re-measurement a limit cycle, 10 dB jagged). The calibration is held where the
+    loop stays stable, and says so."""
+    from samii.diagnose.floor import with_floor
+    from samii.diagnose.simulator import calibrate_simulator, closed_loop_growth, correction
+    from samii.sim.linearize import UNSTABLE_RATE_1_S
+    from samii.sim.model import default_params
+
+    m = with_floor(_measure(1100, 1000.0, dict(direction="up", n_records=3, sweep_s=120.0, rest_s=0.0, amplitude_v=0.1),
+                            command_delay_s=0.002))
+    start = default_params()
+    cal = calibrate_simulator(m, start=start, corrected_by=correction(start, m))
+    assert closed_loop_growth(cal.params) <= UNSTABLE_RATE_1_S
+    assert "held where its position loop stays stable" in cal.result.status and not cal.result.converged

@@ -615,7 +615,7 @@ def _no_level(finding) -> str | None:
     return "its describing function does not fit the harmonics, so no level to carry"
 
 
-def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alpha, progress, first_baseline=None):
+def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alpha, progress, first_baseline=None, first_fit=None):
     """``--baseline sim`` after the first selection (which tried only what the simulator can take):
     carry the effects into the simulator, recalibrate, and select again with the whole library
     against the simulator with them. The first calibration, made without the effects, bent the knobs
@@ -643,6 +643,11 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
     missing mode's image: a 15 Hz body came out as a 0.3 % accelerometer gain error), and what it
     finds is carried with the body, from the first calibration, before the last selection.
 
+    What is found where the simulator with it still cannot represent the data is attributed only when it takes out
+    most of the misfit it acts in (:mod:`samii.diagnose.attribution`): the first selection's findings (``first_fit``:
+    its datasets and fit) before they are carried, a mode before the second round carries it, and everything found
+    at the end; the rest is listed as refused (round "attribution") and not carried.
+
     Returns (effects, (files, datasets, final fit), SimulatorReport, later steps, later candidates)."""
     from samii.calibrate.simulator import parameter_value
     from samii.diagnose.attribution import unattributed as unattributed_why
@@ -650,12 +655,35 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
                                           simulator_report, spool_lag_s)
 
     refuse = {f"nonlinear/{f.kind}": reason for f in nonlinear if (reason := _no_level(f)) is not None}
+
+    def attribute(ds, fit, found, found_steps):
+        """(label -> "not attributed: why", "label: why", refused records) for the linear effects ``found`` in ``fit``
+        (on datasets ``ds``) that cannot be told from images of what the simulator with them lacks."""
+        left = misfits(ds, fit.residuals)
+        no, texts, records = {}, [], []
+        for e in found:
+            label = f"{e.category}/{e.kind}"
+            if e.expected or e.category == "nonlinear" or not left:
+                continue
+            if (why := unattributed_why(fit, ds, left, label, e.params)) is not None:
+                no[label] = f"not attributed: {why}"
+                texts.append(f"{label}: {why}")
+                step = next((s for s in found_steps if s.label == label), None)
+                records.append({"round": "attribution", "effect": label, "params": dict(e.params), "refused": why,
+                                "log10_p_test": None if step is None else step.log10_p})
+        return no, texts, records
+
+    # what the first selection found where the simulator with it still misses the data is attributed first, or not
+    # carried (a carry of an image bends the knobs the rest is fitted against); a second round's first selection
+    # replaces these
+    first_no, unattributed, first_records = attribute(*first_fit, effects, steps) if first_fit is not None else ({}, [], [])
+    more_tried = list(first_records)
     to_carry = list(effects)
     steps_by_label = {s.label: s for s in steps}
-    more_steps, more_tried = [], []
+    more_steps = []
     body_not_carried: list[str] = []
     for round_ in range(CARRY_ROUNDS):
-        report = simulator_report(raw, measured, calibrated, to_carry, progress=progress, refuse=refuse)
+        report = simulator_report(raw, measured, calibrated, to_carry, progress=progress, refuse={**refuse, **first_no})
         uncarried_law = any(f"nonlinear/{f.kind}" not in report.carried for f in nonlinear)
         # with every law in the simulator, its correction holds their describing functions: the data as measured
         files = measured if uncarried_law else raw
@@ -688,12 +716,17 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
             body_not_carried = list(body_not)  # (why: its residue's sign, or the simulator with it diverges)
             break  # (a residue no body on the tip makes): reported as found, not carried
         _stage(progress, "selecting again against the simulator with the extra mode")
-        _, after_b, steps_b, tried_b = _select_against(with_body, measured, lambda label: label in CARRY, alpha=alpha, progress=progress)
+        ds_b, after_b, steps_b, tried_b = _select_against(with_body, measured, lambda label: label in CARRY, alpha=alpha, progress=progress)
         more_steps += steps_b
-        more_tried += tried_b
         steps_by_label.update({s.label: s for s in steps_b})
         steps_by_label.update({s.label: s for s in steps2 if s.label in LATE})
-        to_carry = _effects(after_b, steps_b, tried_b, measured) + [body]
+        found_b = _effects(after_b, steps_b, tried_b, measured)
+        # the first selection's attribution is replaced by this one's (against the simulator with the mode)
+        more_tried = [t for t in more_tried if t not in first_records]
+        first_no, first_texts, first_records = attribute(ds_b, after_b, found_b, steps_b)
+        unattributed = list(first_texts)
+        more_tried += first_records + tried_b
+        to_carry = found_b + [body]
     out = []
     shown: dict[int, dict] = {}  # a carried effect's values as its selection found them: what its change is judged by
     for e in to_carry:
@@ -739,7 +772,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
     # where the simulator with everything found still cannot represent the data, what was found there must explain
     # most of the misfit it acts in, or it is not told from an image of the structure the simulator lacks
     left = misfits(datasets, after.residuals)
-    unattributed, keep, gone = [], [], []
+    keep, gone = [], []
     for j, e in enumerate(out):
         label = f"{e.category}/{e.kind}"
         why = None if e.expected or not left else unattributed_why(after, datasets, left, label, shown[j])
@@ -769,7 +802,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
     not_carried += carry([e for e in effects if e.category == "nonlinear"], report.before.params, refuse=refuse)[2]
     not_carried += [n for n in report.not_lowering + tuple(body_not_carried) if n not in not_carried]
     dropped = [f"{e.category}/{e.kind}" for e in effects if not e.expected and e.category != "nonlinear"
-               and f"{e.category}/{e.kind}" not in report.carried and not any(f"{o.category}/{o.kind}" == f"{e.category}/{e.kind}" for o in out)]
+               and f"{e.category}/{e.kind}" not in report.carried and f"{e.category}/{e.kind}" not in first_no and not any(f"{o.category}/{o.kind}" == f"{e.category}/{e.kind}" for o in out)]
     report = replace(report, not_carried=tuple(not_carried), dropped=tuple(dropped), unattributed=tuple(unattributed))
     return out, (tuple(files), datasets, after), report, more_steps, more_tried
 
@@ -910,7 +943,8 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     final = (datasets, after)
     if sim:
         effects, (files, sim_datasets, sim_after), report, more_steps, more_tried = _simulator_pass(
-            raw, measured, calibrated, effects, nonlinear, steps, alpha=alpha, progress=progress, first_baseline=bl)
+            raw, measured, calibrated, effects, nonlinear, steps, alpha=alpha, progress=progress, first_baseline=bl,
+            first_fit=(datasets, after))
         final = (sim_datasets, sim_after)
         steps, tried = list(steps) + more_steps, list(tried) + more_tried
         if files is raw and raw is not measured:

@@ -202,8 +202,12 @@ def bode_figure(d: Diagnosis, path=None):
             ok = np.isfinite(e)
             h = m.frf.response(ch) if ch in m.frf.channels else (m.frf.total / m.frf.act if ch == "base" else m.frf.act * m.frf.base)
             ref = ma[ch]
-            ph_model = np.unwrap(np.angle(ref))
-            ph_data = _near(np.angle(h[ok]), np.interp(f[ok], fm, ph_model))
+            # against the simulator the model holds its re-measurement's correction, which under the data's usable band
+            # is the estimator's own error (xdd/v 40 dB down): its phase is drawn over the usable band only
+            band = (float(f[ok].min()), float(f[ok].max())) if d.simulator is not None and ok.any() else (0.0, np.inf)
+            ph_model = _phase_over(fm, ref, *band)
+            inside = np.isfinite(ph_model)
+            ph_data = _near(np.angle(h[ok]), np.interp(f[ok], fm[inside], ph_model[inside])) if inside.any() else np.angle(h[ok])
             ax_m, ax_p = axes[0, col], axes[1, col]
             if d.raw_measured is not None and ch != "base":  # the data as measured, before the nonlinearity was divided out
                 raw = d.raw_measured[i].frf.response(ch)[ok]
@@ -218,7 +222,7 @@ def bode_figure(d: Diagnosis, path=None):
                 ax_m.plot(fm, _DB * np.log(np.abs(ref)), "-", color=c, lw=1.2, label=f"baseline (no effect found){tag}")
                 ax_p.plot(fm, _DEG * ph_model, "-", color=c, lw=1.2)
             else:
-                _before_after(ax_m, ax_p, fm, mb[ch], fm, ref, ph_model, c, f"baseline{tag}", f"with the effects{tag}")
+                _before_after(ax_m, ax_p, fm, mb[ch], fm, ref, ph_model, c, f"baseline{tag}", f"with the effects{tag}", band)
     for col, ch in enumerate(chans):
         if _unusable(residuals, ch):
             _say_unusable(axes[:, col], y=0.12)

@@ -161,7 +161,7 @@ class SimulatorReport:
         if self.worse:
             parts.append("carrying them makes its error worse: " + ", ".join(self.worse))
         if self.unattributed:
-            labels = [u.split(":", 1)[0] for u in self.unattributed]
+            labels = list(dict.fromkeys(u.split(":", 1)[0] for u in self.unattributed))
             parts.append("found against it but not told from images of what it lacks (not reported as effects): " + ", ".join(labels))
         return "; ".join(parts)
 
