@@ -224,3 +224,22 @@ def test_the_simulator_calibrated_to_a_rig_it_cannot_represent_stays_stable():
     cal = calibrate_simulator(m, start=start, corrected_by=correction(start, m))
     assert closed_loop_growth(cal.params) <= UNSTABLE_RATE_1_S
     assert "held where its position loop stays stable" in cal.result.status and not cal.result.converged
+
+
+def test_calibrating_the_simulator_to_a_file_without_a_usable_theta_warns_nothing():
+    """A 12-bit encoder (the battery's N02): theta moves by under a count over much of the band, and theta/v has no
+    usable point. The calibration's rms per channel took the mean of an empty slice: two RuntimeWarnings reached the
+    terminal (issue 31 item 4: none may)."""
+    import warnings
+
+    from samii.diagnose.floor import with_floor
+    from samii.diagnose.model import Dataset
+    from samii.diagnose.simulator import calibrate_simulator
+
+    m = with_floor(_measure(1001, 1000.0, dict(direction="up", n_records=3, sweep_s=120.0, rest_s=20.0, amplitude_v=0.1),
+                            daq=dict(encoder_bits=12)))
+    assert not Dataset.from_measured(m).keep["act"].any()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        cal = calibrate_simulator(m)
+    assert "act" not in cal.result.rms and cal.result.rms

@@ -335,14 +335,18 @@ def simulator_figure(d: Diagnosis, path=None):
             inside = np.isfinite(ph_after)
             ph_data = (_near(np.angle(h[ok]), np.interp(f_ok, after.freq_hz[inside], ph_after[inside])) if inside.any()
                        else np.angle(h[ok]))
-            ax_m.plot(m.frf.freq_hz[ok], _DB * np.log(np.abs(h[ok])), ".", ms=2.5, color=c, alpha=0.5, label=f"data{tag}")
-            ax_p.plot(m.frf.freq_hz[ok], _DEG * ph_data, ".", ms=2.5, color=c, alpha=0.5)
+            if ok.any():  # (no legend entry for points that are not there)
+                ax_m.plot(m.frf.freq_hz[ok], _DB * np.log(np.abs(h[ok])), ".", ms=2.5, color=c, alpha=0.5, label=f"data{tag}")
+                ax_p.plot(m.frf.freq_hz[ok], _DEG * ph_data, ".", ms=2.5, color=c, alpha=0.5)
             if rep.carried:
                 _before_after(ax_m, ax_p, before.freq_hz, before.response(ch), after.freq_hz, after.response(ch), ph_after, c,
                               f"simulator, calibrated{tag}", f"simulator with the effects{tag}", band)
             else:  # nothing carried: one simulator, no "after" to tell from it
                 ax_m.plot(after.freq_hz, _DB * np.log(np.abs(after.response(ch))), "-", color=c, lw=1.2, label=f"simulator, calibrated{tag}")
                 ax_p.plot(after.freq_hz, _DEG * ph_after, "-", color=c, lw=1.2)
+    for col, ch in enumerate(chans):
+        if not any(ch in u.keep and u.keep[ch].any() for u in usable):
+            _say_unusable(axes[:, col], y=0.12)
     _label_bode(axes, chans)
     head = (f"The simulator measured like the data: before and after carrying in {', '.join(rep.carried)}" if rep.carried else
             "The simulator measured like the data (calibrated; the diagnosis found nothing to carry into it)")

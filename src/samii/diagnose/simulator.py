@@ -315,6 +315,8 @@ def calibrate_simulator(m: Measured, *, start: SamiiParams | None = None, extra:
         n = int(ds.keep[c].sum())
         re, im = r[offset:offset + n] / ds.inv_sigma[c], r[offset + n:offset + 2 * n] / ds.inv_sigma[c]
         offset += 2 * n
+        if n == 0:  # (no usable point: theta under a 12-bit encoder's step) no error to state
+            continue
         rms[c] = (float(20 / np.log(10) * np.sqrt(np.mean(re ** 2))), float(np.degrees(np.sqrt(np.mean(im ** 2)))))
     on_bound = [n for n, z, a, b in zip(names, sol.x, lo, hi) if min(z - a, b - z) < 1e-3]
     result = Calibration(names, dict(zip(names, map(float, x0))), dict(zip(names, map(float, x))), dict(zip(names, map(float, se))),
