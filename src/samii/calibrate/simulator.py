@@ -89,6 +89,7 @@ class SimulatorFRF:
     param_names: tuple[str, ...]
     rel_step: float = 1e-4
     _cache: dict = field(default_factory=dict, init=False, repr=False)
+    _models: dict = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "param_names", tuple(self.param_names))
@@ -128,11 +129,20 @@ class SimulatorFRF:
         physical = {n: float(v) for n, v in zip(self.param_names, x) if not n.startswith(GAIN_PREFIX)}
         return params_with_overrides(self.base, physical)
 
+    #: Compiled models kept (the last few ``x``): a calibration's step is evaluated and then checked on the same model.
+    MODELS_KEPT = 4
+
     def model(self, x: Sequence[float]):
-        """The compiled MuJoCo model for ``x``, at its static equilibrium."""
+        """The compiled MuJoCo model for ``x``, at its static equilibrium (not to be modified: it may be kept)."""
         from samii.sim.model import load_model
 
-        return load_model(params=self.samii_params(x))
+        key = np.asarray(x, float).tobytes()
+        hit = self._models.get(key)
+        if hit is None:
+            while len(self._models) >= self.MODELS_KEPT:
+                self._models.pop(next(iter(self._models)))
+            hit = self._models[key] = load_model(params=self.samii_params(x))
+        return hit
 
     def frf(self, x: Sequence[float], freq_hz: np.ndarray) -> FrequencyResponse:
         """The linearised simulator's FRF (act, base, total) for ``x``, channel gains applied."""

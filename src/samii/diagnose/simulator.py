@@ -292,12 +292,16 @@ def calibrate_simulator(m: Measured, *, start: SamiiParams | None = None, extra:
     # calibration, whatever its linearised response (an unstable pole's magnitude is a stable one's; on the second
     # rig's 2 ms delay the knobs went to a pole growing at 3.0 1/s at 8.0 Hz, and the simulator measured like the file
     # was a limit cycle). A step there is made to cost more than the start (the trust region then shrinks).
-    guard = closed_loop_growth(sim.samii_params(np.exp(z0))) <= UNSTABLE_RATE_1_S
+    def growth(z):
+        x = np.exp(z)
+        return closed_loop_growth(sim.samii_params(x), sim.model(x))  # (the model the responses were just computed on)
+
+    guard = growth(z0) <= UNSTABLE_RATE_1_S
     held = []  # the unstable knobs a step was refused at
 
     def residuals(z):
         r = parts(z, False)[0]
-        if guard and closed_loop_growth(sim.samii_params(np.exp(z))) > UNSTABLE_RATE_1_S:
+        if guard and growth(z) > UNSTABLE_RATE_1_S:
             held.append(z)
             return 10.0 * np.maximum(np.abs(r0), np.abs(r)) + 1.0
         return r
@@ -328,14 +332,14 @@ def calibrate_simulator(m: Measured, *, start: SamiiParams | None = None, extra:
     return SimulatorCalibration(sim.samii_params(x), result, m.source)
 
 
-def closed_loop_growth(params: SamiiParams) -> float:
-    """The fastest growth rate [1/s] of the simulator with ``params`` about its equilibrium, its position loop
-    closed (``samii.sim.linearize.discrete_poles``): positive when it is unstable (a valve law bounds it to a limit
-    cycle)."""
+def closed_loop_growth(params: SamiiParams, model=None) -> float:
+    """The fastest growth rate [1/s] of the simulator with ``params`` (compiled: ``model``, else compiled here) about
+    its equilibrium, its position loop closed (``samii.sim.linearize.discrete_poles``): positive when it is unstable
+    (a valve law bounds it to a limit cycle)."""
     from samii.sim.linearize import discrete_poles
     from samii.sim.model import load_model
 
-    z = discrete_poles(load_model(params=params))
+    z = discrete_poles(load_model(params=params) if model is None else model)
     return float(np.max(np.log(np.abs(z)))) / params.timestep_s
 
 
