@@ -182,6 +182,7 @@ def run_case(name: str, effects: dict, injected: list, *, amplitude_v: float | t
         "extra": [{"category": e.category, "kind": e.kind, "params": e.params} for e in unmatched],
         "expected": [{"kind": e.kind, "params": e.params} for e in d.effects if e.expected],
         "verdict": d.verdict, "unexplained": [b.to_dict() for b in d.unexplained],
+        "refused": [{"round": x["round"], "effect": x["effect"], "class": x["class"]} for x in d.refused],
         "error_before": {k: v.to_dict() for k, v in d.error_before.items()},
         "error_after": {k: v.to_dict() for k, v in d.error_after.items()},
         "harmonic_error": None if d.harmonic_error is None else {"before": d.harmonic_error[0].to_dict(), "after": d.harmonic_error[1].to_dict()},
@@ -203,6 +204,15 @@ def _confusion(results: list[dict]) -> str:
     for c in cats + ["(none)"]:
         lines.append(f"| {c} | " + " | ".join(str(counts[c][k]) if not (c == "(none)" and k == "missed") else "" for k in cols) + " |")
     return "\n".join(lines)
+
+
+def _refused_text(results: list[dict]) -> str:
+    """The candidates refused over the battery, by class (samii.diagnose.select.REFUSAL_CLASSES)."""
+    from collections import Counter
+
+    counts = Counter(x["class"] for r in results for x in r.get("refused", []))
+    cases = sum(1 for r in results if r.get("refused"))
+    return f"{sum(counts.values())} in {cases} cases: " + ", ".join(f"{c} {n}" for c, n in counts.most_common())
 
 
 def _summary(results: list[dict]) -> tuple[str, dict]:
@@ -245,6 +255,7 @@ def _summary(results: list[dict]) -> tuple[str, dict]:
         "above before and their sum below; with a nonlinear law found, its harmonics' chi2 counts too, and theta/v and xdd/v are "
         "after its describing function is divided out where it fits) |",
         f"| (not a goal) effects found beyond those injected | {extra} in {len(improved)} effect cases |",
+        f"| candidates that passed the F-test, refused (the data do not show them) | {_refused_text(results)} |",
         f"| (speed) diagnosis time per case | median {stats['time_s_median']:.1f} s, max {stats['time_s_max']:.1f} s |",
     ])
     return text, stats

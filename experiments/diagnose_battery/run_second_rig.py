@@ -253,6 +253,7 @@ def run_case(case: dict, csv_dir: str | None = None) -> dict:
             "error_after": {k: v.to_dict() for k, v in d.error_after.items()},
             "harmonic_error": None if d.harmonic_error is None else {"before": d.harmonic_error[0].to_dict(), "after": d.harmonic_error[1].to_dict()},
             "notes": list(d.notes),
+            "refused": [{"round": x["round"], "effect": x["effect"], "class": x["class"]} for x in d.refused],
         })
     except Exception as exc:  # a case that fails is reported, not fatal
         out.update({"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(), "injected": [
@@ -304,6 +305,15 @@ def _better(r: dict) -> bool:
     return all(a <= b for b, a in pairs) and sum(a for _, a in pairs) < sum(b for b, _ in pairs)
 
 
+def _refused_text(results: list[dict]) -> str:
+    """The candidates refused over the battery, by class (samii.diagnose.select.REFUSAL_CLASSES)."""
+    from collections import Counter
+
+    counts = Counter(x["class"] for r in results for x in r.get("refused", []))
+    cases = sum(1 for r in results if r.get("refused"))
+    return f"{sum(counts.values())} in {cases} cases: " + ", ".join(f"{c} {n}" for c, n in counts.most_common())
+
+
 def _summary(results: list[dict]) -> tuple[str, dict]:
     ok = [r for r in results if not r.get("error")]
     lib = [row for r in results for row in r["injected"] if row["category"] != "out_of_library"]
@@ -339,6 +349,7 @@ def _summary(results: list[dict]) -> tuple[str, dict]:
         f"| out-of-library physics left unexplained, no library effect named | {ool_right}/{len(ool)} |",
         f"| effects found beyond those injected | {extra} in {len(effect_cases)} effect cases |",
         f"| cases that failed to run | {len(errors)} |",
+        f"| candidates that passed the F-test, refused (the data do not show them) | {_refused_text(results)} |",
         f"| diagnosis time per case | median {stats['time_s_median']:.1f} s, max {stats['time_s_max']:.1f} s |",
     ])
     return text, stats

@@ -50,7 +50,7 @@ from samii.diagnose.measured import Measured, check_actuator_sign
 from samii.diagnose.model import (FEEDTHROUGH_KEY, MAX_VAR, Baseline, Dataset, Fit, _apply, feedthrough_term, hold_factor,
                                   sampled_images)
 from samii.diagnose.nonlinear import MAX_DF_CHI2, distortion_var, find_nonlinear, harmonic_errors, linearised
-from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select, sample_s, within_sampling
+from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select, refusal_class, sample_s, within_sampling
 from samii.diagnose.sampling import feedthrough_note, feedthrough_of, hold_note, with_hold_found, with_sampling
 
 __all__ = ["ChannelError", "FoundEffect", "Band", "Diagnosis", "diagnose", "CHANNELS", "BAND_POINTS", "RULE"]
@@ -153,7 +153,7 @@ class Diagnosis:
         """Every candidate that passed the F-test but was refused, with its reason (below the excited band, cancels
         within its uncertainty, smaller than the measurement's floor, indistinguishable from the sampling...)."""
         return [{"round": t["round"], "effect": t["effect"], "params": dict(t["params"]), "reason": t["refused"],
-                 "log10_p": t["log10_p_test"]} for t in self.tried if t.get("refused")]
+                 "class": refusal_class(t["refused"]), "log10_p": t["log10_p_test"]} for t in self.tried if t.get("refused")]
 
     @property
     def verdict(self) -> str:

@@ -381,6 +381,19 @@ def _unidentifiable(e: Effect, ds_list: list[Dataset], free: bool = True) -> str
     return None
 
 
+#: The classes of the reasons a candidate that passed the F-test is refused for, each a phrase its reason holds
+#: (:func:`refusal_class`); attribution's is samii.diagnose.attribution's.
+REFUSAL_CLASSES = ("below the excited band", "above the excited band", "not determined by the data", "not a resonance",
+                   "not placed by the data", "cancels within its uncertainty", "smaller than the measurement's floor",
+                   "indistinguishable from the sampling", "longer than a record", "a mode split in two",
+                   "a mode the data cannot resolve", "not told from an image", "cannot be placed")
+
+
+def refusal_class(reason: str) -> str:
+    """The class of a refusal's ``reason`` (one of :data:`REFUSAL_CLASSES`, else "other")."""
+    return next((c for c in REFUSAL_CLASSES if c in reason), "other")
+
+
 #: A finding must change the response by more than the floor's PRACTICAL_FACTOR standard deviations (and the
 #: point's whole error) at no fewer than this many points, or twice the noise's correlation length.
 PRACTICAL_POINTS = 3
