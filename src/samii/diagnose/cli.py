@@ -252,11 +252,13 @@ def _print(d, written) -> None:
     real = [e for e in d.effects if not e.expected]
     sim = d.simulator.verdict_text() if d.simulator is not None else ""
     if not d.effects:
-        unattributed = d.simulator is not None and bool(d.simulator.unattributed)
-        print("verdict: none: " + ("no effect of the library is attributed, and a residual beyond the noise remains (unexplained, below)"
-                                   if unattributed else
-                                   "no effect of the library is needed, but a residual beyond the noise remains (unexplained, below)"
-                                   if d.unexplained else "the baseline explains the data to within their noise") + (f"; {sim}" if sim else ""))
+        if d.simulator is not None and d.simulator.unattributed:
+            why = "no effect of the library is attributed, and a residual beyond the noise remains (unexplained, below)"
+        elif d.unexplained:
+            why = "no effect of the library is needed, but a residual beyond the noise remains (unexplained, below)"
+        else:
+            why = "the baseline explains the data to within their noise"
+        print("verdict: none: " + why + (f"; {sim}" if sim else ""))
     else:
         left = ", but a residual beyond the noise remains (unexplained, below)" if d.unexplained and not real else ""
         print(f"verdict: {d.verdict}" + (f": {len(real)} effect(s) the model lacks" if real else f": only what sampling explains{left}")

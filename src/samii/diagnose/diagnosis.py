@@ -656,34 +656,30 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
 
     refuse = {f"nonlinear/{f.kind}": reason for f in nonlinear if (reason := _no_level(f)) is not None}
 
-    def attribute(ds, fit, found, found_steps):
-        """(label -> "not attributed: why", "label: why", refused records) for the linear effects ``found`` in ``fit``
-        (on datasets ``ds``) that cannot be told from images of what the simulator with them lacks."""
+    def attribute(ds, fit, found):
+        """(effect, why) for each linear effect of ``found`` ((effect, the values its change is judged by) pairs, in
+        ``fit`` or in its baseline; on datasets ``ds``) that cannot be told from an image of what the simulator lacks."""
         left = misfits(ds, fit.residuals)
-        no, texts, records = {}, [], []
-        for e in found:
-            label = f"{e.category}/{e.kind}"
-            if e.expected or e.category == "nonlinear" or not left:
-                continue
-            if (why := unattributed_why(fit, ds, left, label, e.params)) is not None:
-                no[label] = f"not attributed: {why}"
-                texts.append(f"{label}: {why}")
-                step = next((s for s in found_steps if s.label == label), None)
-                records.append({"round": "attribution", "effect": label, "params": dict(e.params), "refused": why,
-                                "log10_p_test": None if step is None else step.log10_p})
-        return no, texts, records
+        if not left:
+            return []
+        out = []
+        for e, values in found:
+            if not e.expected and e.category != "nonlinear":
+                if (why := unattributed_why(fit, ds, left, f"{e.category}/{e.kind}", values)) is not None:
+                    out.append((e, why))
+        return out
 
     # what the first selection found where the simulator with it still misses the data is attributed first, or not
     # carried (a carry of an image bends the knobs the rest is fitted against); a second round's first selection
     # replaces these
-    first_no, unattributed, first_records = attribute(*first_fit, effects, steps) if first_fit is not None else ({}, [], [])
-    more_tried = list(first_records)
+    first_gone = attribute(*first_fit, [(e, e.params) for e in effects]) if first_fit is not None else []
     to_carry = list(effects)
     steps_by_label = {s.label: s for s in steps}
-    more_steps = []
+    more_steps, more_tried = [], []
     body_not_carried: list[str] = []
     for round_ in range(CARRY_ROUNDS):
-        report = simulator_report(raw, measured, calibrated, to_carry, progress=progress, refuse={**refuse, **first_no})
+        not_attributed = {f"{e.category}/{e.kind}": f"not attributed: {why}" for e, why in first_gone}
+        report = simulator_report(raw, measured, calibrated, to_carry, progress=progress, refuse={**refuse, **not_attributed})
         uncarried_law = any(f"nonlinear/{f.kind}" not in report.carried for f in nonlinear)
         # with every law in the simulator, its correction holds their describing functions: the data as measured
         files = measured if uncarried_law else raw
@@ -699,10 +695,10 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
         more_steps += steps2
         more_tried += tried2
         second = _effects(after, steps2, tried2, files)
+        bodies = [e for e in second if not e.expected and f"{e.category}/{e.kind}" in LATE]
         # (one the simulator with it would still miss the data around cannot be told from an image: not carried)
-        left = misfits(datasets, after.residuals)
-        bodies = [e for e in second if not e.expected and f"{e.category}/{e.kind}" in LATE
-                  and (not left or unattributed_why(after, datasets, left, f"{e.category}/{e.kind}", e.params) is None)]
+        images = [e for e, _ in attribute(datasets, after, [(e, e.params) for e in bodies])]
+        bodies = [e for e in bodies if not any(e is x for x in images)]
         if not bodies or nonlinear or round_ == CARRY_ROUNDS - 1:
             break  # beside a nonlinearity a mode found may be its image: not carried
         # the mode alone in the first calibration, recalibrated; the first selection again against it. That simulator
@@ -720,20 +716,17 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
         more_steps += steps_b
         steps_by_label.update({s.label: s for s in steps_b})
         steps_by_label.update({s.label: s for s in steps2 if s.label in LATE})
+        more_tried += tried_b
         found_b = _effects(after_b, steps_b, tried_b, measured)
-        # the first selection's attribution is replaced by this one's (against the simulator with the mode)
-        more_tried = [t for t in more_tried if t not in first_records]
-        first_no, first_texts, first_records = attribute(ds_b, after_b, found_b, steps_b)
-        unattributed = list(first_texts)
-        more_tried += first_records + tried_b
+        first_gone = attribute(ds_b, after_b, [(e, e.params) for e in found_b])  # (against the simulator with the mode)
         to_carry = found_b + [body]
     out = []
-    shown: dict[int, dict] = {}  # a carried effect's values as its selection found them: what its change is judged by
+    judged_by: list[dict] = []  # per effect of ``out``, the values its change is judged by (a carried one's as found)
     for e in to_carry:
         label = f"{e.category}/{e.kind}"
         if label not in report.carried or e.category == "nonlinear":
             continue
-        shown[len(out)] = dict(e.params)
+        judged_by.append(dict(e.params))  # (each effect carried is appended to ``out`` once, below)
         r = report.after.result
         step = steps_by_label.get(label)
         p_text = "" if step is None else "p < 1e-300" if step.log10_p <= -300 else f"p = 10^{step.log10_p:.1f}"
@@ -767,24 +760,22 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
     if nonlinear:
         second = [e if e.expected else replace(e, evidence=e.evidence + "; found beside a nonlinearity: it may be that "
                                                "nonlinearity's image") for e in second]
-    shown.update({len(out) + j: dict(e.params) for j, e in enumerate(second)})
+    judged_by += [dict(e.params) for e in second]
     out += second
     # where the simulator with everything found still cannot represent the data, what was found there must explain
     # most of the misfit it acts in, or it is not told from an image of the structure the simulator lacks
-    left = misfits(datasets, after.residuals)
-    keep, gone = [], []
-    for j, e in enumerate(out):
+    final_gone = attribute(datasets, after, list(zip(out, judged_by)))
+    gone = [e for e, _ in final_gone]
+    out = [e for e in out if not any(e is x for x in gone)]
+
+    def refused(e, why):
         label = f"{e.category}/{e.kind}"
-        why = None if e.expected or not left else unattributed_why(after, datasets, left, label, shown[j])
-        if why is None:
-            keep.append(e)
-            continue
-        unattributed.append(f"{label}: {why}")
-        gone.append(e)
         step = steps_by_label.get(label) or next((s for s in more_steps if s.label == label), None)
-        more_tried.append({"round": "attribution", "effect": label, "params": dict(e.params), "refused": why,
-                           "log10_p_test": None if step is None else step.log10_p})
-    out = keep
+        return {"round": "attribution", "effect": label, "params": dict(e.params), "refused": why,
+                "log10_p_test": None if step is None else step.log10_p}
+
+    more_tried = [refused(e, why) for e, why in first_gone] + more_tried + [refused(e, why) for e, why in final_gone]
+    unattributed = [f"{e.category}/{e.kind}: {why}" for e, why in first_gone + final_gone]
     rest = [x for x in after.effects if not any(x.kind.label == f"{e.category}/{e.kind}" and dict(x.values) == e.params for e in gone)]
     if len(rest) < len(after.effects):
         # the final model without them: the error after and the bands left are of what is reported
@@ -802,7 +793,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
     not_carried += carry([e for e in effects if e.category == "nonlinear"], report.before.params, refuse=refuse)[2]
     not_carried += [n for n in report.not_lowering + tuple(body_not_carried) if n not in not_carried]
     dropped = [f"{e.category}/{e.kind}" for e in effects if not e.expected and e.category != "nonlinear"
-               and f"{e.category}/{e.kind}" not in report.carried and f"{e.category}/{e.kind}" not in first_no and not any(f"{o.category}/{o.kind}" == f"{e.category}/{e.kind}" for o in out)]
+               and f"{e.category}/{e.kind}" not in report.carried and f"{e.category}/{e.kind}" not in not_attributed and not any(f"{o.category}/{o.kind}" == f"{e.category}/{e.kind}" for o in out)]
     report = replace(report, not_carried=tuple(not_carried), dropped=tuple(dropped), unattributed=tuple(unattributed))
     return out, (tuple(files), datasets, after), report, more_steps, more_tried
 

@@ -121,7 +121,10 @@ def residual_figure(d: Diagnosis, path=None):
         if not _unusable(after, ch):
             ax_m.legend(fontsize=8, loc="best")
     found = ", ".join(f"{e.category}/{e.kind}" + (" (expected)" if e.expected else "") for e in d.effects) or "none"
-    title = f"Diagnosis: effects found: {found}" if d.effects else "Diagnosis: no effect found"
+    unattributed = d.simulator is not None and bool(d.simulator.unattributed)
+    title = (f"Diagnosis: effects found: {found}" if d.effects else
+             "Diagnosis: no effect attributed (what was found cannot be told from images of what the simulator lacks)"
+             if unattributed else "Diagnosis: no effect found")
     kinds = {b.why for b in d.unexplained}
     keys = (["red: unexplained"] if "residual" in kinds else []) + (["orange: the records differ (the rig changed)"]
                                                                       if kinds - {"residual"} else [])

@@ -63,7 +63,7 @@ from samii.diagnose.model import Baseline, Dataset
 from samii.errors import SimulationUnstable
 from samii.forkmap import fork_calls, fork_map, sharing
 from samii.frequency_response import FrequencyResponse, interpolate_frf
-from samii.sim.linearize import UNSTABLE_RATE_1_S
+from samii.sim.linearize import UNSTABLE_RATE_1_S, poles_per_s
 from samii.sim.mjcf import SamiiParams
 from samii.sim.model import params_with_overrides
 
@@ -292,9 +292,8 @@ def calibrate_simulator(m: Measured, *, start: SamiiParams | None = None, extra:
     # calibration, whatever its linearised response (an unstable pole's magnitude is a stable one's; on the second
     # rig's 2 ms delay the knobs went to a pole growing at 3.0 1/s at 8.0 Hz, and the simulator measured like the file
     # was a limit cycle). A step there is made to cost more than the start (the trust region then shrinks).
-    def growth(z):
-        x = np.exp(z)
-        return closed_loop_growth(sim.samii_params(x), sim.model(x))  # (the model the responses were just computed on)
+    def growth(z):  # (on the model the responses were just computed on)
+        return float(np.max(poles_per_s(sim.model(np.exp(z))).real))
 
     guard = growth(z0) <= UNSTABLE_RATE_1_S
     held = []  # the unstable knobs a step was refused at
@@ -332,15 +331,12 @@ def calibrate_simulator(m: Measured, *, start: SamiiParams | None = None, extra:
     return SimulatorCalibration(sim.samii_params(x), result, m.source)
 
 
-def closed_loop_growth(params: SamiiParams, model=None) -> float:
-    """The fastest growth rate [1/s] of the simulator with ``params`` (compiled: ``model``, else compiled here) about
-    its equilibrium, its position loop closed (``samii.sim.linearize.discrete_poles``): positive when it is unstable
-    (a valve law bounds it to a limit cycle)."""
-    from samii.sim.linearize import discrete_poles
+def closed_loop_growth(params: SamiiParams) -> float:
+    """The fastest growth rate [1/s] of the simulator with ``params`` about its equilibrium, its position loop closed
+    (``samii.sim.linearize.poles_per_s``): positive when it is unstable (a valve law bounds it to a limit cycle)."""
     from samii.sim.model import load_model
 
-    z = discrete_poles(load_model(params=params) if model is None else model)
-    return float(np.max(np.log(np.abs(z)))) / params.timestep_s
+    return float(np.max(poles_per_s(load_model(params=params)).real))
 
 
 def _linearised(params: SamiiParams, freq_hz: np.ndarray) -> FrequencyResponse:
@@ -590,9 +586,8 @@ def simulator_base_modes(params: SamiiParams):
 def _tip_body_mode(params: SamiiParams):
     """The base mode (joint 2 held: the pole of xdd/theta) the tip body adds to ``params``: of the
     modes with the body, the one whose removal leaves the modes without it best matched."""
-    modes = simulator_base_modes
-    with_body = modes(params)
-    without = np.log([m.freq_hz for m in modes(params_with_overrides(params, {BODY["extra_mode/base_mode"][0]: 0.0}))])
+    with_body = simulator_base_modes(params)
+    without = np.log([m.freq_hz for m in simulator_base_modes(params_with_overrides(params, {BODY["extra_mode/base_mode"][0]: 0.0}))])
 
     def mismatch(i):
         rest = np.log([m.freq_hz for j, m in enumerate(with_body) if j != i])

@@ -116,9 +116,9 @@ def _check_loop_stable(model) -> None:
     """Refuse a model whose servo loop is unstable at the nominal pose: it would oscillate on its own, not measure."""
     import numpy as np
 
-    from samii.sim.linearize import UNSTABLE_RATE_1_S, discrete_poles
+    from samii.sim.linearize import UNSTABLE_RATE_1_S, poles_per_s
 
-    s = np.log(discrete_poles(model).astype(complex)) / float(model.opt.timestep)
+    s = poles_per_s(model)
     bad = s[s.real > UNSTABLE_RATE_1_S]
     if bad.size:
         worst = bad[np.argmax(bad.real)]

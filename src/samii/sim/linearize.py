@@ -20,7 +20,7 @@ import mujoco
 import numpy as np
 import scipy.linalg
 
-__all__ = ["LinearModel", "BaseCoefficient", "Mode", "UNSTABLE_RATE_1_S", "discrete_poles", "linearize", "modes_from_poles", "base_modes", "ModesReport", "modes_report"]
+__all__ = ["LinearModel", "BaseCoefficient", "Mode", "UNSTABLE_RATE_1_S", "discrete_poles", "poles_per_s", "linearize", "modes_from_poles", "base_modes", "ModesReport", "modes_report"]
 
 
 @dataclass(frozen=True)
@@ -254,6 +254,12 @@ def discrete_poles(model: mujoco.MjModel, data: mujoco.MjData | None = None, *, 
 
     Ad, _, _, _ = _discrete(model, make_data(model) if data is None else data, eps, False)
     return np.linalg.eigvals(Ad)
+
+
+def poles_per_s(model: mujoco.MjModel, data: mujoco.MjData | None = None) -> np.ndarray:
+    """The poles [1/s] of :func:`discrete_poles`' one-step map, ``log(z)/dt`` (no matrix logarithm): a real part above
+    :data:`UNSTABLE_RATE_1_S` grows."""
+    return np.log(discrete_poles(model, data).astype(complex)) / float(model.opt.timestep)
 
 
 def modes_from_poles(poles: np.ndarray, *, max_freq_hz: float = np.inf) -> list[Mode]:
