@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from samii import notebook as nb
-from samii.identify.cost import DB_PER_NEPER, DEG_PER_RAD, FitProblem, notebook_cost
+from samii.identify.cost import DB_PER_NEPER, DEG_PER_RAD, POOL_HALFWIDTH, FitProblem, notebook_cost, pooled_coherence
 from samii.identify.structures import ModelStructure
 from samii.identify.synthetic import SweptSineNoise, synthesize
 
@@ -80,6 +80,54 @@ def test_coherence_weighting_downweights_bad_points():
     assert low.any()
     ratio = np.abs(r_w[base_mag] / r_u[base_mag])
     assert np.median(ratio[low]) < 0.2 * np.median(ratio[~low])
+
+
+def test_pooled_coherence_is_the_mean_over_neighbours_within_the_window():
+    f = np.geomspace(1.0, 100.0, 201)  # 100 per decade: ln spacing 0.023, so +-0.05 holds two neighbours a side
+    rng = np.random.default_rng(0)
+    g = rng.uniform(0.2, 1.0, f.size)
+    pooled = pooled_coherence(f, g)
+    np.testing.assert_allclose(pooled[2:-2], np.convolve(g, np.ones(5) / 5, mode="valid"), rtol=1e-12)
+    assert pooled[0] == pytest.approx(np.mean(g[:3]))  # an end pools what it has
+    # a point with no neighbour within the window keeps its own estimate (10 per decade: ln spacing 0.23)
+    coarse = np.geomspace(1.0, 100.0, 21)
+    np.testing.assert_allclose(pooled_coherence(coarse, g[:21]), g[:21], rtol=1e-12)
+    # noise-free data stay noise-free
+    np.testing.assert_array_equal(pooled_coherence(f, np.ones(f.size)), np.ones(f.size))
+    assert POOL_HALFWIDTH == 0.05
+
+
+def test_a_point_whose_three_records_agreed_by_chance_does_not_outweigh_its_neighbours():
+    """At a notch a 3-record coherence estimate scatters (0.18, 0.89, 0.99, 0.80 on neighbouring points of a
+    simulator rig's theta/v): one point at 0.99 weighed sqrt(0.99/0.01) = 10 against 2 for a coherence of 0.8.
+    Its weight comes from its neighbourhood: here the mean of five points, weight 1.6."""
+    f = np.geomspace(5.0, 20.0, 61)
+    g = np.full(f.size, 0.7)
+    i = 30
+    g[i - 2 : i + 3] = [0.18, 0.89, 0.99, 0.80, 0.63]
+    data = synthesize(f, {c: ST.response(nb.EQ9_4, f, c) for c in ("act", "base")}, noise=None)
+    data = type(data)(f, act=data.act, base=data.base, act_coh=g, base_coh=g)
+    pr = FitProblem(data, ST, phase_weight=0.1, weighting="coherence")
+    w = pr._weights["act"] / pr._weights["act"][0]  # relative to a point of 0.7 all round
+    gp = np.mean(g[i - 2 : i + 3])  # 0.698
+    assert w[i] == pytest.approx(np.sqrt(gp / (1 - gp) / (0.7 / 0.3)), rel=1e-9)
+    assert w[i] < 1.1  # per point it would be sqrt(0.99 / 0.01) / sqrt(0.7 / 0.3) = 6.5
+    # unweighted (the notebook's cost), the noise profile behind the standard errors is the pooled one
+    prof = FitProblem(data, ST, phase_weight=0.1).noise_profile()[: f.size]
+    assert prof[i] / prof[0] == pytest.approx((1 - gp) / gp / (0.3 / 0.7), rel=1e-9)
+
+
+def test_a_thinned_problem_keeps_the_weights_pooled_on_all_points():
+    f = np.geomspace(0.1, 40.0, 2500)
+    g = np.random.default_rng(1).uniform(0.3, 1.0, f.size)
+    data = synthesize(f, {c: ST.response(nb.EQ9_4, f, c) for c in ("act", "base")}, noise=None)
+    data = type(data)(f, act=data.act, base=data.base, act_coh=g, base_coh=g)
+    pr = FitProblem(data, ST, phase_weight=0.1, weighting="coherence")
+    th = pr.thinned(1000)
+    k = 3
+    assert th.n_points == len(f[::k])
+    np.testing.assert_allclose(th._weights["act"], pr._weights["act"][::k])
+    np.testing.assert_allclose(th.noise_profile(), np.concatenate([v[::k] for v in np.split(pr.noise_profile(), 4)]))
 
 
 def test_bad_settings_are_refused():
