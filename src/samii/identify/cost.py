@@ -66,7 +66,9 @@ DEG_PER_RAD = 180.0 / np.pi
 COHERENCE_CLIP = (0.01, 0.999)
 #: Half-width, in natural log of frequency, of the window over which coherence is pooled before it
 #: weighs a point (``pooled_coherence``): +-5 %, two neighbours either side on a 100-per-decade grid
-#: (``samii measure``'s), narrower than the half-power band of a base mode damped 0.05.
+#: (``samii measure``'s). That is the half-power band of a mode damped 0.05 and wider than a lighter
+#: one's (eq 9.4: 0.030, 0.034): across a resonance the coherence is high throughout and pooling
+#: changes little; at a notch it lends the dip's low coherence to its neighbours, which then weigh less.
 POOL_HALFWIDTH = 0.05
 #: Frequencies [Hz] a fit accepts: 1e-6 Hz (one cycle in 11.6 days, longer than any
 #: record) to 1e6 Hz (far above the hydraulics, the beam and the sensors). The
@@ -86,11 +88,20 @@ def thinning_step(n_points: int, max_points: int) -> int:
 def pooled_coherence(freq_hz: np.ndarray, coherence: np.ndarray, halfwidth: float = POOL_HALFWIDTH) -> np.ndarray:
     """Mean coherence over the points within ``halfwidth`` of each point in ln(frequency) (itself included).
 
-    ``freq_hz`` strictly increasing. A point with no neighbour in its window keeps its own value; noise-free
-    data (coherence 1) stay 1. See the module docstring for why the weights use it.
+    ``freq_hz`` positive and strictly increasing, ``coherence`` finite, of the same length (else
+    ValueError). A point with no neighbour in its window keeps its own value; noise-free data
+    (coherence 1) stay 1; a point near an end of the data (or of a fit's band, which is applied
+    first) pools over one side. See the module docstring for why the weights use it.
     """
-    lf = np.log(np.asarray(freq_hz, float))
+    f = np.asarray(freq_hz, float)
     g = np.asarray(coherence, float)
+    if f.ndim != 1 or g.shape != f.shape:
+        raise ValueError(f"pooled_coherence: {g.size} coherence values for {f.size} frequencies")
+    if not (np.all(np.isfinite(f)) and np.all(f > 0) and np.all(np.diff(f) > 0)):
+        raise ValueError("pooled_coherence: frequencies must be positive, finite and strictly increasing")
+    if not np.all(np.isfinite(g)):
+        raise ValueError(f"pooled_coherence: coherence is not finite at {f[~np.isfinite(g)][0]:g} Hz")
+    lf = np.log(f)
     lo = np.searchsorted(lf, lf - halfwidth, side="left")
     hi = np.searchsorted(lf, lf + halfwidth, side="right")
     csum = np.concatenate([[0.0], np.cumsum(g)])
@@ -313,7 +324,11 @@ class FitProblem:
         standard deviations (Bendat & Piersol table 9.6), so a dB residual has
         DB_PER_NEPER^2 and a weighted degree residual (pw DEG_PER_RAD)^2 times
         the same variance; along frequency it follows (1-g)/g when coherence g
-        is given, else it is flat. One common factor remains unknown.
+        is given (g pooled over neighbours, ``pooled_coherence``), else it is
+        flat. One common factor remains unknown. (``lack_of_fit`` judges each
+        point by its own coherence instead, at 5 sigma, and names runs of such
+        points: left as it was; a point whose coherence reads high by chance
+        can only make it see a misfit sooner.)
         """
         out = []
         for c, kind in self.blocks:

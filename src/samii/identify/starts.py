@@ -250,28 +250,39 @@ def _scan_wp(problem: FitProblem, x: np.ndarray, n: int = 40) -> np.ndarray:
     return best
 
 
-def resolvable_damping(problem: FitProblem) -> float:
-    """The least damping ratio a start gives a mode: half the grid's median spacing in ln(frequency).
+def resolvable_damping(problem: FitProblem, w: float | None = None) -> float:
+    """The least damping ratio a start's search tries for a mode at ``w`` [rad/s]: half the grid's
+    local spacing in ln(frequency) there (the median spacing if ``w`` is None; 0 for one point).
 
-    A mode's half-power band is +-zeta around it; narrower than half the spacing, it falls between
-    two points and the data see nothing of it, so the cost is that of no mode there and its gradient
-    in the mode's frequency vanishes: a start with such a mode cannot move it. (The grid search
-    drove a mode-3 damping from 0.04 to 0.0025 at 34 Hz, where points lie 0.78 Hz apart, and the
-    solver stayed on that razor-sharp mode, 1.2 % of cost above the minimum with mode 3 at 30 Hz.)
-    The solver itself may go lower (``fit.BOUNDS``): the floor is on where a start puts a damping.
+    A mode's half-power band is +-zeta around it in ln(frequency). When its width 2 zeta is less than
+    the spacing, the cost along the mode's frequency is corrugated: the mode fits best where its
+    narrow peak sits on a point, and the cost has a local minimum between each pair of points (eq 9.4
+    at 100 points per decade with z3 = 0.0025: five minima within +-6 % of w3, against one with its
+    own damping). A local solver started there stays in one of them. (The grid search drove a mode-3
+    damping from 0.04 to 0.0025 at 34 Hz, where points lie 0.78 Hz apart, and the solver stayed at
+    34 Hz, 1.2 % of cost above the minimum with mode 3 at 30 Hz.) The spacing is the local one, so a
+    linear (FFT) grid, coarse in ln f at low frequency, floors a 2 Hz mode by its own spacing there.
+    The solver itself may go lower (``fit.BOUNDS``): the floor is on where a start's search moves a
+    damping (a start's own value below it, such as the default 0.04 on a log grid coarser than 29
+    points per decade, is kept unless a trial above the floor does better; ``perturbed_start`` scales
+    the best minimum's dampings without it).
     """
     lw = np.log(problem.w)
-    return 0.5 * float(np.median(np.diff(lw))) if lw.size > 1 else 0.0
+    if lw.size < 2:
+        return 0.0
+    d = np.diff(lw)
+    if w is None or not np.isfinite(w) or w <= 0:
+        return 0.5 * float(np.median(d))
+    return 0.5 * float(np.interp(np.log(w), 0.5 * (lw[:-1] + lw[1:]), d))
 
 
 def _grid_refine(problem: FitProblem, x: np.ndarray, *, sweeps: int = 2) -> np.ndarray:
-    """Coordinate search over a log grid (x/4 ... x*4, 9 points) of each fitted damping ratio and tau,
-    dampings kept between ``resolvable_damping`` and 2."""
+    """Coordinate search over a log grid (x/4 ... x*4, 9 points) of each fitted damping ratio and tau;
+    damping trials below ``resolvable_damping`` or above 2 are not tried."""
     st = problem.structure
     names = [n for n, free in zip(st.param_names, problem.fitted) if free and (n.startswith("z") or n == "tau")]
     idx = {n: i for i, n in enumerate(st.param_names)}
     factors = np.geomspace(0.25, 4.0, 9)
-    z_min = resolvable_damping(problem)
     best = solve_gains(problem, x)
     best_cost = problem.cost(best)
     for _ in range(sweeps):
@@ -279,8 +290,10 @@ def _grid_refine(problem: FitProblem, x: np.ndarray, *, sweeps: int = 2) -> np.n
             for f in factors:
                 trial = best.copy()
                 trial[idx[n]] = best[idx[n]] * f
-                if n.startswith("z") and not z_min <= trial[idx[n]] <= 2.0:
-                    continue
+                if n.startswith("z"):  # the mode's own frequency: zp -> wp, zz -> wz, z3 -> w3
+                    mode = idx.get("w" + n[1:])
+                    if not resolvable_damping(problem, best[mode] if mode is not None else None) <= trial[idx[n]] <= 2.0:
+                        continue
                 best, best_cost = _keep_better(problem, trial, best, best_cost)
     return best
 
