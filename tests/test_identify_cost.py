@@ -100,7 +100,7 @@ def test_pooled_coherence_is_the_mean_over_neighbours_within_the_window():
 def test_a_point_whose_three_records_agreed_by_chance_does_not_outweigh_its_neighbours():
     """At a notch a 3-record coherence estimate scatters (0.18, 0.89, 0.99, 0.80 on neighbouring points of a
     simulator rig's theta/v): one point at 0.99 weighed sqrt(0.99/0.01) = 10 against 2 for a coherence of 0.8.
-    Its weight comes from its neighbourhood: here the mean of five points, weight 1.6."""
+    Its weight comes from its neighbourhood: here the mean of five points (0.698), weight 1.5."""
     f = np.geomspace(5.0, 20.0, 61)
     g = np.full(f.size, 0.7)
     i = 30

@@ -293,7 +293,7 @@ def calibrate_simulator(m: Measured, *, start: SamiiParams | None = None, extra:
     # rig's 2 ms delay the knobs went to a pole growing at 3.0 1/s at 8.0 Hz, and the simulator measured like the file
     # was a limit cycle). A step there is made to cost more than the start (the trust region then shrinks).
     def growth(z):  # (on the model the responses were just computed on)
-        return float(np.max(poles_per_s(sim.model(np.exp(z))).real))
+        return closed_loop_growth(sim.model(np.exp(z)))
 
     guard = growth(z0) <= UNSTABLE_RATE_1_S
     held = []  # the unstable knobs a step was refused at
@@ -331,12 +331,10 @@ def calibrate_simulator(m: Measured, *, start: SamiiParams | None = None, extra:
     return SimulatorCalibration(sim.samii_params(x), result, m.source)
 
 
-def closed_loop_growth(params: SamiiParams) -> float:
-    """The fastest growth rate [1/s] of the simulator with ``params`` about its equilibrium, its position loop closed
-    (``samii.sim.linearize.poles_per_s``): positive when it is unstable (a valve law bounds it to a limit cycle)."""
-    from samii.sim.model import load_model
-
-    return float(np.max(poles_per_s(load_model(params=params)).real))
+def closed_loop_growth(model) -> float:
+    """The fastest growth rate [1/s] of the compiled simulator ``model`` about its equilibrium, its position loop
+    closed (``samii.sim.linearize.poles_per_s``): positive when it is unstable (a valve law bounds it to a limit cycle)."""
+    return float(np.max(poles_per_s(model).real))
 
 
 def _linearised(params: SamiiParams, freq_hz: np.ndarray) -> FrequencyResponse:

@@ -283,6 +283,8 @@ def _grid_refine(problem: FitProblem, x: np.ndarray, *, sweeps: int = 2) -> np.n
     names = [n for n, free in zip(st.param_names, problem.fitted) if free and (n.startswith("z") or n == "tau")]
     idx = {n: i for i, n in enumerate(st.param_names)}
     factors = np.geomspace(0.25, 4.0, 9)
+    # each damping's floor at its mode's frequency (zp -> wp, zz -> wz, z3 -> w3), which this search does not move
+    floor = {n: resolvable_damping(problem, x[idx["w" + n[1:]]] if "w" + n[1:] in idx else None) for n in names if n.startswith("z")}
     best = solve_gains(problem, x)
     best_cost = problem.cost(best)
     for _ in range(sweeps):
@@ -290,10 +292,8 @@ def _grid_refine(problem: FitProblem, x: np.ndarray, *, sweeps: int = 2) -> np.n
             for f in factors:
                 trial = best.copy()
                 trial[idx[n]] = best[idx[n]] * f
-                if n.startswith("z"):  # the mode's own frequency: zp -> wp, zz -> wz, z3 -> w3
-                    mode = idx.get("w" + n[1:])
-                    if not resolvable_damping(problem, best[mode] if mode is not None else None) <= trial[idx[n]] <= 2.0:
-                        continue
+                if n in floor and not floor[n] <= trial[idx[n]] <= 2.0:
+                    continue
                 best, best_cost = _keep_better(problem, trial, best, best_cost)
     return best
 
