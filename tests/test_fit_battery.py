@@ -3,8 +3,9 @@
 The full draws (200 plants of the notebook's structure, 40 simulator rigs with spread physical
 parameters) are in the scripts and the README; these take other seeds, so the tests see draws the
 scripts' tables were not made on. A fit is right when wp, w1, wz and w3 are within 2 % of the truth
-or within 3 of its standard errors; where it is not, it must name every parameter it missed as not
-determined by the data (or say it is not a sound fit), never be wrong without saying so.
+or within 3 of its standard errors (its profile interval at that level: experiments/fit_battery/criterion.py);
+where it is not, it must name every parameter it missed as not determined by the data (or say it is not
+a sound fit), never be wrong without saying so.
 """
 
 from __future__ import annotations
@@ -164,3 +165,28 @@ def test_a_start_s_search_never_narrows_a_mode_below_the_grid_s_resolution(tmp_p
     lin = FitProblem(FrequencyResponse(f, act=np.ones(f.size), base=np.ones(f.size)), ModelStructure.notebook_3mode())
     assert resolvable_damping(lin, 2 * np.pi * 2.0) == pytest.approx(0.5 * 0.05 / 2.0, rel=0.02)
     assert resolvable_damping(lin, 2 * np.pi * 50.0) == pytest.approx(0.5 * 0.05 / 50.0, rel=0.02)
+
+
+@pytest.mark.parametrize("seed, case, name", [(4, 8, "wz"), (2, 6, "w3")])
+def test_a_lopsided_cost_is_read_off_its_profile_not_its_curvature(seed, case, name, tmp_path):
+    """Two rigs of the battery whose data's own minimum lies more than 3 local standard errors from the
+    truth's: seed 4 rig 8's actuator zero (11.63 Hz against 11.97, 2.9 %; its profile rises to t = 2.5
+    above the estimate, then lies in a shallow second dip, t 2.1-2.9 over 11.95-12.55 Hz, where the truth
+    is) and seed 2 rig 6's mode 3 (26.46 against 27.65 Hz, in the noise of the 0.1 V sweep). ``value +- 3
+    SE`` misses the truth; the profile interval at the same level (``samii.identify.profile``) is lopsided
+    the way the cost is and holds it."""
+    from scipy.stats import norm
+
+    spread = _load("simulator_spread")
+    rec = spread.measure_case(case, seed=seed, cache=tmp_path)
+    row = spread.fit_case(rec)
+    assert row["ok"], row
+    assert not row["ok_local"] and row["errs"][name][1] > 3.0, row["errs"][name]  # the local reading misses
+    from samii.measure.io import read_frf_csv
+
+    data = read_frf_csv(rec["frf"])
+    res = fit(data, ModelStructure.notebook_3mode(), phase_weight=0.1, weighting=resolve_weighting(data, None, "auto"))
+    v, t = res.params[name], rec["truth"]["params"][name]
+    lo, hi = res.interval(name, 2 * norm.cdf(3.0) - 1)
+    assert lo < t < hi, (lo, t, hi)
+    assert (hi - v) > 1.3 * (v - lo)  # lopsided toward the truth, which lies above the estimate

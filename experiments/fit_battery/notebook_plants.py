@@ -9,7 +9,7 @@ redrawn otherwise). Its FRF is sampled at 400 log points over 0.1-40 Hz
 clipped at 0.5), and fitted as `samii fit` does by default (coherence
 weighting, phase weight 0.1, both starts + 2 perturbed). The fit is right when
 wp, w1, wz and w3 are each within 2 % of the plant's or within 3 of its
-standard errors.
+standard errors (its profile interval at that level, ``criterion``).
 
 Run:  python experiments/fit_battery/notebook_plants.py [--plants 200] [--seed 0] [--jobs 2]
 """
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from criterion import KEYS, row
+from criterion import KEYS, coverage_line, row
 
 OUT = Path(__file__).resolve().parent / "out"
 SPREAD = 0.4
@@ -72,6 +72,8 @@ def main() -> None:
     walls = [r["wall_s"] for r in rows]
     print(f"true minimum in {len(rows) - len(bad)} of {len(rows)} plants, {sum(r['said'] for r in bad)} more where the fit said which parameter it cannot tell (+-{SPREAD:.0%} around eq 9.4, seed {args.seed}); "
           f"sound {sum(r['sound'] for r in rows)}; fit wall median {np.median(walls):.2f} s, max {max(walls):.2f} s")
+    print(f"within 2 % or 3 local standard errors (value +- 3 SE, not the profile): {sum(r['ok_local'] for r in rows)} of {len(rows)}")
+    print(coverage_line(rows))
     OUT.mkdir(parents=True, exist_ok=True)
     (OUT / f"notebook_plants_seed{args.seed}.json").write_text(json.dumps(rows, indent=1, default=float) + "\n")
 

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from criterion import KEYS, N_SE, REL_TOL, row
+from criterion import KEYS, N_SE, REL_TOL, coverage_line, row
 
 OUT = Path(__file__).resolve().parent / "out"
 #: (name, low factor, high factor) of each spread parameter, drawn log-uniformly
@@ -159,10 +159,12 @@ def main() -> None:
         cells = [f"{r['params_hz'][k]:6.2f}/{r['truth_hz'][k]:6.2f}{'' if r['errs'][k][2] else '*':1}" for k in KEYS]
         verdict = "yes" if r["ok"] else ("said" if r["said"] else "NO")
         print(f"{r['case']:4d} {verdict:>5} {'yes' if r['sound'] else 'no':>5}  " + "  ".join(f"{c:>16}" for c in cells) + f"  {r['wall_s']:5.1f} s")
-    print(f"\n(* missed: not within {REL_TOL:.0%} or {N_SE:g} standard errors of the truth; 'said': every miss named as not determined by the data, or the fit not sound)")
+    print(f"\n(* missed: not within {REL_TOL:.0%} of the truth or {N_SE:g} standard errors (the fit's profile interval at that level); 'said': every miss named as not determined by the data, or the fit not sound)")
     print(f"right minimum in {n_ok} of {len(rows)} measured rigs, {n_said} more where the fit said which parameter it cannot tell, "
           f"{len(rows) - n_ok - n_said} wrong without saying so ({len(recs) - len(rows)} rigs not measurable); "
           f"sound {sum(r['sound'] for r in rows)}; fit wall median {np.median([r['wall_s'] for r in rows]):.1f} s")
+    print(f"within {REL_TOL:.0%} or {N_SE:g} local standard errors (value +- {N_SE:g} SE, not the profile): {sum(r['ok_local'] for r in rows)} of {len(rows)}")
+    print(coverage_line(rows))
     (OUT / f"simulator_spread_seed{args.seed}.json").write_text(json.dumps(rows, indent=1, default=float) + "\n")
 
 

@@ -257,7 +257,7 @@ def measured_fit(frf, *, band_hz: tuple[float, float] = FIT_BAND_HZ):
     lo, hi = band_hz
     f = np.asarray(frf.freq_hz)
     band = (max(lo, float(f.min())), min(hi, float(f.max())))
-    return fit(frf, weighting="auto", band_hz=band)
+    return fit(frf, weighting="auto", band_hz=band, profile=False)  # the design reads the parameters, not their intervals
 
 
 def damping_from_simulation(model, *, seed: int = 0, sample_time_s: float = 1e-3, delay_samples: int = 1,

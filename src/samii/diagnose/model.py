@@ -1034,5 +1034,6 @@ def _fitted_start(m, structure: ModelStructure, *, rng_seed: int = 0) -> dict[st
         kw[f"{ch}_coh"] = np.ones(frf.freq_hz.size) if var is None else 1.0 / (1.0 + 3.0 * np.minimum(var, 1e6))
     data = FrequencyResponse(frf.freq_hz, metadata={}, **kw)
     weighted = all(m.var.get(ch) is not None for ch in frf.channels)
-    res = fit(data, structure, phase_weight=0.1, weighting="coherence" if weighted else "none", rng=np.random.default_rng(rng_seed), n_averages=3)
+    res = fit(data, structure, phase_weight=0.1, weighting="coherence" if weighted else "none", rng=np.random.default_rng(rng_seed), n_averages=3,
+              profile=False)  # a start: only its parameters are read
     return dict(res.params)

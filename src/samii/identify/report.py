@@ -33,7 +33,7 @@ def summary_dict(result: FitResult) -> dict:
     """The ``--json`` object of one fit."""
     d = result.to_dict()
     out = {k: d[k] for k in CLI_KEYS}
-    for k in ("sound", "verdict", "concerns", "caveats", "undetermined", "phase_weight", "weighting", "band_hz", "channels", "not_fitted", "lack_of_fit", "warnings"):
+    for k in ("sound", "verdict", "concerns", "caveats", "undetermined", "profile_intervals", "phase_weight", "weighting", "band_hz", "channels", "not_fitted", "lack_of_fit", "warnings"):
         out[k] = d[k]
     return out
 

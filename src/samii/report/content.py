@@ -109,6 +109,9 @@ class ParamRow:
     value: float
     stderr: float | None
     notebook: float | None
+    #: The fit's 95 % profile interval in the unit shown (``samii.identify.profile``), a side the data
+    #: do not bound None; None for a parameter not profiled (or a fit.json written before profiles).
+    interval_95: tuple[float | None, float | None] | None = None
 
     @property
     def rel_stderr_pct(self) -> float | None:
@@ -150,12 +153,16 @@ def parameter_rows(fit: dict, notebook: dict) -> list[ParamRow]:
     """The fit's parameters with standard errors beside eq 9.4's, in Hz, 1/s and SI gains."""
     rows = []
     params, stderr = fit.get("params", {}), fit.get("stderr", {}) or {}
+    profiles = fit.get("profile_intervals") or {}
     for name, (meaning, unit, to_shown, nb_to_shown) in _PARAMS.items():
         if name not in params or params[name] is None:
             continue
         se = stderr.get(name)
         nb = notebook.get(name)
+        iv = (profiles.get(name) or {}).get("95%")
+        interval = None if not iv else (float(iv["low"]) * to_shown if iv.get("bounded_low") else None,
+                                        float(iv["high"]) * to_shown if iv.get("bounded_high") else None)
         rows.append(ParamRow(name, meaning, unit, float(params[name]) * to_shown,
                              None if se is None or not math.isfinite(se) else abs(float(se) * to_shown),
-                             None if nb is None else float(nb) * nb_to_shown))  # fmt: skip
+                             None if nb is None else float(nb) * nb_to_shown, interval))  # fmt: skip
     return rows

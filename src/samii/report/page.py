@@ -150,6 +150,18 @@ def _measurement(run: RunFolder) -> str:
                       "<code>diagnose/harmonics.png</code>."))  # fmt: skip
 
 
+def _interval(iv: tuple[float | None, float | None] | None) -> str:
+    """A 95 % profile interval as shown: "lo–hi", "≥ lo" or "≤ hi" (a side the data do not bound), "" if none."""
+    if iv is None:
+        return ""
+    lo, hi = iv
+    if lo is not None and hi is not None:
+        return f"{_num(lo, '.4g')}–{_num(hi, '.4g')}"
+    if lo is None and hi is None:
+        return "not bounded"
+    return f"≥ {_num(lo, '.4g')}" if lo is not None else f"≤ {_num(hi, '.4g')}"
+
+
 def _fit(run: RunFolder) -> str:
     from samii import notebook as nb
 
@@ -160,7 +172,7 @@ def _fit(run: RunFolder) -> str:
     rows = []
     for r in parameter_rows(f, dict(nb.EQ9_4)):
         rows.append([f"<code>{_e(r.name)}</code>", _e(r.meaning), _num(r.value, ".5g"), _num(r.stderr, ".2g"), _num(r.rel_stderr_pct, ".2g"),
-                     _num(r.notebook, ".5g"), _num(r.diff_pct, "+.1f"), _num(r.sigmas, ".2g"), _e(r.unit)])  # fmt: skip
+                     _interval(r.interval_95), _num(r.notebook, ".5g"), _num(r.diff_pct, "+.1f"), _num(r.sigmas, ".2g"), _e(r.unit)])  # fmt: skip
     rms = f.get("rms_mag_db") or {}
     ph = f.get("rms_phase_deg") or {}
     rms_txt = "; ".join(f"{_e(_CHANNELS.get(k, k))} {_num(rms[k], '.2f')} dB, {_num(ph.get(k), '.1f')} deg" for k in rms)
@@ -175,11 +187,13 @@ def _fit(run: RunFolder) -> str:
             + _figure(_file_png(run, "bode_fit"), "Bode data with the fit", "The measured FRF (points) with the fitted model (line), and the "
                       "coherence. <code>fit/bode_fit.png</code>.")
             + "<h3>Parameters beside eq 9.4</h3>"
-            + _table(["", "", "fit", "± std. error", "± %", "eq 9.4", "fit − eq 9.4 [%]", "[std. errors]", "unit"], rows, left=2)
+            + _table(["", "", "fit", "± std. error", "± %", "95 % profile interval", "eq 9.4", "fit − eq 9.4 [%]", "[std. errors]", "unit"], rows, left=2)
             + "<p>Frequencies in Hz (the fit's ω/2π). The gains are in SI; eq 9.4's are converted from the notebook's units (θ in degrees, "
             "ẍ in ft/s², which its coefficients imply; <code>experiments/closed_loop/README.md</code>). Standard errors are the fit's, "
             "from the Jacobian and the residual; the notebook gives none. A parameter many standard errors from eq 9.4 differs in the "
-            "simulator, not only in the data's noise.</p>")  # fmt: skip
+            "simulator, not only in the data's noise. Each frequency's 95 % interval is read off its profile (the frequency held away "
+            "from the estimate, the other parameters re-solved): where the cost is lopsided or flat it is lopsided or open (≥, ≤: the "
+            "data do not bound it on that side), and it is the one to use for a mode the data barely see.</p>")  # fmt: skip
 
 
 def _closed_loop(run: RunFolder) -> str:
