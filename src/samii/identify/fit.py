@@ -894,7 +894,7 @@ def fit_problem(
 ) -> FitResult:
     """Fit a prepared ``FitProblem``; see ``fit``."""
     st = problem.structure
-    auto_off = profile == "auto" and problem.n_points > SEARCH_POINTS
+    auto_off = isinstance(profile, str) and profile == "auto" and problem.n_points > SEARCH_POINTS
     if isinstance(profile, str):
         if profile != "auto":
             raise ValueError(f"profile must be True, False, 'auto' or a sequence of frequency names, got {profile!r}")
