@@ -24,15 +24,15 @@ N_SE = 3.0
 LEVEL = float(erf(N_SE / np.sqrt(2)))
 
 
-def within_interval(res, k: str, t: float) -> bool:
-    """``t`` inside ``res``'s N_SE interval of ``k`` (its profile's where profiled, open sides unbounded)."""
-    if k in res.profiles:
-        p = res.profiles[k]
-        lo, hi = p.interval(LEVEL)
-        blo, bhi = p.bounded(LEVEL)
-        return (t >= lo or not blo) and (t <= hi or not bhi)
-    se = res.stderr[k]
-    return bool(np.isfinite(se) and se > 0 and abs(res.params[k] - t) <= N_SE * se)
+def within_interval(res, k: str, t: float, level: float = LEVEL) -> bool:
+    """``t`` inside ``res``'s interval of ``k`` at ``level`` (``FitResult.interval``: its profile's where
+    profiled, a side the data do not bound taken as unbounded; a parameter with no finite standard error
+    and no profile holds nothing)."""
+    if k not in res.profiles and not (np.isfinite(res.stderr[k]) and res.stderr[k] > 0):
+        return False
+    lo, hi = res.interval(k, level)
+    blo, bhi = res.profiles[k].bounded(level) if k in res.profiles else (True, True)
+    return bool((t >= lo or not blo) and (t <= hi or not bhi))
 
 
 def judge(res, truth: Mapping[str, float]) -> tuple[bool, dict[str, tuple[float, float, bool]]]:
@@ -59,11 +59,7 @@ def row(res, truth: Mapping[str, float], wall_s: float) -> dict:
     and whether its 95 % interval holds the truth (``covered_95``: the interval's calibration on rigs it was
     not built on; about 95 % of them should)."""
     ok, errs = judge(res, truth)
-    covered = {}
-    for k in KEYS:
-        lo, hi = res.interval(k, 0.95)
-        blo, bhi = res.profiles[k].bounded(0.95) if k in res.profiles else (True, True)
-        covered[k] = bool((truth[k] >= lo or not blo) and (truth[k] <= hi or not bhi))
+    covered = {k: within_interval(res, k, truth[k], 0.95) for k in KEYS}
     # the stricter reading, for comparison: within REL_TOL or N_SE local standard errors (value +- N_SE SE)
     local = all(abs(e) <= REL_TOL or n <= N_SE for e, n, _ in errs.values())
     return {"ok": ok, "ok_local": bool(local), "said": not ok and said(res, errs), "errs": errs, "sound": res.sound, "wall_s": wall_s, "cost": res.cost,

@@ -46,6 +46,7 @@ zp and tau.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Callable, Literal, Mapping, Sequence
@@ -56,7 +57,7 @@ from samii.frequency_response import Channel, FrequencyResponse
 from samii.identify.cost import FitProblem, Weighting, thinning_step
 from samii.identify.lack_of_fit import LackOfFit, averages_from_metadata, lack_of_fit
 from samii.identify.notebook_loop import NOTEBOOK_TOL_PCT, PercentChange, percent_change
-from samii.identify.profile import Profile, profile_scan
+from samii.identify.profile import Profile, interval_text, profile_scan
 from samii.identify.starts import auto_start, modes_from_total, notebook_start, perturbed_start, scan_modes, snap_to_peaks
 from samii.identify.structures import ModelStructure
 
@@ -88,7 +89,7 @@ SEARCH_POINTS = 1000
 #: residuals), is then known to a small fraction of one (``samii.identify.profile``).
 PROFILE_TOL = 1e-6
 #: The level of a 3-standard-error interval, erf(3 / sqrt(2)): the fit's JSON gives each profile's interval at it and at 95 %.
-PROFILE_3SIGMA = 0.9973002039367398
+PROFILE_3SIGMA = math.erf(3 / math.sqrt(2))
 
 
 def _bounds(structure: ModelStructure) -> tuple[np.ndarray, np.ndarray]:
@@ -285,8 +286,8 @@ class FitResult:
 
     def table(self) -> str:
         """Plain-text parameter table: value, standard error, relative error and, for a profiled
-        parameter, its 95 % profile interval (an open side, which the data do not bound, written
-        ``<=`` or ``>=`` the scan's end); a frequency (rad/s inside, in ``params``) shown in Hz as
+        parameter, its 95 % profile interval (``profile.interval_text``: an open side, which the data
+        do not bound, as ``≥ lo`` or ``≤ hi``); a frequency (rad/s inside, in ``params``) shown in Hz as
         ``w/2pi``, as every user-facing number in samii is."""
         units = self.structure.units()
         profiled = bool(self.profiles)
@@ -303,8 +304,7 @@ class FitResult:
             cell = ""
             if n in self.profiles:
                 (lo, hi), (blo, bhi) = self.profiles[n].interval(0.95), self.profiles[n].bounded(0.95)
-                cell = f"{lo / k:.4g} - {hi / k:.4g}" if blo and bhi else (
-                    f"not bounded ({lo / k:.4g}-{hi / k:.4g})" if not (blo or bhi) else f"<= {hi / k:.4g} (open)" if bhi else f">= {lo / k:.4g} (open)")
+                cell = interval_text(lo / k if blo else None, hi / k if bhi else None)
             lines.append(f"{name:>8} {v:13.6g} {e:11.3g} {100 * rel:7.3g}%  " + (f"{cell:>23}  " if profiled else "") + unit)
         return "\n".join(lines)
 
@@ -529,7 +529,15 @@ def _undetermined_warning(involved: Sequence[str], singular_value: float) -> str
 
 
 def _covariance(problem: FitProblem, x: np.ndarray, rj: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
-    """Sandwich covariance, standard errors, correlations and identifiability warnings.
+    """Sandwich covariance, standard errors, correlations and identifiability warnings (``_sandwich``'s first four)."""
+    return _sandwich(problem, x, rj)[:4]
+
+
+def _sandwich(problem: FitProblem, x: np.ndarray, rj: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str], np.ndarray]:
+    """Sandwich covariance, standard errors, correlations, identifiability warnings, and each parameter's
+    profile scale: the cost's rise per squared standard error, ``SE_k^2 / [(J'J)^-1]_kk``
+    (``samii.identify.profile``; with exact weights the residual variance ``s^2``), NaN where the
+    standard error is not finite.
 
     ``rj``: residuals and Jacobian (fitted columns) at ``x``.
     Rows and columns of parameters not fitted are NaN.
@@ -545,7 +553,8 @@ def _covariance(problem: FitProblem, x: np.ndarray, rj: tuple[np.ndarray, np.nda
         se_full = np.where(free, np.inf, np.nan)
         corr_full = np.full((N, N), np.nan)
         corr_full[np.ix_(free, free)] = np.eye(n)
-        return np.full((N, N), np.nan), se_full, corr_full, ["the model cannot be evaluated at the answer (it overflows): no standard errors"]
+        return (np.full((N, N), np.nan), se_full, corr_full, ["the model cannot be evaluated at the answer (it overflows): no standard errors"],
+                np.full(N, np.nan))
     d = np.where(xf != 0, np.abs(xf), 1.0)
     Js = J * d[None, :]  # sensitivity to relative changes
     # eigen-decomposition of the small normal matrix, columns equilibrated first
@@ -580,11 +589,14 @@ def _covariance(problem: FitProblem, x: np.ndarray, rj: tuple[np.ndarray, np.nda
     for i, p in enumerate(names):
         if np.isfinite(stderr[i]) and xf[i] != 0 and stderr[i] / abs(xf[i]) > REL_STDERR_WARN:
             warnings.append(f"{p} = {xf[i]:.4g} is poorly determined (standard error {100 * stderr[i] / abs(xf[i]):.0f} %)")
+    # the profile scale, SE^2 / [(J'J)^-1]_kk: in the relative variables both carry the same d_k^2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = np.where(np.isfinite(stderr) & (np.diag(A) > 0), np.diag(cov_s) / np.diag(A), np.nan)
     # embed in the full parameter order, NaN where not fitted
-    cov_full, corr_full, se_full = np.full((N, N), np.nan), np.full((N, N), np.nan), np.full(N, np.nan)
+    cov_full, corr_full, se_full, scale_full = np.full((N, N), np.nan), np.full((N, N), np.nan), np.full(N, np.nan), np.full(N, np.nan)
     ix = np.ix_(free, free)
-    cov_full[ix], corr_full[ix], se_full[free] = cov, corr, stderr
-    return cov_full, se_full, corr_full, warnings
+    cov_full[ix], corr_full[ix], se_full[free], scale_full[free] = cov, corr, stderr, scale
+    return cov_full, se_full, corr_full, warnings, scale_full
 
 
 def profile_names(structure: ModelStructure) -> tuple[str, ...]:
@@ -592,25 +604,10 @@ def profile_names(structure: ModelStructure) -> tuple[str, ...]:
     return tuple(n for n in structure.param_names if n.startswith("w"))
 
 
-def _profile_sigma2(problem: FitProblem, rj: tuple[np.ndarray, np.ndarray], stderr: np.ndarray) -> np.ndarray:
-    """The cost's rise per squared standard error of each fitted parameter, ``SE_k^2 / [(J'J)^-1]_kk``
-    (``samii.identify.profile``; ``rj``'s Jacobian is of the fitted columns, ``stderr`` of all), NaN where
-    the standard error is not finite; with exact weights it is the residual variance ``s^2``."""
-    free = problem.fitted
-    J = rj[1]
-    cn = np.linalg.norm(J, axis=0)
-    cn = np.where(cn > 0, cn, 1.0)
-    G = np.linalg.pinv((J / cn).T @ (J / cn), rcond=COND_WARN**2, hermitian=True) / np.outer(cn, cn)
-    out = np.full(len(problem.structure.param_names), np.nan)
-    se = stderr[free]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        out[free] = np.where(np.isfinite(se) & (np.diag(G) > 0), se**2 / np.diag(G), np.nan)
-    return out
-
-
-def _profiles(problem: FitProblem, x: np.ndarray, rj: tuple[np.ndarray, np.ndarray], stderr: np.ndarray,
+def _profiles(problem: FitProblem, x: np.ndarray, cost: float, stderr: np.ndarray, scale: np.ndarray,
               names: Sequence[str], *, max_nfev: int) -> tuple[dict[str, Profile], list[str]]:
-    """Profiles of ``names`` at the minimum ``x`` of ``problem``, and a warning for each that found a lower cost.
+    """Profiles of ``names`` at the minimum ``x`` of ``problem`` (its ``cost``; ``stderr`` and the profile
+    ``scale`` of ``_sandwich``), and a warning for each that found a lower cost.
 
     Scanned on all points: on data thinned as the search is, the thinned cost's own minimum lies
     about sqrt(k) standard errors from the full one's (it has 1/k of the information), and the
@@ -621,11 +618,9 @@ def _profiles(problem: FitProblem, x: np.ndarray, rj: tuple[np.ndarray, np.ndarr
     """
     st = problem.structure
     free = problem.fitted
-    sigma2 = _profile_sigma2(problem, rj, stderr)
-    s2 = float(rj[0] @ rj[0]) / max(problem.n_residuals - int(free.sum()), 1)
+    s2 = cost / max(problem.n_residuals - int(free.sum()), 1)
     order = list(st.mode_index[0])
     wlo, whi = BOUNDS["w"]
-    cost_hat = float(rj[0] @ rj[0])
     out, warnings = {}, []
     for name in names:
         i = st.param_names.index(name)
@@ -644,8 +639,8 @@ def _profiles(problem: FitProblem, x: np.ndarray, rj: tuple[np.ndarray, np.ndarr
             xs, sol, _, (r, _) = _solve(problem, x0, max_nfev=max_nfev, hold=(name,), tol=PROFILE_TOL)
             return xs, (float(r @ r) if np.all(r != _PENALTY) else np.nan)
 
-        scale = sigma2[i] if np.isfinite(sigma2[i]) and sigma2[i] > 0 else s2
-        out[name] = p = profile_scan(name, x, i, cost_hat, scale, float(stderr[i]), solve, limits)
+        sigma2 = scale[i] if np.isfinite(scale[i]) and scale[i] > 0 else s2
+        out[name] = p = profile_scan(name, x, i, cost, sigma2, float(stderr[i]), solve, limits)
         if p.lowest < -1.0:
             f_hz = p.lowest_at / (2 * np.pi)
             beside = [st.param_names[j] for j in order if j != i and abs(np.log(p.lowest_at / x[j])) < 0.02]
@@ -894,21 +889,21 @@ def fit_problem(
 ) -> FitResult:
     """Fit a prepared ``FitProblem``; see ``fit``."""
     st = problem.structure
-    auto_off = isinstance(profile, str) and profile == "auto" and problem.n_points > SEARCH_POINTS
+    if isinstance(profile, str) and profile != "auto":
+        raise ValueError(f"profile must be True, False, 'auto' or a sequence of frequency names, got {profile!r}")
+    auto_off = isinstance(profile, str) and problem.n_points > SEARCH_POINTS
     if isinstance(profile, str):
-        if profile != "auto":
-            raise ValueError(f"profile must be True, False, 'auto' or a sequence of frequency names, got {profile!r}")
-        profile = problem.n_points <= SEARCH_POINTS
-    if not isinstance(profile, bool):
-        bad = [n for n in profile if n not in profile_names(st)]
-        if bad:
-            raise ValueError(f"profile: {', '.join(map(str, bad))} not among the structure's frequencies {', '.join(profile_names(st))}")
+        profile = not auto_off
+    names = profile_names(st) if profile is True else tuple(profile or ())
+    bad = [n for n in names if n not in profile_names(st)]
+    if bad:
+        raise ValueError(f"profile: {', '.join(map(str, bad))} not among the structure's frequencies {', '.join(profile_names(st))}")
     free = problem.fitted
     search = problem.thinned(SEARCH_POINTS)
     thinned = search is not problem
     n_labels = 1 if not isinstance(start, str) else (2 if start == "both" else 1)
     scan = mode_scan and isinstance(start, str) and bool(free[st.mode_index[0]].any())
-    total = n_labels + int(bool(scan)) + n_perturbed + int(thinned) + 1 + int(bool(profile))  # starts, scan, perturbed starts, refinement, diagnosis, profiles
+    total = n_labels + int(bool(scan)) + n_perturbed + int(thinned) + 1 + int(bool(names))  # starts, scan, perturbed starts, refinement, diagnosis, profiles
     step = [0]
 
     def done(what: str) -> None:
@@ -984,14 +979,13 @@ def fit_problem(
             f"LACK OF FIT: the model misses the data in {len(lof.bands)} band(s) "
             f"({lof.summary()}): see warnings."
         )
-    cov, stderr, corr, warnings = _covariance(problem, x, rj)
+    cov, stderr, corr, warnings, scale = _sandwich(problem, x, rj)
     x_report = np.where(free, x, np.nan)
     params = dict(zip(st.param_names, map(float, x_report)))
     warnings = lof.warnings() + warnings + _band_warnings(problem, params)
     concerns, caveats, undetermined = _assess(problem, params, lof, averages)
     done("uncertainty and lack of fit")
-    names = profile_names(st) if profile is True else tuple(profile or ())
-    profiles, lower = _profiles(problem, x, rj, stderr, names, max_nfev=max_nfev) if names else ({}, [])
+    profiles, lower = _profiles(problem, x, cost, stderr, scale, names, max_nfev=max_nfev) if names else ({}, [])
     warnings += lower
     if names:
         done(f"profiles of {', '.join(profiles)}")

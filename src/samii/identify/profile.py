@@ -33,7 +33,7 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["Profile", "profile_scan", "TAU_STOP", "RANGE_FACTOR"]
+__all__ = ["Profile", "profile_scan", "interval_text", "TAU_STOP", "RANGE_FACTOR"]
 
 #: A side of a scan stops once |tau| has passed this on two successive values (two, so that one value
 #: the solver failed on does not end it): intervals up to this many standard errors are read off, and a
@@ -103,7 +103,7 @@ class Profile:
             return float(self.values[inside])
         ta, tb = abs(self.tau[inside]), abs(self.tau[outside])
         va, vb = self.values[inside], self.values[outside]
-        if not np.isfinite(tb) or tb <= ta:
+        if not np.isfinite(tb):
             return float(va)  # a failed value outside: the interval ends at the last value that was solved
         return float(va + (vb - va) * (z - ta) / (tb - ta))  # tau is linear in the value where the cost is quadratic
 
@@ -115,6 +115,16 @@ class Profile:
             out[f"{100 * lv:g}%"] = {"low": lo, "high": hi, "bounded_low": blo, "bounded_high": bhi}
         out["lowest_tau2"] = float(self.lowest)
         return out
+
+
+def interval_text(low: float | None, high: float | None, fmt: str = ".4g") -> str:
+    """An interval as shown to a user: "lo–hi", "≥ lo" or "≤ hi" where a side is open (None: the data
+    do not bound it there), "not bounded" where both are."""
+    if low is not None and high is not None:
+        return f"{low:{fmt}}–{high:{fmt}}"
+    if low is None and high is None:
+        return "not bounded"
+    return f"≥ {low:{fmt}}" if low is not None else f"≤ {high:{fmt}}"
 
 
 def profile_scan(

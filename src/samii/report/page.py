@@ -15,6 +15,7 @@ import urllib.parse
 from pathlib import Path
 
 from samii.errors import InputError
+from samii.identify.profile import interval_text
 from samii.report.content import RECORDINGS, RunFolder, parameter_rows
 from samii.report.figures import figure_ch11_loper, figure_ch11_step, figure_damping
 
@@ -151,15 +152,8 @@ def _measurement(run: RunFolder) -> str:
 
 
 def _interval(iv: tuple[float | None, float | None] | None) -> str:
-    """A 95 % profile interval as shown: "lo–hi", "≥ lo" or "≤ hi" (a side the data do not bound), "" if none."""
-    if iv is None:
-        return ""
-    lo, hi = iv
-    if lo is not None and hi is not None:
-        return f"{_num(lo, '.4g')}–{_num(hi, '.4g')}"
-    if lo is None and hi is None:
-        return "not bounded"
-    return f"≥ {_num(lo, '.4g')}" if lo is not None else f"≤ {_num(hi, '.4g')}"
+    """A 95 % profile interval as shown (``identify.profile.interval_text``), "" for a parameter not profiled."""
+    return "" if iv is None else _e(interval_text(*iv))
 
 
 def _fit(run: RunFolder) -> str:
