@@ -28,9 +28,17 @@ def runs(tmp_path_factory):
     """Two main jobs with the same seed (about 25 s each), read by test_main_job.py and test_report.py."""
     from samii.cli import main
 
+    import subprocess
+    import sys
+
     base = tmp_path_factory.mktemp("main")
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    stale = base / f".a.samii-run-{dead.pid}"  # what a main job killed outright (SIGKILL) leaves beside its --out
+    (stale / "measure").mkdir(parents=True)
     out = []
     for name in ("a", "b"):
         assert main(["run", "--out", str(base / name), "--seed", "3", "--no-progress"]) == 0
         out.append(base / name)
+    assert not stale.exists(), "a rerun into the same --out removes what a killed run left (issue 36)"
     return out

@@ -196,6 +196,59 @@ def test_unstable_gain_reported_with_its_frequency(factory):
     assert r.as_json()["stable"] is False
 
 
+def _theta_feedback(d_v_per_rad: float) -> SavedController:
+    """A static controller adding ``d`` V/rad of theta to the valve, the servo amplifier's loop kept."""
+    c = LinearController(np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), [[d_v_per_rad]], sample_time_s=1e-3, inputs=("theta",))
+    return SavedController(c, False)
+
+
+@pytest.mark.parametrize("d, sc", [(300.0, "step"), (300.0, "release"), (100.0, "loper")])
+def test_a_loop_that_runs_away_is_not_called_stable(factory, d, sc):
+    """Positive theta feedback larger than the servo's Kp (57.3 V/rad) leaves a net positive position feedback on the
+    valve's integrating actuator: the valve goes to its rail and the joint turns at full speed while the base
+    barely vibrates (the base alone was read as stable before, issue 36). The run says what ran away and when."""
+    r = run_closed_loop(_theta_feedback(d), scenario(sc), label="runaway", spec_factory=factory, comparison=False, details=False)
+    assert not r.stable and r.runaway is not None
+    assert r.runaway.theta_since_s is not None and r.runaway.valve_since_s is not None
+    err = r.signals.theta[-1] - r.theta_rest_rad - r.signals.theta_ref[-1]
+    assert abs(err) > math.radians(360) and r.runaway.theta_error_rad == pytest.approx(err)
+    assert abs(r.runaway.valve_v) == pytest.approx(10.0, rel=1e-3) and np.sign(r.runaway.valve_v) == np.sign(err)
+    text = r.instability()
+    assert "theta ran away" in text and "rail" in text
+    j = r.as_json()
+    assert j["stable"] is False and j["instability"] == text and j["runaway"]["band_rad"] == 0.5
+
+
+def test_a_weaker_positive_feedback_settles_where_the_loop_gain_says(factory):
+    """30 V/rad of positive theta feedback beside Kp = 57.3 V/rad leaves a net 27.3 V/rad: still a stable position
+    loop whose steady state is theta = Kp / (Kp - 30) theta_ref = 2.10 x 5 deg. No runaway: it is a poor loop, not
+    an unstable one."""
+    from samii.sim.plugin import hydraulic_params
+
+    kp = hydraulic_params(load_model()).position_gain
+    r = run_closed_loop(_theta_feedback(30.0), scenario("step"), label="30", spec_factory=factory, comparison=False, details=False)
+    assert r.stable and r.runaway is None
+    final = r.signals.theta[-1] - r.theta_rest_rad
+    assert final == pytest.approx(kp / (kp - 30.0) * math.radians(5.0), rel=0.02)
+
+
+def test_runaway_needs_the_whole_last_window():
+    """theta outside the band or the valve on one rail only part of the last second, or the valve alternating between its
+    rails (a limit cycle: ``sustained_oscillation``'s business), or a run too short after its event, is no runaway."""
+    from samii.closedloop.metrics import runaway
+
+    t = np.arange(0, 10, 1e-3)
+    calm = np.zeros_like(t)
+    slew = np.where(t > 9.5, 1.0, 0.0)  # leaves the band only in the last half second
+    assert runaway(t, slew, calm, t_event=1.0, rail_v=10.0) is None
+    assert runaway(t, calm, 10.0 * np.sign(np.sin(2 * np.pi * 5 * t)), t_event=1.0, rail_v=10.0) is None
+    gone = np.where(t > 3.0, 2.0, 0.0)
+    assert runaway(t, gone, calm, t_event=9.0, rail_v=10.0) is None  # 1 s after the event: not judged
+    r = runaway(t, gone, np.where(t > 2.5, -10.0, 0.0), t_event=1.0, rail_v=10.0)
+    assert r.theta_since_s == pytest.approx(3.001) and r.valve_since_s == pytest.approx(2.501) and r.valve_v == -10.0
+    assert runaway(t, np.where(t > 3.0, np.nan, 0.0), calm, t_event=1.0, rail_v=10.0).theta_since_s == pytest.approx(3.001)
+
+
 @pytest.mark.parametrize("replaces, delay, sample_time_s", [(True, 1.5, 1e-3), (False, 0.7, 1e-3), (True, 0.0, 4e-3)])
 def test_linear_prediction_by_step_maps_is_the_cards_step_applied_one_by_one(home, replaces, delay, sample_time_s):
     """``LinearLoop.simulate`` applies each physics step as one matrix product (``step_map``, built from ``_step``);

@@ -550,10 +550,11 @@ def test_closedloop_json_contract(step_run):
     assert out.count("\n") == 1 and out.endswith("\n")  # one JSON object on one line, nothing else
     rep = _strict(out)
     assert isinstance(rep, dict)
-    assert set(rep) == {"controller", "scenario", "stable", "unstable_mode_hz", "growth_rate_1_s", "theta", "base", "modes",
-                        "linear_prediction"}  # fmt: skip
+    assert set(rep) == {"controller", "scenario", "stable", "unstable_mode_hz", "growth_rate_1_s", "instability", "runaway", "theta",
+                        "base", "modes", "linear_prediction"}  # fmt: skip
     assert rep["controller"] == "notebook-cancel" and rep["scenario"] == "step"
     assert rep["stable"] is True and rep["unstable_mode_hz"] is None and rep["growth_rate_1_s"] is None
+    assert rep["instability"] is None and rep["runaway"] is None
     assert set(rep["theta"]) == {"rise_s", "overshoot_pct", "settle_s"}
     assert set(rep["base"]) == {"peak_m_s2", "residual_rms_m_s2", "settle_s", "decay_rate_1_s", "free_decay_rate_1_s"}
     assert all(_finite_or_none(v) for v in [*rep["theta"].values(), *rep["base"].values()])

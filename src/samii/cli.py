@@ -122,6 +122,7 @@ def _one_line(exc: BaseException) -> str:
 
 #: Signals received (set by the handlers): an exception raised while one was being handled (an
 #: import cut short by Ctrl-C raises ImportError) is reported as the interruption it is.
+from samii.errors import OUTPUTS_STARTED as _OUTPUTS_STARTED  # noqa: E402
 from samii.errors import SIGNALS_RECEIVED as _SIGNALLED  # noqa: E402  (samii.errors is light: no numpy)
 
 
@@ -183,6 +184,7 @@ def _report(prog: str, kind: str, exc: BaseException) -> None:
 def main(argv: list[str] | None = None) -> int:
     """Run the command; map errors to one line on stderr and an exit code (see :mod:`samii.errors`)."""
     _SIGNALLED.clear()
+    _OUTPUTS_STARTED.clear()
     previous = _install_signal_handlers()  # first: a signal during start-up is reported like any other
     try:
         return _main(argv)
@@ -237,7 +239,7 @@ def _main(argv: list[str] | None) -> int:
     except ValueError as exc:  # library validation; a LinAlgError is numerical trouble: a bug
         import numpy as np
 
-        if isinstance(exc, np.linalg.LinAlgError):
+        if isinstance(exc, np.linalg.LinAlgError) or _OUTPUTS_STARTED:  # the input was accepted: a failure of ours
             return _internal_error(prog, exc)
         _report(prog, "error", exc)
         return EXIT_BAD_INPUT
@@ -245,6 +247,15 @@ def _main(argv: list[str] | None) -> int:
         print(f"{prog}: error: out of memory; the requested run is too large for this machine", file=sys.stderr)
         return EXIT_BAD_INPUT
     except OSError as exc:  # files: missing, unreadable, a folder, disk full
+        import errno
+
+        if exc.errno in (errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC)):
+            # the command's own output (the first begun: --out), not a file inside its hidden staging folder
+            target = _OUTPUTS_STARTED[0] if _OUTPUTS_STARTED else exc.filename
+            where = f" writing {target}" if target else ""
+            print(f"{prog}: error: no space left on device{where} (the disk or quota is full); nothing half-written was kept: "
+                  "free some space and run it again", file=sys.stderr)
+            return EXIT_BAD_INPUT
         where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
         print(f"{prog}: error: {where}{exc.strerror or _one_line(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -62,6 +62,16 @@ class Interrupted(KeyboardInterrupt):
 #: places that make a run's results permanent check this list too (:func:`raise_if_signalled`).
 SIGNALS_RECEIVED: list[int] = []
 
+#: The outputs a command has begun writing, once it has accepted its input (:class:`samii.outputs.OutputFolder`
+#: on entry appends its folder): a ``ValueError`` that is not an :class:`InputError` after that is a failure of
+#: ours, not of the input, and the command line reports it as one (exit 1); a full disk is named by them.
+OUTPUTS_STARTED: list[str] = []
+
+
+def mark_outputs_started(where) -> None:
+    """Note that the run's input was accepted and its outputs are being written to ``where`` (see :data:`OUTPUTS_STARTED`)."""
+    OUTPUTS_STARTED.append(str(where))
+
 
 def raise_if_signalled() -> None:
     """Raise the interruption for a signal received earlier whose exception did not get through."""

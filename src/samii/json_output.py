@@ -15,7 +15,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-__all__ = ["dumps", "finite_or_none", "read_json"]
+__all__ = ["dumps", "finite_or_none", "non_finite_fields", "read_json"]
 
 
 def read_json(path, what: str, *, missing: str | None = None) -> Any:
@@ -34,6 +34,18 @@ def read_json(path, what: str, *, missing: str | None = None) -> Any:
         raise InputError(f"{path}: not valid JSON ({exc})") from None
     except RecursionError:
         raise InputError(f"{path}: JSON nested too deeply to be a {what}") from None
+
+
+def non_finite_fields(obj: Any, where: str = "") -> list[str]:
+    """Where ``obj`` (parsed JSON) holds NaN or an infinity, as field paths (``closed_loop.x.theta.settle_s``,
+    ``modes[2]``). samii never writes them (:func:`dumps`), so in a file of ours they mark damage."""
+    if isinstance(obj, float):
+        return [] if math.isfinite(obj) else [where or "(the value)"]
+    if isinstance(obj, dict):
+        return [p for k, v in obj.items() for p in non_finite_fields(v, f"{where}.{k}" if where else str(k))]
+    if isinstance(obj, list):
+        return [p for i, v in enumerate(obj) for p in non_finite_fields(v, f"{where}[{i}]")]
+    return []
 
 
 def finite_or_none(obj: Any) -> Any:

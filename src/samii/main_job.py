@@ -147,7 +147,7 @@ def _stage(d: Path, argv: list[str]) -> str:
 def _closed_loop(d: Path, name: str, argv: list[str]) -> dict:
     """``samii closedloop ARGV --out closedloop/NAME --json``: the result's figures the summary takes."""
     res = json.loads(_stage(d, ["closedloop", *argv, "--out", f"closedloop/{name}", "--json"]))
-    return {k: res.get(k) for k in ("stable", "unstable_mode_hz", "growth_rate_1_s", "theta", "base")}
+    return {k: res.get(k) for k in ("stable", "unstable_mode_hz", "growth_rate_1_s", "instability", "theta", "base")}
 
 
 def _model_args(model, overrides) -> list[str]:
@@ -161,9 +161,14 @@ def run_pipeline(out, *, model=None, overrides=(), seed: int = 0, overwrite: boo
     """Run the pipeline (module docstring) into ``out`` and return the summary."""
     out = Path(out)
     _check_out(out, overwrite)
+    from samii.errors import mark_outputs_started
+    from samii.outputs import remove_stale_runs
+
     stage_dir = out.absolute().parent / f".{out.name}.samii-run-{os.getpid()}"
+    remove_stale_runs(out.absolute().parent, f".{out.name}.samii-run-")  # what a killed run (SIGKILL) left
     if stage_dir.exists():
         shutil.rmtree(stage_dir)
+    mark_outputs_started(out)
     stage_dir.mkdir()
     bar = _Progress(progress, 6 + len(CONTROLLERS) * len(SCENARIOS))
     started = time.perf_counter()
@@ -301,8 +306,11 @@ def summary_lines(s: dict, out) -> list[str]:
         st, lo = cl[f"{name}_step"], cl[f"{name}_loper"]
         if not st["stable"] or not lo["stable"]:
             bad = st if not st["stable"] else lo
-            grow = f"growing at {bad['growth_rate_1_s']:.3g} 1/s" if bad.get("growth_rate_1_s") else "diverging"
-            hz_ = f" at {bad['unstable_mode_hz']:.3g} Hz" if bad.get("unstable_mode_hz") else ""
+            if bad.get("instability"):
+                grow, hz_ = bad["instability"], ""
+            else:
+                grow = f"growing at {bad['growth_rate_1_s']:.3g} 1/s" if bad.get("growth_rate_1_s") else "diverging"
+                hz_ = f" at {bad['unstable_mode_hz']:.3g} Hz" if bad.get("unstable_mode_hz") else ""
             what = f"UNSTABLE ({grow}{hz_}; the run is in closedloop/{name}_{'step' if bad is st else 'loper'}/)"
         else:
             what = (f"stable; step: theta settles {st['theta']['settle_s']:.2f} s, base {st['base']['settle_s']:.2f} s; "

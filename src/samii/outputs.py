@@ -35,7 +35,7 @@ from typing import Iterable
 
 from samii.errors import InputError
 
-__all__ = ["OutputFolder", "check_output_file", "create_parent", "with_size"]
+__all__ = ["OutputFolder", "check_output_file", "create_parent", "remove_stale_runs", "remove_stale_stages", "with_size"]
 
 _STAGE_PREFIX = ".samii-stage-"
 
@@ -131,22 +131,28 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
-def remove_stale_stages(folder: Path) -> list[Path]:
-    """Remove staging folders left in ``folder`` by runs whose process no longer exists."""
+def remove_stale_runs(folder: Path, prefix: str) -> list[Path]:
+    """Remove the folders ``PREFIX<pid>[-...]`` in ``folder`` left by runs whose process no longer exists
+    (killed outright: SIGKILL, power loss); a live process's, and this one's, are left alone."""
     removed = []
     if not folder.is_dir():
         return removed
     for entry in folder.iterdir():
-        if not entry.name.startswith(_STAGE_PREFIX) or not entry.is_dir():
+        if not entry.name.startswith(prefix) or not entry.is_dir() or entry.is_symlink():
             continue
         try:
-            pid = int(entry.name[len(_STAGE_PREFIX):].split("-", 1)[0])
+            pid = int(entry.name[len(prefix):].split("-", 1)[0])
         except ValueError:
             continue
         if pid != os.getpid() and not _pid_alive(pid):
             shutil.rmtree(entry, ignore_errors=True)
             removed.append(entry)
     return removed
+
+
+def remove_stale_stages(folder: Path) -> list[Path]:
+    """Remove staging folders left in ``folder`` by runs whose process no longer exists."""
+    return remove_stale_runs(folder, _STAGE_PREFIX)
 
 
 class OutputFolder:
@@ -170,6 +176,7 @@ class OutputFolder:
         self._check_existing()
         self._stage: Path | None = None
         self._created: list[Path] = []
+        self._omitted: list[str] = []
         self.written: list[Path] = []
 
     def _check_existing(self) -> None:
@@ -193,11 +200,24 @@ class OutputFolder:
             self.names.append(name)
         return self._stage / name
 
+    def omit(self, name: str) -> None:
+        """This run does not write output ``name`` after all (a run with nothing to put in it): a file of that
+        name an earlier run left in the folder is removed at the commit, so the folder never mixes two runs."""
+        if name in self.names:
+            self.names.remove(name)
+        if name not in self._omitted:
+            self._omitted.append(name)
+        if self._stage is not None and (self._stage / name).exists():
+            (self._stage / name).unlink()
+
     def final(self, name: str) -> Path:
         """Where output ``name`` will be once the run succeeds."""
         return self.root / name
 
     def __enter__(self) -> "OutputFolder":
+        from samii.errors import mark_outputs_started
+
+        mark_outputs_started(self.root)
         missing = []
         p = self.root.absolute()
         while not p.exists():
@@ -242,5 +262,9 @@ class OutputFolder:
             for name in staged:
                 os.replace(self._stage / name, self.root / name)
                 self.written.append(self.root / name)
+            for name in self._omitted:
+                old = self.root / name
+                if old.is_file() or old.is_symlink():
+                    old.unlink()
         finally:
             os.close(fd)  # releases the lock

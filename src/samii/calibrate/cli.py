@@ -149,6 +149,10 @@ def run(args: argparse.Namespace) -> int:
         )
     except KeyError as exc:
         raise InputError(f"{args.data}: {exc.args[0] if exc.args else exc}") from None
+    except ValueError as exc:  # the data's validation (too few frequencies, a zero response, ...): name the file
+        if isinstance(exc, InputError):
+            raise
+        raise InputError(f"{args.data}: {' '.join(str(exc).split())}") from None
     written = []
     if folder is not None:
         with folder:
@@ -172,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
             m, lin = conf["rms_error_measured"][c], conf["rms_error_linearised"][c]
             print(f"  {c}: the measured calibrated model {m['db']:.3g} dB / {m['deg']:.3g} deg; its linearisation {lin['db']:.3g} dB / {lin['deg']:.3g} deg")
     lof = r.lack_of_fit
-    print(f"lack of fit: {'FOUND' if lof.found else 'none'} ({lof.rule})")
+    print(f"lack of fit: {lof.verdict()} ({lof.rule})")
     for w in r.warnings:
         print(f"warning: {w}")
     if not r.converged:

@@ -136,9 +136,12 @@ def _summary(r, out_names: list[str]) -> str:
         lines.append(f"  theta: rise {f(th.rise_s, ' s')}, overshoot {f(th.overshoot_pct, ' %')}, settle (2 %) {f(th.settle_s, ' s')}")
     b = r.base
     f = lambda x, u: "n/a" if x is None else f"{x:.3g}{u}"  # noqa: E731
-    lines.append(f"  base: peak {f(b.peak_m_s2, ' m/s²')}, residual rms {f(b.residual_rms_m_s2, ' m/s²')}, settle (5 %) "
-                 f"{f(b.settle_s, ' s')}, decay {f(b.decay_rate_1_s, ' 1/s')}"
-                 + (f" (free decay {f(r.free_decay_rate_1_s, ' 1/s')})" if r.free_decay_rate_1_s is not None else ""))  # fmt: skip
+    if r.signals.t.size < 2:
+        lines.append("  base: no samples (the run diverged in its first step)")
+    else:
+        lines.append(f"  base: peak {f(b.peak_m_s2, ' m/s²')}, residual rms {f(b.residual_rms_m_s2, ' m/s²')}, settle (5 %) "
+                     f"{f(b.settle_s, ' s')}, decay {f(b.decay_rate_1_s, ' 1/s')}"
+                     + (f" (free decay {f(r.free_decay_rate_1_s, ' 1/s')})" if r.free_decay_rate_1_s is not None else ""))  # fmt: skip
     c = r.comparison_base
     if c is not None:
         lines.append(f"  servo loop alone: peak {f(c.peak_m_s2, ' m/s²')}, residual rms {f(c.residual_rms_m_s2, ' m/s²')}, "
@@ -209,6 +212,10 @@ def run(args) -> int:
                              qpos_every=frame_steps)  # fmt: skip
 
     written: list[str] = []
+    recorded = result.signals.t.size >= 2  # a run that diverged in its first step has nothing to record or draw
+    if not recorded and rerun_path is not None:
+        print(f"samii closedloop: note: --rerun {rerun_path}: not written, the run diverged in its first step", file=sys.stderr)
+        rerun_path = None
     rrd_tmp = rerun_path.parent / f".{rerun_path.name}.{os.getpid()}.tmp" if rerun_path else None
     try:
         if folder is not None:
@@ -216,14 +223,18 @@ def run(args) -> int:
             from samii.measure.io import write_timeseries_csv
 
             with folder:
-                write_timeseries_csv(result.timeseries(), folder.path("timeseries.csv"), overwrite=True)
+                if recorded:
+                    write_timeseries_csv(result.timeseries(), folder.path("timeseries.csv"), overwrite=True)
+                else:
+                    for name in ("timeseries.csv", "theta.png", "base_accel.png", "linear_vs_nonlinear.png"):
+                        folder.omit(name)
                 doc = result.run_json()
                 doc["model"] = {"file": args.model or "embedded default", "overrides": overrides}
                 doc["controller_detail"] = None if saved is None else {
                     "name": saved.controller.name, "method": saved.controller.method, "model_units": saved.controller.model_units,
                     "servo_loop": "replaced" if saved.replaces_servo else "kept", "provenance": dict(saved.provenance)}  # fmt: skip
                 folder.path("run.json").write_text(dumps(doc, indent=1) + "\n")
-                if not args.no_plots:
+                if recorded and not args.no_plots:
                     from samii.closedloop.plots import plot_base, plot_linear, plot_theta
 
                     plot_theta(result, folder.path("theta.png"))
@@ -231,7 +242,7 @@ def run(args) -> int:
                     plot_linear(result, folder.path("linear_vs_nonlinear.png"))
                 if rrd_tmp is not None:  # inside the folder's transaction: a failed recording leaves no folder behind
                     _write_rerun(result, rrd_tmp, rerun_path, factory)
-            written = [str(folder.final(n)) for n in names]
+            written = [str(folder.final(n)) for n in folder.names]
         elif rrd_tmp is not None:
             _write_rerun(result, rrd_tmp, rerun_path, factory)
         if rrd_tmp is not None:

@@ -65,6 +65,11 @@ NOTEBOOK_UNITS_SI = ("notebook units: theta in degrees, acceleration in ft/s² (
                      "samii.closedloop.controllers), v in volts")  # fmt: skip
 
 _MAX_FILE_BYTES = 10_000_000
+#: Largest magnitude of a controller matrix entry or input scale read from a file, as for any number in a
+#: measurement file (samii.measure.io.MAX_ABS_VALUE): the product of two entries beyond it can overflow a double
+#: in the controller's first step, so the run would end at t = 0 with nothing to show. No controller's gain comes
+#: near it (the servo's is 57 V/rad, the notebook's compensators' entries are below 1e4).
+MAX_ENTRY = 1e100
 
 
 @dataclass(frozen=True)
@@ -219,6 +224,9 @@ def _matrix(doc: dict, key: str, where: str) -> np.ndarray:
         for x in r:
             if not _finite_number(x):
                 raise InputError(f"{where}: field {key!r} has the entry {_shown(x)}; expected finite numbers")
+            if abs(float(x)) > MAX_ENTRY:
+                raise InputError(f"{where}: field {key!r} has the entry {_shown(x)}, beyond +-{MAX_ENTRY:g}: a controller's "
+                                 "matrices that overflow in its first step (expected gains in V per SI unit of its inputs)")
     return np.array(value, float) if value and value[0] else np.zeros((len(value), 0))
 
 
@@ -254,8 +262,8 @@ def read_controller(path: str | Path) -> SavedController:
     if not isinstance(inputs, list) or not inputs or not all(isinstance(s, str) for s in inputs):
         raise InputError(f"{where}: field 'inputs' must be a non-empty list of measurement names (theta_ref, theta, accel)")
     scale = doc.get("input_scale", {})
-    if not isinstance(scale, dict) or not all(_finite_number(v) and v != 0 for v in scale.values()):
-        raise InputError(f"{where}: field 'input_scale' must map input names to finite nonzero factors")
+    if not isinstance(scale, dict) or not all(_finite_number(v) and v != 0 and abs(float(v)) <= MAX_ENTRY for v in scale.values()):
+        raise InputError(f"{where}: field 'input_scale' must map input names to finite nonzero factors of at most {MAX_ENTRY:g}")
     servo = doc.get("servo_loop")
     if servo not in ("replaced", "kept"):
         raise InputError(f"{where}: field 'servo_loop' must be \"replaced\" (the controller is the whole position loop) or \"kept\" (it adds to it), got {servo!r}")

@@ -11,6 +11,10 @@ All from the time series alone (what a rig gives), SI units:
   stays below 5 % of its peak; ``decay_rate_1_s``: minus the slope of a
   least-squares line through the log envelope, from its peak after the event to
   where it first falls below 5 % of that peak (or the end).
+- runaway: theta further than ``RUNAWAY_BAND_RAD`` from its reference, or
+  the valve command on its rail with one sign, for the whole of the run's last
+  ``RUNAWAY_WINDOW_S`` (:func:`runaway`): a loop that has left its operating
+  point for good, whatever the base does.
 - modes: a sum of damped exponentials fitted to the base acceleration after
   the event by the matrix pencil method (Hua & Sarkar, IEEE Trans. ASSP 38(5),
   1990), on the signal decimated to 200 Hz; the model order from the singular
@@ -25,12 +29,20 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.signal
 
-__all__ = ["StepMetrics", "BaseMetrics", "FittedMode", "Instability", "step_metrics", "base_metrics", "envelope", "matrix_pencil", "response_modes", "growth", "sustained_oscillation"]
+__all__ = ["StepMetrics", "BaseMetrics", "FittedMode", "Instability", "step_metrics", "base_metrics", "envelope", "matrix_pencil", "response_modes", "growth", "sustained_oscillation", "Runaway", "runaway",
+           "RUNAWAY_BAND_RAD", "RUNAWAY_WINDOW_S"]
 
 SETTLE_BAND = 0.02  #: theta settle band, fraction of the step
 BASE_SETTLE_FRACTION = 0.05  #: base settle threshold, fraction of the envelope's peak
 ENVELOPE_SMOOTH_S = 0.2
 MODES_RATE_HZ = 200.0
+#: theta further than this from its reference through the run's last window has left its operating point:
+#: 0.5 rad (29 deg) is ten times the scenarios' 5 deg step, and a loop that holds theta at all (any net
+#: negative position feedback on the valve's integrating actuator) brings it back within a few percent of
+#: the step. The linearisation every design and prediction stands on is about the nominal pose.
+RUNAWAY_BAND_RAD = 0.5
+#: The last stretch of a run judged for a runaway; the run must go on at least twice this after its event.
+RUNAWAY_WINDOW_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -222,6 +234,61 @@ class Instability:
     growth_rate_1_s: float | None  #: slope of the log envelope while it grew (None: it never grew, it only persisted)
     freq_hz: float
     kind: str  #: "growing" (still growing at the end) or "limit cycle" (grew, then held at a level by a nonlinearity)
+
+
+@dataclass(frozen=True)
+class Runaway:
+    """A loop that has left its operating point for good (:func:`runaway`)."""
+
+    theta_since_s: float | None  #: theta outside the band from here to the end (None: inside by the end)
+    valve_since_s: float | None  #: the valve command on one rail from here to the end (None: off it by the end)
+    theta_error_rad: float  #: theta minus its reference at the end
+    band_rad: float
+    valve_v: float  #: the valve command at the end
+
+    @property
+    def since_s(self) -> float:
+        return min(x for x in (self.theta_since_s, self.valve_since_s) if x is not None)
+
+    def text(self) -> str:
+        parts = []
+        if self.theta_since_s is not None:
+            parts.append(f"theta ran away from its reference (outside the +-{np.degrees(self.band_rad):.3g} deg band from "
+                         f"t = {self.theta_since_s:.4g} s on, {np.degrees(self.theta_error_rad):.4g} deg off at the end)")
+        if self.valve_since_s is not None:
+            parts.append(f"the valve command sat on its {self.valve_v:+.3g} V rail from t = {self.valve_since_s:.4g} s to the end")
+        return "; ".join(parts)
+
+
+def runaway(t: np.ndarray, theta_error_rad: np.ndarray, valve_v: np.ndarray, *, t_event: float, rail_v: float,
+            band_rad: float = RUNAWAY_BAND_RAD, window_s: float = RUNAWAY_WINDOW_S) -> Runaway | None:
+    """The loop's runaway, if theta stays outside ``band_rad`` of its reference or the valve command on one
+    rail (within 0.1 % of ``rail_v``) through the last ``window_s`` of the run; None otherwise, and None when
+    the run goes on less than ``2 window_s`` after ``t_event`` (a slew can still be under way: not judged).
+
+    A bounded base oscillation says nothing about the joint: a positive net position feedback drives the valve
+    to its rail and the joint turns at the actuator's full speed while the base barely moves
+    (``sustained_oscillation`` reads the base alone).
+    """
+    t = np.asarray(t, float)
+    if t.size < 2 or t[-1] - t_event < 2 * window_s:
+        return None
+    err = np.asarray(theta_error_rad, float)
+    v = np.asarray(valve_v, float)
+    k0 = int(np.searchsorted(t, t[-1] - window_s))
+    out = ~(np.abs(err) <= band_rad)  # NaN counts as out
+    on_rail = (np.abs(v) >= rail_v * (1 - 1e-3)) & (np.sign(v) == np.sign(v[-1]))
+
+    def since(flag: np.ndarray) -> float | None:
+        if not np.all(flag[k0:]):
+            return None
+        inside = np.flatnonzero(~flag)
+        return float(t[inside[-1] + 1] if inside.size else t[0])
+
+    th, va = since(out), since(on_rail)
+    if th is None and va is None:
+        return None
+    return Runaway(th, va, float(err[-1]), float(band_rad), float(v[-1]))
 
 
 def _dominant_freq_hz(x: np.ndarray, dt: float) -> float:

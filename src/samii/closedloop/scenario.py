@@ -26,7 +26,8 @@ import numpy as np
 from samii.closedloop.card import CardModel, build_card_model
 from samii.closedloop.controllers import SavedController
 from samii.closedloop.linear import LinearLoop, LinearResponse, linear_loop
-from samii.closedloop.metrics import BaseMetrics, FittedMode, StepMetrics, base_metrics, growth, response_modes, step_metrics, sustained_oscillation
+from samii.closedloop.metrics import (BaseMetrics, FittedMode, Runaway, StepMetrics, base_metrics, growth, response_modes, runaway, step_metrics,
+                                     sustained_oscillation)
 from samii.closedloop.run import LoopSignals, measurements_at, run_loop
 from samii.measure.daq import SensorNoise
 
@@ -117,12 +118,16 @@ class ClosedLoopResult:
     theta_rest_rad: float = 0.0  #: theta at the static equilibrium (the responses are relative to it)
     accel_rest_m_s2: float = 0.0  #: accelerometer reading there (after the gravity offset is removed: ~0)
     comparison_base: BaseMetrics | None = None  #: the base figures of the comparison run, over the same windows
+    runaway: Runaway | None = None  #: theta left its band or the valve sat on its rail for good (then not stable)
 
     def instability(self) -> str:
         """How the run is unstable, in words ("" when stable)."""
         if self.stable:
             return ""
-        what = f"growing at {self.growth_rate_1_s:.4g} 1/s" if self.growth_rate_1_s is not None else "not decaying"
+        if self.runaway is not None and self.growth_rate_1_s is None and self.unstable_mode_hz is None:
+            return self.runaway.text()
+        lead = f"{self.runaway.text()}; the base " if self.runaway is not None else ""
+        what = lead + (f"growing at {self.growth_rate_1_s:.4g} 1/s" if self.growth_rate_1_s is not None else "not decaying")
         if self.unstable_mode_hz is None:
             return what
         if self.unstable_mode_hz < 0.01:
@@ -142,6 +147,10 @@ class ClosedLoopResult:
             "stable": self.stable,
             "unstable_mode_hz": f(self.unstable_mode_hz),
             "growth_rate_1_s": f(self.growth_rate_1_s),
+            "instability": self.instability() or None,
+            "runaway": None if self.runaway is None else {
+                "theta_out_since_s": f(self.runaway.theta_since_s), "valve_on_rail_since_s": f(self.runaway.valve_since_s), "theta_error_rad": f(self.runaway.theta_error_rad),
+                "band_rad": f(self.runaway.band_rad), "valve_v": f(self.runaway.valve_v)},
             "theta": {"rise_s": f(self.theta.rise_s), "overshoot_pct": f(self.theta.overshoot_pct), "settle_s": f(self.theta.settle_s)},
             "base": {
                 "peak_m_s2": f(self.base.peak_m_s2),
@@ -348,10 +357,18 @@ def run_closed_loop(
                 notes.append(f"the base oscillation at {osc.freq_hz:.3g} Hz grew and is held at a constant level by {held} (a limit cycle)")
             else:
                 notes.append(f"the base oscillation at {osc.freq_hz:.3g} Hz is still growing at the end of the run")
+    ran_away = None
+    if sig.diverged_at_s is None and sig.t.size >= 30:
+        from samii.sim.hydraulic_reference import AMPLIFIER_LIMIT_V
+
+        ran_away = runaway(sig.t, sig.theta - th_rest - sig.theta_ref, sig.v, t_event=t_ev, rail_v=AMPLIFIER_LIMIT_V)
+        if ran_away is not None:
+            stable = False
+            notes.append(ran_away.text())
 
     theta_m = step_metrics(sig.t, sig.theta, sig.theta_ref, sc.t_step_s) if sc.name in ("step", "loper") else StepMetrics(None, None, None)
     residual_from = sc.t_disturbance_s + 2.0
-    base = base_metrics(sig.t, accel, sc.t_disturbance_s, t_decay_s=t_ev, residual_from_s=residual_from) if sig.t.size > 1 else BaseMetrics(0.0, None, None, None)
+    base = base_metrics(sig.t, accel, sc.t_disturbance_s, t_decay_s=t_ev, residual_from_s=residual_from) if sig.t.size > 1 else BaseMetrics(float("nan"), None, None, None)
     comp_base = None
     if comp is not None:
         comp_base = base_metrics(comp.t, comp.accel - ac_rest, sc.t_disturbance_s, t_decay_s=t_ev, residual_from_s=residual_from)
@@ -362,7 +379,7 @@ def run_closed_loop(
         linear_poles_s=poles_s, stable=stable, unstable_mode_hz=mode_hz, growth_rate_1_s=rate, theta=theta_m, base=base,
         free_decay_rate_1_s=free, modes=modes, rms_error_pct=err, delay_samples=float(delay_samples),
         sample_time_s=cm.sample_time_s, replaces_servo=cm.replaces_servo, noise=noise, notes=notes,
-        theta_rest_rad=th_rest, accel_rest_m_s2=ac_rest, comparison_base=comp_base,
+        theta_rest_rad=th_rest, accel_rest_m_s2=ac_rest, comparison_base=comp_base, runaway=ran_away,
     )  # fmt: skip
 
 

@@ -292,6 +292,9 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
     if fs < MIN_SAMPLE_RATE_HZ:
         raise ValueError(f"{source}: t steps by {1.0 / fs:.6g} s, {fs:.6g} samples per second: too slow for a frequency response of "
                          "this arm (its modes lie between 1.7 and 25 Hz); is t in milliseconds? t must be in seconds (DATA_FORMATS.md)")
+    if ts.v.size and np.all(ts.v == ts.v[0]):  # (an r without excitation is refused by find_records)
+        raise ValueError(f"{source}: column 'v' is {ts.v[0]:g} V at every sample: no excitation reached the valve (is the v "
+                         "channel connected?); there is no frequency response to estimate")
     ts, hum = _without_mains(ts)
     stated = record_s if record_s is not None else _float_meta(ts.metadata, "record_s")
     layout = find_records(ts.r, fs, record_s=stated, where=source)
@@ -300,6 +303,7 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
         hi = _float_meta(ts.metadata, "stop_hz")
         band_hz = (lo or 0.1, min(hi or 40.0, 0.45 * fs))
     frf, var, corr, how = timeseries_frf(ts, layout, band_hz=band_hz)
+    check_testable(frf, source=source)
     if hum:
         how += "; mains hum subtracted first (" + "; ".join(hum) + ")"
     amp = _float_meta(ts.metadata, "amplitude_v") or float(np.max(np.abs(ts.r)))
@@ -328,8 +332,28 @@ def _weights_squared(meta: Mapping[str, str], n: int) -> tuple[float, str]:
     return 1.0 / n, "equal weights"
 
 
+def check_testable(frf: FrequencyResponse, *, source: str) -> None:
+    """Refuse data a diagnosis could test nothing on: fewer frequencies than a fit takes, or coherence below
+    the lack-of-fit test's floor at every point of every channel (the data are noise: without this, every
+    point's error is so large that any baseline would be said to explain them)."""
+    from samii.identify.cost import MIN_FREQUENCIES
+    from samii.identify.lack_of_fit import MIN_COHERENCE
+
+    n = frf.freq_hz.size
+    if n < MIN_FREQUENCIES:
+        raise ValueError(f"{source}: {n} frequency point(s) (after --band-hz, if given); a diagnosis fits the data's frequency "
+                         f"response and needs at least {MIN_FREQUENCIES}")
+    cohs = {ch: frf.coherence(ch) for ch in frf.channels}
+    cohs = {ch: c for ch, c in cohs.items() if c is not None}
+    if cohs and all(not np.any(c >= MIN_COHERENCE) for c in cohs.values()):
+        best = max(float(np.nanmax(c)) for c in cohs.values())
+        raise ValueError(f"{source}: no point has coherence >= {MIN_COHERENCE:g} in any channel (the highest is {best:.3g}): "
+                         "the data are noise (was the rig excited? are the sensors connected?); nothing could be tested")
+
+
 def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
     """An FRF file: the error of each point from its coherence, if it has one."""
+    check_testable(frf, source=source)
     meta = frf.metadata
     n = averages_from_metadata(meta)
     if n is None:

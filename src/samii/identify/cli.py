@@ -278,7 +278,7 @@ def run(args: argparse.Namespace) -> int:
         if r.lack_of_fit is not None:
             lof = r.lack_of_fit
             ratio = ", ".join(f"{c} {v:.3g}" for c, v in lof.noise_ratio.items() if v is not None)
-            print(f"lack of fit: {'FOUND' if lof.found else 'none'} (rule: {lof.rule}; averages: {lof.n_averages_source})" + (f"; RMS residual / random error: {ratio}" if ratio else ""))
+            print(f"lack of fit: {lof.verdict()} (rule: {lof.rule}; averages: {lof.n_averages_source})" + (f"; RMS residual / random error: {ratio}" if ratio else ""))
         print(r.message)
         for w in r.warnings:
             print(f"warning: {w}")

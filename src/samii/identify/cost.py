@@ -55,7 +55,7 @@ import numpy as np
 from samii.frequency_response import Channel, FrequencyResponse
 from samii.identify.structures import ModelStructure
 
-__all__ = ["DB_PER_NEPER", "DEG_PER_RAD", "FREQ_RANGE_HZ", "Weighting", "FitProblem", "frequency_out_of_range", "notebook_cost", "pooled_coherence", "thinning_step"]
+__all__ = ["DB_PER_NEPER", "DEG_PER_RAD", "FREQ_RANGE_HZ", "MIN_FREQUENCIES", "Weighting", "FitProblem", "frequency_out_of_range", "notebook_cost", "pooled_coherence", "thinning_step"]
 
 #: 20 log10|H| = DB_PER_NEPER * ln|H|.
 DB_PER_NEPER = 20.0 / np.log(10.0)
@@ -76,6 +76,9 @@ POOL_HALFWIDTH = 0.05
 #: outside, its s^4 numerator underflows to 0 (below about 1e-77 Hz) and the
 #: cost and its Jacobian are no longer numbers.
 FREQ_RANGE_HZ = (1e-6, 1e6)
+#: Fewest frequency points a fit (or a calibration) takes: a resonance is located only by a point either side of
+#: its peak. One point gave a calibration that ran and then failed writing its curves (issue 36).
+MIN_FREQUENCIES = 3
 
 Weighting = Literal["none", "coherence"]
 
@@ -168,6 +171,11 @@ class FitProblem:
                 raise ValueError(f"no frequency point in the band {lo:g}-{hi:g} Hz (the data span {data.freq_hz[0]:g}-{data.freq_hz[-1]:g} Hz)")
             data = data.band(lo, hi)
             object.__setattr__(self, "band_hz", (lo, hi))
+        if data.freq_hz.size < MIN_FREQUENCIES:
+            where = f" in the band {self.band_hz[0]:g}-{self.band_hz[1]:g} Hz" if self.band_hz is not None else ""
+            raise ValueError(f"{data.freq_hz.size} frequency point(s){where}: a fit to a frequency response needs at least "
+                             f"{MIN_FREQUENCIES} (a resonance is located by a point either side of its peak); measure more "
+                             "frequencies or widen the band")
         out_of_range = frequency_out_of_range(data.freq_hz)
         if out_of_range is not None:
             raise ValueError(f"point {out_of_range[0] + 1} of the data: {out_of_range[1]}")

@@ -163,12 +163,26 @@ class LackOfFit:
     def found(self) -> bool:
         return bool(self.bands)
 
+    @property
+    def nothing_tested(self) -> bool:
+        """The data have coherence and no point of any channel reaches MIN_COHERENCE: no residual could be tested."""
+        return self.n_averages is not None and bool(self.noise_ratio) and all(v is None for v in self.noise_ratio.values())
+
+    def verdict(self) -> str:
+        """"FOUND", "none", or that nothing could be tested (never "none" for data that are all noise)."""
+        if self.found:
+            return "FOUND"
+        if self.nothing_tested:
+            return f"NOT TESTED: no point has coherence >= {MIN_COHERENCE:g} in any channel (the data are noise; nothing could be tested)"
+        return "none"
+
     def warnings(self) -> list[str]:
         return [b.describe(self.n_averages) for b in self.bands]
 
     def to_dict(self) -> dict:
         return {
             "found": self.found,
+            "nothing_tested": self.nothing_tested,
             "rule": self.rule,
             "n_averages": self.n_averages,
             "n_averages_source": self.n_averages_source,

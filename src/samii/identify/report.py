@@ -190,7 +190,7 @@ def _lof_cell(result: FitResult) -> str:
     if lof is None:
         return ""
     if not lof.found:
-        return "none"
+        return "not tested (no coherent point)" if lof.nothing_tested else "none"
     return lof.summary()
 
 

@@ -552,6 +552,10 @@ def _write_atomic(path, text: str, overwrite: bool) -> Path:
         with open(tmp, "x", encoding="utf-8", newline="\n") as fh:
             fh.write(text)
         _commit(tmp, path, overwrite)
+    except OSError as exc:
+        if exc.filename is None:  # a failed write (a full disk) names no file: name the one being written
+            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
+        raise
     finally:
         _remove_quietly(tmp)
     return path

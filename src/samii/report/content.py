@@ -62,6 +62,13 @@ def _json(folder: Path, rel: str) -> dict:
     data = read_json(path, "main job's file", missing=f"{path}: missing; is {folder} a main job's output (samii run)?")
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a JSON object")
+    from samii.json_output import non_finite_fields
+
+    bad = non_finite_fields(data)
+    if bad:  # samii writes null, never NaN or Infinity: the file was damaged after the run (no number shown is trusted)
+        shown = ", ".join(bad[:4]) + (f" and {len(bad) - 4} more" if len(bad) > 4 else "")
+        raise InputError(f"{path}: field {shown} holds NaN or an infinity, which samii never writes: the file is damaged; "
+                         "run samii run again for a report")
     return data
 
 

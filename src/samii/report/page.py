@@ -214,7 +214,8 @@ def _closed_loop(run: RunFolder) -> str:
             th, ba = r.get("theta") or {}, r.get("base") or {}
             ok = bool(r.get("stable"))
             hz = f", {_num(r.get('unstable_mode_hz'), '.3g')} Hz" if r.get("unstable_mode_hz") else ""
-            state = '<span class="ok">stable</span>' if ok else f'<span class="bad">UNSTABLE</span> (grows at {_num(r.get("growth_rate_1_s"), ".3g")} 1/s{hz})'
+            why = _e(r["instability"]) if isinstance(r.get("instability"), str) else f'grows at {_num(r.get("growth_rate_1_s"), ".3g")} 1/s{hz}'
+            state = '<span class="ok">stable</span>' if ok else f'<span class="bad">UNSTABLE</span> ({why})'
             rows.append([_e(label), sc, state,
                          _num(th.get("overshoot_pct"), ".1f") if ok and sc == "step" else "–",
                          _num(th.get("settle_s"), ".2f") if ok and sc == "step" else "–",
@@ -379,8 +380,9 @@ def write_report(run: RunFolder, path: Path | None = None) -> Path:
     """Write ``report.html`` (default: into the run's folder) and return its path."""
     from samii.outputs import create_parent
 
+    from samii.measure.io import write_text
+
     path = create_parent(Path(path) if path is not None else run.path / REPORT_NAME)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(render_report(run, path.parent), encoding="utf-8")
-    tmp.replace(path)
-    return path
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder; the report is a file (remove the folder or give --out FILE)")
+    return write_text(path, render_report(run, path.parent), overwrite=True)  # atomic: a failure (a full disk) leaves nothing

@@ -14,6 +14,9 @@ import os
 import sys
 
 from samii.cli_args import float_in, int_in, nonempty_path, seed
+
+#: samii.robust.engine.DEFAULT_CONNECT_TIMEOUT_S (not imported here: that module imports Dask; a test checks they agree)
+SCHEDULER_TIMEOUT_S = 30.0
 from samii.errors import InputError
 
 __all__ = ["add_arguments", "run", "MAX_SAMPLES"]
@@ -55,6 +58,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="run on this Dask cluster (tcp://host:8786); its workers need samii installed. Without --scheduler and "
                         "--workers, Dask's own configured scheduler-address (DASK_SCHEDULER_ADDRESS) is used if set")  # fmt: skip
+    p.add_argument("--scheduler-timeout", type=float_in(1.0, 3600.0, unit="s"), default=SCHEDULER_TIMEOUT_S, metavar="S",
+                   help=f"seconds the --scheduler has to answer before the run is refused (default {SCHEDULER_TIMEOUT_S:g})")
     p.add_argument("--out", metavar="DIR", type=nonempty_path, help="write robust.json, samples.csv and the figures here")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs in --out")
     p.add_argument("--json", action="store_true", help="print robust.json's summary as JSON")
@@ -115,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--workers: with --scheduler the cluster's own workers run the study; give one of them")
     # an explicit --workers (0 included) wins over Dask's configured scheduler address
     scheduler = args.scheduler or (configured_scheduler() if args.workers is None else None)
-    engine = Engine(workers=args.workers or 0, scheduler=scheduler)
+    engine = Engine(workers=args.workers or 0, scheduler=scheduler, connect_timeout_s=args.scheduler_timeout)
 
     # the controller is designed (or read) once, on the nominal plant, in this process
     from samii.closedloop.cli import resolve_controller

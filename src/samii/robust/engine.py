@@ -22,7 +22,11 @@ from distributed.diagnostics.plugin import WorkerPlugin
 import samii
 from samii.robust.task import SampleResult, SampleTask, run_sample
 
-__all__ = ["Engine", "SamiiWorkerPlugin", "configured_scheduler"]
+__all__ = ["DEFAULT_CONNECT_TIMEOUT_S", "Engine", "SamiiWorkerPlugin", "configured_scheduler"]
+
+#: Seconds a scheduler has to answer the first contact: Dask's own connect timeout (30 s) bounds the TCP
+#: connection, not the handshake after it, and a socket that accepts and never answers held a run past 100 s.
+DEFAULT_CONNECT_TIMEOUT_S = 30.0
 
 
 def configured_scheduler() -> str | None:
@@ -49,6 +53,38 @@ class SamiiWorkerPlugin(WorkerPlugin):
             raise RuntimeError(f"this worker has samii {worker_samii.__version__}, the client {self.version}: install the same samii on every worker")
 
 
+def _connect(address: str, timeout_s: float) -> Client:
+    """A client of the scheduler at ``address``, or :class:`InputError` naming it when it refuses or does not
+    answer within ``timeout_s`` (the attempt runs in a daemon thread: one that never returns is left behind
+    without holding the process)."""
+    import threading
+
+    from samii.errors import InputError
+
+    box: dict = {}
+
+    def attempt() -> None:
+        try:
+            box["client"] = Client(address, timeout=f"{timeout_s}s")
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller
+            box["error"] = exc
+
+    thread = threading.Thread(target=attempt, name="samii-dask-connect", daemon=True)
+    thread.start()
+    thread.join(timeout_s + 5.0)  # Dask's own timeout first, where it applies
+    if thread.is_alive() or ("client" not in box and "error" not in box):
+        raise InputError(f"--scheduler {address}: no Dask scheduler answered within {timeout_s:g} s (something accepted the "
+                         "connection but did not reply as a Dask scheduler: check the address and port, or give more time "
+                         "with --scheduler-timeout)")
+    if "error" in box:
+        exc = box["error"]
+        if isinstance(exc, KeyboardInterrupt):
+            raise exc
+        raise InputError(f"--scheduler {address}: could not connect to a Dask scheduler ({type(exc).__name__}: "
+                         f"{' '.join(str(exc).split())})") from None
+    return box["client"]
+
+
 @dataclass
 class Engine:
     """Runs sample tasks. Use as a context manager to keep a Dask cluster up over several :meth:`map` calls;
@@ -56,6 +92,7 @@ class Engine:
 
     workers: int = 0  #: 0: in this process; N: a local Dask cluster of N worker processes
     scheduler: str | None = None  #: a Dask scheduler's address: the user's cluster
+    connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S  #: how long the scheduler has to answer the first contact
     _client: object = field(default=None, repr=False)
     _cluster: object = field(default=None, repr=False)
 
@@ -73,7 +110,7 @@ class Engine:
     def __enter__(self) -> "Engine":
         if self.uses_dask and self._client is None:
             if self.scheduler:
-                self._client = Client(self.scheduler, timeout="30s")
+                self._client = _connect(self.scheduler, self.connect_timeout_s)
             else:
                 # fresh worker processes, one thread each (a MuJoCo run is single-threaded), no dashboard
                 # Dask's statistical profiler samples each worker's stack every 10 ms, holding the GIL to do it:

@@ -132,11 +132,19 @@ def read_covariance(path) -> Covariance:
         v = nominal.get(section, {}).get(key) if isinstance(nominal.get(section), dict) else None
         if v is None or not math.isclose(float(v), m, rel_tol=1e-9, abs_tol=1e-12):
             raise InputError(f"--covariance {path}: parameter {name} = {m:g} but field 'calibrated_params' holds {v!r}")
+    if np.any(np.abs(c - c.T) > 1e-9):
+        i, j = np.unravel_index(int(np.argmax(np.abs(c - c.T))), c.shape)
+        raise InputError(f"--covariance {path}: field 'correlation' is not symmetric (entry [{i}][{j}] = {c[i, j]:g}, "
+                         f"[{j}][{i}] = {c[j, i]:g})")
+    # checked on the correlation matrix itself (its eigenvalues are of order 1): on the covariance, standard errors
+    # of 1e5 beside 1e-5 scale a negative eigenvalue of the correlation into rounding and it passed (issue 36)
+    low = float(np.min(np.linalg.eigvalsh(0.5 * (c + c.T))))
+    if low < -1e-9:
+        raise InputError(f"--covariance {path}: field 'correlation' is not positive semi-definite (its smallest eigenvalue is "
+                         f"{low:.3g}); no joint distribution has these correlations")
     s = np.asarray(se)
     cov = c * np.outer(s, s)
     cov = 0.5 * (cov + cov.T)
-    if np.min(np.linalg.eigvalsh(cov)) < -1e-9 * np.max(np.abs(np.diag(cov))):
-        raise InputError(f"--covariance {path}: the correlation matrix is not positive semi-definite")
     return Covariance(str(path), tuple(names), np.asarray(mean), cov, tuple(bounds), nominal)
 
 

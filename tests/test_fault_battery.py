@@ -1,0 +1,315 @@
+"""Faults a user meets after the first bad-input battery (issue 36), each in the project's own tests.
+
+Every refusal returns exit 2 with one line on stderr that names the file (and field) and says what is
+wrong in the data's terms, with or without ``--out`` alike, and leaves nothing behind; a failure of ours
+after the input was accepted is exit 1 (internal error), not a bad input; a loop that runs away is not
+called stable; a full disk is said in words (on a small tmpfs where root may mount one, skipped otherwise).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from samii.cli import main
+
+# ---------------------------------------------------------------------------- fixtures and helpers
+
+
+def _controller(path, *, D, A=None, B=None, C=None, servo="kept"):
+    """A controller file reading (theta_ref, theta, accel) in SI units."""
+    doc = {"format": "samii-controller", "version": 1, "name": path.stem, "method": "hand", "model_units": "SI",
+           "sample_time_s": 0.001, "inputs": ["theta_ref", "theta", "accel"], "input_scale": {},
+           "servo_loop": servo, "A": A or [], "B": B or [], "C": C or [], "D": [D], "provenance": {}}  # fmt: skip
+    path.write_text(json.dumps(doc))
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def measured(tmp_path_factory):
+    """A noisy default measurement (frf.csv, timeseries.csv) and damaged copies of it."""
+    d = tmp_path_factory.mktemp("measured")
+    assert main(["measure", "--out", str(d / "m"), "--noise", "--no-progress"]) == 0
+    files = {"frf": d / "m" / "frf.csv", "ts": d / "m" / "timeseries.csv"}
+    lines = files["frf"].read_text().splitlines()
+    head = [ln for ln in lines if ln.startswith("#")]
+    body = [ln for ln in lines if not ln.startswith("#")]
+    cols = body[0].split(",")
+    files["one_freq"] = d / "one.csv"
+    files["one_freq"].write_text("\n".join(head + body[:2]) + "\n")
+    rows = [body[0]]
+    for ln in body[1:]:
+        v = ln.split(",")
+        rows.append(",".join("0" if c.endswith("_coh") else x for c, x in zip(cols, v)))
+    files["coh0"] = d / "coh0.csv"
+    files["coh0"].write_text("\n".join(head + rows) + "\n")
+    ts = files["ts"].read_text().splitlines()
+    head = [ln for ln in ts if ln.startswith("#")]
+    body = [ln for ln in ts if not ln.startswith("#")]
+    cols = body[0].split(",")
+    for name in ("v", "r"):
+        k = cols.index(name)
+        rows = [body[0]] + [",".join("0" if i == k else x for i, x in enumerate(ln.split(","))) for ln in body[1:]]
+        files[f"{name}0"] = d / f"{name}0.csv"
+        files[f"{name}0"].write_text("\n".join(head + rows) + "\n")
+    return {k: str(v) for k, v in files.items()}
+
+
+def _one_line(capsys) -> str:
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert "Traceback" not in err and len(lines) == 1, err
+    return lines[0]
+
+
+def _refused_alike(argv, out, capsys, needles):
+    """Refused (exit 2) with the same one line with and without ``--out``; nothing written."""
+    texts = []
+    for extra in ([], ["--out", str(out)]):
+        assert main([*argv, *extra]) == 2
+        texts.append(_one_line(capsys))
+        assert not out.exists()
+    assert texts[0] == texts[1]
+    for n in needles:
+        assert n.lower() in texts[0].lower(), (n, texts[0])
+    return texts[0]
+
+
+# ---------------------------------------------------------------------------- runaway loops (item 5)
+
+
+def test_closedloop_reports_a_runaway_as_unstable(tmp_path, capsys):
+    """D = +300 V/rad on theta with the servo's 57.3 V/rad kept: the valve on its rail, the joint turning; the command
+    says UNSTABLE with what ran away (it said "stable in the nonlinear simulator" before)."""
+    c = _controller(tmp_path / "pos.json", D=[0, 300, 0])
+    assert main(["closedloop", "--controller", c, "--scenario", "step", "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["stable"] is False and "theta ran away" in rep["instability"]
+    assert rep["runaway"]["valve_on_rail_since_s"] is not None and abs(rep["runaway"]["valve_v"]) == pytest.approx(10.0, rel=1e-3)
+    assert main(["closedloop", "--controller", c, "--scenario", "loper"]) == 0
+    out = capsys.readouterr().out
+    assert "UNSTABLE: theta ran away" in out and "stable in the nonlinear simulator" not in out
+
+
+def test_robust_counts_a_runaway_as_unstable(tmp_path, capsys):
+    c = _controller(tmp_path / "pos.json", D=[0, 300, 0])
+    out = tmp_path / "r"
+    assert main(["robust", "--controller", c, "--samples", "2", "--spread", "hydraulic.bulk_modulus=5%", "--no-progress", "--out", str(out)]) == 0
+    r = json.loads((out / "robust.json").read_text())
+    assert r["summary"]["n_unstable"] == 2 and not r["nominal_plant"]["stable"]
+    assert all("theta ran away" in s["note"] for s in r["samples"])
+
+
+# ---------------------------------------------------------------------------- refusals before work (item 4)
+
+
+def test_a_controller_whose_matrices_overflow_is_refused(tmp_path, capsys):
+    for field, kw in (("A", {"A": [[1e300]], "B": [[0, 1, 0]], "C": [[1]], "D": [0, 0, 0]}), ("D", {"D": [0, 1e300, 0]})):
+        c = _controller(tmp_path / f"big_{field}.json", **kw)
+        _refused_alike(["closedloop", "--controller", c, "--scenario", "step"], tmp_path / f"out_{field}", capsys,
+                       [c, f"field '{field}'", "1e+300", "overflow"])  # fmt: skip
+
+
+def test_a_run_that_diverges_in_its_first_step_writes_its_verdict_only(tmp_path, capsys):
+    """Entries of 1e50 pass the reader (they are numbers) and the run diverges at once: a result (exit 0, not stable),
+    written as run.json alone, and a previous run's time series and figures in the folder removed with --overwrite
+    (never mixed with this run's verdict). It said "a time series needs at least 2 samples" before, with --out only."""
+    out = tmp_path / "x"
+    assert main(["closedloop", "--controller", _controller(tmp_path / "ok.json", D=[0, 0, 0]), "--scenario", "step", "--out", str(out)]) == 0
+    assert (out / "timeseries.csv").is_file() and (out / "theta.png").is_file()
+    c = _controller(tmp_path / "big.json", A=[[1e50]], B=[[0, 1e50, 0]], C=[[1]], D=[0, 1e50, 0])
+    capsys.readouterr()
+    assert main(["closedloop", "--controller", c, "--scenario", "step", "--out", str(out), "--overwrite"]) == 0
+    text = capsys.readouterr().out
+    assert "UNSTABLE" in text and "no samples" in text
+    assert sorted(p.name for p in out.iterdir()) == ["run.json"]
+    doc = json.loads((out / "run.json").read_text())
+    assert doc["stable"] is False and doc["base"]["peak_m_s2"] is None
+
+
+def test_calibrate_refuses_too_few_frequencies_before_work(measured, tmp_path, capsys):
+    _refused_alike(["calibrate", measured["one_freq"], "--param", "beam.clamp_stiffness_Nm_rad"], tmp_path / "c", capsys,
+                   [measured["one_freq"], "1 frequency point", "at least 3"])  # fmt: skip
+
+
+def test_diagnose_refuses_data_that_are_all_noise(measured, tmp_path, capsys):
+    """Coherence 0 at every point: every error huge, so any baseline would have 'explained' them; nothing can be tested."""
+    _refused_alike(["diagnose", measured["coh0"], "--no-progress"], tmp_path / "d", capsys,
+                   [measured["coh0"], "coherence", "nothing could be tested"])
+
+
+def test_diagnose_refuses_too_few_frequencies(measured, tmp_path, capsys):
+    _refused_alike(["diagnose", measured["one_freq"], "--no-progress"], tmp_path / "d", capsys, [measured["one_freq"], "at least 3"])
+
+
+@pytest.mark.parametrize("which, needle", [("v0", "column 'v' is 0 V at every sample: no excitation reached the valve"),
+                                           ("r0", "the excitation r is zero throughout")])
+def test_frf_refuses_a_record_without_excitation(measured, which, needle, tmp_path, capsys):
+    _refused_alike(["frf", measured[which]], tmp_path / "f", capsys, [measured[which], needle])
+
+
+def test_a_fit_on_noise_says_nothing_was_tested(measured):
+    """The lack-of-fit verdict on data with no coherent point is 'not tested', never 'none'."""
+    from samii.identify import fit
+    from samii.measure.io import read_frf_csv
+
+    r = fit(read_frf_csv(measured["coh0"]), profile=False)
+    lof = r.lack_of_fit
+    assert lof.nothing_tested and not lof.found and lof.verdict().startswith("NOT TESTED")
+    assert not fit(read_frf_csv(measured["frf"]), profile=False).lack_of_fit.nothing_tested
+
+
+def test_a_covariance_is_checked_on_its_correlation_matrix(tmp_path, capsys):
+    """Standard errors of 1e5 beside 1e-5 hid a correlation eigenvalue of -0.8 in rounding (checked on the covariance);
+    it was refused later for the wrong reason. Three parameters with pairwise correlations 0.9, 0.9, -0.9 have
+    eigenvalues 1.9, 1.9 and -0.8."""
+    from samii.sim.model import default_params
+
+    nominal = default_params().as_dict()
+    names = [("hydraulic", "bulk_modulus", 1e5), ("hydraulic", "total_volume", 1e-5), ("beam", "clamp_stiffness_Nm_rad", 1e-5)]
+    params = [{"name": f"{s}.{k}", "value": nominal[s][k], "stderr": se, "bounds": [0.5 * nominal[s][k], 2 * nominal[s][k]]} for s, k, se in names]
+    corr = [[1.0, 0.9, 0.9], [0.9, 1.0, -0.9], [0.9, -0.9, 1.0]]
+    assert min(np.linalg.eigvalsh(corr)) == pytest.approx(-0.8)
+    p = tmp_path / "cal.json"
+    p.write_text(json.dumps({"parameters": params, "correlation": corr, "calibrated_params": nominal}))
+    assert main(["robust", "--controller", "unity", "--covariance", str(p), "--samples", "2", "--no-progress"]) == 2
+    line = _one_line(capsys)
+    assert str(p) in line and "not positive semi-definite" in line and "-0.8" in line
+
+
+def test_a_value_error_after_the_input_was_accepted_is_an_internal_error(tmp_path, capsys, monkeypatch):
+    """Once the outputs are being written the input was accepted: a ValueError then is ours (exit 1, SAMII_DEBUG advice),
+    not a bad input (exit 2 with an internal message naming no file, before)."""
+    import samii.measure.io as io
+
+    def broken(*_a, **_k):
+        raise ValueError("an internal inconsistency")
+
+    monkeypatch.setattr(io, "write_frf_csv", broken)
+    monkeypatch.delenv("SAMII_DEBUG", raising=False)
+    out = tmp_path / "m"
+    assert main(["measure", "--out", str(out), "--no-progress", "--method", "stepped", "--freqs-hz", "20"]) == 1
+    line = _one_line(capsys)
+    assert "internal error" in line and "SAMII_DEBUG" in line and not out.exists()
+    # the same ValueError before any output is a refusal of the input (exit 2), as before
+    assert main(["closedloop", "--controller", "unity", "--scenario", "step", "--step-deg", "nan"]) == 2
+
+
+# ---------------------------------------------------------------------------- damaged report folders (item 3)
+
+
+@pytest.fixture()
+def report_folder(runs, tmp_path):
+    """A copy of a main job's folder (from conftest's session runs) to damage."""
+    import shutil
+
+    d = tmp_path / "run"
+    shutil.copytree(runs[0], d, ignore=shutil.ignore_patterns("*.rrd", "report.html"))
+    return d
+
+
+def test_report_refuses_a_damaged_number_and_names_its_field(report_folder, capsys):
+    s = json.loads((report_folder / "summary.json").read_text())
+    s["closed_loop"]["damping_step"]["theta"]["settle_s"] = math.nan
+    (report_folder / "summary.json").write_text(json.dumps(s))  # Python writes the NaN token
+    out = report_folder / "r.html"
+    assert main(["report", str(report_folder), "--out", str(out)]) == 2
+    line = _one_line(capsys)
+    assert "summary.json" in line and "closed_loop.damping_step.theta.settle_s" in line and "damaged" in line
+    assert not out.exists()
+
+
+def test_report_onto_a_folder_leaves_nothing_behind(report_folder, capsys):
+    (report_folder / "report.html").mkdir()
+    before = sorted(p.name for p in report_folder.iterdir())
+    assert main(["report", str(report_folder), "--overwrite"]) == 2
+    assert "is a folder" in _one_line(capsys)
+    assert sorted(p.name for p in report_folder.iterdir()) == before
+
+
+# ---------------------------------------------------------------------------- a killed run's leftovers (item 1)
+
+
+def test_stale_run_folders_of_dead_processes_are_removed(tmp_path):
+    from samii.outputs import remove_stale_runs
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    stale = tmp_path / f".out.samii-run-{dead.pid}"
+    live = tmp_path / f".out.samii-run-{os.getppid()}"
+    other = tmp_path / f".other.samii-run-{dead.pid}"
+    for p in (stale, live, other):
+        (p / "measure").mkdir(parents=True)
+    assert remove_stale_runs(tmp_path, ".out.samii-run-") == [stale]
+    assert not stale.exists() and live.exists() and other.exists()
+
+
+# ---------------------------------------------------------------------------- a scheduler that never answers (item 2)
+
+
+def test_a_scheduler_that_accepts_and_never_answers_is_refused_in_time():
+    from samii.errors import InputError
+    from samii.robust.cli import SCHEDULER_TIMEOUT_S
+    from samii.robust.engine import DEFAULT_CONNECT_TIMEOUT_S, Engine
+
+    assert SCHEDULER_TIMEOUT_S == DEFAULT_CONNECT_TIMEOUT_S
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(8)
+    held = []
+
+    def accept():
+        try:
+            while True:
+                held.append(server.accept()[0])
+        except OSError:
+            pass
+
+    threading.Thread(target=accept, daemon=True).start()
+    address = f"tcp://127.0.0.1:{server.getsockname()[1]}"
+    started = time.monotonic()
+    try:
+        with pytest.raises(InputError, match="no Dask scheduler answered within 1 s"):
+            with Engine(scheduler=address, connect_timeout_s=1.0):
+                pass
+    finally:
+        server.close()
+        for c in held:
+            c.close()
+    assert time.monotonic() - started < 30  # bounded (it hung past 100 s); not a speed assertion
+
+
+# ---------------------------------------------------------------------------- a full disk (item 3), root only
+
+
+@pytest.fixture()
+def tiny_disk(tmp_path):
+    mount = tmp_path / "tiny"
+    mount.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a small tmpfs needs root")
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=200k", "tmpfs", str(mount)], capture_output=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.decode().strip()}")
+    try:
+        yield mount
+    finally:
+        subprocess.run(["umount", str(mount)], capture_output=True)
+
+
+def test_a_full_disk_is_said_in_words_and_leaves_nothing(tiny_disk, runs, capsys):
+    for argv, target in ((["closedloop", "--controller", "unity", "--scenario", "step", "--out"], tiny_disk / "cl"),
+                         (["report", str(runs[0]), "--out"], tiny_disk / "r.html")):
+        assert main([*argv, str(target)]) == 2
+        line = _one_line(capsys)
+        assert "no space left on device" in line and str(target) in line, line
+        assert list(tiny_disk.iterdir()) == []
