@@ -253,6 +253,56 @@ def test_stale_run_folders_of_dead_processes_are_removed(tmp_path):
     assert not stale.exists() and live.exists() and other.exists()
 
 
+def test_robust_workers_stay_quiet_on_a_terminals_ctrl_c(tmp_path):
+    """Ctrl-C to the process group (as a terminal sends it) while a local Dask cluster runs the study: the command's
+    one line and exit 130, no worker traceback (two workers printed about 80 lines before), no folder, no worker left."""
+    import signal
+
+    code = "import sys; from samii.cli import main; sys.exit(main(sys.argv[1:]))"
+    out = tmp_path / "r"
+    proc = subprocess.Popen([sys.executable, "-c", code, "robust", "--controller", "unity", "--samples", "200", "--spread",
+                             "hydraulic.bulk_modulus=5%", "--workers", "2", "--no-progress", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 120
+        header = proc.stderr.readline()  # printed once the study is about to start its cluster
+        assert "local Dask cluster" in header, header
+        time.sleep(4.0)  # the cluster is up and sampling (200 samples take about a minute)
+        assert proc.poll() is None and time.monotonic() < deadline
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert proc.returncode == 130 and lines == ["samii robust: interrupted; nothing half-written was kept"], err
+    assert not out.exists()
+
+
+def test_an_interrupt_inside_a_finaliser_is_reported_once_by_the_command():
+    """A signal handler's KeyboardInterrupt raised inside a weakref callback is 'unraisable': Python printed
+    "Exception ignored in: <WeakKeyDictionary ...> KeyboardInterrupt" beside the command's own line. The command's
+    hook drops it (the signal is remembered and reported by the command); any other unraisable is shown as before."""
+    from types import SimpleNamespace
+
+    from samii.cli import _quiet_interrupts
+    from samii.errors import SIGNALS_RECEIVED
+
+    seen = []
+    hook = _quiet_interrupts(seen.append)
+    SIGNALS_RECEIVED[:] = [2]
+    try:
+        hook(SimpleNamespace(exc_value=KeyboardInterrupt()))
+        assert seen == []
+        other = SimpleNamespace(exc_value=RuntimeError("a finaliser's own failure"))
+        hook(other)
+        assert seen == [other]
+    finally:
+        SIGNALS_RECEIVED.clear()
+    hook(SimpleNamespace(exc_value=KeyboardInterrupt()))  # no signal received: not ours to drop
+    assert len(seen) == 2
+
+
 # ---------------------------------------------------------------------------- a scheduler that never answers (item 2)
 
 

@@ -186,10 +186,27 @@ def main(argv: list[str] | None = None) -> int:
     _SIGNALLED.clear()
     _OUTPUTS_STARTED.clear()
     previous = _install_signal_handlers()  # first: a signal during start-up is reported like any other
+    previous_hook = sys.unraisablehook
+    sys.unraisablehook = _quiet_interrupts(previous_hook)
     try:
         return _main(argv)
     finally:
+        sys.unraisablehook = previous_hook
         _restore_signal_handlers(previous)
+
+
+def _quiet_interrupts(fallback):
+    """An unraisable-exception hook that drops the KeyboardInterrupt a signal handler raised inside a finaliser or
+    weakref callback (Python printed "Exception ignored in: <WeakKeyDictionary ...> KeyboardInterrupt" in about 1
+    run of 10 stopped mid-job): the signal is in ``_SIGNALLED`` and reported once, by the command; anything else goes
+    to ``fallback``."""
+
+    def hook(unraisable) -> None:
+        if isinstance(unraisable.exc_value, KeyboardInterrupt) and _SIGNALLED:
+            return
+        fallback(unraisable)
+
+    return hook
 
 
 def _main(argv: list[str] | None) -> int:

@@ -186,6 +186,9 @@ def run_pipeline(out, *, model=None, overrides=(), seed: int = 0, overwrite: boo
                   f"samii report {out} tries again", file=sys.stderr)
             (stage_dir / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
         bar.done()
+        from samii.errors import raise_if_signalled
+
+        raise_if_signalled()  # a signal whose exception a library swallowed (a finaliser's): keep nothing
         if out.exists():
             shutil.rmtree(out)
         os.replace(stage_dir, out)

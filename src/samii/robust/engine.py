@@ -12,6 +12,8 @@ depend on the engine.
 
 from __future__ import annotations
 
+import contextlib
+import signal
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
@@ -51,6 +53,26 @@ class SamiiWorkerPlugin(WorkerPlugin):
         load_plugin()
         if worker_samii.__version__ != self.version:
             raise RuntimeError(f"this worker has samii {worker_samii.__version__}, the client {self.version}: install the same samii on every worker")
+
+
+@contextlib.contextmanager
+def _workers_deaf_to_sigint():
+    """Start local workers with SIGINT ignored: a terminal's Ctrl-C goes to the whole process group, and each worker
+    printed a traceback (about 80 lines for two) before the command's own one line. An ignored signal stays ignored
+    across fork and exec (a handler, or a blocked mask, does not: measured, a spawned child's mask is cleared), and a
+    Python started so keeps it, so the workers never act on it; they are stopped by the cluster's close (SIGTERM),
+    as before. This process ignores it too while the cluster starts (about 2 s): a Ctrl-C in that window is lost,
+    the next one works."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():  # signal.signal works in the main thread only
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _connect(address: str, timeout_s: float) -> Client:
@@ -118,7 +140,7 @@ class Engine:
                 # often, the engine costs about what the study's own bookkeeping does (benchmarks/robust_scaling.py)
                 quiet = {"distributed.worker.daemon": False, "distributed.worker.profile.enabled": False,
                          "distributed.admin.tick.interval": "1s", "distributed.admin.system-monitor.interval": "2s"}
-                with dask.config.set(quiet):
+                with dask.config.set(quiet), _workers_deaf_to_sigint():
                     self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True, dashboard_address=None,
                                                  silence_logs=40)  # fmt: skip
                 self._client = Client(self._cluster)
