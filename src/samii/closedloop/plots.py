@@ -84,8 +84,10 @@ def _zoom(zoom, r: ClosedLoopResult, curves: list[tuple[np.ndarray, np.ndarray, 
 
 
 def _title(r: ClosedLoopResult) -> str:
+    import textwrap
+
     state = "stable" if r.stable else f"UNSTABLE ({r.instability()})"
-    return f"{r.controller}, {r.scenario.name} scenario: {state}"
+    return textwrap.fill(f"{r.controller}, {r.scenario.name} scenario: {state}", width=120)  # a runaway's reason is long
 
 
 _GREY = {"color": "tab:gray", "lw": 2.2, "alpha": 0.6}
