@@ -219,6 +219,24 @@ def test_a_loop_that_runs_away_is_not_called_stable(factory, d, sc):
     assert j["stable"] is False and j["instability"] == text and j["runaway"]["band_rad"] == 0.5
 
 
+def test_a_loop_held_far_from_its_reference_is_not_stable_and_is_said_so(factory):
+    """50 V/rad of positive theta feedback leaves a net 7.3 V/rad: a loop that holds theta, near Kp / (Kp - 50) x 5 deg
+    = 39 deg, some 34 deg from its reference and outside the 28.6 deg band: not stable about its operating point, worded
+    as settled (not as running away), and the shortest step run the command allows (3 s) is judged too."""
+    from samii.sim.plugin import hydraulic_params
+
+    kp = hydraulic_params(load_model()).position_gain
+    r = run_closed_loop(_theta_feedback(50.0), scenario("step", duration_s=3.0), label="50", spec_factory=factory, comparison=False,
+                        details=False)  # fmt: skip
+    assert not r.stable and r.runaway is not None and not r.runaway.theta_moving
+    assert "settled far from its reference" in r.instability() and r.notes.count(r.instability()) == 0
+    # the static estimate is the small-angle one (measured 42 deg: 7 % above it, 40 deg away from the pose it holds for)
+    assert r.signals.theta[-1] - r.theta_rest_rad == pytest.approx(kp / (kp - 50.0) * math.radians(5.0), rel=0.1)
+    short = run_closed_loop(_theta_feedback(300.0), scenario("loper", duration_s=4.0), label="300", spec_factory=factory,
+                            comparison=False, details=False)  # fmt: skip
+    assert not short.stable and "ran away" in short.instability()
+
+
 def test_a_weaker_positive_feedback_settles_where_the_loop_gain_says(factory):
     """30 V/rad of positive theta feedback beside Kp = 57.3 V/rad leaves a net 27.3 V/rad: still a stable position
     loop whose steady state is theta = Kp / (Kp - 30) theta_ref = 2.10 x 5 deg. No runaway: it is a poor loop, not
@@ -243,9 +261,13 @@ def test_runaway_needs_the_whole_last_window():
     assert runaway(t, slew, calm, t_event=1.0, rail_v=10.0) is None
     assert runaway(t, calm, 10.0 * np.sign(np.sin(2 * np.pi * 5 * t)), t_event=1.0, rail_v=10.0) is None
     gone = np.where(t > 3.0, 2.0, 0.0)
-    assert runaway(t, gone, calm, t_event=9.0, rail_v=10.0) is None  # 1 s after the event: not judged
+    assert runaway(t, gone, calm, t_event=9.6, rail_v=10.0) is None  # 0.4 s after the event: not judged
+    assert runaway(t, np.where(t > 9.3, 2.0, 0.0), calm, t_event=9.0, rail_v=10.0).theta_since_s == pytest.approx(9.301)  # 1 s: judged on its last 0.5 s
     r = runaway(t, gone, np.where(t > 2.5, -10.0, 0.0), t_event=1.0, rail_v=10.0)
     assert r.theta_since_s == pytest.approx(3.001) and r.valve_since_s == pytest.approx(2.501) and r.valve_v == -10.0
+    assert not r.theta_moving and "settled far from" in r.text()  # held, but 115 deg off
+    ramp = runaway(t, np.maximum(0.0, t - 2.0), calm, t_event=1.0, rail_v=10.0)
+    assert ramp.theta_moving and "ran away" in ramp.text()
     assert runaway(t, np.where(t > 3.0, np.nan, 0.0), calm, t_event=1.0, rail_v=10.0).theta_since_s == pytest.approx(3.001)
 
 

@@ -56,7 +56,7 @@ def measured(tmp_path_factory):
     head = [ln for ln in ts if ln.startswith("#")]
     body = [ln for ln in ts if not ln.startswith("#")]
     cols = body[0].split(",")
-    for name in ("v", "r"):
+    for name in ("v", "r", "theta", "accel"):
         k = cols.index(name)
         rows = [body[0]] + [",".join("0" if i == k else x for i, x in enumerate(ln.split(","))) for ln in body[1:]]
         files[f"{name}0"] = d / f"{name}0.csv"
@@ -152,7 +152,9 @@ def test_diagnose_refuses_too_few_frequencies(measured, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("which, needle", [("v0", "column 'v' is 0 V at every sample: no excitation reached the valve"),
-                                           ("r0", "the excitation r is zero throughout")])
+                                           ("r0", "the excitation r is zero throughout"),
+                                           ("theta0", "column 'theta' is 0 rad at every sample: the joint never moved"),
+                                           ("accel0", "column 'accel' is 0 m/s² at every sample: the base never moved")])
 def test_frf_refuses_a_record_without_excitation(measured, which, needle, tmp_path, capsys):
     _refused_alike(["frf", measured[which]], tmp_path / "f", capsys, [measured[which], needle])
 
@@ -231,9 +233,10 @@ def test_report_refuses_a_damaged_number_and_names_its_field(report_folder, caps
 def test_report_onto_a_folder_leaves_nothing_behind(report_folder, capsys):
     (report_folder / "report.html").mkdir()
     before = sorted(p.name for p in report_folder.iterdir())
-    assert main(["report", str(report_folder), "--overwrite"]) == 2
-    assert "is a folder" in _one_line(capsys)
-    assert sorted(p.name for p in report_folder.iterdir()) == before
+    for extra in ([], ["--overwrite"]):  # the cause named either way (without --overwrite it said "exists")
+        assert main(["report", str(report_folder), *extra]) == 2
+        assert "is a folder" in _one_line(capsys)
+        assert sorted(p.name for p in report_folder.iterdir()) == before
 
 
 # ---------------------------------------------------------------------------- a killed run's leftovers (item 1)
@@ -281,8 +284,9 @@ def test_robust_workers_stay_quiet_on_a_terminals_ctrl_c(tmp_path):
 
 def test_an_interrupt_inside_a_finaliser_is_reported_once_by_the_command():
     """A signal handler's KeyboardInterrupt raised inside a weakref callback is 'unraisable': Python printed
-    "Exception ignored in: <WeakKeyDictionary ...> KeyboardInterrupt" beside the command's own line. The command's
-    hook drops it (the signal is remembered and reported by the command); any other unraisable is shown as before."""
+    "Exception ignored in: <WeakKeyDictionary ...> KeyboardInterrupt" beside the command's own line. Once a stop signal
+    came, the command's hook drops such tear-down noise (the signal is reported once, by the command); without one,
+    an unraisable is shown as before."""
     from types import SimpleNamespace
 
     from samii.cli import _quiet_interrupts
@@ -293,14 +297,13 @@ def test_an_interrupt_inside_a_finaliser_is_reported_once_by_the_command():
     SIGNALS_RECEIVED[:] = [2]
     try:
         hook(SimpleNamespace(exc_value=KeyboardInterrupt()))
+        hook(SimpleNamespace(exc_value=AssertionError("Status.init")))  # a tear-down's consequence
         assert seen == []
-        other = SimpleNamespace(exc_value=RuntimeError("a finaliser's own failure"))
-        hook(other)
-        assert seen == [other]
     finally:
         SIGNALS_RECEIVED.clear()
-    hook(SimpleNamespace(exc_value=KeyboardInterrupt()))  # no signal received: not ours to drop
-    assert len(seen) == 2
+    other = SimpleNamespace(exc_value=RuntimeError("a finaliser's own failure"))
+    hook(other)  # no signal received: not ours to drop
+    assert seen == [other]
 
 
 # ---------------------------------------------------------------------------- a scheduler that never answers (item 2)
@@ -336,6 +339,13 @@ def test_a_scheduler_that_accepts_and_never_answers_is_refused_in_time():
         for c in held:
             c.close()
     assert time.monotonic() - started < 30  # bounded (it hung past 100 s); not a speed assertion
+    closed = socket.socket()
+    closed.bind(("127.0.0.1", 0))
+    port = closed.getsockname()[1]
+    closed.close()  # nothing listens there now: refused at once, not after Dask's 30 s of retries
+    with pytest.raises(InputError, match="nothing listens there"):
+        with Engine(scheduler=f"tcp://127.0.0.1:{port}"):
+            pass
 
 
 # ---------------------------------------------------------------------------- a full disk (item 3), root only
@@ -358,7 +368,8 @@ def tiny_disk(tmp_path):
 
 def test_a_full_disk_is_said_in_words_and_leaves_nothing(tiny_disk, runs, capsys):
     for argv, target in ((["closedloop", "--controller", "unity", "--scenario", "step", "--out"], tiny_disk / "cl"),
-                         (["report", str(runs[0]), "--out"], tiny_disk / "r.html")):
+                         (["report", str(runs[0]), "--out"], tiny_disk / "r.html"),
+                         (["report", str(runs[0]), "--out"], tiny_disk / "sub" / "r.html")):  # the folder it made removed too
         assert main([*argv, str(target)]) == 2
         line = _one_line(capsys)
         assert "no space left on device" in line and str(target) in line, line

@@ -133,12 +133,20 @@ def _install_signal_handlers() -> dict:
 
     from samii.errors import Interrupted
 
-    def handler(signum, _frame):
+    def stopping(signum) -> None:
         _SIGNALLED.append(signum)
+        # what libraries log while the run is torn down (Dask's scheduler on workers gone, asyncio's unretrieved
+        # futures) is a consequence of the stop, not news: the command's one line says it
+        import logging
+
+        logging.disable(logging.CRITICAL)
+
+    def handler(signum, _frame):
+        stopping(signum)
         raise Interrupted(signum)
 
     def on_sigint(signum, _frame):
-        _SIGNALLED.append(signum)
+        stopping(signum)
         raise KeyboardInterrupt
 
     previous = {}
@@ -191,18 +199,20 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return _main(argv)
     finally:
-        sys.unraisablehook = previous_hook
+        if not _SIGNALLED:  # stopped by a signal: the hook stays for the exit's own clean-up (atexit callbacks)
+            sys.unraisablehook = previous_hook
         _restore_signal_handlers(previous)
 
 
 def _quiet_interrupts(fallback):
-    """An unraisable-exception hook that drops the KeyboardInterrupt a signal handler raised inside a finaliser or
-    weakref callback (Python printed "Exception ignored in: <WeakKeyDictionary ...> KeyboardInterrupt" in about 1
-    run of 10 stopped mid-job): the signal is in ``_SIGNALLED`` and reported once, by the command; anything else goes
-    to ``fallback``."""
+    """An unraisable-exception hook that, once a stop signal was received, drops what finalisers and atexit callbacks
+    raise while the run is torn down: the handler's KeyboardInterrupt inside a weakref callback ("Exception ignored in:
+    <WeakKeyDictionary ...> KeyboardInterrupt", about 1 run in 10 stopped mid-job), a parser's half-built object
+    (pyparsing's Forward.__del__), Dask's atexit close of a cluster stopped while starting (AssertionError:
+    Status.init). The signal is reported once, by the command. Without a signal everything goes to ``fallback``."""
 
     def hook(unraisable) -> None:
-        if isinstance(unraisable.exc_value, KeyboardInterrupt) and _SIGNALLED:
+        if _SIGNALLED:
             return
         fallback(unraisable)
 

@@ -41,8 +41,11 @@ MODES_RATE_HZ = 200.0
 #: negative position feedback on the valve's integrating actuator) brings it back within a few percent of
 #: the step. The linearisation every design and prediction stands on is about the nominal pose.
 RUNAWAY_BAND_RAD = 0.5
-#: The last stretch of a run judged for a runaway; the run must go on at least twice this after its event.
+#: The last stretch of a run judged for a runaway (at most half of the run after its event: the time before it
+#: is the loop's chance to take the step; a 5 deg step slews in well under 0.1 s even with the valve on its rail).
 RUNAWAY_WINDOW_S = 1.0
+#: Shorter than this after halving, a run is not judged (a slew may still be under way).
+MIN_RUNAWAY_WINDOW_S = 0.25
 
 
 @dataclass(frozen=True)
@@ -245,6 +248,9 @@ class Runaway:
     theta_error_rad: float  #: theta minus its reference at the end
     band_rad: float
     valve_v: float  #: the valve command at the end
+    #: theta still moved through the last window by more than a tenth of the band (running away), else it settled
+    #: outside the band (a loop that holds theta, but far from where it is told: no operating point either)
+    theta_moving: bool = True
 
     @property
     def since_s(self) -> float:
@@ -253,7 +259,8 @@ class Runaway:
     def text(self) -> str:
         parts = []
         if self.theta_since_s is not None:
-            parts.append(f"theta ran away from its reference (outside the +-{np.degrees(self.band_rad):.3g} deg band from "
+            how = "ran away from" if self.theta_moving else "settled far from"
+            parts.append(f"theta {how} its reference (outside the +-{np.degrees(self.band_rad):.3g} deg band from "
                          f"t = {self.theta_since_s:.4g} s on, {np.degrees(self.theta_error_rad):.4g} deg off at the end)")
         if self.valve_since_s is not None:
             parts.append(f"the valve command sat on its {self.valve_v:+.3g} V rail from t = {self.valve_since_s:.4g} s to the end")
@@ -263,19 +270,24 @@ class Runaway:
 def runaway(t: np.ndarray, theta_error_rad: np.ndarray, valve_v: np.ndarray, *, t_event: float, rail_v: float,
             band_rad: float = RUNAWAY_BAND_RAD, window_s: float = RUNAWAY_WINDOW_S) -> Runaway | None:
     """The loop's runaway, if theta stays outside ``band_rad`` of its reference or the valve command on one
-    rail (within 0.1 % of ``rail_v``) through the last ``window_s`` of the run; None otherwise, and None when
-    the run goes on less than ``2 window_s`` after ``t_event`` (a slew can still be under way: not judged).
+    rail (within 0.1 % of ``rail_v``) through the last ``window_s`` of the run (at most half of the run after
+    ``t_event``); None otherwise, and None when that half is shorter than ``MIN_RUNAWAY_WINDOW_S``.
 
     A bounded base oscillation says nothing about the joint: a positive net position feedback drives the valve
     to its rail and the joint turns at the actuator's full speed while the base barely moves
     (``sustained_oscillation`` reads the base alone).
     """
     t = np.asarray(t, float)
-    if t.size < 2 or t[-1] - t_event < 2 * window_s:
+    if t.size < 2:
+        return None
+    dt = float(t[1] - t[0])
+    after = t[-1] + dt - t_event  # how long the run went on after its event
+    window_s = min(window_s, 0.5 * after)  # the shortest runs the commands allow (3 s, the step at 1 s) are judged too
+    if window_s < MIN_RUNAWAY_WINDOW_S:
         return None
     err = np.asarray(theta_error_rad, float)
     v = np.asarray(valve_v, float)
-    k0 = int(np.searchsorted(t, t[-1] - window_s))
+    k0 = int(np.searchsorted(t, t[-1] + dt - window_s))
     out = ~(np.abs(err) <= band_rad)  # NaN counts as out
     on_rail = (np.abs(v) >= rail_v * (1 - 1e-3)) & (np.sign(v) == np.sign(v[-1]))
 
@@ -288,7 +300,8 @@ def runaway(t: np.ndarray, theta_error_rad: np.ndarray, valve_v: np.ndarray, *, 
     th, va = since(out), since(on_rail)
     if th is None and va is None:
         return None
-    return Runaway(th, va, float(err[-1]), float(band_rad), float(v[-1]))
+    moving = bool(np.ptp(err[k0:]) > 0.1 * band_rad) if np.all(np.isfinite(err[k0:])) else True
+    return Runaway(th, va, float(err[-1]), float(band_rad), float(v[-1]), moving)
 
 
 def _dominant_freq_hz(x: np.ndarray, dt: float) -> float:

@@ -362,9 +362,8 @@ def run_closed_loop(
         from samii.sim.hydraulic_reference import AMPLIFIER_LIMIT_V
 
         ran_away = runaway(sig.t, sig.theta - th_rest - sig.theta_ref, sig.v, t_event=t_ev, rail_v=AMPLIFIER_LIMIT_V)
-        if ran_away is not None:
+        if ran_away is not None:  # (said by instability(), not again as a note)
             stable = False
-            notes.append(ran_away.text())
 
     theta_m = step_metrics(sig.t, sig.theta, sig.theta_ref, sc.t_step_s) if sc.name in ("step", "loper") else StepMetrics(None, None, None)
     residual_from = sc.t_disturbance_s + 2.0

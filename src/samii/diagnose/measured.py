@@ -292,9 +292,14 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
     if fs < MIN_SAMPLE_RATE_HZ:
         raise ValueError(f"{source}: t steps by {1.0 / fs:.6g} s, {fs:.6g} samples per second: too slow for a frequency response of "
                          "this arm (its modes lie between 1.7 and 25 Hz); is t in milliseconds? t must be in seconds (DATA_FORMATS.md)")
-    if ts.v.size and np.all(ts.v == ts.v[0]):  # (an r without excitation is refused by find_records)
-        raise ValueError(f"{source}: column 'v' is {ts.v[0]:g} V at every sample: no excitation reached the valve (is the v "
-                         "channel connected?); there is no frequency response to estimate")
+    # a channel that never moves: no response to estimate (an r without excitation is refused by find_records)
+    for name, unit, what in (("v", "V", "no excitation reached the valve (is the v channel connected?)"),
+                             ("theta", "rad", "the joint never moved (is the encoder connected?): theta/v is undefined"),
+                             ("accel", "m/s²", "the base never moved (is the accelerometer connected?): xdd/theta is undefined")):
+        x = np.asarray(getattr(ts, name), float)
+        if x.size and np.all(x == x[0]):
+            raise ValueError(f"{source}: column '{name}' is {x[0]:g} {unit} at every sample: {what}; there is no frequency "
+                             "response to estimate")
     ts, hum = _without_mains(ts)
     stated = record_s if record_s is not None else _float_meta(ts.metadata, "record_s")
     layout = find_records(ts.r, fs, record_s=stated, where=source)

@@ -37,6 +37,8 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else folder / REPORT_NAME
     if args.out:
         check_output_file(out, overwrite=args.overwrite, option="--out")
+    elif out.is_dir():
+        raise InputError(f"{out}: is a folder; the report is a file (remove the folder, or write the page elsewhere with --out FILE)")
     elif out.exists() and not args.overwrite:  # as every command's --out: nothing replaced unless asked
         raise InputError(f"{out}: exists (the main job wrote it); pass --overwrite to write it again, or --out FILE to write it elsewhere")
     if args.screenshot:

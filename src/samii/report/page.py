@@ -382,7 +382,21 @@ def write_report(run: RunFolder, path: Path | None = None) -> Path:
 
     from samii.measure.io import write_text
 
-    path = create_parent(Path(path) if path is not None else run.path / REPORT_NAME)
+    path = Path(path) if path is not None else run.path / REPORT_NAME
     if path.is_dir():
         raise InputError(f"{path}: is a folder; the report is a file (remove the folder or give --out FILE)")
-    return write_text(path, render_report(run, path.parent), overwrite=True)  # atomic: a failure (a full disk) leaves nothing
+    missing = []  # folders this call creates: removed again if the page cannot be written
+    p = path.absolute().parent
+    while not p.exists():
+        missing.append(p)
+        p = p.parent
+    create_parent(path)
+    try:
+        return write_text(path, render_report(run, path.parent), overwrite=True)  # atomic: a failure (a full disk) leaves no file
+    except BaseException:
+        for folder in missing:  # innermost first; only those still empty
+            try:
+                folder.rmdir()
+            except OSError:
+                break
+        raise

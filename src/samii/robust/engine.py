@@ -13,7 +13,9 @@ depend on the engine.
 from __future__ import annotations
 
 import contextlib
-import signal
+import os
+import shlex
+import socket
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
@@ -55,24 +57,53 @@ class SamiiWorkerPlugin(WorkerPlugin):
             raise RuntimeError(f"this worker has samii {worker_samii.__version__}, the client {self.version}: install the same samii on every worker")
 
 
-@contextlib.contextmanager
-def _workers_deaf_to_sigint():
-    """Start local workers with SIGINT ignored: a terminal's Ctrl-C goes to the whole process group, and each worker
-    printed a traceback (about 80 lines for two) before the command's own one line. An ignored signal stays ignored
-    across fork and exec (a handler, or a blocked mask, does not: measured, a spawned child's mask is cleared), and a
-    Python started so keeps it, so the workers never act on it; they are stopped by the cluster's close (SIGTERM),
-    as before. This process ignores it too while the cluster starts (about 2 s): a Ctrl-C in that window is lost,
-    the next one works."""
-    import threading
+#: Signals a terminal sends the whole process group (Ctrl-C; a closed terminal's hangup) that local workers ignore:
+#: they are this process's to act on, and it stops the workers by closing the cluster. (SIGTERM is left to them:
+#: the cluster's close uses it.)
+_WORKERS_IGNORE = ("INT", "HUP")
 
-    if threading.current_thread() is not threading.main_thread():  # signal.signal works in the main thread only
+
+@contextlib.contextmanager
+def _workers_deaf_to_terminal_signals():
+    """Start local workers ignoring ``_WORKERS_IGNORE``: a terminal's Ctrl-C reached each worker, which printed a
+    traceback (about 80 lines for two) before the command's own one line, and a hangup killed multiprocessing's
+    resource tracker (a dozen KeyErrors). An ignored disposition survives exec and a Python started so keeps it (a
+    handler does not survive exec; a blocked mask is cleared in a spawned child: measured), so the processes spawned
+    meanwhile start through ``/bin/sh -c "trap '' INT HUP; exec python ..."``: multiprocessing's spawn executable
+    is pointed at a two-line wrapper for the cluster's start and restored after. This process keeps its own handlers
+    throughout (ignoring them here instead lost a Ctrl-C that came while the cluster started: the study ran on)."""
+    import multiprocessing.spawn as mp_spawn
+    import shutil
+    import tempfile
+
+    sh = shutil.which("sh")
+    if sh is None or os.name != "posix":
         yield
         return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    real = mp_spawn.get_executable()
+    with tempfile.TemporaryDirectory(prefix="samii-workers-") as tmp:
+        wrapper = os.path.join(tmp, "python")
+        with open(wrapper, "w") as fh:
+            fh.write(f"#!{sh}\ntrap '' {' '.join(_WORKERS_IGNORE)}\nexec {shlex.quote(os.fsdecode(real))} \"$@\"\n")
+        os.chmod(wrapper, 0o755)
+        mp_spawn.set_executable(wrapper)
+        try:
+            yield
+        finally:
+            mp_spawn.set_executable(real)
+
+
+def _tcp_host_port(address: str) -> tuple[str | None, int]:
+    """(host, port) of a ``tcp://host:port`` address; (None, 0) for any other form (Dask reads those itself)."""
+    from urllib.parse import urlsplit
+
     try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
+        parts = urlsplit(address)
+        if parts.scheme == "tcp" and parts.hostname and parts.port:
+            return parts.hostname, int(parts.port)
+    except ValueError:
+        pass
+    return None, 0
 
 
 def _connect(address: str, timeout_s: float) -> Client:
@@ -83,6 +114,15 @@ def _connect(address: str, timeout_s: float) -> Client:
 
     from samii.errors import InputError
 
+    host, port = _tcp_host_port(address)
+    if host is not None:  # a refused connection is known at once (Dask retries it until its timeout)
+        try:
+            socket.create_connection((host, port), timeout=min(timeout_s, 10.0)).close()
+        except ConnectionRefusedError:
+            raise InputError(f"--scheduler {address}: nothing listens there (connection refused); is the scheduler running, "
+                             "and is this its address and port?") from None
+        except OSError:
+            pass  # unreachable, unresolvable, slow: Dask's own attempt says so, within the timeout
     box: dict = {}
 
     def attempt() -> None:
@@ -93,7 +133,7 @@ def _connect(address: str, timeout_s: float) -> Client:
 
     thread = threading.Thread(target=attempt, name="samii-dask-connect", daemon=True)
     thread.start()
-    thread.join(timeout_s + 5.0)  # Dask's own timeout first, where it applies
+    thread.join(timeout_s)
     if thread.is_alive() or ("client" not in box and "error" not in box):
         raise InputError(f"--scheduler {address}: no Dask scheduler answered within {timeout_s:g} s (something accepted the "
                          "connection but did not reply as a Dask scheduler: check the address and port, or give more time "
@@ -140,10 +180,14 @@ class Engine:
                 # often, the engine costs about what the study's own bookkeeping does (benchmarks/robust_scaling.py)
                 quiet = {"distributed.worker.daemon": False, "distributed.worker.profile.enabled": False,
                          "distributed.admin.tick.interval": "1s", "distributed.admin.system-monitor.interval": "2s"}
-                with dask.config.set(quiet), _workers_deaf_to_sigint():
-                    self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                                                 silence_logs=40)  # fmt: skip
-                self._client = Client(self._cluster)
+                try:
+                    with dask.config.set(quiet), _workers_deaf_to_terminal_signals():
+                        self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
+                                                     dashboard_address=None, silence_logs=40)  # fmt: skip
+                    self._client = Client(self._cluster)
+                except BaseException:  # a signal held while the cluster started: close what was built, quietly
+                    self.__exit__()
+                    raise
             self._client.register_plugin(SamiiWorkerPlugin())
         return self
 
