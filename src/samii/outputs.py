@@ -26,6 +26,7 @@ place together only when the whole run succeeded::
 
 from __future__ import annotations
 
+import contextlib
 import os
 import secrets
 import shutil
@@ -35,7 +36,8 @@ from typing import Iterable
 
 from samii.errors import InputError
 
-__all__ = ["OutputFolder", "check_output_file", "create_parent", "remove_stale_runs", "remove_stale_stages", "with_size"]
+__all__ = ["OutputFolder", "check_output_file", "create_parent", "make_folder", "parent_made_for", "remove_empty", "remove_stale_runs",
+           "remove_stale_stages", "with_size"]
 
 _STAGE_PREFIX = ".samii-stage-"
 
@@ -103,6 +105,39 @@ def check_output_file(path, *, overwrite: bool, option: str, beside: "OutputFold
     if beside is not None and p.absolute().parent == beside.root.absolute() and (p.name in beside.names or p.name.startswith(_STAGE_PREFIX)):
         raise InputError(f"{option} {p}: would replace the run's own output {p.name}; give it another name")
     return p
+
+
+def make_folder(folder) -> list[Path]:
+    """Create ``folder`` with its missing parents; return those this call created, innermost first (for
+    :func:`remove_empty`)."""
+    missing = []
+    p = Path(folder).absolute()
+    while not p.exists():
+        missing.append(p)
+        p = p.parent
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    return missing
+
+
+def remove_empty(created: list[Path]) -> None:
+    """Remove the folders :func:`make_folder` created, innermost first, as long as they are empty."""
+    for folder in created:
+        try:
+            folder.rmdir()
+        except OSError:
+            break
+
+
+@contextlib.contextmanager
+def parent_made_for(path):
+    """Create the folder of output file ``path`` for the block; on any failure in it (Ctrl-C included) remove
+    the folders this created again, when empty: a file that could not be written leaves no folder either."""
+    created = make_folder(Path(path).parent)
+    try:
+        yield Path(path)
+    except BaseException:
+        remove_empty(created)
+        raise
 
 
 def create_parent(path) -> Path:
@@ -218,13 +253,7 @@ class OutputFolder:
         from samii.errors import mark_outputs_started
 
         mark_outputs_started(self.root)
-        missing = []
-        p = self.root.absolute()
-        while not p.exists():
-            missing.append(p)
-            p = p.parent
-        self.root.mkdir(parents=True, exist_ok=True)
-        self._created = missing  # removed again (when empty) if the run fails
+        self._created = make_folder(self.root)  # removed again (when empty) if the run fails
         remove_stale_stages(self.root)
         self._stage = self.root / f"{_STAGE_PREFIX}{os.getpid()}-{secrets.token_hex(4)}"
         self._stage.mkdir()
@@ -244,11 +273,7 @@ class OutputFolder:
                 shutil.rmtree(self._stage, ignore_errors=True)
                 self._stage = None
             if not committed:
-                for folder in self._created:  # innermost first; only those still empty
-                    try:
-                        folder.rmdir()
-                    except OSError:
-                        break
+                remove_empty(self._created)
         return False
 
     def _commit(self) -> None:

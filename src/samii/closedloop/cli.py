@@ -226,7 +226,7 @@ def run(args) -> int:
                 if recorded:
                     write_timeseries_csv(result.timeseries(), folder.path("timeseries.csv"), overwrite=True)
                 else:
-                    for name in ("timeseries.csv", "theta.png", "base_accel.png", "linear_vs_nonlinear.png"):
+                    for name in [n for n in (*_FILES, *FIGURES) if n != "run.json"]:  # the verdict alone
                         folder.omit(name)
                 doc = result.run_json()
                 doc["model"] = {"file": args.model or "embedded default", "overrides": overrides}

@@ -13,8 +13,8 @@ All from the time series alone (what a rig gives), SI units:
   where it first falls below 5 % of that peak (or the end).
 - runaway: theta further than ``RUNAWAY_BAND_RAD`` from its reference, or
   the valve command on its rail with one sign, for the whole of the run's last
-  ``RUNAWAY_WINDOW_S`` (:func:`runaway`): a loop that has left its operating
-  point for good, whatever the base does.
+  ``RUNAWAY_WINDOW_S`` (at most half of the run after its event; :func:`runaway`):
+  a loop that has left its operating point for good, whatever the base does.
 - modes: a sum of damped exponentials fitted to the base acceleration after
   the event by the matrix pencil method (Hua & Sarkar, IEEE Trans. ASSP 38(5),
   1990), on the signal decimated to 200 Hz; the model order from the singular
@@ -251,10 +251,6 @@ class Runaway:
     #: theta still moved through the last window by more than a tenth of the band (running away), else it settled
     #: outside the band (a loop that holds theta, but far from where it is told: no operating point either)
     theta_moving: bool = True
-
-    @property
-    def since_s(self) -> float:
-        return min(x for x in (self.theta_since_s, self.valve_since_s) if x is not None)
 
     def text(self) -> str:
         parts = []

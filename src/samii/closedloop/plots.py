@@ -87,7 +87,7 @@ def _title(r: ClosedLoopResult) -> str:
     import textwrap
 
     state = "stable" if r.stable else f"UNSTABLE ({r.instability()})"
-    return textwrap.fill(f"{r.controller}, {r.scenario.name} scenario: {state}", width=120)  # a runaway's reason is long
+    return textwrap.fill(f"{r.controller}, {r.scenario.name} scenario: {state}", width=100)  # a runaway's reason is long
 
 
 _GREY = {"color": "tab:gray", "lw": 2.2, "alpha": 0.6}

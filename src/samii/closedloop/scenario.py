@@ -124,15 +124,13 @@ class ClosedLoopResult:
         """How the run is unstable, in words ("" when stable)."""
         if self.stable:
             return ""
-        if self.runaway is not None and self.growth_rate_1_s is None and self.unstable_mode_hz is None:
-            return self.runaway.text()
-        lead = f"{self.runaway.text()}; the base " if self.runaway is not None else ""
-        what = lead + (f"growing at {self.growth_rate_1_s:.4g} 1/s" if self.growth_rate_1_s is not None else "not decaying")
-        if self.unstable_mode_hz is None:
-            return what
-        if self.unstable_mode_hz < 0.01:
-            return f"{what}, without oscillating (a real pole)"
-        return f"{what}, oscillating at {self.unstable_mode_hz:.4g} Hz"
+        ran = self.runaway.text() if self.runaway is not None else ""
+        if ran and self.growth_rate_1_s is None and self.unstable_mode_hz is None:
+            return ran  # the base itself did not grow
+        what = f"growing at {self.growth_rate_1_s:.4g} 1/s" if self.growth_rate_1_s is not None else "not decaying"
+        if self.unstable_mode_hz is not None:
+            what += ", without oscillating (a real pole)" if self.unstable_mode_hz < 0.01 else f", oscillating at {self.unstable_mode_hz:.4g} Hz"
+        return f"{ran}; the base {what}" if ran else what
 
     def as_json(self) -> dict:
         from samii.json_output import finite_or_none
@@ -150,7 +148,7 @@ class ClosedLoopResult:
             "instability": self.instability() or None,
             "runaway": None if self.runaway is None else {
                 "theta_out_since_s": f(self.runaway.theta_since_s), "valve_on_rail_since_s": f(self.runaway.valve_since_s), "theta_error_rad": f(self.runaway.theta_error_rad),
-                "band_rad": f(self.runaway.band_rad), "valve_v": f(self.runaway.valve_v)},
+                "band_rad": f(self.runaway.band_rad), "valve_v": f(self.runaway.valve_v), "theta_moving": self.runaway.theta_moving},
             "theta": {"rise_s": f(self.theta.rise_s), "overshoot_pct": f(self.theta.overshoot_pct), "settle_s": f(self.theta.settle_s)},
             "base": {
                 "peak_m_s2": f(self.base.peak_m_s2),

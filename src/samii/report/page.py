@@ -378,25 +378,11 @@ def _render(run: RunFolder, page_dir: Path | None) -> str:
 
 def write_report(run: RunFolder, path: Path | None = None) -> Path:
     """Write ``report.html`` (default: into the run's folder) and return its path."""
-    from samii.outputs import create_parent
-
     from samii.measure.io import write_text
+    from samii.outputs import parent_made_for
 
     path = Path(path) if path is not None else run.path / REPORT_NAME
     if path.is_dir():
         raise InputError(f"{path}: is a folder; the report is a file (remove the folder or give --out FILE)")
-    missing = []  # folders this call creates: removed again if the page cannot be written
-    p = path.absolute().parent
-    while not p.exists():
-        missing.append(p)
-        p = p.parent
-    create_parent(path)
-    try:
-        return write_text(path, render_report(run, path.parent), overwrite=True)  # atomic: a failure (a full disk) leaves no file
-    except BaseException:
-        for folder in missing:  # innermost first; only those still empty
-            try:
-                folder.rmdir()
-            except OSError:
-                break
-        raise
+    with parent_made_for(path):  # atomic, and a folder made for it removed again: a failure (a full disk) leaves nothing
+        return write_text(path, render_report(run, path.parent), overwrite=True)

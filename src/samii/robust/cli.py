@@ -14,12 +14,12 @@ import os
 import sys
 
 from samii.cli_args import float_in, int_in, nonempty_path, seed
-
-#: samii.robust.engine.DEFAULT_CONNECT_TIMEOUT_S (not imported here: that module imports Dask; a test checks they agree)
-SCHEDULER_TIMEOUT_S = 30.0
 from samii.errors import InputError
 
 __all__ = ["add_arguments", "run", "MAX_SAMPLES"]
+
+#: samii.robust.engine.DEFAULT_CONNECT_TIMEOUT_S (not imported here: that module imports Dask; a test checks they agree)
+SCHEDULER_TIMEOUT_S = 30.0
 
 MAX_SAMPLES = 100_000
 _FILES = ("robust.json", "samples.csv")

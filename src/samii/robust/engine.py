@@ -134,7 +134,7 @@ def _connect(address: str, timeout_s: float) -> Client:
     thread = threading.Thread(target=attempt, name="samii-dask-connect", daemon=True)
     thread.start()
     thread.join(timeout_s)
-    if thread.is_alive() or ("client" not in box and "error" not in box):
+    if thread.is_alive():
         raise InputError(f"--scheduler {address}: no Dask scheduler answered within {timeout_s:g} s (something accepted the "
                          "connection but did not reply as a Dask scheduler: check the address and port, or give more time "
                          "with --scheduler-timeout)")
@@ -185,7 +185,7 @@ class Engine:
                         self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
                                                      dashboard_address=None, silence_logs=40)  # fmt: skip
                     self._client = Client(self._cluster)
-                except BaseException:  # a signal held while the cluster started: close what was built, quietly
+                except BaseException:  # stopped (a signal) or failed while starting: close what was built
                     self.__exit__()
                     raise
             self._client.register_plugin(SamiiWorkerPlugin())
