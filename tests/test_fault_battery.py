@@ -61,6 +61,10 @@ def measured(tmp_path_factory):
         rows = [body[0]] + [",".join("0" if i == k else x for i, x in enumerate(ln.split(","))) for ln in body[1:]]
         files[f"{name}0"] = d / f"{name}0.csv"
         files[f"{name}0"].write_text("\n".join(head + rows) + "\n")
+    # every 100th sample, stated as 10 samples per second: a 0.1-40 Hz sweep, its 250 Hz anti-alias filter kept
+    files["ts10"] = d / "ts10.csv"
+    files["ts10"].write_text("\n".join(["# sample_rate_hz: 10" if ln.startswith("# sample_rate_hz:") else ln for ln in head]
+                                       + [body[0]] + body[1::100]) + "\n")
     return {k: str(v) for k, v in files.items()}
 
 
@@ -149,6 +153,30 @@ def test_diagnose_refuses_data_that_are_all_noise(measured, tmp_path, capsys):
 
 def test_diagnose_refuses_too_few_frequencies(measured, tmp_path, capsys):
     _refused_alike(["diagnose", measured["one_freq"], "--no-progress"], tmp_path / "d", capsys, [measured["one_freq"], "at least 3"])
+
+
+def test_diagnose_refuses_data_the_baseline_fits_exactly(measured, tmp_path, capsys):
+    """10 samples per second: the band ends at 4.5 Hz and its few coherent points (theta/v 2, xdd/v 1 here) are fewer
+    residuals than the baseline's 13 parameters, which fit them exactly; this said "the baseline explains the data to
+    within their noise" before (chi2 1e-30), after a numpy warning from the harmonic analysis' one-sample cycles."""
+    _refused_alike(["diagnose", measured["ts10"], "--no-progress"], tmp_path / "d", capsys,
+                   [measured["ts10"], "too few usable points to test anything", "free parameters"])
+
+
+def test_frf_warns_of_a_sweep_beyond_the_nyquist_frequency(measured, tmp_path, capsys):
+    out = tmp_path / "f"
+    assert main(["frf", measured["ts10"], "--out", str(out), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == ""
+    said = json.loads(captured.out)["warnings"]
+    assert len(said) == 2 and all(measured["ts10"] in w for w in said)
+    assert "sweep reached 40 Hz" in said[0] and "Nyquist frequency 5 Hz" in said[0]
+    assert "anti-alias filter (250 Hz" in said[1] and "aliased" in said[1]
+    assert main(["frf", measured["ts"], "--json", "--out", str(tmp_path / "g")]) == 0
+    assert json.loads(capsys.readouterr().out)["warnings"] == []  # 1000 per second: a 40 Hz sweep and 250 Hz filter resolved
+    assert main(["frf", measured["ts10"], "--band-hz", "1", "6"]) == 2
+    line = _one_line(capsys)
+    assert measured["ts10"] in line and "Nyquist" in line
 
 
 @pytest.mark.parametrize("which, needle", [("v0", "column 'v' is 0 V at every sample: no excitation reached the valve"),

@@ -216,6 +216,18 @@ class Diagnosis:
         }
 
 
+def check_residual_dof(datasets: Sequence[Dataset], before: Fit, sources: Sequence[str]) -> None:
+    """Refuse data the baseline fits exactly: no more residuals (magnitude and phase of each usable point) than its
+    free parameters, so no lack of fit could show and no effect be tested (a 10 Hz file whose band holds three points)."""
+    if before.n_residuals > before.n_params:
+        return
+    points = "; ".join(f"{src}: " + ", ".join(f"{CHANNEL_NAMES.get(ch, ch)} {int(k.sum())}" for ch, k in ds.keep.items())
+                       for src, ds in zip(sources, datasets))
+    raise ValueError(f"{', '.join(sources)}: too few usable points to test anything ({points}: {before.n_residuals} residuals, "
+                     f"magnitude and phase, for the baseline's {before.n_params} free parameters, which fit them exactly); a "
+                     "diagnosis needs more: a wider band, more coherent points, a faster sample rate")
+
+
 def _max_tested(h, k: int) -> float | None:
     tested = np.isfinite(h.log10_p[k])
     return float(np.max(np.abs(h.ratio[k][tested]))) if tested.any() else None
@@ -815,8 +827,9 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     for m in given:
         check_actuator_sign(m)
     measured = tuple(_noise_from_roughness(m, saved) for m in given)
-    notes = [f"{m.source}: no coherence and no records; the noise of each point is {m.noise_source}"
-             for m, g in zip(measured, given) if m is not g]
+    notes = [w for m in given for w in m.warnings]
+    notes += [f"{m.source}: no coherence and no records; the noise of each point is {m.noise_source}"
+              for m, g in zip(measured, given) if m is not g]
     from samii.forkmap import fork_calls
 
     jobs = [lambda m=m: _with_floor(m) for m in measured]
@@ -895,6 +908,7 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
         # carry, has the whole library for what remains
         kinds = [k for k in kinds if k.label in CARRY]
     before, after, steps, tried = forward_select(list(datasets), bl, kinds, alpha=alpha, progress=progress)
+    check_residual_dof(datasets, before, [m.source for m in measured])
     pre: dict[str, dict] = {}
     if (with_hold := with_hold_found(datasets, after, steps, alpha=alpha, n_kinds=len(kinds))) is not None:
         # the command's hold on the model found: the model with it, and the baseline alone with it for the error before

@@ -120,6 +120,8 @@ class Measured:
     floor: Floor | None = None
     #: The band [Hz] a time series' FRF was estimated over (its grid is made from it).
     band_hz: tuple[float, float] | None = None
+    #: What the reader should know before trusting the estimate (a sweep beyond the sampling's Nyquist frequency...).
+    warnings: tuple[str, ...] = ()
 
 
 def _float_meta(meta: Mapping[str, str], key: str) -> float | None:
@@ -261,6 +263,8 @@ def timeseries_frf(ts: TimeSeries, layout: RecordLayout, *, band_hz: tuple[float
 #: Slowest sampling a time series is analysed at [samples/s]: SAMII's base modes reach 25 Hz and the sweep 40 Hz; a
 #: file whose t is in milliseconds reads as 1 sample per second.
 MIN_SAMPLE_RATE_HZ = 10.0
+#: The default band of a time series ends at this fraction of its sample rate, short of the Nyquist frequency (0.5 x).
+BAND_TOP_OF_RATE = 0.45
 
 
 def _without_mains(ts: TimeSeries) -> tuple[TimeSeries, list[str]]:
@@ -303,10 +307,14 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
     ts, hum = _without_mains(ts)
     stated = record_s if record_s is not None else _float_meta(ts.metadata, "record_s")
     layout = find_records(ts.r, fs, record_s=stated, where=source)
+    said = aliasing_warnings(ts.metadata, fs, source=source)
     if band_hz is None:
         lo = _float_meta(ts.metadata, "start_hz")
         hi = _float_meta(ts.metadata, "stop_hz")
-        band_hz = (lo or 0.1, min(hi or 40.0, 0.45 * fs))
+        band_hz = (lo or 0.1, min(hi or 40.0, BAND_TOP_OF_RATE * fs))
+    elif not 0.0 < band_hz[0] < band_hz[1] < fs / 2:
+        raise ValueError(f"{source}: --band-hz {band_hz[0]:g} {band_hz[1]:g}: expected 0 < LO < HI < {fs / 2:g} Hz, the Nyquist "
+                         f"frequency of its {fs:g} samples per second")
     frf, var, corr, how = timeseries_frf(ts, layout, band_hz=band_hz)
     check_testable(frf, source=source)
     if hum:
@@ -320,7 +328,31 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
     meta["frf_corr_length"] = f"{corr:.3g} (points one independent error spans, from the record-to-record deviations)"
     frf = replace(frf, metadata=meta)
     return Measured(source=source, frf=frf, var=var, noise_source=how, corr_length=corr, amplitude_v=amp, sample_rate_hz=fs,
-                    timeseries=ts, layout=layout, band_hz=(float(band_hz[0]), float(band_hz[1])))
+                    timeseries=ts, layout=layout, band_hz=(float(band_hz[0]), float(band_hz[1])), warnings=tuple(said))
+
+
+def aliasing_warnings(meta: Mapping[str, str], fs: float, *, source: str) -> list[str]:
+    """What the header says about aliasing at ``fs`` samples per second: a sweep (``stop_hz``) or a stated anti-alias
+    filter (``antialias``: its first "N Hz") beyond the Nyquist frequency ``fs/2``. Sampled, a component at f above
+    fs/2 is indistinguishable from one at |f - k fs| in the band: both r and the responses fold, and the estimate at a
+    frequency mixes the response there with the response at its images."""
+    nyquist = fs / 2
+    out = []
+    stop = _float_meta(meta, "stop_hz")
+    if stop is not None and stop > nyquist:
+        out.append(f"{source}: the sweep reached {stop:g} Hz (stop_hz) but {fs:g} samples per second resolve only up to the "
+                   f"Nyquist frequency {nyquist:g} Hz: the sweep's part above it folds into the band (the estimate mixes the "
+                   f"response at each frequency with the response at its images); sample at least {stop / BAND_TOP_OF_RATE:.3g} "
+                   f"times per second (a band ends at {BAND_TOP_OF_RATE:g} x the rate), or sweep below {BAND_TOP_OF_RATE * fs:g} Hz")
+    aa = re.search(r"([0-9.]+(?:[eE][-+]?[0-9]+)?)\s*Hz", str(meta.get("antialias", "")))
+    try:
+        corner = float(aa.group(1)) if aa else None
+    except ValueError:
+        corner = None
+    if corner is not None and corner > nyquist:
+        out.append(f"{source}: the stated anti-alias filter ({corner:g} Hz, antialias) is above the Nyquist frequency {nyquist:g} Hz "
+                   f"of {fs:g} samples per second: what the sensors saw between {nyquist:g} and {corner:g} Hz is aliased into the band")
+    return out
 
 
 def _weights_squared(meta: Mapping[str, str], n: int) -> tuple[float, str]:

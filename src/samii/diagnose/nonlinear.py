@@ -416,6 +416,10 @@ def _segment_amplitudes(y: dict, phi: np.ndarray, dphi: np.ndarray, edges: np.nd
         p = phi[a:b]
         u = (p - p[0]) / max(p[-1] - p[0], 1e-12)
         w = (1.0 - np.cos(2 * np.pi * u)) * dphi[a:b]
+        if not w.sum() > 0.0:  # a segment of one or two samples (a cycle shorter than the sampling resolves): no amplitude
+            for name in y:
+                out[name][i] = np.nan
+            continue
         w = w / w.sum()
         basis = np.exp(-1j * np.outer(ks, p))  # (k, samples)
         for name, sig in y.items():

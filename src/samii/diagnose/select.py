@@ -190,7 +190,7 @@ def _f_test(before: Fit, after: Fit, corr: float, places: float = 1.0) -> tuple[
     by the ``places`` the added effect was searched over (:func:`search_places`), at most 1."""
     dp = after.n_params - before.n_params
     dof2 = max(after.n_residuals - after.n_params, 1)
-    if dp <= 0 or after.chi2 <= 0:
+    if dp <= 0 or after.chi2 <= 0 or after.n_residuals <= after.n_params:  # (the richer model fits every residual: no test)
         return 0.0, (max(dp, 1), dof2), 0.0
     f = (before.chi2 - after.chi2) / dp / noise_level(after.chi2, after.dof) / corr
     if f <= 0:

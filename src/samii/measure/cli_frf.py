@@ -65,6 +65,7 @@ def summary(m) -> dict:
         "channels": list(frf.channels),
         "noise": m.noise_source,
         "amplitude_v": m.amplitude_v,
+        "warnings": list(m.warnings),
     }
 
 
@@ -95,6 +96,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"  operating point: the first {lay.baseline_s:.3g} s of each record; band {info['band_hz'][0]:.3g}-{info['band_hz'][1]:.3g} Hz, "
           f"{info['n_points']} points, channels {', '.join(info['channels'])}")
     print(f"  noise: {m.noise_source}")
+    for w in m.warnings:
+        print(f"samii frf: warning: {w}")
     for p in folder.written:
         print(f"wrote {p}")
     return 0
