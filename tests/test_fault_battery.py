@@ -16,6 +16,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -187,6 +188,38 @@ def test_frf_refuses_a_record_without_excitation(measured, which, needle, tmp_pa
     _refused_alike(["frf", measured[which]], tmp_path / "f", capsys, [measured[which], needle])
 
 
+def test_names_on_the_command_line_are_refused_as_the_command_lines(measured, tmp_path, capsys):
+    """A wrong --param, --start or --bound name was prefixed with the data file (as if the file were wrong), and only
+    after the data were read; a controller's unknown input named LinearController.inputs, not the file's field."""
+    cal = ["calibrate", measured["frf"], "--param", "beam.clamp_stiffness_Nm_rad"]
+    for extra, needles in ((["--param", "beam.foo"], ["--param beam.foo:", "beam has no parameter 'foo'"]),
+                           (["--start", "beam.foo=3"], ["--start beam.foo: not calibrated"]),
+                           (["--bound", "beam.foo=1:3"], ["--bound beam.foo: not calibrated"])):
+        line = _refused_alike([*cal, *extra], tmp_path / "c", capsys, needles)
+        assert measured["frf"] not in line
+    doc = json.loads(Path(_controller(tmp_path / "foo.json", D=[0, 1, 0])).read_text())
+    doc["inputs"] = ["theta_ref", "foo", "accel"]
+    (tmp_path / "foo.json").write_text(json.dumps(doc))
+    _refused_alike(["closedloop", "--controller", str(tmp_path / "foo.json"), "--scenario", "step"], tmp_path / "o", capsys,
+                   [str(tmp_path / "foo.json"), "field 'inputs': 'foo' is not a measurement", "theta_ref, theta, accel"])
+
+
+def test_a_text_file_named_mat_is_read_as_the_csv_it_is(measured, tmp_path, capsys):
+    """The content decides, not the name: an FRF CSV saved as .mat is read as the CSV; a binary file that is no MAT-file
+    is refused with scipy's reason whole (it was cut to 40 characters before)."""
+    from samii.diagnose.measured import load
+    from samii.measure.io import DataFormatError, read_frf_csv
+
+    named = tmp_path / "frf.mat"
+    named.write_bytes(Path(measured["frf"]).read_bytes())
+    assert load(named).frf.freq_hz.size == read_frf_csv(measured["frf"]).freq_hz.size
+    junk = tmp_path / "junk.mat"
+    junk.write_bytes(bytes(range(256)))
+    with pytest.raises(DataFormatError, match=r"not a MATLAB \.mat file .*\(\w+Error: [^)]*\)$") as info:
+        load(junk)
+    assert "characters)" not in str(info.value)
+
+
 def test_a_fit_on_noise_says_nothing_was_tested(measured):
     """The lack-of-fit verdict on data with no coherent point is 'not tested', never 'none'."""
     from samii.identify import fit
@@ -259,6 +292,28 @@ def test_report_refuses_a_damaged_number_and_names_its_field(report_folder, caps
     assert main(["report", str(report_folder), "--out", str(out)]) == 2
     line = _one_line(capsys)
     assert "summary.json" in line and "closed_loop.damping_step.theta.settle_s" in line and "damaged" in line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("file, path, value, shown", [
+    ("summary.json", ("modes", "base_modes", 0, "freq_hz"), "x", "summary.json: modes.base_modes[0].freq_hz (holds 'x')"),
+    ("summary.json", ("fit", "params", "wp"), None, "summary.json: fit.params.wp (holds None)"),
+    ("fit/fit.json", ("stderr", "K1"), "1.5", "fit/fit.json: stderr.K1 (holds '1.5')"),
+])  # fmt: skip
+def test_report_names_a_field_of_the_wrong_kind(report_folder, file, path, value, shown, capsys):
+    """A string or null where samii writes a number failed where it was used, with Python's words ("Unknown format code
+    'f' for object of type 'str'") and the folder only: the field is named (the last read that holds no number; every
+    one of the 273 numbers of a main job's files whose damage stops the page was named so, by a sweep)."""
+    doc = json.loads((report_folder / file).read_text())
+    node = doc
+    for key in path[:-1]:
+        node = node[key]
+    node[path[-1]] = value
+    (report_folder / file).write_text(json.dumps(doc))
+    out = report_folder / "r.html"
+    assert main(["report", str(report_folder), "--out", str(out)]) == 2
+    line = _one_line(capsys)
+    assert str(report_folder) in line and shown in line and "run samii run again" in line, line
     assert not out.exists()
 
 
@@ -403,3 +458,14 @@ def test_a_full_disk_is_said_in_words_and_leaves_nothing(tiny_disk, runs, capsys
         line = _one_line(capsys)
         assert "no space left on device" in line and str(target) in line, line
         assert list(tiny_disk.iterdir()) == []
+
+
+def test_a_full_disk_under_a_recording_is_said_and_does_not_hang(tiny_disk, tmp_path, capsys):
+    """A --rerun recording on a disk that fills mid-write: rerun's own file writer died there, logged Rust ERROR lines and
+    left its flush waiting for ever; the recording is now written by this process, which names the file the user gave."""
+    target = tiny_disk / "cl.rrd"
+    out = tmp_path / "cl"
+    assert main(["closedloop", "--controller", "unity", "--scenario", "step", "--rerun", str(target), "--out", str(out)]) == 2
+    line = _one_line(capsys)
+    assert "no space left on device writing" in line and str(target) in line, line
+    assert list(tiny_disk.iterdir()) == [] and not out.exists()

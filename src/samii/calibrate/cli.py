@@ -129,6 +129,18 @@ def run(args: argparse.Namespace) -> int:
     base = read_params_file(args.model) if args.model else default_params()
     if overrides:
         base = params_with_overrides(base, overrides)
+    from samii.calibrate.simulator import check_parameter_name
+
+    for name in args.param:  # before the data are read: the name is the command line's, not the file's
+        try:
+            check_parameter_name(base, name)
+        except ValueError as exc:
+            raise InputError(f"--param {name}: {str(exc).split(': ', 1)[-1]}") from None
+    for option, given in (("--start", args.start), ("--bound", args.bound)):
+        unknown = sorted({name for name, _ in given} - set(args.param))
+        if unknown:
+            raise InputError(f"{option} {', '.join(unknown)}: not calibrated; {option} applies to the --param names "
+                             f"({', '.join(args.param)})")
     data = load_target(args.data)
     channels = _channels(args.channels, data) if args.channels is not None else None
     confirm = None

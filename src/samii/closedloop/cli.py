@@ -279,7 +279,7 @@ def _write_rerun(result, tmp, final, factory) -> None:
     import numpy as np
 
     from samii.outputs import create_parent
-    from samii.viz.recording import RunRecord, write_recording
+    from samii.viz.recording import RunRecord, recording_failed, write_recording
 
     create_parent(tmp)
     s = result.signals
@@ -294,8 +294,8 @@ def _write_rerun(result, tmp, final, factory) -> None:
                               label=f"the comparison: scenario {result.scenario.name} under the servo amplifier alone (no controller)"))
     try:
         write_recording(tmp, model, runs, application_id="samii_closedloop")
-    except RuntimeError as exc:  # rerun's writer reports file-system failures as RuntimeError
-        raise OSError(f"--rerun {final}: the recording could not be written ({' '.join(str(exc).split())})") from None
+    except (RuntimeError, OSError) as exc:  # rerun's writer reports file-system failures as RuntimeError
+        raise recording_failed(exc, final) from None
 
 
 if __name__ == "__main__":  # pragma: no cover

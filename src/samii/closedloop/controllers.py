@@ -230,6 +230,10 @@ def _matrix(doc: dict, key: str, where: str) -> np.ndarray:
     return np.array(value, float) if value and value[0] else np.zeros((len(value), 0))
 
 
+def _short_name(text: str) -> str:
+    return text if len(text) <= 40 else text[:40] + "..."
+
+
 def read_controller(path: str | Path) -> SavedController:
     """Read a controller file; :class:`InputError` naming the file and field for anything malformed."""
     p = Path(path)
@@ -261,6 +265,12 @@ def read_controller(path: str | Path) -> SavedController:
     inputs = doc.get("inputs")
     if not isinstance(inputs, list) or not inputs or not all(isinstance(s, str) for s in inputs):
         raise InputError(f"{where}: field 'inputs' must be a non-empty list of measurement names (theta_ref, theta, accel)")
+    from samii.design.controller import MEASUREMENTS
+
+    unknown = [s for s in inputs if s not in MEASUREMENTS]
+    if unknown or len(set(inputs)) != len(inputs):
+        what = f"{', '.join(repr(_short_name(s)) for s in unknown)} {'is' if len(unknown) == 1 else 'are'} not a measurement" if unknown else "names repeat"
+        raise InputError(f"{where}: field 'inputs': {what}; expected distinct names among {', '.join(MEASUREMENTS)} (DATA_FORMATS.md)")
     scale = doc.get("input_scale", {})
     if not isinstance(scale, dict) or not all(_finite_number(v) and v != 0 and abs(float(v)) <= MAX_ENTRY for v in scale.values()):
         raise InputError(f"{where}: field 'input_scale' must map input names to finite nonzero factors of at most {MAX_ENTRY:g}")

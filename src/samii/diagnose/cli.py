@@ -213,13 +213,14 @@ def _write_rerun(d, path, fps) -> None:
 
     from samii.diagnose.recording import write_diagnosis_recording
     from samii.outputs import create_parent
+    from samii.viz.recording import recording_failed
 
     tmp = create_parent(path.parent / f".{path.name}.{os.getpid()}.tmp")
     try:
         try:
             write_diagnosis_recording(tmp, d, fps=fps)
-        except RuntimeError as exc:  # rerun's writer reports file-system failures as RuntimeError
-            raise OSError(f"--rerun {path}: the recording could not be written ({' '.join(str(exc).split())})") from None
+        except (RuntimeError, OSError) as exc:  # rerun's writer reports file-system failures as RuntimeError
+            raise recording_failed(exc, path) from None
         os.replace(tmp, path)
     finally:
         if tmp.exists():

@@ -289,7 +289,7 @@ def run(args: argparse.Namespace) -> int:
                 summary["warnings"] = warnings_out
             write_text(folder.path("run.json"), dumps(summary, indent=2) + "\n")
             if rerun_path is not None:
-                from samii.viz.recording import RunRecord, write_recording
+                from samii.viz.recording import RunRecord, recording_failed, write_recording
 
                 runs = [RunRecord(kind, results[kind].timeseries, results[kind].run.frame_t_s, results[kind].run.frame_qpos,
                                   sweep_hz=exc.frequency_hz(results[kind].timeseries.t),
@@ -298,8 +298,8 @@ def run(args: argparse.Namespace) -> int:
                 create_parent(rrd_tmp)
                 try:
                     write_recording(rrd_tmp, model, runs, application_id="samii_measure", thin_frames=args.rerun_fps is None)
-                except RuntimeError as exc:  # rerun's writer reports file-system failures as RuntimeError
-                    raise OSError(f"--rerun {rerun_path}: the recording could not be written ({' '.join(str(exc).split())})") from None
+                except (RuntimeError, OSError) as exc:  # rerun's writer reports file-system failures as RuntimeError
+                    raise recording_failed(exc, rerun_path) from None
         if rrd_tmp is not None:  # the recording lives outside --out: moved into place once the folder is complete
             os.replace(rrd_tmp, rerun_path)
     finally:

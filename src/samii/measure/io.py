@@ -600,8 +600,16 @@ def file_head(path: Path, size: int = 65536) -> bytes:
 
 
 def is_mat_file(path: Path) -> bool:
-    """A .mat suffix, or the header of a MATLAB v5+ file under another name."""
-    return path.suffix.lower() == ".mat" or file_head(path, 6) == b"MATLAB"
+    """The header of a MATLAB v5+ file under any name, or a .mat suffix on a file that is not text (a v4 file has no
+    header): a text file named .mat is read as the CSV it is (the content decides, not the name)."""
+    head = file_head(path, 64)
+    if head.startswith(b"MATLAB"):
+        return True
+    return path.suffix.lower() == ".mat" and not _looks_text(head)
+
+
+def _looks_text(head: bytes) -> bool:
+    return bool(head) and all(32 <= b < 127 or b in (9, 10, 13) or b >= 0x80 for b in head)
 
 
 def csv_header(path: Path) -> list[str]:
@@ -1023,9 +1031,8 @@ def _not_mat(path: Path, data: bytes, why: str) -> DataFormatError:
     if why.startswith("NotImplementedError"):  # scipy's word for v7.3 (HDF5)
         return DataFormatError(path, f"cannot read this MAT-file version ({_short(why)}); save it with -v7 or earlier")
     head = data[:64]
-    looks_text = all(32 <= b < 127 or b in (9, 10, 13) for b in head) and not head.startswith(b"MATLAB")
-    hint = "; it looks like text (a CSV? read it with read_frf_csv)" if looks_text else ""
-    return DataFormatError(path, f"not a MATLAB .mat file (v4 to v7.2) that can be read ({_short(why) or '-'}){hint}")
+    hint = "; it looks like text: a samii CSV (DATA_FORMATS.md) is read as one whatever its name" if _looks_text(head) and not head.startswith(b"MATLAB") else ""
+    return DataFormatError(path, f"not a MATLAB .mat file (v4 to v7.2) that can be read ({' '.join(why.split())[:200] or '-'}){hint}")
 
 
 def _loadmat_isolated(path: Path, data: bytes) -> dict:

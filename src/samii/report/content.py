@@ -17,7 +17,7 @@ import numpy as np
 from samii.closedloop.controllers import FT_PER_M
 from samii.errors import InputError
 
-__all__ = ["Trace", "RunFolder", "read_run_folder", "ParamRow", "parameter_rows", "STAGE_FIGURES", "RECORDINGS"]
+__all__ = ["Trace", "RunFolder", "read_run_folder", "ParamRow", "parameter_rows", "STAGE_FIGURES", "RECORDINGS", "FieldLog", "traced"]
 
 #: Figures a stage drew, embedded as they are: key -> path in the folder.
 STAGE_FIGURES = {
@@ -53,6 +53,84 @@ class RunFolder:
     figures: dict[str, Path] = field(default_factory=dict)  #: STAGE_FIGURES present
     recordings: dict[str, int] = field(default_factory=dict)  #: recording -> size in bytes, those present
     display_name: str | None = None  #: the folder's name as the reader knows it (the main job writes in a staging folder)
+
+
+class FieldLog(list):
+    """The leaves of a run folder's JSON files read, in order: (file and field, value). A value of the wrong kind fails
+    where it is used, not where it is read; the last field read that holds no number is where to look."""
+
+    def suspect(self) -> str | None:
+        for where, value in reversed(self):
+            if value is _MISSING:
+                return f"{where} (missing)"
+            if value is None or isinstance(value, str):  # (a bool formats as the number it is)
+                return f"{where} (holds {value!r})"
+        return f"{self[-1][0]} (holds {self[-1][1]!r})" if self else None
+
+
+_MISSING = object()
+
+
+class _TracedDict(dict):
+    """A JSON object whose reads are logged in a :class:`FieldLog` (``where``: the file and the path to it)."""
+
+    def __init__(self, data: dict, where: str, log: FieldLog):
+        super().__init__(data)
+        self._where, self._log = where, log
+
+    def _wrap(self, key, value):
+        return _traced_value(value, f"{self._where}{'.' if self._where[-1] != ' ' else ''}{key}", self._log)
+
+    def __getitem__(self, key):
+        try:
+            return self._wrap(key, super().__getitem__(key))
+        except KeyError:
+            self._log.append((f"{self._where}{'.' if self._where[-1] != ' ' else ''}{key}", _MISSING))
+            raise
+
+    def get(self, key, default=None):
+        return self[key] if key in self else default
+
+    def items(self):
+        return [(k, self._wrap(k, v)) for k, v in super().items()]
+
+    def values(self):
+        return [v for _, v in self.items()]
+
+
+class _TracedList(list):
+    def __init__(self, data: list, where: str, log: FieldLog):
+        super().__init__(data)
+        self._where, self._log = where, log
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[k] for k in range(*i.indices(len(self)))]
+        return _traced_value(super().__getitem__(i), f"{self._where}[{i if i >= 0 else len(self) + i}]", self._log)
+
+    def __iter__(self):
+        return (self[i] for i in range(len(self)))
+
+
+def _traced_value(value, where: str, log: FieldLog):
+    if isinstance(value, dict):
+        return _TracedDict(value, where, log)
+    if isinstance(value, list):
+        return _TracedList(value, where, log)
+    log.append((where, value))
+    return value
+
+
+def traced(run: "RunFolder") -> tuple["RunFolder", FieldLog]:
+    """``run`` with its JSON files' reads logged (the report names the field a failure most likely comes from)."""
+    from dataclasses import replace
+
+    log = FieldLog()
+    return replace(run, summary=_TracedDict(run.summary, "summary.json: ", log),
+                   measurement=_TracedDict(run.measurement, "measure/run.json: ", log),
+                   fit=_TracedDict(run.fit, "fit/fit.json: ", log),
+                   diagnosis=_TracedDict(run.diagnosis, "diagnose/diagnosis.json: ", log),
+                   closed_loop={name: _TracedDict(doc, f"closedloop/{name}/run.json: ", log) for name, doc in run.closed_loop.items()}), log
 
 
 def _json(folder: Path, rel: str) -> dict:

@@ -360,11 +360,17 @@ def _recordings(run: RunFolder, page_dir: Path) -> str:
 def render_report(run: RunFolder, page_dir: Path | None = None) -> str:
     """The page's HTML; the links to the recordings are relative to ``page_dir`` (default: the run's folder).
     A file of the folder that lacks a field the page needs, or holds a value of the wrong kind, is an InputError."""
+    from samii.report.content import traced
+
+    watched, log = traced(run)
     try:
-        return _render(run, page_dir)
+        return _render(watched, page_dir)
     except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
         what = f"field {exc.args[0]!r} missing" if isinstance(exc, KeyError) else str(exc)
-        raise InputError(f"{run.path}: a file of this main job's folder is not as samii run writes it ({what}); run samii run again") from None
+        near = log.suspect()
+        where = f"; probably at {near}, the last field read that holds no number" if near else ""
+        raise InputError(f"{run.path}: a file of this main job's folder is not as samii run writes it ({what}{where}); "
+                         "run samii run again") from None
 
 
 def _render(run: RunFolder, page_dir: Path | None) -> str:

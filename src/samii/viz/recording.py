@@ -40,7 +40,7 @@ from samii.measure.timeseries import TimeSeries
 from samii.sim.sensors import accel_site
 from samii.viz.thinning import BUCKETS_PER_PERIOD, FRAMES_PER_PERIOD_SWEPT, MIN_BUCKET_RATE_HZ, MIN_THINNED_FPS, RING_S, buckets, envelope, kept
 
-__all__ = ["RunRecord", "RecordingInfo", "write_recording", "read_scalars", "frame_steps_for", "TRAIL_S", "BEAM_DEFLECTION_SHOWN"]
+__all__ = ["RunRecord", "RecordingInfo", "write_recording", "recording_failed", "read_scalars", "frame_steps_for", "TRAIL_S", "BEAM_DEFLECTION_SHOWN"]
 
 #: The default deformation scale shows the run's largest tip deflection as this fraction of the beam's length.
 BEAM_DEFLECTION_SHOWN = 0.05
@@ -443,7 +443,9 @@ def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, b
 
     rec = rr.RecordingStream(application_id)
     rec.set_log_time_enabled(False)  # the one timeline is the run's time
-    rec.save(path)
+    # into memory, written below by this process: a file sink's writer thread that dies on a full disk leaves rerun's
+    # flush waiting for ever (rerun 0.41: its drop too), while a write here fails at once with the OS's own error
+    stream = rec.binary_stream()
     # the signals first: rerun encodes and writes them on its own thread while the poses are computed here
     # the modal coordinates of the first run with frames (measured data have none)
     with_modes = next((r.name for r in runs if len(r.frame_t_s)), None)
@@ -494,9 +496,20 @@ def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, b
     rec.log("about", rr.TextDocument("\n".join(about), media_type="text/markdown"), static=True)
     rec.send_property("deformation", rr.AnyValues(beam_scale=beam_scale, arm_scale=arm_scale, max_tip_deflection_m=deflection, fps=float(rate or 0.0)))
     rec.send_blueprint(_blueprint(rrb, runs, groups_by_run, beam_scale, arm_scale, _eye(model, main.home)))
-    rec.flush()
+    data = stream.read(flush=True)
     rec.disconnect()
+    with open(path, "wb") as out:
+        out.write(data or b"")
     return RecordingInfo(path, beam_scale, arm_scale, float(rate or 0.0), tuple(float(f) for f in projection.freq_hz), deflection, tuple(r.name for r in runs))
+
+
+def recording_failed(exc: Exception, final) -> OSError:
+    """The error to raise when writing the recording for ``--rerun final`` failed with ``exc``: an OSError naming
+    ``final`` (not the temporary file beside it) that keeps the OS's error number (a full disk is said so), or
+    rerun's own message (it reports its writer's failures as RuntimeError)."""
+    if isinstance(exc, OSError) and exc.errno is not None:
+        return OSError(exc.errno, f"--rerun {final}: {exc.strerror}", str(final))
+    return OSError(f"--rerun {final}: the recording could not be written ({' '.join(str(exc).split())})")
 
 
 def read_scalars(path, entities) -> dict[str, tuple[np.ndarray, np.ndarray]]:
