@@ -555,7 +555,7 @@ def test_closedloop_json_contract(step_run):
     assert rep["controller"] == "notebook-cancel" and rep["scenario"] == "step"
     assert rep["stable"] is True and rep["unstable_mode_hz"] is None and rep["growth_rate_1_s"] is None
     assert rep["instability"] is None and rep["runaway"] is None
-    assert set(rep["theta"]) == {"rise_s", "overshoot_pct", "settle_s"}
+    assert set(rep["theta"]) == {"rise_s", "overshoot_pct", "settle_s", "final_pct"}
     assert set(rep["base"]) == {"peak_m_s2", "residual_rms_m_s2", "settle_s", "decay_rate_1_s", "free_decay_rate_1_s"}
     assert all(_finite_or_none(v) for v in [*rep["theta"].values(), *rep["base"].values()])
     assert rep["theta"]["rise_s"] is not None and rep["base"]["peak_m_s2"] > 0  # a step has a rise and shakes the base

@@ -114,6 +114,29 @@ def test_robust_counts_a_runaway_as_unstable(tmp_path, capsys):
     assert all("theta ran away" in s["note"] for s in r["samples"])
 
 
+def test_an_unstable_equilibrium_the_run_did_not_show_is_not_stable(tmp_path):
+    """A controller that replaces the servo loop and feeds nothing back (D = 0): nothing holds the joint, which creeps
+    through the actuator's leakage, a real pole at +0.197 1/s in the linear prediction (0.113 at half the leakage). The step run stays at rest (nothing sets
+    the mode off) and was called stable, with theta "settled in 0 s"; the Loper run, which hands the loop over at 5
+    deg, drifts. Lyapunov's indirect method says the equilibrium is unstable: not stable, with the prediction's rate,
+    which the Loper run's drift (the nonlinear simulator's own) confirms."""
+    from samii.closedloop.controllers import read_controller
+    from samii.closedloop.scenario import run_closed_loop, scenario
+
+    zero = read_controller(_controller(tmp_path / "zero.json", D=[0, 0, 0], servo="replaced"))
+    step = run_closed_loop(zero, scenario("step"), label="zero", comparison=False)
+    assert not step.stable and step.linear_only and "equilibrium is unstable" in step.instability()
+    assert step.theta.final_pct is not None and not step.theta.followed and step.theta.settle_s is None
+    rate = step.growth_rate_1_s
+    assert 0.05 < rate < 1.0 and step.unstable_mode_hz == pytest.approx(0.0, abs=1e-6)
+    loper = run_closed_loop(zero, scenario("loper"), label="zero", comparison=False)
+    assert not loper.stable
+    s = loper.signals
+    late = s.t >= s.t[-1] - 4.0
+    drift = np.polyfit(s.t[late], np.log(np.abs(s.theta[late] - loper.theta_rest_rad)), 1)[0]
+    assert drift == pytest.approx(rate, rel=0.1)
+
+
 # ---------------------------------------------------------------------------- refusals before work (item 4)
 
 
@@ -247,6 +270,21 @@ def test_a_covariance_is_checked_on_its_correlation_matrix(tmp_path, capsys):
     assert main(["robust", "--controller", "unity", "--covariance", str(p), "--samples", "2", "--no-progress"]) == 2
     line = _one_line(capsys)
     assert str(p) in line and "not positive semi-definite" in line and "-0.8" in line
+
+
+def test_a_covariance_naming_no_parameter_of_the_plant_is_refused_for_that(tmp_path, capsys):
+    """It said "parameter beam.foo = 1 but field 'calibrated_params' holds None" (the consequence, not the cause)."""
+    from samii.sim.model import default_params
+
+    nominal = default_params().as_dict()
+    k = nominal["hydraulic"]["bulk_modulus"]
+    params = [{"name": "beam.foo", "value": 1.0, "stderr": 0.1, "bounds": [0.5, 2.0]},
+              {"name": "hydraulic.bulk_modulus", "value": k, "stderr": 0.05 * k, "bounds": [0.5 * k, 2 * k]}]
+    p = tmp_path / "cal.json"
+    p.write_text(json.dumps({"parameters": params, "correlation": [[1.0, 0.0], [0.0, 1.0]], "calibrated_params": nominal}))
+    assert main(["robust", "--controller", "unity", "--covariance", str(p), "--samples", "2", "--no-progress"]) == 2
+    line = _one_line(capsys)
+    assert str(p) in line and "field 'parameters'" in line and "beam has no parameter 'foo'" in line
 
 
 def test_a_value_error_after_the_input_was_accepted_is_an_internal_error(tmp_path, capsys, monkeypatch):

@@ -131,9 +131,14 @@ def _summary(r, out_names: list[str]) -> str:
     for n in r.notes:
         lines.append(f"  note: {n}")
     th = r.theta
-    if th.rise_s is not None or th.settle_s is not None:
+    if th.final_pct is not None:
         f = lambda x, u: "n/a" if x is None else f"{x:.3g}{u}"  # noqa: E731
-        lines.append(f"  theta: rise {f(th.rise_s, ' s')}, overshoot {f(th.overshoot_pct, ' %')}, settle (2 %) {f(th.settle_s, ' s')}")
+        if th.final_pct is not None and not th.followed:
+            lines.append(f"  theta: did not follow the step (its final value is {th.final_pct:.3g} % of the step; rise, overshoot "
+                         "and settle undefined)")
+        else:
+            lines.append(f"  theta: rise {f(th.rise_s, ' s')}, overshoot {f(th.overshoot_pct, ' %')}, settle (2 %) {f(th.settle_s, ' s')}"
+                         + (f", final value {th.final_pct:.3g} % of the step" if th.final_pct is not None and abs(th.final_pct - 100.0) >= 2.0 else ""))
     b = r.base
     f = lambda x, u: "n/a" if x is None else f"{x:.3g}{u}"  # noqa: E731
     if r.signals.t.size < 2:

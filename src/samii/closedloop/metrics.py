@@ -4,7 +4,9 @@ All from the time series alone (what a rig gives), SI units:
 
 - theta: rise time (10 % to 90 % of the reference step), overshoot (beyond the
   final value, in % of the step), settle time (last exit from a band of 2 % of
-  the step about the final value), each after the step.
+  the step about the final value), each after the step, and the final value in
+  % of the step; overshoot and settle only when theta followed the step (its final
+  value at least ``FOLLOW_FRACTION`` of it).
 - base acceleration: the envelope is the magnitude of the analytic signal
   (:func:`scipy.signal.hilbert`) of ``accel`` minus its value at rest,
   smoothed over 0.2 s. ``settle_s``: time after the event until the envelope
@@ -48,11 +50,23 @@ RUNAWAY_WINDOW_S = 1.0
 MIN_RUNAWAY_WINDOW_S = 0.25
 
 
+#: theta's final value must reach this fraction of the step for the response to be said to follow it (the rise
+#: time starts there): below it, overshoot and settle about that final value would describe a joint that never moved.
+FOLLOW_FRACTION = 0.1
+
+
 @dataclass(frozen=True)
 class StepMetrics:
     rise_s: float | None
     overshoot_pct: float | None
     settle_s: float | None
+    #: theta's final value (mean of the last 5 % of the run) in % of the step: 100 with no steady-state error
+    final_pct: float | None = None
+
+    @property
+    def followed(self) -> bool:
+        """theta followed the step: its final value is at least FOLLOW_FRACTION of it, in its direction."""
+        return self.final_pct is not None and self.final_pct >= 100.0 * FOLLOW_FRACTION
 
 
 @dataclass(frozen=True)
@@ -93,10 +107,12 @@ def step_metrics(t: np.ndarray, theta: np.ndarray, theta_ref: np.ndarray, t_step
     i90 = np.flatnonzero(x >= 0.9)
     if i10.size and i90.size:
         rise = float(tt[i90[0]] - tt[i10[0]])
+    if final < FOLLOW_FRACTION:  # it did not follow the step: overshoot and settle about where it ended mean nothing
+        return StepMetrics(None, None, None, 100.0 * final)
     overshoot = float(max(0.0, (np.max(x) - final) * 100.0))
     out = np.flatnonzero(np.abs(x - final) > SETTLE_BAND)
     settle = 0.0 if out.size == 0 else (float(tt[out[-1] + 1]) if out[-1] + 1 < tt.size else None)
-    return StepMetrics(rise, overshoot, settle)
+    return StepMetrics(rise, overshoot, settle, 100.0 * final)
 
 
 def envelope(x: np.ndarray, dt: float, smooth_s: float = ENVELOPE_SMOOTH_S) -> np.ndarray:

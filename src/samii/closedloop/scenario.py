@@ -119,12 +119,19 @@ class ClosedLoopResult:
     accel_rest_m_s2: float = 0.0  #: accelerometer reading there (after the gravity offset is removed: ~0)
     comparison_base: BaseMetrics | None = None  #: the base figures of the comparison run, over the same windows
     runaway: Runaway | None = None  #: theta left its band or the valve sat on its rail for good (then not stable)
+    #: The run showed no growth, but the linear prediction has a pole growing faster than MARGINAL_GROWTH_1_S: the
+    #: equilibrium is unstable (then not stable; the growth rate and frequency are the prediction's)
+    linear_only: bool = False
 
     def instability(self) -> str:
         """How the run is unstable, in words ("" when stable)."""
         if self.stable:
             return ""
         ran = self.runaway.text() if self.runaway is not None else ""
+        if self.linear_only:
+            return (f"the linear prediction has {_worst_pole(self.linear_poles_s)}: the equilibrium is unstable, though this "
+                    f"{self.scenario.duration_s:g} s run's figures did not catch the growth (too slow, or too weakly set off by "
+                    "its inputs); a rig's noise and offsets set such a mode off")
         if ran and self.growth_rate_1_s is None and self.unstable_mode_hz is None:
             return ran  # the base itself did not grow
         what = f"growing at {self.growth_rate_1_s:.4g} 1/s" if self.growth_rate_1_s is not None else "not decaying"
@@ -149,7 +156,8 @@ class ClosedLoopResult:
             "runaway": None if self.runaway is None else {
                 "theta_out_since_s": f(self.runaway.theta_since_s), "valve_on_rail_since_s": f(self.runaway.valve_since_s), "theta_error_rad": f(self.runaway.theta_error_rad),
                 "band_rad": f(self.runaway.band_rad), "valve_v": f(self.runaway.valve_v), "theta_moving": self.runaway.theta_moving},
-            "theta": {"rise_s": f(self.theta.rise_s), "overshoot_pct": f(self.theta.overshoot_pct), "settle_s": f(self.theta.settle_s)},
+            "theta": {"rise_s": f(self.theta.rise_s), "overshoot_pct": f(self.theta.overshoot_pct), "settle_s": f(self.theta.settle_s),
+                      "final_pct": f(self.theta.final_pct)},
             "base": {
                 "peak_m_s2": f(self.base.peak_m_s2),
                 "residual_rms_m_s2": f(self.base.residual_rms_m_s2),
@@ -222,6 +230,19 @@ def _impulse_state(cm: CardModel, impulse_n_s: float) -> np.ndarray:
     mujoco.mj_solveM(m, d, dq.reshape(1, -1), f.reshape(1, -1))
     state[1 + m.nq:1 + m.nq + m.nv] += dq
     return state
+
+
+#: A linear prediction's pole growing slower than this [1/s] (e-fold in more than 1000 s) is marginal: an integrator
+#: (a joint no loop holds) met in finite differences, not an instability any test could show.
+MARGINAL_GROWTH_1_S = 1e-3
+
+
+def _worst_pole(poles_s: np.ndarray) -> str:
+    """The linear prediction's least stable pole in words: a real one's growth, a complex pair's frequency too."""
+    p = poles_s[np.argmax(poles_s.real)]
+    if abs(p.imag) < 1e-6 * max(abs(p.real), 1e-9) or abs(p.imag) < 1e-9:
+        return f"a real pole at s = +{p.real:.3g} 1/s (growing e-fold every {1.0 / p.real:.3g} s)"
+    return f"a pair of poles at {abs(p.imag) / (2 * np.pi):.3g} Hz growing at {p.real:.3g} 1/s"
 
 
 def _fd_deviation(cm: CardModel, state: np.ndarray) -> np.ndarray:
@@ -331,7 +352,7 @@ def run_closed_loop(
         if sig.diverged_at_s is None:
             err = {"theta": _rms_error_pct(sig.theta - th_rest, lin.theta[:k]), "accel": _rms_error_pct(accel, lin.accel[:k])}
     elif not linear_stable:
-        notes.append("the linear prediction is unstable: no linear response or error is given")
+        notes.append(f"the linear prediction is unstable ({_worst_pole(poles_s)}): no linear response or error is given")
 
     # stability from the nonlinear response
     t_ev = sc.t_event_s
@@ -363,6 +384,21 @@ def run_closed_loop(
         if ran_away is not None:  # (said by instability(), not again as a note)
             stable = False
 
+    linear_only = False
+    if stable and not linear_stable:
+        worst = poles_s[np.argmax(poles_s.real)] if poles_s.size else None
+        if worst is not None and worst.real > MARGINAL_GROWTH_1_S:
+            # Lyapunov's indirect method: an equilibrium whose linearisation has a pole in the right half plane is
+            # unstable, whether or not this run's inputs set the mode off fast enough to show (a joint no controller
+            # holds creeps through the actuator's leakage at +0.197 1/s: the step run stays at rest, the Loper run
+            # drifts from 5 to 23 deg in 8 s)
+            stable, linear_only = False, True
+            notes = [n if not n.startswith("the linear prediction is unstable (") else "no linear response or error is given (the prediction is unstable)"
+                     for n in notes]
+            rate, mode_hz = float(worst.real), float(abs(worst.imag) / (2 * np.pi))
+        else:
+            notes.append("the linear prediction's least stable pole is marginal (growing slower than e-fold in "
+                         f"{1 / MARGINAL_GROWTH_1_S:g} s): the loop holds no equilibrium firmly there, but nothing grows in a test's time")
     theta_m = step_metrics(sig.t, sig.theta, sig.theta_ref, sc.t_step_s) if sc.name in ("step", "loper") else StepMetrics(None, None, None)
     residual_from = sc.t_disturbance_s + 2.0
     base = base_metrics(sig.t, accel, sc.t_disturbance_s, t_decay_s=t_ev, residual_from_s=residual_from) if sig.t.size > 1 else BaseMetrics(float("nan"), None, None, None)
@@ -376,7 +412,7 @@ def run_closed_loop(
         linear_poles_s=poles_s, stable=stable, unstable_mode_hz=mode_hz, growth_rate_1_s=rate, theta=theta_m, base=base,
         free_decay_rate_1_s=free, modes=modes, rms_error_pct=err, delay_samples=float(delay_samples),
         sample_time_s=cm.sample_time_s, replaces_servo=cm.replaces_servo, noise=noise, notes=notes,
-        theta_rest_rad=th_rest, accel_rest_m_s2=ac_rest, comparison_base=comp_base, runaway=ran_away,
+        theta_rest_rad=th_rest, accel_rest_m_s2=ac_rest, comparison_base=comp_base, runaway=ran_away, linear_only=linear_only,
     )  # fmt: skip
 
 

@@ -725,7 +725,7 @@ def _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress):
             break
         # smallest p-value first; beyond 1e-300 (where F's tail underflows) the smallest BIC,
         # chi2/s^2 + p ln m, on one noise scale: the best candidate's
-        s2 = min(c[3].chi2 / c[3].dof for c in candidates)
+        s2 = max(min(c[3].chi2 / c[3].dof for c in candidates), 1e-300)  # (an exact fit: chi2 0)
         ranked = sorted(candidates, key=lambda c: (max(c[0], -300.0), c[3].chi2 / s2 + c[3].n_params * np.log(c[3].n_residuals) if c[0] <= -300 else 0.0))
         # each of the best READINGS candidates, with the earlier effects it makes unnecessary dropped and swapped
         # every round, not only at the end (a 4 ms delay beside a 30 Hz roll-off joins as a 45 Hz second-order

@@ -127,6 +127,15 @@ def read_covariance(path) -> Covariance:
         raise InputError(f"--covariance {path}: field 'correlation' must be a finite {len(names)}x{len(names)} matrix")
     if np.any(np.abs(np.diag(c) - 1.0) > 1e-6) or np.any(np.abs(c) > 1.0 + 1e-9):
         raise InputError(f"--covariance {path}: field 'correlation' is not a correlation matrix (ones on its diagonal, |r| <= 1)")
+    from samii.calibrate.simulator import check_parameter_name
+    from samii.sim.model import default_params
+
+    plant = default_params()
+    for name in names:
+        try:
+            check_parameter_name(plant, name)
+        except ValueError as exc:
+            raise InputError(f"--covariance {path}: field 'parameters': {exc}") from None
     for name, m in zip(names, mean):  # the nominal plant is the calibrated one: the values must agree
         section, _, key = name.partition(".")
         v = nominal.get(section, {}).get(key) if isinstance(nominal.get(section), dict) else None
@@ -194,7 +203,9 @@ def draw_plants(n: int, seed: int, nominal: dict[str, float], spreads: list[Spre
             nominals.append(float(m))
             lows.append(max(b_lo, _lower_limit(m, name), m - TRUNCATE_SIGMA * sd))
             highs.append(min(b_hi, m + TRUNCATE_SIGMA * sd))
-            sources.append(f"calibration covariance ({covariance.source})" + (": calibrated on its bound, so drawn on one side of it" if edge else ""))
+            spread = f"±{100 * sd / abs(m):.3g} %" if m != 0 else f"±{sd:.3g}"
+            sources.append(f"{name} {spread} (1σ, calibration covariance {covariance.source})"
+                           + (": calibrated on its bound, so drawn on one side of it" if edge else ""))
     sigmas: list[float] = []
     for sp in spreads:
         if sp.name in names:
