@@ -137,6 +137,21 @@ def test_an_unstable_equilibrium_the_run_did_not_show_is_not_stable(tmp_path):
     assert drift == pytest.approx(rate, rel=0.1)
 
 
+def test_an_integrator_in_the_controller_is_marginal_not_unstable(tmp_path, capsys):
+    """An integrator of the base acceleration (A = 1 at 1 kHz, a normal design) puts a pole at |z| = 1 + 1e-15: the linear
+    prediction is 'marginal' (growing slower than e-fold in 1000 s), the loop stable, and no numpy division warning (it
+    said "a real pole at s = +8.88e-13 1/s (growing e-fold every 1.13e+12 s)" beside "UNSTABLE")."""
+    c = _controller(tmp_path / "ia.json", A=[[1.0]], B=[[0, 0, 0.001]], C=[[0.5]], D=[0, 0, 0])
+    assert main(["closedloop", "--controller", c, "--scenario", "step", "--json"]) == 0
+    captured = capsys.readouterr()
+    rep = json.loads(captured.out)
+    assert captured.err == "" and rep["stable"] is True and rep["instability"] is None
+    assert rep["linear_prediction"]["stable"] is False and rep["linear_prediction"]["marginal"] is True
+    assert main(["closedloop", "--controller", c, "--scenario", "step"]) == 0
+    out = capsys.readouterr().out
+    assert "linear prediction: marginal" in out and "marginal pole" in out and "UNSTABLE" not in out
+
+
 # ---------------------------------------------------------------------------- refusals before work (item 4)
 
 
@@ -337,6 +352,7 @@ def test_report_refuses_a_damaged_number_and_names_its_field(report_folder, caps
     ("summary.json", ("modes", "base_modes", 0, "freq_hz"), "x", "summary.json: modes.base_modes[0].freq_hz (holds 'x')"),
     ("summary.json", ("fit", "params", "wp"), None, "summary.json: fit.params.wp (holds None)"),
     ("fit/fit.json", ("stderr", "K1"), "1.5", "fit/fit.json: stderr.K1 (holds '1.5')"),
+    ("summary.json", ("damping_design", "gain_margin_db"), [6.0], "summary.json: damping_design.gain_margin_db (holds a list)"),
 ])  # fmt: skip
 def test_report_names_a_field_of_the_wrong_kind(report_folder, file, path, value, shown, capsys):
     """A string or null where samii writes a number failed where it was used, with Python's words ("Unknown format code

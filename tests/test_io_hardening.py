@@ -256,7 +256,7 @@ def test_timeseries_value_reports_the_gap_too():
 def test_mat_not_a_matlab_file(tmp_path):
     _raises(read_mat_bode, _write(tmp_path, b"", "empty.mat"), "the file is empty")
     _raises(read_mat_bode, _write(tmp_path, FRF_HEADER + _frf_rows(), "text.mat"), "not a MATLAB .mat file")
-    _raises(read_mat_bode, _write(tmp_path, FRF_HEADER + _frf_rows(), "text2.mat"), "read_frf_csv")
+    _raises(read_mat_bode, _write(tmp_path, FRF_HEADER + _frf_rows(), "text2.mat"), "it looks like text: a samii CSV")
     _raises(read_mat_bode, _write(tmp_path, bytes(range(256)) * 20, "garbage.mat"), "not a MATLAB .mat file")
     hdf = b"MATLAB 7.3 MAT-file".ljust(512, b" ") + b"\x89HDF\r\n\x1a\n" + b"\0" * 100
     _raises(read_mat_bode, _write(tmp_path, hdf, "v73.mat"), "v7.3")

@@ -277,10 +277,10 @@ def _main(argv: list[str] | None) -> int:
         import errno
 
         if exc.errno in (errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC)):
-            # the file the user named (a --rerun recording), else the command's own output (the first begun: --out),
-            # never a hidden staging folder or temporary file of ours
-            named = exc.filename is not None and not any(part.startswith(".") and (".samii-" in part or part.endswith(".tmp"))
-                                                         for part in str(exc.filename).split("/"))
+            # the file the user named (a --rerun recording, marked so by samii.viz.recording.recording_failed), else the
+            # command's own output (the first begun: --out), never a hidden staging folder or temporary file of ours
+            named = getattr(exc, "user_path", False) and not any(part.startswith(".") and (".samii-" in part or part.endswith(".tmp"))
+                                                                 for part in str(exc.filename).split("/"))
             target = exc.filename if named else _OUTPUTS_STARTED[0] if _OUTPUTS_STARTED else exc.filename
             where = f" writing {target}" if target else ""
             print(f"{prog}: error: no space left on device{where} (the disk or quota is full); nothing half-written was kept: "

@@ -154,7 +154,7 @@ def _summary(r, out_names: list[str]) -> str:
     if r.modes:
         lines.append("  modes of the response: " + ", ".join(f"{m.freq_hz:.3g} Hz (zeta {m.zeta:.3f})" for m in r.modes))
     e = r.rms_error_pct
-    lines.append(f"  linear prediction: {'stable' if r.linear_stable else 'UNSTABLE'}"
+    lines.append(f"  linear prediction: {'stable' if r.linear_stable else 'marginal' if r.linear_marginal else 'UNSTABLE'}"
                  + (f", rms error theta {f(e['theta'], ' %')}, accel {f(e['accel'], ' %')}" if r.linear is not None else ""))  # fmt: skip
     if out_names:
         from samii.outputs import with_size

@@ -123,6 +123,11 @@ class ClosedLoopResult:
     #: equilibrium is unstable (then not stable; the growth rate and frequency are the prediction's)
     linear_only: bool = False
 
+    @property
+    def linear_marginal(self) -> bool:
+        """The linear prediction is not stable only by a pole at |z| = 1 in rounding (an integrator nothing holds)."""
+        return not self.linear_stable and _marginal(self.linear_poles_s)
+
     def instability(self) -> str:
         """How the run is unstable, in words ("" when stable)."""
         if self.stable:
@@ -166,7 +171,7 @@ class ClosedLoopResult:
                 "free_decay_rate_1_s": f(self.free_decay_rate_1_s),
             },
             "modes": [{"freq_hz": f(m.freq_hz), "zeta": f(m.zeta)} for m in self.modes],
-            "linear_prediction": {"stable": self.linear_stable, "rms_error_pct": {k: f(v) for k, v in self.rms_error_pct.items()}},
+            "linear_prediction": {"stable": self.linear_stable, "marginal": self.linear_marginal, "rms_error_pct": {k: f(v) for k, v in self.rms_error_pct.items()}},
         }
 
     def run_json(self) -> dict:
@@ -237,8 +242,14 @@ def _impulse_state(cm: CardModel, impulse_n_s: float) -> np.ndarray:
 MARGINAL_GROWTH_1_S = 1e-3
 
 
+def _marginal(poles_s: np.ndarray) -> bool:
+    """No pole of the linear prediction grows faster than MARGINAL_GROWTH_1_S (an unstable one's |z| is 1 in rounding)."""
+    return not poles_s.size or float(np.max(poles_s.real)) <= MARGINAL_GROWTH_1_S
+
+
 def _worst_pole(poles_s: np.ndarray) -> str:
-    """The linear prediction's least stable pole in words: a real one's growth, a complex pair's frequency too."""
+    """The linear prediction's least stable pole in words (one growing faster than MARGINAL_GROWTH_1_S): a real one's
+    growth, a complex pair's frequency too."""
     p = poles_s[np.argmax(poles_s.real)]
     if abs(p.imag) < 1e-6 * max(abs(p.real), 1e-9) or abs(p.imag) < 1e-9:
         return f"a real pole at s = +{p.real:.3g} 1/s (growing e-fold every {1.0 / p.real:.3g} s)"
@@ -352,7 +363,11 @@ def run_closed_loop(
         if sig.diverged_at_s is None:
             err = {"theta": _rms_error_pct(sig.theta - th_rest, lin.theta[:k]), "accel": _rms_error_pct(accel, lin.accel[:k])}
     elif not linear_stable:
-        notes.append(f"the linear prediction is unstable ({_worst_pole(poles_s)}): no linear response or error is given")
+        if _marginal(poles_s):
+            notes.append("the linear prediction has a marginal pole (|z| = 1 to within rounding: an integrator nothing holds, "
+                         f"growing slower than e-fold in {1 / MARGINAL_GROWTH_1_S:g} s): no linear response or error is given")
+        else:
+            notes.append(f"the linear prediction is unstable ({_worst_pole(poles_s)}): no linear response or error is given")
 
     # stability from the nonlinear response
     t_ev = sc.t_event_s
@@ -385,20 +400,16 @@ def run_closed_loop(
             stable = False
 
     linear_only = False
-    if stable and not linear_stable:
-        worst = poles_s[np.argmax(poles_s.real)] if poles_s.size else None
-        if worst is not None and worst.real > MARGINAL_GROWTH_1_S:
-            # Lyapunov's indirect method: an equilibrium whose linearisation has a pole in the right half plane is
-            # unstable, whether or not this run's inputs set the mode off fast enough to show (a joint no controller
-            # holds creeps through the actuator's leakage at +0.197 1/s: the step run stays at rest, the Loper run
-            # drifts from 5 to 23 deg in 8 s)
-            stable, linear_only = False, True
-            notes = [n if not n.startswith("the linear prediction is unstable (") else "no linear response or error is given (the prediction is unstable)"
-                     for n in notes]
-            rate, mode_hz = float(worst.real), float(abs(worst.imag) / (2 * np.pi))
-        else:
-            notes.append("the linear prediction's least stable pole is marginal (growing slower than e-fold in "
-                         f"{1 / MARGINAL_GROWTH_1_S:g} s): the loop holds no equilibrium firmly there, but nothing grows in a test's time")
+    if stable and not linear_stable and not _marginal(poles_s):
+        # Lyapunov's indirect method: an equilibrium whose linearisation has a pole in the right half plane is
+        # unstable, whether or not this run's inputs set the mode off fast enough to show (a joint no controller
+        # holds creeps through the actuator's leakage at +0.197 1/s: the step run stays at rest, the Loper run
+        # drifts from 5 to 23 deg in 8 s)
+        worst = poles_s[np.argmax(poles_s.real)]
+        stable, linear_only = False, True
+        rate, mode_hz = float(worst.real), float(abs(worst.imag) / (2 * np.pi))
+        notes = [n if not n.startswith("the linear prediction is unstable (") else "no linear response or error is given (the prediction is unstable)"
+                 for n in notes]
     theta_m = step_metrics(sig.t, sig.theta, sig.theta_ref, sc.t_step_s) if sc.name in ("step", "loper") else StepMetrics(None, None, None)
     residual_from = sc.t_disturbance_s + 2.0
     base = base_metrics(sig.t, accel, sc.t_disturbance_s, t_decay_s=t_ev, residual_from_s=residual_from) if sig.t.size > 1 else BaseMetrics(float("nan"), None, None, None)

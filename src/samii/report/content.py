@@ -59,13 +59,25 @@ class FieldLog(list):
     """The leaves of a run folder's JSON files read, in order: (file and field, value). A value of the wrong kind fails
     where it is used, not where it is read; the last field read that holds no number is where to look."""
 
-    def suspect(self) -> str | None:
+    def suspect(self, error: str = "") -> str | None:
+        """The field a failure with message ``error`` most likely comes from: the last read that holds no number (a
+        string, null; a list or an object where the message names one and nothing inside it was read after)."""
+        containers = any(word in error for word in ("list", "dict", "_Traced"))
+        inner: list[str] = []  # fields read after the one looked at
         for where, value in reversed(self):
             if value is _MISSING:
                 return f"{where} (missing)"
             if value is None or isinstance(value, str):  # (a bool formats as the number it is)
-                return f"{where} (holds {value!r})"
-        return f"{self[-1][0]} (holds {self[-1][1]!r})" if self else None
+                return f"{where} (holds {_shown(value)})"
+            if containers and isinstance(value, (dict, list)) and not any(w.startswith((where + ".", where + "[")) for w in inner):
+                return f"{where} (holds {'a list' if isinstance(value, list) else 'an object'})"
+            inner.append(where)
+        return None
+
+
+def _shown(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:40] + f"... ({len(text)} characters)"
 
 
 _MISSING = object()
@@ -113,11 +125,11 @@ class _TracedList(list):
 
 
 def _traced_value(value, where: str, log: FieldLog):
+    log.append((where, value))
     if isinstance(value, dict):
         return _TracedDict(value, where, log)
     if isinstance(value, list):
         return _TracedList(value, where, log)
-    log.append((where, value))
     return value
 
 

@@ -366,8 +366,8 @@ def render_report(run: RunFolder, page_dir: Path | None = None) -> str:
     try:
         return _render(watched, page_dir)
     except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
-        what = f"field {exc.args[0]!r} missing" if isinstance(exc, KeyError) else str(exc)
-        near = log.suspect()
+        what = f"field {exc.args[0]!r} missing" if isinstance(exc, KeyError) else str(exc).replace("_TracedList", "list").replace("_TracedDict", "dict")
+        near = log.suspect(str(exc))
         where = f"; probably at {near}, the last field read that holds no number" if near else ""
         raise InputError(f"{run.path}: a file of this main job's folder is not as samii run writes it ({what}{where}); "
                          "run samii run again") from None

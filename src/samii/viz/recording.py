@@ -443,63 +443,67 @@ def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, b
 
     rec = rr.RecordingStream(application_id)
     rec.set_log_time_enabled(False)  # the one timeline is the run's time
-    # into memory, written below by this process: a file sink's writer thread that dies on a full disk leaves rerun's
-    # flush waiting for ever (rerun 0.41: its drop too), while a write here fails at once with the OS's own error
+    # rerun encodes into a stream this process writes to the file at the end: a file sink's writer thread that dies
+    # on a full disk left rerun's flush, then its drop, waiting for ever (rerun 0.41), while a write here fails at once
+    # with the OS's own error. The stream is read once, whole: bytes read part by part fail the file's CRC check
+    # (RrdReader, rerun 0.41), so the recording is held in memory until then (a 60 s run's 12 MB: +55 MB peak).
     stream = rec.binary_stream()
-    # the signals first: rerun encodes and writes them on its own thread while the poses are computed here
-    # the modal coordinates of the first run with frames (measured data have none)
-    with_modes = next((r.name for r in runs if len(r.frame_t_s)), None)
-    keeps = [_thinning(r, thin_frames, thin_signals) for r in runs]
-    groups_by_run = {run.name: _log_signals(rec, rr, run, k.projection, tag="" if len(runs) == 1 else f"{run.name}: ", rank=i,
-                                            modes=run.name == with_modes, bucket=bucket, frame_keep=frame_keep)
-                     for i, (run, k, (bucket, frame_keep)) in enumerate(zip(runs, run_kin, keeps))}  # fmt: skip
-    true_poses = [_poses(k.model, r.frame_qpos, k.site) for r, k in zip(runs, run_kin)]
-    length = _beam_length(model, main.home)
-    beam_scale, arm_scale, deflection = _scales([(k, r.frame_qpos, p[2]) for r, k, p in zip(runs, run_kin, true_poses)], length, beam_scale)
-    rate = fps
-    modes = ", ".join(f"{f:.2f}" for f in projection.freq_hz)
-    about = [f"# {application_id}\n",
-             f"- **deformation scale**: beam deflection ×{beam_scale:.4g}, arm joints' deviations from the nominal pose ×{arm_scale:.4g} "
-             f"(the largest tip deflection in this recording, {1e3 * deflection:.4g} mm, is shown as {100 * beam_scale * deflection / length:.3g} % "
-             f"of the beam's {length:.3g} m; the arm's scale is the beam's unless a joint would turn more than "
-             f"{np.degrees(ARM_DEVIATION_SHOWN_RAD):.0f}°, never below 1); the true-scale view is beside it",
-             f"- **tip trail**: the last {TRAIL_S} s of the beam tip (deformed)",
-             f"- **modal coordinates**: each base mode's share of the tip displacement along the accelerometer's axis, "
-             f"from the undamped shapes of the structure with joint 2 held ({modes} Hz)\n"]  # fmt: skip
-    geoms_of = {key: _geoms(rr, k.model) for key, k in kin.items()}  # logged under each run's two views
-    for run, k, (pos_true, quat_true, _), (bucket, fk) in zip(runs, run_kin, true_poses, keeps):
-        t, q = run.frame_t_s, run.frame_qpos
-        samples_per_s = 1 / float(np.median(np.diff(run.timeseries.t)))
-        thinned = bucket is not None
-        if len(t):
-            if rate is None:
-                rate = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else MIN_FPS
-            rec.log(run.name, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-            pos_def, quat_def, tip_def = _poses(k.model, k.home.qpos + (q - k.home.qpos) * k.scale(beam_scale, arm_scale), k.site)
-            geoms = geoms_of[id(k.model)]
-            _log_model(rec, rr, k.model, geoms, f"{run.name}/true_scale", t[fk], pos_true[fk], quat_true[fk])
-            _log_model(rec, rr, k.model, geoms, f"{run.name}/deformed", t[fk], pos_def[fk], quat_def[fk])
-            _trail(rec, rr, f"{run.name}/deformed/tip_trail", t, tip_def, rate, keep=fk)
-            frames = (f"{rate:.4g} frames per second ({len(t)} frames): the 3D views, the tip and the modes; the other signals "
-                      f"at the record's {samples_per_s:.4g} samples/s")  # fmt: skip
-            if thinned:
-                frames = (f"the 3D views, the tip and the modes in {int(fk.sum())} of the run's {len(t)} frames ({rate:.4g} per second), "
-                          f"at least {FRAMES_PER_PERIOD_SWEPT} per period of the highest frequency the sweep drove in the last {RING_S:g} s "
-                          f"and {MIN_THINNED_FPS:g} per second; the other signals at the record's {samples_per_s:.4g} samples/s where the sweep "
-                          f"is fast, and where it is slow each one's smallest and largest sample in every {BUCKETS_PER_PERIOD}th of that "
-                          f"period (at least every {1 / MIN_BUCKET_RATE_HZ:g} s): the curves' peaks and the noise's width are the record's; "
-                          "every sample is in the run's time series file")
-        else:
-            frames = f"no animation frames (no joint positions: e.g. measured data); the signals at {samples_per_s:.4g} samples/s"
-        own = "" if k is main else f"\n- its own model: base modes {', '.join(f'{f:.2f}' for f in k.projection.freq_hz)} Hz"
-        about.append(f"## {run.name}\n\n{run.label}\n\n- {frames}{own}\n")
-    rec.log("about", rr.TextDocument("\n".join(about), media_type="text/markdown"), static=True)
-    rec.send_property("deformation", rr.AnyValues(beam_scale=beam_scale, arm_scale=arm_scale, max_tip_deflection_m=deflection, fps=float(rate or 0.0)))
-    rec.send_blueprint(_blueprint(rrb, runs, groups_by_run, beam_scale, arm_scale, _eye(model, main.home)))
-    data = stream.read(flush=True)
-    rec.disconnect()
-    with open(path, "wb") as out:
-        out.write(data or b"")
+    out = open(path, "wb")
+    try:
+        # the signals first: rerun encodes and writes them on its own thread while the poses are computed here
+        # the modal coordinates of the first run with frames (measured data have none)
+        with_modes = next((r.name for r in runs if len(r.frame_t_s)), None)
+        keeps = [_thinning(r, thin_frames, thin_signals) for r in runs]
+        groups_by_run = {run.name: _log_signals(rec, rr, run, k.projection, tag="" if len(runs) == 1 else f"{run.name}: ", rank=i,
+                                                modes=run.name == with_modes, bucket=bucket, frame_keep=frame_keep)
+                         for i, (run, k, (bucket, frame_keep)) in enumerate(zip(runs, run_kin, keeps))}  # fmt: skip
+        true_poses = [_poses(k.model, r.frame_qpos, k.site) for r, k in zip(runs, run_kin)]
+        length = _beam_length(model, main.home)
+        beam_scale, arm_scale, deflection = _scales([(k, r.frame_qpos, p[2]) for r, k, p in zip(runs, run_kin, true_poses)], length, beam_scale)
+        rate = fps
+        modes = ", ".join(f"{f:.2f}" for f in projection.freq_hz)
+        about = [f"# {application_id}\n",
+                 f"- **deformation scale**: beam deflection ×{beam_scale:.4g}, arm joints' deviations from the nominal pose ×{arm_scale:.4g} "
+                 f"(the largest tip deflection in this recording, {1e3 * deflection:.4g} mm, is shown as {100 * beam_scale * deflection / length:.3g} % "
+                 f"of the beam's {length:.3g} m; the arm's scale is the beam's unless a joint would turn more than "
+                 f"{np.degrees(ARM_DEVIATION_SHOWN_RAD):.0f}°, never below 1); the true-scale view is beside it",
+                 f"- **tip trail**: the last {TRAIL_S} s of the beam tip (deformed)",
+                 f"- **modal coordinates**: each base mode's share of the tip displacement along the accelerometer's axis, "
+                 f"from the undamped shapes of the structure with joint 2 held ({modes} Hz)\n"]  # fmt: skip
+        geoms_of = {key: _geoms(rr, k.model) for key, k in kin.items()}  # logged under each run's two views
+        for run, k, (pos_true, quat_true, _), (bucket, fk) in zip(runs, run_kin, true_poses, keeps):
+            t, q = run.frame_t_s, run.frame_qpos
+            samples_per_s = 1 / float(np.median(np.diff(run.timeseries.t)))
+            thinned = bucket is not None
+            if len(t):
+                if rate is None:
+                    rate = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else MIN_FPS
+                rec.log(run.name, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+                pos_def, quat_def, tip_def = _poses(k.model, k.home.qpos + (q - k.home.qpos) * k.scale(beam_scale, arm_scale), k.site)
+                geoms = geoms_of[id(k.model)]
+                _log_model(rec, rr, k.model, geoms, f"{run.name}/true_scale", t[fk], pos_true[fk], quat_true[fk])
+                _log_model(rec, rr, k.model, geoms, f"{run.name}/deformed", t[fk], pos_def[fk], quat_def[fk])
+                _trail(rec, rr, f"{run.name}/deformed/tip_trail", t, tip_def, rate, keep=fk)
+                frames = (f"{rate:.4g} frames per second ({len(t)} frames): the 3D views, the tip and the modes; the other signals "
+                          f"at the record's {samples_per_s:.4g} samples/s")  # fmt: skip
+                if thinned:
+                    frames = (f"the 3D views, the tip and the modes in {int(fk.sum())} of the run's {len(t)} frames ({rate:.4g} per second), "
+                              f"at least {FRAMES_PER_PERIOD_SWEPT} per period of the highest frequency the sweep drove in the last {RING_S:g} s "
+                              f"and {MIN_THINNED_FPS:g} per second; the other signals at the record's {samples_per_s:.4g} samples/s where the sweep "
+                              f"is fast, and where it is slow each one's smallest and largest sample in every {BUCKETS_PER_PERIOD}th of that "
+                              f"period (at least every {1 / MIN_BUCKET_RATE_HZ:g} s): the curves' peaks and the noise's width are the record's; "
+                              "every sample is in the run's time series file")
+            else:
+                frames = f"no animation frames (no joint positions: e.g. measured data); the signals at {samples_per_s:.4g} samples/s"
+            own = "" if k is main else f"\n- its own model: base modes {', '.join(f'{f:.2f}' for f in k.projection.freq_hz)} Hz"
+            about.append(f"## {run.name}\n\n{run.label}\n\n- {frames}{own}\n")
+        rec.log("about", rr.TextDocument("\n".join(about), media_type="text/markdown"), static=True)
+        rec.send_property("deformation", rr.AnyValues(beam_scale=beam_scale, arm_scale=arm_scale, max_tip_deflection_m=deflection, fps=float(rate or 0.0)))
+        rec.send_blueprint(_blueprint(rrb, runs, groups_by_run, beam_scale, arm_scale, _eye(model, main.home)))
+        out.write(stream.read(flush=True) or b"")
+    finally:
+        out.close()
+        rec.disconnect()
     return RecordingInfo(path, beam_scale, arm_scale, float(rate or 0.0), tuple(float(f) for f in projection.freq_hz), deflection, tuple(r.name for r in runs))
 
 
@@ -508,7 +512,10 @@ def recording_failed(exc: Exception, final) -> OSError:
     ``final`` (not the temporary file beside it) that keeps the OS's error number (a full disk is said so), or
     rerun's own message (it reports its writer's failures as RuntimeError)."""
     if isinstance(exc, OSError) and exc.errno is not None:
-        return OSError(exc.errno, f"--rerun {final}: {exc.strerror}", str(final))
+        # absolute: the main job writes its recordings inside its hidden staging folder, where the CLI names --out instead
+        err = OSError(exc.errno, f"--rerun {final}: {exc.strerror}", str(Path(final).absolute()))
+        err.user_path = True  # (the CLI names this file on a full disk, not the first output begun)
+        return err
     return OSError(f"--rerun {final}: the recording could not be written ({' '.join(str(exc).split())})")
 
 
