@@ -47,6 +47,8 @@ def measured(tmp_path_factory):
     cols = body[0].split(",")
     files["one_freq"] = d / "one.csv"
     files["one_freq"].write_text("\n".join(head + body[:2]) + "\n")
+    files["five"] = d / "five.csv"  # five frequencies: fewer than the 9 an FRF point's noise is pooled over
+    files["five"].write_text("\n".join(head + body[:1] + body[101:106]) + "\n")
     rows = [body[0]]
     for ln in body[1:]:
         v = ln.split(",")
@@ -202,6 +204,14 @@ def test_diagnose_refuses_data_the_baseline_fits_exactly(measured, tmp_path, cap
                    [measured["ts10"], "too few usable points to test anything", "free parameters"])
 
 
+def test_diagnose_on_fewer_points_than_its_pooling_window_says_how_little_it_tests(measured, capsys):
+    """Five frequencies: numpy's "operands could not be broadcast together with shapes (5,) (9,)" before (a moving mean
+    over 9 points returned 9 values); now a verdict, with the note that 20 residuals for 13 parameters test little."""
+    assert main(["diagnose", measured["five"], "--no-progress"]) == 0
+    captured = capsys.readouterr()
+    assert "broadcast" not in captured.err and "13 free parameters were fitted to 20 residuals" in captured.out
+
+
 def test_frf_warns_of_a_sweep_beyond_the_nyquist_frequency(measured, tmp_path, capsys):
     out = tmp_path / "f"
     assert main(["frf", measured["ts10"], "--out", str(out), "--json"]) == 0
@@ -240,6 +250,11 @@ def test_names_on_the_command_line_are_refused_as_the_command_lines(measured, tm
     (tmp_path / "foo.json").write_text(json.dumps(doc))
     _refused_alike(["closedloop", "--controller", str(tmp_path / "foo.json"), "--scenario", "step"], tmp_path / "o", capsys,
                    [str(tmp_path / "foo.json"), "field 'inputs': 'foo' is not a measurement", "theta_ref, theta, accel"])
+    doc["inputs"] = ["theta_ref", "theta", "accel"]
+    doc["input_scale"] = {"foo": 2.0}
+    (tmp_path / "foo.json").write_text(json.dumps(doc))
+    _refused_alike(["closedloop", "--controller", str(tmp_path / "foo.json"), "--scenario", "step"], tmp_path / "o", capsys,
+                   [str(tmp_path / "foo.json"), "field 'input_scale' names 'foo'", "not among the field 'inputs'"])
 
 
 def test_a_text_file_named_mat_is_read_as_the_csv_it_is(measured, tmp_path, capsys):
@@ -300,6 +315,10 @@ def test_a_covariance_naming_no_parameter_of_the_plant_is_refused_for_that(tmp_p
     assert main(["robust", "--controller", "unity", "--covariance", str(p), "--samples", "2", "--no-progress"]) == 2
     line = _one_line(capsys)
     assert str(p) in line and "field 'parameters'" in line and "beam has no parameter 'foo'" in line
+    params[0] = dict(params[1])  # the same parameter twice: said so (it said "... but field 'calibrated_params' holds ...")
+    p.write_text(json.dumps({"parameters": params, "correlation": [[1.0, 0.0], [0.0, 1.0]], "calibrated_params": nominal}))
+    assert main(["robust", "--controller", "unity", "--covariance", str(p), "--samples", "2", "--no-progress"]) == 2
+    assert "names hydraulic.bulk_modulus more than once" in _one_line(capsys)
 
 
 def test_a_value_error_after_the_input_was_accepted_is_an_internal_error(tmp_path, capsys, monkeypatch):
@@ -369,6 +388,21 @@ def test_report_names_a_field_of_the_wrong_kind(report_folder, file, path, value
     line = _one_line(capsys)
     assert str(report_folder) in line and shown in line and "run samii run again" in line, line
     assert not out.exists()
+
+
+@pytest.mark.parametrize("value, needle", [(None, "field 'closed_loop' must map each run's name to an object, got null"),
+                                           ("false", "field 'closed_loop.notebook_place_step.stable' holds 'false'; expected true or false")])
+def test_report_refuses_a_damaged_run_list_or_verdict(report_folder, value, needle, capsys):
+    """closed_loop null gave exit 1 (an internal TypeError); a verdict "false" (a string) showed the unstable pole
+    placement as stable."""
+    doc = json.loads((report_folder / "summary.json").read_text())
+    if value is None:
+        doc["closed_loop"] = None
+    else:
+        doc["closed_loop"]["notebook_place_step"]["stable"] = value
+    (report_folder / "summary.json").write_text(json.dumps(doc))
+    assert main(["report", str(report_folder), "--out", str(report_folder / "r.html")]) == 2
+    assert needle in _one_line(capsys) and not (report_folder / "r.html").exists()
 
 
 def test_report_onto_a_folder_leaves_nothing_behind(report_folder, capsys):

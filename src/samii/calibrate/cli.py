@@ -90,7 +90,9 @@ def load_target(source: str):
         raise InputError(f"DATA {source!r}: no such file (DATA is an FRF CSV, a rig-era .mat, or one of {', '.join(NOTEBOOK_TARGETS)})")
     if path.suffix.lower() not in (".csv", ".mat", ".txt"):
         raise InputError(f"DATA {source}: expected an FRF CSV (docs/DATA_FORMATS.md) or a rig-era .mat, not a {path.suffix or 'suffix-less'} file")
-    if path.suffix.lower() == ".mat":
+    from samii.measure.io import is_mat_file
+
+    if is_mat_file(path):  # (the content decides: a text file named .mat is read as the CSV it is)
         from samii.measure.io import read_mat_bode
 
         return read_mat_bode(path)

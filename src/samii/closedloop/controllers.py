@@ -274,6 +274,9 @@ def read_controller(path: str | Path) -> SavedController:
     scale = doc.get("input_scale", {})
     if not isinstance(scale, dict) or not all(_finite_number(v) and v != 0 and abs(float(v)) <= MAX_ENTRY for v in scale.values()):
         raise InputError(f"{where}: field 'input_scale' must map input names to finite nonzero factors of at most {MAX_ENTRY:g}")
+    if extra := sorted(set(scale) - set(inputs)):
+        raise InputError(f"{where}: field 'input_scale' names {', '.join(repr(_short_name(str(k))) for k in extra)}, which "
+                         f"{'is' if len(extra) == 1 else 'are'} not among the field 'inputs' ({', '.join(inputs)})")
     servo = doc.get("servo_loop")
     if servo not in ("replaced", "kept"):
         raise InputError(f"{where}: field 'servo_loop' must be \"replaced\" (the controller is the whole position loop) or \"kept\" (it adds to it), got {servo!r}")

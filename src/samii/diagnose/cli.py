@@ -165,6 +165,7 @@ def run(args: argparse.Namespace) -> int:
     from samii.json_output import dumps
 
     progress = _Progress(not args.no_progress)
+    rrd_tmp = None
     try:
         progress.stage("reading")
         measured = _load(args)
@@ -195,11 +196,18 @@ def run(args: argparse.Namespace) -> int:
                     job[0](d, folder.path(job[1]))
 
                 fork_map(draw, figures)  # drawn at once on the machine's cores (samii.forkmap)
-        if rerun_path is not None:
+                if rerun_path is not None:  # inside the folder's transaction: a failed recording leaves no folder behind
+                    progress.stage("recording")
+                    rrd_tmp = _write_rerun(d, rerun_path, args.rerun_fps)
+        elif rerun_path is not None:
             progress.stage("recording")
-            _write_rerun(d, rerun_path, args.rerun_fps)
+            rrd_tmp = _write_rerun(d, rerun_path, args.rerun_fps)
+        if rrd_tmp is not None:
+            os.replace(rrd_tmp, rerun_path)
     finally:
         progress.close()
+        if rrd_tmp is not None and rrd_tmp.exists():
+            rrd_tmp.unlink()
     if args.json:
         print(dumps(d.to_dict(), indent=2))
         return 0
@@ -207,8 +215,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_rerun(d, path, fps) -> None:
-    """The simulator against the data as a Rerun recording at ``path``: written beside it, then moved in."""
+def _write_rerun(d, path, fps):
+    """The simulator against the data as a Rerun recording for ``path``, written beside it (the caller moves it in):
+    the temporary file's path."""
     import os
 
     from samii.diagnose.recording import write_diagnosis_recording
@@ -217,14 +226,12 @@ def _write_rerun(d, path, fps) -> None:
 
     tmp = create_parent(path.parent / f".{path.name}.{os.getpid()}.tmp")
     try:
-        try:
-            write_diagnosis_recording(tmp, d, fps=fps)
-        except (RuntimeError, OSError) as exc:  # rerun's writer reports file-system failures as RuntimeError
-            raise recording_failed(exc, path) from None
-        os.replace(tmp, path)
-    finally:
+        write_diagnosis_recording(tmp, d, fps=fps)
+    except (RuntimeError, OSError) as exc:  # rerun's writer reports file-system failures as RuntimeError
         if tmp.exists():
             tmp.unlink()
+        raise recording_failed(exc, path) from None
+    return tmp
 
 
 def _print(d, written) -> None:

@@ -909,6 +909,10 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
         kinds = [k for k in kinds if k.label in CARRY]
     before, after, steps, tried = forward_select(list(datasets), bl, kinds, alpha=alpha, progress=progress)
     check_residual_dof(datasets, before, [m.source for m in measured])
+    if before.n_residuals - before.n_params < before.n_params:
+        notes.append(f"the baseline's {before.n_params} free parameters were fitted to {before.n_residuals} residuals (magnitude and "
+                     "phase of the usable points): with fewer degrees of freedom left than parameters, only a large misfit "
+                     "could show; a verdict of none says little here (a wider band, more points)")
     pre: dict[str, dict] = {}
     if (with_hold := with_hold_found(datasets, after, steps, alpha=alpha, n_kinds=len(kinds))) is not None:
         # the command's hold on the model found: the model with it, and the baseline alone with it for the error before

@@ -138,10 +138,14 @@ def _float_meta(meta: Mapping[str, str], key: str) -> float | None:
 
 def _pool(x: np.ndarray, k: int = POOL) -> np.ndarray:
     """Moving mean over ``k`` points, the window shrinking at the ends."""
-    kernel = np.ones(k)
-    num = np.convolve(x, kernel, mode="same")
-    den = np.convolve(np.ones_like(x), kernel, mode="same")
-    return num / den
+    return moving_sum(x, k) / moving_sum(np.ones_like(x), k)
+
+
+def moving_sum(x: np.ndarray, k: int) -> np.ndarray:
+    """Sum over the ``k`` points centred on each point of ``x``, fewer at the ends: ``np.convolve(x, ones(k),
+    "same")``, which returns ``k`` values, not ``x.size``, when ``x`` is shorter than ``k``."""
+    start = (k - 1) // 2
+    return np.convolve(x, np.ones(k))[start : start + np.size(x)]
 
 
 def _corr_length(dev: np.ndarray) -> float:

@@ -82,6 +82,8 @@ import numpy as np
 from scipy import signal, stats
 from scipy.optimize import minimize_scalar
 
+from samii.diagnose.measured import moving_sum
+
 __all__ = ["HarmonicAnalysis", "AmplitudeTest", "NonlinearFinding", "harmonic_analysis", "excess_over", "amplitude_test", "find_nonlinear",
            "describing_ratio", "describing_gain", "linearised", "distortion_var",
            "asymmetry_ratio", "asymmetry_fraction", "predicted_ratio", "HarmonicError", "harmonic_errors", "PARAM_UNITS", "ALPHA", "MATERIAL", "SEGMENT_CYCLES", "MIN_SEGMENTS", "MIN_AMPLITUDE_RATIO"]
@@ -402,8 +404,8 @@ def _interp_response(freq_hz: np.ndarray, h: np.ndarray, f: np.ndarray) -> np.nd
 def _pool(x: np.ndarray, k: int = POOL) -> tuple[np.ndarray, np.ndarray]:
     """Mean of the finite values over ``k`` neighbouring segments, and how many there were."""
     ok = np.isfinite(x)
-    num = np.convolve(np.where(ok, x, 0.0), np.ones(k), mode="same")
-    den = np.convolve(ok.astype(float), np.ones(k), mode="same")
+    num = moving_sum(np.where(ok, x, 0.0), k)
+    den = moving_sum(ok.astype(float), k)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(den > 0, num / np.where(den > 0, den, 1.0), np.nan), den
 

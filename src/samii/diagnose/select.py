@@ -48,6 +48,7 @@ import numpy as np
 from scipy import stats
 
 from samii.diagnose.effects import TWO_PI, Effect, EffectKind
+from samii.diagnose.measured import moving_sum
 from samii.diagnose.model import Baseline, Dataset, Fit, fit_model, noise_level, relabel_modes, start_vectors
 from samii.forkmap import fork_map, sharing
 
@@ -108,7 +109,7 @@ def _peaks(ds_list: list[Dataset], fit: Fit, ch: str, n: int = 3) -> list[float]
         f = ds.freq_hz[ds.keep[ch]]
         if e.size < 3:
             continue
-        sm = np.convolve(e**2, np.ones(5) / 5, mode="same")
+        sm = moving_sum(e**2, 5) / 5
         order = np.argsort(sm)[::-1]
         for i in order:
             if all(abs(np.log(f[i] / g)) > 0.15 for g in out):

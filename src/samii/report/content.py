@@ -162,6 +162,10 @@ def _json(folder: Path, rel: str) -> dict:
     return data
 
 
+def _kind(value) -> str:
+    return {list: "a list", str: "a string", type(None): "null", bool: "a boolean"}.get(type(value), type(value).__name__)
+
+
 def _trace(path: Path) -> Trace:
     from samii.measure.io import read_timeseries_csv
 
@@ -179,10 +183,20 @@ def read_run_folder(path) -> RunFolder:
     if summary.get("written_by") != "samii run":
         raise InputError(f"{folder / 'summary.json'}: field 'written_by' is {summary.get('written_by')!r}, expected 'samii run'")
     closed, traces = {}, {}
-    for name in sorted(summary.get("closed_loop", {})):
+    runs = summary.get("closed_loop", {})
+    if not isinstance(runs, dict) or not all(isinstance(v, dict) for v in runs.values()):
+        raise InputError(f"{folder / 'summary.json'}: field 'closed_loop' must map each run's name to an object, got {_kind(runs)}")
+    for name in sorted(runs):
+        if "/" in name or name in ("", ".", ".."):
+            raise InputError(f"{folder / 'summary.json'}: field 'closed_loop' names a run {name!r}, which is no folder name")
         run_dir = folder / "closedloop" / name
         closed[name] = _json(folder, f"closedloop/{name}/run.json")
         traces[name] = _trace(run_dir / "timeseries.csv")
+        # a verdict is shown as it is read: a string "false" would read as stable
+        for where, doc in ((f"{folder / 'summary.json'}: field 'closed_loop.{name}.stable'", runs[name]),
+                           (f"{run_dir / 'run.json'}: field 'stable'", closed[name])):
+            if "stable" in doc and not isinstance(doc["stable"], bool):
+                raise InputError(f"{where} holds {doc['stable']!r}; expected true or false (the file is damaged; run samii run again)")
     return RunFolder(
         path=folder,
         summary=summary,

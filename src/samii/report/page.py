@@ -391,4 +391,10 @@ def write_report(run: RunFolder, path: Path | None = None) -> Path:
     if path.is_dir():
         raise InputError(f"{path}: is a folder; the report is a file (remove the folder or give --out FILE)")
     with parent_made_for(path):  # atomic, and a folder made for it removed again: a failure (a full disk) leaves nothing
-        return write_text(path, render_report(run, path.parent), overwrite=True)
+        page = render_report(run, path.parent)
+        try:
+            return write_text(path, page, overwrite=True)
+        except OSError as exc:  # named as the report, not as the hidden temporary file beside it (a read-only folder)
+            if exc.errno is None or exc.filename == str(path):
+                raise
+            raise OSError(exc.errno, exc.strerror, str(path)) from None

@@ -183,7 +183,7 @@ class Engine:
                 try:
                     with dask.config.set(quiet), _workers_deaf_to_terminal_signals():
                         self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                                     dashboard_address=None, silence_logs=40)  # fmt: skip
+                                                     dashboard_address=None, silence_logs=50)  # fmt: skip
                     self._client = Client(self._cluster)
                 except BaseException:  # stopped (a signal) or failed while starting: close what was built
                     self.__exit__()

@@ -122,6 +122,8 @@ def read_covariance(path) -> Covariance:
                              "calibration could not determine it; calibrate without it, or give its spread with --spread")
         se.append(s)
         bounds.append((lo, hi))
+    if dup := sorted({n for n in names if names.count(n) > 1}):
+        raise InputError(f"--covariance {path}: field 'parameters' names {', '.join(dup)} more than once")
     c = np.asarray(corr, dtype=float) if all(isinstance(r, list) for r in corr) else np.empty(0)
     if c.shape != (len(names), len(names)) or not np.all(np.isfinite(c)):
         raise InputError(f"--covariance {path}: field 'correlation' must be a finite {len(names)}x{len(names)} matrix")

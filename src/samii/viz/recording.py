@@ -503,6 +503,10 @@ def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, b
         out.write(stream.read(flush=True) or b"")
     finally:
         out.close()
+        try:  # emptied on any failure or interrupt too: rerun warns of data it drops with its stream (a Rust log line)
+            stream.read(flush=True, flush_timeout_sec=2.0)
+        except Exception:  # noqa: BLE001 (the failure being raised is the one to report)
+            pass
         rec.disconnect()
     return RecordingInfo(path, beam_scale, arm_scale, float(rate or 0.0), tuple(float(f) for f in projection.freq_hz), deflection, tuple(r.name for r in runs))
 
