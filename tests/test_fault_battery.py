@@ -520,6 +520,33 @@ def test_a_scheduler_that_accepts_and_never_answers_is_refused_in_time():
             pass
 
 
+@pytest.mark.parametrize("address, needle", [("notanaddress", "expected HOST:PORT with a port from 1 to 65535"),
+                                             ("udp://127.0.0.1:45123", "unknown address scheme 'udp'"),
+                                             ("tcp://127.0.0.1:99999", "a port from 1 to 65535"),
+                                             ("tcp://no.such.host.invalid:8786", "'no.such.host.invalid' is not known")])
+def test_a_scheduler_address_dask_cannot_reach_is_refused_at_once(address, needle, capsys):
+    """Dask's own ValueError (scheme, port) came raw; an unknown host or port 99999 waited the whole timeout (30 s) and
+    was then said to have accepted the connection: refused now before any wait."""
+    argv = ["robust", "--controller", "unity", "--spread", "hydraulic.bulk_modulus=5%", "--samples", "2", "--no-progress"]
+    assert main([*argv, "--scheduler", address]) == 2
+    line = _one_line(capsys)
+    assert line.startswith(f"samii robust: error: --scheduler {address}: ") and needle in line, line
+
+
+def test_dasks_configured_scheduler_is_named_as_such(monkeypatch, capsys):
+    monkeypatch.setenv("DASK_SCHEDULER_ADDRESS", "udp://127.0.0.1:1")
+    import dask
+
+    dask.config.refresh()
+    try:
+        argv = ["robust", "--controller", "unity", "--spread", "hydraulic.bulk_modulus=5%", "--samples", "2", "--no-progress"]
+        assert main(argv) == 2
+        assert "Dask's configured scheduler-address (DASK_SCHEDULER_ADDRESS" in _one_line(capsys)
+    finally:
+        monkeypatch.delenv("DASK_SCHEDULER_ADDRESS")
+        dask.config.refresh()
+
+
 # ---------------------------------------------------------------------------- a full disk (item 3), root only
 
 

@@ -120,7 +120,12 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--workers: with --scheduler the cluster's own workers run the study; give one of them")
     # an explicit --workers (0 included) wins over Dask's configured scheduler address
     scheduler = args.scheduler or (configured_scheduler() if args.workers is None else None)
-    engine = Engine(workers=args.workers or 0, scheduler=scheduler, connect_timeout_s=args.scheduler_timeout)
+    source = "--scheduler" if args.scheduler else "Dask's configured scheduler-address (DASK_SCHEDULER_ADDRESS or ~/.config/dask)"
+    if scheduler:  # before any work: an address Dask cannot connect to is refused at once
+        from samii.robust.engine import check_address
+
+        check_address(scheduler, source)
+    engine = Engine(workers=args.workers or 0, scheduler=scheduler, connect_timeout_s=args.scheduler_timeout, scheduler_source=source)
 
     # the controller is designed (or read) once, on the nominal plant, in this process
     from samii.closedloop.cli import resolve_controller
@@ -146,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    if not args.json:
+    if not args.json and not args.no_progress:  # (a progress line: not before a refusal's one line when asked for quiet)
         print(f"samii robust: {args.controller}, {args.scenario} test, {args.samples} plants (seed {args.seed}) {engine.describe()}", file=sys.stderr)
     bar = tqdm(total=len(tasks), desc="samii robust", unit="run", file=sys.stderr, disable=True if args.no_progress else None, leave=False)
     import time

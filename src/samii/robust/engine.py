@@ -26,7 +26,7 @@ from distributed.diagnostics.plugin import WorkerPlugin
 import samii
 from samii.robust.task import SampleResult, SampleTask, run_sample
 
-__all__ = ["DEFAULT_CONNECT_TIMEOUT_S", "Engine", "SamiiWorkerPlugin", "configured_scheduler"]
+__all__ = ["DEFAULT_CONNECT_TIMEOUT_S", "Engine", "SamiiWorkerPlugin", "check_address", "configured_scheduler"]
 
 #: Seconds a scheduler has to answer the first contact: Dask's own connect timeout (30 s) bounds the TCP
 #: connection, not the handshake after it, and a socket that accepts and never answers held a run past 100 s.
@@ -106,23 +106,56 @@ def _tcp_host_port(address: str) -> tuple[str | None, int]:
     return None, 0
 
 
-def _connect(address: str, timeout_s: float) -> Client:
-    """A client of the scheduler at ``address``, or :class:`InputError` naming it when it refuses or does not
-    answer within ``timeout_s`` (the attempt runs in a daemon thread: one that never returns is left behind
-    without holding the process)."""
+#: The address schemes a Dask scheduler listens on (distributed.comm's registered backends).
+SCHEMES = ("tcp", "tls", "inproc", "ucx", "ws", "wss")
+
+
+def check_address(address: str, where: str) -> None:
+    """Refuse a scheduler address Dask cannot connect to, before any wait: an unknown scheme, no or an invalid port, a
+    host name that does not resolve (``where``: the option or setting it came from, for the message)."""
+    from urllib.parse import urlsplit
+
+    from samii.errors import InputError
+
+    text = address if "://" in address else f"tcp://{address}"
+    scheme = text.split("://", 1)[0]
+    if scheme not in SCHEMES:
+        raise InputError(f"{where} {address}: unknown address scheme {scheme!r}; a Dask scheduler listens on "
+                         f"{', '.join(s + '://' for s in SCHEMES)} (e.g. tcp://host:8786)")
+    if scheme == "inproc":
+        return
+    try:
+        parts = urlsplit(text)
+        port = parts.port
+    except ValueError:
+        port = -1
+    if not parts.hostname or port is None or not 0 < port < 65536:
+        raise InputError(f"{where} {address}: expected HOST:PORT with a port from 1 to 65535 (e.g. tcp://host:8786, "
+                         "the port the scheduler printed at its start)")
+    try:
+        socket.getaddrinfo(parts.hostname, port)
+    except OSError:
+        raise InputError(f"{where} {address}: the host {parts.hostname!r} is not known (its name does not resolve)") from None
+
+
+def _connect(address: str, timeout_s: float, where: str = "--scheduler") -> Client:
+    """A client of the scheduler at ``address``, or :class:`InputError` naming it (``where``: the option or setting it
+    came from) when it refuses or does not answer within ``timeout_s`` (the attempt runs in a daemon thread: one that
+    never returns is left behind without holding the process)."""
     import threading
 
     from samii.errors import InputError
 
-    host, port = _tcp_host_port(address)
+    check_address(address, where)
+    host, port = _tcp_host_port(address if "://" in address else f"tcp://{address}")
     if host is not None:  # a refused connection is known at once (Dask retries it until its timeout)
         try:
             socket.create_connection((host, port), timeout=min(timeout_s, 10.0)).close()
         except ConnectionRefusedError:
-            raise InputError(f"--scheduler {address}: nothing listens there (connection refused); is the scheduler running, "
+            raise InputError(f"{where} {address}: nothing listens there (connection refused); is the scheduler running, "
                              "and is this its address and port?") from None
         except OSError:
-            pass  # unreachable, unresolvable, slow: Dask's own attempt says so, within the timeout
+            pass  # unreachable, slow: Dask's own attempt says so, within the timeout
     box: dict = {}
 
     def attempt() -> None:
@@ -135,15 +168,17 @@ def _connect(address: str, timeout_s: float) -> Client:
     thread.start()
     thread.join(timeout_s)
     if thread.is_alive():
-        raise InputError(f"--scheduler {address}: no Dask scheduler answered within {timeout_s:g} s (something accepted the "
-                         "connection but did not reply as a Dask scheduler: check the address and port, or give more time "
-                         "with --scheduler-timeout)")
+        raise InputError(f"{where} {address}: no Dask scheduler answered within {timeout_s:g} s (check the address and port, "
+                         "or give more time with --scheduler-timeout)")
     if "error" in box:
         exc = box["error"]
         if isinstance(exc, KeyboardInterrupt):
             raise exc
-        raise InputError(f"--scheduler {address}: could not connect to a Dask scheduler ({type(exc).__name__}: "
-                         f"{' '.join(str(exc).split())})") from None
+        if isinstance(exc, MemoryError):  # Dask read a length out of bytes that were no Dask message
+            raise InputError(f"{where} {address}: something answered there, but not as a Dask scheduler (its first bytes "
+                             "read as no Dask message); check the address and port") from None
+        raise InputError(f"{where} {address}: could not connect to a Dask scheduler ({type(exc).__name__}: "
+                         f"{' '.join(str(exc).split())[:200]})") from None
     return box["client"]
 
 
@@ -155,6 +190,8 @@ class Engine:
     workers: int = 0  #: 0: in this process; N: a local Dask cluster of N worker processes
     scheduler: str | None = None  #: a Dask scheduler's address: the user's cluster
     connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S  #: how long the scheduler has to answer the first contact
+    #: where ``scheduler`` came from, for messages: the option, or Dask's own configuration
+    scheduler_source: str = "--scheduler"
     _client: object = field(default=None, repr=False)
     _cluster: object = field(default=None, repr=False)
 
@@ -172,7 +209,7 @@ class Engine:
     def __enter__(self) -> "Engine":
         if self.uses_dask and self._client is None:
             if self.scheduler:
-                self._client = _connect(self.scheduler, self.connect_timeout_s)
+                self._client = _connect(self.scheduler, self.connect_timeout_s, self.scheduler_source)
             else:
                 # fresh worker processes, one thread each (a MuJoCo run is single-threaded), no dashboard
                 # Dask's statistical profiler samples each worker's stack every 10 ms, holding the GIL to do it:
