@@ -309,7 +309,7 @@ MALFORMED = [
     ("input-scale-zero", _mod(input_scale={"theta_ref": 0, "theta": 57.29577951308232}), ["'input_scale'", "nonzero"]),
     ("input-scale-string", _mod(input_scale={"theta": "57.3"}), ["'input_scale'"]),
     ("input-scale-not-object", _mod(input_scale=[1, 2]), ["'input_scale'"]),
-    ("input-scale-not-an-input", _mod(input_scale={"accel": 3.28}), ["input_scale", "'accel'", "not inputs"]),
+    ("input-scale-not-an-input", _mod(input_scale={"accel": 3.28}), ["input_scale", "'accel'", "not among the field 'inputs'"]),
     ("provenance-list", _mod(provenance=[1]), ["'provenance'", "object"]),
     ("provenance-string", _mod(provenance="notebook"), ["'provenance'", "object"]),
     ("name-not-string", _mod(name=3), ["'name'", "string"]),
@@ -563,7 +563,7 @@ def test_closedloop_json_contract(step_run):
     for m in rep["modes"]:
         assert set(m) == {"freq_hz", "zeta"} and all(_finite_or_none(v) for v in m.values())
     lp = rep["linear_prediction"]
-    assert set(lp) == {"stable", "rms_error_pct"} and isinstance(lp["stable"], bool)
+    assert set(lp) == {"stable", "marginal", "rms_error_pct"} and isinstance(lp["stable"], bool) and lp["marginal"] is False
     assert set(lp["rms_error_pct"]) == {"theta", "accel"} and all(_finite_or_none(v) for v in lp["rms_error_pct"].values())
 
 

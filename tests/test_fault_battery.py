@@ -372,6 +372,7 @@ def test_report_refuses_a_damaged_number_and_names_its_field(report_folder, caps
     ("summary.json", ("fit", "params", "wp"), None, "summary.json: fit.params.wp (holds None)"),
     ("fit/fit.json", ("stderr", "K1"), "1.5", "fit/fit.json: stderr.K1 (holds '1.5')"),
     ("summary.json", ("damping_design", "gain_margin_db"), [6.0], "summary.json: damping_design.gain_margin_db (holds a list)"),
+    ("summary.json", ("modes",), None, "summary.json: modes (holds None)"),  # (a string read after it was named before)
 ])  # fmt: skip
 def test_report_names_a_field_of_the_wrong_kind(report_folder, file, path, value, shown, capsys):
     """A string or null where samii writes a number failed where it was used, with Python's words ("Unknown format code
@@ -403,6 +404,13 @@ def test_report_refuses_a_damaged_run_list_or_verdict(report_folder, value, need
     (report_folder / "summary.json").write_text(json.dumps(doc))
     assert main(["report", str(report_folder), "--out", str(report_folder / "r.html")]) == 2
     assert needle in _one_line(capsys) and not (report_folder / "r.html").exists()
+
+
+def test_a_browser_named_by_the_environment_that_is_no_program_is_said_so(report_folder, monkeypatch, capsys):
+    monkeypatch.setenv("SAMII_BROWSER", "/nonexistent/chrome")
+    out = report_folder / "r.html"
+    assert main(["report", str(report_folder), "--out", str(out), "--screenshot", str(report_folder / "r.png")]) == 2
+    assert "SAMII_BROWSER=/nonexistent/chrome is no program" in _one_line(capsys) and not out.exists()
 
 
 def test_report_onto_a_folder_leaves_nothing_behind(report_folder, capsys):

@@ -46,6 +46,11 @@ def run(args: argparse.Namespace) -> int:
 
         check_output_file(Path(args.screenshot), overwrite=args.overwrite, option="--screenshot")
         if find_browser() is None:
+            import os
+
+            if os.environ.get("SAMII_BROWSER"):
+                raise InputError(f"--screenshot: SAMII_BROWSER={os.environ['SAMII_BROWSER']} is no program (neither a file nor a "
+                                 "command on PATH)")
             raise InputError("--screenshot: no Chromium found (install chromium, e.g. apt-get install chromium, or set SAMII_BROWSER)")
     run_folder = read_run_folder(folder)
     path = write_report(run_folder, out)

@@ -63,6 +63,11 @@ class FieldLog(list):
         """The field a failure with message ``error`` most likely comes from: the last read that holds no number (a
         string, null; a list or an object where the message names one and nothing inside it was read after)."""
         containers = any(word in error for word in ("list", "dict", "_Traced"))
+        if "NoneType" in error or "'str'" in error:  # the message names the kind: the last field of that kind first
+            kind = type(None) if "NoneType" in error else str
+            for where, value in reversed(self):
+                if type(value) is kind:
+                    return f"{where} (holds {_shown(value)})"
         inner: list[str] = []  # fields read after the one looked at
         for where, value in reversed(self):
             if value is _MISSING:
