@@ -64,6 +64,13 @@ def measured(tmp_path_factory):
         rows = [body[0]] + [",".join("0" if i == k else x for i, x in enumerate(ln.split(","))) for ln in body[1:]]
         files[f"{name}0"] = d / f"{name}0.csv"
         files[f"{name}0"].write_text("\n".join(head + rows) + "\n")
+    rows = [body[0]] + body[1:]
+    k = cols.index("accel")
+    spike = rows[50001].split(",")
+    spike[k] = "1e90"  # one sample far out of scale (the reader accepts up to 1e100)
+    rows[50001] = ",".join(spike)
+    files["spike"] = d / "spike.csv"
+    files["spike"].write_text("\n".join(head + rows) + "\n")
     # every 100th sample, stated as 10 samples per second: a 0.1-40 Hz sweep, its 250 Hz anti-alias filter kept
     files["ts10"] = d / "ts10.csv"
     files["ts10"].write_text("\n".join(["# sample_rate_hz: 10" if ln.startswith("# sample_rate_hz:") else ln for ln in head]
@@ -212,6 +219,12 @@ def test_diagnose_on_fewer_points_than_its_pooling_window_says_how_little_it_tes
     assert "broadcast" not in captured.err and "13 free parameters were fitted to 20 residuals" in captured.out
 
 
+def test_frf_refuses_a_response_no_frf_file_holds(measured, tmp_path, capsys):
+    """One accel sample of 1e90: frf wrote base magnitudes of 1e89 that its own fit then refused to read."""
+    _refused_alike(["frf", measured["spike"]], tmp_path / "f", capsys,
+                   [measured["spike"], "outside 1e-20...1e+20", "column 'accel' reaches 1e+90"])
+
+
 def test_frf_warns_of_a_sweep_beyond_the_nyquist_frequency(measured, tmp_path, capsys):
     out = tmp_path / "f"
     assert main(["frf", measured["ts10"], "--out", str(out), "--json"]) == 0
@@ -319,6 +332,11 @@ def test_a_covariance_naming_no_parameter_of_the_plant_is_refused_for_that(tmp_p
     p.write_text(json.dumps({"parameters": params, "correlation": [[1.0, 0.0], [0.0, 1.0]], "calibrated_params": nominal}))
     assert main(["robust", "--controller", "unity", "--covariance", str(p), "--samples", "2", "--no-progress"]) == 2
     assert "names hydraulic.bulk_modulus more than once" in _one_line(capsys)
+    params = [{"name": "hydraulic.bulk_modulus", "value": k, "stderr": 1e12, "bounds": [0.5 * k, 2 * k]}]
+    p.write_text(json.dumps({"parameters": params, "correlation": [[1.0]], "calibrated_params": nominal}))
+    assert main(["robust", "--controller", "unity", "--covariance", str(p), "--samples", "2", "--no-progress"]) == 2
+    line = _one_line(capsys)  # (it named no parameter)
+    assert "no draw within the bounds" in line and "hydraulic.bulk_modulus fell outside" in line and "standard error 1e+12" in line
 
 
 def test_a_value_error_after_the_input_was_accepted_is_an_internal_error(tmp_path, capsys, monkeypatch):

@@ -320,6 +320,7 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
         raise ValueError(f"{source}: --band-hz {band_hz[0]:g} {band_hz[1]:g}: expected 0 < LO < HI < {fs / 2:g} Hz, the Nyquist "
                          f"frequency of its {fs:g} samples per second")
     frf, var, corr, how = timeseries_frf(ts, layout, band_hz=band_hz)
+    _check_scale(frf, ts, source)
     check_testable(frf, source=source)
     if hum:
         how += "; mains hum subtracted first (" + "; ".join(hum) + ")"
@@ -333,6 +334,27 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
     frf = replace(frf, metadata=meta)
     return Measured(source=source, frf=frf, var=var, noise_source=how, corr_length=corr, amplitude_v=amp, sample_rate_hz=fs,
                     timeseries=ts, layout=layout, band_hz=(float(band_hz[0]), float(band_hz[1])), warnings=tuple(said))
+
+
+def _check_scale(frf: FrequencyResponse, ts: TimeSeries, source: str) -> None:
+    """Refuse a response no FRF file can hold (samii.measure.io.MAG_RANGE; its own readers would refuse what frf wrote):
+    a sample far out of scale, which the time series' reader accepts (up to 1e100), names its column and time."""
+    from samii.identify.lack_of_fit import CHANNEL_NAMES
+    from samii.measure.io import MAG_RANGE
+
+    lo, hi = MAG_RANGE
+    for ch in frf.channels:
+        mag = np.abs(frf.response(ch))
+        bad = np.flatnonzero(~np.isfinite(mag) | (mag < lo) | (mag > hi))
+        if bad.size:
+            k = int(bad[np.argmax(np.abs(np.log10(np.maximum(mag[bad], 1e-300))))])
+            worst = max(("v", "theta", "accel"), key=lambda c: float(np.max(np.abs(getattr(ts, c)))) / max(float(np.median(np.abs(getattr(ts, c)))), 1e-300))
+            x = np.abs(getattr(ts, worst))
+            i = int(np.argmax(x))
+            raise ValueError(f"{source}: the estimated {ch} ({CHANNEL_NAMES.get(ch, ch)}) magnitude is {mag[k]:.3g} at {frf.freq_hz[k]:.4g} Hz, outside "
+                             f"{lo:g}...{hi:g}, what a frequency response file holds; a sample far out of scale? (column "
+                             f"'{worst}' reaches {getattr(ts, worst)[i]:.3g} at t = {ts.t[i]:.6g} s, {x[i] / max(float(np.median(x)), 1e-300):.3g} "
+                             "times its median)")
 
 
 def aliasing_warnings(meta: Mapping[str, str], fs: float, *, source: str) -> list[str]:

@@ -234,12 +234,20 @@ def draw_plants(n: int, seed: int, nominal: dict[str, float], spreads: list[Spre
     for i in range(n):
         rng, _ = sample_seeds(seed, i)
         if covariance is not None:
+            outside = np.zeros(k, int)
             for _ in range(_MAX_REDRAWS):
                 x = rng.multivariate_normal(covariance.mean, covariance.cov, method="eigh")
-                if np.all(x >= lo[:k]) and np.all(x <= hi[:k]):
+                out = (x < lo[:k]) | (x > hi[:k])
+                if not out.any():
                     break
+                outside += out
             else:
-                raise InputError(f"--covariance {covariance.source}: no draw within the bounds in {_MAX_REDRAWS} tries")
+                j = int(np.argmax(outside))
+                sd = float(np.sqrt(covariance.cov[j, j]))
+                raise InputError(f"--covariance {covariance.source}: no draw within the bounds in {_MAX_REDRAWS} tries; "
+                                 f"{covariance.names[j]} fell outside {lo[j]:.4g}...{hi[j]:.4g} in {outside[j]} of them (its "
+                                 f"value {covariance.mean[j]:.4g}, standard error {sd:.3g}: a spread that wide is no "
+                                 "calibration's; calibrate again, or give its spread with --spread)")
             values[i, :k] = x
         for j, sigma in enumerate(sigmas, start=k):
             for _ in range(_MAX_REDRAWS):  # the interval holds the nominal value: at least half the draws land in it
