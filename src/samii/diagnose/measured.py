@@ -370,9 +370,9 @@ def aliasing_warnings(meta: Mapping[str, str], fs: float, *, source: str) -> lis
                    f"Nyquist frequency {nyquist:g} Hz: the sweep's part above it folds into the band (the estimate mixes the "
                    f"response at each frequency with the response at its images); sample at least {stop / BAND_TOP_OF_RATE:.3g} "
                    f"times per second (a band ends at {BAND_TOP_OF_RATE:g} x the rate), or sweep below {BAND_TOP_OF_RATE * fs:g} Hz")
-    aa = re.search(r"([0-9.]+(?:[eE][-+]?[0-9]+)?)\s*Hz", str(meta.get("antialias", "")))
+    aa = re.search(r"([0-9.]+(?:[eE][-+]?[0-9]+)?)\s*(k?)hz", str(meta.get("antialias", "")), re.IGNORECASE)
     try:
-        corner = float(aa.group(1)) if aa else None
+        corner = float(aa.group(1)) * (1e3 if aa.group(2) else 1.0) if aa else None
     except ValueError:
         corner = None
     if corner is not None and corner > nyquist:
