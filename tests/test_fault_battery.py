@@ -465,7 +465,7 @@ def test_robust_workers_stay_quiet_on_a_terminals_ctrl_c(tmp_path):
     code = "import sys; from samii.cli import main; sys.exit(main(sys.argv[1:]))"
     out = tmp_path / "r"
     proc = subprocess.Popen([sys.executable, "-c", code, "robust", "--controller", "unity", "--samples", "200", "--spread",
-                             "hydraulic.bulk_modulus=5%", "--workers", "2", "--no-progress", "--out", str(out)],
+                             "hydraulic.bulk_modulus=5%", "--workers", "2", "--out", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
     try:
         header = proc.stderr.readline()  # printed once the study is about to start its cluster
