@@ -251,7 +251,7 @@ def _worst_pole(poles_s: np.ndarray) -> str:
     """The linear prediction's least stable pole in words (one growing faster than MARGINAL_GROWTH_1_S): a real one's
     growth, a complex pair's frequency too."""
     p = poles_s[np.argmax(poles_s.real)]
-    if abs(p.imag) < 1e-6 * max(abs(p.real), 1e-9) or abs(p.imag) < 1e-9:
+    if abs(p.imag) < 1e-6 * max(abs(p.real), MARGINAL_GROWTH_1_S):
         return f"a real pole at s = +{p.real:.3g} 1/s (growing e-fold every {1.0 / p.real:.3g} s)"
     return f"a pair of poles at {abs(p.imag) / (2 * np.pi):.3g} Hz growing at {p.real:.3g} 1/s"
 
@@ -362,12 +362,7 @@ def run_closed_loop(
         k = sig.t.size
         if sig.diverged_at_s is None:
             err = {"theta": _rms_error_pct(sig.theta - th_rest, lin.theta[:k]), "accel": _rms_error_pct(accel, lin.accel[:k])}
-    elif not linear_stable:
-        if _marginal(poles_s):
-            notes.append("the linear prediction has a marginal pole (|z| = 1 to within rounding: an integrator nothing holds, "
-                         f"growing slower than e-fold in {1 / MARGINAL_GROWTH_1_S:g} s): no linear response or error is given")
-        else:
-            notes.append(f"the linear prediction is unstable ({_worst_pole(poles_s)}): no linear response or error is given")
+    linear_note_at = None if linear_stable else len(notes)  # (its words wait for the nonlinear run's verdict, below)
 
     # stability from the nonlinear response
     t_ev = sc.t_event_s
@@ -408,8 +403,15 @@ def run_closed_loop(
         worst = poles_s[np.argmax(poles_s.real)]
         stable, linear_only = False, True
         rate, mode_hz = float(worst.real), float(abs(worst.imag) / (2 * np.pi))
-        notes = [n if not n.startswith("the linear prediction is unstable (") else "no linear response or error is given (the prediction is unstable)"
-                 for n in notes]
+    if linear_note_at is not None:
+        if _marginal(poles_s):
+            said = ("the linear prediction has a marginal pole (|z| = 1 to within rounding: an integrator nothing holds, "
+                    f"growing slower than e-fold in {1 / MARGINAL_GROWTH_1_S:g} s): no linear response or error is given")
+        elif linear_only:  # (its pole is said by instability())
+            said = "no linear response or error is given (the prediction is unstable)"
+        else:
+            said = f"the linear prediction is unstable ({_worst_pole(poles_s)}): no linear response or error is given"
+        notes.insert(linear_note_at, said)
     theta_m = step_metrics(sig.t, sig.theta, sig.theta_ref, sc.t_step_s) if sc.name in ("step", "loper") else StepMetrics(None, None, None)
     residual_from = sc.t_disturbance_s + 2.0
     base = base_metrics(sig.t, accel, sc.t_disturbance_s, t_decay_s=t_ev, residual_from_s=residual_from) if sig.t.size > 1 else BaseMetrics(float("nan"), None, None, None)

@@ -95,14 +95,17 @@ class _TracedDict(dict):
         super().__init__(data)
         self._where, self._log = where, log
 
+    def _path(self, key) -> str:
+        return f"{self._where}{'' if self._where.endswith(' ') else '.'}{key}"  # ("summary.json: " begins a file's paths)
+
     def _wrap(self, key, value):
-        return _traced_value(value, f"{self._where}{'.' if self._where[-1] != ' ' else ''}{key}", self._log)
+        return _traced_value(value, self._path(key), self._log)
 
     def __getitem__(self, key):
         try:
             return self._wrap(key, super().__getitem__(key))
         except KeyError:
-            self._log.append((f"{self._where}{'.' if self._where[-1] != ' ' else ''}{key}", _MISSING))
+            self._log.append((self._path(key), _MISSING))
             raise
 
     def get(self, key, default=None):
