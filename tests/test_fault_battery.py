@@ -193,6 +193,32 @@ def test_calibrate_refuses_too_few_frequencies_before_work(measured, tmp_path, c
                    [measured["one_freq"], "1 frequency point", "at least 3"])  # fmt: skip
 
 
+def test_calibrate_refuses_data_that_are_all_noise(measured, tmp_path, capsys):
+    """Coherence 0 at every point: it calibrated to them ("converged NO", a parameter on its bound, a standard error
+    of 6 %) and exited 0; diagnose refused the same data. Now refused alike, before any work."""
+    _refused_alike(["calibrate", measured["coh0"], "--param", "beam.clamp_stiffness_Nm_rad"], tmp_path / "c", capsys,
+                   [measured["coh0"], "coherence >= 0.5", "the data are noise", "nothing to calibrate against"])  # fmt: skip
+
+
+def test_lack_of_fit_on_too_few_points_is_not_tested(measured):
+    """Five frequencies: a band needs five flagged points, so a lack of fit could hardly show and three points could
+    never; the verdict said "none". With fewer tested points than a band needs it says NOT TESTED."""
+    from samii.calibrate import calibrate
+    from samii.measure.io import read_frf_csv
+
+    from samii.frequency_response import FrequencyResponse
+
+    frf = read_frf_csv(measured["frf"])
+    idx = np.array([60, 150, 240])
+    three = FrequencyResponse(frf.freq_hz[idx], metadata=frf.metadata,
+                              **{n: getattr(frf, n)[idx] for c in frf.channels for n in (c, f"{c}_coh")})  # fmt: skip
+    lof = calibrate(three, ["beam.clamp_stiffness_Nm_rad"]).lack_of_fit
+    assert lof.too_few_points and not lof.found and dict(lof.n_tested) == {"act": 3, "base": 3}
+    assert lof.verdict().startswith("NOT TESTED: too few points") and lof.to_dict()["too_few_points"] is True
+    full = calibrate(frf, ["beam.clamp_stiffness_Nm_rad"]).lack_of_fit
+    assert not full.too_few_points and not full.nothing_tested and min(full.n_tested.values()) >= 5
+
+
 def test_diagnose_refuses_data_that_are_all_noise(measured, tmp_path, capsys):
     """Coherence 0 at every point: every error huge, so any baseline would have 'explained' them; nothing can be tested."""
     _refused_alike(["diagnose", measured["coh0"], "--no-progress"], tmp_path / "d", capsys,

@@ -400,16 +400,15 @@ def check_testable(frf: FrequencyResponse, *, source: str) -> None:
     the lack-of-fit test's floor at every point of every channel (the data are noise: without this, every
     point's error is so large that any baseline would be said to explain them)."""
     from samii.identify.cost import MIN_FREQUENCIES
-    from samii.identify.lack_of_fit import MIN_COHERENCE
+    from samii.identify.lack_of_fit import MIN_COHERENCE, noise_only
 
     n = frf.freq_hz.size
     if n < MIN_FREQUENCIES:
         raise ValueError(f"{source}: {n} frequency point(s) (after --band-hz, if given); a diagnosis fits the data's frequency "
                          f"response and needs at least {MIN_FREQUENCIES}")
-    cohs = {ch: frf.coherence(ch) for ch in frf.channels}
-    cohs = {ch: c for ch, c in cohs.items() if c is not None}
-    if cohs and all(not np.any(c >= MIN_COHERENCE) for c in cohs.values()):
-        best = max(float(np.nanmax(c)) for c in cohs.values())
+    channels = [ch for ch in frf.channels if frf.coherence(ch) is not None]
+    best = noise_only(frf, channels) if channels else None
+    if best is not None:
         raise ValueError(f"{source}: no point has coherence >= {MIN_COHERENCE:g} in any channel (the highest is {best:.3g}): "
                          "the data are noise (was the rig excited? are the sensors connected?); nothing could be tested")
 

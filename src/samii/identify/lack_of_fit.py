@@ -60,7 +60,7 @@ import numpy as np
 
 from samii.identify.cost import COHERENCE_CLIP, DB_PER_NEPER, DEG_PER_RAD, FitProblem
 
-__all__ = ["RATIO", "MIN_COHERENCE", "BRIDGE_REL", "MisfitBand", "LackOfFit", "averages_from_metadata", "lack_of_fit"]
+__all__ = ["RATIO", "MIN_COHERENCE", "BRIDGE_REL", "MisfitBand", "LackOfFit", "averages_from_metadata", "lack_of_fit", "noise_only"]
 
 RATIO = 5.0
 #: Below this coherence a point is noise-dominated and is not tested.
@@ -150,10 +150,24 @@ class LackOfFit:
     noise_ratio: Mapping[str, float | None]
     #: channel -> points not tested because their coherence is below MIN_COHERENCE
     n_untested: Mapping[str, int] = field(default_factory=dict)
+    #: channel -> points tested (coherence >= MIN_COHERENCE; every point without coherence)
+    n_tested: Mapping[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "n_untested", MappingProxyType(dict(self.n_untested)))
         object.__setattr__(self, "noise_ratio", MappingProxyType(dict(self.noise_ratio)))
+        object.__setattr__(self, "n_tested", MappingProxyType(dict(self.n_tested)))
+
+    @property
+    def band_points(self) -> int:
+        """Flagged points a band needs under the rule applied: MIN_POINTS with coherence, RUN_POINTS without."""
+        return MIN_POINTS if self.n_averages is not None else RUN_POINTS
+
+    @property
+    def too_few_points(self) -> bool:
+        """Some point was tested, but no channel has as many tested points as one band needs: no band could be
+        found, whatever the residuals (a file of 3 frequencies)."""
+        return bool(self.n_tested) and any(self.n_tested.values()) and max(self.n_tested.values()) < self.band_points
 
     def summary(self) -> str:
         """The bands in one line: "act 0.3-2.6 Hz; base 1-35 Hz" ("" when none)."""
@@ -174,6 +188,10 @@ class LackOfFit:
             return "FOUND"
         if self.nothing_tested:
             return f"NOT TESTED: no point has coherence >= {MIN_COHERENCE:g} in any channel (the data are noise; nothing could be tested)"
+        if self.too_few_points:
+            tested = ", ".join(f"{c} {k}" for c, k in self.n_tested.items())
+            return (f"NOT TESTED: too few points (tested: {tested}) for a band of {self.band_points}, the fewest a "
+                    "finding needs: a lack of fit could not show; measure more frequencies")
         return "none"
 
     def warnings(self) -> list[str]:
@@ -183,13 +201,24 @@ class LackOfFit:
         return {
             "found": self.found,
             "nothing_tested": self.nothing_tested,
+            "too_few_points": self.too_few_points,
             "rule": self.rule,
             "n_averages": self.n_averages,
             "n_averages_source": self.n_averages_source,
             "noise_ratio": {k: (None if v is None else float(v)) for k, v in self.noise_ratio.items()},
             "bands": [b.to_dict() for b in self.bands],
             "n_untested_low_coherence": dict(self.n_untested),
+            "n_tested": dict(self.n_tested),
         }
+
+
+def noise_only(data, channels=None) -> float | None:
+    """The highest coherence when every channel (of ``channels``, default all the data's) has coherence and no
+    point reaches MIN_COHERENCE: the data are noise and nothing can be tested or fitted to them; else None."""
+    cohs = [data.coherence(c) for c in (data.channels if channels is None else channels)]
+    if not cohs or any(c is None for c in cohs) or any(np.any(c >= MIN_COHERENCE) for c in cohs):
+        return None
+    return max(float(np.nanmax(c)) if np.any(np.isfinite(c)) else 0.0 for c in cohs)
 
 
 #: Most averages a ``frf_records`` line may claim (as ``samii fit --averages``): a swept sine has a
@@ -255,6 +284,7 @@ def lack_of_fit(problem: FitProblem, x: np.ndarray, *, n_averages: int | None = 
     bands: list[MisfitBand] = []
     ratios: dict[str, float | None] = {}
     untested: dict[str, int] = {}
+    n_tested: dict[str, int] = {}
     if has_coh:
         if n_averages is not None:
             n, source = int(n_averages), "given"
@@ -273,6 +303,7 @@ def lack_of_fit(problem: FitProblem, x: np.ndarray, *, n_averages: int | None = 
             raw = data.coherence(c)
             tested = raw >= MIN_COHERENCE
             untested[c] = int(np.count_nonzero(~tested))
+            n_tested[c] = int(np.count_nonzero(tested))
             g = np.clip(raw, *COHERENCE_CLIP)
             eps = np.sqrt((1.0 - g) / (2.0 * n * g))
             z_db = np.abs(errs[c][0]) / (DB_PER_NEPER * eps)
@@ -294,10 +325,11 @@ def lack_of_fit(problem: FitProblem, x: np.ndarray, *, n_averages: int | None = 
         )
         for c in problem.channels:
             ratios[c] = None
+            n_tested[c] = int(f.size)
             flag = _same_sign_runs(errs[c][0], RUN_DB, RUN_POINTS)
             if with_phase:
                 flag |= _same_sign_runs(errs[c][1], RUN_DEG, RUN_POINTS)
             for i, j in _bands(flag, max_gap=MAX_GAP, min_points=RUN_POINTS, freq=f, bridge_rel=BRIDGE_REL):
                 sl = slice(i, j + 1)
                 bands.append(MisfitBand(c, float(f[i]), float(f[j]), j - i + 1, float(np.max(np.abs(errs[c][0][sl]))), float(np.max(np.abs(errs[c][1][sl]))), None))
-    return LackOfFit(rule, n, source, tuple(bands), ratios, untested)
+    return LackOfFit(rule, n, source, tuple(bands), ratios, untested, n_tested)

@@ -190,7 +190,9 @@ def _lof_cell(result: FitResult) -> str:
     if lof is None:
         return ""
     if not lof.found:
-        return "not tested (no coherent point)" if lof.nothing_tested else "none"
+        if lof.nothing_tested:
+            return "not tested (no coherent point)"
+        return "not tested (too few points)" if lof.too_few_points else "none"
     return lof.summary()
 
 
