@@ -109,9 +109,15 @@ def test_closedloop_reports_a_runaway_as_unstable(tmp_path, capsys):
     rep = json.loads(capsys.readouterr().out)
     assert rep["stable"] is False and "theta ran away" in rep["instability"]
     assert rep["runaway"]["valve_on_rail_since_s"] is not None and abs(rep["runaway"]["valve_v"]) == pytest.approx(10.0, rel=1e-3)
+    # no performance figures of a transient that never ends (it printed "rise 0.016 s, overshoot 1.07e+03 %" and a
+    # base decay); where theta ended and the base's peak and rms stay
+    th, base = rep["theta"], rep["base"]
+    assert th["rise_s"] is None and th["overshoot_pct"] is None and th["settle_s"] is None and th["final_pct"] > 1000.0
+    assert base["settle_s"] is None and base["decay_rate_1_s"] is None and base["peak_m_s2"] > 0.0
     assert main(["closedloop", "--controller", c, "--scenario", "loper"]) == 0
     out = capsys.readouterr().out
     assert "UNSTABLE: theta ran away" in out and "stable in the nonlinear simulator" not in out
+    assert "overshoot 1" not in out and "not given: the run is unstable" in out and "decay 0." not in out.split("free decay")[0]
 
 
 def test_robust_counts_a_runaway_as_unstable(tmp_path, capsys):
@@ -121,6 +127,11 @@ def test_robust_counts_a_runaway_as_unstable(tmp_path, capsys):
     r = json.loads((out / "robust.json").read_text())
     assert r["summary"]["n_unstable"] == 2 and not r["nominal_plant"]["stable"]
     assert all("theta ran away" in s["note"] for s in r["samples"])
+    # its least-damped mode is a real pole at +54.7 1/s: said so, not "zeta -1.000 at 8.7 Hz" (read as an oscillation)
+    text = capsys.readouterr().out
+    assert "a real pole at s = +5" in text and "zeta -1.000 at" not in text
+    nom = r["nominal_plant"]
+    assert nom["zeta"] == pytest.approx(-1.0) and -nom["zeta"] * 2 * math.pi * nom["mode_hz"] == pytest.approx(54.7, rel=0.02)
 
 
 def test_an_unstable_equilibrium_the_run_did_not_show_is_not_stable(tmp_path):
@@ -147,18 +158,25 @@ def test_an_unstable_equilibrium_the_run_did_not_show_is_not_stable(tmp_path):
 
 
 def test_an_integrator_in_the_controller_is_marginal_not_unstable(tmp_path, capsys):
-    """An integrator of the base acceleration (A = 1 at 1 kHz, a normal design) puts a pole at |z| = 1 + 1e-15: the linear
-    prediction is 'marginal' (growing slower than e-fold in 1000 s), the loop stable, and no numpy division warning (it
-    said "a real pole at s = +8.88e-13 1/s (growing e-fold every 1.13e+12 s)" beside "UNSTABLE")."""
+    """An integrator of the base acceleration (A = 1 at 1 kHz, a normal design) puts a pole at |z| = 1 to within rounding:
+    1 + 1e-15 on one machine (it said "a real pole at s = +8.88e-13 1/s" beside "UNSTABLE", then "marginal" with no
+    linear response), 1 - 4e-14 on another ("stable"). Marginal on every machine now (|Re s| < 1e-3 1/s), with the
+    linear response over the run, the loop stable in closedloop and in robust, and no numpy division warning."""
     c = _controller(tmp_path / "ia.json", A=[[1.0]], B=[[0, 0, 0.001]], C=[[0.5]], D=[0, 0, 0])
     assert main(["closedloop", "--controller", c, "--scenario", "step", "--json"]) == 0
     captured = capsys.readouterr()
     rep = json.loads(captured.out)
     assert captured.err == "" and rep["stable"] is True and rep["instability"] is None
     assert rep["linear_prediction"]["stable"] is False and rep["linear_prediction"]["marginal"] is True
+    assert rep["linear_prediction"]["rms_error_pct"]["theta"] < 5.0  # (the servo loop's own: 1.3 %)
     assert main(["closedloop", "--controller", c, "--scenario", "step"]) == 0
     out = capsys.readouterr().out
-    assert "linear prediction: marginal" in out and "marginal pole" in out and "UNSTABLE" not in out
+    assert "linear prediction: marginal, rms error theta" in out and "marginal pole" in out and "UNSTABLE" not in out
+    folder = tmp_path / "r"
+    assert main(["robust", "--controller", c, "--samples", "2", "--spread", "hydraulic.bulk_modulus=5%", "--no-progress",
+                 "--out", str(folder)]) == 0  # fmt: skip
+    r = json.loads((folder / "robust.json").read_text())
+    assert r["summary"]["n_unstable"] == 0 and r["nominal_plant"]["stable"] and all(x["stable"] for x in r["samples"])
 
 
 # ---------------------------------------------------------------------------- refusals before work (item 4)
@@ -464,6 +482,28 @@ def test_report_onto_a_folder_leaves_nothing_behind(report_folder, capsys):
         assert main(["report", str(report_folder), *extra]) == 2
         assert "is a folder" in _one_line(capsys)
         assert sorted(p.name for p in report_folder.iterdir()) == before
+
+
+def test_report_marks_what_a_readable_folder_lacks(report_folder, capsys):
+    """A fitted parameter null and a stage's figure deleted: the K1 row and the measured FRF's figure vanished from
+    the page without a word. Now the page's top lists what the folder lacks, the row stays (without a value) and the
+    figure's place names its file; the command says so on stderr. An intact folder's page has no such list."""
+    out = report_folder / "r.html"
+    assert main(["report", str(report_folder), "--out", str(out)]) == 0
+    assert capsys.readouterr().err == "" and "This folder lacks" not in out.read_text()
+    doc = json.loads((report_folder / "fit" / "fit.json").read_text())
+    doc["params"]["K1"] = None
+    (report_folder / "fit" / "fit.json").write_text(json.dumps(doc))
+    (report_folder / "measure" / "bode.png").unlink()
+    assert main(["report", str(report_folder), "--out", str(out), "--overwrite"]) == 0
+    err = capsys.readouterr().err
+    for gap in ("measure/bode.png is missing", "fit/fit.json: params.K1 holds null"):
+        assert gap in err
+    page = out.read_text()
+    top = page[: page.index('id="summary"')]
+    assert "This folder lacks" in top and "params.K1 holds null" in top and "measure/bode.png is missing" in top
+    assert "<code>K1</code>" in page and "none in fit.json" in page
+    assert "<code>measure/bode.png</code> is not in the folder" in page
 
 
 # ---------------------------------------------------------------------------- a killed run's leftovers (item 1)

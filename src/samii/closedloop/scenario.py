@@ -99,7 +99,7 @@ class ClosedLoopResult:
     scenario: Scenario
     signals: LoopSignals  #: the run
     comparison: LoopSignals | None  #: the same scenario under the servo amplifier alone (None for the servo loop itself)
-    linear: LinearResponse | None  #: the linear prediction (None if the linear loop is unstable)
+    linear: LinearResponse | None  #: the linear prediction (None if the linear loop is unstable, not marginal)
     linear_stable: bool
     linear_poles_s: np.ndarray
     stable: bool
@@ -125,7 +125,8 @@ class ClosedLoopResult:
 
     @property
     def linear_marginal(self) -> bool:
-        """The linear prediction is not stable only by a pole at |z| = 1 in rounding (an integrator nothing holds)."""
+        """The linear prediction's least stable pole neither grows nor decays faster than MARGINAL_GROWTH_1_S: a pole at
+        z = 1 to within rounding (an integrator nothing holds), whichever side of it rounding puts it."""
         return not self.linear_stable and _marginal(self.linear_poles_s)
 
     def instability(self) -> str:
@@ -237,9 +238,16 @@ def _impulse_state(cm: CardModel, impulse_n_s: float) -> np.ndarray:
     return state
 
 
-#: A linear prediction's pole growing slower than this [1/s] (e-fold in more than 1000 s) is marginal: an integrator
-#: (a joint no loop holds) met in finite differences, not an instability any test could show.
+#: A linear prediction's least stable pole growing or decaying slower than this [1/s] (e-fold in more than 1000 s) is
+#: marginal: an integrator (a joint no loop holds, a controller's integrator) met in finite differences, at |z| = 1 to
+#: within rounding, which puts it on one side or the other by machine (1 + 1e-15 on one, 1 - 4e-14 on another): not
+#: an instability any test could show, nor a stability margin.
 MARGINAL_GROWTH_1_S = 1e-3
+
+
+def _linear_stable(poles_s: np.ndarray) -> bool:
+    """Every pole of the linear prediction decays faster than MARGINAL_GROWTH_1_S."""
+    return not poles_s.size or float(np.max(poles_s.real)) < -MARGINAL_GROWTH_1_S
 
 
 def _marginal(poles_s: np.ndarray) -> bool:
@@ -348,16 +356,15 @@ def run_closed_loop(
 
     # linear prediction
     ll: LinearLoop = linear_loop(cm)
-    poles_z = ll.poles_z()
-    linear_stable = bool(np.all(np.abs(poles_z) < 1.0))
     poles_s = ll.poles_s()
+    linear_stable = _linear_stable(poles_s)
     lin = None
     err: dict[str, float | None] = {"theta": None, "accel": None}
     x0 = _fd_deviation(cm, initial) if initial is not None else None
     enabled = np.zeros(n, bool)
     if controller is not None:
         enabled[(switch or 0):] = True
-    if linear_stable and details:
+    if _marginal(poles_s) and details:  # (a marginal pole grows by at most e^(1e-3 t): its response over a run holds)
         lin = ll.simulate(theta_ref, enabled=enabled, x0=x0)
         k = sig.t.size
         if sig.diverged_at_s is None:
@@ -406,7 +413,7 @@ def run_closed_loop(
     if linear_note_at is not None:
         if _marginal(poles_s):
             said = ("the linear prediction has a marginal pole (|z| = 1 to within rounding: an integrator nothing holds, "
-                    f"growing slower than e-fold in {1 / MARGINAL_GROWTH_1_S:g} s): no linear response or error is given")
+                    f"growing or decaying slower than e-fold in {1 / MARGINAL_GROWTH_1_S:g} s)")
         elif linear_only:  # (its pole is said by instability())
             said = "no linear response or error is given (the prediction is unstable)"
         else:
@@ -415,6 +422,12 @@ def run_closed_loop(
     theta_m = step_metrics(sig.t, sig.theta, sig.theta_ref, sc.t_step_s) if sc.name in ("step", "loper") else StepMetrics(None, None, None)
     residual_from = sc.t_disturbance_s + 2.0
     base = base_metrics(sig.t, accel, sc.t_disturbance_s, t_decay_s=t_ev, residual_from_s=residual_from) if sig.t.size > 1 else BaseMetrics(float("nan"), None, None, None)
+    if not stable and not linear_only:
+        # the run diverged, oscillates or ran away: a rise, an overshoot, a settling time or a decay rate would describe
+        # a transient that never ends (an overshoot of 1,070 % on the way out); where theta ended and the base's peak
+        # and rms are what happened, and stay
+        theta_m = StepMetrics(None, None, None, theta_m.final_pct)
+        base = BaseMetrics(base.peak_m_s2, base.residual_rms_m_s2, None, None)
     comp_base = None
     if comp is not None:
         comp_base = base_metrics(comp.t, comp.accel - ac_rest, sc.t_disturbance_s, t_decay_s=t_ev, residual_from_s=residual_from)

@@ -55,6 +55,10 @@ def run(args: argparse.Namespace) -> int:
     run_folder = read_run_folder(folder)
     path = write_report(run_folder, out)
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB, self-contained: open it in a browser)")
+    if run_folder.gaps:
+        import sys
+
+        print(f"warning: {folder} lacks what a main job writes (the page marks it): {'; '.join(run_folder.gaps)}", file=sys.stderr)
     if args.screenshot:
         from samii.report.browser import screenshot
 

@@ -53,6 +53,9 @@ class RunFolder:
     figures: dict[str, Path] = field(default_factory=dict)  #: STAGE_FIGURES present
     recordings: dict[str, int] = field(default_factory=dict)  #: recording -> size in bytes, those present
     display_name: str | None = None  #: the folder's name as the reader knows it (the main job writes in a staging folder)
+    #: What a main job writes and this folder lacks, in words ("measure/bode.png is missing"): the page says so at its top
+    #: rather than leave a row or a figure out without a word
+    gaps: list[str] = field(default_factory=list)
 
 
 class FieldLog(list):
@@ -205,7 +208,7 @@ def read_run_folder(path) -> RunFolder:
                            (f"{run_dir / 'run.json'}: field 'stable'", closed[name])):
             if "stable" in doc and not isinstance(doc["stable"], bool):
                 raise InputError(f"{where} holds {doc['stable']!r}; expected true or false (the file is damaged; run samii run again)")
-    return RunFolder(
+    run = RunFolder(
         path=folder,
         summary=summary,
         measurement=_json(folder, "measure/run.json"),
@@ -216,6 +219,25 @@ def read_run_folder(path) -> RunFolder:
         figures={k: folder / rel for k, rel in STAGE_FIGURES.items() if (folder / rel).is_file()},
         recordings={name: (folder / name).stat().st_size for name in RECORDINGS if (folder / name).is_file()},
     )
+    run.gaps = gaps(run)
+    return run
+
+
+def gaps(run: RunFolder) -> list[str]:
+    """What a main job writes and ``run`` lacks (figures, fitted parameters), one phrase each. A closed-loop run missing
+    from summary.json is refused instead (the summary's lines need each); the recordings are not counted (tens of MB a
+    user may remove to archive a folder; the page's Recordings section says what is there)."""
+    out = [f"{rel} is missing" for key, rel in STAGE_FIGURES.items() if key not in run.figures]
+    params = run.fit.get("params")
+    if not isinstance(params, dict):
+        out.append(f"fit/fit.json: params holds {_kind(params) if 'params' in run.fit else 'nothing (missing)'}, not the fitted parameters")
+    else:
+        for name in _PARAMS:
+            if name not in params:
+                out.append(f"fit/fit.json: params.{name} is missing")
+            elif params[name] is None:
+                out.append(f"fit/fit.json: params.{name} holds null")
+    return out
 
 
 @dataclass(frozen=True)
@@ -225,7 +247,7 @@ class ParamRow:
     name: str
     meaning: str
     unit: str
-    value: float
+    value: float | None  #: None: the fit's file holds no value (RunFolder.gaps says so)
     stderr: float | None
     notebook: float | None
     #: The fit's 95 % profile interval in the unit shown (``samii.identify.profile``), a side the data
@@ -234,16 +256,16 @@ class ParamRow:
 
     @property
     def rel_stderr_pct(self) -> float | None:
-        return None if self.stderr is None or self.value == 0 else 100.0 * abs(self.stderr / self.value)
+        return None if self.stderr is None or not self.value else 100.0 * abs(self.stderr / self.value)
 
     @property
     def diff_pct(self) -> float | None:
-        return None if self.notebook in (None, 0) else 100.0 * (self.value - self.notebook) / abs(self.notebook)
+        return None if self.notebook in (None, 0) or self.value is None else 100.0 * (self.value - self.notebook) / abs(self.notebook)
 
     @property
     def sigmas(self) -> float | None:
         """How many standard errors the fit lies from eq 9.4."""
-        if self.notebook is None or not self.stderr:
+        if self.notebook is None or not self.stderr or self.value is None:
             return None
         return abs(self.value - self.notebook) / self.stderr
 
@@ -274,10 +296,11 @@ def parameter_rows(fit: dict, notebook: dict) -> list[ParamRow]:
     params, stderr = fit.get("params", {}), fit.get("stderr", {}) or {}
     profiles = fit.get("profile_intervals") or {}
     for name, (meaning, unit, to_shown, nb_to_shown) in _PARAMS.items():
-        if name not in params or params[name] is None:
+        nb = notebook.get(name)
+        if params.get(name) is None:  # shown as a row without a value (RunFolder.gaps names it), not left out
+            rows.append(ParamRow(name, meaning, unit, None, None, None if nb is None else float(nb) * nb_to_shown))
             continue
         se = stderr.get(name)
-        nb = notebook.get(name)
         iv = (profiles.get(name) or {}).get("95%")
         interval = None if not iv else (float(iv["low"]) * to_shown if iv.get("bounded_low") else None,
                                         float(iv["high"]) * to_shown if iv.get("bounded_high") else None)

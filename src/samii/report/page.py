@@ -16,7 +16,7 @@ from pathlib import Path
 
 from samii.errors import InputError
 from samii.identify.profile import interval_text
-from samii.report.content import RECORDINGS, RunFolder, parameter_rows
+from samii.report.content import RECORDINGS, STAGE_FIGURES, RunFolder, parameter_rows
 from samii.report.figures import figure_ch11_loper, figure_ch11_step, figure_damping
 
 __all__ = ["render_report", "write_report", "REPORT_NAME"]
@@ -81,9 +81,12 @@ def _table(header: list[str], rows: list[list[str]], left: int = 1) -> str:
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
-def _file_png(run: RunFolder, key: str) -> bytes | None:
+def _stage_figure(run: RunFolder, key: str, alt: str, caption: str) -> str:
+    """A figure a stage drew (``STAGE_FIGURES``), or a line naming its file where the folder lacks it."""
     p = run.figures.get(key)
-    return p.read_bytes() if p is not None else None
+    if p is None:
+        return f'<p class="warn">(Figure: {_e(alt)}: <code>{_e(STAGE_FIGURES[key])}</code> is not in the folder.)</p>'
+    return _figure(p.read_bytes(), alt, caption)
 
 
 # ---- sections ----
@@ -100,7 +103,16 @@ def _header(run: RunFolder, lines: list[str]) -> str:
     return (f"<h1>SAMII: main job report</h1><p class=\"lead\">Model: {_e(model)}. Sensor-noise seed {_e(s['seed'])}. "
             f"samii {_e(_version())}; the whole pipeline took {_num(s.get('wall_s'), '.0f')} s. Every figure below is in this page; "
             f"the numbers are the folder's own files (<code>summary.json</code> holds them all).</p><nav>{nav}</nav>"
-            f"<h2 id=\"summary\">Summary</h2><pre>{_e(chr(10).join(lines))}</pre>")  # fmt: skip
+            + _gaps(run)
+            + f"<h2 id=\"summary\">Summary</h2><pre>{_e(chr(10).join(lines))}</pre>")  # fmt: skip
+
+
+def _gaps(run: RunFolder) -> str:
+    if not run.gaps:
+        return ""
+    items = "".join(f"<li>{_e(g)}</li>" for g in run.gaps)
+    return (f'<p class="bad">This folder lacks what a main job writes; the page shows what is there and marks the rest '
+            f"(run <code>samii run</code> again for a whole report):</p><ul class=\"warn\">{items}</ul>")
 
 
 def _model(run: RunFolder) -> str:
@@ -141,11 +153,11 @@ def _measurement(run: RunFolder) -> str:
             f"at {_num(me['sample_rate_hz'], 'g')} samples/s, recorded by the simulated DAQ with sensor noise (standard deviations: {noise_txt}; "
             f"seed {_e(run.summary['seed'])}). Joint 2 runs under its unity position loop, as on the rig. The FRF (<code>measure/frf.csv</code>) "
             "is estimated from the record with the excitation as the instrument.</p>"
-            + _figure(_file_png(run, "measure_bode"), "the measured FRF", "The measured FRF (solid; pale where the coherence is below 0.95) "
+            + _stage_figure(run, "measure_bode", "the measured FRF", "The measured FRF (solid; pale where the coherence is below 0.95) "
                       "beside the linearised simulator (dashed), and the coherence. Where the coherence falls the channel is noise: a "
                       "small sweep moves θ less than its noise above the hydraulic resonance (θ/v and ẍ/θ there), while ẍ/v, read by the "
                       "accelerometer, is not; below base mode 1 the base hardly moves and ẍ is noise. <code>measure/bode.png</code>.")
-            + _figure(_file_png(run, "diagnose_harmonics"), "the sweep's harmonics", "The sweep's 2nd and 3rd harmonics in the measured "
+            + _stage_figure(run, "diagnose_harmonics", "the sweep's harmonics", "The sweep's 2nd and 3rd harmonics in the measured "
                       "record, referred to the valve command, segment by segment, with twice their noise (dotted): a linear system makes "
                       "none, and one repeated in every record beyond its noise is a nonlinearity (the diagnosis below tests it). "
                       "<code>diagnose/harmonics.png</code>."))  # fmt: skip
@@ -165,7 +177,7 @@ def _fit(run: RunFolder) -> str:
     verdict = f'<span class="{"bad" if verdict_of(f) == "not sound" else "ok"}">{_e(verdict_text(f))}</span>'  # a failure told apart from caveats
     rows = []
     for r in parameter_rows(f, dict(nb.EQ9_4)):
-        rows.append([f"<code>{_e(r.name)}</code>", _e(r.meaning), _num(r.value, ".5g"), _num(r.stderr, ".2g"), _num(r.rel_stderr_pct, ".2g"),
+        rows.append([f"<code>{_e(r.name)}</code>", _e(r.meaning), _num(r.value, ".5g", '<span class="bad">none in fit.json</span>'), _num(r.stderr, ".2g"), _num(r.rel_stderr_pct, ".2g"),
                      _interval(r.interval_95), _num(r.notebook, ".5g"), _num(r.diff_pct, "+.1f"), _num(r.sigmas, ".2g"), _e(r.unit)])  # fmt: skip
     rms = f.get("rms_mag_db") or {}
     ph = f.get("rms_phase_deg") or {}
@@ -178,7 +190,7 @@ def _fit(run: RunFolder) -> str:
             f"RMS error {rms_txt}.</p>"
             + (f"<p>Why its parameters should not be used:</p><ul class=\"warn\">{concerns}</ul>" if concerns else "")
             + (f"<p>Caveats (the parameters can be used but those the data do not determine):</p><ul>{caveats}</ul>" if caveats else "")
-            + _figure(_file_png(run, "bode_fit"), "Bode data with the fit", "The measured FRF (points) with the fitted model (line), and the "
+            + _stage_figure(run, "bode_fit", "Bode data with the fit", "The measured FRF (points) with the fitted model (line), and the "
                       "coherence. <code>fit/bode_fit.png</code>.")
             + "<h3>Parameters beside eq 9.4</h3>"
             + _table(["", "", "fit", "± std. error", "± %", "95 % profile interval", "eq 9.4", "fit − eq 9.4 [%]", "[std. errors]", "unit"], rows, left=2)
@@ -333,11 +345,11 @@ def _diagnosis(run: RunFolder) -> str:
                         + ("" if u.get("why", "residual") == "residual" else f" ({_e(u.get('why'))}: the rig changed during the file)")
                         + "</li>" for u in un)  # fmt: skip
         out.append(f"<p>Left unexplained by the effect library (red bands below; orange where the records differ):</p><ul>{items}</ul>")
-    out.append(_figure(_file_png(run, "diagnose_bode"), "data, baseline and the model with the effects",
+    out.append(_stage_figure(run, "diagnose_bode", "data, baseline and the model with the effects",
                        "Data, the baseline (the fit) and the model with the effects found. Where the data's coherence is below 0.5 "
                        "(the identification figure above) there are no points, and the model there is an extrapolation. "
                        "<code>diagnose/bode.png</code>."))
-    out.append(_figure(_file_png(run, "diagnose_residuals"), "residuals", "Residuals data/model (magnitude in dB, phase in degrees) with the noise band (±2σ from the "
+    out.append(_stage_figure(run, "diagnose_residuals", "residuals", "Residuals data/model (magnitude in dB, phase in degrees) with the noise band (±2σ from the "
                        "coherence and the record-to-record spread), before and after the effects. <code>diagnose/residuals.png</code>."))
     return "".join(out)
 

@@ -10,6 +10,7 @@ results) and the figures ``histograms.png`` and ``influence.png``. Imports nothi
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 
@@ -202,14 +203,22 @@ def _fmt(x, spec: str) -> str:
     return "n/a" if x is None else format(x, spec)
 
 
+def _mode(zeta, mode_hz) -> str:
+    """The least-damped mode in words: "zeta Z at F Hz", or a real pole by its s = -zeta 2 pi F (it does not oscillate:
+    "zeta -1 at 8.7 Hz" read as an 8.7 Hz oscillation)."""
+    if zeta is not None and mode_hz is not None and abs(zeta) > 1.0 - 1e-9:
+        return f"a real pole at s = {-zeta * 2 * math.pi * mode_hz:+.3g} 1/s (zeta {zeta:+.0f})"
+    return f"zeta {_fmt(zeta, '.3f')} at {_fmt(mode_hz, '.3g')} Hz"
+
+
 def _lines(doc: dict, s) -> list[str]:
     lo, hi = s.p_unstable_ci95
     nom = doc["nominal_plant"]
     out = [f"robustness of {doc['controller']} ({doc['scenario']} test), {doc['n_samples']} plants, seed {doc['seed']}, {doc['engine']}, "
            f"{doc['wall_s']:.1f} s",
            "varied: " + "; ".join(v["source"] for v in doc["varied"]),
-           f"nominal plant: {'stable' if nom['stable'] else 'UNSTABLE'}, least-damped mode zeta {_fmt(nom['zeta'], '.3f')} at "
-           f"{_fmt(nom['mode_hz'], '.3g')} Hz, base settles {_fmt(nom['base_settle_s'], '.2f')} s",
+           f"nominal plant: {'stable' if nom['stable'] else 'UNSTABLE'}, least-damped mode {_mode(nom['zeta'], nom['mode_hz'])}, "
+           + (f"base settles {nom['base_settle_s']:.2f} s" if nom["base_settle_s"] is not None else "base settling time n/a"),
            f"P(unstable) = {s.n_unstable}/{s.n} = {s.p_unstable:.3g} (95 % interval {lo:.3g}-{hi:.3g}, exact binomial)"]  # fmt: skip
     if s.zeta_percentiles:
         out.append("closed-loop damping (least-damped mode) 5/50/95 %: " + " / ".join(f"{v:.3f}" for v in s.zeta_percentiles.values())
@@ -224,7 +233,7 @@ def _lines(doc: dict, s) -> list[str]:
     for w in s.worst[:3]:
         params = ", ".join(f"{k} {rel:+.1f} %" if rel is not None else f"{k} {w['params'][k]:.4g}" for k, rel in w["params_rel_pct"].items())
         state = "UNSTABLE" if not w["stable"] else "stable"
-        out.append(f"  #{w['index']}: {state}, zeta {_fmt(w['zeta'], '.3f')} at {_fmt(w['mode_hz'], '.3g')} Hz; {params}")
+        out.append(f"  #{w['index']}: {state}, {_mode(w['zeta'], w['mode_hz'])}; {params}")
     return out
 
 

@@ -120,9 +120,11 @@ def _run_sample(task: SampleTask) -> SampleResult:
                             details=False)  # fmt: skip
     # unstable: the nonlinear run diverges or oscillates without decaying, or its linearisation is unstable and only
     # the valve's +-10 V rails bound it (a limit cycle is no stable loop)
-    stable = bool(r.stable and r.linear_stable)
+    # (a marginal prediction, an integrator at |z| = 1 to within rounding, is no instability: closedloop's verdict)
+    linear_ok = bool(r.linear_stable or r.linear_marginal)
+    stable = bool(r.stable and linear_ok)
     zeta, hz = closed_loop_damping(stable, r.linear_poles_s, r.growth_rate_1_s, r.unstable_mode_hz)
-    note = r.instability() if not r.stable else ("" if r.linear_stable else "the linearised loop is unstable: the run is bounded only "
+    note = r.instability() if not r.stable else ("" if linear_ok else "the linearised loop is unstable: the run is bounded only "
                                                    "by the valve's limits")
     return SampleResult(
         index=task.index,
