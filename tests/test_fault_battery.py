@@ -548,6 +548,55 @@ def test_robust_workers_stay_quiet_on_a_terminals_ctrl_c(tmp_path):
     assert not out.exists()
 
 
+_FORK_MAP_SCRIPT = """
+import sys, time
+from samii.cli import _install_signal_handlers
+from samii.errors import Interrupted
+from samii.forkmap import fork_map
+
+def fn(x):
+    time.sleep(x)
+    return x
+
+_install_signal_handlers()
+try:
+    print("started", flush=True)
+    fork_map(fn, [0.05, 60.0])
+except Interrupted as exc:
+    sys.exit(128 + exc.signum)
+except KeyboardInterrupt:
+    sys.exit(130)
+"""
+
+
+@pytest.mark.parametrize("signame, code", [("SIGTERM", 143), ("SIGHUP", 129), ("SIGINT", 130)])
+def test_a_signal_to_the_group_during_forked_work_stops_it_quietly(tmp_path, signame, code):
+    """The diagnosis' forked workers (samii.forkmap) and a signal to the command's process group, as a terminal or
+    `kill -TERM -PGID` sends it: one quick item and one slow on two workers, so one worker waits for tasks holding the
+    pool's queue lock. SIGTERM killed that worker with the lock held and the parent's terminate() waited for it for
+    ever (a main job given SIGTERM 13 s in hung); SIGHUP printed a worker's traceback. Now the parent alone acts."""
+    import signal
+
+    script = tmp_path / "fm.py"
+    script.write_text(_FORK_MAP_SCRIPT)
+    env = dict(os.environ, SAMII_WORKERS="2")
+    p = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True, env=env)  # fmt: skip
+    try:
+        assert p.stdout.readline().strip() == "started"
+        time.sleep(1.5)  # (the quick item done, its worker waiting for another)
+        os.killpg(p.pid, getattr(signal, signame))
+        try:
+            _, err = p.communicate(timeout=120)  # (a hang guard, not a speed check: it returns in under a second)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"{signame} to the group: the process hung in the pool's shutdown")
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
+    assert p.returncode == code and err == "", err
+
+
 def test_an_interrupt_inside_a_finaliser_is_reported_once_by_the_command():
     """A signal handler's KeyboardInterrupt raised inside a weakref callback is 'unraisable': Python printed
     "Exception ignored in: <WeakKeyDictionary ...> KeyboardInterrupt" beside the command's own line. Once a stop signal

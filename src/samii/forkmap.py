@@ -11,8 +11,8 @@ kinds, the baseline, the datasets) travels as a reference that the parent resolv
 back holding the parent's own kinds and baseline, as a serial computation's would.
 
 It runs serially (same results, same order) on one core, for one item, inside a worker (no nesting), where the
-platform cannot fork, and when the environment sets ``SAMII_WORKERS=1``. Workers ignore Ctrl-C: the parent takes it
-and stops them (no traceback per worker).
+platform cannot fork, and when the environment sets ``SAMII_WORKERS=1``. Workers run in a process group of their own
+and ignore Ctrl-C and hangups: the parent takes every signal and stops them (no traceback per worker, no hang).
 """
 
 from __future__ import annotations
@@ -113,8 +113,15 @@ def _one_blas_thread():
 def _init_worker() -> None:
     global _IN_WORKER
     _IN_WORKER = True
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent takes Ctrl-C and terminates the pool
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # terminate() ends a worker quietly, whatever handler the parent set
+    # A signal to the command's process group (a terminal's Ctrl-C or hangup, `kill -TERM -PGID`) is the parent's to act
+    # on: it terminates the pool. A worker killed by it may die holding the pool's task-queue lock, which the parent's
+    # terminate() then waits for forever (a main job given SIGTERM 13 s in hung); so a worker runs in a process group
+    # of its own, ignores Ctrl-C and hangups sent to it, and ends quietly by the parent's terminate() (SIGTERM). A
+    # parent killed outright closes the pipes, and the workers end on their own.
+    os.setpgid(0, 0)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # (whatever handler the parent set)
 
 
 def _run(i: int) -> bytes:
