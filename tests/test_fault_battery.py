@@ -283,6 +283,16 @@ def test_frf_warns_of_a_sweep_beyond_the_nyquist_frequency(measured, tmp_path, c
     assert main(["frf", measured["ts10"], "--band-hz", "1", "6"]) == 2
     line = _one_line(capsys)
     assert measured["ts10"] in line and "Nyquist" in line
+    # the FRF file frf wrote keeps the header that says so: read again (diagnose, a later session), it still warns,
+    # and a refusal of it names the aliasing beside its own cause
+    from samii.diagnose.measured import load
+
+    again = load(out / "frf.csv")
+    assert len(again.warnings) == 2 and "sweep reached 40 Hz" in again.warnings[0] and str(out / "frf.csv") in again.warnings[0]
+    assert load(tmp_path / "g" / "frf.csv").warnings == ()
+    assert main(["diagnose", str(out / "frf.csv"), "--no-progress"]) == 2
+    line = _one_line(capsys)
+    assert "too few usable points" in line and "besides" in line and "sweep reached 40 Hz" in line
 
 
 @pytest.mark.parametrize("which, needle", [("v0", "column 'v' is 0 V at every sample: no excitation reached the valve"),

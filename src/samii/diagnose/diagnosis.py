@@ -908,7 +908,11 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
         # carry, has the whole library for what remains
         kinds = [k for k in kinds if k.label in CARRY]
     before, after, steps, tried = forward_select(list(datasets), bl, kinds, alpha=alpha, progress=progress)
-    check_residual_dof(datasets, before, [m.source for m in measured])
+    try:
+        check_residual_dof(datasets, before, [m.source for m in measured])
+    except ValueError as exc:  # the cause may be the data's aliasing (a file sampled at 10/s of a 40 Hz sweep): said too
+        said = [w for m in given for w in m.warnings]
+        raise ValueError(str(exc) + (f"; besides, {said[0]}" if said else "")) from None
     if before.n_residuals - before.n_params < before.n_params:
         notes.append(f"the baseline's {before.n_params} free parameters were fitted to {before.n_residuals} residuals (magnitude and "
                      "phase of the usable points): with fewer degrees of freedom left than parameters, only a large misfit "

@@ -449,7 +449,10 @@ def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
     amp = _float_meta(meta, "amplitude_v")
     corr = _float_meta(meta, "frf_corr_length")
     corr = corr if corr is not None and 1.0 <= corr <= 20.0 else 1.0
-    return Measured(source=source, frf=frf, var=var, noise_source=how, corr_length=corr, amplitude_v=amp, sample_rate_hz=sr)
+    # (an FRF file keeps its time series' header, as samii frf and samii measure write it: the aliasing is still known)
+    said = aliasing_warnings(meta, sr, source=source) if sr is not None and sr > 0 else []
+    return Measured(source=source, frf=frf, var=var, noise_source=how, corr_length=corr, amplitude_v=amp, sample_rate_hz=sr,
+                    warnings=tuple(said))
 
 
 def load(path, *, band_hz: tuple[float, float] | None = None, record_s: float | None = None,
