@@ -674,7 +674,9 @@ def test_a_scheduler_that_accepts_and_never_answers_is_refused_in_time():
 @pytest.mark.parametrize("address, needle", [("notanaddress", "expected HOST:PORT with a port from 1 to 65535"),
                                              ("udp://127.0.0.1:45123", "unknown address scheme 'udp'"),
                                              ("tcp://127.0.0.1:99999", "a port from 1 to 65535"),
-                                             ("tcp://no.such.host.invalid:8786", "'no.such.host.invalid' is not known")])
+                                             ("tcp://no.such.host.invalid:8786", "'no.such.host.invalid' is not known"),
+                                             ("tcp://127.0.0.1", "expected HOST:PORT"),
+                                             ("inproc://x", "an in-process address (inproc://)")])
 def test_a_scheduler_address_dask_cannot_reach_is_refused_at_once(address, needle, capsys):
     """Dask's own ValueError (scheme, port) came raw; an unknown host or port 99999 waited the whole timeout (30 s) and
     was then said to have accepted the connection: refused now before any wait."""

@@ -125,7 +125,9 @@ def run(args: argparse.Namespace) -> int:
     if scheduler:  # before any work: an address Dask cannot connect to is refused at once
         from samii.robust.engine import check_address
 
-        check_address(scheduler, source)
+        if check_address(scheduler, source) is None:
+            raise InputError(f"{source} {scheduler}: an in-process address (inproc://) names a scheduler inside one Python "
+                             "process, never another command's; give the scheduler's tcp://host:port")
     engine = Engine(workers=args.workers or 0, scheduler=scheduler, connect_timeout_s=args.scheduler_timeout, scheduler_source=source)
 
     # the controller is designed (or read) once, on the nominal plant, in this process

@@ -93,49 +93,37 @@ def _workers_deaf_to_terminal_signals():
             mp_spawn.set_executable(real)
 
 
-def _tcp_host_port(address: str) -> tuple[str | None, int]:
-    """(host, port) of a ``tcp://host:port`` address; (None, 0) for any other form (Dask reads those itself)."""
-    from urllib.parse import urlsplit
-
-    try:
-        parts = urlsplit(address)
-        if parts.scheme == "tcp" and parts.hostname and parts.port:
-            return parts.hostname, int(parts.port)
-    except ValueError:
-        pass
-    return None, 0
-
-
-#: The address schemes a Dask scheduler listens on (distributed.comm's registered backends).
-SCHEMES = ("tcp", "tls", "inproc", "ucx", "ws", "wss")
-
-
-def check_address(address: str, where: str) -> None:
+def check_address(address: str, where: str) -> tuple[str, str, int] | None:
     """Refuse a scheduler address Dask cannot connect to, before any wait: an unknown scheme, no or an invalid port, a
-    host name that does not resolve (``where``: the option or setting it came from, for the message)."""
-    from urllib.parse import urlsplit
+    host name that does not resolve (``where``: the option or setting it came from, for the message). Returns (scheme,
+    host, port) as Dask reads the address (``distributed.comm.addressing``), None for an in-process one."""
+    from distributed.comm import registry
+    from distributed.comm.addressing import parse_address, parse_host_port
 
     from samii.errors import InputError
 
-    text = address if "://" in address else f"tcp://{address}"
-    scheme = text.split("://", 1)[0]
-    if scheme not in SCHEMES:
-        raise InputError(f"{where} {address}: unknown address scheme {scheme!r}; a Dask scheduler listens on "
-                         f"{', '.join(s + '://' for s in SCHEMES)} (e.g. tcp://host:8786)")
-    if scheme == "inproc":
-        return
+    schemes = sorted(registry.backends)
     try:
-        parts = urlsplit(text)
-        port = parts.port
+        scheme, location = parse_address(address)  # (no scheme: tcp, as Dask takes it)
     except ValueError:
-        port = -1
-    if not parts.hostname or port is None or not 0 < port < 65536:
+        scheme, location = "", address
+    if scheme not in registry.backends:
+        raise InputError(f"{where} {address}: unknown address scheme {scheme!r}; a Dask scheduler listens on "
+                         f"{', '.join(s + '://' for s in schemes)} (e.g. tcp://host:8786)")
+    if scheme == "inproc":
+        return None
+    try:
+        host, port = parse_host_port(location)
+    except ValueError:
+        host, port = "", -1
+    if not host or not 0 < port < 65536:
         raise InputError(f"{where} {address}: expected HOST:PORT with a port from 1 to 65535 (e.g. tcp://host:8786, "
                          "the port the scheduler printed at its start)")
     try:
-        socket.getaddrinfo(parts.hostname, port)
+        socket.getaddrinfo(host, port)
     except OSError:
-        raise InputError(f"{where} {address}: the host {parts.hostname!r} is not known (its name does not resolve)") from None
+        raise InputError(f"{where} {address}: the host {host!r} is not known (its name does not resolve)") from None
+    return scheme, host, port
 
 
 def _connect(address: str, timeout_s: float, where: str = "--scheduler") -> Client:
@@ -146,9 +134,9 @@ def _connect(address: str, timeout_s: float, where: str = "--scheduler") -> Clie
 
     from samii.errors import InputError
 
-    check_address(address, where)
-    host, port = _tcp_host_port(address if "://" in address else f"tcp://{address}")
-    if host is not None:  # a refused connection is known at once (Dask retries it until its timeout)
+    parsed = check_address(address, where)
+    if parsed is not None and parsed[0] == "tcp":  # a refused connection is known at once (Dask retries it until its timeout)
+        _, host, port = parsed
         try:
             socket.create_connection((host, port), timeout=min(timeout_s, 10.0)).close()
         except ConnectionRefusedError:
