@@ -533,6 +533,27 @@ def test_stale_run_folders_of_dead_processes_are_removed(tmp_path):
     assert not stale.exists() and live.exists() and other.exists()
 
 
+def test_a_second_local_cluster_is_quiet_about_the_dashboard_port(tmp_path, capsys):
+    """Port 8787 taken (a user's own Dask cluster, or another study running): the study's scheduler, whose HTTP routes
+    Dask serves even without a dashboard, said "warning: UserWarning: Port 8787 is already in use. Perhaps you already
+    have a cluster running?" (found when two studies ran at once). It serves them on a free local port now."""
+    holder = socket.socket()
+    holder.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        try:
+            holder.bind(("0.0.0.0", 8787))
+            holder.listen()
+        except OSError:
+            pass  # taken already: the case itself
+        argv = ["robust", "--controller", "unity", "--samples", "2", "--spread", "hydraulic.bulk_modulus=5%", "--workers", "2",
+                "--no-progress", "--out", str(tmp_path / "r")]  # fmt: skip
+        assert main(argv) == 0
+    finally:
+        holder.close()
+    err = capsys.readouterr().err
+    assert "8787" not in err and "warning" not in err, err
+
+
 def test_robust_workers_stay_quiet_on_a_terminals_ctrl_c(tmp_path):
     """Ctrl-C to the process group (as a terminal sends it) while a local Dask cluster runs the study: the command's
     one line and exit 130, no worker traceback (two workers printed about 80 lines before), no folder, no worker left."""

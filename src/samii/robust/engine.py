@@ -207,8 +207,12 @@ class Engine:
                          "distributed.admin.tick.interval": "1s", "distributed.admin.system-monitor.interval": "2s"}
                 try:
                     with dask.config.set(quiet), _workers_deaf_to_terminal_signals():
+                        # no dashboard; the scheduler's HTTP routes (health, metrics), which it serves anyway, on a free
+                        # local port: on 8787, its default, a second study or a user's own cluster made it warn that
+                        # the port was taken
                         self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                                     dashboard_address=None, silence_logs=50)  # fmt: skip
+                                                     dashboard_address=None, scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+                                                     silence_logs=50)  # fmt: skip
                     self._client = Client(self._cluster)
                 except BaseException:  # stopped (a signal) or failed while starting: close what was built
                     self.__exit__()
