@@ -369,6 +369,57 @@ def test_a_covariance_is_checked_on_its_correlation_matrix(tmp_path, capsys):
     assert str(p) in line and "not positive semi-definite" in line and "-0.8" in line
 
 
+_R = (1.0 + 1e-10) / math.sqrt(2.0)
+
+
+@pytest.mark.parametrize("corr", [[[1.0, 0.0046, -0.0025], [0.0046, 1.0, 0.0155], [-0.0025, 0.0155, 1.0]],  # (calibrate's)
+                                  [[1.0, _R, 0.0], [_R, 1.0, -_R], [0.0, -_R, 1.0]]])  # fmt: skip
+def test_covariance_draws_hold_across_parameter_scales(tmp_path, capsys, corr):
+    """samii calibrate's own calibration.json of the clamp stiffness (~1e5 N m/rad, standard error 728), the leakage
+    coefficient (~1e-13, standard error 2.6e-15) and the accelerometer's gain (1, 0.01), correlations below 0.02: drawn
+    from the covariance itself (variances 5e5 to 7e-30, decomposed together: its smallest eigenvalue came out 1.8e-21,
+    rounding), every draw put the leakage coefficient thousands of standard errors out, and the file was refused ("no
+    draw within the bounds in 1000 tries ... a spread that wide is no calibration's"). The second case is singular in
+    rounding (an eigenvalue of the correlation of -1e-10, which passes its check). Drawn in the correlation's
+    coordinates now: the draws' standard errors and correlations are the file's, and nothing is said but the result."""
+    from samii.robust.sampling import draw_plants, read_covariance
+    from samii.sim.model import default_params
+
+    nominal = default_params().as_dict()
+    nominal["beam"]["clamp_stiffness_Nm_rad"], nominal["hydraulic"]["leakage_coefficient"] = 136444.12113243112, 9.756846676668618e-14
+    se = (728.4035998346104, 2.6152927921544582e-15, 0.01)
+    params = [{"name": n, "value": v, "stderr": e, "bounds": [0.1 * v, 10 * v]} for n, v, e in
+              zip(("beam.clamp_stiffness_Nm_rad", "hydraulic.leakage_coefficient", "sensor.accel_gain"),
+                  (nominal["beam"]["clamp_stiffness_Nm_rad"], nominal["hydraulic"]["leakage_coefficient"], nominal["sensor"]["accel_gain"]), se)]  # fmt: skip
+    p = tmp_path / "cal.json"
+    p.write_text(json.dumps({"parameters": params, "correlation": corr, "calibrated_params": nominal}))
+    cov = read_covariance(p)
+    x = draw_plants(2000, 5, {}, [], cov).values
+    rel = (x - cov.mean) / np.sqrt(np.diag(cov.cov))
+    assert np.all(np.abs(rel) <= 5.0 + 1e-9)
+    assert np.std(rel, axis=0) == pytest.approx([1.0, 1.0, 1.0], abs=0.06)
+    assert np.corrcoef(x.T) == pytest.approx(np.array(corr), abs=0.05)
+    assert main(["robust", "--controller", "unity", "--covariance", str(p), "--samples", "2", "--no-progress"]) == 0
+    assert capsys.readouterr().err == ""
+
+
+@pytest.mark.parametrize("entry", ["x", None, [0.5]])
+def test_a_correlation_entry_that_is_no_number_is_named(tmp_path, capsys, entry):
+    """A string in the correlation said only "could not convert string to float: 'x'" (no file, no field)."""
+    from samii.sim.model import default_params
+
+    nominal = default_params().as_dict()
+    k = nominal["hydraulic"]["bulk_modulus"]
+    v = nominal["hydraulic"]["total_volume"]
+    params = [{"name": "hydraulic.bulk_modulus", "value": k, "stderr": 0.05 * k, "bounds": [0.5 * k, 2 * k]},
+              {"name": "hydraulic.total_volume", "value": v, "stderr": 0.05 * v, "bounds": [0.5 * v, 2 * v]}]
+    p = tmp_path / "cal.json"
+    p.write_text(json.dumps({"parameters": params, "correlation": [[1.0, entry], [entry, 1.0]], "calibrated_params": nominal}))
+    assert main(["robust", "--controller", "unity", "--covariance", str(p), "--samples", "2", "--no-progress"]) == 2
+    line = _one_line(capsys)
+    assert str(p) in line and "field 'correlation' must be a 2x2 matrix of finite numbers" in line
+
+
 def test_a_covariance_naming_no_parameter_of_the_plant_is_refused_for_that(tmp_path, capsys):
     """It said "parameter beam.foo = 1 but field 'calibrated_params' holds None" (the consequence, not the cause)."""
     from samii.sim.model import default_params

@@ -124,9 +124,12 @@ def read_covariance(path) -> Covariance:
         bounds.append((lo, hi))
     if dup := sorted({n for n in names if names.count(n) > 1}):
         raise InputError(f"--covariance {path}: field 'parameters' names {', '.join(dup)} more than once")
-    c = np.asarray(corr, dtype=float) if all(isinstance(r, list) for r in corr) else np.empty(0)
+    try:
+        c = np.asarray(corr, dtype=float) if all(isinstance(r, list) for r in corr) else np.empty(0)
+    except (TypeError, ValueError):  # an entry that is no number (a string, null, a list)
+        c = np.empty(0)
     if c.shape != (len(names), len(names)) or not np.all(np.isfinite(c)):
-        raise InputError(f"--covariance {path}: field 'correlation' must be a finite {len(names)}x{len(names)} matrix")
+        raise InputError(f"--covariance {path}: field 'correlation' must be a {len(names)}x{len(names)} matrix of finite numbers")
     if np.any(np.abs(np.diag(c) - 1.0) > 1e-6) or np.any(np.abs(c) > 1.0 + 1e-9):
         raise InputError(f"--covariance {path}: field 'correlation' is not a correlation matrix (ones on its diagonal, |r| <= 1)")
     from samii.calibrate.simulator import check_parameter_name
@@ -230,13 +233,22 @@ def draw_plants(n: int, seed: int, nominal: dict[str, float], spreads: list[Spre
         raise InputError("nothing to vary: give --spread NAME=P% and/or --covariance calibration.json")
     lo, hi = np.array(lows), np.array(highs)
     k = len(covariance.names) if covariance is not None else 0
+    if covariance is not None:
+        # drawn in the correlation's coordinates, z ~ N(0, R), x = mean + se z: R's eigenvalues are of order 1 whatever
+        # the parameters' scales. Decomposed, the covariance itself spans variances of 1e10 (a stiffness) to 1e-30 (a
+        # leakage coefficient), its eigenvectors mix them in rounding, and draws of a calibration's own correlations fell
+        # outside 5 standard errors every time; a rounding-negative eigenvalue of R (it passed its check) counts as 0
+        se_k = np.sqrt(np.diag(covariance.cov))
+        corr = covariance.cov / np.outer(se_k, se_k)
+        eig, vec = np.linalg.eigh(0.5 * (corr + corr.T))
+        root = vec * np.sqrt(np.clip(eig, 0.0, None))  # R = root root^T
     values = np.empty((n, len(names)))
     for i in range(n):
         rng, _ = sample_seeds(seed, i)
         if covariance is not None:
             outside = np.zeros(k, int)
             for _ in range(_MAX_REDRAWS):
-                x = rng.multivariate_normal(covariance.mean, covariance.cov, method="eigh")
+                x = covariance.mean + se_k * (root @ rng.standard_normal(k))
                 out = (x < lo[:k]) | (x > hi[:k])
                 if not out.any():
                     break
