@@ -151,10 +151,24 @@ def test_an_unstable_equilibrium_the_run_did_not_show_is_not_stable(tmp_path):
     assert 0.05 < rate < 1.0 and step.unstable_mode_hz == pytest.approx(0.0, abs=1e-6)
     loper = run_closed_loop(zero, scenario("loper"), label="zero", comparison=False)
     assert not loper.stable
+    # the Loper run's joint creeps from 5 to 24 deg: no rise, overshoot or settling time as if it had settled (it gave
+    # "rise 0.059 s, overshoot 19.8 %" and a base decay), and the verdict does not say the run missed it
+    assert loper.theta.final_pct > 300.0 and (loper.theta.rise_s, loper.theta.overshoot_pct, loper.theta.settle_s) == (None, None, None)
+    assert loper.base.decay_rate_1_s is None and "did not catch" not in loper.instability()
     s = loper.signals
     late = s.t >= s.t[-1] - 4.0
     drift = np.polyfit(s.t[late], np.log(np.abs(s.theta[late] - loper.theta_rest_rad)), 1)[0]
     assert drift == pytest.approx(rate, rel=0.1)
+
+
+def test_robust_names_a_creeping_joints_real_pole_by_its_rate(tmp_path, capsys):
+    """The joint no loop holds creeps at +0.197 1/s, a pole below the damping band (0.03 Hz): robust said "a real pole
+    at s = +0 1/s" (its rate from a frequency of 0); the run's growth rate now."""
+    c = _controller(tmp_path / "zero.json", D=[0, 0, 0], servo="replaced")
+    assert main(["robust", "--controller", c, "--samples", "2", "--spread", "hydraulic.bulk_modulus=5%", "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "a real pole at s = +0.1" in text or "a real pole at s = +0.2" in text, text
+    assert "s = +0 1/s" not in text
 
 
 def test_an_integrator_in_the_controller_is_marginal_not_unstable(tmp_path, capsys):

@@ -133,7 +133,7 @@ def _summary(r, out_names: list[str]) -> str:
     th = r.theta
     if th.final_pct is not None:
         f = lambda x, u: "n/a" if x is None else f"{x:.3g}{u}"  # noqa: E731
-        if not r.stable and not r.linear_only:
+        if not r.stable:
             lines.append(f"  theta: final value {th.final_pct:.3g} % of the step (rise, overshoot and settle not given: the run is unstable)")
         elif th.final_pct is not None and not th.followed:
             lines.append(f"  theta: did not follow the step (its final value is {th.final_pct:.3g} % of the step; rise, overshoot "
@@ -145,7 +145,7 @@ def _summary(r, out_names: list[str]) -> str:
     f = lambda x, u: "n/a" if x is None else f"{x:.3g}{u}"  # noqa: E731
     if r.signals.t.size < 2:
         lines.append("  base: no samples (the run diverged in its first step)")
-    elif not r.stable and not r.linear_only:
+    elif not r.stable:
         lines.append(f"  base: peak {f(b.peak_m_s2, ' m/s²')}, residual rms {f(b.residual_rms_m_s2, ' m/s²')} (settle and decay not "
                      "given: the run is unstable)" + (f"; free decay {f(r.free_decay_rate_1_s, ' 1/s')}" if r.free_decay_rate_1_s is not None else ""))  # fmt: skip
     else:

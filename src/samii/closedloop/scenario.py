@@ -135,9 +135,10 @@ class ClosedLoopResult:
             return ""
         ran = self.runaway.text() if self.runaway is not None else ""
         if self.linear_only:
-            return (f"the linear prediction has {_worst_pole(self.linear_poles_s)}: the equilibrium is unstable, though this "
-                    f"{self.scenario.duration_s:g} s run's figures did not catch the growth (too slow, or too weakly set off by "
-                    "its inputs); a rig's noise and offsets set such a mode off")
+            return (f"the linear prediction has {_worst_pole(self.linear_poles_s)}: the equilibrium is unstable (Lyapunov's "
+                    f"indirect method), whether or not this {self.scenario.duration_s:g} s run shows the growth (one this slow, "
+                    "or one the run's inputs barely set off, passes the run's own tests); a rig's noise and offsets set such "
+                    "a mode off")
         if ran and self.growth_rate_1_s is None and self.unstable_mode_hz is None:
             return ran  # the base itself did not grow
         what = f"growing at {self.growth_rate_1_s:.4g} 1/s" if self.growth_rate_1_s is not None else "not decaying"
@@ -422,10 +423,10 @@ def run_closed_loop(
     theta_m = step_metrics(sig.t, sig.theta, sig.theta_ref, sc.t_step_s) if sc.name in ("step", "loper") else StepMetrics(None, None, None)
     residual_from = sc.t_disturbance_s + 2.0
     base = base_metrics(sig.t, accel, sc.t_disturbance_s, t_decay_s=t_ev, residual_from_s=residual_from) if sig.t.size > 1 else BaseMetrics(float("nan"), None, None, None)
-    if not stable and not linear_only:
-        # the run diverged, oscillates or ran away: a rise, an overshoot, a settling time or a decay rate would describe
-        # a transient that never ends (an overshoot of 1,070 % on the way out); where theta ended and the base's peak
-        # and rms are what happened, and stay
+    if not stable:
+        # the run diverged, oscillates or ran away, or its equilibrium is unstable: a rise, an overshoot, a settling time
+        # or a decay rate would describe a transient that never ends (an overshoot of 1,070 % on the way out; a joint
+        # creeping from 5 to 24 deg "settled"); where theta ended and the base's peak and rms are what happened, and stay
         theta_m = StepMetrics(None, None, None, theta_m.final_pct)
         base = BaseMetrics(base.peak_m_s2, base.residual_rms_m_s2, None, None)
     comp_base = None

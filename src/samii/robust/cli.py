@@ -205,12 +205,15 @@ def _fmt(x, spec: str) -> str:
     return "n/a" if x is None else format(x, spec)
 
 
-def _mode(zeta, mode_hz) -> str:
-    """The least-damped mode in words: "zeta Z at F Hz", or a real pole by its s = -zeta 2 pi F (it does not oscillate:
-    "zeta -1 at 8.7 Hz" read as an 8.7 Hz oscillation)."""
-    if zeta is not None and mode_hz is not None and abs(zeta) > 1.0 - 1e-9:
-        return f"a real pole at s = {-zeta * 2 * math.pi * mode_hz:+.3g} 1/s (zeta {zeta:+.0f})"
-    return f"zeta {_fmt(zeta, '.3f')} at {_fmt(mode_hz, '.3g')} Hz"
+def _mode(row: dict) -> str:
+    """A sample's least-damped mode in words: "zeta Z at F Hz", or a real pole by its s = -zeta 2 pi F (it does not
+    oscillate: "zeta -1 at 8.7 Hz" read as an 8.7 Hz oscillation), or by the run's growth rate where the pole lies
+    below the damping band (F = 0: a joint creeping at +0.197 1/s)."""
+    zeta, hz, growth = row["zeta"], row["mode_hz"], row.get("growth_rate_1_s")
+    if zeta is not None and abs(zeta) > 1.0 - 1e-9:
+        s = -zeta * 2 * math.pi * hz if hz else growth
+        return f"a real pole at s = {s:+.3g} 1/s (zeta {zeta:+.0f})" if s is not None else f"a real pole (zeta {zeta:+.0f})"
+    return f"zeta {_fmt(zeta, '.3f')} at {_fmt(hz, '.3g')} Hz"
 
 
 def _lines(doc: dict, s) -> list[str]:
@@ -219,7 +222,7 @@ def _lines(doc: dict, s) -> list[str]:
     out = [f"robustness of {doc['controller']} ({doc['scenario']} test), {doc['n_samples']} plants, seed {doc['seed']}, {doc['engine']}, "
            f"{doc['wall_s']:.1f} s",
            "varied: " + "; ".join(v["source"] for v in doc["varied"]),
-           f"nominal plant: {'stable' if nom['stable'] else 'UNSTABLE'}, least-damped mode {_mode(nom['zeta'], nom['mode_hz'])}, "
+           f"nominal plant: {'stable' if nom['stable'] else 'UNSTABLE'}, least-damped mode {_mode(nom)}, "
            + (f"base settles {nom['base_settle_s']:.2f} s" if nom["base_settle_s"] is not None else "base settling time n/a"),
            f"P(unstable) = {s.n_unstable}/{s.n} = {s.p_unstable:.3g} (95 % interval {lo:.3g}-{hi:.3g}, exact binomial)"]  # fmt: skip
     if s.zeta_percentiles:
@@ -235,7 +238,7 @@ def _lines(doc: dict, s) -> list[str]:
     for w in s.worst[:3]:
         params = ", ".join(f"{k} {rel:+.1f} %" if rel is not None else f"{k} {w['params'][k]:.4g}" for k, rel in w["params_rel_pct"].items())
         state = "UNSTABLE" if not w["stable"] else "stable"
-        out.append(f"  #{w['index']}: {state}, {_mode(w['zeta'], w['mode_hz'])}; {params}")
+        out.append(f"  #{w['index']}: {state}, {_mode(w)}; {params}")
     return out
 
 
