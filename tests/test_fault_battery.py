@@ -309,6 +309,19 @@ def test_frf_warns_of_a_sweep_beyond_the_nyquist_frequency(measured, tmp_path, c
     assert "too few usable points" in line and "besides" in line and "sweep reached 40 Hz" in line
 
 
+def test_an_frf_whose_header_rate_cannot_hold_its_frequencies_is_refused(measured, tmp_path, capsys):
+    """An FRF to 40 Hz whose header says 10 samples per second (Nyquist 5 Hz): fit and calibrate took it silently, and
+    diagnose, which models the sampling from the header, printed numpy's "divide by zero" (a point at a multiple of the
+    rate) and a verdict. Refused by the reader, naming the line, the frequency and the header line."""
+    lines = Path(measured["frf"]).read_text().splitlines()
+    bad = tmp_path / "sr10.csv"
+    bad.write_text("\n".join("# sample_rate_hz: 10" if ln.startswith("# sample_rate_hz:") else ln for ln in lines) + "\n")
+    for argv in (["fit", str(bad)], ["calibrate", str(bad), "--param", "beam.clamp_stiffness_Nm_rad"], ["diagnose", str(bad), "--no-progress"]):
+        assert main(argv) == 2
+        line = _one_line(capsys)
+        assert str(bad) in line and "column 'freq_hz'" in line and "above the Nyquist frequency 5 Hz of '# sample_rate_hz: 10'" in line
+
+
 @pytest.mark.parametrize("which, needle", [("v0", "column 'v' is 0 V at every sample: no excitation reached the valve"),
                                            ("r0", "the excitation r is zero throughout"),
                                            ("theta0", "column 'theta' is 0 rad at every sample: the joint never moved"),

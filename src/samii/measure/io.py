@@ -848,6 +848,23 @@ class TimeSeriesCsvWriter:
 # --------------------------------------------------------------------------- frequency response
 
 
+def _check_nyquist(table: _Table, f: np.ndarray) -> None:
+    """A response estimated from records sampled at a stated ``# sample_rate_hz:`` (a plain number) ends at its Nyquist
+    frequency: a point above it contradicts the header (a diagnosis models the sampling from it)."""
+    text = table.metadata.get("sample_rate_hz")
+    try:
+        rate = float(text) if text is not None and "_" not in text else float("nan")
+    except ValueError:
+        return  # (informative text, "1 kHz": not read)
+    if not 0 < rate < float("inf"):
+        return
+    bad = np.flatnonzero(f > rate / 2)
+    if bad.size:
+        raise table.error(f"frequency {_num(f[bad[0]])} Hz lies above the Nyquist frequency {rate / 2:g} Hz of '# sample_rate_hz: "
+                          f"{_short(text)}' (line {table.metadata_lines.get('sample_rate_hz')}): no record sampled so holds a "
+                          "response there; the header or the frequencies are wrong", row=int(bad[0]), column="freq_hz")
+
+
 def read_frf_csv(path) -> FrequencyResponse:
     """Read a frequency-response CSV (DATA_FORMATS.md) into a :class:`~samii.FrequencyResponse`.
 
@@ -875,6 +892,7 @@ def read_frf_csv(path) -> FrequencyResponse:
         what = "a repeated" if f[k] == f[k - 1] else "a decreasing"
         raise table.error(f"expected strictly increasing frequency, got {what} {_num(f[k])} after {_num(f[k - 1])} (line {int(table.lines[k - 1])})",
                           row=k, column="freq_hz")
+    _check_nyquist(table, f)
     kw = {}
     for ch in CHANNELS:
         mag_name, ph_name, coh_name = f"{ch}_mag", f"{ch}_phase_deg", f"{ch}_coh"
