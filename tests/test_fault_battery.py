@@ -583,10 +583,19 @@ def test_report_marks_what_a_readable_folder_lacks(report_folder, capsys):
     doc["params"]["K1"] = None
     (report_folder / "fit" / "fit.json").write_text(json.dumps(doc))
     (report_folder / "measure" / "bode.png").unlink()
+    (report_folder / "fit" / "bode_fit.png").write_bytes(b"not a picture")  # (embedded, a broken image)
+    s = json.loads((report_folder / "summary.json").read_text())
+    s["damping_design"]["gain_v_per_m_s2"] = None
+    (report_folder / "summary.json").write_text(json.dumps(s))
+    d = json.loads((report_folder / "diagnose" / "diagnosis.json").read_text())
+    i, name = next((i, k) for i, e in enumerate(d["effects"]) for k in e.get("params") or {})
+    d["effects"][i]["params"][name] = None
+    (report_folder / "diagnose" / "diagnosis.json").write_text(json.dumps(d))
     assert main(["report", str(report_folder), "--out", str(out), "--overwrite"]) == 0
     err = capsys.readouterr().err
-    for gap in ("measure/bode.png is missing", "fit/fit.json: params.K1 holds null"):
-        assert gap in err
+    for gap in ("measure/bode.png is missing", "fit/fit.json: params.K1 holds null", "fit/bode_fit.png is not a PNG image (damaged)",
+                "summary.json: damping_design.gain_v_per_m_s2 holds null", f"diagnose/diagnosis.json: effects[{i}].params.{name} holds null"):
+        assert gap in err, gap
     page = out.read_text()
     top = page[: page.index('id="summary"')]
     assert "This folder lacks" in top and "params.K1 holds null" in top and "measure/bode.png is missing" in top

@@ -216,18 +216,44 @@ def read_run_folder(path) -> RunFolder:
         diagnosis=_json(folder, "diagnose/diagnosis.json"),
         closed_loop=closed,
         traces=traces,
-        figures={k: folder / rel for k, rel in STAGE_FIGURES.items() if (folder / rel).is_file()},
+        figures={k: folder / rel for k, rel in STAGE_FIGURES.items() if _is_png(folder / rel)},
         recordings={name: (folder / name).stat().st_size for name in RECORDINGS if (folder / name).is_file()},
     )
     run.gaps = gaps(run)
     return run
 
 
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _is_png(path: Path) -> bool:
+    """A file that begins as every PNG does (a damaged one, embedded, shows as a broken image)."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(len(_PNG_SIGNATURE)) == _PNG_SIGNATURE
+    except OSError:
+        return False
+
+
+#: Numbers the main job always writes (summary.json's damping design; a found effect's fitted parameters): null there is
+#: damage, shown as "–" without a word before. (The roll-off may be absent: a design without one.)
+_DESIGN_NUMBERS = ("gain_v_per_m_s2", "gain_limit_v_per_m_s2", "gain_margin_db", "filter_hz")
+
+
 def gaps(run: RunFolder) -> list[str]:
     """What a main job writes and ``run`` lacks (figures, fitted parameters), one phrase each. A closed-loop run missing
     from summary.json is refused instead (the summary's lines need each); the recordings are not counted (tens of MB a
     user may remove to archive a folder; the page's Recordings section says what is there)."""
-    out = [f"{rel} is missing" for key, rel in STAGE_FIGURES.items() if key not in run.figures]
+    out = [f"{rel} is {'not a PNG image (damaged)' if (run.path / rel).exists() else 'missing'}"
+           for key, rel in STAGE_FIGURES.items() if key not in run.figures]
+    design = run.summary.get("damping_design")
+    if isinstance(design, dict):
+        out += [f"summary.json: damping_design.{k} holds null" for k in _DESIGN_NUMBERS if design.get(k, 0) is None]
+    effects = run.diagnosis.get("effects")
+    for i, e in enumerate(effects if isinstance(effects, list) else []):
+        params = e.get("params") if isinstance(e, dict) else None
+        if isinstance(params, dict):
+            out += [f"diagnose/diagnosis.json: effects[{i}].params.{k} holds null" for k, v in params.items() if v is None]
     params = run.fit.get("params")
     if not isinstance(params, dict):
         out.append(f"fit/fit.json: params holds {_kind(params) if 'params' in run.fit else 'nothing (missing)'}, not the fitted parameters")

@@ -85,7 +85,8 @@ def _stage_figure(run: RunFolder, key: str, alt: str, caption: str) -> str:
     """A figure a stage drew (``STAGE_FIGURES``), or a line naming its file where the folder lacks it."""
     p = run.figures.get(key)
     if p is None:
-        return f'<p class="warn">(Figure: {_e(alt)}: <code>{_e(STAGE_FIGURES[key])}</code> is not in the folder.)</p>'
+        why = "is not a PNG image (damaged)" if (run.path / STAGE_FIGURES[key]).exists() else "is not in the folder"
+        return f'<p class="warn">(Figure: {_e(alt)}: <code>{_e(STAGE_FIGURES[key])}</code> {why}.)</p>'
     return _figure(p.read_bytes(), alt, caption)
 
 
