@@ -742,7 +742,7 @@ def test_an_interrupt_inside_a_finaliser_is_reported_once_by_the_command():
 # ---------------------------------------------------------------------------- a scheduler that never answers (item 2)
 
 
-def test_a_scheduler_that_accepts_and_never_answers_is_refused_in_time():
+def test_a_scheduler_that_accepts_and_never_answers_is_refused_in_time(capsys):
     from samii.errors import InputError
     from samii.robust.cli import SCHEDULER_TIMEOUT_S
     from samii.robust.engine import DEFAULT_CONNECT_TIMEOUT_S, Engine
@@ -766,6 +766,11 @@ def test_a_scheduler_that_accepts_and_never_answers_is_refused_in_time():
         with pytest.raises(InputError, match="no Dask scheduler answered within 1 s"):
             with Engine(scheduler=address, connect_timeout_s=1.0):
                 pass
+        # the command: one line (its start line came first, before the connection was tried)
+        argv = ["robust", "--controller", "unity", "--spread", "hydraulic.bulk_modulus=5%", "--samples", "2", "--scheduler", address,
+                "--scheduler-timeout", "1"]  # fmt: skip
+        assert main(argv) == 2
+        assert "no Dask scheduler answered within 1 s" in _one_line(capsys)
     finally:
         server.close()
         for c in held:
@@ -780,6 +785,7 @@ def test_a_scheduler_that_accepts_and_never_answers_is_refused_in_time():
 
 
 @pytest.mark.parametrize("address, needle", [("notanaddress", "expected HOST:PORT with a port from 1 to 65535"),
+                                             (" ", "expected a scheduler's address (tcp://host:port), got an empty string"),
                                              ("udp://127.0.0.1:45123", "unknown address scheme 'udp'"),
                                              ("tcp://127.0.0.1:99999", "a port from 1 to 65535"),
                                              ("tcp://no.such.host.invalid:8786", "'no.such.host.invalid' is not known"),
@@ -791,7 +797,8 @@ def test_a_scheduler_address_dask_cannot_reach_is_refused_at_once(address, needl
     argv = ["robust", "--controller", "unity", "--spread", "hydraulic.bulk_modulus=5%", "--samples", "2", "--no-progress"]
     assert main([*argv, "--scheduler", address]) == 2
     line = _one_line(capsys)
-    assert line.startswith(f"samii robust: error: --scheduler {address}: ") and needle in line, line
+    where = f"--scheduler {address}: " if address.strip() else "argument --scheduler: "
+    assert line.startswith(f"samii robust: error: {where}") and needle in line, line
 
 
 def test_dasks_configured_scheduler_is_named_as_such(monkeypatch, capsys):

@@ -93,11 +93,20 @@ def name_value(text: str) -> tuple[str, float]:
     return name.strip(), v
 
 
+def nonempty(what: str):
+    """An argument type: text that is not empty or blank (``what`` names what is expected, for the message)."""
+
+    def parse(text: str) -> str:
+        if not text.strip():
+            raise argparse.ArgumentTypeError(f"expected {what}, got an empty string")
+        return text
+
+    return parse
+
+
 def nonempty_path(text: str) -> str:
     """A path that is not empty or blank (``--out ''`` would silently mean the current folder)."""
-    if not text.strip():
-        raise argparse.ArgumentTypeError("expected a path, got an empty string")
-    return text
+    return nonempty("a path")(text)
 
 
 #: A random-generator seed: numpy accepts 0 .. 2**128 - 1.

@@ -14,7 +14,7 @@ import math
 import os
 import sys
 
-from samii.cli_args import float_in, int_in, nonempty_path, seed
+from samii.cli_args import float_in, int_in, nonempty, nonempty_path, seed
 from samii.errors import InputError
 
 __all__ = ["add_arguments", "run", "MAX_SAMPLES"]
@@ -56,7 +56,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=_workers, default=None, metavar="N",
                    help="0: run in this process (the default, unless Dask's configuration names a scheduler); N or auto: on a local "
                         "Dask cluster of N worker processes (auto: one per core)")
-    p.add_argument("--scheduler", metavar="ADDRESS",
+    p.add_argument("--scheduler", metavar="ADDRESS", type=nonempty("a scheduler's address (tcp://host:port)"),
                    help="run on this Dask cluster (tcp://host:8786); its workers need samii installed. Without --scheduler and "
                         "--workers, Dask's own configured scheduler-address (DASK_SCHEDULER_ADDRESS) is used if set")  # fmt: skip
     p.add_argument("--scheduler-timeout", type=float_in(1.0, 3600.0, unit="s"), default=SCHEDULER_TIMEOUT_S, metavar="S",
@@ -154,16 +154,20 @@ def run(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    if not args.json and not args.no_progress:  # (a progress line: not before a refusal's one line when asked for quiet)
-        print(f"samii robust: {args.controller}, {args.scenario} test, {args.samples} plants (seed {args.seed}) {engine.describe()}", file=sys.stderr)
-    bar = tqdm(total=len(tasks), desc="samii robust", unit="run", file=sys.stderr, disable=True if args.no_progress else None, leave=False)
+    import contextlib
     import time
 
     t0 = time.perf_counter()
-    try:
-        results = engine.map(tasks, progress=bar.update)
-    finally:
-        bar.close()
+    with contextlib.ExitStack() as stack:
+        if engine.scheduler:  # connected first (bounded in time): a scheduler that refuses or never answers is one line
+            stack.enter_context(engine)
+        if not args.json and not args.no_progress:  # (a progress line: not before a refusal's one line when asked for quiet)
+            print(f"samii robust: {args.controller}, {args.scenario} test, {args.samples} plants (seed {args.seed}) {engine.describe()}", file=sys.stderr)
+        bar = tqdm(total=len(tasks), desc="samii robust", unit="run", file=sys.stderr, disable=True if args.no_progress else None, leave=False)
+        try:
+            results = engine.map(tasks, progress=bar.update)
+        finally:
+            bar.close()
     wall = time.perf_counter() - t0
     nominal, samples = results[0], results[1:]
 
