@@ -123,6 +123,7 @@ def _one_line(exc: BaseException) -> str:
 #: Signals received (set by the handlers): an exception raised while one was being handled (an
 #: import cut short by Ctrl-C raises ImportError) is reported as the interruption it is.
 from samii.errors import OUTPUTS_STARTED as _OUTPUTS_STARTED  # noqa: E402
+from samii.errors import OUTPUTS_DONE as _OUTPUTS_DONE  # noqa: E402
 from samii.errors import SIGNALS_RECEIVED as _SIGNALLED  # noqa: E402  (samii.errors is light: no numpy)
 
 
@@ -131,7 +132,7 @@ def _install_signal_handlers() -> dict:
     outputs are cleaned up; each is remembered in ``_SIGNALLED``."""
     import signal
 
-    from samii.errors import Interrupted
+    from samii.errors import Interrupted, holding
 
     def stopping(signum) -> None:
         _SIGNALLED.append(signum)
@@ -142,12 +143,18 @@ def _install_signal_handlers() -> dict:
         logging.disable(logging.CRITICAL)
 
     def handler(signum, _frame):
+        if _FINISHED:
+            _stop_finished(signum)
         stopping(signum)
-        raise Interrupted(signum)
+        if not holding():  # (outputs being put in place: raised when that is done)
+            raise Interrupted(signum)
 
     def on_sigint(signum, _frame):
+        if _FINISHED:
+            _stop_finished(signum)
         stopping(signum)
-        raise KeyboardInterrupt
+        if not holding():
+            raise KeyboardInterrupt
 
     previous = {}
     for name, fn in (("SIGINT", on_sigint), ("SIGTERM", handler), ("SIGHUP", handler)):
@@ -158,6 +165,30 @@ def _install_signal_handlers() -> dict:
             except (ValueError, OSError):  # not the main thread
                 pass
     return previous
+
+
+#: The command has finished (its outputs and its report printed): a signal now ends the process at once, with its line.
+_FINISHED: list[str] = []
+#: The command's name for its messages ("samii run"), once the command line is parsed.
+_PROG = ["samii"]
+
+
+def _stop_finished(signum: int) -> None:
+    """A signal after the command finished, while the program winds down (its library threads, atexit callbacks): one
+    line and exit 128 + N at once, not a KeyboardInterrupt traceback from interpreter shutdown or a silent death."""
+    import os
+
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    try:
+        os.write(2, f"{_FINISHED[0]}: stopped by signal {signum} after the command had finished; its outputs are as it "
+                    "reported them\n".encode())
+    except OSError:
+        pass
+    os._exit(128 + signum)
 
 
 def _restore_signal_handlers(previous: dict) -> None:
@@ -189,10 +220,15 @@ def _report(prog: str, kind: str, exc: BaseException) -> None:
     print(f"{prog}: {kind}: {_one_line(exc)}", file=sys.stderr)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the command; map errors to one line on stderr and an exit code (see :mod:`samii.errors`)."""
+def main(argv: list[str] | None = None, *, program: bool = False) -> int:
+    """Run the command; map errors to one line on stderr and an exit code (see :mod:`samii.errors`). ``program``: this
+    is the process's own command (:func:`program`): its signal handlers stay for the exit (a signal after the command
+    finished ends the process with one line), not restored."""
     _SIGNALLED.clear()
     _OUTPUTS_STARTED.clear()
+    _OUTPUTS_DONE.clear()
+    _FINISHED.clear()
+    _PROG[0] = "samii"
     previous = _install_signal_handlers()  # first: a signal during start-up is reported like any other
     previous_hook = sys.unraisablehook
     sys.unraisablehook = _quiet_interrupts(previous_hook)
@@ -201,7 +237,37 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if not _SIGNALLED:  # stopped by a signal: the hook stays for the exit's own clean-up (atexit callbacks)
             sys.unraisablehook = previous_hook
-        _restore_signal_handlers(previous)
+        if not program:
+            _FINISHED.clear()
+            _restore_signal_handlers(previous)
+        elif not _FINISHED:  # (returned early: a refusal, an interruption)
+            _FINISHED.append(_PROG[0])
+
+
+def program() -> None:
+    """The ``samii`` program (its console script): :func:`main` on the command line, then exit with its code.
+
+    A signal after the command finished ends the process with one line (:func:`_stop_finished`) while Python can still
+    run a handler: through the libraries' exit callbacks. The interpreter's last clean-up resets such handlers to the
+    default, and a signal then killed the finished process without a word (exit -2 or -15, 7 of 8 signals sent just
+    after a main job's summary): the stop signals are ignored from the last exit callback on (registered first, it
+    runs last), and the process exits with the command's code."""
+    import atexit
+
+    atexit.register(_ignore_stop_signals)
+    sys.exit(main(program=True))
+
+
+def _ignore_stop_signals() -> None:
+    import signal
+
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        sig = getattr(signal, name, None)
+        if sig is not None:
+            try:
+                signal.signal(sig, signal.SIG_IGN)
+            except (ValueError, OSError):
+                pass
 
 
 def _quiet_interrupts(fallback):
@@ -234,6 +300,7 @@ def _main(argv: list[str] | None) -> int:
         prog = "samii" + (f" {args.command}" if args.command else "")
         if getattr(args, "design_command", None):
             prog += f" {args.design_command}"
+        _PROG[0] = prog
         _one_line_warnings(prog)
         raise_if_signalled()  # a Ctrl-C during the imports whose exception a library swallowed
         if args.command is None:
@@ -243,12 +310,13 @@ def _main(argv: list[str] | None) -> int:
         else:
             code = int(args._run(args) or 0)
         raise_if_signalled()
+        _FINISHED.append(prog)  # (a signal from here on: _stop_finished)
         return code
     except Interrupted as exc:
-        print(f"{prog}: stopped by signal {exc.signum}; nothing half-written was kept", file=sys.stderr)
+        print(f"{prog}: stopped by signal {exc.signum}; {_kept()}", file=sys.stderr)
         return 128 + exc.signum
     except KeyboardInterrupt:
-        print(f"{prog}: interrupted; nothing half-written was kept", file=sys.stderr)
+        print(f"{prog}: interrupted; {_kept()}", file=sys.stderr)
         return EXIT_INTERRUPTED
     except BrokenPipeError:  # e.g. `samii modes | head`: the reader left, which is not an error
         try:
@@ -293,6 +361,13 @@ def _main(argv: list[str] | None) -> int:
         return _internal_error(prog, exc)
 
 
+def _kept() -> str:
+    """What a stopped command leaves: its outputs whole, if it had put them in place, else nothing of this run."""
+    if _OUTPUTS_DONE:
+        return f"its outputs were complete before it ({', '.join(_OUTPUTS_DONE)})"
+    return "nothing half-written was kept"
+
+
 def _internal_error(prog: str, exc: Exception) -> int:
     """An unexpected exception (call inside its ``except``): one line by default, the traceback with
     ``SAMII_DEBUG=1``; cut short by a signal (an import interrupted half-way), it is that interruption."""
@@ -302,7 +377,7 @@ def _internal_error(prog: str, exc: Exception) -> int:
 
     if _SIGNALLED:
         signum = _SIGNALLED[0]
-        print(f"{prog}: stopped by signal {signum}; nothing half-written was kept", file=sys.stderr)
+        print(f"{prog}: stopped by signal {signum}; {_kept()}", file=sys.stderr)
         return EXIT_INTERRUPTED if signum == 2 else 128 + signum
     if os.environ.get("SAMII_DEBUG"):
         raise exc
@@ -311,4 +386,4 @@ def _internal_error(prog: str, exc: Exception) -> int:
     return EXIT_INTERNAL
 
 if __name__ == "__main__":
-    sys.exit(main())
+    program()

@@ -23,6 +23,8 @@ Imports nothing heavy.
 
 from __future__ import annotations
 
+import contextlib
+
 __all__ = [
     "EXIT_BAD_INPUT",
     "EXIT_INTERNAL",
@@ -71,6 +73,34 @@ OUTPUTS_STARTED: list[str] = []
 def mark_outputs_started(where) -> None:
     """Note that the run's input was accepted and its outputs are being written to ``where`` (see :data:`OUTPUTS_STARTED`)."""
     OUTPUTS_STARTED.append(str(where))
+
+
+#: The outputs a command has put in place whole (its --out, after the commit): a signal received after that stops the
+#: command, and the command line says they were complete, not that nothing was kept.
+OUTPUTS_DONE: list[str] = []
+
+_HOLDING = [0]
+
+
+def holding() -> bool:
+    """Inside :func:`uninterrupted`: the command line's signal handlers note a signal and let the block finish."""
+    return _HOLDING[0] > 0
+
+
+@contextlib.contextmanager
+def uninterrupted(done=None):
+    """The few renames that put a run's outputs in place (and remove what they replace): a signal received meanwhile
+    takes effect when the block ends, never half-way (an interrupted swap left neither the old folder nor the new).
+    ``done``: the outputs, marked complete (:data:`OUTPUTS_DONE`) when the block ends without an exception."""
+    _HOLDING[0] += 1
+    try:
+        yield
+    finally:
+        _HOLDING[0] -= 1
+    if done is not None and (not OUTPUTS_STARTED or OUTPUTS_STARTED[0] == str(done)):  # (the command's own --out, not a
+        OUTPUTS_DONE.append(str(done))  # stage's folder inside the main job's staging)
+    if not _HOLDING[0]:
+        raise_if_signalled()
 
 
 def raise_if_signalled() -> None:

@@ -189,9 +189,16 @@ def run_pipeline(out, *, model=None, overrides=(), seed: int = 0, overwrite: boo
         from samii.errors import raise_if_signalled
 
         raise_if_signalled()  # a signal whose exception a library swallowed (a finaliser's): keep nothing
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(stage_dir, out)
+        from samii.errors import uninterrupted
+
+        # the old folder moved aside and the new one into place by renames a signal waits for: removed first, an
+        # interrupted removal left neither (a folder half-deleted); what it replaced goes after, as a killed run's does
+        with uninterrupted(done=out):
+            old = stage_dir.with_name(stage_dir.name + "-replaced")
+            if out.exists():
+                os.replace(out, old)
+            os.replace(stage_dir, out)
+            shutil.rmtree(old, ignore_errors=True)  # (left, a later run's remove_stale_runs takes it)
     finally:
         bar.close()
         if stage_dir.exists():

@@ -284,12 +284,15 @@ class OutputFolder:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX)
             self._check_existing()  # again, under the lock: another run may have written meanwhile
-            for name in staged:
-                os.replace(self._stage / name, self.root / name)
-                self.written.append(self.root / name)
-            for name in self._omitted:
-                old = self.root / name
-                if old.is_file() or old.is_symlink():
-                    old.unlink()
+            from samii.errors import uninterrupted
+
+            with uninterrupted(done=self.root):  # a signal waits for the moves: never half of the files replaced
+                for name in staged:
+                    os.replace(self._stage / name, self.root / name)
+                    self.written.append(self.root / name)
+                for name in self._omitted:
+                    old = self.root / name
+                    if old.is_file() or old.is_symlink():
+                        old.unlink()
         finally:
             os.close(fd)  # releases the lock

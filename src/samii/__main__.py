@@ -1,0 +1,5 @@
+"""``python -m samii``: the ``samii`` program."""
+
+from samii.cli import program
+
+program()
