@@ -381,9 +381,11 @@ def render_report(run: RunFolder, page_dir: Path | None = None) -> str:
     except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
         what = f"field {exc.args[0]!r} missing" if isinstance(exc, KeyError) else str(exc).replace("_TracedList", "list").replace("_TracedDict", "dict")
         near = log.suspect(str(exc))
-        where = f"; probably at {near}, the last field read that holds no number" if near else ""
-        raise InputError(f"{run.path}: a file of this main job's folder is not as samii run writes it ({what}{where}); "
-                         "run samii run again") from None
+        if near:  # the field first, in the data's terms; Python's words after, for the record
+            raise InputError(f"{run.path}: a file of this main job's folder is not as samii run writes it: probably at {near}, a value "
+                             f"samii does not write there (the last field read that holds no number; Python said: {what}); run samii "
+                             "run again") from None
+        raise InputError(f"{run.path}: a file of this main job's folder is not as samii run writes it ({what}); run samii run again") from None
 
 
 def _render(run: RunFolder, page_dir: Path | None) -> str:
