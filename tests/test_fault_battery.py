@@ -334,6 +334,10 @@ def test_an_frf_whose_header_rate_cannot_hold_its_frequencies_is_refused(measure
         assert main(argv) == 2
         line = _one_line(capsys)
         assert str(bad) in line and "column 'freq_hz'" in line and "above the Nyquist frequency 5 Hz of '# sample_rate_hz: 10'" in line
+    for rate in ("-5", "0", "nan"):  # a number that is no rate (diagnose divided by it: numpy's warnings, then a verdict)
+        bad.write_text("\n".join(f"# sample_rate_hz: {rate}" if ln.startswith("# sample_rate_hz:") else ln for ln in lines) + "\n")
+        assert main(["diagnose", str(bad), "--no-progress"]) == 2
+        assert "expected '# sample_rate_hz:' to give a positive number of samples per second" in _one_line(capsys)
 
 
 @pytest.mark.parametrize("which, needle", [("v0", "column 'v' is 0 V at every sample: no excitation reached the valve"),
@@ -459,6 +463,20 @@ def test_a_correlation_entry_that_is_no_number_is_named(tmp_path, capsys, entry)
     assert main(["robust", "--controller", "unity", "--covariance", str(p), "--samples", "2", "--no-progress"]) == 2
     line = _one_line(capsys)
     assert str(p) in line and "field 'correlation' must be a 2x2 matrix of finite numbers" in line
+
+
+def test_a_covariances_inverted_bounds_are_named(tmp_path, capsys):
+    """Bounds [1e6, 1e4] were blamed on the calibration ("a spread that wide is no calibration's")."""
+    from samii.sim.model import default_params
+
+    nominal = default_params().as_dict()
+    k = nominal["beam"]["clamp_stiffness_Nm_rad"]
+    params = [{"name": "beam.clamp_stiffness_Nm_rad", "value": k, "stderr": 0.01 * k, "bounds": [10 * k, 0.1 * k]}]
+    p = tmp_path / "cal.json"
+    p.write_text(json.dumps({"parameters": params, "correlation": [[1.0]], "calibrated_params": nominal}))
+    assert main(["robust", "--controller", "unity", "--covariance", str(p), "--samples", "2", "--no-progress"]) == 2
+    line = _one_line(capsys)
+    assert str(p) in line and "parameter beam.clamp_stiffness_Nm_rad has bounds" in line and "LO < HI" in line
 
 
 def test_a_covariance_naming_no_parameter_of_the_plant_is_refused_for_that(tmp_path, capsys):

@@ -98,6 +98,8 @@ class _Unpickler(pickle.Unpickler):
 
 
 _CONTROLLER = None
+#: The signals a command stops on (samii.cli): blocked while workers are forked, so that each is born deaf to them.
+_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
 
 
 def _one_blas_thread():
@@ -118,10 +120,16 @@ def _init_worker() -> None:
     # terminate() then waits for forever (a main job given SIGTERM 13 s in hung); so a worker runs in a process group
     # of its own, ignores Ctrl-C and hangups sent to it, and ends quietly by the parent's terminate() (SIGTERM). A
     # parent killed outright closes the pipes, and the workers end on their own.
+    # The worker was forked with the stop signals blocked (fork_map): one sent to the group before this point is pending
+    # here; ignoring them discards it, then the worker leaves the group and unblocks. (Forked unblocked, a worker born
+    # as a group signal arrived ran the parent's handler: "Interrupted: 15" with a traceback, or lived on, orphaned.)
+    if signal.SIGTERM in signal.sigpending():  # the pool's terminate() (or the group's SIGTERM) came first: end now, as
+        os._exit(0)  # it asked (discarded with the others below, the worker outlived terminate() and its join hung)
+    for sig in _STOP_SIGNALS:
+        signal.signal(sig, signal.SIG_IGN)
     os.setpgid(0, 0)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGHUP, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # (whatever handler the parent set)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # terminate() ends it quietly
 
 
 def _run(i: int) -> bytes:
@@ -148,8 +156,25 @@ def fork_map(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
             with warnings.catch_warnings():
                 # Python 3.12+ warns that forking a process with threads (BLAS's) may deadlock; the workers run numpy only
                 warnings.simplefilter("ignore", DeprecationWarning)
-                with multiprocessing.get_context("fork").Pool(n, initializer=_init_worker) as pool:
+                pool = None
+                try:
+                    # forked with the stop signals blocked, in this thread and in the pool's own threads, which inherit
+                    # the mask and fork its replacement workers; a signal meanwhile is raised here once the pool exists,
+                    # and the finally terminates it (a pool cut off while starting left its workers running, orphaned)
+                    before = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+                    try:
+                        pool = multiprocessing.get_context("fork").Pool(n, initializer=_init_worker)
+                    finally:
+                        signal.pthread_sigmask(signal.SIG_SETMASK, before)
                     blobs = pool.map(_run, range(len(items)), chunksize=1)
+                finally:
+                    if pool is not None:
+                        pool.terminate()  # (what the with-statement does)
+                        # a worker the pool forked while terminating is not in the list it ends: one born as a signal
+                        # came sat orphaned in a lock (1 in 3 signals sent as a pool started); no worker outlives it
+                        for child in multiprocessing.active_children():
+                            if child.name.startswith("ForkPoolWorker"):
+                                child.kill()
         finally:
             _TASK = None
     return [_Unpickler(io.BytesIO(b)).load() for b in blobs]

@@ -852,12 +852,15 @@ def _check_nyquist(table: _Table, f: np.ndarray) -> None:
     """A response estimated from records sampled at a stated ``# sample_rate_hz:`` (a plain number) ends at its Nyquist
     frequency: a point above it contradicts the header (a diagnosis models the sampling from it)."""
     text = table.metadata.get("sample_rate_hz")
+    if text is None:
+        return
     try:
-        rate = float(text) if text is not None and "_" not in text else float("nan")
+        rate = float(text) if "_" not in text else None
     except ValueError:
         return  # (informative text, "1 kHz": not read)
-    if not 0 < rate < float("inf"):
-        return
+    if rate is None or not 0 < rate < float("inf"):  # a number that is no rate: the sampling model would divide by it
+        raise DataFormatError(table.path, f"expected '# sample_rate_hz:' to give a positive number of samples per second, "
+                                          f"got {_cell(text)}", line=table.metadata_lines.get("sample_rate_hz"))
     bad = np.flatnonzero(f > rate / 2)
     if bad.size:
         raise table.error(f"frequency {_num(f[bad[0]])} Hz lies above the Nyquist frequency {rate / 2:g} Hz of '# sample_rate_hz: "

@@ -120,6 +120,8 @@ def read_covariance(path) -> Covariance:
         if not math.isfinite(s) or s <= 0:
             raise InputError(f"--covariance {path}: parameter {names[-1]} has no finite positive standard error ({p['stderr']!r}): the "
                              "calibration could not determine it; calibrate without it, or give its spread with --spread")
+        if not lo < hi:
+            raise InputError(f"--covariance {path}: parameter {names[-1]} has bounds [{lo:g}, {hi:g}]; expected [LO, HI] with LO < HI")
         se.append(s)
         bounds.append((lo, hi))
     if dup := sorted({n for n in names if names.count(n) > 1}):
