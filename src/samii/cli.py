@@ -143,32 +143,30 @@ def _install_signal_handlers() -> dict:
         logging.disable(logging.CRITICAL)
 
     def handler(signum, _frame):
-        if _FINISHED:
+        if _FINISHED[0]:
             _stop_finished(signum)
         stopping(signum)
         if not holding():  # (outputs being put in place: raised when that is done)
-            raise Interrupted(signum)
-
-    def on_sigint(signum, _frame):
-        if _FINISHED:
-            _stop_finished(signum)
-        stopping(signum)
-        if not holding():
-            raise KeyboardInterrupt
+            raise KeyboardInterrupt if signum == signal.SIGINT else Interrupted(signum)
 
     previous = {}
-    for name, fn in (("SIGINT", on_sigint), ("SIGTERM", handler), ("SIGHUP", handler)):
-        sig = getattr(signal, name, None)
-        if sig is not None:
-            try:
-                previous[sig] = signal.signal(sig, fn)
-            except (ValueError, OSError):  # not the main thread
-                pass
+    for sig in _stop_signals():
+        try:
+            previous[sig] = signal.signal(sig, handler)
+        except (ValueError, OSError):  # not the main thread
+            pass
     return previous
 
 
+def _stop_signals() -> list:
+    """SIGINT, SIGTERM and SIGHUP, those the platform has."""
+    import signal
+
+    return [getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)]
+
+
 #: The command has finished (its outputs and its report printed): a signal now ends the process at once, with its line.
-_FINISHED: list[str] = []
+_FINISHED = [False]
 #: The command's name for its messages ("samii run"), once the command line is parsed.
 _PROG = ["samii"]
 
@@ -184,7 +182,7 @@ def _stop_finished(signum: int) -> None:
         except (OSError, ValueError):
             pass
     try:
-        os.write(2, f"{_FINISHED[0]}: stopped by signal {signum} after the command had finished; its outputs are as it "
+        os.write(2, f"{_PROG[0]}: stopped by signal {signum} after the command had finished; its outputs are as it "
                     "reported them\n".encode())
     except OSError:
         pass
@@ -227,7 +225,7 @@ def main(argv: list[str] | None = None, *, program: bool = False) -> int:
     _SIGNALLED.clear()
     _OUTPUTS_STARTED.clear()
     _OUTPUTS_DONE.clear()
-    _FINISHED.clear()
+    _FINISHED[0] = False
     _PROG[0] = "samii"
     previous = _install_signal_handlers()  # first: a signal during start-up is reported like any other
     previous_hook = sys.unraisablehook
@@ -237,11 +235,9 @@ def main(argv: list[str] | None = None, *, program: bool = False) -> int:
     finally:
         if not _SIGNALLED:  # stopped by a signal: the hook stays for the exit's own clean-up (atexit callbacks)
             sys.unraisablehook = previous_hook
+        _FINISHED[0] = program  # (in a program, its handlers stay for the exit; a caller's are restored)
         if not program:
-            _FINISHED.clear()
             _restore_signal_handlers(previous)
-        elif not _FINISHED:  # (returned early: a refusal, an interruption)
-            _FINISHED.append(_PROG[0])
 
 
 def program() -> None:
@@ -261,13 +257,11 @@ def program() -> None:
 def _ignore_stop_signals() -> None:
     import signal
 
-    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
-        sig = getattr(signal, name, None)
-        if sig is not None:
-            try:
-                signal.signal(sig, signal.SIG_IGN)
-            except (ValueError, OSError):
-                pass
+    for sig in _stop_signals():
+        try:
+            signal.signal(sig, signal.SIG_IGN)
+        except (ValueError, OSError):
+            pass
 
 
 def _quiet_interrupts(fallback):
@@ -310,7 +304,6 @@ def _main(argv: list[str] | None) -> int:
         else:
             code = int(args._run(args) or 0)
         raise_if_signalled()
-        _FINISHED.append(prog)  # (a signal from here on: _stop_finished)
         return code
     except Interrupted as exc:
         print(f"{prog}: stopped by signal {exc.signum}; {_kept()}", file=sys.stderr)

@@ -118,13 +118,13 @@ def _init_worker() -> None:
     # A signal to the command's process group (a terminal's Ctrl-C or hangup, `kill -TERM -PGID`) is the parent's to act
     # on: it terminates the pool. A worker killed by it may die holding the pool's task-queue lock, which the parent's
     # terminate() then waits for forever (a main job given SIGTERM 13 s in hung); so a worker runs in a process group
-    # of its own, ignores Ctrl-C and hangups sent to it, and ends quietly by the parent's terminate() (SIGTERM). A
-    # parent killed outright closes the pipes, and the workers end on their own.
-    # The worker was forked with the stop signals blocked (fork_map): one sent to the group before this point is pending
-    # here; ignoring them discards it, then the worker leaves the group and unblocks. (Forked unblocked, a worker born
-    # as a group signal arrived ran the parent's handler: "Interrupted: 15" with a traceback, or lived on, orphaned.)
-    if signal.SIGTERM in signal.sigpending():  # the pool's terminate() (or the group's SIGTERM) came first: end now, as
-        os._exit(0)  # it asked (discarded with the others below, the worker outlived terminate() and its join hung)
+    # of its own, ignores Ctrl-C and hangups, and ends by the parent's terminate() (SIGTERM). A parent killed outright
+    # closes the pipes, and the workers end on their own. The worker was forked with the stop signals blocked (forked
+    # unblocked, one born as a group signal came ran the parent's handler: a traceback): a SIGTERM pending here is
+    # terminate()'s or the group's, and ends it now (discarded below, the worker outlived terminate(), whose join hung);
+    # the others are discarded.
+    if signal.SIGTERM in signal.sigpending():
+        os._exit(0)
     for sig in _STOP_SIGNALS:
         signal.signal(sig, signal.SIG_IGN)
     os.setpgid(0, 0)
@@ -170,11 +170,6 @@ def fork_map(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
                 finally:
                     if pool is not None:
                         pool.terminate()  # (what the with-statement does)
-                        # a worker the pool forked while terminating is not in the list it ends: one born as a signal
-                        # came sat orphaned in a lock (1 in 3 signals sent as a pool started); no worker outlives it
-                        for child in multiprocessing.active_children():
-                            if child.name.startswith("ForkPoolWorker"):
-                                child.kill()
         finally:
             _TASK = None
     return [_Unpickler(io.BytesIO(b)).load() for b in blobs]

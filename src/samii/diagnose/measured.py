@@ -445,12 +445,15 @@ def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
     if have and len(have) < len(frf.channels):  # one noise model for the whole file: a half-known one would mix real and placeholder weights
         var = dict.fromkeys(frf.channels)
         how = f"unknown (coherence for {', '.join(have)} only)"
-    sr = _float_meta(meta, "sample_rate_hz")
+    from samii.measure.io import stated_sample_rate
+
+    sr = stated_sample_rate(meta.get("sample_rate_hz"))  # (as the reader reads it: "1 kHz" is no rate of 1 per second)
     amp = _float_meta(meta, "amplitude_v")
     corr = _float_meta(meta, "frf_corr_length")
     corr = corr if corr is not None and 1.0 <= corr <= 20.0 else 1.0
     # (an FRF file keeps its time series' header, as samii frf and samii measure write it: the aliasing is still known)
-    said = aliasing_warnings(meta, sr, source=source) if sr is not None and sr > 0 else []
+    sr = sr if sr is not None and 0 < sr < np.inf else None
+    said = aliasing_warnings(meta, sr, source=source) if sr is not None else []
     return Measured(source=source, frf=frf, var=var, noise_source=how, corr_length=corr, amplitude_v=amp, sample_rate_hz=sr,
                     warnings=tuple(said))
 

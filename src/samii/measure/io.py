@@ -680,19 +680,36 @@ def _rounded_time(t: np.ndarray) -> bool:
     return bool(mean > 0 and np.max(np.abs(np.diff(t) - mean)) <= 4.0 * quantum)
 
 
+def stated_sample_rate(text: str | None) -> float | None:
+    """The rate a ``# sample_rate_hz:`` value states: a plain number (no unit, no digit separators), else None."""
+    if text is None or "_" in text:
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        return None
+
+
+def _stated_rate(table: _Table, *, text_allowed: bool) -> float | None:
+    """The ``# sample_rate_hz:`` line's rate (None without one). A number that is no rate (<= 0, nan, inf) is refused
+    naming the line, and so is text unless ``text_allowed`` (an FRF file's header may say "1 kHz": not read)."""
+    text = table.metadata.get("sample_rate_hz")
+    rate = stated_sample_rate(text)
+    if text is None or (rate is None and text_allowed):
+        return None
+    if rate is None or not 0 < rate < float("inf"):  # (a sampling model divides by it)
+        raise DataFormatError(table.path, f"expected '# sample_rate_hz:' to give a positive number of samples per second, "
+                                          f"got {_cell(text)}", line=table.metadata_lines.get("sample_rate_hz"))
+    return rate
+
+
 def _check_sample_rate(table: _Table, t: np.ndarray) -> None:
     """The time step must agree with a ``# sample_rate_hz:`` line, if there is one."""
-    text = table.metadata.get("sample_rate_hz")
-    if text is None:
+    rate = _stated_rate(table, text_allowed=False)
+    if rate is None:
         return
+    text = table.metadata["sample_rate_hz"]
     line = table.metadata_lines.get("sample_rate_hz")
-    try:
-        rate = float(text) if "_" not in text else float("nan")
-    except ValueError:
-        rate = float("nan")
-    if not (0 < rate < float("inf")):
-        raise DataFormatError(table.path, f"expected '# sample_rate_hz:' to give a positive number of samples per second, "
-                                          f"got {_cell(text)}", line=line)
     dt = typical_step(t)
     ratio = dt * rate
     if abs(ratio - 1.0) <= SAMPLE_RATE_RTOL:
@@ -851,16 +868,10 @@ class TimeSeriesCsvWriter:
 def _check_nyquist(table: _Table, f: np.ndarray) -> None:
     """A response estimated from records sampled at a stated ``# sample_rate_hz:`` (a plain number) ends at its Nyquist
     frequency: a point above it contradicts the header (a diagnosis models the sampling from it)."""
-    text = table.metadata.get("sample_rate_hz")
-    if text is None:
+    rate = _stated_rate(table, text_allowed=True)
+    if rate is None:
         return
-    try:
-        rate = float(text) if "_" not in text else None
-    except ValueError:
-        return  # (informative text, "1 kHz": not read)
-    if rate is None or not 0 < rate < float("inf"):  # a number that is no rate: the sampling model would divide by it
-        raise DataFormatError(table.path, f"expected '# sample_rate_hz:' to give a positive number of samples per second, "
-                                          f"got {_cell(text)}", line=table.metadata_lines.get("sample_rate_hz"))
+    text = table.metadata["sample_rate_hz"]
     bad = np.flatnonzero(f > rate / 2)
     if bad.size:
         raise table.error(f"frequency {_num(f[bad[0]])} Hz lies above the Nyquist frequency {rate / 2:g} Hz of '# sample_rate_hz: "

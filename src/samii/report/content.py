@@ -248,7 +248,7 @@ def gaps(run: RunFolder) -> list[str]:
            for key, rel in STAGE_FIGURES.items() if key not in run.figures]
     design = run.summary.get("damping_design")
     if isinstance(design, dict):
-        out += [f"summary.json: damping_design.{k} holds null" for k in _DESIGN_NUMBERS if design.get(k, 0) is None]
+        out += [f"summary.json: damping_design.{k} holds null" for k in _DESIGN_NUMBERS if k in design and design[k] is None]
     effects = run.diagnosis.get("effects")
     for i, e in enumerate(effects if isinstance(effects, list) else []):
         params = e.get("params") if isinstance(e, dict) else None
