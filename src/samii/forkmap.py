@@ -13,6 +13,16 @@ back holding the parent's own kinds and baseline, as a serial computation's woul
 It runs serially (same results, same order) on one core, for one item, inside a worker (no nesting), where the
 platform cannot fork, and when the environment sets ``SAMII_WORKERS=1``. Workers run in a process group of their own
 and ignore Ctrl-C and hangups: the parent takes every signal and stops them (no traceback per worker, no hang).
+
+Why not ``multiprocessing.Pool`` (which this module used) or ``concurrent.futures``: a Pool's workers share one task
+queue and its lock, and a Pool's helper thread forks replacement workers. A worker killed holding the lock left the
+pool's shutdown (and the other workers) waiting for ever, and a group signal as a pool started left a worker the
+parent did not know of, orphaned in a lock (2 of 6 tries); a worker that died mid-item left ``Pool.map`` waiting for
+its result for ever (a main job under load hung 12 minutes, about 1 in 20). ``ProcessPoolExecutor`` shares the same
+kind of queue. Here each worker has two pipes of its own (item indexes in, results out), only the calling thread
+forks, the parent knows every pid and kills them all on any exception or signal, a worker dies with its parent, and a
+worker that dies loses only its item, which another worker, or the parent when none is left, computes again (with a
+warning).
 """
 
 from __future__ import annotations
@@ -24,6 +34,7 @@ import multiprocessing
 import os
 import pickle
 import signal
+import sys
 import types
 import warnings
 from collections.abc import Callable, Iterable, Iterator
@@ -116,32 +127,221 @@ def _init_worker() -> None:
     global _IN_WORKER
     _IN_WORKER = True
     # A signal to the command's process group (a terminal's Ctrl-C or hangup, `kill -TERM -PGID`) is the parent's to act
-    # on: it terminates the pool. A worker killed by it may die holding the pool's task-queue lock, which the parent's
-    # terminate() then waits for forever (a main job given SIGTERM 13 s in hung); so a worker runs in a process group
-    # of its own, ignores Ctrl-C and hangups, and ends by the parent's terminate() (SIGTERM). A parent killed outright
-    # closes the pipes, and the workers end on their own. The worker was forked with the stop signals blocked (forked
-    # unblocked, one born as a group signal came ran the parent's handler: a traceback): a SIGTERM pending here is
-    # terminate()'s or the group's, and ends it now (discarded below, the worker outlived terminate(), whose join hung);
-    # the others are discarded.
+    # on: it stops its workers (_stop). So a worker runs in a process group of its own and ignores the stop signals but
+    # SIGTERM. It was forked with them blocked (forked unblocked, one born as a group signal came ran the parent's
+    # handler: a traceback): a SIGTERM pending here is the group's, and ends it now; the others are discarded.
     if signal.SIGTERM in signal.sigpending():
         os._exit(0)
     for sig in _STOP_SIGNALS:
         signal.signal(sig, signal.SIG_IGN)
     os.setpgid(0, 0)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # terminate() ends it quietly
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
-def _run(i: int) -> bytes:
+class _Worker:
+    """One forked worker: its pid and the parent's ends of its two pipes (item indexes in, result blobs out)."""
+
+    def __init__(self, pid: int, tasks, results):
+        self.pid, self.tasks, self.results = pid, tasks, results
+        self.status: int | None = None  # os.waitpid's, once reaped
+
+    def close(self) -> None:
+        self.tasks.close()
+        self.results.close()
+
+    def kill(self) -> None:
+        if self.status is None:  # (not reaped: the pid is still this worker's, a zombie at worst)
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.pid, signal.SIGKILL)
+
+    def reap(self) -> int:
+        if self.status is None:
+            self.status = os.waitpid(self.pid, 0)[1]
+        return self.status
+
+
+class _RemoteTraceback(Exception):
+    """The worker's traceback of an exception raised there (its ``__cause__`` here, as multiprocessing's pools do)."""
+
+    def __str__(self) -> str:
+        return self.args[0]
+
+
+def _die_with_parent(parent: int) -> None:
+    """Linux: the kernel kills this worker when the thread that forked it ends (a parent killed outright, even by
+    SIGKILL, leaves no worker computing on); elsewhere the closed task pipe ends it at its next item."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+    if os.getppid() != parent:  # the parent died before that took hold
+        os._exit(0)
+
+
+def _work(tasks, results) -> None:
+    """A worker's life: an item's index in, its result's blob out (b"R" + the result, or b"E" + the exception), until
+    the parent closes the task pipe or dies."""
     fn, items = _TASK
-    buf = io.BytesIO()
-    _Pickler(buf, protocol=pickle.HIGHEST_PROTOCOL).dump(fn(items[i]))
-    return buf.getvalue()
+    while True:
+        try:
+            i = tasks.recv()
+        except (EOFError, OSError):
+            return
+        try:
+            buf = io.BytesIO()
+            _Pickler(buf, protocol=pickle.HIGHEST_PROTOCOL).dump(fn(items[i]))
+            blob = b"R" + buf.getvalue()
+        except BaseException as exc:  # raised in the parent, with this traceback as its cause
+            import traceback
+
+            tb = "".join(traceback.format_exception(exc))
+            try:
+                blob = b"E" + pickle.dumps((exc, tb), protocol=pickle.HIGHEST_PROTOCOL)
+            except Exception:  # an exception holding what cannot travel: its type, message and traceback do
+                blob = b"E" + pickle.dumps((RuntimeError(f"{type(exc).__name__}: {exc}"), tb))
+        try:
+            results.send_bytes(blob)
+        except OSError:  # the parent is gone
+            return
+
+
+def _fork_worker(parent: int, others: list[_Worker]) -> _Worker:
+    tasks_r, tasks_w = multiprocessing.Pipe(duplex=False)
+    results_r, results_w = multiprocessing.Pipe(duplex=False)
+    pid = os.fork()
+    if pid == 0:  # the worker: never returns into the parent's code
+        code = 0
+        try:
+            _die_with_parent(parent)
+            # the parent's ends, its own and the earlier workers' (a worker holding another's task pipe open kept that
+            # one alive after the parent was gone)
+            for conn in (tasks_w, results_r, *(c for w in others for c in (w.tasks, w.results))):
+                conn.close()
+            _init_worker()
+            _work(tasks_r, results_w)
+        except BaseException:
+            code = 1
+        finally:
+            with contextlib.suppress(BaseException):
+                sys.stdout.flush()
+                sys.stderr.flush()
+            os._exit(code)
+    tasks_r.close()
+    results_w.close()
+    return _Worker(pid, tasks_w, results_r)
+
+
+def _raise_from(blob: bytes) -> None:
+    try:
+        exc, tb = pickle.loads(blob)
+    except Exception as unpickling:  # (an exception type whose arguments do not rebuild it)
+        raise RuntimeError(f"a worker's exception could not be read back: {unpickling}") from None
+    exc.__cause__ = _RemoteTraceback(tb)
+    raise exc
+
+
+def _forked(fn: Callable, items: list, n: int) -> list:
+    """The items' results computed by ``n`` forked workers, one item at a time each, in the items' order.
+
+    Each worker has pipes of its own and shares no lock with the others (a multiprocessing.Pool's workers share a queue
+    lock: one killed holding it left the others, and the pool's shutdown, waiting for ever), and only this thread forks
+    them (a Pool's helper thread forked replacements this thread did not know of: orphans). A worker that dies (killed
+    from outside, out of memory) loses only its item, computed again by another or, none left, here, with a warning."""
+    global _TASK
+    _TASK = (fn, items)
+    workers: list[_Worker] = []
+    done = False
+    try:
+        # forked with the stop signals blocked, so each worker is born deaf to them (see _init_worker); a signal
+        # meanwhile is raised here once they all exist, and the finally stops them all
+        sys.stdout.flush()
+        sys.stderr.flush()
+        before = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+        try:
+            parent = os.getpid()
+            for _ in range(n):
+                workers.append(_fork_worker(parent, workers))
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, before)
+        results = _serve(fn, items, workers)
+        done = True
+        return results
+    finally:
+        _TASK = None
+        _stop(workers, kill=not done)
+
+
+_MISSING = object()
+
+
+def _serve(fn: Callable, items: list, workers: list[_Worker]) -> list:
+    from multiprocessing.connection import wait
+
+    results: list = [_MISSING] * len(items)
+    todo = list(range(len(items)))[::-1]  # (popped from the end: in order)
+    idle = list(workers)[::-1]
+    busy: dict[Any, tuple[_Worker, int]] = {}
+    while todo or busy:
+        while todo and idle:
+            w, i = idle.pop(), todo.pop()
+            try:
+                w.tasks.send(i)
+            except OSError:  # died while waiting for an item
+                _dead(w, None, len(items))
+                todo.append(i)
+                continue
+            busy[w.results] = (w, i)
+        if not busy:
+            break  # every worker dead: the rest is computed here
+        for conn in wait(list(busy)):
+            w, i = busy.pop(conn)
+            try:
+                blob = conn.recv_bytes()
+            except (EOFError, OSError):  # died computing it: another worker (or this process) computes it
+                _dead(w, i, len(items))
+                todo.append(i)
+                continue
+            if blob[:1] == b"E":
+                _raise_from(blob[1:])
+            results[i] = blob
+            idle.append(w)
+    for k in reversed(todo):
+        results[k] = fn(items[k])
+    return [_Unpickler(io.BytesIO(r[1:])).load() if isinstance(r, bytes) else r for r in results]
+
+
+def _dead(w: _Worker, item: int | None, n: int) -> None:
+    """A worker that ended unasked (killed from outside, out of memory): reaped, and said."""
+    w.close()
+    w.kill()
+    status = w.reap()
+    how = f"signal {os.WTERMSIG(status)}" if os.WIFSIGNALED(status) else f"exit code {os.waitstatus_to_exitcode(status)}"
+    what = f"while computing item {item + 1} of {n}; it was computed again" if item is not None else "between items"
+    warnings.warn(f"a worker process ended ({how}) {what}; the results are those of a serial run", RuntimeWarning, stacklevel=4)
+
+
+def _stop(workers: list[_Worker], *, kill: bool) -> None:
+    """Close every worker's pipes (an idle worker then ends) and wait for each; ``kill``: end them first (an
+    exception or signal here: workers still computing). A signal while waiting kills the rest at once."""
+    for w in workers:
+        w.close()
+        if kill:
+            w.kill()
+    try:
+        for w in workers:
+            w.reap()
+    except BaseException:
+        for w in workers:
+            w.kill()
+        raise
 
 
 def fork_map(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
     """``[fn(x) for x in items]``, computed in forked workers (module docstring); an exception in ``fn`` is raised here."""
-    global _TASK
     items = list(items)
     if _IN_WORKER:  # nested: in turn, in this worker (its BLAS already on one thread)
         return [fn(x) for x in items]
@@ -149,30 +349,12 @@ def fork_map(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
     # one BLAS thread a worker: two workers of two threads each on two cores spin against each other (a diagnosis
     # took 2-3x longer); the serial path does the same, so the bits do not depend on the workers
     with _one_blas_thread():
-        if n <= 1 or "fork" not in multiprocessing.get_all_start_methods():
+        if n <= 1 or not hasattr(os, "fork"):
             return [fn(x) for x in items]
-        _TASK = (fn, items)
-        try:
-            with warnings.catch_warnings():
-                # Python 3.12+ warns that forking a process with threads (BLAS's) may deadlock; the workers run numpy only
-                warnings.simplefilter("ignore", DeprecationWarning)
-                pool = None
-                try:
-                    # forked with the stop signals blocked, in this thread and in the pool's own threads, which inherit
-                    # the mask and fork its replacement workers; a signal meanwhile is raised here once the pool exists,
-                    # and the finally terminates it (a pool cut off while starting left its workers running, orphaned)
-                    before = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
-                    try:
-                        pool = multiprocessing.get_context("fork").Pool(n, initializer=_init_worker)
-                    finally:
-                        signal.pthread_sigmask(signal.SIG_SETMASK, before)
-                    blobs = pool.map(_run, range(len(items)), chunksize=1)
-                finally:
-                    if pool is not None:
-                        pool.terminate()  # (what the with-statement does)
-        finally:
-            _TASK = None
-    return [_Unpickler(io.BytesIO(b)).load() for b in blobs]
+        with warnings.catch_warnings():
+            # Python 3.12+ warns that forking a process with threads (BLAS's) may deadlock; the workers run numpy only
+            warnings.simplefilter("ignore", DeprecationWarning)
+            return _forked(fn, items, n)
 
 
 def _call(job: Callable[[], R]) -> R:
