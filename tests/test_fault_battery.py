@@ -985,3 +985,166 @@ def test_a_full_disk_under_a_recording_is_said_and_does_not_hang(tiny_disk, tmp_
     line = _one_line(capsys)
     assert "no space left on device writing" in line and str(target) in line, line
     assert list(tiny_disk.iterdir()) == [] and not out.exists()
+
+
+# ---------------------------------------------------------------------------- a third battery (stop 42): verdicts on data that
+# cannot carry them, warnings as verdicts, outputs over inputs
+
+
+def _noise_frf(measured, path, *, coherence=True):
+    """The measured FRF's frequencies and header with random magnitudes and phases (and coherence below 0.3): noise."""
+    lines = Path(measured["frf"]).read_text().splitlines()
+    head = [ln for ln in lines if ln.startswith("#")]
+    body = [ln for ln in lines if not ln.startswith("#")]
+    cols = body[0].split(",")
+    keep = [i for i, c in enumerate(cols) if coherence or not c.endswith("_coh")]
+    rng = np.random.default_rng(0)
+    rows = []
+    for ln in body[1:]:
+        v = ln.split(",")
+        for i, c in enumerate(cols):
+            if c.endswith("_mag"):
+                v[i] = f"{np.exp(rng.normal(0, 2)):.6g}"
+            elif c.endswith("_phase_deg"):
+                v[i] = f"{rng.uniform(-180, 180):.6g}"
+            elif c.endswith("_coh"):
+                v[i] = f"{rng.uniform(0, 0.3):.6g}"
+        rows.append(",".join(v[i] for i in keep))
+    path.write_text("\n".join(head + [",".join(cols[i] for i in keep)] + rows) + "\n")
+    return str(path)
+
+
+def test_a_fit_of_noise_is_refused_and_is_never_sound(measured, tmp_path, capsys):
+    """samii fit called random magnitudes and phases with coherence below 0.3 "a sound fit with caveats" (exit 0)
+    while calibrate and diagnose refused them. The command refuses them now, and the library's fit is not sound."""
+    from samii.identify import fit
+    from samii.measure.io import read_frf_csv
+
+    f = _noise_frf(measured, tmp_path / "noise.csv")
+    assert main(["fit", f, "--no-progress"]) == 2
+    line = _one_line(capsys)
+    assert line.startswith(f"samii fit: error: {f}: no point has coherence >= 0.5") and "the data are noise" in line
+    r = fit(read_frf_csv(f), profile=False)
+    assert r.verdict == "not sound" and r.concerns[0].startswith("no point has coherence >= 0.5")
+
+
+@pytest.fixture(scope="module")
+def stepped4(tmp_path_factory):
+    """A stepped sine at 1, 3, 8 and 20 Hz (no noise): too few points for the 3-mode model's 13 parameters to be sound."""
+    d = tmp_path_factory.mktemp("stepped")
+    assert main(["measure", "--method", "stepped", "--freqs-hz", "1", "3", "8", "20", "--out", str(d / "s4"), "--no-progress"]) == 0
+    assert main(["measure", "--method", "stepped", "--freqs-hz", "5", "--out", str(d / "s1"), "--no-progress"]) == 0
+    return {"four": str(d / "s4" / "frf.csv"), "one": str(d / "s1" / "frf.csv")}
+
+
+def test_a_damping_design_needs_a_sound_fit_of_the_file(measured, stepped4, tmp_path, capsys):
+    """design damping --frf designed k = 0.056 V/(m/s²) from noise, k = 8.6 from four frequencies whose fit samii fit calls
+    not sound, and on one frequency said "band_hz must be 0 < lo < hi, got 5 5" (no file)."""
+    noise = _noise_frf(measured, tmp_path / "noise.csv")
+    assert main(["design", "damping", "--frf", noise]) == 2
+    line = _one_line(capsys)
+    assert line.startswith(f"samii design damping: error: {noise}: no point has coherence") and "the data are noise" in line
+    assert main(["design", "damping", "--frf", stepped4["four"]]) == 2
+    line = _one_line(capsys)
+    assert line.startswith(f"samii design damping: error: {stepped4['four']}: the notebook's 3-mode model fitted to it") and "not a sound fit" in line
+    assert main(["design", "damping", "--frf", stepped4["one"]]) == 2
+    line = _one_line(capsys)
+    assert line.startswith(f"samii design damping: error: {stepped4['one']}: 1 frequency point(s) in the design's fit band"), line
+    capsys.readouterr()
+    assert main(["design", "damping", "--frf", measured["frf"], "--json"]) == 0  # a measurement: designed
+    assert json.loads(capsys.readouterr().out)["gain_v_per_m_s2"] > 0
+
+
+def test_a_residual_far_above_the_noise_everywhere_is_not_called_explained(stepped4, capsys):
+    """Four stepped frequencies without noise (judged against the 0.5 % floor): chi2 per residual 824, 460 and 22 after,
+    and the verdict said "the baseline explains the data to within their noise" (the band test judges bands against
+    their channel's median, and had too few points besides)."""
+    from samii.diagnose.diagnosis import ChannelError, band_tested, even_misfit
+
+    assert main(["diagnose", stepped4["four"], "--no-progress"]) == 0
+    verdict = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("verdict:"))
+    assert "within their noise" not in verdict and "not explained" in verdict and "theta/v" in verdict
+    # the rule: above twice the noise's variance and above chance; a channel at its noise, or one without a known noise, is not
+    errors = {"act": ChannelError(1.0, 5.0, 824.0, 4), "base": ChannelError(0.1, 1.0, 1.2, 200), "total": ChannelError(1.0, 1.0, None, 4)}
+    assert even_misfit(errors) == {"act": 824.0}
+    assert even_misfit({"act": ChannelError(1.0, 1.0, 1.9, 4)}) == {}  # (1.9 is within chance on 8 residuals)
+    assert band_tested(errors) and not band_tested({"act": ChannelError(1.0, 1.0, 1.0, 17)})
+
+
+def test_a_theta_rounded_to_a_constant_gives_no_numpy_warning(measured):
+    """theta rounded to 0.01 rad (the signal a few mrad: one sample of 44,000 not 0) made the noise estimate's pooling overflow: "RuntimeWarning:
+    overflow encountered in square" reached the user before the verdict."""
+    import warnings
+    from dataclasses import replace
+
+    from samii.diagnose.measured import from_timeseries
+    from samii.measure.io import read_timeseries_csv
+
+    ts = read_timeseries_csv(measured["ts"])
+    step = 1.9 * float(np.max(np.abs(ts.theta)))  # all but the peak samples round to 0
+    rounded = replace(ts, theta=np.round(ts.theta / step) * step)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        m = from_timeseries(rounded, source="rounded.csv")
+    assert m.frf.freq_hz.size > 0
+
+
+def test_an_frf_header_rate_that_is_text_is_refused(measured, tmp_path, capsys):
+    """'# sample_rate_hz: abc' in an FRF file was passed over without a word (the Nyquist check and a diagnosis'
+    sampling model skipped); a time series refused it."""
+    f = tmp_path / "abc.csv"
+    f.write_text("\n".join("# sample_rate_hz: abc" if ln.startswith("# sample_rate_hz:") else ln
+                           for ln in Path(measured["frf"]).read_text().splitlines()) + "\n")
+    for argv in (["fit", str(f), "--no-progress"], ["diagnose", str(f), "--no-progress"]):
+        assert main(argv) == 2
+        line = _one_line(capsys)
+        assert f"{f}, line " in line and "'# sample_rate_hz:' to give a positive number" in line and "'abc'" in line
+
+
+def test_a_screenshot_that_fails_keeps_neither_page_nor_picture(report_folder, tmp_path, monkeypatch, capsys):
+    """A browser that failed (SAMII_BROWSER=/bin/false) gave exit 1, "internal error", and left the new page behind. It is
+    the browser's failure: exit 2, said so, and nothing written, the folders made for them removed."""
+    monkeypatch.setenv("SAMII_BROWSER", "/bin/false")
+    page, png = tmp_path / "new" / "r.html", tmp_path / "new2" / "r.png"
+    assert main(["report", str(report_folder), "--out", str(page), "--screenshot", str(png)]) == 2
+    line = _one_line(capsys)
+    assert line.startswith("samii report: error: --screenshot: false failed on") and "nothing was written" in line
+    assert not page.parent.exists() and not png.parent.exists()
+    browser = tmp_path / "browser"  # a stand-in that writes a picture where it is told (no Chromium here)
+    browser.write_text(f"#!{sys.executable}\nimport sys\nfrom PIL import Image\n"
+                       "out = next(a.split('=', 1)[1] for a in sys.argv if a.startswith('--screenshot='))\n"
+                       "img = Image.new('RGB', (1200, 900), (255, 255, 255)); img.paste((0, 0, 0), (10, 10, 300, 400)); img.save(out)\n")
+    browser.chmod(0o755)
+    monkeypatch.setenv("SAMII_BROWSER", str(browser))
+    assert main(["report", str(report_folder), "--out", str(page), "--screenshot", str(png)]) == 0
+    assert page.read_text().startswith("<!DOCTYPE html>") and png.read_bytes()[:4] == b"\x89PNG"
+    assert sorted(p.name for p in page.parent.iterdir()) == ["r.html"] and sorted(p.name for p in png.parent.iterdir()) == ["r.png"]
+
+
+def test_a_report_never_replaces_a_file_it_is_made_from(report_folder, capsys):
+    """samii report RUN --out RUN/summary.json --overwrite wrote the page over the run's summary (exit 0): the folder
+    could not be reported again. So could --screenshot RUN/fit/bode_fit.png replace a stage's figure."""
+    summary = (report_folder / "summary.json").read_bytes()
+    figure = (report_folder / "fit" / "bode_fit.png").read_bytes()
+    for argv in (["--out", str(report_folder / "summary.json")],
+                 ["--out", str(report_folder / "r2.html"), "--screenshot", str(report_folder / "fit" / "bode_fit.png")]):
+        assert main(["report", str(report_folder), *argv, "--overwrite"]) == 2
+        assert "would replace one of the files the page is made from" in _one_line(capsys)
+    assert (report_folder / "summary.json").read_bytes() == summary and (report_folder / "fit" / "bode_fit.png").read_bytes() == figure
+    assert not (report_folder / "r2.html").exists()
+
+
+def test_a_standard_error_out_of_the_range_of_numbers_is_named(tmp_path, capsys):
+    """stderr 1e300 overflowed the covariance (two numpy warnings), and the refusal blamed a draw of nan ("narrow the
+    spread"), not the file's field."""
+    from samii.sim.model import default_params
+
+    nominal = default_params().as_dict()
+    k = nominal["beam"]["clamp_stiffness_Nm_rad"]
+    for se in (1e300, 1e-300):
+        params = [{"name": "beam.clamp_stiffness_Nm_rad", "value": k, "stderr": se, "bounds": [0.1 * k, 10 * k]}]
+        p = tmp_path / "cal.json"
+        p.write_text(json.dumps({"parameters": params, "correlation": [[1.0]], "calibrated_params": nominal}))
+        assert main(["robust", "--controller", "unity", "--covariance", str(p), "--samples", "2", "--no-progress"]) == 2
+        line = _one_line(capsys)
+        assert f"--covariance {p}: field 'parameters'[0] (beam.clamp_stiffness_Nm_rad): stderr" in line and "warning" not in line

@@ -283,16 +283,12 @@ def calibrate(
             raise ValueError(f"parameter {n}: start {v:.6g} lies outside its bounds [{lo:.6g}, {hi:.6g}]")
 
     from samii.identify.fit import resolve_weighting
-    from samii.identify.lack_of_fit import MIN_COHERENCE, noise_only
+    from samii.identify.lack_of_fit import refuse_noise
 
     weighting = resolve_weighting(data, channels, weighting)
     structure = SimulatorFRF(base, names)
     problem = FitProblem(data, structure, phase_weight=phase_weight, band_hz=band_hz, channels=channels, weighting=weighting)
-    best = noise_only(problem.data, problem.channels)
-    if best is not None:
-        raise ValueError(f"no point has coherence >= {MIN_COHERENCE:g} in the fitted channels {', '.join(problem.channels)} "
-                         f"(the highest is {best:.3g}): the data are noise (was the rig excited? are the sensors connected?) "
-                         "and there is nothing to calibrate against; if the coherence columns hold no measurement, leave them out")
+    refuse_noise(problem.data, problem.channels, "calibrate against")
     free = problem.fitted
     if not np.all(free):
         idle = [n for n, f in zip(names, free) if not f]

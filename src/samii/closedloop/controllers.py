@@ -180,21 +180,12 @@ def controller_json(saved: SavedController) -> dict:
 
 
 def write_controller(saved: SavedController, path: str | Path) -> Path:
-    """Write ``saved`` as a controller file (strict JSON, every digit kept); all or nothing (a temporary file renamed)."""
-    import os
-
+    """Write ``saved`` as a controller file (strict JSON, every digit kept); all or nothing (a temporary file renamed;
+    a full disk's error names ``path``)."""
     from samii.json_output import dumps
+    from samii.measure.io import write_text
 
-    path = Path(path)
-    text = dumps(controller_json(saved), indent=1) + "\n"
-    tmp = path.parent / f".{path.name}.{os.getpid()}.tmp"
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
+    return write_text(path, dumps(controller_json(saved), indent=1) + "\n", overwrite=True)
 
 
 def _finite_number(x) -> bool:

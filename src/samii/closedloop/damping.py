@@ -252,11 +252,16 @@ def with_data_check(design: DampingDesign, frf) -> DampingDesign:
 
 def measured_fit(frf, *, band_hz: tuple[float, float] = FIT_BAND_HZ):
     """The notebook's 3-mode s^4 structure fitted to ``frf`` (coherence-weighted when it has coherence)."""
-    from samii.identify.fit import fit
+    from samii.identify.fit import check_not_noise, fit
 
     lo, hi = band_hz
     f = np.asarray(frf.freq_hz)
     band = (max(lo, float(f.min())), min(hi, float(f.max())))
+    if not band[0] < band[1]:
+        n = int(np.count_nonzero((f >= lo) & (f <= hi)))
+        raise ValueError(f"{n} frequency point(s) in the design's fit band {lo:g}-{hi:g} Hz (the data span "
+                         f"{f.min():.4g}-{f.max():.4g} Hz); a fit of the 3-mode model needs a band of many")
+    check_not_noise(frf, band_hz=band)  # a design on noise: refused (a fit of it is not sound, said below in any case)
     return fit(frf, weighting="auto", band_hz=band, profile=False)  # the design reads the parameters, not their intervals
 
 

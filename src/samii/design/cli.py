@@ -499,7 +499,17 @@ def run_damping(args) -> int:
             from samii.sim.plugin import hydraulic_params
 
             kp = hydraulic_params(load_model()).position_gain
-        fr = dm.measured_fit(data)
+        try:
+            fr = dm.measured_fit(data)
+        except (ValueError, KeyError) as exc:  # the data cannot be fitted (too few points in the band, noise): the file's
+            from samii.identify.cli import _library_error
+
+            raise _library_error(args.frf, exc) from None
+        if not fr.sound:  # a controller on parameters the fit says not to use: refused, in samii fit's words
+            why = "; ".join(fr.concerns) or f"it did not converge ({fr.message})"
+            raise InputError(f"{args.frf}: the notebook's 3-mode model fitted to it over {fr.band_hz[0]:.3g}-{fr.band_hz[1]:.3g} Hz is "
+                             "not a sound fit, and a controller designed on its parameters would not be trusted; samii fit "
+                             f"{args.frf} --band-hz {fr.band_hz[0]:.3g} {fr.band_hz[1]:.3g} says why: {why}")
         summary = {"data": str(args.frf), "band_hz": list(fr.band_hz), "rms_mag_db": dict(fr.rms_mag_db),
                    "rms_phase_deg": dict(fr.rms_phase_deg), "converged": bool(fr.converged)}  # fmt: skip
         d = dm.design_damping(fr.params, position_gain_v_per_rad=kp, sample_time_s=args.sample_time_s, delay_samples=args.delay_samples,

@@ -237,6 +237,7 @@ def _write_rerun(d, path, fps):
 def _print(d, written) -> None:
     import numpy as np
 
+    from samii.diagnose.diagnosis import BAND_POINTS, band_tested, even_misfit
     from samii.diagnose.diagnosis import CHANNEL_NAMES as _NAMES
     from samii.diagnose.model import MAX_VAR
     from samii.diagnose.select import theta_usable
@@ -264,6 +265,15 @@ def _print(d, written) -> None:
             why = "no effect of the library is attributed, and a residual beyond the noise remains (unexplained, below)"
         elif d.unexplained:
             why = "no effect of the library is needed, but a residual beyond the noise remains (unexplained, below)"
+        elif left := even_misfit(d.error_after):
+            said = ", ".join(f"{_NAMES.get(c, c)} {v:.3g}" for c, v in left.items())
+            why = (f"no effect of the library is needed, but the residual stays above the noise (chi2 per residual {said}) "
+                   "evenly, with no band standing out: the noise these data are judged against is too small for them, or the "
+                   "baseline misses everywhere alike; not explained")
+        elif not band_tested(d.error_after):
+            most = max((e.n_points for e in d.error_after.values()), default=0)
+            why = (f"the baseline fits the data to within their noise, but on {most} usable point(s) a channel at most, too few "
+                   f"to look for a band of misfit ({2 * BAND_POINTS}): little is tested")
         else:
             why = "the baseline explains the data to within their noise"
         print("verdict: none: " + why + (f"; {sim}" if sim else ""))

@@ -342,6 +342,31 @@ def unexplained_bands(datasets: Sequence[Dataset], residuals: Sequence[Mapping[s
     return out
 
 
+#: A channel's chi2 per residual above this (variance over the noise's: 2 is a residual 1.4 times the noise) is a misfit
+#: a reader would see, when chance cannot make it either (:func:`even_misfit`).
+EVEN_MISFIT_RATIO = 2.0
+
+
+def even_misfit(errors: Mapping[str, ChannelError], *, alpha: float = ALPHA) -> dict[str, float]:
+    """Channels whose residual stays above their noise as a whole: chi2 per residual above ``EVEN_MISFIT_RATIO`` and
+    above what chance gives its 2 n real residuals at ``alpha``. :func:`unexplained_bands` judges each band against its
+    channel's own median (a noise stated too small is no finding there), so a misfit spread evenly over the band, or
+    on too few points for a band, shows only here: a verdict of none must not call it "within their noise"."""
+    out = {}
+    for ch, e in errors.items():
+        if e.chi2 is None or e.n_points < 1:
+            continue
+        dof = 2 * e.n_points
+        if e.chi2 > max(EVEN_MISFIT_RATIO, float(stats.chi2.isf(alpha, dof)) / dof):
+            out[ch] = e.chi2
+    return out
+
+
+def band_tested(errors: Mapping[str, ChannelError]) -> bool:
+    """Some channel has the points :func:`unexplained_bands` needs to look for a band of misfit (2 x BAND_POINTS)."""
+    return any(e.n_points >= 2 * BAND_POINTS for e in errors.values())
+
+
 def _runs(flag: np.ndarray) -> list[tuple[int, int]]:
     edges = np.diff(np.concatenate([[0], flag.astype(int), [0]]))
     return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))

@@ -257,8 +257,11 @@ def timeseries_frf(ts: TimeSeries, layout: RecordLayout, *, band_hz: tuple[float
         spread[~np.isfinite(spread)] = np.nan  # no estimate there (a zero spectrum): left out of the pool
         var[ch] = np.maximum(_window_means(spread * r2, lo, hi) / r2[at], 1e-30)
         if ch != "total":
-            dg = np.nan_to_num(d[:, at])
-            devs.append(dg / np.sqrt(np.maximum(_pool(np.mean(np.abs(dg) ** 2, axis=0)), 1e-30)))
+            # (a point without an estimate, a zero spectrum of a signal rounded to a constant, counts as no deviation:
+            # nan_to_num made it 1.8e308, whose square overflowed with a numpy warning to the user)
+            dg = np.where(np.isfinite(d[:, at]), d[:, at], 0.0)
+            with np.errstate(over="ignore"):
+                devs.append(dg / np.sqrt(np.maximum(_pool(np.mean(np.abs(dg) ** 2, axis=0)), 1e-30)))
     how = (f"record-to-record spread of {n_records} records, pooled over the FFT bins around each point "
            f"(at least {POOL}; weighted by the excitation's power)")
     return frf, var, _corr_length(np.vstack(devs)), how

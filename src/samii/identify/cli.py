@@ -220,7 +220,7 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from samii.identify.fit import fit
+    from samii.identify.fit import check_not_noise, fit
     from samii.identify.report import json_text, summary_dict, write_fit_outputs
     from samii.identify.structures import ModelStructure
 
@@ -238,6 +238,10 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"{args.frf}: --band-hz {band[0]:g} {band[1]:g}: no frequency point in the band (the data span "
                              f"{data.freq_hz[0]:g}-{data.freq_hz[-1]:g} Hz)")
         rng = np.random.default_rng(0)
+        try:  # noise: refused before any work, as calibrate and diagnose refuse it (a fit of it converged to "a sound fit")
+            check_not_noise(data, structure, band_hz=band)
+        except ValueError as exc:
+            raise _library_error(args.frf, exc) from None
         results = []
         for w in weights:
             try:

@@ -55,13 +55,13 @@ import numpy as np
 
 from samii.frequency_response import Channel, FrequencyResponse
 from samii.identify.cost import FitProblem, Weighting, thinning_step
-from samii.identify.lack_of_fit import LackOfFit, averages_from_metadata, lack_of_fit
+from samii.identify.lack_of_fit import MIN_COHERENCE, LackOfFit, averages_from_metadata, lack_of_fit, noise_only, refuse_noise
 from samii.identify.notebook_loop import NOTEBOOK_TOL_PCT, PercentChange, percent_change
 from samii.identify.profile import Profile, interval_text, profile_scan
 from samii.identify.starts import auto_start, modes_from_total, notebook_start, perturbed_start, scan_modes, snap_to_peaks
 from samii.identify.structures import ModelStructure
 
-__all__ = ["FitResult", "fit", "fit_problem", "profile_names", "resolve_weighting", "BOUNDS"]
+__all__ = ["FitResult", "check_not_noise", "fit", "fit_problem", "profile_names", "resolve_weighting", "BOUNDS"]
 
 #: Physical sanity bounds (rad/s for frequencies and tau). Damping up to 5:
 #: the notebook's own pw=0.5 fit reached z1 = 0.82 (eq 9.12), so it must be allowed.
@@ -833,6 +833,9 @@ def _assess(problem: FitProblem, params: Mapping[str, float], lof: LackOfFit,
     """
     defects = _defects(problem, params, n_averages)
     concerns = [d.text for d in defects if d.kind == "misplaced"]
+    if (best := noise_only(problem.data, problem.channels)) is not None:  # a minimum of noise (it said "a sound fit")
+        concerns.insert(0, f"no point has coherence >= {MIN_COHERENCE:g} in the fitted channels (the highest is {best:.3g}): the "
+                           "data are noise, and no parameter is determined by them; measure with more excitation")
     caveats = [d.text for d in defects if d.kind == "unmeasured"]
     undetermined = tuple(dict.fromkeys(n for d in defects if d.kind == "unmeasured" for n in d.names))
     if lof.found:
@@ -1031,6 +1034,15 @@ def resolve_weighting(data: FrequencyResponse, channels: Sequence[Channel] | Non
         if "base" not in channels and "total" in data.channels:
             channels.append("total")
     return "coherence" if channels and all(data.coherence(c) is not None for c in channels) else "none"
+
+
+def check_not_noise(data: FrequencyResponse, structure: ModelStructure | None = None, *, band_hz: tuple[float, float] | None = None,
+                    channels: Sequence[Channel] | None = None) -> None:
+    """ValueError when every channel a fit of ``data`` would use is noise (``lack_of_fit.refuse_noise``): for the
+    commands that refuse such data before any work (:func:`fit` itself returns a fit that is not sound)."""
+    problem = FitProblem(data, structure or ModelStructure.notebook_3mode(), band_hz=band_hz,
+                         channels=None if channels is None else tuple(channels))
+    refuse_noise(problem.data, problem.channels, "fit")
 
 
 def fit(

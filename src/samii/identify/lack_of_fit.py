@@ -60,7 +60,7 @@ import numpy as np
 
 from samii.identify.cost import COHERENCE_CLIP, DB_PER_NEPER, DEG_PER_RAD, FitProblem
 
-__all__ = ["RATIO", "MIN_COHERENCE", "BRIDGE_REL", "MisfitBand", "LackOfFit", "averages_from_metadata", "lack_of_fit", "noise_only"]
+__all__ = ["RATIO", "MIN_COHERENCE", "BRIDGE_REL", "MisfitBand", "LackOfFit", "averages_from_metadata", "lack_of_fit", "noise_only", "refuse_noise"]
 
 RATIO = 5.0
 #: Below this coherence a point is noise-dominated and is not tested.
@@ -219,6 +219,16 @@ def noise_only(data, channels=None) -> float | None:
     if not cohs or any(c is None for c in cohs) or any(np.any(c >= MIN_COHERENCE) for c in cohs):
         return None
     return max(float(np.nanmax(c)) if np.any(np.isfinite(c)) else 0.0 for c in cohs)
+
+
+def refuse_noise(data, channels, task: str) -> None:
+    """ValueError when :func:`noise_only` says the fitted ``channels`` are noise: there is nothing to ``task`` (a fit on
+    noise converges on something, and said "a sound fit with caveats")."""
+    best = noise_only(data, channels)
+    if best is not None:
+        raise ValueError(f"no point has coherence >= {MIN_COHERENCE:g} in the fitted channels {', '.join(channels)} "
+                         f"(the highest is {best:.3g}): the data are noise (was the rig excited? are the sensors connected?) "
+                         f"and there is nothing to {task}; if the coherence columns hold no measurement, leave them out")
 
 
 #: Most averages a ``frf_records`` line may claim (as ``samii fit --averages``): a swept sine has a

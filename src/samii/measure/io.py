@@ -690,13 +690,14 @@ def stated_sample_rate(text: str | None) -> float | None:
         return None
 
 
-def _stated_rate(table: _Table, *, text_allowed: bool) -> float | None:
-    """The ``# sample_rate_hz:`` line's rate (None without one). A number that is no rate (<= 0, nan, inf) is refused
-    naming the line, and so is text unless ``text_allowed`` (an FRF file's header may say "1 kHz": not read)."""
+def _stated_rate(table: _Table) -> float | None:
+    """The ``# sample_rate_hz:`` line's rate (None without one). Anything but a rate (text, "1 kHz", <= 0, nan, inf) is
+    refused naming the line: an FRF header's "abc" was passed over without a word, its Nyquist check and a diagnosis'
+    sampling model skipped."""
     text = table.metadata.get("sample_rate_hz")
-    rate = stated_sample_rate(text)
-    if text is None or (rate is None and text_allowed):
+    if text is None:
         return None
+    rate = stated_sample_rate(text)
     if rate is None or not 0 < rate < float("inf"):  # (a sampling model divides by it)
         raise DataFormatError(table.path, f"expected '# sample_rate_hz:' to give a positive number of samples per second, "
                                           f"got {_cell(text)}", line=table.metadata_lines.get("sample_rate_hz"))
@@ -705,7 +706,7 @@ def _stated_rate(table: _Table, *, text_allowed: bool) -> float | None:
 
 def _check_sample_rate(table: _Table, t: np.ndarray) -> None:
     """The time step must agree with a ``# sample_rate_hz:`` line, if there is one."""
-    rate = _stated_rate(table, text_allowed=False)
+    rate = _stated_rate(table)
     if rate is None:
         return
     text = table.metadata["sample_rate_hz"]
@@ -868,7 +869,7 @@ class TimeSeriesCsvWriter:
 def _check_nyquist(table: _Table, f: np.ndarray) -> None:
     """A response estimated from records sampled at a stated ``# sample_rate_hz:`` (a plain number) ends at its Nyquist
     frequency: a point above it contradicts the header (a diagnosis models the sampling from it)."""
-    rate = _stated_rate(table, text_allowed=True)
+    rate = _stated_rate(table)
     if rate is None:
         return
     text = table.metadata["sample_rate_hz"]

@@ -111,5 +111,6 @@ def _run(cmd: list[str], raw: Path, timeout_s: float) -> tuple[bool, str]:
         proc.wait()
     err = log.read_text(errors="replace") if log.is_file() else ""
     if proc.returncode != 0 or not raw.is_file():
-        return False, f"exit {proc.returncode}: {' | '.join(err.strip().splitlines()[-3:])}"
+        said = " | ".join(err.strip().splitlines()[-3:])
+        return False, f"exit {proc.returncode}" + (f": {said}" if said else "") + ("" if raw.is_file() else ", no screenshot written")
     return True, ""

@@ -41,8 +41,13 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{out}: is a folder; the report is a file (remove the folder, or write the page elsewhere with --out FILE)")
     elif out.exists() and not args.overwrite:  # as every command's --out: nothing replaced unless asked
         raise InputError(f"{out}: exists (the main job wrote it); pass --overwrite to write it again, or --out FILE to write it elsewhere")
+    _not_the_runs_own(folder, out, option="--out", allowed=lambda rel: rel.suffix.lower() in (".html", ".htm"),
+                     instead=" (or as DIR/report.html)")
     if args.screenshot:
         from samii.report.browser import find_browser
+        from samii.report.content import STAGE_FIGURES
+
+        _not_the_runs_own(folder, Path(args.screenshot), option="--screenshot", allowed=lambda rel: str(rel) not in STAGE_FIGURES.values())
 
         check_output_file(Path(args.screenshot), overwrite=args.overwrite, option="--screenshot")
         if find_browser() is None:
@@ -53,15 +58,57 @@ def run(args: argparse.Namespace) -> int:
                                  "command on PATH)")
             raise InputError("--screenshot: no Chromium found (install chromium, e.g. apt-get install chromium, or set SAMII_BROWSER)")
     run_folder = read_run_folder(folder)
-    path = write_report(run_folder, out)
+    if args.screenshot:
+        path, shot = _page_and_screenshot(run_folder, out, Path(args.screenshot), args.width)
+    else:
+        path, shot = write_report(run_folder, out), None
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB, self-contained: open it in a browser)")
     if run_folder.gaps:
         import sys
 
         print(f"warning: {folder} lacks what a main job writes (the page marks it): {'; '.join(run_folder.gaps)}", file=sys.stderr)
-    if args.screenshot:
-        from samii.report.browser import screenshot
-
-        shot = screenshot(path, Path(args.screenshot), width=args.width)
+    if shot is not None:
         print(f"wrote {shot.path} ({shot.width}x{shot.height} px, {shot.browser})")
     return 0
+
+
+def _not_the_runs_own(folder: Path, path: Path, *, option: str, allowed, instead: str = "") -> None:
+    """Refuse an output that would replace a file the page is made from (``--out DIR/summary.json --overwrite`` wrote
+    the page over the run's summary, and the folder could not be reported again)."""
+    from samii.errors import InputError
+
+    try:
+        rel = path.resolve().relative_to(folder.resolve())
+    except (ValueError, OSError):
+        return
+    if not allowed(rel):
+        raise InputError(f"{option} {path}: lies in the run's folder {folder} and would replace one of the files the page is made "
+                         f"from; write it elsewhere{instead}")
+
+
+def _page_and_screenshot(run_folder, out: Path, png: Path, width: int):
+    """The page and its screenshot, both or neither: the page is written and shot under hidden names beside their places,
+    then both renamed into place (a browser that failed left the new page without its screenshot, and exit 1)."""
+    import os
+
+    from samii.errors import InputError, uninterrupted
+    from samii.outputs import parent_made_for
+    from samii.report.browser import screenshot
+    from samii.report.page import write_report
+
+    tmp_page = out.parent / f".{out.stem}.samii-{os.getpid()}.html"  # (the browser reads it as HTML by its suffix)
+    tmp_png = png.parent / f".{png.stem}.samii-{os.getpid()}.png"
+    with parent_made_for(out), parent_made_for(png):  # (a folder made for them removed again on failure: after the finally)
+        try:
+            write_report(run_folder, tmp_page)
+            try:
+                shot = screenshot(tmp_page, tmp_png, width=width)
+            except RuntimeError as exc:  # the browser's failure, not the run's: said as such, nothing kept
+                raise InputError(f"--screenshot: {str(exc).replace(str(tmp_page.absolute()), str(out))}; nothing was written") from None
+            with uninterrupted(done=out):
+                os.replace(tmp_page, out)
+                os.replace(tmp_png, png)
+        finally:
+            for t in (tmp_page, tmp_png):
+                t.unlink(missing_ok=True)
+    return out, type(shot)(png, shot.width, shot.height, shot.browser)

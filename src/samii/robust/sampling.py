@@ -120,6 +120,10 @@ def read_covariance(path) -> Covariance:
         if not math.isfinite(s) or s <= 0:
             raise InputError(f"--covariance {path}: parameter {names[-1]} has no finite positive standard error ({p['stderr']!r}): the "
                              "calibration could not determine it; calibrate without it, or give its spread with --spread")
+        if not 0.0 < s * s < math.inf:  # (the covariance is built of their products)
+            raise InputError(f"--covariance {path}: field 'parameters'[{i}] ({names[-1]}): stderr {s:.3g} beside its value "
+                             f"{mean[-1]:.3g} is no standard error a calibration gives (its square leaves the range of numbers); "
+                             "the file is damaged: calibrate again, or give its spread with --spread")
         if not lo < hi:
             raise InputError(f"--covariance {path}: parameter {names[-1]} has bounds [{lo:g}, {hi:g}]; expected [LO, HI] with LO < HI")
         se.append(s)
