@@ -1148,3 +1148,36 @@ def test_a_standard_error_out_of_the_range_of_numbers_is_named(tmp_path, capsys)
         assert main(["robust", "--controller", "unity", "--covariance", str(p), "--samples", "2", "--no-progress"]) == 2
         line = _one_line(capsys)
         assert f"--covariance {p}: field 'parameters'[0] (beam.clamp_stiffness_Nm_rad): stderr" in line and "warning" not in line
+
+
+@pytest.mark.parametrize("setting", ["beam.clamp_stiffness_Nm_rad=1e10", "beam.clamp_stiffness_Nm_rad=1e16", "hydraulic.bulk_modulus=1e11",
+                                     "timestep_s=0.003"])
+def test_a_model_too_stiff_for_its_step_is_refused_before_it_runs(setting, tmp_path, monkeypatch, capfd):
+    """--set beam.clamp_stiffness_Nm_rad=1e16 printed MuJoCo's "WARNING: Nan, Inf or huge value in QACC" (from C, beside
+    a MUJOCO_LOG.TXT left in the working folder) and modes of nan; 1e10 in robust was "UNSTABLE, zeta -0.946 at 500 Hz",
+    the step's Nyquist frequency: the integrator's divergence called the plant's. Refused now, naming the value."""
+    monkeypatch.chdir(tmp_path)
+    for argv in (["modes"], ["closedloop", "--controller", "unity", "--scenario", "step"]):
+        assert main([*argv, "--set", setting]) == 2
+        out, err = capfd.readouterr()
+        lines = [ln for ln in err.splitlines() if ln.strip()]
+        assert len(lines) == 1 and "WARNING" not in out + err, err
+        name, value = setting.split("=")
+        assert f"the model with {name}={float(value):g} cannot be simulated at its" in lines[0] and "too stiff for the step" in lines[0]
+    assert list(tmp_path.iterdir()) == []  # (no MUJOCO_LOG.TXT)
+
+
+def test_mujocos_own_warnings_are_python_warnings_and_no_log_file(tmp_path, monkeypatch, capfd):
+    """A run that diverges still says so (SimulationUnstable), and MuJoCo's own words come as one Python warning, not
+    printed from C and appended to MUJOCO_LOG.TXT in the working folder."""
+    from samii.errors import SimulationUnstable
+    from samii.sim.model import load_model
+    from samii.sim.plugin import MuJoCoWarning
+    from samii.sim.simulate import simulate
+
+    monkeypatch.chdir(tmp_path)
+    fast = load_model(overrides={"timestep_s": 3e-3}, check_step=False)
+    with pytest.warns(MuJoCoWarning, match="Nan, Inf or huge value"), pytest.raises(SimulationUnstable):
+        simulate(fast, np.full(20000, 5.0))
+    out, err = capfd.readouterr()
+    assert "WARNING" not in out + err and list(tmp_path.iterdir()) == []

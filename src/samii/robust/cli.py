@@ -175,8 +175,8 @@ def run(args: argparse.Namespace) -> int:
 
     summary = summarise(draws, samples)
     if summary.n == 0:
-        raise InputError(f"none of the {args.samples} drawn plants could be built (no static equilibrium near the nominal pose: "
-                         f"{samples[0].note}); narrow the spreads")
+        why = samples[0].note.removeprefix("no plant: ")
+        raise InputError(f"none of the {args.samples} drawn plants could be built (the first: {why}); narrow the spreads")
     doc = {
         "controller": args.controller, "scenario": args.scenario, "seed": args.seed, "n_samples": args.samples,
         "engine": engine.describe(), "wall_s": wall,
@@ -238,7 +238,8 @@ def _lines(doc: dict, s) -> list[str]:
         out.append("influence on the damping (Spearman rho): " + ", ".join(f"{d['name']} {d['spearman']:+.2f}" for d in s.influence[:4]))
     out.append("worst samples:")
     if s.n_invalid:
-        out.append(f"{s.n_invalid} drawn plant(s) could not be built (no static equilibrium near the nominal pose) and are not counted")
+        out.append(f"{s.n_invalid} drawn plant(s) could not be built (no static equilibrium near the nominal pose, or a mode too stiff "
+                   "for the physics step) and are not counted")
     for w in s.worst[:3]:
         params = ", ".join(f"{k} {rel:+.1f} %" if rel is not None else f"{k} {w['params'][k]:.4g}" for k, rel in w["params_rel_pct"].items())
         state = "UNSTABLE" if not w["stable"] else "stable"

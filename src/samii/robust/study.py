@@ -27,7 +27,7 @@ N_WORST = 5
 @dataclass(frozen=True)
 class StudySummary:
     n: int  #: plants run (the valid ones)
-    n_invalid: int  #: plants drawn that could not be built (no static equilibrium): not in n
+    n_invalid: int  #: plants drawn that could not be built (no static equilibrium, a mode too stiff for the step): not in n
     n_unstable: int
     p_unstable: float
     p_unstable_ci95: tuple[float, float]

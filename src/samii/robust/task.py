@@ -36,7 +36,7 @@ class SampleResult:
     theta_settle_s: float | None
     theta_overshoot_pct: float | None
     note: str = ""  #: why the run is unstable or could not be judged, in words
-    valid: bool = True  #: False: no plant could be built (no static equilibrium near the nominal pose); not counted
+    valid: bool = True  #: False: no plant could be built (no static equilibrium near the nominal pose, a mode too stiff for the step); not counted
     linear_stable: bool = True  #: the closed loop linearised about the rest state is stable
 
     def table_row(self) -> dict:
@@ -104,7 +104,7 @@ def _run_sample(task: SampleTask) -> SampleResult:
     params = params_from_dict(task.base_params)
     try:
         model = load_model(params=params, overrides=task.overrides)
-    except InputError as exc:  # no static equilibrium near the nominal pose: a plant the rig could not be
+    except InputError as exc:  # no static equilibrium near the nominal pose, or too stiff for the step: a plant the rig could not be
         return SampleResult(task.index, False, None, None, None, None, None, None, note=f"no plant: {exc}", valid=False)
     qpos, act = model.key_qpos[0].copy(), model.key_act[0].copy()
 

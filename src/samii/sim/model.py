@@ -214,7 +214,8 @@ def load_spec(path: str | Path | None = None, *, params: SamiiParams | None = No
     return mujoco.MjSpec.from_string(samii_xml(base)), True
 
 
-def load_model(path: str | Path | None = None, *, params: SamiiParams | None = None, overrides: Mapping[str, float] | None = None) -> mujoco.MjModel:
+def load_model(path: str | Path | None = None, *, params: SamiiParams | None = None, overrides: Mapping[str, float] | None = None,
+               check_step: bool = True) -> mujoco.MjModel:
     """Compile SAMII's model, with its ``home`` keyframe at static equilibrium.
 
     Parameters
@@ -227,12 +228,17 @@ def load_model(path: str | Path | None = None, *, params: SamiiParams | None = N
     overrides : mapping of dotted name to value, optional
         Replace some of the default (or given) parameters, e.g.
         ``{"beam.clamp_stiffness_Nm_rad": 2e5}``.
+    check_step : bool
+        Refuse (InputError) a model its own physics step cannot integrate, a mode too stiff for it (default); False
+        compiles it anyway, and a simulation of it diverges (``SimulationUnstable``).
     """
     from samii.sim.plugin import compile_spec
 
     spec, generated = load_spec(path, params=params, overrides=overrides)
     model = compile_spec(spec)  # validates the hydraulic config, naming any bad attribute
     _check_model(model, path)
+    if check_step:
+        _check_integrable(model, path, overrides)
     if generated:
         from samii.sim.equilibrium import static_equilibrium
 
@@ -255,6 +261,31 @@ def _check_model(model: mujoco.MjModel, path) -> None:
             raise InputError(f"{where}: no sensor named {sensor!r}")
     if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home") < 0:
         raise InputError(f"{where}: no keyframe named 'home' (the nominal pose)")
+
+
+def _check_integrable(model: mujoco.MjModel, path, overrides: Mapping[str, float] | None) -> None:
+    """Refuse a model its own physics step cannot integrate: an eigenvalue of the one-step map outside the unit circle
+    above a quarter of the step rate (Re z < 0). Such a mode, a spring too stiff for the step (beam.clamp_stiffness_Nm_rad
+    = 1e10 gives z = -1.2e4), grows in the simulator whatever the physics: it was reported as the plant's instability
+    at the step's Nyquist frequency (500 Hz), or MuJoCo printed its own warnings and the modes came out nan."""
+    from samii.sim.linearize import discrete_poles
+
+    import warnings
+
+    from samii.sim.plugin import MuJoCoWarning
+
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", MuJoCoWarning)  # (the one-step map of such a model overflows: said below)
+        z = discrete_poles(model, make_data(model))
+    bad = z[(z.real < 0) & ~(np.abs(z) <= 1.0 + 1e-9)]  # (a nan counts: the step itself overflowed)
+    if bad.size:
+        worst = bad[np.argmax(np.where(np.isfinite(bad), np.abs(bad), np.inf))]
+        dt = float(model.opt.timestep)
+        given = ", ".join(f"{k}={v:g}" for k, v in (overrides or {}).items())
+        where = f" with {given}" if given else (f" {path}" if path is not None else "")
+        raise InputError(f"the model{where} cannot be simulated at its {dt * 1e3:g} ms physics step: its one-step map has an "
+                         f"eigenvalue z = {worst:.3g} (|z| > 1 beyond a quarter of the step rate), a mode too stiff for the step "
+                         "that would grow whatever the physics; check the values (samii params lists the defaults)")
 
 
 def make_data(model: mujoco.MjModel) -> mujoco.MjData:

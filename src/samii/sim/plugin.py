@@ -140,7 +140,29 @@ def load_plugin() -> Path:
             raise PluginBuildError(f"{library} did not register the {PLUGIN_NAME} plugin: {exc}") from exc
         _slot = int(probe.plugin[0])
         _loaded = library
+        _route_mujoco_warnings()
         return library
+
+
+class MuJoCoWarning(RuntimeWarning):
+    """A warning of MuJoCo itself (a simulation that produced nan, a full constraint buffer), as a Python warning."""
+
+
+def _route_mujoco_warnings() -> None:
+    """MuJoCo's warnings as Python warnings (:class:`MuJoCoWarning`; the commands print each once, on one line), unless
+    the process set its own handler: by default MuJoCo prints them from C and appends them to MUJOCO_LOG.TXT in the
+    working folder, a file a command must not leave behind."""
+    if mujoco.get_mju_user_warning() is not None:
+        return
+
+    def warn(message: str) -> None:
+        import re
+        import warnings
+
+        text = re.sub(r"\s*Time = [-+0-9.eE]+\.?\s*$", "", str(message)).strip()  # (one message, whenever it came)
+        warnings.warn(text, MuJoCoWarning, stacklevel=2)
+
+    mujoco.set_mju_user_warning(warn)
 
 
 def probe_xml(
