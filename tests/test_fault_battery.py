@@ -1181,3 +1181,58 @@ def test_mujocos_own_warnings_are_python_warnings_and_no_log_file(tmp_path, monk
         simulate(fast, np.full(20000, 5.0))
     out, err = capfd.readouterr()
     assert "WARNING" not in out + err and list(tmp_path.iterdir()) == []
+
+
+def test_a_flipped_theta_is_refused_when_the_data_begin_at_1_hz(measured, tmp_path, capsys):
+    """theta recorded with the opposite sign is refused by its phase below 1 Hz (+90 deg where an integrator has -90);
+    data that began at 1 Hz skipped that check and were diagnosed ("pole_zero at 1e4 Hz", a leak of -5.8 1/s). Their
+    lowest octave is checked now (while it ends below 2.5 Hz, under half the actuator's resonance)."""
+    lines = Path(measured["frf"]).read_text().splitlines()
+    head = [ln for ln in lines if ln.startswith("#")]
+    body = [ln for ln in lines if not ln.startswith("#")]
+    cols = body[0].split(",")
+    rows, kept = [body[0]], [body[0]]
+    for ln in body[1:]:
+        v = ln.split(",")
+        if float(v[0]) < 1.0:
+            continue
+        kept.append(ln)
+        for c in ("act_phase_deg", "base_phase_deg"):  # theta times -1: theta/v and xdd/theta turn by 180 deg, xdd/v does not
+            k = cols.index(c)
+            v[k] = f"{(float(v[k]) + 360.0) % 360.0 - 180.0:.6g}"
+        rows.append(",".join(v))
+    flipped, straight = tmp_path / "flipped.csv", tmp_path / "from1hz.csv"
+    flipped.write_text("\n".join(head + rows) + "\n")
+    straight.write_text("\n".join(head + kept) + "\n")
+    from samii.diagnose.measured import check_actuator_sign, from_frf
+    from samii.measure.io import read_frf_csv
+
+    with pytest.raises(ValueError, match=r"theta/v.s phase below 2.03 Hz is \+\d+ deg over \d+ points.* opposite sign"):
+        check_actuator_sign(from_frf(read_frf_csv(flipped), source=str(flipped)))
+    check_actuator_sign(from_frf(read_frf_csv(straight), source=str(straight)))  # the same data unflipped: no word
+
+
+def test_a_mat_file_of_one_frequency_says_so(tmp_path, capsys):
+    """A .mat file of one frequency (loadmat squeezes a 1x1 matrix to a scalar) said "column 'freq': expected a non-empty
+    real numeric vector, got dtype float64 shape ()"; it is one frequency point, and said as such."""
+    import scipy.io
+
+    f = tmp_path / "one.mat"
+    scipy.io.savemat(f, {"freq": np.array([5.0]), "mean_io_mr": np.array([1.0]), "mean_io_ph": np.array([-90.0])})
+    assert main(["fit", str(f), "--no-progress"]) == 2
+    line = _one_line(capsys)
+    assert f"{f}: 1 frequency point(s)" in line and "needs at least 3" in line
+
+
+def test_a_covariance_of_a_calibration_that_did_not_converge_is_said(tmp_path, capsys):
+    """A calibration.json marked "converged": false was drawn from without a word."""
+    from samii.sim.model import default_params
+
+    nominal = default_params().as_dict()
+    k = nominal["hydraulic"]["bulk_modulus"]
+    params = [{"name": "hydraulic.bulk_modulus", "value": k, "stderr": 0.05 * k, "bounds": [0.5 * k, 2 * k]}]
+    p = tmp_path / "cal.json"
+    p.write_text(json.dumps({"parameters": params, "correlation": [[1.0]], "calibrated_params": nominal, "converged": False}))
+    assert main(["robust", "--controller", "unity", "--covariance", str(p), "--samples", "2", "--no-progress"]) == 0
+    line = _one_line(capsys)
+    assert line.startswith(f"samii robust: warning: --covariance {p}: the calibration did not converge")

@@ -509,6 +509,10 @@ def with_roughness_noise(m: Measured, model: Mapping[str, np.ndarray]) -> Measur
 #: theta/v's phase is checked below this frequency [Hz], well below the actuator's resonance (8.8 Hz in eq 9.4),
 #: where a valve-controlled actuator is an integrator: -90 deg, between -180 and 0 with a leak either way.
 SIGN_CHECK_HZ = 1.0
+#: Data that begin at or above SIGN_CHECK_HZ are checked over their lowest octave, if it ends below this [Hz]: still
+#: under half the actuator's resonance (8.8 Hz in eq 9.4), where its lag adds less than 30 deg to the integrator's
+#: -90 (a flipped file that began at 1 Hz, +79 deg there, was diagnosed: "pole_zero at 1e4 Hz", a leak of -5.8 1/s).
+SIGN_CHECK_MAX_HZ = 2.5
 #: A phase within this of +90 deg there is theta/v with its sign flipped [deg] (a valid one lies in -180...0).
 SIGN_MARGIN_DEG = 60.0
 
@@ -522,16 +526,20 @@ def check_actuator_sign(m: Measured) -> None:
         return
     f = m.frf.freq_hz
     h = m.frf.response("act")
-    use = (f < SIGN_CHECK_HZ) & np.isfinite(h) & (np.abs(h) > 0)
+    ok = np.isfinite(h) & (np.abs(h) > 0)
     var = m.var.get("act") if m.var else None
     if var is not None:
-        use &= np.asarray(var) < 0.1  # (Measured's noise-only points are left out)
+        ok &= np.asarray(var) < 0.1  # (Measured's noise-only points are left out)
+    if not ok.any():
+        return
+    top = max(SIGN_CHECK_HZ, min(2.0 * float(f[ok].min()), SIGN_CHECK_MAX_HZ))  # (below 1 Hz, else the lowest octave)
+    use = ok & (f < top)
     if use.sum() < 5:
         return
     u = h[use] / np.abs(h[use])
     phase = float(np.degrees(np.angle(np.sum(u))))
     if abs(phase - 90.0) < SIGN_MARGIN_DEG:
-        raise ValueError(f"{m.source}: theta/v's phase below {SIGN_CHECK_HZ:g} Hz is {phase:+.0f} deg over {int(use.sum())} points, where "
+        raise ValueError(f"{m.source}: theta/v's phase below {top:.3g} Hz is {phase:+.0f} deg over {int(use.sum())} points, where "
                          "a valve-controlled actuator integrates (-90 deg; -180...0 with a leak): theta or v is recorded with the "
                          "opposite sign (multiply that column by -1)")
 

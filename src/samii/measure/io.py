@@ -1162,6 +1162,8 @@ def read_mat_bode(path, *, freq_name: str | None = None, freq_unit: Literal["hz"
             raise DataFormatError(path, f"no variable {name!r}; the file holds {holds}", column=name) from None
         if isinstance(arr, str):  # not numeric: its description
             raise DataFormatError(path, f"expected a non-empty real numeric vector, got {arr}", column=name)
+        if arr.ndim == 0:  # one value (loadmat squeezes a 1x1 matrix to a scalar): a vector of one, judged as such below
+            arr = arr.reshape(1)
         if arr.ndim != 1 or arr.size == 0 or not np.issubdtype(arr.dtype, np.number) or np.iscomplexobj(arr):
             raise DataFormatError(path, f"expected a non-empty real numeric vector, got dtype {arr.dtype} shape {arr.shape}", column=name)
         arr = arr.astype(float)

@@ -78,6 +78,9 @@ def _nominal_params(args):
         if args.model:
             raise InputError("--model: with --covariance the nominal plant is the calibration's (its calibrated_params); give one of them")
         cov = read_covariance(args.covariance)
+        if cov.converged is False:  # its standard errors are those of a point that is no minimum: said, used as asked
+            print(f"samii robust: warning: --covariance {args.covariance}: the calibration did not converge (field 'converged' is "
+                  "false): its standard errors and correlations describe no minimum of its cost; calibrate again", file=sys.stderr)
         try:
             params = params_from_dict(cov.nominal, complete=True)
         except ValueError as exc:

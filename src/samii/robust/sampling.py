@@ -69,6 +69,7 @@ class Covariance:
     cov: np.ndarray
     bounds: tuple[tuple[float, float], ...]
     nominal: dict = field(default_factory=dict)  #: the calibrated parameter set (SamiiParams.as_dict), the study's nominal plant
+    converged: bool | None = None  #: the calibration's own word (None: the file does not say)
 
 
 def parse_spread(text: str) -> Spread:
@@ -165,7 +166,9 @@ def read_covariance(path) -> Covariance:
     s = np.asarray(se)
     cov = c * np.outer(s, s)
     cov = 0.5 * (cov + cov.T)
-    return Covariance(str(path), tuple(names), np.asarray(mean), cov, tuple(bounds), nominal)
+    converged = d.get("converged")
+    return Covariance(str(path), tuple(names), np.asarray(mean), cov, tuple(bounds), nominal,
+                      converged if isinstance(converged, bool) else None)
 
 
 @dataclass(frozen=True)
