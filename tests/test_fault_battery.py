@@ -1067,7 +1067,9 @@ def test_a_residual_far_above_the_noise_everywhere_is_not_called_explained(stepp
     # the rule: above twice the noise's variance and above chance; a channel at its noise, or one without a known noise, is not
     errors = {"act": ChannelError(1.0, 5.0, 824.0, 4), "base": ChannelError(0.1, 1.0, 1.2, 200), "total": ChannelError(1.0, 1.0, None, 4)}
     assert even_misfit(errors) == {"act": 824.0}
-    assert even_misfit({"act": ChannelError(1.0, 1.0, 1.9, 4)}) == {}  # (1.9 is within chance on 8 residuals)
+    assert even_misfit({"act": ChannelError(1.0, 1.0, 3.5, 400)}) == {}  # (a coherence's noise runs high: 2 at the noise)
+    assert even_misfit({"act": ChannelError(1.0, 1.0, 4.5, 2)}) == {}  # (4.5 is within chance on 4 residuals)
+    assert even_misfit({"act": ChannelError(1.0, 1.0, 4.5, 400)}) == {"act": 4.5}
     assert band_tested(errors) and not band_tested({"act": ChannelError(1.0, 1.0, 1.0, 17)})
 
 
