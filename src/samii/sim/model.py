@@ -238,7 +238,7 @@ def load_model(path: str | Path | None = None, *, params: SamiiParams | None = N
     model = compile_spec(spec)  # validates the hydraulic config, naming any bad attribute
     _check_model(model, path)
     if check_step:
-        _check_integrable(model, path, overrides)
+        _check_integrable(model, path, params, overrides)
     if generated:
         from samii.sim.equilibrium import static_equilibrium
 
@@ -263,29 +263,48 @@ def _check_model(model: mujoco.MjModel, path) -> None:
         raise InputError(f"{where}: no keyframe named 'home' (the nominal pose)")
 
 
-def _check_integrable(model: mujoco.MjModel, path, overrides: Mapping[str, float] | None) -> None:
-    """Refuse a model its own physics step cannot integrate: an eigenvalue of the one-step map outside the unit circle
-    above a quarter of the step rate (Re z < 0). Such a mode, a spring too stiff for the step (beam.clamp_stiffness_Nm_rad
-    = 1e10 gives z = -1.2e4), grows in the simulator whatever the physics: it was reported as the plant's instability
-    at the step's Nyquist frequency (500 Hz), or MuJoCo printed its own warnings and the modes came out nan."""
-    from samii.sim.linearize import discrete_poles
-
+def _unresolved(model: mujoco.MjModel) -> np.ndarray:
+    """Eigenvalues of ``model``'s one-step map (about its ``home`` keyframe) outside the unit circle above a quarter of
+    the step rate (Re z < 0): modes too stiff for the step, which grow in the simulator whatever the physics."""
     import warnings
 
+    from samii.sim.linearize import discrete_poles
     from samii.sim.plugin import MuJoCoWarning
 
     with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", MuJoCoWarning)  # (the one-step map of such a model overflows: said below)
+        warnings.simplefilter("ignore", MuJoCoWarning)  # (the one-step map of such a model overflows: said by the caller)
         z = discrete_poles(model, make_data(model))
-    bad = z[(z.real < 0) & ~(np.abs(z) <= 1.0 + 1e-9)]  # (a nan counts: the step itself overflowed)
-    if bad.size:
-        worst = bad[np.argmax(np.where(np.isfinite(bad), np.abs(bad), np.inf))]
-        dt = float(model.opt.timestep)
-        given = ", ".join(f"{k}={v:g}" for k, v in (overrides or {}).items())
-        where = f" with {given}" if given else (f" {path}" if path is not None else "")
-        raise InputError(f"the model{where} cannot be simulated at its {dt * 1e3:g} ms physics step: its one-step map has an "
-                         f"eigenvalue z = {worst:.3g} (|z| > 1 beyond a quarter of the step rate), a mode too stiff for the step "
-                         "that would grow whatever the physics; check the values (samii params lists the defaults)")
+    return z[(z.real < 0) & ~(np.abs(z) <= 1.0 + 1e-9)]  # (a nan counts: the step itself overflowed)
+
+
+def _check_integrable(model: mujoco.MjModel, path, params, overrides: Mapping[str, float] | None) -> None:
+    """Refuse a model its own physics step cannot integrate (:func:`_unresolved`). A spring too stiff for the step
+    (beam.clamp_stiffness_Nm_rad = 1e10 gives z = -1.2e4; a 3 m beam's elements z = -6.8) was reported as the plant's
+    instability at the step's Nyquist frequency (500 Hz), or ran with joint speeds of 1e5 rad/s and no word, or MuJoCo
+    printed its own warnings and the modes came out nan. For a model built from parameters, the step that would
+    integrate it (halved up to four times) is named."""
+    bad = _unresolved(model)
+    if not bad.size:
+        return
+    worst = bad[np.argmax(np.where(np.isfinite(bad), np.abs(bad), np.inf))]
+    dt = float(model.opt.timestep)
+    given = ", ".join(f"{k}={v:g}" for k, v in (overrides or {}).items())
+    where = f" with {given}" if given else (f" {path}" if path is not None else "")
+    fix = "check the values (samii params lists the defaults)"
+    if path is None or str(path).lower().endswith(".json"):
+        from samii.sim.plugin import compile_spec
+
+        for k in range(1, 5):
+            try:
+                spec, _ = load_spec(path, params=params, overrides={**(overrides or {}), "timestep_s": dt / 2**k})
+                if not _unresolved(compile_spec(spec)).size:
+                    fix = f"a shorter physics step integrates it (--set timestep_s={dt / 2**k:g}), or check the values"
+                    break
+            except (ValueError, InputError):
+                break
+    raise InputError(f"the model{where} cannot be simulated at its {dt * 1e3:g} ms physics step: its one-step map has an "
+                     f"eigenvalue z = {worst:.3g} (|z| > 1 beyond a quarter of the step rate), a mode too stiff for the step "
+                     f"that would grow whatever the physics; {fix}")
 
 
 def make_data(model: mujoco.MjModel) -> mujoco.MjData:
