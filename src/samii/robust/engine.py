@@ -61,6 +61,8 @@ class SamiiWorkerPlugin(WorkerPlugin):
 #: they are this process's to act on, and it stops the workers by closing the cluster. (SIGTERM is left to them:
 #: the cluster's close uses it.)
 _WORKERS_IGNORE = ("INT", "HUP")
+#: The warning filter the spawned processes start with: the resource tracker's word on cleaning up after a killed parent.
+_QUIET_TRACKER = "ignore::UserWarning:multiprocessing.resource_tracker"
 
 
 @contextlib.contextmanager
@@ -80,11 +82,21 @@ def _workers_deaf_to_terminal_signals():
     if sh is None or os.name != "posix":
         yield
         return
+    from pathlib import Path
+
+    from samii.outputs import remove_stale_runs
+
     real = mp_spawn.get_executable()
-    with tempfile.TemporaryDirectory(prefix="samii-workers-") as tmp:
+    # named with this process's id: a command killed outright while its cluster started left its wrapper's folder in
+    # the temporary folder for good; the next start removes those whose process is gone
+    remove_stale_runs(Path(tempfile.gettempdir()), "samii-workers-")
+    with tempfile.TemporaryDirectory(prefix=f"samii-workers-{os.getpid()}-") as tmp:
         wrapper = os.path.join(tmp, "python")
         with open(wrapper, "w") as fh:
-            fh.write(f"#!{sh}\ntrap '' {' '.join(_WORKERS_IGNORE)}\nexec {shlex.quote(os.fsdecode(real))} \"$@\"\n")
+            # (and multiprocessing's resource tracker, spawned by the same executable, unlinks the semaphores of a
+            # command killed outright without "UserWarning: ... leaked semaphore objects" on the user's terminal)
+            fh.write(f"#!{sh}\ntrap '' {' '.join(_WORKERS_IGNORE)}\nexec {shlex.quote(os.fsdecode(real))} "
+                     f"-W {_QUIET_TRACKER} \"$@\"\n")
         os.chmod(wrapper, 0o755)
         mp_spawn.set_executable(wrapper)
         try:
