@@ -176,6 +176,8 @@ def _stop_finished(signum: int) -> None:
     line and exit 128 + N at once, not a KeyboardInterrupt traceback from interpreter shutdown or a silent death."""
     import os
 
+    if _SIGNALLED:  # the command was stopped, and said so: one line is enough (a second contradicted it)
+        _flush_and_exit(128 + _SIGNALLED[0])
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
@@ -251,7 +253,30 @@ def program() -> None:
     import atexit
 
     atexit.register(_ignore_stop_signals)
-    sys.exit(main(program=True))
+    code = main(program=True)
+    if _SIGNALLED:  # interrupted: its one line is said and its outputs are cleaned up; the libraries' exit callbacks are
+        # skipped (Dask's close of a local cluster already stopped waited 10 s, and a signal meanwhile added a second line),
+        # and the child processes still there (a local cluster's, which would end on their own a second or two later)
+        # are ended first
+        mp = sys.modules.get("multiprocessing")
+        children = mp.active_children() if mp is not None else []
+        for child in children:
+            child.kill()
+        for child in children:
+            child.join(timeout=5)
+        _flush_and_exit(code)
+    sys.exit(code)
+
+
+def _flush_and_exit(code: int) -> None:
+    import os
+
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
 
 
 def _ignore_stop_signals() -> None:
