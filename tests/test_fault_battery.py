@@ -1322,3 +1322,18 @@ def test_a_wrapper_folder_left_by_a_killed_robust_is_removed_by_the_next(tmp_pat
     assert not stale.exists() and mine.exists()
     assert any(n.startswith(f"samii-workers-{os.getpid()}-") and n != mine.name for n in inside)
     assert [p.name for p in tmp_path.iterdir()] == [mine.name]
+
+
+def test_a_scheduler_without_workers_is_said_within_the_timeout(capsys):
+    """A scheduler that answers but has no worker took the study and waited for ever (tried to 100 s), without a word;
+    --scheduler-timeout did not apply."""
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=0, processes=False, protocol="tcp://", host="127.0.0.1", dashboard_address=None,
+                      scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}) as cluster:  # fmt: skip
+        address = cluster.scheduler_address
+        argv = ["robust", "--controller", "unity", "--samples", "2", "--spread", "hydraulic.bulk_modulus=5%", "--scheduler", address,
+                "--scheduler-timeout", "1", "--no-progress"]  # fmt: skip
+        assert main(argv) == 2
+    line = _one_line(capsys)
+    assert f"--scheduler {address}: the scheduler answered, but no worker joined it within 1 s" in line

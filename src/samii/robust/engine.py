@@ -210,6 +210,15 @@ class Engine:
         if self.uses_dask and self._client is None:
             if self.scheduler:
                 self._client = _connect(self.scheduler, self.connect_timeout_s, self.scheduler_source)
+                try:  # a scheduler without workers took the study and waited for ever, without a word
+                    self._client.wait_for_workers(1, timeout=self.connect_timeout_s)
+                except TimeoutError:
+                    from samii.errors import InputError
+
+                    self.__exit__()
+                    raise InputError(f"{self.scheduler_source} {self.scheduler}: the scheduler answered, but no worker joined it "
+                                     f"within {self.connect_timeout_s:g} s; start workers (dask worker {self.scheduler}), or "
+                                     "give them more time with --scheduler-timeout") from None
             else:
                 # fresh worker processes, one thread each (a MuJoCo run is single-threaded), no dashboard
                 # Dask's statistical profiler samples each worker's stack every 10 ms, holding the GIL to do it:
