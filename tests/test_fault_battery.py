@@ -1337,3 +1337,6 @@ def test_a_scheduler_without_workers_is_said_within_the_timeout(capsys):
         assert main(argv) == 2
     line = _one_line(capsys)
     assert f"--scheduler {address}: the scheduler answered, but no worker joined it within 1 s" in line
+    argv = ["robust", "--controller", "unity", "--samples", "2", "--spread", "hydraulic.bulk_modulus=5%", "--scheduler-timeout", "5"]
+    assert main(argv) == 2  # (without a cluster to wait for it was accepted and did nothing)
+    assert "--scheduler-timeout: only with a Dask cluster to wait for" in _one_line(capsys)

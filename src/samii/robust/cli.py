@@ -59,8 +59,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scheduler", metavar="ADDRESS", type=nonempty("a scheduler's address (tcp://host:port)"),
                    help="run on this Dask cluster (tcp://host:8786); its workers need samii installed. Without --scheduler and "
                         "--workers, Dask's own configured scheduler-address (DASK_SCHEDULER_ADDRESS) is used if set")  # fmt: skip
-    p.add_argument("--scheduler-timeout", type=float_in(1.0, 3600.0, unit="s"), default=SCHEDULER_TIMEOUT_S, metavar="S",
-                   help=f"seconds the --scheduler has to answer before the run is refused (default {SCHEDULER_TIMEOUT_S:g})")
+    p.add_argument("--scheduler-timeout", type=float_in(1.0, 3600.0, unit="s"), default=None, metavar="S",
+                   help=f"seconds the --scheduler has to answer, and a worker to join it, before the run is refused (default "
+                        f"{SCHEDULER_TIMEOUT_S:g})")
     p.add_argument("--out", metavar="DIR", type=nonempty_path, help="write robust.json, samples.csv and the figures here")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs in --out")
     p.add_argument("--json", action="store_true", help="print robust.json's summary as JSON")
@@ -131,7 +132,11 @@ def run(args: argparse.Namespace) -> int:
         if check_address(scheduler, source) is None:
             raise InputError(f"{source} {scheduler}: an in-process address (inproc://) names a scheduler inside one Python "
                              "process, never another command's; give the scheduler's tcp://host:port")
-    engine = Engine(workers=args.workers or 0, scheduler=scheduler, connect_timeout_s=args.scheduler_timeout, scheduler_source=source)
+    if args.scheduler_timeout is not None and not scheduler:  # (it was accepted and did nothing)
+        raise InputError("--scheduler-timeout: only with a Dask cluster to wait for (--scheduler, or Dask's configured "
+                         "scheduler-address)")
+    engine = Engine(workers=args.workers or 0, scheduler=scheduler, connect_timeout_s=args.scheduler_timeout or SCHEDULER_TIMEOUT_S,
+                    scheduler_source=source)
 
     # the controller is designed (or read) once, on the nominal plant, in this process
     from samii.closedloop.cli import resolve_controller
