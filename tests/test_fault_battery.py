@@ -674,47 +674,49 @@ def test_a_second_local_cluster_is_quiet_about_the_dashboard_port(tmp_path, caps
     assert "8787" not in err and "warning" not in err, err
 
 
+@contextlib.contextmanager
+def _robust_study(*extra: str, via_main: bool = False):
+    """``samii robust`` on a local Dask cluster of two workers (300 samples: about a minute), in a session of its own,
+    yielded once its cluster is up and sampling; killed at the end if it still runs. ``via_main``: through
+    ``samii.cli.main`` rather than the program (``python -m samii``)."""
+    import signal
+
+    launcher = ["-c", "import sys; from samii.cli import main; sys.exit(main(sys.argv[1:]))"] if via_main else ["-m", "samii"]
+    proc = subprocess.Popen([sys.executable, *launcher, "robust", "--controller", "unity", "--samples", "300", "--spread",
+                             "hydraulic.bulk_modulus=5%", "--workers", "2", *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
+    try:
+        header = proc.stderr.readline()  # printed once the study is about to start its cluster (no bar: stderr is no terminal)
+        assert "local Dask cluster" in header, header
+        time.sleep(4.0)  # the cluster is up and sampling
+        assert proc.poll() is None
+        yield proc
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+
+
 def test_robust_workers_stay_quiet_on_a_terminals_ctrl_c(tmp_path):
     """Ctrl-C to the process group (as a terminal sends it) while a local Dask cluster runs the study: the command's
     one line and exit 130, no worker traceback (two workers printed about 80 lines before), no folder, no worker left."""
     import signal
 
-    code = "import sys; from samii.cli import main; sys.exit(main(sys.argv[1:]))"
     out = tmp_path / "r"
-    proc = subprocess.Popen([sys.executable, "-c", code, "robust", "--controller", "unity", "--samples", "200", "--spread",
-                             "hydraulic.bulk_modulus=5%", "--workers", "2", "--out", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
-    try:
-        header = proc.stderr.readline()  # printed once the study is about to start its cluster
-        assert "local Dask cluster" in header, header
-        time.sleep(4.0)  # the cluster is up and sampling (200 samples take about a minute)
-        assert proc.poll() is None
+    with _robust_study("--out", str(out), via_main=True) as proc:
         os.killpg(proc.pid, signal.SIGINT)
         _, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert proc.returncode == 130 and lines == ["samii robust: interrupted; nothing half-written was kept"], err
     assert not out.exists()
 
 
-
-def test_robust_killed_outright_leaves_no_word_and_no_worker(tmp_path):
+def test_robust_killed_outright_leaves_no_word_and_no_worker():
     """SIGKILL to the command alone while its local Dask cluster runs: it cannot speak, and multiprocessing's resource
     tracker (which outlives it to unlink the cluster's semaphores) printed "UserWarning: resource_tracker: There appear
     to be 12 leaked semaphore objects" and a source line on the user's terminal. Now nothing, and no process left."""
     import signal
 
-    code = "import sys; from samii.cli import main; sys.exit(main(sys.argv[1:]))"
-    proc = subprocess.Popen([sys.executable, "-c", code, "robust", "--controller", "unity", "--samples", "200", "--spread",
-                             "hydraulic.bulk_modulus=5%", "--workers", "2"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
-    try:
-        header = proc.stderr.readline()  # (the start line; no bar: stderr is no terminal)
-        assert "local Dask cluster" in header, header
-        time.sleep(4.0)  # the cluster is up and sampling
-        assert proc.poll() is None
+    with _robust_study() as proc:
         os.kill(proc.pid, signal.SIGKILL)
         _, err = proc.communicate(timeout=60)
         for _ in range(100):  # (the workers and the tracker notice the parent's death within a second or two)
@@ -722,11 +724,7 @@ def test_robust_killed_outright_leaves_no_word_and_no_worker(tmp_path):
             if not left:
                 break
             time.sleep(0.1)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == -signal.SIGKILL and err.strip() == "" and not left, (err, left)
-
 
 
 def test_robust_given_ctrl_c_twice_then_sigterm_says_one_thing(tmp_path):
@@ -737,13 +735,7 @@ def test_robust_given_ctrl_c_twice_then_sigterm_says_one_thing(tmp_path):
     import signal
 
     out = tmp_path / "D"
-    proc = subprocess.Popen([sys.executable, "-m", "samii", "robust", "--controller", "unity", "--samples", "300", "--spread",
-                             "hydraulic.supply_pressure=10%", "--workers", "2", "--out", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
-    try:
-        header = proc.stderr.readline()
-        assert "local Dask cluster" in header, header
-        time.sleep(4.0)  # the cluster is up and sampling
+    with _robust_study("--out", str(out)) as proc:
         os.killpg(proc.pid, signal.SIGINT)
         time.sleep(0.1)
         with contextlib.suppress(ProcessLookupError):
@@ -752,9 +744,6 @@ def test_robust_given_ctrl_c_twice_then_sigterm_says_one_thing(tmp_path):
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGTERM)
         _, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert proc.returncode == 130 and lines == ["samii robust: interrupted; nothing half-written was kept"], err
     assert not out.exists()

@@ -178,11 +178,7 @@ def _stop_finished(signum: int) -> None:
 
     if _SIGNALLED:  # the command was stopped, and said so: one line is enough (a second contradicted it)
         _flush_and_exit(128 + _SIGNALLED[0])
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError):
-            pass
+    _flush()
     try:
         os.write(2, f"{_PROG[0]}: stopped by signal {signum} after the command had finished; its outputs are as it "
                     "reported them\n".encode())
@@ -268,14 +264,18 @@ def program() -> None:
     sys.exit(code)
 
 
-def _flush_and_exit(code: int) -> None:
-    import os
-
+def _flush() -> None:
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
         except (OSError, ValueError):
             pass
+
+
+def _flush_and_exit(code: int) -> None:
+    import os
+
+    _flush()
     os._exit(code)
 
 

@@ -38,6 +38,7 @@ import sys
 import types
 import warnings
 from collections.abc import Callable, Iterable, Iterator
+from multiprocessing.pool import RemoteTraceback
 from typing import Any, TypeVar
 
 from samii.errors import InputError
@@ -161,13 +162,6 @@ class _Worker:
         return self.status
 
 
-class _RemoteTraceback(Exception):
-    """The worker's traceback of an exception raised there (its ``__cause__`` here, as multiprocessing's pools do)."""
-
-    def __str__(self) -> str:
-        return self.args[0]
-
-
 def _die_with_parent(parent: int) -> None:
     """Linux: the kernel kills this worker when the thread that forked it ends (a parent killed outright, even by
     SIGKILL, leaves no worker computing on); elsewhere the closed task pipe ends it at its next item."""
@@ -240,7 +234,7 @@ def _raise_from(blob: bytes) -> None:
         exc, tb = pickle.loads(blob)
     except Exception as unpickling:  # (an exception type whose arguments do not rebuild it)
         raise RuntimeError(f"a worker's exception could not be read back: {unpickling}") from None
-    exc.__cause__ = _RemoteTraceback(tb)
+    exc.__cause__ = RemoteTraceback(tb)  # (as multiprocessing's pools give it)
     raise exc
 
 

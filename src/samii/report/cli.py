@@ -89,6 +89,7 @@ def _not_the_runs_own(folder: Path, path: Path, *, option: str, allowed, instead
 def _page_and_screenshot(run_folder, out: Path, png: Path, width: int):
     """The page and its screenshot, both or neither: the page is written and shot under hidden names beside their places,
     then both renamed into place (a browser that failed left the new page without its screenshot, and exit 1)."""
+    import dataclasses
     import os
 
     from samii.errors import InputError, uninterrupted
@@ -111,4 +112,4 @@ def _page_and_screenshot(run_folder, out: Path, png: Path, width: int):
         finally:
             for t in (tmp_page, tmp_png):
                 t.unlink(missing_ok=True)
-    return out, type(shot)(png, shot.width, shot.height, shot.browser)
+    return out, dataclasses.replace(shot, path=png)
