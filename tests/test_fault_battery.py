@@ -985,6 +985,22 @@ def test_a_scheduler_address_dask_cannot_reach_is_refused_at_once(address, needl
     assert line.startswith(f"samii robust: error: {where}") and needle in line, line
 
 
+def test_a_scheme_whose_transport_is_not_installed_is_refused_in_samiis_words(capsys):
+    """ucx:// is a scheme Dask knows whose transport lives in a package of its own: Dask's
+    "TypeError: Can't instantiate abstract class UCXConnector" was given as the reason."""
+    from distributed.comm import registry
+
+    from samii.robust.engine import _connects
+
+    if "ucx" not in registry.backends or _connects(registry, "ucx"):
+        pytest.skip("this Dask connects over ucx:// (or does not know it)")
+    argv = ["robust", "--controller", "unity", "--spread", "hydraulic.bulk_modulus=5%", "--samples", "2", "--no-progress"]
+    assert main([*argv, "--scheduler", "ucx://127.0.0.1:45123"]) == 2
+    line = _one_line(capsys)
+    assert line.startswith("samii robust: error: --scheduler ucx://127.0.0.1:45123: this installation of Dask cannot connect "
+                           "over ucx://") and "tcp://" in line and "abstract" not in line, line
+
+
 def test_dasks_configured_scheduler_is_named_as_such(monkeypatch, capsys):
     monkeypatch.setenv("DASK_SCHEDULER_ADDRESS", "udp://127.0.0.1:1")
     import dask

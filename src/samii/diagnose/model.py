@@ -30,7 +30,7 @@ from scipy.optimize import least_squares
 from samii.diagnose.effects import Effect, EffectKind
 from samii.identify.structures import ModelStructure
 
-__all__ = ["Dataset", "Baseline", "Fit", "fit_model", "relabel_modes", "notebook_reference", "MAX_VAR"]
+__all__ = ["Dataset", "Baseline", "Fit", "fit_model", "relabel_modes", "notebook_reference", "scaled_reference", "MAX_VAR"]
 
 #: Points whose relative random error exceeds this variance (each of log magnitude and phase std
 #: sqrt(0.1/2) = 0.22: 1.9 dB, 13 deg) carry no usable information: there the estimate is dominated by
@@ -989,10 +989,42 @@ def notebook_reference() -> dict[str, float]:
     return {k: (v * deg if k == "K1" else v / deg if k.startswith("B") else v) for k, v in EQ9_4.items()}
 
 
+def scaled_reference(ds: Dataset, structure: ModelStructure, ref: Mapping[str, float]) -> dict[str, float]:
+    """``ref`` with its gains scaled to ``ds``'s data: K1 by the geometric median of |theta/v| over ref's, each B_k by
+    that of |xdd/theta| (from xdd/v over theta/v where the file has no xdd/theta). Only the gains move: the frequencies
+    and dampings are ref's. A start from the notebook's rig must not depend on the units or the sensors' gains of the
+    file it starts on: theta in mrad made eq 9.4's K1 a thousand times too small and its B_k too large, a start from
+    another basin than the same data in rad (a different diagnosis). A channel the file lacks, or without one finite
+    ratio, keeps ref's gains."""
+    out = dict(ref)
+    f = ds.freq_hz
+
+    def ratio(ch: str) -> float | None:
+        if ch not in ds.data:
+            return None
+        model = structure.response(ref, f[ds.keep[ch]], ch)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.log(np.abs(ds.data[ch]) / np.abs(model))
+        r = r[np.isfinite(r)]
+        return float(np.exp(np.median(r))) if r.size else None
+
+    act = ratio("act")
+    base = ratio("base")
+    if base is None and act is not None and (total := ratio("total")) is not None:
+        base = total / act
+    for name in structure.param_names:
+        if name == "K1" and act is not None:
+            out[name] = ref[name] * act
+        elif name.startswith("B") and base is not None:
+            out[name] = ref[name] * base
+    return out
+
+
 def start_params(m, structure: ModelStructure, *, rng_seed: int = 0) -> dict[str, float]:
     """Baseline parameters to start the weighted fit from: the better (by weighted chi-square, after
     :func:`fit_model`) of samii's fit of the file and, for the notebook's 3-mode structure, eq 9.4
-    itself in SI (theta in rad: K1 x pi/180, B_k x 180/pi). A swept sine's noisy ends can lead the
+    in SI (theta in rad: K1 x pi/180, B_k x 180/pi) with its gains scaled to the file (:func:`scaled_reference`).
+    A swept sine's noisy ends can lead the
     first into a basin that loses a mode; the notebook's own model rarely is far from a rig like it.
     """
     from samii.forkmap import fork_calls
@@ -1011,7 +1043,7 @@ def start_params(m, structure: ModelStructure, *, rng_seed: int = 0) -> dict[str
 
     jobs = [from_samii_fit]
     if structure == ModelStructure.notebook_3mode():
-        jobs.append(lambda: fitted({k: v for k, v in ref.items() if k in structure.param_names}))
+        jobs.append(lambda: fitted(scaled_reference(ds, structure, {k: v for k, v in ref.items() if k in structure.param_names})))
     results = fork_calls(jobs)  # the two starts at once (samii.forkmap)
     return min(results, key=lambda r: r[0])[1]  # the better (the first of equals)
 

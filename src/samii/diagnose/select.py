@@ -49,7 +49,7 @@ from scipy import stats
 
 from samii.diagnose.effects import TWO_PI, Effect, EffectKind
 from samii.diagnose.measured import moving_sum
-from samii.diagnose.model import Baseline, Dataset, Fit, fit_model, noise_level, relabel_modes, start_vectors
+from samii.diagnose.model import Baseline, Dataset, Fit, fit_model, noise_level, relabel_modes, scaled_reference, start_vectors
 from samii.forkmap import fork_map, sharing
 
 __all__ = ["ALPHA", "Step", "forward_select", "starts_for", "sample_s", "within_sampling"]
@@ -630,9 +630,12 @@ def _richer(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, a
 def _candidate(ds_list, baseline, current: Fit, kind: EffectKind, reference_b) -> tuple[Fit, Fit] | None:
     """``kind`` added to ``current``: (its best joint fit, the current effects refitted alone from that fit's baseline),
     or None when no start of it could be fitted. The best held starts (:func:`_distinct`) are refitted jointly; the best
-    also from ``reference_b`` (eq 9.4's baseline, in the first round: the baseline fitted without the effect may have
-    bent into a basin, two modes on top of each other with huge opposite gains, that absorbs the effect and from
-    which the joint fit does not climb out). The refit alone credits the effect only with what the baseline alone,
+    also from ``reference_b`` (eq 9.4's baseline scaled to the files, model.scaled_reference), in every round: the
+    baseline fitted without an effect may have bent into a basin that absorbs it (two modes on top of each other with
+    huge opposite gains; theta/v's pole-zero pair moved from the 9 Hz resonance to mimic a missing valve's roll-off)
+    and from which the joint fit does not climb out. In the first round only, the default simulator's own record
+    went leak, actuator mode, pole-zero, base mode (chi2/dof 2.0) where from eq 9.4's basin it is leak and valve
+    (1.1), and the same data with theta in mrad or krad chose differently again. The refit alone credits the effect only with what the baseline alone,
     started where the candidate's refit went, cannot do."""
     held = _held_fits(ds_list, baseline, current, current.effects, kind)
     if not held:
@@ -673,7 +676,7 @@ def _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress):
     if baseline.free and baseline.reference is not None:
         ref = {k: v for k, v in baseline.reference.items() if k in baseline.structure.param_names}
         if len(ref) == len(baseline.structure.param_names):
-            reference_b = [baseline.structure.vector(ref) for _ in ds_list]
+            reference_b = [baseline.structure.vector(scaled_reference(ds, baseline.structure, ref)) for ds in ds_list]
     current = base_fit
     steps: list[Step] = []
     tried: list[dict] = []
@@ -691,7 +694,7 @@ def _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress):
         # kinds are fitted again from there, once
         for _attempt in range(2):
             start = current
-            results = fork_map(lambda kind: _candidate(ds_list, baseline, start, kind, reference_b if _round == 0 else None), pool)
+            results = fork_map(lambda kind: _candidate(ds_list, baseline, start, kind, reference_b), pool)
             alones = [r[1] for r in results if r is not None]
             best_alone = min(alones, key=lambda f: f.chi2, default=None)
             if best_alone is None or best_alone.chi2 >= current.chi2:

@@ -105,6 +105,15 @@ def _workers_deaf_to_terminal_signals():
             mp_spawn.set_executable(real)
 
 
+def _connects(registry, scheme: str) -> bool:
+    """Whether Dask's backend for ``scheme`` can make a connector here."""
+    try:
+        registry.get_backend(scheme).get_connector()
+    except Exception:  # noqa: BLE001 - a backend that cannot start says so its own way (ucx: TypeError, an abstract class)
+        return False
+    return True
+
+
 def check_address(address: str, where: str) -> tuple[str, str, int] | None:
     """Refuse a scheduler address Dask cannot connect to, before any wait: an unknown scheme, no or an invalid port, a
     host name that does not resolve (``where``: the option or setting it came from, for the message). Returns (scheme,
@@ -124,6 +133,10 @@ def check_address(address: str, where: str) -> tuple[str, str, int] | None:
                          f"{', '.join(s + '://' for s in schemes)} (e.g. tcp://host:8786)")
     if scheme == "inproc":
         return None
+    if not _connects(registry, scheme):  # (ucx: a class Dask keeps, with its transport in a package of its own)
+        usable = [s + "://" for s in schemes if s != "inproc" and _connects(registry, s)]
+        raise InputError(f"{where} {address}: this installation of Dask cannot connect over {scheme}:// (the transport's "
+                         f"own package is not installed); it connects over {', '.join(usable)} (e.g. tcp://host:8786)")
     try:
         host, port = parse_host_port(location)
     except ValueError:
