@@ -1345,3 +1345,81 @@ def test_a_scheduler_without_workers_is_said_within_the_timeout(capsys):
     argv = ["robust", "--controller", "unity", "--samples", "2", "--spread", "hydraulic.bulk_modulus=5%", "--scheduler-timeout", "5"]
     assert main(argv) == 2  # (without a cluster to wait for it was accepted and did nothing)
     assert "--scheduler-timeout: only with a Dask cluster to wait for" in _one_line(capsys)
+
+
+# --------------------------------------------------------------------------- a fourth battery (stop 43)
+
+
+def _small_timeseries_csv(path: Path, extra_header: str = "", extra_cells=None) -> None:
+    t = np.arange(400) / 1000.0
+    rows = [",".join(f"{float(x)!r}" for x in (ti, np.sin(ti), 0.1 * np.sin(ti), 0.01 * np.cos(ti)))
+            + ("" if extra_cells is None else f",{extra_cells(k)}") for k, ti in enumerate(t)]
+    path.write_text("# sample_rate_hz: 1000\nt,v,theta,accel" + extra_header + "\n" + "\n".join(rows) + "\n")
+
+
+@pytest.mark.parametrize("cells", [lambda k: "bob", lambda k: "nan" if k == 100 else "20.5", lambda k: "" if k else "1"])
+def test_an_unknown_column_that_is_not_numbers_is_ignored_as_the_format_says(tmp_path, cells):
+    """DATA_FORMATS: unknown columns are kept and ignored. A logger's text column (an operator's name), a spare channel
+    with one NaN or empty cells refused the whole file, naming the column: now it is left out; a column of numbers
+    is kept in extra as before, and a defect in a column the format defines is still refused."""
+    from samii.measure.io import DataFormatError, read_timeseries_csv
+
+    p = tmp_path / "ts.csv"
+    _small_timeseries_csv(p, ",operator", cells)
+    ts = read_timeseries_csv(p)
+    assert ts.t.size == 400 and "operator" not in ts.extra
+    _small_timeseries_csv(p, ",temp", lambda k: f"{20 + k / 400}")
+    assert list(read_timeseries_csv(p).extra) == ["temp"]
+    bad = p.read_text().replace("\n0.1,", "\n0.1x,", 1)  # t = 0.1 mistyped: a column the format defines
+    assert bad != p.read_text()
+    p.write_text(bad)
+    with pytest.raises(DataFormatError, match=r"column 't'.*expected a number, got '0.1x'"):
+        read_timeseries_csv(p)
+
+
+def test_an_unknown_frf_column_that_is_not_numbers_is_ignored(tmp_path):
+    from samii.measure.io import read_frf_csv
+
+    f = np.geomspace(0.1, 40.0, 30)
+    lines = ["freq_hz,act_mag,act_phase_deg,note"] + [f"{float(x)!r},{float(1 / x)!r},-90.0,{'ok' if k else 'first'}" for k, x in enumerate(f)]
+    p = tmp_path / "frf.csv"
+    p.write_text("\n".join(lines) + "\n")
+    frf = read_frf_csv(p)
+    assert frf.freq_hz.size == 30 and np.allclose(np.abs(frf.act), 1 / f)
+
+
+@pytest.mark.parametrize("key", ["effects", "verdict"])
+def test_report_refuses_a_diagnosis_without_its_effects(report_folder, key, capsys):
+    """diagnose/diagnosis.json without 'effects' was read as "No effect beyond the baseline's noise." (exit 0) beside a
+    summary that lists four; samii diagnose always writes both keys."""
+    doc = json.loads((report_folder / "diagnose" / "diagnosis.json").read_text())
+    del doc[key]
+    (report_folder / "diagnose" / "diagnosis.json").write_text(json.dumps(doc))
+    out = report_folder / "r.html"
+    assert main(["report", str(report_folder), "--out", str(out)]) == 2
+    line = _one_line(capsys)
+    assert f"diagnose/diagnosis.json: {key} (missing)" in line and "run samii run again" in line, line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("out", [".", "..", "{here}"])
+def test_the_main_job_refuses_the_working_folder_as_out_before_any_work(tmp_path, monkeypatch, out, capsys):
+    """`samii run --out . --overwrite` ran the whole pipeline (37 s) and then failed with "Device or resource busy": the
+    folder is replaced whole by a rename, and the working folder cannot be."""
+    here = tmp_path / "s"
+    here.mkdir()
+    (here / "sentinel.txt").write_text("keep")
+    monkeypatch.chdir(here)
+    assert main(["run", "--out", out.format(here=here), "--overwrite", "--no-progress"]) == 2
+    line = _one_line(capsys)
+    assert "is the working folder" in line and "give a folder of its own" in line, line
+    assert sorted(p.name for p in here.iterdir()) == ["sentinel.txt"] and sorted(p.name for p in tmp_path.iterdir()) == ["s"]
+
+
+def test_a_measurement_of_too_many_physics_steps_is_refused_before_any_work(cwd, capsys):
+    """`--set timestep_s=1e-7` (a typo) made a 253 s measurement grow to 23 GB until the kernel killed it (exit 137, a
+    stage folder left): the excitation is held at the physics rate, 2.5e9 steps. Refused now, naming the step."""
+    assert main(["measure", "--set", "timestep_s=1e-7", "--out", "tiny", "--no-progress"]) == 2
+    line = _one_line(capsys)
+    assert "2.53e+09 physics steps of 1e-07 s (the model's timestep_s)" in line and "a timestep_s of at least 2.5e-06 s" in line, line
+    assert list(cwd.iterdir()) == []

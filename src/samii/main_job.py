@@ -95,6 +95,14 @@ def _is_previous_run(path: Path) -> bool:
 
 
 def _check_out(out: Path, overwrite: bool) -> None:
+    # the folder is replaced whole by a rename: the working folder (or one holding it) and a mount point cannot be
+    # (the rename fails after the whole pipeline has run, "Device or resource busy")
+    here, target = Path.cwd().resolve(), out.resolve()
+    if target == here or target in here.parents:
+        raise InputError(f"--out {out}: is the working folder{'' if target == here else ' or holds it'}; the main job replaces "
+                         "--out whole, so give a folder of its own (e.g. --out samii_run)")
+    if out.is_dir() and os.path.ismount(out):
+        raise InputError(f"--out {out}: is a mount point; the main job replaces --out whole, so give a folder inside it")
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a folder")
     if out.exists() and any(out.iterdir()) and not overwrite and not _is_previous_run(out):

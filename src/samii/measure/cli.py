@@ -24,6 +24,10 @@ _METHOD_LABEL = {"swept": "swept sine", "stepped": "stepped sine", "both": "swep
 #: Longest run accepted [s of simulated time]: an hour (3.6 M physics steps, about 0.5 GB of
 #: signals in memory); the default swept sine is 253 s, the default stepped sine about 600 s.
 MAX_SIMULATED_S = 3600.0
+#: Physics steps a measurement takes at most: 3600 s at 36 microseconds, about 10 minutes at the plugin's ~5
+#: microseconds a step. The excitation is computed at the physics rate (8 bytes a step): a timestep_s of 1e-7 made a
+#: 253 s run grow to 23 GB before the kernel killed it.
+MAX_PHYSICS_STEPS = 1e8
 #: Valve command range [V] of the servo amplifier (the plugin clamps v to it).
 VALVE_RANGE_V = 10.0
 #: Smallest excitation accepted [V]: 3 steps of a 16-bit DAQ over +-10 V (0.3 mV each); below it a
@@ -174,6 +178,12 @@ def run(args: argparse.Namespace) -> int:
     ratio = physics_hz / args.sample_rate_hz
     if abs(ratio - round(ratio)) > 1e-6 or physics_hz < args.sample_rate_hz:
         raise InputError(f"--sample-rate-hz {args.sample_rate_hz:g} must divide the physics rate {physics_hz:g} Hz")
+    steps = sum(e.duration_s for _, e in plan) / dt
+    if steps > MAX_PHYSICS_STEPS:
+        raise InputError(f"the run would take {steps:.3g} physics steps of {dt:.3g} s (the model's timestep_s), more than the "
+                         f"{MAX_PHYSICS_STEPS:.0e} accepted: hours of computing and {8 * steps / 1e9:.3g} GB for each signal held "
+                         f"at the physics rate; a timestep_s of at least {dt * steps / MAX_PHYSICS_STEPS:.2g} s (the default is "
+                         "1e-3 s), or a shorter run")
     _check_loop_stable(model)
     noise = SensorNoise() if args.noise else None
     rng = np.random.default_rng(args.seed)

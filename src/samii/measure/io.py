@@ -45,7 +45,7 @@ import secrets
 import stat
 from collections import Counter
 from pathlib import Path
-from typing import Literal, Mapping
+from typing import Callable, Literal, Mapping, Sequence
 
 import numpy as np
 
@@ -365,7 +365,10 @@ def _is_number(text: str) -> bool:
     return "_" not in text
 
 
-def _read_table(path) -> _Table:
+def _read_table(path, known: Callable[[str], bool] | None = None) -> _Table:
+    """The file's metadata, header and numbers. ``known``: the columns the format defines; any other column is ignored
+    (DATA_FORMATS.md) and, when it holds anything but finite numbers (a text note, a NaN of a logger's spare channel),
+    left out of the table instead of refusing the file (None: every column is checked)."""
     path = Path(path)
     text = _decode(path, _read_bytes(path))
     if not text.strip():
@@ -426,8 +429,16 @@ def _read_table(path) -> _Table:
         raise DataFormatError(path, "the file is empty apart from comment lines; expected a header row and data rows after them")
     if not data_lines:
         raise DataFormatError(path, "the header is not followed by any data row", line=header_line)
-    data = _parse_numbers(path, header, data_lines, line_numbers)
+    other = [] if known is None else [name for name in header if not known(name)]
+    data, header = _parse_numbers(path, header, data_lines, line_numbers, other)
     bad = ~(np.abs(data) <= MAX_ABS_VALUE)  # NaN, inf and absurd values at once
+    if other and np.any(bad):  # an ignored column that is not all numbers is left out, not refused
+        drop = {header[c] for c in np.flatnonzero(np.any(bad, axis=0)) if header[c] in other}
+        if drop:
+            keep = [c for c, name in enumerate(header) if name not in drop]
+            data, header = data[:, keep], [header[c] for c in keep]
+            bad = bad[:, keep]
+            data_lines = [",".join(cells[c] for c in keep) for cells in (line.split(",") for line in data_lines)]
     if np.any(bad):
         row, col = np.argwhere(bad)[0]
         cell = data_lines[row].split(",")[col]
@@ -460,12 +471,25 @@ def _loadtxt(lines: list[str]) -> np.ndarray:
     return np.loadtxt(lines, delimiter=",", comments=None, ndmin=2, dtype=float)
 
 
-def _parse_numbers(path: Path, header: list[str], lines: list[str], numbers: list[int]) -> np.ndarray:
+def _parse_numbers(path: Path, header: list[str], lines: list[str], numbers: list[int],
+                   other: Sequence[str] = ()) -> tuple[np.ndarray, list[str]]:
+    """The rows' numbers and the header of their columns: ``other`` columns (ignored by the format) that do not parse are
+    left out; any other defect is refused, naming its line and column."""
     try:  # fast path: numpy's C parser
-        return _loadtxt(lines).reshape(len(lines), len(header))
+        return _loadtxt(lines).reshape(len(lines), len(header)), header
     except ValueError:
         pass
     n = len(header)
+    if other:
+        bad_rows = [number for line, number in zip(lines, numbers) if line.count(",") != n - 1]
+        if not bad_rows:
+            cells = [line.split(",") for line in lines]
+            drop = {c for c, name in enumerate(header) if name in other and not all(_is_number(row[c]) for row in cells)}
+            if drop:
+                keep = [c for c in range(n) if c not in drop]
+                kept_lines = [",".join(row[c] for c in keep) for row in cells]
+                data, _ = _parse_numbers(path, [header[c] for c in keep], kept_lines, numbers)
+                return data, [header[c] for c in keep]
     for line, number in zip(lines, numbers):  # slow path: find and name the defect
         if line.count(",") != n - 1:
             got = line.count(",") + 1
@@ -622,6 +646,11 @@ def csv_header(path: Path) -> list[str]:
     return []
 
 
+def _frf_column(name: str) -> bool:
+    """A column the FRF format defines: freq_hz and each channel's magnitude, phase and coherence."""
+    return name == "freq_hz" or any(name in (f"{ch}_mag", f"{ch}_phase_deg", f"{ch}_coh") for ch in CHANNELS)
+
+
 def read_timeseries_csv(path) -> TimeSeries:
     """Read a time-series CSV (DATA_FORMATS.md) into a :class:`TimeSeries`.
 
@@ -630,7 +659,7 @@ def read_timeseries_csv(path) -> TimeSeries:
     DataFormatError
         On any defect; the message names the file, line and/or column.
     """
-    table = _read_table(path)
+    table = _read_table(path, known=lambda name: name in REQUIRED_COLUMNS or name in OPTIONAL_COLUMNS)
     table.require(REQUIRED_COLUMNS)
     t = table.col("t")
     if t.size < 2:
@@ -891,7 +920,7 @@ def read_frf_csv(path) -> FrequencyResponse:
     DataFormatError
         On any defect; the message names the file, line and/or column.
     """
-    table = _read_table(path)
+    table = _read_table(path, known=_frf_column)
     table.require(("freq_hz",))
     f = table.col("freq_hz")
     bad = np.flatnonzero(f <= 0)

@@ -290,8 +290,9 @@ def _switch_on(run: RunFolder, name: str) -> float:
 
 def _diagnosis(run: RunFolder) -> str:
     d = run.diagnosis
-    effects = [e for e in d.get("effects", []) if not e.get("expected")]
-    verdict = d.get("verdict")
+    # (samii diagnose always writes both: a file without them is damaged, not a diagnosis that found nothing)
+    effects = [e for e in d["effects"] if not e.get("expected")]
+    verdict = d["verdict"]
     out = ['<h2 id="diagnosis">Diagnosis: what the fit lacks, found in the measured record</h2>',
            f"<p><code>samii diagnose measure/timeseries.csv --baseline fit/fit.json</code>: verdict <b>{_e(verdict)}</b>. Each effect is a physical "
            f"hypothesis fitted jointly with the baseline; {_e(d.get('rule', ''))}.</p>"]
