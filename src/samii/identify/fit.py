@@ -669,8 +669,40 @@ def _band_warnings(problem: FitProblem, params: Mapping[str, float]) -> list[str
 _MODE_CHANNELS = ("base", "total")
 
 
-def _resonance_coherence(problem: FitProblem, w: float, zeta: float, n_averages: int | None) -> tuple[float, str] | None:
-    """The best fitted channel's coherence over a base mode's half-power band, and that channel.
+#: Points apart whose log residuals are differenced, and points pooled, for the scatter of a channel without coherence
+#: (as samii.diagnose.measured.with_roughness_noise estimates an unknown noise).
+ROUGHNESS_LAG, ROUGHNESS_POOL = 2, 9
+
+
+def _roughness_coherence(problem: FitProblem, params: Mapping[str, float]) -> dict[str, np.ndarray]:
+    """For each fitted mode channel without coherence: the coherence a single estimate with the data's scatter about
+    the fitted model would have, ``1/(1 + var)``, ``var`` the relative variance read off the roughness of the log
+    residual (``|e[k+2] - e[k]|^2 / 2``, pooled over 9 points). Noise on a response changes from point to point, a
+    missed effect slowly, so the roughness is the noise's whatever the model misses. A point whose scatter is as large
+    as the response itself (var 1) reads 0.5, MIN_COHERENCE: there the data are noise. Without it a file without
+    coherence (a rig-era .mat, a CSV without *_coh, one average) had no check of where its modes sit: a fit that put
+    base mode 1 at 0.12 Hz in xdd/theta's noise and the hydraulic pair on mode 1 was called sound."""
+    data = problem.data
+    out = {}
+    for c in _MODE_CHANNELS:
+        if c not in problem.channels or data.coherence(c) is not None:
+            continue
+        with np.errstate(all="ignore"):
+            e = np.log(data.response(c) / problem.structure.response(params, data.freq_hz, c))
+        if e.size <= ROUGHNESS_LAG or not np.all(np.isfinite(e)):
+            continue
+        d2 = np.abs(e[ROUGHNESS_LAG:] - e[:-ROUGHNESS_LAG]) ** 2 / 2.0
+        d2 = np.pad(d2, (ROUGHNESS_LAG // 2, e.size - d2.size - ROUGHNESS_LAG // 2), mode="edge")
+        kernel = np.ones(ROUGHNESS_POOL)
+        var = np.convolve(d2, kernel, "same") / np.convolve(np.ones_like(d2), kernel, "same")
+        out[c] = 1.0 / (1.0 + var)
+    return out
+
+
+def _resonance_coherence(problem: FitProblem, w: float, zeta: float, n_averages: int | None,
+                         rough: Mapping[str, np.ndarray] | None = None) -> tuple[float, str, str] | None:
+    """The best fitted channel's coherence over a base mode's half-power band, that channel, and where the coherence
+    came from: "coherence" (the file's), "scatter" (a channel without one: ``rough``, :func:`_roughness_coherence`).
 
     A resonance the data measured raises the response, so the coherence around
     it is high. The band is +-zeta, at least +-10 % (8 points on a 100-per-decade
@@ -699,10 +731,12 @@ def _resonance_coherence(problem: FitProblem, w: float, zeta: float, n_averages:
         if coh is not None:
             m = float(np.mean(coh[near]))
             g[c] = max((n_averages * m - 1) / (n_averages - 1), 0.0) if n_averages and n_averages > 1 else m
+        elif rough and c in rough:  # (no averages behind it: no bias to correct)
+            g[c] = float(np.mean(rough[c][near]))
     if not g:
         return None
     best = max(g, key=g.get)
-    return g[best], best
+    return g[best], best, "scatter" if rough and best in rough else "coherence"
 
 
 def _unresolved_pairs(params: Mapping[str, float], structure: ModelStructure) -> list[tuple[str, str]]:
@@ -738,7 +772,8 @@ class _Defect:
         return f"{self.finding}: {self.advice}"
 
 
-def _defects(problem: FitProblem, params: Mapping[str, float], n_averages: int | None = None) -> list[_Defect]:
+def _defects(problem: FitProblem, params: Mapping[str, float], n_averages: int | None = None,
+             model: Mapping[str, float] | None = None) -> list[_Defect]:
     """Reasons the parameters of a minimum should not be used.
 
     ``"misplaced"``: a damping ratio on its bound, modes out of their order
@@ -767,6 +802,7 @@ def _defects(problem: FitProblem, params: Mapping[str, float], n_averages: int |
     undetermined: set[str] = set()  # modes the data do not determine
     noise: list[tuple[float, str, str]] = []  # modes where the fitted channels are noise: (w, name, finding)
     placed: list[float] = []  # base modes the data place
+    rough = _roughness_coherence(problem, params if model is None else model)  # channels without coherence
     # wp and wz are not read off a resonance of their own: wp sits where theta/v starts to roll off into the noise
     # (its place is read from the phase below it), wz at theta/v's zero, which makes theta, and so both fitted
     # channels, small exactly there (its place is read from the slopes on either side)
@@ -789,10 +825,13 @@ def _defects(problem: FitProblem, params: Mapping[str, float], n_averages: int |
             out.append(_Defect("unmeasured", f"mode {wn} = {fz:.3g} Hz has damping {zn} = {zeta:.3g}, above 1/sqrt(2): it has no resonant peak, "
                                              "so it is a shape the fit chose, not a mode the data show",
                                f"{reweigh}fit --band-hz where the structure holds{fewer}", (wn, zn)))
-        elif (found := _resonance_coherence(problem, v, zeta, n_averages)) is not None and found[0] < MIN_COHERENCE:
+        elif (found := _resonance_coherence(problem, v, zeta, n_averages, rough)) is not None and found[0] < MIN_COHERENCE:
             undetermined.add(wn)
-            noise.append((v, (wn, zn), f"mode {wn} = {fz:.3g} Hz sits where the data are noise (coherence {found[0]:.2f} in {found[1]} around it, "
-                                 f"corrected for the bias of {n_averages or 'its'} averages), not at a measured resonance"))
+            how = (f"coherence {found[0]:.2f} in {found[1]} around it, corrected for the bias of {n_averages or 'its'} averages"
+                   if found[2] == "coherence" else
+                   f"{found[1]} has no coherence; its scatter about the fit there is {np.sqrt(1 / found[0] - 1):.2g} of the response, "
+                   f"a coherence of {found[0]:.2f}")
+            noise.append((v, (wn, zn), f"mode {wn} = {fz:.3g} Hz sits where the data are noise ({how}), not at a measured resonance"))
         else:
             placed.append(v)
     for v, names, finding in noise:
@@ -922,7 +961,7 @@ def fit_problem(
     def run(label: str, p: Mapping[str, float]) -> None:
         x0 = st.vector(p)
         x, sol, prev, (r, jx) = _solve(search, x0, max_nfev=max_nfev)
-        misplaced = [d for d in _defects(search, st.params(np.where(free, x, np.nan)), averages) if d.kind == "misplaced"]
+        misplaced = [d for d in _defects(search, st.params(np.where(free, x, np.nan)), averages, st.params(x)) if d.kind == "misplaced"]
         runs.append((label, search.cost(x0), float(r @ r), x, sol, prev, (r, jx), misplaced))
         done(f"start {label}")
 
