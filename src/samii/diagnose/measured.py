@@ -327,7 +327,7 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
     check_testable(frf, source=source)
     if hum:
         how += "; mains hum subtracted first (" + "; ".join(hum) + ")"
-    amp = _float_meta(ts.metadata, "amplitude_v") or float(np.max(np.abs(ts.r)))
+    amp = _float_meta(ts.metadata, "amplitude_v") or float(np.max(np.abs(ts.r - np.median(ts.r))))  # (about its rest: an offset is none of it)
     # what a diagnosis of the FRF file alone needs: the sampling (a delay of one sample is expected), the
     # excitation's amplitude, and how many neighbouring points share one error on this grid
     meta = dict(frf.metadata)

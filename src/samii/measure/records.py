@@ -201,6 +201,12 @@ def find_records(r: np.ndarray, sample_rate_hz: float, *, record_s: float | None
     fs = float(sample_rate_hz)
     if r.size < 4 or not np.any(r != 0):
         raise ValueError(f"{where}: the excitation r is zero throughout: there is nothing to estimate a frequency response from")
+    # an offset (a converter's, an operating point added to r) is no part of the excitation's repetition: with 0.05 V
+    # under a 0.1 V sweep that alternates its sign, the repetitions no longer correlated to -1 and one record of two
+    # sweeps was found, with no rest (r^2 never quiet). The rest's level is r's median (a sweep swings about it)
+    r = r - np.median(r)
+    if not np.any(r != 0):
+        raise ValueError(f"{where}: the excitation r is constant throughout: there is nothing to estimate a frequency response from")
     if record_s is None:
         period, rho = _repetition(r, fs, where)
         if period < _MIN_RECORD_SAMPLES:

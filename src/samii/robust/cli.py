@@ -24,6 +24,11 @@ SCHEDULER_TIMEOUT_S = 30.0
 
 MAX_SAMPLES = 100_000
 _FILES = ("robust.json", "samples.csv")
+#: An absolute spread below this fraction of its nominal value varies nothing (double precision keeps 1e-16; a
+#: parameter known to 1e-4 of itself is known better than any rig's).
+TINY_SPREAD = 1e-4
+#: Fewer plants than this: the 5 % and 95 % percentiles are the smallest and largest drawn (1/0.05 = 20).
+FEW_SAMPLES = 20
 
 
 def _workers(text: str) -> int:
@@ -98,6 +103,22 @@ def _nominal_params(args):
     return params_with_overrides(params, overrides) if overrides else params, cov
 
 
+def _study_warnings(args, spreads, nominal: dict) -> list[str]:
+    """What makes a study say less than it seems to: an absolute spread that is a rounding error of its parameter (the
+    '%' forgotten: NAME=20 is 20 in the parameter's unit), percentiles of fewer plants than they need."""
+    out = []
+    for sp in spreads:
+        value = nominal.get(sp.name)
+        if sp.absolute is not None and isinstance(value, (int, float)) and value and 0 < sp.absolute < TINY_SPREAD * abs(value):
+            out.append(f"--spread {sp.name}={sp.absolute:g}: an absolute standard deviation of {sp.absolute:g} on a nominal "
+                       f"{value:.6g} ({sp.absolute / abs(value):.2g} of it): the study varies nothing; a relative spread is "
+                       f"written with % ({sp.name}={sp.absolute:g}%)")
+    if args.samples < FEW_SAMPLES:
+        out.append(f"--samples {args.samples}: the 5 and 95 % percentiles of fewer than {FEW_SAMPLES} plants are the extremes "
+                   "drawn, not the spread's tails")
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     from samii.outputs import OutputFolder
     from samii.robust.plots import FIGURES
@@ -115,6 +136,7 @@ def run(args: argparse.Namespace) -> int:
     from samii.sim.model import dotted, params_with_overrides
 
     draws = draw_plants(args.samples, args.seed, dotted(params), spreads, cov)
+    warnings = _study_warnings(args, spreads, dotted(params))  # (said with the result, after every refusal's one line)
 
     for i in range(args.samples):  # every drawn value is one the model accepts, checked before any run
         try:
@@ -178,6 +200,8 @@ def run(args: argparse.Namespace) -> int:
             bar.close()
     wall = time.perf_counter() - t0
     nominal, samples = results[0], results[1:]
+    for w in warnings:
+        print(f"samii robust: warning: {w}", file=sys.stderr)
 
     from samii.robust.study import summarise
 
@@ -187,7 +211,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"none of the {args.samples} drawn plants could be built (the first: {why}); narrow the spreads")
     doc = {
         "controller": args.controller, "scenario": args.scenario, "seed": args.seed, "n_samples": args.samples,
-        "engine": engine.describe(), "wall_s": wall,
+        "engine": engine.describe(), "wall_s": wall, "warnings": warnings,
         "varied": [{"name": n, "nominal": float(v), "source": s} for n, v, s in zip(draws.names, draws.nominal, draws.sources)],
         "nominal_plant": nominal.table_row(),
         "summary": summary.as_json(),
