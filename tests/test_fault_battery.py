@@ -1495,3 +1495,40 @@ def test_a_study_that_varies_nothing_or_too_few_plants_is_said(capsys):
     assert len(doc["warnings"]) == 2 and all(f"samii robust: warning: {w}" in err for w in doc["warnings"])
     assert "an absolute standard deviation of 20 on a nominal 7e+08" in doc["warnings"][0] and "(hydraulic.bulk_modulus=20%)" in doc["warnings"][0]
     assert "--samples 3: the 5 and 95 % percentiles of fewer than 20 plants" in doc["warnings"][1]
+
+
+def test_messages_that_misled(tmp_path, monkeypatch, capsys):
+    """The fourth battery's unclear refusals, each now in the data's terms: Unix time stamps were blamed on single
+    precision; `run --out afile/sub` said the existing file afile did not exist; a JSON file replaced by a folder gave
+    "[Errno 21] Is a directory"; calibrate's hint for the 0/1 switch beam.accel_body_fixed led to a second refusal; a
+    NaN value in a covariance file was said to disagree with the calibrated plant."""
+    from samii.measure.io import DataFormatError, read_timeseries_csv
+    from samii.sim.model import default_params
+
+    p = tmp_path / "unix.csv"
+    t0 = 1.7e9
+    p.write_text("t,v,theta,accel,r\n" + "\n".join(f"{t0 + k / 1000.0!r},0.0,0.0,0.0,{math.sin(k / 50.0)!r}" for k in range(2000)) + "\n")
+    with pytest.raises(DataFormatError, match=r"t reaches 1\.7e\+09 s \(a clock's time, Unix time\?\).*write t from the first sample's time"):
+        read_timeseries_csv(p)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "afile").write_text("x")
+    assert main(["run", "--out", "afile/sub", "--no-progress"]) == 2
+    assert "afile is a file, not a folder" in _one_line(capsys)
+    run = tmp_path / "run"
+    (run / "summary.json").mkdir(parents=True)
+    assert main(["report", str(run)]) == 2
+    line = _one_line(capsys)
+    assert "summary.json: is a folder; expected" in line and "Errno" not in line, line
+    nominal = default_params().as_dict()
+    k = nominal["hydraulic"]["bulk_modulus"]
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps({"parameters": [{"name": "hydraulic.bulk_modulus", "value": "nan", "stderr": 0.05 * k, "bounds": [0.5 * k, 2 * k]}],
+                               "correlation": [[1.0]], "calibrated_params": nominal}))
+    assert main(["robust", "--controller", "unity", "--covariance", str(cal), "--samples", "2", "--no-progress"]) == 2
+    assert "value 'nan' is not a finite number" in _one_line(capsys)
+    frf = tmp_path / "frf.csv"
+    f = np.geomspace(0.1, 40.0, 40)
+    frf.write_text("freq_hz,act_mag,act_phase_deg\n" + "\n".join(f"{float(x)!r},{float(1 / x)!r},-90.0" for x in f) + "\n")
+    assert main(["calibrate", str(frf), "--param", "beam.accel_body_fixed"]) == 2
+    line = _one_line(capsys)
+    assert "is a 0/1 switch" in line and "--start" not in line, line

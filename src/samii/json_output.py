@@ -28,8 +28,12 @@ def read_json(path, what: str, *, missing: str | None = None) -> Any:
         return json.loads(path.read_text())
     except FileNotFoundError:
         raise InputError(missing or f"{what} {path} does not exist") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot be read as a {what} ({exc})") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a folder; expected a {what}") from None
+    except OSError as exc:  # (the OS's words without its number and the path again)
+        raise InputError(f"{path}: cannot be read as a {what} ({(exc.strerror or str(exc)).lower()})") from None
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: cannot be read as a {what} (not UTF-8 text: {exc.reason} at byte {exc.start})") from None
     except json.JSONDecodeError as exc:
         raise InputError(f"{path}: not valid JSON ({exc})") from None
     except RecursionError:

@@ -109,7 +109,7 @@ def _check_out(out: Path, overwrite: bool) -> None:
         raise InputError(f"--out {out}: exists and is not a previous main job's output; pass --overwrite to replace it, or another --out")
     parent = out.absolute().parent
     if not parent.is_dir():
-        raise InputError(f"--out {out}: folder {parent} does not exist")
+        raise InputError(f"--out {out}: {parent} is {'a file, not a folder' if parent.exists() else 'a folder that does not exist'}")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise InputError(f"--out {out}: folder {parent} is not writable")
 

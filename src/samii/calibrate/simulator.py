@@ -61,6 +61,9 @@ def check_parameter_name(params: SamiiParams, name: str) -> None:
         raise ValueError(f"parameter {name!r}: {parts[0]} has no parameter {parts[1]!r}; expected one of {sorted(types)}")
     if parts[1] == "n_segments":
         raise ValueError(f"parameter {name!r} is a discretisation choice (an integer), not a physical parameter to calibrate")
+    if parts[1] == "accel_body_fixed":  # (its --start hint led to "must be 0 or 1")
+        raise ValueError(f"parameter {name!r} is a 0/1 switch (1 for a body-fixed accelerometer whose axis tilts with the tip, 0 for the world-frame reading), not a "
+                         "physical parameter to calibrate; set it with --set")
 
 
 def parameter_value(params: SamiiParams, name: str) -> float:

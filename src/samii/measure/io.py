@@ -676,6 +676,9 @@ def read_timeseries_csv(path) -> TimeSeries:
             elif step / ref >= 1.5 and abs(step / ref - round(step / ref)) < 0.1:
                 missing = round(step / ref) - 1
                 hint = f"; {missing} sample{'s' if missing > 1 else ''} missing?"
+            elif _rounded_time(t, 2.0**-50):  # a time far from 0 (Unix time) in double precision: its rounding there
+                hint = (f"; t reaches {np.max(np.abs(t)):.6g} s (a clock's time, Unix time?), where a double-precision number "
+                        f"keeps only {np.max(np.abs(t)) * 2.0**-52:.2g} s: write t from the first sample's time (t - t[0])")
             elif _rounded_time(t):
                 mean = (t[-1] - t[0]) / (t.size - 1)
                 hint = (f"; the steps scatter about {mean:.9g} s by no more than the rounding of 7 significant digits (single "
@@ -701,11 +704,11 @@ def read_timeseries_csv(path) -> TimeSeries:
         raise DataFormatError(table.path, str(exc)) from None
 
 
-def _rounded_time(t: np.ndarray) -> bool:
-    """The steps of ``t`` differ from their mean by no more than rounding ``t`` to single precision does (a
-    logger's float32 time stamps): a few units of 2^-23 of the largest time."""
+def _rounded_time(t: np.ndarray, eps: float = 2.0**-23) -> bool:
+    """The steps of ``t`` differ from their mean by no more than rounding ``t`` to a precision of ``eps`` does: a few
+    units of ``eps`` of the largest time (2^-23: a logger's float32 time stamps; 2^-50: double precision's few units)."""
     mean = (t[-1] - t[0]) / (t.size - 1)
-    quantum = float(np.max(np.abs(t))) * 2.0**-23
+    quantum = float(np.max(np.abs(t))) * eps
     return bool(mean > 0 and np.max(np.abs(np.diff(t) - mean)) <= 4.0 * quantum)
 
 

@@ -111,6 +111,9 @@ def read_covariance(path) -> Covariance:
             lo, hi = (float(b) for b in p.get("bounds", [-math.inf, math.inf])[:2])
         except (KeyError, TypeError, ValueError, AttributeError):
             raise InputError(f"--covariance {path}: field 'parameters'[{i}] needs a name, a numeric value, stderr and bounds [lo, hi]") from None
+        if not math.isfinite(mean[-1]):  # (it was said to disagree with 'calibrated_params')
+            raise InputError(f"--covariance {path}: field 'parameters'[{i}] ({names[-1]}): value {p['value']!r} is not a finite "
+                             "number; the file is damaged: calibrate again")
         if names[-1].startswith("gain."):
             raise InputError(f"--covariance {path}: parameter {names[-1]} is a measurement gain of the calibration, not a property of the "
                              "plant; calibrate without it, or vary the plant with --spread")
