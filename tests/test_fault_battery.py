@@ -1532,3 +1532,21 @@ def test_messages_that_misled(tmp_path, monkeypatch, capsys):
     assert main(["calibrate", str(frf), "--param", "beam.accel_body_fixed"]) == 2
     line = _one_line(capsys)
     assert "is a 0/1 switch" in line and "--start" not in line, line
+
+
+def test_a_record_cut_short_at_the_files_end_is_said():
+    """A file that stopped 5 ms into the last record's 20 s rest lost a third of its data (2 records of 3) without a word."""
+    from samii.diagnose.measured import short_record_warnings
+    from samii.measure.excitation import SweptSine
+    from samii.measure.records import find_records
+
+    sw = SweptSine(repetitions=3, amplitude_v=0.1)
+    fs = 200.0
+    r = sw.signal(np.arange(int(round(sw.duration_s * fs))) / fs)
+    whole = find_records(r, fs)
+    n = int(np.floor((whole.start_s + 3 * whole.record_s) * fs)) - 1  # one sample short of the third record's end
+    cut = find_records(r[:n], fs)
+    assert whole.n_records == 3 and cut.n_records == 2
+    assert short_record_warnings(whole, r.size / fs, source="f.csv") == []
+    (said,) = short_record_warnings(cut, n / fs, source="f.csv")
+    assert said.startswith("f.csv: the file ends 0.0") and "s short of one more record" in said and "2 whole record(s) are used" in said

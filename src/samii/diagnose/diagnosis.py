@@ -937,7 +937,7 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     try:
         check_residual_dof(datasets, before, [m.source for m in measured])
     except ValueError as exc:  # the cause may be the data's aliasing (a file sampled at 10/s of a 40 Hz sweep): said too
-        said = [w for m in given for w in m.warnings]
+        said = [w for m in given for w in m.aliasing]
         raise ValueError(str(exc) + (f"; besides, {said[0]}" if said else "")) from None
     if before.n_residuals - before.n_params < before.n_params:
         notes.append(f"the baseline's {before.n_params} free parameters were fitted to {before.n_residuals} residuals (magnitude and "

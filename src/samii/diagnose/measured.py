@@ -120,8 +120,11 @@ class Measured:
     floor: Floor | None = None
     #: The band [Hz] a time series' FRF was estimated over (its grid is made from it).
     band_hz: tuple[float, float] | None = None
-    #: What the reader should know before trusting the estimate (a sweep beyond the sampling's Nyquist frequency...).
+    #: What the reader should know before trusting the estimate (a sweep beyond the sampling's Nyquist frequency, a
+    #: record cut short and left out...).
     warnings: tuple[str, ...] = ()
+    #: Those of ``warnings`` that say the estimate is aliased (aliasing_warnings): a cause of a refusal, and the figure's.
+    aliasing: tuple[str, ...] = ()
 
 
 def _float_meta(meta: Mapping[str, str], key: str) -> float | None:
@@ -314,7 +317,8 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
     ts, hum = _without_mains(ts)
     stated = record_s if record_s is not None else _float_meta(ts.metadata, "record_s")
     layout = find_records(ts.r, fs, record_s=stated, where=source)
-    said = aliasing_warnings(ts.metadata, fs, source=source)
+    aliasing = aliasing_warnings(ts.metadata, fs, source=source)
+    said = aliasing + short_record_warnings(layout, ts.t.size / fs, source=source)
     if band_hz is None:
         lo = _float_meta(ts.metadata, "start_hz")
         hi = _float_meta(ts.metadata, "stop_hz")
@@ -336,7 +340,8 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
     meta["frf_corr_length"] = f"{corr:.3g} (points one independent error spans, from the record-to-record deviations)"
     frf = replace(frf, metadata=meta)
     return Measured(source=source, frf=frf, var=var, noise_source=how, corr_length=corr, amplitude_v=amp, sample_rate_hz=fs,
-                    timeseries=ts, layout=layout, band_hz=(float(band_hz[0]), float(band_hz[1])), warnings=tuple(said))
+                    timeseries=ts, layout=layout, band_hz=(float(band_hz[0]), float(band_hz[1])), warnings=tuple(said),
+                    aliasing=tuple(aliasing))
 
 
 def _check_scale(frf: FrequencyResponse, ts: TimeSeries, source: str) -> None:
@@ -358,6 +363,22 @@ def _check_scale(frf: FrequencyResponse, ts: TimeSeries, source: str) -> None:
                              f"{lo:g}...{hi:g}, what a frequency response file holds; a sample far out of scale? (column "
                              f"'{worst}' reaches {getattr(ts, worst)[i]:.3g} at t = {ts.t[i]:.6g} s, {x[i] / max(float(np.median(x)), 1e-300):.3g} "
                              "times its median)")
+
+
+#: The part of a record after the last whole one that is said, as a fraction of a record.
+SHORT_RECORD_FRACTION = 0.5
+
+
+def short_record_warnings(layout, duration_s: float, *, source: str) -> list[str]:
+    """A record cut short at the file's end is left out (the records are averaged whole): said when more than half of
+    one is there. A file that stopped 5 ms into the last record's 20 s rest lost a third of its data without a word
+    (and the noise estimate one of its 3 records)."""
+    tail = duration_s - (layout.start_s + layout.n_records * layout.record_s)
+    if tail <= SHORT_RECORD_FRACTION * layout.record_s:
+        return []
+    return [f"{source}: the file ends {layout.record_s - tail:.3g} s short of one more record of {layout.record_s:.6g} s "
+            f"({100 * tail / layout.record_s:.0f} % of it is there, from t = {layout.start_s + layout.n_records * layout.record_s:.6g} s): "
+            f"that part is left out, {layout.n_records} whole record(s) are used; a file that ends after its last rest keeps them all"]
 
 
 def aliasing_warnings(meta: Mapping[str, str], fs: float, *, source: str) -> list[str]:
@@ -458,7 +479,7 @@ def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
     sr = sr if sr is not None and 0 < sr < np.inf else None
     said = aliasing_warnings(meta, sr, source=source) if sr is not None else []
     return Measured(source=source, frf=frf, var=var, noise_source=how, corr_length=corr, amplitude_v=amp, sample_rate_hz=sr,
-                    warnings=tuple(said))
+                    warnings=tuple(said), aliasing=tuple(said))
 
 
 def load(path, *, band_hz: tuple[float, float] | None = None, record_s: float | None = None,

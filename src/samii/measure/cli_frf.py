@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
         write_frf_csv(m.frf, folder.path("frf.csv"))
         lay = m.layout
         title = f"{args.timeseries}: {lay.n_records} records of {lay.record_s:.6g} s"
-        if m.warnings:  # (an aliased estimate looks like any noisy FRF: the figure says it, as the command does)
+        if m.aliasing:  # (an aliased estimate looks like any noisy FRF: the figure says it, as the command does)
             title += f"\nALIASED: {m.sample_rate_hz:g} samples/s resolve only up to {m.sample_rate_hz / 2:g} Hz (see the command's warnings)"
         bode_plot(m.frf, title=title, path=folder.path("bode.png"))
     info = summary(m)
