@@ -225,7 +225,9 @@ def test_mat_reader_reads_notebook_names(tmp_path):
     ref = _frf()
     act, base = np.interp(f, ref.freq_hz, np.abs(ref.act)), np.interp(f, ref.freq_hz, np.abs(ref.base))
     act_ph = (np.interp(f, ref.freq_hz, ref.phase_deg("act")) + 180) % 360 - 180  # wrapped in the file
-    p = _mat(tmp_path, freq=f, mean_io_mr=act, mean_io_ph=act_ph, mean_a2_j2a_mr=base, mean_a2_j2a_ph=np.zeros(20))
+    base_ph = (np.interp(f, ref.freq_hz, ref.phase_deg("base")) + 180) % 360 - 180  # (a resonant magnitude with a phase of
+    # 0 everywhere is no response: the reader takes such a column for radians)
+    p = _mat(tmp_path, freq=f, mean_io_mr=act, mean_io_ph=act_ph, mean_a2_j2a_mr=base, mean_a2_j2a_ph=base_ph)
     frf = read_mat_bode(p)
     assert frf.channels == ("act", "base")
     np.testing.assert_allclose(frf.freq_hz, f)

@@ -251,6 +251,10 @@ def _linear_stable(poles_s: np.ndarray) -> bool:
     return not poles_s.size or float(np.max(poles_s.real)) < -MARGINAL_GROWTH_1_S
 
 
+#: A diverged run's base growth slower than this [1/s] (e-fold in 10 s, a run's length) is not said beside a runaway.
+BASE_GROWTH_SAID_1_S = 0.1
+
+
 def _marginal(poles_s: np.ndarray) -> bool:
     """No pole of the linear prediction grows faster than MARGINAL_GROWTH_1_S (an unstable one's |z| is 1 in rounding)."""
     return not poles_s.size or float(np.max(poles_s.real)) <= MARGINAL_GROWTH_1_S
@@ -395,12 +399,16 @@ def run_closed_loop(
             else:
                 notes.append(f"the base oscillation at {osc.freq_hz:.3g} Hz is still growing at the end of the run")
     ran_away = None
-    if sig.diverged_at_s is None and sig.t.size >= 30:
+    if sig.t.size >= 30:  # (a diverged run too, up to its divergence: what ran away before it)
         from samii.sim.hydraulic_reference import AMPLIFIER_LIMIT_V
 
         ran_away = runaway(sig.t, sig.theta - th_rest - sig.theta_ref, sig.v, t_event=t_ev, rail_v=AMPLIFIER_LIMIT_V)
         if ran_away is not None:  # (said by instability(), not again as a note)
             stable = False
+            if sig.diverged_at_s is not None and (rate is None or rate < BASE_GROWTH_SAID_1_S):
+                # the joint ran away and the controller's output diverged while the base barely moved: its fitted growth
+                # (0.0034 1/s at 1.9 Hz beside a real pole at +12 1/s and a joint 22 rad off) is not what went wrong
+                rate, mode_hz = None, None
 
     linear_only = False
     if stable and not linear_stable and not _marginal(poles_s):

@@ -25,7 +25,7 @@ from samii.diagnose.model import Baseline, Dataset, notebook_reference, start_pa
 from samii.errors import InputError
 from samii.identify.structures import ModelStructure
 
-__all__ = ["SavedFit", "notebook_baseline", "saved_fit_baseline", "read_fit_json"]
+__all__ = ["SavedFit", "notebook_baseline", "saved_fit_baseline", "read_fit_json", "check_level", "LEVEL_MISMATCH"]
 
 
 def notebook_baseline(measured: Sequence[Measured]) -> Baseline:
@@ -101,3 +101,29 @@ def saved_fit_baseline(saved: SavedFit, datasets: Sequence[Dataset]) -> Baseline
         fixed.append(per)
     return Baseline(structure=st, params=tuple(params for _ in datasets), fixed=tuple(fixed), reference=params,
                     label=f"saved fit {saved.path} (held fixed)")
+
+
+#: A saved fit whose response is this factor or more from the data's (the median over a channel's usable points, either
+#: way: 20 dB) is of another rig, or of the same one in other units: no effect of the library is a gain on theta/v.
+LEVEL_MISMATCH = 10.0
+
+
+def check_level(saved: SavedFit, datasets: Sequence[Dataset], baseline: Baseline) -> None:
+    """Refuse data whose level a saved fit misses by LEVEL_MISMATCH or more, naming the channel and the factor: a fit of
+    theta in mrad held against data in rad was "diagnosed" as a pole at 0.01 Hz, a leak of -10 1/s and an accelerometer
+    gain of 100, each on its bound, with 60 dB of error left."""
+    from samii.identify.lack_of_fit import CHANNEL_NAMES
+
+    for ds, per in zip(datasets, baseline.fixed):
+        for ch, resp in per.items():
+            model = resp["act"] * resp["base"] if ch == "total" else resp[ch]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ratio = np.abs(ds.data[ch]) / np.abs(model)
+            ratio = ratio[np.isfinite(ratio) & (ratio > 0)]
+            if not ratio.size:
+                continue
+            g = float(np.exp(np.median(np.log(ratio))))
+            if not 1.0 / LEVEL_MISMATCH < g < LEVEL_MISMATCH:
+                raise InputError(f"{ds.source}: the data's {CHANNEL_NAMES[ch]} is {g:.3g} x the saved fit {saved.path}'s "
+                                 f"({20 * np.log10(g):+.0f} dB, the median over its usable points): not one rig in one set of units "
+                                 "(theta in rad, xdd in m/s², v in V: DATA_FORMATS.md); check the units, or fit these data (samii fit)")

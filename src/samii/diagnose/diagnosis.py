@@ -924,6 +924,9 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
 
     bl = baseline_for(measured, datasets)
     if saved is not None:
+        from samii.diagnose.baseline import check_level
+
+        check_level(saved, datasets, bl)
         notes += list(saved.concerns)
     # the simulator's knobs cannot make an accelerometer's gain error: testable against it
     kinds = _kinds(datasets, fixed_baseline=sim or not bl.free, simulator=sim)

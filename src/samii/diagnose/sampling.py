@@ -178,6 +178,10 @@ def feedthrough_note(lag: float, se: float) -> str:
         how = "a DAQ that writes the command before it reads its channels"
     else:
         how = "an analogue command, or one read mid-step"
+    # the lag lies within +-0.5 samples (model.FEEDTHROUGH_LAG_MAX): an error beyond that range says the data do not place
+    # it (on a file with a drifting sensor: "+0.50 +- 8117.28 samples")
+    when = (f"reach the data {lag:+.2f} +- {se:.2f} samples after the rest of the response ({how})" if se <= 1.0 else
+            f"reach the data at a lag the data do not place (fitted {lag:+.2f} samples, standard error {se:.3g}: more than the "
+            "one sample the lag can span)")
     return (f"xdd/v passes the command straight through at high frequency (eq 9.1/9.2: theta/v of relative degree 2), and its steps "
-            f"reach the data {lag:+.2f} +- {se:.2f} samples after the rest of the response ({how}): modelled as the measurement's "
-            "sampling, not an effect of the rig (samii.diagnose.sampling)")
+            f"{when}: modelled as the measurement's sampling, not an effect of the rig (samii.diagnose.sampling)")

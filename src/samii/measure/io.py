@@ -957,12 +957,9 @@ def read_frf_csv(path) -> FrequencyResponse:
         k, message = _bad_phase(phase)
         if message:
             raise table.error(message, row=k, column=ph_name)
-        if ch == "act" and phase.size >= RADIAN_CHECK_POINTS and np.all(np.abs(phase) <= RADIAN_CHECK_MAX):
-            # theta/v integrates (-90 deg at low frequency) and lags further past the actuator's resonance: in
-            # degrees it does not stay within +-9.4 over a band; in radians (wrapped or not) over 0.1-40 Hz it does
+        if (why := _phase_in_radians(ch, mag, phase)) is not None:
             raise DataFormatError(table.path, f"every value of {ph_name!r} lies within +-{RADIAN_CHECK_MAX:.3g} ({phase.size} points): "
-                                              "that is a phase in radians; expected degrees (theta/v's phase is near -90 deg at "
-                                              "low frequency)", line=table.header_line, column=ph_name)
+                                              f"that is a phase in radians; expected degrees ({why})", line=table.header_line, column=ph_name)
         kw[ch] = mag * np.exp(1j * np.unwrap(np.radians(phase)))
         if table.has(coh_name):
             coh = table.col(coh_name)
@@ -1000,6 +997,31 @@ def _bad_magnitude(mag: np.ndarray) -> tuple[int, str]:
 #: unwrapped phase in radians to -540 deg) is not a phase in degrees of an integrator.
 RADIAN_CHECK_POINTS = 10
 RADIAN_CHECK_MAX = 3.0 * np.pi
+
+
+#: A magnitude peak this prominent [dB] is a resonance, across which a phase in degrees swings far beyond +-3 pi.
+RADIAN_CHECK_PEAK_DB = 6.0
+
+
+def _phase_in_radians(ch: str, mag: np.ndarray, phase: np.ndarray) -> str | None:
+    """Why a phase column whose every value lies within +-RADIAN_CHECK_MAX (3 pi) of RADIAN_CHECK_POINTS or more points
+    cannot be in degrees, or None. theta/v (``act``) and xdd/v (``total``) integrate: -90 deg at low frequency, lagging
+    further past the actuator's resonance. xdd/theta (``base``) may stay near 0 deg over a band below its first mode
+    (its s^4 rise), so it is held to it only where its magnitude shows a resonance: across one a phase in degrees swings
+    by about 180. (In radians, wrapped or not, each stays within 3 pi over 0.1-40 Hz.)"""
+    if phase.size < RADIAN_CHECK_POINTS or not np.all(np.abs(phase) <= RADIAN_CHECK_MAX):
+        return None
+    if ch in ("act", "total"):
+        return f"{'theta/v' if ch == 'act' else 'xdd/v'}'s phase is near -90 deg at low frequency, where theta/v integrates"
+    from scipy.signal import find_peaks
+
+    with np.errstate(divide="ignore"):
+        db = 20.0 * np.log10(np.abs(mag))
+    peaks, _ = find_peaks(np.nan_to_num(db, neginf=-400.0), prominence=RADIAN_CHECK_PEAK_DB)
+    if peaks.size:
+        return (f"its magnitude has a resonance {RADIAN_CHECK_PEAK_DB:g} dB or more above its surroundings, across which a phase "
+                "in degrees swings by about 180")
+    return None
 
 
 def _bad_phase(phase: np.ndarray) -> tuple[int, str]:
@@ -1246,6 +1268,9 @@ def read_mat_bode(path, *, freq_name: str | None = None, freq_unit: Literal["hz"
             k, message = check(arr)
             if message:
                 raise DataFormatError(path, f"{message} at element {k + 1}", column=name)
+        if (why := _phase_in_radians(ch, mag, ph)) is not None:  # (the rig-era files' phases are in degrees too)
+            raise DataFormatError(path, f"every value lies within +-{RADIAN_CHECK_MAX:.3g} ({ph.size} points): that is a phase in "
+                                        f"radians; expected degrees ({why})", column=ph_name)
         kw[ch] = mag * np.exp(1j * np.unwrap(np.radians(ph)))
     if not kw:
         pairs = "; ".join(f"{m}/{p}" for m, p in MAT_CHANNELS.values())

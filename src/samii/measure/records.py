@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft
 
-__all__ = ["RecordLayout", "find_records"]
+__all__ = ["RecordLayout", "find_records", "excitation_offset"]
 
 #: |rho| above which a lag counts as a repetition.
 _MIN_CORRELATION = 0.9
@@ -179,6 +179,29 @@ def _check_stated(r: np.ndarray, fs: float, period: float, where: str) -> None:
                      f"of the excitation: {why}; correct the stated length, or leave it out to have it found from r")
 
 
+#: Samples at one value, as a fraction of the file, that make it r's rest level (a generated command rests exactly).
+_REST_FRACTION = 0.01
+#: A median of r this far from 0, as a fraction of r's swing about it, is an offset (a sweep's own median is a few %).
+_OFFSET_FRACTION = 0.1
+
+
+def excitation_offset(r: np.ndarray) -> float:
+    """The level ``r`` rests at, 0 unless it is an offset: the value it holds exactly at 1 % or more of its samples (a
+    generated command's rest), else its median where that is a tenth or more of its swing about it (an offset under
+    back-to-back sweeps); a sweep's own median (2.6 % of its amplitude for 120 s up-sweeps from 0.1 Hz) is none."""
+    r = np.asarray(r, float)
+    if not r.size:
+        return 0.0
+    values, counts = np.unique(r, return_counts=True)
+    k = int(np.argmax(counts))
+    med = float(np.median(r))
+    swing = float(np.max(np.abs(r - med)))
+    if counts[k] >= _REST_FRACTION * r.size and counts[k] > 1:
+        rest = float(values[k])
+        return rest if abs(rest) > 1e-12 * swing else 0.0  # (a rest written as -5e-324 is 0)
+    return med if swing > 0 and abs(med) >= _OFFSET_FRACTION * swing else 0.0
+
+
 def find_records(r: np.ndarray, sample_rate_hz: float, *, record_s: float | None = None, where: str = "r") -> RecordLayout:
     """Find the repetitions of the excitation ``r`` (module docstring).
 
@@ -203,8 +226,8 @@ def find_records(r: np.ndarray, sample_rate_hz: float, *, record_s: float | None
         raise ValueError(f"{where}: the excitation r is zero throughout: there is nothing to estimate a frequency response from")
     # an offset (a converter's, an operating point added to r) is no part of the excitation's repetition: with 0.05 V
     # under a 0.1 V sweep that alternates its sign, the repetitions no longer correlated to -1 and one record of two
-    # sweeps was found, with no rest (r^2 never quiet). The rest's level is r's median (a sweep swings about it)
-    r = r - np.median(r)
+    # sweeps was found, with no rest (r^2 never quiet)
+    r = r - excitation_offset(r)
     if not np.any(r != 0):
         raise ValueError(f"{where}: the excitation r is constant throughout: there is nothing to estimate a frequency response from")
     if record_s is None:

@@ -16,6 +16,7 @@ import contextlib
 import os
 import shlex
 import socket
+import time
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
@@ -160,7 +161,8 @@ def _connect(address: str, timeout_s: float, where: str = "--scheduler") -> Clie
     from samii.errors import InputError
 
     parsed = check_address(address, where)
-    if parsed is not None and parsed[0] == "tcp":  # a refused connection is known at once (Dask retries it until its timeout)
+    if parsed is not None and parsed[0] in ("tcp", "tls", "ws", "wss"):  # all over TCP: a refused connection is known at once
+        # (Dask retries it until its timeout)
         _, host, port = parsed
         try:
             socket.create_connection((host, port), timeout=min(timeout_s, 10.0)).close()
@@ -195,6 +197,26 @@ def _connect(address: str, timeout_s: float, where: str = "--scheduler") -> Clie
     return box["client"]
 
 
+@contextlib.contextmanager
+def _quiet_dask_logs():
+    """Dask's loggers (``distributed`` and every one below it) held at CRITICAL, then restored."""
+    import logging
+
+    names = ["distributed"] + [n for n in logging.root.manager.loggerDict if n.startswith("distributed.")]
+    saved = {n: logging.getLogger(n).level for n in names}
+    for n in names:
+        logging.getLogger(n).setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        for n, level in saved.items():
+            logging.getLogger(n).setLevel(level)
+
+
+#: How often a study on a user's cluster looks at its scheduler while no sample comes back [s] (at most the timeout).
+WATCH_INTERVAL_S = 2.0
+
+
 @dataclass
 class Engine:
     """Runs sample tasks. Use as a context manager to keep a Dask cluster up over several :meth:`map` calls;
@@ -207,6 +229,9 @@ class Engine:
     scheduler_source: str = "--scheduler"
     _client: object = field(default=None, repr=False)
     _cluster: object = field(default=None, repr=False)
+    #: a study on the user's cluster failed (the client's close then logs its reconnection attempts: kept quiet)
+    _failed: bool = field(default=False, repr=False)
+    _quiet: object = field(default=None, repr=False)
 
     def describe(self) -> str:
         if self.scheduler:
@@ -256,10 +281,17 @@ class Engine:
 
     def __exit__(self, *exc) -> None:
         if self._client is not None:
-            self._client.close()
+            try:
+                self._client.close(timeout=self.connect_timeout_s if self.scheduler else None)
+            except Exception:  # noqa: BLE001 - a lost or stopped scheduler: the study has already said so
+                if not self._failed:
+                    raise
         if self._cluster is not None:
             self._cluster.close()
         self._client = self._cluster = None
+        if self._quiet is not None:
+            quiet, self._quiet, self._failed = self._quiet, None, False
+            quiet.__exit__(None, None, None)
 
     def map(self, tasks: Sequence[SampleTask], progress: Callable[[int], None] | None = None) -> list[SampleResult]:
         """Run every task; the results in the tasks' order."""
@@ -280,9 +312,79 @@ class Engine:
 
         study = uuid.uuid4().hex[:12]  # keys unique to this study: a shared cluster may hold another study's results
         futures = self._client.map(run_sample, list(tasks), pure=False, key=[f"samii-sample-{study}-{t.index}" for t in tasks])
-        by_key = {}
-        for fut in as_completed(futures):
-            by_key[fut.key] = fut.result()
-            if progress:
-                progress(1)
+        if not self.scheduler:
+            by_key = {}
+            for fut in as_completed(futures):
+                by_key[fut.key] = fut.result()
+                if progress:
+                    progress(1)
+            return [by_key[f.key] for f in futures]
+        return self._watched(futures, progress)
+
+    def _watched(self, futures, progress) -> list[SampleResult]:
+        """The results of a study on a user's cluster, watched: a scheduler that is lost, stops answering, or is left
+        without a worker for ``connect_timeout_s`` ends the study with one line naming it (the cluster's own failures
+        came as 30 lines of Dask's log and an "internal error", or as a wait for ever)."""
+        from distributed import wait
+
+        from samii.errors import InputError
+
+        where = f"{self.scheduler_source} {self.scheduler}"
+        limit = self.connect_timeout_s
+        pending, by_key = set(futures), {}
+        no_worker_since = None
+        quiet = _quiet_dask_logs()  # (the client logs a lost scheduler as ERROR with its traceback: said here in one line)
+        quiet.__enter__()
+
+        def lost(what: str) -> InputError:
+            return InputError(f"{where}: during the study, after {len(by_key)} of {len(futures)} samples, {what}; nothing "
+                              "was written (check the cluster, then run the study again)")
+
+        try:
+            while pending:
+                try:
+                    done, pending = wait(pending, timeout=min(WATCH_INTERVAL_S, limit), return_when="FIRST_COMPLETED")
+                except TimeoutError:
+                    done = set()
+                except Exception as exc:  # noqa: BLE001 - the connection's own failure (closed comm, cancelled)
+                    if "cancel" in type(exc).__name__.lower():  # (Dask cancels every future when its scheduler is lost)
+                        raise lost("the scheduler was lost (its connection closed)") from None
+                    raise lost(f"the connection to the scheduler failed ({type(exc).__name__})") from None
+                for fut in done:
+                    if fut.status == "cancelled" or self._client.status not in ("running", "connecting"):
+                        raise lost("the scheduler was lost (its connection closed)")
+                    try:  # (fetched through the scheduler: bounded, a stopped one never answers)
+                        by_key[fut.key] = fut.result(timeout=limit)
+                    except TimeoutError:
+                        raise lost(f"the scheduler stopped answering (nothing within {limit:g} s)") from None
+                    except OSError as exc:
+                        raise lost(f"the connection to the scheduler failed ({type(exc).__name__})") from None
+                    except Exception as exc:  # noqa: BLE001 - a cancelled future: the scheduler dropped the study
+                        if "cancel" in type(exc).__name__.lower():
+                            raise lost("the scheduler was lost (the study's tasks were cancelled)") from None
+                        raise
+                    if progress:
+                        progress(1)
+                if done or not pending:
+                    continue
+                if self._client.status not in ("running", "connecting"):
+                    raise lost("the scheduler was lost (its connection closed)")
+                try:  # a scheduler that stops answering (a hung host, a dropped network) keeps its connection open
+                    workers = self._client.sync(self._client.scheduler.ncores, callback_timeout=limit)
+                except Exception:  # noqa: BLE001 - no answer within the limit, or the connection failed asking
+                    raise lost(f"the scheduler stopped answering (nothing within {limit:g} s)") from None
+                if workers:
+                    no_worker_since = None
+                elif no_worker_since is None:
+                    no_worker_since = time.monotonic()
+                elif time.monotonic() - no_worker_since > limit:
+                    raise lost(f"no worker was left for {limit:g} s (start workers: dask worker {self.scheduler})")
+        except BaseException:
+            self._failed = True  # (its close may log the reconnection attempts too: kept quiet there, see __exit__)
+            raise
+        finally:
+            if self._failed:
+                self._quiet = quiet
+            else:
+                quiet.__exit__(None, None, None)
         return [by_key[f.key] for f in futures]
