@@ -21,7 +21,7 @@ from typing import Sequence
 import numpy as np
 
 from samii.diagnose.measured import Measured
-from samii.diagnose.model import Baseline, Dataset, notebook_reference, start_params
+from samii.diagnose.model import Baseline, Dataset, level_ratio, notebook_reference, start_params
 from samii.errors import InputError
 from samii.identify.structures import ModelStructure
 
@@ -116,14 +116,8 @@ def check_level(saved: SavedFit, datasets: Sequence[Dataset], baseline: Baseline
 
     for ds, per in zip(datasets, baseline.fixed):
         for ch, resp in per.items():
-            model = resp["act"] * resp["base"] if ch == "total" else resp[ch]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                ratio = np.abs(ds.data[ch]) / np.abs(model)
-            ratio = ratio[np.isfinite(ratio) & (ratio > 0)]
-            if not ratio.size:
-                continue
-            g = float(np.exp(np.median(np.log(ratio))))
-            if not 1.0 / LEVEL_MISMATCH < g < LEVEL_MISMATCH:
+            g = level_ratio(ds.data[ch], resp["act"] * resp["base"] if ch == "total" else resp[ch])
+            if g is not None and not 1.0 / LEVEL_MISMATCH < g < LEVEL_MISMATCH:
                 raise InputError(f"{ds.source}: the data's {CHANNEL_NAMES[ch]} is {g:.3g} x the saved fit {saved.path}'s "
                                  f"({20 * np.log10(g):+.0f} dB, the median over its usable points): not one rig in one set of units "
                                  "(theta in rad, xdd in m/s², v in V: DATA_FORMATS.md); check the units, or fit these data (samii fit)")

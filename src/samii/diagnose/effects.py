@@ -59,6 +59,10 @@ class Param:
     lo: float
     hi: float
     transform: str = "log"  # "log" or "lin"
+    #: The ends of the range ("lo", "hi") that are no limiting form the data can show: an effect fitted there is not
+    #: placed (samii.diagnose.select). Others are kept: a pole-zero corner on its end is a gain or a lead, a valve
+    #: damped 3 a first-order lag.
+    not_a_limit: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -234,7 +238,9 @@ def _d_valve(p, s):
     return _col(2.0 / f - TWO_PI * (2.0 * z * s + 2.0 * w) * inv_d, -2.0 * w * s * inv_d), None, None
 
 
-_DELAY = (Param("delay_s", "s", 0.0, 0.05, "lin"),)
+# not_a_limit (Param): a delay of 50 ms, a leak of +-10 1/s (a real pole at 1.6 Hz), an accelerometer gain of 0.01 or
+# 100, a valve damped 0.05 are beyond what the library places, not limiting forms of it
+_DELAY = (Param("delay_s", "s", 0.0, 0.05, "lin", ("hi",)),)
 
 LIBRARY: tuple[EffectKind, ...] = (
     EffectKind("delay", "command", "act", _DELAY, _delay_command,
@@ -256,14 +262,14 @@ LIBRARY: tuple[EffectKind, ...] = (
                lambda v: f"the accelerometer's anti-alias filter rolls off above {v['corner_hz']:.3g} Hz (second-order Butterworth)", _d_lowpass2),
     EffectKind("sensor", "accel_highpass", "base", (Param("corner_hz", "Hz", 1e-4, 20.0),), _highpass,
                lambda v: f"the accelerometer is AC coupled below {v['corner_hz']:.3g} Hz (first-order high-pass)", _d_highpass),
-    EffectKind("sensor", "accel_gain", "base", (Param("gain", "1", 0.01, 100.0),), _gain,
+    EffectKind("sensor", "accel_gain", "base", (Param("gain", "1", 0.01, 100.0, "log", ("lo", "hi")),), _gain,
                lambda v: f"the accelerometer reads {v['gain']:.4g} x the true acceleration", _d_gain, needs_fixed_baseline=True),
     EffectKind("actuator", "pole_zero", "act", (Param("zero_hz", "Hz", 0.01, 1e4), Param("pole_hz", "Hz", 0.01, 1e4)), _pole_zero,
                lambda v: f"theta/v has an extra real zero at {v['zero_hz']:.3g} Hz and pole at {v['pole_hz']:.3g} Hz", _d_pole_zero),
-    EffectKind("actuator", "leak", "act", (Param("pole_per_s", "1/s", -10.0, 10.0, "lin"),), _leak,
+    EffectKind("actuator", "leak", "act", (Param("pole_per_s", "1/s", -10.0, 10.0, "lin", ("lo", "hi")),), _leak,
                lambda v: f"theta/v's integrator is a real pole at s = {v['pole_per_s']:+.3g} 1/s (leakage across the actuator against the load's stiffness)", _d_leak,
                needs_pure_integrator=True),
-    EffectKind("actuator", "valve", "act", (Param("freq_hz", "Hz", 1.0, 1e4), Param("zeta", "1", 0.05, 3.0)), _valve,
+    EffectKind("actuator", "valve", "act", (Param("freq_hz", "Hz", 1.0, 1e4), Param("zeta", "1", 0.05, 3.0, "log", ("lo",))), _valve,
                lambda v: f"valve dynamics: a second-order lag at {v['freq_hz']:.3g} Hz, damping {v['zeta']:.2g}", _d_valve),
 )
 

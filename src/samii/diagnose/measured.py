@@ -57,7 +57,7 @@ import numpy as np
 import scipy.fft
 
 from samii.frequency_response import FrequencyResponse
-from samii.identify.lack_of_fit import averages_from_metadata
+from samii.identify.lack_of_fit import ROUGHNESS_LAG, averages_from_metadata, roughness_variance
 from samii.measure.frf import CHANNEL_PAIRS, estimate_frf, record_weights, split_records
 from samii.measure.records import RecordLayout, excitation_offset, find_records
 from samii.measure.timeseries import TimeSeries
@@ -69,8 +69,6 @@ __all__ = ["Measured", "from_timeseries", "from_frf", "POOL", "timeseries_frf", 
 
 #: Neighbouring points the record-to-record variance is pooled over (odd).
 POOL = 9
-#: Points apart whose residuals are differenced to estimate an unknown noise (with_roughness_noise).
-ROUGHNESS_LAG = 2
 #: Averages assumed behind a coherence when a file does not say.
 DEFAULT_AVERAGES = 3
 
@@ -280,7 +278,7 @@ BAND_TOP_OF_RATE = 0.45
 def _without_mains(ts: TimeSeries) -> tuple[TimeSeries, list[str]]:
     """``ts`` with the mains lines of v, theta and accel subtracted (:mod:`samii.measure.lines`: leaking through the
     records' rectangular window they repeat in every record that lasts whole mains periods), and what was removed."""
-    from samii.diagnose.floor import quantisation_step
+    from samii.diagnose.floor import QUANT_FUNDAMENTAL, quantisation_step
     from samii.measure.lines import remove_lines
 
     fs = ts.sample_rate_hz
@@ -374,7 +372,7 @@ def coarse_encoder_warnings(theta: np.ndarray, *, source: str) -> list[str]:
     """theta on a lattice (an encoder's count) that it barely leaves: its FRF is the rounding's, and the coherence does
     not show it (the rounding follows the excitation). `samii frf` wrote theta/v 30-45 dB low with coherence 0.96 from
     a 10-bit encoder (theta on -1, 0, +1 counts) and said nothing; diagnose refused every theta point, rightly."""
-    from samii.diagnose.floor import quantisation_step
+    from samii.diagnose.floor import QUANT_FUNDAMENTAL, quantisation_step
 
     q = quantisation_step(theta)
     if q is None:
@@ -383,7 +381,7 @@ def coarse_encoder_warnings(theta: np.ndarray, *, source: str) -> list[str]:
     amp = 0.5 * float(hi - lo) / q
     if amp >= COARSE_COUNTS:
         return []
-    worst = 0.53 * max(amp, 0.25) ** -1.5
+    worst = QUANT_FUNDAMENTAL * max(amp, 0.25) ** -1.5
     return [f"{source}: theta lies on a lattice of step {q:.3g} rad (an encoder's count) and swings only {amp:.2g} count(s) either "
             f"way: its rounding can be off by up to {min(100 * worst, 100):.0f} % of theta at the sweep's own frequency, so theta/v "
             "and xdd/theta are the rounding's, whatever their coherence says (it follows the excitation); excite more "
@@ -541,11 +539,7 @@ def with_roughness_noise(m: Measured, model: Mapping[str, np.ndarray]) -> Measur
         with np.errstate(divide="ignore", invalid="ignore"):
             e = np.log(m.frf.response(ch) / model[ch])
         e = np.nan_to_num(e, nan=0.0, posinf=0.0, neginf=0.0)
-        lag = min(ROUGHNESS_LAG, e.size - 1)
-        d2 = np.abs(e[lag:] - e[:-lag]) ** 2 if lag > 0 else np.zeros(1)
-        # each difference belongs to the point midway; the ends repeat the nearest one
-        d2 = np.pad(d2, (lag // 2, e.size - d2.size - lag // 2), mode="edge")
-        var[ch] = np.maximum(_pool(d2) / 2.0, 1e-30)
+        var[ch] = np.maximum(roughness_variance(e, ROUGHNESS_LAG, POOL), 1e-30)
     how = (f"estimated from the roughness of the residual against the baseline (differences of points {ROUGHNESS_LAG} apart, pooled over "
            f"{POOL}): "
            "the file gives no coherence and no records")

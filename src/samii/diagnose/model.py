@@ -30,7 +30,7 @@ from scipy.optimize import least_squares
 from samii.diagnose.effects import Effect, EffectKind
 from samii.identify.structures import ModelStructure
 
-__all__ = ["Dataset", "Baseline", "Fit", "fit_model", "relabel_modes", "notebook_reference", "scaled_reference", "MAX_VAR"]
+__all__ = ["Dataset", "Baseline", "Fit", "fit_model", "relabel_modes", "notebook_reference", "scaled_reference", "level_ratio", "MAX_VAR"]
 
 #: Points whose relative random error exceeds this variance (each of log magnitude and phase std
 #: sqrt(0.1/2) = 0.22: 1.9 dB, 13 deg) carry no usable information: there the estimate is dominated by
@@ -989,6 +989,15 @@ def notebook_reference() -> dict[str, float]:
     return {k: (v * deg if k == "K1" else v / deg if k.startswith("B") else v) for k, v in EQ9_4.items()}
 
 
+def level_ratio(data: np.ndarray, model: np.ndarray) -> float | None:
+    """The data's level over a model's: the geometric median of |data / model| over the points where it is finite and
+    positive (None without one): a gain the resonances either side of a misplaced mode do not move."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.log(np.abs(np.asarray(data)) / np.abs(np.asarray(model)))
+    r = r[np.isfinite(r)]
+    return float(np.exp(np.median(r))) if r.size else None
+
+
 def scaled_reference(ds: Dataset, structure: ModelStructure, ref: Mapping[str, float]) -> dict[str, float]:
     """``ref`` with its gains scaled to ``ds``'s data: K1 by the geometric median of |theta/v| over ref's, each B_k by
     that of |xdd/theta| (from xdd/v over theta/v where the file has no xdd/theta). Only the gains move: the frequencies
@@ -1000,13 +1009,7 @@ def scaled_reference(ds: Dataset, structure: ModelStructure, ref: Mapping[str, f
     f = ds.freq_hz
 
     def ratio(ch: str) -> float | None:
-        if ch not in ds.data:
-            return None
-        model = structure.response(ref, f[ds.keep[ch]], ch)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            r = np.log(np.abs(ds.data[ch]) / np.abs(model))
-        r = r[np.isfinite(r)]
-        return float(np.exp(np.median(r))) if r.size else None
+        return level_ratio(ds.data[ch], structure.response(ref, f[ds.keep[ch]], ch)) if ch in ds.data else None
 
     act = ratio("act")
     base = ratio("base")

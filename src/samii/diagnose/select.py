@@ -383,13 +383,12 @@ def _unidentifiable(e: Effect, ds_list: list[Dataset], free: bool = True) -> str
     # (README: "the data want it further out"): against a saved fit 60 dB off the data, a leak of -10.0 1/s, an
     # accelerometer gain of 100 and a valve damped 0.05, each on its bound, were reported as found. (A pole-zero
     # pair's corner on its end is a gain or a lead, a valve damped 3 a first-order lag: those are kept.)
-    for p in e.kind.params:
-        ends = NOT_A_LIMIT.get((e.kind.category if e.kind.category == "delay" else k, p.name), "")
+    for p in e.kind.params:  # (effects.Param.not_a_limit)
         x = v[p.name]
         span = p.hi - p.lo
         low = x <= p.lo * (1.0 + ON_BOUND) if p.transform == "log" else x - p.lo <= ON_BOUND * span
         high = x >= p.hi * (1.0 - ON_BOUND) if p.transform == "log" else p.hi - x <= ON_BOUND * span
-        if (low and "lo" in ends) or (high and "hi" in ends):
+        if (low and "lo" in p.not_a_limit) or (high and "hi" in p.not_a_limit):
             return (f"not placed by the data: its {p.name} ({x:.6g} {p.unit}) sits on an end of the range the library searches "
                     f"({p.lo:g} to {p.hi:g}): the data want it further out, where it is no {e.kind.kind} they show")
     return None
@@ -398,11 +397,6 @@ def _unidentifiable(e: Effect, ds_list: list[Dataset], free: bool = True) -> str
 #: A parameter within this fraction of an end of its range (of the value for a log parameter, of the range for a linear
 #: one) sits on it.
 ON_BOUND = 1e-6
-#: (kind, or "delay" for the delays; parameter) -> the ends of its range that are no limiting form: an effect there is
-#: refused as not placed. A leak's +-10 1/s (a real pole at 1.6 Hz, where it is no leak), a gain of 0.01 or 100, a
-#: valve damped 0.05, a delay of 50 ms.
-NOT_A_LIMIT = {("leak", "pole_per_s"): ("lo", "hi"), ("accel_gain", "gain"): ("lo", "hi"), ("valve", "zeta"): ("lo",),
-               ("delay", "delay_s"): ("hi",)}
 
 
 #: The classes of the reasons a candidate that passed the F-test is refused for, each a phrase its reason holds
@@ -658,8 +652,8 @@ def _candidate(ds_list, baseline, current: Fit, kind: EffectKind, reference_b) -
     huge opposite gains; theta/v's pole-zero pair moved from the 9 Hz resonance to mimic a missing valve's roll-off)
     and from which the joint fit does not climb out. In the first round only, the default simulator's own record
     went leak, actuator mode, pole-zero, base mode (chi2/dof 2.0) where from eq 9.4's basin it is leak and valve
-    (1.1), and the same data with theta in mrad or krad chose differently again. The refit alone credits the effect only with what the baseline alone,
-    started where the candidate's refit went, cannot do."""
+    (1.1), and the same data with theta in mrad or krad chose differently again. The refit alone credits the effect
+    only with what the baseline alone, started where the candidate's refit went, cannot do."""
     held = _held_fits(ds_list, baseline, current, current.effects, kind)
     if not held:
         return None

@@ -55,7 +55,8 @@ import numpy as np
 
 from samii.frequency_response import Channel, FrequencyResponse
 from samii.identify.cost import FitProblem, Weighting, thinning_step
-from samii.identify.lack_of_fit import MIN_COHERENCE, LackOfFit, averages_from_metadata, lack_of_fit, noise_only, refuse_noise
+from samii.identify.lack_of_fit import (MIN_COHERENCE, ROUGHNESS_LAG, LackOfFit, averages_from_metadata, lack_of_fit, noise_only, refuse_noise,
+                                       roughness_variance)
 from samii.identify.notebook_loop import NOTEBOOK_TOL_PCT, PercentChange, percent_change
 from samii.identify.profile import Profile, interval_text, profile_scan
 from samii.identify.starts import auto_start, modes_from_total, notebook_start, perturbed_start, scan_modes, snap_to_peaks
@@ -669,16 +670,10 @@ def _band_warnings(problem: FitProblem, params: Mapping[str, float]) -> list[str
 _MODE_CHANNELS = ("base", "total")
 
 
-#: Points apart whose log residuals are differenced, and points pooled, for the scatter of a channel without coherence
-#: (as samii.diagnose.measured.with_roughness_noise estimates an unknown noise).
-ROUGHNESS_LAG, ROUGHNESS_POOL = 2, 9
-
-
 def _roughness_coherence(problem: FitProblem, params: Mapping[str, float]) -> dict[str, np.ndarray]:
     """For each fitted mode channel without coherence: the coherence a single estimate with the data's scatter about
     the fitted model would have, ``1/(1 + var)``, ``var`` the relative variance read off the roughness of the log
-    residual (``|e[k+2] - e[k]|^2 / 2``, pooled over 9 points). Noise on a response changes from point to point, a
-    missed effect slowly, so the roughness is the noise's whatever the model misses. A point whose scatter is as large
+    residual (samii.identify.lack_of_fit.roughness_variance). A point whose scatter is as large
     as the response itself (var 1) reads 0.5, MIN_COHERENCE: there the data are noise. Without it a file without
     coherence (a rig-era .mat, a CSV without *_coh, one average) had no check of where its modes sit: a fit that put
     base mode 1 at 0.12 Hz in xdd/theta's noise and the hydraulic pair on mode 1 was called sound."""
@@ -691,11 +686,7 @@ def _roughness_coherence(problem: FitProblem, params: Mapping[str, float]) -> di
             e = np.log(data.response(c) / problem.structure.response(params, data.freq_hz, c))
         if e.size <= ROUGHNESS_LAG or not np.all(np.isfinite(e)):
             continue
-        d2 = np.abs(e[ROUGHNESS_LAG:] - e[:-ROUGHNESS_LAG]) ** 2 / 2.0
-        d2 = np.pad(d2, (ROUGHNESS_LAG // 2, e.size - d2.size - ROUGHNESS_LAG // 2), mode="edge")
-        kernel = np.ones(ROUGHNESS_POOL)
-        var = np.convolve(d2, kernel, "same") / np.convolve(np.ones_like(d2), kernel, "same")
-        out[c] = 1.0 / (1.0 + var)
+        out[c] = 1.0 / (1.0 + roughness_variance(e))
     return out
 
 

@@ -60,7 +60,8 @@ import numpy as np
 
 from samii.identify.cost import COHERENCE_CLIP, DB_PER_NEPER, DEG_PER_RAD, FitProblem
 
-__all__ = ["RATIO", "MIN_COHERENCE", "BRIDGE_REL", "MisfitBand", "LackOfFit", "averages_from_metadata", "lack_of_fit", "noise_only", "refuse_noise"]
+__all__ = ["RATIO", "MIN_COHERENCE", "BRIDGE_REL", "MisfitBand", "LackOfFit", "averages_from_metadata", "lack_of_fit", "noise_only", "refuse_noise",
+           "roughness_variance", "ROUGHNESS_LAG", "ROUGHNESS_POOL"]
 
 RATIO = 5.0
 #: Below this coherence a point is noise-dominated and is not tested.
@@ -343,3 +344,25 @@ def lack_of_fit(problem: FitProblem, x: np.ndarray, *, n_averages: int | None = 
                 sl = slice(i, j + 1)
                 bands.append(MisfitBand(c, float(f[i]), float(f[j]), j - i + 1, float(np.max(np.abs(errs[c][0][sl]))), float(np.max(np.abs(errs[c][1][sl]))), None))
     return LackOfFit(rule, n, source, tuple(bands), ratios, untested, n_tested)
+
+
+#: Points apart whose log residuals are differenced, and points pooled, for a noise read off a residual's roughness.
+ROUGHNESS_LAG, ROUGHNESS_POOL = 2, 9
+
+
+def roughness_variance(e: np.ndarray, lag: int = ROUGHNESS_LAG, pool: int = ROUGHNESS_POOL) -> np.ndarray:
+    """The relative variance of each point of a complex log residual ``e``, read off its roughness: ``|e[k+lag] -
+    e[k]|^2 / 2`` (the variance of one of two independent errors), each difference the point midway's (the ends repeat
+    the nearest), pooled by a moving mean over ``pool`` points (its window shrinking at the ends). Noise changes from
+    point to point, a missed effect slowly: the roughness is the noise's whatever the model misses. For data that say
+    nothing of their noise (no coherence, no records): samii.diagnose.measured.with_roughness_noise, and the check of
+    where a fit's modes sit (samii.identify.fit)."""
+    e = np.asarray(e)
+    lag = min(lag, e.size - 1)
+    if lag <= 0:
+        return np.zeros(e.size)
+    d2 = np.abs(e[lag:] - e[:-lag]) ** 2
+    d2 = np.pad(d2, (lag // 2, e.size - d2.size - lag // 2), mode="edge")
+    start = (pool - 1) // 2
+    ones = np.ones(pool)
+    return np.convolve(d2, ones)[start : start + e.size] / np.convolve(np.ones(e.size), ones)[start : start + e.size] / 2.0

@@ -229,9 +229,10 @@ class Engine:
     scheduler_source: str = "--scheduler"
     _client: object = field(default=None, repr=False)
     _cluster: object = field(default=None, repr=False)
-    #: a study on the user's cluster failed (the client's close then logs its reconnection attempts: kept quiet)
+    #: a study on the user's cluster failed: closing its client may fail too, and is not said again
     _failed: bool = field(default=False, repr=False)
-    _quiet: object = field(default=None, repr=False)
+    #: Dask's loggers held quiet while connected to a user's cluster (_quiet_dask_logs)
+    _quiet: contextlib.ExitStack = field(default_factory=contextlib.ExitStack, repr=False)
 
     def describe(self) -> str:
         if self.scheduler:
@@ -247,7 +248,14 @@ class Engine:
     def __enter__(self) -> "Engine":
         if self.uses_dask and self._client is None:
             if self.scheduler:
-                self._client = _connect(self.scheduler, self.connect_timeout_s, self.scheduler_source)
+                # the client logs a lost scheduler, and its reconnection attempts, as ERROR with tracebacks: the study
+                # says it in one line (_watched)
+                self._quiet.enter_context(_quiet_dask_logs())
+                try:
+                    self._client = _connect(self.scheduler, self.connect_timeout_s, self.scheduler_source)
+                except BaseException:
+                    self._quiet.close()
+                    raise
                 try:  # a scheduler without workers took the study and waited for ever, without a word
                     self._client.wait_for_workers(1, timeout=self.connect_timeout_s)
                 except TimeoutError:
@@ -289,9 +297,8 @@ class Engine:
         if self._cluster is not None:
             self._cluster.close()
         self._client = self._cluster = None
-        if self._quiet is not None:
-            quiet, self._quiet, self._failed = self._quiet, None, False
-            quiet.__exit__(None, None, None)
+        self._failed = False
+        self._quiet.close()
 
     def map(self, tasks: Sequence[SampleTask], progress: Callable[[int], None] | None = None) -> list[SampleResult]:
         """Run every task; the results in the tasks' order."""
@@ -333,8 +340,6 @@ class Engine:
         limit = self.connect_timeout_s
         pending, by_key = set(futures), {}
         no_worker_since = None
-        quiet = _quiet_dask_logs()  # (the client logs a lost scheduler as ERROR with its traceback: said here in one line)
-        quiet.__enter__()
 
         def lost(what: str) -> InputError:
             return InputError(f"{where}: during the study, after {len(by_key)} of {len(futures)} samples, {what}; nothing "
@@ -380,11 +385,6 @@ class Engine:
                 elif time.monotonic() - no_worker_since > limit:
                     raise lost(f"no worker was left for {limit:g} s (start workers: dask worker {self.scheduler})")
         except BaseException:
-            self._failed = True  # (its close may log the reconnection attempts too: kept quiet there, see __exit__)
+            self._failed = True  # (closing its client then fails too: see __exit__)
             raise
-        finally:
-            if self._failed:
-                self._quiet = quiet
-            else:
-                quiet.__exit__(None, None, None)
         return [by_key[f.key] for f in futures]
