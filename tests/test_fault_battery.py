@@ -1457,7 +1457,7 @@ def test_a_fit_without_coherence_whose_mode_sits_in_the_noise_is_not_called_soun
     assert main(["fit", str(no_coherence["noisy"]), "--json", "--no-progress"]) == 0
     d = json.loads(capsys.readouterr().out)
     w1_hz = d["params"]["w1"] / (2 * math.pi)
-    if not 1.5 < w1_hz < 2.0:  # the fit in the noise (as on every seed tried, 1-3): it must say so
+    if not 1.5 < w1_hz < 2.0:  # a fit in the noise: it must say so
         assert d["verdict"] == "not sound" and not d["sound"], d["verdict"]
         assert any("has no coherence; its scatter about the fit there is" in c for c in d["concerns"]), d["concerns"]
     assert main(["fit", str(no_coherence["clean"]), "--json", "--no-progress"]) == 0
@@ -1750,3 +1750,54 @@ def test_theta_that_barely_leaves_its_encoders_count_is_said():
     (line,) = coarse_encoder_warnings(np.round(theta / (2 * np.pi / 1024)) * (2 * np.pi / 1024), source="f.csv")
     assert line.startswith("f.csv: theta lies on a lattice of step 0.00614 rad") and "whatever their coherence says" in line
     assert coarse_encoder_warnings(theta, source="f.csv") == []  # not on a lattice
+
+
+# --------------------------------------------------------------------------- a fifth battery (stop 44)
+
+
+def test_the_servo_loops_gain_margin_is_the_notebooks_and_a_theta_in_mrad_is_refused_by_the_damping_design(measured, tmp_path, capsys):
+    """design damping --frf on theta in mrad designed k = 615 V/(m/s²) (8.35 in rad), called it 6 dB from its limit, and
+    the loop ran away. The data were measured with the servo loop Kp theta/v closed and the rig ran: its gain margin on
+    the fit is above 1 (eq 9.4's: 3.04 at 8.9 Hz, the notebook's figure); in mrad it is 1/74, in degrees 1/57 x 1.67."""
+    from samii.closedloop.damping import servo_gain_margin
+    from samii.notebook import EQ9_4
+    from test_diagnose_units import _rescaled
+
+    gm, f = servo_gain_margin(EQ9_4, 1.0)  # eq 9.4's theta/v is in deg/V: Kp = 1 V/deg
+    assert gm == pytest.approx(3.04, abs=0.01) and f == pytest.approx(8.9, abs=0.1)
+    for factor, name in ((1e3, "mrad"), (180 / math.pi, "deg")):
+        scaled = tmp_path / f"{name}.csv"
+        _rescaled(Path(measured["frf"]), scaled, factor)
+        assert main(["design", "damping", "--frf", str(scaled), "--save", str(tmp_path / f"{name}.json")]) == 2
+        line = _one_line(capsys)
+        assert line.startswith(f"samii design damping: error: {scaled}: theta/v (the 3-mode model fitted to it) times the position "
+                               "gain 57.3 V/rad is ") and "would be unstable, yet the rig ran" in line and "in mrad" in line, line
+        assert not (tmp_path / f"{name}.json").exists()
+    # the file in rad with a servo gain 100x the one it was measured with: the same contradiction
+    assert main(["design", "damping", "--frf", str(measured["frf"]), "--position-gain", "5730"]) == 2
+    assert "--position-gain the servo amplifier's gain" in _one_line(capsys)
+
+
+def test_a_fit_without_coherence_is_weighted_by_the_datas_scatter_where_the_notebooks_cost_fails(no_coherence, tmp_path, capsys):
+    """The notebook's unweighted cost on the default measurement without its coherence (seed 1, 3 averages) put base
+    mode 1 at 0.12-0.16 Hz in xdd/theta's noise and the hydraulic pair on mode 1: said as not sound (stop 43), but the
+    data hold the right answer. Weighted by their scatter (the roughness of the log residual, the smallest reading
+    over the unweighted fit and the starts) the fit finds the file's coherence-weighted parameters. One noisy average
+    (measure --averages 1) places mode 1 by neither reading: its "not sound" stands."""
+    assert main(["fit", str(no_coherence["noisy"]), "--json", "--no-progress"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    hz = {k: d["params"][k] / (2 * math.pi) for k in ("wp", "wz", "w1", "w3")}
+    assert d["weighting"] == "scatter" and d["sound"], (d["weighting"], d["concerns"])
+    # the simulator's (samii fit of the same file with its coherence: 8.32, 9.89, 1.735, 24.9 Hz)
+    assert hz["wp"] == pytest.approx(8.3, rel=0.03) and hz["wz"] == pytest.approx(9.9, rel=0.02)
+    assert hz["w1"] == pytest.approx(1.735, rel=0.02) and hz["w3"] == pytest.approx(24.9, rel=0.02)
+    assert d["params"]["B1"] < 0 < d["params"]["B2"]  # eq 9.4's signs
+    assert main(["fit", str(no_coherence["noisy"]), "--no-progress"]) == 0
+    assert "weighting the data's scatter" in capsys.readouterr().out
+    # one average with noise: no reading places mode 1, and the unweighted fit's verdict is kept
+    assert main(["measure", "--averages", "1", "--noise", "--seed", "1", "--out", str(tmp_path / "a1"), "--no-progress"]) == 0
+    _without_coherence(tmp_path / "a1" / "frf.csv", tmp_path / "a1.csv")
+    capsys.readouterr()
+    assert main(["fit", str(tmp_path / "a1.csv"), "--json", "--no-progress"]) == 0
+    one = json.loads(capsys.readouterr().out)
+    assert one["weighting"] == "none" and not one["sound"], (one["weighting"], one["verdict"])

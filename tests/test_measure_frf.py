@@ -246,3 +246,21 @@ def test_record_signs_are_read_off_a_fast_sweep_or_stated():
     rng = np.random.default_rng(0)
     w, how = record_weights(rng.normal(size=(3, 1000)))  # not one excitation repeated
     assert "uniform" in how
+
+
+def test_stepped_coherence_reads_the_noise_at_the_dwell_not_a_hum_far_from_it():
+    """Mains hum at 50 Hz, 30x the white noise, beside a 5 Hz dwell: the estimate's error is the white noise's alone
+    (the fit over whole periods of 5 Hz is blind to 50 Hz), and so is the stated error power (read next to the dwell);
+    the residual's whole variance stated it 900x too large."""
+    from samii.measure.stepped import sine_amplitude
+
+    fs, f, n, amp, s = 1000.0, 5.0, 2000, 0.01, 0.02
+    t = np.arange(n) / fs
+    rng = np.random.default_rng(8)
+    runs = [sine_amplitude(amp * np.sin(2 * np.pi * f * t) + 0.6 * np.sin(2 * np.pi * 50.0 * t + rng.uniform(0, 6.3))
+                           + rng.normal(0, s, n), t, f) for _ in range(300)]
+    est, coh = np.array([r[0] for r in runs]), np.array([r[1] for r in runs])
+    observed = np.mean(np.abs(est - (-1j * amp)) ** 2)
+    stated = np.mean(amp**2 * (1.0 - coh) / coh)  # 4 s^2/N from g = A^2/(A^2 + 4 s^2/N)
+    assert observed == pytest.approx(4 * s**2 / n, rel=0.2)
+    assert stated == pytest.approx(observed, rel=0.25)

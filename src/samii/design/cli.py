@@ -510,6 +510,13 @@ def run_damping(args) -> int:
             raise InputError(f"{args.frf}: the notebook's 3-mode model fitted to it over {fr.band_hz[0]:.3g}-{fr.band_hz[1]:.3g} Hz is "
                              "not a sound fit, and a controller designed on its parameters would not be trusted; samii fit "
                              f"{args.frf} --band-hz {fr.band_hz[0]:.3g} {fr.band_hz[1]:.3g} says why: {why}")
+        gm, f_gm = dm.servo_gain_margin(fr.params, kp)
+        if gm < dm.SERVO_MARGIN_REFUSED:
+            raise InputError(f"{args.frf}: theta/v (the 3-mode model fitted to it) times the position gain {kp:.4g} V/rad is "
+                             f"{1.0 / gm:.3g} at {f_gm:.3g} Hz, where its phase crosses -180 deg (above 1 there a loop is unstable): "
+                             "the servo loop the data were measured in would be unstable, yet the rig ran (a hydraulic position servo keeps a gain margin there: the embedded model's measured fit "
+                             "has 1.67). Is theta in rad (in mrad theta/v is 1000x too large, in degrees 57x), and is "
+                             "--position-gain the servo amplifier's gain in V/rad?")
         summary = {"data": str(args.frf), "band_hz": list(fr.band_hz), "rms_mag_db": dict(fr.rms_mag_db),
                    "rms_phase_deg": dict(fr.rms_phase_deg), "converged": bool(fr.converged)}  # fmt: skip
         d = dm.design_damping(fr.params, position_gain_v_per_rad=kp, sample_time_s=args.sample_time_s, delay_samples=args.delay_samples,

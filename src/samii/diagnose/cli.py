@@ -279,7 +279,9 @@ def _print(d, written) -> None:
         print("verdict: none: " + why + (f"; {sim}" if sim else ""))
     else:
         left = ", but a residual beyond the noise remains (unexplained, below)" if d.unexplained and not real else ""
-        print(f"verdict: {d.verdict}" + (f": {len(real)} effect(s) the model lacks" if real else f": only what sampling explains{left}")
+        if real and not d.unexplained and even_misfit(d.error_after):
+            left = ", but the residual stays above the noise after them (note below)"
+        print(f"verdict: {d.verdict}" + (f": {len(real)} effect(s) the model lacks{left}" if real else f": only what sampling explains{left}")
               + (f"; {sim}" if sim else ""))
     from samii.diagnose.effects import LIBRARY
 

@@ -1004,7 +1004,15 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     unexplained = unexplained_bands(datasets, after.residuals, alpha=alpha)
     unexplained += [Band(c.source, c.channel, c.lo_hz, c.hi_hz, c.chi2, int(np.sum((m.frf.freq_hz >= c.lo_hz) & (m.frf.freq_hz <= c.hi_hz))),
                          "records differ") for c in changes for m in measured if m.source == c.source]
+    errors_after = channel_errors(datasets, after)
+    if any(not e.expected for e in effects) and not unexplained and (left := even_misfit(errors_after)):
+        # (without an effect the verdict says it; with them it read as if they explained the data: a stepped sine of 17
+        # dwells, chi2 per residual 33 after its one effect, and no band of misfit on so few points)
+        notes.append("after the effects found the residual stays above the noise (chi2 per residual "
+                     + ", ".join(f"{CHANNEL_NAMES.get(c, c)} {v:.3g}" for c, v in left.items())
+                     + ") evenly, with no band standing out: more is missing than these, or the noise these data are judged "
+                     "against is too small for them; not explained")
     return Diagnosis(measured, datasets, bl, before, after, tuple(steps), tuple(tried), tuple(effects),
-                     error_before, channel_errors(datasets, after), tuple(unexplained),
+                     error_before, errors_after, tuple(unexplained),
                      notes=tuple(notes[:at] + divided_notes + notes[at:] + nl_notes), harmonics=tuple(harmonics), amplitude_tests=tuple(amp_tests),
                      raw_measured=None if raw is measured else raw, simulator=report, nonlinear=tuple(nonlinear))

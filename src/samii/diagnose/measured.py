@@ -34,6 +34,10 @@ of it). Where it comes from, best first:
   pooled over ``POOL`` neighbouring points; ``n`` from the
   file's ``frf_records`` or ``averages`` line, else 3 (the rig's averages,
   notebook ch. 9), said so.
+* **A stepped sine's coherence** (samii's stepped frf.csv or timeseries.csv):
+  each dwell's sine fit over thousands of samples, ``g = |Y|^2/(|Y|^2 + 4 s^2/N)``
+  with ``s^2`` the noise next to the dwell's frequency, so ``var = (1 - g)/g``,
+  each point its own (:func:`_stepped_from_frf`).
 * **The residual's roughness** (no coherence, one record: a rig-era .mat):
   the random error varies with frequency by orders of magnitude (theta/v is
   noise above some 9 Hz at 0.1 V), so uniform weights would let noise pass
@@ -57,7 +61,7 @@ import numpy as np
 import scipy.fft
 
 from samii.frequency_response import FrequencyResponse
-from samii.identify.lack_of_fit import ROUGHNESS_LAG, averages_from_metadata, roughness_variance
+from samii.identify.lack_of_fit import CHANNEL_NAMES, ROUGHNESS_LAG, averages_from_metadata, roughness_variance
 from samii.measure.frf import CHANNEL_PAIRS, estimate_frf, record_weights, split_records
 from samii.measure.records import RecordLayout, excitation_offset, find_records
 from samii.measure.timeseries import TimeSeries
@@ -295,6 +299,96 @@ def _without_mains(ts: TimeSeries) -> tuple[TimeSeries, list[str]]:
     return (replace(ts, **cols) if cols else ts), said
 
 
+#: A drift is subtracted (and said) when doing so moves some point of the FRF by at least this many of its standard
+#: errors: one changes what the residual tests could read there; below it the data are left exactly as recorded.
+DRIFT_STANDARD_ERRORS = 1.0
+#: ... or when it raises the records' spread (the noise the tests weigh by) this many times in variance somewhere (a
+#: doubled standard error): a sign-alternating sweep's weights (1/4, -1/2, 1/4) cancel a drift the same in every
+#: record from the estimate, not from each record's deviation from it.
+DRIFT_SPREAD_FACTOR = 4.0
+#: Longest stretch of a record's closing rest whose mean is read as the drift's level there [s].
+DRIFT_REST_S = 2.0
+
+
+def _drift_effect(frf: FrequencyResponse, var, frf2: FrequencyResponse, var2) -> tuple[list[str], bool]:
+    """What a subtraction that turned (``frf``, ``var``) into (``frf2``, ``var2``) did, where it matters: a point moved
+    by :data:`DRIFT_STANDARD_ERRORS` of the new estimate, a spread that fell :data:`DRIFT_SPREAD_FACTOR`-fold."""
+    moved, spread = [], []
+    for ch in CHANNEL_PAIRS:
+        h0, h1, v0, v1 = getattr(frf, ch), getattr(frf2, ch), var.get(ch), var2.get(ch)
+        if h0 is None or h1 is None or v0 is None or v1 is None:
+            continue
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.abs(h1 / h0 - 1.0) / np.sqrt(v1)
+            g = v0 / v1
+        z[~np.isfinite(z)] = 0.0
+        g[~np.isfinite(g)] = 1.0
+        i, j = int(np.argmax(z)), int(np.argmax(g))
+        if z[i] >= DRIFT_STANDARD_ERRORS:
+            moved.append((float(z[i]), f"moved {CHANNEL_NAMES[ch]} by up to {z[i]:.3g} standard errors (at {frf.freq_hz[i]:.3g} Hz)"))
+        if g[j] >= DRIFT_SPREAD_FACTOR:
+            spread.append((float(g[j]), f"raised the records' spread of {CHANNEL_NAMES[ch]} {g[j]:.3g}-fold in variance "
+                                        f"(at {frf.freq_hz[j]:.3g} Hz)"))
+    said = [max(moved)[1]] if moved else []
+    said += [max(spread)[1]] if spread else []
+    return said, bool(said)
+
+
+def _without_drift(ts: TimeSeries, layout: RecordLayout, frf: FrequencyResponse, var: Mapping[str, np.ndarray | None],
+                   *, band_hz: tuple[float, float], source: str) -> tuple[TimeSeries, list[str]]:
+    """``ts`` with the drift from record to record subtracted (:mod:`samii.measure.drift`) from each channel where that
+    matters (:func:`_drift_effect`, channel by channel against the FRF ``frf`` estimated without it, point variances
+    ``var``), and what was subtracted; else ``ts`` unchanged. A column on a lattice keeps it (as for hum)."""
+    from samii.diagnose.floor import quantisation_step
+    from samii.measure.drift import drift_curve, drift_from_rests
+
+    if layout.n_records < 2:
+        return ts, []
+    fs = ts.sample_rate_hz
+    n = int(np.floor(layout.record_s * fs))
+    starts = np.round((layout.start_s + np.arange(layout.n_records) * layout.record_s) * fs).astype(int)
+    r = np.stack([np.asarray(ts.r, float)[k : k + n] for k in starts])
+    r = r - np.median(r, axis=1, keepdims=True)
+    norms = np.linalg.norm(r, axis=1)
+    if np.any(norms == 0):
+        return ts, []
+    corr = r @ r[0] / (norms * norms[0])
+    if np.any(np.abs(corr) < 0.9):
+        return ts, []  # (not one excitation repeated: its records' means need not agree)
+    # the rests, where the records have them: the first record's operating point and the last part of every record's
+    # closing rest (at most DRIFT_REST_S, the later half: the sweep's ringing has died away there)
+    rests = None
+    if layout.rest_s > 0 and layout.baseline_s > 0:
+        tail = int(round(min(0.5 * layout.rest_s, DRIFT_REST_S) * fs))
+        rests = np.array([[starts[0], starts[0] + int(round(layout.baseline_s * fs))]] + [[k + n - tail, k + n] for k in starts])
+    units = {"v": "V", "theta": "rad", "accel": "m/s²"}
+    centres = starts + (n - 1) / 2.0
+    cols, per, did = {}, [], []
+    for name in ("v", "theta", "accel"):
+        x = np.asarray(getattr(ts, name), float)
+        if quantisation_step(x) is not None:
+            continue
+        curve = drift_from_rests(x, rests) if rests is not None else drift_curve(x, starts, n, signs=np.sign(corr), rests=False)
+        if curve is None:
+            return ts, []
+        y = x - curve
+        frf2, var2, _, _ = timeseries_frf(replace(ts, **{name: y}), layout, band_hz=band_hz)
+        said, matters = _drift_effect(frf, var, frf2, var2)
+        if matters:
+            cols[name] = y
+            at = np.interp(centres[[0, -1]], np.arange(x.size), curve)
+            change = float((at[1] - at[0]) / (layout.n_records - 1))
+            per.append(f"{name} {change:+.3g} {units[name]} per record")
+            did += [f"{name}'s drift {d}" for d in said]
+    if not cols:
+        return ts, []
+    return replace(ts, **cols), [
+        f"{source}: the signals' levels drift from record to record ({', '.join(per)}; a repeated excitation gives every "
+        f"record the same level at rest): {'; '.join(did)}; the drift read off the records' "
+        f"{'rests' if rests is not None else 'means'} is subtracted from "
+        f"{' and '.join(cols)} before the estimate (samii.measure.drift)"]
+
+
 def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float] | None = None, record_s: float | None = None) -> Measured:
     """A time series with its excitation ``r``: records found (or as stated), FRF and spread estimated."""
     if ts.r is None:
@@ -325,6 +419,10 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
         raise ValueError(f"{source}: --band-hz {band_hz[0]:g} {band_hz[1]:g}: expected 0 < LO < HI < {fs / 2:g} Hz, the Nyquist "
                          f"frequency of its {fs:g} samples per second")
     frf, var, corr, how = timeseries_frf(ts, layout, band_hz=band_hz)
+    ts, drift = _without_drift(ts, layout, frf, var, band_hz=band_hz, source=source)
+    if drift:
+        frf, var, corr, how = timeseries_frf(ts, layout, band_hz=band_hz)
+        said += drift
     _check_scale(frf, ts, source)
     check_testable(frf, source=source)
     if hum:
@@ -345,7 +443,6 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
 def _check_scale(frf: FrequencyResponse, ts: TimeSeries, source: str) -> None:
     """Refuse a response no FRF file can hold (samii.measure.io.MAG_RANGE; its own readers would refuse what frf wrote):
     a sample far out of scale, which the time series' reader accepts (up to 1e100), names its column and time."""
-    from samii.identify.lack_of_fit import CHANNEL_NAMES
     from samii.measure.io import MAG_RANGE
 
     lo, hi = MAG_RANGE
@@ -464,6 +561,8 @@ def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
     """An FRF file: the error of each point from its coherence, if it has one."""
     check_testable(frf, source=source)
     meta = frf.metadata
+    if is_stepped(meta):
+        return _stepped_from_frf(frf, source=source)
     n = averages_from_metadata(meta)
     if n is None:
         n = DEFAULT_AVERAGES
@@ -505,6 +604,78 @@ def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
                     warnings=tuple(said), aliasing=tuple(said))
 
 
+def _stepped_from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
+    """A stepped sine's FRF: each point's error from its own coherence, which for a dwell is no estimate from a few
+    averages but its sine fit's residual over thousands of samples, ``g = |Y|^2/(|Y|^2 + 4 s^2/N)``
+    (:mod:`samii.measure.stepped`): ``(1 - g)/g`` is the relative error's variance of the amplitude ``E|dY|^2/|Y|^2``,
+    a channel's coherence the product of its two signals', so its ``(1 - g)/g`` is about the sum of theirs. Not pooled: the dwells lie
+    far apart in frequency. (Read as 3 averages it was halved, and pooled over nine dwells spanning the band.)"""
+    var, have = {}, []
+    for ch in frf.channels:
+        coh = frf.coherence(ch)
+        if coh is None:
+            var[ch] = None
+            continue
+        g = np.clip(coh, 1e-6, 1.0 - 1e-12)
+        var[ch] = np.maximum((1.0 - g) / g, 1e-30)
+        have.append(ch)
+    how = (f"coherence of {', '.join(have)} (each dwell's sine fit: its residual over the window's samples)" if have
+           else "unknown (no coherence in the file)")
+    if have and len(have) < len(frf.channels):
+        var = dict.fromkeys(frf.channels)
+        how = f"unknown (coherence for {', '.join(have)} only)"
+    from samii.measure.io import stated_sample_rate
+
+    meta = frf.metadata
+    sr = stated_sample_rate(meta.get("sample_rate_hz"))
+    sr = sr if sr is not None and 0 < sr < np.inf else None
+    said = aliasing_warnings(meta, sr, source=source) if sr is not None else []
+    return Measured(source=source, frf=frf, var=var, noise_source=how, corr_length=1.0, amplitude_v=_float_meta(meta, "amplitude_v"),
+                    sample_rate_hz=sr, warnings=tuple(said), aliasing=tuple(said))
+
+
+def is_stepped(meta: Mapping[str, str]) -> bool:
+    """The header says the excitation is a stepped sine (``# excitation: stepped sine, N frequencies``)."""
+    return str(meta.get("excitation", "")).strip().lower().startswith("stepped sine")
+
+
+def from_stepped(ts: TimeSeries, *, source: str, band_hz: tuple[float, float] | None = None) -> Measured:
+    """A stepped-sine time series (samii measure --method stepped, or any file whose header states the same schedule):
+    each dwell's measurement window estimated as ``samii measure`` does (:func:`samii.measure.stepped.estimate_stepped`),
+    then read as an FRF file is (:func:`from_frf`). The windows are where the header's schedule puts them, counted
+    from the file's first sample."""
+    from samii.measure.excitation import SteppedSine
+    from samii.measure.stepped import estimate_stepped
+
+    try:
+        sched = SteppedSine.from_metadata(ts.metadata)
+    except KeyError as exc:
+        raise ValueError(f"{source}: the header says the excitation is a stepped sine but has no '# {exc.args[0]}:' line; the "
+                         "dwells' schedule (freqs_hz, amplitude_v, settle_s, ramp_s, measure_cycles, measure_s, lead_s, as samii "
+                         "measure writes them) places each dwell's measurement window") from None
+    except ValueError as exc:
+        raise ValueError(f"{source}: the header's stepped-sine schedule: {exc}") from None
+    windows = sched.windows_s + float(ts.t[0])
+    end = float(ts.t[-1]) + 1.0 / ts.sample_rate_hz
+    missing = [f"{f:g} Hz ({a:.6g}-{b:.6g} s)" for f, (a, b) in zip(sched.freqs_hz, windows) if b > end + 1e-9]
+    if missing:
+        raise ValueError(f"{source}: the file ends at t = {end:.6g} s, before the measurement window of the dwell(s) at "
+                         f"{', '.join(missing)} that its header's stepped-sine schedule lists: is it cut short, or its schedule "
+                         "another file's?")
+    nyquist = ts.sample_rate_hz / 2
+    if max(sched.freqs_hz) >= nyquist:
+        raise ValueError(f"{source}: the stepped sine dwells at {max(sched.freqs_hz):g} Hz, at or above the Nyquist frequency "
+                         f"{nyquist:g} Hz of its {ts.sample_rate_hz:g} samples per second")
+    frf = estimate_stepped(ts, freqs_hz=sched.freqs_hz, windows_s=windows)
+    if band_hz is not None:
+        frf = frf.band(*band_hz)
+    m = from_frf(frf, source=source)
+    aliasing = aliasing_warnings(ts.metadata, ts.sample_rate_hz, source=source)
+    said = aliasing + coarse_encoder_warnings(ts.theta, source=source)
+    return replace(m, sample_rate_hz=ts.sample_rate_hz, warnings=tuple(said), aliasing=tuple(aliasing),
+                   noise_source=f"stepped sine of {len(sched.freqs_hz)} dwells: " + m.noise_source)
+
+
 def load(path, *, band_hz: tuple[float, float] | None = None, record_s: float | None = None,
          mat_freq_name: str | None = None, mat_freq_unit: str = "hz") -> Measured:
     """Read a time-series CSV, an FRF CSV or a rig-era .mat file (chosen by content) as :class:`Measured`."""
@@ -518,6 +689,8 @@ def load(path, *, band_hz: tuple[float, float] | None = None, record_s: float | 
     if "t" in header and "freq_hz" not in header:
         ts = read_timeseries_csv(path)
         try:
+            if is_stepped(ts.metadata):
+                return from_stepped(ts, source=source, band_hz=band_hz)
             return from_timeseries(ts, source=source, band_hz=band_hz, record_s=record_s)
         except ValueError as exc:
             text = str(exc)

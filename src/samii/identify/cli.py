@@ -265,9 +265,13 @@ def run(args: argparse.Namespace) -> int:
         print(json_text(out[0] if len(out) == 1 else out))
         return 0
     r0 = results[0]
-    weighting = "coherence (points weighted by their predicted random error)" if r0.weighting == "coherence" else "none (the notebook's cost)"
+    weighting = {"coherence": "coherence (points weighted by their predicted random error)",
+                 "scatter": "the data's scatter (points weighted by the random error read off their roughness about the fit)"}.get(
+                     r0.weighting, "none (the notebook's cost)")
     if args.weighting == "auto":
-        weighting += ", chosen by --weighting auto" + ("" if r0.weighting == "coherence" else " (the file has no coherence for every fitted channel)")
+        weighting += ", chosen by --weighting auto" + {
+            "coherence": "", "scatter": " (the file has no coherence, and the notebook's cost gave a fit that was not sound)"}.get(
+                r0.weighting, " (the file has no coherence for every fitted channel)")
     print(f"samii fit: {args.frf}: {structure.describe()}; band {r0.band_hz[0]:.3g}-{r0.band_hz[1]:.3g} Hz, {r0.n_points} points, channels {', '.join(r0.channels)}; weighting {weighting}")
     missing = [c for c in ("act", "base") if c not in data.channels]
     if r0.not_fitted:

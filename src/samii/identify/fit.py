@@ -1165,7 +1165,76 @@ def fit(
     10.886
     """
     structure = structure or ModelStructure.notebook_3mode()
+    requested = weighting
     weighting = resolve_weighting(data, channels, weighting)
     problem = FitProblem(data, structure, phase_weight=phase_weight, band_hz=band_hz, channels=None if channels is None else tuple(channels), weighting=weighting)
-    return fit_problem(problem, start=start, n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, n_averages=n_averages, progress=progress,
-                       profile=profile)
+    result = fit_problem(problem, start=start, n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, n_averages=n_averages, progress=progress,
+                         profile=profile)
+    if requested == "auto" and weighting == "none" and (not result.sound or result.caveats) and isinstance(start, str):
+        mended = _weighted_by_scatter(problem, result, n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, profile=profile)
+        if mended is not None:
+            return mended
+    return result
+
+
+def _weighted_by_scatter(problem: FitProblem, unweighted: FitResult, *, n_perturbed: int, rng: np.random.Generator | None,
+                         max_nfev: int, profile) -> FitResult | None:
+    """Data without coherence whose fit by the notebook's unweighted cost is not sound, or sound with caveats, fitted
+    again weighted by their scatter; the result if it is sound by both readings of the noise (and, where the
+    unweighted fit was sound, leaves fewer modes undetermined or fewer bands of misfit), else None (the unweighted
+    fit stands, said).
+
+    Without coherence every point counts alike in the notebook's cost, and where a channel is noise (xdd/theta
+    below 0.3 Hz at 0.1 V) the noise draws the modes to it: a rig-era .mat file of the default simulator's
+    measurement put base mode 1 at 0.16 Hz and the hydraulic pair on mode 1 (NOT A SOUND FIT, rightly). The noise of
+    each point is read off the roughness of the log residual (:func:`samii.identify.lack_of_fit.roughness_variance`)
+    about each of the unweighted fit and the starts; a misfit only adds to the scatter, so the smallest reading of
+    each point is kept. As a coherence of one estimate, ``1/(1 + var)`` (``(1 - g)/g = var``, one average), it
+    weighs a fit from every start. A weighting read off a fit can favour that fit's basin, so the weighted result is
+    kept only if it is sound both by its own weights and by the scatter about itself, as an unweighted fit is
+    judged (:func:`_assess`); on one noisy average (samii measure --averages 1 --noise) neither reading places
+    mode 1, and the unweighted fit's "not sound" stands."""
+    from dataclasses import replace as _replace
+
+    from samii.frequency_response import FrequencyResponse
+
+    data, st = problem.data, problem.structure
+    starts, _ = _build_starts(problem, "both")
+    candidates = [dict(unweighted.params)] + [p for _, p in starts]
+    cols: dict[str, np.ndarray] = {c: data.response(c) for c in data.channels}
+    for c in problem.channels:
+        scatter = []
+        for p in candidates:
+            with np.errstate(all="ignore"):
+                e = np.log(data.response(c) / st.response({k: (v if np.isfinite(v) else 1.0) for k, v in p.items()}, data.freq_hz, c))
+            if e.size > ROUGHNESS_LAG and np.all(np.isfinite(e)):
+                scatter.append(roughness_variance(e))
+        if not scatter:
+            return None
+        cols[f"{c}_coh"] = 1.0 / (1.0 + np.min(scatter, axis=0))
+    meta = {**data.metadata, "frf_records": "1 (no coherence in the file: a single estimate's, from the data's scatter)"}
+    weighted = FitProblem(FrequencyResponse(freq_hz=data.freq_hz, metadata=meta, **cols), st, phase_weight=problem.phase_weight,
+                          channels=tuple(problem.channels), weighting="coherence")
+    try:
+        res = fit_problem(weighted, start="both", n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, n_averages=1, profile=profile)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    x = st.vector(res.params)
+    lof = lack_of_fit(problem, np.where(np.isfinite(x), x, 0.0))
+    concerns, caveats, undetermined = _assess(problem, res.params, lof, None)
+    if not res.sound or concerns:
+        return None
+    if unweighted.sound:
+        # sound already, with caveats: the weighted fit is kept only where, read as the unweighted fit is (the scatter
+        # about each), it leaves fewer modes undetermined or fewer bands of misfit and more of neither
+        fewer = (len(set(res.undetermined) | set(undetermined)), len(lof.bands))
+        before = (len(unweighted.undetermined), len(unweighted.lack_of_fit.bands))
+        if not (fewer[0] <= before[0] and fewer[1] <= before[1] and fewer != before):
+            return None
+    why = (f"not sound ({unweighted.concerns[0]})" if unweighted.concerns else
+           f"sound with caveats ({unweighted.caveats[0]})")
+    own = [c for c in caveats if c not in res.caveats and "residuals are far above" not in c]
+    return _replace(res, weighting="scatter", metadata=dict(data.metadata), caveats=tuple(res.caveats) + tuple(own),
+                    undetermined=tuple(dict.fromkeys(res.undetermined + tuple(undetermined))),
+                    message=res.message + f" Weighted by the data's scatter (no coherence in the file): the notebook's unweighted "
+                    f"cost gave a fit that was {why}.")

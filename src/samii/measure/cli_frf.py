@@ -3,6 +3,8 @@
 The excitation ``r`` is the instrument (H = S_ry / S_rv per record, DATA_FORMATS.md);
 the repetition length of ``r`` is read off the data when the file has no
 ``# record_s:`` line (``samii.measure.records``), or given with ``--record-s``.
+A stepped sine whose header states its schedule (as ``samii measure --method
+stepped`` writes it) is estimated dwell by dwell as the measurement did.
 Writes ``frf.csv`` (with coherence, ready for ``samii fit``) and ``bode.png``
 into ``--out``. Imports nothing heavy at module level.
 """
@@ -52,14 +54,23 @@ def read_measured(path: str, *, record_s: float | None, band_hz):
     return load(p, band_hz=band_hz, record_s=record_s)
 
 
+def _layout_line(m) -> str:
+    """How the time series was cut: its records, or a stepped sine's dwells."""
+    lay = m.layout
+    if lay is None:  # a stepped sine (samii.diagnose.measured.from_stepped)
+        return f"a stepped sine of {m.frf.freq_hz.size} dwells (the windows its header's schedule places)"
+    return f"{lay.n_records} records of {lay.record_s:.6g} s"
+
+
 def summary(m) -> dict:
     lay = m.layout
     frf = m.frf
     return {
         "source": m.source,
         "sample_rate_hz": m.sample_rate_hz,
-        "records": {"record_s": lay.record_s, "start_s": lay.start_s, "n_records": lay.n_records, "operating_point_s": lay.baseline_s,
-                    "how": lay.how},
+        "records": None if lay is None else {"record_s": lay.record_s, "start_s": lay.start_s, "n_records": lay.n_records,
+                                             "operating_point_s": lay.baseline_s, "how": lay.how},
+        "dwells": int(frf.freq_hz.size) if lay is None else None,
         "band_hz": [float(frf.freq_hz[0]), float(frf.freq_hz[-1])],
         "n_points": int(frf.freq_hz.size),
         "channels": list(frf.channels),
@@ -82,8 +93,7 @@ def run(args: argparse.Namespace) -> int:
 
     with folder:
         write_frf_csv(m.frf, folder.path("frf.csv"))
-        lay = m.layout
-        title = f"{args.timeseries}: {lay.n_records} records of {lay.record_s:.6g} s"
+        title = f"{args.timeseries}: {_layout_line(m)}"
         if m.aliasing:  # (an aliased estimate looks like any noisy FRF: the figure says it, as the command does)
             title += f"\nALIASED: {m.sample_rate_hz:g} samples/s resolve only up to {m.sample_rate_hz / 2:g} Hz (see the command's warnings)"
         bode_plot(m.frf, title=title, path=folder.path("bode.png"))
@@ -95,9 +105,13 @@ def run(args: argparse.Namespace) -> int:
         print(dumps(info, indent=2))
         return 0
     lay = m.layout
-    print(f"samii frf: {args.timeseries}: {lay.n_records} records of {lay.record_s:.6g} s from t = {lay.start_s:.6g} s ({lay.how})")
-    print(f"  operating point: the first {lay.baseline_s:.3g} s of each record; band {info['band_hz'][0]:.3g}-{info['band_hz'][1]:.3g} Hz, "
-          f"{info['n_points']} points, channels {', '.join(info['channels'])}")
+    if lay is None:
+        print(f"samii frf: {args.timeseries}: {_layout_line(m)}")
+        print(f"  {info['n_points']} points, {info['band_hz'][0]:.3g}-{info['band_hz'][1]:.3g} Hz, channels {', '.join(info['channels'])}")
+    else:
+        print(f"samii frf: {args.timeseries}: {lay.n_records} records of {lay.record_s:.6g} s from t = {lay.start_s:.6g} s ({lay.how})")
+        print(f"  operating point: the first {lay.baseline_s:.3g} s of each record; band {info['band_hz'][0]:.3g}-{info['band_hz'][1]:.3g} Hz, "
+              f"{info['n_points']} points, channels {', '.join(info['channels'])}")
     print(f"  noise: {m.noise_source}")
     for w in m.warnings:
         print(f"samii frf: warning: {w}")

@@ -56,6 +56,7 @@ estimator subtracts.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -417,6 +418,23 @@ class SteppedSine:
                 env = _raised_cosine(tau / self.ramp_s) * _raised_cosine((dwell - tau) / self.ramp_s)
             out[inside] = self.amplitude_v * env * np.sin(2.0 * np.pi * f * tau)
         return out
+
+    @classmethod
+    def from_metadata(cls, meta) -> "SteppedSine":
+        """The stepped sine a record's metadata (:meth:`describe`'s settings, as ``samii measure`` writes them in a time
+        series' header) states. Raises KeyError for a missing setting and ValueError for one that is not a number (or
+        not a valid schedule)."""
+        try:
+            freqs = json.loads(str(meta["freqs_hz"]))
+        except json.JSONDecodeError:
+            raise ValueError(f"freqs_hz: expected a list of frequencies [Hz] such as [0.5, 1.0], got {meta['freqs_hz']!r}") from None
+        if not isinstance(freqs, list) or not all(isinstance(f, (int, float)) and not isinstance(f, bool) for f in freqs):
+            raise ValueError(f"freqs_hz: expected a list of frequencies [Hz] such as [0.5, 1.0], got {meta['freqs_hz']!r}")
+        kw: dict = {k: float(meta[k]) for k in ("amplitude_v", "settle_s", "ramp_s", "measure_s", "lead_s")}
+        cycles = float(meta["measure_cycles"])
+        if cycles != int(cycles):
+            raise ValueError(f"measure_cycles: expected a whole number of periods, got {meta['measure_cycles']!r}")
+        return cls(freqs_hz=tuple(float(f) for f in freqs), measure_cycles=int(cycles), **kw)
 
     def describe(self) -> dict[str, float | int | str | list]:
         """Every setting and the derived schedule, for metadata and run.json."""

