@@ -1667,7 +1667,7 @@ def test_a_cluster_left_without_workers_mid_study_is_said_within_the_timeout(mon
         try:
             with pytest.raises(InputError, match=r"during the study, after \d+ of 60 samples, no worker was left for 1\.5 s"):
                 with eng.Engine(scheduler=address, connect_timeout_s=1.5) as engine:
-                    engine.map([_Task(i) for i in range(60)])
+                    engine.map([_Task(-1)] + [_Task(i) for i in range(60)])  # (the nominal plant is no sample: "of 61" was said)
         finally:
             killer.cancel()
 
@@ -1801,3 +1801,71 @@ def test_a_fit_without_coherence_is_weighted_by_the_datas_scatter_where_the_note
     assert main(["fit", str(tmp_path / "a1.csv"), "--json", "--no-progress"]) == 0
     one = json.loads(capsys.readouterr().out)
     assert one["weighting"] == "none" and not one["sound"], (one["weighting"], one["verdict"])
+
+
+def test_an_excitation_with_a_damaged_sample_is_refused_naming_it(measured, tmp_path, capsys):
+    """A last line cut mid-number turned r's -4.940656458e-324 into -4.940656 V, 49x the 0.1 V sweep: frf found two
+    records from t = 79 s instead of three from 0, said the amplitude was 4.94 V, and wrote its FRF without a word."""
+    lines = Path(measured["ts"]).read_text().splitlines()
+    header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    col = lines[header].split(",").index("r")
+    last = lines[-1].split(",")
+    last[col] = "-4.940656"
+    cut = tmp_path / "cut.csv"
+    cut.write_text("\n".join(lines[:-1] + [",".join(last)]) + "\n")
+    assert main(["frf", str(cut), "--out", str(tmp_path / "o")]) == 2
+    line = _one_line(capsys)
+    assert line.startswith(f"samii frf: error: {cut}: column 'r' has 1 sample(s) more than 5 times the excitation's amplitude")
+    assert "(-4.94066 V) (the file's last line: is it cut short?)" in line, line
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_theta_only_file_without_coherence_is_fitted(no_coherence, tmp_path, capsys):
+    """theta/v alone without coherence (a rig-era .mat of one channel): the second reading by the data's scatter
+    read the base parameters the channel does not set (NaN in the first fit) and refused the whole fit with
+    "non-finite parameter(s): w1 = nan ..."."""
+    lines = Path(no_coherence["noisy"]).read_text().splitlines()
+    header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    names = lines[header].split(",")
+    keep = [names.index(c) for c in ("freq_hz", "act_mag", "act_phase_deg")]
+    act = tmp_path / "act.csv"
+    act.write_text("\n".join(lines[:header] + [",".join(line.split(",")[i] for i in keep) for line in lines[header:]]) + "\n")
+    assert main(["fit", str(act), "--json", "--no-progress"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["channels"] == ["act"] and d["params"]["w1"] is None
+
+
+def test_a_ctrl_c_a_library_swallowed_while_waiting_for_a_scheduler_is_the_interruption(capsys):
+    """Ctrl-C while robust waited for a scheduler that never answers, its KeyboardInterrupt swallowed by a library's
+    callback (the signal recorded, its exception lost): once in 89 tries robust went on to the timeout and said "no
+    Dask scheduler answered", exit 2. The wait now looks for a recorded signal, and a refusal after one is the
+    interruption (exit 130)."""
+    from samii.errors import SIGNALS_RECEIVED
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(8)
+    held = []
+
+    def accept():
+        try:
+            while True:
+                held.append(server.accept()[0])
+        except OSError:
+            pass
+
+    threading.Thread(target=accept, daemon=True).start()
+    swallowed = threading.Timer(0.5, lambda: SIGNALS_RECEIVED.append(2))  # the handler ran; its exception went nowhere
+    argv = ["robust", "--controller", "unity", "--spread", "hydraulic.bulk_modulus=5%", "--samples", "2", "--no-progress",
+            "--scheduler", f"tcp://127.0.0.1:{server.getsockname()[1]}", "--scheduler-timeout", "60"]
+    try:
+        swallowed.start()
+        assert main(argv) == 130
+        line = _one_line(capsys)
+        assert line.startswith("samii robust: interrupted; nothing half-written was kept"), line
+    finally:
+        swallowed.cancel()
+        SIGNALS_RECEIVED.clear()
+        server.close()
+        for c in held:
+            c.close()

@@ -13,34 +13,26 @@ import pytest
 
 from samii.diagnose.measured import from_timeseries
 from samii.diagnose.rig import EffectRig
-from samii.measure.drift import drift_curve
+from samii.measure.drift import drift_from_rests
 from samii.measure.excitation import SweptSine
 
 FS = 1000.0
 
 
-def test_the_drift_curve_is_a_drift_exactly_and_nothing_of_a_repeated_response():
+def test_the_drift_read_off_the_rests_is_a_drift_exactly_and_nothing_of_the_response():
     n, starts = 1000, np.array([100, 1100, 2100])
-    k = np.arange(3200)
-    periodic = np.sin(2 * np.pi * k / n) + 0.3 * np.cos(6 * np.pi * k / n) + 0.2  # the same in every record, mean 0.2
-    centre0 = starts[0] + (n - 1) / 2
-    assert np.allclose(drift_curve(periodic + 2e-3 * k, starts, n), 2e-3 * (k - centre0), atol=1e-9)
-    assert np.allclose(drift_curve(periodic, starts, n), 0.0, atol=1e-12)
-    bend = 1e-7 * (k - 700.0) ** 2  # a parabola: exact through three records of one sign
-    curve = drift_curve(periodic + bend, starts, n)
-    assert np.allclose(curve, bend - 1e-7 * (centre0 - 700.0) ** 2, atol=1e-9)
-    # records of alternating sign (+, -, +): the response's mean changes sign with them, and is no drift
-    signs = np.array([1.0, -1.0, 1.0])
-    x = np.zeros(3200)
-    for sg, s0 in zip(signs, starts):
-        x[s0 : s0 + n] = sg * periodic[s0 : s0 + n]
-    assert np.allclose(drift_curve(x, starts, n, signs=signs), 0.0, atol=1e-12)
-    assert np.allclose(drift_curve(x + 2e-3 * k, starts, n, signs=signs), 2e-3 * (k - centre0), atol=1e-9)
-    # too few records to tell: one; two of opposite signs; two that do not rest (the first inherits no tail)
-    assert drift_curve(periodic, starts[:1], n) is None
-    assert drift_curve(x, starts[:2], n, signs=signs[:2]) is None
-    assert drift_curve(periodic, starts[:2], n, rests=False) is None
-    assert np.allclose(drift_curve(periodic + 2e-3 * k, starts, n, rests=False), 2e-3 * (k - centre0), atol=1e-9)
+    k = np.arange(3100)
+    response = np.zeros(k.size)
+    for sign, s0 in zip((1.0, -1.0, 1.0), starts):  # a sign-alternating response between rests (its own mean nonzero)
+        response[s0 + 50 : s0 + 800] = sign * (0.3 + np.sin(2 * np.pi * np.arange(750) / 75.0))
+    rests = np.array([[starts[0], starts[0] + 50]] + [[s0 + n - 100, s0 + n] for s0 in starts])
+    centre0 = starts[0] + 24.5
+    assert np.allclose(drift_from_rests(response, rests), 0.0, atol=1e-12)
+    assert np.allclose(drift_from_rests(response + 2e-3 * k, rests), 2e-3 * (k - centre0), atol=1e-9)
+    cubic = 1e-10 * (k - 900.0) ** 3  # a cubic: exact through four rests (not-a-knot)
+    assert np.allclose(drift_from_rests(response + cubic, rests), cubic - 1e-10 * (centre0 - 900.0) ** 3, atol=2e-3)  # (a window's mean, 0.2 %)
+    assert np.allclose(drift_from_rests(response + 2e-3 * k, rests[:2]), 2e-3 * (k - centre0), atol=1e-9)  # a line through two
+    assert drift_from_rests(response, rests[:1]) is None
 
 
 def _rig_file(seed: int, alternate: bool):

@@ -344,9 +344,13 @@ def _main(argv: list[str] | None) -> int:
             pass
         return 0
     except SimulationUnstable as exc:
+        if _SIGNALLED:
+            return _stopped(prog)
         _report(prog, "unstable", exc)
         return EXIT_UNSTABLE
     except InputError as exc:
+        if _SIGNALLED:  # (a refusal that came after a Ctrl-C a library swallowed: the interruption is what happened)
+            return _stopped(prog)
         _report(prog, "error", exc)
         return EXIT_BAD_INPUT
     except ValueError as exc:  # library validation; a LinAlgError is numerical trouble: a bug
@@ -377,6 +381,15 @@ def _main(argv: list[str] | None) -> int:
         return EXIT_BAD_INPUT
     except Exception as exc:
         return _internal_error(prog, exc)
+
+
+def _stopped(prog: str) -> int:
+    """The one line and exit code of a command stopped by a signal received earlier (``_SIGNALLED``)."""
+    from samii.errors import EXIT_INTERRUPTED
+
+    signum = _SIGNALLED[0]
+    print(f"{prog}: " + ("interrupted" if signum == 2 else f"stopped by signal {signum}") + f"; {_kept()}", file=sys.stderr)
+    return EXIT_INTERRUPTED if signum == 2 else 128 + signum
 
 
 def _kept() -> str:

@@ -336,31 +336,22 @@ def _drift_effect(frf: FrequencyResponse, var, frf2: FrequencyResponse, var2) ->
 
 def _without_drift(ts: TimeSeries, layout: RecordLayout, frf: FrequencyResponse, var: Mapping[str, np.ndarray | None],
                    *, band_hz: tuple[float, float], source: str) -> tuple[TimeSeries, list[str]]:
-    """``ts`` with the drift from record to record subtracted (:mod:`samii.measure.drift`) from each channel where that
+    """``ts`` with the drift of the level it rests at subtracted (:mod:`samii.measure.drift`) from each channel where that
     matters (:func:`_drift_effect`, channel by channel against the FRF ``frf`` estimated without it, point variances
-    ``var``), and what was subtracted; else ``ts`` unchanged. A column on a lattice keeps it (as for hum)."""
+    ``var``), and what was subtracted; else ``ts`` unchanged. Only records that rest give a drift; a column on a
+    lattice keeps it (as for hum)."""
     from samii.diagnose.floor import quantisation_step
-    from samii.measure.drift import drift_curve, drift_from_rests
+    from samii.measure.drift import drift_from_rests
 
-    if layout.n_records < 2:
+    if not (layout.rest_s > 0 and layout.baseline_s > 0):
         return ts, []
     fs = ts.sample_rate_hz
     n = int(np.floor(layout.record_s * fs))
     starts = np.round((layout.start_s + np.arange(layout.n_records) * layout.record_s) * fs).astype(int)
-    r = np.stack([np.asarray(ts.r, float)[k : k + n] for k in starts])
-    r = r - np.median(r, axis=1, keepdims=True)
-    norms = np.linalg.norm(r, axis=1)
-    if np.any(norms == 0):
-        return ts, []
-    corr = r @ r[0] / (norms * norms[0])
-    if np.any(np.abs(corr) < 0.9):
-        return ts, []  # (not one excitation repeated: its records' means need not agree)
-    # the rests, where the records have them: the first record's operating point and the last part of every record's
-    # closing rest (at most DRIFT_REST_S, the later half: the sweep's ringing has died away there)
-    rests = None
-    if layout.rest_s > 0 and layout.baseline_s > 0:
-        tail = int(round(min(0.5 * layout.rest_s, DRIFT_REST_S) * fs))
-        rests = np.array([[starts[0], starts[0] + int(round(layout.baseline_s * fs))]] + [[k + n - tail, k + n] for k in starts])
+    # the first record's operating point and the last part of every record's closing rest (at most DRIFT_REST_S, its
+    # later half: the sweep's ringing has died away there)
+    tail = int(round(min(0.5 * layout.rest_s, DRIFT_REST_S) * fs))
+    rests = np.array([[starts[0], starts[0] + int(round(layout.baseline_s * fs))]] + [[k + n - tail, k + n] for k in starts])
     units = {"v": "V", "theta": "rad", "accel": "m/s²"}
     centres = starts + (n - 1) / 2.0
     cols, per, did = {}, [], []
@@ -368,25 +359,48 @@ def _without_drift(ts: TimeSeries, layout: RecordLayout, frf: FrequencyResponse,
         x = np.asarray(getattr(ts, name), float)
         if quantisation_step(x) is not None:
             continue
-        curve = drift_from_rests(x, rests) if rests is not None else drift_curve(x, starts, n, signs=np.sign(corr), rests=False)
-        if curve is None:
-            return ts, []
+        curve = drift_from_rests(x, rests)
+        if curve is None:  # (its rests agree to within their noise)
+            continue
         y = x - curve
         frf2, var2, _, _ = timeseries_frf(replace(ts, **{name: y}), layout, band_hz=band_hz)
         said, matters = _drift_effect(frf, var, frf2, var2)
         if matters:
             cols[name] = y
             at = np.interp(centres[[0, -1]], np.arange(x.size), curve)
-            change = float((at[1] - at[0]) / (layout.n_records - 1))
-            per.append(f"{name} {change:+.3g} {units[name]} per record")
+            per.append(f"{name} {(at[1] - at[0]) / max(layout.n_records - 1, 1):+.3g} {units[name]} per record")
             did += [f"{name}'s drift {d}" for d in said]
     if not cols:
         return ts, []
     return replace(ts, **cols), [
-        f"{source}: the signals' levels drift from record to record ({', '.join(per)}; a repeated excitation gives every "
-        f"record the same level at rest): {'; '.join(did)}; the drift read off the records' "
-        f"{'rests' if rests is not None else 'means'} is subtracted from "
-        f"{' and '.join(cols)} before the estimate (samii.measure.drift)"]
+        f"{source}: the level the signals rest at drifts from record to record ({', '.join(per)}; a repeated excitation "
+        f"from rest to rest leaves it the same): {'; '.join(did)}; the drift read off the records' rests is subtracted "
+        f"from {' and '.join(cols)} before the estimate (samii.measure.drift)"]
+
+
+#: A sample of r beyond this many times the excitation's 99.9th percentile (about its amplitude) is no part of it ...
+SPIKE_FACTOR = 5.0
+#: ... where at most this many samples are so (more are an excitation of another level, not a damaged sample).
+SPIKE_MAX_SAMPLES = 10
+
+
+def _check_r_spikes(ts: TimeSeries, source: str) -> None:
+    """Refuse an excitation with a few samples far beyond all the others: a damaged or cut line (a last line cut
+    mid-number turned r's -4.940656458e-324 into -4.940656 V, 49x the 0.1 V sweep), which moved the records found
+    (two from t = 79 s instead of three from 0) and made the amplitude 4.94 V, without a word. r is the instrument
+    every estimate divides by: no sample of it can be guessed."""
+    r = np.asarray(ts.r, float)
+    x = np.abs(r - np.median(r))
+    typical = float(np.percentile(x, 99.9)) if x.size else 0.0
+    if typical <= 0:
+        return
+    far = np.flatnonzero(x > SPIKE_FACTOR * typical)
+    if 0 < far.size <= SPIKE_MAX_SAMPLES:
+        at = ", ".join(f"t = {ts.t[i]:.6g} s ({r[i]:.6g} V)" for i in far[:3]) + (" ..." if far.size > 3 else "")
+        last = " (the file's last line: is it cut short?)" if far[-1] == r.size - 1 else ""
+        raise ValueError(f"{source}: column 'r' has {far.size} sample(s) more than {SPIKE_FACTOR:g} times the excitation's "
+                         f"amplitude ({typical:.3g} V) elsewhere: {at}{last}; a damaged line? r is the instrument every "
+                         "estimate divides by: mend or remove the line(s)")
 
 
 def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float] | None = None, record_s: float | None = None) -> Measured:
@@ -406,6 +420,7 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
         if x.size and np.all(x == x[0]):
             raise ValueError(f"{source}: column '{name}' is {x[0]:g} {unit} at every sample: {what}; there is no frequency "
                              "response to estimate")
+    _check_r_spikes(ts, source)
     ts, hum = _without_mains(ts)
     stated = record_s if record_s is not None else _float_meta(ts.metadata, "record_s")
     layout = find_records(ts.r, fs, record_s=stated, where=source)

@@ -1171,7 +1171,10 @@ def fit(
     result = fit_problem(problem, start=start, n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, n_averages=n_averages, progress=progress,
                          profile=profile)
     if requested == "auto" and weighting == "none" and (not result.sound or result.caveats) and isinstance(start, str):
-        mended = _weighted_by_scatter(problem, result, n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, profile=profile)
+        try:
+            mended = _weighted_by_scatter(problem, result, n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, profile=profile)
+        except (ValueError, np.linalg.LinAlgError, FloatingPointError):
+            mended = None  # (a second reading that fails leaves the first as it was)
         if mended is not None:
             return mended
     return result
@@ -1215,12 +1218,10 @@ def _weighted_by_scatter(problem: FitProblem, unweighted: FitResult, *, n_pertur
     meta = {**data.metadata, "frf_records": "1 (no coherence in the file: a single estimate's, from the data's scatter)"}
     weighted = FitProblem(FrequencyResponse(freq_hz=data.freq_hz, metadata=meta, **cols), st, phase_weight=problem.phase_weight,
                           channels=tuple(problem.channels), weighting="coherence")
-    try:
-        res = fit_problem(weighted, start="both", n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, n_averages=1, profile=profile)
-    except (ValueError, np.linalg.LinAlgError):
-        return None
-    x = st.vector(res.params)
-    lof = lack_of_fit(problem, np.where(np.isfinite(x), x, 0.0))
+    res = fit_problem(weighted, start="both", n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, n_averages=1, profile=profile)
+    # (parameters the fitted channels do not depend on are NaN in a result: any finite value stands for them)
+    x = st.vector({k: (v if np.isfinite(v) else 1.0) for k, v in res.params.items()})
+    lof = lack_of_fit(problem, x)
     concerns, caveats, undetermined = _assess(problem, res.params, lof, None)
     if not res.sound or concerns:
         return None

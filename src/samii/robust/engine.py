@@ -179,9 +179,14 @@ def _connect(address: str, timeout_s: float, where: str = "--scheduler") -> Clie
         except BaseException as exc:  # noqa: BLE001 - handed to the caller
             box["error"] = exc
 
+    from samii.errors import raise_if_signalled
+
     thread = threading.Thread(target=attempt, name="samii-dask-connect", daemon=True)
     thread.start()
-    thread.join(timeout_s)
+    deadline = time.monotonic() + timeout_s
+    while thread.is_alive() and time.monotonic() < deadline:
+        thread.join(min(0.2, max(deadline - time.monotonic(), 0.0)))
+        raise_if_signalled()  # (a Ctrl-C whose exception a library's callback swallowed was lost until the timeout)
     if thread.is_alive():
         raise InputError(f"{where} {address}: no Dask scheduler answered within {timeout_s:g} s (check the address and port, "
                          "or give more time with --scheduler-timeout)")
@@ -342,7 +347,9 @@ class Engine:
         no_worker_since = None
 
         def lost(what: str) -> InputError:
-            return InputError(f"{where}: during the study, after {len(by_key)} of {len(futures)} samples, {what}; nothing "
+            drawn = sum(1 for f in futures if not str(f.key).endswith("--1"))  # (the nominal plant is task -1)
+            done = sum(1 for k in by_key if not str(k).endswith("--1"))
+            return InputError(f"{where}: during the study, after {done} of {drawn} samples, {what}; nothing "
                               "was written (check the cluster, then run the study again)")
 
         try:
