@@ -1869,3 +1869,16 @@ def test_a_ctrl_c_a_library_swallowed_while_waiting_for_a_scheduler_is_the_inter
         server.close()
         for c in held:
             c.close()
+
+
+def test_a_model_file_mujoco_cannot_compile_is_named(tmp_path, capsys):
+    """A model whose joint2 was renamed: "samii modes: error: Error: unknown transmission target 'joint2' for actuator
+    id = 0 ..." (MuJoCo's words, no file named)."""
+    from samii.sim.model import default_model_path
+
+    text = Path(default_model_path()).read_text().replace('<joint name="joint2"', '<joint name="jointX"', 1)
+    bad = tmp_path / "nojoint2.xml"
+    bad.write_text(text)
+    assert main(["modes", "--model", str(bad)]) == 2
+    line = _one_line(capsys)
+    assert line.startswith(f"samii modes: error: model file {bad}: MuJoCo cannot compile it: unknown transmission target 'joint2'"), line

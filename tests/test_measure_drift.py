@@ -27,7 +27,10 @@ def test_the_drift_read_off_the_rests_is_a_drift_exactly_and_nothing_of_the_resp
         response[s0 + 50 : s0 + 800] = sign * (0.3 + np.sin(2 * np.pi * np.arange(750) / 75.0))
     rests = np.array([[starts[0], starts[0] + 50]] + [[s0 + n - 100, s0 + n] for s0 in starts])
     centre0 = starts[0] + 24.5
-    assert np.allclose(drift_from_rests(response, rests), 0.0, atol=1e-12)
+    assert drift_from_rests(response, rests) is None  # the rests agree: no drift
+    noisy = response + 1e-3 * np.random.default_rng(3).standard_normal(k.size)
+    assert drift_from_rests(noisy, rests) is None  # they agree to within their noise
+    assert drift_from_rests(noisy + 2e-5 * k, rests) is not None  # 0.02 per record, 20x the noise of a sample
     assert np.allclose(drift_from_rests(response + 2e-3 * k, rests), 2e-3 * (k - centre0), atol=1e-9)
     cubic = 1e-10 * (k - 900.0) ** 3  # a cubic: exact through four rests (not-a-knot)
     assert np.allclose(drift_from_rests(response + cubic, rests), cubic - 1e-10 * (centre0 - 900.0) ** 3, atol=2e-3)  # (a window's mean, 0.2 %)

@@ -312,12 +312,18 @@ DRIFT_REST_S = 2.0
 
 def _drift_effect(frf: FrequencyResponse, var, frf2: FrequencyResponse, var2) -> tuple[list[str], bool]:
     """What a subtraction that turned (``frf``, ``var``) into (``frf2``, ``var2``) did, where it matters: a point moved
-    by :data:`DRIFT_STANDARD_ERRORS` of the new estimate, a spread that fell :data:`DRIFT_SPREAD_FACTOR`-fold."""
+    by :data:`DRIFT_STANDARD_ERRORS` of the new estimate, a spread that fell :data:`DRIFT_SPREAD_FACTOR`-fold, each
+    with the relative floor (samii.diagnose.floor.REL_FLOOR) added to the variances (noise-free data's rests differ
+    by the sweep's last ringing, and a zero spread made any change count)."""
+    from samii.diagnose.floor import REL_FLOOR
+
     moved, spread = [], []
     for ch in CHANNEL_PAIRS:
         h0, h1, v0, v1 = getattr(frf, ch), getattr(frf2, ch), var.get(ch), var2.get(ch)
         if h0 is None or h1 is None or v0 is None or v1 is None:
             continue
+        # (with the stated floor, which the diagnosis adds: on noise-free data a change under it is none)
+        v0, v1 = v0 + REL_FLOOR**2, v1 + REL_FLOOR**2
         with np.errstate(divide="ignore", invalid="ignore"):
             z = np.abs(h1 / h0 - 1.0) / np.sqrt(v1)
             g = v0 / v1

@@ -37,6 +37,12 @@ from scipy.interpolate import CubicSpline
 __all__ = ["drift_from_rests"]
 
 
+#: Levels that differ by less than this fraction of the signal's swing give no drift: a 16-bit converter's count over
+#: that swing. (A noise-free simulation's rests differ by the sweep's last ringing, 1e-8 m/s^2 of a 1 m/s^2 swing,
+#: which moved its weak xdd/theta at 0.1 Hz by 2 standard errors of its floor.)
+RESOLUTION = 2.0**-16
+
+
 def drift_from_rests(x: np.ndarray, windows: np.ndarray, *, alpha: float = 1e-3) -> np.ndarray | None:
     """The drift of ``x`` at every sample read off its rests (module docstring): ``windows`` (k, 2) sample ranges
     [start, stop) where the arm is at rest, in time order; the curve through their mean levels, zero at the first
@@ -49,6 +55,8 @@ def drift_from_rests(x: np.ndarray, windows: np.ndarray, *, alpha: float = 1e-3)
     if windows.shape[0] < 2:
         return None
     levels = np.array([x[a:b].mean() for a, b in windows])
+    if np.ptp(levels) <= RESOLUTION * np.ptp(x):
+        return None  # less than a 16-bit converter's count across the signal's swing: no rig could measure it
     # the noise of a level: the scatter of each rest's quarters (what varies within a rest, slow noise included)
     quarters = [np.array([q.mean() for q in np.array_split(x[a:b], 4)]) for a, b in windows if b - a >= 8]
     if not quarters:

@@ -235,7 +235,16 @@ def load_model(path: str | Path | None = None, *, params: SamiiParams | None = N
     from samii.sim.plugin import compile_spec
 
     spec, generated = load_spec(path, params=params, overrides=overrides)
-    model = compile_spec(spec)  # validates the hydraulic config, naming any bad attribute
+    try:
+        model = compile_spec(spec)  # validates the hydraulic config, naming any bad attribute
+    except InputError:
+        raise
+    except ValueError as exc:  # MuJoCo's compiler ("Error: unknown transmission target 'joint2' ..."): the file is the user's
+        if path is None or Path(path).suffix.lower() == ".json":
+            raise
+        text = " ".join(str(exc).split())
+        text = text[len("Error: "):] if text.startswith("Error: ") else text
+        raise InputError(f"model file {path}: MuJoCo cannot compile it: {text}") from None
     _check_model(model, path)
     if check_step:
         _check_integrable(model, path, params, overrides)
