@@ -96,7 +96,10 @@ def run(args: argparse.Namespace) -> int:
         title = f"{args.timeseries}: {_layout_line(m)}"
         if m.aliasing:  # (an aliased estimate looks like any noisy FRF: the figure says it, as the command does)
             title += f"\nALIASED: {m.sample_rate_hz:g} samples/s resolve only up to {m.sample_rate_hz / 2:g} Hz (see the command's warnings)"
-        bode_plot(m.frf, title=title, path=folder.path("bode.png"))
+        if m.layout is None:  # a stepped sine: its dwells as points, as samii measure draws them
+            bode_plot(None, stepped=m.frf, title=title, path=folder.path("bode.png"))
+        else:
+            bode_plot(m.frf, title=title, path=folder.path("bode.png"))
     info = summary(m)
     info["written"] = [str(p) for p in folder.written]
     if args.json:
