@@ -1882,3 +1882,23 @@ def test_a_model_file_mujoco_cannot_compile_is_named(tmp_path, capsys):
     assert main(["modes", "--model", str(bad)]) == 2
     line = _one_line(capsys)
     assert line.startswith(f"samii modes: error: model file {bad}: MuJoCo cannot compile it: unknown transmission target 'joint2'"), line
+
+
+def test_a_coherence_of_one_everywhere_is_read_as_none(no_coherence, tmp_path, capsys):
+    """A single average's coherence written as 1 at every point (an analyser's export, a placeholder column): read as
+    coherence, its weights were uniform and the notebook's wrong basin (base mode 1 at 0.16 Hz, the hydraulic pair on
+    mode 1) was "a sound fit with caveats". It says nothing of the noise: read as none, the fit is the one without it."""
+    lines = Path(no_coherence["noisy"]).read_text().splitlines()
+    header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    names = lines[header].split(",")
+    ones = tmp_path / "coh1.csv"
+    rows = [",".join(names + [f"{c}_coh" for c in ("act", "base", "total")])]
+    rows += [line + ",1,1,1" for line in lines[header + 1 :]]
+    ones.write_text("\n".join(lines[:header] + rows) + "\n")
+    assert main(["fit", str(ones), "--json", "--no-progress"]) == 0
+    one = json.loads(capsys.readouterr().out)
+    assert main(["fit", str(no_coherence["noisy"]), "--json", "--no-progress"]) == 0
+    none = json.loads(capsys.readouterr().out)
+    assert one["weighting"] == none["weighting"] == "scatter"
+    assert one["params"] == pytest.approx(none["params"], rel=1e-9)
+    assert "coherence is 1 at every point" in one["message"]

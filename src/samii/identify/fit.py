@@ -1055,15 +1055,38 @@ def fit_problem(
     )
 
 
+#: A coherence this close to 1 at every point of every fitted channel holds no information on the noise: what an
+#: analyser writes for a single average (its coherence is 1 whatever the noise), or a placeholder column.
+COHERENCE_NO_INFORMATION = 1.0 - 1e-9
+
+
+def informative_coherence(data: FrequencyResponse, channels: Sequence[Channel]) -> bool:
+    """Every channel has coherence, and not 1 at every point of all of them (:data:`COHERENCE_NO_INFORMATION`). A file
+    of one noisy average with its coherence written as 1 was weighted uniformly as "coherence" and its wrong-basin
+    fit (base mode 1 at 0.16 Hz) called sound with caveats; read as none, it is judged by its scatter. (A noise-free
+    simulation's coherence is below 1 somewhere: the default's xdd/theta reaches 0.956.)"""
+    cohs = [data.coherence(c) for c in channels]
+    if not cohs or any(c is None for c in cohs):
+        return False
+    return not all(bool(np.all(np.asarray(c) >= COHERENCE_NO_INFORMATION)) for c in cohs)
+
+
 def resolve_weighting(data: FrequencyResponse, channels: Sequence[Channel] | None, weighting: str) -> Weighting:
-    """``"auto"``: ``"coherence"`` when every fitted channel carries coherence, else ``"none"``."""
+    """``"auto"``: ``"coherence"`` when every fitted channel carries coherence that says something
+    (:func:`informative_coherence`), else ``"none"``."""
     if weighting != "auto":
         return weighting  # type: ignore[return-value]
-    if channels is None:
-        channels = [c for c in ("act", "base") if c in data.channels]
-        if "base" not in channels and "total" in data.channels:
-            channels.append("total")
-    return "coherence" if channels and all(data.coherence(c) is not None for c in channels) else "none"
+    return "coherence" if informative_coherence(data, _fitted_channels(data, channels)) else "none"
+
+
+def _fitted_channels(data: FrequencyResponse, channels: Sequence[Channel] | None) -> list[Channel]:
+    """The channels a fit uses: those given, else act and base (total in place of a missing base), as FitProblem."""
+    if channels is not None:
+        return list(channels)
+    out = [c for c in ("act", "base") if c in data.channels]
+    if "base" not in out and "total" in data.channels:
+        out.append("total")
+    return out
 
 
 def check_not_noise(data: FrequencyResponse, structure: ModelStructure | None = None, *, band_hz: tuple[float, float] | None = None,
@@ -1166,6 +1189,15 @@ def fit(
     """
     structure = structure or ModelStructure.notebook_3mode()
     requested = weighting
+    blank = False
+    if requested == "auto":
+        fitted = _fitted_channels(data, channels)
+        if all(data.coherence(c) is not None for c in fitted) and not informative_coherence(data, fitted):
+            # a coherence of 1 everywhere says nothing of the noise: read as none (judged by the data's scatter)
+            from samii.frequency_response import FrequencyResponse
+
+            data = FrequencyResponse(freq_hz=data.freq_hz, metadata=data.metadata, **{c: data.response(c) for c in data.channels})
+            blank = True
     weighting = resolve_weighting(data, channels, weighting)
     problem = FitProblem(data, structure, phase_weight=phase_weight, band_hz=band_hz, channels=None if channels is None else tuple(channels), weighting=weighting)
     result = fit_problem(problem, start=start, n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, n_averages=n_averages, progress=progress,
@@ -1176,7 +1208,12 @@ def fit(
         except (ValueError, np.linalg.LinAlgError, FloatingPointError):
             mended = None  # (a second reading that fails leaves the first as it was)
         if mended is not None:
-            return mended
+            result = mended
+    if blank:
+        from dataclasses import replace as _replace
+
+        result = _replace(result, message=result.message + " The file's coherence is 1 at every point (one average, or a "
+                          "placeholder): it says nothing of the noise and was read as none.")
     return result
 
 
