@@ -930,12 +930,9 @@ def test_an_interrupt_inside_a_finaliser_is_reported_once_by_the_command():
 # ---------------------------------------------------------------------------- a scheduler that never answers (item 2)
 
 
-def test_a_scheduler_that_accepts_and_never_answers_is_refused_in_time(capsys):
-    from samii.errors import InputError
-    from samii.robust.cli import SCHEDULER_TIMEOUT_S
-    from samii.robust.engine import DEFAULT_CONNECT_TIMEOUT_S, Engine
-
-    assert SCHEDULER_TIMEOUT_S == DEFAULT_CONNECT_TIMEOUT_S
+@contextlib.contextmanager
+def _silent_scheduler():
+    """A TCP address whose listener accepts every connection and never says a word (a hung scheduler)."""
     server = socket.socket()
     server.bind(("127.0.0.1", 0))
     server.listen(8)
@@ -949,8 +946,21 @@ def test_a_scheduler_that_accepts_and_never_answers_is_refused_in_time(capsys):
             pass
 
     threading.Thread(target=accept, daemon=True).start()
-    address = f"tcp://127.0.0.1:{server.getsockname()[1]}"
     try:
+        yield f"tcp://127.0.0.1:{server.getsockname()[1]}"
+    finally:
+        server.close()
+        for c in held:
+            c.close()
+
+
+def test_a_scheduler_that_accepts_and_never_answers_is_refused_in_time(capsys):
+    from samii.errors import InputError
+    from samii.robust.cli import SCHEDULER_TIMEOUT_S
+    from samii.robust.engine import DEFAULT_CONNECT_TIMEOUT_S, Engine
+
+    assert SCHEDULER_TIMEOUT_S == DEFAULT_CONNECT_TIMEOUT_S
+    with _silent_scheduler() as address:
         with pytest.raises(InputError, match="no Dask scheduler answered within 1 s"):
             with Engine(scheduler=address, connect_timeout_s=1.0):
                 pass
@@ -959,10 +969,6 @@ def test_a_scheduler_that_accepts_and_never_answers_is_refused_in_time(capsys):
                 "--scheduler-timeout", "1"]  # fmt: skip
         assert main(argv) == 2
         assert "no Dask scheduler answered within 1 s" in _one_line(capsys)
-    finally:
-        server.close()
-        for c in held:
-            c.close()
     closed = socket.socket()
     closed.bind(("127.0.0.1", 0))
     port = closed.getsockname()[1]
@@ -1842,33 +1848,18 @@ def test_a_ctrl_c_a_library_swallowed_while_waiting_for_a_scheduler_is_the_inter
     interruption (exit 130)."""
     from samii.errors import SIGNALS_RECEIVED
 
-    server = socket.socket()
-    server.bind(("127.0.0.1", 0))
-    server.listen(8)
-    held = []
-
-    def accept():
-        try:
-            while True:
-                held.append(server.accept()[0])
-        except OSError:
-            pass
-
-    threading.Thread(target=accept, daemon=True).start()
     swallowed = threading.Timer(0.5, lambda: SIGNALS_RECEIVED.append(2))  # the handler ran; its exception went nowhere
-    argv = ["robust", "--controller", "unity", "--spread", "hydraulic.bulk_modulus=5%", "--samples", "2", "--no-progress",
-            "--scheduler", f"tcp://127.0.0.1:{server.getsockname()[1]}", "--scheduler-timeout", "60"]
-    try:
-        swallowed.start()
-        assert main(argv) == 130
-        line = _one_line(capsys)
-        assert line.startswith("samii robust: interrupted; nothing half-written was kept"), line
-    finally:
-        swallowed.cancel()
-        SIGNALS_RECEIVED.clear()
-        server.close()
-        for c in held:
-            c.close()
+    with _silent_scheduler() as address:
+        argv = ["robust", "--controller", "unity", "--spread", "hydraulic.bulk_modulus=5%", "--samples", "2", "--no-progress",
+                "--scheduler", address, "--scheduler-timeout", "60"]
+        try:
+            swallowed.start()
+            assert main(argv) == 130
+            line = _one_line(capsys)
+            assert line.startswith("samii robust: interrupted; nothing half-written was kept"), line
+        finally:
+            swallowed.cancel()
+            SIGNALS_RECEIVED.clear()
 
 
 def test_a_model_file_mujoco_cannot_compile_is_named(tmp_path, capsys):

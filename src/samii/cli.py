@@ -404,12 +404,10 @@ def _internal_error(prog: str, exc: Exception) -> int:
     ``SAMII_DEBUG=1``; cut short by a signal (an import interrupted half-way), it is that interruption."""
     import os
 
-    from samii.errors import EXIT_INTERNAL, EXIT_INTERRUPTED
+    from samii.errors import EXIT_INTERNAL
 
     if _SIGNALLED:
-        signum = _SIGNALLED[0]
-        print(f"{prog}: stopped by signal {signum}; {_kept()}", file=sys.stderr)
-        return EXIT_INTERRUPTED if signum == 2 else 128 + signum
+        return _stopped(prog)
     if os.environ.get("SAMII_DEBUG"):
         raise exc
     print(f"{prog}: internal error: {type(exc).__name__}: {_one_line(exc)} (run with SAMII_DEBUG=1 for the traceback; please report it)",

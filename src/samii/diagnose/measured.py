@@ -37,7 +37,7 @@ of it). Where it comes from, best first:
 * **A stepped sine's coherence** (samii's stepped frf.csv or timeseries.csv):
   each dwell's sine fit over thousands of samples, ``g = |Y|^2/(|Y|^2 + 4 s^2/N)``
   with ``s^2`` the noise next to the dwell's frequency, so ``var = (1 - g)/g``,
-  each point its own (:func:`_stepped_from_frf`).
+  each point its own (:func:`_stepped_var`).
 * **The residual's roughness** (no coherence, one record: a rig-era .mat):
   the random error varies with frequency by orders of magnitude (theta/v is
   noise above some 9 Hz at 0.1 V), so uniform weights would let noise pass
@@ -310,8 +310,8 @@ DRIFT_SPREAD_FACTOR = 4.0
 DRIFT_REST_S = 2.0
 
 
-def _drift_effect(frf: FrequencyResponse, var, frf2: FrequencyResponse, var2) -> tuple[list[str], bool]:
-    """What a subtraction that turned (``frf``, ``var``) into (``frf2``, ``var2``) did, where it matters: a point moved
+def _drift_effect(frf: FrequencyResponse, var, frf2: FrequencyResponse, var2) -> list[str]:
+    """What a subtraction that turned (``frf``, ``var``) into (``frf2``, ``var2``) did, where it matters (none: []): a point moved
     by :data:`DRIFT_STANDARD_ERRORS` of the new estimate, a spread that fell :data:`DRIFT_SPREAD_FACTOR`-fold, each
     with the relative floor (samii.diagnose.floor.REL_FLOOR) added to the variances (noise-free data's rests differ
     by the sweep's last ringing, and a zero spread made any change count)."""
@@ -335,9 +335,7 @@ def _drift_effect(frf: FrequencyResponse, var, frf2: FrequencyResponse, var2) ->
         if g[j] >= DRIFT_SPREAD_FACTOR:
             spread.append((float(g[j]), f"raised the records' spread of {CHANNEL_NAMES[ch]} {g[j]:.3g}-fold in variance "
                                         f"(at {frf.freq_hz[j]:.3g} Hz)"))
-    said = [max(moved)[1]] if moved else []
-    said += [max(spread)[1]] if spread else []
-    return said, bool(said)
+    return ([max(moved)[1]] if moved else []) + ([max(spread)[1]] if spread else [])
 
 
 def _without_drift(ts: TimeSeries, layout: RecordLayout, frf: FrequencyResponse, var: Mapping[str, np.ndarray | None],
@@ -370,8 +368,8 @@ def _without_drift(ts: TimeSeries, layout: RecordLayout, frf: FrequencyResponse,
             continue
         y = x - curve
         frf2, var2, _, _ = timeseries_frf(replace(ts, **{name: y}), layout, band_hz=band_hz)
-        said, matters = _drift_effect(frf, var, frf2, var2)
-        if matters:
+        said = _drift_effect(frf, var, frf2, var2)
+        if said:
             cols[name] = y
             at = np.interp(centres[[0, -1]], np.arange(x.size), curve)
             per.append(f"{name} {(at[1] - at[0]) / max(layout.n_records - 1, 1):+.3g} {units[name]} per record")
@@ -578,12 +576,9 @@ def check_testable(frf: FrequencyResponse, *, source: str) -> None:
                          "the data are noise (was the rig excited? are the sensors connected?); nothing could be tested")
 
 
-def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
-    """An FRF file: the error of each point from its coherence, if it has one."""
-    check_testable(frf, source=source)
-    meta = frf.metadata
-    if is_stepped(meta):
-        return _stepped_from_frf(frf, source=source)
+def _averaged_var(frf: FrequencyResponse, meta: Mapping[str, str]) -> tuple[dict, list[str], str]:
+    """Each point's variance from a coherence averaged over records (Bendat & Piersol), the channels that have one,
+    and how (the text after "coherence of ...")."""
     n = averages_from_metadata(meta)
     if n is None:
         n = DEFAULT_AVERAGES
@@ -592,8 +587,7 @@ def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
         averages = f"{int(n)} averages (the file's metadata)"
     sw2, weighting = _weights_squared(meta, int(n))
     averages += f", {weighting}"
-    var = {}
-    have = []
+    var, have = {}, []
     for ch in frf.channels:
         coh = frf.coherence(ch)
         if coh is None or n < 2:  # (one average: the coherence is 1 whatever the noise)
@@ -608,7 +602,34 @@ def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
         # alone would give noise-dominated points a small error; its neighbours' mean of (1 - g)/g does not.
         var[ch] = np.maximum(_pool((1.0 - g) / g) * sw2 / (1.0 - sw2), 1e-30)
         have.append(ch)
-    how = f"coherence of {', '.join(have)} ({averages}), pooled over {POOL} neighbouring points" if have else "unknown (no coherence in the file)"
+    return var, have, f" ({averages}), pooled over {POOL} neighbouring points"
+
+
+def _stepped_var(frf: FrequencyResponse) -> tuple[dict, list[str], str]:
+    """A stepped sine's: each point's error from its own coherence, which for a dwell is no estimate from a few
+    averages but its sine fit's residual over thousands of samples, ``g = |Y|^2/(|Y|^2 + 4 s^2/N)``
+    (:mod:`samii.measure.stepped`): ``(1 - g)/g`` is the relative error's variance of the amplitude ``E|dY|^2/|Y|^2``,
+    a channel's coherence the product of its two signals', so its ``(1 - g)/g`` is about the sum of theirs. Not
+    pooled: the dwells lie far apart in frequency. (Read as 3 averages it was halved, and pooled over nine dwells
+    spanning the band.)"""
+    var, have = {}, []
+    for ch in frf.channels:
+        coh = frf.coherence(ch)
+        if coh is None:
+            var[ch] = None
+            continue
+        g = np.clip(coh, 1e-6, 1.0 - 1e-12)
+        var[ch] = np.maximum((1.0 - g) / g, 1e-30)
+        have.append(ch)
+    return var, have, " (each dwell's sine fit: its residual over the window's samples)"
+
+
+def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
+    """An FRF file: the error of each point from its coherence, if it has one (a stepped sine's read as its own)."""
+    check_testable(frf, source=source)
+    meta = frf.metadata
+    var, have, what = _stepped_var(frf) if is_stepped(meta) else _averaged_var(frf, meta)
+    how = f"coherence of {', '.join(have)}{what}" if have else "unknown (no coherence in the file)"
     if have and len(have) < len(frf.channels):  # one noise model for the whole file: a half-known one would mix real and placeholder weights
         var = dict.fromkeys(frf.channels)
         how = f"unknown (coherence for {', '.join(have)} only)"
@@ -623,36 +644,6 @@ def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
     said = aliasing_warnings(meta, sr, source=source) if sr is not None else []
     return Measured(source=source, frf=frf, var=var, noise_source=how, corr_length=corr, amplitude_v=amp, sample_rate_hz=sr,
                     warnings=tuple(said), aliasing=tuple(said))
-
-
-def _stepped_from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
-    """A stepped sine's FRF: each point's error from its own coherence, which for a dwell is no estimate from a few
-    averages but its sine fit's residual over thousands of samples, ``g = |Y|^2/(|Y|^2 + 4 s^2/N)``
-    (:mod:`samii.measure.stepped`): ``(1 - g)/g`` is the relative error's variance of the amplitude ``E|dY|^2/|Y|^2``,
-    a channel's coherence the product of its two signals', so its ``(1 - g)/g`` is about the sum of theirs. Not pooled: the dwells lie
-    far apart in frequency. (Read as 3 averages it was halved, and pooled over nine dwells spanning the band.)"""
-    var, have = {}, []
-    for ch in frf.channels:
-        coh = frf.coherence(ch)
-        if coh is None:
-            var[ch] = None
-            continue
-        g = np.clip(coh, 1e-6, 1.0 - 1e-12)
-        var[ch] = np.maximum((1.0 - g) / g, 1e-30)
-        have.append(ch)
-    how = (f"coherence of {', '.join(have)} (each dwell's sine fit: its residual over the window's samples)" if have
-           else "unknown (no coherence in the file)")
-    if have and len(have) < len(frf.channels):
-        var = dict.fromkeys(frf.channels)
-        how = f"unknown (coherence for {', '.join(have)} only)"
-    from samii.measure.io import stated_sample_rate
-
-    meta = frf.metadata
-    sr = stated_sample_rate(meta.get("sample_rate_hz"))
-    sr = sr if sr is not None and 0 < sr < np.inf else None
-    said = aliasing_warnings(meta, sr, source=source) if sr is not None else []
-    return Measured(source=source, frf=frf, var=var, noise_source=how, corr_length=1.0, amplitude_v=_float_meta(meta, "amplitude_v"),
-                    sample_rate_hz=sr, warnings=tuple(said), aliasing=tuple(said))
 
 
 def is_stepped(meta: Mapping[str, str]) -> bool:
@@ -683,10 +674,6 @@ def from_stepped(ts: TimeSeries, *, source: str, band_hz: tuple[float, float] | 
         raise ValueError(f"{source}: the file ends at t = {end:.6g} s, before the measurement window of the dwell(s) at "
                          f"{', '.join(missing)} that its header's stepped-sine schedule lists: is it cut short, or its schedule "
                          "another file's?")
-    nyquist = ts.sample_rate_hz / 2
-    if max(sched.freqs_hz) >= nyquist:
-        raise ValueError(f"{source}: the stepped sine dwells at {max(sched.freqs_hz):g} Hz, at or above the Nyquist frequency "
-                         f"{nyquist:g} Hz of its {ts.sample_rate_hz:g} samples per second")
     frf = estimate_stepped(ts, freqs_hz=sched.freqs_hz, windows_s=windows)
     if band_hz is not None:
         frf = frf.band(*band_hz)

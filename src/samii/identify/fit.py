@@ -46,6 +46,7 @@ zp and tau.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -1189,15 +1190,10 @@ def fit(
     """
     structure = structure or ModelStructure.notebook_3mode()
     requested = weighting
-    blank = False
-    if requested == "auto":
-        fitted = _fitted_channels(data, channels)
-        if all(data.coherence(c) is not None for c in fitted) and not informative_coherence(data, fitted):
-            # a coherence of 1 everywhere says nothing of the noise: read as none (judged by the data's scatter)
-            from samii.frequency_response import FrequencyResponse
-
-            data = FrequencyResponse(freq_hz=data.freq_hz, metadata=data.metadata, **{c: data.response(c) for c in data.channels})
-            blank = True
+    fitted = _fitted_channels(data, channels)
+    blank = requested == "auto" and all(data.coherence(c) is not None for c in fitted) and not informative_coherence(data, fitted)
+    if blank:  # a coherence of 1 everywhere says nothing of the noise: read as none (judged by the data's scatter)
+        data = dataclasses.replace(data, act_coh=None, base_coh=None, total_coh=None)
     weighting = resolve_weighting(data, channels, weighting)
     problem = FitProblem(data, structure, phase_weight=phase_weight, band_hz=band_hz, channels=None if channels is None else tuple(channels), weighting=weighting)
     result = fit_problem(problem, start=start, n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, n_averages=n_averages, progress=progress,
@@ -1210,11 +1206,15 @@ def fit(
         if mended is not None:
             result = mended
     if blank:
-        from dataclasses import replace as _replace
-
-        result = _replace(result, message=result.message + " The file's coherence is 1 at every point (one average, or a "
+        result = dataclasses.replace(result, message=result.message + " The file's coherence is 1 at every point (one average, or a "
                           "placeholder): it says nothing of the noise and was read as none.")
     return result
+
+
+def _finite(params: Mapping[str, float]) -> dict[str, float]:
+    """``params`` with the NaN of parameters the fitted channels do not depend on (a result's) set to 1: any finite
+    value stands for them in a response or a residual."""
+    return {k: (v if np.isfinite(v) else 1.0) for k, v in params.items()}
 
 
 def _weighted_by_scatter(problem: FitProblem, unweighted: FitResult, *, n_perturbed: int, rng: np.random.Generator | None,
@@ -1234,31 +1234,24 @@ def _weighted_by_scatter(problem: FitProblem, unweighted: FitResult, *, n_pertur
     kept only if it is sound both by its own weights and by the scatter about itself, as an unweighted fit is
     judged (:func:`_assess`); on one noisy average (samii measure --averages 1 --noise) neither reading places
     mode 1, and the unweighted fit's "not sound" stands."""
-    from dataclasses import replace as _replace
-
-    from samii.frequency_response import FrequencyResponse
-
     data, st = problem.data, problem.structure
     starts, _ = _build_starts(problem, "both")
-    candidates = [dict(unweighted.params)] + [p for _, p in starts]
-    cols: dict[str, np.ndarray] = {c: data.response(c) for c in data.channels}
+    candidates = [_finite(unweighted.params)] + [p for _, p in starts]
+    coh: dict[str, np.ndarray] = {}
     for c in problem.channels:
         scatter = []
         for p in candidates:
             with np.errstate(all="ignore"):
-                e = np.log(data.response(c) / st.response({k: (v if np.isfinite(v) else 1.0) for k, v in p.items()}, data.freq_hz, c))
+                e = np.log(data.response(c) / st.response(p, data.freq_hz, c))
             if e.size > ROUGHNESS_LAG and np.all(np.isfinite(e)):
                 scatter.append(roughness_variance(e))
         if not scatter:
             return None
-        cols[f"{c}_coh"] = 1.0 / (1.0 + np.min(scatter, axis=0))
-    meta = {**data.metadata, "frf_records": "1 (no coherence in the file: a single estimate's, from the data's scatter)"}
-    weighted = FitProblem(FrequencyResponse(freq_hz=data.freq_hz, metadata=meta, **cols), st, phase_weight=problem.phase_weight,
-                          channels=tuple(problem.channels), weighting="coherence")
+        coh[f"{c}_coh"] = 1.0 / (1.0 + np.min(scatter, axis=0))
+    weighted = FitProblem(dataclasses.replace(data, **coh), st, phase_weight=problem.phase_weight, channels=tuple(problem.channels),
+                          weighting="coherence")
     res = fit_problem(weighted, start="both", n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, n_averages=1, profile=profile)
-    # (parameters the fitted channels do not depend on are NaN in a result: any finite value stands for them)
-    x = st.vector({k: (v if np.isfinite(v) else 1.0) for k, v in res.params.items()})
-    lof = lack_of_fit(problem, x)
+    lof = lack_of_fit(problem, st.vector(_finite(res.params)))
     concerns, caveats, undetermined = _assess(problem, res.params, lof, None)
     if not res.sound or concerns:
         return None
@@ -1272,7 +1265,7 @@ def _weighted_by_scatter(problem: FitProblem, unweighted: FitResult, *, n_pertur
     why = (f"not sound ({unweighted.concerns[0]})" if unweighted.concerns else
            f"sound with caveats ({unweighted.caveats[0]})")
     own = [c for c in caveats if c not in res.caveats and "residuals are far above" not in c]
-    return _replace(res, weighting="scatter", metadata=dict(data.metadata), caveats=tuple(res.caveats) + tuple(own),
+    return dataclasses.replace(res, weighting="scatter", caveats=tuple(res.caveats) + tuple(own),
                     undetermined=tuple(dict.fromkeys(res.undetermined + tuple(undetermined))),
                     message=res.message + f" Weighted by the data's scatter (no coherence in the file): the notebook's unweighted "
                     f"cost gave a fit that was {why}.")

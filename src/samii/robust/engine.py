@@ -331,9 +331,10 @@ class Engine:
                 if progress:
                     progress(1)
             return [by_key[f.key] for f in futures]
-        return self._watched(futures, progress)
+        nominal = {f.key for f, t in zip(futures, tasks) if t.index < 0}  # (the nominal plant: no drawn sample)
+        return self._watched(futures, progress, nominal)
 
-    def _watched(self, futures, progress) -> list[SampleResult]:
+    def _watched(self, futures, progress, nominal: set) -> list[SampleResult]:
         """The results of a study on a user's cluster, watched: a scheduler that is lost, stops answering, or is left
         without a worker for ``connect_timeout_s`` ends the study with one line naming it (the cluster's own failures
         came as 30 lines of Dask's log and an "internal error", or as a wait for ever)."""
@@ -347,8 +348,8 @@ class Engine:
         no_worker_since = None
 
         def lost(what: str) -> InputError:
-            drawn = sum(1 for f in futures if not str(f.key).endswith("--1"))  # (the nominal plant is task -1)
-            done = sum(1 for k in by_key if not str(k).endswith("--1"))
+            drawn = sum(1 for f in futures if f.key not in nominal)
+            done = sum(1 for k in by_key if k not in nominal)
             return InputError(f"{where}: during the study, after {done} of {drawn} samples, {what}; nothing "
                               "was written (check the cluster, then run the study again)")
 
