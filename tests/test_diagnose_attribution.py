@@ -85,3 +85,59 @@ def test_no_misfit_left_asks_nothing():
     fit, ds = _case(1.0, 1.1, _bump(F, 8.0, 4.0, 30.0), "total")
     assert unattributed(fit, ds, [], "sensor/accel_gain", {"gain": 1.1}) is None
 
+
+
+# --- what the model places where only xdd/v is usable (samii.diagnose.attribution.product_only) ---
+
+def _dataset(act_to_hz: float | None):
+    """One file on F: xdd/v usable everywhere, theta/v up to ``act_to_hz`` (None: everywhere)."""
+    keep = {"act": F <= (act_to_hz if act_to_hz is not None else np.inf), "total": np.ones(F.size, bool)}
+    data = {ch: np.ones(int(k.sum()), complex) for ch, k in keep.items()}
+    return Dataset("rig.csv", F, data, keep, {ch: np.ones(int(k.sum())) for ch, k in keep.items()}, True, 1.0, 0.1)
+
+
+def _notebook_fit(effects, w3_hz: float):
+    from samii.diagnose.model import notebook_reference
+    from samii.identify.structures import ModelStructure
+
+    st = ModelStructure.notebook_3mode()
+    p = {k: v for k, v in notebook_reference().items() if k in st.param_names}
+    p["w3"] = 2 * np.pi * w3_hz
+    return Fit(Baseline(structure=st, params=(p,)), (p,), ({},), tuple(effects), 0.0, 1, 0, ({},))
+
+
+def test_what_only_xdd_v_sees_is_said_to_be_placed_by_it_alone():
+    from samii.diagnose.attribution import product_only
+
+    valve = Effect(KIND["actuator/valve"], {"freq_hz": 32.3, "zeta": 0.1}, {})
+    # theta/v usable to 9 Hz (battery C's rig.csv): the valve at 32.3 Hz and the baseline's mode 3 at 23.6 Hz lie where
+    # only xdd/v sees them; theta/v's zero wz (eq 9.4: 9.88 Hz) is within 1.25x of theta/v's last usable point: its
+    # flank is seen there, and it is not named
+    found = product_only([_dataset(9.0)], _notebook_fit([valve], 23.6))
+    assert len(found) == 1, found
+    band = found[0]
+    assert band.source == "rig.csv" and 9.0 < band.lo_hz < 9.2 and band.hi_hz == pytest.approx(40.0)
+    assert [(p.what, p.channel, p.baseline) for p in band.placed] == [("base mode 3", "base", True), ("valve", "act", False)]
+    assert band.placed[0].freqs_hz == pytest.approx((23.6,)) and band.placed[1].freqs_hz == (32.3,)
+    n = band.text()
+    assert "only xdd/v is usable" in n and "valve (32.3 Hz; theta/v)" in n and "the baseline's base mode 3 (23.6 Hz; xdd/theta)" in n
+    assert "not measured" in n and "measure theta/v in that band" in n
+    # theta/v usable everywhere: nothing is placed by xdd/v alone
+    assert product_only([_dataset(None)], _notebook_fit([valve], 23.6)) == []
+    # theta/v usable to 30 Hz: the valve at 32.3 Hz is within 1.25x of its edge (its flank is theta/v's), the mode too
+    assert product_only([_dataset(30.0)], _notebook_fit([valve], 23.6)) == []
+    # an effect of no frequency (a delay) is not placed in a band
+    delay = Effect(KIND["delay/command"], {"delay_s": 0.002}, {})
+    assert product_only([_dataset(9.0)], _notebook_fit([delay], 5.0)) == []
+
+
+def test_a_band_of_one_or_two_points_is_not_named():
+    from samii.diagnose.attribution import PRODUCT_ONLY_POINTS, product_only
+
+    ds = _dataset(None)
+    hole = np.flatnonzero(F > 30.0)[: PRODUCT_ONLY_POINTS - 1]  # theta/v's variance crossing its limit at two points
+    keep = dict(ds.keep, act=ds.keep["act"].copy())
+    keep["act"][hole] = False
+    ds = Dataset(ds.source, F, ds.data, keep, ds.inv_sigma, True, 1.0, 0.1)
+    valve = Effect(KIND["actuator/valve"], {"freq_hz": float(F[hole[0]]), "zeta": 0.1}, {})
+    assert product_only([ds], _notebook_fit([valve], 23.6)) == []

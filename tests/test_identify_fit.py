@@ -217,6 +217,10 @@ def test_right_structure_with_noise_shows_no_lack_of_fit(seed):
 def test_lack_of_fit_rules_and_metadata():
     assert averages_from_metadata({"frf_records": "3 records of 109.207 s (one per sweep repetition)"}) == 3
     assert averages_from_metadata({}) is None
+    # a stepped sine's coherence is each dwell's own sine fit's, |Y|^2/(|Y|^2 + 4 s^2/N): (1 - g)/g is the relative variance
+    # of its one estimate, Bendat & Piersol's error with one average (it was read as the notebook's 3, the error sqrt(3) short)
+    assert averages_from_metadata({"excitation": "stepped sine, 17 frequencies"}) == 1
+    assert averages_from_metadata({"excitation": "stepped sine, 17 frequencies", "frf_records": "2"}) == 2
     # flagged points 0-2 and 5-6 (one band 0-6: the gap of 2 at 3, 4 is bridged) and 10-12 (3 points: too few)
     flag = np.array([1, 1, 1, 0, 0, 1, 1, 0, 0, 0, 1, 1, 1], bool)
     assert _bands(flag, max_gap=2, min_points=5) == [(0, 6)]

@@ -134,3 +134,26 @@ def test_samii_fit_profiles_option(tmp_path, capsys):
     assert lo < out["params"]["w1"] < hi
     assert main(["fit", str(path), "--json", "--no-progress", "--profiles", "off"]) == 0
     assert json.loads(capsys.readouterr().out)["profile_intervals"] == {}
+
+
+def test_a_fit_its_own_profile_undercuts_is_not_sound(monkeypatch):
+    """A profile that finds a cost more than the chi-square 0.999 quantile (10.83) below the fit's puts the fit's
+    value outside its own 99.9 % interval: a concern (not sound); less is a warning only. The scan's result is
+    patched (a real second minimum is the starts' work to avoid), the verdict read from it."""
+    import dataclasses
+    import importlib
+
+    fit_module = importlib.import_module("samii.identify.fit")
+    data = synthesize(F_HZ, {c: ST3.response(nb.EQ9_4, F_HZ, c) for c in ("act", "base")}, noise=SweptSineNoise(), rng=np.random.default_rng(5))
+    real = fit_module.profile_scan
+    for drop, concern in ((4.0, False), (30.0, True)):
+        def undercut(name, x, i, *args, drop=drop):
+            p = real(name, x, i, *args)
+            return dataclasses.replace(p, lowest=-drop, lowest_at=x[i] * 1.3) if name == "wp" else p
+
+        monkeypatch.setattr(fit_module, "profile_scan", undercut)
+        r = fit(data, ST3, phase_weight=0.1)
+        said = [c for c in r.concerns if c.startswith("wp is not at the minimum of the fit's cost")]
+        assert bool(said) == concern, r.concerns
+        assert any(w.startswith("holding wp at") for w in r.warnings)
+        assert r.sound == (not concern) and (r.verdict == "not sound") == concern

@@ -168,9 +168,13 @@ def _model_args(model, overrides) -> list[str]:
 def run_pipeline(out, *, model=None, overrides=(), seed: int = 0, overwrite: bool = False, progress: bool = True) -> PipelineResult:
     """Run the pipeline (module docstring) into ``out`` and return the summary."""
     out = Path(out)
+    from samii.outputs import remove_stale_runs, restore_replaced
+
+    if (back := restore_replaced(out, f".{out.name}.samii-run-")) is not None:  # a run killed between its two renames
+        print(f"samii run: {out} was missing and is back from {back.name}, where a run killed while replacing it had moved it",
+              file=sys.stderr)
     _check_out(out, overwrite)
     from samii.errors import mark_outputs_started
-    from samii.outputs import remove_stale_runs
 
     stage_dir = out.absolute().parent / f".{out.name}.samii-run-{os.getpid()}"
     remove_stale_runs(out.absolute().parent, f".{out.name}.samii-run-")  # what a killed run (SIGKILL) left

@@ -185,6 +185,32 @@ def remove_stale_runs(folder: Path, prefix: str) -> list[Path]:
     return removed
 
 
+def restore_replaced(out: Path, prefix: str) -> Path | None:
+    """Move back a folder a killed run had moved aside to replace it and not yet replaced (``PREFIX<pid>-replaced``
+    beside ``out``, its process gone, ``out`` missing: killed outright between its two renames); the newest if there
+    are several. Returns the folder it came from, or None. Without this the next run's :func:`remove_stale_runs`
+    removed it, and with it the user's previous output."""
+    out = Path(out)
+    folder = out.absolute().parent
+    if out.exists() or out.is_symlink() or not folder.is_dir():
+        return None
+    found = []
+    for entry in folder.iterdir():
+        if not entry.name.startswith(prefix) or not entry.name.endswith("-replaced") or not entry.is_dir() or entry.is_symlink():
+            continue
+        try:
+            pid = int(entry.name[len(prefix):-len("-replaced")])
+        except ValueError:
+            continue
+        if pid != os.getpid() and not _pid_alive(pid):
+            found.append(entry)
+    if not found:
+        return None
+    newest = max(found, key=lambda e: e.stat().st_mtime)
+    os.replace(newest, out)
+    return newest
+
+
 def remove_stale_stages(folder: Path) -> list[Path]:
     """Remove staging folders left in ``folder`` by runs whose process no longer exists."""
     return remove_stale_runs(folder, _STAGE_PREFIX)

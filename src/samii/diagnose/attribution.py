@@ -16,12 +16,12 @@ the final model leaves no such band, nothing is asked beyond the selection's tes
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
 
 import numpy as np
 
-from samii.diagnose.effects import LIBRARY, Effect
+from samii.diagnose.effects import LIBRARY, TWO_PI, Effect
 from samii.diagnose.model import Dataset, Fit
 
 #: The residual's power left by an effect within the misfit bands it acts in, as a fraction of the power without
@@ -87,3 +87,113 @@ def unattributed(fit: Fit, datasets: Sequence[Dataset], bands: Sequence, label: 
             f"({len(where)} band(s), the largest {CHANNEL_NAMES[worst.channel]} {worst.lo_hz:.3g}-{worst.hi_hz:.3g} Hz by "
             f"{worst.rms_db:.2g} dB, {worst.rms_deg:.2g} deg rms), and there it takes out {100 * (1 - with_power / without_power):.0f} % "
             f"of the residual's power, less than the {100 * (1 - EXPLAINS):.0f} % an effect of the rig takes out of its own change")
+
+
+#: Points a band where only xdd/v is usable must hold to be named: fewer are the odd point where theta/v's variance
+#: crosses its limit, not a band.
+PRODUCT_ONLY_POINTS = 3
+#: A resonance or corner is placed by xdd/v alone only this factor inside the band's edge where theta/v is usable:
+#: nearer, theta/v's own points see its flank (theta/v's zero wz at 10.0 Hz, damped 0.05, moves theta/v at 8.9 Hz
+#: fivefold), further in a valve's lag or a mode moves theta/v's last usable points by a few percent, which the
+#: baseline's own gains and dampings absorb.
+PRODUCT_ONLY_MARGIN = 1.25
+#: An effect's parameters that place it in frequency (Hz), in the order they are named.
+_FREQ_PARAMS = ("freq_hz", "corner_hz", "pole_hz", "zero_freq_hz", "zero_hz")
+
+
+def _product_only_runs(ds: Dataset) -> list[tuple[float, float, bool, bool]]:
+    """The bands of ``ds`` where xdd/v is usable and neither theta/v nor xdd/theta is, runs of at least
+    PRODUCT_ONLY_POINTS consecutive points: (lo Hz, hi Hz, whether theta/v is usable below lo, and above hi)."""
+    if "total" not in ds.keep:
+        return []
+    others = np.zeros(ds.freq_hz.size, bool)
+    for ch in ("act", "base"):
+        if ch in ds.keep:
+            others |= np.asarray(ds.keep[ch], bool)
+    only = np.asarray(ds.keep["total"], bool) & ~others
+    out, start = [], None
+    for j, flag in enumerate(np.append(only, False)):
+        if flag and start is None:
+            start = j
+        elif not flag and start is not None:
+            if j - start >= PRODUCT_ONLY_POINTS:
+                out.append((float(ds.freq_hz[start]), float(ds.freq_hz[j - 1]), bool(others[:start].any()), bool(others[j:].any())))
+            start = None
+    return out
+
+
+@dataclass(frozen=True)
+class Placed:
+    """A resonance or corner a model places in frequency: ``what`` (an effect's kind, or "base mode K" / "wp" of the
+    baseline), its frequencies [Hz] (an actuator mode: pole and zero), and the channel whose factor holds it."""
+
+    what: str
+    freqs_hz: tuple[float, ...]
+    channel: str  # "act", "base" or "both"
+    baseline: bool = False
+
+    def text(self) -> str:
+        from samii.diagnose.diagnosis import CHANNEL_NAMES
+
+        side = "both channels" if self.channel == "both" else CHANNEL_NAMES.get(self.channel, self.channel)
+        if self.baseline:
+            name = "theta/v resonance wp" if self.what == "wp" else self.what
+            return f"the baseline's {name} ({self.freqs_hz[0]:.3g} Hz; {side})"
+        return f"{self.what} ({', '.join(f'{f:.3g}' for f in self.freqs_hz)} Hz; {side})"
+
+
+@dataclass(frozen=True)
+class ProductOnly:
+    """What a model places in a band of one file where only xdd/v is usable (:func:`product_only`)."""
+
+    source: str
+    lo_hz: float
+    hi_hz: float
+    placed: tuple[Placed, ...]
+
+    def text(self) -> str:
+        return (f"{self.source}: from {self.lo_hz:.3g} to {self.hi_hz:.3g} Hz only xdd/v is usable (theta/v is noise there: "
+                f"theta barely moves; xdd/theta, the quotient, with it); what the model places there "
+                f"({'; '.join(p.text() for p in self.placed)}) is seen through xdd/v = theta/v x xdd/theta alone, so whether "
+                "the actuator (theta/v) or the base (xdd/theta) has it is not measured: another reading of the same data (an "
+                "actuator's lag or mode in place of a base mode, or the reverse) can fit about as well; to tell, measure "
+                "theta/v in that band (a larger excitation there, a finer angle sensor)")
+
+
+def _placed(fit: Fit, i: int) -> list[Placed]:
+    """What ``fit`` places in frequency for file ``i``: each effect with a frequency and the baseline's own resonances
+    (the notebook's structure: theta/v's pole pair wp, the base's modes; a structure without named modes: none)."""
+    out = [Placed(e.kind.kind, tuple(float(e.values[n]) for n in _FREQ_PARAMS if n in e.values), e.kind.channel)
+           for e in fit.effects if any(n in e.values for n in _FREQ_PARAMS)]
+    st = fit.baseline.structure
+    if st is None or not fit.baseline_params or not hasattr(st, "mode_names") or i >= len(fit.baseline_params):
+        return out
+    p = fit.baseline_params[i]
+    if "wp" in p:
+        out.append(Placed("wp", (p["wp"] / TWO_PI,), "act", baseline=True))
+    for k in range(1, st.n_modes + 1):
+        wn, _ = st.mode_names(k)
+        if wn in p:
+            out.append(Placed(f"base mode {k}", (p[wn] / TWO_PI,), "base", baseline=True))
+    return out
+
+
+def product_only(datasets: Sequence[Dataset], fit: Fit) -> list[ProductOnly]:
+    """What ``fit`` places where only xdd/v is usable, per file and band. There theta/v (and with it xdd/theta, the
+    quotient) is noise: theta barely moves above the servo loop's crossover. xdd/v = theta/v x xdd/theta sees a
+    resonance or a lag there, but not which factor has it; the model's structure alone decides whether it is the
+    actuator's (a valve's lag, a mode theta/v sees) or the base's (a base mode), and small changes of the data (their
+    units, an offset, a hum) tip that decision. Battery C's rig.csv (the default simulator: base mode 3 at 23.3 Hz,
+    the oil column's resonance at 31.7 Hz, theta/v usable to 9 Hz) was read as an actuator mode at 23.6 Hz beside the
+    baseline's mode 3 at 32.4 Hz (chi2 746), with theta in degrees as the baseline's mode 3 at 23.6 Hz and a valve at
+    32.3 Hz (782), and with xdd in g as the same mode 3 and a base mode at 32.4 Hz (759), on about 635 degrees of freedom."""
+    out = []
+    for i, ds in enumerate(datasets):
+        placed = sorted(_placed(fit, i), key=lambda p: min(p.freqs_hz))
+        for lo, hi, below, above in _product_only_runs(ds):
+            lo_in = lo * PRODUCT_ONLY_MARGIN if below else lo
+            hi_in = hi / PRODUCT_ONLY_MARGIN if above else hi
+            inside = tuple(p for p in placed if any(lo_in <= f <= hi_in for f in p.freqs_hz))
+            if inside:
+                out.append(ProductOnly(ds.source, lo, hi, inside))
+    return out

@@ -141,6 +141,9 @@ class Diagnosis:
     simulator: object | None = None
     #: The nonlinear findings (samii.diagnose.nonlinear.NonlinearFinding), with the analyses they rest on.
     nonlinear: tuple = field(default=())
+    #: What the final model places where only xdd/v is usable (samii.diagnose.attribution.ProductOnly): its channel
+    #: is not measured.
+    product_only: tuple = field(default=())
 
     @property
     def harmonic_error(self) -> tuple | None:
@@ -212,6 +215,9 @@ class Diagnosis:
                                "log10_p": t.log10_p, "gain_change_db": t.gain_change_db, "n_points": t.n_points, "channel": t.channel}
                               for t in self.amplitude_tests],
             },
+            "product_only": [{"source": p.source, "lo_hz": p.lo_hz, "hi_hz": p.hi_hz,
+                              "placed": [{"what": x.what, "freqs_hz": list(x.freqs_hz), "channel": x.channel, "baseline": x.baseline}
+                                         for x in p.placed]} for p in self.product_only],
             "notes": list(self.notes),
         }
 
@@ -1000,6 +1006,10 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
                          f"{', '.join(report.dropped)}; with them carried and the simulator recalibrated these were no longer needed "
                          "(images of the first calibration's compromise)")
     datasets, after = final
+    from samii.diagnose.attribution import product_only
+
+    placed_by_total = tuple(product_only(datasets, after))
+    notes += [p.text() for p in placed_by_total]
     notes += [c.text() for c in changes]
     unexplained = unexplained_bands(datasets, after.residuals, alpha=alpha)
     unexplained += [Band(c.source, c.channel, c.lo_hz, c.hi_hz, c.chi2, int(np.sum((m.frf.freq_hz >= c.lo_hz) & (m.frf.freq_hz <= c.hi_hz))),
@@ -1015,4 +1025,5 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     return Diagnosis(measured, datasets, bl, before, after, tuple(steps), tuple(tried), tuple(effects),
                      error_before, errors_after, tuple(unexplained),
                      notes=tuple(notes[:at] + divided_notes + notes[at:] + nl_notes), harmonics=tuple(harmonics), amplitude_tests=tuple(amp_tests),
-                     raw_measured=None if raw is measured else raw, simulator=report, nonlinear=tuple(nonlinear))
+                     raw_measured=None if raw is measured else raw, simulator=report, nonlinear=tuple(nonlinear),
+                     product_only=placed_by_total)

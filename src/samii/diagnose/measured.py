@@ -61,7 +61,7 @@ import numpy as np
 import scipy.fft
 
 from samii.frequency_response import FrequencyResponse
-from samii.identify.lack_of_fit import CHANNEL_NAMES, ROUGHNESS_LAG, averages_from_metadata, roughness_variance
+from samii.identify.lack_of_fit import CHANNEL_NAMES, ROUGHNESS_LAG, averages_from_metadata, is_stepped_sine, roughness_variance
 from samii.measure.frf import CHANNEL_PAIRS, estimate_frf, record_weights, split_records
 from samii.measure.records import RecordLayout, excitation_offset, find_records
 from samii.measure.timeseries import TimeSeries
@@ -647,8 +647,8 @@ def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
 
 
 def is_stepped(meta: Mapping[str, str]) -> bool:
-    """The header says the excitation is a stepped sine (``# excitation: stepped sine, N frequencies``)."""
-    return str(meta.get("excitation", "")).strip().lower().startswith("stepped sine")
+    """The header says the excitation is a stepped sine (samii.identify.lack_of_fit.is_stepped_sine)."""
+    return is_stepped_sine(meta)
 
 
 def from_stepped(ts: TimeSeries, *, source: str, band_hz: tuple[float, float] | None = None) -> Measured:

@@ -503,8 +503,10 @@ def _refused(e: Effect, fit: Fit, ds_list: list[Dataset], before: Fit | None = N
     return why
 
 
-def _backward(ds_list, baseline, fit: Fit, corr: float, level: float, steps: list, reference: Fit | None = None) -> Fit:
-    """Drop earlier effects that the newest one has made unnecessary (their removal passes the F-test)."""
+def _backward(ds_list, baseline, fit: Fit, corr: float, level: float, steps: list, restarts=()) -> Fit:
+    """Drop earlier effects that the newest one has made unnecessary (their removal passes the F-test). The fit
+    without one is started from ``fit``'s baseline and, where the baseline is free, from each of ``restarts``
+    (baseline vectors, :func:`start_vectors`'s form)."""
     changed = True
     while changed and len(fit.effects) > 1:
         changed = False
@@ -514,8 +516,8 @@ def _backward(ds_list, baseline, fit: Fit, corr: float, level: float, steps: lis
             places = search_places(fit.effects[i], ds_list)
             beat = _f_limit(fit, len(fit.effects[i].kind.params), corr, level, places)
             without = fit_model(ds_list, baseline, x_e, start_baseline=start_vectors(fit), beat=beat)
-            if reference is not None and baseline.free:  # the baseline may have parked a mode the dropped effect took over
-                again = fit_model(ds_list, baseline, x_e, start_baseline=start_vectors(reference), beat=beat)
+            for xb in restarts if baseline.free else ():  # the baseline may have parked a mode the dropped effect took over
+                again = fit_model(ds_list, baseline, x_e, start_baseline=xb, beat=beat)
                 if again.chi2 < without.chi2:
                     without = again
             _, _, logp = _f_test(without, fit, corr, places)
@@ -757,7 +759,7 @@ def _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress):
         best = None
         for logp, fstat, dof, cand, kind, places in readings:
             r_steps = [Step(kind.label, fstat, dof, logp, current.chi2, cand.chi2, dict(cand.effects[-1].values), places)]
-            fit = _backward(ds_list, baseline, cand, corr, level, r_steps, reference=base_fit)
+            fit = _backward(ds_list, baseline, cand, corr, level, r_steps, restarts=[x for x in (start_vectors(base_fit), reference_b) if x is not None])
             r_swap: list[dict] = []
             fit = _swap(ds_list, baseline, fit, kinds, corr, r_swap)
             score = _bic(fit, s2, corr)

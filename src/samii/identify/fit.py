@@ -90,6 +90,13 @@ SEARCH_POINTS = 1000
 #: Relative tolerance of a profile point's solve: its cost, about m squared standard errors (m
 #: residuals), is then known to a small fraction of one (``samii.identify.profile``).
 PROFILE_TOL = 1e-6
+#: A profile that finds a cost this many squared standard errors below the fit's (the 0.999 quantile of chi-square
+#: on one degree of freedom) shows that the fit's value lies outside its own 99.9 % profile interval: the fit is not
+#: the minimum of its cost along that parameter, and its parameters are not to be used (a concern). Less is a
+#: warning: the estimate is off by less than its uncertainty. A rig-era .mat of theta/v alone without coherence,
+#: fitted by the notebook's unweighted cost, ended at wp 19.5 Hz (the rig's: 8.3) with its profile 92 lower at 34 Hz
+#: and was called "a sound fit with caveats".
+PROFILE_BELOW_CONCERN = 10.83
 #: The level of a 3-standard-error interval, erf(3 / sqrt(2)): the fit's JSON gives each profile's interval at it and at 95 %.
 PROFILE_3SIGMA = math.erf(3 / math.sqrt(2))
 
@@ -607,9 +614,11 @@ def profile_names(structure: ModelStructure) -> tuple[str, ...]:
 
 
 def _profiles(problem: FitProblem, x: np.ndarray, cost: float, stderr: np.ndarray, scale: np.ndarray,
-              names: Sequence[str], *, max_nfev: int) -> tuple[dict[str, Profile], list[str]]:
+              names: Sequence[str], *, max_nfev: int) -> tuple[dict[str, Profile], list[str], list[str]]:
     """Profiles of ``names`` at the minimum ``x`` of ``problem`` (its ``cost``; ``stderr`` and the profile
-    ``scale`` of ``_sandwich``), and a warning for each that found a lower cost.
+    ``scale`` of ``_sandwich``), a warning for each that found a lower cost, and a concern for each that found one
+    more than PROFILE_BELOW_CONCERN squared standard errors lower (not beside another mode: a minimum the fit does
+    not take).
 
     Scanned on all points: on data thinned as the search is, the thinned cost's own minimum lies
     about sqrt(k) standard errors from the full one's (it has 1/k of the information), and the
@@ -623,7 +632,7 @@ def _profiles(problem: FitProblem, x: np.ndarray, cost: float, stderr: np.ndarra
     s2 = cost / max(problem.n_residuals - int(free.sum()), 1)
     order = list(st.mode_index[0])
     wlo, whi = BOUNDS["w"]
-    out, warnings = {}, []
+    out, warnings, concerns = {}, [], []
     for name in names:
         i = st.param_names.index(name)
         if not free[i] or not np.isfinite(x[i]):
@@ -650,7 +659,12 @@ def _profiles(problem: FitProblem, x: np.ndarray, cost: float, stderr: np.ndarra
                      "a minimum the fit does not take" if beside else f": the fit's minimum is not the lowest along {name}")
             warnings.append(f"holding {name} at {f_hz:.4g} Hz, its profile found a cost {-p.lowest:.3g} squared standard errors below "
                             f"the fit's{where}")
-    return out, warnings
+            if not beside and -p.lowest > PROFILE_BELOW_CONCERN:
+                concerns.append(f"{name} is not at the minimum of the fit's cost: held at {f_hz:.4g} Hz (the fit's {x[i] / (2 * np.pi):.4g} Hz) "
+                                f"the others re-solved reach a cost {-p.lowest:.3g} squared standard errors lower, so the fit's value "
+                                "lies outside its own 99.9 % interval: the starts did not reach the cost's lowest minimum (fit from "
+                                "other starts, or with coherence, where the data have it)")
+    return out, warnings, concerns
 
 
 def _band_warnings(problem: FitProblem, params: Mapping[str, float]) -> list[str]:
@@ -1019,8 +1033,9 @@ def fit_problem(
     warnings = lof.warnings() + warnings + _band_warnings(problem, params)
     concerns, caveats, undetermined = _assess(problem, params, lof, averages)
     done("uncertainty and lack of fit")
-    profiles, lower = _profiles(problem, x, cost, stderr, scale, names, max_nfev=max_nfev) if names else ({}, [])
+    profiles, lower, not_lowest = _profiles(problem, x, cost, stderr, scale, names, max_nfev=max_nfev) if names else ({}, [], [])
     warnings += lower
+    concerns += not_lowest
     if names:
         done(f"profiles of {', '.join(profiles)}")
     rms_m = {c: float(np.sqrt(np.mean(e[0] ** 2))) for c, e in errs.items()}

@@ -60,7 +60,7 @@ import numpy as np
 
 from samii.identify.cost import COHERENCE_CLIP, DB_PER_NEPER, DEG_PER_RAD, FitProblem
 
-__all__ = ["RATIO", "MIN_COHERENCE", "BRIDGE_REL", "MisfitBand", "LackOfFit", "averages_from_metadata", "lack_of_fit", "noise_only", "refuse_noise",
+__all__ = ["RATIO", "MIN_COHERENCE", "BRIDGE_REL", "MisfitBand", "LackOfFit", "averages_from_metadata", "is_stepped_sine", "lack_of_fit", "noise_only", "refuse_noise",
            "roughness_variance", "ROUGHNESS_LAG", "ROUGHNESS_POOL"]
 
 RATIO = 5.0
@@ -237,13 +237,20 @@ def refuse_noise(data, channels, task: str) -> None:
 MAX_METADATA_AVERAGES = 10_000
 
 
+def is_stepped_sine(metadata: Mapping[str, str]) -> bool:
+    """The header says the excitation is a stepped sine (``# excitation: stepped sine, N frequencies``)."""
+    return str(metadata.get("excitation", "")).strip().lower().startswith("stepped sine")
+
+
 def averages_from_metadata(metadata: Mapping[str, str]) -> int | None:
-    """Number of averages from ``frf_records`` ("3 records of 109.2 s ..." or "3"), else None (no such line).
+    """Number of averages from ``frf_records`` ("3 records of 109.2 s ..." or "3"); 1 for a stepped sine (each dwell's
+    coherence is its own sine fit's, |Y|^2/(|Y|^2 + 4 s^2/N): (1 - g)/g is the relative variance of the one estimate
+    it has, Bendat & Piersol's random error with one average; samii.measure.stepped); else None (no such line).
 
     A line that is present but holds no count in 1 ... MAX_METADATA_AVERAGES is an error (ValueError), not
     a silent fallback: the count sets the random error every residual is judged against."""
     if "frf_records" not in metadata:
-        return None
+        return 1 if is_stepped_sine(metadata) else None
     text = str(metadata["frf_records"])
     m = re.match(r"\s*(\d+)", text)
     if not m or not 1 <= int(m.group(1)) <= MAX_METADATA_AVERAGES:
@@ -301,7 +308,9 @@ def lack_of_fit(problem: FitProblem, x: np.ndarray, *, n_averages: int | None = 
             n, source = int(n_averages), "given"
         else:
             n = averages_from_metadata(data.metadata)
-            source = "FRF metadata frf_records" if n is not None else f"assumed {DEFAULT_AVERAGES} (the notebook's 3 averages, chapter 9): the data do not say (no frf_records)"
+            source = ("FRF metadata frf_records" if "frf_records" in data.metadata else
+                      "1, a stepped sine (each dwell's coherence is its own sine fit's)" if n is not None else
+                      f"assumed {DEFAULT_AVERAGES} (the notebook's 3 averages, chapter 9): the data do not say (no frf_records)")
             n = n if n is not None else DEFAULT_AVERAGES
         if n < 1:
             raise ValueError(f"n_averages must be >= 1, got {n}")

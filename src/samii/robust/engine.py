@@ -222,6 +222,20 @@ def _quiet_dask_logs():
 WATCH_INTERVAL_S = 2.0
 
 
+def _silent_workers(workers: dict, heard: dict[str, tuple[float, float]], limit: float) -> list[str]:
+    """The workers of ``workers`` (the scheduler's identity of each) whose heartbeat the scheduler has not had for
+    ``limit`` seconds: each one's ``last_seen`` (the scheduler's clock) is compared with its own earlier value, timed
+    on this process's clock (the two machines' clocks may differ), and ``heard`` is updated."""
+    now = time.monotonic()
+    for address, info in workers.items():
+        seen = info.get("last_seen")
+        if address not in heard or heard[address][0] != seen:
+            heard[address] = (seen, now)
+    for address in [a for a in heard if a not in workers]:
+        del heard[address]
+    return sorted(a for a, (_, since) in heard.items() if now - since > limit)
+
+
 @dataclass
 class Engine:
     """Runs sample tasks. Use as a context manager to keep a Dask cluster up over several :meth:`map` calls;
@@ -336,8 +350,9 @@ class Engine:
 
     def _watched(self, futures, progress, nominal: set) -> list[SampleResult]:
         """The results of a study on a user's cluster, watched: a scheduler that is lost, stops answering, or is left
-        without a worker for ``connect_timeout_s`` ends the study with one line naming it (the cluster's own failures
-        came as 30 lines of Dask's log and an "internal error", or as a wait for ever)."""
+        without a worker for ``connect_timeout_s``, or a worker the scheduler has not heard from for that long while no
+        sample finished, ends the study with one line naming it (the cluster's own failures came as 30 lines of Dask's
+        log and an "internal error", or as a wait for ever; a stopped worker as a silent wait of 5 minutes)."""
         from distributed import wait
 
         from samii.errors import InputError
@@ -346,6 +361,8 @@ class Engine:
         limit = self.connect_timeout_s
         pending, by_key = set(futures), {}
         no_worker_since = None
+        heard: dict[str, tuple[float, float]] = {}  # worker -> (the scheduler's last_seen of it, when that last changed here)
+        last_done = time.monotonic()
 
         def lost(what: str) -> InputError:
             drawn = sum(1 for f in futures if f.key not in nominal)
@@ -378,16 +395,23 @@ class Engine:
                         raise
                     if progress:
                         progress(1)
+                if done:
+                    last_done = time.monotonic()
                 if done or not pending:
                     continue
                 if self._client.status not in ("running", "connecting"):
                     raise lost("the scheduler was lost (its connection closed)")
                 try:  # a scheduler that stops answering (a hung host, a dropped network) keeps its connection open
-                    workers = self._client.sync(self._client.scheduler.ncores, callback_timeout=limit)
+                    workers = self._client.sync(self._client.scheduler.identity, callback_timeout=limit)["workers"]
                 except Exception:  # noqa: BLE001 - no answer within the limit, or the connection failed asking
                     raise lost(f"the scheduler stopped answering (nothing within {limit:g} s)") from None
                 if workers:
                     no_worker_since = None
+                    if (silent := _silent_workers(workers, heard, limit)) and time.monotonic() - last_done > limit:
+                        # a stopped or hung worker keeps its samples and its place: the scheduler drops it only after its
+                        # worker-ttl (5 min by default), and robust waited that long without a word
+                        raise lost(f"worker{'s' if len(silent) > 1 else ''} {', '.join(silent)} stopped answering (not heard "
+                                   f"from for {limit:g} s, no sample finished meanwhile)")
                 elif no_worker_since is None:
                     no_worker_since = time.monotonic()
                 elif time.monotonic() - no_worker_since > limit:
