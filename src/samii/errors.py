@@ -47,6 +47,12 @@ class InputError(ValueError):
     """Input a user can fix; the message is one line naming the file or option and what was expected."""
 
 
+def input_error_of(path, exc: Exception) -> InputError:
+    """A library's ValueError or KeyError on the data of ``path`` as bad input naming the file (once)."""
+    text = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
+    return InputError(text if text.startswith(str(path)) else f"{path}: {text}")
+
+
 class SimulationUnstable(RuntimeError):
     """The simulation diverged (non-finite state, MuJoCo's bad-acceleration reset) or oscillates on its own."""
 

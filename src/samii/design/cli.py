@@ -502,9 +502,9 @@ def run_damping(args) -> int:
         try:
             fr = dm.measured_fit(data)
         except (ValueError, KeyError) as exc:  # the data cannot be fitted (too few points in the band, noise): the file's
-            from samii.identify.cli import _library_error
+            from samii.errors import input_error_of
 
-            raise _library_error(args.frf, exc) from None
+            raise input_error_of(args.frf, exc) from None
         if not fr.sound:  # a controller on parameters the fit says not to use: refused, in samii fit's words
             why = "; ".join(fr.concerns) or f"it did not converge ({fr.message})"
             raise InputError(f"{args.frf}: the notebook's 3-mode model fitted to it over {fr.band_hz[0]:.3g}-{fr.band_hz[1]:.3g} Hz is "

@@ -19,7 +19,7 @@ import argparse
 import sys
 
 from samii.cli_args import nonempty_path, positive_float
-from samii.errors import InputError
+from samii.errors import InputError, input_error_of
 
 __all__ = ["add_arguments", "run", "OUTPUTS", "MAX_FILES"]
 
@@ -80,8 +80,7 @@ def _load(args):
         except DataFormatError:
             raise
         except ValueError as exc:
-            text = str(exc)
-            raise InputError(text if text.startswith(str(path)) else f"{path}: {text}") from None
+            raise input_error_of(path, exc) from None
     return out
 
 

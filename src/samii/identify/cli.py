@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 from samii.cli_args import float_in, int_in, nonempty_path, positive_float
-from samii.errors import InputError
+from samii.errors import InputError, input_error_of
 
 __all__ = ["add_arguments", "run", "MAX_MODES", "MAX_PHASE_WEIGHT", "MAX_PHASE_WEIGHTS", "MAX_AVERAGES"]
 
@@ -201,12 +201,6 @@ class _Progress:
 # --------------------------------------------------------------------------- the command
 
 
-def _library_error(path: str, exc: Exception) -> InputError:
-    """A fit's ValueError/KeyError as bad input naming the file."""
-    text = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
-    return InputError(text if text.startswith(str(path)) else f"{path}: {text}")
-
-
 def run(args: argparse.Namespace) -> int:
     weights = args.phase_weights if args.phase_weights is not None else [0.1 if args.phase_weight is None else args.phase_weight]
     if args.band_hz and not args.band_hz[0] < args.band_hz[1]:
@@ -241,7 +235,7 @@ def run(args: argparse.Namespace) -> int:
         try:  # noise: refused before any work, as calibrate and diagnose refuse it (a fit of it converged to "a sound fit")
             check_not_noise(data, structure, band_hz=band)
         except ValueError as exc:
-            raise _library_error(args.frf, exc) from None
+            raise input_error_of(args.frf, exc) from None
         results = []
         for w in weights:
             try:
@@ -251,7 +245,7 @@ def run(args: argparse.Namespace) -> int:
             except np.linalg.LinAlgError:
                 raise  # numerical trouble: a defect, reported as an internal error
             except (ValueError, KeyError) as exc:  # the data cannot be fitted as asked (InputError included)
-                raise _library_error(args.frf, exc) from None
+                raise input_error_of(args.frf, exc) from None
             progress.next_fit()
         if folder is not None:
             progress.stage("writing plots")

@@ -1215,7 +1215,10 @@ def fit(
                          profile=profile)
     if requested == "auto" and weighting == "none" and (not result.sound or result.caveats) and isinstance(start, str):
         try:
-            mended = _weighted_by_scatter(problem, result, n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, profile=profile)
+            # (its progress said as a second reading, the bar at the end of the first: 3-5 s more showed nothing)
+            second = None if progress is None else (lambda done, total, what: progress(total, total, f"second reading, weighted by the data's scatter: {what}"))
+            mended = _weighted_by_scatter(problem, result, n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, profile=profile,
+                                          progress=second)
         except (ValueError, np.linalg.LinAlgError, FloatingPointError):
             mended = None  # (a second reading that fails leaves the first as it was)
         if mended is not None:
@@ -1233,7 +1236,7 @@ def _finite(params: Mapping[str, float]) -> dict[str, float]:
 
 
 def _weighted_by_scatter(problem: FitProblem, unweighted: FitResult, *, n_perturbed: int, rng: np.random.Generator | None,
-                         max_nfev: int, profile) -> FitResult | None:
+                         max_nfev: int, profile, progress: Progress | None = None) -> FitResult | None:
     """Data without coherence whose fit by the notebook's unweighted cost is not sound, or sound with caveats, fitted
     again weighted by their scatter; the result if it is sound by both readings of the noise (and, where the
     unweighted fit was sound, leaves fewer modes undetermined or fewer bands of misfit), else None (the unweighted
@@ -1265,7 +1268,8 @@ def _weighted_by_scatter(problem: FitProblem, unweighted: FitResult, *, n_pertur
         coh[f"{c}_coh"] = 1.0 / (1.0 + np.min(scatter, axis=0))
     weighted = FitProblem(dataclasses.replace(data, **coh), st, phase_weight=problem.phase_weight, channels=tuple(problem.channels),
                           weighting="coherence")
-    res = fit_problem(weighted, start="both", n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, n_averages=1, profile=profile)
+    res = fit_problem(weighted, start="both", n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, n_averages=1, profile=profile,
+                      progress=progress)
     lof = lack_of_fit(problem, st.vector(_finite(res.params)))
     concerns, caveats, undetermined = _assess(problem, res.params, lof, None)
     if not res.sound or concerns:
