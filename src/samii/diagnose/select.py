@@ -18,7 +18,8 @@ Two candidates are refused whatever their F: an extra base mode within 5 % of
 a baseline mode or of another extra one (a mode split in two), and an extra mode the data cannot
 resolve: an actuator mode whose pole and zero lie closer than the data's
 frequency spacing (a bump that fits a wiggle of the noise; seen with noise
-estimated from the residual's roughness), or a mode whose half-power
+estimated from the residual's roughness) and not 3 joint standard errors apart
+with the data's own noise (a stepped sine's sparse dwells), or a mode whose half-power
 bandwidth is under half that spacing (a 0.107 Hz "mode" with damping 1e-4,
 fitted to one point at the band's edge).
 
