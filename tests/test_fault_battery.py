@@ -1841,6 +1841,17 @@ def test_the_servo_loops_gain_margin_is_the_notebooks_and_a_theta_in_mrad_is_ref
     # the file in rad with a servo gain 100x the one it was measured with: the same contradiction
     assert main(["design", "damping", "--frf", str(measured["frf"]), "--position-gain", "5730"]) == 2
     assert "--position-gain the servo amplifier's gain" in _one_line(capsys)
+    # theta in a unit 2x or 10x the radian: margins of 0.83 and (a second -180 deg crossing) 1.35 passed the margin's
+    # refusal, and the design came out k = 9e-11 V/(m/s²) "121 dB below the limit 0.0001" on a model whose servo loop
+    # grows at 8.3 / 9.5 Hz (a re-run of battery C): the loop's own poles are asked too
+    for factor in (2.0, 10.0):
+        scaled = tmp_path / f"x{factor:g}.csv"
+        _rescaled(Path(measured["frf"]), scaled, factor)
+        assert main(["design", "damping", "--frf", str(scaled)]) == 2
+        line = _one_line(capsys)
+        assert "in a loop closed by the position gain 57.3 V/rad has a pole growing at" in line and "yet the rig ran" in line, line
+    assert main(["design", "damping", "--frf", str(measured["frf"])]) == 0  # the file as measured: designed
+    capsys.readouterr()
 
 
 def test_a_fit_without_coherence_is_weighted_by_the_datas_scatter_where_the_notebooks_cost_fails(no_coherence, tmp_path, capsys):
@@ -1857,6 +1868,12 @@ def test_a_fit_without_coherence_is_weighted_by_the_datas_scatter_where_the_note
     assert hz["wp"] == pytest.approx(8.3, rel=0.03) and hz["wz"] == pytest.approx(9.9, rel=0.02)
     assert hz["w1"] == pytest.approx(1.735, rel=0.02) and hz["w3"] == pytest.approx(24.9, rel=0.02)
     assert d["params"]["B1"] < 0 < d["params"]["B2"]  # eq 9.4's signs
+    # each finding once, in the scatter's words: "mode w3 ... sits where the data are noise" came twice (the weighted fit's
+    # and the unweighted reading's, coherence 0.30 and 0.31), one "corrected for the bias of 1 averages" of a file
+    # without coherence (a re-run of battery C, N3)
+    heads = [c.split(" (", 1)[0] for c in d["caveats"] + d["concerns"]]
+    assert len(heads) == len(set(heads)), d["caveats"]
+    assert not any("corrected for the bias" in c for c in d["caveats"] + d["concerns"] + [d["message"]]), d["caveats"]
     assert main(["fit", str(no_coherence["noisy"]), "--no-progress"]) == 0
     assert "weighting the data's scatter" in capsys.readouterr().out
     # one average with noise: no reading places mode 1, and the unweighted fit's verdict is kept

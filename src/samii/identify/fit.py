@@ -834,7 +834,7 @@ def _defects(problem: FitProblem, params: Mapping[str, float], n_averages: int |
         elif (found := _resonance_coherence(problem, v, zeta, n_averages, rough)) is not None and found[0] < MIN_COHERENCE:
             undetermined.add(wn)
             how = (f"coherence {found[0]:.2f} in {found[1]} around it, corrected for the bias of {n_averages or 'its'} averages"
-                   if found[2] == "coherence" else
+                   if found[2] == "coherence" and SCATTER_COHERENCE not in problem.data.metadata else
                    f"{found[1]} has no coherence; its scatter about the fit there is {np.sqrt(1 / found[0] - 1):.2g} of the response, "
                    f"a coherence of {found[0]:.2f}")
             noise.append((v, (wn, zn), f"mode {wn} = {fz:.3g} Hz sits where the data are noise ({how}), not at a measured resonance"))
@@ -1229,6 +1229,11 @@ def fit(
     return result
 
 
+#: The metadata key that marks a problem whose coherence is the data's scatter read as one (_weighted_by_scatter):
+#: its findings say "scatter", not "coherence ... corrected for the bias of 1 averages" of a file that has none.
+SCATTER_COHERENCE = "samii_coherence_from_scatter"
+
+
 def _finite(params: Mapping[str, float]) -> dict[str, float]:
     """``params`` with the NaN of parameters the fitted channels do not depend on (a result's) set to 1: any finite
     value stands for them in a response or a residual."""
@@ -1266,7 +1271,8 @@ def _weighted_by_scatter(problem: FitProblem, unweighted: FitResult, *, n_pertur
         if not scatter:
             return None
         coh[f"{c}_coh"] = 1.0 / (1.0 + np.min(scatter, axis=0))
-    weighted = FitProblem(dataclasses.replace(data, **coh), st, phase_weight=problem.phase_weight, channels=tuple(problem.channels),
+    marked = {**data.metadata, SCATTER_COHERENCE: "1"}  # (its "coherence" is the scatter's: said so, _defects)
+    weighted = FitProblem(dataclasses.replace(data, **coh, metadata=marked), st, phase_weight=problem.phase_weight, channels=tuple(problem.channels),
                           weighting="coherence")
     res = fit_problem(weighted, start="both", n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, n_averages=1, profile=profile,
                       progress=progress)
@@ -1283,8 +1289,11 @@ def _weighted_by_scatter(problem: FitProblem, unweighted: FitResult, *, n_pertur
             return None
     why = (f"not sound ({unweighted.concerns[0]})" if unweighted.concerns else
            f"sound with caveats ({unweighted.caveats[0]})")
-    own = [c for c in caveats if c not in res.caveats and "residuals are far above" not in c]
-    return dataclasses.replace(res, weighting="scatter", caveats=tuple(res.caveats) + tuple(own),
+    # the scatter about the weighted fit read as the unweighted fit is: its findings where the weighted fit's own do not
+    # say the same of the same parameter (one "mode w3 ... sits where the data are noise", not two with 0.30 and 0.31)
+    said = {c.split(" (", 1)[0] for c in res.caveats}
+    own = [c for c in caveats if c.split(" (", 1)[0] not in said and "residuals are far above" not in c]
+    return dataclasses.replace(res, weighting="scatter", caveats=tuple(res.caveats) + tuple(own), metadata=dict(data.metadata),
                     undetermined=tuple(dict.fromkeys(res.undetermined + tuple(undetermined))),
                     message=res.message + f" Weighted by the data's scatter (no coherence in the file): the notebook's unweighted "
                     f"cost gave a fit that was {why}.")
