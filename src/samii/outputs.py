@@ -166,22 +166,32 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+def _dead_runs(folder: Path, prefix: str) -> list[tuple[Path, str]]:
+    """The folders ``PREFIX<pid>[-REST]`` in ``folder`` (no symlinks) whose process no longer exists, with their REST
+    ("" without one); a live process's, and this one's, are not among them."""
+    out = []
+    if not folder.is_dir():
+        return out
+    for entry in folder.iterdir():
+        if not entry.name.startswith(prefix) or not entry.is_dir() or entry.is_symlink():
+            continue
+        pid, _, rest = entry.name[len(prefix):].partition("-")
+        try:
+            pid = int(pid)
+        except ValueError:
+            continue
+        if pid != os.getpid() and not _pid_alive(pid):
+            out.append((entry, rest))
+    return out
+
+
 def remove_stale_runs(folder: Path, prefix: str) -> list[Path]:
     """Remove the folders ``PREFIX<pid>[-...]`` in ``folder`` left by runs whose process no longer exists
     (killed outright: SIGKILL, power loss); a live process's, and this one's, are left alone."""
     removed = []
-    if not folder.is_dir():
-        return removed
-    for entry in folder.iterdir():
-        if not entry.name.startswith(prefix) or not entry.is_dir() or entry.is_symlink():
-            continue
-        try:
-            pid = int(entry.name[len(prefix):].split("-", 1)[0])
-        except ValueError:
-            continue
-        if pid != os.getpid() and not _pid_alive(pid):
-            shutil.rmtree(entry, ignore_errors=True)
-            removed.append(entry)
+    for entry, _ in _dead_runs(folder, prefix):
+        shutil.rmtree(entry, ignore_errors=True)
+        removed.append(entry)
     return removed
 
 
@@ -191,19 +201,9 @@ def restore_replaced(out: Path, prefix: str) -> Path | None:
     are several. Returns the folder it came from, or None. Without this the next run's :func:`remove_stale_runs`
     removed it, and with it the user's previous output."""
     out = Path(out)
-    folder = out.absolute().parent
-    if out.exists() or out.is_symlink() or not folder.is_dir():
+    if out.exists() or out.is_symlink():
         return None
-    found = []
-    for entry in folder.iterdir():
-        if not entry.name.startswith(prefix) or not entry.name.endswith("-replaced") or not entry.is_dir() or entry.is_symlink():
-            continue
-        try:
-            pid = int(entry.name[len(prefix):-len("-replaced")])
-        except ValueError:
-            continue
-        if pid != os.getpid() and not _pid_alive(pid):
-            found.append(entry)
+    found = [entry for entry, rest in _dead_runs(out.absolute().parent, prefix) if rest == "replaced"]
     if not found:
         return None
     newest = max(found, key=lambda e: e.stat().st_mtime)

@@ -49,7 +49,7 @@ import numpy as np
 from samii.closedloop.controllers import SavedController
 from samii.design.controller import LinearController
 
-__all__ = ["DampingDesign", "design_damping", "servo_gain_margin", "servo_loop_growing", "damping_plant", "measured_fit", "measured_sensitivity", "with_data_check", "damping_from_simulation", "FIT_BAND_HZ"]
+__all__ = ["DampingDesign", "design_damping", "servo_gain_margin", "servo_loop_growing", "servo_loop_contradiction", "damping_plant", "measured_fit", "measured_sensitivity", "with_data_check", "damping_from_simulation", "FIT_BAND_HZ"]
 
 #: Fit band [Hz]: the base modes (1.7, 9.9, 25 Hz) and the servo pair (8 Hz); above 30 Hz the
 #: notebook's structure misses the actuator's 32 Hz pair (model card), below 0.5 Hz the
@@ -144,6 +144,21 @@ def servo_loop_growing(params: Mapping[str, float], position_gain_v_per_rad: flo
     poles = np.asarray(control.poles(control.feedback(position_gain_v_per_rad * G, 1)), complex)
     growing = poles[poles.real > 1e-9 * np.maximum(np.abs(poles), 1.0)]
     return complex(growing[np.argmax(growing.real)]) if growing.size else None
+
+
+def servo_loop_contradiction(params: Mapping[str, float], position_gain_v_per_rad: float) -> str | None:
+    """What makes the servo loop on the fitted theta/v unstable, though the data were measured in it and the rig ran
+    (a gain margin under SERVO_MARGIN_REFUSED, or a pole growing: :func:`servo_gain_margin`,
+    :func:`servo_loop_growing`), as words after "theta/v (the model fitted to it) ", or None."""
+    kp = position_gain_v_per_rad
+    gm, f_gm = servo_gain_margin(params, kp)
+    if gm < SERVO_MARGIN_REFUSED:
+        return (f"times the position gain {kp:.4g} V/rad is {1.0 / gm:.3g} at {f_gm:.3g} Hz, where its phase crosses -180 deg "
+                "(above 1 there a loop is unstable)")
+    if (growing := servo_loop_growing(params, kp)) is not None:
+        return (f"in a loop closed by the position gain {kp:.4g} V/rad has a pole growing at {growing.real:.3g} 1/s "
+                f"({abs(growing.imag) / (2 * np.pi):.3g} Hz)")
+    return None
 
 
 def _discrete_loop(params, kp, T, delay):

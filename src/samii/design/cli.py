@@ -510,13 +510,7 @@ def run_damping(args) -> int:
             raise InputError(f"{args.frf}: the notebook's 3-mode model fitted to it over {fr.band_hz[0]:.3g}-{fr.band_hz[1]:.3g} Hz is "
                              "not a sound fit, and a controller designed on its parameters would not be trusted; samii fit "
                              f"{args.frf} --band-hz {fr.band_hz[0]:.3g} {fr.band_hz[1]:.3g} says why: {why}")
-        gm, f_gm = dm.servo_gain_margin(fr.params, kp)
-        growing = dm.servo_loop_growing(fr.params, kp)
-        if gm < dm.SERVO_MARGIN_REFUSED or growing is not None:
-            said = (f"times the position gain {kp:.4g} V/rad is {1.0 / gm:.3g} at {f_gm:.3g} Hz, where its phase crosses -180 deg "
-                    "(above 1 there a loop is unstable)" if gm < dm.SERVO_MARGIN_REFUSED else
-                    f"in a loop closed by the position gain {kp:.4g} V/rad has a pole growing at {growing.real:.3g} 1/s "
-                    f"({abs(growing.imag) / (2 * np.pi):.3g} Hz)")
+        if (said := dm.servo_loop_contradiction(fr.params, kp)) is not None:
             raise InputError(f"{args.frf}: theta/v (the 3-mode model fitted to it) {said}: "
                              "the servo loop the data were measured in would be unstable, yet the rig ran (a hydraulic position servo keeps a gain margin there: the embedded model's measured fit "
                              "has 1.67). Is theta in rad (in mrad theta/v is 1000x too large, in degrees 57x), and is "

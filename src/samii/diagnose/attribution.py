@@ -97,13 +97,15 @@ PRODUCT_ONLY_POINTS = 3
 #: fivefold), further in a valve's lag or a mode moves theta/v's last usable points by a few percent, which the
 #: baseline's own gains and dampings absorb.
 PRODUCT_ONLY_MARGIN = 1.25
-#: An effect's parameters that place it in frequency (Hz), in the order they are named.
-_FREQ_PARAMS = ("freq_hz", "corner_hz", "pole_hz", "zero_freq_hz", "zero_hz")
+#: An effect's parameters that place it in frequency (Hz), in the order they are named, with what each is beside another.
+_FREQ_PARAMS = {"freq_hz": "pole", "corner_hz": "corner", "pole_hz": "pole", "zero_freq_hz": "zero", "zero_hz": "zero"}
 
 
 def _product_only_runs(ds: Dataset) -> list[tuple[float, float, bool, bool]]:
     """The bands of ``ds`` where xdd/v is usable and neither theta/v nor xdd/theta is, runs of at least
     PRODUCT_ONLY_POINTS consecutive points: (lo Hz, hi Hz, whether theta/v is usable below lo, and above hi)."""
+    from samii.diagnose.diagnosis import _runs
+
     if "total" not in ds.keep:
         return []
     others = np.zeros(ds.freq_hz.size, bool)
@@ -111,15 +113,8 @@ def _product_only_runs(ds: Dataset) -> list[tuple[float, float, bool, bool]]:
         if ch in ds.keep:
             others |= np.asarray(ds.keep[ch], bool)
     only = np.asarray(ds.keep["total"], bool) & ~others
-    out, start = [], None
-    for j, flag in enumerate(np.append(only, False)):
-        if flag and start is None:
-            start = j
-        elif not flag and start is not None:
-            if j - start >= PRODUCT_ONLY_POINTS:
-                out.append((float(ds.freq_hz[start]), float(ds.freq_hz[j - 1]), bool(others[:start].any()), bool(others[j:].any())))
-            start = None
-    return out
+    return [(float(ds.freq_hz[a]), float(ds.freq_hz[b - 1]), bool(others[:a].any()), bool(others[b:].any()))
+            for a, b in _runs(only) if b - a >= PRODUCT_ONLY_POINTS]
 
 
 @dataclass(frozen=True)
@@ -131,6 +126,8 @@ class Placed:
     freqs_hz: tuple[float, ...]
     channel: str  # "act", "base" or "both"
     baseline: bool = False
+    #: What each frequency is where there are several ("pole", "zero"), in ``freqs_hz``'s order
+    roles: tuple[str, ...] = ()
 
     def text(self) -> str:
         from samii.diagnose.diagnosis import CHANNEL_NAMES
@@ -139,7 +136,9 @@ class Placed:
         if self.baseline:
             name = "theta/v resonance wp" if self.what == "wp" else self.what
             return f"the baseline's {name} ({self.freqs_hz[0]:.3g} Hz; {side})"
-        return f"{self.what} ({', '.join(f'{f:.3g}' for f in self.freqs_hz)} Hz; {side})"
+        if len(self.freqs_hz) == 1:
+            return f"{self.what} ({self.freqs_hz[0]:.3g} Hz; {side})"
+        return f"{self.what} ({', '.join(f'{r} {f:.3g} Hz' for r, f in zip(self.roles, self.freqs_hz))}; {side})"
 
 
 @dataclass(frozen=True)
@@ -163,8 +162,12 @@ class ProductOnly:
 def _placed(fit: Fit, i: int) -> list[Placed]:
     """What ``fit`` places in frequency for file ``i``: each effect with a frequency and the baseline's own resonances
     (the notebook's structure: theta/v's pole pair wp, the base's modes; a structure without named modes: none)."""
-    out = [Placed(e.kind.kind, tuple(float(e.values[n]) for n in _FREQ_PARAMS if n in e.values), e.kind.channel)
-           for e in fit.effects if any(n in e.values for n in _FREQ_PARAMS)]
+    out = []
+    for e in fit.effects:
+        names = [n for n in _FREQ_PARAMS if n in e.values]
+        if names:
+            out.append(Placed(e.kind.kind, tuple(float(e.values[n]) for n in names), e.kind.channel,
+                              roles=tuple(_FREQ_PARAMS[n] for n in names)))
     st = fit.baseline.structure
     if st is None or not fit.baseline_params or not hasattr(st, "mode_names") or i >= len(fit.baseline_params):
         return out

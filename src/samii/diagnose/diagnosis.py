@@ -39,7 +39,7 @@ a multiple of.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -215,9 +215,7 @@ class Diagnosis:
                                "log10_p": t.log10_p, "gain_change_db": t.gain_change_db, "n_points": t.n_points, "channel": t.channel}
                               for t in self.amplitude_tests],
             },
-            "product_only": [{"source": p.source, "lo_hz": p.lo_hz, "hi_hz": p.hi_hz,
-                              "placed": [{"what": x.what, "freqs_hz": list(x.freqs_hz), "channel": x.channel, "baseline": x.baseline}
-                                         for x in p.placed]} for p in self.product_only],
+            "product_only": [asdict(p) for p in self.product_only],
             "notes": list(self.notes),
         }
 

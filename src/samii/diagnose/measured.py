@@ -628,7 +628,7 @@ def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
     """An FRF file: the error of each point from its coherence, if it has one (a stepped sine's read as its own)."""
     check_testable(frf, source=source)
     meta = frf.metadata
-    var, have, what = _stepped_var(frf) if is_stepped(meta) else _averaged_var(frf, meta)
+    var, have, what = _stepped_var(frf) if is_stepped_sine(meta) else _averaged_var(frf, meta)
     how = f"coherence of {', '.join(have)}{what}" if have else "unknown (no coherence in the file)"
     if have and len(have) < len(frf.channels):  # one noise model for the whole file: a half-known one would mix real and placeholder weights
         var = dict.fromkeys(frf.channels)
@@ -644,11 +644,6 @@ def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
     said = aliasing_warnings(meta, sr, source=source) if sr is not None else []
     return Measured(source=source, frf=frf, var=var, noise_source=how, corr_length=corr, amplitude_v=amp, sample_rate_hz=sr,
                     warnings=tuple(said), aliasing=tuple(said))
-
-
-def is_stepped(meta: Mapping[str, str]) -> bool:
-    """The header says the excitation is a stepped sine (samii.identify.lack_of_fit.is_stepped_sine)."""
-    return is_stepped_sine(meta)
 
 
 def from_stepped(ts: TimeSeries, *, source: str, band_hz: tuple[float, float] | None = None) -> Measured:
@@ -697,7 +692,7 @@ def load(path, *, band_hz: tuple[float, float] | None = None, record_s: float | 
     if "t" in header and "freq_hz" not in header:
         ts = read_timeseries_csv(path)
         try:
-            if is_stepped(ts.metadata):
+            if is_stepped_sine(ts.metadata):
                 return from_stepped(ts, source=source, band_hz=band_hz)
             return from_timeseries(ts, source=source, band_hz=band_hz, record_s=record_s)
         except ValueError as exc:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from samii.diagnose.diagnosis import Diagnosis
+from samii.identify.lack_of_fit import is_stepped_sine
 
 __all__ = ["residual_figure", "bode_figure", "harmonic_figure", "simulator_figure"]
 
@@ -81,20 +82,22 @@ def residual_figure(d: Diagnosis, path=None):
             sig = np.sqrt(var / 2.0)
             c = colors[i % len(colors)]
             tag = f" ({_label(d, i)})" if len(d.datasets) > 1 else ""
+            # a stepped sine's dwells as points (the lines between them are no data), as samii measure and frf draw them
+            mk = {"marker": "o", "ms": 3} if is_stepped_sine(d.measured[i].frf.metadata) else {}
             if ds.known_noise:  # else the weights are a placeholder, not the data's noise
                 what = "noise and floor" if ds.floor_var is not None else "noise"  # (the floor is part of each point's error)
                 ax_m.fill_between(f, -2 * _DB * sig, 2 * _DB * sig, color=c, alpha=0.15, lw=0, label=f"±2σ {what}{tag}")
                 ax_p.fill_between(f, -2 * _DEG * sig, 2 * _DEG * sig, color=c, alpha=0.15, lw=0)
             nl = d.raw_measured is not None
             if same:  # nothing found: one residual, no "with the effects" to tell from it
-                ax_m.plot(f, _DB * ea.real, color=c, lw=1.0, label=f"against the baseline{tag}")
-                ax_p.plot(f, _DEG * ea.imag, color=c, lw=1.0)
+                ax_m.plot(f, _DB * ea.real, color=c, lw=1.0, label=f"against the baseline{tag}", **mk)
+                ax_p.plot(f, _DEG * ea.imag, color=c, lw=1.0, **mk)
                 continue
-            ax_m.plot(f, _DB * eb.real, color="0.55", lw=0.8, label=f"baseline{' (data as measured)' if nl else ''}{tag}")
-            ax_p.plot(f, _DEG * eb.imag, color="0.55", lw=0.8)
+            ax_m.plot(f, _DB * eb.real, color="0.55", lw=0.8, label=f"baseline{' (data as measured)' if nl else ''}{tag}", **mk)
+            ax_p.plot(f, _DEG * eb.imag, color="0.55", lw=0.8, **mk)
             ax_m.plot(f, _DB * ea.real, color=c, lw=1.0,
-                      label=f"with the effects{' (and the nonlinearity divided out)' if nl and ch != 'base' else ''}{tag}")
-            ax_p.plot(f, _DEG * ea.imag, color=c, lw=1.0)
+                      label=f"with the effects{' (and the nonlinearity divided out)' if nl and ch != 'base' else ''}{tag}", **mk)
+            ax_p.plot(f, _DEG * ea.imag, color=c, lw=1.0, **mk)
         for b in d.unexplained:
             if b.channel == ch:
                 for ax in (ax_m, ax_p):

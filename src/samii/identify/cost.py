@@ -143,6 +143,9 @@ class FitProblem:
         Parameters no fitted channel depends on are not fitted (``fitted``).
     weighting : {"none", "coherence"}
         ``"none"`` is the notebook's cost; ``"coherence"`` is described in the module docstring.
+    coherence_from : {"data", "scatter"}
+        Where ``data``'s coherence comes from: the file, or the data's scatter read as one estimate's coherence
+        (``samii.identify.fit``'s second reading of data without coherence): its findings say so.
     """
 
     data: FrequencyResponse
@@ -151,6 +154,7 @@ class FitProblem:
     band_hz: tuple[float, float] | None = None
     channels: tuple[Channel, ...] | None = None
     weighting: Weighting = "none"
+    coherence_from: Literal["data", "scatter"] = "data"
     # derived
     w: np.ndarray = field(init=False, repr=False)
     _inv_data: Mapping[Channel, np.ndarray] = field(init=False, repr=False)
@@ -239,7 +243,8 @@ class FitProblem:
             if coh is not None:
                 kw[f"{c}_coh"] = coh[::k]
         data = FrequencyResponse(d.freq_hz[::k], metadata=d.metadata, **kw)
-        out = FitProblem(data, self.structure, phase_weight=self.phase_weight, channels=self.channels, weighting=self.weighting)
+        out = FitProblem(data, self.structure, phase_weight=self.phase_weight, channels=self.channels, weighting=self.weighting,
+                         coherence_from=self.coherence_from)
         # the weights of the points kept, pooled over all points (the thinned grid is too sparse to pool on)
         object.__setattr__(out, "_noise", {c: v[::k] for c, v in self._noise.items()})
         object.__setattr__(out, "_weights", {c: v[::k] for c, v in self._weights.items()})

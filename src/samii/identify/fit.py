@@ -834,7 +834,7 @@ def _defects(problem: FitProblem, params: Mapping[str, float], n_averages: int |
         elif (found := _resonance_coherence(problem, v, zeta, n_averages, rough)) is not None and found[0] < MIN_COHERENCE:
             undetermined.add(wn)
             how = (f"coherence {found[0]:.2f} in {found[1]} around it, corrected for the bias of {n_averages or 'its'} averages"
-                   if found[2] == "coherence" and SCATTER_COHERENCE not in problem.data.metadata else
+                   if found[2] == "coherence" and problem.coherence_from == "data" else
                    f"{found[1]} has no coherence; its scatter about the fit there is {np.sqrt(1 / found[0] - 1):.2g} of the response, "
                    f"a coherence of {found[0]:.2f}")
             noise.append((v, (wn, zn), f"mode {wn} = {fz:.3g} Hz sits where the data are noise ({how}), not at a measured resonance"))
@@ -865,9 +865,10 @@ def _defects(problem: FitProblem, params: Mapping[str, float], n_averages: int |
     return out
 
 
-def _assess(problem: FitProblem, params: Mapping[str, float], lof: LackOfFit,
-            n_averages: int | None) -> tuple[list[str], list[str], tuple[str, ...]]:
-    """``(concerns, caveats, undetermined)`` of a converged minimum, each reason with what to try.
+def _assess(problem: FitProblem, params: Mapping[str, float], lof: LackOfFit, n_averages: int | None,
+            defects: list[_Defect] | None = None) -> tuple[list[str], list[str], tuple[str, ...]]:
+    """``(concerns, caveats, undetermined)`` of a converged minimum, each reason with what to try (``defects``: its
+    ``_defects``, where the caller has them already).
 
     A concern: a parameter the solver put where no reading of the data would (``_defects``'
     "misplaced"): the fit's parameters should not be used. A caveat: a mode the data do not determine
@@ -876,7 +877,7 @@ def _assess(problem: FitProblem, params: Mapping[str, float], lof: LackOfFit,
     arm's own dynamics above 30 Hz in the simulator's data: the parameters are the structure's
     best compromise, usable where it holds).
     """
-    defects = _defects(problem, params, n_averages)
+    defects = _defects(problem, params, n_averages) if defects is None else defects
     concerns = [d.text for d in defects if d.kind == "misplaced"]
     if (best := noise_only(problem.data, problem.channels)) is not None:  # a minimum of noise (it said "a sound fit")
         concerns.insert(0, f"no point has coherence >= {MIN_COHERENCE:g} in the fitted channels (the highest is {best:.3g}): the "
@@ -1229,11 +1230,6 @@ def fit(
     return result
 
 
-#: The metadata key that marks a problem whose coherence is the data's scatter read as one (_weighted_by_scatter):
-#: its findings say "scatter", not "coherence ... corrected for the bias of 1 averages" of a file that has none.
-SCATTER_COHERENCE = "samii_coherence_from_scatter"
-
-
 def _finite(params: Mapping[str, float]) -> dict[str, float]:
     """``params`` with the NaN of parameters the fitted channels do not depend on (a result's) set to 1: any finite
     value stands for them in a response or a residual."""
@@ -1271,13 +1267,13 @@ def _weighted_by_scatter(problem: FitProblem, unweighted: FitResult, *, n_pertur
         if not scatter:
             return None
         coh[f"{c}_coh"] = 1.0 / (1.0 + np.min(scatter, axis=0))
-    marked = {**data.metadata, SCATTER_COHERENCE: "1"}  # (its "coherence" is the scatter's: said so, _defects)
-    weighted = FitProblem(dataclasses.replace(data, **coh, metadata=marked), st, phase_weight=problem.phase_weight, channels=tuple(problem.channels),
-                          weighting="coherence")
+    weighted = FitProblem(dataclasses.replace(data, **coh), st, phase_weight=problem.phase_weight, channels=tuple(problem.channels),
+                          weighting="coherence", coherence_from="scatter")
     res = fit_problem(weighted, start="both", n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, n_averages=1, profile=profile,
                       progress=progress)
     lof = lack_of_fit(problem, st.vector(_finite(res.params)))
-    concerns, caveats, undetermined = _assess(problem, res.params, lof, None)
+    defects = _defects(problem, res.params, None)
+    concerns, _, undetermined = _assess(problem, res.params, lof, None, defects=defects)
     if not res.sound or concerns:
         return None
     if unweighted.sound:
@@ -1289,11 +1285,10 @@ def _weighted_by_scatter(problem: FitProblem, unweighted: FitResult, *, n_pertur
             return None
     why = (f"not sound ({unweighted.concerns[0]})" if unweighted.concerns else
            f"sound with caveats ({unweighted.caveats[0]})")
-    # the scatter about the weighted fit read as the unweighted fit is: its findings where the weighted fit's own do not
-    # say the same of the same parameter (one "mode w3 ... sits where the data are noise", not two with 0.30 and 0.31)
-    said = {c.split(" (", 1)[0] for c in res.caveats}
-    own = [c for c in caveats if c.split(" (", 1)[0] not in said and "residuals are far above" not in c]
-    return dataclasses.replace(res, weighting="scatter", caveats=tuple(res.caveats) + tuple(own), metadata=dict(data.metadata),
+    # the scatter about the weighted fit read as the unweighted fit is: its modes undetermined that the weighted fit's
+    # own findings do not name (one "mode w3 ... sits where the data are noise", not two with 0.30 and 0.31)
+    own = [d.text for d in defects if d.kind == "unmeasured" and not set(d.names) <= set(res.undetermined)]
+    return dataclasses.replace(res, weighting="scatter", caveats=tuple(res.caveats) + tuple(own),
                     undetermined=tuple(dict.fromkeys(res.undetermined + tuple(undetermined))),
                     message=res.message + f" Weighted by the data's scatter (no coherence in the file): the notebook's unweighted "
                     f"cost gave a fit that was {why}.")
