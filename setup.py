@@ -146,8 +146,7 @@ class BuildPlugin(build_ext):
 
     def get_output_mapping(self) -> dict[str, str]:
         mapping = super().get_output_mapping()
-        extra = {str(self._info_path(k)): str(self._info_path(v))
-                 for k, v in mapping.items() if Path(k).stem == "libsamii_hydraulic"}
+        extra = {str(self._info_path(k)): str(self._info_path(v)) for k, v in mapping.items() if Path(k).stem == "libsamii_hydraulic"}
         return {**mapping, **extra}
 
 

@@ -65,8 +65,9 @@ def main() -> None:
     res = results[-1]
     err = max(abs(res.values[n] / v - 1) for n, v in zip(SIX, truth))
     print(f"one simulator FRF evaluation ({f.size} points): {1e3 * t_eval:.1f} ms (median of {len(evals)})")
-    print(f"calibrate, 6 parameters from 20 % off: {t_cal:.2f} s (median of {REPEATS}); {res.nfev} iterations; "
-          f"= {t_cal / t_eval:.0f} evaluations' time")
+    print(
+        f"calibrate, 6 parameters from 20 % off: {t_cal:.2f} s (median of {REPEATS}); {res.nfev} iterations; = {t_cal / t_eval:.0f} evaluations' time"
+    )
     print(f"largest parameter error against the truth: {100 * err:.2f} % (noisy data); converged {res.converged}")
     print(f"goal < {GOAL_S:g} s: {'met' if t_cal < GOAL_S else 'NOT met'} ({t_cal / GOAL_S:.2f} of the budget)")
 

@@ -24,15 +24,15 @@ from __future__ import annotations
 
 import argparse
 import math
+
 import mujoco
 import numpy as np
+from _timing import median_time, plain_rollout
 
 from samii.closedloop.card import build_card_model
 from samii.closedloop.controllers import notebook_cancel
 from samii.closedloop.run import run_loop
 from samii.sim.model import load_model, load_spec, make_data
-
-from _timing import median_time, plain_rollout
 
 
 def _median_time(fn, repeats: int) -> float:
@@ -52,7 +52,7 @@ def main() -> None:
     open_loop = plain_rollout(model, make_data(model), n)
 
     theta_ref = np.zeros(n)
-    theta_ref[int(1.0 / dt):] = math.radians(5.0)
+    theta_ref[int(1.0 / dt) :] = math.radians(5.0)
 
     def card(controller, replaces):
         spec, _ = load_spec()
@@ -77,7 +77,7 @@ def main() -> None:
         big = LinearController(0.9 * Q, 1e-9 * rng.normal(size=(ns, 3)), 1e-9 * rng.normal(size=(1, ns)), np.zeros((1, 3)),
                                sample_time_s=dt, inputs=("theta_ref", "theta", "accel"))  # fmt: skip
         cm_big = card(big, False)
-        times[f"card, {ns} states (1 kHz)"] = _median_time(lambda: run_loop(cm_big, theta_ref), args.repeats)
+        times[f"card, {ns} states (1 kHz)"] = _median_time(lambda: run_loop(cm_big, theta_ref), args.repeats)  # noqa: B023 - called within this iteration
 
     # the Python loop, on a tenth of the run (scaled)
     m_py = load_model(overrides={"hydraulic.position_gain": 0.0})

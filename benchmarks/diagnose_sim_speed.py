@@ -35,8 +35,11 @@ GOAL_S = 60.0
 CASES = [
     ("clean", {}, 3),
     ("command delay 4 ms", {"hydraulic.command_delay": 0.004}, 12),
-    ("delay 4 ms + body 0.5 kg 15 Hz", {"hydraulic.command_delay": 0.004, "beam.tip_body_mass_kg": 0.5,
-                                        "beam.tip_body_freq_hz": 15.0, "beam.tip_body_damping_ratio": 0.02}, 25),
+    (
+        "delay 4 ms + body 0.5 kg 15 Hz",
+        {"hydraulic.command_delay": 0.004, "beam.tip_body_mass_kg": 0.5, "beam.tip_body_freq_hz": 15.0, "beam.tip_body_damping_ratio": 0.02},
+        25,
+    ),
     ("spool 2x slower", {"hydraulic.valve_time_constant": 0.00897}, 26),
 ]
 
@@ -50,8 +53,7 @@ def write_case(folder: Path, overrides: dict, seed: int) -> Path:
     from samii.sim.model import load_model
 
     sweep = SweptSine(repetitions=4, tail_s=26.0)
-    meas = measure_swept(load_model(overrides=overrides) if overrides else load_model(), sweep, noise=SensorNoise(),
-                         rng=np.random.default_rng(seed))
+    meas = measure_swept(load_model(overrides=overrides) if overrides else load_model(), sweep, noise=SensorNoise(), rng=np.random.default_rng(seed))
     path = folder / f"sim_{seed}.csv"
     write_timeseries_csv(meas.timeseries, path)
     return path
@@ -85,8 +87,9 @@ def main() -> None:
             length, unit = one_measurement_s(path)
             r = time_case(path, folder / "out", ("--baseline", "sim"))
             totals.append(r["total_s"])
-            print(f"{name:<32} {length:8.1f} {unit:13.2f} {r['total_s']:10.1f} {r['total_s'] / unit:12.1f}  "
-                  f"{', '.join(r['found']) or '-'}", flush=True)
+            print(
+                f"{name:<32} {length:8.1f} {unit:13.2f} {r['total_s']:10.1f} {r['total_s'] / unit:12.1f}  {', '.join(r['found']) or '-'}", flush=True
+            )
     print(f"max {np.max(totals):.1f} s, median {np.median(totals):.1f} s (goal: every file at most {GOAL_S:g} s) over {len(totals)} files")
 
 

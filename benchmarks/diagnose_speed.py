@@ -148,8 +148,10 @@ def main() -> None:
                 path = write(folder, name, effects, args.seed)
                 r = time_case(path, folder / "out")
                 totals.append(r["total_s"])
-                print(f"{rig:<7} {name:<26} {r['read_s']:9.2f} {r['total_s']:10.2f} {r['total_s'] / r['read_s']:11.1f}  "
-                      f"{', '.join(r['found']) or '-'}", flush=True)
+                print(
+                    f"{rig:<7} {name:<26} {r['read_s']:9.2f} {r['total_s']:10.2f} {r['total_s'] / r['read_s']:11.1f}  {', '.join(r['found']) or '-'}",
+                    flush=True,
+                )
     print(f"median {np.median(totals):.1f} s (goal {GOAL_MEDIAN_S:g} s), max {np.max(totals):.1f} s (goal {GOAL_MAX_S:g} s) over {len(totals)} files")
 
 

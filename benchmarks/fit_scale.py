@@ -33,13 +33,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _timing import median_time
 
 from samii.cli import main as samii_main
 from samii.identify.fit import fit
 from samii.identify.studies import synthetic_rig_frf
 from samii.measure.io import read_frf_csv, write_frf_csv
-
-from _timing import median_time
 
 SIZES = (247, 10_000, 100_000)
 GOALS_S = {10_000: 2.0, 100_000: 20.0}
@@ -70,29 +69,36 @@ def main() -> None:
         rows = []
         for n in SIZES:
             path, out = files[n], folder / f"out_{n}"
-            t_read = median_time(lambda: read_frf_csv(path), args.repeats)
+            t_read = median_time(lambda: read_frf_csv(path), args.repeats)  # noqa: B023 - called within this iteration
             data = read_frf_csv(path)
-            t_fit = median_time(lambda: fit(data, weighting="auto"), args.repeats)
-            t_cmd = median_time(lambda: command(path, out), args.repeats)
+            t_fit = median_time(lambda: fit(data, weighting="auto"), args.repeats)  # noqa: B023 - called within this iteration
+            t_cmd = median_time(lambda: command(path, out), args.repeats)  # noqa: B023 - called within this iteration
             t_proc = None
             if args.subprocess:
                 t = time.perf_counter()
-                subprocess.run([sys.executable, "-m", "samii.cli", "fit", str(path), "--out", str(out), "--overwrite", "--no-progress"],
-                               check=True, stdout=subprocess.DEVNULL)
+                subprocess.run(
+                    [sys.executable, "-m", "samii.cli", "fit", str(path), "--out", str(out), "--overwrite", "--no-progress"],
+                    check=True,
+                    stdout=subprocess.DEVNULL,
+                )
                 t_proc = time.perf_counter() - t
             rows.append((n, path.stat().st_size / 2**20, t_read, t_fit, t_cmd, t_proc))
     base, base_fit = rows[0][4], rows[0][3]
     print(f"samii fit on synthetic FRF files ({args.grid} grid 0.1-40 Hz), median of {args.repeats} runs in this process")
-    head = (f"{'points':>8} {'file MB':>8} {'read [s]':>9} {'fit [s]':>8} {'fit ratio':>9} {'command [s]':>12} {'cmd ratio':>9} "
-            f"{'points ratio':>12} {'us/point':>9} {'goal':>10}")
+    head = (
+        f"{'points':>8} {'file MB':>8} {'read [s]':>9} {'fit [s]':>8} {'fit ratio':>9} {'command [s]':>12} {'cmd ratio':>9} "
+        f"{'points ratio':>12} {'us/point':>9} {'goal':>10}"
+    )
     if args.subprocess:
         head += f" {'new process [s]':>16}"
     print(head)
     for n, mb, t_read, t_fit, t_cmd, t_proc in rows:
         goal = GOALS_S.get(n)
         verdict = "" if goal is None else (f"<{goal:g} s {'met' if t_cmd < goal else 'NOT MET'}")
-        line = (f"{n:>8d} {mb:8.2f} {t_read:9.3f} {t_fit:8.3f} {t_fit / base_fit:9.1f} {t_cmd:12.3f} {t_cmd / base:9.1f} "
-                f"{n / rows[0][0]:12.1f} {1e6 * t_cmd / n:9.1f} {verdict:>10}")
+        line = (
+            f"{n:>8d} {mb:8.2f} {t_read:9.3f} {t_fit:8.3f} {t_fit / base_fit:9.1f} {t_cmd:12.3f} {t_cmd / base:9.1f} "
+            f"{n / rows[0][0]:12.1f} {1e6 * t_cmd / n:9.1f} {verdict:>10}"
+        )
         if args.subprocess:
             line += f" {t_proc:16.2f}"
         print(line)

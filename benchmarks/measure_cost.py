@@ -85,14 +85,20 @@ def main() -> None:
     med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
     sim_s = excitation.duration_s
     campaign = med["measure"] + med["write_frf"]
-    print(f"default {args.method}-sine campaign: {sim_s:.1f} s simulated, timestep {model.opt.timestep:g} s, "
-          f"median of {args.repeats}, {os.cpu_count()} cores")
+    print(
+        f"default {args.method}-sine campaign: {sim_s:.1f} s simulated, timestep {model.opt.timestep:g} s, "
+        f"median of {args.repeats}, {os.cpu_count()} cores"
+    )
     for k, v in med.items():
         print(f"  {k:9s} {v:7.3f} s   {v / med['stepping']:6.3f} x stepping")
-    print(f"campaign (measure+write_frf): {campaign:.3f} s = {campaign / med['stepping']:.2f} x stepping "
-          f"(goal <= 1.3), {sim_s / campaign:.0f}x real time (goal >= 100)")
-    print(f"with the figure: {campaign + med['figure']:.3f} s = {(campaign + med['figure']) / med['stepping']:.2f} x stepping, "
-          f"{sim_s / (campaign + med['figure']):.0f}x real time")
+    print(
+        f"campaign (measure+write_frf): {campaign:.3f} s = {campaign / med['stepping']:.2f} x stepping "
+        f"(goal <= 1.3), {sim_s / campaign:.0f}x real time (goal >= 100)"
+    )
+    print(
+        f"with the figure: {campaign + med['figure']:.3f} s = {(campaign + med['figure']) / med['stepping']:.2f} x stepping, "
+        f"{sim_s / (campaign + med['figure']):.0f}x real time"
+    )
     print(f"stepping alone: {sim_s / med['stepping']:.0f}x real time")
 
 

@@ -43,8 +43,10 @@ def measurement(repeats: int, folder: Path) -> None:
 
     ratio, lo, hi, base, rec = paired_ratio(plain, recorded, repeats)
     size = (folder / "m.rrd").stat().st_size / 1e6
-    print(f"samii measure (default swept sine, {sweep.duration_s:.0f} s simulated, {1 / (steps * model.opt.timestep):.0f} frames/s): "
-          f"run {base:.2f} s, with recording {rec:.2f} s: overhead {_pct(ratio, lo, hi)} (goal < 30 %), file {size:.0f} MB")
+    print(
+        f"samii measure (default swept sine, {sweep.duration_s:.0f} s simulated, {1 / (steps * model.opt.timestep):.0f} frames/s): "
+        f"run {base:.2f} s, with recording {rec:.2f} s: overhead {_pct(ratio, lo, hi)} (goal < 30 %), file {size:.0f} MB"
+    )
 
 
 def closed_loop(repeats: int, folder: Path) -> None:
@@ -65,8 +67,7 @@ def closed_loop(repeats: int, folder: Path) -> None:
         _write_rerun(result, folder / "c.rrd", folder / "c.rrd", factory)
 
     ratio, lo, hi, base, rec = paired_ratio(plain, recorded, repeats)
-    print(f"samii closedloop (damping, Loper test, 10 s): run {base:.2f} s, with recording {rec:.2f} s: "
-          f"overhead {_pct(ratio, lo, hi)} (goal < 30 %)")
+    print(f"samii closedloop (damping, Loper test, 10 s): run {base:.2f} s, with recording {rec:.2f} s: overhead {_pct(ratio, lo, hi)} (goal < 30 %)")
 
 
 def _pct(ratio: float, lo: float, hi: float) -> str:

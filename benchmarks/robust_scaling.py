@@ -39,11 +39,15 @@ def main() -> None:
     from samii.sim.model import default_params, dotted
 
     params = default_params()
-    draws = draw_plants(args.samples, 0, dotted(params), [parse_spread("hydraulic.bulk_modulus=20%"), parse_spread("beam.clamp_stiffness_Nm_rad=10%")], None)
+    draws = draw_plants(
+        args.samples, 0, dotted(params), [parse_spread("hydraulic.bulk_modulus=20%"), parse_spread("beam.clamp_stiffness_Nm_rad=10%")], None
+    )
     ctrl = notebook_cancel()
     tasks = [SampleTask(i, params.as_dict(), draws.overrides(i), ctrl, "step") for i in range(args.samples)]
-    print(f"{args.samples} samples per batch (10 s closed loop each), {args.repeats} batches per engine, {os.cpu_count()} cores, "
-          f"Python {sys.version.split()[0]}")
+    print(
+        f"{args.samples} samples per batch (10 s closed loop each), {args.repeats} batches per engine, {os.cpu_count()} cores, "
+        f"Python {sys.version.split()[0]}"
+    )
 
     rates, per_sample, results = {}, {}, {}
     for label, engine in (("in-process", Engine()), ("1 worker", Engine(workers=1)), ("2 workers", Engine(workers=2))):
@@ -59,8 +63,10 @@ def main() -> None:
         med = statistics.median(times)
         rates[label] = args.samples / med
         per_sample[label] = med / args.samples
-        print(f"  {label:<11} {rates[label]:6.2f} samples/s ({1e3 * per_sample[label]:.0f} ms per sample; batches {', '.join(f'{x:.2f}' for x in times)} s;"
-              f" start-up {startup:.1f} s)")
+        print(
+            f"  {label:<11} {rates[label]:6.2f} samples/s ({1e3 * per_sample[label]:.0f} ms per sample; batches {', '.join(f'{x:.2f}' for x in times)} s;"
+            f" start-up {startup:.1f} s)"
+        )
 
     same = all([r.table_row() for r in results[k]] == [r.table_row() for r in results["in-process"]] for k in results)
     speedup = rates["2 workers"] / rates["1 worker"]
@@ -72,8 +78,10 @@ def main() -> None:
     k, pairs = min(4, args.samples), max(args.repeats, 5)
     with Engine() as engine:
         ratio, lo, hi, t_plain, t_samples = paired_ratio(lambda: [plain() for _ in range(k)], lambda: engine.map(tasks[:k]), pairs)
-    print(f"a sample in this process against plain stepping of its steps ({1e3 * t_plain / k:.0f} ms for 10 s; "
-          f"{1e3 * t_samples / k:.0f} ms a sample): {ratio:.2f}x, {lo:.2f}-{hi:.2f} over {pairs} interleaved pairs of {k} (goal <= 1.3x)")
+    print(
+        f"a sample in this process against plain stepping of its steps ({1e3 * t_plain / k:.0f} ms for 10 s; "
+        f"{1e3 * t_samples / k:.0f} ms a sample): {ratio:.2f}x, {lo:.2f}-{hi:.2f} over {pairs} interleaved pairs of {k} (goal <= 1.3x)"
+    )
 
 
 def _plain_stepping(seconds: float):
@@ -87,6 +95,7 @@ def _plain_stepping(seconds: float):
     load_plugin()
     model = load_model()
     return plain_rollout(model, make_data(model), int(round(seconds / model.opt.timestep)))
+
 
 if __name__ == "__main__":
     main()

@@ -117,8 +117,10 @@ def main(argv=None) -> int:
         results[loop] = {name: statistics.median(s) for name, s in samples.items()}
 
     dt = hydraulic.opt.timestep
-    print(f"model: {args.model} (nq {hydraulic.nq}, nv {hydraulic.nv}, na {hydraulic.na}), timestep {dt * 1e3:g} ms, "
-          f"{args.steps} steps x {args.repeats} repeats, median")
+    print(
+        f"model: {args.model} (nq {hydraulic.nq}, nv {hydraulic.nv}, na {hydraulic.na}), timestep {dt * 1e3:g} ms, "
+        f"{args.steps} steps x {args.repeats} repeats, median"
+    )
     print(f"{'loop':<8} {'plugin us/step':>15} {'plain us/step':>14} {'ratio':>6} {'plugin x real time':>19}")
     for loop, r in results.items():
         ratio = r["plugin"] / r["plain"]

@@ -26,10 +26,10 @@ def cwd(tmp_path, monkeypatch):
 @pytest.fixture(scope="session")
 def runs(tmp_path_factory):
     """Two main jobs with the same seed (about 25 s each), read by test_main_job.py and test_report.py."""
-    from samii.cli import main
-
     import subprocess
     import sys
+
+    from samii.cli import main
 
     base = tmp_path_factory.mktemp("main")
     dead = subprocess.Popen([sys.executable, "-c", "pass"])

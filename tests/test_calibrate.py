@@ -67,8 +67,12 @@ def test_unknown_accelerometer_unit_is_found_as_a_channel_gain(truth_and_data):
     """An accelerometer read in in/s^2 (39.37 per m/s^2): gain.base finds the factor."""
     truth, data = truth_and_data
     scaled = type(data)(data.freq_hz, act=data.act, base=39.37 * data.base)
-    res = calibrate(scaled, ("gain.base", "beam.clamp_stiffness_Nm_rad"), base=SimulatorFRF(default_params(), SIX).samii_params(list(truth.values())),
-                    start={"beam.clamp_stiffness_Nm_rad": 0.9 * truth["beam.clamp_stiffness_Nm_rad"]})
+    res = calibrate(
+        scaled,
+        ("gain.base", "beam.clamp_stiffness_Nm_rad"),
+        base=SimulatorFRF(default_params(), SIX).samii_params(list(truth.values())),
+        start={"beam.clamp_stiffness_Nm_rad": 0.9 * truth["beam.clamp_stiffness_Nm_rad"]},
+    )
     assert res.values["gain.base"] == pytest.approx(39.37, rel=1e-4)
     assert res.values["beam.clamp_stiffness_Nm_rad"] == pytest.approx(truth["beam.clamp_stiffness_Nm_rad"], rel=1e-4)
 

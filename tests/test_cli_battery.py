@@ -48,7 +48,9 @@ def files(tmp_path_factory):
     f["params_negative_bulk"] = _json.dumps({"params": full})
     out = {}
     for name, text in f.items():
-        suffix = ".xml" if name.endswith("xml") or name in ("empty", "binary") else (".json" if "json" in name or name.startswith("params") else ".csv")
+        suffix = (
+            ".xml" if name.endswith("xml") or name in ("empty", "binary") else (".json" if "json" in name or name.startswith("params") else ".csv")
+        )
         p = d / f"{name}{suffix}"
         p.write_bytes(text if isinstance(text, bytes) else text.encode())
         out[name] = str(p)
@@ -179,9 +181,19 @@ def test_modes_set_given_twice(capsys):
 
 # ---------------------------------------------------------------------------- params
 
-@pytest.mark.parametrize("key, needle", [("malformed_xml", "parameter file"), ("missing_json", "does not exist"), ("bad_json", "not valid JSON"),
-                                         ("params_null", "finite number"), ("params_deep", "nested too deeply"),
-                                         ("params_partial", "missing"), ("params_negative_bulk", "bulk_modulus")])
+
+@pytest.mark.parametrize(
+    "key, needle",
+    [
+        ("malformed_xml", "parameter file"),
+        ("missing_json", "does not exist"),
+        ("bad_json", "not valid JSON"),
+        ("params_null", "finite number"),
+        ("params_deep", "nested too deeply"),
+        ("params_partial", "missing"),
+        ("params_negative_bulk", "bulk_modulus"),
+    ],
+)
 def test_params_bad_model(files, key, needle, capsys):
     _run_bad(["params", "--model", files[key]], capsys, 2, needle)
 
@@ -296,8 +308,13 @@ def test_measure_out_read_only(tmp_path, capsys):
 
 def test_measure_rerun_paths(files, out_dir, capsys):
     # a missing folder is created (test_closedloop_rerun_into_a_new_folder_creates_it); a file in its way is refused
-    _run_bad(["measure", "--out", str(out_dir), "--no-progress", "--rerun", os.path.join(files["a_file"], "nope", "x.rrd")], capsys, 2,
-             "which is a file", out_dir)
+    _run_bad(
+        ["measure", "--out", str(out_dir), "--no-progress", "--rerun", os.path.join(files["a_file"], "nope", "x.rrd")],
+        capsys,
+        2,
+        "which is a file",
+        out_dir,
+    )
     _run_bad(["measure", "--out", str(out_dir), "--no-progress", "--rerun", files["dir"]], capsys, 2, "is a folder", out_dir)
     _run_bad(["measure", "--out", str(out_dir), "--no-progress", "--rerun", ""], capsys, 2, "--rerun", out_dir)
     _run_bad(["measure", "--out", str(out_dir), "--no-progress", "--rerun", files["a_file"]], capsys, 2, "--overwrite", out_dir)
@@ -313,8 +330,9 @@ def test_measure_unwritable_pseudo_filesystem(out_dir, capsys):
 def test_measure_rerun_into_its_own_outputs(out_dir, capsys):
     """--rerun D/frf.csv with --out D would put the recording where the FRF goes: refused before any work."""
     _run_bad(["measure", "--out", str(out_dir), "--no-progress", "--rerun", str(out_dir / "frf.csv")], capsys, 2, "own output", out_dir)
-    _run_bad(["measure", "--out", str(out_dir), "--no-progress", "--overwrite", "--rerun", str(out_dir / "run.json")], capsys, 2,
-             "own output", out_dir)
+    _run_bad(
+        ["measure", "--out", str(out_dir), "--no-progress", "--overwrite", "--rerun", str(out_dir / "run.json")], capsys, 2, "own output", out_dir
+    )
 
 
 def test_measure_out_dangling_link_and_folder_named_like_an_output(tmp_path, out_dir, capsys):
@@ -400,8 +418,9 @@ def test_calibrate_bad_option(frf_csv, extra, needle, out_dir, capsys):
     _run_bad(["calibrate", frf_csv, *extra], capsys, 2, needle)
 
 
-@pytest.mark.parametrize("key, needle", [("missing", "no such file"), ("dir", "no such file"), ("malformed_xml", "expected an FRF CSV"),
-                                         ("frf_text", "frf_text.csv")])
+@pytest.mark.parametrize(
+    "key, needle", [("missing", "no such file"), ("dir", "no such file"), ("malformed_xml", "expected an FRF CSV"), ("frf_text", "frf_text.csv")]
+)
 def test_calibrate_bad_data(files, key, needle, capsys):
     _run_bad(["calibrate", files[key], "--param", "hydraulic.total_volume"], capsys, 2, needle)
 
@@ -416,12 +435,14 @@ def test_calibrate_mjcf_model_refused(frf_csv, files, capsys):
 
 # ---------------------------------------------------------------------------- signals (a real process)
 
+
 def _spawn_measure(out, *extra):
     import subprocess
 
     code = "import sys; from samii.cli import main; sys.exit(main(sys.argv[1:]))"
-    return subprocess.Popen([sys.executable, "-c", code, "measure", "--out", str(out), "--no-progress", *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        [sys.executable, "-c", code, "measure", "--out", str(out), "--no-progress", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
 
 
 @pytest.mark.parametrize("signame, code", [("SIGTERM", 143), ("SIGINT", 130), ("SIGHUP", 129)])

@@ -78,7 +78,7 @@ def _python_loop(controller, theta_ref, *, replaces, delay_samples, steps=1):
     for k in range(theta_ref.size):
         mujoco.mj_forward(mp, d)
         if k % steps == 0:
-            meas = {"theta_ref": theta_ref[k], "theta": d.sensordata[th_adr] - math.pi / 2, "accel": d.sensordata[adr:adr + 3] @ w - off}
+            meas = {"theta_ref": theta_ref[k], "theta": d.sensordata[th_adr] - math.pi / 2, "accel": d.sensordata[adr : adr + 3] @ w - off}
             held = controller.step(meas)
         commands.append(held)
         j = k - int(delay_samples * steps)
@@ -177,7 +177,7 @@ def test_switch_on_is_bumpless(factory):
     k = int(round(s.switch_on_s / s.dt_s))
     assert abs(r.signals.switch_jump_v) < 1e-9
     np.testing.assert_array_equal(s.theta[:k], c.theta[:k])
-    step_v = np.max(np.abs(np.diff(s.v[k - 200:k])))  # how much v moves per step before the switch
+    step_v = np.max(np.abs(np.diff(s.v[k - 200 : k])))  # how much v moves per step before the switch
     assert abs(s.v[k] - s.v[k - 1]) <= 2 * step_v
     assert s.enabled[k] and not s.enabled[k - 1]
 
@@ -262,7 +262,9 @@ def test_runaway_needs_the_whole_last_window():
     assert runaway(t, calm, 10.0 * np.sign(np.sin(2 * np.pi * 5 * t)), t_event=1.0, rail_v=10.0) is None
     gone = np.where(t > 3.0, 2.0, 0.0)
     assert runaway(t, gone, calm, t_event=9.6, rail_v=10.0) is None  # 0.4 s after the event: not judged
-    assert runaway(t, np.where(t > 9.3, 2.0, 0.0), calm, t_event=9.0, rail_v=10.0).theta_since_s == pytest.approx(9.301)  # 1 s: judged on its last 0.5 s
+    assert runaway(t, np.where(t > 9.3, 2.0, 0.0), calm, t_event=9.0, rail_v=10.0).theta_since_s == pytest.approx(
+        9.301
+    )  # 1 s: judged on its last 0.5 s
     r = runaway(t, gone, np.where(t > 2.5, -10.0, 0.0), t_event=1.0, rail_v=10.0)
     assert r.theta_since_s == pytest.approx(3.001) and r.valve_since_s == pytest.approx(2.501) and r.valve_v == -10.0
     assert not r.theta_moving and "settled far from" in r.text()  # held, but 115 deg off
@@ -305,7 +307,12 @@ def test_a_run_without_details_has_the_same_stability_and_metrics(factory, contr
     lean = run_closed_loop(ctrl, scenario(sc), label="x", spec_factory=factory, comparison=False, details=False)
     assert full.linear is not None and full.modes and lean.linear is None and lean.modes == []
     assert lean.rms_error_pct == {"theta": None, "accel": None}
-    assert (lean.stable, lean.linear_stable, lean.growth_rate_1_s, lean.unstable_mode_hz) == (full.stable, full.linear_stable, full.growth_rate_1_s, full.unstable_mode_hz)
+    assert (lean.stable, lean.linear_stable, lean.growth_rate_1_s, lean.unstable_mode_hz) == (
+        full.stable,
+        full.linear_stable,
+        full.growth_rate_1_s,
+        full.unstable_mode_hz,
+    )
     assert np.array_equal(lean.linear_poles_s, full.linear_poles_s)
     assert (lean.theta, lean.base) == (full.theta, full.base)
 

@@ -317,53 +317,83 @@ MALFORMED = [
 ]
 
 FIXED_MALFORMED = {  # id: (file, expected text, what went wrong before the fix)
-    "version-true": (_mod(version=True), ["'version'"],
-                     "`\"version\": true` is accepted as version 1 (True == 1 in Python) and the run goes ahead (exit 0); "
-                     "it should be refused like `\"sample_time_s\": true` is (exit 2, field 'version')"),
-    "A-empty-B-C-full": (_mod(A=[]), ["shape"],
-                         "`\"A\": []` with the 6-row B and C of a 6-state controller is accepted (exit 0): read_controller "
-                         "replaces B and C by empty matrices and runs a static D-only controller, silently dropping them; "
-                         "the inconsistent shapes should be refused (exit 2, naming A/B/C)"),
-    "A-Infinity": (_token("A", "Infinity"), ["'A'", ("inf",)],
-                   "the `Infinity` token in a matrix is reported as \"has the entry nan\" (parse_constant maps Infinity and "
-                   "-Infinity to NaN): the message misreports what the file holds; it should say inf/Infinity"),
-    "sample-time-huge-int": (_scalar_token("sample_time_s", "1" + "0" * 400), ["'sample_time_s'"],
-                             "a 401-digit integer sample_time_s exits 1 with 'internal error: OverflowError: int too large "
-                             "to convert to float' (math.isfinite on a huge int); it should exit 2 naming the field"),
-    "A-huge-int": (_token("A", "1" + "0" * 400), ["'A'", "finite"],
-                   "a 401-digit integer in A exits 1 with 'internal error: OverflowError: int too large to convert to float'; "
-                   "it should exit 2 naming the field"),
-    "input-scale-huge-int": (_scale_token("1" + "0" * 400), ["'input_scale'"],
-                             "a 401-digit integer in input_scale exits 1 with 'internal error: OverflowError'; it should "
-                             "exit 2 naming the field"),
-    "int-over-4300-digits": (_scalar_token("sample_time_s", "1" + "0" * 5000), [],
-                             "a 5001-digit integer exits 2 with Python's 'Exceeds the limit (4300 digits) for integer string "
-                             "conversion ... use sys.set_int_max_str_digits()' (a ValueError json.loads raises, not caught as "
-                             "JSONDecodeError): the message names neither the file nor the field"),
-    "nested-too-deeply": (lambda d: '{"format": "samii-controller", "x": ' + "[" * 100000 + "]" * 100000 + "}",
-                          [("nested", "deep", "not valid JSON")],
-                          "a deeply nested JSON array exits 1 with 'internal error: RecursionError: maximum recursion depth "
-                          "exceeded while decoding a JSON array'; it should exit 2 naming the file (as samii params "
-                          "--model does: 'nested too deeply')"),
-    "65-states": (_mod(A=[[0.0] * 65 for _ in range(65)], B=[[0.0, 0.0]] * 65, C=[[0.0] * 65]), ["64"],
-                  "a 65-state controller file is refused by the card with \"controller '<its name>' has 65 states; the card "
-                  "holds at most 64\": the message does not name the file"),
-    "sample-time-not-whole-steps": (_mod(sample_time_s=0.0015), ["'sample_time_s'", "physics"],
-                                    "sample_time_s 0.0015 is refused by the card with 'controller sample time 0.0015 s is not "
-                                    "a whole number of physics steps (0.001 s)': the message names neither the file nor the "
-                                    "field"),
-    "sample-time-below-step": (_mod(sample_time_s=1e-4), ["'sample_time_s'", "physics"],
-                               "sample_time_s 1e-4 (under one physics step) is refused by the card without naming the file "
-                               "or the field"),
-    "sample-time-1e300": (_mod(sample_time_s=1e300), ["'sample_time_s'"],
-                          "sample_time_s 1e300 reaches MuJoCo and exits 2 with \"Error: engine error: plugin->init failed "
-                          "for plugin id 0 samii.hydraulic (actuator 'joint2'): config attribute 'controller_steps' = 1e+303 "
-                          "is out of range (expected 1...1e+06) ...\" (the text twice): internal names, not the file or field"),
+    "version-true": (
+        _mod(version=True),
+        ["'version'"],
+        '`"version": true` is accepted as version 1 (True == 1 in Python) and the run goes ahead (exit 0); '
+        "it should be refused like `\"sample_time_s\": true` is (exit 2, field 'version')",
+    ),
+    "A-empty-B-C-full": (
+        _mod(A=[]),
+        ["shape"],
+        '`"A": []` with the 6-row B and C of a 6-state controller is accepted (exit 0): read_controller '
+        "replaces B and C by empty matrices and runs a static D-only controller, silently dropping them; "
+        "the inconsistent shapes should be refused (exit 2, naming A/B/C)",
+    ),
+    "A-Infinity": (
+        _token("A", "Infinity"),
+        ["'A'", ("inf",)],
+        'the `Infinity` token in a matrix is reported as "has the entry nan" (parse_constant maps Infinity and '
+        "-Infinity to NaN): the message misreports what the file holds; it should say inf/Infinity",
+    ),
+    "sample-time-huge-int": (
+        _scalar_token("sample_time_s", "1" + "0" * 400),
+        ["'sample_time_s'"],
+        "a 401-digit integer sample_time_s exits 1 with 'internal error: OverflowError: int too large "
+        "to convert to float' (math.isfinite on a huge int); it should exit 2 naming the field",
+    ),
+    "A-huge-int": (
+        _token("A", "1" + "0" * 400),
+        ["'A'", "finite"],
+        "a 401-digit integer in A exits 1 with 'internal error: OverflowError: int too large to convert to float'; it should exit 2 naming the field",
+    ),
+    "input-scale-huge-int": (
+        _scale_token("1" + "0" * 400),
+        ["'input_scale'"],
+        "a 401-digit integer in input_scale exits 1 with 'internal error: OverflowError'; it should exit 2 naming the field",
+    ),
+    "int-over-4300-digits": (
+        _scalar_token("sample_time_s", "1" + "0" * 5000),
+        [],
+        "a 5001-digit integer exits 2 with Python's 'Exceeds the limit (4300 digits) for integer string "
+        "conversion ... use sys.set_int_max_str_digits()' (a ValueError json.loads raises, not caught as "
+        "JSONDecodeError): the message names neither the file nor the field",
+    ),
+    "nested-too-deeply": (
+        lambda d: '{"format": "samii-controller", "x": ' + "[" * 100000 + "]" * 100000 + "}",
+        [("nested", "deep", "not valid JSON")],
+        "a deeply nested JSON array exits 1 with 'internal error: RecursionError: maximum recursion depth "
+        "exceeded while decoding a JSON array'; it should exit 2 naming the file (as samii params "
+        "--model does: 'nested too deeply')",
+    ),
+    "65-states": (
+        _mod(A=[[0.0] * 65 for _ in range(65)], B=[[0.0, 0.0]] * 65, C=[[0.0] * 65]),
+        ["64"],
+        "a 65-state controller file is refused by the card with \"controller '<its name>' has 65 states; the card "
+        'holds at most 64": the message does not name the file',
+    ),
+    "sample-time-not-whole-steps": (
+        _mod(sample_time_s=0.0015),
+        ["'sample_time_s'", "physics"],
+        "sample_time_s 0.0015 is refused by the card with 'controller sample time 0.0015 s is not "
+        "a whole number of physics steps (0.001 s)': the message names neither the file nor the "
+        "field",
+    ),
+    "sample-time-below-step": (
+        _mod(sample_time_s=1e-4),
+        ["'sample_time_s'", "physics"],
+        "sample_time_s 1e-4 (under one physics step) is refused by the card without naming the file or the field",
+    ),
+    "sample-time-1e300": (
+        _mod(sample_time_s=1e300),
+        ["'sample_time_s'"],
+        'sample_time_s 1e300 reaches MuJoCo and exits 2 with "Error: engine error: plugin->init failed '
+        "for plugin id 0 samii.hydraulic (actuator 'joint2'): config attribute 'controller_steps' = 1e+303 "
+        'is out of range (expected 1...1e+06) ..." (the text twice): internal names, not the file or field',
+    ),
 }
 
-MALFORMED_CASES = [pytest.param(c, n, id=i) for i, c, n in MALFORMED] + [
-    pytest.param(c, n, id=i) for i, (c, n, _why) in FIXED_MALFORMED.items()
-]
+MALFORMED_CASES = [pytest.param(c, n, id=i) for i, c, n in MALFORMED] + [pytest.param(c, n, id=i) for i, (c, n, _why) in FIXED_MALFORMED.items()]
 
 
 def _write_case(content, base, path):

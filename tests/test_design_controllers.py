@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from samii import notebook as nb
-from samii.design import canonical as cc
 from samii.design import cancel as cn
+from samii.design import canonical as cc
 from samii.design import controller as ctl
 from samii.design import placement as pl
 from samii.design import rootlocus as rl
@@ -99,9 +99,7 @@ def test_continuous_placement_puts_poles_where_asked(eq14):
 
 @pytest.mark.parametrize("observer", ["placement", "kalman"])
 def test_discrete_design_and_observer_poles_where_asked(eq14, observer):
-    d = pl.design_placement(
-        eq14, sample_time_s=T, zeta=1 / np.sqrt(2), observer=observer, input_noise_std=0.05, measurement_noise_std=(0.01, 0.5)
-    )
+    d = pl.design_placement(eq14, sample_time_s=T, zeta=1 / np.sqrt(2), observer=observer, input_noise_std=0.05, measurement_noise_std=(0.01, 0.5))
     Ad, Bd, C = (np.asarray(m) for m in (d.discrete.A, d.discrete.B, d.discrete.C))
     assert _nearest(np.linalg.eigvals(Ad - Bd @ d.K), d.poles_z) < 1e-8
     assert _nearest(np.linalg.eigvals(Ad - d.L @ C), d.observer_poles_z) < 1e-8

@@ -95,8 +95,22 @@ BAD_VALUES = [
     (["place", "--sample-time-s", "1ms"], "--sample-time-s"),
     (["place", "--sample-time-s", "1e6"], "--sample-time-s"),
     (["place", "--sample-time-s", "0.002"], "--sample-time-s"),  # above 1.849 ms: < 10 samples per observer-pole period
-    (["place", "--sample-time-s", "0.004", "--observer", "kalman", "--input-noise-std", "0.01", "--theta-noise-std", "0.01",
-      "--accel-noise-std", "0.1"], "--sample-time-s"),  # fmt: skip
+    (
+        [
+            "place",
+            "--sample-time-s",
+            "0.004",
+            "--observer",
+            "kalman",
+            "--input-noise-std",
+            "0.01",
+            "--theta-noise-std",
+            "0.01",
+            "--accel-noise-std",
+            "0.1",
+        ],
+        "--sample-time-s",
+    ),  # fmt: skip
     (["place", "--sample-time-s", "1e-9"], "--sample-time-s"),  # every z crowds at 1: placement inaccurate
     (["place", "--zeta", "0"], "--zeta"),
     (["place", "--zeta", "-1"], "--zeta"),
@@ -106,12 +120,18 @@ BAD_VALUES = [
     (["place", "--observer", "kalman"], "--input-noise-std"),
     (["place", "--observer", "kalman", "--input-noise-std", "0.01"], "--theta-noise-std"),
     (["place", "--observer", "kalman", "--input-noise-std", "0.01", "--theta-noise-std", "0.01"], "--accel-noise-std"),
-    (["place", "--observer", "kalman", "--input-noise-std", "-0.01", "--theta-noise-std", "0.01", "--accel-noise-std", "0.1"],
-     "--input-noise-std"),  # fmt: skip
-    (["place", "--observer", "kalman", "--input-noise-std", "0.01", "--theta-noise-std", "0", "--accel-noise-std", "0.1"],
-     "--theta-noise-std"),  # fmt: skip
-    (["place", "--observer", "kalman", "--input-noise-std", "0.01", "--theta-noise-std", "0.01", "--accel-noise-std", "nan"],
-     "--accel-noise-std"),  # fmt: skip
+    (
+        ["place", "--observer", "kalman", "--input-noise-std", "-0.01", "--theta-noise-std", "0.01", "--accel-noise-std", "0.1"],
+        "--input-noise-std",
+    ),  # fmt: skip
+    (
+        ["place", "--observer", "kalman", "--input-noise-std", "0.01", "--theta-noise-std", "0", "--accel-noise-std", "0.1"],
+        "--theta-noise-std",
+    ),  # fmt: skip
+    (
+        ["place", "--observer", "kalman", "--input-noise-std", "0.01", "--theta-noise-std", "0.01", "--accel-noise-std", "nan"],
+        "--accel-noise-std",
+    ),  # fmt: skip
     (["place", "--input-noise-std", "0.01"], "--input-noise-std"),  # noise without the Kalman observer
     (["place", "--observer", "luenberger"], "--observer"),
     # cancel

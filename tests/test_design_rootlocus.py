@@ -1,6 +1,5 @@
 """Mass-damping root-locus study: the loop, its exact stability intervals and the damping summary."""
 
-import control
 import numpy as np
 import pytest
 
@@ -177,6 +176,4 @@ def test_root_locus_data_uses_our_sign():
     data = rl.root_locus_data(loop, sign=-1, n_gains=200)
     assert np.all(data.gains <= 0)
     i = len(data.gains) // 2
-    np.testing.assert_allclose(
-        np.sort_complex(data.loci[i]), np.sort_complex(rl.closed_loop_poles(loop, [data.gains[i]])[0]), rtol=1e-6, atol=1e-6
-    )
+    np.testing.assert_allclose(np.sort_complex(data.loci[i]), np.sort_complex(rl.closed_loop_poles(loop, [data.gains[i]])[0]), rtol=1e-6, atol=1e-6)

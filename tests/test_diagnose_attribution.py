@@ -21,7 +21,7 @@ F = np.geomspace(0.1, 40.0, 400)
 def _base(f):
     s = 2j * np.pi * f
     w1 = 2 * np.pi * 1.7
-    return {"act": 10.0 / (s * (1 + s / (2 * np.pi * 60))), "base": -s**2 / (s**2 + 2 * 0.02 * w1 * s + w1**2)}
+    return {"act": 10.0 / (s * (1 + s / (2 * np.pi * 60))), "base": -(s**2) / (s**2 + 2 * 0.02 * w1 * s + w1**2)}
 
 
 def _response(fit, i, f, sampled=True):
@@ -86,8 +86,8 @@ def test_no_misfit_left_asks_nothing():
     assert unattributed(fit, ds, [], "sensor/accel_gain", {"gain": 1.1}) is None
 
 
-
 # --- what the model places where only xdd/v is usable (samii.diagnose.attribution.product_only) ---
+
 
 def _dataset(act_to_hz: float | None):
     """One file on F: xdd/v usable everywhere, theta/v up to ``act_to_hz`` (None: everywhere)."""

@@ -316,8 +316,9 @@ def test_diagnose_bad_input(cwd, out_dir, bad_inputs, clean_csv, zero_r_csv, cap
     _check_refused(capsys, ["diagnose", str(missing), *out], str(missing), "not found")
     _check_refused(capsys, ["diagnose", str(zero_r_csv), *out], str(zero_r_csv), "zero throughout")
     _check_refused(capsys, ["diagnose", str(clean_csv), "--model", str(bad_inputs / "notes.txt"), *out], "--model", "--baseline sim only")
-    _check_refused(capsys, ["diagnose", str(clean_csv), "--baseline", "sim", "--model", str(bad_inputs / "notes.txt"), *out],
-                   "--model", "parameter file (.json")
+    _check_refused(
+        capsys, ["diagnose", str(clean_csv), "--baseline", "sim", "--model", str(bad_inputs / "notes.txt"), *out], "--model", "parameter file (.json"
+    )
     notes = bad_inputs / "notes.txt"
     _check_refused(capsys, ["diagnose", str(clean_csv), "--baseline", str(notes), *out], str(notes), "not JSON")
     no_params = bad_inputs / "no_params.json"
@@ -384,8 +385,11 @@ def test_refused_what_a_rig_file_gets_wrong(clean_csv, frf_clean, tmp_path, caps
     _check_refused(capsys, ["diagnose", str(clean_csv), "--record-s", "80"], str(clean_csv), "the stated record_s (80 s")
     single = tmp_path / "float32.csv"
     t32 = (ts.t + 100.0).astype(np.float32)
-    single.write_text("t,v,theta,accel,r\n" + "\n".join(f"{a:.9g},{b:.6g},{c:.6g},{d:.6g},{e:.6g}"
-                                                         for a, b, c, d, e in zip(t32, ts.v, ts.theta, ts.accel, ts.r)) + "\n")
+    single.write_text(
+        "t,v,theta,accel,r\n"
+        + "\n".join(f"{a:.9g},{b:.6g},{c:.6g},{d:.6g},{e:.6g}" for a, b, c, d, e in zip(t32, ts.v, ts.theta, ts.accel, ts.r))
+        + "\n"
+    )
     _check_refused(capsys, ["diagnose", str(single)], str(single), "7 significant digits (single precision)")
     frf = (frf_clean[3] / "frf.csv").read_text().splitlines()
     head = [i for i, line in enumerate(frf) if not line.startswith("#")][0]

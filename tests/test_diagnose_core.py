@@ -441,8 +441,10 @@ def test_effect_values_of_opposite_sign_do_not_match():
     assert _log_distance({"pole_per_s": 0.2}, {"pole_per_s": -0.2}) == np.inf
     assert _log_distance({"pole_per_s": 0.2}, {"pole_per_s": 0.201}) == pytest.approx(np.log(1.005), rel=1e-3)
     assert _log_distance({"pole_per_s": 0.0}, {"pole_per_s": 0.2}) == 0.0  # a zero value says nothing
-    records = [{"kept": "actuator/leak", "kept_params": {"pole_per_s": -0.2}},
-               {"kept": "actuator/leak", "kept_params": {"pole_per_s": 0.2 * np.exp(MATCH_DISTANCE / 2)}}]
+    records = [
+        {"kept": "actuator/leak", "kept_params": {"pole_per_s": -0.2}},
+        {"kept": "actuator/leak", "kept_params": {"pole_per_s": 0.2 * np.exp(MATCH_DISTANCE / 2)}},
+    ]
     assert _record_for(records, "actuator/leak", {"pole_per_s": 0.2}) is records[1]
     assert _record_for(records[:1], "actuator/leak", {"pole_per_s": 0.2}) is None
 

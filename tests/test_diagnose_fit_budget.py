@@ -56,7 +56,11 @@ def delayed():
     st, ref = ModelStructure.notebook_3mode(), notebook_reference()
     data, keep, inv = {}, {}, {}
     for ch in ("act", "total"):
-        h = st.response(ref, f, ch) * np.exp(-2j * np.pi * f * 0.004) * np.exp(0.01 * (rng.standard_normal(f.size) + 1j * rng.standard_normal(f.size)))
+        h = (
+            st.response(ref, f, ch)
+            * np.exp(-2j * np.pi * f * 0.004)
+            * np.exp(0.01 * (rng.standard_normal(f.size) + 1j * rng.standard_normal(f.size)))
+        )
         data[ch], keep[ch], inv[ch] = h, np.ones(f.size, bool), np.full(f.size, 100.0)
     ds = [Dataset("a", f, data, keep, inv, True, 1.0, 0.1)]
     bl = Baseline(structure=st, params=(ref,), reference=ref)

@@ -103,40 +103,57 @@ def _datasets(lo=0.1, hi=40.0, record_s=120.0, fs=1000.0):
     return [SimpleNamespace(freq_hz=f, keep={"act": np.ones(f.size, bool)}, record_s=record_s, sample_rate_hz=fs)]
 
 
-@pytest.mark.parametrize("effect, reason", [
-    (_effect("pole_zero", zero_hz=0.01, pole_hz=0.012), "below the excited band"),  # a constant gain in the band
-    (_effect("pole_zero", zero_hz=23.0, pole_hz=62.7, se={"zero_hz": 80.0, "pole_hz": 300.0}), "not determined by the data"),
-    (_effect("leak", pole_per_s=-0.0015), "longer than a record"),  # an 11-minute time constant from 2-minute records
-    (_effect("accel_highpass", corner_hz=0.001), "longer than a record"),
-    (_effect("accel_lowpass", corner_hz=327.0), "indistinguishable from the sampling"),  # 0.49 ms: under a sample
-    (_effect("accel_lowpass", corner_hz=120.0), "above the excited band"),  # 1.3 ms: a delay, not a corner
-    (_effect("base_mode", freq_hz=35.6, zeta=0.5, residue=-1e-3), "not a resonance"),  # a broad bump on the damping's bound
-    # the held-out second rig's 1 Hz AC coupling (seed offset 300, N01): a base "mode" at 0.08 +- 5.9 Hz, damping 0.27
-    (_effect("base_mode", freq_hz=0.08, zeta=0.2745, residue=-6.2e-4, se={"freq_hz": 5.9, "zeta": 21.0, "residue": 1e-4}),
-     "not determined by the data: its frequency"),
-    (_effect("act_mode", freq_hz=3.0, zeta=0.1, zero_freq_hz=1.0, zero_zeta=0.1,
-             se={"freq_hz": 9.0, "zeta": 0.01, "zero_freq_hz": 0.01, "zero_zeta": 0.01}), "not determined by the data: its frequency"),
-])
+@pytest.mark.parametrize(
+    "effect, reason",
+    [
+        (_effect("pole_zero", zero_hz=0.01, pole_hz=0.012), "below the excited band"),  # a constant gain in the band
+        (_effect("pole_zero", zero_hz=23.0, pole_hz=62.7, se={"zero_hz": 80.0, "pole_hz": 300.0}), "not determined by the data"),
+        (_effect("leak", pole_per_s=-0.0015), "longer than a record"),  # an 11-minute time constant from 2-minute records
+        (_effect("accel_highpass", corner_hz=0.001), "longer than a record"),
+        (_effect("accel_lowpass", corner_hz=327.0), "indistinguishable from the sampling"),  # 0.49 ms: under a sample
+        (_effect("accel_lowpass", corner_hz=120.0), "above the excited band"),  # 1.3 ms: a delay, not a corner
+        (_effect("base_mode", freq_hz=35.6, zeta=0.5, residue=-1e-3), "not a resonance"),  # a broad bump on the damping's bound
+        # the held-out second rig's 1 Hz AC coupling (seed offset 300, N01): a base "mode" at 0.08 +- 5.9 Hz, damping 0.27
+        (
+            _effect("base_mode", freq_hz=0.08, zeta=0.2745, residue=-6.2e-4, se={"freq_hz": 5.9, "zeta": 21.0, "residue": 1e-4}),
+            "not determined by the data: its frequency",
+        ),
+        (
+            _effect(
+                "act_mode",
+                freq_hz=3.0,
+                zeta=0.1,
+                zero_freq_hz=1.0,
+                zero_zeta=0.1,
+                se={"freq_hz": 9.0, "zeta": 0.01, "zero_freq_hz": 0.01, "zero_zeta": 0.01},
+            ),
+            "not determined by the data: its frequency",
+        ),
+    ],
+)
 def test_what_the_data_cannot_identify_is_refused_with_its_reason(effect, reason):
     assert reason in _unidentifiable(effect, _datasets())
 
 
-@pytest.mark.parametrize("effect", [
-    _effect("pole_zero", zero_hz=23.0, pole_hz=35.0),  # a spool's lag against the simulator's
-    _effect("pole_zero", zero_hz=30.0, pole_hz=1e4),  # a lead: its pole beyond the band
-    _effect("leak", pole_per_s=0.2),  # the simulator's own (5 s)
-    _effect("leak", pole_per_s=-0.5),
-    _effect("accel_highpass", corner_hz=0.3),
-    _effect("accel_lowpass", corner_hz=30.0),
-    _effect("accel_lowpass2", corner_hz=60.0),  # within an octave of the band's top
-    _effect("valve", freq_hz=50.0, zeta=0.7),
-    _effect("valve", freq_hz=25.0, zeta=3.0),  # a valve on its damping's bound is a first-order spool lag: kept
-    _effect("base_mode", freq_hz=15.0, zeta=0.02, residue=6e-3),
-    # a mode's frequency known to within a factor e either way is placed (0.9 in ln), and one whose error is not on
-    # record is not refused for it
-    _effect("base_mode", freq_hz=15.0, zeta=0.02, residue=6e-3, se={"freq_hz": 13.5, "zeta": 0.01, "residue": 1e-3}),
-    Effect(KIND["base_mode"], {"freq_hz": 15.0, "zeta": 0.02, "residue": 6e-3}, {}),
-])
+@pytest.mark.parametrize(
+    "effect",
+    [
+        _effect("pole_zero", zero_hz=23.0, pole_hz=35.0),  # a spool's lag against the simulator's
+        _effect("pole_zero", zero_hz=30.0, pole_hz=1e4),  # a lead: its pole beyond the band
+        _effect("leak", pole_per_s=0.2),  # the simulator's own (5 s)
+        _effect("leak", pole_per_s=-0.5),
+        _effect("accel_highpass", corner_hz=0.3),
+        _effect("accel_lowpass", corner_hz=30.0),
+        _effect("accel_lowpass2", corner_hz=60.0),  # within an octave of the band's top
+        _effect("valve", freq_hz=50.0, zeta=0.7),
+        _effect("valve", freq_hz=25.0, zeta=3.0),  # a valve on its damping's bound is a first-order spool lag: kept
+        _effect("base_mode", freq_hz=15.0, zeta=0.02, residue=6e-3),
+        # a mode's frequency known to within a factor e either way is placed (0.9 in ln), and one whose error is not on
+        # record is not refused for it
+        _effect("base_mode", freq_hz=15.0, zeta=0.02, residue=6e-3, se={"freq_hz": 13.5, "zeta": 0.01, "residue": 1e-3}),
+        Effect(KIND["base_mode"], {"freq_hz": 15.0, "zeta": 0.02, "residue": 6e-3}, {}),
+    ],
+)
 def test_what_the_data_identify_is_not_refused(effect):
     assert _unidentifiable(effect, _datasets()) is None
 
@@ -167,8 +184,11 @@ def test_a_pair_below_the_band_is_a_gain_a_fixed_baseline_cannot_hold():
 def test_a_change_under_the_floor_is_refused_and_one_over_it_is_not():
     f = np.geomspace(0.1, 40.0, 300)
     floor = np.full(f.size, REL_FLOOR**2)
-    ds = [SimpleNamespace(freq_hz=f, keep={"act": np.ones(f.size, bool)}, floor_var={"act": floor}, corr_length=1.0,
-                          inv_sigma={"act": np.full(f.size, 1e3)})]
+    ds = [
+        SimpleNamespace(
+            freq_hz=f, keep={"act": np.ones(f.size, bool)}, floor_var={"act": floor}, corr_length=1.0, inv_sigma={"act": np.full(f.size, 1e3)}
+        )
+    ]
     before = SimpleNamespace(residuals=({"act": np.zeros(f.size, complex)},))
     small = SimpleNamespace(residuals=({"act": np.full(f.size, 2.0 * REL_FLOOR + 0j)},))  # 1 %: under 3 x 0.5 %
     assert "smaller than the measurement's floor" in _below_floor(before, small, ds)
@@ -182,6 +202,7 @@ def test_the_f_tests_level_is_the_residuals_above_the_stated_noise_and_never_bel
     understated noise makes no effect), and in the stated noise where it is below (a floor that overstates one
     channel, theta/v's quantisation at chi2 0.47, does not lower the bar for a "mode" in xdd/v: the second rig's
     clean seed 5004 got one at p = 10^-4.9 that way). _f_limit stays the test's inverse on both sides."""
+
     def fit(chi2, n_params):
         return SimpleNamespace(chi2=chi2, n_residuals=1003, n_params=n_params, dof=1003 - n_params)
 
@@ -206,11 +227,20 @@ def test_the_samplings_own_delay_is_not_held_to_the_floor_and_a_longer_one_is():
     reported as expected, so a change under the floor does not refuse it (at 500 Hz the hold's 1 ms, refused beside
     an accelerometer delay, left a 30 Hz roll-off read at 39 Hz); a longer delay is a finding and is held to it."""
     f = np.geomspace(0.1, 40.0, 300)
-    ds = [SimpleNamespace(freq_hz=f, keep={"act": np.ones(f.size, bool)}, floor_var={"act": np.full(f.size, REL_FLOOR**2)},
-                          corr_length=1.0, record_s=120.0, sample_rate_hz=500.0)]
+    ds = [
+        SimpleNamespace(
+            freq_hz=f,
+            keep={"act": np.ones(f.size, bool)},
+            floor_var={"act": np.full(f.size, REL_FLOOR**2)},
+            corr_length=1.0,
+            record_s=120.0,
+            sample_rate_hz=500.0,
+        )
+    ]
     before = SimpleNamespace(residuals=({"act": np.zeros(f.size, complex)},))
-    small = SimpleNamespace(residuals=({"act": np.full(f.size, 2.0 * REL_FLOOR + 0j)},), baseline=SimpleNamespace(free=True),
-                            effects=())  # 1 %: under 3 x 0.5 % everywhere
+    small = SimpleNamespace(
+        residuals=({"act": np.full(f.size, 2.0 * REL_FLOOR + 0j)},), baseline=SimpleNamespace(free=True), effects=()
+    )  # 1 %: under 3 x 0.5 % everywhere
     hold = _effect("command", delay_s=0.001)  # half a sample at 500 Hz
     late = _effect("command", delay_s=0.004, se={"delay_s": 1e-4})  # two samples
     edge = _effect("command", delay_s=0.0021, se={"delay_s": 1e-4})  # one sample within two standard errors

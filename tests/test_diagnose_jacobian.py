@@ -24,8 +24,18 @@ from samii.identify.structures import ModelStructure
 
 KINDS = {k.label: k for k in LIBRARY}
 #: a value inside every parameter's range, away from its bounds (Hz, s, 1, residue)
-VALUES = {"delay_s": 0.003, "freq_hz": 12.0, "zeta": 0.05, "residue": 0.02, "zero_freq_hz": 10.0, "zero_zeta": 0.03,
-          "gain": 1.1, "zero_hz": 5.0, "pole_hz": 9.0, "pole_per_s": 0.3}
+VALUES = {
+    "delay_s": 0.003,
+    "freq_hz": 12.0,
+    "zeta": 0.05,
+    "residue": 0.02,
+    "zero_freq_hz": 10.0,
+    "zero_zeta": 0.03,
+    "gain": 1.1,
+    "zero_hz": 5.0,
+    "pole_hz": 9.0,
+    "pole_per_s": 0.3,
+}
 
 
 def _values(kind):
@@ -46,8 +56,8 @@ def test_effect_derivatives_match_central_differences(kind):
         assert d.shape == (s.size, p.size)
 
         def f(q):  # the log of a factor, the added term itself
-            out = kind.response(q, s)[j]
-            return np.log(out) if j < 2 else out
+            out = kind.response(q, s)[j]  # noqa: B023 - called within this iteration
+            return np.log(out) if j < 2 else out  # noqa: B023 - called within this iteration
 
         num = np.empty_like(d)
         for c in range(p.size):
@@ -71,9 +81,13 @@ def _dataset(freq_hz, rng, source):
 
 
 def _effects():
-    return [(KINDS["extra_mode/base_mode"], np.array([15.0, 0.03, 0.01])), (KINDS["delay/theta_sensor"], np.array([0.002])),
-            (KINDS["sensor/accel_lowpass"], np.array([30.0])), (KINDS["extra_mode/act_mode"], np.array([20.0, 0.05, 18.0, 0.04])),
-            (KINDS["actuator/valve"], np.array([60.0, 0.7]))]
+    return [
+        (KINDS["extra_mode/base_mode"], np.array([15.0, 0.03, 0.01])),
+        (KINDS["delay/theta_sensor"], np.array([0.002])),
+        (KINDS["sensor/accel_lowpass"], np.array([30.0])),
+        (KINDS["extra_mode/act_mode"], np.array([20.0, 0.05, 18.0, 0.04])),
+        (KINDS["actuator/valve"], np.array([60.0, 0.7])),
+    ]
 
 
 def _check(datasets, baseline, effects, free, xb, every_column=True):
@@ -144,8 +158,16 @@ def test_fit_recovers_effects_with_the_analytic_jacobian():
     act = st.response(ref, f, "act") * np.exp(-s * 0.004)
     total = act * st.response(ref, f, "base") / (1 + s / (2 * np.pi * 30.0))
     ones = np.ones(f.size, bool)
-    ds = Dataset("exact", f, {"act": act, "total": total}, {"act": ones, "total": ones},
-                 {"act": np.full(f.size, 100.0), "total": np.full(f.size, 100.0)}, True, 1.0, 0.1)
+    ds = Dataset(
+        "exact",
+        f,
+        {"act": act, "total": total},
+        {"act": ones, "total": ones},
+        {"act": np.full(f.size, 100.0), "total": np.full(f.size, 100.0)},
+        True,
+        1.0,
+        0.1,
+    )
     bl = Baseline(structure=st, params=(ref,), reference=ref)
     fit = fit_model([ds], bl, [(KINDS["delay/command"], np.array([0.002])), (KINDS["sensor/accel_lowpass"], np.array([45.0]))])
     assert fit.chi2 < 1e-12
@@ -230,8 +252,14 @@ def test_fit_jacobian_with_the_sampled_feedthrough(channels, free_lag, hold):
     effects = [(k, _values(k)) for k in LIBRARY if not k.needs_fixed_baseline and k.kind not in ("accel_lowpass", "accel_lowpass2", "valve")]
     effects.append((KINDS["sensor/accel_lowpass"], np.array([4000.0])))  # a corner near FEEDTHROUGH_AT_FS: D neither whole nor zero
     effects = [effects[i] for i in rng.permutation(len(effects))]
-    bl = Baseline(structure=st, params=(ref,), reference=ref, feedthrough_lag=None if free_lag is None else 0.4,
-                  sample_rates_hz=(500.0,), hold_s=(0.001,) if hold else ())
+    bl = Baseline(
+        structure=st,
+        params=(ref,),
+        reference=ref,
+        feedthrough_lag=None if free_lag is None else 0.4,
+        sample_rates_hz=(500.0,),
+        hold_s=(0.001,) if hold else (),
+    )
     xb = [st.vector(ref) * 1.02]
     xe = [v for _, v in effects]
     layout = _Layout(bl, 1, [k for k, _ in effects], xb, xe, True, 0.3 if free_lag else None)

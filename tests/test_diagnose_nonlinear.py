@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from samii.diagnose.measured import from_frf, from_timeseries
-from samii.diagnose.nonlinear import (MATERIAL, amplitude_test, describing_ratio, find_nonlinear, harmonic_analysis)
+from samii.diagnose.nonlinear import MATERIAL, amplitude_test, describing_ratio, find_nonlinear, harmonic_analysis
 from samii.diagnose.rig import EffectRig, valve_law
 from samii.measure.excitation import SweptSine
 
@@ -116,8 +116,10 @@ def test_harmonic_test_is_calibrated_on_clean_data():
     assert ps.min() > h.threshold_log10_p
 
 
-@pytest.mark.parametrize("kind, level", [("dead_band", 0.005), ("dead_band", 0.02), ("saturation", 0.08), ("saturation", 0.15),
-                                         ("hysteresis", 0.005), ("hysteresis", 0.02)])
+@pytest.mark.parametrize(
+    "kind, level",
+    [("dead_band", 0.005), ("dead_band", 0.02), ("saturation", 0.08), ("saturation", 0.15), ("hysteresis", 0.005), ("hysteresis", 0.02)],
+)
 def test_valve_nonlinearity_found_with_its_level(kind, level):
     m = _measured(EffectRig(valve_nonlinearity=(kind, level)))
     findings, _, analyses, _ = find_nonlinear([m])
@@ -313,6 +315,7 @@ def test_a_linear_effect_that_worsens_the_smaller_amplitude_is_the_nonlinearity_
     assert not [e for e in d.effects if e.category == "extra_mode"]
     # dropped as the image (stop 20), or, since stop 23, not let in at all: refused as a mode split in two
     assert any("dropped as the nonlinearity's image" in n and "extra_mode/base_mode" in n for n in d.notes) or any(
-        r["effect"] == "extra_mode/base_mode" for r in d.refused)
+        r["effect"] == "extra_mode/base_mode" for r in d.refused
+    )
     for ch in ("act", "total"):
         assert d.error_after[ch].chi2 < d.error_before[ch].chi2

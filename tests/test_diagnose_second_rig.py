@@ -40,21 +40,24 @@ def _measure(seed: int, fs: float, sweep: dict, daq: dict | None = None, **effec
     return from_timeseries(ts, source=f"second rig seed {seed}")
 
 
-@pytest.mark.parametrize("seed, fs, sweep", [
-    # sweeps up, back to back: base mode 1 rings into the next record (the estimator's bias), 16-bit encoder in the loop
-    (71, 1000.0, dict(direction="up", n_records=3, sweep_s=60.0, rest_s=0.0, amplitude_v=0.1)),
-    # 2 kHz, sign-alternating, 0.05 V: theta moves by 9 counts at low frequency
-    (72, 2000.0, dict(direction="down", n_records=3, sweep_s=60.0, rest_s=10.0, alternate=True, amplitude_v=0.05)),
-    # 500 Hz, 0.3 V, 60 Hz hum: the held command's steps reach xdd a whole sample late (the DAQ reads before it
-    # writes), 2.8 dB and 16 deg off the hold's half sample at xdd/v's antiresonance; before the sampled
-    # feedthrough was modelled the battery's rig N11 got a 48 Hz actuator lag (samii.diagnose.sampling)
-    (74, 500.0, dict(direction="up", n_records=3, sweep_s=60.0, rest_s=0.0, amplitude_v=0.3)),
-    # the speed benchmark's clean second-rig file (its nuisance set N01, rig seed 5004: three 120 s sweeps): theta/v's
-    # quantisation floor puts its chi2 at 0.47, and with the F-test's level taken from the pooled residual (0.61) a
-    # base "mode" at 33.04 Hz (damping 0.01, a thousandth of eq 9.4's residue) fitted one rough point of xdd/v at
-    # p = 10^-4.9; the level is never below the stated noise now (samii.diagnose.model.noise_level)
-    (5004, 1000.0, dict(direction="up", n_records=3, sweep_s=120.0, rest_s=0.0, amplitude_v=0.1)),
-])
+@pytest.mark.parametrize(
+    "seed, fs, sweep",
+    [
+        # sweeps up, back to back: base mode 1 rings into the next record (the estimator's bias), 16-bit encoder in the loop
+        (71, 1000.0, dict(direction="up", n_records=3, sweep_s=60.0, rest_s=0.0, amplitude_v=0.1)),
+        # 2 kHz, sign-alternating, 0.05 V: theta moves by 9 counts at low frequency
+        (72, 2000.0, dict(direction="down", n_records=3, sweep_s=60.0, rest_s=10.0, alternate=True, amplitude_v=0.05)),
+        # 500 Hz, 0.3 V, 60 Hz hum: the held command's steps reach xdd a whole sample late (the DAQ reads before it
+        # writes), 2.8 dB and 16 deg off the hold's half sample at xdd/v's antiresonance; before the sampled
+        # feedthrough was modelled the battery's rig N11 got a 48 Hz actuator lag (samii.diagnose.sampling)
+        (74, 500.0, dict(direction="up", n_records=3, sweep_s=60.0, rest_s=0.0, amplitude_v=0.3)),
+        # the speed benchmark's clean second-rig file (its nuisance set N01, rig seed 5004: three 120 s sweeps): theta/v's
+        # quantisation floor puts its chi2 at 0.47, and with the F-test's level taken from the pooled residual (0.61) a
+        # base "mode" at 33.04 Hz (damping 0.01, a thousandth of eq 9.4's residue) fitted one rough point of xdd/v at
+        # p = 10^-4.9; the level is never below the stated noise now (samii.diagnose.model.noise_level)
+        (5004, 1000.0, dict(direction="up", n_records=3, sweep_s=120.0, rest_s=0.0, amplitude_v=0.1)),
+    ],
+)
 def test_a_clean_rig_gets_no_effect_and_its_error_is_at_the_floor(seed, fs, sweep):
     m = _measure(seed, fs, sweep, daq=dict(hum=(60.0, 0.01, 0.0)) if fs == 500.0 else None)
     assert m.timeseries is not None
@@ -78,8 +81,9 @@ def test_without_a_usable_theta_no_effect_is_placed_and_the_misfit_is_left_unexp
     N02 got an actuator pole/zero pair at 57/152 Hz "on theta/v" from xdd/v's misfit (the hold's, since modelled). Here
     the rig's accelerometer rolls off at 30 Hz, a misfit xdd/v shows and cannot place: every candidate that passes
     is refused with that reason, the misfit is left unexplained, and the file and the channel are named."""
-    m = _measure(73, 1000.0, dict(direction="up", n_records=3, sweep_s=60.0, rest_s=10.0, amplitude_v=0.1), daq=dict(encoder_bits=12),
-                 accel_lowpass_hz=30.0)
+    m = _measure(
+        73, 1000.0, dict(direction="up", n_records=3, sweep_s=60.0, rest_s=10.0, amplitude_v=0.1), daq=dict(encoder_bits=12), accel_lowpass_hz=30.0
+    )
     d = diagnose([m])
     assert not d.datasets[0].keep["act"].any()
     assert [e.kind for e in d.effects if not e.expected] == [], [e.evidence for e in d.effects]
@@ -218,8 +222,7 @@ def test_the_simulator_calibrated_to_a_rig_it_cannot_represent_stays_stable():
     from samii.sim.linearize import UNSTABLE_RATE_1_S
     from samii.sim.model import default_params, load_model
 
-    m = with_floor(_measure(1100, 1000.0, dict(direction="up", n_records=3, sweep_s=120.0, rest_s=0.0, amplitude_v=0.1),
-                            command_delay_s=0.002))
+    m = with_floor(_measure(1100, 1000.0, dict(direction="up", n_records=3, sweep_s=120.0, rest_s=0.0, amplitude_v=0.1), command_delay_s=0.002))
     start = default_params()
     cal = calibrate_simulator(m, start=start, corrected_by=correction(start, m))
     assert closed_loop_growth(load_model(params=cal.params)) <= UNSTABLE_RATE_1_S
@@ -236,8 +239,7 @@ def test_calibrating_the_simulator_to_a_file_without_a_usable_theta_warns_nothin
     from samii.diagnose.model import Dataset
     from samii.diagnose.simulator import calibrate_simulator
 
-    m = with_floor(_measure(1001, 1000.0, dict(direction="up", n_records=3, sweep_s=120.0, rest_s=20.0, amplitude_v=0.1),
-                            daq=dict(encoder_bits=12)))
+    m = with_floor(_measure(1001, 1000.0, dict(direction="up", n_records=3, sweep_s=120.0, rest_s=20.0, amplitude_v=0.1), daq=dict(encoder_bits=12)))
     assert not Dataset.from_measured(m).keep["act"].any()
     with warnings.catch_warnings():
         warnings.simplefilter("error")

@@ -36,8 +36,9 @@ from samii.sim.model import load_model
 
 def _measured(tmp_path_factory, name: str, overrides: dict, seed: int):
     path = tmp_path_factory.mktemp(name) / "timeseries.csv"
-    measure_swept(load_model(overrides=overrides) if overrides else load_model(), noise=SensorNoise(),
-                  rng=np.random.default_rng(seed), timeseries_path=path)
+    measure_swept(
+        load_model(overrides=overrides) if overrides else load_model(), noise=SensorNoise(), rng=np.random.default_rng(seed), timeseries_path=path
+    )
     return path
 
 
@@ -134,8 +135,9 @@ def test_carry_rules():
     assert "accel_lowpass: 900 Hz is beyond" in text and "dead_band: no level" in text and "act_mode" in text
     assert found_value("hydraulic.command_delay", p, 0.0041, 1e-4) == pytest.approx((0.0031, 1e-4))
     assert found_value("sensor.accel_gain", p, 2.2, 0.02) == pytest.approx((1.1, 0.01))
-    options, carried, not_carried = carry([FoundEffect("nonlinear", "saturation", "act", {"saturation_v": 0.05}, {}, "")], p,
-                                          refuse={"nonlinear/saturation": "no level"})
+    options, carried, not_carried = carry(
+        [FoundEffect("nonlinear", "saturation", "act", {"saturation_v": 0.05}, {}, "")], p, refuse={"nonlinear/saturation": "no level"}
+    )
     assert not options and not_carried == ["nonlinear/saturation: no level"]
     # valve dynamics: the spool (a first-order lag) takes the found lag's low-frequency group delay 2 zeta / omega
     tau0 = p.hydraulic.valve_time_constant
@@ -266,8 +268,9 @@ def test_the_simulators_own_harmonics_are_not_a_missing_nonlinearity(tmp_path_fa
     assert any("the simulator's own harmonics" in n for n in notes), notes
 
     band = tmp_path_factory.mktemp("own") / "dead_band.csv"
-    measure_swept(load_model(overrides={"hydraulic.valve_dead_band": 0.02}), sweep, noise=SensorNoise(), rng=np.random.default_rng(8),
-                  timeseries_path=band)
+    measure_swept(
+        load_model(overrides={"hydraulic.valve_dead_band": 0.02}), sweep, noise=SensorNoise(), rng=np.random.default_rng(8), timeseries_path=band
+    )
     m = load(band)
     found, _, _, _ = find_nonlinear([m], references=[measured_like(default_params(), m)], reference_label="the simulator's own harmonics")
     assert [f.kind for f in found] == ["dead_band"]
@@ -383,12 +386,14 @@ def test_misfits_say_where_and_by_how_much_the_simulator_misses():
     r = sw.signal(np.arange(int(round(sw.duration_s * fs))) / fs)
     ds = Dataset.from_measured(from_timeseries(EffectRig().simulate(r, sample_rate_hz=fs, rng=np.random.default_rng(5)), source="rig.csv"))
     rng = np.random.default_rng(6)
-    noise = {ch: (rng.standard_normal(ds.data[ch].size) + 1j * rng.standard_normal(ds.data[ch].size)) / ds.inv_sigma[ch] / np.sqrt(2)
-             for ch in ds.data}
+    noise = {
+        ch: (rng.standard_normal(ds.data[ch].size) + 1j * rng.standard_normal(ds.data[ch].size)) / ds.inv_sigma[ch] / np.sqrt(2) for ch in ds.data
+    }
     assert misfits([ds], [noise]) == ()
     miss = np.log(10 ** (2.0 / 20)) + 1j * np.radians(10.0)
-    res = {ch: e + (miss * ((ds.freq_hz[ds.keep[ch]] >= 2) & (ds.freq_hz[ds.keep[ch]] <= 5)) if ch in ("act", "total") else 0)
-           for ch, e in noise.items()}
+    res = {
+        ch: e + (miss * ((ds.freq_hz[ds.keep[ch]] >= 2) & (ds.freq_hz[ds.keep[ch]] <= 5)) if ch in ("act", "total") else 0) for ch, e in noise.items()
+    }
     found = {m.channel: m for m in misfits([ds], [res])}
     assert set(found) <= {"act", "total"} and "act" in found
     for m in found.values():
@@ -432,8 +437,10 @@ def test_a_carry_the_simulator_cannot_run_is_not_carried_and_says_why(monkeypatc
     body = SimpleNamespace(category="extra_mode", kind="base_mode")
     out, options, carried, not_carried = simulator.carry_and_recalibrate([SimpleNamespace(source="rig.csv")], [None], before, [body])
     assert out is before and options == {} and carried == []
-    assert not_carried == ["extra_mode/base_mode: the simulator with it carried diverges when measured like rig.csv "
-                           "(simulation diverged before t = 20 s (mjWARN_BADQACC); no result written)"]
+    assert not_carried == [
+        "extra_mode/base_mode: the simulator with it carried diverges when measured like rig.csv "
+        "(simulation diverged before t = 20 s (mjWARN_BADQACC); no result written)"
+    ]
 
 
 def test_with_nothing_carried_the_second_selection_is_against_the_first_selections_simulator(monkeypatch):

@@ -74,8 +74,9 @@ def measured(tmp_path_factory):
     files["spike"].write_text("\n".join(head + rows) + "\n")
     # every 100th sample, stated as 10 samples per second: a 0.1-40 Hz sweep, its 250 Hz anti-alias filter kept
     files["ts10"] = d / "ts10.csv"
-    files["ts10"].write_text("\n".join(["# sample_rate_hz: 10" if ln.startswith("# sample_rate_hz:") else ln for ln in head]
-                                       + [body[0]] + body[1::100]) + "\n")
+    files["ts10"].write_text(
+        "\n".join(["# sample_rate_hz: 10" if ln.startswith("# sample_rate_hz:") else ln for ln in head] + [body[0]] + body[1::100]) + "\n"
+    )
     return {k: str(v) for k, v in files.items()}
 
 
@@ -241,9 +242,8 @@ def test_lack_of_fit_on_too_few_points_is_not_tested(measured):
     """Five frequencies: a band needs five flagged points, so a lack of fit could hardly show and three points could
     never; the verdict said "none". With fewer tested points than a band needs it says NOT TESTED."""
     from samii.calibrate import calibrate
-    from samii.measure.io import read_frf_csv
-
     from samii.frequency_response import FrequencyResponse
+    from samii.measure.io import read_frf_csv
 
     frf = read_frf_csv(measured["frf"])
     idx = np.array([60, 150, 240])
@@ -258,8 +258,9 @@ def test_lack_of_fit_on_too_few_points_is_not_tested(measured):
 
 def test_diagnose_refuses_data_that_are_all_noise(measured, tmp_path, capsys):
     """Coherence 0 at every point: every error huge, so any baseline would have 'explained' them; nothing can be tested."""
-    _refused_alike(["diagnose", measured["coh0"], "--no-progress"], tmp_path / "d", capsys,
-                   [measured["coh0"], "coherence", "nothing could be tested"])
+    _refused_alike(
+        ["diagnose", measured["coh0"], "--no-progress"], tmp_path / "d", capsys, [measured["coh0"], "coherence", "nothing could be tested"]
+    )
 
 
 def test_diagnose_refuses_too_few_frequencies(measured, tmp_path, capsys):
@@ -270,8 +271,12 @@ def test_diagnose_refuses_data_the_baseline_fits_exactly(measured, tmp_path, cap
     """10 samples per second: the band ends at 4.5 Hz and its few coherent points (theta/v 2, xdd/v 1 here) are fewer
     residuals than the baseline's 13 parameters, which fit them exactly; this said "the baseline explains the data to
     within their noise" before (chi2 1e-30), after a numpy warning from the harmonic analysis' one-sample cycles."""
-    _refused_alike(["diagnose", measured["ts10"], "--no-progress"], tmp_path / "d", capsys,
-                   [measured["ts10"], "too few usable points to test anything", "free parameters"])
+    _refused_alike(
+        ["diagnose", measured["ts10"], "--no-progress"],
+        tmp_path / "d",
+        capsys,
+        [measured["ts10"], "too few usable points to test anything", "free parameters"],
+    )
 
 
 def test_diagnose_on_fewer_points_than_its_pooling_window_says_how_little_it_tests(measured, capsys):
@@ -284,8 +289,7 @@ def test_diagnose_on_fewer_points_than_its_pooling_window_says_how_little_it_tes
 
 def test_frf_refuses_a_response_no_frf_file_holds(measured, tmp_path, capsys):
     """One accel sample of 1e90: frf wrote base magnitudes of 1e89 that its own fit then refused to read."""
-    _refused_alike(["frf", measured["spike"]], tmp_path / "f", capsys,
-                   [measured["spike"], "outside 1e-20...1e+20", "column 'accel' reaches 1e+90"])
+    _refused_alike(["frf", measured["spike"]], tmp_path / "f", capsys, [measured["spike"], "outside 1e-20...1e+20", "column 'accel' reaches 1e+90"])
 
 
 def test_frf_warns_of_a_sweep_beyond_the_nyquist_frequency(measured, tmp_path, capsys):
@@ -345,10 +349,15 @@ def test_an_frf_whose_header_rate_cannot_hold_its_frequencies_is_refused(measure
         assert "expected '# sample_rate_hz:' to give a positive number of samples per second" in _one_line(capsys)
 
 
-@pytest.mark.parametrize("which, needle", [("v0", "column 'v' is 0 V at every sample: no excitation reached the valve"),
-                                           ("r0", "the excitation r is zero throughout"),
-                                           ("theta0", "column 'theta' is 0 rad at every sample: the joint never moved"),
-                                           ("accel0", "column 'accel' is 0 m/s² at every sample: the base never moved")])
+@pytest.mark.parametrize(
+    "which, needle",
+    [
+        ("v0", "column 'v' is 0 V at every sample: no excitation reached the valve"),
+        ("r0", "the excitation r is zero throughout"),
+        ("theta0", "column 'theta' is 0 rad at every sample: the joint never moved"),
+        ("accel0", "column 'accel' is 0 m/s² at every sample: the base never moved"),
+    ],
+)
 def test_frf_refuses_a_record_without_excitation(measured, which, needle, tmp_path, capsys):
     _refused_alike(["frf", measured[which]], tmp_path / "f", capsys, [measured[which], needle])
 
@@ -357,21 +366,31 @@ def test_names_on_the_command_line_are_refused_as_the_command_lines(measured, tm
     """A wrong --param, --start or --bound name was prefixed with the data file (as if the file were wrong), and only
     after the data were read; a controller's unknown input named LinearController.inputs, not the file's field."""
     cal = ["calibrate", measured["frf"], "--param", "beam.clamp_stiffness_Nm_rad"]
-    for extra, needles in ((["--param", "beam.foo"], ["--param beam.foo:", "beam has no parameter 'foo'"]),
-                           (["--start", "beam.foo=3"], ["--start beam.foo: not calibrated"]),
-                           (["--bound", "beam.foo=1:3"], ["--bound beam.foo: not calibrated"])):
+    for extra, needles in (
+        (["--param", "beam.foo"], ["--param beam.foo:", "beam has no parameter 'foo'"]),
+        (["--start", "beam.foo=3"], ["--start beam.foo: not calibrated"]),
+        (["--bound", "beam.foo=1:3"], ["--bound beam.foo: not calibrated"]),
+    ):
         line = _refused_alike([*cal, *extra], tmp_path / "c", capsys, needles)
         assert measured["frf"] not in line
     doc = json.loads(Path(_controller(tmp_path / "foo.json", D=[0, 1, 0])).read_text())
     doc["inputs"] = ["theta_ref", "foo", "accel"]
     (tmp_path / "foo.json").write_text(json.dumps(doc))
-    _refused_alike(["closedloop", "--controller", str(tmp_path / "foo.json"), "--scenario", "step"], tmp_path / "o", capsys,
-                   [str(tmp_path / "foo.json"), "field 'inputs': 'foo' is not a measurement", "theta_ref, theta, accel"])
+    _refused_alike(
+        ["closedloop", "--controller", str(tmp_path / "foo.json"), "--scenario", "step"],
+        tmp_path / "o",
+        capsys,
+        [str(tmp_path / "foo.json"), "field 'inputs': 'foo' is not a measurement", "theta_ref, theta, accel"],
+    )
     doc["inputs"] = ["theta_ref", "theta", "accel"]
     doc["input_scale"] = {"foo": 2.0}
     (tmp_path / "foo.json").write_text(json.dumps(doc))
-    _refused_alike(["closedloop", "--controller", str(tmp_path / "foo.json"), "--scenario", "step"], tmp_path / "o", capsys,
-                   [str(tmp_path / "foo.json"), "field 'input_scale' names 'foo'", "not among the field 'inputs'"])
+    _refused_alike(
+        ["closedloop", "--controller", str(tmp_path / "foo.json"), "--scenario", "step"],
+        tmp_path / "o",
+        capsys,
+        [str(tmp_path / "foo.json"), "field 'input_scale' names 'foo'", "not among the field 'inputs'"],
+    )
 
 
 def test_a_text_file_named_mat_is_read_as_the_csv_it_is(measured, tmp_path, capsys):
@@ -461,8 +480,10 @@ def test_a_correlation_entry_that_is_no_number_is_named(tmp_path, capsys, entry)
     nominal = default_params().as_dict()
     k = nominal["hydraulic"]["bulk_modulus"]
     v = nominal["hydraulic"]["total_volume"]
-    params = [{"name": "hydraulic.bulk_modulus", "value": k, "stderr": 0.05 * k, "bounds": [0.5 * k, 2 * k]},
-              {"name": "hydraulic.total_volume", "value": v, "stderr": 0.05 * v, "bounds": [0.5 * v, 2 * v]}]
+    params = [
+        {"name": "hydraulic.bulk_modulus", "value": k, "stderr": 0.05 * k, "bounds": [0.5 * k, 2 * k]},
+        {"name": "hydraulic.total_volume", "value": v, "stderr": 0.05 * v, "bounds": [0.5 * v, 2 * v]},
+    ]
     p = tmp_path / "cal.json"
     p.write_text(json.dumps({"parameters": params, "correlation": [[1.0, entry], [entry, 1.0]], "calibrated_params": nominal}))
     assert main(["robust", "--controller", "unity", "--covariance", str(p), "--samples", "2", "--no-progress"]) == 2
@@ -490,8 +511,10 @@ def test_a_covariance_naming_no_parameter_of_the_plant_is_refused_for_that(tmp_p
 
     nominal = default_params().as_dict()
     k = nominal["hydraulic"]["bulk_modulus"]
-    params = [{"name": "beam.foo", "value": 1.0, "stderr": 0.1, "bounds": [0.5, 2.0]},
-              {"name": "hydraulic.bulk_modulus", "value": k, "stderr": 0.05 * k, "bounds": [0.5 * k, 2 * k]}]
+    params = [
+        {"name": "beam.foo", "value": 1.0, "stderr": 0.1, "bounds": [0.5, 2.0]},
+        {"name": "hydraulic.bulk_modulus", "value": k, "stderr": 0.05 * k, "bounds": [0.5 * k, 2 * k]},
+    ]
     p = tmp_path / "cal.json"
     p.write_text(json.dumps({"parameters": params, "correlation": [[1.0, 0.0], [0.0, 1.0]], "calibrated_params": nominal}))
     assert main(["robust", "--controller", "unity", "--covariance", str(p), "--samples", "2", "--no-progress"]) == 2
@@ -578,8 +601,13 @@ def test_report_names_a_field_of_the_wrong_kind(report_folder, file, path, value
     assert not out.exists()
 
 
-@pytest.mark.parametrize("value, needle", [(None, "field 'closed_loop' must map each run's name to an object, got null"),
-                                           ("false", "field 'closed_loop.notebook_place_step.stable' holds 'false'; expected true or false")])
+@pytest.mark.parametrize(
+    "value, needle",
+    [
+        (None, "field 'closed_loop' must map each run's name to an object, got null"),
+        ("false", "field 'closed_loop.notebook_place_step.stable' holds 'false'; expected true or false"),
+    ],
+)
 def test_report_refuses_a_damaged_run_list_or_verdict(report_folder, value, needle, capsys):
     """closed_loop null gave exit 1 (an internal TypeError); a verdict "false" (a string) showed the unstable pole
     placement as stable."""
@@ -630,8 +658,13 @@ def test_report_marks_what_a_readable_folder_lacks(report_folder, capsys):
     (report_folder / "diagnose" / "diagnosis.json").write_text(json.dumps(d))
     assert main(["report", str(report_folder), "--out", str(out), "--overwrite"]) == 0
     err = capsys.readouterr().err
-    for gap in ("measure/bode.png is missing", "fit/fit.json: params.K1 holds null", "fit/bode_fit.png is not a PNG image (damaged)",
-                "summary.json: damping_design.gain_v_per_m_s2 holds null", f"diagnose/diagnosis.json: effects[{i}].params.{name} holds null"):
+    for gap in (
+        "measure/bode.png is missing",
+        "fit/fit.json: params.K1 holds null",
+        "fit/bode_fit.png is not a PNG image (damaged)",
+        "summary.json: damping_design.gain_v_per_m_s2 holds null",
+        f"diagnose/diagnosis.json: effects[{i}].params.{name} holds null",
+    ):
         assert gap in err, gap
     page = out.read_text()
     top = page[: page.index('id="summary"')]
@@ -1001,13 +1034,18 @@ def test_a_scheduler_that_accepts_and_never_answers_is_refused_in_time(capsys):
             pass
 
 
-@pytest.mark.parametrize("address, needle", [("notanaddress", "expected HOST:PORT with a port from 1 to 65535"),
-                                             (" ", "expected a scheduler's address (tcp://host:port), got an empty string"),
-                                             ("udp://127.0.0.1:45123", "unknown address scheme 'udp'"),
-                                             ("tcp://127.0.0.1:99999", "a port from 1 to 65535"),
-                                             ("tcp://no.such.host.invalid:8786", "'no.such.host.invalid' is not known"),
-                                             ("tcp://127.0.0.1", "expected HOST:PORT"),
-                                             ("inproc://x", "an in-process address (inproc://)")])
+@pytest.mark.parametrize(
+    "address, needle",
+    [
+        ("notanaddress", "expected HOST:PORT with a port from 1 to 65535"),
+        (" ", "expected a scheduler's address (tcp://host:port), got an empty string"),
+        ("udp://127.0.0.1:45123", "unknown address scheme 'udp'"),
+        ("tcp://127.0.0.1:99999", "a port from 1 to 65535"),
+        ("tcp://no.such.host.invalid:8786", "'no.such.host.invalid' is not known"),
+        ("tcp://127.0.0.1", "expected HOST:PORT"),
+        ("inproc://x", "an in-process address (inproc://)"),
+    ],
+)
 def test_a_scheduler_address_dask_cannot_reach_is_refused_at_once(address, needle, capsys):
     """Dask's own ValueError (scheme, port) came raw; an unknown host or port 99999 waited the whole timeout (30 s) and
     was then said to have accepted the connection: refused now before any wait."""
@@ -1030,8 +1068,11 @@ def test_a_scheme_whose_transport_is_not_installed_is_refused_in_samiis_words(ca
     argv = ["robust", "--controller", "unity", "--spread", "hydraulic.bulk_modulus=5%", "--samples", "2", "--no-progress"]
     assert main([*argv, "--scheduler", "ucx://127.0.0.1:45123"]) == 2
     line = _one_line(capsys)
-    assert line.startswith("samii robust: error: --scheduler ucx://127.0.0.1:45123: this installation of Dask cannot connect "
-                           "over ucx://") and "tcp://" in line and "abstract" not in line, line
+    assert (
+        line.startswith("samii robust: error: --scheduler ucx://127.0.0.1:45123: this installation of Dask cannot connect over ucx://")
+        and "tcp://" in line
+        and "abstract" not in line
+    ), line
 
 
 def test_dasks_configured_scheduler_is_named_as_such(monkeypatch, capsys):
@@ -1067,9 +1108,11 @@ def tiny_disk(tmp_path):
 
 
 def test_a_full_disk_is_said_in_words_and_leaves_nothing(tiny_disk, runs, capsys):
-    for argv, target in ((["closedloop", "--controller", "unity", "--scenario", "step", "--out"], tiny_disk / "cl"),
-                         (["report", str(runs[0]), "--out"], tiny_disk / "r.html"),
-                         (["report", str(runs[0]), "--out"], tiny_disk / "sub" / "r.html")):  # the folder it made removed too
+    for argv, target in (
+        (["closedloop", "--controller", "unity", "--scenario", "step", "--out"], tiny_disk / "cl"),
+        (["report", str(runs[0]), "--out"], tiny_disk / "r.html"),
+        (["report", str(runs[0]), "--out"], tiny_disk / "sub" / "r.html"),
+    ):  # the folder it made removed too
         assert main([*argv, str(target)]) == 2
         line = _one_line(capsys)
         assert "no space left on device" in line and str(target) in line, line
@@ -1195,8 +1238,10 @@ def test_an_frf_header_rate_that_is_text_is_refused(measured, tmp_path, capsys):
     """'# sample_rate_hz: abc' in an FRF file was passed over without a word (the Nyquist check and a diagnosis'
     sampling model skipped); a time series refused it."""
     f = tmp_path / "abc.csv"
-    f.write_text("\n".join("# sample_rate_hz: abc" if ln.startswith("# sample_rate_hz:") else ln
-                           for ln in Path(measured["frf"]).read_text().splitlines()) + "\n")
+    f.write_text(
+        "\n".join("# sample_rate_hz: abc" if ln.startswith("# sample_rate_hz:") else ln for ln in Path(measured["frf"]).read_text().splitlines())
+        + "\n"
+    )
     for argv in (["fit", str(f), "--no-progress"], ["diagnose", str(f), "--no-progress"]):
         assert main(argv) == 2
         line = _one_line(capsys)
@@ -1213,9 +1258,11 @@ def test_a_screenshot_that_fails_keeps_neither_page_nor_picture(report_folder, t
     assert line.startswith("samii report: error: --screenshot: false failed on") and "nothing was written" in line
     assert not page.parent.exists() and not png.parent.exists()
     browser = tmp_path / "browser"  # a stand-in that writes a picture where it is told (no Chromium here)
-    browser.write_text(f"#!{sys.executable}\nimport sys\nfrom PIL import Image\n"
-                       "out = next(a.split('=', 1)[1] for a in sys.argv if a.startswith('--screenshot='))\n"
-                       "img = Image.new('RGB', (1200, 900), (255, 255, 255)); img.paste((0, 0, 0), (10, 10, 300, 400)); img.save(out)\n")
+    browser.write_text(
+        f"#!{sys.executable}\nimport sys\nfrom PIL import Image\n"
+        "out = next(a.split('=', 1)[1] for a in sys.argv if a.startswith('--screenshot='))\n"
+        "img = Image.new('RGB', (1200, 900), (255, 255, 255)); img.paste((0, 0, 0), (10, 10, 300, 400)); img.save(out)\n"
+    )
     browser.chmod(0o755)
     monkeypatch.setenv("SAMII_BROWSER", str(browser))
     assert main(["report", str(report_folder), "--out", str(page), "--screenshot", str(png)]) == 0
@@ -1228,8 +1275,10 @@ def test_a_report_never_replaces_a_file_it_is_made_from(report_folder, capsys):
     could not be reported again. So could --screenshot RUN/fit/bode_fit.png replace a stage's figure."""
     summary = (report_folder / "summary.json").read_bytes()
     figure = (report_folder / "fit" / "bode_fit.png").read_bytes()
-    for argv in (["--out", str(report_folder / "summary.json")],
-                 ["--out", str(report_folder / "r2.html"), "--screenshot", str(report_folder / "fit" / "bode_fit.png")]):
+    for argv in (
+        ["--out", str(report_folder / "summary.json")],
+        ["--out", str(report_folder / "r2.html"), "--screenshot", str(report_folder / "fit" / "bode_fit.png")],
+    ):
         assert main(["report", str(report_folder), *argv, "--overwrite"]) == 2
         assert "would replace one of the files the page is made from" in _one_line(capsys)
     assert (report_folder / "summary.json").read_bytes() == summary and (report_folder / "fit" / "bode_fit.png").read_bytes() == figure
@@ -1252,8 +1301,9 @@ def test_a_standard_error_out_of_the_range_of_numbers_is_named(tmp_path, capsys)
         assert f"--covariance {p}: field 'parameters'[0] (beam.clamp_stiffness_Nm_rad): stderr" in line and "warning" not in line
 
 
-@pytest.mark.parametrize("setting", ["beam.clamp_stiffness_Nm_rad=1e10", "beam.clamp_stiffness_Nm_rad=1e16", "hydraulic.bulk_modulus=1e11",
-                                     "timestep_s=0.003"])
+@pytest.mark.parametrize(
+    "setting", ["beam.clamp_stiffness_Nm_rad=1e10", "beam.clamp_stiffness_Nm_rad=1e16", "hydraulic.bulk_modulus=1e11", "timestep_s=0.003"]
+)
 def test_a_model_too_stiff_for_its_step_is_refused_before_it_runs(setting, tmp_path, monkeypatch, capfd):
     """--set beam.clamp_stiffness_Nm_rad=1e16 printed MuJoCo's "WARNING: Nan, Inf or huge value in QACC" (from C, beside
     a MUJOCO_LOG.TXT left in the working folder) and modes of nan; 1e10 in robust was "UNSTABLE, zeta -0.946 at 500 Hz",
@@ -1385,8 +1435,11 @@ def test_a_scheduler_without_workers_is_said_within_the_timeout(capsys):
 
 def _small_timeseries_csv(path: Path, extra_header: str = "", extra_cells=None) -> None:
     t = np.arange(400) / 1000.0
-    rows = [",".join(f"{float(x)!r}" for x in (ti, np.sin(ti), 0.1 * np.sin(ti), 0.01 * np.cos(ti)))
-            + ("" if extra_cells is None else f",{extra_cells(k)}") for k, ti in enumerate(t)]
+    rows = [
+        ",".join(f"{float(x)!r}" for x in (ti, np.sin(ti), 0.1 * np.sin(ti), 0.01 * np.cos(ti)))
+        + ("" if extra_cells is None else f",{extra_cells(k)}")
+        for k, ti in enumerate(t)
+    ]
     path.write_text("# sample_rate_hz: 1000\nt,v,theta,accel" + extra_header + "\n" + "\n".join(rows) + "\n")
 
 
@@ -1551,8 +1604,15 @@ def test_messages_that_misled(tmp_path, monkeypatch, capsys):
     nominal = default_params().as_dict()
     k = nominal["hydraulic"]["bulk_modulus"]
     cal = tmp_path / "cal.json"
-    cal.write_text(json.dumps({"parameters": [{"name": "hydraulic.bulk_modulus", "value": "nan", "stderr": 0.05 * k, "bounds": [0.5 * k, 2 * k]}],
-                               "correlation": [[1.0]], "calibrated_params": nominal}))
+    cal.write_text(
+        json.dumps(
+            {
+                "parameters": [{"name": "hydraulic.bulk_modulus", "value": "nan", "stderr": 0.05 * k, "bounds": [0.5 * k, 2 * k]}],
+                "correlation": [[1.0]],
+                "calibrated_params": nominal,
+            }
+        )
+    )
     assert main(["robust", "--controller", "unity", "--covariance", str(cal), "--samples", "2", "--no-progress"]) == 2
     assert "value 'nan' is not a finite number" in _one_line(capsys)
     frf = tmp_path / "frf.csv"
@@ -1595,12 +1655,17 @@ def _eq94_dataset():
     return st, ref, Dataset.from_measured(from_frf(frf, source="eq94.csv")), frf
 
 
-@pytest.mark.parametrize("kind, values, inside", [("leak", {"pole_per_s": -10.0}, {"pole_per_s": -3.0}),
-                                                  ("leak", {"pole_per_s": 10.0}, {"pole_per_s": 3.0}),
-                                                  ("accel_gain", {"gain": 99.99999999}, {"gain": 1.3}),
-                                                  ("accel_gain", {"gain": 0.01}, {"gain": 0.3}),
-                                                  ("command", {"delay_s": 0.05}, {"delay_s": 0.004}),
-                                                  ("valve", {"freq_hz": 32.0, "zeta": 0.0500000001}, {"freq_hz": 32.0, "zeta": 0.3})])
+@pytest.mark.parametrize(
+    "kind, values, inside",
+    [
+        ("leak", {"pole_per_s": -10.0}, {"pole_per_s": -3.0}),
+        ("leak", {"pole_per_s": 10.0}, {"pole_per_s": 3.0}),
+        ("accel_gain", {"gain": 99.99999999}, {"gain": 1.3}),
+        ("accel_gain", {"gain": 0.01}, {"gain": 0.3}),
+        ("command", {"delay_s": 0.05}, {"delay_s": 0.004}),
+        ("valve", {"freq_hz": 32.0, "zeta": 0.0500000001}, {"freq_hz": 32.0, "zeta": 0.3}),
+    ],
+)
 def test_an_effect_on_an_end_of_its_range_is_refused(kind, values, inside):
     """README: an effect the data want further out than the library searches is refused. Only extra modes and a few
     corners were checked: against a saved fit 60 dB off, a leak of -10 1/s, an accelerometer gain of 100 and a valve
@@ -1653,18 +1718,29 @@ def test_a_phase_in_radians_is_refused_in_every_channel_and_format(tmp_path):
     _, _, _, frf = _eq94_dataset()
     f = frf.freq_hz
     rows = ["freq_hz,act_mag,act_phase_deg,base_mag,base_phase_deg"]
-    rows += [",".join(repr(float(x)) for x in (f[k], abs(frf.act[k]), np.angle(frf.act[k], deg=True), abs(frf.base[k]), np.angle(frf.base[k])))
-             for k in range(f.size)]  # base's phase in radians (wrapped), act's in degrees
+    rows += [
+        ",".join(repr(float(x)) for x in (f[k], abs(frf.act[k]), np.angle(frf.act[k], deg=True), abs(frf.base[k]), np.angle(frf.base[k])))
+        for k in range(f.size)
+    ]  # base's phase in radians (wrapped), act's in degrees
     (tmp_path / "rad.csv").write_text("\n".join(rows) + "\n")
     with pytest.raises(DataFormatError, match=r"column 'base_phase_deg'.*that is a phase in radians.*a resonance"):
         read_frf_csv(tmp_path / "rad.csv")
-    scipy.io.savemat(tmp_path / "rad.mat", {"freq": f, "mean_io_mr": np.abs(frf.act), "mean_io_ph": np.angle(frf.act),
-                                            "mean_a2_j2a_mr": np.abs(frf.base), "mean_a2_j2a_ph": np.degrees(np.angle(frf.base))})
+    scipy.io.savemat(
+        tmp_path / "rad.mat",
+        {
+            "freq": f,
+            "mean_io_mr": np.abs(frf.act),
+            "mean_io_ph": np.angle(frf.act),
+            "mean_a2_j2a_mr": np.abs(frf.base),
+            "mean_a2_j2a_ph": np.degrees(np.angle(frf.base)),
+        },
+    )
     with pytest.raises(DataFormatError, match=r"column 'mean_io_ph'.*that is a phase in radians"):
         read_mat_bode(tmp_path / "rad.mat")
     low = np.geomspace(0.1, 1.0, 20)  # below mode 1: xdd/theta rises as s^4, its phase 0 deg
-    rows = ["freq_hz,act_mag,act_phase_deg,base_mag,base_phase_deg"] + [f"{x!r},{1 / x!r},-90.0,{(2 * np.pi * x) ** 4 * 1e-3!r},0.5"
-                                                                        for x in map(float, low)]
+    rows = ["freq_hz,act_mag,act_phase_deg,base_mag,base_phase_deg"] + [
+        f"{x!r},{1 / x!r},-90.0,{(2 * np.pi * x) ** 4 * 1e-3!r},0.5" for x in map(float, low)
+    ]
     (tmp_path / "low.csv").write_text("\n".join(rows) + "\n")
     assert read_frf_csv(tmp_path / "low.csv").freq_hz.size == 20
 
@@ -1713,12 +1789,22 @@ def _cluster_processes():
     s.close()
     address = f"tcp://127.0.0.1:{port}"
     env = dict(os.environ, PYTHONWARNINGS="ignore")
-    sched = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port", str(port),
-                              "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, start_new_session=True)
+    sched = subprocess.Popen(
+        [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env=env,
+        start_new_session=True,
+    )
     worker = None
     try:
-        worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads", "1", "--no-dashboard"],
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, start_new_session=True)
+        worker = subprocess.Popen(
+            [sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads", "1", "--no-dashboard"],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            env=env,
+            start_new_session=True,
+        )
         yield address, sched, worker
     finally:
         for p in (sched, worker):
@@ -1777,8 +1863,21 @@ def test_a_runaway_before_the_controllers_output_diverges_is_said_as_a_runaway(t
     """A controller whose own state grows (A = 1.001, integrating theta) drives the valve onto +10 V and the joint 22 rad
     away before its output diverges at 6.6 s: it was 'stable': false with 'runaway': null and 'growing at 0.003433 1/s,
     oscillating at 1.886 Hz' (the base's fit), a near-marginal oscillation."""
-    ctrl = {"format": "samii-controller", "version": 1, "name": "grows", "method": "hand", "model_units": "SI", "sample_time_s": 0.001,
-            "inputs": ["theta"], "input_scale": {}, "servo_loop": "kept", "A": [[1.001]], "B": [[1.0]], "C": [[1.0]], "D": [[0.0]]}
+    ctrl = {
+        "format": "samii-controller",
+        "version": 1,
+        "name": "grows",
+        "method": "hand",
+        "model_units": "SI",
+        "sample_time_s": 0.001,
+        "inputs": ["theta"],
+        "input_scale": {},
+        "servo_loop": "kept",
+        "A": [[1.001]],
+        "B": [[1.0]],
+        "C": [[1.0]],
+        "D": [[0.0]],
+    }
     p = tmp_path / "grows.json"
     p.write_text(json.dumps(ctrl))
     main(["closedloop", "--controller", str(p), "--scenario", "step", "--json"])
@@ -1824,9 +1923,10 @@ def test_the_servo_loops_gain_margin_is_the_notebooks_and_a_theta_in_mrad_is_ref
     """design damping --frf on theta in mrad designed k = 615 V/(m/s²) (8.35 in rad), called it 6 dB from its limit, and
     the loop ran away. The data were measured with the servo loop Kp theta/v closed and the rig ran: its gain margin on
     the fit is above 1 (eq 9.4's: 3.04 at 8.9 Hz, the notebook's figure); in mrad it is 1/74, in degrees 1/57 x 1.67."""
+    from test_diagnose_units import _rescaled
+
     from samii.closedloop.damping import servo_gain_margin
     from samii.notebook import EQ9_4
-    from test_diagnose_units import _rescaled
 
     gm, f = servo_gain_margin(EQ9_4, 1.0)  # eq 9.4's theta/v is in deg/V: Kp = 1 V/deg
     assert gm == pytest.approx(3.04, abs=0.01) and f == pytest.approx(8.9, abs=0.1)
@@ -1835,8 +1935,11 @@ def test_the_servo_loops_gain_margin_is_the_notebooks_and_a_theta_in_mrad_is_ref
         _rescaled(Path(measured["frf"]), scaled, factor)
         assert main(["design", "damping", "--frf", str(scaled), "--save", str(tmp_path / f"{name}.json")]) == 2
         line = _one_line(capsys)
-        assert line.startswith(f"samii design damping: error: {scaled}: theta/v (the 3-mode model fitted to it) times the position "
-                               "gain 57.3 V/rad is ") and "would be unstable, yet the rig ran" in line and "in mrad" in line, line
+        assert (
+            line.startswith(f"samii design damping: error: {scaled}: theta/v (the 3-mode model fitted to it) times the position gain 57.3 V/rad is ")
+            and "would be unstable, yet the rig ran" in line
+            and "in mrad" in line
+        ), line
         assert not (tmp_path / f"{name}.json").exists()
     # the file in rad with a servo gain 100x the one it was measured with: the same contradiction
     assert main(["design", "damping", "--frf", str(measured["frf"]), "--position-gain", "5730"]) == 2
@@ -1934,8 +2037,20 @@ def test_a_ctrl_c_a_library_swallowed_while_waiting_for_a_scheduler_is_the_inter
 
     swallowed = threading.Timer(0.5, lambda: SIGNALS_RECEIVED.append(2))  # the handler ran; its exception went nowhere
     with _silent_scheduler() as address:
-        argv = ["robust", "--controller", "unity", "--spread", "hydraulic.bulk_modulus=5%", "--samples", "2", "--no-progress",
-                "--scheduler", address, "--scheduler-timeout", "60"]
+        argv = [
+            "robust",
+            "--controller",
+            "unity",
+            "--spread",
+            "hydraulic.bulk_modulus=5%",
+            "--samples",
+            "2",
+            "--no-progress",
+            "--scheduler",
+            address,
+            "--scheduler-timeout",
+            "60",
+        ]
         try:
             swallowed.start()
             assert main(argv) == 130

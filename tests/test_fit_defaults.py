@@ -96,11 +96,16 @@ def test_verdict_text_tells_a_failure_from_a_caveat():
     from samii.identify.report import verdict_text
 
     assert verdict_text({"verdict": "sound"}) == "a sound fit"
-    caveat = verdict_text({"verdict": "caveats", "undetermined": ["w3", "z3"],
-                           "lack_of_fit": {"bands": [{"channel": "act", "f_lo_hz": 0.1, "f_hi_hz": 0.5}] * 3}})
-    assert caveat == "a sound fit, with caveats (the data do not determine w3, z3; the structure misses the data in act 0.1-0.5 Hz, " \
-                     "act 0.1-0.5 Hz and 1 more band(s))"
-    assert verdict_text({"verdict": "not sound", "concerns": ["damping z1 = 0.0001 is on its bound: ..."]}) == \
-        "NOT A SOUND FIT, its parameters should not be used (1 reason given)"
+    caveat = verdict_text(
+        {"verdict": "caveats", "undetermined": ["w3", "z3"], "lack_of_fit": {"bands": [{"channel": "act", "f_lo_hz": 0.1, "f_hi_hz": 0.5}] * 3}}
+    )
+    assert (
+        caveat == "a sound fit, with caveats (the data do not determine w3, z3; the structure misses the data in act 0.1-0.5 Hz, "
+        "act 0.1-0.5 Hz and 1 more band(s))"
+    )
+    assert (
+        verdict_text({"verdict": "not sound", "concerns": ["damping z1 = 0.0001 is on its bound: ..."]})
+        == "NOT A SOUND FIT, its parameters should not be used (1 reason given)"
+    )
     assert verdict_text({"verdict": "not sound", "concerns": []}).endswith("(the solver stopped before a minimum)")
     assert verdict_text({"sound": False}).startswith("NOT A SOUND FIT")  # a fit.json written before verdicts

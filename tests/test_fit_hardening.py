@@ -124,7 +124,9 @@ def test_fit_level_errors_name_the_file(tmp_path, capsys):
 
 @pytest.mark.parametrize("f0", ["1e-300", "1e-7"])
 def test_absurd_first_frequency_is_refused_with_file_and_line(tmp_path, capsys, f0):
-    rows = ["freq_hz,act_mag,act_phase_deg"] + [f"{f:.10g},{abs(h):.10g},{np.degrees(np.angle(h)):.10g}" for f, h in zip(F_HZ, ST3.response(SI_EQ9_4, F_HZ, "act"))]
+    rows = ["freq_hz,act_mag,act_phase_deg"] + [
+        f"{f:.10g},{abs(h):.10g},{np.degrees(np.angle(h)):.10g}" for f, h in zip(F_HZ, ST3.response(SI_EQ9_4, F_HZ, "act"))
+    ]
     rows[1] = f"{f0},1.0,-90"
     path = tmp_path / "tiny.csv"
     path.write_text("# source: test\n\n" + "\n".join(rows) + "\n")
@@ -237,7 +239,12 @@ def mats(tmp_path_factory):
 
     d = tmp_path_factory.mktemp("mat")
     act, base = (ST3.response(SI_EQ9_4, F_HZ, c) for c in ("act", "base"))
-    bode = {"mean_io_mr": np.abs(act), "mean_io_ph": np.degrees(np.angle(act)), "mean_a2_j2a_mr": np.abs(base), "mean_a2_j2a_ph": np.degrees(np.angle(base))}
+    bode = {
+        "mean_io_mr": np.abs(act),
+        "mean_io_ph": np.degrees(np.angle(act)),
+        "mean_a2_j2a_mr": np.abs(base),
+        "mean_a2_j2a_ph": np.degrees(np.angle(base)),
+    }
     savemat(d / "rig.mat", {"freq": F_HZ, **bode})
     savemat(d / "rads.mat", {"w_rad": 2 * np.pi * F_HZ, **bode})
     savemat(d / "nobode.mat", {"freq": F_HZ, "y": F_HZ})

@@ -111,7 +111,6 @@ def test_read_only_views_travel_as_views(two_workers):
     assert all(isinstance(o, MappingProxyType) for o in out) and [dict(o) for o in out] == [{"k": 1, "fs": 1000.0}, {"k": 2, "fs": 1000.0}]
 
 
-
 def test_a_worker_that_dies_loses_only_its_item(two_workers):
     """A worker killed mid-item (from outside, or by the kernel out of memory) left multiprocessing's Pool.map waiting
     for its result for ever (a main job under load hung 12 minutes). Now the parent computes that item itself, says

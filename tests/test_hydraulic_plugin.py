@@ -257,7 +257,9 @@ def test_braking_through_an_open_valve_holds_the_load_pressure_near_supply():
     assert np.max(p) < 1.30  # ...and the open valve bounds it at 1 + (Dm |w| / (Kq x))^2 <= 1.25 (+ transient)
     assert np.all(np.isfinite(p)) and w[-1] > w[0]  # the load is being braked
     # the reference integrates the same law
-    ref = simulate_inertia(params, InertiaLoad(50.0, 0.0), lambda t: 10.0, timestep=1e-4, n_steps=3000, initial=(THETA_REF, -w0, 1.0, 0.0), method="mujoco")
+    ref = simulate_inertia(
+        params, InertiaLoad(50.0, 0.0), lambda t: 10.0, timestep=1e-4, n_steps=3000, initial=(THETA_REF, -w0, 1.0, 0.0), method="mujoco"
+    )
     np.testing.assert_allclose(ref.p_ratio, p, rtol=1e-9, atol=1e-12)
 
 
@@ -278,8 +280,7 @@ def test_zero_input_energy_never_grows():
         return 0.5 * J * states[1] ** 2 + hydraulic_energy(params, p_pa), p_pa
 
     # continuous
-    ode = simulate_inertia(OPEN_LOOP, InertiaLoad(J), lambda t: 0.0, timestep=h, n_steps=500, initial=initial,
-                           method="continuous")
+    ode = simulate_inertia(OPEN_LOOP, InertiaLoad(J), lambda t: 0.0, timestep=h, n_steps=500, initial=initial, method="continuous")
     e_ode, _ = energy(as_array(ode), OPEN_LOOP)
     assert np.all(np.diff(e_ode) <= 1e-9 * e_ode[0])
     assert e_ode[-1] < 0.1 * e_ode[0]  # leakage does dissipate (zeta 0.14 over 4 periods)
@@ -308,10 +309,8 @@ def test_explicit_instance_gives_the_same_motion():
     xml = plugin.probe_xml(STABLE)
     start, end = xml.index("<actuator>"), xml.index("</actuator>") + len("</actuator>")
     xml = (
-        xml[:start]
-        + '<actuator><plugin name="joint2" joint="joint2" instance="hyd" actdim="2" ctrlrange="-10 10" '
-        'ctrllimited="true"/></actuator>'
-        + xml[end:]
+        xml[:start] + '<actuator><plugin name="joint2" joint="joint2" instance="hyd" actdim="2" ctrlrange="-10 10" '
+        'ctrllimited="true"/></actuator>' + xml[end:]
     ).replace(
         '<extension><plugin plugin="samii.hydraulic"/></extension>',
         f'<extension><plugin plugin="samii.hydraulic"><instance name="hyd">{config}</instance></plugin></extension>',

@@ -169,7 +169,10 @@ def test_fit_leaves_its_input_alone():
 
 
 def test_undetermined_single_parameter_is_named_plainly():
-    assert _undetermined_warning(["w1"], 1e-9) == "not identifiable from these data: w1 is not determined by the data in the band (relative singular value 1.0e-09)"
+    assert (
+        _undetermined_warning(["w1"], 1e-9)
+        == "not identifiable from these data: w1 is not determined by the data in the band (relative singular value 1.0e-09)"
+    )
     assert "only a combination of K1, B1 is determined" in _undetermined_warning(["K1", "B1"], 1e-9)
 
 

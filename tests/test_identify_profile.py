@@ -96,8 +96,9 @@ def test_profile_intervals_keep_the_calibrated_width_where_the_cost_is_quadratic
     # profile widens an interval only where the cost is not quadratic
     ratios = []
     for seed in range(8):
-        data = synthesize(F_HZ, {c: ST3.response(nb.EQ9_4, F_HZ, c) for c in ("act", "base")}, noise=SweptSineNoise(),
-                          rng=np.random.default_rng(300 + seed))
+        data = synthesize(
+            F_HZ, {c: ST3.response(nb.EQ9_4, F_HZ, c) for c in ("act", "base")}, noise=SweptSineNoise(), rng=np.random.default_rng(300 + seed)
+        )
         res = fit(data, ST3, phase_weight=0.1, n_perturbed=0)
         for k in res.profiles:
             lo, hi = res.interval(k, 0.95)
@@ -147,6 +148,7 @@ def test_a_fit_its_own_profile_undercuts_is_not_sound(monkeypatch):
     data = synthesize(F_HZ, {c: ST3.response(nb.EQ9_4, F_HZ, c) for c in ("act", "base")}, noise=SweptSineNoise(), rng=np.random.default_rng(5))
     real = fit_module.profile_scan
     for drop, concern in ((4.0, False), (30.0, True)):
+
         def undercut(name, x, i, *args, drop=drop):
             p = real(name, x, i, *args)
             return dataclasses.replace(p, lowest=-drop, lowest_at=x[i] * 1.3) if name == "wp" else p

@@ -101,7 +101,7 @@ def test_data_format_error_is_input_error():
 def test_dev_zero_and_dev_null_are_refused(reader):
     for dev in ("/dev/zero", "/dev/null"):
         if os.path.exists(dev):
-            alive, exc = _runs_within(lambda: reader(dev), 10)
+            alive, exc = _runs_within(lambda: reader(dev), 10)  # noqa: B023 - called within this iteration
             assert not alive, f"{reader.__name__}({dev}) hangs"
             assert isinstance(exc, DataFormatError) and "character device" in str(exc) and "regular file" in str(exc)
 
@@ -465,6 +465,7 @@ def test_write_atomic_removes_its_temp_file_on_ctrl_c(tmp_path, monkeypatch, whe
 
         monkeypatch.setattr(mio, "open", lambda *a, **k: Exploding(real_open(*a, **k)), raising=False)
     else:
+
         def boom(*a, **k):
             raise _Boom()
 
@@ -613,14 +614,14 @@ def test_random_damage_gives_input_errors_only(tmp_path):
     good_ts = ("# sample_rate_hz: 1000\n" + TS_HEADER + _rows(40)).encode()
     good_frf = ("freq_hz,act_mag,act_phase_deg,act_coh\n" + "".join(f"{k + 1},{1 + k / 10},{-9 * k},0.9\n" for k in range(30))).encode()
     tokens = [b",", b"\n", b"\r\n", b"#", b"nan", b"-", b"e", b"1e400", b"\xff", b"\x00", b"\xef\xbb\xbf", b";", b" ", b"_", b'"']
-    for k in range(300):
+    for _ in range(300):
         for reader, good in ((read_timeseries_csv, good_ts), (read_frf_csv, good_frf)):
             data = bytearray(good)
             for _ in range(int(rng.integers(1, 4))):
                 i = int(rng.integers(0, len(data)))
                 op = rng.random()
                 if op < 0.35:
-                    del data[i:i + int(rng.integers(1, 6))]
+                    del data[i : i + int(rng.integers(1, 6))]
                 elif op < 0.75:
                     data[i:i] = tokens[int(rng.integers(len(tokens)))]
                 else:

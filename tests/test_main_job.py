@@ -10,7 +10,6 @@ import pytest
 
 from samii.cli import main
 
-
 # the `runs` fixture (two main jobs with seed 3) is in conftest.py: test_report.py reads them too
 
 

@@ -43,8 +43,23 @@ def test_default_run_writes_everything(tmp_path, capsys):
 def test_stepped_with_noise_rerun_and_overwrite(tmp_path, capsys):
     out = tmp_path / "s"
     rrd = tmp_path / "run.rrd"
-    args = ["measure", "--out", str(out), "--method", "stepped", "--freqs-hz", "9", "3", "--noise", "--seed", "5",
-            "--no-progress", "--rerun", str(rrd), "--json"]
+    args = [
+        "measure",
+        "--out",
+        str(out),
+        "--method",
+        "stepped",
+        "--freqs-hz",
+        "9",
+        "3",
+        "--noise",
+        "--seed",
+        "5",
+        "--no-progress",
+        "--rerun",
+        str(rrd),
+        "--json",
+    ]
     assert main(args) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["excitation"]["stepped"]["freqs_hz"] == [9.0, 3.0]

@@ -257,8 +257,10 @@ def test_stepped_coherence_reads_the_noise_at_the_dwell_not_a_hum_far_from_it():
     fs, f, n, amp, s = 1000.0, 5.0, 2000, 0.01, 0.02
     t = np.arange(n) / fs
     rng = np.random.default_rng(8)
-    runs = [sine_amplitude(amp * np.sin(2 * np.pi * f * t) + 0.6 * np.sin(2 * np.pi * 50.0 * t + rng.uniform(0, 6.3))
-                           + rng.normal(0, s, n), t, f) for _ in range(300)]
+    runs = [
+        sine_amplitude(amp * np.sin(2 * np.pi * f * t) + 0.6 * np.sin(2 * np.pi * 50.0 * t + rng.uniform(0, 6.3)) + rng.normal(0, s, n), t, f)
+        for _ in range(300)
+    ]
     est, coh = np.array([r[0] for r in runs]), np.array([r[1] for r in runs])
     observed = np.mean(np.abs(est - (-1j * amp)) ** 2)
     stated = np.mean(amp**2 * (1.0 - coh) / coh)  # 4 s^2/N from g = A^2/(A^2 + 4 s^2/N)

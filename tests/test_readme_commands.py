@@ -107,11 +107,13 @@ def test_readme_examples_read_only_what_earlier_ones_wrote():
             folder = str(p.parent)
             assert folder in written and p.name in written[folder], (
                 f"README line {no}: samii {' '.join(argv)} reads {path}, which no earlier example writes "
-                f"(written so far: { {k: sorted(v) for k, v in written.items()} })")
+                f"(written so far: { {k: sorted(v) for k, v in written.items()} })"
+            )
         out = getattr(args, "out", None)
         if out and args.command in WRITES:
             assert out not in written or args.overwrite, (
-                f"README line {no}: --out {out} was filled by an earlier example; this one would be refused without --overwrite")
+                f"README line {no}: --out {out} was filled by an earlier example; this one would be refused without --overwrite"
+            )
             written.setdefault(out, set()).update(WRITES[args.command])
 
 

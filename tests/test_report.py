@@ -187,7 +187,7 @@ def test_report_in_a_real_headless_browser(runs, tmp_path):
 
     px = np.asarray(Image.open(shot.path).convert("L"), float)
     # the figures are drawn: dark lines and text in most 200-px bands of the page, not blank white
-    bands = [px[y:y + 200, 100:1100] for y in range(0, px.shape[0] - 200, 200)]
+    bands = [px[y : y + 200, 100:1100] for y in range(0, px.shape[0] - 200, 200)]
     inked = np.mean([np.mean(b < 128) > 0.002 for b in bands])
     assert inked > 0.8, inked
 

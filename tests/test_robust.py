@@ -212,8 +212,12 @@ def test_dask_workers_start_fresh_and_register_the_plugin():
     from samii.robust.task import run_sample
     from samii.sim.model import default_params
 
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None,
-                      scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}) as cluster, Client(cluster) as client:
+    with (
+        LocalCluster(
+            n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None, scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}
+        ) as cluster,
+        Client(cluster) as client,
+    ):
         before = client.run(lambda: __import__("sys").modules.get("samii.sim.plugin") is not None)
         assert not any(before.values())
         client.register_plugin(SamiiWorkerPlugin())
@@ -280,8 +284,9 @@ def test_robust_on_a_cluster_given_by_its_address(robust_runs, tmp_path):
     same table as in this process."""
     from distributed import LocalCluster
 
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None,
-                      scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}) as cluster:
+    with LocalCluster(
+        n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None, scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}
+    ) as cluster:
         out = tmp_path / "remote"
         assert main(["robust", "--controller", "notebook-cancel", "--samples", "8", "--seed", "11", "--spread", "beam.clamp_stiffness_Nm_rad=20%",
                      "--spread", "hydraulic.command_delay=0.002", "--no-progress", "--scheduler", cluster.scheduler_address, "--out", str(out)]) == 0  # fmt: skip

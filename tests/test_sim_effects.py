@@ -164,8 +164,7 @@ def test_command_delay_adds_to_the_controller_cards_delay():
         if command_delay:
             hyd = spec.actuator("joint2")
             hyd.plugin.config = {**dict(hyd.plugin.config), "command_delay": repr(command_delay)}
-        card = build_card_model(spec, p_ctrl, replaces_servo=True, delay_samples=card_delay,
-                                home_qpos=m0.key_qpos[0], home_act=m0.key_act[0])
+        card = build_card_model(spec, p_ctrl, replaces_servo=True, delay_samples=card_delay, home_qpos=m0.key_qpos[0], home_act=m0.key_act[0])
         m = card.model
         d = make_data(m)
         ref = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, "theta_ref")
@@ -240,13 +239,16 @@ def test_a_measurement_sees_the_command_delay():
 # the sensors' dynamics
 
 
-@pytest.mark.parametrize("dyn", [
-    SensorDynamics(accel_lowpass_hz=30.0),
-    SensorDynamics(accel_antialias_hz=25.0, accel_gain=1.3),
-    SensorDynamics(accel_highpass_hz=0.5, accel_delay_s=0.0027),
-    SensorDynamics(theta_delay_s=0.0004),
-    SensorDynamics(theta_delay_s=0.0062, accel_delay_s=0.001),
-])
+@pytest.mark.parametrize(
+    "dyn",
+    [
+        SensorDynamics(accel_lowpass_hz=30.0),
+        SensorDynamics(accel_antialias_hz=25.0, accel_gain=1.3),
+        SensorDynamics(accel_highpass_hz=0.5, accel_delay_s=0.0027),
+        SensorDynamics(theta_delay_s=0.0004),
+        SensorDynamics(theta_delay_s=0.0062, accel_delay_s=0.001),
+    ],
+)
 def test_sensor_filter_streams_its_response(dyn):
     rate = 1000.0
     f = 7.3
@@ -292,8 +294,7 @@ def test_a_measurement_through_the_sensor_options_matches_the_linearised_simulat
     from samii.measure.campaign import linearised_frf, measure_swept
     from samii.measure.excitation import SweptSine
 
-    options = {"sensor.accel_lowpass_hz": 20.0, "sensor.accel_highpass_hz": 0.3, "sensor.theta_delay_s": 0.002,
-               "sensor.accel_gain": 1.2}
+    options = {"sensor.accel_lowpass_hz": 20.0, "sensor.accel_highpass_hz": 0.3, "sensor.theta_delay_s": 0.002, "sensor.accel_gain": 1.2}
     m = load_model(overrides=options)
     sweep = SweptSine(start_hz=1.0, stop_hz=30.0, repetitions=1)
     meas = measure_swept(m, sweep)
@@ -329,8 +330,9 @@ def test_the_ideal_valve_copy_keeps_the_whole_state():
 
     kp = 57.29577951308232
     m0 = load_model()
-    ctrl = LinearController(np.zeros((0, 0)), np.zeros((0, 3)), np.zeros((1, 0)), np.array([[kp, -2 * kp, 0.3]]), 1e-3,
-                            ("theta_ref", "theta", "accel"))
+    ctrl = LinearController(
+        np.zeros((0, 0)), np.zeros((0, 3)), np.zeros((1, 0)), np.array([[kp, -2 * kp, 0.3]]), 1e-3, ("theta_ref", "theta", "accel")
+    )
     spec, _ = load_spec()
     hyd = spec.actuator("joint2")
     hyd.plugin.config = {**dict(hyd.plugin.config), "command_delay": "0.002"}
@@ -348,7 +350,7 @@ def test_the_ideal_valve_copy_keeps_the_whole_state():
     mujoco.mj_getState(ideal, copy, out, full)
     assert out[card.layout.enabled_index()] == 0.0
     assert np.array_equal(out[card.layout.buffer_slice()], off[card.layout.buffer_slice()])
-    assert np.array_equal(out[:card.layout.plugin_adr], off[:card.layout.plugin_adr])
+    assert np.array_equal(out[: card.layout.plugin_adr], off[: card.layout.plugin_adr])
 
 
 # ------------------------------------------------------------------------------------------------
@@ -377,8 +379,9 @@ def test_tip_body_is_a_vibration_absorber_at_its_mount_frequency():
 
     f = np.linspace(14.0, 16.0, 2001)
     for mass in (0.2, 2.0):
-        h = linearised_frf(load_model(overrides={**TIP_BODY, "beam.tip_body_mass_kg": mass, "beam.tip_body_damping_ratio": 0.0,
-                                                 "beam.accel_offset_m": 0.0}), f)
+        h = linearised_frf(
+            load_model(overrides={**TIP_BODY, "beam.tip_body_mass_kg": mass, "beam.tip_body_damping_ratio": 0.0, "beam.accel_offset_m": 0.0}), f
+        )
         k = int(np.argmin(np.abs(h.base)))
         assert abs(f[k] / 15.0 - 1) < 1e-3, (mass, f[k])
         assert np.abs(h.base[k]) < 1e-2 * np.abs(h.base[0]), mass

@@ -17,17 +17,34 @@ import json
 
 import numpy as np
 import pytest
+from test_diagnose_cli import run_cli
 
 from samii.diagnose.measured import from_frf, load
 from samii.measure.io import read_frf_csv
-from test_diagnose_cli import run_cli
 
 
 @pytest.fixture(scope="module")
 def stepped(tmp_path_factory):
     root = tmp_path_factory.mktemp("stepped_ts")
-    rc, _, err = run_cli(["measure", "--method", "stepped", "--freqs-hz", "0.5", "2", "8", "20", "35", "--noise", "--seed", "3",
-                          "--out", str(root / "m"), "--no-progress"])
+    rc, _, err = run_cli(
+        [
+            "measure",
+            "--method",
+            "stepped",
+            "--freqs-hz",
+            "0.5",
+            "2",
+            "8",
+            "20",
+            "35",
+            "--noise",
+            "--seed",
+            "3",
+            "--out",
+            str(root / "m"),
+            "--no-progress",
+        ]
+    )
     assert rc == 0, err
     return root, root / "m" / "timeseries.csv", root / "m" / "frf.csv"
 
@@ -85,7 +102,6 @@ def test_effects_found_with_the_residual_still_far_above_the_noise_are_not_calle
     """The default stepped sine (17 dwells, 0.5-35 Hz, seed 3): one effect (the 32 Hz valve lag) and chi2 per residual
     33 after it, with no band of misfit on so few points; the verdict read "effects: 1 effect(s) the model lacks" as if
     it explained the data. The rule is even_misfit's, the one a verdict of none already obeyed."""
-    from samii.diagnose.diagnosis import even_misfit
 
     rc, _, err = run_cli(["measure", "--method", "stepped", "--noise", "--seed", "3", "--out", str(tmp_path / "m"), "--no-progress"])
     assert rc == 0, err

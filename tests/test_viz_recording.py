@@ -296,8 +296,13 @@ def test_a_run_with_its_own_model_and_a_run_without_frames(tmp_path):
     zeros = np.zeros(t.size)
     ts = TimeSeries(t=t, v=zeros, theta=zeros, accel=zeros, r=zeros)
     rrd = tmp_path / "x.rrd"
-    info = write_recording(rrd, plain, [RunRecord("data", ts, np.zeros(0), np.zeros((0, plain.nq))),
-                                        RunRecord("sim", ts, t, q, model=body)], application_id="t", beam_scale=200.0)
+    info = write_recording(
+        rrd,
+        plain,
+        [RunRecord("data", ts, np.zeros(0), np.zeros((0, plain.nq))), RunRecord("sim", ts, t, q, model=body)],
+        application_id="t",
+        beam_scale=200.0,
+    )
     assert info.runs == ("data", "sim")
     rec, names, _ = _read(rrd)
     assert not any(e.startswith("/data/deformed") or e.startswith("/data/true_scale") for e in rec)

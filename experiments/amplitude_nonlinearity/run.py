@@ -100,13 +100,19 @@ def summarise(amplitude_v: float, meas, ref: FrequencyResponse, kp: float, suppl
 def reference_row(ref: FrequencyResponse, kp: float) -> dict:
     i = servo_peak_index(ref, kp)
     t_cl = closed_loop(ref, kp)[i]
-    return {"k1_rad_s_per_v": k1_rad_s_per_v(ref), "servo_peak_hz": float(ref.freq_hz[i]),
-            "servo_db": float(20 * np.log10(np.abs(t_cl))), "servo_phase_deg": float(np.angle(t_cl, deg=True))}
+    return {
+        "k1_rad_s_per_v": k1_rad_s_per_v(ref),
+        "servo_peak_hz": float(ref.freq_hz[i]),
+        "servo_db": float(20 * np.log10(np.abs(t_cl))),
+        "servo_phase_deg": float(np.angle(t_cl, deg=True)),
+    }
 
 
 def markdown(rows: list[AmplitudeRow], ref: dict) -> str:
-    head = (f"| amplitude [V] | max P/Ps | max spool | max v [V] | K1 [rad/s/V] | theta/r at {ref['servo_peak_hz']:.2f} Hz [dB / deg] "
-            "| dev act [dB / deg] | dev base [dB / deg] | dev total [dB / deg] | min coh |\n|" + "---|" * 10 + "\n")
+    head = (
+        f"| amplitude [V] | max P/Ps | max spool | max v [V] | K1 [rad/s/V] | theta/r at {ref['servo_peak_hz']:.2f} Hz [dB / deg] "
+        "| dev act [dB / deg] | dev base [dB / deg] | dev total [dB / deg] | min coh |\n|" + "---|" * 10 + "\n"
+    )
     body = "".join(
         f"| {r.amplitude_v:g} | {r.peak_load_pressure_fraction:.2f} | {r.peak_spool:.3f} | {r.peak_valve_v:.2f} | "
         f"{r.k1_rad_s_per_v:.4f} | {r.servo_db:.2f} / {r.servo_phase_deg:.1f} | "
@@ -114,8 +120,10 @@ def markdown(rows: list[AmplitudeRow], ref: dict) -> str:
         + f" | {r.min_coherence:.4f} |\n"
         for r in rows
     )
-    lin = (f"| linearised | 0 | 0 | 0 | {ref['k1_rad_s_per_v']:.4f} | {ref['servo_db']:.2f} / {ref['servo_phase_deg']:.1f} "
-           "| 0 / 0 | 0 / 0 | 0 / 0 | - |\n")
+    lin = (
+        f"| linearised | 0 | 0 | 0 | {ref['k1_rad_s_per_v']:.4f} | {ref['servo_db']:.2f} / {ref['servo_phase_deg']:.1f} "
+        "| 0 / 0 | 0 / 0 | 0 / 0 | - |\n"
+    )
     return head + lin + body
 
 
@@ -183,14 +191,22 @@ def main() -> None:
                 ref_at = linearised_frf(model, meas.frf.freq_hz)
         rows.append(summarise(amp, meas, ref_at, kp, supply))
         frfs.append((amp, meas.frf))
-        print(f"{amp:g} V: max P/Ps {rows[-1].peak_load_pressure_fraction:.2f}, theta/r at the servo peak {rows[-1].servo_db:.2f} dB, "
-              f"act within {rows[-1].max_dev_db['act']:.2f} dB of the linearisation")
+        print(
+            f"{amp:g} V: max P/Ps {rows[-1].peak_load_pressure_fraction:.2f}, theta/r at the servo peak {rows[-1].servo_db:.2f} dB, "
+            f"act within {rows[-1].max_dev_db['act']:.2f} dB of the linearisation"
+        )
     ref_row = reference_row(ref_at, kp)
     plot(frfs, ref_at, args.out / "frf_vs_amplitude.png")
     (args.out / "table.md").write_text(markdown(rows, ref_row))
     result = {
-        "settings": {"sweep": SweptSine().describe() | {"amplitude_v": list(args.amplitudes_v)}, "band_hz": BAND_HZ,
-                     "k1_band_hz": K1_BAND_HZ, "servo_band_hz": SERVO_BAND_HZ, "position_gain_v_per_rad": kp, "supply_pressure_pa": supply},
+        "settings": {
+            "sweep": SweptSine().describe() | {"amplitude_v": list(args.amplitudes_v)},
+            "band_hz": BAND_HZ,
+            "k1_band_hz": K1_BAND_HZ,
+            "servo_band_hz": SERVO_BAND_HZ,
+            "position_gain_v_per_rad": kp,
+            "supply_pressure_pa": supply,
+        },
         "linearised": ref_row,
         "rows": [asdict(r) for r in rows],
     }

@@ -28,7 +28,14 @@ import control  # noqa: E402
 
 from samii import notebook as nb  # noqa: E402
 from samii.closedloop.card import build_card_model  # noqa: E402
-from samii.closedloop.controllers import NOTEBOOK_INPUT_SCALE, NOTEBOOK_UNITS_SI, SavedController, accel_unit_evidence, notebook_cancel, notebook_place  # noqa: E402
+from samii.closedloop.controllers import (  # noqa: E402
+    NOTEBOOK_INPUT_SCALE,
+    NOTEBOOK_UNITS_SI,
+    SavedController,
+    accel_unit_evidence,
+    notebook_cancel,
+    notebook_place,
+)
 from samii.closedloop.linear import linear_loop  # noqa: E402
 from samii.closedloop.scenario import NoiseSpec, default_spec_factory, run_closed_loop, scenario  # noqa: E402
 from samii.design import canonical as cc  # noqa: E402
@@ -128,8 +135,14 @@ def damping_methods(model, factory, out: Path) -> dict:
     candidates = {"tuned acceleration feedback": d.controller}
     place = pl.design_placement(ccf3, sample_time_s=1e-3, zeta=1 / math.sqrt(2), observer="placement")
     candidates["3-mode placement, placement observer"] = SavedController(place.controller(model_units="SI"), True)
-    kal = pl.design_placement(ccf3, sample_time_s=1e-3, zeta=1 / math.sqrt(2), observer="kalman", input_noise_std=0.1,
-                              measurement_noise_std=(SensorNoise.theta_rad, SensorNoise.accel_m_s2))  # the simulated sensors' noise
+    kal = pl.design_placement(
+        ccf3,
+        sample_time_s=1e-3,
+        zeta=1 / math.sqrt(2),
+        observer="kalman",
+        input_noise_std=0.1,
+        measurement_noise_std=(SensorNoise.theta_rad, SensorNoise.accel_m_s2),  # the simulated sensors' noise
+    )
     candidates["3-mode placement, Kalman observer"] = SavedController(kal.controller(model_units="SI"), True)
     free_step = run_closed_loop(None, scenario("step"), label="unity", spec_factory=factory, comparison=False)
     rows = {}
@@ -251,8 +264,13 @@ def main() -> None:
     factory = default_spec_factory()
     ev = accel_unit_evidence(model)
     results = {
-        "units": {"freq_hz": ev.freq_hz, "b_notebook": ev.b_notebook, "b_simulator_m_per_rad": ev.b_simulator,
-                  "notebook_accel_units_per_m_s2": ev.units_per_m_s2, "geometric_mean": ev.geometric_mean},  # fmt: skip
+        "units": {
+            "freq_hz": ev.freq_hz,
+            "b_notebook": ev.b_notebook,
+            "b_simulator_m_per_rad": ev.b_simulator,
+            "notebook_accel_units_per_m_s2": ev.units_per_m_s2,
+            "geometric_mean": ev.geometric_mean,
+        },  # fmt: skip
         "chapter8": chapter8(model, factory, args.out),
         "chapter11": chapter11(factory, args.out),
         "damping": damping_methods(model, factory, args.out),
@@ -261,17 +279,24 @@ def main() -> None:
 
     (args.out / "results.json").write_text(dumps(results, indent=1) + "\n")
     m = results["damping"]["methods"]
-    lines = ["| method | stable | unstable at [Hz] | mode-1 zeta | Loper decay / free | settle: servo alone / method | modes of the 5 deg step response (Hz, zeta) |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [
+        "| method | stable | unstable at [Hz] | mode-1 zeta | Loper decay / free | settle: servo alone / method | modes of the 5 deg step response (Hz, zeta) |",
+        "|---|---|---|---|---|---|---|",
+    ]
     f = lambda x, d=3: "-" if x is None else (f"{x:.{d}g}" if isinstance(x, float) else str(x))  # noqa: E731
     for name, r in m.items():
-        where = "diverged at %.3g s" % r["diverged_at_s"] if r.get("diverged_at_s") is not None else f(r.get("unstable_mode_hz"))
+        where = f"diverged at {r['diverged_at_s']:.3g} s" if r.get("diverged_at_s") is not None else f(r.get("unstable_mode_hz"))
         lines.append(f"| {name} | {r['stable']} | {where} | {f(r.get('mode1_zeta'))} | {f(r.get('loper_decay_ratio'))} | {f(r.get('settle_ratio'))} | "
                      + ", ".join(f"{a:.3g} ({b:.3f})" for a, b in r.get("modes", [])) + " |")  # fmt: skip
     (args.out / "table.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     print(json.dumps({k: results["chapter8"][k] for k in ("placement_observer", "kalman_run")}, indent=1, default=str))
-    print("chapter 11: residual ratio", results["chapter11"]["residual_rms_ratio_unity_over_cancel"], "loper ratio", results["chapter11"]["loper_decay_ratio"])
+    print(
+        "chapter 11: residual ratio",
+        results["chapter11"]["residual_rms_ratio_unity_over_cancel"],
+        "loper ratio",
+        results["chapter11"]["loper_decay_ratio"],
+    )
     return None
 
 

@@ -15,7 +15,6 @@ import warnings
 from pathlib import Path
 
 import mujoco
-import numpy as np
 
 from samii.sim.linearize import base_modes
 from samii.sim.mjcf import NOMINAL_POSE_RAD, samii_xml

@@ -36,8 +36,10 @@ def main() -> None:
         if found:
             alarms.append((seed, amp, [(e.category, e.kind, e.params) for e in found]))
             print(f"seed {seed} at {amp:g} V: FALSE ALARM {alarms[-1][2]}", flush=True)
-    print(f"{len(alarms)} false alarms on {len(SEEDS)} clean rigs; chi2/dof of the clean fits {min(chi2):.3g}-{max(chi2):.3g} "
-          f"(median {np.median(chi2):.3g})")
+    print(
+        f"{len(alarms)} false alarms on {len(SEEDS)} clean rigs; chi2/dof of the clean fits {min(chi2):.3g}-{max(chi2):.3g} "
+        f"(median {np.median(chi2):.3g})"
+    )
 
 
 if __name__ == "__main__":

@@ -58,12 +58,21 @@ SINGLE = [
     ("valve 80 Hz", {"valve_hz": 80.0, "valve_zeta": 0.5}, [("actuator", "valve", {"freq_hz": 80.0})]),
 ]
 COMBOS = [
-    ("delay 4 ms + HP 0.3 Hz", {"command_delay_s": 0.004, "accel_highpass_hz": 0.3},
-     [("delay", "command", {"delay_s": 0.004}), ("sensor", "accel_highpass", {"corner_hz": 0.3})]),
-    ("delay 4 ms + LP1 30 Hz", {"command_delay_s": 0.004, "accel_lowpass_hz": 30.0},
-     [("delay", "command", {"delay_s": 0.004}), ("sensor", "accel_lowpass", {"corner_hz": 30.0})]),
-    ("base mode 15 Hz + accel delay 3 ms", {"base_mode": (15.0, 0.02, 0.02), "accel_delay_s": 0.003},
-     [("extra_mode", "base_mode", {"freq_hz": 15.0}), ("delay", "accel_sensor", {"delay_s": 0.003})]),
+    (
+        "delay 4 ms + HP 0.3 Hz",
+        {"command_delay_s": 0.004, "accel_highpass_hz": 0.3},
+        [("delay", "command", {"delay_s": 0.004}), ("sensor", "accel_highpass", {"corner_hz": 0.3})],
+    ),
+    (
+        "delay 4 ms + LP1 30 Hz",
+        {"command_delay_s": 0.004, "accel_lowpass_hz": 30.0},
+        [("delay", "command", {"delay_s": 0.004}), ("sensor", "accel_lowpass", {"corner_hz": 30.0})],
+    ),
+    (
+        "base mode 15 Hz + accel delay 3 ms",
+        {"base_mode": (15.0, 0.02, 0.02), "accel_delay_s": 0.003},
+        [("extra_mode", "base_mode", {"freq_hz": 15.0}), ("delay", "accel_sensor", {"delay_s": 0.003})],
+    ),
 ]
 #: Added later than the others (after them in the plan, so the others keep their seeds): a leaky actuator integrator,
 #: alone (gravity's pull making it a right-half-plane pole, as in samii's simulator; leakage against a restoring load)
@@ -71,8 +80,11 @@ COMBOS = [
 LATER = [
     ("leak +0.2 1/s", {"leak_per_s": 0.2}, [("actuator", "leak", {"pole_per_s": 0.2})]),
     ("leak -0.5 1/s", {"leak_per_s": -0.5}, [("actuator", "leak", {"pole_per_s": -0.5})]),
-    ("leak +0.2 1/s + HP 0.3 Hz", {"leak_per_s": 0.2, "accel_highpass_hz": 0.3},
-     [("actuator", "leak", {"pole_per_s": 0.2}), ("sensor", "accel_highpass", {"corner_hz": 0.3})]),
+    (
+        "leak +0.2 1/s + HP 0.3 Hz",
+        {"leak_per_s": 0.2, "accel_highpass_hz": 0.3},
+        [("actuator", "leak", {"pole_per_s": 0.2}), ("sensor", "accel_highpass", {"corner_hz": 0.3})],
+    ),
 ]
 #: A valve nonlinearity (time-domain loop, samii.diagnose.rig.EffectRig.valve_nonlinearity); files at the amplitudes given.
 NONLINEAR = [
@@ -83,10 +95,18 @@ NONLINEAR = [
     ("hysteresis 5 mV", {"valve_nonlinearity": ("hysteresis", 0.005)}, [("nonlinear", "hysteresis", {"hysteresis_v": 0.005})], (0.1,)),
     ("hysteresis 20 mV", {"valve_nonlinearity": ("hysteresis", 0.02)}, [("nonlinear", "hysteresis", {"hysteresis_v": 0.02})], (0.1,)),
     ("asymmetry 10 %", {"valve_nonlinearity": ("asymmetry", 0.1)}, [("nonlinear", "asymmetry", {"asymmetry_fraction": 0.1})], (0.1,)),
-    ("dead band 5 mV, files at 0.05 and 0.3 V", {"valve_nonlinearity": ("dead_band", 0.005)},
-     [("nonlinear", "dead_band", {"dead_band_v": 0.005})], (0.05, 0.3)),
-    ("saturation 0.4 V, files at 0.1 and 0.3 V", {"valve_nonlinearity": ("saturation", 0.4)},
-     [("nonlinear", "saturation", {"saturation_v": 0.4})], (0.1, 0.3)),
+    (
+        "dead band 5 mV, files at 0.05 and 0.3 V",
+        {"valve_nonlinearity": ("dead_band", 0.005)},
+        [("nonlinear", "dead_band", {"dead_band_v": 0.005})],
+        (0.05, 0.3),
+    ),
+    (
+        "saturation 0.4 V, files at 0.1 and 0.3 V",
+        {"valve_nonlinearity": ("saturation", 0.4)},
+        [("nonlinear", "saturation", {"saturation_v": 0.4})],
+        (0.1, 0.3),
+    ),
 ]
 #: Clean controls through the same paths: the time-domain loop (a saturation no command reaches) and two amplitudes.
 CLEAN_PATHS = [
@@ -97,10 +117,18 @@ CLEAN = [(f"clean {a:g} V seed {s}", a, s) for a, seeds in ((0.05, (1, 2)), (0.1
 #: Issue 11's goals: delay within 0.5 ms, extra-mode frequencies within 2 %, sensor corners within 15 %; the
 #: issue states none for the actuator, whose valve corner is judged like a sensor's (15 %), nor for a nonlinearity's
 #: level (judged alike).
-TOLERANCE = {("delay", "delay_s"): ("abs", 5e-4), ("extra_mode", "freq_hz"): ("rel", 0.02), ("extra_mode", "zero_freq_hz"): ("rel", 0.02),
-             ("sensor", "corner_hz"): ("rel", 0.15), ("actuator", "freq_hz"): ("rel", 0.15), ("actuator", "pole_per_s"): ("rel", 0.15),
-             ("nonlinear", "dead_band_v"): ("rel", 0.15), ("nonlinear", "saturation_v"): ("rel", 0.15),
-             ("nonlinear", "hysteresis_v"): ("rel", 0.15), ("nonlinear", "asymmetry_fraction"): ("rel", 0.15)}
+TOLERANCE = {
+    ("delay", "delay_s"): ("abs", 5e-4),
+    ("extra_mode", "freq_hz"): ("rel", 0.02),
+    ("extra_mode", "zero_freq_hz"): ("rel", 0.02),
+    ("sensor", "corner_hz"): ("rel", 0.15),
+    ("actuator", "freq_hz"): ("rel", 0.15),
+    ("actuator", "pole_per_s"): ("rel", 0.15),
+    ("nonlinear", "dead_band_v"): ("rel", 0.15),
+    ("nonlinear", "saturation_v"): ("rel", 0.15),
+    ("nonlinear", "hysteresis_v"): ("rel", 0.15),
+    ("nonlinear", "asymmetry_fraction"): ("rel", 0.15),
+}
 
 
 #: --long: three 120 s sweeps (6 minutes in all, issue 11 item 7's file) instead of samii measure's 84 s
@@ -123,8 +151,11 @@ def match_injected(found: list, injected: list, tolerance: dict = TOLERANCE, mod
     rows, unmatched = [], list(found)
     for cat, kind, truth in injected:
         alt = f"{cat}/{kind} in its place fits almost as well"
-        match = next((e for e in unmatched if e.category == cat and e.kind == kind), None) or next(
-            (e for e in unmatched if e.category == cat), None) or next((e for e in unmatched if alt in e.evidence), None)
+        match = (
+            next((e for e in unmatched if e.category == cat and e.kind == kind), None)
+            or next((e for e in unmatched if e.category == cat), None)
+            or next((e for e in unmatched if alt in e.evidence), None)
+        )
         if match is not None:
             unmatched.remove(match)
         errors = {}
@@ -138,9 +169,19 @@ def match_injected(found: list, injected: list, tolerance: dict = TOLERANCE, mod
         within = all(abs(e) <= tolerance[(cat, p)][1] for p, e in errors.items()) if errors else None
         # found as another kind whose evidence names the injected one as fitting almost as well: the data cannot tell them apart
         named = match is not None and match.kind != kind and alt in match.evidence
-        rows.append({"category": cat, "kind": kind, "truth": truth, "found_category": None if match is None else match.category,
-                     "found_kind": None if match is None else match.kind, "found_params": None if match is None else match.params,
-                     "errors": errors, "within_tolerance": within, "named_alternative": named})
+        rows.append(
+            {
+                "category": cat,
+                "kind": kind,
+                "truth": truth,
+                "found_category": None if match is None else match.category,
+                "found_kind": None if match is None else match.kind,
+                "found_params": None if match is None else match.params,
+                "errors": errors,
+                "within_tolerance": within,
+                "named_alternative": named,
+            }
+        )
     return rows, unmatched
 
 
@@ -162,7 +203,7 @@ def _law_reached(effects: dict, series: list) -> float | None:
 def run_case(name: str, effects: dict, injected: list, *, amplitude_v: float | tuple, seed: int) -> dict:
     rng = np.random.default_rng(seed)
     amps = tuple(amplitude_v) if isinstance(amplitude_v, (tuple, list)) else (amplitude_v,)
-    for draw in range(1, MAX_DRAWS + 1):
+    for draw in range(1, MAX_DRAWS + 1):  # noqa: B007 - the count of draws is read after the loop
         rig = EffectRig.drawn(rng, spread=SPREAD, **effects)
         series = [rig.simulate(_sweep(a), sample_rate_hz=FS, rng=rng) for a in amps]
         reached = _law_reached(effects, series)
@@ -178,16 +219,21 @@ def run_case(name: str, effects: dict, injected: list, *, amplitude_v: float | t
     rows, unmatched = match_injected([e for e in d.effects if not e.expected], injected, modelled_hold_s=hold)
     return {
         "modelled_hold_s": hold,
-        "name": name, "amplitude_v": list(amps), "seed": seed, "injected": rows,
+        "name": name,
+        "amplitude_v": list(amps),
+        "seed": seed,
+        "injected": rows,
         "extra": [{"category": e.category, "kind": e.kind, "params": e.params} for e in unmatched],
         "expected": [{"kind": e.kind, "params": e.params} for e in d.effects if e.expected],
-        "verdict": d.verdict, "unexplained": [b.to_dict() for b in d.unexplained],
+        "verdict": d.verdict,
+        "unexplained": [b.to_dict() for b in d.unexplained],
         "refused": [{"round": x["round"], "effect": x["effect"], "class": x["class"]} for x in d.refused],
         "error_before": {k: v.to_dict() for k, v in d.error_before.items()},
         "error_after": {k: v.to_dict() for k, v in d.error_after.items()},
         "harmonic_error": None if d.harmonic_error is None else {"before": d.harmonic_error[0].to_dict(), "after": d.harmonic_error[1].to_dict()},
         "time_s": elapsed,
-        "rig_draws": draw, "command_peak_over_level": reached,
+        "rig_draws": draw,
+        "command_peak_over_level": reached,
     }
 
 
@@ -239,25 +285,37 @@ def _summary(results: list[dict]) -> tuple[str, dict]:
 
     n_better = sum(better(r) for r in improved)
     times = [r["time_s"] for r in results]
-    stats = {"effects_injected": len(inj), "category_right": right_cat, "kind_right": right_kind, "named_alternative": named,
-             "clean_cases": len(clean),
-             "clean_false_alarms": false_clean, "extra_effects_in_effect_cases": extra, "parameters_within_tolerance": within,
-             "parameters_judged": len(tol), "error_after_below_before": n_better, "effect_cases": len(improved),
-             "time_s_median": float(np.median(times)), "time_s_max": float(np.max(times))}
-    text = "\n".join([
-        "| goal (issue 11) | battery |",
-        "|---|---|",
-        f"| >= 90 % of effects classified right | category {right_cat}/{len(inj)} ({100 * right_cat / len(inj):.0f} %), kind {right_kind}/{len(inj)}"
-        f" (and {named} found as another kind whose evidence names the injected one as fitting almost as well) |",
-        f"| 0 false alarms on clean data | {false_clean} of {len(clean)} clean cases |",
-        f"| delays 0.5 ms, mode frequencies 2 %, sensor corners 15 % | {within}/{len(tol)} effects found with the right kind within tolerance |",
-        f"| error after below before in every case with an effect | {n_better}/{len(improved)} (chi2 of theta/v and xdd/v, neither "
-        "above before and their sum below; with a nonlinear law found, its harmonics' chi2 counts too, and theta/v and xdd/v are "
-        "after its describing function is divided out where it fits) |",
-        f"| (not a goal) effects found beyond those injected | {extra} in {len(improved)} effect cases |",
-        f"| candidates that passed the F-test, refused (the data do not show them) | {_refused_text(results)} |",
-        f"| (speed) diagnosis time per case | median {stats['time_s_median']:.1f} s, max {stats['time_s_max']:.1f} s |",
-    ])
+    stats = {
+        "effects_injected": len(inj),
+        "category_right": right_cat,
+        "kind_right": right_kind,
+        "named_alternative": named,
+        "clean_cases": len(clean),
+        "clean_false_alarms": false_clean,
+        "extra_effects_in_effect_cases": extra,
+        "parameters_within_tolerance": within,
+        "parameters_judged": len(tol),
+        "error_after_below_before": n_better,
+        "effect_cases": len(improved),
+        "time_s_median": float(np.median(times)),
+        "time_s_max": float(np.max(times)),
+    }
+    text = "\n".join(
+        [
+            "| goal (issue 11) | battery |",
+            "|---|---|",
+            f"| >= 90 % of effects classified right | category {right_cat}/{len(inj)} ({100 * right_cat / len(inj):.0f} %), kind {right_kind}/{len(inj)}"
+            f" (and {named} found as another kind whose evidence names the injected one as fitting almost as well) |",
+            f"| 0 false alarms on clean data | {false_clean} of {len(clean)} clean cases |",
+            f"| delays 0.5 ms, mode frequencies 2 %, sensor corners 15 % | {within}/{len(tol)} effects found with the right kind within tolerance |",
+            f"| error after below before in every case with an effect | {n_better}/{len(improved)} (chi2 of theta/v and xdd/v, neither "
+            "above before and their sum below; with a nonlinear law found, its harmonics' chi2 counts too, and theta/v and xdd/v are "
+            "after its describing function is divided out where it fits) |",
+            f"| (not a goal) effects found beyond those injected | {extra} in {len(improved)} effect cases |",
+            f"| candidates that passed the F-test, refused (the data do not show them) | {_refused_text(results)} |",
+            f"| (speed) diagnosis time per case | median {stats['time_s_median']:.1f} s, max {stats['time_s_max']:.1f} s |",
+        ]
+    )
     return text, stats
 
 
@@ -266,7 +324,11 @@ def effect_text(row: dict) -> str:
     if row["found_kind"] is None:
         return f"{row['kind']}: MISSED"
     errs = ", ".join(f"{p} {1e3 * e:+.2f} ms" if p == "delay_s" else f"{p} {100 * e:+.1f} %" for p, e in row["errors"].items())
-    ok = "" if row["found_kind"] == row["kind"] else f" (as {row['found_kind']}{', named as fitting almost as well' if row.get('named_alternative') else ''})"
+    ok = (
+        ""
+        if row["found_kind"] == row["kind"]
+        else f" (as {row['found_kind']}{', named as fitting almost as well' if row.get('named_alternative') else ''})"
+    )
     return f"{row['kind']}{ok} {errs}".rstrip()
 
 
@@ -286,8 +348,12 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=HERE / "out")
     ap.add_argument("--nonlinear-only", action="store_true", help="only the nonlinear cases and their clean controls (results merged into out/)")
     ap.add_argument("--table-only", action="store_true", help="rewrite table.md from out/results.json (tolerances re-applied), no runs")
-    ap.add_argument("--seed-offset", type=int, default=0,
-                    help="added to every case's seed: other rigs and noise, the same effects (a check on cases the battery was not tuned on)")
+    ap.add_argument(
+        "--seed-offset",
+        type=int,
+        default=0,
+        help="added to every case's seed: other rigs and noise, the same effects (a check on cases the battery was not tuned on)",
+    )
     ap.add_argument("--long", action="store_true", help="three 120 s sweeps per file (a 6-minute file) instead of 84 s ones")
     args = ap.parse_args()
     if args.long:
@@ -304,9 +370,9 @@ def main() -> None:
     plan += [(n, kw, inj, 0.1, 100 + i) for i, (n, kw, inj) in enumerate(SINGLE + COMBOS + LATER)]
     plan += [(n, kw, inj, amps, 200 + i) for i, (n, kw, inj, amps) in enumerate(CLEAN_PATHS + NONLINEAR)]
     if args.quick:
-        plan = plan[2:3] + plan[len(CLEAN) : len(CLEAN) + 3] + plan[-len(NONLINEAR) - 2 : -len(NONLINEAR)] + plan[-len(NONLINEAR):][:3]
+        plan = plan[2:3] + plan[len(CLEAN) : len(CLEAN) + 3] + plan[-len(NONLINEAR) - 2 : -len(NONLINEAR)] + plan[-len(NONLINEAR) :][:3]
     elif args.nonlinear_only:
-        plan = plan[-len(NONLINEAR) - len(CLEAN_PATHS):]
+        plan = plan[-len(NONLINEAR) - len(CLEAN_PATHS) :]
     results = []
     for name, kw, inj, amp, seed in plan:
         r = run_case(name, kw, inj, amplitude_v=amp, seed=seed + args.seed_offset)
@@ -322,10 +388,20 @@ def _write(out: Path, results: list[dict]) -> None:
     summary, stats = _summary(results)
     out.mkdir(parents=True, exist_ok=True)
     (out / "results.json").write_text(json.dumps({"stats": stats, "cases": results}, indent=2) + "\n")
-    table = ["# Diagnosis battery (generated by run.py)", "", summary, "", "## Confusion table (category found against injected; "
-             "'(none)' counts effects found where none was injected, clean cases included)", "", _confusion(results), "",
-             "## Cases", "", "| case | verdict | injected: found, parameter errors | found beyond the injected | chi2 theta/v / xdd/v before -> after | chi2 of the harmonics before -> after | time [s] |",
-             "|---|---|---|---|---|---|---|"] + [_line(r) for r in results]
+    table = [
+        "# Diagnosis battery (generated by run.py)",
+        "",
+        summary,
+        "",
+        "## Confusion table (category found against injected; '(none)' counts effects found where none was injected, clean cases included)",
+        "",
+        _confusion(results),
+        "",
+        "## Cases",
+        "",
+        "| case | verdict | injected: found, parameter errors | found beyond the injected | chi2 theta/v / xdd/v before -> after | chi2 of the harmonics before -> after | time [s] |",
+        "|---|---|---|---|---|---|---|",
+    ] + [_line(r) for r in results]
     (out / "table.md").write_text("\n".join(table) + "\n")
     print(summary)
     print(_confusion(results))

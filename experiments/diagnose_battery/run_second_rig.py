@@ -55,33 +55,78 @@ FT = 0.3048  # an extra base mode's residue B scaled like eq 9.4's B_k (ft/s^2 -
 # sweep: swept_sine keywords; daq: Rig.simulate keywords (accel white noise 2e-3 m/s^2 and a 16-bit encoder unless said)
 NUISANCES = [
     ("1 kHz, 16-bit, up 3x120 s back to back, 0.1 V", 1000.0, dict(direction="up", n_records=3, sweep_s=120.0, rest_s=0.0, amplitude_v=0.1), dict()),
-    ("1 kHz, 12-bit encoder, up 3x120 s + 20 s rest, 0.1 V", 1000.0,
-     dict(direction="up", n_records=3, sweep_s=120.0, rest_s=20.0, amplitude_v=0.1), dict(encoder_bits=12)),
-    ("500 Hz, accel bias 0.05, down 3x120 s + 20 s rest, 0.1 V", 500.0,
-     dict(direction="down", n_records=3, sweep_s=120.0, rest_s=20.0, amplitude_v=0.1), dict(accel_bias=0.05)),
-    ("2 kHz, accel ramp drift 0.02, up 3x120 s alternating, 0.1 V", 2000.0,
-     dict(direction="up", n_records=3, sweep_s=120.0, rest_s=0.0, alternate=True, amplitude_v=0.1), dict(accel_drift=("ramp", 0.02))),
-    ("1 kHz, 50 Hz hum 0.01 on accel, up 5x60 s + 20 s rest, 0.05 V", 1000.0,
-     dict(direction="up", n_records=5, sweep_s=60.0, rest_s=20.0, amplitude_v=0.05), dict(hum=(50.0, 0.01, 0.0))),
-    ("1 kHz, 60 Hz hum 0.01 on accel + 2 mV on v, down 3x120 s alternating, 0.3 V", 1000.0,
-     dict(direction="down", n_records=3, sweep_s=120.0, rest_s=0.0, alternate=True, amplitude_v=0.3), dict(hum=(60.0, 0.01, 0.002))),
-    ("500 Hz, 0.005 Hz accel drift 0.02, up 5x60 s alternating, 0.1 V", 500.0,
-     dict(direction="up", n_records=5, sweep_s=60.0, rest_s=0.0, alternate=True, amplitude_v=0.1), dict(accel_drift=("sine", 0.005, 0.02))),
-    ("2 kHz, bias 0.05 + 50 Hz hum, down 3x120 s + 20 s rest, 0.05 V", 2000.0,
-     dict(direction="down", n_records=3, sweep_s=120.0, rest_s=20.0, amplitude_v=0.05), dict(accel_bias=0.05, hum=(50.0, 0.01, 0.0))),
-    ("1 kHz, theta noise 2e-5 rad + bias, up 3x60 s + 20 s rest alternating, 0.3 V", 1000.0,
-     dict(direction="up", n_records=3, sweep_s=60.0, rest_s=20.0, alternate=True, amplitude_v=0.3), dict(theta_noise_sd=2e-5, accel_bias=0.05)),
-    ("1 kHz, ramp drift + 60 Hz hum, down 5x60 s + 20 s rest alternating, 0.1 V", 1000.0,
-     dict(direction="down", n_records=5, sweep_s=60.0, rest_s=20.0, alternate=True, amplitude_v=0.1),
-     dict(accel_drift=("ramp", 0.02), hum=(60.0, 0.01, 0.0))),
-    ("500 Hz, 60 Hz hum, up 3x120 s back to back, 0.3 V", 500.0,
-     dict(direction="up", n_records=3, sweep_s=120.0, rest_s=0.0, amplitude_v=0.3), dict(hum=(60.0, 0.01, 0.0))),
-    ("2 kHz, bias + 0.005 Hz drift, up 3x60 s + 20 s rest alternating, 0.1 V", 2000.0,
-     dict(direction="up", n_records=3, sweep_s=60.0, rest_s=20.0, alternate=True, amplitude_v=0.1),
-     dict(accel_bias=0.05, accel_drift=("sine", 0.005, 0.02))),
-    ("1 kHz, all at once (bias, ramp, 50 Hz hum on accel and v, theta noise), down 3x120 s + 20 s rest alternating, 0.1 V", 1000.0,
-     dict(direction="down", n_records=3, sweep_s=120.0, rest_s=20.0, alternate=True, amplitude_v=0.1),
-     dict(accel_bias=0.05, accel_drift=("ramp", 0.02), hum=(50.0, 0.01, 0.002), theta_noise_sd=2e-5)),
+    (
+        "1 kHz, 12-bit encoder, up 3x120 s + 20 s rest, 0.1 V",
+        1000.0,
+        dict(direction="up", n_records=3, sweep_s=120.0, rest_s=20.0, amplitude_v=0.1),
+        dict(encoder_bits=12),
+    ),
+    (
+        "500 Hz, accel bias 0.05, down 3x120 s + 20 s rest, 0.1 V",
+        500.0,
+        dict(direction="down", n_records=3, sweep_s=120.0, rest_s=20.0, amplitude_v=0.1),
+        dict(accel_bias=0.05),
+    ),
+    (
+        "2 kHz, accel ramp drift 0.02, up 3x120 s alternating, 0.1 V",
+        2000.0,
+        dict(direction="up", n_records=3, sweep_s=120.0, rest_s=0.0, alternate=True, amplitude_v=0.1),
+        dict(accel_drift=("ramp", 0.02)),
+    ),
+    (
+        "1 kHz, 50 Hz hum 0.01 on accel, up 5x60 s + 20 s rest, 0.05 V",
+        1000.0,
+        dict(direction="up", n_records=5, sweep_s=60.0, rest_s=20.0, amplitude_v=0.05),
+        dict(hum=(50.0, 0.01, 0.0)),
+    ),
+    (
+        "1 kHz, 60 Hz hum 0.01 on accel + 2 mV on v, down 3x120 s alternating, 0.3 V",
+        1000.0,
+        dict(direction="down", n_records=3, sweep_s=120.0, rest_s=0.0, alternate=True, amplitude_v=0.3),
+        dict(hum=(60.0, 0.01, 0.002)),
+    ),
+    (
+        "500 Hz, 0.005 Hz accel drift 0.02, up 5x60 s alternating, 0.1 V",
+        500.0,
+        dict(direction="up", n_records=5, sweep_s=60.0, rest_s=0.0, alternate=True, amplitude_v=0.1),
+        dict(accel_drift=("sine", 0.005, 0.02)),
+    ),
+    (
+        "2 kHz, bias 0.05 + 50 Hz hum, down 3x120 s + 20 s rest, 0.05 V",
+        2000.0,
+        dict(direction="down", n_records=3, sweep_s=120.0, rest_s=20.0, amplitude_v=0.05),
+        dict(accel_bias=0.05, hum=(50.0, 0.01, 0.0)),
+    ),
+    (
+        "1 kHz, theta noise 2e-5 rad + bias, up 3x60 s + 20 s rest alternating, 0.3 V",
+        1000.0,
+        dict(direction="up", n_records=3, sweep_s=60.0, rest_s=20.0, alternate=True, amplitude_v=0.3),
+        dict(theta_noise_sd=2e-5, accel_bias=0.05),
+    ),
+    (
+        "1 kHz, ramp drift + 60 Hz hum, down 5x60 s + 20 s rest alternating, 0.1 V",
+        1000.0,
+        dict(direction="down", n_records=5, sweep_s=60.0, rest_s=20.0, alternate=True, amplitude_v=0.1),
+        dict(accel_drift=("ramp", 0.02), hum=(60.0, 0.01, 0.0)),
+    ),
+    (
+        "500 Hz, 60 Hz hum, up 3x120 s back to back, 0.3 V",
+        500.0,
+        dict(direction="up", n_records=3, sweep_s=120.0, rest_s=0.0, amplitude_v=0.3),
+        dict(hum=(60.0, 0.01, 0.0)),
+    ),
+    (
+        "2 kHz, bias + 0.005 Hz drift, up 3x60 s + 20 s rest alternating, 0.1 V",
+        2000.0,
+        dict(direction="up", n_records=3, sweep_s=60.0, rest_s=20.0, alternate=True, amplitude_v=0.1),
+        dict(accel_bias=0.05, accel_drift=("sine", 0.005, 0.02)),
+    ),
+    (
+        "1 kHz, all at once (bias, ramp, 50 Hz hum on accel and v, theta noise), down 3x120 s + 20 s rest alternating, 0.1 V",
+        1000.0,
+        dict(direction="down", n_records=3, sweep_s=120.0, rest_s=20.0, alternate=True, amplitude_v=0.1),
+        dict(accel_bias=0.05, accel_drift=("ramp", 0.02), hum=(50.0, 0.01, 0.002), theta_noise_sd=2e-5),
+    ),
 ]
 
 # (name, Rig keywords, injected [(category, kind, {param: true value})])
@@ -114,10 +159,17 @@ OUT_OF_LIBRARY = [
     ("mode 1 drifting +4 %", {"mode1_drift_fraction": 0.04}, [("out_of_library", "mode1_drift", {"fraction": 0.04})]),
     ("accel gain step +10 % mid-file", {"accel_gain_step": 0.10}, [("out_of_library", "accel_gain_step", {"fraction": 0.10})]),
 ]
-TOLERANCE = {("delay", "delay_s"): ("abs", 5e-4), ("extra_mode", "freq_hz"): ("rel", 0.02), ("extra_mode", "zero_freq_hz"): ("rel", 0.02),
-             ("sensor", "corner_hz"): ("rel", 0.15), ("actuator", "freq_hz"): ("rel", 0.15), ("actuator", "pole_per_s"): ("rel", 0.15),
-             ("nonlinear", "dead_band_v"): ("rel", 0.15), ("nonlinear", "saturation_v"): ("rel", 0.15),
-             ("nonlinear", "asymmetry_fraction"): ("rel", 0.15)}
+TOLERANCE = {
+    ("delay", "delay_s"): ("abs", 5e-4),
+    ("extra_mode", "freq_hz"): ("rel", 0.02),
+    ("extra_mode", "zero_freq_hz"): ("rel", 0.02),
+    ("sensor", "corner_hz"): ("rel", 0.15),
+    ("actuator", "freq_hz"): ("rel", 0.15),
+    ("actuator", "pole_per_s"): ("rel", 0.15),
+    ("nonlinear", "dead_band_v"): ("rel", 0.15),
+    ("nonlinear", "saturation_v"): ("rel", 0.15),
+    ("nonlinear", "asymmetry_fraction"): ("rel", 0.15),
+}
 #: a saturation must act: the rig is drawn again until the command passes the level by this factor
 ACTIVE = 1.1
 MAX_DRAWS = 50
@@ -127,8 +179,18 @@ CATS = ["delay", "extra_mode", "sensor", "actuator", "nonlinear"]
 def plan(seed_offset: int = 0) -> list[dict]:
     cases = []
     for i, (nname, fs, sweep, daq) in enumerate(NUISANCES):
-        cases.append({"name": f"clean N{i + 1:02d}", "nuisance": nname, "fs": fs, "sweep": sweep, "daq": daq, "effects": {},
-                      "injected": [], "seed": 1000 + i + seed_offset})
+        cases.append(
+            {
+                "name": f"clean N{i + 1:02d}",
+                "nuisance": nname,
+                "fs": fs,
+                "sweep": sweep,
+                "daq": daq,
+                "effects": {},
+                "injected": [],
+                "seed": 1000 + i + seed_offset,
+            }
+        )
     # effect cases rotate through the nuisance sets, all but the 12-bit encoder's (once, on a clean rig: one count is
     # 0.088 deg, 88 mV of command at Kp = 1 V/deg, a limit cycle as large as the excitation)
     rotation = [i for i, n in enumerate(NUISANCES) if n[3].get("encoder_bits", 16) >= 16]
@@ -139,8 +201,9 @@ def plan(seed_offset: int = 0) -> list[dict]:
             sweep = {**sweep, "amplitude_v": 0.1}
             nname = nname.rsplit(",", 1)[0] + ", 0.1 V (nonlinear case)"
         seed = (1100 + j if j < len(SINGLE) else 1200 + j - len(SINGLE)) + seed_offset
-        cases.append({"name": f"{name} [N{k + 1:02d}]", "nuisance": nname, "fs": fs, "sweep": sweep, "daq": daq,
-                      "effects": eff, "injected": inj, "seed": seed})
+        cases.append(
+            {"name": f"{name} [N{k + 1:02d}]", "nuisance": nname, "fs": fs, "sweep": sweep, "daq": daq, "effects": eff, "injected": inj, "seed": seed}
+        )
     return cases
 
 
@@ -162,12 +225,26 @@ def match_injected(found: list, injected: list, hold_s: float) -> tuple[list[dic
     rows, unmatched = [], list(found)
     for cat, kind, truth in injected:
         if cat == "out_of_library":
-            rows.append({"category": cat, "kind": kind, "truth": truth, "found_category": None, "found_kind": None, "found_params": None,
-                         "errors": {}, "within_tolerance": None, "named_alternative": False})
+            rows.append(
+                {
+                    "category": cat,
+                    "kind": kind,
+                    "truth": truth,
+                    "found_category": None,
+                    "found_kind": None,
+                    "found_params": None,
+                    "errors": {},
+                    "within_tolerance": None,
+                    "named_alternative": False,
+                }
+            )
             continue
         alt = f"{cat}/{kind} in its place fits almost as well"
-        match = next((e for e in unmatched if e.category == cat and e.kind == kind), None) or next(
-            (e for e in unmatched if e.category == cat), None) or next((e for e in unmatched if alt in e.evidence), None)
+        match = (
+            next((e for e in unmatched if e.category == cat and e.kind == kind), None)
+            or next((e for e in unmatched if e.category == cat), None)
+            or next((e for e in unmatched if alt in e.evidence), None)
+        )
         if match is not None:
             unmatched.remove(match)
         errors, raw = {}, {}
@@ -180,9 +257,20 @@ def match_injected(found: list, injected: list, hold_s: float) -> tuple[list[dic
                     raw[p] = match.params[p] - v if how == "abs" else match.params[p] / v - 1.0
         within = all(abs(e) <= TOLERANCE[(cat, p)][1] for p, e in errors.items()) if errors else None
         named = match is not None and match.kind != kind and alt in match.evidence
-        rows.append({"category": cat, "kind": kind, "truth": truth, "found_category": None if match is None else match.category,
-                     "found_kind": None if match is None else match.kind, "found_params": None if match is None else match.params,
-                     "errors": errors, "errors_vs_injected": raw, "within_tolerance": within, "named_alternative": named})
+        rows.append(
+            {
+                "category": cat,
+                "kind": kind,
+                "truth": truth,
+                "found_category": None if match is None else match.category,
+                "found_kind": None if match is None else match.kind,
+                "found_params": None if match is None else match.params,
+                "errors": errors,
+                "errors_vs_injected": raw,
+                "within_tolerance": within,
+                "named_alternative": named,
+            }
+        )
     return rows, unmatched
 
 
@@ -192,7 +280,7 @@ def simulate_case(case: dict) -> tuple[dict, str, int, float | None]:
     fs = case["fs"]
     r, text = swept_sine(fs, **case["sweep"])
     law = case["effects"].get("valve_nonlinearity")
-    for draw in range(1, MAX_DRAWS + 1):
+    for draw in range(1, MAX_DRAWS + 1):  # noqa: B007 - the count of draws is read after the loop
         rig = Rig.drawn(rng, spread=SPREAD, fs=fs, **case["effects"])
         data = rig.simulate(r, fs, rng=rng, **case["daq"])
         reached = None
@@ -216,8 +304,14 @@ def run_case(case: dict, csv_dir: str | None = None) -> dict:
     from samii.diagnose.diagnosis import diagnose
     from samii.diagnose.measured import load
 
-    out = {"name": case["name"], "nuisance": case["nuisance"], "fs": case["fs"], "amplitude_v": case["sweep"]["amplitude_v"],
-           "seed": case["seed"], "effects": {k: list(v) if isinstance(v, tuple) else v for k, v in case["effects"].items()}}
+    out = {
+        "name": case["name"],
+        "nuisance": case["nuisance"],
+        "fs": case["fs"],
+        "amplitude_v": case["sweep"]["amplitude_v"],
+        "seed": case["seed"],
+        "effects": {k: list(v) if isinstance(v, tuple) else v for k, v in case["effects"].items()},
+    }
     try:
         t0 = time.perf_counter()
         data, text, draws, reached = simulate_case(case)
@@ -229,36 +323,57 @@ def run_case(case: dict, csv_dir: str | None = None) -> dict:
             path.parent.mkdir(parents=True, exist_ok=True)
             write_csv(path, data, {"sample_rate_hz": f"{case['fs']:g}", "excitation": text})
             m = load(path)
-            out["records"] = None if m.layout is None else {"record_s": m.layout.record_s, "n_records": m.layout.n_records,
-                                                            "start_s": m.layout.start_s}
+            out["records"] = (
+                None if m.layout is None else {"record_s": m.layout.record_s, "n_records": m.layout.n_records, "start_s": m.layout.start_s}
+            )
             t0 = time.perf_counter()
             d = diagnose([m], baseline=case.get("baseline", "notebook"))
             out["time_s"] = time.perf_counter() - t0
             if d.simulator is not None:
                 s = d.simulator
-                out["simulator"] = {"carried": list(s.carried), "not_lowering": list(s.not_lowering), "worse": s.worse,
-                                    "verdict": s.verdict_text(), "cannot_represent": [x.text() for x in s.misfit_after],
-                                    "misfit_before": [x.text() for x in s.misfit_before],
-                                    "error_before": {k: v.to_dict() for k, v in s.error_before.items()},
-                                    "error_after": {k: v.to_dict() for k, v in s.error_after.items()}}
+                out["simulator"] = {
+                    "carried": list(s.carried),
+                    "not_lowering": list(s.not_lowering),
+                    "worse": s.worse,
+                    "verdict": s.verdict_text(),
+                    "cannot_represent": [x.text() for x in s.misfit_after],
+                    "misfit_before": [x.text() for x in s.misfit_before],
+                    "error_before": {k: v.to_dict() for k, v in s.error_before.items()},
+                    "error_after": {k: v.to_dict() for k, v in s.error_after.items()},
+                }
         # the hold's half sample is in the truth of a command delay unless the diagnosis modelled it (its baseline's)
         unmodelled_hold = 0.0 if d.after.baseline.hold_s else _hold_s(case)
         rows, unmatched = match_injected([e for e in d.effects if not e.expected], case["injected"], unmodelled_hold)
-        out.update({
-            "injected": rows,
-            "extra": [{"category": e.category, "kind": e.kind, "params": e.params} for e in unmatched],
-            "expected": [{"kind": e.kind, "params": e.params} for e in d.effects if e.expected],
-            "verdict": d.verdict, "unexplained": [b.to_dict() for b in d.unexplained],
-            "error_before": {k: v.to_dict() for k, v in d.error_before.items()},
-            "error_after": {k: v.to_dict() for k, v in d.error_after.items()},
-            "harmonic_error": None if d.harmonic_error is None else {"before": d.harmonic_error[0].to_dict(), "after": d.harmonic_error[1].to_dict()},
-            "notes": list(d.notes),
-            "refused": [{"round": x["round"], "effect": x["effect"], "class": x["class"]} for x in d.refused],
-        })
+        out.update(
+            {
+                "injected": rows,
+                "extra": [{"category": e.category, "kind": e.kind, "params": e.params} for e in unmatched],
+                "expected": [{"kind": e.kind, "params": e.params} for e in d.effects if e.expected],
+                "verdict": d.verdict,
+                "unexplained": [b.to_dict() for b in d.unexplained],
+                "error_before": {k: v.to_dict() for k, v in d.error_before.items()},
+                "error_after": {k: v.to_dict() for k, v in d.error_after.items()},
+                "harmonic_error": None
+                if d.harmonic_error is None
+                else {"before": d.harmonic_error[0].to_dict(), "after": d.harmonic_error[1].to_dict()},
+                "notes": list(d.notes),
+                "refused": [{"round": x["round"], "effect": x["effect"], "class": x["class"]} for x in d.refused],
+            }
+        )
     except Exception as exc:  # a case that fails is reported, not fatal
-        out.update({"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(), "injected": [
-            {"category": c, "kind": k, "truth": t, "found_category": None, "found_kind": None, "errors": {}, "within_tolerance": None}
-            for c, k, t in case["injected"]], "extra": [], "verdict": "error", "unexplained": []})
+        out.update(
+            {
+                "error": f"{type(exc).__name__}: {exc}",
+                "traceback": traceback.format_exc(),
+                "injected": [
+                    {"category": c, "kind": k, "truth": t, "found_category": None, "found_kind": None, "errors": {}, "within_tolerance": None}
+                    for c, k, t in case["injected"]
+                ],
+                "extra": [],
+                "verdict": "error",
+                "unexplained": [],
+            }
+        )
     return out
 
 
@@ -288,8 +403,9 @@ def _confusion(results: list[dict]) -> str:
                 counts["(none)"][e["category"]] += 1
     lines = ["| injected \\ found | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
     for c in rows:
-        lines.append(f"| {c} | " + " | ".join("" if (c == "(none)" and k in ("missed", "unexplained only")) else str(counts[c][k])
-                                            for k in cols) + " |")
+        lines.append(
+            f"| {c} | " + " | ".join("" if (c == "(none)" and k in ("missed", "unexplained only")) else str(counts[c][k]) for k in cols) + " |"
+        )
     return "\n".join(lines)
 
 
@@ -332,26 +448,42 @@ def _summary(results: list[dict]) -> tuple[str, dict]:
     ool_right = sum(_ool_right(r) for r in ool)
     errors = [r for r in results if r.get("error")]
     times = [r["time_s"] for r in ok] or [np.nan]
-    stats = {"cases": len(results), "errors": len(errors), "effects_injected": len(lib), "category_right": right_cat, "kind_right": right_kind,
-             "named_alternative": named, "clean_cases": len(clean), "clean_false_alarms": false_clean,
-             "clean_with_unexplained_bands": clean_bands, "extra_effects_in_effect_cases": extra,
-             "parameters_within_tolerance": within, "parameters_judged": len(tol), "error_after_below_before": n_better,
-             "effect_cases": len(effect_cases), "out_of_library_cases": len(ool), "out_of_library_right": ool_right,
-             "time_s_median": float(np.median(times)), "time_s_max": float(np.max(times))}
-    text = "\n".join([
-        "| goal | second rig |",
-        "|---|---|",
-        f"| effects classified right | category {right_cat}/{len(lib)}, kind {right_kind}/{len(lib)} (and {named} found as another kind "
-        "whose evidence names the injected one as fitting almost as well) |",
-        f"| 0 false alarms on clean data | {false_clean} of {len(clean)} clean cases ({clean_bands} with unexplained bands) |",
-        f"| delays 0.5 ms (command: injected, + the half-sample hold where not modelled), mode frequencies 2 %, sensor corners 15 % | {within}/{len(tol)} |",
-        f"| error after below before (run.py's rule) | {n_better}/{len(effect_cases)} |",
-        f"| out-of-library physics left unexplained, no library effect named | {ool_right}/{len(ool)} |",
-        f"| effects found beyond those injected | {extra} in {len(effect_cases)} effect cases |",
-        f"| cases that failed to run | {len(errors)} |",
-        f"| candidates that passed the F-test, refused (the data do not show them) | {_refused_text(results)} |",
-        f"| diagnosis time per case | median {stats['time_s_median']:.1f} s, max {stats['time_s_max']:.1f} s |",
-    ])
+    stats = {
+        "cases": len(results),
+        "errors": len(errors),
+        "effects_injected": len(lib),
+        "category_right": right_cat,
+        "kind_right": right_kind,
+        "named_alternative": named,
+        "clean_cases": len(clean),
+        "clean_false_alarms": false_clean,
+        "clean_with_unexplained_bands": clean_bands,
+        "extra_effects_in_effect_cases": extra,
+        "parameters_within_tolerance": within,
+        "parameters_judged": len(tol),
+        "error_after_below_before": n_better,
+        "effect_cases": len(effect_cases),
+        "out_of_library_cases": len(ool),
+        "out_of_library_right": ool_right,
+        "time_s_median": float(np.median(times)),
+        "time_s_max": float(np.max(times)),
+    }
+    text = "\n".join(
+        [
+            "| goal | second rig |",
+            "|---|---|",
+            f"| effects classified right | category {right_cat}/{len(lib)}, kind {right_kind}/{len(lib)} (and {named} found as another kind "
+            "whose evidence names the injected one as fitting almost as well) |",
+            f"| 0 false alarms on clean data | {false_clean} of {len(clean)} clean cases ({clean_bands} with unexplained bands) |",
+            f"| delays 0.5 ms (command: injected, + the half-sample hold where not modelled), mode frequencies 2 %, sensor corners 15 % | {within}/{len(tol)} |",
+            f"| error after below before (run.py's rule) | {n_better}/{len(effect_cases)} |",
+            f"| out-of-library physics left unexplained, no library effect named | {ool_right}/{len(ool)} |",
+            f"| effects found beyond those injected | {extra} in {len(effect_cases)} effect cases |",
+            f"| cases that failed to run | {len(errors)} |",
+            f"| candidates that passed the F-test, refused (the data do not show them) | {_refused_text(results)} |",
+            f"| diagnosis time per case | median {stats['time_s_median']:.1f} s, max {stats['time_s_max']:.1f} s |",
+        ]
+    )
     return text, stats
 
 
@@ -370,8 +502,11 @@ def effect_text(row: dict) -> str:
     raw = row.get("errors_vs_injected") or {}
     if row["kind"] == "command" and "delay_s" in raw:
         errs += f" (vs injected alone {1e3 * raw['delay_s']:+.2f} ms)"
-    ok = "" if row["found_kind"] == row["kind"] else f" as {row['found_category']}/{row['found_kind']}" + (
-        " (named as fitting almost as well)" if row.get("named_alternative") else "")
+    ok = (
+        ""
+        if row["found_kind"] == row["kind"]
+        else f" as {row['found_category']}/{row['found_kind']}" + (" (named as fitting almost as well)" if row.get("named_alternative") else "")
+    )
     return f"{row['kind']}{ok}: {_fmt_params(row.get('found_params'))} {errs}".rstrip()
 
 
@@ -387,8 +522,7 @@ def _line(r: dict) -> str:
     he = r.get("harmonic_error")
     harm = "-" if not he else f"{he['before']['chi2']:.3g} -> {he['after']['chi2']:.3g}"
     bands = "; ".join(f"{b['channel']} {b['lo_hz']:.3g}-{b['hi_hz']:.3g} Hz (chi2 {b['chi2']:.3g})" for b in r["unexplained"]) or "-"
-    return (f"| {r['name']} | {r['verdict']} | {found} | {extra} | {err} | {harm} | {bands} | "
-            f"{r['sim_s']:.1f} + {r['time_s']:.1f} |")
+    return f"| {r['name']} | {r['verdict']} | {found} | {extra} | {err} | {harm} | {bands} | {r['sim_s']:.1f} + {r['time_s']:.1f} |"
 
 
 def write(out: Path, results: list[dict], meta: dict) -> None:
@@ -396,30 +530,57 @@ def write(out: Path, results: list[dict], meta: dict) -> None:
     out.mkdir(parents=True, exist_ok=True)
     (out / "results.json").write_text(json.dumps({"meta": meta, "stats": stats, "cases": results}, indent=2, default=float) + "\n")
     nuis = ["| set | nuisances |", "|---|---|"] + [f"| N{i + 1:02d} | {n[0]} |" for i, n in enumerate(NUISANCES)]
-    table = ["# Diagnosis battery on the second rig (generated by run_second_rig.py)", "",
-             f"seed offset {meta['seed_offset']}; encoder override {meta.get('encoder_bits_override')}; valve process noise "
-             f"{meta.get('valve_noise_sd', 0.0):g} V; rigs within +-{100 * SPREAD:.0f} % of eq 9.4; digital loop (ZOH) at the DAQ rate, "
-             "integrated exactly at 10x; accel white noise 2e-3 m/s^2 and a 16-bit encoder unless the nuisance set says otherwise.", "",
-             summary, "", "## Confusion table (category found against injected; '(none)' counts effects found where none was injected, "
-             "clean cases included; out_of_library counts library effects named for physics the library lacks)", "",
-             _confusion(results), "", "## Nuisance sets", ""] + nuis + ["", "## Cases", "",
-             "| case | verdict | injected: found, parameter errors | found beyond the injected | chi2 theta/v / xdd/theta / xdd/v before -> after "
-             "| chi2 harmonics before -> after | unexplained bands | time sim + diagnosis [s] |", "|---|---|---|---|---|---|---|---|"]
+    table = (
+        [
+            "# Diagnosis battery on the second rig (generated by run_second_rig.py)",
+            "",
+            f"seed offset {meta['seed_offset']}; encoder override {meta.get('encoder_bits_override')}; valve process noise "
+            f"{meta.get('valve_noise_sd', 0.0):g} V; rigs within +-{100 * SPREAD:.0f} % of eq 9.4; digital loop (ZOH) at the DAQ rate, "
+            "integrated exactly at 10x; accel white noise 2e-3 m/s^2 and a 16-bit encoder unless the nuisance set says otherwise.",
+            "",
+            summary,
+            "",
+            "## Confusion table (category found against injected; '(none)' counts effects found where none was injected, "
+            "clean cases included; out_of_library counts library effects named for physics the library lacks)",
+            "",
+            _confusion(results),
+            "",
+            "## Nuisance sets",
+            "",
+        ]
+        + nuis
+        + [
+            "",
+            "## Cases",
+            "",
+            "| case | verdict | injected: found, parameter errors | found beyond the injected | chi2 theta/v / xdd/theta / xdd/v before -> after "
+            "| chi2 harmonics before -> after | unexplained bands | time sim + diagnosis [s] |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+    )
     table += [_line(r) for r in results]
     sims = [r for r in results if r.get("simulator")]
     if sims:
+
         def err(e: dict) -> str:
             return " / ".join(f"{e[c]['rms_db']:.2g} dB {e[c]['rms_deg']:.2g} deg" for c in ("act", "base", "total") if c in e)
 
-        table += ["", "## Against the simulator (--baseline sim): what was carried, what was not for not lowering its error, "
-                  "what the carry made worse, where it cannot represent the data", "",
-                  "| case | carried | not carried: did not lower the error | worse after the carry | cannot represent (largest 3) "
-                  "| simulator theta/v / xdd/theta / xdd/v before -> after |", "|---|---|---|---|---|---|"]
+        table += [
+            "",
+            "## Against the simulator (--baseline sim): what was carried, what was not for not lowering its error, "
+            "what the carry made worse, where it cannot represent the data",
+            "",
+            "| case | carried | not carried: did not lower the error | worse after the carry | cannot represent (largest 3) "
+            "| simulator theta/v / xdd/theta / xdd/v before -> after |",
+            "|---|---|---|---|---|---|",
+        ]
         for r in sims:
             s = r["simulator"]
-            table.append(f"| {r['name']} | {', '.join(s['carried']) or '-'} | "
-                         f"{'; '.join(x.split(':')[0] for x in s['not_lowering']) or '-'} | {', '.join(s['worse']) or '-'} | "
-                         f"{s['verdict'].split('; carrying')[0] or '-'} | {err(s['error_before'])} -> {err(s['error_after'])} |")
+            table.append(
+                f"| {r['name']} | {', '.join(s['carried']) or '-'} | "
+                f"{'; '.join(x.split(':')[0] for x in s['not_lowering']) or '-'} | {', '.join(s['worse']) or '-'} | "
+                f"{s['verdict'].split('; carrying')[0] or '-'} | {err(s['error_before'])} -> {err(s['error_after'])} |"
+            )
     (out / "table.md").write_text("\n".join(table) + "\n")
     print(summary)
     print(_confusion(results))
@@ -435,13 +596,22 @@ def main() -> None:
     ap.add_argument("--keep-csv", action="store_true", help="keep the CSV files in OUT/csv")
     ap.add_argument("--merge", action="store_true", help="merge into OUT/results.json (cases of the same name replaced)")
     ap.add_argument("--list", action="store_true", help="print the cases and exit")
-    ap.add_argument("--encoder-bits", default=None, metavar="N|none",
-                    help="override every case's encoder (none: no quantisation), e.g. to see what the quantised loop costs")
-    ap.add_argument("--baseline", choices=("notebook", "sim"), default="notebook",
-                    help="the model under test: the notebook's structure (default) or the calibrated simulator (samii diagnose "
-                    "--baseline sim: what it carries, what it cannot represent)")
-    ap.add_argument("--valve-noise", type=float, default=0.0, metavar="V",
-                    help="white process noise [V] on the valve input in every case (off by default)")
+    ap.add_argument(
+        "--encoder-bits",
+        default=None,
+        metavar="N|none",
+        help="override every case's encoder (none: no quantisation), e.g. to see what the quantised loop costs",
+    )
+    ap.add_argument(
+        "--baseline",
+        choices=("notebook", "sim"),
+        default="notebook",
+        help="the model under test: the notebook's structure (default) or the calibrated simulator (samii diagnose "
+        "--baseline sim: what it carries, what it cannot represent)",
+    )
+    ap.add_argument(
+        "--valve-noise", type=float, default=0.0, metavar="V", help="white process noise [V] on the valve input in every case (off by default)"
+    )
     args = ap.parse_args()
     cases = plan(args.seed_offset)
     for c in cases:
@@ -472,7 +642,13 @@ def main() -> None:
         for c in cases:
             results.append(run_case(c, csv_dir))
             print(_line(results[-1]), flush=True)
-    meta = {"seed_offset": args.seed_offset, "baseline": args.baseline, "spread": SPREAD, "encoder_bits_override": args.encoder_bits, "valve_noise_sd": args.valve_noise}
+    meta = {
+        "seed_offset": args.seed_offset,
+        "baseline": args.baseline,
+        "spread": SPREAD,
+        "encoder_bits_override": args.encoder_bits,
+        "valve_noise_sd": args.valve_noise,
+    }
     if args.merge and (args.out / "results.json").exists():
         old = json.loads((args.out / "results.json").read_text())
         if old.get("meta", {}).get("seed_offset") == args.seed_offset:

@@ -68,21 +68,27 @@ CASES = [
     ("accel gain 1.2", {"sensor.accel_gain": 1.2}, [("sensor", "accel_gain", {"gain": 1.2})], 18),
     ("dead band 20 mV", {"hydraulic.valve_dead_band": 0.02}, [("nonlinear", "dead_band", {"dead_band_v": 0.02})], 19),
     ("saturation 60 mV", {"hydraulic.valve_saturation": 0.06}, [("nonlinear", "saturation", {"saturation_v": 0.06})], 20),
-    ("delay 4 ms + HP 0.3 Hz", {"hydraulic.command_delay": 0.004, "sensor.accel_highpass_hz": 0.3},
-     [("delay", "command", {"delay_s": 0.004}), ("sensor", "accel_highpass", {"corner_hz": 0.3})], 21),
+    (
+        "delay 4 ms + HP 0.3 Hz",
+        {"hydraulic.command_delay": 0.004, "sensor.accel_highpass_hz": 0.3},
+        [("delay", "command", {"delay_s": 0.004}), ("sensor", "accel_highpass", {"corner_hz": 0.3})],
+        21,
+    ),
     # a body on a compliant mount at the beam's end: the truth is the base mode it adds (joint 2
     # held), a little off the mount's own frequency (TIP_BODY_TRUTH: computed from the model)
     ("tip body 0.5 kg, 15 Hz", _body(0.5, 15.0, 0.02), [("extra_mode", "base_mode", TIP_BODY_TRUTH)], 22),
     ("tip body 0.3 kg, 35 Hz", _body(0.3, 35.0, 0.03), [("extra_mode", "base_mode", TIP_BODY_TRUTH)], 23),
     ("tip body 1 kg, 5 Hz", _body(1.0, 5.0, 0.02), [("extra_mode", "base_mode", TIP_BODY_TRUTH)], 24),
-    ("delay 4 ms + tip body 0.5 kg, 15 Hz", {"hydraulic.command_delay": 0.004, **_body(0.5, 15.0, 0.02)},
-     [("delay", "command", {"delay_s": 0.004}), ("extra_mode", "base_mode", TIP_BODY_TRUTH)], 25),
+    (
+        "delay 4 ms + tip body 0.5 kg, 15 Hz",
+        {"hydraulic.command_delay": 0.004, **_body(0.5, 15.0, 0.02)},
+        [("delay", "command", {"delay_s": 0.004}), ("extra_mode", "base_mode", TIP_BODY_TRUTH)],
+        25,
+    ),
     # the valve's spool (a first-order lag, 4.48 ms) twice as slow and twice as fast: against the simulator a real
     # pole/zero pair, (1 + s tau0)/(1 + s tau), carried as the spool's time constant
-    ("spool 2x slower (8.97 ms)", {"hydraulic.valve_time_constant": 0.00897},
-     [("actuator", "pole_zero", {"spool_time_constant_s": 0.00897})], 26),
-    ("spool 2x faster (2.24 ms)", {"hydraulic.valve_time_constant": 0.00224},
-     [("actuator", "pole_zero", {"spool_time_constant_s": 0.00224})], 27),
+    ("spool 2x slower (8.97 ms)", {"hydraulic.valve_time_constant": 0.00897}, [("actuator", "pole_zero", {"spool_time_constant_s": 0.00897})], 26),
+    ("spool 2x faster (2.24 ms)", {"hydraulic.valve_time_constant": 0.00224}, [("actuator", "pole_zero", {"spool_time_constant_s": 0.00224})], 27),
     # the valve's negative direction 10 % weaker (hydraulic.valve_asymmetry): found from the sweep's 2nd harmonic
     ("asymmetry 10 %", {"hydraulic.valve_asymmetry": 0.1}, [("nonlinear", "asymmetry", {"asymmetry_fraction": 0.1})], 28),
 ]
@@ -98,8 +104,7 @@ def run_case(name: str, overrides: dict, injected: list, seed: int) -> dict:
     from samii.measure.daq import SensorNoise
     from samii.sim.model import load_model
 
-    meas = measure_swept(load_model(overrides=overrides) if overrides else load_model(), noise=SensorNoise(),
-                         rng=np.random.default_rng(seed))
+    meas = measure_swept(load_model(overrides=overrides) if overrides else load_model(), noise=SensorNoise(), rng=np.random.default_rng(seed))
     files = [from_timeseries(meas.timeseries, source=name)]
     t0 = time.perf_counter()
     d = diagnose(files, baseline="sim")
@@ -107,17 +112,27 @@ def run_case(name: str, overrides: dict, injected: list, seed: int) -> dict:
     rows, unmatched = match_injected([e for e in d.effects if not e.expected], _truth(injected, overrides), {**TOLERANCE, **EXTRA_TOLERANCE})
     s = d.simulator
     return {
-        "name": name, "overrides": overrides, "seed": seed, "injected": rows,
+        "name": name,
+        "overrides": overrides,
+        "seed": seed,
+        "injected": rows,
         "extra": [{"category": e.category, "kind": e.kind, "params": e.params} for e in unmatched],
         "verdict": d.verdict,
         "error_before": {k: v.to_dict() for k, v in d.error_before.items()},
         "error_after": {k: v.to_dict() for k, v in d.error_after.items()},
-        "simulator": None if s is None else {"carried": list(s.carried), "changes": dict(s.changes),
-                                             "not_carried": list(s.not_carried), "dropped": list(s.dropped),
-                                             "not_lowering": list(s.not_lowering), "worse": s.worse,
-                                             "cannot_represent": [m.text() for m in s.misfit_after],
-                                             "error_before": {k: v.to_dict() for k, v in s.error_before.items()},
-                                             "error_after": {k: v.to_dict() for k, v in s.error_after.items()}},
+        "simulator": None
+        if s is None
+        else {
+            "carried": list(s.carried),
+            "changes": dict(s.changes),
+            "not_carried": list(s.not_carried),
+            "dropped": list(s.dropped),
+            "not_lowering": list(s.not_lowering),
+            "worse": s.worse,
+            "cannot_represent": [m.text() for m in s.misfit_after],
+            "error_before": {k: v.to_dict() for k, v in s.error_before.items()},
+            "error_after": {k: v.to_dict() for k, v in s.error_after.items()},
+        },
         "time_s": elapsed,
     }
 
@@ -140,23 +155,25 @@ def _summary(results: list[dict]) -> str:
 
     better = sum(sim_better(r) for r in effect_cases)
     times = [r["time_s"] for r in results]
-    return "\n".join([
-        "| goal (issue 11) | --baseline sim on the simulator's data |",
-        "|---|---|",
-        f"| >= 90 % of effects classified right | category {right_cat}/{len(inj)}, kind {right_kind}/{len(inj)} (and {named} found as another "
-        "kind whose evidence names the injected one as fitting almost as well) |",
-        f"| 0 false alarms on clean data | {false_clean} of {len(clean)} clean cases |",
-        f"| delays 0.5 ms, sensor corners 15 % (gain 15 %, nonlinear levels 15 %) | {within}/{len(judged)} |",
-        f"| the simulator's error drops (chi2 of theta/v and xdd/v, re-measured, after carrying) | {better}/{len(effect_cases)} |",
-        f"| (not a goal) effects found beyond those injected | {extra} in {len(effect_cases)} effect cases |",
-        f"| (issue 31) carries that did not lower the simulator's error (not carried) | "
-        f"{sum(len((r['simulator'] or {}).get('not_lowering', [])) for r in results)} |",
-        f"| (issue 31) cases whose carry made a channel's rms dB, rms deg or chi2 worse (said in the verdict) | "
-        f"{sum(bool((r['simulator'] or {}).get('worse')) for r in results)} of {len(results)} |",
-        f"| (issue 31) cases where the simulator, with the carry, cannot represent a band of the data | "
-        f"{sum(bool((r['simulator'] or {}).get('cannot_represent')) for r in results)} of {len(results)} |",
-        f"| (speed) diagnosis time per case | median {np.median(times):.0f} s, max {np.max(times):.0f} s |",
-    ])
+    return "\n".join(
+        [
+            "| goal (issue 11) | --baseline sim on the simulator's data |",
+            "|---|---|",
+            f"| >= 90 % of effects classified right | category {right_cat}/{len(inj)}, kind {right_kind}/{len(inj)} (and {named} found as another "
+            "kind whose evidence names the injected one as fitting almost as well) |",
+            f"| 0 false alarms on clean data | {false_clean} of {len(clean)} clean cases |",
+            f"| delays 0.5 ms, sensor corners 15 % (gain 15 %, nonlinear levels 15 %) | {within}/{len(judged)} |",
+            f"| the simulator's error drops (chi2 of theta/v and xdd/v, re-measured, after carrying) | {better}/{len(effect_cases)} |",
+            f"| (not a goal) effects found beyond those injected | {extra} in {len(effect_cases)} effect cases |",
+            f"| (issue 31) carries that did not lower the simulator's error (not carried) | "
+            f"{sum(len((r['simulator'] or {}).get('not_lowering', [])) for r in results)} |",
+            f"| (issue 31) cases whose carry made a channel's rms dB, rms deg or chi2 worse (said in the verdict) | "
+            f"{sum(bool((r['simulator'] or {}).get('worse')) for r in results)} of {len(results)} |",
+            f"| (issue 31) cases where the simulator, with the carry, cannot represent a band of the data | "
+            f"{sum(bool((r['simulator'] or {}).get('cannot_represent')) for r in results)} of {len(results)} |",
+            f"| (speed) diagnosis time per case | median {np.median(times):.0f} s, max {np.max(times):.0f} s |",
+        ]
+    )
 
 
 def _line(r: dict) -> str:
@@ -164,7 +181,14 @@ def _line(r: dict) -> str:
     extra = "; ".join(f"{e['category']}/{e['kind']}" for e in r["extra"]) or "-"
     s = r["simulator"]
     sim = " / ".join(f"{s['error_before'][c]['chi2']:.3g} -> {s['error_after'][c]['chi2']:.3g}" for c in ("act", "total")) if s else "-"
-    carried = ", ".join(f"{k} = {v:.4g}" for k, v in (s or {}).get("changes", {}).items() if k.startswith("beam.tip_body") or not k.startswith(("beam.", "arm.", "hydraulic.total", "hydraulic.leak"))) or "-"
+    carried = (
+        ", ".join(
+            f"{k} = {v:.4g}"
+            for k, v in (s or {}).get("changes", {}).items()
+            if k.startswith("beam.tip_body") or not k.startswith(("beam.", "arm.", "hydraulic.total", "hydraulic.leak"))
+        )
+        or "-"
+    )
     return f"| {r['name']} | {r['verdict']} | {found} | {extra} | {carried} | {sim} | {r['time_s']:.0f} |"
 
 
@@ -198,9 +222,17 @@ def main() -> None:
     summary = _summary(results)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "simulator.json").write_text(json.dumps({"cases": results}, indent=2) + "\n")
-    table = ["# --baseline sim on the simulator's own data (generated by run_simulator.py)", "", summary, "", "## Cases", "",
-             "| case | verdict | injected: found, parameter errors | found beyond the injected | carried (simulator value) | "
-             "simulator chi2 theta/v / xdd/v before -> after | time [s] |", "|---|---|---|---|---|---|---|"] + [_line(r) for r in results]
+    table = [
+        "# --baseline sim on the simulator's own data (generated by run_simulator.py)",
+        "",
+        summary,
+        "",
+        "## Cases",
+        "",
+        "| case | verdict | injected: found, parameter errors | found beyond the injected | carried (simulator value) | "
+        "simulator chi2 theta/v / xdd/v before -> after | time [s] |",
+        "|---|---|---|---|---|---|---|",
+    ] + [_line(r) for r in results]
     (args.out / "simulator.md").write_text("\n".join(table) + "\n")
     print(summary)
 

@@ -58,8 +58,11 @@ __all__ = ["EQ9_4", "NAMES", "DEG", "FT", "Rig", "swept_sine", "write_csv", "val
 #: shared/reference/seed_parameters.json "fits_3mode_s4" / "pw_0.1_eq9_4"). Frequencies in rad/s, theta in
 #: degrees, acceleration in ft/s^2. Copied here: the project may not read shared/ at run time.
 NAMES = ("K1", "wp", "zp", "wz", "zz", "tau", "w1", "z1", "w3", "z3", "B1", "B2", "B3")
-EQ9_4 = dict(zip(NAMES, (27.8962, 55.2835, 0.139813, 62.0634, 0.0486851, 158.869, 10.8862, 0.0298125,
-                         156.814, 0.0336399, -0.00146074, 0.00156505, 0.000280877)))
+EQ9_4 = dict(
+    zip(
+        NAMES, (27.8962, 55.2835, 0.139813, 62.0634, 0.0486851, 158.869, 10.8862, 0.0298125, 156.814, 0.0336399, -0.00146074, 0.00156505, 0.000280877)
+    )
+)
 DEG = np.pi / 180.0  # rad per degree
 FT = 0.3048  # m per ft
 
@@ -70,13 +73,13 @@ def valve_law(kind: str, value: float):
     """The valve nonlinearity on the command, ``u = N(v)`` (memoryless)."""
     if kind == "dead_band":
         d = float(value)
-        return lambda v: (v - d if v > d else (v + d if v < -d else 0.0))
+        return lambda v: v - d if v > d else (v + d if v < -d else 0.0)
     if kind == "saturation":
         L = float(value)
-        return lambda v: (L if v > L else (-L if v < -L else v))
+        return lambda v: L if v > L else (-L if v < -L else v)
     if kind == "asymmetry":
         g = 1.0 - float(value)
-        return lambda v: (v if v >= 0.0 else g * v)
+        return lambda v: v if v >= 0.0 else g * v
     raise ValueError(f"valve nonlinearity must be one of {VALVE_LAWS}, got {kind!r}")
 
 
@@ -196,8 +199,14 @@ class Rig:
         """theta/v [rad/V], continuous, with the loop's effects (valve, act mode, leak, command delay)."""
         p = self.params
         s = 2j * np.pi * np.asarray(f_hz, float)
-        g = (p["K1"] * DEG * p["wp"] ** 2 * (s * s + 2 * p["zz"] * p["wz"] * s + p["wz"] ** 2) * p["tau"]
-             / ((s - self.leak_per_s) * p["wz"] ** 2 * (s * s + 2 * p["zp"] * p["wp"] * s + p["wp"] ** 2) * (s + p["tau"])))
+        g = (
+            p["K1"]
+            * DEG
+            * p["wp"] ** 2
+            * (s * s + 2 * p["zz"] * p["wz"] * s + p["wz"] ** 2)
+            * p["tau"]
+            / ((s - self.leak_per_s) * p["wz"] ** 2 * (s * s + 2 * p["zp"] * p["wp"] * s + p["wp"] ** 2) * (s + p["tau"]))
+        )
         if self.valve_hz:
             wv = 2 * np.pi * self.valve_hz
             g = g * wv * wv / (s * s + 2 * self.valve_zeta * wv * s + wv * wv)
@@ -390,8 +399,9 @@ class Rig:
         return self.closed_loop_radius(fs, oversample) < 1.0 - 1e-9
 
     @classmethod
-    def drawn(cls, rng: np.random.Generator, *, spread: float = 0.15, fs: float = 1000.0, oversample: int = 10,
-              max_draws: int = 200, **effects) -> "Rig":
+    def drawn(
+        cls, rng: np.random.Generator, *, spread: float = 0.15, fs: float = 1000.0, oversample: int = 10, max_draws: int = 200, **effects
+    ) -> Rig:
         """Each eq 9.4 parameter uniform within +-``spread``; drawn again while the sampled loop is unstable."""
         for _ in range(max_draws):
             p = {k: v * (1.0 + spread * rng.uniform(-1.0, 1.0)) for k, v in EQ9_4.items()}
@@ -401,10 +411,22 @@ class Rig:
         raise ValueError(f"no stable rig in {max_draws} draws with {effects}")
 
     # ----- simulation
-    def simulate(self, r: np.ndarray, fs: float, *, oversample: int = 10, rng: np.random.Generator | None = None,
-                 encoder_bits: int | None = 16, theta_noise_sd: float = 0.0, accel_noise_sd: float = 2e-3,
-                 accel_bias: float = 0.0, accel_drift: tuple | None = None, hum: tuple | None = None,
-                 valve_noise_sd: float = 0.0, check_stable: bool = True) -> dict:
+    def simulate(
+        self,
+        r: np.ndarray,
+        fs: float,
+        *,
+        oversample: int = 10,
+        rng: np.random.Generator | None = None,
+        encoder_bits: int | None = 16,
+        theta_noise_sd: float = 0.0,
+        accel_noise_sd: float = 2e-3,
+        accel_bias: float = 0.0,
+        accel_drift: tuple | None = None,
+        hum: tuple | None = None,
+        valve_noise_sd: float = 0.0,
+        check_stable: bool = True,
+    ) -> dict:
         """Closed-loop run of the excitation ``r`` [V] sampled at ``fs``.
 
         DAQ nuisances: ``encoder_bits`` (None: no quantisation; else 2 pi / 2^bits rad per count), white
@@ -475,8 +497,8 @@ class Rig:
             z[n + 1] = u[ib] if ib >= 0 else 0.0
             out = M @ z
             x = out[:n]
-            th_pts[k] = out[n:n + 2]
-            ac_pts[k] = out[n + 2:n + 4]
+            th_pts[k] = out[n : n + 2]
+            ac_pts[k] = out[n + 2 : n + 4]
         # accelerometer at t_k - accel delay
         k = np.arange(N)
         Ja = k * os_ - ma
@@ -512,9 +534,21 @@ class Rig:
 # ------------------------------------------------------------------------------------------------ excitation
 
 
-def swept_sine(fs: float, *, f_lo: float = 0.1, f_hi: float = 40.0, sweep_s: float = 120.0, amplitude_v: float = 0.1,
-               n_records: int = 3, rest_s: float = 20.0, lead_s: float = 0.0, direction: str = "up",
-               alternate: bool = False, fade_s: float = 1.0, fade_cycles: float = 2.0) -> tuple[np.ndarray, str]:
+def swept_sine(
+    fs: float,
+    *,
+    f_lo: float = 0.1,
+    f_hi: float = 40.0,
+    sweep_s: float = 120.0,
+    amplitude_v: float = 0.1,
+    n_records: int = 3,
+    rest_s: float = 20.0,
+    lead_s: float = 0.0,
+    direction: str = "up",
+    alternate: bool = False,
+    fade_s: float = 1.0,
+    fade_cycles: float = 2.0,
+) -> tuple[np.ndarray, str]:
     """A logarithmic swept sine repeated ``n_records`` times: [lead] + n x [sweep, rest].
 
     Each sweep: ``sin(phase(t))`` with the instantaneous frequency ``f0 (f1/f0)^(t/T)`` (f0 = f_lo, f1 = f_hi up;
@@ -537,7 +571,7 @@ def swept_sine(fs: float, *, f_lo: float = 0.1, f_hi: float = 40.0, sweep_s: flo
             if at_start:
                 env[:nf] *= ramp
             else:
-                env[ns - nf:] *= ramp[::-1]
+                env[ns - nf :] *= ramp[::-1]
     sweep = amplitude_v * s * env
     rest = np.zeros(int(round(rest_s * fs)))
     parts = [np.zeros(int(round(lead_s * fs)))]
@@ -545,8 +579,10 @@ def swept_sine(fs: float, *, f_lo: float = 0.1, f_hi: float = 40.0, sweep_s: flo
         sign = -1.0 if (alternate and i % 2) else 1.0
         parts += [sign * sweep, rest]
     r = np.concatenate(parts)
-    text = (f"swept sine {f_lo:g}-{f_hi:g} Hz, {n_records} sweeps ({direction}, {sweep_s:g} s each"
-            f"{', alternating sign' if alternate else ''}{f', {rest_s:g} s rest' if rest_s else ', back to back'}), {amplitude_v:g} V")
+    text = (
+        f"swept sine {f_lo:g}-{f_hi:g} Hz, {n_records} sweeps ({direction}, {sweep_s:g} s each"
+        f"{', alternating sign' if alternate else ''}{f', {rest_s:g} s rest' if rest_s else ', back to back'}), {amplitude_v:g} V"
+    )
     return r, text
 
 
@@ -566,7 +602,7 @@ def write_csv(path, data: dict, metadata: dict | None = None) -> None:
         fmt = "%.10g,%.9g,%.9g,%.9g,%.9g"
         chunk = 50000
         for i in range(0, arr.shape[0], chunk):
-            fh.write("\n".join(fmt % tuple(row) for row in arr[i:i + chunk].tolist()))
+            fh.write("\n".join(fmt % tuple(row) for row in arr[i : i + chunk].tolist()))
             fh.write("\n")
 
 
@@ -643,8 +679,9 @@ def validate(fs: float = 1000.0, oversample: int = 10) -> dict:
     fb = np.array([0.3, 0.5, 1.0, 2.0, 5.0, 10.0, 15.0, 20.0, 30.0, 40.0])
     Sb = _spectra(d0, fb, fs)
     eb = np.log(Sb["accel"] / Sb["theta"] / rig.Bx(fb))
-    res["accel/theta vs B(jw) by frequency [Hz: dB, deg]"] = {f"{x:g}": (round(float(20 * e.real / np.log(10)), 4), round(float(np.degrees(e.imag)), 3))
-                                                             for x, e in zip(fb, eb)}
+    res["accel/theta vs B(jw) by frequency [Hz: dB, deg]"] = {
+        f"{x:g}": (round(float(20 * e.real / np.log(10)), 4), round(float(np.degrees(e.imag)), 3)) for x, e in zip(fb, eb)
+    }
 
     def at(eff, num, den, ff):
         d = replace(rig, **eff).simulate(r, fs, **quiet)
@@ -656,31 +693,41 @@ def validate(fs: float = 1000.0, oversample: int = 10) -> dict:
 
     checks = {}
     BG = lambda x: rig.Bx(x) * rig.G(x)
-    for eff, ff, c_eff, label in (({"accel_lowpass_hz": 30.0}, 30.0, 0.0, "accel LP1 30 Hz"),
-                                  ({"accel_lowpass_hz": 60.0, "accel_lowpass_order": 2}, 30.0, 0.0, "accel LP2 60 Hz"),
-                                  ({"accel_highpass_hz": 1.0}, 1.0, c, "accel HP 1 Hz")):
+    for eff, ff, c_eff, label in (
+        ({"accel_lowpass_hz": 30.0}, 30.0, 0.0, "accel LP1 30 Hz"),
+        ({"accel_lowpass_hz": 60.0, "accel_lowpass_order": 2}, 30.0, 0.0, "accel LP2 60 Hz"),
+        ({"accel_highpass_hz": 1.0}, 1.0, c, "accel HP 1 Hz"),
+    ):
         fr = np.array([ff])
         g = at(eff, "accel", "theta", fr)[0]
         L = replace(rig, **eff).accel_sensor
-        exact = (_pulse(lambda x: BG(x) * L(x), fr, fs, c=c_eff) / _pulse(BG, fr, fs, c=c))[0]
-        checks[f"{label}: accel/theta change at {ff:g} Hz: sim | exact sampled | continuous filter"] = (
-            db_deg(g), db_deg(exact), db_deg(L(fr)[0]))
+        exact = (_pulse(lambda x: BG(x) * L(x), fr, fs, c=c_eff) / _pulse(BG, fr, fs, c=c))[0]  # noqa: B023 - called within this iteration
+        checks[f"{label}: accel/theta change at {ff:g} Hz: sim | exact sampled | continuous filter"] = (db_deg(g), db_deg(exact), db_deg(L(fr)[0]))
     ff = np.array([2.0, 8.0, 20.0])
-    for eff, num, den, T_d in (({"command_delay_s": 0.004}, "theta", "v", 0.004), ({"theta_delay_s": 0.003}, "theta", "v", 0.003),
-                               ({"accel_delay_s": 0.003}, "accel", "theta", 0.003), ({"command_delay_s": 0.00253}, "theta", "v", 0.00253)):
+    for eff, num, den, T_d in (
+        ({"command_delay_s": 0.004}, "theta", "v", 0.004),
+        ({"theta_delay_s": 0.003}, "theta", "v", 0.003),
+        ({"accel_delay_s": 0.003}, "accel", "theta", 0.003),
+        ({"command_delay_s": 0.00253}, "theta", "v", 0.00253),
+    ):
         g = at(eff, num, den, ff)
         checks[f"{eff}: {num}/{den} phase at 2/8/20 Hz vs -360 f T"] = tuple(
-            f"{np.degrees(np.angle(x)):.3f} vs {-360 * fq * T_d:.3f} deg, {20 * np.log10(abs(x)):+.4f} dB" for x, fq in zip(g, ff))
+            f"{np.degrees(np.angle(x)):.3f} vs {-360 * fq * T_d:.3f} deg, {20 * np.log10(abs(x)):+.4f} dB" for x, fq in zip(g, ff)
+        )
     g = at({"valve_hz": 50.0, "valve_zeta": 0.7}, "theta", "v", ff)
     wv = 2 * np.pi * 50.0
     hv = wv**2 / ((2j * np.pi * ff) ** 2 + 1.4 * wv * 2j * np.pi * ff + wv**2)
     checks["valve 50 Hz z0.7: theta/v change vs valve TF at 2/8/20 Hz [dB, deg]"] = tuple(
-        f"{20 * np.log10(abs(x)):+.3f}/{20 * np.log10(abs(y)):+.3f}, {np.degrees(np.angle(x)):.2f}/{np.degrees(np.angle(y)):.2f}" for x, y in zip(g, hv))
+        f"{20 * np.log10(abs(x)):+.3f}/{20 * np.log10(abs(y)):+.3f}, {np.degrees(np.angle(x)):.2f}/{np.degrees(np.angle(y)):.2f}"
+        for x, y in zip(g, hv)
+    )
     g = at({"leak_per_s": -0.5}, "theta", "v", np.array([0.2, 1.0]))
     sl = 2j * np.pi * np.array([0.2, 1.0])
     hl = sl / (sl + 0.5)
     checks["leak -0.5 1/s: theta/v change vs s/(s+0.5) at 0.2/1 Hz [dB, deg]"] = tuple(
-        f"{20 * np.log10(abs(x)):+.3f}/{20 * np.log10(abs(y)):+.3f}, {np.degrees(np.angle(x)):.2f}/{np.degrees(np.angle(y)):.2f}" for x, y in zip(g, hl))
+        f"{20 * np.log10(abs(x)):+.3f}/{20 * np.log10(abs(y)):+.3f}, {np.degrees(np.angle(x)):.2f}/{np.degrees(np.angle(y)):.2f}"
+        for x, y in zip(g, hl)
+    )
     res["effects"] = checks
     return res
 

@@ -10,8 +10,8 @@ data, or the fit is not sound.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from math import erf
-from typing import Mapping
 
 import numpy as np
 
@@ -62,9 +62,21 @@ def row(res, truth: Mapping[str, float], wall_s: float) -> dict:
     covered = {k: within_interval(res, k, truth[k], 0.95) for k in KEYS}
     # the stricter reading, for comparison: within REL_TOL or N_SE local standard errors (value +- N_SE SE)
     local = all(abs(e) <= REL_TOL or n <= N_SE for e, n, _ in errs.values())
-    return {"ok": ok, "ok_local": bool(local), "said": not ok and said(res, errs), "errs": errs, "sound": res.sound, "wall_s": wall_s, "cost": res.cost,
-            "params_hz": {k: res.params[k] / 2 / np.pi for k in KEYS}, "truth_hz": {k: truth[k] / 2 / np.pi for k in KEYS},
-            "covered_95": covered, "concerns": list(res.concerns), "caveats": list(res.caveats), "undetermined": list(res.undetermined)}
+    return {
+        "ok": ok,
+        "ok_local": bool(local),
+        "said": not ok and said(res, errs),
+        "errs": errs,
+        "sound": res.sound,
+        "wall_s": wall_s,
+        "cost": res.cost,
+        "params_hz": {k: res.params[k] / 2 / np.pi for k in KEYS},
+        "truth_hz": {k: truth[k] / 2 / np.pi for k in KEYS},
+        "covered_95": covered,
+        "concerns": list(res.concerns),
+        "caveats": list(res.caveats),
+        "undetermined": list(res.undetermined),
+    }
 
 
 def coverage_line(rows: list[dict]) -> str:

@@ -23,7 +23,6 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-
 from criterion import KEYS, coverage_line, row
 
 OUT = Path(__file__).resolve().parent / "out"
@@ -49,8 +48,9 @@ def run_plant(i: int, seed: int) -> dict:
 
     st = ModelStructure.notebook_3mode()
     p = plant(i, seed)
-    data = synthesize(FREQ_HZ, {c: st.response(p, FREQ_HZ, c) for c in ("act", "base", "total")},
-                      noise=SweptSineNoise(), rng=np.random.default_rng([seed, i, 1]))
+    data = synthesize(
+        FREQ_HZ, {c: st.response(p, FREQ_HZ, c) for c in ("act", "base", "total")}, noise=SweptSineNoise(), rng=np.random.default_rng([seed, i, 1])
+    )
     t0 = time.perf_counter()
     res = fit(data, st, phase_weight=0.1, weighting="coherence")
     wall = time.perf_counter() - t0
@@ -67,11 +67,17 @@ def main() -> None:
         rows = list(ex.map(run_plant, range(args.plants), [args.seed] * args.plants, chunksize=4))
     bad = [r for r in rows if not r["ok"]]
     for r in bad:
-        cells = [f"{k} {r['params_hz'][k]:.3g}/{r['truth_hz'][k]:.3g} Hz ({r['errs'][k][0]:+.1%}, {r['errs'][k][1]:.1f} se)" for k in KEYS if not r["errs"][k][2]]
+        cells = [
+            f"{k} {r['params_hz'][k]:.3g}/{r['truth_hz'][k]:.3g} Hz ({r['errs'][k][0]:+.1%}, {r['errs'][k][1]:.1f} se)"
+            for k in KEYS
+            if not r["errs"][k][2]
+        ]
         print(f"plant {r['plant']:3d}{' (said)' if r['said'] else ''}: " + "; ".join(cells))
     walls = [r["wall_s"] for r in rows]
-    print(f"true minimum in {len(rows) - len(bad)} of {len(rows)} plants, {sum(r['said'] for r in bad)} more where the fit said which parameter it cannot tell (+-{SPREAD:.0%} around eq 9.4, seed {args.seed}); "
-          f"sound {sum(r['sound'] for r in rows)}; fit wall median {np.median(walls):.2f} s, max {max(walls):.2f} s")
+    print(
+        f"true minimum in {len(rows) - len(bad)} of {len(rows)} plants, {sum(r['said'] for r in bad)} more where the fit said which parameter it cannot tell (+-{SPREAD:.0%} around eq 9.4, seed {args.seed}); "
+        f"sound {sum(r['sound'] for r in rows)}; fit wall median {np.median(walls):.2f} s, max {max(walls):.2f} s"
+    )
     print(f"within 2 % or 3 local standard errors (value +- 3 SE, not the profile): {sum(r['ok_local'] for r in rows)} of {len(rows)}")
     print(coverage_line(rows))
     OUT.mkdir(parents=True, exist_ok=True)

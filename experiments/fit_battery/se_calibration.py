@@ -17,18 +17,18 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-
 from criterion import KEYS
 
 
 def calibrate(case: int, seed: int, records: int) -> list[str]:
+    from simulator_spread import measure_case
+
     from samii.identify import ModelStructure, fit
     from samii.identify.fit import resolve_weighting
     from samii.measure.campaign import measure_swept
     from samii.measure.daq import SensorNoise
     from samii.sim.model import load_model
     from samii.sim.plugin import load_plugin
-    from simulator_spread import measure_case
 
     load_plugin()
     rec = measure_case(case, seed)
@@ -39,8 +39,15 @@ def calibrate(case: int, seed: int, records: int) -> list[str]:
     vals, ses = {k: [] for k in KEYS}, {k: [] for k in KEYS}
     for k in range(records):  # other seeds than the battery's own record ([seed, case, 1])
         data = measure_swept(model, noise=SensorNoise(), rng=np.random.default_rng([seed, case, 100 + k])).frf
-        res = fit(data, ModelStructure.notebook_3mode(), phase_weight=0.1, weighting=resolve_weighting(data, None, "auto"),
-                  start=truth, n_perturbed=0, profile=False)  # compared with the standard errors, not the profiles
+        res = fit(
+            data,
+            ModelStructure.notebook_3mode(),
+            phase_weight=0.1,
+            weighting=resolve_weighting(data, None, "auto"),
+            start=truth,
+            n_perturbed=0,
+            profile=False,
+        )  # compared with the standard errors, not the profiles
         for p in KEYS:
             vals[p].append(res.params[p])
             ses[p].append(res.stderr[p])
@@ -48,8 +55,10 @@ def calibrate(case: int, seed: int, records: int) -> list[str]:
     for p in KEYS:
         v, se = np.array(vals[p]) / 2 / np.pi, np.median(ses[p]) / 2 / np.pi
         t, sd = truth[p] / 2 / np.pi, float(np.std(v, ddof=1))
-        lines.append(f"rig {case:3d} {p:>3}: truth {t:7.3f} Hz, fits {v.mean():7.3f} +- {sd:.3f} Hz, median SE {se:.3f} Hz, "
-                     f"scatter/SE {sd / se:.2f}, bias/scatter {(v.mean() - t) / sd:+.2f}")
+        lines.append(
+            f"rig {case:3d} {p:>3}: truth {t:7.3f} Hz, fits {v.mean():7.3f} +- {sd:.3f} Hz, median SE {se:.3f} Hz, "
+            f"scatter/SE {sd / se:.2f}, bias/scatter {(v.mean() - t) / sd:+.2f}"
+        )
     return lines
 
 

@@ -31,7 +31,6 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-
 from criterion import KEYS, N_SE, REL_TOL, coverage_line, row
 
 OUT = Path(__file__).resolve().parent / "out"
@@ -75,8 +74,16 @@ def truth(model, overrides, data) -> dict:
     modes = [2 * np.pi * m.freq_hz for m in rep.base_modes[:3]]
     zetas = [m.zeta for m in rep.base_modes[:3]]
     lin = linearised_frf(model, data.freq_hz)
-    frf = FrequencyResponse(data.freq_hz, act=lin.act, base=lin.base, total=lin.total,
-                            act_coh=data.act_coh, base_coh=data.base_coh, total_coh=data.total_coh, metadata=dict(data.metadata))
+    frf = FrequencyResponse(
+        data.freq_hz,
+        act=lin.act,
+        base=lin.base,
+        total=lin.total,
+        act_coh=data.act_coh,
+        base_coh=data.base_coh,
+        total_coh=data.total_coh,
+        metadata=dict(data.metadata),
+    )
     st = ModelStructure.notebook_3mode()
     pairs = [p for p in rep.coupled_poles if p.imag > 2 * np.pi * 2 and p.imag < 2 * np.pi * 25 and -p.real / abs(p) < 0.5]
     best = None
@@ -84,8 +91,21 @@ def truth(model, overrides, data) -> dict:
         wp = float(abs(p))
         # K1 and the B's are placeholders (a given start's gains are read off the data, starts.snap_to_peaks); tau = 3 wp
         # as auto_start (eq 9.4: 2.9); dampings floored so that no start is a razor-sharp mode
-        start = dict(K1=0.4, wp=wp, zp=max(-p.real / wp, 0.05), wz=modes[1], zz=max(zetas[1], 0.01), tau=3 * wp,
-                     w1=modes[0], z1=max(zetas[0], 0.01), w3=modes[2], z3=max(zetas[2], 0.01), B1=-0.02, B2=0.02, B3=0.003)
+        start = dict(
+            K1=0.4,
+            wp=wp,
+            zp=max(-p.real / wp, 0.05),
+            wz=modes[1],
+            zz=max(zetas[1], 0.01),
+            tau=3 * wp,
+            w1=modes[0],
+            z1=max(zetas[0], 0.01),
+            w3=modes[2],
+            z3=max(zetas[2], 0.01),
+            B1=-0.02,
+            B2=0.02,
+            B3=0.003,
+        )
         res = fit(frf, st, phase_weight=0.1, weighting="coherence", start=start, n_perturbed=0, profile=False)  # the minimum only
         if best is None or res.cost < best.cost:
             best = res
@@ -159,11 +179,17 @@ def main() -> None:
         cells = [f"{r['params_hz'][k]:6.2f}/{r['truth_hz'][k]:6.2f}{'' if r['errs'][k][2] else '*':1}" for k in KEYS]
         verdict = "yes" if r["ok"] else ("said" if r["said"] else "NO")
         print(f"{r['case']:4d} {verdict:>5} {'yes' if r['sound'] else 'no':>5}  " + "  ".join(f"{c:>16}" for c in cells) + f"  {r['wall_s']:5.1f} s")
-    print(f"\n(* missed: not within {REL_TOL:.0%} of the truth or {N_SE:g} standard errors (the fit's profile interval at that level); 'said': every miss named as not determined by the data, or the fit not sound)")
-    print(f"right minimum in {n_ok} of {len(rows)} measured rigs, {n_said} more where the fit said which parameter it cannot tell, "
-          f"{len(rows) - n_ok - n_said} wrong without saying so ({len(recs) - len(rows)} rigs not measurable); "
-          f"sound {sum(r['sound'] for r in rows)}; fit wall median {np.median([r['wall_s'] for r in rows]):.1f} s")
-    print(f"within {REL_TOL:.0%} or {N_SE:g} local standard errors (value +- {N_SE:g} SE, not the profile): {sum(r['ok_local'] for r in rows)} of {len(rows)}")
+    print(
+        f"\n(* missed: not within {REL_TOL:.0%} of the truth or {N_SE:g} standard errors (the fit's profile interval at that level); 'said': every miss named as not determined by the data, or the fit not sound)"
+    )
+    print(
+        f"right minimum in {n_ok} of {len(rows)} measured rigs, {n_said} more where the fit said which parameter it cannot tell, "
+        f"{len(rows) - n_ok - n_said} wrong without saying so ({len(recs) - len(rows)} rigs not measurable); "
+        f"sound {sum(r['sound'] for r in rows)}; fit wall median {np.median([r['wall_s'] for r in rows]):.1f} s"
+    )
+    print(
+        f"within {REL_TOL:.0%} or {N_SE:g} local standard errors (value +- {N_SE:g} SE, not the profile): {sum(r['ok_local'] for r in rows)} of {len(rows)}"
+    )
     print(coverage_line(rows))
     (OUT / f"simulator_spread_seed{args.seed}.json").write_text(json.dumps(rows, indent=1, default=float) + "\n")
 

@@ -58,7 +58,10 @@ def main() -> None:
         "notebook procedure (Nelder-Mead loop) on these data": (st, nm_params),
         "samii fit on these data": res,
     }
-    save_figure(plot_fit_overlay(data, models, band_hz=BAND, title="Manual vs optimised 2-mode fit (notebook ch. 1, fig. 1.5/1.6)", note=note), out / "bode_overlay.png")
+    save_figure(
+        plot_fit_overlay(data, models, band_hz=BAND, title="Manual vs optimised 2-mode fit (notebook ch. 1, fig. 1.5/1.6)", note=note),
+        out / "bode_overlay.png",
+    )
     reference = clean if clean is not None else data
     what = "model - noise-free stand-in" if clean is not None else "model - data"
     ref_problem = FitProblem(reference, st, phase_weight=0.0)
@@ -79,7 +82,10 @@ def main() -> None:
     }
     extra = {
         "cost (1-12 Hz, pw 0)": {k: f"{v:.5g}" for k, v in cost.items()},
-        "wall time [s]": {"notebook procedure": f"{t_nm:.3g} ({loop.loops} loops, criterion {'met' if loop.criterion_met else 'not met'})", "samii": f"{t_samii:.3g} (converged {res.converged})"},
+        "wall time [s]": {
+            "notebook procedure": f"{t_nm:.3g} ({loop.loops} loops, criterion {'met' if loop.criterion_met else 'not met'})",
+            "samii": f"{t_samii:.3g} (converged {res.converged})",
+        },
     }
     rms = {}
     for k, p in zip(cost, [study.manual, study.notebook_optimized, nm_params, res.params]):
@@ -93,10 +99,24 @@ def main() -> None:
         "(theta assumed in degrees); samii with 95 % intervals. eq 1.3 and eq 1.4 were fitted to the notebook's measured data, "
         "so their costs here say how well they describe the stand-in, not how good they were.\n\n"
         + params_markdown(cols, st.param_names, stderr={"samii": to_notebook_units(res.stderr)}, extra_rows=extra)
-        + "\nsamii warnings: " + ("; ".join(res.warnings) or "none") + "\n"
+        + "\nsamii warnings: "
+        + ("; ".join(res.warnings) or "none")
+        + "\n"
     )
     (out / "table.md").write_text(text)
-    (out / "results.json").write_text(json.dumps({"note": note, "cost": cost, "time_s": {"notebook_procedure": t_nm, "samii": t_samii}, "samii": res.to_dict(), "notebook_procedure": {"params": nm_params, "loops": loop.loops, "criterion_met": loop.criterion_met}}, indent=1) + "\n")
+    (out / "results.json").write_text(
+        json.dumps(
+            {
+                "note": note,
+                "cost": cost,
+                "time_s": {"notebook_procedure": t_nm, "samii": t_samii},
+                "samii": res.to_dict(),
+                "notebook_procedure": {"params": nm_params, "loops": loop.loops, "criterion_met": loop.criterion_met},
+            },
+            indent=1,
+        )
+        + "\n"
+    )
     for k, v in cost.items():
         print(f"{k:>20}: cost {v:.5g}")
     print(f"time: notebook procedure {t_nm:.3g} s, samii {t_samii:.3g} s")

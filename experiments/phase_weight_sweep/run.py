@@ -37,7 +37,12 @@ def main() -> None:
     st = fits[0].structure
     label = {r.phase_weight: f"pw {r.phase_weight:g}" for r in fits}
 
-    save_figure(plot_fit_overlay(data, {label[r.phase_weight]: r for r in fits}, title="Phase-weight sweep, 3-mode s⁴ model (notebook ch. 9, fig. 9.13/9.14)", note=note), out / "bode_overlay.png")
+    save_figure(
+        plot_fit_overlay(
+            data, {label[r.phase_weight]: r for r in fits}, title="Phase-weight sweep, 3-mode s⁴ model (notebook ch. 9, fig. 9.13/9.14)", note=note
+        ),
+        out / "bode_overlay.png",
+    )
 
     reference = clean if clean is not None else data
     what = "model - noise-free stand-in" if clean is not None else "model - data"
@@ -45,17 +50,36 @@ def main() -> None:
     for r in fits:
         e = FitProblem(reference, st, phase_weight=r.phase_weight).errors(st.vector(r.params))
         errors[label[r.phase_weight]] = e
-    save_figure(plot_model_error(reference.freq_hz, errors, title="Where each phase weight puts the error", note=note, what=what), out / "model_error.png")
+    save_figure(
+        plot_model_error(reference.freq_hz, errors, title="Where each phase weight puts the error", note=note, what=what), out / "model_error.png"
+    )
 
     pws = [r.phase_weight for r in fits]
-    rms = {k: {c: [float(np.sqrt(np.mean(errors[label[w]][c][i] ** 2))) for w in pws] for c in fits[0].channels} for i, k in enumerate(("RMS magnitude error [dB]", "RMS phase error [deg]"))}
-    save_figure(plot_panels(pws, rms, xlabel="phase weight", title=f"Magnitude traded for phase: RMS of {what}, 0.1-40 Hz", note=note), out / "rms_vs_weight.png")
+    rms = {
+        k: {c: [float(np.sqrt(np.mean(errors[label[w]][c][i] ** 2))) for w in pws] for c in fits[0].channels}
+        for i, k in enumerate(("RMS magnitude error [dB]", "RMS phase error [deg]"))
+    }
+    save_figure(
+        plot_panels(pws, rms, xlabel="phase weight", title=f"Magnitude traded for phase: RMS of {what}, 0.1-40 Hz", note=note),
+        out / "rms_vs_weight.png",
+    )
 
     nbu = [to_notebook_units(r.params) for r in fits]
     nbse = [to_notebook_units(r.stderr) for r in fits]
     ref = {n: [nb.EQ9_FITS[w][n] for w in pws] for n in st.param_names} if all(w in nb.EQ9_FITS for w in pws) else None
     save_figure(
-        plot_parameter_sweep(pws, nbu, nbse, st.param_names, xlabel="phase weight", reference=ref, reference_label="notebook eq 9.3-9.12 (its own data)", units=st.units(theta="deg"), title="Parameters against phase weight (notebook units: θ in deg assumed)", note=note),
+        plot_parameter_sweep(
+            pws,
+            nbu,
+            nbse,
+            st.param_names,
+            xlabel="phase weight",
+            reference=ref,
+            reference_label="notebook eq 9.3-9.12 (its own data)",
+            units=st.units(theta="deg"),
+            title="Parameters against phase weight (notebook units: θ in deg assumed)",
+            note=note,
+        ),
         out / "parameters.png",
     )
 
@@ -72,7 +96,9 @@ def main() -> None:
     (out / "table.md").write_text(text)
     (out / "results.json").write_text(json.dumps({"note": note, "fits": [r.to_dict() for r in fits]}, indent=1) + "\n")
     for r in fits:
-        print(f"pw {r.phase_weight:g}: cost {r.cost:.5g}, converged {r.converged}, RMS act {r.rms_mag_db['act']:.3g} dB / {r.rms_phase_deg['act']:.3g} deg, base {r.rms_mag_db['base']:.3g} dB / {r.rms_phase_deg['base']:.3g} deg, tau {r.params['tau']:.4g}")
+        print(
+            f"pw {r.phase_weight:g}: cost {r.cost:.5g}, converged {r.converged}, RMS act {r.rms_mag_db['act']:.3g} dB / {r.rms_phase_deg['act']:.3g} deg, base {r.rms_mag_db['base']:.3g} dB / {r.rms_phase_deg['base']:.3g} deg, tau {r.params['tau']:.4g}"
+        )
 
 
 if __name__ == "__main__":

@@ -42,18 +42,31 @@ def main() -> None:
     nbu = [to_notebook_units(r.params) for r in fits]
     nbse = [to_notebook_units(r.stderr) for r in fits]
     ref = {n: [nb.EQ9_FITS[w][n] for w in pws] for n in st.param_names}
-    note = ("data: samii measure (defaults) on the embedded, calibrated model; the notebook's values are fits of its rig data "
-            "(its B in its own acceleration unit: compare the ratios, trends.md)")
+    note = (
+        "data: samii measure (defaults) on the embedded, calibrated model; the notebook's values are fits of its rig data "
+        "(its B in its own acceleration unit: compare the ratios, trends.md)"
+    )
     # tau on its upper bound (no phase in the cost: the lag is not determined) is left out of the plot
     at_bound = [w for w, p in zip(pws, nbu) if p["tau"] >= 0.99 * BOUNDS["tau"][1]]
     shown = [dict(p, tau=np.nan) if w in at_bound else p for w, p in zip(pws, nbu)]
     shown_se = [dict(e, tau=np.nan) if w in at_bound else e for w, e in zip(pws, nbse)]
     if at_bound:
         note += f"; tau at its bound {BOUNDS['tau'][1]:g} rad/s for pw {', '.join(f'{w:g}' for w in at_bound)} (not shown)"
-    save_figure(plot_parameter_sweep(pws, shown, shown_se, st.param_names, xlabel="phase weight", reference=ref,
-                                     reference_label="notebook eq 9.3-9.12 (rig data)", units=st.units(theta="deg"),
-                                     title="Phase-weight sweep on the simulator's data (notebook units: θ in deg)", note=note),
-                OUT / "parameters.png")
+    save_figure(
+        plot_parameter_sweep(
+            pws,
+            shown,
+            shown_se,
+            st.param_names,
+            xlabel="phase weight",
+            reference=ref,
+            reference_label="notebook eq 9.3-9.12 (rig data)",
+            units=st.units(theta="deg"),
+            title="Phase-weight sweep on the simulator's data (notebook units: θ in deg)",
+            note=note,
+        ),
+        OUT / "parameters.png",
+    )
 
     i0, i1 = pws.index(TREND[0]), pws.index(TREND[1])
     rows, agree = [], 0
@@ -73,21 +86,35 @@ def main() -> None:
         same = np.sign(ds) == np.sign(db) or (abs(rel_s) < 0.02 and abs(rel_b) < 0.02)
         agree += bool(same)
         rows.append((n, sim, book, rel_s, rel_b, same))
-    lines = ["# Phase-weight sweep on the simulator's data (issue 8)", "", note + ".", "",
-             f"Change of each parameter from pw {TREND[0]:g} to pw {TREND[1]:g}: simulator beside the notebook "
-             f"(same direction, or both within 2 %: 'yes').", "",
-             "| parameter | simulator pw 0 → 0.4 | change | notebook pw 0 → 0.4 | change | same trend |",
-             "|---|---|---|---|---|---|"]
+    lines = [
+        "# Phase-weight sweep on the simulator's data (issue 8)",
+        "",
+        note + ".",
+        "",
+        f"Change of each parameter from pw {TREND[0]:g} to pw {TREND[1]:g}: simulator beside the notebook "
+        f"(same direction, or both within 2 %: 'yes').",
+        "",
+        "| parameter | simulator pw 0 → 0.4 | change | notebook pw 0 → 0.4 | change | same trend |",
+        "|---|---|---|---|---|---|",
+    ]
     for n, sim, book, rs, rb, same in rows:
-        lines.append(f"| {n} | {sim[i0]:.4g} → {sim[i1]:.4g} | {100 * rs:+.0f} % | {book[i0]:.4g} → {book[i1]:.4g} | {100 * rb:+.0f} % | {'yes' if same else 'no'} |")
-    lines += ["", f"{agree} of {len(rows)} trends agree.", "",
-              "Every fit (notebook units; θ in degrees):", "",
-              "| pw | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+        lines.append(
+            f"| {n} | {sim[i0]:.4g} → {sim[i1]:.4g} | {100 * rs:+.0f} % | {book[i0]:.4g} → {book[i1]:.4g} | {100 * rb:+.0f} % | {'yes' if same else 'no'} |"
+        )
+    lines += [
+        "",
+        f"{agree} of {len(rows)} trends agree.",
+        "",
+        "Every fit (notebook units; θ in degrees):",
+        "",
+        "| pw | " + " | ".join(names) + " |",
+        "|---|" + "---|" * len(names),
+    ]
     for w, p in zip(pws, nbu):
         lines.append(f"| {w:g} | " + " | ".join(f"{value(p, n):.4g}" for n in names) + " |")
     (OUT / "trends.md").write_text("\n".join(lines) + "\n")
     (OUT / "results.json").write_text(json.dumps({"note": note, "fits": [r.to_dict() for r in fits]}, indent=1) + "\n")
-    print("\n".join(lines[:len(rows) + 9]))
+    print("\n".join(lines[: len(rows) + 9]))
 
 
 if __name__ == "__main__":

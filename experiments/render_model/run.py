@@ -48,7 +48,14 @@ def render_model(path: Path) -> None:
     renderer.update_scene(data, camera=cam)
     close = renderer.render()
     fig, axes = plt.subplots(1, 2, figsize=(12.8, 4.8))
-    for ax, img, title in zip(axes, (side, close), ("side camera: foot clamp, the vertical beam (4.29 m free), arm on its top", "the arm at the nominal pose (-90, 90, 90, 0, 0, 0) deg; link 3 points north")):
+    for ax, img, title in zip(
+        axes,
+        (side, close),
+        (
+            "side camera: foot clamp, the vertical beam (4.29 m free), arm on its top",
+            "the arm at the nominal pose (-90, 90, 90, 0, 0, 0) deg; link 3 points north",
+        ),
+    ):
         ax.imshow(img)
         ax.set_title(title, fontsize=10)
         ax.axis("off")

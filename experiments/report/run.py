@@ -36,8 +36,9 @@ def main() -> None:
         folder = args.folder
         if folder is None:
             folder = Path(tmp) / "samii_run"
-            subprocess.run([str(Path(sys.executable).parent / "samii"), "run", "--out", str(folder), "--no-progress"], check=True,
-                           stdout=subprocess.DEVNULL)
+            subprocess.run(
+                [str(Path(sys.executable).parent / "samii"), "run", "--out", str(folder), "--no-progress"], check=True, stdout=subprocess.DEVNULL
+            )
         full = Path(tmp) / "full.png"
         shot = screenshot(folder / "report.html", full, width=1200)
         img = Image.open(full)
@@ -48,7 +49,7 @@ def main() -> None:
         # the control section alone: the same page cut before its heading and after it (same style, same figures)
         page = (folder / "report.html").read_text(encoding="utf-8")
         head, rest = page.split("<main>", 1)
-        section = rest[rest.index('<h2 id="control">'):rest.index('<h2 id="diagnosis">')]
+        section = rest[rest.index('<h2 id="control">') : rest.index('<h2 id="diagnosis">')]
         cut = folder / ".report_control.html"
         cut.write_text(f"{head}<main>{section}</main></body></html>", encoding="utf-8")
         try:

@@ -67,8 +67,10 @@ def make(work: Path) -> int:
     t_peak = float(t[np.argmax(np.abs(tip))])
     report = view_recording(rrd, time_s=t_peak, screenshot=ASSETS / "rerun_measure.png")
     reports = [report]
-    print(f"measure: largest tip deflection {np.max(np.abs(tip)):.3g} mm at t = {t_peak:.2f} s; viewer {report.viewer_version}; "
-          f"{len(report.views)} views; wrote {report.screenshot}")
+    print(
+        f"measure: largest tip deflection {np.max(np.abs(tip)):.3g} mm at t = {t_peak:.2f} s; viewer {report.viewer_version}; "
+        f"{len(report.views)} views; wrote {report.screenshot}"
+    )
 
     rrd = work / "closedloop.rrd"
     samii("closedloop", "--controller", "damping", "--scenario", "release", "--out", str(work / "closedloop"), "--rerun", str(rrd), "--overwrite")

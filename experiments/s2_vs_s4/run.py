@@ -41,7 +41,14 @@ def main() -> None:
     fits = s2_vs_s4(data, phase_weight=PW, rng=np.random.default_rng(0))
     channels = tuple(c for c in ("act", "base", "total") if c in data.channels)
     save_figure(
-        plot_fit_overlay(data, {f"{k} fit": r for k, r in fits.items()}, channels=channels, model_span_hz=(data.freq_hz[0], 100.0), title="s² vs s⁴ numerator, 3 modes, phase weight 0.1 (notebook ch. 4, fig. 4.1-4.3); models drawn to 100 Hz", note=note),
+        plot_fit_overlay(
+            data,
+            {f"{k} fit": r for k, r in fits.items()},
+            channels=channels,
+            model_span_hz=(data.freq_hz[0], 100.0),
+            title="s² vs s⁴ numerator, 3 modes, phase weight 0.1 (notebook ch. 4, fig. 4.1-4.3); models drawn to 100 Hz",
+            note=note,
+        ),
         out / "bode_overlay.png",
     )
 
@@ -52,7 +59,14 @@ def main() -> None:
             f = np.geomspace(0.1, f_max, int(round(POINTS_PER_DECADE * np.log10(f_max / 0.1))))
             d = synthetic_rig_frf(f, rng=np.random.default_rng(STANDIN_SEED))
             r = s2_vs_s4(d, phase_weight=PW, rng=np.random.default_rng(0))
-            rows.append({"f_max_hz": f_max, **{f"cost_{k}": v.cost for k, v in r.items()}, **{f"rms_base_db_{k}": v.rms_mag_db["base"] for k, v in r.items()}, **{f"rms_base_deg_{k}": v.rms_phase_deg["base"] for k, v in r.items()}})
+            rows.append(
+                {
+                    "f_max_hz": f_max,
+                    **{f"cost_{k}": v.cost for k, v in r.items()},
+                    **{f"rms_base_db_{k}": v.rms_mag_db["base"] for k, v in r.items()},
+                    **{f"rms_base_deg_{k}": v.rms_phase_deg["base"] for k, v in r.items()},
+                }
+            )
         summary["bandwidth"] = rows
         edges = [r["f_max_hz"] for r in rows]
         panels = {
@@ -60,7 +74,17 @@ def main() -> None:
             "RMS base error [dB]": {k: [r[f"rms_base_db_{k}"] for r in rows] for k in ("s2", "s4")},
             "RMS base error [deg]": {k: [r[f"rms_base_deg_{k}"] for r in rows] for k in ("s2", "s4")},
         }
-        save_figure(plot_panels(edges, panels, xlabel="upper edge of the swept sine [Hz]", logx=True, title="How much band tells s² from s⁴ (fits to stand-in data 0.1 Hz - edge; errors against the data)", note=note), out / "bandwidth.png")
+        save_figure(
+            plot_panels(
+                edges,
+                panels,
+                xlabel="upper edge of the swept sine [Hz]",
+                logx=True,
+                title="How much band tells s² from s⁴ (fits to stand-in data 0.1 Hz - edge; errors against the data)",
+                note=note,
+            ),
+            out / "bandwidth.png",
+        )
 
     text = (
         "# s^2 vs s^4 numerator (notebook chapter 4)\n\n"

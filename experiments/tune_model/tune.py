@@ -82,17 +82,20 @@ FREQUENCY_KNOBS = ("beam.clamp_stiffness_Nm_rad", "arm.joint1_stiffness_Nm_rad",
 
 def structure() -> SamiiParams:
     """Stage 0: public values, the vertical-cantilever reading, the valve lag of eq 9.4."""
-    p = params_with_overrides(SamiiParams(), {
-        "beam.pitch_deg": 90.0,
-        "beam.clamp_damping_Nms_rad": 0.0,
-        "beam.clamp_maxwell_stiffness_Nm_rad": 2.0e4,
-        "beam.clamp_relaxation_time_s": 1.0 / E["w1"],
-        "beam.beam_damping_time_s": 5.0e-4,
-        "arm.joint1_damping_Nms_rad": 4.0,
-        "hydraulic.valve_time_constant": 1.0 / E["tau"],
-        "hydraulic.total_volume": 5.0e-6,
-        "hydraulic.leakage_coefficient": 9.3e-14,
-    })
+    p = params_with_overrides(
+        SamiiParams(),
+        {
+            "beam.pitch_deg": 90.0,
+            "beam.clamp_damping_Nms_rad": 0.0,
+            "beam.clamp_maxwell_stiffness_Nm_rad": 2.0e4,
+            "beam.clamp_relaxation_time_s": 1.0 / E["w1"],
+            "beam.beam_damping_time_s": 5.0e-4,
+            "arm.joint1_damping_Nms_rad": 4.0,
+            "hydraulic.valve_time_constant": 1.0 / E["tau"],
+            "hydraulic.total_volume": 5.0e-6,
+            "hydraulic.leakage_coefficient": 9.3e-14,
+        },
+    )
     h = p.hydraulic
     return replace(p, hydraulic=replace(h, rated_flow=K1_RAD * h.rated_voltage * h.displacement))
 
@@ -191,7 +194,9 @@ def main() -> int:
     p = base_fit.params
     print("stage 2 (calibrate xdd/theta):")
     print(base_fit.table())
-    print(f"  cost {base_fit.cost_start:.4g} -> {base_fit.cost:.4g}, RMS {base_fit.rms['base'][0]:.2f} dB / {base_fit.rms['base'][1]:.2f} deg; {base_fit.status}")
+    print(
+        f"  cost {base_fit.cost_start:.4g} -> {base_fit.cost:.4g}, RMS {base_fit.rms['base'][0]:.2f} dB / {base_fit.rms['base'][1]:.2f} deg; {base_fit.status}"
+    )
     for w in base_fit.warnings:
         print("  warning:", w)
 
@@ -201,7 +206,11 @@ def main() -> int:
     f_hz = measure_swept(load_model(params=p), SweptSine()).frf.freq_hz
     p = stage3_indirect(p, f_hz)
     lin_fit = fitted_eq9(p, f_hz)
-    print("stage 3 (indirect): fitted wp {wp:.2f} zp {zp:.4f} K1 {K1:.3f} (deg: {K1d:.2f}) tau {tau:.1f} z1 {z1:.4f} zz {zz:.4f} z3 {z3:.4f}".format(K1d=lin_fit.params["K1"] * 180 / math.pi, **lin_fit.params))
+    print(
+        "stage 3 (indirect): fitted wp {wp:.2f} zp {zp:.4f} K1 {K1:.3f} (deg: {K1d:.2f}) tau {tau:.1f} z1 {z1:.4f} zz {zz:.4f} z3 {z3:.4f}".format(
+            K1d=lin_fit.params["K1"] * 180 / math.pi, **lin_fit.params
+        )
+    )
     for n in HYDRAULIC_KNOBS + DAMPING_KNOBS + FREQUENCY_KNOBS:
         sec, name = n.split(".")
         print(f"  {n} = {getattr(getattr(p, sec), name):.6g}")
@@ -258,9 +267,13 @@ def _plot(result, data, path: Path) -> None:
     from samii.viz.fit_plot import plot_fit_overlay
 
     st = SimulatorFRF(result.params, result.names)
-    fig = plot_fit_overlay(data, {"stage 1 start": (st, dict(result.start)), "calibrated": (st, dict(result.values))}, channels=("base",),
-                           title="SAMII simulator calibrated to eq 9.4's xdd/theta (samii calibrate)",
-                           note="data: eq 9.4's xdd/theta curve (theta in degrees converted to rad; the notebook's acceleration unit is calibrated as gain.base)")
+    fig = plot_fit_overlay(
+        data,
+        {"stage 1 start": (st, dict(result.start)), "calibrated": (st, dict(result.values))},
+        channels=("base",),
+        title="SAMII simulator calibrated to eq 9.4's xdd/theta (samii calibrate)",
+        note="data: eq 9.4's xdd/theta curve (theta in degrees converted to rad; the notebook's acceleration unit is calibrated as gain.base)",
+    )
     fig.savefig(path, dpi=110)
     plt.close(fig)
 

@@ -23,7 +23,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "design": ("samii.design.cli", "control design: root loci, pole placement, pole cancellation, seed report"),
     "closedloop": ("samii.closedloop.cli", "run a controller in the nonlinear simulator: step, Loper and release tests"),
     "diagnose": ("samii.diagnose.cli", "find what a model lacks in measured data: delays, modes, sensor and actuator dynamics"),
-    "robust": ("samii.robust.cli", "Monte Carlo robustness of a controller: plants drawn from spreads or a calibration's covariance, in-process or on Dask"),
+    "robust": (
+        "samii.robust.cli",
+        "Monte Carlo robustness of a controller: plants drawn from spreads or a calibration's covariance, in-process or on Dask",
+    ),
     "report": ("samii.report.cli", "write a main job's report.html again from its folder, with a browser screenshot if asked"),
     "run": ("samii.main_job", "the main job on a model: measure, fit, design, closed loop, diagnose, into one folder with a summary"),
 }
@@ -66,8 +69,9 @@ class _Parser(argparse.ArgumentParser):
         if choice:  # a misspelt subcommand or choice: name the closest
             close = _closest(choice.group(1), re.findall(r"'([^']*)'", choice.group(2)))
             if close:
-                message = message.replace(choice.group(0), f"invalid choice: '{choice.group(1)}': did you mean '{close}'? "
-                                          f"(choose from {choice.group(2)})")
+                message = message.replace(
+                    choice.group(0), f"invalid choice: '{choice.group(1)}': did you mean '{close}'? (choose from {choice.group(2)})"
+                )
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
     def _reject_unknown_options(self, args: list[str]) -> None:
@@ -122,8 +126,8 @@ def _one_line(exc: BaseException) -> str:
 
 #: Signals received (set by the handlers): an exception raised while one was being handled (an
 #: import cut short by Ctrl-C raises ImportError) is reported as the interruption it is.
-from samii.errors import OUTPUTS_STARTED as _OUTPUTS_STARTED  # noqa: E402
 from samii.errors import OUTPUTS_DONE as _OUTPUTS_DONE  # noqa: E402
+from samii.errors import OUTPUTS_STARTED as _OUTPUTS_STARTED  # noqa: E402
 from samii.errors import SIGNALS_RECEIVED as _SIGNALLED  # noqa: E402  (samii.errors is light: no numpy)
 
 
@@ -180,8 +184,7 @@ def _stop_finished(signum: int) -> None:
         _flush_and_exit(128 + _SIGNALLED[0])
     _flush()
     try:
-        os.write(2, f"{_PROG[0]}: stopped by signal {signum} after the command had finished; its outputs are as it "
-                    "reported them\n".encode())
+        os.write(2, f"{_PROG[0]}: stopped by signal {signum} after the command had finished; its outputs are as it reported them\n".encode())
     except OSError:
         pass
     os._exit(128 + signum)
@@ -369,12 +372,16 @@ def _main(argv: list[str] | None) -> int:
         if exc.errno in (errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC)):
             # the file the user named (a --rerun recording, marked so by samii.viz.recording.recording_failed), else the
             # command's own output (the first begun: --out), never a hidden staging folder or temporary file of ours
-            named = getattr(exc, "user_path", False) and not any(part.startswith(".") and (".samii-" in part or part.endswith(".tmp"))
-                                                                 for part in str(exc.filename).split("/"))
+            named = getattr(exc, "user_path", False) and not any(
+                part.startswith(".") and (".samii-" in part or part.endswith(".tmp")) for part in str(exc.filename).split("/")
+            )
             target = exc.filename if named else _OUTPUTS_STARTED[0] if _OUTPUTS_STARTED else exc.filename
             where = f" writing {target}" if target else ""
-            print(f"{prog}: error: no space left on device{where} (the disk or quota is full); nothing half-written was kept: "
-                  "free some space and run it again", file=sys.stderr)
+            print(
+                f"{prog}: error: no space left on device{where} (the disk or quota is full); nothing half-written was kept: "
+                "free some space and run it again",
+                file=sys.stderr,
+            )
             return EXIT_BAD_INPUT
         where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
         print(f"{prog}: error: {where}{exc.strerror or _one_line(exc)}", file=sys.stderr)
@@ -410,9 +417,12 @@ def _internal_error(prog: str, exc: Exception) -> int:
         return _stopped(prog)
     if os.environ.get("SAMII_DEBUG"):
         raise exc
-    print(f"{prog}: internal error: {type(exc).__name__}: {_one_line(exc)} (run with SAMII_DEBUG=1 for the traceback; please report it)",
-          file=sys.stderr)
+    print(
+        f"{prog}: internal error: {type(exc).__name__}: {_one_line(exc)} (run with SAMII_DEBUG=1 for the traceback; please report it)",
+        file=sys.stderr,
+    )
     return EXIT_INTERNAL
+
 
 if __name__ == "__main__":
     program()

@@ -15,9 +15,10 @@ Values are complex; magnitude and phase (degrees, unwrapped) are derived.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Literal, Mapping, get_args
+from typing import Literal, get_args
 
 import numpy as np
 
@@ -127,7 +128,7 @@ class FrequencyResponse:
         """Unwrapped phase in degrees."""
         return np.degrees(np.unwrap(np.angle(self.response(channel))))
 
-    def band(self, lo_hz: float, hi_hz: float) -> "FrequencyResponse":
+    def band(self, lo_hz: float, hi_hz: float) -> FrequencyResponse:
         """The points with lo_hz <= f <= hi_hz."""
         keep = (self.freq_hz >= lo_hz) & (self.freq_hz <= hi_hz)
         if not np.any(keep):
@@ -169,8 +170,13 @@ def max_deviation(
             continue
         ratio = measured.response(ch)[keep] / reference.response(ch)[keep]
         db, deg = np.abs(20 * np.log10(np.abs(ratio))), np.abs(np.angle(ratio, deg=True))
-        out[ch] = {"max_abs_db": float(np.max(db)), "max_abs_deg": float(np.max(deg)),
-                   "sustained_db": _sustained(db), "sustained_deg": _sustained(deg), "points": int(keep.sum())}
+        out[ch] = {
+            "max_abs_db": float(np.max(db)),
+            "max_abs_deg": float(np.max(deg)),
+            "sustained_db": _sustained(db),
+            "sustained_deg": _sustained(deg),
+            "points": int(keep.sum()),
+        }
     return out
 
 

@@ -46,8 +46,11 @@ __all__ = ["add_arguments", "run", "run_main_job", "run_pipeline", "summary_line
 #: Where ``samii`` with no arguments writes.
 DEFAULT_OUT = "samii_run"
 #: (name in the output, samii closedloop --controller, label in the summary) run closed loop; "damping" is designed here.
-CONTROLLERS = (("notebook_cancel", "notebook-cancel", "pole cancelling (ch 10)"), ("notebook_place", "notebook-place", "pole placement (ch 8)"),
-               ("damping", None, "damping controller"))
+CONTROLLERS = (
+    ("notebook_cancel", "notebook-cancel", "pole cancelling (ch 10)"),
+    ("notebook_place", "notebook-place", "pole placement (ch 8)"),
+    ("damping", None, "damping controller"),
+)
 SCENARIOS = ("step", "loper")
 #: summary.json says it is a main job's: a folder holding one may be replaced by the next main job.
 MARKER = "samii run"
@@ -64,20 +67,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from samii.cli_args import nonempty_path
     from samii.cli_args import seed as seed_type
 
-    parser.add_argument("--out", metavar="DIR", type=nonempty_path, default=DEFAULT_OUT,
-                        help=f"output folder (default ./{DEFAULT_OUT}); replaced whole at the end")
+    parser.add_argument(
+        "--out", metavar="DIR", type=nonempty_path, default=DEFAULT_OUT, help=f"output folder (default ./{DEFAULT_OUT}); replaced whole at the end"
+    )
     parser.add_argument("--model", metavar="XML", type=nonempty_path, help="MJCF model (default: the embedded one)")
-    parser.add_argument("--set", metavar="NAME=VALUE", action="append", default=[],
-                        help="override a model parameter (samii params lists them); repeatable")
-    parser.add_argument("--seed", type=seed_type, default=0, help="seed of the measurement's sensor noise (default 0): "
-                        "the same seed gives the same outputs")
+    parser.add_argument(
+        "--set", metavar="NAME=VALUE", action="append", default=[], help="override a model parameter (samii params lists them); repeatable"
+    )
+    parser.add_argument(
+        "--seed", type=seed_type, default=0, help="seed of the measurement's sensor noise (default 0): the same seed gives the same outputs"
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace --out if it exists (a previous main job's output is replaced anyway)")
     parser.add_argument("--no-progress", action="store_true", help="no progress display on stderr")
 
 
 def run(args: argparse.Namespace) -> int:
-    result = run_pipeline(args.out, model=args.model, overrides=args.set, seed=args.seed, overwrite=args.overwrite,
-                          progress=not args.no_progress)
+    result = run_pipeline(args.out, model=args.model, overrides=args.set, seed=args.seed, overwrite=args.overwrite, progress=not args.no_progress)
     print("\n".join(result.lines))
     return 0
 
@@ -99,8 +104,10 @@ def _check_out(out: Path, overwrite: bool) -> None:
     # (the rename fails after the whole pipeline has run, "Device or resource busy")
     here, target = Path.cwd().resolve(), out.resolve()
     if target == here or target in here.parents:
-        raise InputError(f"--out {out}: is the working folder{'' if target == here else ' or holds it'}; the main job replaces "
-                         "--out whole, so give a folder of its own (e.g. --out samii_run)")
+        raise InputError(
+            f"--out {out}: is the working folder{'' if target == here else ' or holds it'}; the main job replaces "
+            "--out whole, so give a folder of its own (e.g. --out samii_run)"
+        )
     if out.is_dir() and os.path.ismount(out):
         raise InputError(f"--out {out}: is a mount point; the main job replaces --out whole, so give a folder inside it")
     if out.exists() and not out.is_dir():
@@ -118,8 +125,16 @@ class _Progress:
     def __init__(self, enabled: bool, total: int):
         from tqdm import tqdm
 
-        self.bar = tqdm(total=total, desc="samii", unit="stage", leave=False, file=sys.stderr, dynamic_ncols=True,
-                        disable=None if enabled else True, bar_format="{desc}: {n}/{total} stages {elapsed} {postfix}")
+        self.bar = tqdm(
+            total=total,
+            desc="samii",
+            unit="stage",
+            leave=False,
+            file=sys.stderr,
+            dynamic_ncols=True,
+            disable=None if enabled else True,
+            bar_format="{desc}: {n}/{total} stages {elapsed} {postfix}",
+        )
 
     def start(self, what: str) -> None:
         self.bar.set_postfix_str(what)
@@ -171,8 +186,7 @@ def run_pipeline(out, *, model=None, overrides=(), seed: int = 0, overwrite: boo
     from samii.outputs import remove_stale_runs, restore_replaced
 
     if (back := restore_replaced(out, f".{out.name}.samii-run-")) is not None:  # a run killed between its two renames
-        print(f"samii run: {out} was missing and is back from {back.name}, where a run killed while replacing it had moved it",
-              file=sys.stderr)
+        print(f"samii run: {out} was missing and is back from {back.name}, where a run killed while replacing it had moved it", file=sys.stderr)
     _check_out(out, overwrite)
     from samii.errors import mark_outputs_started
 
@@ -194,8 +208,10 @@ def run_pipeline(out, *, model=None, overrides=(), seed: int = 0, overwrite: boo
             _report(stage_dir, out)
         except Exception as exc:  # noqa: BLE001 - the report is read from the stages' files: a fault in it loses none of them
             summary["report_error"] = f"{type(exc).__name__}: {exc}"
-            print(f"samii run: warning: report.html not written ({summary['report_error']}); every other output is; "
-                  f"samii report {out} tries again", file=sys.stderr)
+            print(
+                f"samii run: warning: report.html not written ({summary['report_error']}); every other output is; samii report {out} tries again",
+                file=sys.stderr,
+            )
             (stage_dir / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
         bar.done()
         from samii.errors import raise_if_signalled
@@ -232,16 +248,25 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, bar: _Progress)
     _stage(d, ["measure", "--noise", "--seed", str(seed), "--out", "measure", "--rerun", "measure.rrd", "--no-progress", *margs])
     run = json.loads((d / "measure" / "run.json").read_text())
     sweep = run["excitation"]["swept"]
-    s["measurement"] = {"excitation": sweep["excitation"], "amplitude_v": sweep["amplitude_v"], "sample_rate_hz": run["daq"]["sample_rate_hz"],
-                        "simulated_s": run["timing"]["simulated_s"], "sensor_noise": run["daq"]["sensor_noise"]}
+    s["measurement"] = {
+        "excitation": sweep["excitation"],
+        "amplitude_v": sweep["amplitude_v"],
+        "sample_rate_hz": run["daq"]["sample_rate_hz"],
+        "simulated_s": run["timing"]["simulated_s"],
+        "sensor_noise": run["daq"]["sensor_noise"],
+    }
     bar.done()
 
     bar.start("fitting the notebook's 3-mode model")
     _stage(d, ["fit", "measure/frf.csv", "--out", "fit", "--no-progress"])
     fit = json.loads((d / "fit" / "fit.json").read_text())
     p, se = fit["params"], fit["stderr"]
-    s["fit"] = {"params": p, "stderr": se, "eq9_4": dict(nb.EQ9_4),
-                **{k: fit.get(k) for k in ("sound", "verdict", "concerns", "caveats", "undetermined", "lack_of_fit", "rms_mag_db", "rms_phase_deg")}}
+    s["fit"] = {
+        "params": p,
+        "stderr": se,
+        "eq9_4": dict(nb.EQ9_4),
+        **{k: fit.get(k) for k in ("sound", "verdict", "concerns", "caveats", "undetermined", "lack_of_fit", "rms_mag_db", "rms_phase_deg")},
+    }
     bar.done()
 
     bar.start("designing the damping controller")
@@ -257,7 +282,9 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, bar: _Progress)
     bar.done()
 
     s["closed_loop"] = {}
-    runs = [("servo_loop_alone", "unity", "step")] + [(name, spec or "controllers/damping.json", sc) for name, spec, _ in CONTROLLERS for sc in SCENARIOS]
+    runs = [("servo_loop_alone", "unity", "step")] + [
+        (name, spec or "controllers/damping.json", sc) for name, spec, _ in CONTROLLERS for sc in SCENARIOS
+    ]
     for name, spec, sc in runs:
         bar.start(f"closed loop: {name}, {sc}")
         extra = ["--rerun", "closedloop.rrd"] if (name, sc) == ("damping", "loper") else []
@@ -266,8 +293,12 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, bar: _Progress)
 
     bar.start("diagnosing the fit against the measured record")
     diag = json.loads(_stage(d, ["diagnose", "measure/timeseries.csv", "--baseline", "fit/fit.json", "--out", "diagnose", "--json", "--no-progress"]))
-    s["diagnosis"] = {"verdict": diag.get("verdict"), "effects": [e for e in diag.get("effects", []) if not e.get("expected")],
-                      "error_before": diag.get("error_before"), "error_after": diag.get("error_after")}
+    s["diagnosis"] = {
+        "verdict": diag.get("verdict"),
+        "effects": [e for e in diag.get("effects", []) if not e.get("expected")],
+        "error_before": diag.get("error_before"),
+        "error_after": diag.get("error_after"),
+    }
     bar.done()
     return s
 
@@ -292,9 +323,11 @@ def _modes(model, overrides) -> dict:
         warnings.simplefilter("ignore", RuntimeWarning)
         rep = modes_report(model, overrides=parse_overrides(overrides) or None)
     pair = [z for z in rep.coupled_poles if 30 < abs(z.imag) < 80]
-    return {"pose_deg": [float(a) for a in rep.pose_deg],
-            "base_modes": [{"freq_hz": float(m.freq_hz), "zeta": float(m.zeta)} for m in rep.base_modes[:3]],
-            "servo_pair_1_s": [float(pair[0].real), float(abs(pair[0].imag))] if pair else None}
+    return {
+        "pose_deg": [float(a) for a in rep.pose_deg],
+        "base_modes": [{"freq_hz": float(m.freq_hz), "zeta": float(m.zeta)} for m in rep.base_modes[:3]],
+        "servo_pair_1_s": [float(pair[0].real), float(abs(pair[0].imag))] if pair else None,
+    }
 
 
 def summary_lines(s: dict, out) -> list[str]:
@@ -302,13 +335,21 @@ def summary_lines(s: dict, out) -> list[str]:
     import numpy as np
 
     m = s["modes"]
-    lines = ["SAMII main job: " + ("embedded model" if s["model"]["file"] == "embedded default" else s["model"]["file"])
-             + (f" with {', '.join(s['model']['overrides'])}" if s["model"]["overrides"] else "")]
-    lines.append("base modes (joint 2 held): " + ", ".join(f"{b['freq_hz']:.2f} Hz (zeta {b['zeta']:.3f})" for b in m["base_modes"])
-                 + (f"; servo-loop pair {m['servo_pair_1_s'][0]:.1f} ± {m['servo_pair_1_s'][1]:.1f}j 1/s" if m["servo_pair_1_s"] else ""))
+    lines = [
+        "SAMII main job: "
+        + ("embedded model" if s["model"]["file"] == "embedded default" else s["model"]["file"])
+        + (f" with {', '.join(s['model']['overrides'])}" if s["model"]["overrides"] else "")
+    ]
+    lines.append(
+        "base modes (joint 2 held): "
+        + ", ".join(f"{b['freq_hz']:.2f} Hz (zeta {b['zeta']:.3f})" for b in m["base_modes"])
+        + (f"; servo-loop pair {m['servo_pair_1_s'][0]:.1f} ± {m['servo_pair_1_s'][1]:.1f}j 1/s" if m["servo_pair_1_s"] else "")
+    )
     me = s["measurement"]
-    lines.append(f"measured: {me['excitation']}, {me['amplitude_v']:g} V on the valve command, {me['simulated_s']:.0f} s at "
-                 f"{me['sample_rate_hz']:g} samples/s, sensor noise (seed {s['seed']})")
+    lines.append(
+        f"measured: {me['excitation']}, {me['amplitude_v']:g} V on the valve command, {me['simulated_s']:.0f} s at "
+        f"{me['sample_rate_hz']:g} samples/s, sensor noise (seed {s['seed']})"
+    )
     f = s["fit"]["params"]
     eq = s["fit"]["eq9_4"]
 
@@ -318,10 +359,14 @@ def summary_lines(s: dict, out) -> list[str]:
     from samii.identify.report import verdict_text
 
     lines.append(f"fit of the notebook's 3-mode model beside eq 9.4: {verdict_text(s['fit'])} (fit/fit.json):")
-    lines.append(f"  modes {hz(f['w1']):.2f} / {hz(f['wz']):.2f} / {hz(f['w3']):.2f} Hz (eq 9.4: {hz(eq['w1']):.2f} / {hz(eq['wz']):.2f} / "
-                 f"{hz(eq['w3']):.2f}); zeta {f['z1']:.3f} / {f['zz']:.3f} / {f['z3']:.3f} ({eq['z1']:.3f} / {eq['zz']:.3f} / {eq['z3']:.3f})")
-    lines.append(f"  actuator pair {hz(f['wp']):.2f} Hz zeta {f['zp']:.3f} (eq 9.4: {hz(eq['wp']):.2f} Hz, {eq['zp']:.3f}); "
-                 f"B2/B1 {f['B2'] / f['B1']:.3f} ({eq['B2'] / eq['B1']:.3f}), B3/B1 {f['B3'] / f['B1']:.3f} ({eq['B3'] / eq['B1']:.3f})")
+    lines.append(
+        f"  modes {hz(f['w1']):.2f} / {hz(f['wz']):.2f} / {hz(f['w3']):.2f} Hz (eq 9.4: {hz(eq['w1']):.2f} / {hz(eq['wz']):.2f} / "
+        f"{hz(eq['w3']):.2f}); zeta {f['z1']:.3f} / {f['zz']:.3f} / {f['z3']:.3f} ({eq['z1']:.3f} / {eq['zz']:.3f} / {eq['z3']:.3f})"
+    )
+    lines.append(
+        f"  actuator pair {hz(f['wp']):.2f} Hz zeta {f['zp']:.3f} (eq 9.4: {hz(eq['wp']):.2f} Hz, {eq['zp']:.3f}); "
+        f"B2/B1 {f['B2'] / f['B1']:.3f} ({eq['B2'] / eq['B1']:.3f}), B3/B1 {f['B3'] / f['B1']:.3f} ({eq['B3'] / eq['B1']:.3f})"
+    )
     cl = s["closed_loop"]
     lines.append("closed loop in the nonlinear simulator (step 5 deg; Loper: switched on at 2 s):")
     for name, _, label in CONTROLLERS:
@@ -335,16 +380,20 @@ def summary_lines(s: dict, out) -> list[str]:
                 hz_ = f" at {bad['unstable_mode_hz']:.3g} Hz" if bad.get("unstable_mode_hz") else ""
             what = f"UNSTABLE ({grow}{hz_}; the run is in closedloop/{name}_{'step' if bad is st else 'loper'}/)"
         else:
-            what = (f"stable; step: theta settles {st['theta']['settle_s']:.2f} s, base {st['base']['settle_s']:.2f} s; "
-                    f"Loper: base decays at {lo['base']['decay_rate_1_s']:.2f} 1/s")
+            what = (
+                f"stable; step: theta settles {st['theta']['settle_s']:.2f} s, base {st['base']['settle_s']:.2f} s; "
+                f"Loper: base decays at {lo['base']['decay_rate_1_s']:.2f} 1/s"
+            )
         lines.append(f"  {label:<24} {what}")
     dl, ds, alone = cl["damping_loper"], cl["damping_step"], cl["servo_loop_alone_step"]
     over = [(r.get("theta") or {}).get("overshoot_pct") for r in (ds, alone)]  # what damping the base costs the joint
     if dl["stable"] and ds["stable"] and dl["base"].get("free_decay_rate_1_s"):
-        lines.append(f"damping controller: the base settles {alone['base']['settle_s'] / ds['base']['settle_s']:.1f}x sooner after the step "
-                     f"({ds['base']['settle_s']:.2f} s against {alone['base']['settle_s']:.2f} s under the servo loop alone); in the Loper test "
-                     f"its vibration decays {dl['base']['decay_rate_1_s'] / dl['base']['free_decay_rate_1_s']:.1f}x faster than free"
-                     + ("" if None in over else f"; theta overshoots the step by {over[0]:.0f} % ({over[1]:.0f} % alone)"))
+        lines.append(
+            f"damping controller: the base settles {alone['base']['settle_s'] / ds['base']['settle_s']:.1f}x sooner after the step "
+            f"({ds['base']['settle_s']:.2f} s against {alone['base']['settle_s']:.2f} s under the servo loop alone); in the Loper test "
+            f"its vibration decays {dl['base']['decay_rate_1_s'] / dl['base']['free_decay_rate_1_s']:.1f}x faster than free"
+            + ("" if None in over else f"; theta overshoots the step by {over[0]:.0f} % ({over[1]:.0f} % alone)")
+        )
     dg = s["diagnosis"]
     eff = ", ".join(f"{e['category']}/{e['kind']}" for e in dg["effects"]) or "nothing"
     lines.append(f"diagnosis of the fit against the measured record: {dg['verdict']}; found {eff}")
@@ -356,11 +405,16 @@ def summary_lines(s: dict, out) -> list[str]:
     for ch, name, note in (("act", "theta/v", " (chi2 1: the noise)"), ("total", "xdd/v", "")):
         b, a = dg["error_before"].get(ch, {}), dg["error_after"].get(ch, {})
         if b and a:
-            lines.append(f"  {name} error {num(b, 'rms_db'):.2g} dB / {num(b, 'rms_deg'):.2g} deg, chi2 {num(b, 'chi2'):.3g} -> "
-                         f"{num(a, 'rms_db'):.2g} dB / {num(a, 'rms_deg'):.2g} deg, chi2 {num(a, 'chi2'):.3g} with them{note}")
+            lines.append(
+                f"  {name} error {num(b, 'rms_db'):.2g} dB / {num(b, 'rms_deg'):.2g} deg, chi2 {num(b, 'chi2'):.3g} -> "
+                f"{num(a, 'rms_db'):.2g} dB / {num(a, 'rms_deg'):.2g} deg, chi2 {num(a, 'chi2'):.3g} with them{note}"
+            )
     report = "report.html (open it in a browser), " if not s.get("report_error") else "(NOT report.html: see the warning above) "
-    rrd = " and ".join(f"{n} ({s['recordings_mb'][n]:.0f} MB)" if (s.get("recordings_mb") or {}).get(n) is not None else n
-                       for n in ("measure.rrd", "closedloop.rrd"))
-    lines.append(f"wrote {out}/ in {s['wall_s']:.0f} s: {report}summary.json, measure/, fit/, controllers/, "
-                 f"closedloop/, diagnose/; {rrd} (open with `rerun FILE`)")
+    rrd = " and ".join(
+        f"{n} ({s['recordings_mb'][n]:.0f} MB)" if (s.get("recordings_mb") or {}).get(n) is not None else n for n in ("measure.rrd", "closedloop.rrd")
+    )
+    lines.append(
+        f"wrote {out}/ in {s['wall_s']:.0f} s: {report}summary.json, measure/, fit/, controllers/, "
+        f"closedloop/, diagnose/; {rrd} (open with `rerun FILE`)"
+    )
     return lines[:20]

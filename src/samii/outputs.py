@@ -31,13 +31,22 @@ import os
 import secrets
 import shutil
 import tempfile
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Iterable
 
 from samii.errors import InputError
 
-__all__ = ["OutputFolder", "check_output_file", "create_parent", "make_folder", "parent_made_for", "remove_empty", "remove_stale_runs",
-           "remove_stale_stages", "with_size"]
+__all__ = [
+    "OutputFolder",
+    "check_output_file",
+    "create_parent",
+    "make_folder",
+    "parent_made_for",
+    "remove_empty",
+    "remove_stale_runs",
+    "remove_stale_stages",
+    "with_size",
+]
 
 _STAGE_PREFIX = ".samii-stage-"
 
@@ -85,7 +94,7 @@ def _check_creatable_dir(path: Path, option: str) -> None:
         raise InputError(f"{option} {_describe(path)}: cannot create it, {base} is not writable")
 
 
-def check_output_file(path, *, overwrite: bool, option: str, beside: "OutputFolder | None" = None) -> Path:
+def check_output_file(path, *, overwrite: bool, option: str, beside: OutputFolder | None = None) -> Path:
     """Check, before any work, that a single output file (``--rerun FILE``, ``--save FILE``) can be written,
     and, given the run's ``beside`` folder, that it is not one of that folder's outputs or staging folders."""
     text = os.fspath(path)
@@ -175,7 +184,7 @@ def _dead_runs(folder: Path, prefix: str) -> list[tuple[Path, str]]:
     for entry in folder.iterdir():
         if not entry.name.startswith(prefix) or not entry.is_dir() or entry.is_symlink():
             continue
-        pid, _, rest = entry.name[len(prefix):].partition("-")
+        pid, _, rest = entry.name[len(prefix) :].partition("-")
         try:
             pid = int(pid)
         except ValueError:
@@ -275,7 +284,7 @@ class OutputFolder:
         """Where output ``name`` will be once the run succeeds."""
         return self.root / name
 
-    def __enter__(self) -> "OutputFolder":
+    def __enter__(self) -> OutputFolder:
         from samii.errors import mark_outputs_started
 
         mark_outputs_started(self.root)

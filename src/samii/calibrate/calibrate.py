@@ -33,10 +33,10 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -61,17 +61,23 @@ MODE_KNOBS: tuple[str, ...] = (
 )
 
 #: Hard limits of parameters whose physics bounds them: (lo, hi, reason).
-PHYSICAL_LIMITS: Mapping[str, tuple[float, float, str]] = MappingProxyType({
-    "hydraulic.bulk_modulus": (1.0e8, 2.0e9, "effective bulk modulus of mineral oil: ~0.1 GPa with much entrained air and hose compliance, <= ~1.8-2 GPa for pure oil"),
-    "hydraulic.supply_pressure": (1.0e6, 3.5e7, "industrial hydraulic supplies run 1-35 MPa"),
-    "hydraulic.valve_time_constant": (2.0e-4, 0.05, "servo/proportional valves: bandwidths from ~3 Hz to ~800 Hz"),
-    "beam.length_m": (3.0, 4.6482, "free length: at most the beam's 4.6482 m (TMM), less if the clamp grips part of it"),
-    "beam.EI_Nm2": (1.0e4, 1.0e6, "steel at the public 5.73 kg/m: from a solid square bar (~1e4) to a 0.2 m thin-walled tube (~1e6)"),
-    "beam.mass_per_length_kg_m": (2.0, 12.0, "within a factor of about 2 of the public 5.7281 kg/m"),
-    "beam.accel_offset_m": (-0.5, 0.45, "on the beam's last half element or on the mount post l0 (0.33 m) above the beam's end"),
-    "gain.act": (1e-6, 1e6, "sensor unit unknown: any positive factor"),
-    "gain.base": (1e-6, 1e6, "sensor unit unknown: any positive factor"),
-})
+PHYSICAL_LIMITS: Mapping[str, tuple[float, float, str]] = MappingProxyType(
+    {
+        "hydraulic.bulk_modulus": (
+            1.0e8,
+            2.0e9,
+            "effective bulk modulus of mineral oil: ~0.1 GPa with much entrained air and hose compliance, <= ~1.8-2 GPa for pure oil",
+        ),
+        "hydraulic.supply_pressure": (1.0e6, 3.5e7, "industrial hydraulic supplies run 1-35 MPa"),
+        "hydraulic.valve_time_constant": (2.0e-4, 0.05, "servo/proportional valves: bandwidths from ~3 Hz to ~800 Hz"),
+        "beam.length_m": (3.0, 4.6482, "free length: at most the beam's 4.6482 m (TMM), less if the clamp grips part of it"),
+        "beam.EI_Nm2": (1.0e4, 1.0e6, "steel at the public 5.73 kg/m: from a solid square bar (~1e4) to a 0.2 m thin-walled tube (~1e6)"),
+        "beam.mass_per_length_kg_m": (2.0, 12.0, "within a factor of about 2 of the public 5.7281 kg/m"),
+        "beam.accel_offset_m": (-0.5, 0.45, "on the beam's last half element or on the mount post l0 (0.33 m) above the beam's end"),
+        "gain.act": (1e-6, 1e6, "sensor unit unknown: any positive factor"),
+        "gain.base": (1e-6, 1e6, "sensor unit unknown: any positive factor"),
+    }
+)
 
 #: A parameter within this relative distance of a bound is "on the bound".
 _ON_BOUND = 1e-3
@@ -133,16 +139,30 @@ class CalibrationResult:
 
         return {
             "data": self.data_source,
-            "settings": {"phase_weight": self.phase_weight, "band_hz": list(self.band_hz), "channels": list(self.channels), "weighting": self.weighting},
+            "settings": {
+                "phase_weight": self.phase_weight,
+                "band_hz": list(self.band_hz),
+                "channels": list(self.channels),
+                "weighting": self.weighting,
+            },
             "parameters": [
-                {"name": n, "start": self.start[n], "value": self.values[n], "stderr": num(self.stderr[n]),
-                 "change_pct": 100.0 * (self.values[n] / self.start[n] - 1.0) if self.start[n] != 0 else None,
-                 "bounds": [self.bounds[n][0], self.bounds[n][1]], "bounds_source": self.bounds[n][2]}
+                {
+                    "name": n,
+                    "start": self.start[n],
+                    "value": self.values[n],
+                    "stderr": num(self.stderr[n]),
+                    "change_pct": 100.0 * (self.values[n] / self.start[n] - 1.0) if self.start[n] != 0 else None,
+                    "bounds": [self.bounds[n][0], self.bounds[n][1]],
+                    "bounds_source": self.bounds[n][2],
+                }
                 for n in self.names
             ],
             "correlation": [[num(v) for v in row] for row in self.correlation],
             "cost": {"start": self.cost_start, "calibrated": self.cost},
-            "rms_error": {c: {"start_db": self.rms_start[c][0], "start_deg": self.rms_start[c][1], "db": self.rms[c][0], "deg": self.rms[c][1]} for c in self.channels},
+            "rms_error": {
+                c: {"start_db": self.rms_start[c][0], "start_deg": self.rms_start[c][1], "db": self.rms[c][0], "deg": self.rms[c][1]}
+                for c in self.channels
+            },
             "converged": self.converged,
             "status": self.status,
             "nfev": self.nfev,
@@ -172,8 +192,9 @@ class CalibrationResult:
         """The calibrated parameter set as a parameter file that ``load_model`` and ``--model`` accept."""
         from samii.measure.io import write_text
 
-        note = (f"written by samii calibrate from {self.data_source or 'FRF data'}: "
-                + ", ".join(f"{n} = {self.values[n]:.6g}" for n in self.names if not n.startswith(GAIN_PREFIX)))
+        note = f"written by samii calibrate from {self.data_source or 'FRF data'}: " + ", ".join(
+            f"{n} = {self.values[n]:.6g}" for n in self.names if not n.startswith(GAIN_PREFIX)
+        )
         text = json.dumps({"note": note, "params": self.params.as_dict()}, indent=2) + "\n"
         return write_text(path, text, overwrite=overwrite)
 
@@ -185,7 +206,7 @@ def _gain_starts(data: FrequencyResponse, base: SamiiParams, names: tuple[str, .
     h = SimulatorFRF(base, names).frf(x0, d.freq_hz)  # gains at 1 unless given
     out = []
     for i in gains:
-        ch = names[i][len(GAIN_PREFIX):]
+        ch = names[i][len(GAIN_PREFIX) :]
         c = ch if ch in d.channels else ("total" if ch == "base" and "total" in d.channels else None)
         if c is None:
             raise ValueError(f"{names[i]}: the data have no {ch} channel to set its level")
@@ -264,7 +285,9 @@ def calibrate(
         x0[gains] = _gain_starts(data, base, names, x0, gains, band_hz)
     for n, v in zip(names, x0):
         if not math.isfinite(v) or (n not in SIGNED and not v > 0):
-            raise ValueError(f"parameter {n}: start {float(v):g} must be finite and > 0 (positive parameters are calibrated as logarithms); give --start {n}=VALUE")
+            raise ValueError(
+                f"parameter {n}: start {float(v):g} must be finite and > 0 (positive parameters are calibrated as logarithms); give --start {n}=VALUE"
+            )
     user_bounds = dict(bounds or {})
     unknown = sorted(set(user_bounds) - set(names))
     if unknown:
@@ -341,15 +364,21 @@ def calibrate(
     for i, n in enumerate(names):
         if min(abs(sol.x[i] - lo[i]), abs(hi[i] - sol.x[i])) < _ON_BOUND * (10 if signed[i] else 1):
             on_bound.append(n)
-            warnings.append(f"{n} = {x[i]:.6g} ended on its bound [{bnds[n][0]:.6g}, {bnds[n][1]:.6g}] ({bnds[n][2]}): the data want it further; "
-                            "check the structure (a missing effect) or widen the bound with --bound")
+            warnings.append(
+                f"{n} = {x[i]:.6g} ended on its bound [{bnds[n][0]:.6g}, {bnds[n][1]:.6g}] ({bnds[n][2]}): the data want it further; "
+                "check the structure (a missing effect) or widen the bound with --bound"
+            )
     if failures:
         warnings.append(f"{len(failures)} trial point(s) could not be simulated and were rejected (e.g. {failures[-1]})")
     if "unit unknown" in str(data.metadata.get("source", "")) and "gain.base" not in names and any(c in ("base", "total") for c in problem.channels):
-        warnings.append("the data's acceleration unit is unknown (notebook curves) but gain.base is not calibrated: the physical "
-                        "parameters absorb the unit; add --param gain.base")
+        warnings.append(
+            "the data's acceleration unit is unknown (notebook curves) but gain.base is not calibrated: the physical "
+            "parameters absorb the unit; add --param gain.base"
+        )
     converged = bool(sol.status > 0 and not on_bound)
-    status = {0: "stopped at max_nfev", 1: "gradient small", 2: "cost change small", 3: "step small", 4: "cost and step small"}.get(sol.status, f"status {sol.status}")
+    status = {0: "stopped at max_nfev", 1: "gradient small", 2: "cost change small", 3: "step small", 4: "cost and step small"}.get(
+        sol.status, f"status {sol.status}"
+    )
     lof = lack_of_fit(problem, x)
     warnings.extend(lof.warnings())
     w0 = problem.errors(x0)

@@ -36,29 +36,68 @@ def _name_bounds(text: str) -> tuple[str, tuple[float, float]]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("data", metavar="DATA",
-                        help="FRF CSV (docs/DATA_FORMATS.md), a rig-era .mat, or eq9.4: the notebook's fitted model "
-                        "(theta taken in degrees; its acceleration unit is unknown, so calibrate gain.base with it)")
-    parser.add_argument("--param", action="append", default=[], metavar="NAME", required=True,
-                        help="physical parameter to calibrate, a --set name such as beam.clamp_stiffness_Nm_rad or "
-                        "hydraulic.total_volume; gain.base / gain.act for a sensor of unknown unit (repeatable)")
-    parser.add_argument("--start", action="append", default=[], type=name_value, metavar="NAME=VALUE",
-                        help="starting value of a calibrated parameter (default: the model's value; a channel gain starts at the data's level against the model's)")
-    parser.add_argument("--bound", action="append", default=[], type=_name_bounds, metavar="NAME=LO:HI",
-                        help="bounds of a calibrated parameter (default: physical limits where known, else a factor 10 around the start)")
-    parser.add_argument("--phase-weight", type=float_in(0, 100), default=0.1, metavar="W", help="weight on the phase error in degrees (default 0.1, the notebook's eq 9.4)")
+    parser.add_argument(
+        "data",
+        metavar="DATA",
+        help="FRF CSV (docs/DATA_FORMATS.md), a rig-era .mat, or eq9.4: the notebook's fitted model "
+        "(theta taken in degrees; its acceleration unit is unknown, so calibrate gain.base with it)",
+    )
+    parser.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME",
+        required=True,
+        help="physical parameter to calibrate, a --set name such as beam.clamp_stiffness_Nm_rad or "
+        "hydraulic.total_volume; gain.base / gain.act for a sensor of unknown unit (repeatable)",
+    )
+    parser.add_argument(
+        "--start",
+        action="append",
+        default=[],
+        type=name_value,
+        metavar="NAME=VALUE",
+        help="starting value of a calibrated parameter (default: the model's value; a channel gain starts at the data's level against the model's)",
+    )
+    parser.add_argument(
+        "--bound",
+        action="append",
+        default=[],
+        type=_name_bounds,
+        metavar="NAME=LO:HI",
+        help="bounds of a calibrated parameter (default: physical limits where known, else a factor 10 around the start)",
+    )
+    parser.add_argument(
+        "--phase-weight",
+        type=float_in(0, 100),
+        default=0.1,
+        metavar="W",
+        help="weight on the phase error in degrees (default 0.1, the notebook's eq 9.4)",
+    )
     parser.add_argument("--band-hz", type=positive_float, nargs=2, metavar=("LO", "HI"), help="use only LO <= f <= HI Hz (default: all the data)")
     parser.add_argument("--channels", default=None, metavar="C1,C2", help="channels in the cost (default act,base where present)")
-    parser.add_argument("--weighting", choices=("auto", "none", "coherence"), default="auto",
-                        help="none: the notebook's cost; coherence: points weighted by the random error their coherence predicts; "
-                        "auto (default): coherence when the data have it for every channel in the cost, else none (as samii fit)")
-    parser.add_argument("--model", metavar="PARAMS.json",
-                        help="parameter file to start from (default: the embedded model's); an MJCF file cannot be calibrated, its physics is not parametrised")
+    parser.add_argument(
+        "--weighting",
+        choices=("auto", "none", "coherence"),
+        default="auto",
+        help="none: the notebook's cost; coherence: points weighted by the random error their coherence predicts; "
+        "auto (default): coherence when the data have it for every channel in the cost, else none (as samii fit)",
+    )
+    parser.add_argument(
+        "--model",
+        metavar="PARAMS.json",
+        help="parameter file to start from (default: the embedded model's); an MJCF file cannot be calibrated, its physics is not parametrised",
+    )
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a model parameter before calibrating (repeatable)")
     parser.add_argument("--max-iterations", type=int_in(1, 100000), default=60, metavar="N", help="solver iterations at most (default 60)")
-    parser.add_argument("--confirm", action="store_true",
-                        help="also measure the calibrated model with a swept sine in the nonlinear simulator and compare (about 5 s)")
-    parser.add_argument("--out", metavar="DIR", type=nonempty_path, help="write calibration.json, calibrated_params.json (for --model) and calibration_bode.png here")
+    parser.add_argument(
+        "--confirm",
+        action="store_true",
+        help="also measure the calibrated model with a swept sine in the nonlinear simulator and compare (about 5 s)",
+    )
+    parser.add_argument(
+        "--out", metavar="DIR", type=nonempty_path, help="write calibration.json, calibrated_params.json (for --model) and calibration_bode.png here"
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace files already in --out")
     parser.add_argument("--json", action="store_true", help="print the machine-readable report")
 
@@ -84,7 +123,9 @@ def load_target(source: str):
         deg = 180.0 / np.pi
         act = st.response(nb.EQ9_4, f, "act") / deg  # theta_deg / v -> theta_rad / v
         base = st.response(nb.EQ9_4, f, "base") * deg  # xdd / theta_deg -> xdd / theta_rad (xdd in the notebook's unit)
-        return FrequencyResponse(f, act=act, base=base, metadata={"source": "notebook eq 9.4 over 0.1-40 Hz; theta in degrees converted to rad; acceleration unit unknown"})
+        return FrequencyResponse(
+            f, act=act, base=base, metadata={"source": "notebook eq 9.4 over 0.1-40 Hz; theta in degrees converted to rad; acceleration unit unknown"}
+        )
     path = Path(source)
     if not path.is_file():
         raise InputError(f"DATA {source!r}: no such file (DATA is an FRF CSV, a rig-era .mat, or one of {', '.join(NOTEBOOK_TARGETS)})")
@@ -122,8 +163,10 @@ def run(args: argparse.Namespace) -> int:
     if args.band_hz and not args.band_hz[0] < args.band_hz[1]:
         raise InputError(f"--band-hz {args.band_hz[0]:g} {args.band_hz[1]:g}: expected LO < HI")
     if args.model is not None and Path(args.model).suffix.lower() != ".json":
-        raise InputError(f"--model {args.model}: calibrate needs a parameter file (.json, e.g. samii_params.json or a calibrated_params.json), "
-                         "not an MJCF file, whose physics is not parametrised")
+        raise InputError(
+            f"--model {args.model}: calibrate needs a parameter file (.json, e.g. samii_params.json or a calibrated_params.json), "
+            "not an MJCF file, whose physics is not parametrised"
+        )
     overrides = parse_overrides(args.set)
     from samii.calibrate.calibrate import calibrate
     from samii.sim.model import default_params, params_with_overrides, read_params_file
@@ -141,8 +184,7 @@ def run(args: argparse.Namespace) -> int:
     for option, given in (("--start", args.start), ("--bound", args.bound)):
         unknown = sorted({name for name, _ in given} - set(args.param))
         if unknown:
-            raise InputError(f"{option} {', '.join(unknown)}: not calibrated; {option} applies to the --param names "
-                             f"({', '.join(args.param)})")
+            raise InputError(f"{option} {', '.join(unknown)}: not calibrated; {option} applies to the --param names ({', '.join(args.param)})")
     data = load_target(args.data)
     channels = _channels(args.channels, data) if args.channels is not None else None
     confirm = None
@@ -156,9 +198,17 @@ def run(args: argparse.Namespace) -> int:
         confirm = SweptSine(start_hz=lo, stop_hz=hi)
     try:
         result = calibrate(
-            data, args.param, base=base, start=dict(args.start), bounds=dict(args.bound),
-            phase_weight=args.phase_weight, band_hz=tuple(args.band_hz) if args.band_hz else None,
-            channels=channels, weighting=args.weighting, max_nfev=args.max_iterations, confirm=confirm,
+            data,
+            args.param,
+            base=base,
+            start=dict(args.start),
+            bounds=dict(args.bound),
+            phase_weight=args.phase_weight,
+            band_hz=tuple(args.band_hz) if args.band_hz else None,
+            channels=channels,
+            weighting=args.weighting,
+            max_nfev=args.max_iterations,
+            confirm=confirm,
             data_source=args.data,
         )
     except KeyError as exc:
@@ -176,10 +226,14 @@ def run(args: argparse.Namespace) -> int:
         print(result.to_json(indent=2))
         return 0
     r = result
-    print(f"{prog}: {args.data}: {len(r.names)} parameter(s), band {r.band_hz[0]:.3g}-{r.band_hz[1]:.3g} Hz, channels {', '.join(r.channels)}, "
-          f"phase weight {r.phase_weight:g}, weighting {r.weighting}")
+    print(
+        f"{prog}: {args.data}: {len(r.names)} parameter(s), band {r.band_hz[0]:.3g}-{r.band_hz[1]:.3g} Hz, channels {', '.join(r.channels)}, "
+        f"phase weight {r.phase_weight:g}, weighting {r.weighting}"
+    )
     print(r.table())
-    print(f"cost {r.cost_start:.6g} -> {r.cost:.6g}; {r.nfev} iterations, {r.elapsed_s:.1f} s; {r.status}; converged {'yes' if r.converged else 'NO'}")
+    print(
+        f"cost {r.cost_start:.6g} -> {r.cost:.6g}; {r.nfev} iterations, {r.elapsed_s:.1f} s; {r.status}; converged {'yes' if r.converged else 'NO'}"
+    )
     for c in r.channels:
         (d0, p0), (d1, p1) = r.rms_start[c], r.rms[c]
         print(f"RMS error {c}: {d0:.3g} dB / {p0:.3g} deg -> {d1:.3g} dB / {p1:.3g} deg")
@@ -188,7 +242,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"checked by a {conf['method']} ({conf['elapsed_s']:.1f} s): RMS error against the data of")
         for c in r.channels:
             m, lin = conf["rms_error_measured"][c], conf["rms_error_linearised"][c]
-            print(f"  {c}: the measured calibrated model {m['db']:.3g} dB / {m['deg']:.3g} deg; its linearisation {lin['db']:.3g} dB / {lin['deg']:.3g} deg")
+            print(
+                f"  {c}: the measured calibrated model {m['db']:.3g} dB / {m['deg']:.3g} deg; its linearisation {lin['db']:.3g} dB / {lin['deg']:.3g} deg"
+            )
     lof = r.lack_of_fit
     print(f"lack of fit: {lof.verdict()} ({lof.rule})")
     for w in r.warnings:
@@ -210,12 +266,22 @@ def _write_outputs(result, data, folder) -> None:
 
     structure = SimulatorFRF(result.params, result.names)
     models = {"start": (structure, dict(result.start)), "calibrated": (structure, dict(result.values))}
-    note = (f"data: {result.data_source}; calibrated: " + ", ".join(f"{n} = {result.values[n]:.4g}" for n in result.names)
-            + f"; phase weight {result.phase_weight:g}")
+    note = (
+        f"data: {result.data_source}; calibrated: "
+        + ", ".join(f"{n} = {result.values[n]:.4g}" for n in result.names)
+        + f"; phase weight {result.phase_weight:g}"
+    )
     if "gain.base" in result.names:
         note += "; xdd in the data's own unit: the model curves are multiplied by gain.base"
-    fig = plot_fit_overlay(data, models, channels=result.channels, band_hz=result.band_hz,
-                           title="samii calibrate: linearised simulator against the data", note=note, n_model_points=300)
+    fig = plot_fit_overlay(
+        data,
+        models,
+        channels=result.channels,
+        band_hz=result.band_hz,
+        title="samii calibrate: linearised simulator against the data",
+        note=note,
+        n_model_points=300,
+    )
     try:
         fig.savefig(folder.path("calibration_bode.png"), dpi=110)
     finally:

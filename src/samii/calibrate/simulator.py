@@ -26,8 +26,8 @@ phase difference on the principal branch.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
-from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -48,13 +48,15 @@ def check_parameter_name(params: SamiiParams, name: str) -> None:
     """Raise ValueError unless ``name`` is a calibratable parameter: a float field
     ``beam.*``, ``arm.*``, ``hydraulic.*`` or ``sensor.*``, or a channel gain ``gain.act`` / ``gain.base``."""
     if name.startswith(GAIN_PREFIX):
-        if name[len(GAIN_PREFIX):] not in _GAIN_CHANNELS:
+        if name[len(GAIN_PREFIX) :] not in _GAIN_CHANNELS:
             raise ValueError(f"parameter {name!r}: channel gains are {[GAIN_PREFIX + c for c in _GAIN_CHANNELS]}")
         return
     parts = name.split(".")
     sections = ("beam", "arm", "hydraulic", "sensor")
     if len(parts) != 2 or parts[0] not in sections:
-        raise ValueError(f"parameter {name!r}: expected 'beam.<name>', 'arm.<name>', 'hydraulic.<name>', 'sensor.<name>' or a channel gain 'gain.act'/'gain.base'")
+        raise ValueError(
+            f"parameter {name!r}: expected 'beam.<name>', 'arm.<name>', 'hydraulic.<name>', 'sensor.<name>' or a channel gain 'gain.act'/'gain.base'"
+        )
     section = getattr(params, parts[0])
     types = {f.name: f.type for f in fields(section)}
     if parts[1] not in types:
@@ -62,8 +64,10 @@ def check_parameter_name(params: SamiiParams, name: str) -> None:
     if parts[1] == "n_segments":
         raise ValueError(f"parameter {name!r} is a discretisation choice (an integer), not a physical parameter to calibrate")
     if parts[1] == "accel_body_fixed":  # (its --start hint led to "must be 0 or 1")
-        raise ValueError(f"parameter {name!r} is a 0/1 switch (1 for a body-fixed accelerometer whose axis tilts with the tip, 0 for the world-frame reading), not a "
-                         "physical parameter to calibrate; set it with --set")
+        raise ValueError(
+            f"parameter {name!r} is a 0/1 switch (1 for a body-fixed accelerometer whose axis tilts with the tip, 0 for the world-frame reading), not a "
+            "physical parameter to calibrate; set it with --set"
+        )
 
 
 def parameter_value(params: SamiiParams, name: str) -> float:
@@ -111,7 +115,7 @@ class SimulatorFRF:
         used = []
         for name in self.param_names:
             if name.startswith(GAIN_PREFIX):
-                ch = name[len(GAIN_PREFIX):]
+                ch = name[len(GAIN_PREFIX) :]
                 touches = {"act": ("act", "base", "total"), "base": ("base", "total")}[ch]
                 if not any(c in touches for c in channels):
                     continue
@@ -150,15 +154,16 @@ class SimulatorFRF:
     def frf(self, x: Sequence[float], freq_hz: np.ndarray) -> FrequencyResponse:
         """The linearised simulator's FRF (act, base, total) for ``x``, channel gains applied."""
         h = self._responses(np.asarray(x, float), np.asarray(freq_hz, float))
-        return FrequencyResponse(np.asarray(freq_hz, float), act=h["act"], base=h["base"], total=h["total"],
-                                 metadata={"source": "linearised simulator (samii calibrate)"})
+        return FrequencyResponse(
+            np.asarray(freq_hz, float), act=h["act"], base=h["base"], total=h["total"], metadata={"source": "linearised simulator (samii calibrate)"}
+        )
 
     def with_gains(self, x: Sequence[float], frf: FrequencyResponse) -> dict[str, np.ndarray]:
         """``frf``'s channels (act, base, total) as the sensors with the gains in ``x`` read them."""
         gains = {c: 1.0 for c in _GAIN_CHANNELS}
         for n, v in zip(self.param_names, x):
             if n.startswith(GAIN_PREFIX):
-                gains[n[len(GAIN_PREFIX):]] = float(v)
+                gains[n[len(GAIN_PREFIX) :]] = float(v)
         ga, gb = gains["act"], gains["base"]
         return {"act": frf.act * ga, "base": frf.base * gb / ga, "total": frf.total * gb}
 
@@ -179,7 +184,9 @@ class SimulatorFRF:
         self._cache[key] = out
         return out
 
-    def log_responses(self, x: np.ndarray, w: np.ndarray, channels: tuple[Channel, ...] = ("act", "base"), *, derivatives: bool = True) -> dict[Channel, tuple[np.ndarray, np.ndarray | None]]:
+    def log_responses(
+        self, x: np.ndarray, w: np.ndarray, channels: tuple[Channel, ...] = ("act", "base"), *, derivatives: bool = True
+    ) -> dict[Channel, tuple[np.ndarray, np.ndarray | None]]:
         """channel -> (H, dlogH/dx), as ``ModelStructure.log_responses``; derivatives by central
         differences, relative steps (in log x) for positive parameters, absolute ones
         (``rel_step`` times max(|x|, scale)) for the signed ones (``SIGNED``)."""

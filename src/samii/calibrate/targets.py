@@ -15,8 +15,8 @@ Tolerances (issue 8): frequencies +-3 % (wp +-5 %), tau +-15 %, K1 +-10 %, dampi
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping
 
 from samii import notebook as nb
 
@@ -24,10 +24,18 @@ __all__ = ["TargetCheck", "check_fit_against_eq9_4", "TOLERANCES"]
 
 #: name -> relative tolerance against eq 9.4 (issue 8's table).
 TOLERANCES: Mapping[str, float] = {
-    "wp": 0.05, "wz": 0.03, "w1": 0.03, "w3": 0.03,
-    "tau": 0.15, "K1_deg": 0.10,
-    "zp": 0.30, "zz": 0.30, "z1": 0.30, "z3": 0.30,
-    "B1/B2": 0.30, "B3/B2": 0.30,
+    "wp": 0.05,
+    "wz": 0.03,
+    "w1": 0.03,
+    "w3": 0.03,
+    "tau": 0.15,
+    "K1_deg": 0.10,
+    "zp": 0.30,
+    "zz": 0.30,
+    "z1": 0.30,
+    "z3": 0.30,
+    "B1/B2": 0.30,
+    "B3/B2": 0.30,
 }
 
 

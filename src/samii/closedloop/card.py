@@ -35,7 +35,18 @@ import numpy as np
 from samii.design.controller import LinearController
 from samii.errors import InputError
 
-__all__ = ["CardFitError", "CardModel", "CardLayout", "build_card_model", "check_fit", "si_matrices", "MAX_DELAY_STEPS", "MAX_SAMPLE_STEPS", "MAX_STATES", "INPUTS"]
+__all__ = [
+    "CardFitError",
+    "CardModel",
+    "CardLayout",
+    "build_card_model",
+    "check_fit",
+    "si_matrices",
+    "MAX_DELAY_STEPS",
+    "MAX_SAMPLE_STEPS",
+    "MAX_STATES",
+    "INPUTS",
+]
 
 #: Column order of the card's inputs (SI: rad, rad, m/s²).
 INPUTS = ("theta_ref", "theta", "accel")
@@ -207,7 +218,9 @@ def build_card_model(
         raise InputError(f"the model has no actuator named {ACTUATOR!r}")
     config = dict(hyd.plugin.config)
     if not config:
-        raise InputError(f"actuator {ACTUATOR!r} is not configured on the actuator element (an explicit plugin instance is not supported by the closed loop)")
+        raise InputError(
+            f"actuator {ACTUATOR!r} is not configured on the actuator element (an explicit plugin instance is not supported by the closed loop)"
+        )
     for name in (REFERENCE_ACTUATOR, THETA_NOISE_ACTUATOR, ACCEL_NOISE_ACTUATOR):
         a = spec.add_actuator(name=name, target=JOINT, trntype=mujoco.mjtTrn.mjTRN_JOINT)
         a.gainprm[0] = 0.0  # force-free: only the plugin reads its ctrl

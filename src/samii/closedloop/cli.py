@@ -49,19 +49,35 @@ DEFAULT_IMPULSE_N_S = 0.5
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     specs = "; ".join(f"{k}: {v}" for k, v in BUILTIN_CONTROLLERS.items())
-    parser.add_argument("--controller", required=True, metavar="SPEC",
-                        help=f"{specs}; or a controller file written by samii design place|cancel --save")
+    parser.add_argument(
+        "--controller", required=True, metavar="SPEC", help=f"{specs}; or a controller file written by samii design place|cancel --save"
+    )
     parser.add_argument("--scenario", required=True, choices=("step", "loper", "release"),
                         help="step: theta_ref steps by --step-deg at t = 1 s, controller on throughout; loper: the step under "
                         "the servo loop alone, the controller switched on (bumplessly) at t = 2 s, compared with the run never "
                         f"switched (free decay); release: a tip impulse of --impulse-n-s (default {DEFAULT_IMPULSE_N_S:g} N s) "
                         "along the accelerometer at t = 0 sets the base vibrating, theta_ref held")  # fmt: skip
-    parser.add_argument("--step-deg", type=_step_deg, default=None, metavar="D",
-                        help=f"reference step [deg], nonzero, |D| <= {MAX_STEP_DEG:g} (default 5; step and loper only)")
-    parser.add_argument("--impulse-n-s", type=float_in(0.0, MAX_IMPULSE_N_S, lo_open=True, unit="N s"), default=None, metavar="P",
-                        help=f"release: tip impulse [N s], 0 < P <= {MAX_IMPULSE_N_S:g} (default {DEFAULT_IMPULSE_N_S:g}: about 4 m/s² at the base)")
-    parser.add_argument("--duration-s", type=float_in(3.0, MAX_DURATION_S, unit="s"), default=10.0, metavar="S",
-                        help=f"simulated time [s], 3...{MAX_DURATION_S:g} (default 10)")
+    parser.add_argument(
+        "--step-deg",
+        type=_step_deg,
+        default=None,
+        metavar="D",
+        help=f"reference step [deg], nonzero, |D| <= {MAX_STEP_DEG:g} (default 5; step and loper only)",
+    )
+    parser.add_argument(
+        "--impulse-n-s",
+        type=float_in(0.0, MAX_IMPULSE_N_S, lo_open=True, unit="N s"),
+        default=None,
+        metavar="P",
+        help=f"release: tip impulse [N s], 0 < P <= {MAX_IMPULSE_N_S:g} (default {DEFAULT_IMPULSE_N_S:g}: about 4 m/s² at the base)",
+    )
+    parser.add_argument(
+        "--duration-s",
+        type=float_in(3.0, MAX_DURATION_S, unit="s"),
+        default=10.0,
+        metavar="S",
+        help=f"simulated time [s], 3...{MAX_DURATION_S:g} (default 10)",
+    )
     parser.add_argument("--delay-samples", type=float_in(0.0, float(MAX_DELAY_STEPS), unit="samples"), default=0.0, metavar="N",
                         help="computation delay of the controller [samples], whole or fractional (default 0; the command is "
                         f"held from the sample on, zero-order hold); at most {MAX_DELAY_STEPS} physics steps")  # fmt: skip
@@ -70,15 +86,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "4096-count/rev encoder steps; acceleration 0.01 m/s² rms and a 16-bit +-10 V ADC at 1 V/g)")  # fmt: skip
     parser.add_argument("--seed", type=seed, default=None, help="seed of the sensor noise (with --noise; default 0)")
     parser.add_argument("--model", metavar="XML", help="MJCF or parameter .json file (default: the embedded SAMII model)")
-    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                        help="override a model parameter, e.g. hydraulic.bulk_modulus=1e9 (repeatable; samii params lists them)")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="override a model parameter, e.g. hydraulic.bulk_modulus=1e9 (repeatable; samii params lists them)",
+    )
     parser.add_argument("--out", metavar="DIR", type=nonempty_path, help="write timeseries.csv, run.json and the figures here")
     parser.add_argument("--no-plots", action="store_true", help="with --out, no figures")
-    parser.add_argument("--rerun", metavar="FILE.rrd", type=nonempty_path,
-                        help="also write a Rerun recording of the run: the beam and arm in 3D with their deflection magnified, the signals grouped by unit, "
-                             "the base modes' coordinates, the controller's switch-on, and a stored layout")
-    parser.add_argument("--rerun-fps", metavar="F", type=positive_float, default=None,
-                        help="animation frames per second in the recording (default: 4 per period of base mode 3, at least 100)")
+    parser.add_argument(
+        "--rerun",
+        metavar="FILE.rrd",
+        type=nonempty_path,
+        help="also write a Rerun recording of the run: the beam and arm in 3D with their deflection magnified, the signals grouped by unit, "
+        "the base modes' coordinates, the controller's switch-on, and a stored layout",
+    )
+    parser.add_argument(
+        "--rerun-fps",
+        metavar="F",
+        type=positive_float,
+        default=None,
+        help="animation frames per second in the recording (default: 4 per period of base mode 3, at least 100)",
+    )
     parser.add_argument("--overwrite", "--force", dest="overwrite", action="store_true", help="replace existing output files")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
 
@@ -125,8 +155,11 @@ def _check_options(args) -> None:
 
 
 def _summary(r, out_names: list[str]) -> str:
-    lines = [f"closed loop: {r.controller}, {r.scenario.name} scenario, {r.scenario.duration_s:g} s"
-             + (f", delay {r.delay_samples:g} samples" if r.delay_samples else "") + (", sensor noise on" if r.noise else "")]
+    lines = [
+        f"closed loop: {r.controller}, {r.scenario.name} scenario, {r.scenario.duration_s:g} s"
+        + (f", delay {r.delay_samples:g} samples" if r.delay_samples else "")
+        + (", sensor noise on" if r.noise else "")
+    ]
     lines.append("  stable in the nonlinear simulator" if r.stable else f"  UNSTABLE: {r.instability()}")
     for n in r.notes:
         lines.append(f"  note: {n}")
@@ -136,11 +169,14 @@ def _summary(r, out_names: list[str]) -> str:
         if not r.stable:
             lines.append(f"  theta: final value {th.final_pct:.3g} % of the step (rise, overshoot and settle not given: the run is unstable)")
         elif th.final_pct is not None and not th.followed:
-            lines.append(f"  theta: did not follow the step (its final value is {th.final_pct:.3g} % of the step; rise, overshoot "
-                         "and settle undefined)")
+            lines.append(
+                f"  theta: did not follow the step (its final value is {th.final_pct:.3g} % of the step; rise, overshoot and settle undefined)"
+            )
         else:
-            lines.append(f"  theta: rise {f(th.rise_s, ' s')}, overshoot {f(th.overshoot_pct, ' %')}, settle (2 %) {f(th.settle_s, ' s')}"
-                         + (f", final value {th.final_pct:.3g} % of the step" if th.final_pct is not None and abs(th.final_pct - 100.0) >= 2.0 else ""))
+            lines.append(
+                f"  theta: rise {f(th.rise_s, ' s')}, overshoot {f(th.overshoot_pct, ' %')}, settle (2 %) {f(th.settle_s, ' s')}"
+                + (f", final value {th.final_pct:.3g} % of the step" if th.final_pct is not None and abs(th.final_pct - 100.0) >= 2.0 else "")
+            )
     b = r.base
     f = lambda x, u: "n/a" if x is None else f"{x:.3g}{u}"  # noqa: E731
     if r.signals.t.size < 2:
@@ -185,9 +221,8 @@ def run(args) -> int:
     import os
 
     _check_options(args)
-    from samii.outputs import OutputFolder, check_output_file
-
     from samii.closedloop.plots import FIGURES
+    from samii.outputs import OutputFolder, check_output_file
 
     names = list(_FILES) + ([] if args.no_plots else list(FIGURES))
     folder = OutputFolder(args.out, names, overwrite=args.overwrite) if args.out is not None else None
@@ -296,12 +331,27 @@ def _write_rerun(result, tmp, final, factory) -> None:
     model = model_at_rest(factory)
     frame_t = s.frame_t if s.frame_t is not None else np.zeros(0)
     frame_q = s.frame_qpos if s.frame_qpos is not None else np.zeros((0, model.nq))
-    runs = [RunRecord("closedloop", result.timeseries(), frame_t, frame_q, switch_on_s=s.switch_on_s,
-                      label=f"samii closedloop: controller {result.controller}, scenario {result.scenario.name}")]
+    runs = [
+        RunRecord(
+            "closedloop",
+            result.timeseries(),
+            frame_t,
+            frame_q,
+            switch_on_s=s.switch_on_s,
+            label=f"samii closedloop: controller {result.controller}, scenario {result.scenario.name}",
+        )
+    ]
     c = result.comparison
     if c is not None and c.frame_t is not None:  # the same scenario under the servo amplifier alone (Figure 11.4 as a recording)
-        runs.append(RunRecord("servo_loop_alone", result.timeseries(comparison=True), c.frame_t, c.frame_qpos,
-                              label=f"the comparison: scenario {result.scenario.name} under the servo amplifier alone (no controller)"))
+        runs.append(
+            RunRecord(
+                "servo_loop_alone",
+                result.timeseries(comparison=True),
+                c.frame_t,
+                c.frame_qpos,
+                label=f"the comparison: scenario {result.scenario.name} under the servo amplifier alone (no controller)",
+            )
+        )
     try:
         write_recording(tmp, model, runs, application_id="samii_closedloop")
     except (RuntimeError, OSError) as exc:  # rerun's writer reports file-system failures as RuntimeError

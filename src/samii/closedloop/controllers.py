@@ -32,9 +32,10 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -95,11 +96,11 @@ class NotebookUnitEvidence:
 
 def accel_unit_evidence(model=None) -> NotebookUnitEvidence:
     """Eq 9.4's B_k against the simulator's (``model``, default the embedded one), theta in degrees."""
+    import warnings
+
     from samii import notebook as nb
     from samii.sim.linearize import linearize
     from samii.sim.model import load_model
-
-    import warnings
 
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="logm result may be inaccurate")  # error ~1e-12, well below what is compared here
@@ -156,7 +157,7 @@ def _provenance_defaults() -> dict:
 
     from samii import __version__
 
-    return {"samii_version": __version__, "written_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")}
+    return {"samii_version": __version__, "written_utc": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")}
 
 
 def controller_json(saved: SavedController) -> dict:
@@ -216,8 +217,10 @@ def _matrix(doc: dict, key: str, where: str) -> np.ndarray:
             if not _finite_number(x):
                 raise InputError(f"{where}: field {key!r} has the entry {_shown(x)}; expected finite numbers")
             if abs(float(x)) > MAX_ENTRY:
-                raise InputError(f"{where}: field {key!r} has the entry {_shown(x)}, beyond +-{MAX_ENTRY:g}: a controller's "
-                                 "matrices that overflow in its first step (expected gains in V per SI unit of its inputs)")
+                raise InputError(
+                    f"{where}: field {key!r} has the entry {_shown(x)}, beyond +-{MAX_ENTRY:g}: a controller's "
+                    "matrices that overflow in its first step (expected gains in V per SI unit of its inputs)"
+                )
     return np.array(value, float) if value and value[0] else np.zeros((len(value), 0))
 
 
@@ -260,17 +263,25 @@ def read_controller(path: str | Path) -> SavedController:
 
     unknown = [s for s in inputs if s not in MEASUREMENTS]
     if unknown or len(set(inputs)) != len(inputs):
-        what = f"{', '.join(repr(_short_name(s)) for s in unknown)} {'is' if len(unknown) == 1 else 'are'} not a measurement" if unknown else "names repeat"
+        what = (
+            f"{', '.join(repr(_short_name(s)) for s in unknown)} {'is' if len(unknown) == 1 else 'are'} not a measurement"
+            if unknown
+            else "names repeat"
+        )
         raise InputError(f"{where}: field 'inputs': {what}; expected distinct names among {', '.join(MEASUREMENTS)} (DATA_FORMATS.md)")
     scale = doc.get("input_scale", {})
     if not isinstance(scale, dict) or not all(_finite_number(v) and v != 0 and abs(float(v)) <= MAX_ENTRY for v in scale.values()):
         raise InputError(f"{where}: field 'input_scale' must map input names to finite nonzero factors of at most {MAX_ENTRY:g}")
     if extra := sorted(set(scale) - set(inputs)):
-        raise InputError(f"{where}: field 'input_scale' names {', '.join(repr(_short_name(str(k))) for k in extra)}, which "
-                         f"{'is' if len(extra) == 1 else 'are'} not among the field 'inputs' ({', '.join(inputs)})")
+        raise InputError(
+            f"{where}: field 'input_scale' names {', '.join(repr(_short_name(str(k))) for k in extra)}, which "
+            f"{'is' if len(extra) == 1 else 'are'} not among the field 'inputs' ({', '.join(inputs)})"
+        )
     servo = doc.get("servo_loop")
     if servo not in ("replaced", "kept"):
-        raise InputError(f"{where}: field 'servo_loop' must be \"replaced\" (the controller is the whole position loop) or \"kept\" (it adds to it), got {servo!r}")
+        raise InputError(
+            f'{where}: field \'servo_loop\' must be "replaced" (the controller is the whole position loop) or "kept" (it adds to it), got {servo!r}'
+        )
     A, B, C, D = (_matrix(doc, k, where) for k in ("A", "B", "C", "D"))
     n = A.shape[0]
     if n or B.size or C.size:

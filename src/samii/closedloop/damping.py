@@ -41,15 +41,27 @@ three-mode pole placement with an observer on the same fit.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Callable, Mapping
 
 import numpy as np
 
 from samii.closedloop.controllers import SavedController
 from samii.design.controller import LinearController
 
-__all__ = ["DampingDesign", "design_damping", "servo_gain_margin", "servo_loop_growing", "servo_loop_contradiction", "damping_plant", "measured_fit", "measured_sensitivity", "with_data_check", "damping_from_simulation", "FIT_BAND_HZ"]
+__all__ = [
+    "DampingDesign",
+    "design_damping",
+    "servo_gain_margin",
+    "servo_loop_growing",
+    "servo_loop_contradiction",
+    "damping_plant",
+    "measured_fit",
+    "measured_sensitivity",
+    "with_data_check",
+    "damping_from_simulation",
+    "FIT_BAND_HZ",
+]
 
 #: Fit band [Hz]: the base modes (1.7, 9.9, 25 Hz) and the servo pair (8 Hz); above 30 Hz the
 #: notebook's structure misses the actuator's 32 Hz pair (model card), below 0.5 Hz the
@@ -153,11 +165,15 @@ def servo_loop_contradiction(params: Mapping[str, float], position_gain_v_per_ra
     kp = position_gain_v_per_rad
     gm, f_gm = servo_gain_margin(params, kp)
     if gm < SERVO_MARGIN_REFUSED:
-        return (f"times the position gain {kp:.4g} V/rad is {1.0 / gm:.3g} at {f_gm:.3g} Hz, where its phase crosses -180 deg "
-                "(above 1 there a loop is unstable)")
+        return (
+            f"times the position gain {kp:.4g} V/rad is {1.0 / gm:.3g} at {f_gm:.3g} Hz, where its phase crosses -180 deg "
+            "(above 1 there a loop is unstable)"
+        )
     if (growing := servo_loop_growing(params, kp)) is not None:
-        return (f"in a loop closed by the position gain {kp:.4g} V/rad has a pole growing at {growing.real:.3g} 1/s "
-                f"({abs(growing.imag) / (2 * np.pi):.3g} Hz)")
+        return (
+            f"in a loop closed by the position gain {kp:.4g} V/rad has a pole growing at {growing.real:.3g} 1/s "
+            f"({abs(growing.imag) / (2 * np.pi):.3g} Hz)"
+        )
     return None
 
 
@@ -316,14 +332,23 @@ def measured_fit(frf, *, band_hz: tuple[float, float] = FIT_BAND_HZ):
     band = (max(lo, float(f.min())), min(hi, float(f.max())))
     if not band[0] < band[1]:
         n = int(np.count_nonzero((f >= lo) & (f <= hi)))
-        raise ValueError(f"{n} frequency point(s) in the design's fit band {lo:g}-{hi:g} Hz (the data span "
-                         f"{f.min():.4g}-{f.max():.4g} Hz); a fit of the 3-mode model needs a band of many")
+        raise ValueError(
+            f"{n} frequency point(s) in the design's fit band {lo:g}-{hi:g} Hz (the data span "
+            f"{f.min():.4g}-{f.max():.4g} Hz); a fit of the 3-mode model needs a band of many"
+        )
     check_not_noise(frf, band_hz=band)  # a design on noise: refused (a fit of it is not sound, said below in any case)
     return fit(frf, weighting="auto", band_hz=band, profile=False)  # the design reads the parameters, not their intervals
 
 
-def damping_from_simulation(model, *, seed: int = 0, sample_time_s: float = 1e-3, delay_samples: int = 1,
-                            gain_margin_db: float = GAIN_MARGIN_DB, progress: Callable[[str], None] | None = None) -> DampingDesign:
+def damping_from_simulation(
+    model,
+    *,
+    seed: int = 0,
+    sample_time_s: float = 1e-3,
+    delay_samples: int = 1,
+    gain_margin_db: float = GAIN_MARGIN_DB,
+    progress: Callable[[str], None] | None = None,
+) -> DampingDesign:
     """Measure ``model`` (swept sine, sensor noise on), fit, design: the damping controller of the current model."""
     from samii.measure.campaign import measure_swept
     from samii.measure.daq import SensorNoise
@@ -336,7 +361,7 @@ def damping_from_simulation(model, *, seed: int = 0, sample_time_s: float = 1e-3
         progress("fitting the notebook's 3-mode model")
     fr = measured_fit(meas.frf)
     summary = {"band_hz": list(fr.band_hz), "rms_mag_db": dict(fr.rms_mag_db), "rms_phase_deg": dict(fr.rms_phase_deg),
-               "converged": bool(fr.converged), "measurement": "samii measure (swept sine, noise, seed %d)" % seed}  # fmt: skip
+               "converged": bool(fr.converged), "measurement": f"samii measure (swept sine, noise, seed {seed})"}  # fmt: skip
     if progress:
         progress("designing the acceleration feedback")
     d = design_damping(fr.params, position_gain_v_per_rad=hydraulic_params(model).position_gain, sample_time_s=sample_time_s,

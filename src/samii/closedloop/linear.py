@@ -100,8 +100,9 @@ class LinearLoop:
             v = u = r + servo
         return self.Ad @ x + self.bd * u, z, buf, held, th, ac, v
 
-    def simulate(self, theta_ref: np.ndarray, r: np.ndarray | None = None, *, enabled: np.ndarray | None = None,
-                 x0: np.ndarray | None = None) -> LinearResponse:
+    def simulate(
+        self, theta_ref: np.ndarray, r: np.ndarray | None = None, *, enabled: np.ndarray | None = None, x0: np.ndarray | None = None
+    ) -> LinearResponse:
         """Step the linear loop per physics step, as the card does (``enabled[j]``: the controller runs in step j),
         each step one matrix product (:meth:`step_map`; 3x faster than calling :meth:`_step`, the same to rounding).
 
@@ -132,7 +133,7 @@ class LinearLoop:
                     x = state[:nx]
                     th, ac = float(self.c_theta @ x), float(self.c_accel @ x)
                     target = self.kp * (theta_ref[j] - th) if self.replaces else 0.0
-                    state[nx:nx + nz], _ = bumpless_state((self.A, self.B, self.C, self.D), np.array([theta_ref[j], th, ac]), target)
+                    state[nx : nx + nz], _ = bumpless_state((self.A, self.B, self.C, self.D), np.array([theta_ref[j], th, ac]), target)
             key = (bool(enabled[j]), counter % self.steps == 0)
             if key not in maps:
                 maps[key] = self.step_map(*key)
@@ -153,7 +154,7 @@ class LinearLoop:
         for col in range(dim + 2):
             e = np.zeros(dim + 2)
             e[col] = 1.0
-            x, z, buf, held = e[:nx], e[nx:nx + nz], e[nx + nz:dim - 1], float(e[dim - 1])
+            x, z, buf, held = e[:nx], e[nx : nx + nz], e[nx + nz : dim - 1], float(e[dim - 1])
             x2, z2, buf2, held2, th, ac, v = self._step(x, z, buf, held, sample=sample, enabled=enabled, theta_ref=float(e[dim]), r=float(e[dim + 1]))
             M[:, col] = np.concatenate([x2, z2, buf2, [held2, th, ac, v]])
         return M[:, :dim], M[:, dim:]

@@ -31,8 +31,23 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.signal
 
-__all__ = ["StepMetrics", "BaseMetrics", "FittedMode", "Instability", "step_metrics", "base_metrics", "envelope", "matrix_pencil", "response_modes", "growth", "sustained_oscillation", "Runaway", "runaway",
-           "RUNAWAY_BAND_RAD", "RUNAWAY_WINDOW_S"]
+__all__ = [
+    "StepMetrics",
+    "BaseMetrics",
+    "FittedMode",
+    "Instability",
+    "step_metrics",
+    "base_metrics",
+    "envelope",
+    "matrix_pencil",
+    "response_modes",
+    "growth",
+    "sustained_oscillation",
+    "Runaway",
+    "runaway",
+    "RUNAWAY_BAND_RAD",
+    "RUNAWAY_WINDOW_S",
+]
 
 SETTLE_BAND = 0.02  #: theta settle band, fraction of the step
 BASE_SETTLE_FRACTION = 0.05  #: base settle threshold, fraction of the envelope's peak
@@ -122,7 +137,7 @@ def envelope(x: np.ndarray, dt: float, smooth_s: float = ENVELOPE_SMOOTH_S) -> n
     # the analytic signal of a finite record rings at its ends (the FFT wraps it round): mirror
     # 2 s (or the whole record) onto each end first and crop after
     pad = min(x.size - 1, int(round(2.0 / dt)))
-    env = np.abs(scipy.signal.hilbert(np.pad(x, pad, mode="reflect")))[pad:pad + x.size]
+    env = np.abs(scipy.signal.hilbert(np.pad(x, pad, mode="reflect")))[pad : pad + x.size]
     w = max(1, int(round(smooth_s / dt)))
     if w > 1 and env.size > w:
         kernel = np.ones(w) / w
@@ -130,8 +145,9 @@ def envelope(x: np.ndarray, dt: float, smooth_s: float = ENVELOPE_SMOOTH_S) -> n
     return env
 
 
-def base_metrics(t: np.ndarray, accel: np.ndarray, t_disturbance: float, *, t_decay_s: float | None = None,
-                 residual_from_s: float | None = None) -> BaseMetrics:
+def base_metrics(
+    t: np.ndarray, accel: np.ndarray, t_disturbance: float, *, t_decay_s: float | None = None, residual_from_s: float | None = None
+) -> BaseMetrics:
     """Peak, residual rms, settle time and decay rate of the base acceleration.
 
     ``accel`` is relative to the reading at rest (the static equilibrium). Peak
@@ -191,8 +207,9 @@ def matrix_pencil(y: np.ndarray, dt: float, *, max_order: int = 16, rel_sv: floa
     return np.log(z) / dt, amp
 
 
-def response_modes(t: np.ndarray, accel: np.ndarray, t_start: float, *, duration_s: float = 6.0,
-                   max_freq_hz: float = 45.0, min_rel_amplitude: float = 0.02) -> list[FittedMode]:
+def response_modes(
+    t: np.ndarray, accel: np.ndarray, t_start: float, *, duration_s: float = 6.0, max_freq_hz: float = 45.0, min_rel_amplitude: float = 0.02
+) -> list[FittedMode]:
     """Modes (frequency, damping, amplitude) of the base acceleration (relative to rest) from ``t_start`` on, by :func:`matrix_pencil`."""
     dt = float(t[1] - t[0])
     q = max(1, int(round(1.0 / (dt * MODES_RATE_HZ))))
@@ -234,7 +251,7 @@ def growth(t: np.ndarray, accel: np.ndarray, t_start: float) -> tuple[float, flo
             return None
         m = max(grow, key=lambda m: -m.rate_1_s)
         return -m.rate_1_s, m.freq_hz
-    s, amp = matrix_pencil(seg[-min(seg.size, 3000):], dt)
+    s, amp = matrix_pencil(seg[-min(seg.size, 3000) :], dt)
     if s.size == 0:
         return None
     amp = np.abs(amp)
@@ -272,15 +289,25 @@ class Runaway:
         parts = []
         if self.theta_since_s is not None:
             how = "ran away from" if self.theta_moving else "settled far from"
-            parts.append(f"theta {how} its reference (outside the +-{np.degrees(self.band_rad):.3g} deg band from "
-                         f"t = {self.theta_since_s:.4g} s on, {np.degrees(self.theta_error_rad):.4g} deg off at the end)")
+            parts.append(
+                f"theta {how} its reference (outside the +-{np.degrees(self.band_rad):.3g} deg band from "
+                f"t = {self.theta_since_s:.4g} s on, {np.degrees(self.theta_error_rad):.4g} deg off at the end)"
+            )
         if self.valve_since_s is not None:
             parts.append(f"the valve command sat on its {self.valve_v:+.3g} V rail from t = {self.valve_since_s:.4g} s to the end")
         return "; ".join(parts)
 
 
-def runaway(t: np.ndarray, theta_error_rad: np.ndarray, valve_v: np.ndarray, *, t_event: float, rail_v: float,
-            band_rad: float = RUNAWAY_BAND_RAD, window_s: float = RUNAWAY_WINDOW_S) -> Runaway | None:
+def runaway(
+    t: np.ndarray,
+    theta_error_rad: np.ndarray,
+    valve_v: np.ndarray,
+    *,
+    t_event: float,
+    rail_v: float,
+    band_rad: float = RUNAWAY_BAND_RAD,
+    window_s: float = RUNAWAY_WINDOW_S,
+) -> Runaway | None:
     """The loop's runaway, if theta stays outside ``band_rad`` of its reference or the valve command on one
     rail (within 0.1 % of ``rail_v``) through the last ``window_s`` of the run (at most half of the run after
     ``t_event``); None otherwise, and None when that half is shorter than ``MIN_RUNAWAY_WINDOW_S``.
@@ -323,13 +350,14 @@ def _dominant_freq_hz(x: np.ndarray, dt: float) -> float:
     spec = np.abs(np.fft.rfft(x, nfft))
     k = int(np.argmax(spec[1:])) + 1
     if 0 < k < spec.size - 1:
-        a, b, c = np.log(spec[k - 1:k + 2] + 1e-300)
+        a, b, c = np.log(spec[k - 1 : k + 2] + 1e-300)
         k = k + 0.5 * (a - c) / (a - 2 * b + c) if (a - 2 * b + c) != 0 else k
     return float(k / (nfft * dt))
 
 
-def sustained_oscillation(t: np.ndarray, accel: np.ndarray, t_event: float, *, min_decay_1_s: float = 0.05,
-                          tail_fraction: float = 0.4, min_tail_level: float = 0.3) -> Instability | None:
+def sustained_oscillation(
+    t: np.ndarray, accel: np.ndarray, t_event: float, *, min_decay_1_s: float = 0.05, tail_fraction: float = 0.4, min_tail_level: float = 0.3
+) -> Instability | None:
     """The base oscillation after ``t_event`` if it does not decay, else None.
 
     It does not decay when, over the last ``tail_fraction`` of the record, its
@@ -372,7 +400,7 @@ def sustained_oscillation(t: np.ndarray, accel: np.ndarray, t_event: float, *, m
                 rate = float(np.polyfit(ta, np.log(benv[k_a:k_b]), 1)[0])
                 if rate > min_decay_1_s:
                     # the frequency while it grew (at least a second of signal up to the window's end)
-                    freq = _dominant_freq_hz(seg[max(0, k_b - max(k_b - k_a, int(1.0 / dt))):k_b], dt)
+                    freq = _dominant_freq_hz(seg[max(0, k_b - max(k_b - k_a, int(1.0 / dt))) : k_b], dt)
                     break
                 rate = None
     kind = "growing" if slope > min_decay_1_s else "limit cycle"

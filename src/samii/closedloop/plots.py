@@ -105,8 +105,12 @@ def plot_theta(r: ClosedLoopResult, path: Path) -> None:
     mine = {"color": "tab:blue", "lw": 1.2, "marker": "." if zoom is not None else None, "ms": 3}
     ax.plot(s.t, np.degrees(s.theta), **mine, label=f"actual, {r.controller}" + (" (diverged at once: right)" if zoom is not None else ""))
     if zoom is not None:
-        _zoom(zoom, r, [(c.t, np.degrees(c.theta), _GREY), (ref_t, np.degrees(ref), {"color": "k", "lw": 1.2, "ls": "--"}),
-                        (s.t, np.degrees(s.theta), mine)], "joint-2 angle [deg]")
+        _zoom(
+            zoom,
+            r,
+            [(c.t, np.degrees(c.theta), _GREY), (ref_t, np.degrees(ref), {"color": "k", "lw": 1.2, "ls": "--"}), (s.t, np.degrees(s.theta), mine)],
+            "joint-2 angle [deg]",
+        )
     _mark_events(ax, r)
     ax.set_xlabel("time [s]")
     ax.set_ylabel("joint-2 angle from the nominal pose [deg]")

@@ -73,7 +73,7 @@ def measurements_at(cm: CardModel, state: np.ndarray, theta_ref_rad: float) -> n
     theta_adr = int(m.sensor_adr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, "theta")])
     adr, direction = accel_weights(m)
     theta0 = hydraulic_params(m).reference_angle
-    return np.array([theta_ref_rad, d.sensordata[theta_adr] - theta0, d.sensordata[adr:adr + 3] @ direction - accel_offset(m)])
+    return np.array([theta_ref_rad, d.sensordata[theta_adr] - theta0, d.sensordata[adr : adr + 3] @ direction - accel_offset(m)])
 
 
 def bumpless_state(matrices: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], w: np.ndarray, target_v: float) -> tuple[np.ndarray, float]:
@@ -210,7 +210,7 @@ def _run_segments(cm, ctrl, theta_ref_rad, state, data, switch_on_step, chunk_st
     diverged = None
     what = "the simulation"
     done = 0
-    for si, (a, b) in enumerate(segments):
+    for a, b in segments:
         if switch_on_step is not None and a == switch_on_step:
             w = measurements_at(cm, state, float(theta_ref_rad[a]))
             target = hp.position_gain * (w[0] - w[1]) if cm.replaces_servo else 0.0
@@ -252,8 +252,10 @@ def _run_segments(cm, ctrl, theta_ref_rad, state, data, switch_on_step, chunk_st
         runaway = np.flatnonzero(~(np.abs(command) <= COMMAND_DIVERGED_V))
         if runaway.size:  # the controller's own states have diverged (the plant may still be on the valve's rails)
             if not keep_partial:
-                raise SimulationUnstable(f"the controller's output diverged at t = {t0 + runaway[0] * dt:.4g} s "
-                                         f"(|command| above {COMMAND_DIVERGED_V:g} V); no result written")
+                raise SimulationUnstable(
+                    f"the controller's output diverged at t = {t0 + runaway[0] * dt:.4g} s "
+                    f"(|command| above {COMMAND_DIVERGED_V:g} V); no result written"
+                )
             done = int(runaway[0])
             diverged = t0 + done * dt
             what = f"the controller's output (|command| above {COMMAND_DIVERGED_V:g} V)"
@@ -268,7 +270,7 @@ def _run_segments(cm, ctrl, theta_ref_rad, state, data, switch_on_step, chunk_st
         theta_ref=theta_ref_rad[:done].copy(),
         r=ctrl[:done, 0].copy(),
         theta=theta,
-        accel=sd[:, acc_adr:acc_adr + 3] @ direction - g_off,
+        accel=sd[:, acc_adr : acc_adr + 3] @ direction - g_off,
         v=v,
         command=command,
         p_load=before[:, L.act_adr + 1] * hp.supply_pressure,
@@ -280,5 +282,5 @@ def _run_segments(cm, ctrl, theta_ref_rad, state, data, switch_on_step, chunk_st
         diverged_at_s=diverged,
         diverged_what=what,
         frame_t=None if qpos_every is None else t0 + k[::qpos_every] * dt,
-        frame_qpos=None if qpos_every is None else before[::qpos_every, 1:1 + m.nq].copy(),
+        frame_qpos=None if qpos_every is None else before[::qpos_every, 1 : 1 + m.nq].copy(),
     )

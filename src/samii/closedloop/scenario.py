@@ -26,8 +26,18 @@ import numpy as np
 from samii.closedloop.card import CardModel, build_card_model
 from samii.closedloop.controllers import SavedController
 from samii.closedloop.linear import LinearLoop, LinearResponse, linear_loop
-from samii.closedloop.metrics import (BaseMetrics, FittedMode, Runaway, StepMetrics, base_metrics, growth, response_modes, runaway, step_metrics,
-                                     sustained_oscillation)
+from samii.closedloop.metrics import (
+    BaseMetrics,
+    FittedMode,
+    Runaway,
+    StepMetrics,
+    base_metrics,
+    growth,
+    response_modes,
+    runaway,
+    step_metrics,
+    sustained_oscillation,
+)
 from samii.closedloop.run import LoopSignals, measurements_at, run_loop
 from samii.measure.daq import SensorNoise
 
@@ -135,10 +145,12 @@ class ClosedLoopResult:
             return ""
         ran = self.runaway.text() if self.runaway is not None else ""
         if self.linear_only:
-            return (f"the linear prediction has {_worst_pole(self.linear_poles_s)}: the equilibrium is unstable (Lyapunov's "
-                    f"indirect method), whether or not this {self.scenario.duration_s:g} s run shows the growth (one this slow, "
-                    "or one the run's inputs barely set off, passes the run's own tests); a rig's noise and offsets set such "
-                    "a mode off")
+            return (
+                f"the linear prediction has {_worst_pole(self.linear_poles_s)}: the equilibrium is unstable (Lyapunov's "
+                f"indirect method), whether or not this {self.scenario.duration_s:g} s run shows the growth (one this slow, "
+                "or one the run's inputs barely set off, passes the run's own tests); a rig's noise and offsets set such "
+                "a mode off"
+            )
         if ran and self.growth_rate_1_s is None and self.unstable_mode_hz is None:
             return ran  # the base itself did not grow
         what = f"growing at {self.growth_rate_1_s:.4g} 1/s" if self.growth_rate_1_s is not None else "not decaying"
@@ -160,11 +172,22 @@ class ClosedLoopResult:
             "unstable_mode_hz": f(self.unstable_mode_hz),
             "growth_rate_1_s": f(self.growth_rate_1_s),
             "instability": self.instability() or None,
-            "runaway": None if self.runaway is None else {
-                "theta_out_since_s": f(self.runaway.theta_since_s), "valve_on_rail_since_s": f(self.runaway.valve_since_s), "theta_error_rad": f(self.runaway.theta_error_rad),
-                "band_rad": f(self.runaway.band_rad), "valve_v": f(self.runaway.valve_v), "theta_moving": self.runaway.theta_moving},
-            "theta": {"rise_s": f(self.theta.rise_s), "overshoot_pct": f(self.theta.overshoot_pct), "settle_s": f(self.theta.settle_s),
-                      "final_pct": f(self.theta.final_pct)},
+            "runaway": None
+            if self.runaway is None
+            else {
+                "theta_out_since_s": f(self.runaway.theta_since_s),
+                "valve_on_rail_since_s": f(self.runaway.valve_since_s),
+                "theta_error_rad": f(self.runaway.theta_error_rad),
+                "band_rad": f(self.runaway.band_rad),
+                "valve_v": f(self.runaway.valve_v),
+                "theta_moving": self.runaway.theta_moving,
+            },
+            "theta": {
+                "rise_s": f(self.theta.rise_s),
+                "overshoot_pct": f(self.theta.overshoot_pct),
+                "settle_s": f(self.theta.settle_s),
+                "final_pct": f(self.theta.final_pct),
+            },
             "base": {
                 "peak_m_s2": f(self.base.peak_m_s2),
                 "residual_rms_m_s2": f(self.base.residual_rms_m_s2),
@@ -173,7 +196,11 @@ class ClosedLoopResult:
                 "free_decay_rate_1_s": f(self.free_decay_rate_1_s),
             },
             "modes": [{"freq_hz": f(m.freq_hz), "zeta": f(m.zeta)} for m in self.modes],
-            "linear_prediction": {"stable": self.linear_stable, "marginal": self.linear_marginal, "rms_error_pct": {k: f(v) for k, v in self.rms_error_pct.items()}},
+            "linear_prediction": {
+                "stable": self.linear_stable,
+                "marginal": self.linear_marginal,
+                "rms_error_pct": {k: f(v) for k, v in self.rms_error_pct.items()},
+            },
         }
 
     def run_json(self) -> dict:
@@ -203,8 +230,10 @@ class ClosedLoopResult:
 
         s = self.comparison if comparison else self.signals
         meta = {
-            "source": (f"samii closedloop --controller {self.controller} --scenario {self.scenario.name} (simulated"
-                       + ("; the comparison: the servo amplifier alone)" if comparison else ")")),
+            "source": (
+                f"samii closedloop --controller {self.controller} --scenario {self.scenario.name} (simulated"
+                + ("; the comparison: the servo amplifier alone)" if comparison else ")")
+            ),
             "sample_rate_hz": f"{1.0 / s.dt_s:.12g}",
             "controller_sample_time_s": f"{self.sample_time_s:.12g}",
             "delay_samples": f"{self.delay_samples:.12g}",
@@ -235,7 +264,7 @@ def _impulse_state(cm: CardModel, impulse_n_s: float) -> np.ndarray:
     f = jacp.T @ (impulse_n_s * np.asarray(direction))
     dq = np.zeros(m.nv)
     mujoco.mj_solveM(m, d, dq.reshape(1, -1), f.reshape(1, -1))
-    state[1 + m.nq:1 + m.nq + m.nv] += dq
+    state[1 + m.nq : 1 + m.nq + m.nv] += dq
     return state
 
 
@@ -275,11 +304,11 @@ def _fd_deviation(cm: CardModel, state: np.ndarray) -> np.ndarray:
 
     m = cm.model
     home = make_data(m)
-    qpos = state[1:1 + m.nq]
+    qpos = state[1 : 1 + m.nq]
     dq = np.zeros(m.nv)
     mujoco.mj_differentiatePos(m, dq, 1.0, home.qpos, qpos)
-    qvel = state[1 + m.nq:1 + m.nq + m.nv] - home.qvel
-    act = state[1 + m.nq + m.nv:1 + m.nq + m.nv + m.na] - home.act
+    qvel = state[1 + m.nq : 1 + m.nq + m.nv] - home.qvel
+    act = state[1 + m.nq + m.nv : 1 + m.nq + m.nv + m.na] - home.act
     return np.concatenate([dq, qvel, act])
 
 
@@ -288,7 +317,7 @@ def _inputs(cm: CardModel, sc: Scenario) -> tuple[np.ndarray, np.ndarray | None,
     n = int(round(sc.duration_s / dt))
     theta_ref = np.zeros(n)
     if sc.name in ("step", "loper"):
-        theta_ref[int(round(sc.t_step_s / dt)):] = math.radians(sc.step_deg)
+        theta_ref[int(round(sc.t_step_s / dt)) :] = math.radians(sc.step_deg)
     initial = _impulse_state(cm, sc.impulse_n_s) if sc.name == "release" else None
     switch = int(round(sc.switch_on_s / dt)) if sc.name == "loper" and cm.controller is not None else None
     return theta_ref, initial, switch
@@ -356,8 +385,7 @@ def run_closed_loop(
     if comparison and controller is not None:
         spec0, qpos0, act0 = spec_factory()
         cm0 = build_card_model(spec0, None, home_qpos=qpos0, home_act=act0)
-        comp = run_loop(cm0, theta_ref, initial_state=_impulse_state(cm0, sc.impulse_n_s) if sc.name == "release" else None,
-                        qpos_every=qpos_every)
+        comp = run_loop(cm0, theta_ref, initial_state=_impulse_state(cm0, sc.impulse_n_s) if sc.name == "release" else None, qpos_every=qpos_every)
 
     # linear prediction
     ll: LinearLoop = linear_loop(cm)
@@ -368,7 +396,7 @@ def run_closed_loop(
     x0 = _fd_deviation(cm, initial) if initial is not None else None
     enabled = np.zeros(n, bool)
     if controller is not None:
-        enabled[(switch or 0):] = True
+        enabled[(switch or 0) :] = True
     if _marginal(poles_s) and details:  # (a marginal pole grows by at most e^(1e-3 t): its response over a run holds)
         lin = ll.simulate(theta_ref, enabled=enabled, x0=x0)
         k = sig.t.size
@@ -388,7 +416,9 @@ def run_closed_loop(
             notes.append("the run diverged too fast to fit its growth; growth rate and frequency are the linear prediction's")
         if g is not None:
             rate, mode_hz = g
-        notes.append(f"{sig.diverged_what} diverged at t = {sig.diverged_at_s:.4g} s" if sig.diverged_at_s is not None else "the simulation diverged at once")
+        notes.append(
+            f"{sig.diverged_what} diverged at t = {sig.diverged_at_s:.4g} s" if sig.diverged_at_s is not None else "the simulation diverged at once"
+        )
     else:
         osc = sustained_oscillation(sig.t, accel, t_ev)
         if osc is not None:
@@ -421,8 +451,10 @@ def run_closed_loop(
         rate, mode_hz = float(worst.real), float(abs(worst.imag) / (2 * np.pi))
     if linear_note_at is not None:
         if _marginal(poles_s):
-            said = ("the linear prediction has a marginal pole (|z| = 1 to within rounding: an integrator nothing holds, "
-                    f"growing or decaying slower than e-fold in {1 / MARGINAL_GROWTH_1_S:g} s)")
+            said = (
+                "the linear prediction has a marginal pole (|z| = 1 to within rounding: an integrator nothing holds, "
+                f"growing or decaying slower than e-fold in {1 / MARGINAL_GROWTH_1_S:g} s)"
+            )
         elif linear_only:  # (its pole is said by instability())
             said = "no linear response or error is given (the prediction is unstable)"
         else:
@@ -430,7 +462,11 @@ def run_closed_loop(
         notes.insert(linear_note_at, said)
     theta_m = step_metrics(sig.t, sig.theta, sig.theta_ref, sc.t_step_s) if sc.name in ("step", "loper") else StepMetrics(None, None, None)
     residual_from = sc.t_disturbance_s + 2.0
-    base = base_metrics(sig.t, accel, sc.t_disturbance_s, t_decay_s=t_ev, residual_from_s=residual_from) if sig.t.size > 1 else BaseMetrics(float("nan"), None, None, None)
+    base = (
+        base_metrics(sig.t, accel, sc.t_disturbance_s, t_decay_s=t_ev, residual_from_s=residual_from)
+        if sig.t.size > 1
+        else BaseMetrics(float("nan"), None, None, None)
+    )
     if not stable:
         # the run diverged, oscillates or ran away, or its equilibrium is unstable: a rise, an overshoot, a settling time
         # or a decay rate would describe a transient that never ends (an overshoot of 1,070 % on the way out; a joint

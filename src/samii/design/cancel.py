@@ -47,8 +47,9 @@ cannot damp them, only avoid exciting them.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Literal, Mapping
+from typing import Literal
 
 import control
 import numpy as np

@@ -26,9 +26,10 @@ Derivation (eq 5.1-5.13, 7.1-7.17):
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Literal, Mapping
+from typing import Literal
 
 import control
 import numpy as np
@@ -73,7 +74,12 @@ class CanonicalForm:
             n = str(x)
             greek = {"w": "\\omega", "z": "\\zeta"}.get(n[0]) if n[0] in "wz" and n not in ("wz", "zz") else None
             names[x] = {
-                "wp": "\\omega_p", "zp": "\\zeta_p", "wz": "\\omega_z", "zz": "\\zeta_z", "tau": "\\tau", "K1": "K_1",
+                "wp": "\\omega_p",
+                "zp": "\\zeta_p",
+                "wz": "\\omega_z",
+                "zz": "\\zeta_z",
+                "tau": "\\tau",
+                "K1": "K_1",
             }.get(n, f"{greek}_{n[1:]}" if greek else f"{n[0]}_{{{n[1:]}}}")
 
         def tex(e) -> str:

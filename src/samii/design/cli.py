@@ -119,10 +119,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--observer", choices=("placement", "kalman"), default="placement",
                    help="placement: observer poles at twice the controller poles (continuous), z = exp(2 s T) (default); "
                    "kalman: steady-state Kalman filter, needs the three --*-noise-std options")  # fmt: skip
-    p.add_argument("--input-noise-std", type=_noise_std, default=None, metavar="V",
-                   help="kalman: standard deviation of the process noise entering with the valve command, per sample [V]")
-    p.add_argument("--theta-noise-std", type=_noise_std, default=None, metavar="STD",
-                   help="kalman: standard deviation of the theta measurement noise [deg, the notebook's unit]")
+    p.add_argument(
+        "--input-noise-std",
+        type=_noise_std,
+        default=None,
+        metavar="V",
+        help="kalman: standard deviation of the process noise entering with the valve command, per sample [V]",
+    )
+    p.add_argument(
+        "--theta-noise-std",
+        type=_noise_std,
+        default=None,
+        metavar="STD",
+        help="kalman: standard deviation of the theta measurement noise [deg, the notebook's unit]",
+    )
     p.add_argument("--accel-noise-std", type=_noise_std, default=None, metavar="STD",
                    help="kalman: standard deviation of the base-acceleration measurement noise [ft/s², the notebook's "
                    "unit: samii.closedloop.controllers]")  # fmt: skip
@@ -132,8 +142,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p = sub.add_parser(
         "cancel",
         help="pole-cancelling compensator (chapter 10) on the eq 9.4 model",
-        description="Chapter-10 pole-cancelling compensator on the eq 9.4 model. Every closed-loop pole with Re s >= 0 "
-        "is flagged UNSTABLE.",
+        description="Chapter-10 pole-cancelling compensator on the eq 9.4 model. Every closed-loop pole with Re s >= 0 is flagged UNSTABLE.",
     )
     p.add_argument("--loop", choices=("theta", "accel"), default="theta", help="the loop the compensator closes (see samii.design.cancel)")
     p.add_argument("--gain", type=_cancel_gain, default=None, metavar="K",
@@ -153,15 +162,37 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "a second-order low-pass tuned to base mode 1, added to the servo amplifier's command, its gain 6 dB below the "
         "fitted model's stability limit (samii.closedloop.damping).",
     )  # fmt: skip
-    p.add_argument("--frf", metavar="FRF.csv", type=nonempty_path, help="measured frequency response (DATA_FORMATS.md; act and base or total channels)")
-    p.add_argument("--sample-time-s", type=float_in(0.0, 5e-3, lo_open=True, unit="s"), default=1e-3, metavar="T",
-                   help="controller sample time [s], 0 < T <= 0.005 (default 0.001)")
-    p.add_argument("--delay-samples", type=int_in(0, 10), default=1, metavar="N",
-                   help="computation delay the design allows for [whole samples], 0-10 (default 1)")
-    p.add_argument("--gain-margin-db", type=float_in(1.0, 40.0, unit="dB"), default=6.0, metavar="DB",
-                   help="gain margin on the fitted model [dB], 1-40 (default 6)")
-    p.add_argument("--position-gain", type=float_in(0.0, 1e4, lo_open=True, unit="V/rad"), default=None, metavar="KP",
-                   help="the servo amplifier's position gain [V/rad] the data were measured with (default: the embedded model's, 57.3 = 1 V/deg)")
+    p.add_argument(
+        "--frf", metavar="FRF.csv", type=nonempty_path, help="measured frequency response (DATA_FORMATS.md; act and base or total channels)"
+    )
+    p.add_argument(
+        "--sample-time-s",
+        type=float_in(0.0, 5e-3, lo_open=True, unit="s"),
+        default=1e-3,
+        metavar="T",
+        help="controller sample time [s], 0 < T <= 0.005 (default 0.001)",
+    )
+    p.add_argument(
+        "--delay-samples",
+        type=int_in(0, 10),
+        default=1,
+        metavar="N",
+        help="computation delay the design allows for [whole samples], 0-10 (default 1)",
+    )
+    p.add_argument(
+        "--gain-margin-db",
+        type=float_in(1.0, 40.0, unit="dB"),
+        default=6.0,
+        metavar="DB",
+        help="gain margin on the fitted model [dB], 1-40 (default 6)",
+    )
+    p.add_argument(
+        "--position-gain",
+        type=float_in(0.0, 1e4, lo_open=True, unit="V/rad"),
+        default=None,
+        metavar="KP",
+        help="the servo amplifier's position gain [V/rad] the data were measured with (default: the embedded model's, 57.3 = 1 V/deg)",
+    )
     p.add_argument("--seed", type=seed_type, default=0, help="without --frf: seed of the simulated measurement's sensor noise (default 0)")
     p.add_argument("--json", action="store_true", help="print the design as JSON")
     _add_save(p)
@@ -220,7 +251,6 @@ def run_seed_report(args) -> int:
     from samii.design.seed_report import STEPS, seed_report
 
     with _progress(len(STEPS), "seed-report", args.no_progress) as bar:
-
         bar.set_postfix_str(STEPS[0], refresh=False)
 
         def step(label: str) -> None:  # label is done: show the one now running
@@ -507,14 +537,18 @@ def run_damping(args) -> int:
             raise input_error_of(args.frf, exc) from None
         if not fr.sound:  # a controller on parameters the fit says not to use: refused, in samii fit's words
             why = "; ".join(fr.concerns) or f"it did not converge ({fr.message})"
-            raise InputError(f"{args.frf}: the notebook's 3-mode model fitted to it over {fr.band_hz[0]:.3g}-{fr.band_hz[1]:.3g} Hz is "
-                             "not a sound fit, and a controller designed on its parameters would not be trusted; samii fit "
-                             f"{args.frf} --band-hz {fr.band_hz[0]:.3g} {fr.band_hz[1]:.3g} says why: {why}")
+            raise InputError(
+                f"{args.frf}: the notebook's 3-mode model fitted to it over {fr.band_hz[0]:.3g}-{fr.band_hz[1]:.3g} Hz is "
+                "not a sound fit, and a controller designed on its parameters would not be trusted; samii fit "
+                f"{args.frf} --band-hz {fr.band_hz[0]:.3g} {fr.band_hz[1]:.3g} says why: {why}"
+            )
         if (said := dm.servo_loop_contradiction(fr.params, kp)) is not None:
-            raise InputError(f"{args.frf}: theta/v (the 3-mode model fitted to it) {said}: "
-                             "the servo loop the data were measured in would be unstable, yet the rig ran (a hydraulic position servo keeps a gain margin there: the embedded model's measured fit "
-                             "has 1.67). Is theta in rad (in mrad theta/v is 1000x too large, in degrees 57x), and is "
-                             "--position-gain the servo amplifier's gain in V/rad?")
+            raise InputError(
+                f"{args.frf}: theta/v (the 3-mode model fitted to it) {said}: "
+                "the servo loop the data were measured in would be unstable, yet the rig ran (a hydraulic position servo keeps a gain margin there: the embedded model's measured fit "
+                "has 1.67). Is theta in rad (in mrad theta/v is 1000x too large, in degrees 57x), and is "
+                "--position-gain the servo amplifier's gain in V/rad?"
+            )
         summary = {"data": str(args.frf), "band_hz": list(fr.band_hz), "rms_mag_db": dict(fr.rms_mag_db),
                    "rms_phase_deg": dict(fr.rms_phase_deg), "converged": bool(fr.converged)}  # fmt: skip
         d = dm.design_damping(fr.params, position_gain_v_per_rad=kp, sample_time_s=args.sample_time_s, delay_samples=args.delay_samples,
@@ -565,7 +599,14 @@ def run_damping(args) -> int:
     return 0
 
 
-_RUN = {"seed-report": run_seed_report, "rlocus": run_rlocus, "canonical": run_canonical, "place": run_place, "cancel": run_cancel, "damping": run_damping}
+_RUN = {
+    "seed-report": run_seed_report,
+    "rlocus": run_rlocus,
+    "canonical": run_canonical,
+    "place": run_place,
+    "cancel": run_cancel,
+    "damping": run_damping,
+}
 
 
 def run(args) -> int:

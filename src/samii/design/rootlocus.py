@@ -56,8 +56,9 @@ the notebook's K_a is minus ours (it drew Matlab's ``rlocus(L)``, i.e.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Literal, Mapping
+from typing import Literal
 
 import control
 import numpy as np
@@ -161,7 +162,11 @@ class AccelFilter:
 
     def label(self) -> str:
         corners = "-".join(f"{f:g}" for f in self.corners_hz)
-        return f"{self.order}nd-order Butterworth {self.kind} {corners} Hz" if self.order == 2 else f"order-{self.order} Butterworth {self.kind} {corners} Hz"
+        return (
+            f"{self.order}nd-order Butterworth {self.kind} {corners} Hz"
+            if self.order == 2
+            else f"order-{self.order} Butterworth {self.kind} {corners} Hz"
+        )
 
 
 @dataclass(frozen=True)

@@ -13,8 +13,8 @@ Sources: eq 8.x from the eq 1.4 fit through the chapter-5 canonical form
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -158,7 +158,9 @@ def seed_report(*, sample_time_s: float | None = None, progress: Callable[[str],
     # chapter 8, eq 1.4, 1-accelerometer canonical form (chapter 5)
     sys = canonical.numeric_statespace(canonical.derive_canonical_form(2, "accel"), nb.EQ1_4_OPTIMIZED)
     e81 = _pair(np.linalg.eigvals(np.asarray(sys.A)), np.array(nb.EQ8_1))
-    entries.append(SeedEntry("eq8_1", "open-loop poles, eq 1.4 model (canonical form of chapter 5)", e81, np.array(nb.EQ8_1, complex), _within(e81, nb.EQ8_1)))
+    entries.append(
+        SeedEntry("eq8_1", "open-loop poles, eq 1.4 model (canonical form of chapter 5)", e81, np.array(nb.EQ8_1, complex), _within(e81, nb.EQ8_1))
+    )
     e82 = _pair(placement.unity_feedback_poles(sys), np.array(nb.EQ8_2))
     entries.append(SeedEntry("eq8_2", "poles with unity theta feedback", e82, np.array(nb.EQ8_2, complex), _within(e82, nb.EQ8_2)))
     e83 = _pair(placement.desired_poles(sys, ZETA_EQ8_3), np.array(nb.EQ8_3))
@@ -168,14 +170,31 @@ def seed_report(*, sample_time_s: float | None = None, progress: Callable[[str],
         f"real and imaginary parts, which only 1/sqrt(2) gives; with 0.707 the moved poles come out {_fmt(alt[1])} and "
         f"{_fmt(alt[4])}, one unit off in the last printed digit of the real part, so the notebook used 1/sqrt(2)."
     )
-    entries.append(SeedEntry("eq8_3", "desired poles (complex poles of eq 8.2 moved to zeta at the same magnitude)", e83, np.array(nb.EQ8_3, complex), _within(e83, nb.EQ8_3), note83))
+    entries.append(
+        SeedEntry(
+            "eq8_3",
+            "desired poles (complex poles of eq 8.2 moved to zeta at the same magnitude)",
+            e83,
+            np.array(nb.EQ8_3, complex),
+            _within(e83, nb.EQ8_3),
+            note83,
+        )
+    )
 
     done(STEPS[0])
 
     # chapter 10, eq 9.4
     design = cancel.design_pole_cancel(nb.EQ9_4, loop="theta")
     e101 = _pair(cancel.inner_loop_pair(nb.EQ9_4), np.array(nb.EQ10_1))
-    entries.append(SeedEntry("eq10_1", "inner-loop pair to cancel (unity theta feedback of the eq 9.4 actuator)", e101, np.array(nb.EQ10_1, complex), _within(e101, nb.EQ10_1)))
+    entries.append(
+        SeedEntry(
+            "eq10_1",
+            "inner-loop pair to cancel (unity theta feedback of the eq 9.4 actuator)",
+            e101,
+            np.array(nb.EQ10_1, complex),
+            _within(e101, nb.EQ10_1),
+        )
+    )
     e102 = _pair(cancel.base_modes_to_cancel(nb.EQ9_4), np.array(nb.EQ10_2))
     entries.append(SeedEntry("eq10_2", "base modes 1 and 3 to cancel (eq 9.4)", e102, np.array(nb.EQ10_2, complex), _within(e102, nb.EQ10_2)))
     e108 = _pair(design.poles, np.array(nb.EQ10_8, complex))
@@ -203,17 +222,30 @@ def seed_report(*, sample_time_s: float | None = None, progress: Callable[[str],
         "not with the notebook's own printed (rounded) zeros"
         + (f": poly of the printed zeros gives {powers(bad_num)} (e.g. 156.7 is 156.725 unrounded)." if bad_num else ".")
     )
-    note_den = (
-        "poly() of the double poles at 2 pi (3, 8, 10) Hz. The printed denominator comes from the unrounded poles"
-        + (f"; poly of the printed eq 10.8 values gives {powers(bad_den)}." if bad_den else ".")
+    note_den = "poly() of the double poles at 2 pi (3, 8, 10) Hz. The printed denominator comes from the unrounded poles" + (
+        f"; poly of the printed eq 10.8 values gives {powers(bad_den)}." if bad_den else "."
     )
-    entries.append(SeedEntry("eq10_9_num", "compensator numerator, highest power first", num, np.array(nb.EQ10_9_NUM), _within(num, nb.EQ10_9_NUM), note_num))
-    entries.append(SeedEntry("eq10_9_den", "compensator denominator, highest power first", den, np.array(nb.EQ10_9_DEN), _within(den, nb.EQ10_9_DEN), note_den))
+    entries.append(
+        SeedEntry("eq10_9_num", "compensator numerator, highest power first", num, np.array(nb.EQ10_9_NUM), _within(num, nb.EQ10_9_NUM), note_num)
+    )
+    entries.append(
+        SeedEntry("eq10_9_den", "compensator denominator, highest power first", den, np.array(nb.EQ10_9_DEN), _within(den, nb.EQ10_9_DEN), note_den)
+    )
 
     done(STEPS[1])
     gain_details = gain_analysis()
     g = np.array(design.gain)
-    entries.append(SeedEntry("eq10_gain", "compensator gain from the root locus (zeta ~ 0.7)", g, np.array(nb.EQ10_GAIN), _within(g, nb.EQ10_GAIN), _gain_note(gain_details), gain_details))
+    entries.append(
+        SeedEntry(
+            "eq10_gain",
+            "compensator gain from the root locus (zeta ~ 0.7)",
+            g,
+            np.array(nb.EQ10_GAIN),
+            _within(g, nb.EQ10_GAIN),
+            _gain_note(gain_details),
+            gain_details,
+        )
+    )
     done(STEPS[2])
     return SeedReport(tuple(entries))
 
@@ -276,7 +308,7 @@ def _gain_note(a: dict) -> str:
     return (
         f"our rule (samii.design.cancel.choose_gain): the smallest K at which the slowest moving closed-loop pair of the outer "
         f"theta loop reaches zeta = 0.7, K = {a['ours']:.5f}. The notebook prints no rule: it read K off the root-locus plot "
-        f"(\"damping of approximately 0.7\"). At its K = {a['notebook']} the four moving pairs (|p| = "
+        f'("damping of approximately 0.7"). At its K = {a["notebook"]} the four moving pairs (|p| = '
         f"{', '.join(f'{m:.1f}' for m in a['pair_magnitudes_rad_s'])} rad/s) have zeta {zs(a['zetas_at_notebook_gain'])}: "
         f"pairs 1 and 3 are 'about 0.7', pair 2 is not at any nearby K (it passes 0.7 at K = {a['gain_pair2_zeta_0p7']:.4f}). Pair 1 reaches 0.7 at "
         f"K = {a['gain_pair1_zeta_0p7']:.5f}, pair 3 at {a['gain_pair3_zeta_0p7']:.5f}, their mean at "

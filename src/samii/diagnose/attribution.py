@@ -16,8 +16,8 @@ the final model leaves no such band, nothing is asked beyond the selection's tes
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -37,8 +37,11 @@ def _change(fit: Fit, i: int, freq_hz: np.ndarray, label: str, values: Mapping[s
     carried into the simulator; to first order the same change)."""
     from samii.diagnose.diagnosis import model_response
 
-    mine = [j for j, e in enumerate(fit.effects) if e.kind.label == label and all(
-        np.isclose(e.values.get(n, np.nan), v, rtol=1e-9) for n, v in values.items())]
+    mine = [
+        j
+        for j, e in enumerate(fit.effects)
+        if e.kind.label == label and all(np.isclose(e.values.get(n, np.nan), v, rtol=1e-9) for n, v in values.items())
+    ]
     if mine:
         without = replace(fit, effects=tuple(e for j, e in enumerate(fit.effects) if j != mine[0]))
         with_it = fit
@@ -83,10 +86,12 @@ def unattributed(fit: Fit, datasets: Sequence[Dataset], bands: Sequence, label: 
     if not where or with_power <= EXPLAINS * without_power:
         return None
     worst = max(where, key=lambda b: b.chi2 * b.n_points)
-    return (f"not told from an image of what the model lacks: with it the model still misses the data where it acts "
-            f"({len(where)} band(s), the largest {CHANNEL_NAMES[worst.channel]} {worst.lo_hz:.3g}-{worst.hi_hz:.3g} Hz by "
-            f"{worst.rms_db:.2g} dB, {worst.rms_deg:.2g} deg rms), and there it takes out {100 * (1 - with_power / without_power):.0f} % "
-            f"of the residual's power, less than the {100 * (1 - EXPLAINS):.0f} % an effect of the rig takes out of its own change")
+    return (
+        f"not told from an image of what the model lacks: with it the model still misses the data where it acts "
+        f"({len(where)} band(s), the largest {CHANNEL_NAMES[worst.channel]} {worst.lo_hz:.3g}-{worst.hi_hz:.3g} Hz by "
+        f"{worst.rms_db:.2g} dB, {worst.rms_deg:.2g} deg rms), and there it takes out {100 * (1 - with_power / without_power):.0f} % "
+        f"of the residual's power, less than the {100 * (1 - EXPLAINS):.0f} % an effect of the rig takes out of its own change"
+    )
 
 
 #: Points a band where only xdd/v is usable must hold to be named: fewer are the odd point where theta/v's variance
@@ -113,8 +118,11 @@ def _product_only_runs(ds: Dataset) -> list[tuple[float, float, bool, bool]]:
         if ch in ds.keep:
             others |= np.asarray(ds.keep[ch], bool)
     only = np.asarray(ds.keep["total"], bool) & ~others
-    return [(float(ds.freq_hz[a]), float(ds.freq_hz[b - 1]), bool(others[:a].any()), bool(others[b:].any()))
-            for a, b in _runs(only) if b - a >= PRODUCT_ONLY_POINTS]
+    return [
+        (float(ds.freq_hz[a]), float(ds.freq_hz[b - 1]), bool(others[:a].any()), bool(others[b:].any()))
+        for a, b in _runs(only)
+        if b - a >= PRODUCT_ONLY_POINTS
+    ]
 
 
 @dataclass(frozen=True)
@@ -151,12 +159,14 @@ class ProductOnly:
     placed: tuple[Placed, ...]
 
     def text(self) -> str:
-        return (f"{self.source}: from {self.lo_hz:.3g} to {self.hi_hz:.3g} Hz only xdd/v is usable (theta/v is noise there: "
-                f"theta barely moves; xdd/theta, the quotient, with it); what the model places there "
-                f"({'; '.join(p.text() for p in self.placed)}) is seen through xdd/v = theta/v x xdd/theta alone, so whether "
-                "the actuator (theta/v) or the base (xdd/theta) has it is not measured: another reading of the same data (an "
-                "actuator's lag or mode in place of a base mode, or the reverse) can fit about as well; to tell, measure "
-                "theta/v in that band (a larger excitation there, a finer angle sensor)")
+        return (
+            f"{self.source}: from {self.lo_hz:.3g} to {self.hi_hz:.3g} Hz only xdd/v is usable (theta/v is noise there: "
+            f"theta barely moves; xdd/theta, the quotient, with it); what the model places there "
+            f"({'; '.join(p.text() for p in self.placed)}) is seen through xdd/v = theta/v x xdd/theta alone, so whether "
+            "the actuator (theta/v) or the base (xdd/theta) has it is not measured: another reading of the same data (an "
+            "actuator's lag or mode in place of a base mode, or the reverse) can fit about as well; to tell, measure "
+            "theta/v in that band (a larger excitation there, a finer angle sensor)"
+        )
 
 
 def _placed(fit: Fit, i: int) -> list[Placed]:
@@ -166,8 +176,7 @@ def _placed(fit: Fit, i: int) -> list[Placed]:
     for e in fit.effects:
         names = [n for n in _FREQ_PARAMS if n in e.values]
         if names:
-            out.append(Placed(e.kind.kind, tuple(float(e.values[n]) for n in names), e.kind.channel,
-                              roles=tuple(_FREQ_PARAMS[n] for n in names)))
+            out.append(Placed(e.kind.kind, tuple(float(e.values[n]) for n in names), e.kind.channel, roles=tuple(_FREQ_PARAMS[n] for n in names)))
     st = fit.baseline.structure
     if st is None or not fit.baseline_params or not hasattr(st, "mode_names") or i >= len(fit.baseline_params):
         return out

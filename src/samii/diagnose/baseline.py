@@ -14,9 +14,9 @@ accelerometer is testable (a refitted baseline's gains B_k absorb it).
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -30,8 +30,12 @@ __all__ = ["SavedFit", "notebook_baseline", "saved_fit_baseline", "read_fit_json
 
 def notebook_baseline(measured: Sequence[Measured]) -> Baseline:
     st = ModelStructure.notebook_3mode()
-    return Baseline(structure=st, params=tuple(start_params(m, st) for m in measured), reference=notebook_reference(),
-                    label="notebook: eq 9.1/9.2's structure refitted to each file (started from eq 9.4 or samii's fit, the better)")
+    return Baseline(
+        structure=st,
+        params=tuple(start_params(m, st) for m in measured),
+        reference=notebook_reference(),
+        label="notebook: eq 9.1/9.2's structure refitted to each file (started from eq 9.4 or samii's fit, the better)",
+    )
 
 
 @dataclass(frozen=True)
@@ -64,8 +68,9 @@ def read_fit_json(path) -> SavedFit:
             raise InputError(f"{path}: field '{key}' missing or not an object; expected a saved fit (fit.json as samii fit --out writes it)")
     s = d["structure"]
     try:
-        st = ModelStructure(n_modes=int(s.get("n_modes", 3)), numerator=s.get("numerator", "s4"), tie_mode2=s.get("tie_mode2"),
-                            w2_factors=s.get("w2_factors"))
+        st = ModelStructure(
+            n_modes=int(s.get("n_modes", 3)), numerator=s.get("numerator", "s4"), tie_mode2=s.get("tie_mode2"), w2_factors=s.get("w2_factors")
+        )
     except (TypeError, ValueError) as exc:
         raise InputError(f"{path}: field 'structure': {exc}") from None
     params = {}
@@ -99,8 +104,9 @@ def saved_fit_baseline(saved: SavedFit, datasets: Sequence[Dataset]) -> Baseline
             need = {"act": ("act",), "base": ("base",), "total": ("act", "base")}[ch]
             per[ch] = {c: st.response(params, f, c) for c in need}
         fixed.append(per)
-    return Baseline(structure=st, params=tuple(params for _ in datasets), fixed=tuple(fixed), reference=params,
-                    label=f"saved fit {saved.path} (held fixed)")
+    return Baseline(
+        structure=st, params=tuple(params for _ in datasets), fixed=tuple(fixed), reference=params, label=f"saved fit {saved.path} (held fixed)"
+    )
 
 
 #: A saved fit whose response is this factor or more from the data's (the median over a channel's usable points, either
@@ -118,6 +124,8 @@ def check_level(saved: SavedFit, datasets: Sequence[Dataset], baseline: Baseline
         for ch, resp in per.items():
             g = level_ratio(ds.data[ch], resp["act"] * resp["base"] if ch == "total" else resp[ch])
             if g is not None and not 1.0 / LEVEL_MISMATCH < g < LEVEL_MISMATCH:
-                raise InputError(f"{ds.source}: the data's {CHANNEL_NAMES[ch]} is {g:.3g} x the saved fit {saved.path}'s "
-                                 f"({20 * np.log10(g):+.0f} dB, the median over its usable points): not one rig in one set of units "
-                                 "(theta in rad, xdd in m/s², v in V: DATA_FORMATS.md); check the units, or fit these data (samii fit)")
+                raise InputError(
+                    f"{ds.source}: the data's {CHANNEL_NAMES[ch]} is {g:.3g} x the saved fit {saved.path}'s "
+                    f"({20 * np.log10(g):+.0f} dB, the median over its usable points): not one rig in one set of units "
+                    "(theta in rad, xdd in m/s², v in V: DATA_FORMATS.md); check the units, or fit these data (samii fit)"
+                )

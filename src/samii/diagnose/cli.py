@@ -31,29 +31,59 @@ MAX_FILES = 8
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("data", metavar="DATA", nargs="+", type=nonempty_path,
-                        help=f"measured files of one rig (at most {MAX_FILES}): time-series CSVs (t, v, theta, accel, r), FRF CSVs "
-                        "(DATA_FORMATS.md) or rig-era .mat; several amplitudes may be mixed")
-    parser.add_argument("--baseline", default="notebook", metavar="notebook|sim|FIT.json",
-                        help="the model under test: notebook (default: eq 9.1/9.2's structure refitted to each file), sim (the simulator "
-                        "calibrated to the first file; the effects found are carried into it as physics, it is recalibrated and "
-                        "re-measured, and its error before and after is reported) or a saved fit (fit.json from samii fit --out), held fixed")
-    parser.add_argument("--model", metavar="PARAMS.json", type=nonempty_path,
-                        help="with --baseline sim: the simulator to start from, a parameter file (samii calibrate --out writes one; "
-                        "default: the embedded model)")
-    parser.add_argument("--record-s", type=positive_float, metavar="S",
-                        help="length of one repetition of the excitation in the time series [s] (default: the file's record_s, else found from r)")
-    parser.add_argument("--band-hz", type=positive_float, nargs=2, metavar=("LO", "HI"),
-                        help="frequency band (default: a time series' start_hz/stop_hz or 0.1-40 Hz; an FRF file's whole span)")
+    parser.add_argument(
+        "data",
+        metavar="DATA",
+        nargs="+",
+        type=nonempty_path,
+        help=f"measured files of one rig (at most {MAX_FILES}): time-series CSVs (t, v, theta, accel, r), FRF CSVs "
+        "(DATA_FORMATS.md) or rig-era .mat; several amplitudes may be mixed",
+    )
+    parser.add_argument(
+        "--baseline",
+        default="notebook",
+        metavar="notebook|sim|FIT.json",
+        help="the model under test: notebook (default: eq 9.1/9.2's structure refitted to each file), sim (the simulator "
+        "calibrated to the first file; the effects found are carried into it as physics, it is recalibrated and "
+        "re-measured, and its error before and after is reported) or a saved fit (fit.json from samii fit --out), held fixed",
+    )
+    parser.add_argument(
+        "--model",
+        metavar="PARAMS.json",
+        type=nonempty_path,
+        help="with --baseline sim: the simulator to start from, a parameter file (samii calibrate --out writes one; default: the embedded model)",
+    )
+    parser.add_argument(
+        "--record-s",
+        type=positive_float,
+        metavar="S",
+        help="length of one repetition of the excitation in the time series [s] (default: the file's record_s, else found from r)",
+    )
+    parser.add_argument(
+        "--band-hz",
+        type=positive_float,
+        nargs=2,
+        metavar=("LO", "HI"),
+        help="frequency band (default: a time series' start_hz/stop_hz or 0.1-40 Hz; an FRF file's whole span)",
+    )
     parser.add_argument("--mat-freq-name", metavar="NAME", default=None, help="name of the frequency vector in a .mat file")
     parser.add_argument("--mat-freq-unit", choices=("hz", "rad/s"), default="hz", help="unit of that vector (default hz)")
     parser.add_argument("--out", metavar="DIR", type=nonempty_path, help="write diagnosis.json, residuals.png and bode.png here")
-    parser.add_argument("--rerun", metavar="FILE.rrd", type=nonempty_path,
-                        help="with --baseline sim: also write a Rerun recording of the simulator against the data: each file's "
-                        "record beside the simulator measured like it before and after the effects were carried (3D with the "
-                        "beam's deflection magnified, signals by unit; the file must not exist unless --overwrite)")
-    parser.add_argument("--rerun-fps", metavar="F", type=positive_float, default=None,
-                        help="animation frames per second in the recording (default: 4 per period of base mode 3, at least 100)")
+    parser.add_argument(
+        "--rerun",
+        metavar="FILE.rrd",
+        type=nonempty_path,
+        help="with --baseline sim: also write a Rerun recording of the simulator against the data: each file's "
+        "record beside the simulator measured like it before and after the effects were carried (3D with the "
+        "beam's deflection magnified, signals by unit; the file must not exist unless --overwrite)",
+    )
+    parser.add_argument(
+        "--rerun-fps",
+        metavar="F",
+        type=positive_float,
+        default=None,
+        help="animation frames per second in the recording (default: 4 per period of base mode 3, at least 100)",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace files already in --out (and --rerun)")
     parser.add_argument("--json", action="store_true", help="print the diagnosis as JSON (numbers not defined are null)")
     parser.add_argument("--no-progress", action="store_true", help="no progress display on stderr")
@@ -90,8 +120,17 @@ class _Progress:
     def __init__(self, enabled: bool):
         from tqdm import tqdm
 
-        self.bar = tqdm(total=None, desc="samii diagnose", unit="fit", delay=1.0, leave=False, file=sys.stderr, dynamic_ncols=True,
-                        disable=None if enabled else True, bar_format="{desc}: {n} fits {elapsed}{postfix}")
+        self.bar = tqdm(
+            total=None,
+            desc="samii diagnose",
+            unit="fit",
+            delay=1.0,
+            leave=False,
+            file=sys.stderr,
+            dynamic_ncols=True,
+            disable=None if enabled else True,
+            bar_format="{desc}: {n} fits {elapsed}{postfix}",
+        )
 
     def stage(self, what: str) -> None:
         self.bar.set_postfix_str(what)
@@ -116,8 +155,10 @@ def run(args: argparse.Namespace) -> int:
         if args.baseline != "sim":
             raise InputError(f"--model {args.model}: the simulator to start from is used with --baseline sim only")
         if not str(args.model).lower().endswith(".json"):
-            raise InputError(f"--model {args.model}: expected a parameter file (.json, as samii calibrate --out writes), "
-                             "the simulator's calibration moves its parameters")
+            raise InputError(
+                f"--model {args.model}: expected a parameter file (.json, as samii calibrate --out writes), "
+                "the simulator's calibration moves its parameters"
+            )
         from samii.sim.model import read_params_file
 
         try:
@@ -129,8 +170,10 @@ def run(args: argparse.Namespace) -> int:
     elif args.baseline != "notebook":
         p = Path(args.baseline)
         if not p.is_file():
-            raise InputError(f"--baseline {args.baseline}: expected notebook or a saved fit (fit.json from samii fit --out); "
-                             f"{'it is a folder' if p.is_dir() else 'no such file'}")
+            raise InputError(
+                f"--baseline {args.baseline}: expected notebook or a saved fit (fit.json from samii fit --out); "
+                f"{'it is a folder' if p.is_dir() else 'no such file'}"
+            )
         from samii.diagnose.baseline import read_fit_json
 
         baseline = read_fit_json(p)  # bad input before any work
@@ -248,14 +291,20 @@ def _print(d, written) -> None:
         print(f"  {m.source}{amp}{lay}; noise: {m.noise_source}")
         empty = [_NAMES.get(ch, ch) for ch, k in ds.keep.items() if not k.any()]
         if empty:
-            print(f"  {m.source}: no usable point in {', '.join(empty)} (its relative error, noise and floor, is over "
-                  f"{np.sqrt(MAX_VAR):.2g} at every point)")
+            print(
+                f"  {m.source}: no usable point in {', '.join(empty)} (its relative error, noise and floor, is over "
+                f"{np.sqrt(MAX_VAR):.2g} at every point)"
+            )
         if m.floor is not None and m.floor.noise_free:
-            print(f"  NO NOISE in {m.source}: its records repeat exactly (a simulation without noise?), so it is judged against "
-                  "the stated floor alone (above), not against a noise it does not have: chi2 is per the floor, not per the noise")
+            print(
+                f"  NO NOISE in {m.source}: its records repeat exactly (a simulation without noise?), so it is judged against "
+                "the stated floor alone (above), not against a noise it does not have: chi2 is per the floor, not per the noise"
+            )
     if not theta_usable(d.datasets):
-        print("  no point with theta in it is usable: in xdd/v alone an actuator, a base and a sensor effect multiply the same "
-              "response, so no effect can be placed (every candidate is refused; what the model misses is left unexplained)")
+        print(
+            "  no point with theta in it is usable: in xdd/v alone an actuator, a base and a sensor effect multiply the same "
+            "response, so no effect can be placed (every candidate is refused; what the model misses is left unexplained)"
+        )
     print(f"rule: {d.rule}")
     real = [e for e in d.effects if not e.expected]
     sim = d.simulator.verdict_text() if d.simulator is not None else ""
@@ -266,13 +315,17 @@ def _print(d, written) -> None:
             why = "no effect of the library is needed, but a residual beyond the noise remains (unexplained, below)"
         elif left := even_misfit(d.error_after):
             said = ", ".join(f"{_NAMES.get(c, c)} {v:.3g}" for c, v in left.items())
-            why = (f"no effect of the library is needed, but the residual stays above the noise (chi2 per residual {said}) "
-                   "evenly, with no band standing out: the noise these data are judged against is too small for them, or the "
-                   "baseline misses everywhere alike; not explained")
+            why = (
+                f"no effect of the library is needed, but the residual stays above the noise (chi2 per residual {said}) "
+                "evenly, with no band standing out: the noise these data are judged against is too small for them, or the "
+                "baseline misses everywhere alike; not explained"
+            )
         elif not band_tested(d.error_after):
             most = max((e.n_points for e in d.error_after.values()), default=0)
-            why = (f"the baseline fits the data to within their noise, but on {most} usable point(s) a channel at most, too few "
-                   f"to look for a band of misfit ({2 * BAND_POINTS}): little is tested")
+            why = (
+                f"the baseline fits the data to within their noise, but on {most} usable point(s) a channel at most, too few "
+                f"to look for a band of misfit ({2 * BAND_POINTS}): little is tested"
+            )
         else:
             why = "the baseline explains the data to within their noise"
         print("verdict: none: " + why + (f"; {sim}" if sim else ""))
@@ -280,39 +333,47 @@ def _print(d, written) -> None:
         left = ", but a residual beyond the noise remains (unexplained, below)" if d.unexplained and not real else ""
         if real and not d.unexplained and even_misfit(d.error_after):
             left = ", but the residual stays above the noise after them (note below)"
-        print(f"verdict: {d.verdict}" + (f": {len(real)} effect(s) the model lacks{left}" if real else f": only what sampling explains{left}")
-              + (f"; {sim}" if sim else ""))
+        print(
+            f"verdict: {d.verdict}"
+            + (f": {len(real)} effect(s) the model lacks{left}" if real else f": only what sampling explains{left}")
+            + (f"; {sim}" if sim else "")
+        )
     from samii.diagnose.effects import LIBRARY
-
     from samii.diagnose.nonlinear import PARAM_UNITS
 
     units = {k.label: {p.name: p.unit for p in k.params} for k in LIBRARY}
     for e in d.effects:
         label = f"{e.category}/{e.kind}"
-        vals = ", ".join(f"{n} {_fmt(v, e.stderr.get(n, float('nan')), units.get(label, PARAM_UNITS).get(n, '1'))}"
-                         for n, v in e.params.items())
+        vals = ", ".join(f"{n} {_fmt(v, e.stderr.get(n, float('nan')), units.get(label, PARAM_UNITS).get(n, '1'))}" for n, v in e.params.items())
         print(f"  {'(expected) ' if e.expected else ''}{label} [{e.channel}]: {vals}")
         print(f"      {e.evidence}")
     print("error: rms dB / rms deg / chi2 per residual (1 = at the noise), before -> after")
+
     def chi2(v):
         return f"{v:9.3g}" if v is not None else "  unknown"
 
     for ch, before in d.error_before.items():
         after = d.error_after[ch]
-        print(f"  {_NAMES[ch]:>9}: {before.rms_db:7.3g} dB {before.rms_deg:7.3g} deg {chi2(before.chi2)}  ->  "
-              f"{after.rms_db:7.3g} dB {after.rms_deg:7.3g} deg {chi2(after.chi2)}")
+        print(
+            f"  {_NAMES[ch]:>9}: {before.rms_db:7.3g} dB {before.rms_deg:7.3g} deg {chi2(before.chi2)}  ->  "
+            f"{after.rms_db:7.3g} dB {after.rms_deg:7.3g} deg {chi2(after.chi2)}"
+        )
     if d.harmonic_error is not None:
         hb, ha = d.harmonic_error
-        print(f"  harmonics: {100 * hb.rms_ratio:7.3g} % of the fundamental, chi2 {hb.chi2:.3g}  ->  {100 * ha.rms_ratio:.3g} %, "
-              f"chi2 {ha.chi2:.3g} with the law ({hb.n_segments} segment harmonics; a linear model makes none)"
-              + ("; the law predicts harmonics the data do not have: its level is not to be used" if ha.chi2 > hb.chi2 else ""))
+        print(
+            f"  harmonics: {100 * hb.rms_ratio:7.3g} % of the fundamental, chi2 {hb.chi2:.3g}  ->  {100 * ha.rms_ratio:.3g} %, "
+            f"chi2 {ha.chi2:.3g} with the law ({hb.n_segments} segment harmonics; a linear model makes none)"
+            + ("; the law predicts harmonics the data do not have: its level is not to be used" if ha.chi2 > hb.chi2 else "")
+        )
     if d.simulator is not None:
         s = d.simulator
         print(f"simulator: carried {', '.join(s.carried) if s.carried else 'nothing'}; measured like the data, before -> after")
         for ch, before in s.error_before.items():
             after = s.error_after[ch]
-            print(f"  {_NAMES[ch]:>9}: {before.rms_db:7.3g} dB {before.rms_deg:7.3g} deg {chi2(before.chi2)}  ->  "
-                  f"{after.rms_db:7.3g} dB {after.rms_deg:7.3g} deg {chi2(after.chi2)}")
+            print(
+                f"  {_NAMES[ch]:>9}: {before.rms_db:7.3g} dB {before.rms_deg:7.3g} deg {chi2(before.chi2)}  ->  "
+                f"{after.rms_db:7.3g} dB {after.rms_deg:7.3g} deg {chi2(after.chi2)}"
+            )
         for name, value in s.changes.items():
             print(f"  {name} = {value:.6g}")
         for label, misfit in (("before anything was carried it missed", s.misfit_before), ("it cannot represent the data at", s.misfit_after)):

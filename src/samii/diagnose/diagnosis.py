@@ -39,19 +39,18 @@ a multiple of.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
-from typing import Mapping, Sequence
 
 import numpy as np
 from scipy import stats
 
 from samii.diagnose.effects import library
 from samii.diagnose.measured import Measured, check_actuator_sign
-from samii.diagnose.model import (FEEDTHROUGH_KEY, MAX_VAR, Baseline, Dataset, Fit, _apply, feedthrough_term, hold_factor,
-                                  sampled_images)
+from samii.diagnose.model import FEEDTHROUGH_KEY, MAX_VAR, Baseline, Dataset, Fit, _apply, feedthrough_term, hold_factor, sampled_images
 from samii.diagnose.nonlinear import MAX_DF_CHI2, distortion_var, find_nonlinear, harmonic_errors, linearised
-from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select, refusal_class, sample_s, within_sampling
 from samii.diagnose.sampling import feedthrough_note, feedthrough_of, hold_note, with_hold_found, with_sampling
+from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select, refusal_class, sample_s, within_sampling
 
 __all__ = ["ChannelError", "FoundEffect", "Band", "Diagnosis", "diagnose", "CHANNELS", "BAND_POINTS", "RULE"]
 
@@ -61,11 +60,13 @@ CHANNELS = ("act", "base", "total")
 CHANNEL_NAMES = {"act": "theta/v", "base": "xdd/theta", "total": "xdd/v"}
 #: Points averaged when looking for a band the final model leaves unexplained.
 BAND_POINTS = 9
-RULE = (f"an effect joins when its F-test against the model without it passes at alpha = {ALPHA:g} "
-        "(Bonferroni over the kinds tried in each round, and over the places an extra mode's frequency was searched; F in "
-        "the richer model's chi2 per degree of freedom, never below the stated noise's, and divided by the noise's "
-        "correlation length), "
-        "then earlier effects it makes unnecessary are dropped; ties beyond p = 1e-300 go to the smallest BIC")
+RULE = (
+    f"an effect joins when its F-test against the model without it passes at alpha = {ALPHA:g} "
+    "(Bonferroni over the kinds tried in each round, and over the places an extra mode's frequency was searched; F in "
+    "the richer model's chi2 per degree of freedom, never below the stated noise's, and divided by the noise's "
+    "correlation length), "
+    "then earlier effects it makes unnecessary are dropped; ties beyond p = 1e-300 go to the smallest BIC"
+)
 
 _DB = 20.0 / np.log(10.0)
 _DEG = 180.0 / np.pi
@@ -95,8 +96,15 @@ class FoundEffect:
     expected: bool = False
 
     def to_dict(self) -> dict:
-        return {"category": self.category, "kind": self.kind, "channel": self.channel, "params": dict(self.params),
-                "stderr": dict(self.stderr), "evidence": self.evidence, "expected": self.expected}
+        return {
+            "category": self.category,
+            "kind": self.kind,
+            "channel": self.channel,
+            "params": dict(self.params),
+            "stderr": dict(self.stderr),
+            "evidence": self.evidence,
+            "expected": self.expected,
+        }
 
 
 @dataclass(frozen=True)
@@ -114,8 +122,15 @@ class Band:
     why: str = "residual"
 
     def to_dict(self) -> dict:
-        return {"source": self.source, "channel": self.channel, "lo_hz": self.lo_hz, "hi_hz": self.hi_hz, "chi2": self.chi2,
-                "n_points": self.n_points, "why": self.why}
+        return {
+            "source": self.source,
+            "channel": self.channel,
+            "lo_hz": self.lo_hz,
+            "hi_hz": self.hi_hz,
+            "chi2": self.chi2,
+            "n_points": self.n_points,
+            "why": self.why,
+        }
 
 
 @dataclass(frozen=True, eq=False)
@@ -155,8 +170,18 @@ class Diagnosis:
     def refused(self) -> list[dict]:
         """Every candidate that passed the F-test but was refused, with its reason (below the excited band, cancels
         within its uncertainty, smaller than the measurement's floor, indistinguishable from the sampling...)."""
-        return [{"round": t["round"], "effect": t["effect"], "params": dict(t["params"]), "reason": t["refused"],
-                 "class": refusal_class(t["refused"]), "log10_p": t["log10_p_test"]} for t in self.tried if t.get("refused")]
+        return [
+            {
+                "round": t["round"],
+                "effect": t["effect"],
+                "params": dict(t["params"]),
+                "reason": t["refused"],
+                "class": refusal_class(t["refused"]),
+                "log10_p": t["log10_p_test"],
+            }
+            for t in self.tried
+            if t.get("refused")
+        ]
 
     @property
     def verdict(self) -> str:
@@ -185,35 +210,79 @@ class Diagnosis:
             "harmonic_error": None if he is None else {"before": he[0].to_dict(), "after": he[1].to_dict()},
             "unexplained": [b.to_dict() for b in self.unexplained],
             "refused": self.refused,
-            "floor": [{"source": m.source, "how": None if m.floor is None else m.floor.how,
-                       "quantisation_steps": None if m.floor is None else dict(m.floor.quant_steps)} for m in self.measured],
+            "floor": [
+                {
+                    "source": m.source,
+                    "how": None if m.floor is None else m.floor.how,
+                    "quantisation_steps": None if m.floor is None else dict(m.floor.quant_steps),
+                }
+                for m in self.measured
+            ],
             "baseline": self.baseline.label,
-            "sampling": {"hold_s": list(self.after.baseline.hold_s) or None,
-                         "hold_seen": self.after.baseline.hold_seen,
-                         **dict(zip(("feedthrough_lag_samples", "stderr"), feedthrough_of(self.after) or (None, None))),
-                         "how": "hold_s: per file, the command's zero-order hold (half a sample) in the model, on the command of every fit "
-                                "(null: not modelled; hold_seen: it fits better with it by the F-test, else as well with fewer effects); "
-                                "xdd/v's direct feedthrough (a held command's steps) reaches the data feedthrough_lag_samples after the "
-                                "rest of its response (null: not modelled, or no feedthrough the data see; samii.diagnose.sampling)"},
+            "sampling": {
+                "hold_s": list(self.after.baseline.hold_s) or None,
+                "hold_seen": self.after.baseline.hold_seen,
+                **dict(zip(("feedthrough_lag_samples", "stderr"), feedthrough_of(self.after) or (None, None))),
+                "how": "hold_s: per file, the command's zero-order hold (half a sample) in the model, on the command of every fit "
+                "(null: not modelled; hold_seen: it fits better with it by the F-test, else as well with fewer effects); "
+                "xdd/v's direct feedthrough (a held command's steps) reaches the data feedthrough_lag_samples after the "
+                "rest of its response (null: not modelled, or no feedthrough the data see; samii.diagnose.sampling)",
+            },
             "rule": self.rule,
-            "files": [{"source": m.source, "noise": m.noise_source, "amplitude_v": m.amplitude_v, "sample_rate_hz": m.sample_rate_hz,
-                       "records": None if m.layout is None else {"record_s": m.layout.record_s, "start_s": m.layout.start_s,
-                                                                   "n_records": m.layout.n_records, "how": m.layout.how},
-                       "corr_length": m.corr_length, "noise_free": bool(m.floor is not None and m.floor.noise_free),
-                       "usable_points": {ch: int(k.sum()) for ch, k in ds.keep.items()}}
-                      for m, ds in zip(self.measured, self.datasets)],
+            "files": [
+                {
+                    "source": m.source,
+                    "noise": m.noise_source,
+                    "amplitude_v": m.amplitude_v,
+                    "sample_rate_hz": m.sample_rate_hz,
+                    "records": None
+                    if m.layout is None
+                    else {"record_s": m.layout.record_s, "start_s": m.layout.start_s, "n_records": m.layout.n_records, "how": m.layout.how},
+                    "corr_length": m.corr_length,
+                    "noise_free": bool(m.floor is not None and m.floor.noise_free),
+                    "usable_points": {ch: int(k.sum()) for ch, k in ds.keep.items()},
+                }
+                for m, ds in zip(self.measured, self.datasets)
+            ],
             "baseline_params": [dict(p) for p in self.after.baseline_params] if self.baseline.free else None,
             "baseline_stderr": [dict(p) for p in self.after.baseline_stderr] if self.baseline.free else None,
             "chi2_per_dof": {"before": self.before.chi2 / self.before.dof, "after": self.after.chi2 / self.after.dof},
-            "steps": [{"effect": s.label, "F": s.f_stat, "dof": list(s.dof), "log10_p": s.log10_p, "chi2_before": s.chi2_before,
-                       "chi2_after": s.chi2_after, **({"places_searched": s.places} if s.places > 1.0 else {})} for s in self.steps],
+            "steps": [
+                {
+                    "effect": s.label,
+                    "F": s.f_stat,
+                    "dof": list(s.dof),
+                    "log10_p": s.log10_p,
+                    "chi2_before": s.chi2_before,
+                    "chi2_after": s.chi2_after,
+                    **({"places_searched": s.places} if s.places > 1.0 else {}),
+                }
+                for s in self.steps
+            ],
             "nonlinear_tests": {
-                "harmonics": [{"source": h.source, "segments_tested": int(sum(np.isfinite(h.log10_p[k]).sum() for k in h.log10_p)),
-                               "significant": h.n_significant, "threshold_log10_p": h.threshold_log10_p,
-                               "max_ratio": {str(k): _max_tested(h, k) for k in h.ratio}} for h in self.harmonics],
-                "amplitude": [{"sources": list(t.sources), "amplitudes_v": list(t.amplitudes_v), "chi2": t.chi2, "dof": t.dof,
-                               "log10_p": t.log10_p, "gain_change_db": t.gain_change_db, "n_points": t.n_points, "channel": t.channel}
-                              for t in self.amplitude_tests],
+                "harmonics": [
+                    {
+                        "source": h.source,
+                        "segments_tested": int(sum(np.isfinite(h.log10_p[k]).sum() for k in h.log10_p)),
+                        "significant": h.n_significant,
+                        "threshold_log10_p": h.threshold_log10_p,
+                        "max_ratio": {str(k): _max_tested(h, k) for k in h.ratio},
+                    }
+                    for h in self.harmonics
+                ],
+                "amplitude": [
+                    {
+                        "sources": list(t.sources),
+                        "amplitudes_v": list(t.amplitudes_v),
+                        "chi2": t.chi2,
+                        "dof": t.dof,
+                        "log10_p": t.log10_p,
+                        "gain_change_db": t.gain_change_db,
+                        "n_points": t.n_points,
+                        "channel": t.channel,
+                    }
+                    for t in self.amplitude_tests
+                ],
             },
             "product_only": [asdict(p) for p in self.product_only],
             "notes": list(self.notes),
@@ -225,11 +294,14 @@ def check_residual_dof(datasets: Sequence[Dataset], before: Fit, sources: Sequen
     free parameters, so no lack of fit could show and no effect be tested (a 10 Hz file whose band holds three points)."""
     if before.n_residuals > before.n_params:
         return
-    points = "; ".join(f"{src}: " + ", ".join(f"{CHANNEL_NAMES.get(ch, ch)} {int(k.sum())}" for ch, k in ds.keep.items())
-                       for src, ds in zip(sources, datasets))
-    raise ValueError(f"{', '.join(sources)}: too few usable points to test anything ({points}: {before.n_residuals} residuals, "
-                     f"magnitude and phase, for the baseline's {before.n_params} free parameters, which fit them exactly); a "
-                     "diagnosis needs more: a wider band, more coherent points, a faster sample rate")
+    points = "; ".join(
+        f"{src}: " + ", ".join(f"{CHANNEL_NAMES.get(ch, ch)} {int(k.sum())}" for ch, k in ds.keep.items()) for src, ds in zip(sources, datasets)
+    )
+    raise ValueError(
+        f"{', '.join(sources)}: too few usable points to test anything ({points}: {before.n_residuals} residuals, "
+        f"magnitude and phase, for the baseline's {before.n_params} free parameters, which fit them exactly); a "
+        "diagnosis needs more: a wider band, more coherent points, a faster sample rate"
+    )
 
 
 def _max_tested(h, k: int) -> float | None:
@@ -308,13 +380,18 @@ def errors_from_residuals(datasets: Sequence[Dataset], residuals: Sequence[Mappi
         v = np.concatenate([p[1] for p in pooled[ch]])
         if e.size == 0:
             continue
-        out[ch] = ChannelError(rms_db=float(_DB * np.sqrt(np.mean(e.real**2))), rms_deg=float(_DEG * np.sqrt(np.mean(e.imag**2))),
-                               chi2=float(np.mean(np.abs(e) ** 2 / v)) if known else None, n_points=int(e.size))
+        out[ch] = ChannelError(
+            rms_db=float(_DB * np.sqrt(np.mean(e.real**2))),
+            rms_deg=float(_DEG * np.sqrt(np.mean(e.imag**2))),
+            chi2=float(np.mean(np.abs(e) ** 2 / v)) if known else None,
+            n_points=int(e.size),
+        )
     return out
 
 
-def unexplained_bands(datasets: Sequence[Dataset], residuals: Sequence[Mapping[str, np.ndarray]], *, alpha: float = ALPHA,
-                      points: int = BAND_POINTS) -> list[Band]:
+def unexplained_bands(
+    datasets: Sequence[Dataset], residuals: Sequence[Mapping[str, np.ndarray]], *, alpha: float = ALPHA, points: int = BAND_POINTS
+) -> list[Band]:
     """Bands of each channel where a model's residual (per dataset: channel -> log(data/model) on its usable
     points, as ``Fit.residuals``) exceeds the noise (module docstring).
 
@@ -402,6 +479,7 @@ def _file_chi2(ds: Dataset, res: Mapping[str, np.ndarray]) -> float:
 def _least_distorted(datasets: Sequence[Dataset], harmonics: Sequence) -> int:
     """The file whose sweep harmonics are smallest (none significant counts 0; a file without a harmonic test last):
     a saturation distorts the largest amplitude most, a dead band or a play the smallest."""
+
     def distortion(ds: Dataset) -> float:
         h = next((h for h in harmonics if h.source == ds.source), None)
         if h is None:
@@ -442,8 +520,10 @@ def _drop_amplitude_images(datasets: Sequence[Dataset], baseline: Baseline, fit:
         if worst is None:
             break
         gain, e, fit = worst
-        dropped.append(f"{e.kind.label} ({_values_text(e.kind.label, dict(e.values))}): without it the {amps[lo]:.3g} V file, the "
-                       f"least distorted, fits better by {gain / s2:.3g} of the fit's variances")
+        dropped.append(
+            f"{e.kind.label} ({_values_text(e.kind.label, dict(e.values))}): without it the {amps[lo]:.3g} V file, the "
+            f"least distorted, fits better by {gain / s2:.3g} of the fit's variances"
+        )
         fit = relabel_modes(list(datasets), fit)
     return fit, dropped
 
@@ -453,17 +533,20 @@ def _values_text(label: str, values: dict) -> str:
     from samii.diagnose.effects import LIBRARY
 
     units = {p.name: p.unit for k in LIBRARY if k.label == label for p in k.params}
-    return ", ".join(f"{n} {1e3 * v:.3g} ms" if n == "delay_s" else f"{n} {v:.4g}{' ' + units[n] if units.get(n, '1') != '1' else ''}"
-                     for n, v in values.items())
+    return ", ".join(
+        f"{n} {1e3 * v:.3g} ms" if n == "delay_s" else f"{n} {v:.4g}{' ' + units[n] if units.get(n, '1') != '1' else ''}" for n, v in values.items()
+    )
 
 
 def _log_distance(a: dict, b: dict) -> float:
     """How far apart two value sets of one kind lie (sum of |log ratio|; a zero or missing value counts 0; values
     of opposite sign, a leak's pole at +0.2 and -0.2 1/s or a residue's, are infinitely far apart)."""
+
     def one(x, v):
         if not x or not v:
             return 0.0
         return abs(np.log(x / v)) if (x > 0) == (v > 0) else np.inf
+
     return sum(one(a.get(n), v) for n, v in b.items())
 
 
@@ -488,15 +571,15 @@ def _rival_values(rival: dict) -> str:
     """The rival's parameters, and the other effects whose values it moves by more than 5 % (the found values
     of those depend on which of the two is taken)."""
     parts = [f"; its {_values_text(rival['rival'], rival['rival_params'])}"] if rival["rival_params"] else []
-    moved = [f"{lab} {_values_text(lab, v_alt)}" for (lab, v_alt), (_, v_now) in zip(rival["rival_rest"], rival["kept_rest"])
-             if _moved(v_alt, v_now)]
+    moved = [f"{lab} {_values_text(lab, v_alt)}" for (lab, v_alt), (_, v_now) in zip(rival["rival_rest"], rival["kept_rest"]) if _moved(v_alt, v_now)]
     if moved:
         parts.append("; with it " + ", ".join(moved))
     return "".join(parts)
 
 
-def _effects(after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured: Sequence[Measured],
-             pre: Mapping[str, dict] | None = None) -> list[FoundEffect]:
+def _effects(
+    after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured: Sequence[Measured], pre: Mapping[str, dict] | None = None
+) -> list[FoundEffect]:
     """The found effects with their evidence. ``pre``: where the command's hold joined the model after the selection
     (samii.diagnose.sampling.with_hold_found), each effect's values in the model the selection found (label -> values,
     the labels found once): the rivals were fitted against it, and are looked up by them."""
@@ -519,16 +602,20 @@ def _effects(after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured:
             p = "p < 1e-300" if s.log10_p <= -300 else f"p = 10^{s.log10_p:.1f}"
             if s.places > 1.0 and s.log10_p > -300:
                 p += f" (the best of the {s.places:.0f} places a mode this broad has in the band)"
-            test = (f"adding it lowers chi2 from {s.chi2_before:.4g} to {s.chi2_after:.4g} for {s.dof[0]} parameter(s): "
-                    f"F = {s.f_stat:.3g} on ({s.dof[0]}, {s.dof[1]}) dof, {p}")
+            test = (
+                f"adding it lowers chi2 from {s.chi2_before:.4g} to {s.chi2_after:.4g} for {s.dof[0]} parameter(s): "
+                f"F = {s.f_stat:.3g} on ({s.dof[0]}, {s.dof[1]}) dof, {p}"
+            )
         else:
             swap = next((t for t in reversed(swaps) if t.get("swapped") and t["effect"] == k.label), None)  # the latest
             if swap is None:
                 test = "kept by the joint refit"
             else:
                 more = f"{swap['extra_params']} more parameter(s)" if swap.get("richer") else "no more parameters"
-                test = (f"it replaced {swap['alternative_to']}, which had joined by F-test, with {more}: chi2 "
-                        f"{swap['chi2_current']:.4g} -> {swap['chi2']:.4g}")
+                test = (
+                    f"it replaced {swap['alternative_to']}, which had joined by F-test, with {more}: chi2 "
+                    f"{swap['chi2_current']:.4g} -> {swap['chi2']:.4g}"
+                )
                 if swap.get("richer"):
                     test += f", F = {swap['F']:.3g}, " + ("p < 1e-300" if swap["log10_p"] <= -300 else f"p = 10^{swap['log10_p']:.1f}")
         expected = False
@@ -538,26 +625,38 @@ def _effects(after: Fit, steps: Sequence[Step], tried: Sequence[dict], measured:
         without_hold = " in the model without the command's hold" if k.label in pre else ""
         rival = _record_for(near_equal, k.label, lookup)
         if rival is not None:
-            text += (f"; but {rival['rival']} in its place fits almost as well (chi2 differs by {rival['delta_in_noise']:.2g} noise variances"
-                     f"{_rival_values(rival)}{without_hold}): these data hardly tell the two apart")
+            text += (
+                f"; but {rival['rival']} in its place fits almost as well (chi2 differs by {rival['delta_in_noise']:.2g} noise variances"
+                f"{_rival_values(rival)}{without_hold}): these data hardly tell the two apart"
+            )
         richer = _record_for([t for t in tried if t.get("round") == "richer"], k.label, lookup)
         if richer is not None:
             better = richer["delta_in_noise"]
-            how = (f"lower by {better:.2g} noise variances" if better > 0 else f"higher by {-better:.2g} noise variances")
-            text += (f"; but {richer['rival']} in its place fits almost as well (with {richer['extra_params']} more parameter(s) its chi2 "
-                     f"is {how}, which its extra parameters do not justify by the F-test{_rival_values(richer)}{without_hold}): these data "
-                     "hardly tell the two apart, and the simpler is kept")
+            how = f"lower by {better:.2g} noise variances" if better > 0 else f"higher by {-better:.2g} noise variances"
+            text += (
+                f"; but {richer['rival']} in its place fits almost as well (with {richer['extra_params']} more parameter(s) its chi2 "
+                f"is {how}, which its extra parameters do not justify by the F-test{_rival_values(richer)}{without_hold}): these data "
+                "hardly tell the two apart, and the simpler is kept"
+            )
         for t in near_equal:  # another effect's near-equal rival that moves this one's values
             if t is rival:
                 continue
-            v_alt = next((v_alt for (lab, v_now), (_, v_alt) in zip(t["kept_rest"], t["rival_rest"])
-                          if lab == k.label and _log_distance(v_now, e.values) < MATCH_DISTANCE and _moved(v_alt, v_now)), None)
+            v_alt = next(
+                (
+                    v_alt
+                    for (lab, v_now), (_, v_alt) in zip(t["kept_rest"], t["rival_rest"])
+                    if lab == k.label and _log_distance(v_now, e.values) < MATCH_DISTANCE and _moved(v_alt, v_now)
+                ),
+                None,
+            )
             if v_alt is not None:
                 text += f"; with {t['rival']} in place of {t['kept']} (which fits almost as well) it is {_values_text(k.label, v_alt)}"
         if within_sampling(e, sample):
             expected = True
-            text += (f"; at most one sample ({1e3 * sample:.3g} ms at {1.0 / sample:.4g} Hz), the sampling itself "
-                     "(zero-order hold, a command computed from the last reading): expected, not a miss")
+            text += (
+                f"; at most one sample ({1e3 * sample:.3g} ms at {1.0 / sample:.4g} Hz), the sampling itself "
+                "(zero-order hold, a command computed from the last reading): expected, not a miss"
+            )
         out.append(FoundEffect(k.category, k.kind, k.channel, dict(e.values), dict(e.stderr), text, expected))
     return out
 
@@ -693,8 +792,19 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
     Returns (effects, (files, datasets, final fit), SimulatorReport, later steps, later candidates)."""
     from samii.calibrate.simulator import parameter_value
     from samii.diagnose.attribution import unattributed as unattributed_why
-    from samii.diagnose.simulator import (BODY, CARRY, LATE, SPOOL, body_effect_values, carry, carry_and_recalibrate, found_value, misfits,
-                                          simulator_report, spool_lag_s)
+    from samii.diagnose.simulator import (
+        BODY,
+        CARRY,
+        LATE,
+        SPOOL,
+        body_effect_values,
+        carry,
+        carry_and_recalibrate,
+        found_value,
+        misfits,
+        simulator_report,
+        spool_lag_s,
+    )
 
     refuse = {f"nonlinear/{f.kind}": reason for f in nonlinear if (reason := _no_level(f)) is not None}
 
@@ -731,9 +841,14 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
         # bent far), the correction no longer matched them and the second selection ended 6x above the error before
         # (chi2 468 -> 2790 on theta/v, a 2 ms command delay missed, two base "modes" at 2.0 and 7.2 Hz)
         same = report.after is calibrated and files is measured
-        datasets, after, steps2, tried2 = _select_against(report.after, files, lambda label: label not in report.carried,
-                                                          alpha=alpha, progress=progress,
-                                                          baseline=first_baseline if same else None)
+        datasets, after, steps2, tried2 = _select_against(
+            report.after,
+            files,
+            lambda label: label not in report.carried,  # noqa: B023 - called within this iteration
+            alpha=alpha,
+            progress=progress,
+            baseline=first_baseline if same else None,
+        )
         more_steps += steps2
         more_tried += tried2
         second = _effects(after, steps2, tried2, files)
@@ -748,8 +863,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
         # the correction of its start, not recomputed (on a 6-minute file with a 4 ms delay and a 15 Hz body the
         # second calibration took 8.6 of the round's 25 s, for a cost 0.5 % lower against data it lacks the delay of)
         body = bodies[0]
-        with_body, _, body_carried, body_not = carry_and_recalibrate(raw, measured, calibrated, [body], progress=progress,
-                                                                     correction_steps=0)
+        with_body, _, body_carried, body_not = carry_and_recalibrate(raw, measured, calibrated, [body], progress=progress, correction_steps=0)
         if not body_carried:
             body_not_carried = list(body_not)  # (why: its residue's sign, or the simulator with it diverges)
             break  # (a residue no body on the tip makes): reported as found, not carried
@@ -776,32 +890,58 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
         if label in BODY:
             values, se = body_effect_values(report.after.params, r.stderr)
             mass, freq, zeta = (parameter_value(report.after.params, n) for n in BODY[label])
-            out.append(FoundEffect(e.category, e.kind, e.channel, values, se,
-                                   f"{why}carried into the simulator as a body on the beam's end ({mass:.3g} kg on a mount of "
-                                   f"{freq:.4g} Hz, damping ratio {zeta:.3g}: {', '.join(BODY[label])}) and recalibrated with its "
-                                   "mode knobs; the mode it adds, joint 2 held"))
+            out.append(
+                FoundEffect(
+                    e.category,
+                    e.kind,
+                    e.channel,
+                    values,
+                    se,
+                    f"{why}carried into the simulator as a body on the beam's end ({mass:.3g} kg on a mount of "
+                    f"{freq:.4g} Hz, damping ratio {zeta:.3g}: {', '.join(BODY[label])}) and recalibrated with its "
+                    "mode knobs; the mode it adds, joint 2 held",
+                )
+            )
             continue
         if label in SPOOL:
             name = SPOOL[label]
             tau, tau0, se = r.values[name], parameter_value(report.before.params, name), r.stderr[name]
-            out.append(FoundEffect(e.category, e.kind, e.channel, {"spool_time_constant_s": tau, "added_lag_s": tau - tau0},
-                                   {"spool_time_constant_s": se, "added_lag_s": se},
-                                   f"{why}the valve is {'slower' if tau > tau0 else 'faster'} than the simulator's: carried into the simulator as {name} (its "
-                                   f"first-order spool, {1e3 * tau0:.3g} -> {1e3 * tau:.3g} ms, corner {1 / (2 * np.pi * tau):.3g} Hz), "
-                                   f"found after the first carry as {'a real pole/zero pair' if e.kind == 'pole_zero' else 'valve dynamics'} "
-                                   f"({_values_text(label, e.params)}"
-                                   + (f"; the simulator's spool corner is {1 / (2 * np.pi * tau0):.3g} Hz" if e.kind == "pole_zero" else "") + "); "
-                                   f"the spool started at {1e3 * (tau0 + spool_lag_s(e)):.3g} ms, its low-frequency group delay "
-                                   f"({1e3 * spool_lag_s(e):+.3g} ms) added, and was recalibrated with the mode knobs"
-                                   + (" (a resonant valve's peak it cannot take)" if e.kind == "valve" else "")))
+            out.append(
+                FoundEffect(
+                    e.category,
+                    e.kind,
+                    e.channel,
+                    {"spool_time_constant_s": tau, "added_lag_s": tau - tau0},
+                    {"spool_time_constant_s": se, "added_lag_s": se},
+                    f"{why}the valve is {'slower' if tau > tau0 else 'faster'} than the simulator's: carried into the simulator as {name} (its "
+                    f"first-order spool, {1e3 * tau0:.3g} -> {1e3 * tau:.3g} ms, corner {1 / (2 * np.pi * tau):.3g} Hz), "
+                    f"found after the first carry as {'a real pole/zero pair' if e.kind == 'pole_zero' else 'valve dynamics'} "
+                    f"({_values_text(label, e.params)}"
+                    + (f"; the simulator's spool corner is {1 / (2 * np.pi * tau0):.3g} Hz" if e.kind == "pole_zero" else "")
+                    + "); "
+                    f"the spool started at {1e3 * (tau0 + spool_lag_s(e)):.3g} ms, its low-frequency group delay "
+                    f"({1e3 * spool_lag_s(e):+.3g} ms) added, and was recalibrated with the mode knobs"
+                    + (" (a resonant valve's peak it cannot take)" if e.kind == "valve" else ""),
+                )
+            )
             continue
         name, key = CARRY[label]
         value, se = found_value(name, report.before.params, r.values[name], r.stderr[name])
-        out.append(FoundEffect(e.category, e.kind, e.channel, {key: value}, {key: se},
-                               f"{why}carried into the simulator as {name} and recalibrated with its mode knobs"))
+        out.append(
+            FoundEffect(
+                e.category,
+                e.kind,
+                e.channel,
+                {key: value},
+                {key: se},
+                f"{why}carried into the simulator as {name} and recalibrated with its mode knobs",
+            )
+        )
     if nonlinear:
-        second = [e if e.expected else replace(e, evidence=e.evidence + "; found beside a nonlinearity: it may be that "
-                                               "nonlinearity's image") for e in second]
+        second = [
+            e if e.expected else replace(e, evidence=e.evidence + "; found beside a nonlinearity: it may be that nonlinearity's image")
+            for e in second
+        ]
     judged_by += [dict(e.params) for e in second]
     out += second
     # where the simulator with everything found still cannot represent the data, what was found there must explain
@@ -813,8 +953,13 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
     def refused(e, why):
         label = f"{e.category}/{e.kind}"
         step = steps_by_label.get(label) or next((s for s in more_steps if s.label == label), None)
-        return {"round": "attribution", "effect": label, "params": dict(e.params), "refused": why,
-                "log10_p_test": None if step is None else step.log10_p}
+        return {
+            "round": "attribution",
+            "effect": label,
+            "params": dict(e.params),
+            "refused": why,
+            "log10_p_test": None if step is None else step.log10_p,
+        }
 
     more_tried = [refused(e, why) for e, why in first_gone] + more_tried + [refused(e, why) for e, why in final_gone]
     unattributed = [f"{e.category}/{e.kind}: {why}" for e, why in first_gone + final_gone]
@@ -829,13 +974,23 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
     # what stays uncarried is what the final list holds; the first pass's other proposals were images
     # of the simulator calibrated without the carried effects
     _, carriable, not_carried = carry([e for e in second if any(e is k for k in out)], report.before.params)
-    why_not = ("found beside a nonlinearity (it may be the nonlinearity's image)" if nonlinear else
-               f"found by the last selection, after {round_ + 1} round{'s' if round_ else ''} of carrying")
+    why_not = (
+        "found beside a nonlinearity (it may be the nonlinearity's image)"
+        if nonlinear
+        else f"found by the last selection, after {round_ + 1} round{'s' if round_ else ''} of carrying"
+    )
     not_carried += [f"{label}: {why_not}" for label in carriable]
     not_carried += carry([e for e in effects if e.category == "nonlinear"], report.before.params, refuse=refuse)[2]
     not_carried += [n for n in report.not_lowering + tuple(body_not_carried) if n not in not_carried]
-    dropped = [f"{e.category}/{e.kind}" for e in effects if not e.expected and e.category != "nonlinear"
-               and f"{e.category}/{e.kind}" not in report.carried and f"{e.category}/{e.kind}" not in not_attributed and not any(f"{o.category}/{o.kind}" == f"{e.category}/{e.kind}" for o in out)]
+    dropped = [
+        f"{e.category}/{e.kind}"
+        for e in effects
+        if not e.expected
+        and e.category != "nonlinear"
+        and f"{e.category}/{e.kind}" not in report.carried
+        and f"{e.category}/{e.kind}" not in not_attributed
+        and not any(f"{o.category}/{o.kind}" == f"{e.category}/{e.kind}" for o in out)
+    ]
     report = replace(report, not_carried=tuple(not_carried), dropped=tuple(dropped), unattributed=tuple(unattributed))
     return out, (tuple(files), datasets, after), report, more_steps, more_tried
 
@@ -858,8 +1013,7 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
         check_actuator_sign(m)
     measured = tuple(_noise_from_roughness(m, saved) for m in given)
     notes = [w for m in given for w in m.warnings]
-    notes += [f"{m.source}: no coherence and no records; the noise of each point is {m.noise_source}"
-              for m, g in zip(measured, given) if m is not g]
+    notes += [f"{m.source}: no coherence and no records; the noise of each point is {m.noise_source}" for m, g in zip(measured, given) if m is not g]
     from samii.forkmap import fork_calls
 
     jobs = [lambda m=m: _with_floor(m) for m in measured]
@@ -870,12 +1024,14 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
         _stage(progress, "measuring the systematic floor and the simulator's own harmonics")
         own = default_params() if simulator_params is None else simulator_params
         # (only where the harmonic test can run: records found, theta/v measured; the floor changes none of these)
-        jobs += [lambda m=m: measured_like(own, m) if m.layout is not None and m.layout.n_records >= 2 and "act" in m.frf.channels else None
-                 for m in measured]
+        jobs += [
+            lambda m=m: measured_like(own, m) if m.layout is not None and m.layout.n_records >= 2 and "act" in m.frf.channels else None
+            for m in measured
+        ]
     else:
         _stage(progress, "measuring the systematic floor")
     done = fork_calls(jobs)  # each file's floor (and the simulator like it) at once
-    measured, references = tuple(done[: len(measured)]), (done[len(measured):] if sim else None)
+    measured, references = tuple(done[: len(measured)]), (done[len(measured) :] if sim else None)
     from samii.diagnose.stationarity import record_changes
 
     changes = [c for m in measured for c in record_changes(m, alpha=alpha)]
@@ -895,9 +1051,11 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
         if f.harmonics and f.law_fits:
             for h in f.harmonics:
                 measured = tuple(linearised(m, f, h) if m.source == h.source else m for m in measured)
-                divided_notes.append(f"{h.source}: the linear fit, its error after and the figures use theta/v and xdd/v divided "
-                                     f"by the {f.kind.replace('_', ' ')}'s describing function (the error before is the baseline's on "
-                                     "the data as measured)")
+                divided_notes.append(
+                    f"{h.source}: the linear fit, its error after and the figures use theta/v and xdd/v divided "
+                    f"by the {f.kind.replace('_', ' ')}'s describing function (the error before is the baseline's on "
+                    "the data as measured)"
+                )
     datasets = tuple(Dataset.from_measured(m) for m in measured)
     calibrated = None
     if sim:
@@ -911,9 +1069,11 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
         calibrated = calibrate_simulator(measured[0], start=start, corrected_by=corrections[0])
         # the correction stays the start's here: recomputed at knobs a missing effect has bent (a 20 Hz
         # roll-off moved joint 1's damping 2.3x) it misled the selection; after the carry it is iterated
-        notes.append(f"the simulator's {', '.join(calibrated.result.names)} were calibrated to {measured[0].source} "
-                     f"({'converged' if calibrated.result.converged else 'NOT converged: ' + calibrated.result.status}); the effects are fitted with those knobs refitted "
-                     "through the simulator's first-order sensitivity to them")
+        notes.append(
+            f"the simulator's {', '.join(calibrated.result.names)} were calibrated to {measured[0].source} "
+            f"({'converged' if calibrated.result.converged else 'NOT converged: ' + calibrated.result.status}); the effects are fitted with those knobs refitted "
+            "through the simulator's first-order sensitivity to them"
+        )
 
     held = False  # the command's hold: tried on the model found (samii.diagnose.sampling.with_hold_found)
 
@@ -947,9 +1107,11 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
         said = [w for m in given for w in m.aliasing]
         raise ValueError(str(exc) + (f"; besides, {said[0]}" if said else "")) from None
     if before.n_residuals - before.n_params < before.n_params:
-        notes.append(f"the baseline's {before.n_params} free parameters were fitted to {before.n_residuals} residuals (magnitude and "
-                     "phase of the usable points): with fewer degrees of freedom left than parameters, only a large misfit "
-                     "could show; a verdict of none says little here (a wider band, more points)")
+        notes.append(
+            f"the baseline's {before.n_params} free parameters were fitted to {before.n_residuals} residuals (magnitude and "
+            "phase of the usable points): with fewer degrees of freedom left than parameters, only a large misfit "
+            "could show; a verdict of none says little here (a wider band, more points)"
+        )
     pre: dict[str, dict] = {}
     if (with_hold := with_hold_found(datasets, after, steps, alpha=alpha, n_kinds=len(kinds))) is not None:
         # the command's hold on the model found: the model with it, and the baseline alone with it for the error before
@@ -976,33 +1138,47 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     if nonlinear and not sim:
         after, images = _drop_amplitude_images(datasets, bl, after, harmonics)
         if images:
-            notes.append("dropped as the nonlinearity's image (a linear effect holds at every amplitude, and these make the "
-                         "least distorted file fit worse): " + "; ".join(images))
+            notes.append(
+                "dropped as the nonlinearity's image (a linear effect holds at every amplitude, and these make the "
+                "least distorted file fit worse): " + "; ".join(images)
+            )
     effects = _effects(after, steps, tried, measured, pre)
     if nonlinear:
-        effects = [e if e.expected else replace(e, evidence=e.evidence + "; found beside a nonlinearity: it may be that "
-                                                "nonlinearity's image in the best linear approximation") for e in effects]
-        notes.append("the data are nonlinear: the linear model is fitted to their best linear approximation at the amplitude "
-                     "measured, and linear effects found with it may be the nonlinearity's image (compare a file at another amplitude)")
+        effects = [
+            e
+            if e.expected
+            else replace(
+                e, evidence=e.evidence + "; found beside a nonlinearity: it may be that nonlinearity's image in the best linear approximation"
+            )
+            for e in effects
+        ]
+        notes.append(
+            "the data are nonlinear: the linear model is fitted to their best linear approximation at the amplitude "
+            "measured, and linear effects found with it may be the nonlinearity's image (compare a file at another amplitude)"
+        )
     effects += [FoundEffect("nonlinear", f.kind, "act", dict(f.params), dict(f.stderr), f.evidence) for f in nonlinear]
     report = None
     final = (datasets, after)
     if sim:
         effects, (files, sim_datasets, sim_after), report, more_steps, more_tried = _simulator_pass(
-            raw, measured, calibrated, effects, nonlinear, steps, alpha=alpha, progress=progress, first_baseline=bl,
-            first_fit=(datasets, after))
+            raw, measured, calibrated, effects, nonlinear, steps, alpha=alpha, progress=progress, first_baseline=bl, first_fit=(datasets, after)
+        )
         final = (sim_datasets, sim_after)
         steps, tried = list(steps) + more_steps, list(tried) + more_tried
         if files is raw and raw is not measured:
             # every valve law is in the simulator: the final model and its figures are on the data as measured
             measured, raw = raw, raw
-            divided_notes = ["the valve law is carried into the simulator: the final fit, its error after and the figures are on "
-                             "the data as measured (the law inside the simulator's correction)"]
+            divided_notes = [
+                "the valve law is carried into the simulator: the final fit, its error after and the figures are on "
+                "the data as measured (the law inside the simulator's correction)"
+            ]
         notes += [f"not carried into the simulator: {n}" for n in report.not_carried]
         if report.dropped:
-            notes.append(f"against the simulator calibrated without the carried effects the first selection also proposed "
-                         f"{', '.join(report.dropped)}; with them carried and the simulator recalibrated these were no longer needed "
-                         "(images of the first calibration's compromise)")
+            notes.append(
+                f"against the simulator calibrated without the carried effects the first selection also proposed "
+                f"{', '.join(report.dropped)}; with them carried and the simulator recalibrated these were no longer needed "
+                "(images of the first calibration's compromise)"
+            )
     datasets, after = final
     from samii.diagnose.attribution import product_only
 
@@ -1010,18 +1186,39 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
     notes += [p.text() for p in placed_by_total]
     notes += [c.text() for c in changes]
     unexplained = unexplained_bands(datasets, after.residuals, alpha=alpha)
-    unexplained += [Band(c.source, c.channel, c.lo_hz, c.hi_hz, c.chi2, int(np.sum((m.frf.freq_hz >= c.lo_hz) & (m.frf.freq_hz <= c.hi_hz))),
-                         "records differ") for c in changes for m in measured if m.source == c.source]
+    unexplained += [
+        Band(c.source, c.channel, c.lo_hz, c.hi_hz, c.chi2, int(np.sum((m.frf.freq_hz >= c.lo_hz) & (m.frf.freq_hz <= c.hi_hz))), "records differ")
+        for c in changes
+        for m in measured
+        if m.source == c.source
+    ]
     errors_after = channel_errors(datasets, after)
     if any(not e.expected for e in effects) and not unexplained and (left := even_misfit(errors_after)):
         # (without an effect the verdict says it; with them it read as if they explained the data: a stepped sine of 17
         # dwells, chi2 per residual 33 after its one effect, and no band of misfit on so few points)
-        notes.append("after the effects found the residual stays above the noise (chi2 per residual "
-                     + ", ".join(f"{CHANNEL_NAMES.get(c, c)} {v:.3g}" for c, v in left.items())
-                     + ") evenly, with no band standing out: more is missing than these, or the noise these data are judged "
-                     "against is too small for them; not explained")
-    return Diagnosis(measured, datasets, bl, before, after, tuple(steps), tuple(tried), tuple(effects),
-                     error_before, errors_after, tuple(unexplained),
-                     notes=tuple(notes[:at] + divided_notes + notes[at:] + nl_notes), harmonics=tuple(harmonics), amplitude_tests=tuple(amp_tests),
-                     raw_measured=None if raw is measured else raw, simulator=report, nonlinear=tuple(nonlinear),
-                     product_only=placed_by_total)
+        notes.append(
+            "after the effects found the residual stays above the noise (chi2 per residual "
+            + ", ".join(f"{CHANNEL_NAMES.get(c, c)} {v:.3g}" for c, v in left.items())
+            + ") evenly, with no band standing out: more is missing than these, or the noise these data are judged "
+            "against is too small for them; not explained"
+        )
+    return Diagnosis(
+        measured,
+        datasets,
+        bl,
+        before,
+        after,
+        tuple(steps),
+        tuple(tried),
+        tuple(effects),
+        error_before,
+        errors_after,
+        tuple(unexplained),
+        notes=tuple(notes[:at] + divided_notes + notes[at:] + nl_notes),
+        harmonics=tuple(harmonics),
+        amplitude_tests=tuple(amp_tests),
+        raw_measured=None if raw is measured else raw,
+        simulator=report,
+        nonlinear=tuple(nonlinear),
+        product_only=placed_by_total,
+    )

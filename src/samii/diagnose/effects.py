@@ -42,8 +42,8 @@ Nonlinear effects are not factors: :mod:`samii.diagnose.nonlinear` decides them.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -168,6 +168,7 @@ def _valve(p, s):
 
 # -- derivatives: d ln M / dp for the factors, dA/dp for the added term (columns in the parameters' order) ----------
 
+
 def _col(*cols):
     return np.stack(cols, axis=1)
 
@@ -199,8 +200,16 @@ def _d_act_mode(p, s):
     wp, wz = TWO_PI * fp, TWO_PI * fz
     inv_p, inv_z = 1.0 / _second_order(s, fp, zp), 1.0 / _second_order(s, fz, zz)
     # ln M = 2 ln fp - 2 ln fz + ln D(fz, zz) - ln D(fp, zp)
-    return _col(2.0 / fp - TWO_PI * (2.0 * zp * s + 2.0 * wp) * inv_p, -2.0 * wp * s * inv_p,
-                -2.0 / fz + TWO_PI * (2.0 * zz * s + 2.0 * wz) * inv_z, 2.0 * wz * s * inv_z), None, None
+    return (
+        _col(
+            2.0 / fp - TWO_PI * (2.0 * zp * s + 2.0 * wp) * inv_p,
+            -2.0 * wp * s * inv_p,
+            -2.0 / fz + TWO_PI * (2.0 * zz * s + 2.0 * wz) * inv_z,
+            2.0 * wz * s * inv_z,
+        ),
+        None,
+        None,
+    )
 
 
 def _d_lowpass(p, s):
@@ -243,34 +252,107 @@ def _d_valve(p, s):
 _DELAY = (Param("delay_s", "s", 0.0, 0.05, "lin", ("hi",)),)
 
 LIBRARY: tuple[EffectKind, ...] = (
-    EffectKind("delay", "command", "act", _DELAY, _delay_command,
-               lambda v: f"the valve acts on the command {1e3 * v['delay_s']:.3g} ms late", _d_delay_command),
-    EffectKind("delay", "theta_sensor", "both", _DELAY, _delay_theta,
-               lambda v: f"theta is read {1e3 * v['delay_s']:.3g} ms late", _d_delay_theta),
-    EffectKind("delay", "accel_sensor", "base", _DELAY, _delay_accel,
-               lambda v: f"the acceleration is read {1e3 * v['delay_s']:.3g} ms late", _d_delay_accel),
-    EffectKind("extra_mode", "base_mode", "base",
-               (Param("freq_hz", "Hz", 0.01, 1000.0), Param("zeta", "1", 1e-4, 0.5), Param("residue", "(m/s²)/rad s^4", -1e12, 1e12, "lin")),
-               _base_mode, lambda v: f"a base mode at {v['freq_hz']:.4g} Hz, damping {v['zeta']:.3g}, that the modal sum lacks", _d_base_mode),
-    EffectKind("extra_mode", "act_mode", "act",
-               (Param("freq_hz", "Hz", 0.01, 1000.0), Param("zeta", "1", 1e-4, 0.5),
-                Param("zero_freq_hz", "Hz", 0.01, 1000.0), Param("zero_zeta", "1", 1e-4, 0.5)),
-               _act_mode, lambda v: f"a structural mode at {v['freq_hz']:.4g} Hz (antiresonance at {v['zero_freq_hz']:.4g} Hz) seen by the actuator", _d_act_mode),
-    EffectKind("sensor", "accel_lowpass", "base", (Param("corner_hz", "Hz", 0.5, 1e4),), _lowpass,
-               lambda v: f"the accelerometer rolls off above {v['corner_hz']:.3g} Hz (first order)", _d_lowpass),
-    EffectKind("sensor", "accel_lowpass2", "base", (Param("corner_hz", "Hz", 0.5, 1e4),), _lowpass2,
-               lambda v: f"the accelerometer's anti-alias filter rolls off above {v['corner_hz']:.3g} Hz (second-order Butterworth)", _d_lowpass2),
-    EffectKind("sensor", "accel_highpass", "base", (Param("corner_hz", "Hz", 1e-4, 20.0),), _highpass,
-               lambda v: f"the accelerometer is AC coupled below {v['corner_hz']:.3g} Hz (first-order high-pass)", _d_highpass),
-    EffectKind("sensor", "accel_gain", "base", (Param("gain", "1", 0.01, 100.0, "log", ("lo", "hi")),), _gain,
-               lambda v: f"the accelerometer reads {v['gain']:.4g} x the true acceleration", _d_gain, needs_fixed_baseline=True),
-    EffectKind("actuator", "pole_zero", "act", (Param("zero_hz", "Hz", 0.01, 1e4), Param("pole_hz", "Hz", 0.01, 1e4)), _pole_zero,
-               lambda v: f"theta/v has an extra real zero at {v['zero_hz']:.3g} Hz and pole at {v['pole_hz']:.3g} Hz", _d_pole_zero),
-    EffectKind("actuator", "leak", "act", (Param("pole_per_s", "1/s", -10.0, 10.0, "lin", ("lo", "hi")),), _leak,
-               lambda v: f"theta/v's integrator is a real pole at s = {v['pole_per_s']:+.3g} 1/s (leakage across the actuator against the load's stiffness)", _d_leak,
-               needs_pure_integrator=True),
-    EffectKind("actuator", "valve", "act", (Param("freq_hz", "Hz", 1.0, 1e4), Param("zeta", "1", 0.05, 3.0, "log", ("lo",))), _valve,
-               lambda v: f"valve dynamics: a second-order lag at {v['freq_hz']:.3g} Hz, damping {v['zeta']:.2g}", _d_valve),
+    EffectKind(
+        "delay",
+        "command",
+        "act",
+        _DELAY,
+        _delay_command,
+        lambda v: f"the valve acts on the command {1e3 * v['delay_s']:.3g} ms late",
+        _d_delay_command,
+    ),
+    EffectKind("delay", "theta_sensor", "both", _DELAY, _delay_theta, lambda v: f"theta is read {1e3 * v['delay_s']:.3g} ms late", _d_delay_theta),
+    EffectKind(
+        "delay", "accel_sensor", "base", _DELAY, _delay_accel, lambda v: f"the acceleration is read {1e3 * v['delay_s']:.3g} ms late", _d_delay_accel
+    ),
+    EffectKind(
+        "extra_mode",
+        "base_mode",
+        "base",
+        (Param("freq_hz", "Hz", 0.01, 1000.0), Param("zeta", "1", 1e-4, 0.5), Param("residue", "(m/s²)/rad s^4", -1e12, 1e12, "lin")),
+        _base_mode,
+        lambda v: f"a base mode at {v['freq_hz']:.4g} Hz, damping {v['zeta']:.3g}, that the modal sum lacks",
+        _d_base_mode,
+    ),
+    EffectKind(
+        "extra_mode",
+        "act_mode",
+        "act",
+        (
+            Param("freq_hz", "Hz", 0.01, 1000.0),
+            Param("zeta", "1", 1e-4, 0.5),
+            Param("zero_freq_hz", "Hz", 0.01, 1000.0),
+            Param("zero_zeta", "1", 1e-4, 0.5),
+        ),
+        _act_mode,
+        lambda v: f"a structural mode at {v['freq_hz']:.4g} Hz (antiresonance at {v['zero_freq_hz']:.4g} Hz) seen by the actuator",
+        _d_act_mode,
+    ),
+    EffectKind(
+        "sensor",
+        "accel_lowpass",
+        "base",
+        (Param("corner_hz", "Hz", 0.5, 1e4),),
+        _lowpass,
+        lambda v: f"the accelerometer rolls off above {v['corner_hz']:.3g} Hz (first order)",
+        _d_lowpass,
+    ),
+    EffectKind(
+        "sensor",
+        "accel_lowpass2",
+        "base",
+        (Param("corner_hz", "Hz", 0.5, 1e4),),
+        _lowpass2,
+        lambda v: f"the accelerometer's anti-alias filter rolls off above {v['corner_hz']:.3g} Hz (second-order Butterworth)",
+        _d_lowpass2,
+    ),
+    EffectKind(
+        "sensor",
+        "accel_highpass",
+        "base",
+        (Param("corner_hz", "Hz", 1e-4, 20.0),),
+        _highpass,
+        lambda v: f"the accelerometer is AC coupled below {v['corner_hz']:.3g} Hz (first-order high-pass)",
+        _d_highpass,
+    ),
+    EffectKind(
+        "sensor",
+        "accel_gain",
+        "base",
+        (Param("gain", "1", 0.01, 100.0, "log", ("lo", "hi")),),
+        _gain,
+        lambda v: f"the accelerometer reads {v['gain']:.4g} x the true acceleration",
+        _d_gain,
+        needs_fixed_baseline=True,
+    ),
+    EffectKind(
+        "actuator",
+        "pole_zero",
+        "act",
+        (Param("zero_hz", "Hz", 0.01, 1e4), Param("pole_hz", "Hz", 0.01, 1e4)),
+        _pole_zero,
+        lambda v: f"theta/v has an extra real zero at {v['zero_hz']:.3g} Hz and pole at {v['pole_hz']:.3g} Hz",
+        _d_pole_zero,
+    ),
+    EffectKind(
+        "actuator",
+        "leak",
+        "act",
+        (Param("pole_per_s", "1/s", -10.0, 10.0, "lin", ("lo", "hi")),),
+        _leak,
+        lambda v: f"theta/v's integrator is a real pole at s = {v['pole_per_s']:+.3g} 1/s (leakage across the actuator against the load's stiffness)",
+        _d_leak,
+        needs_pure_integrator=True,
+    ),
+    EffectKind(
+        "actuator",
+        "valve",
+        "act",
+        (Param("freq_hz", "Hz", 1.0, 1e4), Param("zeta", "1", 0.05, 3.0, "log", ("lo",))),
+        _valve,
+        lambda v: f"valve dynamics: a second-order lag at {v['freq_hz']:.3g} Hz, damping {v['zeta']:.2g}",
+        _d_valve,
+    ),
 )
 
 

@@ -11,7 +11,7 @@ responses the fit used.
 
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -86,8 +86,10 @@ def augmented_tf(fit, i: int = 0, channel: str = "total", *, pade_order: int = 3
         raise ValueError(f"channel must be 'act', 'base' or 'total', got {channel!r}")
     theta_late = [e for e in fit.effects if e.kind.label == "delay/theta_sensor"]
     if theta_late and channel == "base":
-        raise ValueError("xdd/theta with theta read late is xdd/theta x e^+sT, a time advance with no causal transfer function "
-                         "(its Pade inverse has right-half-plane poles); use augmented_frd, or the act and total channels")
+        raise ValueError(
+            "xdd/theta with theta read late is xdd/theta x e^+sT, a time advance with no causal transfer function "
+            "(its Pade inverse has right-half-plane poles); use augmented_frd, or the act and total channels"
+        )
     p = fit.baseline_params[i]
     act, base = st.to_tf(p, "act"), st.to_tf(p, "base")
     m_act, m_base = [], []

@@ -35,8 +35,9 @@ effect the floor could produce is not one the data show.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Callable, Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.fft
@@ -134,7 +135,9 @@ def controller_fir(theta: np.ndarray, v: np.ndarray, r: np.ndarray, fs: float, l
     return c, 1.0 - ss / tot
 
 
-def estimator_bias(m, model: Callable[[np.ndarray], Mapping[str, np.ndarray]], *, keep: list | None = None) -> tuple[dict[str, np.ndarray] | None, str]:
+def estimator_bias(
+    m, model: Callable[[np.ndarray], Mapping[str, np.ndarray]], *, keep: list | None = None
+) -> tuple[dict[str, np.ndarray] | None, str]:
     """The estimator's relative bias ``H_est/H - 1`` of each channel on ``m``'s grid, for a model of the rig
     (``model(freq_hz) -> {"act": theta/v, "base": xdd/theta}``), or None with the reason it could not be measured.
 
@@ -152,8 +155,9 @@ def estimator_bias(m, model: Callable[[np.ndarray], Mapping[str, np.ndarray]], *
         return None, "one record"
     c, explained = controller_fir(ts.theta, ts.v, ts.r, ts.sample_rate_hz)
     if explained < CONTROLLER_EXPLAINED:
-        return None, (f"the position loop is not a short filter of theta (it explains {100 * explained:.1f} % of r - v): the loop "
-                      "could not be modelled")
+        return None, (
+            f"the position loop is not a short filter of theta (it explains {100 * explained:.1f} % of r - v): the loop could not be modelled"
+        )
     fs = ts.sample_rate_hz
     n = len(ts)
     nfft = scipy.fft.next_fast_len(2 * n, real=True)
@@ -176,8 +180,7 @@ def estimator_bias(m, model: Callable[[np.ndarray], Mapping[str, np.ndarray]], *
         peak = float(np.max(np.abs(y[:n]))) or 1.0
         if float(np.max(np.abs(y[nfft - n // 4 :]))) > 1e-3 * peak:
             return None, f"the model's loop does not settle within the run ({k} still moves at its end)"
-    sim = TimeSeries(t=np.asarray(ts.t), r=np.asarray(ts.r), v=sig["v"][:n], theta=sig["theta"][:n],
-                     accel=sig["accel"][:n], metadata=ts.metadata)
+    sim = TimeSeries(t=np.asarray(ts.t), r=np.asarray(ts.r), v=sig["v"][:n], theta=sig["theta"][:n], accel=sig["accel"][:n], metadata=ts.metadata)
     if keep is not None:
         keep.append(sim)
     band = m.band_hz or (float(m.frf.freq_hz[0]), float(m.frf.freq_hz[-1]))
@@ -271,14 +274,22 @@ def with_floor(m, model: Callable[[np.ndarray], Mapping[str, np.ndarray]] | None
 
                 # the largest where the data are usable (where the response is noise, the ringing dwarfs it too)
                 worst = {ch: float(np.sqrt(np.max(np.where(np.asarray(m.var[ch]) <= MAX_VAR, v, 0.0)))) for ch, v in bias_var.items()}
-                parts.append("the estimator's bias measured on the file's own excitation through " + how + " (largest where usable: "
-                             + ", ".join(f"{ch} {100 * w:.2g} %" for ch, w in worst.items()) + ")")
+                parts.append(
+                    "the estimator's bias measured on the file's own excitation through "
+                    + how
+                    + " (largest where usable: "
+                    + ", ".join(f"{ch} {100 * w:.2g} %" for ch, w in worst.items())
+                    + ")"
+                )
     spread = np.concatenate([np.asarray(m.var[ch]) for ch in floor])
     against = np.concatenate([floor[ch] for ch in floor])
     noise_free = bool(np.median(spread / against) < 1e-2)
     if noise_free:
-        parts.insert(0, "NO NOISE: the records repeat to within 1 % of the floor's size at most points (a simulation without "
-                        "noise?), so the data are judged against the floor alone")
+        parts.insert(
+            0,
+            "NO NOISE: the records repeat to within 1 % of the floor's size at most points (a simulation without "
+            "noise?), so the data are judged against the floor alone",
+        )
     how = "; ".join(parts)
     var = {ch: (None if v is None else np.asarray(v) + floor[ch]) if ch in floor else v for ch, v in m.var.items()}
     floor_ = Floor(floor, bias_var, steps, how, sims[0] if bias_var is not None and sims else None, noise_free)

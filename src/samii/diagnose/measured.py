@@ -53,9 +53,10 @@ of it). Where it comes from, best first:
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.fft
@@ -213,7 +214,9 @@ def spectra_at(ts: TimeSeries, layout: RecordLayout, freq_hz: np.ndarray) -> tup
     return {k: scipy.fft.rfft(x, n=n_fft, axis=-1)[:, bins] for k, x in records.items()}, records["r"]
 
 
-def timeseries_frf(ts: TimeSeries, layout: RecordLayout, *, band_hz: tuple[float, float]) -> tuple[FrequencyResponse, dict[str, np.ndarray | None], float, str]:
+def timeseries_frf(
+    ts: TimeSeries, layout: RecordLayout, *, band_hz: tuple[float, float]
+) -> tuple[FrequencyResponse, dict[str, np.ndarray | None], float, str]:
     """Closed-loop FRF of ``ts`` cut as ``layout`` says (:func:`estimate_frf`), with the record-to-record variance of every point.
 
     The variance of a point is pooled over every FFT bin around it (module docstring): the output grid keeps one
@@ -267,8 +270,10 @@ def timeseries_frf(ts: TimeSeries, layout: RecordLayout, *, band_hz: tuple[float
             dg = np.where(np.isfinite(d[:, at]), d[:, at], 0.0)
             with np.errstate(over="ignore"):
                 devs.append(dg / np.sqrt(np.maximum(_pool(np.mean(np.abs(dg) ** 2, axis=0)), 1e-30)))
-    how = (f"record-to-record spread of {n_records} records, pooled over the FFT bins around each point "
-           f"(at least {POOL}; weighted by the excitation's power)")
+    how = (
+        f"record-to-record spread of {n_records} records, pooled over the FFT bins around each point "
+        f"(at least {POOL}; weighted by the excitation's power)"
+    )
     return frf, var, _corr_length(np.vstack(devs)), how
 
 
@@ -282,7 +287,7 @@ BAND_TOP_OF_RATE = 0.45
 def _without_mains(ts: TimeSeries) -> tuple[TimeSeries, list[str]]:
     """``ts`` with the mains lines of v, theta and accel subtracted (:mod:`samii.measure.lines`: leaking through the
     records' rectangular window they repeat in every record that lasts whole mains periods), and what was removed."""
-    from samii.diagnose.floor import QUANT_FUNDAMENTAL, quantisation_step
+    from samii.diagnose.floor import quantisation_step
     from samii.measure.lines import remove_lines
 
     fs = ts.sample_rate_hz
@@ -294,8 +299,13 @@ def _without_mains(ts: TimeSeries) -> tuple[TimeSeries, list[str]]:
         y, lines = remove_lines(x, fs, excitation=ts.r)
         if lines:
             cols[name] = y
-            said.append(f"{name}: " + ", ".join(f"{ln.freq_hz:.2f} Hz ({ln.amplitude:.3g} {unit})"
-                                                 + ("" if ln.removed else ", NOT removed: it drifts beyond one sinusoid") for ln in lines))
+            said.append(
+                f"{name}: "
+                + ", ".join(
+                    f"{ln.freq_hz:.2f} Hz ({ln.amplitude:.3g} {unit})" + ("" if ln.removed else ", NOT removed: it drifts beyond one sinusoid")
+                    for ln in lines
+                )
+            )
     return (replace(ts, **cols) if cols else ts), said
 
 
@@ -333,13 +343,15 @@ def _drift_effect(frf: FrequencyResponse, var, frf2: FrequencyResponse, var2) ->
         if z[i] >= DRIFT_STANDARD_ERRORS:
             moved.append((float(z[i]), f"moved {CHANNEL_NAMES[ch]} by up to {z[i]:.3g} standard errors (at {frf.freq_hz[i]:.3g} Hz)"))
         if g[j] >= DRIFT_SPREAD_FACTOR:
-            spread.append((float(g[j]), f"raised the records' spread of {CHANNEL_NAMES[ch]} {g[j]:.3g}-fold in variance "
-                                        f"(at {frf.freq_hz[j]:.3g} Hz)"))
+            spread.append(
+                (float(g[j]), f"raised the records' spread of {CHANNEL_NAMES[ch]} {g[j]:.3g}-fold in variance (at {frf.freq_hz[j]:.3g} Hz)")
+            )
     return ([max(moved)[1]] if moved else []) + ([max(spread)[1]] if spread else [])
 
 
-def _without_drift(ts: TimeSeries, layout: RecordLayout, frf: FrequencyResponse, var: Mapping[str, np.ndarray | None],
-                   *, band_hz: tuple[float, float], source: str) -> tuple[TimeSeries, list[str]]:
+def _without_drift(
+    ts: TimeSeries, layout: RecordLayout, frf: FrequencyResponse, var: Mapping[str, np.ndarray | None], *, band_hz: tuple[float, float], source: str
+) -> tuple[TimeSeries, list[str]]:
     """``ts`` with the drift of the level it rests at subtracted (:mod:`samii.measure.drift`) from each channel where that
     matters (:func:`_drift_effect`, channel by channel against the FRF ``frf`` estimated without it, point variances
     ``var``), and what was subtracted; else ``ts`` unchanged. Only records that rest give a drift; a column on a
@@ -379,7 +391,8 @@ def _without_drift(ts: TimeSeries, layout: RecordLayout, frf: FrequencyResponse,
     return replace(ts, **cols), [
         f"{source}: the level the signals rest at drifts from record to record ({', '.join(per)}; a repeated excitation "
         f"from rest to rest leaves it the same): {'; '.join(did)}; the drift read off the records' rests is subtracted "
-        f"from {' and '.join(cols)} before the estimate (samii.measure.drift)"]
+        f"from {' and '.join(cols)} before the estimate (samii.measure.drift)"
+    ]
 
 
 #: A sample of r beyond this many times the excitation's 99.9th percentile (about its amplitude) is no part of it ...
@@ -402,28 +415,35 @@ def _check_r_spikes(ts: TimeSeries, source: str) -> None:
     if 0 < far.size <= SPIKE_MAX_SAMPLES:
         at = ", ".join(f"t = {ts.t[i]:.6g} s ({r[i]:.6g} V)" for i in far[:3]) + (" ..." if far.size > 3 else "")
         last = " (the file's last line: is it cut short?)" if far[-1] == r.size - 1 else ""
-        raise ValueError(f"{source}: column 'r' has {far.size} sample(s) more than {SPIKE_FACTOR:g} times the excitation's "
-                         f"amplitude ({typical:.3g} V) elsewhere: {at}{last}; a damaged line? r is the instrument every "
-                         "estimate divides by: mend or remove the line(s)")
+        raise ValueError(
+            f"{source}: column 'r' has {far.size} sample(s) more than {SPIKE_FACTOR:g} times the excitation's "
+            f"amplitude ({typical:.3g} V) elsewhere: {at}{last}; a damaged line? r is the instrument every "
+            "estimate divides by: mend or remove the line(s)"
+        )
 
 
 def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float] | None = None, record_s: float | None = None) -> Measured:
     """A time series with its excitation ``r``: records found (or as stated), FRF and spread estimated."""
     if ts.r is None:
-        raise ValueError(f"{source}: the time series has no column 'r' (the excitation added to the valve command); "
-                         "a closed-loop frequency response needs it as the instrument (DATA_FORMATS.md)")
+        raise ValueError(
+            f"{source}: the time series has no column 'r' (the excitation added to the valve command); "
+            "a closed-loop frequency response needs it as the instrument (DATA_FORMATS.md)"
+        )
     fs = ts.sample_rate_hz
     if fs < MIN_SAMPLE_RATE_HZ:
-        raise ValueError(f"{source}: t steps by {1.0 / fs:.6g} s, {fs:.6g} samples per second: too slow for a frequency response of "
-                         "this arm (its modes lie between 1.7 and 25 Hz); is t in milliseconds? t must be in seconds (DATA_FORMATS.md)")
+        raise ValueError(
+            f"{source}: t steps by {1.0 / fs:.6g} s, {fs:.6g} samples per second: too slow for a frequency response of "
+            "this arm (its modes lie between 1.7 and 25 Hz); is t in milliseconds? t must be in seconds (DATA_FORMATS.md)"
+        )
     # a channel that never moves: no response to estimate (an r without excitation is refused by find_records)
-    for name, unit, what in (("v", "V", "no excitation reached the valve (is the v channel connected?)"),
-                             ("theta", "rad", "the joint never moved (is the encoder connected?): theta/v is undefined"),
-                             ("accel", "m/s²", "the base never moved (is the accelerometer connected?): xdd/theta is undefined")):
+    for name, unit, what in (
+        ("v", "V", "no excitation reached the valve (is the v channel connected?)"),
+        ("theta", "rad", "the joint never moved (is the encoder connected?): theta/v is undefined"),
+        ("accel", "m/s²", "the base never moved (is the accelerometer connected?): xdd/theta is undefined"),
+    ):
         x = np.asarray(getattr(ts, name), float)
         if x.size and np.all(x == x[0]):
-            raise ValueError(f"{source}: column '{name}' is {x[0]:g} {unit} at every sample: {what}; there is no frequency "
-                             "response to estimate")
+            raise ValueError(f"{source}: column '{name}' is {x[0]:g} {unit} at every sample: {what}; there is no frequency response to estimate")
     _check_r_spikes(ts, source)
     ts, hum = _without_mains(ts)
     stated = record_s if record_s is not None else _float_meta(ts.metadata, "record_s")
@@ -435,8 +455,10 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
         hi = _float_meta(ts.metadata, "stop_hz")
         band_hz = (lo or 0.1, min(hi or 40.0, BAND_TOP_OF_RATE * fs))
     elif not 0.0 < band_hz[0] < band_hz[1] < fs / 2:
-        raise ValueError(f"{source}: --band-hz {band_hz[0]:g} {band_hz[1]:g}: expected 0 < LO < HI < {fs / 2:g} Hz, the Nyquist "
-                         f"frequency of its {fs:g} samples per second")
+        raise ValueError(
+            f"{source}: --band-hz {band_hz[0]:g} {band_hz[1]:g}: expected 0 < LO < HI < {fs / 2:g} Hz, the Nyquist "
+            f"frequency of its {fs:g} samples per second"
+        )
     frf, var, corr, how = timeseries_frf(ts, layout, band_hz=band_hz)
     ts, drift = _without_drift(ts, layout, frf, var, band_hz=band_hz, source=source)
     if drift:
@@ -454,9 +476,20 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
     meta.setdefault("amplitude_v", f"{amp:.6g}")
     meta["frf_corr_length"] = f"{corr:.3g} (points one independent error spans, from the record-to-record deviations)"
     frf = replace(frf, metadata=meta)
-    return Measured(source=source, frf=frf, var=var, noise_source=how, corr_length=corr, amplitude_v=amp, sample_rate_hz=fs,
-                    timeseries=ts, layout=layout, band_hz=(float(band_hz[0]), float(band_hz[1])), warnings=tuple(said),
-                    aliasing=tuple(aliasing))
+    return Measured(
+        source=source,
+        frf=frf,
+        var=var,
+        noise_source=how,
+        corr_length=corr,
+        amplitude_v=amp,
+        sample_rate_hz=fs,
+        timeseries=ts,
+        layout=layout,
+        band_hz=(float(band_hz[0]), float(band_hz[1])),
+        warnings=tuple(said),
+        aliasing=tuple(aliasing),
+    )
 
 
 def _check_scale(frf: FrequencyResponse, ts: TimeSeries, source: str) -> None:
@@ -470,13 +503,17 @@ def _check_scale(frf: FrequencyResponse, ts: TimeSeries, source: str) -> None:
         bad = np.flatnonzero(~np.isfinite(mag) | (mag < lo) | (mag > hi))
         if bad.size:
             k = int(bad[np.argmax(np.abs(np.log10(np.maximum(mag[bad], 1e-300))))])
-            worst = max(("v", "theta", "accel"), key=lambda c: float(np.max(np.abs(getattr(ts, c)))) / max(float(np.median(np.abs(getattr(ts, c)))), 1e-300))
+            worst = max(
+                ("v", "theta", "accel"), key=lambda c: float(np.max(np.abs(getattr(ts, c)))) / max(float(np.median(np.abs(getattr(ts, c)))), 1e-300)
+            )
             x = np.abs(getattr(ts, worst))
             i = int(np.argmax(x))
-            raise ValueError(f"{source}: the estimated {ch} ({CHANNEL_NAMES.get(ch, ch)}) magnitude is {mag[k]:.3g} at {frf.freq_hz[k]:.4g} Hz, outside "
-                             f"{lo:g}...{hi:g}, what a frequency response file holds; a sample far out of scale? (column "
-                             f"'{worst}' reaches {getattr(ts, worst)[i]:.3g} at t = {ts.t[i]:.6g} s, {x[i] / max(float(np.median(x)), 1e-300):.3g} "
-                             "times its median)")
+            raise ValueError(
+                f"{source}: the estimated {ch} ({CHANNEL_NAMES.get(ch, ch)}) magnitude is {mag[k]:.3g} at {frf.freq_hz[k]:.4g} Hz, outside "
+                f"{lo:g}...{hi:g}, what a frequency response file holds; a sample far out of scale? (column "
+                f"'{worst}' reaches {getattr(ts, worst)[i]:.3g} at t = {ts.t[i]:.6g} s, {x[i] / max(float(np.median(x)), 1e-300):.3g} "
+                "times its median)"
+            )
 
 
 #: theta swinging fewer of its encoder's counts than this (amplitude, counts) is said: a sine of amplitude A rounded to q
@@ -498,10 +535,12 @@ def coarse_encoder_warnings(theta: np.ndarray, *, source: str) -> list[str]:
     if amp >= COARSE_COUNTS:
         return []
     worst = QUANT_FUNDAMENTAL * max(amp, 0.25) ** -1.5
-    return [f"{source}: theta lies on a lattice of step {q:.3g} rad (an encoder's count) and swings only {amp:.2g} count(s) either "
-            f"way: its rounding can be off by up to {min(100 * worst, 100):.0f} % of theta at the sweep's own frequency, so theta/v "
-            "and xdd/theta are the rounding's, whatever their coherence says (it follows the excitation); excite more "
-            "(a larger amplitude) or read a finer encoder"]
+    return [
+        f"{source}: theta lies on a lattice of step {q:.3g} rad (an encoder's count) and swings only {amp:.2g} count(s) either "
+        f"way: its rounding can be off by up to {min(100 * worst, 100):.0f} % of theta at the sweep's own frequency, so theta/v "
+        "and xdd/theta are the rounding's, whatever their coherence says (it follows the excitation); excite more "
+        "(a larger amplitude) or read a finer encoder"
+    ]
 
 
 #: The part of a record after the last whole one that is said, as a fraction of a record.
@@ -515,9 +554,11 @@ def short_record_warnings(layout, duration_s: float, *, source: str) -> list[str
     tail = duration_s - (layout.start_s + layout.n_records * layout.record_s)
     if tail <= SHORT_RECORD_FRACTION * layout.record_s:
         return []
-    return [f"{source}: the file ends {layout.record_s - tail:.3g} s short of one more record of {layout.record_s:.6g} s "
-            f"({100 * tail / layout.record_s:.0f} % of it is there, from t = {layout.start_s + layout.n_records * layout.record_s:.6g} s): "
-            f"that part is left out, {layout.n_records} whole record(s) are used; a file that ends after its last rest keeps them all"]
+    return [
+        f"{source}: the file ends {layout.record_s - tail:.3g} s short of one more record of {layout.record_s:.6g} s "
+        f"({100 * tail / layout.record_s:.0f} % of it is there, from t = {layout.start_s + layout.n_records * layout.record_s:.6g} s): "
+        f"that part is left out, {layout.n_records} whole record(s) are used; a file that ends after its last rest keeps them all"
+    ]
 
 
 def aliasing_warnings(meta: Mapping[str, str], fs: float, *, source: str) -> list[str]:
@@ -529,18 +570,22 @@ def aliasing_warnings(meta: Mapping[str, str], fs: float, *, source: str) -> lis
     out = []
     stop = _float_meta(meta, "stop_hz")
     if stop is not None and stop > nyquist:
-        out.append(f"{source}: the sweep reached {stop:g} Hz (stop_hz) but {fs:g} samples per second resolve only up to the "
-                   f"Nyquist frequency {nyquist:g} Hz: the sweep's part above it folds into the band (the estimate mixes the "
-                   f"response at each frequency with the response at its images); sample at least {stop / BAND_TOP_OF_RATE:.3g} "
-                   f"times per second (a band ends at {BAND_TOP_OF_RATE:g} x the rate), or sweep below {BAND_TOP_OF_RATE * fs:g} Hz")
+        out.append(
+            f"{source}: the sweep reached {stop:g} Hz (stop_hz) but {fs:g} samples per second resolve only up to the "
+            f"Nyquist frequency {nyquist:g} Hz: the sweep's part above it folds into the band (the estimate mixes the "
+            f"response at each frequency with the response at its images); sample at least {stop / BAND_TOP_OF_RATE:.3g} "
+            f"times per second (a band ends at {BAND_TOP_OF_RATE:g} x the rate), or sweep below {BAND_TOP_OF_RATE * fs:g} Hz"
+        )
     aa = re.search(r"([0-9.]+(?:[eE][-+]?[0-9]+)?)\s*(k?)hz", str(meta.get("antialias", "")), re.IGNORECASE)
     try:
         corner = float(aa.group(1)) * (1e3 if aa.group(2) else 1.0) if aa else None
     except ValueError:
         corner = None
     if corner is not None and corner > nyquist:
-        out.append(f"{source}: the stated anti-alias filter ({corner:g} Hz, antialias) is above the Nyquist frequency {nyquist:g} Hz "
-                   f"of {fs:g} samples per second: what the sensors saw between {nyquist:g} and {corner:g} Hz is aliased into the band")
+        out.append(
+            f"{source}: the stated anti-alias filter ({corner:g} Hz, antialias) is above the Nyquist frequency {nyquist:g} Hz "
+            f"of {fs:g} samples per second: what the sensors saw between {nyquist:g} and {corner:g} Hz is aliased into the band"
+        )
     return out
 
 
@@ -567,13 +612,17 @@ def check_testable(frf: FrequencyResponse, *, source: str) -> None:
 
     n = frf.freq_hz.size
     if n < MIN_FREQUENCIES:
-        raise ValueError(f"{source}: {n} frequency point(s) (after --band-hz, if given); a diagnosis fits the data's frequency "
-                         f"response and needs at least {MIN_FREQUENCIES}")
+        raise ValueError(
+            f"{source}: {n} frequency point(s) (after --band-hz, if given); a diagnosis fits the data's frequency "
+            f"response and needs at least {MIN_FREQUENCIES}"
+        )
     channels = [ch for ch in frf.channels if frf.coherence(ch) is not None]
     best = noise_only(frf, channels) if channels else None
     if best is not None:
-        raise ValueError(f"{source}: no point has coherence >= {MIN_COHERENCE:g} in any channel (the highest is {best:.3g}): "
-                         "the data are noise (was the rig excited? are the sensors connected?); nothing could be tested")
+        raise ValueError(
+            f"{source}: no point has coherence >= {MIN_COHERENCE:g} in any channel (the highest is {best:.3g}): "
+            "the data are noise (was the rig excited? are the sensors connected?); nothing could be tested"
+        )
 
 
 def _averaged_var(frf: FrequencyResponse, meta: Mapping[str, str]) -> tuple[dict, list[str], str]:
@@ -642,8 +691,17 @@ def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
     # (an FRF file keeps its time series' header, as samii frf and samii measure write it: the aliasing is still known)
     sr = sr if sr is not None and 0 < sr < np.inf else None
     said = aliasing_warnings(meta, sr, source=source) if sr is not None else []
-    return Measured(source=source, frf=frf, var=var, noise_source=how, corr_length=corr, amplitude_v=amp, sample_rate_hz=sr,
-                    warnings=tuple(said), aliasing=tuple(said))
+    return Measured(
+        source=source,
+        frf=frf,
+        var=var,
+        noise_source=how,
+        corr_length=corr,
+        amplitude_v=amp,
+        sample_rate_hz=sr,
+        warnings=tuple(said),
+        aliasing=tuple(said),
+    )
 
 
 def from_stepped(ts: TimeSeries, *, source: str, band_hz: tuple[float, float] | None = None) -> Measured:
@@ -657,30 +715,40 @@ def from_stepped(ts: TimeSeries, *, source: str, band_hz: tuple[float, float] | 
     try:
         sched = SteppedSine.from_metadata(ts.metadata)
     except KeyError as exc:
-        raise ValueError(f"{source}: the header says the excitation is a stepped sine but has no '# {exc.args[0]}:' line; the "
-                         "dwells' schedule (freqs_hz, amplitude_v, settle_s, ramp_s, measure_cycles, measure_s, lead_s, as samii "
-                         "measure writes them) places each dwell's measurement window") from None
+        raise ValueError(
+            f"{source}: the header says the excitation is a stepped sine but has no '# {exc.args[0]}:' line; the "
+            "dwells' schedule (freqs_hz, amplitude_v, settle_s, ramp_s, measure_cycles, measure_s, lead_s, as samii "
+            "measure writes them) places each dwell's measurement window"
+        ) from None
     except ValueError as exc:
         raise ValueError(f"{source}: the header's stepped-sine schedule: {exc}") from None
     windows = sched.windows_s + float(ts.t[0])
     end = float(ts.t[-1]) + 1.0 / ts.sample_rate_hz
     missing = [f"{f:g} Hz ({a:.6g}-{b:.6g} s)" for f, (a, b) in zip(sched.freqs_hz, windows) if b > end + 1e-9]
     if missing:
-        raise ValueError(f"{source}: the file ends at t = {end:.6g} s, before the measurement window of the dwell(s) at "
-                         f"{', '.join(missing)} that its header's stepped-sine schedule lists: is it cut short, or its schedule "
-                         "another file's?")
+        raise ValueError(
+            f"{source}: the file ends at t = {end:.6g} s, before the measurement window of the dwell(s) at "
+            f"{', '.join(missing)} that its header's stepped-sine schedule lists: is it cut short, or its schedule "
+            "another file's?"
+        )
     frf = estimate_stepped(ts, freqs_hz=sched.freqs_hz, windows_s=windows)
     if band_hz is not None:
         frf = frf.band(*band_hz)
     m = from_frf(frf, source=source)
     aliasing = aliasing_warnings(ts.metadata, ts.sample_rate_hz, source=source)
     said = aliasing + coarse_encoder_warnings(ts.theta, source=source)
-    return replace(m, sample_rate_hz=ts.sample_rate_hz, warnings=tuple(said), aliasing=tuple(aliasing),
-                   noise_source=f"stepped sine of {len(sched.freqs_hz)} dwells: " + m.noise_source)
+    return replace(
+        m,
+        sample_rate_hz=ts.sample_rate_hz,
+        warnings=tuple(said),
+        aliasing=tuple(aliasing),
+        noise_source=f"stepped sine of {len(sched.freqs_hz)} dwells: " + m.noise_source,
+    )
 
 
-def load(path, *, band_hz: tuple[float, float] | None = None, record_s: float | None = None,
-         mat_freq_name: str | None = None, mat_freq_unit: str = "hz") -> Measured:
+def load(
+    path, *, band_hz: tuple[float, float] | None = None, record_s: float | None = None, mat_freq_name: str | None = None, mat_freq_unit: str = "hz"
+) -> Measured:
     """Read a time-series CSV, an FRF CSV or a rig-era .mat file (chosen by content) as :class:`Measured`."""
     from samii.measure.io import DataFormatError, csv_header, is_mat_file, read_frf_csv, read_mat_bode, read_timeseries_csv
 
@@ -697,7 +765,7 @@ def load(path, *, band_hz: tuple[float, float] | None = None, record_s: float | 
             return from_timeseries(ts, source=source, band_hz=band_hz, record_s=record_s)
         except ValueError as exc:
             text = str(exc)
-            raise DataFormatError(path, text[len(source) + 2:] if text.startswith(source + ": ") else text) from None
+            raise DataFormatError(path, text[len(source) + 2 :] if text.startswith(source + ": ") else text) from None
     frf = read_frf_csv(path)
     if band_hz is not None:
         frf = frf.band(*band_hz)
@@ -716,9 +784,11 @@ def with_roughness_noise(m: Measured, model: Mapping[str, np.ndarray]) -> Measur
             e = np.log(m.frf.response(ch) / model[ch])
         e = np.nan_to_num(e, nan=0.0, posinf=0.0, neginf=0.0)
         var[ch] = np.maximum(roughness_variance(e, ROUGHNESS_LAG, POOL), 1e-30)
-    how = (f"estimated from the roughness of the residual against the baseline (differences of points {ROUGHNESS_LAG} apart, pooled over "
-           f"{POOL}): "
-           "the file gives no coherence and no records")
+    how = (
+        f"estimated from the roughness of the residual against the baseline (differences of points {ROUGHNESS_LAG} apart, pooled over "
+        f"{POOL}): "
+        "the file gives no coherence and no records"
+    )
     return replace(m, var=var, noise_source=how)
 
 
@@ -755,7 +825,8 @@ def check_actuator_sign(m: Measured) -> None:
     u = h[use] / np.abs(h[use])
     phase = float(np.degrees(np.angle(np.sum(u))))
     if abs(phase - 90.0) < SIGN_MARGIN_DEG:
-        raise ValueError(f"{m.source}: theta/v's phase below {top:.3g} Hz is {phase:+.0f} deg over {int(use.sum())} points, where "
-                         "a valve-controlled actuator integrates (-90 deg; -180...0 with a leak): theta or v is recorded with the "
-                         "opposite sign (multiply that column by -1)")
-
+        raise ValueError(
+            f"{m.source}: theta/v's phase below {top:.3g} Hz is {phase:+.0f} deg over {int(use.sum())} points, where "
+            "a valve-controlled actuator integrates (-90 deg; -180...0 with a leak): theta or v is recorded with the "
+            "opposite sign (multiply that column by -1)"
+        )

@@ -21,8 +21,8 @@ error carry less information than their number says).
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -65,7 +65,7 @@ class Dataset:
     sample_rate_hz: float | None = None
 
     @classmethod
-    def from_measured(cls, m, channels: Sequence[str] | None = None) -> "Dataset":
+    def from_measured(cls, m, channels: Sequence[str] | None = None) -> Dataset:
         """The usable points of ``m``'s channels: by default theta/v and xdd/v (``total``), whose noise is
         independent (theta's noise enters only the first), else theta/v and xdd/theta."""
         if channels is None:
@@ -106,9 +106,20 @@ class Dataset:
             inv[ch] = noise_inv[ch] if xv is None else 1.0 / np.sqrt((var[k] + xv[k]) / 2.0)
         if not data:
             raise ValueError(f"{m.source}: no act or base channel to diagnose (has {', '.join(frf.channels)})")
-        return cls(m.source, frf.freq_hz, data, keep, inv, known, float(m.corr_length), m.amplitude_v,
-                   None if not extra else noise_inv, floor if floor and known else None,
-                   None if getattr(m, "layout", None) is None else float(m.layout.record_s), getattr(m, "sample_rate_hz", None))
+        return cls(
+            m.source,
+            frf.freq_hz,
+            data,
+            keep,
+            inv,
+            known,
+            float(m.corr_length),
+            m.amplitude_v,
+            None if not extra else noise_inv,
+            floor if floor and known else None,
+            None if getattr(m, "layout", None) is None else float(m.layout.record_s),
+            getattr(m, "sample_rate_hz", None),
+        )
 
     def noise_sigma_inv(self, ch: str) -> np.ndarray:
         """1/sqrt(var/2) of the noise alone on channel ``ch``'s usable points (the reported error's scale)."""
@@ -175,8 +186,13 @@ def models_feedthrough(datasets: Sequence[Dataset], baseline: Baseline) -> bool:
     """Whether fits of ``baseline`` to ``datasets`` model the sampled feedthrough (:func:`feedthrough_term`): the
     baseline says so (``feedthrough_lag``, samii.diagnose.sampling), is a structure refitted (a saved fit's or
     the simulator's responses are held as they are), and a file states its sample rate and has xdd in a channel."""
-    return (baseline.feedthrough_lag is not None and baseline.structure is not None and not baseline.fixed and not baseline.correction
-            and any(ds.sample_rate_hz and any(ch in ds.data for ch in ("base", "total")) for ds in datasets))
+    return (
+        baseline.feedthrough_lag is not None
+        and baseline.structure is not None
+        and not baseline.fixed
+        and not baseline.correction
+        and any(ds.sample_rate_hz and any(ch in ds.data for ch in ("base", "total")) for ds in datasets)
+    )
 
 
 def start_vectors(fit: Fit) -> list[np.ndarray] | None:
@@ -196,8 +212,9 @@ FEEDTHROUGH_AT_FS = 10.0
 FEEDTHROUGH_LAG_MAX = 0.5
 
 
-def feedthrough_term(structure, xb, effects, s: np.ndarray, lag_samples: float, sample_rate_hz: float, *, derivatives: bool = False,
-                     hold_s: float = 0.0):
+def feedthrough_term(
+    structure, xb, effects, s: np.ndarray, lag_samples: float, sample_rate_hz: float, *, derivatives: bool = False, hold_s: float = 0.0
+):
     """The sampling's correction to xdd/v where xdd/v has a direct feedthrough: ``S = D Md (e^{-s lag T} - 1)``.
 
     Physics. The notebook's theta/v has relative degree 2 and its xdd/theta grows as s^2, so xdd/v tends to a constant
@@ -343,8 +360,7 @@ def sampled_images(structure, xb, effects, w: np.ndarray, hold_s: float, *, tota
     d_b_act = None if h["act"][1] is None else fold(col(act) * h["act"][1])
     d_b_total = None
     if total and h["act"][1] is not None:
-        d_b_total = fold(col(act * base) * h["act"][1] + col(act * mb * h["base"][0]) * h["base"][1]
-                         - col(d0 * md) * d_ln_d0_b[None, :])
+        d_b_total = fold(col(act * base) * h["act"][1] + col(act * mb * h["base"][0]) * h["base"][1] - col(d0 * md) * d_ln_d0_b[None, :])
     d_e_act, d_e_total = [], []
     for j, (kind, p) in enumerate(effects):
         da, db, dA = kind.derivatives(p, sk)
@@ -420,8 +436,16 @@ def _apply(effects: Sequence[tuple[EffectKind, np.ndarray]], base: dict[str, np.
 class _Layout:
     """The optimiser's vector: baseline parameters per dataset (if free), then each effect's."""
 
-    def __init__(self, baseline: Baseline, n_data: int, effects: Sequence[EffectKind], starts_b: Sequence[np.ndarray], starts_e: Sequence[np.ndarray],
-                 free_baseline: bool, lag_start: float | None = None):
+    def __init__(
+        self,
+        baseline: Baseline,
+        n_data: int,
+        effects: Sequence[EffectKind],
+        starts_b: Sequence[np.ndarray],
+        starts_e: Sequence[np.ndarray],
+        free_baseline: bool,
+        lag_start: float | None = None,
+    ):
         self.baseline = baseline
         self.free_baseline = free_baseline
         #: the feedthrough's lag [samples] is a variable (the last) when started (feedthrough_term)
@@ -526,8 +550,9 @@ class _Problem:
     ``d ln base / dx = (d ln H / dx) H c / (H c + A)`` and ``d ln base / dp = d ln M / dp + (dA/dp) / (H c + A)``.
     The residual is ``ln data - ln model``: its derivative is minus the model's."""
 
-    def __init__(self, datasets: Sequence[Dataset], baseline: Baseline, layout: _Layout, fixed_b: Sequence[np.ndarray],
-                 held_lag: float | None = None):
+    def __init__(
+        self, datasets: Sequence[Dataset], baseline: Baseline, layout: _Layout, fixed_b: Sequence[np.ndarray], held_lag: float | None = None
+    ):
         """``held_lag``: the sampled feedthrough's lag [samples] held (feedthrough_term); it is modelled when that is
         given or the layout frees it, on the datasets that state their sample rate and have xdd in a channel."""
         self.baseline, self.layout, self.fixed_b = baseline, layout, list(fixed_b)
@@ -538,8 +563,10 @@ class _Problem:
         #: modelled (None where not: no rate stated, no xdd, a fixed baseline, a held lag of 0)
         self.held_lag = held_lag
         models_ft = baseline.structure is not None and not baseline.fixed and (bool(layout.n_lag) or bool(held_lag))
-        self.ft_rate: list[float | None] = [float(ds.sample_rate_hz) if models_ft and ds.sample_rate_hz and
-                                            any(ch in ds.data for ch in ("base", "total")) else None for ds in datasets]
+        self.ft_rate: list[float | None] = [
+            float(ds.sample_rate_hz) if models_ft and ds.sample_rate_hz and any(ch in ds.data for ch in ("base", "total")) else None
+            for ds in datasets
+        ]
         #: per dataset, the command's hold [s] where the baseline models it (Baseline.hold_s; a structure refitted):
         #: its blocks are the sampled response (hold_factor, sampled_images, the feedthrough with its lag or none)
         self.hold = [baseline.hold(i) if baseline.structure is not None and not baseline.fixed else 0.0 for i in range(len(datasets))]
@@ -619,8 +646,9 @@ class _Problem:
         images_total = d_images = None
         if hold:
             act = act * hold_factor(s, hold)
-            images_act, images_total, d_images = sampled_images(self.baseline.structure, xb if ft is None else ft[0], eff, blk.w,
-                                                                hold, total=blk.ch != "act", derivatives=derivatives)
+            images_act, images_total, d_images = sampled_images(
+                self.baseline.structure, xb if ft is None else ft[0], eff, blk.w, hold, total=blk.ch != "act", derivatives=derivatives
+            )
             act_s = act + images_act
             w_a = act / act_s
         term = d_lag = None
@@ -719,16 +747,16 @@ class _Problem:
         eff = list(zip(lay.effects, xs_e))
         # dx/dz of every variable: x for a log-transformed one, the scale for a linear one
         dxdz_b = [np.where(lay.pos, x, sc) for x, sc in zip(xs_b, lay.b_scale)] if lay.nb else []
-        dxdz_e = [np.array([v if p.transform == "log" else c for p, v, c in zip(k.params, x, sc)])
-                  for k, x, sc in zip(lay.effects, xs_e, lay.e_scale)]
+        dxdz_e = [
+            np.array([v if p.transform == "log" else c for p, v, c in zip(k.params, x, sc)]) for k, x, sc in zip(lay.effects, xs_e, lay.e_scale)
+        ]
         n = z.size
         e_start = lay.nb * lay.n_data
         rows = []
         with np.errstate(all="ignore"):
             resp = self._all_responses(xs_b, True)
             for blk in self.blocks:
-                model, d_b, d_e, d_lag = self._model(blk, resp[blk.i], eff, True, self._feedthrough(blk, xs_b, z),
-                                                     xs_b[blk.i] if xs_b else None)
+                model, d_b, d_e, d_lag = self._model(blk, resp[blk.i], eff, True, self._feedthrough(blk, xs_b, z), xs_b[blk.i] if xs_b else None)
                 d = np.zeros((blk.w.size, n), complex)
                 if lay.nb:
                     j0 = blk.i * lay.nb
@@ -846,7 +874,11 @@ def fit_model(
     """
     free = baseline.free if free_baseline is None else (free_baseline and baseline.free)
     st = baseline.structure
-    xb0 = list(start_baseline) if start_baseline is not None else ([st.vector(p) for p in baseline.params] if st is not None and baseline.params else [])
+    xb0 = (
+        list(start_baseline)
+        if start_baseline is not None
+        else ([st.vector(p) for p in baseline.params] if st is not None and baseline.params else [])
+    )
     # the sampled feedthrough's lag (feedthrough_term): free with the baseline, else held; a start vector one longer than
     # the structure's carries it (start_vectors)
     lag0 = None
@@ -867,8 +899,19 @@ def fit_model(
         z0 = np.clip(z0, np.where(np.isfinite(lo), lo + 1e-9 * (np.abs(lo) + 1), lo), np.where(np.isfinite(hi), hi - 1e-9 * (np.abs(hi) + 1), hi))
     problem = _Problem(datasets, baseline, layout, xb0, held_lag=lag0 if modelled and not free_lag else None)
     if z0.size:
-        sol = least_squares(problem.residuals, z0, jac=problem.jacobian, bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=max_nfev,
-                            xtol=FIT_TOL, ftol=FIT_TOL, gtol=1e-8, callback=None if beat is None else _hopeless(beat))
+        sol = least_squares(
+            problem.residuals,
+            z0,
+            jac=problem.jacobian,
+            bounds=(lo, hi),
+            method="trf",
+            x_scale="jac",
+            max_nfev=max_nfev,
+            xtol=FIT_TOL,
+            ftol=FIT_TOL,
+            gtol=1e-8,
+            callback=None if beat is None else _hopeless(beat),
+        )
         z, jac = sol.x, sol.jac
         stopped = sol.status == -2
     else:
@@ -1069,6 +1112,13 @@ def _fitted_start(m, structure: ModelStructure, *, rng_seed: int = 0) -> dict[st
         kw[f"{ch}_coh"] = np.ones(frf.freq_hz.size) if var is None else 1.0 / (1.0 + 3.0 * np.minimum(var, 1e6))
     data = FrequencyResponse(frf.freq_hz, metadata={}, **kw)
     weighted = all(m.var.get(ch) is not None for ch in frf.channels)
-    res = fit(data, structure, phase_weight=0.1, weighting="coherence" if weighted else "none", rng=np.random.default_rng(rng_seed), n_averages=3,
-              profile=False)  # a start: only its parameters are read
+    res = fit(
+        data,
+        structure,
+        phase_weight=0.1,
+        weighting="coherence" if weighted else "none",
+        rng=np.random.default_rng(rng_seed),
+        n_averages=3,
+        profile=False,
+    )  # a start: only its parameters are read
     return dict(res.params)

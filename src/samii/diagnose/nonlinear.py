@@ -74,9 +74,9 @@ segments; the others named in its evidence).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from functools import lru_cache
-from typing import Sequence
+from functools import cache
 
 import numpy as np
 from scipy import signal, stats
@@ -84,14 +84,48 @@ from scipy.optimize import minimize_scalar
 
 from samii.diagnose.measured import moving_sum
 
-__all__ = ["HarmonicAnalysis", "AmplitudeTest", "NonlinearFinding", "harmonic_analysis", "excess_over", "amplitude_test", "find_nonlinear",
-           "describing_ratio", "describing_gain", "linearised", "distortion_var",
-           "asymmetry_ratio", "asymmetry_fraction", "predicted_ratio", "HarmonicError", "harmonic_errors", "PARAM_UNITS", "ALPHA", "MATERIAL", "SEGMENT_CYCLES", "MIN_SEGMENTS", "MIN_AMPLITUDE_RATIO"]
+__all__ = [
+    "HarmonicAnalysis",
+    "AmplitudeTest",
+    "NonlinearFinding",
+    "harmonic_analysis",
+    "excess_over",
+    "amplitude_test",
+    "find_nonlinear",
+    "describing_ratio",
+    "describing_gain",
+    "linearised",
+    "distortion_var",
+    "asymmetry_ratio",
+    "asymmetry_fraction",
+    "predicted_ratio",
+    "HarmonicError",
+    "harmonic_errors",
+    "PARAM_UNITS",
+    "ALPHA",
+    "MATERIAL",
+    "SEGMENT_CYCLES",
+    "MIN_SEGMENTS",
+    "MIN_AMPLITUDE_RATIO",
+]
 
 ALPHA = 1e-3
 #: Units of a nonlinear finding's parameters (for printing).
-PARAM_UNITS = {"asymmetry_fraction": "1", "ratio_chi2": "1", "harmonic": "1", "max_ratio": "1", "at_hz": "Hz", "phase_deg": "deg", "phase_spread_deg": "deg", "dead_band_v": "V",
-               "saturation_v": "V", "hysteresis_v": "V", "gain_change_db": "dB", "amplitude_low_v": "V", "amplitude_high_v": "V"}
+PARAM_UNITS = {
+    "asymmetry_fraction": "1",
+    "ratio_chi2": "1",
+    "harmonic": "1",
+    "max_ratio": "1",
+    "at_hz": "Hz",
+    "phase_deg": "deg",
+    "phase_spread_deg": "deg",
+    "dead_band_v": "V",
+    "saturation_v": "V",
+    "hysteresis_v": "V",
+    "gain_change_db": "dB",
+    "amplitude_low_v": "V",
+    "amplitude_high_v": "V",
+}
 #: Smallest distortion, relative to the fundamental of the valve command, claimed as a nonlinearity.
 MATERIAL = 0.01
 #: Whole cycles of the sweep per segment (>= 2: with one cycle, Hann leaks the fundamental into k = 2).
@@ -224,7 +258,7 @@ def _periodic_output(kind: str, q: float) -> np.ndarray:
     return y
 
 
-@lru_cache(maxsize=None)
+@cache
 def _ratio_table(kind: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Levels q (over a unit amplitude), c3/c1 and the describing function's gain c1 at each."""
     q = np.concatenate([[0.0], np.geomspace(1e-4, 0.999, 400)])
@@ -364,8 +398,7 @@ def _fit_level(kind: str, a: np.ndarray, rho: np.ndarray, sd: np.ndarray) -> tup
     grid = np.geomspace(lo, hi, 80)
     costs = [cost(g) for g in grid]
     j = int(np.argmin(costs))
-    res = minimize_scalar(cost, bounds=(grid[max(j - 1, 0)], grid[min(j + 1, grid.size - 1)]), method="bounded",
-                          options={"xatol": 1e-6 * grid[j]})
+    res = minimize_scalar(cost, bounds=(grid[max(j - 1, 0)], grid[min(j + 1, grid.size - 1)]), method="bounded", options={"xatol": 1e-6 * grid[j]})
     best = float(res.x)
     step = 1e-3 * best
     curv = (cost(best + step) - 2 * cost(best) + cost(best - step)) / step**2
@@ -536,8 +569,7 @@ def harmonic_analysis(m, *, alpha: float = ALPHA) -> HarmonicAnalysis | None:
         with np.errstate(invalid="ignore", divide="ignore"):
             a_sig = np.abs(_interp_response(frf.freq_hz, frf.response(ch), seg_f)) * np.abs(v1_mean)
             bound2 = (QUANT_HARMONIC * q) ** 2 * q / np.maximum(a_sig, 0.25 * q)
-            quant[sig] = {k: bound2 / np.abs(_interp_response(frf.freq_hz, frf.response(ch), np.minimum(k * seg_f, top))) ** 2
-                          for k in HARMONICS}
+            quant[sig] = {k: bound2 / np.abs(_interp_response(frf.freq_hz, frf.response(ch), np.minimum(k * seg_f, top))) ** 2 for k in HARMONICS}
     for jk, k in enumerate(HARMONICS, start=1):
         # the routes combined record by record, each weighted by the inverse of its own variance of the mean (its
         # records' pooled spread, its FRF's error referred, its rounding), then tested on the combination's own
@@ -546,7 +578,7 @@ def harmonic_analysis(m, *, alpha: float = ALPHA) -> HarmonicAnalysis | None:
         # took half the weight and its FRF's error drowned the other's harmonic: a 150 mV saturation's 3rd harmonic,
         # 13 % of the command at 7.7 Hz and 10 standard deviations on xdd/v alone, was 4.5 in the combination
         def masked(name):  # (records, segments): harmonic k of ``name`` where k f is within the measured band
-            return np.where(k * seg_f[None, :] <= top, amp[name][:, :, jk], np.nan)
+            return np.where(k * seg_f[None, :] <= top, amp[name][:, :, jk], np.nan)  # noqa: B023 - called within this iteration
 
         draws = {sig: np.array([masked(f"d_{sig}#{j}") for j in range(H_DRAWS)]) for sig in drawn}  # (draws, records, segments)
         ds, ws = [], []
@@ -567,8 +599,8 @@ def harmonic_analysis(m, *, alpha: float = ALPHA) -> HarmonicAnalysis | None:
 
         def combined(parts):  # the routes' (records, segments) amplitudes combined with the data's weights
             with np.errstate(invalid="ignore", divide="ignore"):
-                c = np.sum(w[:, None, :] * np.where(ok[:, None, :], parts, 0.0), axis=0) / wsum
-            return np.where(wsum > 0, c, np.nan)
+                c = np.sum(w[:, None, :] * np.where(ok[:, None, :], parts, 0.0), axis=0) / wsum  # noqa: B023 - called within this iteration
+            return np.where(wsum > 0, c, np.nan)  # noqa: B023 - called within this iteration
 
         comb = combined(ds)
         # the FRF's error referred: the spread of the record mean over the draws (each route drawn on its own)
@@ -602,8 +634,9 @@ def harmonic_analysis(m, *, alpha: float = ALPHA) -> HarmonicAnalysis | None:
         dofs[k] = np.where(test, dof, np.nan)
         tested[k] = int(test.sum())
     n_tests = max(sum(tested.values()), 1)
-    return HarmonicAnalysis(m.source, seg_f, np.abs(v1_mean), ratio, ratio_sd, logp, n,
-                            float(np.log10(alpha / n_tests)), cycle_f, np.mean(per_cycle, axis=0), dofs)
+    return HarmonicAnalysis(
+        m.source, seg_f, np.abs(v1_mean), ratio, ratio_sd, logp, n, float(np.log10(alpha / n_tests)), cycle_f, np.mean(per_cycle, axis=0), dofs
+    )
 
 
 #: Bounds of the command ratio a model's harmonics are scaled by (:func:`excess_over`): beyond them the
@@ -647,7 +680,7 @@ def excess_over(h: HarmonicAnalysis, ref: HarmonicAnalysis, *, label: str) -> Ha
         else:
             rr, ss = np.zeros(h.freq_hz.size, complex), np.zeros(h.freq_hz.size)
         ratio[k] = h.ratio[k] - rr
-        sd[k] = np.sqrt(h.ratio_sd[k] ** 2 + ss ** 2)
+        sd[k] = np.sqrt(h.ratio_sd[k] ** 2 + ss**2)
         dof = h.dof.get(k, np.full(h.freq_hz.size, np.nan))
         p = np.full(h.freq_hz.size, np.nan)
         # one-sided: where the model makes at least the data's harmonic, the data hold no nonlinearity it lacks
@@ -694,9 +727,11 @@ def linearised(m, finding: NonlinearFinding, h: HarmonicAnalysis | None = None):
     # (beside the distortion measured, distortion_var, whichever is larger)
     rho2 = np.where(lost, 0.0, np.abs(describing_ratio(finding.kind, level / a)) ** 2)
     gain = np.abs(n)
-    how = (f"{m.noise_source}; theta/v and xdd/v divided by the {finding.kind.replace('_', ' ')}'s describing function at "
-           f"{1e3 * level:.3g} mV (gain {gain.min():.2f}-{gain.max():.2f}; {int(lost.sum())} point(s) where it passes less than "
-           f"{MIN_GAIN:g} of the command left out, of the error before too)")
+    how = (
+        f"{m.noise_source}; theta/v and xdd/v divided by the {finding.kind.replace('_', ' ')}'s describing function at "
+        f"{1e3 * level:.3g} mV (gain {gain.min():.2f}-{gain.max():.2f}; {int(lost.sum())} point(s) where it passes less than "
+        f"{MIN_GAIN:g} of the command left out, of the error before too)"
+    )
     return replace(m, frf=frf, var=var, noise_source=how, model_var=_model_var_with(m, rho2))
 
 
@@ -748,8 +783,9 @@ def amplitude_test(a, b) -> AmplitudeTest | None:
     a factor (a 3-record spread's inverse runs ~20 % high) moves the test by that factor on few degrees of
     freedom, not on hundreds, where it alone made clean files "differ"."""
     (lo, hi) = (a, b) if (a.amplitude_v or 0.0) <= (b.amplitude_v or 0.0) else (b, a)
-    shared = [c for c in ("act", "total") if c in lo.frf.channels and c in hi.frf.channels
-              and lo.var.get(c) is not None and hi.var.get(c) is not None]
+    shared = [
+        c for c in ("act", "total") if c in lo.frf.channels and c in hi.frf.channels and lo.var.get(c) is not None and hi.var.get(c) is not None
+    ]
     if not shared:
         return None
     ch = shared[0]  # one channel: theta/v and xdd/v share v's and the records' noise, and would count it twice
@@ -774,8 +810,17 @@ def amplitude_test(a, b) -> AmplitudeTest | None:
     gain = float(20.0 / np.log(10.0) * np.sum(e.real * w) / np.sum(w))  # inverse-variance weighted
     ew, ww = e[: n_win * WINDOW].reshape(n_win, WINDOW), w[: n_win * WINDOW].reshape(n_win, WINDOW)
     change = float(np.max(np.abs(np.sum(ew * ww, axis=1) / np.sum(ww, axis=1))))
-    return AmplitudeTest((lo.source, hi.source), (lo.amplitude_v or float("nan"), hi.amplitude_v or float("nan")), stat, dof,
-                         _log10_sf(stat, dof), gain, int(ok.sum()), ch, change)
+    return AmplitudeTest(
+        (lo.source, hi.source),
+        (lo.amplitude_v or float("nan"), hi.amplitude_v or float("nan")),
+        stat,
+        dof,
+        _log10_sf(stat, dof),
+        gain,
+        int(ok.sum()),
+        ch,
+        change,
+    )
 
 
 def _log10_sf(stat: float, dof: float) -> float:
@@ -802,13 +847,17 @@ def _harmonic_kind(h: HarmonicAnalysis) -> tuple[str, dict, dict, str, bool]:
     f = h.freq_hz[sel]
     a = h.command_v[sel]
     peak = int(np.argmax(np.abs(r)))
-    where = (f"{sel.sum()} of {np.isfinite(h.log10_p[worst_k]).sum()} segments, {f.min():.3g}-{f.max():.3g} Hz, "
-             f"up to {100 * abs(r[peak]):.2g} % of the fundamental ({20 * np.log10(abs(r[peak])):.0f} dB) at {f[peak]:.3g} Hz "
-             f"where the valve command is {1e3 * a[peak]:.3g} mV")
+    where = (
+        f"{sel.sum()} of {np.isfinite(h.log10_p[worst_k]).sum()} segments, {f.min():.3g}-{f.max():.3g} Hz, "
+        f"up to {100 * abs(r[peak]):.2g} % of the fundamental ({20 * np.log10(abs(r[peak])):.0f} dB) at {f[peak]:.3g} Hz "
+        f"where the valve command is {1e3 * a[peak]:.3g} mV"
+    )
     best_p = float(np.nanmin(h.log10_p[worst_k][sel]))
-    base = (f"the {'2nd' if worst_k == 2 else '3rd'} harmonic of the sweep, referred to the valve command, repeats in all "
-            f"{h.n_records} records beyond their spread (p = 10^{best_p:.0f} in the strongest segment) in {where}; "
-            + (f"that is in excess of {h.reference}, measured like the file" if h.reference else "a linear system makes none"))
+    base = (
+        f"the {'2nd' if worst_k == 2 else '3rd'} harmonic of the sweep, referred to the valve command, repeats in all "
+        f"{h.n_records} records beyond their spread (p = 10^{best_p:.0f} in the strongest segment) in {where}; "
+        + (f"that is in excess of {h.reference}, measured like the file" if h.reference else "a linear system makes none")
+    )
     params = {"harmonic": float(worst_k), "max_ratio": float(abs(r[peak])), "at_hz": float(f[peak])}
     stderr = {"max_ratio": float(h.ratio_sd[worst_k][sel][peak])}
     if worst_k == 2:
@@ -828,9 +877,11 @@ def _harmonic_kind(h: HarmonicAnalysis) -> tuple[str, dict, dict, str, bool]:
         params["asymmetry_fraction"], stderr["asymmetry_fraction"] = delta, se
         params["ratio_chi2"] = chi2  # how well one constant ratio fits: a gain asymmetry's is one number
         weaker = "negative" if delta > 0 else "positive"
-        text += (f"; their mean ratio {100 * rho:+.2g} % over {int(tested.sum())} segments is a gain {100 * abs(delta):.2g} +- {100 * se:.1g} % "
-                 f"lower in the {weaker} direction (c2/c1 = 2 d / (3 pi (1 - d/2)), real and the same at every amplitude; that constant "
-                 f"fits with chi2 {chi2:.3g} per degree of freedom")
+        text += (
+            f"; their mean ratio {100 * rho:+.2g} % over {int(tested.sum())} segments is a gain {100 * abs(delta):.2g} +- {100 * se:.1g} % "
+            f"lower in the {weaker} direction (c2/c1 = 2 d / (3 pi (1 - d/2)), real and the same at every amplitude; that constant "
+            f"fits with chi2 {chi2:.3g} per degree of freedom"
+        )
         if chi2 > MAX_DF_CHI2:
             text += ": far from constant, so the two directions differ by more than a gain (the orifice law's share grows with the command)"
         return "asymmetry", params, stderr, text + ")", False
@@ -856,20 +907,25 @@ def _harmonic_kind(h: HarmonicAnalysis) -> tuple[str, dict, dict, str, bool]:
     name = f"{kind}_v"
     params[name] = level
     stderr[name] = se
-    what = {"dead_band": "the centre of the wave is missing: a dead band (spool overlap; Coulomb friction that holds the joint "
-                         "at small commands looks alike)",
-            "saturation": "the peaks are flattened: a saturation (spool travel, flow limit)",
-            "hysteresis": "the output holds at each reversal: a play (hysteresis of the spool or the torque motor, backlash)"}[kind]
+    what = {
+        "dead_band": "the centre of the wave is missing: a dead band (spool overlap; Coulomb friction that holds the joint "
+        "at small commands looks alike)",
+        "saturation": "the peaks are flattened: a saturation (spool travel, flow limit)",
+        "hysteresis": "the output holds at each reversal: a play (hysteresis of the spool or the torque motor, backlash)",
+    }[kind]
     rivals = ", ".join(f"{k} {fits[k][2]:.3g}" for k in ODD_KINDS if k != kind)
     if every.sum() > sel.sum():
-        rivals += (f"; over all {int(every.sum())} tested segments, where it is absent too: {kind} {named[kind]:.3g}, "
-                   + ", ".join(f"{k} {named[k]:.3g}" for k in ODD_KINDS if k != kind))
+        rivals += f"; over all {int(every.sum())} tested segments, where it is absent too: {kind} {named[kind]:.3g}, " + ", ".join(
+            f"{k} {named[k]:.3g}" for k in ODD_KINDS if k != kind
+        )
     # the phase's spread over the segments: a law on the command alone keeps it where its describing function says
     spread = float(np.degrees(np.sqrt(-2.0 * np.log(max(abs(np.sum(r / np.abs(r))) / r.size, 1e-12)))))
     params["phase_spread_deg"] = spread
     trend = np.corrcoef(np.log(a), np.log(np.abs(r)))[0, 1] if a.size > 2 else float("nan")
-    text = (f"{base}; the 3rd harmonic ({deg:+.0f} deg from cos 3phi) says {what}: its describing function fits a level of "
-            f"{1e3 * level:.3g} +- {1e3 * se:.2g} mV with chi2 {chi2:.3g} per degree of freedom (the other laws: {rivals})")
+    text = (
+        f"{base}; the 3rd harmonic ({deg:+.0f} deg from cos 3phi) says {what}: its describing function fits a level of "
+        f"{1e3 * level:.3g} +- {1e3 * se:.2g} mV with chi2 {chi2:.3g} per degree of freedom (the other laws: {rivals})"
+    )
     if np.isfinite(trend):
         text += f"; the distortion {'falls' if trend < 0 else 'grows'} with the command's amplitude (correlation {trend:+.2f})"
     second = min(fits[k][2] for k in ODD_KINDS if k != kind)
@@ -883,19 +939,23 @@ def _harmonic_kind(h: HarmonicAnalysis) -> tuple[str, dict, dict, str, bool]:
     identified = every.sum() > sel.sum() and named[kind] <= MAX_DF_CHI2 and named[kind] < 0.5 * named_second
     law_fits = spread <= 45.0 and (chi2 <= MAX_DF_CHI2 or chi2 <= 0.5 * second or identified)
     if not law_fits:
-        text += (f"; but no law on the command alone tells it apart (phase spread {spread:.0f} deg over the segments): the "
-                 "nonlinearity depends on the loop's state too (the load pressure through the valve's orifice law, say), and "
-                 "the kind and level are indicative only")
+        text += (
+            f"; but no law on the command alone tells it apart (phase spread {spread:.0f} deg over the segments): the "
+            "nonlinearity depends on the loop's state too (the load pressure through the valve's orifice law, say), and "
+            "the kind and level are indicative only"
+        )
     elif chi2 > MAX_DF_CHI2:
-        where_better = ("over every tested segment, where the harmonic is and where it is absent" if chi2 > 0.5 * second
-                        else "where the harmonic is")
-        text += (f"; it fits far better than the others {where_better}, and its chi2 above 1 is the describing function's "
-                 "own approximation (a pure sine at the valve, where the loop feeds the harmonics back)")
+        where_better = "over every tested segment, where the harmonic is and where it is absent" if chi2 > 0.5 * second else "where the harmonic is"
+        text += (
+            f"; it fits far better than the others {where_better}, and its chi2 above 1 is the describing function's "
+            "own approximation (a pure sine at the valve, where the loop feeds the harmonics back)"
+        )
     return kind, params, stderr, text, law_fits
 
 
-def find_nonlinear(measured: Sequence, *, alpha: float = ALPHA, references: Sequence | None = None,
-                   reference_label: str = "the model's own") -> tuple[list[NonlinearFinding], list[str], list[HarmonicAnalysis], list[AmplitudeTest]]:
+def find_nonlinear(
+    measured: Sequence, *, alpha: float = ALPHA, references: Sequence | None = None, reference_label: str = "the model's own"
+) -> tuple[list[NonlinearFinding], list[str], list[HarmonicAnalysis], list[AmplitudeTest]]:
     """Nonlinear findings over the files (one per kind from the harmonics, files merged; the amplitude test merged into
     the first odd-law finding, else one of its own), notes, the harmonic analyses and the amplitude tests.
 
@@ -919,11 +979,13 @@ def find_nonlinear(measured: Sequence, *, alpha: float = ALPHA, references: Sequ
                     i = int(np.flatnonzero(sig)[np.argmax(np.abs(h.ratio[k][sig]))])
                     j = int(np.argmin(np.abs(own.freq_hz - h.freq_hz[i])))
                     scale = float(np.clip(h.command_v[i] / own.command_v[j], *REFERENCE_SCALE))
-                    notes.append(f"{m.source}: the sweep's harmonics ({'2nd' if k == 2 else '3rd'}, {int(sig.sum())} segments, up to "
-                                 f"{100 * abs(h.ratio[k][i]):.2g} % at {h.freq_hz[i]:.3g} Hz, command {1e3 * h.command_v[i]:.3g} mV) "
-                                 f"are {reference_label}: measured like the file it makes {100 * abs(own.ratio[k][j]):.2g} % there "
-                                 f"at a command of {1e3 * own.command_v[j]:.3g} mV ({100 * scale * abs(own.ratio[k][j]):.2g} % at the "
-                                 "file's, in proportion), and none beyond its own is significant")
+                    notes.append(
+                        f"{m.source}: the sweep's harmonics ({'2nd' if k == 2 else '3rd'}, {int(sig.sum())} segments, up to "
+                        f"{100 * abs(h.ratio[k][i]):.2g} % at {h.freq_hz[i]:.3g} Hz, command {1e3 * h.command_v[i]:.3g} mV) "
+                        f"are {reference_label}: measured like the file it makes {100 * abs(own.ratio[k][j]):.2g} % there "
+                        f"at a command of {1e3 * own.command_v[j]:.3g} mV ({100 * scale * abs(own.ratio[k][j]):.2g} % at the "
+                        "file's, in proportion), and none beyond its own is significant"
+                    )
                 h = excess
         analyses.append(h)
     by_kind: dict[str, list] = {}
@@ -932,10 +994,11 @@ def find_nonlinear(measured: Sequence, *, alpha: float = ALPHA, references: Sequ
         by_kind.setdefault(kind, []).append((h, params, stderr, text, law_fits))
     for kind, group in by_kind.items():  # one finding per kind, from the file that shows it most
         h, params, stderr, text, law_fits = group[0]
-        also = "".join(f"; also in {g[0].source} ({g[0].n_significant} segments"
-                       + (f", level {1e3 * g[1][kind + '_v']:.3g} mV)" if kind + "_v" in g[1] else ")") for g in group[1:])
-        findings.append(NonlinearFinding(kind, params, stderr, f"{h.source}: {text}{also}", harmonics=tuple(g[0] for g in group),
-                                         law_fits=law_fits))
+        also = "".join(
+            f"; also in {g[0].source} ({g[0].n_significant} segments" + (f", level {1e3 * g[1][kind + '_v']:.3g} mV)" if kind + "_v" in g[1] else ")")
+            for g in group[1:]
+        )
+        findings.append(NonlinearFinding(kind, params, stderr, f"{h.source}: {text}{also}", harmonics=tuple(g[0] for g in group), law_fits=law_fits))
     tests = []
     ms = list(measured)
     for i in range(len(ms)):
@@ -953,37 +1016,58 @@ def find_nonlinear(measured: Sequence, *, alpha: float = ALPHA, references: Sequ
     least = PRACTICAL_FACTOR * np.sqrt(2.0) * REL_FLOOR
     for t in [t for t in differ if not t.max_change > least]:
         differ.remove(t)
-        notes.append(f"{t.sources[0]} and {t.sources[1]} (amplitudes {t.amplitudes_v[0]:.3g} and {t.amplitudes_v[1]:.3g} V) differ beyond "
-                     f"their noise (chi2 {t.chi2:.4g} on {t.dof:.0f} dof) but by at most {100 * t.max_change:.2g} % over {WINDOW} points "
-                     f"({t.gain_change_db:+.3g} dB on average), within {PRACTICAL_FACTOR:g} x the floor of the two files "
-                     f"({100 * least:.2g} %): not an amplitude dependence these data can vouch for")
+        notes.append(
+            f"{t.sources[0]} and {t.sources[1]} (amplitudes {t.amplitudes_v[0]:.3g} and {t.amplitudes_v[1]:.3g} V) differ beyond "
+            f"their noise (chi2 {t.chi2:.4g} on {t.dof:.0f} dof) but by at most {100 * t.max_change:.2g} % over {WINDOW} points "
+            f"({t.gain_change_db:+.3g} dB on average), within {PRACTICAL_FACTOR:g} x the floor of the two files "
+            f"({100 * least:.2g} %): not an amplitude dependence these data can vouch for"
+        )
     for t in differ:
         a1, a2 = t.amplitudes_v
         same = not (np.isfinite(a1) and np.isfinite(a2) and a2 >= MIN_AMPLITUDE_RATIO * a1)
         if same:
-            notes.append(f"{t.sources[0]} and {t.sources[1]} (amplitudes {a1:.3g} and {a2:.3g} V) differ beyond their noise "
-                         f"(chi2 {t.chi2:.4g} on {t.dof:.0f} dof): at (nearly) one amplitude this says the rig changed between "
-                         "the runs, not that it is nonlinear")
+            notes.append(
+                f"{t.sources[0]} and {t.sources[1]} (amplitudes {a1:.3g} and {a2:.3g} V) differ beyond their noise "
+                f"(chi2 {t.chi2:.4g} on {t.dof:.0f} dof): at (nearly) one amplitude this says the rig changed between "
+                "the runs, not that it is nonlinear"
+            )
     amp = [t for t in differ if np.isfinite(t.amplitudes_v[0]) and t.amplitudes_v[1] >= MIN_AMPLITUDE_RATIO * t.amplitudes_v[0]]
     if amp:
         t = max(amp, key=lambda t: -t.log10_p)
         name = {"act": "theta/v", "total": "xdd/v"}[t.channel]
         grows = t.gain_change_db > 0
         kind = "amplitude_dependence" if not np.isfinite(t.gain_change_db) else "dead_band" if grows else "saturation"
-        text = (f"{name} at {t.amplitudes_v[1]:.3g} V differs from that at {t.amplitudes_v[0]:.3g} V by chi2 "
-                f"{t.chi2:.4g} on {t.dof:.0f} dof ({_p_text(t.log10_p)}; {t.n_points} points), "
-                f"{t.gain_change_db:+.2f} dB on average (inverse-variance weighted) at the larger amplitude: the response "
-                + ("grows with amplitude, as a dead band's or friction's (small commands lose more)" if grows else
-                   "shrinks with amplitude, as a saturation's"))
+        text = (
+            f"{name} at {t.amplitudes_v[1]:.3g} V differs from that at {t.amplitudes_v[0]:.3g} V by chi2 "
+            f"{t.chi2:.4g} on {t.dof:.0f} dof ({_p_text(t.log10_p)}; {t.n_points} points), "
+            f"{t.gain_change_db:+.2f} dB on average (inverse-variance weighted) at the larger amplitude: the response "
+            + (
+                "grows with amplitude, as a dead band's or friction's (small commands lose more)"
+                if grows
+                else "shrinks with amplitude, as a saturation's"
+            )
+        )
         found = next((f for f in findings if f.kind in ("dead_band", "saturation", "hysteresis")), None)
         if found is not None:
             agrees = found.kind == kind
             findings[findings.index(found)] = NonlinearFinding(
-                found.kind, found.params, found.stderr,
+                found.kind,
+                found.params,
+                found.stderr,
                 found.evidence + f"; across files: {text}" + ("" if agrees else f" (the harmonics say {found.kind})"),
-                found.harmonics, tuple(amp), found.law_fits)
+                found.harmonics,
+                tuple(amp),
+                found.law_fits,
+            )
         else:
-            findings.append(NonlinearFinding(kind if not findings else "amplitude_dependence",
-                                             {"gain_change_db": t.gain_change_db, "amplitude_low_v": t.amplitudes_v[0],
-                                              "amplitude_high_v": t.amplitudes_v[1]}, {}, text, (), tuple(amp)))
+            findings.append(
+                NonlinearFinding(
+                    kind if not findings else "amplitude_dependence",
+                    {"gain_change_db": t.gain_change_db, "amplitude_low_v": t.amplitudes_v[0], "amplitude_high_v": t.amplitudes_v[1]},
+                    {},
+                    text,
+                    (),
+                    tuple(amp),
+                )
+            )
     return findings, notes, analyses, tests

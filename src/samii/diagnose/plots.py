@@ -44,8 +44,16 @@ def _say_unusable(axes, y: float = 0.5) -> None:
     from samii.diagnose.model import MAX_VAR
 
     for ax in axes:
-        ax.text(0.5, y, f"no usable data point: the error (noise and floor)\nis over {np.sqrt(MAX_VAR):.2g} at every point",
-                transform=ax.transAxes, ha="center", va="center", fontsize=9, color="0.35")
+        ax.text(
+            0.5,
+            y,
+            f"no usable data point: the error (noise and floor)\nis over {np.sqrt(MAX_VAR):.2g} at every point",
+            transform=ax.transAxes,
+            ha="center",
+            va="center",
+            fontsize=9,
+            color="0.35",
+        )
 
 
 def _near(phase: np.ndarray, ref) -> np.ndarray:
@@ -95,8 +103,14 @@ def residual_figure(d: Diagnosis, path=None):
                 continue
             ax_m.plot(f, _DB * eb.real, color="0.55", lw=0.8, label=f"baseline{' (data as measured)' if nl else ''}{tag}", **mk)
             ax_p.plot(f, _DEG * eb.imag, color="0.55", lw=0.8, **mk)
-            ax_m.plot(f, _DB * ea.real, color=c, lw=1.0,
-                      label=f"with the effects{' (and the nonlinearity divided out)' if nl and ch != 'base' else ''}{tag}", **mk)
+            ax_m.plot(
+                f,
+                _DB * ea.real,
+                color=c,
+                lw=1.0,
+                label=f"with the effects{' (and the nonlinearity divided out)' if nl and ch != 'base' else ''}{tag}",
+                **mk,
+            )
             ax_p.plot(f, _DEG * ea.imag, color=c, lw=1.0, **mk)
         for b in d.unexplained:
             if b.channel == ch:
@@ -125,12 +139,15 @@ def residual_figure(d: Diagnosis, path=None):
             ax_m.legend(fontsize=8, loc="best")
     found = ", ".join(f"{e.category}/{e.kind}" + (" (expected)" if e.expected else "") for e in d.effects) or "none"
     unattributed = d.simulator is not None and bool(d.simulator.unattributed)
-    title = (f"Diagnosis: effects found: {found}" if d.effects else
-             "Diagnosis: no effect attributed (what was found cannot be told from images of what the simulator lacks)"
-             if unattributed else "Diagnosis: no effect found")
+    title = (
+        f"Diagnosis: effects found: {found}"
+        if d.effects
+        else "Diagnosis: no effect attributed (what was found cannot be told from images of what the simulator lacks)"
+        if unattributed
+        else "Diagnosis: no effect found"
+    )
     kinds = {b.why for b in d.unexplained}
-    keys = (["red: unexplained"] if "residual" in kinds else []) + (["orange: the records differ (the rig changed)"]
-                                                                      if kinds - {"residual"} else [])
+    keys = (["red: unexplained"] if "residual" in kinds else []) + (["orange: the records differ (the rig changed)"] if kinds - {"residual"} else [])
     return _finish(fig, title + "".join(f"; {k}" for k in keys), path, fontsize=11)
 
 
@@ -153,8 +170,9 @@ def _phase_over(f: np.ndarray, h: np.ndarray, lo: float, hi: float) -> np.ndarra
     return out
 
 
-def _before_after(ax_m, ax_p, f_before, before, f_after, after, ph_after, color, before_label: str, after_label: str,
-                  band: tuple[float, float] = (0.0, np.inf)) -> None:
+def _before_after(
+    ax_m, ax_p, f_before, before, f_after, after, ph_after, color, before_label: str, after_label: str, band: tuple[float, float] = (0.0, np.inf)
+) -> None:
     """A model before (dashed grey) and after (solid ``color``) on a magnitude and a phase axis; the before's phase
     (over ``band``, as ``ph_after``'s) shifted by whole turns to start where the after's unwrapped phase ``ph_after`` does."""
     ph_before = _phase_over(f_before, before, *band)
@@ -254,15 +272,22 @@ def harmonic_figure(d: Diagnosis, path=None):
     fig, axes = plt.subplots(1, max(len(hs), 1), figsize=(6.0 * max(len(hs), 1), 4.2), squeeze=False)
     if not hs:
         ax = axes[0, 0]
-        ax.text(0.5, 0.5, "no time series with records:\nno harmonic test (it needs the records and r)", ha="center", va="center",
-                transform=ax.transAxes)
+        ax.text(
+            0.5, 0.5, "no time series with records:\nno harmonic test (it needs the records and r)", ha="center", va="center", transform=ax.transAxes
+        )
         ax.set_axis_off()
     colors = {2: "tab:blue", 3: "tab:red"}
     for ax, h in zip(axes[0], hs):
         if not any(np.isfinite(h.log10_p[k]).any() for k in h.ratio):
             src = h.source if len(h.source) <= 40 else "…" + h.source[-39:]
-            ax.text(0.5, 0.5, "no segment could be tested\n(the fundamental or the noise too small in every one)", ha="center",
-                    va="center", transform=ax.transAxes)
+            ax.text(
+                0.5,
+                0.5,
+                "no segment could be tested\n(the fundamental or the noise too small in every one)",
+                ha="center",
+                va="center",
+                transform=ax.transAxes,
+            )
             ax.set_title(src, fontsize=9)
             ax.set_axis_off()
             continue
@@ -285,8 +310,14 @@ def harmonic_figure(d: Diagnosis, path=None):
                     continue
                 pred = predicted_ratio(finding, h, k)
                 if pred is not None and np.any(np.abs(pred[tested]) > 0):
-                    ax.loglog(f[order], 100 * np.abs(pred[tested][order]), "-", color=colors[k], lw=1.2,
-                              label=f"{k}× the {finding.kind.replace('_', ' ')} found")
+                    ax.loglog(
+                        f[order],
+                        100 * np.abs(pred[tested][order]),
+                        "-",
+                        color=colors[k],
+                        lw=1.2,
+                        label=f"{k}× the {finding.kind.replace('_', ' ')} found",
+                    )
         ax.axhline(100 * MATERIAL, color="k", lw=0.8, ls="--", label=f"{100 * MATERIAL:g} % (claimed above)")
         ax.set_xlabel("sweep frequency (fundamental) [Hz]")
         ax.set_ylabel("harmonic excess / fundamental [%]" if h.reference else "harmonic / fundamental at the valve command [%]")
@@ -301,8 +332,11 @@ def harmonic_figure(d: Diagnosis, path=None):
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7, loc="best")
     refs = sorted({h.reference for h in hs if h.reference})
-    title = (f"Harmonics of the sweep beyond {refs[0]}\n(measured like the file, scaled to its command; at the valve command)" if refs
-             else "Harmonics of the sweep (a linear system makes none)")
+    title = (
+        f"Harmonics of the sweep beyond {refs[0]}\n(measured like the file, scaled to its command; at the valve command)"
+        if refs
+        else "Harmonics of the sweep (a linear system makes none)"
+    )
     return _finish(fig, title, path)
 
 
@@ -339,14 +373,24 @@ def simulator_figure(d: Diagnosis, path=None):
             band = (float(f_ok.min()), float(f_ok.max())) if f_ok.size else (0.0, np.inf)
             ph_after = _phase_over(after.freq_hz, after.response(ch), *band)
             inside = np.isfinite(ph_after)
-            ph_data = (_near(np.angle(h[ok]), np.interp(f_ok, after.freq_hz[inside], ph_after[inside])) if inside.any()
-                       else np.angle(h[ok]))
+            ph_data = _near(np.angle(h[ok]), np.interp(f_ok, after.freq_hz[inside], ph_after[inside])) if inside.any() else np.angle(h[ok])
             if ok.any():  # (no legend entry for points that are not there)
                 ax_m.plot(m.frf.freq_hz[ok], _DB * np.log(np.abs(h[ok])), ".", ms=2.5, color=c, alpha=0.5, label=f"data{tag}")
                 ax_p.plot(m.frf.freq_hz[ok], _DEG * ph_data, ".", ms=2.5, color=c, alpha=0.5)
             if rep.carried:
-                _before_after(ax_m, ax_p, before.freq_hz, before.response(ch), after.freq_hz, after.response(ch), ph_after, c,
-                              f"simulator, calibrated{tag}", f"simulator with the effects{tag}", band)
+                _before_after(
+                    ax_m,
+                    ax_p,
+                    before.freq_hz,
+                    before.response(ch),
+                    after.freq_hz,
+                    after.response(ch),
+                    ph_after,
+                    c,
+                    f"simulator, calibrated{tag}",
+                    f"simulator with the effects{tag}",
+                    band,
+                )
             else:  # nothing carried: one simulator, no "after" to tell from it
                 ax_m.plot(after.freq_hz, _DB * np.log(np.abs(after.response(ch))), "-", color=c, lw=1.2, label=f"simulator, calibrated{tag}")
                 ax_p.plot(after.freq_hz, _DEG * ph_after, "-", color=c, lw=1.2)
@@ -354,6 +398,9 @@ def simulator_figure(d: Diagnosis, path=None):
         if not any(ch in u.keep and u.keep[ch].any() for u in usable):
             _say_unusable(axes[:, col], y=0.12)
     _label_bode(axes, chans)
-    head = (f"The simulator measured like the data: before and after carrying in {', '.join(rep.carried)}" if rep.carried else
-            "The simulator measured like the data (calibrated; the diagnosis found nothing to carry into it)")
+    head = (
+        f"The simulator measured like the data: before and after carrying in {', '.join(rep.carried)}"
+        if rep.carried
+        else "The simulator measured like the data (calibrated; the diagnosis found nothing to carry into it)"
+    )
     return _finish(fig, f"{head}\n(points: those the diagnosis uses, where the data's noise is small enough)", path, fontsize=11)

@@ -72,9 +72,11 @@ def diagnosis_runs(d, *, fps: float | None = None):
                                   label=f"measured: {m.source}{shift}"))  # fmt: skip
         sweep = sweep_like(m)
         stated = _stated_sweep(ts.metadata if ts is not None else m.frf.metadata) is not None
-        what = (f"{sweep.start_hz:g}-{sweep.stop_hz:g} Hz at {sweep.amplitude_v:g} V, {sweep.repetitions} sweep(s), no noise"
-                + ("; the file's own sweep, in step with its record" if stated else
-                   "; the file's sweep is not stated in its header: one over its band, not in step with its record"))
+        what = f"{sweep.start_hz:g}-{sweep.stop_hz:g} Hz at {sweep.amplitude_v:g} V, {sweep.repetitions} sweep(s), no noise" + (
+            "; the file's own sweep, in step with its record"
+            if stated
+            else "; the file's sweep is not stated in its header: one over its band, not in step with its record"
+        )
         for name, model, params, how in (("simulator_after", after, rep.after.params, f"with {', '.join(rep.carried)} carried and recalibrated"),
                                          ("simulator_before", before, rep.before.params, f"calibrated to {rep.before.source}")):  # fmt: skip
             if model is None:

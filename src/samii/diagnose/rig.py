@@ -192,11 +192,13 @@ class EffectRig:
         worst = self.closed_loop_poles()
         worst = worst[np.argmax(worst.real)]
         if worst.real >= 0:
-            raise ValueError(f"EffectRig: the position loop (Kp = {self.position_gain_v_per_rad:.4g} V/rad) is unstable with these "
-                             f"parameters: a closed-loop pole at {worst.real:.3g} {worst.imag:+.3g}j 1/s")
+            raise ValueError(
+                f"EffectRig: the position loop (Kp = {self.position_gain_v_per_rad:.4g} V/rad) is unstable with these "
+                f"parameters: a closed-loop pole at {worst.real:.3g} {worst.imag:+.3g}j 1/s"
+            )
 
     @classmethod
-    def drawn(cls, rng: np.random.Generator, *, spread: float = 0.15, max_draws: int = 100, **effects) -> "EffectRig":
+    def drawn(cls, rng: np.random.Generator, *, spread: float = 0.15, max_draws: int = 100, **effects) -> EffectRig:
         """A rig with each of eq 9.4's parameters drawn uniformly within ``spread`` of its value, and ``effects``;
         drawn again while the position loop is unstable (:meth:`check_stable`). About 7 % of draws at 15 % are with
         no effect (eq 9.4's loop has a gain margin of only 3.04 at the actuator's 8.9 Hz resonance), 11 % with a
@@ -260,8 +262,7 @@ class EffectRig:
             raise ValueError("EffectRig: theta/v must be strictly proper")
         gaps = np.abs(poles[:, None] - poles[None, :]) + np.eye(poles.size) * 1e300
         if np.min(gaps) < 1e-6 * max(1.0, float(np.max(np.abs(poles)))):
-            raise ValueError("EffectRig: the loop's poles are (nearly) repeated; move the valve or act-mode frequency off the "
-                             "actuator's poles")
+            raise ValueError("EffectRig: the loop's poles are (nearly) repeated; move the valve or act-mode frequency off the actuator's poles")
         lam = [complex(np.exp(p * dt)) for p in poles]
         bm = [complex(dt if p == 0 else (np.exp(p * dt) - 1.0) / p) for p in poles]
         cm = [complex(c) for c in res]

@@ -44,8 +44,8 @@ or the simulator as the baseline (responses held fixed) do not model it.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
-from typing import Sequence
 
 import numpy as np
 from scipy import stats
@@ -87,8 +87,9 @@ def with_feedthrough(ds_list: Sequence[Dataset], baseline: Baseline, *, alpha: f
         return baseline
     start = (0.1 if baseline.hold_s else 0.5) / max(ds.sample_rate_hz for ds in ds_list)  # (beyond the hold, or the hold)
     with sharing(baseline, _DELAY, *ds_list):  # (the fits come back holding these very objects)
-        without, with_lag = fork_calls([lambda: _command_delay(ds_list, baseline, start),
-                                        lambda: _command_delay(ds_list, baseline, start, lag_start=0.0)])
+        without, with_lag = fork_calls(
+            [lambda: _command_delay(ds_list, baseline, start), lambda: _command_delay(ds_list, baseline, start, lag_start=0.0)]
+        )
     _, _, log10_p = _f_test(without, with_lag, max(ds.corr_length for ds in ds_list))
     if not log10_p < np.log10(alpha):
         return baseline
@@ -153,12 +154,17 @@ def hold_note(baseline: Baseline, sources: Sequence[str]) -> str | None:
     if not baseline.hold_s:
         return None
     each = ", ".join(f"{1e3 * h:.3g} ms" for h in baseline.hold_s)
-    how = ("the data show it: the model with it fits better by the F-test" if baseline.hold_seen else
-           "it fits the data as well as the model without it, with fewer effects: the sampling's own delay, which the "
-           "data cannot tell from an analogue command's half a sample longer")
-    return (f"the command is held for a sample (a zero-order hold) and reaches the rig half a sample late ({each} for "
-            f"{', '.join(sources)}), with the images the sampling folds back ({how}): modelled as the measurement's sampling, "
-            "in every fit, not an effect of the rig; a delay found is the rig's beyond it (samii.diagnose.sampling)")
+    how = (
+        "the data show it: the model with it fits better by the F-test"
+        if baseline.hold_seen
+        else "it fits the data as well as the model without it, with fewer effects: the sampling's own delay, which the "
+        "data cannot tell from an analogue command's half a sample longer"
+    )
+    return (
+        f"the command is held for a sample (a zero-order hold) and reaches the rig half a sample late ({each} for "
+        f"{', '.join(sources)}), with the images the sampling folds back ({how}): modelled as the measurement's sampling, "
+        "in every fit, not an effect of the rig; a delay found is the rig's beyond it (samii.diagnose.sampling)"
+    )
 
 
 def feedthrough_of(fit: Fit) -> tuple[float, float] | None:
@@ -180,8 +186,13 @@ def feedthrough_note(lag: float, se: float) -> str:
         how = "an analogue command, or one read mid-step"
     # the lag lies within +-0.5 samples (model.FEEDTHROUGH_LAG_MAX): an error beyond that range says the data do not place
     # it (on a file with a drifting sensor: "+0.50 +- 8117.28 samples")
-    when = (f"reach the data {lag:+.2f} +- {se:.2f} samples after the rest of the response ({how})" if se <= 1.0 else
-            f"reach the data at a lag the data do not place (fitted {lag:+.2f} samples, standard error {se:.3g}: more than the "
-            "one sample the lag can span)")
-    return (f"xdd/v passes the command straight through at high frequency (eq 9.1/9.2: theta/v of relative degree 2), and its steps "
-            f"{when}: modelled as the measurement's sampling, not an effect of the rig (samii.diagnose.sampling)")
+    when = (
+        f"reach the data {lag:+.2f} +- {se:.2f} samples after the rest of the response ({how})"
+        if se <= 1.0
+        else f"reach the data at a lag the data do not place (fitted {lag:+.2f} samples, standard error {se:.3g}: more than the "
+        "one sample the lag can span)"
+    )
+    return (
+        f"xdd/v passes the command straight through at high frequency (eq 9.1/9.2: theta/v of relative degree 2), and its steps "
+        f"{when}: modelled as the measurement's sampling, not an effect of the rig (samii.diagnose.sampling)"
+    )

@@ -217,8 +217,10 @@ def _held_fits(ds_list, baseline, fit: Fit, effects, kind: EffectKind) -> list[F
     """``kind`` added to ``effects`` and fitted alone from each of its starts (read off ``fit``'s residual), the
     rest held at ``fit``'s baseline (cheap); best first."""
     xb = start_vectors(fit)
-    fits = [fit_model(ds_list, baseline, _vectors(effects) + [(kind, x0)], free_baseline=False, start_baseline=xb, max_nfev=60)
-            for x0 in starts_for(kind, ds_list, fit)]
+    fits = [
+        fit_model(ds_list, baseline, _vectors(effects) + [(kind, x0)], free_baseline=False, start_baseline=xb, max_nfev=60)
+        for x0 in starts_for(kind, ds_list, fit)
+    ]
     return sorted(fits, key=lambda f: f.chi2)
 
 
@@ -334,8 +336,10 @@ def _unidentifiable(e: Effect, ds_list: list[Dataset], free: bool = True) -> str
     marginal standard errors refused real pairs 5 joint standard errors apart. An actuator mode's pole and zero
     pairs are still compared on their marginal errors (conservative: it refuses more than the joint error would)."""
     if not theta_usable(ds_list):
-        return ("cannot be placed: no point of theta/v or xdd/theta is usable (theta under its noise or its encoder's step), "
-                "and in xdd/v alone an actuator, a base and a sensor effect multiply the same response")
+        return (
+            "cannot be placed: no point of theta/v or xdd/theta is usable (theta under its noise or its encoder's step), "
+            "and in xdd/v alone an actuator, a base and a sensor effect multiply the same response"
+        )
     k, v = e.kind.kind, e.values
     lo, hi = _excited_band(ds_list)
     band = f"the excited band {lo:.3g}-{hi:.3g} Hz"
@@ -348,36 +352,45 @@ def _unidentifiable(e: Effect, ds_list: list[Dataset], free: bool = True) -> str
         # (below the band the pair is a constant gain there, which a refitted baseline's gain holds; against a fixed
         # one it is a gain error the data do show. Straddling the band it is a tilt the data show too.)
         if (below and free) or above:
-            return (f"{'below' if below else 'above'} the excited band: neither its zero ({fz:.3g} Hz) nor its pole ({fp:.3g} Hz) lies "
-                    f"within a factor {CORNER_MARGIN:g} of {band}" + ("" if below else " (there it is a group delay or lead)"))
+            return (
+                f"{'below' if below else 'above'} the excited band: neither its zero ({fz:.3g} Hz) nor its pole ({fp:.3g} Hz) lies "
+                f"within a factor {CORNER_MARGIN:g} of {band}" + ("" if below else " (there it is a group delay or lead)")
+            )
         worst = max(_log_se(e, "zero_hz"), _log_se(e, "pole_hz"))
         if len(inside) == 2 and worst > 1.0:
-            return (f"not determined by the data: its corners ({fz:.3g} and {fp:.3g} Hz) have a standard error of {worst:.2g} in ln "
-                    "(more than a factor e either way)")
+            return (
+                f"not determined by the data: its corners ({fz:.3g} and {fp:.3g} Hz) have a standard error of {worst:.2g} in ln "
+                "(more than a factor e either way)"
+            )
     if e.kind.category == "extra_mode":
         top = max(p.hi for p in e.kind.params if p.name == "zeta")
         if v["zeta"] >= top * (1.0 - 1e-3):
-            return (f"not a resonance: its damping sits on the library's bound ({top:g}), the data want a broader shape than a mode "
-                    "(a tilt or a bump)")
+            return f"not a resonance: its damping sits on the library's bound ({top:g}), the data want a broader shape than a mode (a tilt or a bump)"
         # a frequency on an end of its search range (the measured band widened by diagnosis.BAND_MARGIN) is not placed
         # either: the data want it further out, where a mode is a shape they cannot tell (against a simulator that
         # cannot represent the second rig's plants, base "modes" at exactly 50.0 Hz from 0.1-40 Hz data)
         for p in e.kind.params:
             if p.unit == "Hz" and np.isfinite(p.hi) and not p.lo * (1.0 + 1e-3) < v[p.name] < p.hi * (1.0 - 1e-3):
-                return (f"not placed by the data: its {p.name} ({v[p.name]:.4g} Hz) sits on an end of the range searched "
-                        f"({p.lo:.3g}-{p.hi:.3g} Hz, the measured band widened by a factor): the data want it further out")
+                return (
+                    f"not placed by the data: its {p.name} ({v[p.name]:.4g} Hz) sits on an end of the range searched "
+                    f"({p.lo:.3g}-{p.hi:.3g} Hz, the measured band widened by a factor): the data want it further out"
+                )
         # a mode is where it is: one whose frequency the data do not place (as a pole/zero pair's corners above) is a
         # shape, not a resonance (on the held-out second rig's 1 Hz AC coupling a base "mode" at 0.08 +- 5.9 Hz, damping
         # 0.27 +- 21, below the excited band, took up the low end of xdd/v)
         spread = _log_se(e, "freq_hz") if "freq_hz" in e.stderr else 0.0
         if spread > 1.0:
-            return (f"not determined by the data: its frequency ({v['freq_hz']:.3g} Hz) has a standard error of {spread:.2g} "
-                    "in ln (more than a factor e either way)")
+            return (
+                f"not determined by the data: its frequency ({v['freq_hz']:.3g} Hz) has a standard error of {spread:.2g} "
+                "in ln (more than a factor e either way)"
+            )
     if k == "act_mode":
         se = np.hypot(_log_se(e, "freq_hz"), _log_se(e, "zero_freq_hz"))
         if abs(np.log(v["freq_hz"] / v["zero_freq_hz"])) < 2.0 * se:
-            return (f"cancels within its uncertainty: its pole and zero pairs ({v['freq_hz']:.3g} and {v['zero_freq_hz']:.3g} Hz) differ "
-                    f"by less than twice their standard error")
+            return (
+                f"cancels within its uncertainty: its pole and zero pairs ({v['freq_hz']:.3g} and {v['zero_freq_hz']:.3g} Hz) differ "
+                f"by less than twice their standard error"
+            )
     if k == "leak":
         a = v["pole_per_s"]
         if rec is not None and abs(a) * rec < 1.0:
@@ -392,10 +405,14 @@ def _unidentifiable(e: Effect, ds_list: list[Dataset], free: bool = True) -> str
             w = 2.0 * np.pi * fc
             lag = 1.0 / w if k == "accel_lowpass" else np.sqrt(2.0) / w if k == "accel_lowpass2" else 2.0 * v["zeta"] / w
             if sample is not None and lag <= sample:
-                return (f"indistinguishable from the sampling: its corner ({fc:.3g} Hz) lies beyond a factor {CORNER_MARGIN:g} of {band}, "
-                        f"where it is a group delay of {1e3 * lag:.3g} ms, at most one sample ({1e3 * sample:.3g} ms)")
-            return (f"above the excited band: its corner ({fc:.3g} Hz) lies beyond a factor {CORNER_MARGIN:g} of {band}, where it is a "
-                    f"group delay of {1e3 * lag:.3g} ms (a delay, not a corner the data can place)")
+                return (
+                    f"indistinguishable from the sampling: its corner ({fc:.3g} Hz) lies beyond a factor {CORNER_MARGIN:g} of {band}, "
+                    f"where it is a group delay of {1e3 * lag:.3g} ms, at most one sample ({1e3 * sample:.3g} ms)"
+                )
+            return (
+                f"above the excited band: its corner ({fc:.3g} Hz) lies beyond a factor {CORNER_MARGIN:g} of {band}, where it is a "
+                f"group delay of {1e3 * lag:.3g} ms (a delay, not a corner the data can place)"
+            )
     # a parameter on an end of the range the library searches where that end is no limiting form the data can show
     # (README: "the data want it further out"): against a saved fit 60 dB off the data, a leak of -10.0 1/s, an
     # accelerometer gain of 100 and a valve damped 0.05, each on its bound, were reported as found. (A pole-zero
@@ -406,8 +423,10 @@ def _unidentifiable(e: Effect, ds_list: list[Dataset], free: bool = True) -> str
         low = x <= p.lo * (1.0 + ON_BOUND) if p.transform == "log" else x - p.lo <= ON_BOUND * span
         high = x >= p.hi * (1.0 - ON_BOUND) if p.transform == "log" else p.hi - x <= ON_BOUND * span
         if (low and "lo" in p.not_a_limit) or (high and "hi" in p.not_a_limit):
-            return (f"not placed by the data: its {p.name} ({x:.6g} {p.unit}) sits on an end of the range the library searches "
-                    f"({p.lo:g} to {p.hi:g}): the data want it further out, where it is no {e.kind.kind} they show")
+            return (
+                f"not placed by the data: its {p.name} ({x:.6g} {p.unit}) sits on an end of the range the library searches "
+                f"({p.lo:g} to {p.hi:g}): the data want it further out, where it is no {e.kind.kind} they show"
+            )
     return None
 
 
@@ -418,10 +437,21 @@ ON_BOUND = 1e-6
 
 #: The classes of the reasons a candidate that passed the F-test is refused for, each a phrase its reason holds
 #: (:func:`refusal_class`); attribution's is samii.diagnose.attribution's.
-REFUSAL_CLASSES = ("below the excited band", "above the excited band", "not determined by the data", "not a resonance",
-                   "not placed by the data", "cancels within its uncertainty", "smaller than the measurement's floor",
-                   "indistinguishable from the sampling", "longer than a record", "a mode split in two",
-                   "a mode the data cannot resolve", "not told from an image", "cannot be placed")
+REFUSAL_CLASSES = (
+    "below the excited band",
+    "above the excited band",
+    "not determined by the data",
+    "not a resonance",
+    "not placed by the data",
+    "cancels within its uncertainty",
+    "smaller than the measurement's floor",
+    "indistinguishable from the sampling",
+    "longer than a record",
+    "a mode split in two",
+    "a mode the data cannot resolve",
+    "not told from an image",
+    "cannot be placed",
+)
 
 
 def refusal_class(reason: str) -> str:
@@ -465,9 +495,11 @@ def _below_floor(before: Fit, after: Fit, ds_list: list[Dataset]) -> str | None:
     if where is None:
         return "smaller than the measurement's floor: it changes no usable point"
     ch, f, change = where
-    return (f"smaller than the measurement's floor: it changes the response by more than {PRACTICAL_FACTOR:g} x the systematic floor "
-            f"at {count} point(s), fewer than {need} (at most {100 * change:.2g} % at {f:.3g} Hz on {ch}, "
-            f"{largest:.2g} x that limit)")
+    return (
+        f"smaller than the measurement's floor: it changes the response by more than {PRACTICAL_FACTOR:g} x the systematic floor "
+        f"at {count} point(s), fewer than {need} (at most {100 * change:.2g} % at {f:.3g} Hz on {ch}, "
+        f"{largest:.2g} x that limit)"
+    )
 
 
 def within_sampling(e: Effect, sample: float | None) -> bool:
@@ -585,6 +617,7 @@ def _best_in_place(ds_list, baseline, fit: Fit, i: int, kinds) -> tuple[Fit | No
 def _pair_record(i: int, kept: Fit, rival: Fit) -> dict:
     """Effect ``i`` of the fit kept and of its rival, each with the other effects as that fit has them (the report's
     "fits almost as well" and the values that go with the other choice)."""
+
     def side(f: Fit) -> tuple[str, dict, list]:
         return f.effects[i].kind.label, dict(f.effects[i].values), [(x.kind.label, dict(x.values)) for j, x in enumerate(f.effects) if j != i]
 
@@ -607,19 +640,34 @@ def _swap(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, tri
             e = fit.effects[i]
             used = {f.kind.label for j, f in enumerate(fit.effects) if j != i}
             s2 = _noise_var(fit, corr)
-            rivals = [k for k in kinds if k.label != e.kind.label and len(k.params) <= len(e.kind.params)
-                      and (set(k.affects) & set(e.kind.affects) or k.category == e.kind.category == "extra_mode")
-                      and (k.category == "extra_mode" or k.label not in used)]
+            rivals = [
+                k
+                for k in kinds
+                if k.label != e.kind.label
+                and len(k.params) <= len(e.kind.params)
+                and (set(k.affects) & set(e.kind.affects) or k.category == e.kind.category == "extra_mode")
+                and (k.category == "extra_mode" or k.label not in used)
+            ]
             best_alt, _ = _best_in_place(ds_list, baseline, fit, i, rivals)
             if best_alt is None:
                 continue
             new = best_alt.effects[i]
             swap = best_alt.chi2 < fit.chi2 and _refused(new, best_alt, ds_list) is None
             kept, rival = (best_alt, fit) if swap else (fit, best_alt)
-            records.append({"round": "swap", "effect": new.kind.label, "alternative_to": e.kind.label, "params": dict(new.values),
-                            **_pair_record(i, kept, rival),
-                            "chi2": best_alt.chi2, "chi2_current": fit.chi2, "delta_in_noise": abs(best_alt.chi2 - fit.chi2) / s2,
-                            **({"swapped": True} if swap else {}), **({"stopped": True} if best_alt.stopped else {})})
+            records.append(
+                {
+                    "round": "swap",
+                    "effect": new.kind.label,
+                    "alternative_to": e.kind.label,
+                    "params": dict(new.values),
+                    **_pair_record(i, kept, rival),
+                    "chi2": best_alt.chi2,
+                    "chi2_current": fit.chi2,
+                    "delta_in_noise": abs(best_alt.chi2 - fit.chi2) / s2,
+                    **({"swapped": True} if swap else {}),
+                    **({"stopped": True} if best_alt.stopped else {}),
+                }
+            )
             if swap:
                 fit, changed = best_alt, True
         if not changed:
@@ -644,19 +692,39 @@ def _richer(ds_list, baseline, fit: Fit, kinds: list[EffectKind], corr: float, a
             continue
         s2 = _noise_var(fit, corr)
         used = {f.kind.label for j, f in enumerate(fit.effects) if j != i}
-        rivals = [k for k in kinds if k.category != "extra_mode" and k.label not in used and len(k.params) > len(e.kind.params)
-                  and set(k.affects) & set(e.kind.affects)]
+        rivals = [
+            k
+            for k in kinds
+            if k.category != "extra_mode" and k.label not in used and len(k.params) > len(e.kind.params) and set(k.affects) & set(e.kind.affects)
+        ]
         best, n_tried = _best_in_place(ds_list, baseline, fit, i, rivals)
         if best is None or best.chi2 > fit.chi2 + AMBIGUOUS_CHI2 * s2:
             continue
         fstat, dof, logp = _f_test(fit, best, corr)
         new = best.effects[i]
-        record = {"effect": new.kind.label, "chi2": best.chi2, "chi2_current": fit.chi2, "delta_in_noise": (fit.chi2 - best.chi2) / s2,
-                  "extra_params": dof[0], "F": fstat, "log10_p": logp, **({"stopped": True} if best.stopped else {})}
+        record = {
+            "effect": new.kind.label,
+            "chi2": best.chi2,
+            "chi2_current": fit.chi2,
+            "delta_in_noise": (fit.chi2 - best.chi2) / s2,
+            "extra_params": dof[0],
+            "F": fstat,
+            "log10_p": logp,
+            **({"stopped": True} if best.stopped else {}),
+        }
         if logp < np.log10(alpha / n_tried) and _refused(new, best, ds_list, before=fit) is None:
             # the richer kind is needed: it replaces the effect (the report says what it replaced, and its test)
-            tried.append({**record, **_pair_record(i, best, fit), "round": "swap", "alternative_to": e.kind.label,
-                          "params": dict(new.values), "swapped": True, "richer": True})
+            tried.append(
+                {
+                    **record,
+                    **_pair_record(i, best, fit),
+                    "round": "swap",
+                    "alternative_to": e.kind.label,
+                    "params": dict(new.values),
+                    "swapped": True,
+                    "richer": True,
+                }
+            )
             fit = best
         else:
             tried.append({**record, **_pair_record(i, fit, best), "round": "richer"})
@@ -688,13 +756,19 @@ def _candidate(ds_list, baseline, current: Fit, kind: EffectKind, reference_b) -
     # variances: a baseline parked in a worse basin); it stops when it cannot (fit_model's beat). From a candidate's
     # baseline bent round a strong effect it walks back towards the current fit's basin and, without this, crawls
     # there for its whole budget (on the benchmark's 4 ms delay file 8 of 11 such refits, ending 7 chi2 units above)
-    alone = fit_model(ds_list, baseline, _vectors(current.effects), start_baseline=start_vectors(cand),
-                      beat=current.chi2 - AMBIGUOUS_CHI2 * _noise_var(current, _corr(ds_list)))
+    alone = fit_model(
+        ds_list,
+        baseline,
+        _vectors(current.effects),
+        start_baseline=start_vectors(cand),
+        beat=current.chi2 - AMBIGUOUS_CHI2 * _noise_var(current, _corr(ds_list)),
+    )
     return cand, alone
 
 
-def forward_select(ds_list: list[Dataset], baseline: Baseline, kinds: list[EffectKind], *, alpha: float = ALPHA,
-                   max_effects: int = MAX_EFFECTS, progress=None) -> tuple[Fit, Fit, list[Step], list[dict]]:
+def forward_select(
+    ds_list: list[Dataset], baseline: Baseline, kinds: list[EffectKind], *, alpha: float = ALPHA, max_effects: int = MAX_EFFECTS, progress=None
+) -> tuple[Fit, Fit, list[Step], list[dict]]:
     """Select effects from ``kinds`` (module docstring).
 
     Returns (baseline fit, final fit, accepted steps, every candidate of every round as a record for the report).
@@ -730,7 +804,7 @@ def _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress):
         # kinds are fitted again from there, once
         for _attempt in range(2):
             start = current
-            results = fork_map(lambda kind: _candidate(ds_list, baseline, start, kind, reference_b), pool)
+            results = fork_map(lambda kind: _candidate(ds_list, baseline, start, kind, reference_b), pool)  # noqa: B023 - called within this iteration
             alones = [r[1] for r in results if r is not None]
             best_alone = min(alones, key=lambda f: f.chi2, default=None)
             if best_alone is None or best_alone.chi2 >= current.chi2:
@@ -750,9 +824,17 @@ def _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress):
             places = search_places(eff, ds_list)
             fstat, dof, logp = _f_test(current, cand, corr, places)
             why = _refused(eff, cand, ds_list, before=current) if logp < level else None
-            record = {"round": _round + 1, "effect": kind.label, "params": dict(eff.values), "chi2": cand.chi2, "F": fstat,
-                      "dof": list(dof), "log10_p": logp, "threshold_log10_p": float(level),
-                      **({"places": places} if places > 1.0 else {})}
+            record = {
+                "round": _round + 1,
+                "effect": kind.label,
+                "params": dict(eff.values),
+                "chi2": cand.chi2,
+                "F": fstat,
+                "dof": list(dof),
+                "log10_p": logp,
+                "threshold_log10_p": float(level),
+                **({"places": places} if places > 1.0 else {}),
+            }
             if why is not None:  # it passed the F-test, but the data do not show it (its reason is reported)
                 record.update(refused=why, log10_p=0.0, log10_p_test=logp)
                 logp = 0.0
@@ -766,7 +848,9 @@ def _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress):
         # smallest p-value first; beyond 1e-300 (where F's tail underflows) the smallest BIC,
         # chi2/s^2 + p ln m, on one noise scale: the best candidate's
         s2 = max(min(c[3].chi2 / c[3].dof for c in candidates), 1e-300)  # (an exact fit: chi2 0)
-        ranked = sorted(candidates, key=lambda c: (max(c[0], -300.0), c[3].chi2 / s2 + c[3].n_params * np.log(c[3].n_residuals) if c[0] <= -300 else 0.0))
+        ranked = sorted(
+            candidates, key=lambda c: (max(c[0], -300.0), c[3].chi2 / s2 + c[3].n_params * np.log(c[3].n_residuals) if c[0] <= -300 else 0.0)
+        )
         # each of the best READINGS candidates, with the earlier effects it makes unnecessary dropped and swapped
         # every round, not only at the end (a 4 ms delay beside a 30 Hz roll-off joins as a 45 Hz second-order
         # roll-off and a 2 ms delay; left alone, two more "modes" join to make up for them and no single swap at
@@ -776,7 +860,9 @@ def _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress):
         best = None
         for logp, fstat, dof, cand, kind, places in readings:
             r_steps = [Step(kind.label, fstat, dof, logp, current.chi2, cand.chi2, dict(cand.effects[-1].values), places)]
-            fit = _backward(ds_list, baseline, cand, corr, level, r_steps, restarts=[x for x in (start_vectors(base_fit), reference_b) if x is not None])
+            fit = _backward(
+                ds_list, baseline, cand, corr, level, r_steps, restarts=[x for x in (start_vectors(base_fit), reference_b) if x is not None]
+            )
             r_swap: list[dict] = []
             fit = _swap(ds_list, baseline, fit, kinds, corr, r_swap)
             score = _bic(fit, s2, corr)
@@ -824,7 +910,16 @@ def _drop_unidentified(ds_list, baseline, fit: Fit, steps: list, tried: list) ->
         i, why, less = bad
         e = fit.effects[i]
         steps.append(Step(f"removed {e.kind.label}", 0.0, (0, 0), 0.0, fit.chi2, less.chi2))
-        tried.append({"round": "final", "effect": e.kind.label, "params": dict(e.values), "chi2": less.chi2, "log10_p": 0.0,
-                      "log10_p_test": None, "refused": why})
+        tried.append(
+            {
+                "round": "final",
+                "effect": e.kind.label,
+                "params": dict(e.values),
+                "chi2": less.chi2,
+                "log10_p": 0.0,
+                "log10_p_test": None,
+                "refused": why,
+            }
+        )
         fit = less
     return fit

@@ -51,8 +51,8 @@ harmonic beyond 1 % where the command reaches ~0.3 V, which is not something it 
 from __future__ import annotations
 
 import warnings
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -67,8 +67,31 @@ from samii.sim.linearize import UNSTABLE_RATE_1_S, poles_per_s
 from samii.sim.mjcf import SamiiParams
 from samii.sim.model import params_with_overrides
 
-__all__ = ["CARRY", "BODY", "SPOOL", "LATE", "spool_lag_s", "NOT_CARRIED", "tip_body_options", "body_effect_values", "LocalSimulator", "Misfit", "misfits", "SimulatorCalibration", "SimulatorReport", "calibrate_simulator", "correction",
-           "simulator_baseline", "carry", "carry_and_recalibrate", "sweep_like", "measured_like", "measurement_like", "remeasure", "simulator_report"]
+__all__ = [
+    "CARRY",
+    "BODY",
+    "SPOOL",
+    "LATE",
+    "spool_lag_s",
+    "NOT_CARRIED",
+    "tip_body_options",
+    "body_effect_values",
+    "LocalSimulator",
+    "Misfit",
+    "misfits",
+    "SimulatorCalibration",
+    "SimulatorReport",
+    "calibrate_simulator",
+    "correction",
+    "simulator_baseline",
+    "carry",
+    "carry_and_recalibrate",
+    "sweep_like",
+    "measured_like",
+    "measurement_like",
+    "remeasure",
+    "simulator_report",
+]
 
 #: effect label -> (simulator parameter, the effect's parameter giving its value)
 CARRY: Mapping[str, tuple[str, str]] = {
@@ -119,7 +142,7 @@ NOT_CARRIED: Mapping[str, str] = {
 @dataclass(frozen=True, eq=False)
 class SimulatorCalibration:
     params: SamiiParams  #: the calibrated simulator
-    result: "Calibration"
+    result: Calibration
     source: str  #: the file it was calibrated to
 
 
@@ -138,9 +161,9 @@ class SimulatorReport:
     remeasured_after: tuple[FrequencyResponse, ...]
     dropped: tuple[str, ...] = ()  #: first-pass proposals the second pass did not need
     #: where the calibrated simulator, before anything is carried, misses the data beyond their noise and floor
-    misfit_before: tuple["Misfit", ...] = ()
+    misfit_before: tuple[Misfit, ...] = ()
     #: ... and with the effects carried: where it cannot represent the data
-    misfit_after: tuple["Misfit", ...] = ()
+    misfit_after: tuple[Misfit, ...] = ()
     #: "label: reason" for effects whose carry did not lower the simulator's error on their own channels (not carried)
     not_lowering: tuple[str, ...] = ()
     #: "label: reason" for effects found against the simulator where, with them, it still cannot represent the data,
@@ -156,8 +179,12 @@ class SimulatorReport:
         """What the verdict line says of the simulator: whether it can represent the data, and any error the carry raised."""
         parts = []
         if self.misfit_after:
-            parts.append("the simulator" + (" with them" if self.carried else "") + " cannot represent the data at "
-                         + "; ".join(m.text() for m in _largest(self.misfit_after)))
+            parts.append(
+                "the simulator"
+                + (" with them" if self.carried else "")
+                + " cannot represent the data at "
+                + "; ".join(m.text() for m in _largest(self.misfit_after))
+            )
         if self.worse:
             parts.append("carrying them makes its error worse: " + ", ".join(self.worse))
         if self.unattributed:
@@ -166,23 +193,35 @@ class SimulatorReport:
         return "; ".join(parts)
 
     def to_dict(self) -> dict:
-        return {"error_before": {k: v.to_dict() for k, v in self.error_before.items()},
-                "error_after": {k: v.to_dict() for k, v in self.error_after.items()},
-                "changes": dict(self.changes), "carried": list(self.carried), "not_carried": list(self.not_carried),
-                "not_lowering": list(self.not_lowering), "unattributed": list(self.unattributed), "worse": self.worse, "verdict": self.verdict_text(),
-                "misfit_before": [m.to_dict() for m in self.misfit_before],
-                "cannot_represent": [m.to_dict() for m in self.misfit_after],
-                "first_pass_dropped": list(self.dropped),
-                "calibrated_to": self.before.source,
-                "calibration": {"before": _calibration_dict(self.before), "after": _calibration_dict(self.after)}}
+        return {
+            "error_before": {k: v.to_dict() for k, v in self.error_before.items()},
+            "error_after": {k: v.to_dict() for k, v in self.error_after.items()},
+            "changes": dict(self.changes),
+            "carried": list(self.carried),
+            "not_carried": list(self.not_carried),
+            "not_lowering": list(self.not_lowering),
+            "unattributed": list(self.unattributed),
+            "worse": self.worse,
+            "verdict": self.verdict_text(),
+            "misfit_before": [m.to_dict() for m in self.misfit_before],
+            "cannot_represent": [m.to_dict() for m in self.misfit_after],
+            "first_pass_dropped": list(self.dropped),
+            "calibrated_to": self.before.source,
+            "calibration": {"before": _calibration_dict(self.before), "after": _calibration_dict(self.after)},
+        }
 
 
 def _calibration_dict(c: SimulatorCalibration) -> dict:
     r = c.result
-    return {"values": dict(r.values), "stderr": dict(r.stderr), "converged": bool(r.converged), "status": r.status,
-            "chi2_per_residual": r.cost / max(r.n_residuals, 1),
-            "rms": {ch: {"rms_db": db, "rms_deg": deg} for ch, (db, deg) in r.rms.items()},
-            "bounds": {n: list(b) for n, b in (r.bounds or {}).items()}}
+    return {
+        "values": dict(r.values),
+        "stderr": dict(r.stderr),
+        "converged": bool(r.converged),
+        "status": r.status,
+        "chi2_per_residual": r.cost / max(r.n_residuals, 1),
+        "rms": {ch: {"rms_db": db, "rms_deg": deg} for ch, (db, deg) in r.rms.items()},
+        "bounds": {n: list(b) for n, b in (r.bounds or {}).items()},
+    }
 
 
 def correction(params: SamiiParams, m: Measured) -> FrequencyResponse:
@@ -196,8 +235,13 @@ def correction(params: SamiiParams, m: Measured) -> FrequencyResponse:
     for c in ("act", "base", "total"):
         r = measured[c] / lin.response(c)
         ch[c] = np.where(np.isfinite(r), r, 1.0)  # outside the re-measured span: no correction
-    return FrequencyResponse(m.frf.freq_hz, act=ch["act"], base=ch["base"], total=ch["total"],
-                             metadata={"source": "simulator measured / linearised (samii diagnose --baseline sim)"})
+    return FrequencyResponse(
+        m.frf.freq_hz,
+        act=ch["act"],
+        base=ch["base"],
+        total=ch["total"],
+        metadata={"source": "simulator measured / linearised (samii diagnose --baseline sim)"},
+    )
 
 
 @dataclass(frozen=True)
@@ -216,9 +260,15 @@ class Calibration:
     bounds: Mapping[str, tuple[float, float]] | None = None  #: name -> (lo, hi) the calibration kept it in
 
 
-def calibrate_simulator(m: Measured, *, start: SamiiParams | None = None, extra: Mapping[str, float] | None = None,
-                        corrected_by: FrequencyResponse | None = None, max_nfev: int = 60,
-                        anchor: Mapping[str, float] | None = None) -> SimulatorCalibration:
+def calibrate_simulator(
+    m: Measured,
+    *,
+    start: SamiiParams | None = None,
+    extra: Mapping[str, float] | None = None,
+    corrected_by: FrequencyResponse | None = None,
+    max_nfev: int = 60,
+    anchor: Mapping[str, float] | None = None,
+) -> SimulatorCalibration:
     """The simulator's mode knobs (and the ``extra`` options, started at their values; a valve law is
     set, not calibrated) calibrated to ``m``, divided by ``corrected_by`` (:func:`correction`) when
     given: the linearised simulator times the correction is then what matches the data.
@@ -288,6 +338,7 @@ def calibrate_simulator(m: Measured, *, start: SamiiParams | None = None, extra:
 
     z0 = np.clip(np.log(x0), lo + 1e-9, hi - 1e-9)
     r0 = parts(z0, False)[0]
+
     # the data come from a loop that is stable: knobs that make the simulator's closed loop grow are not its
     # calibration, whatever its linearised response (an unstable pole's magnitude is a stable one's; on the second
     # rig's 2 ms delay the knobs went to a pole growing at 3.0 1/s at 8.0 Hz, and the simulator measured like the file
@@ -305,8 +356,7 @@ def calibrate_simulator(m: Measured, *, start: SamiiParams | None = None, extra:
             return 10.0 * np.maximum(np.abs(r0), np.abs(r)) + 1.0
         return r
 
-    sol = least_squares(residuals, z0, jac=lambda z: parts(z, True)[1], bounds=(lo, hi), method="trf",
-                        max_nfev=max_nfev, xtol=1e-8, ftol=1e-8)
+    sol = least_squares(residuals, z0, jac=lambda z: parts(z, True)[1], bounds=(lo, hi), method="trf", max_nfev=max_nfev, xtol=1e-8, ftol=1e-8)
     r, j = parts(sol.x, True)
     cost = float(r @ r)
     x = np.exp(sol.x)
@@ -316,18 +366,31 @@ def calibrate_simulator(m: Measured, *, start: SamiiParams | None = None, extra:
     rms, offset = {}, 0
     for c in channels:  # r holds each channel's real then imaginary parts, weighted
         n = int(ds.keep[c].sum())
-        re, im = r[offset:offset + n] / ds.inv_sigma[c], r[offset + n:offset + 2 * n] / ds.inv_sigma[c]
+        re, im = r[offset : offset + n] / ds.inv_sigma[c], r[offset + n : offset + 2 * n] / ds.inv_sigma[c]
         offset += 2 * n
         if n == 0:  # (no usable point: theta under a 12-bit encoder's step) no error to state
             continue
-        rms[c] = (float(20 / np.log(10) * np.sqrt(np.mean(re ** 2))), float(np.degrees(np.sqrt(np.mean(im ** 2)))))
+        rms[c] = (float(20 / np.log(10) * np.sqrt(np.mean(re**2))), float(np.degrees(np.sqrt(np.mean(im**2)))))
     on_bound = [n for n, z, a, b in zip(names, sol.x, lo, hi) if min(z - a, b - z) < 1e-3]
-    result = Calibration(names, dict(zip(names, map(float, x0))), dict(zip(names, map(float, x))), dict(zip(names, map(float, se))),
-                         cost, int(r.size), bool(sol.success) and not on_bound and not held,
-                         str(sol.message) + (f"; on a bound: {', '.join(on_bound)}" if on_bound else "")
-                         + (f"; held where its position loop stays stable ({len(held)} step(s) toward knobs where it grows refused: "
-                            "the data pull the simulator to an unstable loop, which no stable rig measures)" if held else ""), rms,
-                         {n: (float(b[0]), float(b[1])) for n, b in zip(names, bounds)})
+    result = Calibration(
+        names,
+        dict(zip(names, map(float, x0))),
+        dict(zip(names, map(float, x))),
+        dict(zip(names, map(float, se))),
+        cost,
+        int(r.size),
+        bool(sol.success) and not on_bound and not held,
+        str(sol.message)
+        + (f"; on a bound: {', '.join(on_bound)}" if on_bound else "")
+        + (
+            f"; held where its position loop stays stable ({len(held)} step(s) toward knobs where it grows refused: "
+            "the data pull the simulator to an unstable loop, which no stable rig measures)"
+            if held
+            else ""
+        ),
+        rms,
+        {n: (float(b[0]), float(b[1])) for n, b in zip(names, bounds)},
+    )
     return SimulatorCalibration(sim.samii_params(x), result, m.source)
 
 
@@ -437,8 +500,13 @@ def simulator_baseline(cal: SimulatorCalibration, corrections: Sequence[Frequenc
     correction (:func:`correction`, one per file in order)."""
     st = LocalSimulator(cal.params)
     x0 = st.params(st.x0)
-    return Baseline(structure=st, params=tuple(dict(x0) for _ in corrections), correction=tuple(corrections),
-                    label=f"the simulator calibrated to {cal.source}, its mode knobs refitted with the effects", reference=None)
+    return Baseline(
+        structure=st,
+        params=tuple(dict(x0) for _ in corrections),
+        correction=tuple(corrections),
+        label=f"the simulator calibrated to {cal.source}, its mode knobs refitted with the effects",
+        reference=None,
+    )
 
 
 #: Options that add to what the simulator has (a delay found is a delay beyond the simulator's own).
@@ -466,8 +534,9 @@ def carry(effects: Sequence, params: SamiiParams, *, refuse: Mapping[str, str] |
             if isinstance(body, str):
                 not_carried.append(f"{label}: {body}")
             elif any(n in options for n in body):
-                not_carried.append(f"{label}: a second extra mode (the simulator takes one body on the tip; kept the first, "
-                                   f"{options[BODY[label][1]]:.4g} Hz)")
+                not_carried.append(
+                    f"{label}: a second extra mode (the simulator takes one body on the tip; kept the first, {options[BODY[label][1]]:.4g} Hz)"
+                )
             else:
                 options.update(body)
                 carried.append(label)
@@ -477,16 +546,21 @@ def carry(effects: Sequence, params: SamiiParams, *, refuse: Mapping[str, str] |
             value = parameter_value(params, name) + spool_lag_s(e)
             lo, hi, why = PHYSICAL_LIMITS[name]
             if not lo <= value <= hi:
-                not_carried.append(f"{label}: as the spool's lag ({1e3 * parameter_value(params, name):.3g} ms "
-                                   f"{'+' if spool_lag_s(e) >= 0 else '-'} {1e3 * abs(spool_lag_s(e)):.3g} ms) it would be "
-                                   f"{1e3 * value:.3g} ms, outside {1e3 * lo:g}-{1e3 * hi:g} ms ({why})")
+                not_carried.append(
+                    f"{label}: as the spool's lag ({1e3 * parameter_value(params, name):.3g} ms "
+                    f"{'+' if spool_lag_s(e) >= 0 else '-'} {1e3 * abs(spool_lag_s(e)):.3g} ms) it would be "
+                    f"{1e3 * value:.3g} ms, outside {1e3 * lo:g}-{1e3 * hi:g} ms ({why})"
+                )
                 continue
         elif label not in CARRY:
             not_carried.append(f"{label}: {NOT_CARRIED.get(label, 'no simulator option for it')}")
             continue
         elif CARRY[label][1] not in e.params:
-            not_carried.append(f"{label}: no level to carry (found from the amplitude dependence alone)" if e.kind != "asymmetry"
-                               else f"{label}: no level to carry (its 2nd harmonic's ratio not measured in enough segments)")
+            not_carried.append(
+                f"{label}: no level to carry (found from the amplitude dependence alone)"
+                if e.kind != "asymmetry"
+                else f"{label}: no level to carry (its 2nd harmonic's ratio not measured in enough segments)"
+            )
             continue
         else:
             name, key = CARRY[label]
@@ -500,14 +574,15 @@ def carry(effects: Sequence, params: SamiiParams, *, refuse: Mapping[str, str] |
             rho = float(asymmetry_ratio(parameter_value(params, name)) + asymmetry_ratio(value))
             value = asymmetry_fraction(rho) if abs(rho) < ASYMMETRY_MAX_RATIO else np.inf
             if not -1.0 <= value < 1.0:
-                not_carried.append(f"{label}: with the simulator's own asymmetry, a 2nd-harmonic ratio of {100 * rho:.3g} % "
-                                   "is beyond the valve option's (a negative direction's gain of 0-2)")
+                not_carried.append(
+                    f"{label}: with the simulator's own asymmetry, a 2nd-harmonic ratio of {100 * rho:.3g} % "
+                    "is beyond the valve option's (a negative direction's gain of 0-2)"
+                )
                 continue
         elif name in _ADDITIVE:
             value += parameter_value(params, name)
         elif name.endswith("_hz") and value >= _MAX_CORNER_OF_RATE / params.timestep_s:
-            not_carried.append(f"{label}: {value:.4g} Hz is beyond what the simulator's physics rate "
-                               f"({1 / params.timestep_s:g} Hz) represents")
+            not_carried.append(f"{label}: {value:.4g} Hz is beyond what the simulator's physics rate ({1 / params.timestep_s:g} Hz) represents")
             continue
         if name in options:
             not_carried.append(f"{label}: a second {name} (kept the first, {options[name]:g})")
@@ -562,8 +637,7 @@ def tip_body_options(effect, params: SamiiParams) -> dict[str, float] | str:
     grid = _near(f, z)
     b1 = _fit_residue(_base_channel(params_with_overrides(params, trial), grid) - _base_channel(params, grid), grid, f, z)
     if not (np.isfinite(b1) and b1 != 0 and b / b1 > 0):
-        return (f"its residue {b:.3g} has the sign of no body on the tip (a {_TRIAL_MASS_KG:g} kg trial body gives {b1:.3g}): "
-                "another structure's mode")
+        return f"its residue {b:.3g} has the sign of no body on the tip (a {_TRIAL_MASS_KG:g} kg trial body gives {b1:.3g}): another structure's mode"
     return {mass: _TRIAL_MASS_KG * b / b1, freq: f, zeta: max(z, 1e-3)}
 
 
@@ -705,8 +779,13 @@ def measured_like(params: SamiiParams, m: Measured) -> Measured | None:
 
     if m.timeseries is None:
         return None
-    meas = _measure_like(params, m, replace(sweep_like(m), repetitions=OWN_HARMONICS_REPETITIONS),
-                         noise=SensorNoise().scaled(OWN_HARMONICS_NOISE), rng=np.random.default_rng(0))
+    meas = _measure_like(
+        params,
+        m,
+        replace(sweep_like(m), repetitions=OWN_HARMONICS_REPETITIONS),
+        noise=SensorNoise().scaled(OWN_HARMONICS_NOISE),
+        rng=np.random.default_rng(0),
+    )
     return from_timeseries(meas.timeseries, source=f"the simulator measured like {m.source}")
 
 
@@ -755,14 +834,24 @@ class Misfit:
     n_points: int
 
     def to_dict(self) -> dict:
-        return {"source": self.source, "channel": self.channel, "lo_hz": self.lo_hz, "hi_hz": self.hi_hz, "rms_db": self.rms_db,
-                "rms_deg": self.rms_deg, "chi2": self.chi2, "n_points": self.n_points}
+        return {
+            "source": self.source,
+            "channel": self.channel,
+            "lo_hz": self.lo_hz,
+            "hi_hz": self.hi_hz,
+            "rms_db": self.rms_db,
+            "rms_deg": self.rms_deg,
+            "chi2": self.chi2,
+            "n_points": self.n_points,
+        }
 
     def text(self) -> str:
         from samii.diagnose.diagnosis import CHANNEL_NAMES
 
-        return (f"{CHANNEL_NAMES[self.channel]} {self.lo_hz:.3g}-{self.hi_hz:.3g} Hz (by {self.rms_db:.2g} dB, {self.rms_deg:.2g} deg "
-                f"rms; chi2 {self.chi2:.3g})")
+        return (
+            f"{CHANNEL_NAMES[self.channel]} {self.lo_hz:.3g}-{self.hi_hz:.3g} Hz (by {self.rms_db:.2g} dB, {self.rms_deg:.2g} deg "
+            f"rms; chi2 {self.chi2:.3g})"
+        )
 
 
 def _worse(before: Mapping[str, object], after: Mapping[str, object], tolerance: float | None = None) -> list[str]:
@@ -776,8 +865,7 @@ def _worse(before: Mapping[str, object], after: Mapping[str, object], tolerance:
         a = after.get(ch)
         if a is None:
             continue
-        for name, x, y, unit in (("rms dB", b.rms_db, a.rms_db, " dB"), ("rms deg", b.rms_deg, a.rms_deg, " deg"),
-                                 ("chi2", b.chi2, a.chi2, "")):
+        for name, x, y, unit in (("rms dB", b.rms_db, a.rms_db, " dB"), ("rms deg", b.rms_deg, a.rms_deg, " deg"), ("chi2", b.chi2, a.chi2, "")):
             if x is not None and y is not None and y > x * (1 + tolerance):
                 out.append(f"{CHANNEL_NAMES[ch]} {name} {x:.3g} -> {y:.3g}{unit}")
     return out
@@ -802,8 +890,18 @@ def misfits(datasets: Sequence[Dataset], residuals: Sequence[Mapping[str, np.nda
         sel = (ds.freq_hz >= b.lo_hz) & (ds.freq_hz <= b.hi_hz) & np.isfinite(e)
         if not sel.any() or np.sqrt(np.mean(np.abs(e[sel]) ** 2)) < PRACTICAL_FACTOR * REL_FLOOR:
             continue
-        out.append(Misfit(b.source, b.channel, b.lo_hz, b.hi_hz, float(20 / np.log(10) * np.sqrt(np.mean(e[sel].real ** 2))),
-                          float(np.degrees(np.sqrt(np.mean(e[sel].imag ** 2)))), b.chi2, b.n_points))
+        out.append(
+            Misfit(
+                b.source,
+                b.channel,
+                b.lo_hz,
+                b.hi_hz,
+                float(20 / np.log(10) * np.sqrt(np.mean(e[sel].real ** 2))),
+                float(np.degrees(np.sqrt(np.mean(e[sel].imag ** 2)))),
+                b.chi2,
+                b.n_points,
+            )
+        )
     return tuple(out)
 
 
@@ -824,9 +922,16 @@ def _chi2_sum(err: Mapping[str, object], channels: Sequence[str]) -> float:
 CORRECTION_STEPS = 2
 
 
-def carry_and_recalibrate(measured_raw: Sequence[Measured], measured_fit: Sequence[Measured], before: SimulatorCalibration,
-                          effects: Sequence, *, progress=None, refuse: Mapping[str, str] | None = None,
-                          correction_steps: int = CORRECTION_STEPS):
+def carry_and_recalibrate(
+    measured_raw: Sequence[Measured],
+    measured_fit: Sequence[Measured],
+    before: SimulatorCalibration,
+    effects: Sequence,
+    *,
+    progress=None,
+    refuse: Mapping[str, str] | None = None,
+    correction_steps: int = CORRECTION_STEPS,
+):
     """(recalibrated simulator, options set, labels carried, "label: reason" not carried): ``effects``
     carried into the simulator calibrated as ``before`` (:func:`carry`) and the knobs recalibrated
     with the linear options (:func:`simulator_report`'s steps 3 and 4), the correction recomputed at
@@ -852,8 +957,9 @@ def carry_and_recalibrate(measured_raw: Sequence[Measured], measured_fit: Sequen
             # nothing is carried (a carry the simulator cannot run is not what it lacks), and the reason is said
             why = f"the simulator with {'it' if len(carried) == 1 else 'them'} carried diverges when measured like {data.source} ({exc})"
             return before, {}, [], list(not_carried) + [f"{label}: {why}" for label in carried]
-        trial = calibrate_simulator(data, start=params, extra={n: parameter_value(params, n) for n in options}, corrected_by=corr,
-                                    anchor=before.result.start)
+        trial = calibrate_simulator(
+            data, start=params, extra={n: parameter_value(params, n) for n in options}, corrected_by=corr, anchor=before.result.start
+        )
         done = after is not None and trial.result.cost > (1 - 0.01) * after.result.cost
         if after is None or trial.result.cost < after.result.cost:
             after = trial
@@ -863,8 +969,15 @@ def carry_and_recalibrate(measured_raw: Sequence[Measured], measured_fit: Sequen
     return after, options, carried, not_carried
 
 
-def simulator_report(measured_raw: Sequence[Measured], measured_fit: Sequence[Measured], before: SimulatorCalibration,
-                     effects: Sequence, *, progress=None, refuse: Mapping[str, str] | None = None) -> SimulatorReport:
+def simulator_report(
+    measured_raw: Sequence[Measured],
+    measured_fit: Sequence[Measured],
+    before: SimulatorCalibration,
+    effects: Sequence,
+    *,
+    progress=None,
+    refuse: Mapping[str, str] | None = None,
+) -> SimulatorReport:
     """Carry ``effects`` into the simulator calibrated as ``before``, recalibrate, re-measure both
     like each file, and compare with the files as measured (``measured_raw``). The recalibration
     uses the first file as measured when every valve law found is carried (the simulator's
@@ -928,22 +1041,29 @@ def simulator_report(measured_raw: Sequence[Measured], measured_fit: Sequence[Me
             raised = _worse(err_without, err_after, UNDO_TOLERANCE)  # (a tenth: rises of a few % at the noise are no harm)
             lowers = with_it < (1 - LOWERS) * without
             if not lowers or raised:
-                refuse[label] = (f"carried, it does not lower the simulator's error on {' and '.join(CHANNEL_NAMES[c] for c in chans)} "
-                                 f"(chi2 {without:.4g} without it, {with_it:.4g} with it, the knobs recalibrated with it)"
-                                 if not lowers else
-                                 f"carried, it raises the simulator's {', '.join(raised)} (without it -> with it; the knobs recalibrated "
-                                 "with it)")
+                refuse[label] = (
+                    f"carried, it does not lower the simulator's error on {' and '.join(CHANNEL_NAMES[c] for c in chans)} "
+                    f"(chi2 {without:.4g} without it, {with_it:.4g} with it, the knobs recalibrated with it)"
+                    if not lowers
+                    else f"carried, it raises the simulator's {', '.join(raised)} (without it -> with it; the knobs recalibrated with it)"
+                )
                 not_lowering.append(f"{label}: {refuse[label]}")
         if not_lowering:
             (after, options, carried, not_carried), (h_after, res_after, err_after) = carried_and_measured()
         b, a = _chi2_sum(err_before, CHANNELS), _chi2_sum(err_after, CHANNELS)
         traded = _worse(err_before, err_after, UNDO_TOLERANCE)
         if carried and (not a < b or traded):
-            why = (f"chi2 over every channel {b:.4g} -> {a:.4g}" if not a < b else
-                   f"{', '.join(traded)}, beyond {100 * UNDO_TOLERANCE:g} % (chi2 over every channel {b:.4g} -> {a:.4g})")
-            not_lowering += [f"{label}: carried with {', '.join(x for x in carried if x != label) or 'nothing else'}, the "
-                             f"effects raise the simulator's error ({why}): none carried" for label in carried]
-            not_carried = list(not_carried) + not_lowering[-len(carried):]
+            why = (
+                f"chi2 over every channel {b:.4g} -> {a:.4g}"
+                if not a < b
+                else f"{', '.join(traded)}, beyond {100 * UNDO_TOLERANCE:g} % (chi2 over every channel {b:.4g} -> {a:.4g})"
+            )
+            not_lowering += [
+                f"{label}: carried with {', '.join(x for x in carried if x != label) or 'nothing else'}, the "
+                f"effects raise the simulator's error ({why}): none carried"
+                for label in carried
+            ]
+            not_carried = list(not_carried) + not_lowering[-len(carried) :]
             after, options, carried = before, {}, []
             h_after, res_after, err_after = measured_before
     changes = {}
@@ -952,6 +1072,17 @@ def simulator_report(measured_raw: Sequence[Measured], measured_fit: Sequence[Me
         new = parameter_value(after.params, name)
         if new != old:
             changes[name] = new
-    return SimulatorReport(err_before, err_after, changes, tuple(carried), tuple(not_carried), before, after, h_before, h_after,
-                           misfit_before=misfits(datasets, res_before), misfit_after=misfits(datasets, res_after),
-                           not_lowering=tuple(not_lowering))
+    return SimulatorReport(
+        err_before,
+        err_after,
+        changes,
+        tuple(carried),
+        tuple(not_carried),
+        before,
+        after,
+        h_before,
+        h_after,
+        misfit_before=misfits(datasets, res_before),
+        misfit_after=misfits(datasets, res_after),
+        not_lowering=tuple(not_lowering),
+    )

@@ -64,10 +64,12 @@ class RecordChange:
 
     def text(self) -> str:
         name = {"act": "theta/v", "base": "xdd/theta", "total": "xdd/v"}.get(self.channel, self.channel)
-        return (f"{self.source}: the records are not repeats over {name} {self.lo_hz:.3g}-{self.hi_hz:.3g} Hz: record {self.record + 1} "
-                f"differs from their estimate by {self.largest_pct:.2g} %, smoothly over frequency (chi2 {self.chi2:.3g} per degree of "
-                "freedom against the scatter within the band): the rig changed during the file (a sensor's gain, a mode that drifts), "
-                "which no effect of the library is")
+        return (
+            f"{self.source}: the records are not repeats over {name} {self.lo_hz:.3g}-{self.hi_hz:.3g} Hz: record {self.record + 1} "
+            f"differs from their estimate by {self.largest_pct:.2g} %, smoothly over frequency (chi2 {self.chi2:.3g} per degree of "
+            "freedom against the scatter within the band): the rig changed during the file (a sensor's gain, a mode that drifts), "
+            "which no effect of the library is"
+        )
 
 
 def record_changes(m, *, alpha: float = ALPHA) -> list[RecordChange]:
@@ -106,7 +108,7 @@ def record_changes(m, *, alpha: float = ALPHA) -> list[RecordChange]:
 
         def deviations(sp):
             with np.errstate(all="ignore"):
-                hk = sp[num] / sp[den]
+                hk = sp[num] / sp[den]  # noqa: B023 - called within this iteration
                 return np.concatenate([hk[g] / np.mean(hk[g], axis=0)[None, :] - 1.0 for g in groups])
 
         d = deviations(spec)
@@ -122,8 +124,7 @@ def record_changes(m, *, alpha: float = ALPHA) -> list[RecordChange]:
         z = d / np.sqrt(np.asarray(m.var[ch]))[None, :]
         raw = np.stack([d[:, sel].mean(axis=1) for sel in wins], axis=1)  # (records, windows)
         means = np.stack([z[:, sel].mean(axis=1) for sel in wins], axis=1)
-        scat = np.stack([np.mean(np.abs(z[:, sel] - z[:, sel].mean(axis=1)[:, None]) ** 2, axis=1) * WINDOW / (WINDOW - 1)
-                         for sel in wins], axis=1)
+        scat = np.stack([np.mean(np.abs(z[:, sel] - z[:, sel].mean(axis=1)[:, None]) ** 2, axis=1) * WINDOW / (WINDOW - 1) for sel in wins], axis=1)
         # the scatter pooled over POOL_WINDOWS neighbouring windows (the noise changes slowly with frequency; a change
         # of the rig is smooth and does not raise it): from 9 correlated points alone its tail let noise through
         kern = np.ones(POOL_WINDOWS)
@@ -146,8 +147,9 @@ def record_changes(m, *, alpha: float = ALPHA) -> list[RecordChange]:
         if out and out[-1].channel == ch and lo <= int(np.searchsorted(f, out[-1].hi_hz)) + WINDOW + 1:
             last = out[-1]
             big = pct > last.largest_pct
-            out[-1] = RecordChange(m.source, ch, last.lo_hz, float(f[hi]), max(chi2, last.chi2), max(pct, last.largest_pct),
-                                   k if big else last.record)
+            out[-1] = RecordChange(
+                m.source, ch, last.lo_hz, float(f[hi]), max(chi2, last.chi2), max(pct, last.largest_pct), k if big else last.record
+            )
         else:
             out.append(RecordChange(m.source, ch, float(f[lo]), float(f[hi]), chi2, pct, k))
     return out

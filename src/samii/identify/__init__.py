@@ -20,4 +20,16 @@ from samii.identify.lack_of_fit import LackOfFit, MisfitBand, lack_of_fit
 from samii.identify.structures import ModelStructure
 from samii.identify.synthetic import SweptSineNoise, synthesize
 
-__all__ = ["FitProblem", "FitResult", "LackOfFit", "MisfitBand", "ModelStructure", "SweptSineNoise", "fit", "fit_problem", "lack_of_fit", "notebook_cost", "synthesize"]
+__all__ = [
+    "FitProblem",
+    "FitResult",
+    "LackOfFit",
+    "MisfitBand",
+    "ModelStructure",
+    "SweptSineNoise",
+    "fit",
+    "fit_problem",
+    "lack_of_fit",
+    "notebook_cost",
+    "synthesize",
+]

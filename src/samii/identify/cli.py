@@ -52,17 +52,38 @@ def _phase_weights(text: str) -> list[float]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("frf", metavar="FRF", type=nonempty_path,
-                        help="frequency response: a CSV (DATA_FORMATS.md: freq_hz, act and/or base channels, optional coherence) "
-                        "or a rig-era MATLAB .mat (the notebook's mean_io_mr/_ph, mean_a2_j2a_mr/_ph)")
-    parser.add_argument("--modes", type=int_in(1, MAX_MODES), default=3, metavar="N",
-                        help=f"number of base modes, 1-{MAX_MODES} (default 3, eq 9.2; 2 is eq 1.2 with B_k w_k^2 gains)")
-    parser.add_argument("--numerator", choices=("s4", "s2"), default="s4", help="power of s in front of xdd/theta's modal sum (default s4, chapter 2)")
+    parser.add_argument(
+        "frf",
+        metavar="FRF",
+        type=nonempty_path,
+        help="frequency response: a CSV (DATA_FORMATS.md: freq_hz, act and/or base channels, optional coherence) "
+        "or a rig-era MATLAB .mat (the notebook's mean_io_mr/_ph, mean_a2_j2a_mr/_ph)",
+    )
+    parser.add_argument(
+        "--modes",
+        type=int_in(1, MAX_MODES),
+        default=3,
+        metavar="N",
+        help=f"number of base modes, 1-{MAX_MODES} (default 3, eq 9.2; 2 is eq 1.2 with B_k w_k^2 gains)",
+    )
+    parser.add_argument(
+        "--numerator", choices=("s4", "s2"), default="s4", help="power of s in front of xdd/theta's modal sum (default s4, chapter 2)"
+    )
     g = parser.add_mutually_exclusive_group()
-    g.add_argument("--phase-weight", type=_phase_weight, default=None, metavar="W",
-                   help=f"weight on the phase error in degrees, 0-{MAX_PHASE_WEIGHT:g} (default 0.1, the notebook's eq 9.4)")
-    g.add_argument("--phase-weights", type=_phase_weights, default=None, metavar="W1,W2,...",
-                   help=f"one fit per weight, at most {MAX_PHASE_WEIGHTS} (chapter 9 swept 0,0.1,0.2,0.3,0.4,0.5)")
+    g.add_argument(
+        "--phase-weight",
+        type=_phase_weight,
+        default=None,
+        metavar="W",
+        help=f"weight on the phase error in degrees, 0-{MAX_PHASE_WEIGHT:g} (default 0.1, the notebook's eq 9.4)",
+    )
+    g.add_argument(
+        "--phase-weights",
+        type=_phase_weights,
+        default=None,
+        metavar="W1,W2,...",
+        help=f"one fit per weight, at most {MAX_PHASE_WEIGHTS} (chapter 9 swept 0,0.1,0.2,0.3,0.4,0.5)",
+    )
     parser.add_argument("--band-hz", type=positive_float, nargs=2, metavar=("LO", "HI"), help="fit only LO <= f <= HI Hz (eq 1.4 used 1 12)")
     parser.add_argument(
         "--start",
@@ -79,21 +100,41 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "the random error its coherence predicts (Bendat & Piersol), so badly measured points count less, needs *_coh columns; "
         "auto (default): coherence when the file has it for every fitted channel, else none",
     )
-    parser.add_argument("--profiles", choices=("auto", "on", "off"), default="auto",
-                        help="profile intervals of the frequencies (each held away from its estimate, the rest re-solved): "
-                             "auto (default) on data of at most 1000 points, where they cost about as much as the fit; "
-                             "on: also on larger data (an FFT's 10,000 lines: about 1 s more)")
-    parser.add_argument("--averages", type=int_in(1, MAX_AVERAGES), default=None, metavar="N",
-                        help="averages behind the coherence, for the lack-of-fit test (default: the file's frf_records, else 3)")
-    parser.add_argument("--mat-freq-name", metavar="NAME", default=None,
-                        help="name of the frequency vector in a .mat file (default: the first of freq_hz, freq, f, frequency, hz, fr, ...)")
+    parser.add_argument(
+        "--profiles",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="profile intervals of the frequencies (each held away from its estimate, the rest re-solved): "
+        "auto (default) on data of at most 1000 points, where they cost about as much as the fit; "
+        "on: also on larger data (an FFT's 10,000 lines: about 1 s more)",
+    )
+    parser.add_argument(
+        "--averages",
+        type=int_in(1, MAX_AVERAGES),
+        default=None,
+        metavar="N",
+        help="averages behind the coherence, for the lack-of-fit test (default: the file's frf_records, else 3)",
+    )
+    parser.add_argument(
+        "--mat-freq-name",
+        metavar="NAME",
+        default=None,
+        help="name of the frequency vector in a .mat file (default: the first of freq_hz, freq, f, frequency, hz, fr, ...)",
+    )
     parser.add_argument("--mat-freq-unit", choices=("hz", "rad/s"), default="hz", help="unit of that vector (default hz)")
-    parser.add_argument("--out", metavar="DIR", type=nonempty_path,
-                        help="write fit.json (fit_pw<W>.json per weight), bode_fit.png and, for --phase-weights, parameters.png here")
+    parser.add_argument(
+        "--out",
+        metavar="DIR",
+        type=nonempty_path,
+        help="write fit.json (fit_pw<W>.json per weight), bode_fit.png and, for --phase-weights, parameters.png here",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace files already in --out")
-    parser.add_argument("--json", action="store_true",
-                        help="print machine-readable results (one object, or a list for --phase-weights); numbers that are not "
-                        "defined (a parameter not fitted, the infinite standard error of one the data do not determine) are null")
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="print machine-readable results (one object, or a list for --phase-weights); numbers that are not "
+        "defined (a parameter not fitted, the infinite standard error of one the data do not determine) are null",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress display on stderr")
 
 
@@ -145,9 +186,11 @@ def _read(args):
             header = csv_header(path)
             if "t" in header and "freq_hz" not in header:
                 shown = ", ".join(header[:6]) + (", ..." if len(header) > 6 else "")
-                raise InputError(f"{path}: this is a time series (columns {shown}), not a frequency response; samii fit expects an FRF: "
-                                 "a CSV with freq_hz and <channel>_mag/<channel>_phase_deg columns (DATA_FORMATS.md, as samii measure "
-                                 "writes frf.csv) or a rig-era .mat") from None
+                raise InputError(
+                    f"{path}: this is a time series (columns {shown}), not a frequency response; samii fit expects an FRF: "
+                    "a CSV with freq_hz and <channel>_mag/<channel>_phase_deg columns (DATA_FORMATS.md, as samii measure "
+                    "writes frf.csv) or a rig-era .mat"
+                ) from None
             raise
     bad = frequency_out_of_range(data.freq_hz)
     if bad is not None:
@@ -175,8 +218,17 @@ class _Progress:
         self._clock = time.monotonic
         self._start = self._clock()
         self.fit_index = 0
-        self.bar = tqdm(total=n_fits, desc=label, unit="fit", delay=PROGRESS_DELAY_S, leave=False, file=sys.stderr, dynamic_ncols=True,
-                        disable=None if enabled else True, bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}{postfix}")
+        self.bar = tqdm(
+            total=n_fits,
+            desc=label,
+            unit="fit",
+            delay=PROGRESS_DELAY_S,
+            leave=False,
+            file=sys.stderr,
+            dynamic_ncols=True,
+            disable=None if enabled else True,
+            bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}{postfix}",
+        )
 
     def _show(self, what: str) -> None:
         self.bar.set_postfix_str(what, refresh=False)
@@ -229,8 +281,10 @@ def run(args: argparse.Namespace) -> int:
                 raise InputError(f"{args.frf}: --weighting coherence needs coherence, but channel(s) {', '.join(lacking)} have no *_coh column")
         band = tuple(args.band_hz) if args.band_hz else None
         if band is not None and not np.any((data.freq_hz >= band[0]) & (data.freq_hz <= band[1])):
-            raise InputError(f"{args.frf}: --band-hz {band[0]:g} {band[1]:g}: no frequency point in the band (the data span "
-                             f"{data.freq_hz[0]:g}-{data.freq_hz[-1]:g} Hz)")
+            raise InputError(
+                f"{args.frf}: --band-hz {band[0]:g} {band[1]:g}: no frequency point in the band (the data span "
+                f"{data.freq_hz[0]:g}-{data.freq_hz[-1]:g} Hz)"
+            )
         rng = np.random.default_rng(0)
         try:  # noise: refused before any work, as calibrate and diagnose refuse it (a fit of it converged to "a sound fit")
             check_not_noise(data, structure, band_hz=band)
@@ -239,9 +293,20 @@ def run(args: argparse.Namespace) -> int:
         results = []
         for w in weights:
             try:
-                results.append(fit(data, structure, phase_weight=w, band_hz=band, weighting=args.weighting, start=args.start or "both",
-                                   rng=rng, n_averages=args.averages, progress=progress.fit_step,
-                                   profile={"auto": "auto", "on": True, "off": False}[args.profiles]))
+                results.append(
+                    fit(
+                        data,
+                        structure,
+                        phase_weight=w,
+                        band_hz=band,
+                        weighting=args.weighting,
+                        start=args.start or "both",
+                        rng=rng,
+                        n_averages=args.averages,
+                        progress=progress.fit_step,
+                        profile={"auto": "auto", "on": True, "off": False}[args.profiles],
+                    )
+                )
             except np.linalg.LinAlgError:
                 raise  # numerical trouble: a defect, reported as an internal error
             except (ValueError, KeyError) as exc:  # the data cannot be fitted as asked (InputError included)
@@ -259,20 +324,31 @@ def run(args: argparse.Namespace) -> int:
         print(json_text(out[0] if len(out) == 1 else out))
         return 0
     r0 = results[0]
-    weighting = {"coherence": "coherence (points weighted by their predicted random error)",
-                 "scatter": "the data's scatter (points weighted by the random error read off their roughness about the fit)"}.get(
-                     r0.weighting, "none (the notebook's cost)")
+    weighting = {
+        "coherence": "coherence (points weighted by their predicted random error)",
+        "scatter": "the data's scatter (points weighted by the random error read off their roughness about the fit)",
+    }.get(r0.weighting, "none (the notebook's cost)")
     if args.weighting == "auto":
         weighting += ", chosen by --weighting auto" + {
-            "coherence": "", "scatter": " (the file has no coherence, and the notebook's cost gave a fit that was not sound)"}.get(
-                r0.weighting, " (the file has no coherence for every fitted channel)")
-    print(f"samii fit: {args.frf}: {structure.describe()}; band {r0.band_hz[0]:.3g}-{r0.band_hz[1]:.3g} Hz, {r0.n_points} points, channels {', '.join(r0.channels)}; weighting {weighting}")
+            "coherence": "",
+            "scatter": " (the file has no coherence, and the notebook's cost gave a fit that was not sound)",
+        }.get(r0.weighting, " (the file has no coherence for every fitted channel)")
+    print(
+        f"samii fit: {args.frf}: {structure.describe()}; band {r0.band_hz[0]:.3g}-{r0.band_hz[1]:.3g} Hz, {r0.n_points} points, channels {', '.join(r0.channels)}; weighting {weighting}"
+    )
     missing = [c for c in ("act", "base") if c not in data.channels]
     if r0.not_fitted:
         print(f"samii fit: {args.frf} has no {' or '.join(missing)} channel: {', '.join(r0.not_fitted)} not fitted")
     for r in results:
-        verdict = ("yes" if r.verdict == "sound" else "yes, a sound fit with caveats (below)" if r.verdict == "caveats"
-                   else "yes, BUT NOT A SOUND FIT (below)" if r.converged else "NO")
+        verdict = (
+            "yes"
+            if r.verdict == "sound"
+            else "yes, a sound fit with caveats (below)"
+            if r.verdict == "caveats"
+            else "yes, BUT NOT A SOUND FIT (below)"
+            if r.converged
+            else "NO"
+        )
         print(f"\nphase weight {r.phase_weight:g}: cost {r.cost:.6g}, converged {verdict}")
         print(r.table())
         rms = ", ".join(f"{c} {r.rms_mag_db[c]:.3g} dB / {r.rms_phase_deg[c]:.3g} deg" for c in r.channels)
@@ -280,13 +356,18 @@ def run(args: argparse.Namespace) -> int:
         if r.lack_of_fit is not None:
             lof = r.lack_of_fit
             ratio = ", ".join(f"{c} {v:.3g}" for c, v in lof.noise_ratio.items() if v is not None)
-            print(f"lack of fit: {lof.verdict()} (rule: {lof.rule}; averages: {lof.n_averages_source})" + (f"; RMS residual / random error: {ratio}" if ratio else ""))
+            print(
+                f"lack of fit: {lof.verdict()} (rule: {lof.rule}; averages: {lof.n_averages_source})"
+                + (f"; RMS residual / random error: {ratio}" if ratio else "")
+            )
         print(r.message)
         for w in r.warnings:
             print(f"warning: {w}")
         if not r.sound:
-            print(f"NOT A SOUND FIT{'' if r.converged else ' (and not converged)'}: its parameters should not be used"
-                  + (":" if r.concerns else " (the solver stopped before a minimum)"))
+            print(
+                f"NOT A SOUND FIT{'' if r.converged else ' (and not converged)'}: its parameters should not be used"
+                + (":" if r.concerns else " (the solver stopped before a minimum)")
+            )
             for c in r.concerns:
                 print(f"  !! {c}")
         if r.caveats:

@@ -47,15 +47,27 @@ on a coarser grid (fewer than one neighbour within it) a point keeps its own.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Literal, Mapping, get_args
+from typing import Literal, get_args
 
 import numpy as np
 
 from samii.frequency_response import Channel, FrequencyResponse
 from samii.identify.structures import ModelStructure
 
-__all__ = ["DB_PER_NEPER", "DEG_PER_RAD", "FREQ_RANGE_HZ", "MIN_FREQUENCIES", "Weighting", "FitProblem", "frequency_out_of_range", "notebook_cost", "pooled_coherence", "thinning_step"]
+__all__ = [
+    "DB_PER_NEPER",
+    "DEG_PER_RAD",
+    "FREQ_RANGE_HZ",
+    "MIN_FREQUENCIES",
+    "Weighting",
+    "FitProblem",
+    "frequency_out_of_range",
+    "notebook_cost",
+    "pooled_coherence",
+    "thinning_step",
+]
 
 #: 20 log10|H| = DB_PER_NEPER * ln|H|.
 DB_PER_NEPER = 20.0 / np.log(10.0)
@@ -119,9 +131,11 @@ def frequency_out_of_range(freq_hz: np.ndarray) -> tuple[int, str] | None:
     if bad.size == 0:
         return None
     k = int(bad[0])
-    return k, (f"frequency {float(f[k]):g} Hz is outside {lo:g}...{hi:g} Hz, the range a fit of this model accepts "
-               f"({lo:g} Hz is one cycle in {1 / lo / 86400:.3g} days; the model's frequencies are bounded to "
-               "1e-3...1e6 rad/s and its s^4 terms underflow far below)")
+    return k, (
+        f"frequency {float(f[k]):g} Hz is outside {lo:g}...{hi:g} Hz, the range a fit of this model accepts "
+        f"({lo:g} Hz is one cycle in {1 / lo / 86400:.3g} days; the model's frequencies are bounded to "
+        "1e-3...1e6 rad/s and its s^4 terms underflow far below)"
+    )
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
@@ -177,9 +191,11 @@ class FitProblem:
             object.__setattr__(self, "band_hz", (lo, hi))
         if data.freq_hz.size < MIN_FREQUENCIES:
             where = f" in the band {self.band_hz[0]:g}-{self.band_hz[1]:g} Hz" if self.band_hz is not None else ""
-            raise ValueError(f"{data.freq_hz.size} frequency point(s){where}: a fit to a frequency response needs at least "
-                             f"{MIN_FREQUENCIES} (a resonance is located by a point either side of its peak); measure more "
-                             "frequencies or widen the band")
+            raise ValueError(
+                f"{data.freq_hz.size} frequency point(s){where}: a fit to a frequency response needs at least "
+                f"{MIN_FREQUENCIES} (a resonance is located by a point either side of its peak); measure more "
+                "frequencies or widen the band"
+            )
         out_of_range = frequency_out_of_range(data.freq_hz)
         if out_of_range is not None:
             raise ValueError(f"point {out_of_range[0] + 1} of the data: {out_of_range[1]}")
@@ -201,7 +217,9 @@ class FitProblem:
         for c in channels:
             h = data.response(c)
             if np.any(h == 0):
-                raise ValueError(f"channel {c} has a zero response at {float(data.freq_hz[np.flatnonzero(h == 0)[0]]):g} Hz; its dB error is undefined")
+                raise ValueError(
+                    f"channel {c} has a zero response at {float(data.freq_hz[np.flatnonzero(h == 0)[0]]):g} Hz; its dB error is undefined"
+                )
             inv[c] = 1.0 / h  # stored as the reciprocal: log(H_model / H_data) is one complex log
             coh = data.coherence(c)
             # noise profile: variance of log H at each point, up to one common factor, from the pooled coherence
@@ -225,7 +243,7 @@ class FitProblem:
         """Frequency points in the cost (after the band)."""
         return int(self.data.freq_hz.size)
 
-    def thinned(self, max_points: int) -> "FitProblem":
+    def thinned(self, max_points: int) -> FitProblem:
         """The same problem on every k-th frequency point, k the smallest giving at most ``max_points``.
 
         Taking every k-th point keeps the data's spacing (log or linear), so the
@@ -243,8 +261,9 @@ class FitProblem:
             if coh is not None:
                 kw[f"{c}_coh"] = coh[::k]
         data = FrequencyResponse(d.freq_hz[::k], metadata=d.metadata, **kw)
-        out = FitProblem(data, self.structure, phase_weight=self.phase_weight, channels=self.channels, weighting=self.weighting,
-                         coherence_from=self.coherence_from)
+        out = FitProblem(
+            data, self.structure, phase_weight=self.phase_weight, channels=self.channels, weighting=self.weighting, coherence_from=self.coherence_from
+        )
         # the weights of the points kept, pooled over all points (the thinned grid is too sparse to pool on)
         object.__setattr__(out, "_noise", {c: v[::k] for c, v in self._noise.items()})
         object.__setattr__(out, "_weights", {c: v[::k] for c, v in self._weights.items()})
@@ -350,7 +369,14 @@ class FitProblem:
         return np.concatenate(out)
 
 
-def notebook_cost(params: Mapping[str, float], data: FrequencyResponse, structure: ModelStructure, *, phase_weight: float, band_hz: tuple[float, float] | None = None) -> float:
+def notebook_cost(
+    params: Mapping[str, float],
+    data: FrequencyResponse,
+    structure: ModelStructure,
+    *,
+    phase_weight: float,
+    band_hz: tuple[float, float] | None = None,
+) -> float:
     """The notebook's ``errout`` for named parameters (act and base channels)."""
     problem = FitProblem(data, structure, phase_weight=phase_weight, band_hz=band_hz)
     return problem.cost(structure.vector(params))

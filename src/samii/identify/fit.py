@@ -48,16 +48,25 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Callable, Literal, Mapping, Sequence
+from typing import Literal
 
 import numpy as np
 
 from samii.frequency_response import Channel, FrequencyResponse
 from samii.identify.cost import FitProblem, Weighting, thinning_step
-from samii.identify.lack_of_fit import (MIN_COHERENCE, ROUGHNESS_LAG, LackOfFit, averages_from_metadata, lack_of_fit, noise_only, refuse_noise,
-                                       roughness_variance)
+from samii.identify.lack_of_fit import (
+    MIN_COHERENCE,
+    ROUGHNESS_LAG,
+    LackOfFit,
+    averages_from_metadata,
+    lack_of_fit,
+    noise_only,
+    refuse_noise,
+    roughness_variance,
+)
 from samii.identify.notebook_loop import NOTEBOOK_TOL_PCT, PercentChange, percent_change
 from samii.identify.profile import Profile, interval_text, profile_scan
 from samii.identify.starts import auto_start, modes_from_total, notebook_start, perturbed_start, scan_modes, snap_to_peaks
@@ -212,7 +221,9 @@ class FitResult:
         """Parameters to evaluate ``channel`` with; ValueError if it needs a parameter not fitted."""
         missing = [n for n in self.structure.channel_params((channel,)) if n in self.not_fitted]
         if missing:
-            raise ValueError(f"channel {channel!r} cannot be evaluated: {', '.join(missing)} were not fitted (the fit saw only {', '.join(self.channels)})")
+            raise ValueError(
+                f"channel {channel!r} cannot be evaluated: {', '.join(missing)} were not fitted (the fit saw only {', '.join(self.channels)})"
+            )
         return {n: (1.0 if n in self.not_fitted else v) for n, v in self.params.items()}  # placeholders never enter the channel
 
     def response(self, freq_hz: np.ndarray, channel: Channel) -> np.ndarray:
@@ -348,7 +359,9 @@ class _Solution:
     nfev: int
 
 
-def _levenberg_marquardt(evaluate, z0: np.ndarray, *, ftol: float, xtol: float, gtol: float, max_nfev: int, on_accept=None, small_step=None) -> _Solution:
+def _levenberg_marquardt(
+    evaluate, z0: np.ndarray, *, ftol: float, xtol: float, gtol: float, max_nfev: int, on_accept=None, small_step=None
+) -> _Solution:
     """Levenberg-Marquardt on the normal equations, with MINPACK's scaling and stopping tests.
 
     ``evaluate(z) -> (r, J'J, J'r, ...)``: the solver needs the Jacobian J only
@@ -426,8 +439,15 @@ def _levenberg_marquardt(evaluate, z0: np.ndarray, *, ftol: float, xtol: float, 
     return _Solution(z, r, status, _TERMINATION[status], nfev)
 
 
-def _solve(problem: FitProblem, x0: np.ndarray, *, max_nfev: int, on_evaluation: Callable[[int], None] | None = None,
-           hold: Sequence[str] = (), tol: float = _TOL) -> tuple[np.ndarray, object, tuple[np.ndarray, float], tuple[np.ndarray, np.ndarray]]:
+def _solve(
+    problem: FitProblem,
+    x0: np.ndarray,
+    *,
+    max_nfev: int,
+    on_evaluation: Callable[[int], None] | None = None,
+    hold: Sequence[str] = (),
+    tol: float = _TOL,
+) -> tuple[np.ndarray, object, tuple[np.ndarray, float], tuple[np.ndarray, np.ndarray]]:
     """Levenberg-Marquardt (``_levenberg_marquardt``) in log/scaled variables; scipy's
     trust-region reflective with the box ``BOUNDS`` if the unbounded answer leaves it
     (positivity already holds through the logs).
@@ -517,8 +537,9 @@ def _solve(problem: FitProblem, x0: np.ndarray, *, max_nfev: int, on_evaluation:
             rel = np.where(pos, np.abs(np.expm1(h)), np.abs(h) / np.abs(za))
         return bool(100.0 * np.max(rel) < NOTEBOOK_TOL_PCT / 2)
 
-    sol = _levenberg_marquardt(evaluate, z0, on_accept=lambda z, c: iterates.append((z.tobytes(), full(z), c)),
-                               small_step=small_step if strict else None, **tol)
+    sol = _levenberg_marquardt(
+        evaluate, z0, on_accept=lambda z, c: iterates.append((z.tobytes(), full(z), c)), small_step=small_step if strict else None, **tol
+    )
     if np.any(sol.x < lo) or np.any(sol.x > hi) or np.any(sol.fun == _PENALTY):
         iterates.clear()
         sol = least_squares(fun, z0, jac=jac, bounds=(lo, hi), method="trf", **tol)
@@ -542,7 +563,9 @@ def _covariance(problem: FitProblem, x: np.ndarray, rj: tuple[np.ndarray, np.nda
     return _sandwich(problem, x, rj)[:4]
 
 
-def _sandwich(problem: FitProblem, x: np.ndarray, rj: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str], np.ndarray]:
+def _sandwich(
+    problem: FitProblem, x: np.ndarray, rj: tuple[np.ndarray, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str], np.ndarray]:
     """Sandwich covariance, standard errors, correlations, identifiability warnings, and each parameter's
     profile scale: the cost's rise per squared standard error, ``SE_k^2 / [(J'J)^-1]_kk``
     (``samii.identify.profile``; with exact weights the residual variance ``s^2``), NaN where the
@@ -562,8 +585,13 @@ def _sandwich(problem: FitProblem, x: np.ndarray, rj: tuple[np.ndarray, np.ndarr
         se_full = np.where(free, np.inf, np.nan)
         corr_full = np.full((N, N), np.nan)
         corr_full[np.ix_(free, free)] = np.eye(n)
-        return (np.full((N, N), np.nan), se_full, corr_full, ["the model cannot be evaluated at the answer (it overflows): no standard errors"],
-                np.full(N, np.nan))
+        return (
+            np.full((N, N), np.nan),
+            se_full,
+            corr_full,
+            ["the model cannot be evaluated at the answer (it overflows): no standard errors"],
+            np.full(N, np.nan),
+        )
     d = np.where(xf != 0, np.abs(xf), 1.0)
     Js = J * d[None, :]  # sensitivity to relative changes
     # eigen-decomposition of the small normal matrix, columns equilibrated first
@@ -613,8 +641,9 @@ def profile_names(structure: ModelStructure) -> tuple[str, ...]:
     return tuple(n for n in structure.param_names if n.startswith("w"))
 
 
-def _profiles(problem: FitProblem, x: np.ndarray, cost: float, stderr: np.ndarray, scale: np.ndarray,
-              names: Sequence[str], *, max_nfev: int) -> tuple[dict[str, Profile], list[str], list[str]]:
+def _profiles(
+    problem: FitProblem, x: np.ndarray, cost: float, stderr: np.ndarray, scale: np.ndarray, names: Sequence[str], *, max_nfev: int
+) -> tuple[dict[str, Profile], list[str], list[str]]:
     """Profiles of ``names`` at the minimum ``x`` of ``problem`` (its ``cost``; ``stderr`` and the profile
     ``scale`` of ``_sandwich``), a warning for each that found a lower cost, and a concern for each that found one
     more than PROFILE_BELOW_CONCERN squared standard errors lower (not beside another mode: a minimum the fit does
@@ -655,15 +684,22 @@ def _profiles(problem: FitProblem, x: np.ndarray, cost: float, stderr: np.ndarra
         if p.lowest < -1.0:
             f_hz = p.lowest_at / (2 * np.pi)
             beside = [st.param_names[j] for j in order if j != i and abs(np.log(p.lowest_at / x[j])) < 0.02]
-            where = (f" beside {beside[0]} = {x[st.param_names.index(beside[0])] / (2 * np.pi):.4g} Hz: two modes on one resonance, "
-                     "a minimum the fit does not take" if beside else f": the fit's minimum is not the lowest along {name}")
-            warnings.append(f"holding {name} at {f_hz:.4g} Hz, its profile found a cost {-p.lowest:.3g} squared standard errors below "
-                            f"the fit's{where}")
+            where = (
+                f" beside {beside[0]} = {x[st.param_names.index(beside[0])] / (2 * np.pi):.4g} Hz: two modes on one resonance, "
+                "a minimum the fit does not take"
+                if beside
+                else f": the fit's minimum is not the lowest along {name}"
+            )
+            warnings.append(
+                f"holding {name} at {f_hz:.4g} Hz, its profile found a cost {-p.lowest:.3g} squared standard errors below the fit's{where}"
+            )
             if not beside and -p.lowest > PROFILE_BELOW_CONCERN:
-                concerns.append(f"{name} is not at the minimum of the fit's cost: held at {f_hz:.4g} Hz (the fit's {x[i] / (2 * np.pi):.4g} Hz) "
-                                f"the others re-solved reach a cost {-p.lowest:.3g} squared standard errors lower, so the fit's value "
-                                "lies outside its own 99.9 % interval: the starts did not reach the cost's lowest minimum (fit from "
-                                "other starts, or with coherence, where the data have it)")
+                concerns.append(
+                    f"{name} is not at the minimum of the fit's cost: held at {f_hz:.4g} Hz (the fit's {x[i] / (2 * np.pi):.4g} Hz) "
+                    f"the others re-solved reach a cost {-p.lowest:.3g} squared standard errors lower, so the fit's value "
+                    "lies outside its own 99.9 % interval: the starts did not reach the cost's lowest minimum (fit from "
+                    "other starts, or with coherence, where the data have it)"
+                )
     return out, warnings, concerns
 
 
@@ -705,8 +741,9 @@ def _roughness_coherence(problem: FitProblem, params: Mapping[str, float]) -> di
     return out
 
 
-def _resonance_coherence(problem: FitProblem, w: float, zeta: float, n_averages: int | None,
-                         rough: Mapping[str, np.ndarray] | None = None) -> tuple[float, str, str] | None:
+def _resonance_coherence(
+    problem: FitProblem, w: float, zeta: float, n_averages: int | None, rough: Mapping[str, np.ndarray] | None = None
+) -> tuple[float, str, str] | None:
     """The best fitted channel's coherence over a base mode's half-power band, that channel, and where the coherence
     came from: "coherence" (the file's), "scatter" (a channel without one: ``rough``, :func:`_roughness_coherence`).
 
@@ -778,8 +815,9 @@ class _Defect:
         return f"{self.finding}: {self.advice}"
 
 
-def _defects(problem: FitProblem, params: Mapping[str, float], n_averages: int | None = None,
-             model: Mapping[str, float] | None = None) -> list[_Defect]:
+def _defects(
+    problem: FitProblem, params: Mapping[str, float], n_averages: int | None = None, model: Mapping[str, float] | None = None
+) -> list[_Defect]:
     """Reasons the parameters of a minimum should not be used.
 
     ``"misplaced"``: a damping ratio on its bound, modes out of their order
@@ -820,53 +858,90 @@ def _defects(problem: FitProblem, params: Mapping[str, float], n_averages: int |
         fz = v / (2 * np.pi)
         if not lo <= fz <= hi:
             undetermined.add(wn)
-            out.append(_Defect("unmeasured", f"mode {wn} = {fz:.3g} Hz lies outside the fitted band {lo:.3g}-{hi:.3g} Hz",
-                               f"widen --band-hz to include it{fewer}", (wn, zn)))
+            out.append(
+                _Defect(
+                    "unmeasured",
+                    f"mode {wn} = {fz:.3g} Hz lies outside the fitted band {lo:.3g}-{hi:.3g} Hz",
+                    f"widen --band-hz to include it{fewer}",
+                    (wn, zn),
+                )
+            )
         elif wn == "wz":
             placed += [v] if st.tie_mode2 else []
         elif wn == "wp":
             pass
         elif zeta > OVERDAMPED:
             undetermined.add(wn)
-            out.append(_Defect("unmeasured", f"mode {wn} = {fz:.3g} Hz has damping {zn} = {zeta:.3g}, above 1/sqrt(2): it has no resonant peak, "
-                                             "so it is a shape the fit chose, not a mode the data show",
-                               f"{reweigh}fit --band-hz where the structure holds{fewer}", (wn, zn)))
+            out.append(
+                _Defect(
+                    "unmeasured",
+                    f"mode {wn} = {fz:.3g} Hz has damping {zn} = {zeta:.3g}, above 1/sqrt(2): it has no resonant peak, "
+                    "so it is a shape the fit chose, not a mode the data show",
+                    f"{reweigh}fit --band-hz where the structure holds{fewer}",
+                    (wn, zn),
+                )
+            )
         elif (found := _resonance_coherence(problem, v, zeta, n_averages, rough)) is not None and found[0] < MIN_COHERENCE:
             undetermined.add(wn)
-            how = (f"coherence {found[0]:.2f} in {found[1]} around it, corrected for the bias of {n_averages or 'its'} averages"
-                   if found[2] == "coherence" and problem.coherence_from == "data" else
-                   f"{found[1]} has no coherence; its scatter about the fit there is {np.sqrt(1 / found[0] - 1):.2g} of the response, "
-                   f"a coherence of {found[0]:.2f}")
+            how = (
+                f"coherence {found[0]:.2f} in {found[1]} around it, corrected for the bias of {n_averages or 'its'} averages"
+                if found[2] == "coherence" and problem.coherence_from == "data"
+                else f"{found[1]} has no coherence; its scatter about the fit there is {np.sqrt(1 / found[0] - 1):.2g} of the response, "
+                f"a coherence of {found[0]:.2f}"
+            )
             noise.append((v, (wn, zn), f"mode {wn} = {fz:.3g} Hz sits where the data are noise ({how}), not at a measured resonance"))
         else:
             placed.append(v)
     for v, names, finding in noise:
-        out.append(_Defect("misplaced" if any(p > v for p in placed) else "unmeasured", finding,
-                           f"the data do not determine it; {reweigh}measure with more excitation there, "
-                           f"fit --band-hz where the coherence is high{fewer}", names))
+        out.append(
+            _Defect(
+                "misplaced" if any(p > v for p in placed) else "unmeasured",
+                finding,
+                f"the data do not determine it; {reweigh}measure with more excitation there, fit --band-hz where the coherence is high{fewer}",
+                names,
+            )
+        )
     lz, hz = BOUNDS["z"]
     owner = {zn: wn for wn, zn in named}
     for n, v in params.items():
         if n.startswith("z") and np.isfinite(v) and (v < 1.01 * lz or v > 0.99 * hz):
             # the damping of a mode the data do not determine follows the noise: said, not held against the minimum
-            out.append(_Defect("unmeasured" if owner.get(n) in undetermined else "misplaced",
-                               f"damping {n} = {v:.4g} is on its bound {BOUNDS['z']}",
-                               f"the mode is not in the data as modelled; try a narrower --band-hz{fewer}", (owner.get(n, n), n)))
+            out.append(
+                _Defect(
+                    "unmeasured" if owner.get(n) in undetermined else "misplaced",
+                    f"damping {n} = {v:.4g} is on its bound {BOUNDS['z']}",
+                    f"the mode is not in the data as modelled; try a narrower --band-hz{fewer}",
+                    (owner.get(n, n), n),
+                )
+            )
     order = [(params[wn], wn) for wn, _ in _mode_names(st) if np.isfinite(params[wn])]
     for (wa, a), (wb, b) in zip(order, order[1:]):
         if not wb > wa:
-            out.append(_Defect("misplaced", f"mode {b} = {wb / (2 * np.pi):.3g} Hz lies below mode {a} = {wa / (2 * np.pi):.3g} Hz",
-                               f"the structure numbers its modes upward{' (mode 2 is the actuator zero wz)' if st.tie_mode2 else ''}, so a "
-                               f"mode has left the place the data give it; try a narrower --band-hz{fewer}", (a, b)))
+            out.append(
+                _Defect(
+                    "misplaced",
+                    f"mode {b} = {wb / (2 * np.pi):.3g} Hz lies below mode {a} = {wa / (2 * np.pi):.3g} Hz",
+                    f"the structure numbers its modes upward{' (mode 2 is the actuator zero wz)' if st.tie_mode2 else ''}, so a "
+                    f"mode has left the place the data give it; try a narrower --band-hz{fewer}",
+                    (a, b),
+                )
+            )
     for a, b in _unresolved_pairs(params, st):
-        out.append(_Defect("misplaced", f"modes {a} = {params[a] / (2 * np.pi):.3g} Hz and {b} = {params[b] / (2 * np.pi):.3g} Hz are closer "
-                                        "than their half-power bandwidths",
-                           "one resonance fitted by two modes; try fewer --modes", (a, b)))
+        out.append(
+            _Defect(
+                "misplaced",
+                f"modes {a} = {params[a] / (2 * np.pi):.3g} Hz and {b} = {params[b] / (2 * np.pi):.3g} Hz are closer "
+                "than their half-power bandwidths",
+                "one resonance fitted by two modes; try fewer --modes",
+                (a, b),
+            )
+        )
     return out
 
 
-def _assess(problem: FitProblem, params: Mapping[str, float], lof: LackOfFit, n_averages: int | None,
-            defects: list[_Defect] | None = None) -> tuple[list[str], list[str], tuple[str, ...]]:
+def _assess(
+    problem: FitProblem, params: Mapping[str, float], lof: LackOfFit, n_averages: int | None, defects: list[_Defect] | None = None
+) -> tuple[list[str], list[str], tuple[str, ...]]:
     """``(concerns, caveats, undetermined)`` of a converged minimum, each reason with what to try (``defects``: its
     ``_defects``, where the caller has them already).
 
@@ -880,16 +955,21 @@ def _assess(problem: FitProblem, params: Mapping[str, float], lof: LackOfFit, n_
     defects = _defects(problem, params, n_averages) if defects is None else defects
     concerns = [d.text for d in defects if d.kind == "misplaced"]
     if (best := noise_only(problem.data, problem.channels)) is not None:  # a minimum of noise (it said "a sound fit")
-        concerns.insert(0, f"no point has coherence >= {MIN_COHERENCE:g} in the fitted channels (the highest is {best:.3g}): the "
-                           "data are noise, and no parameter is determined by them; measure with more excitation")
+        concerns.insert(
+            0,
+            f"no point has coherence >= {MIN_COHERENCE:g} in the fitted channels (the highest is {best:.3g}): the "
+            "data are noise, and no parameter is determined by them; measure with more excitation",
+        )
     caveats = [d.text for d in defects if d.kind == "unmeasured"]
     undetermined = tuple(dict.fromkeys(n for d in defects if d.kind == "unmeasured" for n in d.names))
     if lof.found:
         ratio = ", ".join(f"{c} {v:.3g}" for c, v in lof.noise_ratio.items() if v is not None)
-        caveats.append(f"the residuals are far above the data's noise in {len(lof.bands)} band(s) ({lof.summary()})"
-                       + (f"; RMS residual / random error: {ratio}" if ratio else "")
-                       + ": the model structure misses an effect there, and the parameters are this structure's best compromise, "
-                       "not the system's; fit --band-hz where the structure holds, or look at the bands for the missing effect")
+        caveats.append(
+            f"the residuals are far above the data's noise in {len(lof.bands)} band(s) ({lof.summary()})"
+            + (f"; RMS residual / random error: {ratio}" if ratio else "")
+            + ": the model structure misses an effect there, and the parameters are this structure's best compromise, "
+            "not the system's; fit --band-hz where the structure holds, or look at the bands for the missing effect"
+        )
     return concerns, caveats, undetermined
 
 
@@ -952,7 +1032,9 @@ def fit_problem(
     thinned = search is not problem
     n_labels = 1 if not isinstance(start, str) else (2 if start == "both" else 1)
     scan = mode_scan and isinstance(start, str) and bool(free[st.mode_index[0]].any())
-    total = n_labels + int(bool(scan)) + n_perturbed + int(thinned) + 1 + int(bool(names))  # starts, scan, perturbed starts, refinement, diagnosis, profiles
+    total = (
+        n_labels + int(bool(scan)) + n_perturbed + int(thinned) + 1 + int(bool(names))
+    )  # starts, scan, perturbed starts, refinement, diagnosis, profiles
     step = [0]
 
     def done(what: str) -> None:
@@ -1008,26 +1090,31 @@ def fit_problem(
     lof = lack_of_fit(problem, x, n_averages=n_averages, errors=errs)
     not_fitted = tuple(n for n, f in zip(st.param_names, free) if not f)
     if thinned:
-        where = (f"{len(runs)} starts searched on 1 point in {thinning_step(problem.n_points, SEARCH_POINTS)} ({search.n_points} of {problem.n_points}), "
-                 f"the best ({label}; {agree} reached it) refined on all {problem.n_points} points")
+        where = (
+            f"{len(runs)} starts searched on 1 point in {thinning_step(problem.n_points, SEARCH_POINTS)} ({search.n_points} of {problem.n_points}), "
+            f"the best ({label}; {agree} reached it) refined on all {problem.n_points} points"
+        )
     else:
         where = f"best of {len(runs)} starts ({label}; {agree} reached it)"
     parts = [f"{where}: solver: {sol.message} {crit.describe()}."]
     if discarded:
         low = min(discarded, key=lambda r: r[2])
-        parts.append(f"{len(discarded)} lower minim{'um' if len(discarded) == 1 else 'a'} discarded, the lowest ({low[0]}, cost {low[2]:.4g}) because "
-                     f"{low[7][0].finding}.")
+        parts.append(
+            f"{len(discarded)} lower minim{'um' if len(discarded) == 1 else 'a'} discarded, the lowest ({low[0]}, cost {low[2]:.4g}) because "
+            f"{low[7][0].finding}."
+        )
     parts += [f"{n}." for n in notes]
     if not_fitted:
-        parts.append(f"Not fitted (the fitted channel{'s' if len(problem.channels) > 1 else ''} {', '.join(problem.channels)} do not depend on them): {', '.join(not_fitted)}.")
-    if auto_off:
-        parts.append(f"No profile intervals on {problem.n_points} points (profile='auto' computes them on at most {SEARCH_POINTS}; "
-                     "samii fit --profiles on): the intervals are the standard errors' normal ones.")
-    if lof.found:
         parts.append(
-            f"LACK OF FIT: the model misses the data in {len(lof.bands)} band(s) "
-            f"({lof.summary()}): see warnings."
+            f"Not fitted (the fitted channel{'s' if len(problem.channels) > 1 else ''} {', '.join(problem.channels)} do not depend on them): {', '.join(not_fitted)}."
         )
+    if auto_off:
+        parts.append(
+            f"No profile intervals on {problem.n_points} points (profile='auto' computes them on at most {SEARCH_POINTS}; "
+            "samii fit --profiles on): the intervals are the standard errors' normal ones."
+        )
+    if lof.found:
+        parts.append(f"LACK OF FIT: the model misses the data in {len(lof.bands)} band(s) ({lof.summary()}): see warnings.")
     cov, stderr, corr, warnings, scale = _sandwich(problem, x, rj)
     x_report = np.where(free, x, np.nan)
     params = dict(zip(st.param_names, map(float, x_report)))
@@ -1106,12 +1193,16 @@ def _fitted_channels(data: FrequencyResponse, channels: Sequence[Channel] | None
     return out
 
 
-def check_not_noise(data: FrequencyResponse, structure: ModelStructure | None = None, *, band_hz: tuple[float, float] | None = None,
-                    channels: Sequence[Channel] | None = None) -> None:
+def check_not_noise(
+    data: FrequencyResponse,
+    structure: ModelStructure | None = None,
+    *,
+    band_hz: tuple[float, float] | None = None,
+    channels: Sequence[Channel] | None = None,
+) -> None:
     """ValueError when every channel a fit of ``data`` would use is noise (``lack_of_fit.refuse_noise``): for the
     commands that refuse such data before any work (:func:`fit` itself returns a fit that is not sound)."""
-    problem = FitProblem(data, structure or ModelStructure.notebook_3mode(), band_hz=band_hz,
-                         channels=None if channels is None else tuple(channels))
+    problem = FitProblem(data, structure or ModelStructure.notebook_3mode(), band_hz=band_hz, channels=None if channels is None else tuple(channels))
     refuse_noise(problem.data, problem.channels, "fit")
 
 
@@ -1211,22 +1302,31 @@ def fit(
     if blank:  # a coherence of 1 everywhere says nothing of the noise: read as none (judged by the data's scatter)
         data = dataclasses.replace(data, act_coh=None, base_coh=None, total_coh=None)
     weighting = resolve_weighting(data, channels, weighting)
-    problem = FitProblem(data, structure, phase_weight=phase_weight, band_hz=band_hz, channels=None if channels is None else tuple(channels), weighting=weighting)
-    result = fit_problem(problem, start=start, n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, n_averages=n_averages, progress=progress,
-                         profile=profile)
+    problem = FitProblem(
+        data, structure, phase_weight=phase_weight, band_hz=band_hz, channels=None if channels is None else tuple(channels), weighting=weighting
+    )
+    result = fit_problem(
+        problem, start=start, n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, n_averages=n_averages, progress=progress, profile=profile
+    )
     if requested == "auto" and weighting == "none" and (not result.sound or result.caveats) and isinstance(start, str):
         try:
             # (its progress said as a second reading, the bar at the end of the first: 3-5 s more showed nothing)
-            second = None if progress is None else (lambda done, total, what: progress(total, total, f"second reading, weighted by the data's scatter: {what}"))
-            mended = _weighted_by_scatter(problem, result, n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, profile=profile,
-                                          progress=second)
+            second = (
+                None
+                if progress is None
+                else (lambda done, total, what: progress(total, total, f"second reading, weighted by the data's scatter: {what}"))
+            )
+            mended = _weighted_by_scatter(problem, result, n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, profile=profile, progress=second)
         except (ValueError, np.linalg.LinAlgError, FloatingPointError):
             mended = None  # (a second reading that fails leaves the first as it was)
         if mended is not None:
             result = mended
     if blank:
-        result = dataclasses.replace(result, message=result.message + " The file's coherence is 1 at every point (one average, or a "
-                          "placeholder): it says nothing of the noise and was read as none.")
+        result = dataclasses.replace(
+            result,
+            message=result.message + " The file's coherence is 1 at every point (one average, or a "
+            "placeholder): it says nothing of the noise and was read as none.",
+        )
     return result
 
 
@@ -1236,8 +1336,16 @@ def _finite(params: Mapping[str, float]) -> dict[str, float]:
     return {k: (v if np.isfinite(v) else 1.0) for k, v in params.items()}
 
 
-def _weighted_by_scatter(problem: FitProblem, unweighted: FitResult, *, n_perturbed: int, rng: np.random.Generator | None,
-                         max_nfev: int, profile, progress: Progress | None = None) -> FitResult | None:
+def _weighted_by_scatter(
+    problem: FitProblem,
+    unweighted: FitResult,
+    *,
+    n_perturbed: int,
+    rng: np.random.Generator | None,
+    max_nfev: int,
+    profile,
+    progress: Progress | None = None,
+) -> FitResult | None:
     """Data without coherence whose fit by the notebook's unweighted cost is not sound, or sound with caveats, fitted
     again weighted by their scatter; the result if it is sound by both readings of the noise (and, where the
     unweighted fit was sound, leaves fewer modes undetermined or fewer bands of misfit), else None (the unweighted
@@ -1267,10 +1375,15 @@ def _weighted_by_scatter(problem: FitProblem, unweighted: FitResult, *, n_pertur
         if not scatter:
             return None
         coh[f"{c}_coh"] = 1.0 / (1.0 + np.min(scatter, axis=0))
-    weighted = FitProblem(dataclasses.replace(data, **coh), st, phase_weight=problem.phase_weight, channels=tuple(problem.channels),
-                          weighting="coherence", coherence_from="scatter")
-    res = fit_problem(weighted, start="both", n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, n_averages=1, profile=profile,
-                      progress=progress)
+    weighted = FitProblem(
+        dataclasses.replace(data, **coh),
+        st,
+        phase_weight=problem.phase_weight,
+        channels=tuple(problem.channels),
+        weighting="coherence",
+        coherence_from="scatter",
+    )
+    res = fit_problem(weighted, start="both", n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, n_averages=1, profile=profile, progress=progress)
     lof = lack_of_fit(problem, st.vector(_finite(res.params)))
     defects = _defects(problem, res.params, None)
     concerns, _, undetermined = _assess(problem, res.params, lof, None, defects=defects)
@@ -1283,12 +1396,15 @@ def _weighted_by_scatter(problem: FitProblem, unweighted: FitResult, *, n_pertur
         before = (len(unweighted.undetermined), len(unweighted.lack_of_fit.bands))
         if not (fewer[0] <= before[0] and fewer[1] <= before[1] and fewer != before):
             return None
-    why = (f"not sound ({unweighted.concerns[0]})" if unweighted.concerns else
-           f"sound with caveats ({unweighted.caveats[0]})")
+    why = f"not sound ({unweighted.concerns[0]})" if unweighted.concerns else f"sound with caveats ({unweighted.caveats[0]})"
     # the scatter about the weighted fit read as the unweighted fit is: its modes undetermined that the weighted fit's
     # own findings do not name (one "mode w3 ... sits where the data are noise", not two with 0.30 and 0.31)
     own = [d.text for d in defects if d.kind == "unmeasured" and not set(d.names) <= set(res.undetermined)]
-    return dataclasses.replace(res, weighting="scatter", caveats=tuple(res.caveats) + tuple(own),
-                    undetermined=tuple(dict.fromkeys(res.undetermined + tuple(undetermined))),
-                    message=res.message + f" Weighted by the data's scatter (no coherence in the file): the notebook's unweighted "
-                    f"cost gave a fit that was {why}.")
+    return dataclasses.replace(
+        res,
+        weighting="scatter",
+        caveats=tuple(res.caveats) + tuple(own),
+        undetermined=tuple(dict.fromkeys(res.undetermined + tuple(undetermined))),
+        message=res.message + f" Weighted by the data's scatter (no coherence in the file): the notebook's unweighted "
+        f"cost gave a fit that was {why}.",
+    )

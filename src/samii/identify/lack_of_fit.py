@@ -52,16 +52,29 @@ Each band becomes a warning naming the channel and its span in Hz.
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Mapping
 
 import numpy as np
 
 from samii.identify.cost import COHERENCE_CLIP, DB_PER_NEPER, DEG_PER_RAD, FitProblem
 
-__all__ = ["RATIO", "MIN_COHERENCE", "BRIDGE_REL", "MisfitBand", "LackOfFit", "averages_from_metadata", "is_stepped_sine", "lack_of_fit", "noise_only", "refuse_noise",
-           "roughness_variance", "ROUGHNESS_LAG", "ROUGHNESS_POOL"]
+__all__ = [
+    "RATIO",
+    "MIN_COHERENCE",
+    "BRIDGE_REL",
+    "MisfitBand",
+    "LackOfFit",
+    "averages_from_metadata",
+    "is_stepped_sine",
+    "lack_of_fit",
+    "noise_only",
+    "refuse_noise",
+    "roughness_variance",
+    "ROUGHNESS_LAG",
+    "ROUGHNESS_POOL",
+]
 
 RATIO = 5.0
 #: Below this coherence a point is noise-dominated and is not tested.
@@ -184,15 +197,17 @@ class LackOfFit:
         return self.n_averages is not None and bool(self.noise_ratio) and all(v is None for v in self.noise_ratio.values())
 
     def verdict(self) -> str:
-        """"FOUND", "none", or that nothing could be tested (never "none" for data that are all noise)."""
+        """ "FOUND", "none", or that nothing could be tested (never "none" for data that are all noise)."""
         if self.found:
             return "FOUND"
         if self.nothing_tested:
             return f"NOT TESTED: no point has coherence >= {MIN_COHERENCE:g} in any channel (the data are noise; nothing could be tested)"
         if self.too_few_points:
             tested = ", ".join(f"{c} {k}" for c, k in self.n_tested.items())
-            return (f"NOT TESTED: too few points (tested: {tested}) for a band of {self.band_points}, the fewest a "
-                    "finding needs: a lack of fit could not show; measure more frequencies")
+            return (
+                f"NOT TESTED: too few points (tested: {tested}) for a band of {self.band_points}, the fewest a "
+                "finding needs: a lack of fit could not show; measure more frequencies"
+            )
         return "none"
 
     def warnings(self) -> list[str]:
@@ -227,9 +242,11 @@ def refuse_noise(data, channels, task: str) -> None:
     noise converges on something, and said "a sound fit with caveats")."""
     best = noise_only(data, channels)
     if best is not None:
-        raise ValueError(f"no point has coherence >= {MIN_COHERENCE:g} in the fitted channels {', '.join(channels)} "
-                         f"(the highest is {best:.3g}): the data are noise (was the rig excited? are the sensors connected?) "
-                         f"and there is nothing to {task}; if the coherence columns hold no measurement, leave them out")
+        raise ValueError(
+            f"no point has coherence >= {MIN_COHERENCE:g} in the fitted channels {', '.join(channels)} "
+            f"(the highest is {best:.3g}): the data are noise (was the rig excited? are the sensors connected?) "
+            f"and there is nothing to {task}; if the coherence columns hold no measurement, leave them out"
+        )
 
 
 #: Most averages a ``frf_records`` line may claim (as ``samii fit --averages``): a swept sine has a
@@ -281,7 +298,9 @@ def _same_sign_runs(e: np.ndarray, threshold: float, min_len: int) -> np.ndarray
     return mask
 
 
-def lack_of_fit(problem: FitProblem, x: np.ndarray, *, n_averages: int | None = None, errors: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None) -> LackOfFit:
+def lack_of_fit(
+    problem: FitProblem, x: np.ndarray, *, n_averages: int | None = None, errors: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None
+) -> LackOfFit:
     """Test the residuals of ``x`` on ``problem`` for structure error (module docstring).
 
     Parameters
@@ -308,9 +327,13 @@ def lack_of_fit(problem: FitProblem, x: np.ndarray, *, n_averages: int | None = 
             n, source = int(n_averages), "given"
         else:
             n = averages_from_metadata(data.metadata)
-            source = ("FRF metadata frf_records" if "frf_records" in data.metadata else
-                      "1, a stepped sine (each dwell's coherence is its own sine fit's)" if n is not None else
-                      f"assumed {DEFAULT_AVERAGES} (the notebook's 3 averages, chapter 9): the data do not say (no frf_records)")
+            source = (
+                "FRF metadata frf_records"
+                if "frf_records" in data.metadata
+                else "1, a stepped sine (each dwell's coherence is its own sine fit's)"
+                if n is not None
+                else f"assumed {DEFAULT_AVERAGES} (the notebook's 3 averages, chapter 9): the data do not say (no frf_records)"
+            )
             n = n if n is not None else DEFAULT_AVERAGES
         if n < 1:
             raise ValueError(f"n_averages must be >= 1, got {n}")
@@ -336,12 +359,21 @@ def lack_of_fit(problem: FitProblem, x: np.ndarray, *, n_averages: int | None = 
                 ratios[c] = None
             for i, j in _bands((z > RATIO) & tested, max_gap=MAX_GAP, min_points=MIN_POINTS, freq=f, bridge_rel=BRIDGE_REL):
                 sl = slice(i, j + 1)
-                bands.append(MisfitBand(c, float(f[i]), float(f[j]), j - i + 1, float(np.max(np.abs(errs[c][0][sl]))), float(np.max(np.abs(errs[c][1][sl]))), float(np.median(z[sl]))))
+                bands.append(
+                    MisfitBand(
+                        c,
+                        float(f[i]),
+                        float(f[j]),
+                        j - i + 1,
+                        float(np.max(np.abs(errs[c][0][sl]))),
+                        float(np.max(np.abs(errs[c][1][sl]))),
+                        float(np.median(z[sl])),
+                    )
+                )
     else:
         n, source = None, "no coherence in the data"
-        rule = (
-            f"no coherence: >= {RUN_POINTS} consecutive magnitude residuals of one sign beyond {RUN_DB:g} dB"
-            + (f", or phase residuals beyond {RUN_DEG:g} deg" if with_phase else "")
+        rule = f"no coherence: >= {RUN_POINTS} consecutive magnitude residuals of one sign beyond {RUN_DB:g} dB" + (
+            f", or phase residuals beyond {RUN_DEG:g} deg" if with_phase else ""
         )
         for c in problem.channels:
             ratios[c] = None
@@ -351,7 +383,11 @@ def lack_of_fit(problem: FitProblem, x: np.ndarray, *, n_averages: int | None = 
                 flag |= _same_sign_runs(errs[c][1], RUN_DEG, RUN_POINTS)
             for i, j in _bands(flag, max_gap=MAX_GAP, min_points=RUN_POINTS, freq=f, bridge_rel=BRIDGE_REL):
                 sl = slice(i, j + 1)
-                bands.append(MisfitBand(c, float(f[i]), float(f[j]), j - i + 1, float(np.max(np.abs(errs[c][0][sl]))), float(np.max(np.abs(errs[c][1][sl]))), None))
+                bands.append(
+                    MisfitBand(
+                        c, float(f[i]), float(f[j]), j - i + 1, float(np.max(np.abs(errs[c][0][sl]))), float(np.max(np.abs(errs[c][1][sl]))), None
+                    )
+                )
     return LackOfFit(rule, n, source, tuple(bands), ratios, untested, n_tested)
 
 

@@ -14,8 +14,8 @@ the comparison criterion every samii fit reports.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -48,7 +48,9 @@ class PercentChange:
         return f"notebook criterion {verdict} (max |change| of a coefficient {self.max_param_pct:.2g} %, of the cost {self.cost_pct:.2g} %{floor}; limit {self.tol_pct} %)"
 
 
-def percent_change(x_old: np.ndarray, x_new: np.ndarray, cost_old: float, cost_new: float, *, tol_pct: float = NOTEBOOK_TOL_PCT, cost_floor: float = 0.0) -> PercentChange:
+def percent_change(
+    x_old: np.ndarray, x_new: np.ndarray, cost_old: float, cost_new: float, *, tol_pct: float = NOTEBOOK_TOL_PCT, cost_floor: float = 0.0
+) -> PercentChange:
     """100 (new - old) / old for every coefficient (largest magnitude kept) and for the cost.
 
     A new cost at or below ``cost_floor`` marks an exact fit (see ``PercentChange``).
@@ -72,7 +74,15 @@ class LoopResult:
     last_change: PercentChange | None
 
 
-def nelder_mead_loop(cost: Callable[[np.ndarray], float], x0: np.ndarray, *, loops: int = 20, maxiter: int = 500, consecutive: int = 5, tol_pct: float = NOTEBOOK_TOL_PCT) -> LoopResult:
+def nelder_mead_loop(
+    cost: Callable[[np.ndarray], float],
+    x0: np.ndarray,
+    *,
+    loops: int = 20,
+    maxiter: int = 500,
+    consecutive: int = 5,
+    tol_pct: float = NOTEBOOK_TOL_PCT,
+) -> LoopResult:
     """Restart Nelder-Mead up to ``loops`` times (``maxiter`` iterations each) until the
     percent-change criterion has held for ``consecutive`` successive loops.
     """

@@ -28,8 +28,8 @@ the interval is open on that side: the data do not bound the parameter there.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -159,7 +159,7 @@ def profile_scan(
         lo, hi = limits(x_hat)
         probes = [(d, n, v_hat + d * n * stderr) for d in (-1, 1) for n in PROBE_SE]
         if all(lo < v < hi for *_, v in probes):
-            taus = []
+            taus, x_prev = [], x_hat
             for d, n, v in probes:  # each side outward, continued from the nearer probe
                 x0 = np.array(x_hat if n == PROBE_SE[0] else x_prev, float)
                 x0[index] = v

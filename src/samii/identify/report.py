@@ -11,16 +11,26 @@ the infinite standard error of a parameter the data do not determine) is
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
 from samii.frequency_response import FrequencyResponse
 from samii.identify.fit import FitResult
 
-__all__ = ["CLI_KEYS", "summary_dict", "json_text", "fit_filename", "fit_output_names", "write_fit_outputs", "notebook_reference",
-           "params_markdown", "quality_rows", "fits_markdown"]
+__all__ = [
+    "CLI_KEYS",
+    "summary_dict",
+    "json_text",
+    "fit_filename",
+    "fit_output_names",
+    "write_fit_outputs",
+    "notebook_reference",
+    "params_markdown",
+    "quality_rows",
+    "fits_markdown",
+]
 
 #: Keys of ``samii fit --json`` (issue 5); then phase weight, weighting, band, channels,
 #: parameters not fitted (null in ``params``), the lack-of-fit report and the warnings.
@@ -33,7 +43,21 @@ def summary_dict(result: FitResult) -> dict:
     """The ``--json`` object of one fit."""
     d = result.to_dict()
     out = {k: d[k] for k in CLI_KEYS}
-    for k in ("sound", "verdict", "concerns", "caveats", "undetermined", "profile_intervals", "phase_weight", "weighting", "band_hz", "channels", "not_fitted", "lack_of_fit", "warnings"):
+    for k in (
+        "sound",
+        "verdict",
+        "concerns",
+        "caveats",
+        "undetermined",
+        "profile_intervals",
+        "phase_weight",
+        "weighting",
+        "band_hz",
+        "channels",
+        "not_fitted",
+        "lack_of_fit",
+        "warnings",
+    ):
         out[k] = d[k]
     return out
 
@@ -136,7 +160,9 @@ def _write(folder, data: FrequencyResponse, results: Sequence[FitResult], note: 
     models = {(f"fit, phase weight {r.phase_weight:g}" if many else "fit"): r for r in results}
     st = results[0].structure
     title = f"samii fit: {st.describe()}"
-    fig = plot_fit_overlay(data, models, channels=results[0].channels, band_hz=None if band == full else band, title=title, note=note or data.metadata.get("source"))
+    fig = plot_fit_overlay(
+        data, models, channels=results[0].channels, band_hz=None if band == full else band, title=title, note=note or data.metadata.get("source")
+    )
     save_figure(fig, folder.path("bode_fit.png"))
     if many:
         fig = plot_parameter_sweep(
@@ -154,7 +180,13 @@ def _write(folder, data: FrequencyResponse, results: Sequence[FitResult], note: 
         save_figure(fig, folder.path("parameters.png"))
 
 
-def params_markdown(columns: Mapping[str, Mapping[str, float]], names: Sequence[str], *, stderr: Mapping[str, Mapping[str, float]] | None = None, extra_rows: Mapping[str, Mapping[str, str]] | None = None) -> str:
+def params_markdown(
+    columns: Mapping[str, Mapping[str, float]],
+    names: Sequence[str],
+    *,
+    stderr: Mapping[str, Mapping[str, float]] | None = None,
+    extra_rows: Mapping[str, Mapping[str, str]] | None = None,
+) -> str:
     """A markdown table: one row per parameter, one column per fit; ``value ± 1.96 stderr`` where given."""
     labels = list(columns)
     lines = ["| parameter | " + " | ".join(labels) + " |", "|---|" + "---|" * len(labels)]

@@ -23,7 +23,7 @@ damping ratio and on tau with the gains re-solved at each point.
 
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 

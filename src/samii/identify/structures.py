@@ -24,9 +24,10 @@ analytic derivative of its natural logarithm with respect to every parameter
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Literal, Mapping, get_args
+from typing import Literal, get_args
 
 import numpy as np
 
@@ -80,12 +81,12 @@ class ModelStructure:
 
     # -- presets -----------------------------------------------------------------
     @classmethod
-    def notebook_2mode(cls) -> "ModelStructure":
+    def notebook_2mode(cls) -> ModelStructure:
         """Eq 1.1 + 1.2: 2 modes, s^4, w2 = wz, gains B_k w_k^2."""
         return cls(n_modes=2, numerator="s4", tie_mode2=True, w2_factors=True)
 
     @classmethod
-    def notebook_3mode(cls, numerator: Numerator = "s4") -> "ModelStructure":
+    def notebook_3mode(cls, numerator: Numerator = "s4") -> ModelStructure:
         """Eq 9.1 + 9.2: 3 modes, w2 = wz, z2 = zz, plain gains B_k."""
         return cls(n_modes=3, numerator=numerator, tie_mode2=True, w2_factors=False)
 
@@ -190,7 +191,9 @@ class ModelStructure:
         return {n: float(v) for n, v in zip(self.param_names, x)}
 
     # -- evaluation ----------------------------------------------------------------
-    def log_responses(self, x: np.ndarray, w: np.ndarray, channels: tuple[Channel, ...] = ("act", "base"), *, derivatives: bool = True) -> dict[Channel, tuple[np.ndarray, np.ndarray | None]]:
+    def log_responses(
+        self, x: np.ndarray, w: np.ndarray, channels: tuple[Channel, ...] = ("act", "base"), *, derivatives: bool = True
+    ) -> dict[Channel, tuple[np.ndarray, np.ndarray | None]]:
         """Complex responses and the derivatives of their logs.
 
         Parameters

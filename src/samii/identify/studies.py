@@ -32,8 +32,8 @@ B_SI = B 180/pi (acceleration unit unchanged). ``to_notebook_units`` converts ba
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -109,7 +109,9 @@ STANDIN_SEED = 2003
 STANDIN_FREQ_HZ = np.geomspace(0.1, 40.0, 400)  # chapter 9: "frequency content from 0.1-40Hz"
 
 
-def study_data(path=None, *, freq_hz: np.ndarray = STANDIN_FREQ_HZ, seed: int = STANDIN_SEED) -> tuple[FrequencyResponse, FrequencyResponse | None, str]:
+def study_data(
+    path=None, *, freq_hz: np.ndarray = STANDIN_FREQ_HZ, seed: int = STANDIN_SEED
+) -> tuple[FrequencyResponse, FrequencyResponse | None, str]:
     """Data for a study: an FRF CSV if ``path`` is given, else the stand-in.
 
     Returns (data, noise-free version or None, note for the figures).
@@ -164,7 +166,9 @@ class ManualVsOptimized:
     cost_notebook_optimized: float
 
 
-def manual_vs_optimized(data: FrequencyResponse, *, band_hz: tuple[float, float] = nb.EQ1_4_FIT_RANGE_HZ, si_units: bool = True, rng: np.random.Generator | None = None) -> ManualVsOptimized:
+def manual_vs_optimized(
+    data: FrequencyResponse, *, band_hz: tuple[float, float] = nb.EQ1_4_FIT_RANGE_HZ, si_units: bool = True, rng: np.random.Generator | None = None
+) -> ManualVsOptimized:
     """Fit the 2-mode s^4 model (eq 1.1/1.2) over ``band_hz`` with phase weight 0, starting from eq 1.3.
 
     ``si_units``: the data are SI, so the notebook's sets are converted with
@@ -179,6 +183,8 @@ def manual_vs_optimized(data: FrequencyResponse, *, band_hz: tuple[float, float]
     return ManualVsOptimized(manual, opt, res, problem.cost(st.vector(manual)), problem.cost(st.vector(opt)))
 
 
-def s2_vs_s4(data: FrequencyResponse, *, phase_weight: float = 0.1, band_hz: tuple[float, float] | None = None, rng: np.random.Generator | None = None) -> dict[str, FitResult]:
+def s2_vs_s4(
+    data: FrequencyResponse, *, phase_weight: float = 0.1, band_hz: tuple[float, float] | None = None, rng: np.random.Generator | None = None
+) -> dict[str, FitResult]:
     """3-mode fits with s^2 and with s^4 numerator (chapter 4), same data, weight and starts."""
     return {num: fit(data, ModelStructure.notebook_3mode(num), phase_weight=phase_weight, band_hz=band_hz, rng=rng) for num in ("s2", "s4")}

@@ -28,8 +28,8 @@ Defaults: ``n_averages=3`` (notebook chapter 9: "The swept sine data is based on
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping
 
 import numpy as np
 
@@ -69,7 +69,14 @@ def random_error(coherence: np.ndarray, n_averages: int) -> np.ndarray:
     return np.sqrt((1.0 - g) / (2.0 * n_averages * g))
 
 
-def synthesize(freq_hz: np.ndarray, responses: Mapping[Channel, np.ndarray], *, noise: SweptSineNoise | None, rng: np.random.Generator | None = None, metadata: Mapping[str, str] | None = None) -> FrequencyResponse:
+def synthesize(
+    freq_hz: np.ndarray,
+    responses: Mapping[Channel, np.ndarray],
+    *,
+    noise: SweptSineNoise | None,
+    rng: np.random.Generator | None = None,
+    metadata: Mapping[str, str] | None = None,
+) -> FrequencyResponse:
     """A FrequencyResponse from exact complex responses, optionally with swept-sine noise.
 
     Parameters
@@ -89,7 +96,9 @@ def synthesize(freq_hz: np.ndarray, responses: Mapping[Channel, np.ndarray], *, 
     if noise is not None:
         if rng is None:
             raise ValueError("synthesize with noise needs a seeded numpy Generator (rng=)")
-        meta["noise"] = f"swept sine, {noise.n_averages} averages, noise floor {noise.dynamic_range_db} dB below each channel's peak, coherence >= {noise.min_coherence}"
+        meta["noise"] = (
+            f"swept sine, {noise.n_averages} averages, noise floor {noise.dynamic_range_db} dB below each channel's peak, coherence >= {noise.min_coherence}"
+        )
         meta.setdefault("frf_records", f"{noise.n_averages} (synthetic: the noise model's averages)")  # read by the lack-of-fit test
     for ch, h in responses.items():
         h = np.asarray(h, complex)

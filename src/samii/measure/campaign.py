@@ -11,8 +11,8 @@ actuator's ``ctrl`` and the simulator's signals are those a rig records.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -65,8 +65,15 @@ def _physics_columns(chunk) -> dict[str, np.ndarray]:
 
     The excitation ``r`` is the simulator's ``ctrl``; ``theta_ref`` is 0 (theta is relative to it).
     """
-    cols = {"v": chunk.v, "theta": chunk.theta, "accel": chunk.accel, "r": chunk.ctrl,
-            "theta_ref": np.zeros(chunk.t.size), "p_load": chunk.p_load, "spool": chunk.spool}
+    cols = {
+        "v": chunk.v,
+        "theta": chunk.theta,
+        "accel": chunk.accel,
+        "r": chunk.ctrl,
+        "theta_ref": np.zeros(chunk.t.size),
+        "p_load": chunk.p_load,
+        "spool": chunk.spool,
+    }
     return {k: cols[k] for k in SIGNAL_COLUMNS}
 
 
@@ -177,11 +184,25 @@ def measure(
     dwell frequencies (item 4). Keyword arguments are those of :func:`record`:
     ``timeseries_path`` streams the record to that CSV as it is made.
     """
-    run, ts = record(model, excitation, sample_rate_hz=sample_rate_hz, noise=noise, rng=rng, timeseries_path=timeseries_path,
-                     overwrite=overwrite, frame_steps=frame_steps, progress=progress)
+    run, ts = record(
+        model,
+        excitation,
+        sample_rate_hz=sample_rate_hz,
+        noise=noise,
+        rng=rng,
+        timeseries_path=timeseries_path,
+        overwrite=overwrite,
+        frame_steps=frame_steps,
+        progress=progress,
+    )
     if isinstance(excitation, SweptSine):
-        frf = estimate_frf(ts, record_s=excitation.record_s, baseline_s=excitation.lead_s,
-                           band_hz=(excitation.start_hz, excitation.stop_hz), record_signs=excitation.record_signs)
+        frf = estimate_frf(
+            ts,
+            record_s=excitation.record_s,
+            baseline_s=excitation.lead_s,
+            band_hz=(excitation.start_hz, excitation.stop_hz),
+            record_signs=excitation.record_signs,
+        )
     else:
         frf = estimate_stepped(ts, freqs_hz=excitation.freqs_hz, windows_s=excitation.windows_s)
     return Measurement(ts, frf, run)

@@ -17,7 +17,11 @@ from samii.json_output import dumps
 
 __all__ = ["add_arguments", "run"]
 
-_OUTPUTS = {"swept": ("timeseries.csv", "frf.csv"), "stepped": ("timeseries.csv", "frf.csv"), "both": ("timeseries.csv", "frf.csv", "timeseries_stepped.csv", "frf_stepped.csv")}
+_OUTPUTS = {
+    "swept": ("timeseries.csv", "frf.csv"),
+    "stepped": ("timeseries.csv", "frf.csv"),
+    "both": ("timeseries.csv", "frf.csv", "timeseries_stepped.csv", "frf_stepped.csv"),
+}
 _METHOD_LABEL = {"swept": "swept sine", "stepped": "stepped sine", "both": "swept and stepped sine"}
 
 
@@ -43,26 +47,68 @@ RAIL_FRACTION = 0.01
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", metavar="DIR", type=nonempty_path, default="measure_out", help="output folder (default measure_out)")
-    parser.add_argument("--method", choices=("swept", "stepped", "both"), default="swept",
-                        help="swept sine 0.1-40 Hz (default), stepped sine at --freqs-hz, or both (stepped points overlaid)")
-    parser.add_argument("--freqs-hz", type=positive_float, nargs="+", metavar="F",
-                        help="stepped-sine frequencies [Hz], distinct, below the DAQ's anti-alias cutoff (default 17 points over 0.5-35 Hz, "
-                        "the base resonances 1.75, 9.9 and 25 Hz among them)")
-    parser.add_argument("--amplitude-v", type=float_in(MIN_AMPLITUDE_V, VALVE_RANGE_V, unit="V"), default=None, metavar="V",
-                        help="excitation amplitude added to the valve command, 0.001-10 V (default 0.1 V)")
-    parser.add_argument("--averages", type=int_in(1, 100), default=3, metavar="N",
-                        help="swept-sine repetitions averaged, 1-100 (default 3, as on the rig; coherence needs at least 2)")
-    parser.add_argument("--tail-s", type=positive_float, default=None, metavar="S",
-                        help="rest after each sweep, for the response to decay (default 20 s: 6.5 time constants of the embedded model's base mode 1)")
+    parser.add_argument(
+        "--method",
+        choices=("swept", "stepped", "both"),
+        default="swept",
+        help="swept sine 0.1-40 Hz (default), stepped sine at --freqs-hz, or both (stepped points overlaid)",
+    )
+    parser.add_argument(
+        "--freqs-hz",
+        type=positive_float,
+        nargs="+",
+        metavar="F",
+        help="stepped-sine frequencies [Hz], distinct, below the DAQ's anti-alias cutoff (default 17 points over 0.5-35 Hz, "
+        "the base resonances 1.75, 9.9 and 25 Hz among them)",
+    )
+    parser.add_argument(
+        "--amplitude-v",
+        type=float_in(MIN_AMPLITUDE_V, VALVE_RANGE_V, unit="V"),
+        default=None,
+        metavar="V",
+        help="excitation amplitude added to the valve command, 0.001-10 V (default 0.1 V)",
+    )
+    parser.add_argument(
+        "--averages",
+        type=int_in(1, 100),
+        default=3,
+        metavar="N",
+        help="swept-sine repetitions averaged, 1-100 (default 3, as on the rig; coherence needs at least 2)",
+    )
+    parser.add_argument(
+        "--tail-s",
+        type=positive_float,
+        default=None,
+        metavar="S",
+        help="rest after each sweep, for the response to decay (default 20 s: 6.5 time constants of the embedded model's base mode 1)",
+    )
     parser.add_argument("--band-hz", type=positive_float, nargs=2, metavar=("LO", "HI"), default=(0.1, 40.0), help="swept-sine band (default 0.1 40)")
-    parser.add_argument("--sample-rate-hz", type=positive_float, default=1000.0, metavar="HZ", help="DAQ sampling rate (default 1000; must divide the physics rate)")
+    parser.add_argument(
+        "--sample-rate-hz", type=positive_float, default=1000.0, metavar="HZ", help="DAQ sampling rate (default 1000; must divide the physics rate)"
+    )
     parser.add_argument("--noise", action="store_true", help="add sensor noise (typical lab levels, see samii.measure.daq.SensorNoise)")
     parser.add_argument("--seed", type=seed, default=0, help="seed of the sensor-noise generator, an integer >= 0 (default 0)")
     parser.add_argument("--model", metavar="XML", help="MJCF file (default: the embedded SAMII model)")
-    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                        help="override a model parameter, e.g. hydraulic.supply_pressure=2.1e7 (repeatable)")
-    parser.add_argument("--rerun", metavar="FILE.rrd", type=nonempty_path, help="also write a Rerun recording: the beam and arm in 3D with their deflection magnified, the signals grouped by unit, the base modes' coordinates, and a stored layout (with --method both, both runs; the file must not exist unless --overwrite)")
-    parser.add_argument("--rerun-fps", metavar="F", type=positive_float, default=None, help="animation frames per second in the recording, every frame kept (default: 4 per period of base mode 3, at least 100, thinned where the sweep is slow: samii.viz.thinning)")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="override a model parameter, e.g. hydraulic.supply_pressure=2.1e7 (repeatable)",
+    )
+    parser.add_argument(
+        "--rerun",
+        metavar="FILE.rrd",
+        type=nonempty_path,
+        help="also write a Rerun recording: the beam and arm in 3D with their deflection magnified, the signals grouped by unit, the base modes' coordinates, and a stored layout (with --method both, both runs; the file must not exist unless --overwrite)",
+    )
+    parser.add_argument(
+        "--rerun-fps",
+        metavar="F",
+        type=positive_float,
+        default=None,
+        help="animation frames per second in the recording, every frame kept (default: 4 per period of base mode 3, at least 100, thinned where the sweep is slow: samii.viz.thinning)",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print the run summary as JSON")
@@ -94,8 +140,7 @@ def _excitations(args):
         raise InputError(f"--freqs-hz: {', '.join(f'{f:g}' for f in dup)} Hz given more than once; expected distinct frequencies")
     amp = {} if args.amplitude_v is None else {"amplitude_v": args.amplitude_v}
     try:
-        sweep = SweptSine(start_hz=lo, stop_hz=hi, repetitions=args.averages,
-                          **({} if args.tail_s is None else {"tail_s": args.tail_s}), **amp)
+        sweep = SweptSine(start_hz=lo, stop_hz=hi, repetitions=args.averages, **({} if args.tail_s is None else {"tail_s": args.tail_s}), **amp)
         stepped = SteppedSine(**({} if args.freqs_hz is None else {"freqs_hz": tuple(args.freqs_hz)}), **amp)
     except ValueError as exc:
         raise InputError(str(exc)) from None
@@ -108,12 +153,16 @@ def _excitations(args):
     cutoff = antialias_cutoff_hz(args.sample_rate_hz)
     if top > cutoff:
         option = "--band-hz" if args.method != "stepped" and hi > cutoff else "--freqs-hz"
-        raise InputError(f"{option}: {top:g} Hz lies above the DAQ's anti-alias cutoff {cutoff:g} Hz at --sample-rate-hz "
-                         f"{args.sample_rate_hz:g} (a quarter of it); lower the frequency or raise the sample rate")
+        raise InputError(
+            f"{option}: {top:g} Hz lies above the DAQ's anti-alias cutoff {cutoff:g} Hz at --sample-rate-hz "
+            f"{args.sample_rate_hz:g} (a quarter of it); lower the frequency or raise the sample rate"
+        )
     total = sum(e.duration_s for _, e in plan)
     if total > MAX_SIMULATED_S:
-        raise InputError(f"the run would simulate {total:.4g} s, more than the {MAX_SIMULATED_S:g} s accepted "
-                         "(check --tail-s, --averages, --band-hz and --freqs-hz: a dwell lasts at least 4 periods)")
+        raise InputError(
+            f"the run would simulate {total:.4g} s, more than the {MAX_SIMULATED_S:g} s accepted "
+            "(check --tail-s, --averages, --band-hz and --freqs-hz: a dwell lasts at least 4 periods)"
+        )
     return sweep, stepped, plan
 
 
@@ -127,12 +176,16 @@ def _check_loop_stable(model) -> None:
     bad = s[s.real > UNSTABLE_RATE_1_S]
     if bad.size:
         worst = bad[np.argmax(bad.real)]
-        how = (f"it would oscillate on its own at {abs(worst.imag) / (2 * np.pi):.3g} Hz" if abs(worst.imag) > 1e-6
-               else "it would drift away from the pose on its own (a real pole: e.g. a beam buckling under its load)")
+        how = (
+            f"it would oscillate on its own at {abs(worst.imag) / (2 * np.pi):.3g} Hz"
+            if abs(worst.imag) > 1e-6
+            else "it would drift away from the pose on its own (a real pole: e.g. a beam buckling under its load)"
+        )
         raise SimulationUnstable(
             f"the model under its servo loop is unstable at the nominal pose before any excitation: pole at {worst.real:.3g} "
             f"{worst.imag:+.3g}j 1/s, growing {worst.real:.3g} 1/s; {how}, not measure (check the overridden parameters, "
-            "e.g. hydraulic.position_gain, beam.length_m)")
+            "e.g. hydraulic.position_gain, beam.length_m)"
+        )
 
 
 def _check_rails(ts, kind: str) -> None:
@@ -142,7 +195,8 @@ def _check_rails(ts, kind: str) -> None:
     if on_rail.mean() > RAIL_FRACTION:
         raise SimulationUnstable(
             f"{kind} run: the valve command sat on its +-{VALVE_RANGE_V:g} V rails for {100 * on_rail.mean():.0f} % of the run; "
-            "a saturated loop is not a linear measurement (lower --amplitude-v, check the servo gain); nothing written")
+            "a saturated loop is not a linear measurement (lower --amplitude-v, check the servo gain); nothing written"
+        )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -180,10 +234,12 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--sample-rate-hz {args.sample_rate_hz:g} must divide the physics rate {physics_hz:g} Hz")
     steps = sum(e.duration_s for _, e in plan) / dt
     if steps > MAX_PHYSICS_STEPS:
-        raise InputError(f"the run would take {steps:.3g} physics steps of {dt:.3g} s (the model's timestep_s), more than the "
-                         f"{MAX_PHYSICS_STEPS:.0e} accepted: hours of computing and {8 * steps / 1e9:.3g} GB for each signal held "
-                         f"at the physics rate; a timestep_s of at least {dt * steps / MAX_PHYSICS_STEPS:.2g} s (the default is "
-                         "1e-3 s), or a shorter run")
+        raise InputError(
+            f"the run would take {steps:.3g} physics steps of {dt:.3g} s (the model's timestep_s), more than the "
+            f"{MAX_PHYSICS_STEPS:.0e} accepted: hours of computing and {8 * steps / 1e9:.3g} GB for each signal held "
+            f"at the physics rate; a timestep_s of at least {dt * steps / MAX_PHYSICS_STEPS:.2g} s (the default is "
+            "1e-3 s), or a shorter run"
+        )
     _check_loop_stable(model)
     noise = SensorNoise() if args.noise else None
     rng = np.random.default_rng(args.seed)
@@ -209,8 +265,16 @@ def run(args: argparse.Namespace) -> int:
         with folder:
             try:
                 for kind, excitation in plan:
-                    results[kind] = measure(model, excitation, sample_rate_hz=args.sample_rate_hz, noise=noise, rng=rng, frame_steps=frame_steps,
-                                            progress=progress, timeseries_path=folder.path(ts_names[kind]))
+                    results[kind] = measure(
+                        model,
+                        excitation,
+                        sample_rate_hz=args.sample_rate_hz,
+                        noise=noise,
+                        rng=rng,
+                        frame_steps=frame_steps,
+                        progress=progress,
+                        timeseries_path=folder.path(ts_names[kind]),
+                    )
                     _check_rails(results[kind].timeseries, kind)
                     offset[0] += int(round(excitation.duration_s / dt))
             finally:
@@ -225,9 +289,12 @@ def run(args: argparse.Namespace) -> int:
                 reference = linearised_frf(model, ref_grid)
                 coh = main.frf.coherence(main.frf.channels[0])
                 coh_ok = coh is not None and bool(np.any(np.isfinite(coh)))
-                checks = {kind: max_deviation(r.frf, linearised_frf(model, r.frf.freq_hz), band_hz=(0.5, 35.0),
-                                              min_coherence=0.95 if coh_ok or kind == "stepped" else None)
-                          for kind, r in results.items()}
+                checks = {
+                    kind: max_deviation(
+                        r.frf, linearised_frf(model, r.frf.freq_hz), band_hz=(0.5, 35.0), min_coherence=0.95 if coh_ok or kind == "stepped" else None
+                    )
+                    for kind, r in results.items()
+                }
             write_frf_csv(main.frf, folder.path("frf.csv"))
             if args.method == "both":
                 write_frf_csv(results["stepped"].frf, folder.path("frf_stepped.csv"))
@@ -239,8 +306,14 @@ def run(args: argparse.Namespace) -> int:
             if overrides:
                 model_name += " with " + ", ".join(f"{k}={v:g}" for k, v in overrides.items())
             title = f"samii measure: {_METHOD_LABEL[args.method]}, {amp:g} V, {'with' if noise else 'no'} sensor noise\n{model_name}"
-            bode_plot(results.get("swept").frf if "swept" in results else None, stepped=results["stepped"].frf if "stepped" in results else None,
-                      reference=reference, reference_label="linearised simulator", title=title, path=folder.path("bode.png"))
+            bode_plot(
+                results.get("swept").frf if "swept" in results else None,
+                stepped=results["stepped"].frf if "stepped" in results else None,
+                reference=reference,
+                reference_label="linearised simulator",
+                title=title,
+                path=folder.path("bode.png"),
+            )
 
             try:
                 if args.model is None:
@@ -252,23 +325,41 @@ def run(args: argparse.Namespace) -> int:
             except (OSError, ValueError):
                 params = None
             hp = hydraulic_params(model)
-            peaks = {kind: {"load_pressure_pa": float(np.max(np.abs(r.timeseries.p_load))) if r.timeseries.p_load is not None else None,
-                            "valve_command_v": float(np.max(np.abs(r.timeseries.v))),
-                            "joint_angle_rad": float(np.max(np.abs(r.timeseries.theta)))} for kind, r in results.items()}
+            peaks = {
+                kind: {
+                    "load_pressure_pa": float(np.max(np.abs(r.timeseries.p_load))) if r.timeseries.p_load is not None else None,
+                    "valve_command_v": float(np.max(np.abs(r.timeseries.v))),
+                    "joint_angle_rad": float(np.max(np.abs(r.timeseries.theta))),
+                }
+                for kind, r in results.items()
+            }
             outputs = [str(folder.final(n)) for n in names] + ([str(rerun_path)] if rerun_path else [])
             summary = {
                 "command": "samii measure",
                 "argv": sys.argv[1:],
                 "method": args.method,
                 "excitation": {kind: e.describe() for kind, e in plan},
-                "daq": {"sample_rate_hz": args.sample_rate_hz, "antialias": main.timeseries.metadata.get("antialias"),
-                        "sensor_noise": asdict(noise) if noise else None, "seed": args.seed},
+                "daq": {
+                    "sample_rate_hz": args.sample_rate_hz,
+                    "antialias": main.timeseries.metadata.get("antialias"),
+                    "sensor_noise": asdict(noise) if noise else None,
+                    "seed": args.seed,
+                },
                 "frf": {k: v for k, v in main.frf.metadata.items() if k.startswith("frf_")},
-                "model": {"file": args.model or "embedded default", "overrides": overrides, "timestep_s": dt,
-                          "params": params, "hydraulic": {k: v for k, v in asdict(hp).items() if k != "source"}},
+                "model": {
+                    "file": args.model or "embedded default",
+                    "overrides": overrides,
+                    "timestep_s": dt,
+                    "params": params,
+                    "hydraulic": {k: v for k, v in asdict(hp).items() if k != "source"},
+                },
                 "versions": _versions(),
-                "timing": {"simulated_s": simulated_s, "simulation_wall_s": sim_wall, "total_wall_s": time.perf_counter() - t_start,
-                           "real_time_factor": simulated_s / sim_wall if sim_wall > 0 else None},
+                "timing": {
+                    "simulated_s": simulated_s,
+                    "simulation_wall_s": sim_wall,
+                    "total_wall_s": time.perf_counter() - t_start,
+                    "real_time_factor": simulated_s / sim_wall if sim_wall > 0 else None,
+                },
                 "vs_linearised_simulator_0.5_35_hz": checks[plan[0][0]],
                 "peaks": peaks[plan[0][0]],
                 "outputs": outputs,
@@ -284,7 +375,8 @@ def run(args: argparse.Namespace) -> int:
                         f"{kind} run: the load pressure reached {p_peak / 1e6:.2f} MPa, {100 * (p_peak / hp.supply_pressure - 1):.0f} % above the "
                         f"{hp.supply_pressure / 1e6:.3g} MPa supply: the motor pumped oil in faster than the partly closed valve returns it "
                         "to the supply (no relief valve is modelled; a rig's would clip the pressure). "
-                        "The response is far from small-signal: lower --amplitude-v")
+                        "The response is far from small-signal: lower --amplitude-v"
+                    )
             for kind, check in checks.items():
                 # a swept sine's dense grid: the deviation of a band (a point whose coherence is high by chance deviated
                 # 6.8 dB at 0.1 V with sensor noise, and lowering the amplitude was advised); a stepped sine's every point
@@ -292,15 +384,21 @@ def run(args: argparse.Namespace) -> int:
                 ch = max(check, key=lambda c: check[c][key], default=None)
                 if ch is not None and check[ch][key] > LINEARITY_WARN_DB:
                     st = check[ch]
-                    where = (f"over a band (the median of {SUSTAINED_POINTS} neighbouring coherent points, 0.5-35 Hz; "
-                             f"{st['sustained_deg']:.0f} deg)" if kind == "swept" else f"(coherent points, 0.5-35 Hz; {st['max_abs_deg']:.0f} deg)")
+                    where = (
+                        f"over a band (the median of {SUSTAINED_POINTS} neighbouring coherent points, 0.5-35 Hz; {st['sustained_deg']:.0f} deg)"
+                        if kind == "swept"
+                        else f"(coherent points, 0.5-35 Hz; {st['max_abs_deg']:.0f} deg)"
+                    )
                     warnings_out.append(
                         f"{kind} run: {ch} lies {st[key]:.1f} dB from the linearised simulator {where}: the response at {amp:g} V "
                         "is far from small-signal (valve and orifice nonlinearity), so this FRF is not the plant's linear model; "
-                        "lower --amplitude-v to measure that")
+                        "lower --amplitude-v to measure that"
+                    )
             if "swept" in results and not coh_ok:
-                warnings_out.append("one swept-sine record cannot estimate coherence (--averages 1): the coherence panels are empty "
-                                    "and the check against the linearised simulator uses every point")
+                warnings_out.append(
+                    "one swept-sine record cannot estimate coherence (--averages 1): the coherence panels are empty "
+                    "and the check against the linearised simulator uses every point"
+                )
             if warnings_out:
                 summary["warnings"] = warnings_out
             write_text(folder.path("run.json"), dumps(summary, indent=2) + "\n")
@@ -326,18 +424,24 @@ def run(args: argparse.Namespace) -> int:
         print(dumps(summary, indent=2))
         return 0
     tm = summary["timing"]
-    print(f"samii measure: {_METHOD_LABEL[args.method]}, {simulated_s:.0f} s simulated in {sim_wall:.1f} s "
-          f"({tm['real_time_factor']:.0f}x real time), {tm['total_wall_s']:.1f} s in all")
+    print(
+        f"samii measure: {_METHOD_LABEL[args.method]}, {simulated_s:.0f} s simulated in {sim_wall:.1f} s "
+        f"({tm['real_time_factor']:.0f}x real time), {tm['total_wall_s']:.1f} s in all"
+    )
     for kind, pk in peaks.items():
-        print(f"{kind}: peak load pressure {pk['load_pressure_pa'] / 1e6:.2f} MPa (supply {hp.supply_pressure / 1e6:.3g} MPa), "
-              f"peak valve command {pk['valve_command_v']:.2f} V")
+        print(
+            f"{kind}: peak load pressure {pk['load_pressure_pa'] / 1e6:.2f} MPa (supply {hp.supply_pressure / 1e6:.3g} MPa), "
+            f"peak valve command {pk['valve_command_v']:.2f} V"
+        )
     for w in summary.get("warnings", []):
         print(f"samii measure: warning: {w}")
     for kind, check in checks.items():
         cond = "coherence > 0.95" if coh_ok or kind == "stepped" else "every point"
         for ch, st in check.items():
-            print(f"{kind} {ch}: within {st['max_abs_db']:.2f} dB and {st['max_abs_deg']:.2f} deg of the linearised simulator "
-                  f"over 0.5-35 Hz ({cond}, {st['points']} points)")
+            print(
+                f"{kind} {ch}: within {st['max_abs_db']:.2f} dB and {st['max_abs_deg']:.2f} deg of the linearised simulator "
+                f"over 0.5-35 Hz ({cond}, {st['points']} points)"
+            )
     for p in summary["outputs"]:
         print(f"wrote {with_size(p)}")
     return 0

@@ -22,13 +22,23 @@ OUTPUTS = ("frf.csv", "bode.png")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("timeseries", metavar="TIMESERIES", type=nonempty_path,
-                        help="time-series CSV (DATA_FORMATS.md: t, v, theta, accel and the excitation r)")
+    parser.add_argument(
+        "timeseries", metavar="TIMESERIES", type=nonempty_path, help="time-series CSV (DATA_FORMATS.md: t, v, theta, accel and the excitation r)"
+    )
     parser.add_argument("--out", metavar="DIR", type=nonempty_path, default="frf_out", help="output folder (default frf_out)")
-    parser.add_argument("--record-s", type=positive_float, metavar="S",
-                        help="length of one repetition of the excitation [s] (default: the file's record_s line, else found from r)")
-    parser.add_argument("--band-hz", type=positive_float, nargs=2, metavar=("LO", "HI"),
-                        help="frequency band (default: the file's start_hz/stop_hz, else 0.1-40 Hz below 0.45 x the sample rate)")
+    parser.add_argument(
+        "--record-s",
+        type=positive_float,
+        metavar="S",
+        help="length of one repetition of the excitation [s] (default: the file's record_s line, else found from r)",
+    )
+    parser.add_argument(
+        "--band-hz",
+        type=positive_float,
+        nargs=2,
+        metavar=("LO", "HI"),
+        help="frequency band (default: the file's start_hz/stop_hz, else 0.1-40 Hz below 0.45 x the sample rate)",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace files already in --out")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
 
@@ -45,8 +55,10 @@ def read_measured(path: str, *, record_s: float | None, band_hz):
         raise InputError(f"{path}: a MATLAB file; samii frf expects a time-series CSV (t, v, theta, accel, r)")
     header = csv_header(p)
     if "freq_hz" in header and "t" not in header:
-        raise InputError(f"{path}: this is already a frequency response (columns {', '.join(header[:4])}, ...); samii frf expects a time series "
-                         "(t, v, theta, accel, r), as samii measure writes timeseries.csv")
+        raise InputError(
+            f"{path}: this is already a frequency response (columns {', '.join(header[:4])}, ...); samii frf expects a time series "
+            "(t, v, theta, accel, r), as samii measure writes timeseries.csv"
+        )
     if "t" not in header:
         from samii.measure.io import read_timeseries_csv
 
@@ -68,8 +80,9 @@ def summary(m) -> dict:
     return {
         "source": m.source,
         "sample_rate_hz": m.sample_rate_hz,
-        "records": None if lay is None else {"record_s": lay.record_s, "start_s": lay.start_s, "n_records": lay.n_records,
-                                             "operating_point_s": lay.baseline_s, "how": lay.how},
+        "records": None
+        if lay is None
+        else {"record_s": lay.record_s, "start_s": lay.start_s, "n_records": lay.n_records, "operating_point_s": lay.baseline_s, "how": lay.how},
         "dwells": int(frf.freq_hz.size) if lay is None else None,
         "band_hz": [float(frf.freq_hz[0]), float(frf.freq_hz[-1])],
         "n_points": int(frf.freq_hz.size),
@@ -113,8 +126,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {info['n_points']} points, {info['band_hz'][0]:.3g}-{info['band_hz'][1]:.3g} Hz, channels {', '.join(info['channels'])}")
     else:
         print(f"samii frf: {args.timeseries}: {lay.n_records} records of {lay.record_s:.6g} s from t = {lay.start_s:.6g} s ({lay.how})")
-        print(f"  operating point: the first {lay.baseline_s:.3g} s of each record; band {info['band_hz'][0]:.3g}-{info['band_hz'][1]:.3g} Hz, "
-              f"{info['n_points']} points, channels {', '.join(info['channels'])}")
+        print(
+            f"  operating point: the first {lay.baseline_s:.3g} s of each record; band {info['band_hz'][0]:.3g}-{info['band_hz'][1]:.3g} Hz, "
+            f"{info['n_points']} points, channels {', '.join(info['channels'])}"
+        )
     print(f"  noise: {m.noise_source}")
     for w in m.warnings:
         print(f"samii frf: warning: {w}")

@@ -64,7 +64,7 @@ class SensorNoise:
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"SensorNoise.{name} must be non-negative and finite, got {value!r}")
 
-    def scaled(self, factor: float) -> "SensorNoise":
+    def scaled(self, factor: float) -> SensorNoise:
         """All levels times ``factor``."""
         return SensorNoise(**{k: v * factor for k, v in asdict(self).items()})
 
@@ -114,8 +114,7 @@ class Daq:
         q = int(round(ratio))
         if q < 1 or abs(ratio - q) > 1e-6 * ratio:
             raise ValueError(
-                f"the physics rate {physics_rate_hz:.9g} Hz must be an integer multiple of the DAQ rate "
-                f"{sample_rate_hz:.9g} Hz (ratio {ratio:.6g})"
+                f"the physics rate {physics_rate_hz:.9g} Hz must be an integer multiple of the DAQ rate {sample_rate_hz:.9g} Hz (ratio {ratio:.6g})"
             )
         if noise is not None and rng is None:
             raise ValueError("sensor noise needs a seeded numpy Generator: pass rng=np.random.default_rng(seed)")
@@ -143,8 +142,14 @@ class Daq:
             "sample_rate_hz": f"{self.sample_rate_hz:g}",
             "antialias": f"Butterworth order {_AA_ORDER}, {self.cutoff_hz:g} Hz, causal, every channel, before sampling",
             "sensor_noise": "none" if noise is None else ", ".join(f"{k} {v:g}" for k, v in noise.std().items()) + " (std, SI)",
-            **({} if self.sensors is None else {"sensor_dynamics": ", ".join(
-                f"{n} {v:g}" for (n, _), v in zip(SENSOR_FIELDS, self.sensors.values())) + " (samii.sim.sensor_dynamics)"}),
+            **(
+                {}
+                if self.sensors is None
+                else {
+                    "sensor_dynamics": ", ".join(f"{n} {v:g}" for (n, _), v in zip(SENSOR_FIELDS, self.sensors.values()))
+                    + " (samii.sim.sensor_dynamics)"
+                }
+            ),
         }
 
     def process(self, t0_s: float, columns: dict[str, np.ndarray]) -> tuple[np.ndarray, dict[str, np.ndarray]]:

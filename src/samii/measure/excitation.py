@@ -297,7 +297,7 @@ class SweptSine:
         }
 
     @classmethod
-    def from_metadata(cls, meta) -> "SweptSine":
+    def from_metadata(cls, meta) -> SweptSine:
         """The sweep a record's metadata (:meth:`describe`'s settings, as ``samii measure`` writes
         them in a time series' header) states. Raises KeyError for a missing setting and
         ValueError for one that is not a number (or not a valid sweep)."""
@@ -420,7 +420,7 @@ class SteppedSine:
         return out
 
     @classmethod
-    def from_metadata(cls, meta) -> "SteppedSine":
+    def from_metadata(cls, meta) -> SteppedSine:
         """The stepped sine a record's metadata (:meth:`describe`'s settings, as ``samii measure`` writes them in a time
         series' header) states. Raises KeyError for a missing setting and ValueError for one that is not a number (or
         not a valid schedule)."""

@@ -187,7 +187,7 @@ def record_spectra(
     freqs_hz=None,
     points_per_decade: float = _POINTS_PER_DECADE,
     pad_factor: int = 2,
-) -> "RecordSpectra":
+) -> RecordSpectra:
     """Spectra of every record of r, v, theta, accel at the output frequencies (see :func:`estimate_frf`)."""
     records, n_records = split_records(ts, record_s=record_s, baseline_s=baseline_s)
     fs = ts.sample_rate_hz

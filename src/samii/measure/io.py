@@ -44,8 +44,9 @@ import re
 import secrets
 import stat
 from collections import Counter
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Callable, Literal, Mapping, Sequence
+from typing import Literal
 
 import numpy as np
 
@@ -209,8 +210,13 @@ def _file_kind(mode: int) -> str | None:
     """What a non-regular file is, for a message; None for a regular file."""
     if stat.S_ISREG(mode):
         return None
-    for test, name in ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a named pipe (FIFO)"), (stat.S_ISSOCK, "a socket"),
-                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device")):
+    for test, name in (
+        (stat.S_ISDIR, "a folder"),
+        (stat.S_ISFIFO, "a named pipe (FIFO)"),
+        (stat.S_ISSOCK, "a socket"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+    ):
         if test(mode):
             return name
     return "not a regular file"
@@ -222,8 +228,9 @@ def _size(n: int) -> str:
 
 def _too_big(path: Path, size: int | None) -> DataFormatError:
     got = f"is {_size(size)}" if size is not None else "grew beyond that while being read"
-    return DataFormatError(path, f"the file {got}; the readers take at most {_size(MAX_FILE_BYTES)} "
-                                 "(samii.measure.io.MAX_FILE_BYTES): split the record or decimate it")
+    return DataFormatError(
+        path, f"the file {got}; the readers take at most {_size(MAX_FILE_BYTES)} (samii.measure.io.MAX_FILE_BYTES): split the record or decimate it"
+    )
 
 
 def _read_bytes(path) -> bytes:
@@ -234,8 +241,11 @@ def _read_bytes(path) -> bytes:
     """
     path = Path(path)
     if _TMP_NAME.fullmatch(path.name):
-        raise DataFormatError(path, "is a temporary file of a write that was interrupted (.NAME.PID.TOKEN.tmp) and may be "
-                                    "incomplete; read the finished file, or delete this one")
+        raise DataFormatError(
+            path,
+            "is a temporary file of a write that was interrupted (.NAME.PID.TOKEN.tmp) and may be "
+            "incomplete; read the finished file, or delete this one",
+        )
     try:
         st = os.stat(path)
     except FileNotFoundError:
@@ -289,8 +299,12 @@ def _line_and_char(data: bytes, offset: int) -> tuple[int, int]:
 
 
 # signatures of files that are often taken for a CSV
-_MAGIC = ((b"MATLAB", "a MATLAB .mat file"), (b"\x89HDF", "an HDF5 file (a MATLAB v7.3 .mat?)"),
-          (b"PK\x03\x04", "a zip archive (an Excel .xlsx workbook?)"), (b"\xd0\xcf\x11\xe0", "an Excel .xls workbook"))
+_MAGIC = (
+    (b"MATLAB", "a MATLAB .mat file"),
+    (b"\x89HDF", "an HDF5 file (a MATLAB v7.3 .mat?)"),
+    (b"PK\x03\x04", "a zip archive (an Excel .xlsx workbook?)"),
+    (b"\xd0\xcf\x11\xe0", "an Excel .xls workbook"),
+)
 
 
 def _decode(path: Path, data: bytes) -> str:
@@ -298,7 +312,7 @@ def _decode(path: Path, data: bytes) -> str:
     if data.startswith((b"\xff\xfe", b"\xfe\xff")):
         raise DataFormatError(path, "is UTF-16 text (Excel's 'Unicode text'); expected UTF-8: save it as 'CSV UTF-8'")
     if data.startswith(_BOM):
-        data = data[len(_BOM):]
+        data = data[len(_BOM) :]
     for magic, what in _MAGIC:
         if data.startswith(magic):
             raise DataFormatError(path, f"is {what}; expected comma-separated text")
@@ -312,8 +326,7 @@ def _decode(path: Path, data: bytes) -> str:
         line, char = _line_and_char(data, exc.start)
         raise DataFormatError(
             path,
-            f"expected UTF-8 text, got the byte 0x{data[exc.start]:02x} at character {char} "
-            "(Latin-1 or Windows-1252 text? save the file as UTF-8)",
+            f"expected UTF-8 text, got the byte 0x{data[exc.start]:02x} at character {char} (Latin-1 or Windows-1252 text? save the file as UTF-8)",
             line=line,
         ) from None
     if "\r" in text:
@@ -327,8 +340,16 @@ def _decode(path: Path, data: bytes) -> str:
 class _Table:
     """Parsed CSV: metadata, header, numeric data and the file line of every row."""
 
-    def __init__(self, path: Path, metadata: dict[str, str], header: list[str], header_line: int, data: np.ndarray,
-                 lines: np.ndarray, metadata_lines: dict[str, int] | None = None):
+    def __init__(
+        self,
+        path: Path,
+        metadata: dict[str, str],
+        header: list[str],
+        header_line: int,
+        data: np.ndarray,
+        lines: np.ndarray,
+        metadata_lines: dict[str, int] | None = None,
+    ):
         self.path, self.metadata, self.header, self.header_line = path, metadata, header, header_line
         self.data, self.lines = data, lines
         self.metadata_lines = metadata_lines or {}
@@ -375,14 +396,19 @@ def _read_table(path, known: Callable[[str], bool] | None = None) -> _Table:
         raise DataFormatError(path, "the file is empty; expected optional '#' comment lines, a header row and data rows")
     n_lines = text.count("\n") + 1
     if n_lines > MAX_LINES:
-        raise DataFormatError(path, f"the file has {n_lines} lines; the readers take at most {MAX_LINES} "
-                                    "(samii.measure.io.MAX_LINES): split the record or decimate it")
+        raise DataFormatError(
+            path, f"the file has {n_lines} lines; the readers take at most {MAX_LINES} (samii.measure.io.MAX_LINES): split the record or decimate it"
+        )
     all_lines = text.split("\n")
     del text
     if max(map(len, all_lines)) > MAX_LINE_CHARS:
         k = next(k for k, line in enumerate(all_lines) if len(line) > MAX_LINE_CHARS)
-        raise DataFormatError(path, f"the line is {len(all_lines[k])} characters long; expected at most {MAX_LINE_CHARS} "
-                                    "(samii.measure.io.MAX_LINE_CHARS): is this a CSV file with line breaks?", line=k + 1)
+        raise DataFormatError(
+            path,
+            f"the line is {len(all_lines[k])} characters long; expected at most {MAX_LINE_CHARS} "
+            "(samii.measure.io.MAX_LINE_CHARS): is this a CSV file with line breaks?",
+            line=k + 1,
+        )
     metadata: dict[str, str] = {}
     metadata_lines: dict[str, int] = {}
     header: list[str] | None = None
@@ -409,8 +435,9 @@ def _read_table(path, known: Callable[[str], bool] | None = None) -> _Table:
                     if sep in line:
                         raise DataFormatError(path, f"the header {_cell(line)} seems separated by {name}; expected commas", line=number)
             if all(_is_number(name) for name in header):
-                raise DataFormatError(path, f"the first row holds numbers ({_cell(line)}); expected a header row of column "
-                                            "names before the data", line=number)
+                raise DataFormatError(
+                    path, f"the first row holds numbers ({_cell(line)}); expected a header row of column names before the data", line=number
+                )
             for k, name in enumerate(header):
                 if not name:
                     raise DataFormatError(path, f"header cell {k + 1} is empty; expected a column name", line=number)
@@ -471,8 +498,7 @@ def _loadtxt(lines: list[str]) -> np.ndarray:
     return np.loadtxt(lines, delimiter=",", comments=None, ndmin=2, dtype=float)
 
 
-def _parse_numbers(path: Path, header: list[str], lines: list[str], numbers: list[int],
-                   other: Sequence[str] = ()) -> tuple[np.ndarray, list[str]]:
+def _parse_numbers(path: Path, header: list[str], lines: list[str], numbers: list[int], other: Sequence[str] = ()) -> tuple[np.ndarray, list[str]]:
     """The rows' numbers and the header of their columns: ``other`` columns (ignored by the format) that do not parse are
     left out; any other defect is refused, naming its line and column."""
     try:  # fast path: numpy's C parser
@@ -677,14 +703,20 @@ def read_timeseries_csv(path) -> TimeSeries:
                 missing = round(step / ref) - 1
                 hint = f"; {missing} sample{'s' if missing > 1 else ''} missing?"
             elif _rounded_time(t, 2.0**-50):  # a time far from 0 (Unix time) in double precision: its rounding there
-                hint = (f"; t reaches {np.max(np.abs(t)):.6g} s (a clock's time, Unix time?), where a double-precision number "
-                        f"keeps only {np.max(np.abs(t)) * 2.0**-52:.2g} s: write t from the first sample's time (t - t[0])")
+                hint = (
+                    f"; t reaches {np.max(np.abs(t)):.6g} s (a clock's time, Unix time?), where a double-precision number "
+                    f"keeps only {np.max(np.abs(t)) * 2.0**-52:.2g} s: write t from the first sample's time (t - t[0])"
+                )
             elif _rounded_time(t):
                 mean = (t[-1] - t[0]) / (t.size - 1)
-                hint = (f"; the steps scatter about {mean:.9g} s by no more than the rounding of 7 significant digits (single "
-                        "precision): write t with more digits, or as the sample index over the sample rate")
-            message = (f"expected uniformly increasing time (every step within {TIME_UNIFORMITY_RTOL:g} of the typical step "
-                       f"{ref:.9g} s), got a step of {step:.9g} s from line {int(table.lines[i - 1])}{hint}")
+                hint = (
+                    f"; the steps scatter about {mean:.9g} s by no more than the rounding of 7 significant digits (single "
+                    "precision): write t with more digits, or as the sample index over the sample rate"
+                )
+            message = (
+                f"expected uniformly increasing time (every step within {TIME_UNIFORMITY_RTOL:g} of the typical step "
+                f"{ref:.9g} s), got a step of {step:.9g} s from line {int(table.lines[i - 1])}{hint}"
+            )
         raise table.error(message, row=i, column="t")
     _check_sample_rate(table, t)
     if table.has("spool"):
@@ -731,8 +763,11 @@ def _stated_rate(table: _Table) -> float | None:
         return None
     rate = stated_sample_rate(text)
     if rate is None or not 0 < rate < float("inf"):  # (a sampling model divides by it)
-        raise DataFormatError(table.path, f"expected '# sample_rate_hz:' to give a positive number of samples per second, "
-                                          f"got {_cell(text)}", line=table.metadata_lines.get("sample_rate_hz"))
+        raise DataFormatError(
+            table.path,
+            f"expected '# sample_rate_hz:' to give a positive number of samples per second, got {_cell(text)}",
+            line=table.metadata_lines.get("sample_rate_hz"),
+        )
     return rate
 
 
@@ -763,8 +798,7 @@ def _check_sample_rate(table: _Table, t: np.ndarray) -> None:
         hint = "which of the two is wrong?"
     raise DataFormatError(
         table.path,
-        f"the time column steps by {dt:.9g} s but '# sample_rate_hz: {_short(text)}' (line {line}) says "
-        f"{1.0 / rate:.9g} s; {hint}",
+        f"the time column steps by {dt:.9g} s but '# sample_rate_hz: {_short(text)}' (line {line}) says {1.0 / rate:.9g} s; {hint}",
         line=line,
         column="t",
     )
@@ -885,7 +919,7 @@ class TimeSeriesCsvWriter:
         except Exception:
             pass
 
-    def __enter__(self) -> "TimeSeriesCsvWriter":
+    def __enter__(self) -> TimeSeriesCsvWriter:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
@@ -907,9 +941,13 @@ def _check_nyquist(table: _Table, f: np.ndarray) -> None:
     text = table.metadata["sample_rate_hz"]
     bad = np.flatnonzero(f > rate / 2)
     if bad.size:
-        raise table.error(f"frequency {_num(f[bad[0]])} Hz lies above the Nyquist frequency {rate / 2:g} Hz of '# sample_rate_hz: "
-                          f"{_short(text)}' (line {table.metadata_lines.get('sample_rate_hz')}): no record sampled so holds a "
-                          "response there; the header or the frequencies are wrong", row=int(bad[0]), column="freq_hz")
+        raise table.error(
+            f"frequency {_num(f[bad[0]])} Hz lies above the Nyquist frequency {rate / 2:g} Hz of '# sample_rate_hz: "
+            f"{_short(text)}' (line {table.metadata_lines.get('sample_rate_hz')}): no record sampled so holds a "
+            "response there; the header or the frequencies are wrong",
+            row=int(bad[0]),
+            column="freq_hz",
+        )
 
 
 def read_frf_csv(path) -> FrequencyResponse:
@@ -931,14 +969,18 @@ def read_frf_csv(path) -> FrequencyResponse:
         raise table.error(f"expected a positive frequency, got {_num(f[bad[0]])}", row=int(bad[0]), column="freq_hz")
     bad = np.flatnonzero(f > MAX_FREQ_HZ)
     if bad.size:
-        raise table.error(f"expected a frequency up to {MAX_FREQ_HZ:g} Hz, got {_num(f[bad[0]])} (in rad/s, or corrupt?)",
-                          row=int(bad[0]), column="freq_hz")
+        raise table.error(
+            f"expected a frequency up to {MAX_FREQ_HZ:g} Hz, got {_num(f[bad[0]])} (in rad/s, or corrupt?)", row=int(bad[0]), column="freq_hz"
+        )
     bad = np.flatnonzero(np.diff(f) <= 0)
     if bad.size:
         k = int(bad[0]) + 1
         what = "a repeated" if f[k] == f[k - 1] else "a decreasing"
-        raise table.error(f"expected strictly increasing frequency, got {what} {_num(f[k])} after {_num(f[k - 1])} (line {int(table.lines[k - 1])})",
-                          row=k, column="freq_hz")
+        raise table.error(
+            f"expected strictly increasing frequency, got {what} {_num(f[k])} after {_num(f[k - 1])} (line {int(table.lines[k - 1])})",
+            row=k,
+            column="freq_hz",
+        )
     _check_nyquist(table, f)
     kw = {}
     for ch in CHANNELS:
@@ -948,7 +990,9 @@ def read_frf_csv(path) -> FrequencyResponse:
             raise DataFormatError(table.path, f"column {have!r} needs its partner {lack!r}", line=table.header_line, column=lack)
         if not table.has(mag_name):
             if table.has(coh_name):
-                raise DataFormatError(table.path, f"coherence without its channel: expected {mag_name!r} and {ph_name!r}", line=table.header_line, column=coh_name)
+                raise DataFormatError(
+                    table.path, f"coherence without its channel: expected {mag_name!r} and {ph_name!r}", line=table.header_line, column=coh_name
+                )
             continue
         mag, phase = table.col(mag_name), table.col(ph_name)
         k, message = _bad_magnitude(mag)
@@ -958,8 +1002,13 @@ def read_frf_csv(path) -> FrequencyResponse:
         if message:
             raise table.error(message, row=k, column=ph_name)
         if (why := _phase_in_radians(ch, mag, phase)) is not None:
-            raise DataFormatError(table.path, f"every value of {ph_name!r} lies within +-{RADIAN_CHECK_MAX:.3g} ({phase.size} points): "
-                                              f"that is a phase in radians; expected degrees ({why})", line=table.header_line, column=ph_name)
+            raise DataFormatError(
+                table.path,
+                f"every value of {ph_name!r} lies within +-{RADIAN_CHECK_MAX:.3g} ({phase.size} points): "
+                f"that is a phase in radians; expected degrees ({why})",
+                line=table.header_line,
+                column=ph_name,
+            )
         kw[ch] = mag * np.exp(1j * np.unwrap(np.radians(phase)))
         if table.has(coh_name):
             coh = table.col(coh_name)
@@ -970,8 +1019,7 @@ def read_frf_csv(path) -> FrequencyResponse:
     if not any(ch in kw for ch in CHANNELS):
         raise DataFormatError(
             table.path,
-            "no channel found: expected at least one pair of columns act_mag/act_phase_deg, base_mag/base_phase_deg "
-            "or total_mag/total_phase_deg",
+            "no channel found: expected at least one pair of columns act_mag/act_phase_deg, base_mag/base_phase_deg or total_mag/total_phase_deg",
             line=table.header_line,
         )
     try:
@@ -989,8 +1037,10 @@ def _bad_magnitude(mag: np.ndarray) -> tuple[int, str]:
     k = int(bad[0])
     if mag[k] < 0:
         return k, f"expected a non-negative linear magnitude (not dB), got {_num(mag[k])}"
-    return k, (f"expected a linear magnitude within {lo:g}...{hi:g} ({20 * np.log10(lo):+.0f}...{20 * np.log10(hi):+.0f} dB), "
-               f"got {_num(mag[k])}" + (" (a magnitude of 0 has no dB value: is the channel connected?)" if mag[k] == 0 else ""))
+    return k, (
+        f"expected a linear magnitude within {lo:g}...{hi:g} ({20 * np.log10(lo):+.0f}...{20 * np.log10(hi):+.0f} dB), "
+        f"got {_num(mag[k])}" + (" (a magnitude of 0 has no dB value: is the channel connected?)" if mag[k] == 0 else "")
+    )
 
 
 #: theta/v phase columns this long are checked for radians: every value within RADIAN_CHECK_MAX (3 pi: an
@@ -1019,8 +1069,10 @@ def _phase_in_radians(ch: str, mag: np.ndarray, phase: np.ndarray) -> str | None
         db = 20.0 * np.log10(np.abs(mag))
     peaks, _ = find_peaks(np.nan_to_num(db, neginf=-400.0), prominence=RADIAN_CHECK_PEAK_DB)
     if peaks.size:
-        return (f"its magnitude has a resonance {RADIAN_CHECK_PEAK_DB:g} dB or more above its surroundings, across which a phase "
-                "in degrees swings by about 180")
+        return (
+            f"its magnitude has a resonance {RADIAN_CHECK_PEAK_DB:g} dB or more above its surroundings, across which a phase "
+            "in degrees swings by about 180"
+        )
     return None
 
 
@@ -1030,8 +1082,10 @@ def _bad_phase(phase: np.ndarray) -> tuple[int, str]:
     if not bad.size:
         return -1, ""
     k = int(bad[0])
-    return k, (f"expected a phase within +-{MAX_ABS_PHASE_DEG:g} deg (about {MAX_ABS_PHASE_DEG / 360:.0f} turns; "
-               f"no measured phase comes near it), got {_num(phase[k])}")
+    return k, (
+        f"expected a phase within +-{MAX_ABS_PHASE_DEG:g} deg (about {MAX_ABS_PHASE_DEG / 360:.0f} turns; "
+        f"no measured phase comes near it), got {_num(phase[k])}"
+    )
 
 
 def write_frf_csv(frf: FrequencyResponse, path, *, overwrite: bool = False) -> Path:
@@ -1118,7 +1172,11 @@ def _not_mat(path: Path, data: bytes, why: str) -> DataFormatError:
     if why.startswith("NotImplementedError"):  # scipy's word for v7.3 (HDF5)
         return DataFormatError(path, f"cannot read this MAT-file version ({_short(why)}); save it with -v7 or earlier")
     head = data[:64]
-    hint = "; it looks like text: a samii CSV (DATA_FORMATS.md) is read as one whatever its name" if _looks_text(head) and not head.startswith(b"MATLAB") else ""
+    hint = (
+        "; it looks like text: a samii CSV (DATA_FORMATS.md) is read as one whatever its name"
+        if _looks_text(head) and not head.startswith(b"MATLAB")
+        else ""
+    )
     return DataFormatError(path, f"not a MATLAB .mat file (v4 to v7.2) that can be read ({' '.join(why.split())[:200] or '-'}){hint}")
 
 
@@ -1134,13 +1192,13 @@ def _loadmat_isolated(path: Path, data: bytes) -> dict:
 
     if not sys.executable or getattr(sys, "frozen", False):
         return _loadmat_in_process(path, data)
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1",
-               PYTHONPATH=os.pathsep.join(p for p in sys.path if isinstance(p, str) and p))
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", PYTHONPATH=os.pathsep.join(p for p in sys.path if isinstance(p, str) and p))
     try:
         proc = subprocess.run([sys.executable, "-c", _MAT_CHILD], input=data, capture_output=True, timeout=MAT_TIMEOUT_S, env=env)
     except subprocess.TimeoutExpired:
-        raise DataFormatError(path, f"reading the .mat file took longer than {MAT_TIMEOUT_S:g} s "
-                                    "(samii.measure.io.MAT_TIMEOUT_S); is it corrupt?") from None
+        raise DataFormatError(
+            path, f"reading the .mat file took longer than {MAT_TIMEOUT_S:g} s (samii.measure.io.MAT_TIMEOUT_S); is it corrupt?"
+        ) from None
     except OSError:  # no interpreter to start
         return _loadmat_in_process(path, data)
     if proc.returncode < 0:
@@ -1148,8 +1206,7 @@ def _loadmat_isolated(path: Path, data: bytes) -> dict:
             sig = signal.Signals(-proc.returncode).name
         except ValueError:
             sig = f"signal {-proc.returncode}"
-        raise DataFormatError(path, f"the MATLAB reader (scipy.io.loadmat) crashed on this file ({sig}): "
-                                    "the file is corrupt or not a MAT-file")
+        raise DataFormatError(path, f"the MATLAB reader (scipy.io.loadmat) crashed on this file ({sig}): the file is corrupt or not a MAT-file")
     if proc.returncode == 3:
         raise _not_mat(path, data, proc.stderr.decode("utf-8", "replace"))
     if proc.returncode != 0:  # the child could not run (its environment), not the file's fault
@@ -1226,8 +1283,11 @@ def read_mat_bode(path, *, freq_name: str | None = None, freq_unit: Literal["hz"
             raise DataFormatError(path, f"expected finite numbers, got {_num(arr[bad[0]])} at element {bad[0] + 1}", column=name)
         bad = np.flatnonzero(np.abs(arr) > MAX_ABS_VALUE)
         if bad.size:
-            raise DataFormatError(path, f"expected numbers within +-{MAX_ABS_VALUE:g} (no measurement comes near it), "
-                                        f"got {_num(arr[bad[0]])} at element {bad[0] + 1}", column=name)
+            raise DataFormatError(
+                path,
+                f"expected numbers within +-{MAX_ABS_VALUE:g} (no measurement comes near it), got {_num(arr[bad[0]])} at element {bad[0] + 1}",
+                column=name,
+            )
         return arr
 
     if freq_name is None:
@@ -1235,8 +1295,7 @@ def read_mat_bode(path, *, freq_name: str | None = None, freq_unit: Literal["hz"
         if not found:
             raise DataFormatError(
                 path,
-                f"no frequency vector under the names tried ({', '.join(MAT_FREQ_NAMES)}); the file holds "
-                f"{holds}: pass freq_name=",
+                f"no frequency vector under the names tried ({', '.join(MAT_FREQ_NAMES)}); the file holds {holds}: pass freq_name=",
             )
         freq_name = found[0]
     f = vector(freq_name)
@@ -1247,12 +1306,18 @@ def read_mat_bode(path, *, freq_name: str | None = None, freq_unit: Literal["hz"
         raise DataFormatError(path, f"expected positive frequencies, got {_num(f[bad[0]])} at element {bad[0] + 1}", column=freq_name)
     bad = np.flatnonzero(f > MAX_FREQ_HZ)
     if bad.size:
-        raise DataFormatError(path, f"expected frequencies up to {MAX_FREQ_HZ:g} Hz, got {_num(f[bad[0]])} Hz at element {bad[0] + 1}"
-                                    + (" (in rad/s? pass freq_unit='rad/s')" if freq_unit == "hz" else ""), column=freq_name)
+        raise DataFormatError(
+            path,
+            f"expected frequencies up to {MAX_FREQ_HZ:g} Hz, got {_num(f[bad[0]])} Hz at element {bad[0] + 1}"
+            + (" (in rad/s? pass freq_unit='rad/s')" if freq_unit == "hz" else ""),
+            column=freq_name,
+        )
     bad = np.flatnonzero(np.diff(f) <= 0)
     if bad.size:
         k = int(bad[0]) + 1
-        raise DataFormatError(path, f"expected strictly increasing frequencies, got {_num(f[k])} after {_num(f[k - 1])} at element {k + 1}", column=freq_name)
+        raise DataFormatError(
+            path, f"expected strictly increasing frequencies, got {_num(f[k])} after {_num(f[k - 1])} at element {k + 1}", column=freq_name
+        )
     kw = {}
     for ch, (mag_name, ph_name) in MAT_CHANNELS.items():
         if (mag_name in mat) != (ph_name in mat):
@@ -1269,8 +1334,11 @@ def read_mat_bode(path, *, freq_name: str | None = None, freq_unit: Literal["hz"
             if message:
                 raise DataFormatError(path, f"{message} at element {k + 1}", column=name)
         if (why := _phase_in_radians(ch, mag, ph)) is not None:  # (the rig-era files' phases are in degrees too)
-            raise DataFormatError(path, f"every value lies within +-{RADIAN_CHECK_MAX:.3g} ({ph.size} points): that is a phase in "
-                                        f"radians; expected degrees ({why})", column=ph_name)
+            raise DataFormatError(
+                path,
+                f"every value lies within +-{RADIAN_CHECK_MAX:.3g} ({ph.size} points): that is a phase in radians; expected degrees ({why})",
+                column=ph_name,
+            )
         kw[ch] = mag * np.exp(1j * np.unwrap(np.radians(ph)))
     if not kw:
         pairs = "; ".join(f"{m}/{p}" for m, p in MAT_CHANNELS.values())

@@ -25,9 +25,9 @@ modal coordinates with one first-order recursion per mode (scipy.signal.lfilter)
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Mapping
 
 import numpy as np
 from scipy import signal
@@ -105,9 +105,7 @@ class LinearRig:
         base2 = control.ss(base2, inputs="w", outputs="accel")
         gain = control.ss([], [], [], [[self.position_gain_v_per_rad]], inputs="theta", outputs="ktheta")
         junction = control.summing_junction(inputs=["r", "-ktheta"], output="v")
-        return control.interconnect(
-            [w_sys, integ2, base2, gain, junction], inplist=["r"], outlist=["v", "theta", "accel"]
-        )
+        return control.interconnect([w_sys, integ2, base2, gain, junction], inplist=["r"], outlist=["v", "theta", "accel"])
 
     def simulate(self, r, *, sample_rate_hz: float, t0_s: float = 0.0) -> TimeSeries:
         """Response to the excitation samples ``r`` [V] from rest, at the physics rate ``sample_rate_hz``.

@@ -154,8 +154,10 @@ def _check_stated(r: np.ndarray, fs: float, period: float, where: str) -> None:
     record, or too little of a second), r shifted by the stated length must match itself (|rho| >= 0.9) where
     the data hold two of it; with less nothing can be checked."""
     if period < _MIN_RECORD_S * fs:
-        raise ValueError(f"{where}: the stated record_s ({period / fs:.6g} s, from '# record_s:' or --record-s) is shorter than "
-                         f"any sweep's record ({_MIN_RECORD_S:g} s at least)")
+        raise ValueError(
+            f"{where}: the stated record_s ({period / fs:.6g} s, from '# record_s:' or --record-s) is shorter than "
+            f"any sweep's record ({_MIN_RECORD_S:g} s at least)"
+        )
     try:
         found, c = _repetition(r, fs, where)
     except ValueError:
@@ -164,8 +166,10 @@ def _check_stated(r: np.ndarray, fs: float, period: float, where: str) -> None:
         k = max(round(period / found), 1)
         if abs(period - k * found) <= max(2.0, _STATED_RTOL * period):
             return
-        why = (f"r repeats every {found / fs:.6g} s (correlation {c:.4f} between repetitions), and the stated length is "
-               f"{period / found:.5g} of that, not a whole number")
+        why = (
+            f"r repeats every {found / fs:.6g} s (correlation {c:.4f} between repetitions), and the stated length is "
+            f"{period / found:.5g} of that, not a whole number"
+        )
     else:
         if 2 * period > r.size:
             return  # r shows no repetition and the data hold less than two of the stated one
@@ -175,8 +179,10 @@ def _check_stated(r: np.ndarray, fs: float, period: float, where: str) -> None:
         if overlap[i] >= _MIN_OVERLAP_ENERGY and near >= _MIN_CORRELATION:
             return
         why = f"r shifted by it correlates with itself by only {near:.2f} (a repetition gives {_MIN_CORRELATION} or more)"
-    raise ValueError(f"{where}: the stated record_s ({period / fs:.6g} s, from '# record_s:' or --record-s) is not a repetition "
-                     f"of the excitation: {why}; correct the stated length, or leave it out to have it found from r")
+    raise ValueError(
+        f"{where}: the stated record_s ({period / fs:.6g} s, from '# record_s:' or --record-s) is not a repetition "
+        f"of the excitation: {why}; correct the stated length, or leave it out to have it found from r"
+    )
 
 
 #: Samples at one value, as a fraction of the file, that make it r's rest level (a generated command rests exactly).
@@ -233,8 +239,10 @@ def find_records(r: np.ndarray, sample_rate_hz: float, *, record_s: float | None
     if record_s is None:
         period, rho = _repetition(r, fs, where)
         if period < _MIN_RECORD_SAMPLES:
-            raise ValueError(f"{where}: r repeats every {period:.3g} samples ({period / fs:.3g} s at {fs:.6g} samples/s): too short "
-                             "for a record of a sweep; is t in seconds?")
+            raise ValueError(
+                f"{where}: r repeats every {period:.3g} samples ({period / fs:.3g} s at {fs:.6g} samples/s): too short "
+                "for a record of a sweep; is t in seconds?"
+            )
         how = f"found from r: repetition {period / fs:.6g} s (correlation {rho:.4f} between repetitions)"
     else:
         if not (np.isfinite(record_s) and record_s > 0):

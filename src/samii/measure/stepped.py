@@ -122,7 +122,8 @@ def estimate_stepped(ts: TimeSeries, *, freqs_hz, windows_s) -> FrequencyRespons
     meta.update(
         {
             "frf_estimator": "stepped sine: least-squares sine fit (correlation with cos, sin and a constant) per dwell; act=Theta/V base=A/Theta total=A/V",
-            "frf_window": "rectangular, whole periods after settling: " + "; ".join(f"{f:g} Hz {a:.6g}-{b:.6g} s" for f, (a, b) in zip(freqs[order], windows[order])),
+            "frf_window": "rectangular, whole periods after settling: "
+            + "; ".join(f"{f:g} Hz {a:.6g}-{b:.6g} s" for f, (a, b) in zip(freqs[order], windows[order])),
             "frf_coherence": "|Y|^2/(|Y|^2 + 4 s^2/N) per signal (s^2: residual variance of the sine fit, N samples: the spectral coherence at the window's resolution); channel = product of numerator's and denominator's",
         }
     )

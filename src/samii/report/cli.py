@@ -15,11 +15,15 @@ __all__ = ["add_arguments", "run"]
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("folder", metavar="DIR", type=nonempty_path, help="a main job's output folder (samii run --out DIR)")
     p.add_argument("--out", metavar="FILE", type=nonempty_path, help="where to write the page (default DIR/report.html)")
-    p.add_argument("--overwrite", action="store_true",
-                   help="replace the page (and --screenshot) if it exists; the main job's own DIR/report.html too")
-    p.add_argument("--screenshot", metavar="PNG", type=nonempty_path,
-                   help="also save a screenshot of the page in a headless Chromium (chromium from your system's packages; "
-                        "SAMII_BROWSER names another)")
+    p.add_argument(
+        "--overwrite", action="store_true", help="replace the page (and --screenshot) if it exists; the main job's own DIR/report.html too"
+    )
+    p.add_argument(
+        "--screenshot",
+        metavar="PNG",
+        type=nonempty_path,
+        help="also save a screenshot of the page in a headless Chromium (chromium from your system's packages; SAMII_BROWSER names another)",
+    )
     p.add_argument("--width", type=int, default=1200, help="screenshot width in pixels (default 1200)")
 
 
@@ -41,8 +45,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{out}: is a folder; the report is a file (remove the folder, or write the page elsewhere with --out FILE)")
     elif out.exists() and not args.overwrite:  # as every command's --out: nothing replaced unless asked
         raise InputError(f"{out}: exists (the main job wrote it); pass --overwrite to write it again, or --out FILE to write it elsewhere")
-    _not_the_runs_own(folder, out, option="--out", allowed=lambda rel: rel.suffix.lower() in (".html", ".htm"),
-                     instead=" (or as DIR/report.html)")
+    _not_the_runs_own(folder, out, option="--out", allowed=lambda rel: rel.suffix.lower() in (".html", ".htm"), instead=" (or as DIR/report.html)")
     if args.screenshot:
         from samii.report.browser import find_browser
         from samii.report.content import STAGE_FIGURES
@@ -54,8 +57,7 @@ def run(args: argparse.Namespace) -> int:
             import os
 
             if os.environ.get("SAMII_BROWSER"):
-                raise InputError(f"--screenshot: SAMII_BROWSER={os.environ['SAMII_BROWSER']} is no program (neither a file nor a "
-                                 "command on PATH)")
+                raise InputError(f"--screenshot: SAMII_BROWSER={os.environ['SAMII_BROWSER']} is no program (neither a file nor a command on PATH)")
             raise InputError("--screenshot: no Chromium found (install chromium, e.g. apt-get install chromium, or set SAMII_BROWSER)")
     run_folder = read_run_folder(folder)
     if args.screenshot:
@@ -82,8 +84,10 @@ def _not_the_runs_own(folder: Path, path: Path, *, option: str, allowed, instead
     except (ValueError, OSError):
         return
     if not allowed(rel):
-        raise InputError(f"{option} {path}: lies in the run's folder {folder} and would replace one of the files the page is made "
-                         f"from; write it elsewhere{instead}")
+        raise InputError(
+            f"{option} {path}: lies in the run's folder {folder} and would replace one of the files the page is made "
+            f"from; write it elsewhere{instead}"
+        )
 
 
 def _page_and_screenshot(run_folder, out: Path, png: Path, width: int):

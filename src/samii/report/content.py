@@ -144,16 +144,19 @@ def _traced_value(value, where: str, log: FieldLog):
     return value
 
 
-def traced(run: "RunFolder") -> tuple["RunFolder", FieldLog]:
+def traced(run: RunFolder) -> tuple[RunFolder, FieldLog]:
     """``run`` with its JSON files' reads logged (the report names the field a failure most likely comes from)."""
     from dataclasses import replace
 
     log = FieldLog()
-    return replace(run, summary=_TracedDict(run.summary, "summary.json: ", log),
-                   measurement=_TracedDict(run.measurement, "measure/run.json: ", log),
-                   fit=_TracedDict(run.fit, "fit/fit.json: ", log),
-                   diagnosis=_TracedDict(run.diagnosis, "diagnose/diagnosis.json: ", log),
-                   closed_loop={name: _TracedDict(doc, f"closedloop/{name}/run.json: ", log) for name, doc in run.closed_loop.items()}), log
+    return replace(
+        run,
+        summary=_TracedDict(run.summary, "summary.json: ", log),
+        measurement=_TracedDict(run.measurement, "measure/run.json: ", log),
+        fit=_TracedDict(run.fit, "fit/fit.json: ", log),
+        diagnosis=_TracedDict(run.diagnosis, "diagnose/diagnosis.json: ", log),
+        closed_loop={name: _TracedDict(doc, f"closedloop/{name}/run.json: ", log) for name, doc in run.closed_loop.items()},
+    ), log
 
 
 def _json(folder: Path, rel: str) -> dict:
@@ -168,8 +171,9 @@ def _json(folder: Path, rel: str) -> dict:
     bad = non_finite_fields(data)
     if bad:  # samii writes null, never NaN or Infinity: the file was damaged after the run (no number shown is trusted)
         shown = ", ".join(bad[:4]) + (f" and {len(bad) - 4} more" if len(bad) > 4 else "")
-        raise InputError(f"{path}: field {shown} holds NaN or an infinity, which samii never writes: the file is damaged; "
-                         "run samii run again for a report")
+        raise InputError(
+            f"{path}: field {shown} holds NaN or an infinity, which samii never writes: the file is damaged; run samii run again for a report"
+        )
     return data
 
 
@@ -204,8 +208,10 @@ def read_run_folder(path) -> RunFolder:
         closed[name] = _json(folder, f"closedloop/{name}/run.json")
         traces[name] = _trace(run_dir / "timeseries.csv")
         # a verdict is shown as it is read: a string "false" would read as stable
-        for where, doc in ((f"{folder / 'summary.json'}: field 'closed_loop.{name}.stable'", runs[name]),
-                           (f"{run_dir / 'run.json'}: field 'stable'", closed[name])):
+        for where, doc in (
+            (f"{folder / 'summary.json'}: field 'closed_loop.{name}.stable'", runs[name]),
+            (f"{run_dir / 'run.json'}: field 'stable'", closed[name]),
+        ):
             if "stable" in doc and not isinstance(doc["stable"], bool):
                 raise InputError(f"{where} holds {doc['stable']!r}; expected true or false (the file is damaged; run samii run again)")
     run = RunFolder(
@@ -244,8 +250,11 @@ def gaps(run: RunFolder) -> list[str]:
     """What a main job writes and ``run`` lacks (figures, fitted parameters), one phrase each. A closed-loop run missing
     from summary.json is refused instead (the summary's lines need each); the recordings are not counted (tens of MB a
     user may remove to archive a folder; the page's Recordings section says what is there)."""
-    out = [f"{rel} is {'not a PNG image (damaged)' if (run.path / rel).exists() else 'missing'}"
-           for key, rel in STAGE_FIGURES.items() if key not in run.figures]
+    out = [
+        f"{rel} is {'not a PNG image (damaged)' if (run.path / rel).exists() else 'missing'}"
+        for key, rel in STAGE_FIGURES.items()
+        if key not in run.figures
+    ]
     design = run.summary.get("damping_design")
     if isinstance(design, dict):
         out += [f"summary.json: damping_design.{k} holds null" for k in _DESIGN_NUMBERS if k in design and design[k] is None]
@@ -328,8 +337,11 @@ def parameter_rows(fit: dict, notebook: dict) -> list[ParamRow]:
             continue
         se = stderr.get(name)
         iv = (profiles.get(name) or {}).get("95%")
-        interval = None if not iv else (float(iv["low"]) * to_shown if iv.get("bounded_low") else None,
-                                        float(iv["high"]) * to_shown if iv.get("bounded_high") else None)
+        interval = (
+            None
+            if not iv
+            else (float(iv["low"]) * to_shown if iv.get("bounded_low") else None, float(iv["high"]) * to_shown if iv.get("bounded_high") else None)
+        )
         rows.append(ParamRow(name, meaning, unit, float(params[name]) * to_shown,
                              None if se is None or not math.isfinite(se) else abs(float(se) * to_shown),
                              None if nb is None else float(nb) * nb_to_shown, interval))  # fmt: skip

@@ -73,8 +73,15 @@ def figure_ch11_step(alone: Trace, cancel: Trace, *, t_end: float = 5.0) -> byte
 def figure_ch11_loper(free: Trace, cancel: Trace, switch_on_s: float, *, t_end: float = 10.0) -> bytes:
     """Figure 11.5: the Loper test: the arm moved by the servo loop alone, the compensator switched on after."""
     plt, fig, (a1,) = _figure(1, 3.2)
-    _accel(a1, free, cancel, ("never switched on (free decay)", "pole-cancelling compensator switched on"), "tab:red",
-           "base acceleration [m/s²]", switch_on_s)
+    _accel(
+        a1,
+        free,
+        cancel,
+        ("never switched on (free decay)", "pole-cancelling compensator switched on"),
+        "tab:red",
+        "base acceleration [m/s²]",
+        switch_on_s,
+    )
     a1.set_title("Figure 11.5 as a simulation: the Loper test with the pole-cancelling compensator", fontsize=10)
     return _png(plt, fig, (a1,), t_end)
 
@@ -85,6 +92,7 @@ def figure_damping(alone: Trace, step: Trace, loper: Trace, switch_on_s: float, 
     _angle(a1, alone, step, ("servo loop alone", "damping controller"), "tab:green")
     a1.set_title("The damping controller (acceleration feedback designed on the fit): step, then the Loper test", fontsize=10)
     _accel(a2, alone, step, ("servo loop alone (step)", "damping controller (step)"), "tab:green", "base accel. [m/s²]")
-    _accel(a3, alone, loper, ("never switched on (free decay)", "damping controller switched on (Loper)"), "tab:green", "base accel. [m/s²]",
-           switch_on_s)
+    _accel(
+        a3, alone, loper, ("never switched on (free decay)", "damping controller switched on (Loper)"), "tab:green", "base accel. [m/s²]", switch_on_s
+    )
     return _png(plt, fig, (a1, a2, a3), t_end)

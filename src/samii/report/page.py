@@ -112,8 +112,10 @@ def _gaps(run: RunFolder) -> str:
     if not run.gaps:
         return ""
     items = "".join(f"<li>{_e(g)}</li>" for g in run.gaps)
-    return (f'<p class="bad">This folder lacks what a main job writes; the page shows what is there and marks the rest '
-            f"(run <code>samii run</code> again for a whole report):</p><ul class=\"warn\">{items}</ul>")
+    return (
+        f'<p class="bad">This folder lacks what a main job writes; the page shows what is there and marks the rest '
+        f'(run <code>samii run</code> again for a whole report):</p><ul class="warn">{items}</ul>'
+    )
 
 
 def _model(run: RunFolder) -> str:
@@ -127,21 +129,28 @@ def _model(run: RunFolder) -> str:
         tgt_f = nb.BASE_MODES_HZ[i] if i < len(nb.BASE_MODES_HZ) else None
         tgt_z = nb.BASE_ZETAS[i] if i < len(nb.BASE_ZETAS) else None
         diff = None if tgt_f is None else 100 * (b["freq_hz"] - tgt_f) / tgt_f
-        rows.append([f"base mode {i + 1}", _num(b["freq_hz"], ".3f"), _num(tgt_f, ".2f"), _num(diff, "+.2f"), _num(b["zeta"], ".3f"), _num(tgt_z, ".3f")])
+        rows.append(
+            [f"base mode {i + 1}", _num(b["freq_hz"], ".3f"), _num(tgt_f, ".2f"), _num(diff, "+.2f"), _num(b["zeta"], ".3f"), _num(tgt_z, ".3f")]
+        )
     out = ['<h2 id="model">Model</h2>', "<p>SAMII, a 6-DOF hydraulic arm at the tip of a flexible cantilevered beam, in MuJoCo. "
            "The base modes are the linearised simulator's with joint 2 held, at the nominal pose (joints "
            + _e(", ".join(str(round(a)) for a in m["pose_deg"])) + " deg); the notebook's eq 9.4 modes are the simulator's calibration targets.</p>",
            _table(["", "simulator [Hz]", "eq 9.4 [Hz]", "difference [%]", "ζ simulator", "ζ eq 9.4"], rows)]  # fmt: skip
     if m.get("servo_pair_1_s"):
         re_, im = m["servo_pair_1_s"]
-        out.append(f"<p>Servo position loop (joint 2 free, unity feedback): the lightly damped pair at {_num(re_, '.2f')} ± {_num(im, '.1f')}j 1/s "
-                   f"({_num(im / (2 * math.pi), '.2f')} Hz, ζ {_num(-re_ / math.hypot(re_, im), '.3f')}).</p>")
+        out.append(
+            f"<p>Servo position loop (joint 2 free, unity feedback): the lightly damped pair at {_num(re_, '.2f')} ± {_num(im, '.1f')}j 1/s "
+            f"({_num(im / (2 * math.pi), '.2f')} Hz, ζ {_num(-re_ / math.hypot(re_, im), '.3f')}).</p>"
+        )
     flat = dotted(run.measurement.get("model", {}).get("params") or {})
     prow = [[_e(what), f"<code>{_e(name)}</code>", _num(flat[name], ".5g"), _e(unit(name))] for name, what in _KEY_PARAMS.items() if name in flat]
     if prow:
-        out.append("<h3>Key physical parameters</h3>" + _table(["", "name (<code>--set NAME=VALUE</code>)", "value", "unit"], prow, left=2)
-                   + "<p>All of them: <code>samii params</code>; where each comes from: the model card (<code>models/samii/README.md</code> "
-                   "in the samii repository).</p>")
+        out.append(
+            "<h3>Key physical parameters</h3>"
+            + _table(["", "name (<code>--set NAME=VALUE</code>)", "value", "unit"], prow, left=2)
+            + "<p>All of them: <code>samii params</code>; where each comes from: the model card (<code>models/samii/README.md</code> "
+            "in the samii repository).</p>"
+        )
     return "".join(out)
 
 
@@ -227,7 +236,7 @@ def _closed_loop(run: RunFolder) -> str:
             th, ba = r.get("theta") or {}, r.get("base") or {}
             ok = bool(r.get("stable"))
             hz = f", {_num(r.get('unstable_mode_hz'), '.3g')} Hz" if r.get("unstable_mode_hz") else ""
-            why = _e(r["instability"]) if isinstance(r.get("instability"), str) else f'grows at {_num(r.get("growth_rate_1_s"), ".3g")} 1/s{hz}'
+            why = _e(r["instability"]) if isinstance(r.get("instability"), str) else f"grows at {_num(r.get('growth_rate_1_s'), '.3g')} 1/s{hz}"
             state = '<span class="ok">stable</span>' if ok else f'<span class="bad">UNSTABLE</span> ({why})'
             rows.append([_e(label), sc, state,
                          _num(th.get("overshoot_pct"), ".1f") if ok and sc == "step" else "–",
@@ -238,30 +247,49 @@ def _closed_loop(run: RunFolder) -> str:
                          _num(ba.get("free_decay_rate_1_s"), ".3g") if ok and sc == "loper" else "–"])  # fmt: skip
     out.append(_table(["controller", "test", "", "θ overshoot [%]", "θ settles [s]", "base peak [m/s²]", "base settles [s]",
                        "base decay after switch-on [1/s]", "free decay [1/s]"], rows, left=3))  # fmt: skip
-    out.append("<p>Settling: the last time the signal is outside 5 % of its peak excursion. Decay rate: the envelope's exponential rate "
-               "after the switch-on; the free decay is the servo loop alone's over the same time. Each run's own figures, its linear "
-               "prediction and its time series are in <code>closedloop/&lt;controller&gt;_&lt;test&gt;/</code>.</p>")
+    out.append(
+        "<p>Settling: the last time the signal is outside 5 % of its peak excursion. Decay rate: the envelope's exponential rate "
+        "after the switch-on; the free decay is the servo loop alone's over the same time. Each run's own figures, its linear "
+        "prediction and its time series are in <code>closedloop/&lt;controller&gt;_&lt;test&gt;/</code>.</p>"
+    )
     tr = run.traces
     if {"servo_loop_alone_step", "notebook_cancel_step"} <= tr.keys():
-        out.append(_figure(figure_ch11_step(tr["servo_loop_alone_step"], tr["notebook_cancel_step"]), "Figures 11.1-11.4",
-                           "The notebook's Figures 11.1–11.4 as simulations (first 5 s of 10). As on the rig, the compensator shapes the "
-                           "step so that it excites little vibration, but it does not damp the base."))
+        out.append(
+            _figure(
+                figure_ch11_step(tr["servo_loop_alone_step"], tr["notebook_cancel_step"]),
+                "Figures 11.1-11.4",
+                "The notebook's Figures 11.1–11.4 as simulations (first 5 s of 10). As on the rig, the compensator shapes the "
+                "step so that it excites little vibration, but it does not damp the base.",
+            )
+        )
     if {"servo_loop_alone_step", "notebook_cancel_loper"} <= tr.keys():
-        out.append(_figure(figure_ch11_loper(tr["servo_loop_alone_step"], tr["notebook_cancel_loper"], _switch_on(run, "notebook_cancel_loper")), "Figure 11.5",
-                           "The notebook's Figure 11.5 as a simulation: switched on after the move, the pole-cancelling compensator leaves "
-                           "the vibration as it was (\"Obviously this didn't work very well\", chapter 11). The free decay is the servo loop "
-                           "alone's step run, identical to the Loper run until the switch-on."))
+        out.append(
+            _figure(
+                figure_ch11_loper(tr["servo_loop_alone_step"], tr["notebook_cancel_loper"], _switch_on(run, "notebook_cancel_loper")),
+                "Figure 11.5",
+                "The notebook's Figure 11.5 as a simulation: switched on after the move, the pole-cancelling compensator leaves "
+                'the vibration as it was ("Obviously this didn\'t work very well", chapter 11). The free decay is the servo loop '
+                "alone's step run, identical to the Loper run until the switch-on.",
+            )
+        )
     if {"servo_loop_alone_step", "damping_step", "damping_loper"} <= tr.keys():
-        out.append(_figure(figure_damping(tr["servo_loop_alone_step"], tr["damping_step"], tr["damping_loper"], _switch_on(run, "damping_loper")),
-                           "The damping controller", "The damping controller in the same tests: it shortens the base vibration after the "
-                           "step and damps it when switched on after the move, which the pole-cancelling compensator does not."
-                           + _overshoot(cl)))
+        out.append(
+            _figure(
+                figure_damping(tr["servo_loop_alone_step"], tr["damping_step"], tr["damping_loper"], _switch_on(run, "damping_loper")),
+                "The damping controller",
+                "The damping controller in the same tests: it shortens the base vibration after the "
+                "step and damps it when switched on after the move, which the pole-cancelling compensator does not." + _overshoot(cl),
+            )
+        )
     place = cl.get("notebook_place_step")
     if place is not None and not place.get("stable"):
-        out.append("<p>Pole placement (chapter 8) is unstable on every plant but the notebook's own 2-mode eq 1.4: its observer uses eq 1.4's "
-                   "direct feedthrough of ẍ/v, which no valve-driven actuator has, so any mismatch closes a loop at the sample rate with a "
-                   "gain far above 1 (<code>experiments/closed_loop/README.md</code>). Its runs stop where the controller's output diverges: "
-                   + _e("; ".join(n for n in run.closed_loop.get("notebook_place_step", {}).get("notes", []) if "diverged at" in n)) + ".</p>")
+        out.append(
+            "<p>Pole placement (chapter 8) is unstable on every plant but the notebook's own 2-mode eq 1.4: its observer uses eq 1.4's "
+            "direct feedthrough of ẍ/v, which no valve-driven actuator has, so any mismatch closes a loop at the sample rate with a "
+            "gain far above 1 (<code>experiments/closed_loop/README.md</code>). Its runs stop where the controller's output diverges: "
+            + _e("; ".join(n for n in run.closed_loop.get("notebook_place_step", {}).get("notes", []) if "diverged at" in n))
+            + ".</p>"
+        )
     return "".join(out)
 
 
@@ -271,9 +299,11 @@ def _overshoot(cl: dict) -> str:
     alone = ((cl.get("servo_loop_alone_step") or {}).get("theta") or {}).get("overshoot_pct")
     if mine is None or alone is None or not mine > alone:
         return ""
-    return (f" The price is the joint's: θ overshoots the step by {_num(mine, '.0f')} % against {_num(alone, '.0f')} % under the servo loop "
-            "alone: its command is added to the servo loop's on the same valve, so what it does to damp the base moves the joint "
-            "too (the design sets its gain for the base's damping, with a gain margin; the step's shape is not in its objective).")
+    return (
+        f" The price is the joint's: θ overshoots the step by {_num(mine, '.0f')} % against {_num(alone, '.0f')} % under the servo loop "
+        "alone: its command is added to the servo loop's on the same valve, so what it does to damp the base moves the joint "
+        "too (the design sets its gain for the base's damping, with a gain margin; the step's shape is not in its objective)."
+    )
 
 
 def _worse(after, before, fmt: str) -> str:
@@ -293,9 +323,11 @@ def _diagnosis(run: RunFolder) -> str:
     # (samii diagnose always writes both: a file without them is damaged, not a diagnosis that found nothing)
     effects = [e for e in d["effects"] if not e.get("expected")]
     verdict = d["verdict"]
-    out = ['<h2 id="diagnosis">Diagnosis: what the fit lacks, found in the measured record</h2>',
-           f"<p><code>samii diagnose measure/timeseries.csv --baseline fit/fit.json</code>: verdict <b>{_e(verdict)}</b>. Each effect is a physical "
-           f"hypothesis fitted jointly with the baseline; {_e(d.get('rule', ''))}.</p>"]
+    out = [
+        '<h2 id="diagnosis">Diagnosis: what the fit lacks, found in the measured record</h2>',
+        f"<p><code>samii diagnose measure/timeseries.csv --baseline fit/fit.json</code>: verdict <b>{_e(verdict)}</b>. Each effect is a physical "
+        f"hypothesis fitted jointly with the baseline; {_e(d.get('rule', ''))}.</p>",
+    ]
     for n in d.get("notes") or []:
         out.append(f'<p class="warn">{_e(n)}</p>')
     if effects:
@@ -303,7 +335,9 @@ def _diagnosis(run: RunFolder) -> str:
         for e in effects:
             ps = ", ".join(f"{_e(k)} = {_num(v, '.4g')}" + (f" ± {_num(e.get('stderr', {}).get(k), '.2g')}" if e.get("stderr", {}).get(k) is not None else "")
                            for k, v in (e.get("params") or {}).items())  # fmt: skip
-            rows.append([_e(e.get("category")), _e(e.get("kind")), _e(_CHANNELS.get(e.get("channel"), e.get("channel"))), ps, _e(e.get("evidence", ""))])
+            rows.append(
+                [_e(e.get("category")), _e(e.get("kind")), _e(_CHANNELS.get(e.get("channel"), e.get("channel"))), ps, _e(e.get("evidence", ""))]
+            )
         out.append(_table(["category", "kind", "channel", "parameters ± std. error", "evidence"], rows, left=5))
     else:
         out.append("<p>No effect beyond the baseline's noise.</p>")
@@ -318,28 +352,34 @@ def _diagnosis(run: RunFolder) -> str:
         fr, fp = run.fit.get("rms_mag_db") or {}, run.fit.get("rms_phase_deg") or {}
         why = ""
         if "act" in fr and "act" in eb:
-            why = (f" These are smaller than the Identification section's RMS error (θ/v {_num(fr['act'], '.2f')} dB, {_num(fp.get('act'), '.1f')} deg "
-                   f"there, {_num(eb['act'].get('rms_db'), '.2f')} dB, {_num(eb['act'].get('rms_deg'), '.1f')} deg here before the effects) "
-                   "for one reason: the fit's is over every point of its band, those where the channel is noise (coherence below 0.5) "
-                   "included, while the diagnosis counts only the points its noise estimate says are usable.")
+            why = (
+                f" These are smaller than the Identification section's RMS error (θ/v {_num(fr['act'], '.2f')} dB, {_num(fp.get('act'), '.1f')} deg "
+                f"there, {_num(eb['act'].get('rms_db'), '.2f')} dB, {_num(eb['act'].get('rms_deg'), '.1f')} deg here before the effects) "
+                "for one reason: the fit's is over every point of its band, those where the channel is noise (coherence below 0.5) "
+                "included, while the diagnosis counts only the points its noise estimate says are usable."
+            )
         out.append("<h3>Error before and after the effects</h3><p>Residual over the data's usable points; "
                    f"an error that grows with the effects is in red.{why}</p>" + _table(["channel", "rms dB before", "after", "rms deg before", "after",
                                                                           "χ² per residual before (1: the noise)", "after"], rows))  # fmt: skip
     he = d.get("harmonic_error")
     if he and he.get("before") and he.get("after"):
         b, a = he["before"], he["after"]
-        pct = (lambda x: None if x is None else 100.0 * x)  # noqa: E731
-        out.append(f"<p>The sweep's harmonics ({_e(b.get('n_segments'))} segment harmonics), which no linear model makes: rms "
-                   f"{_num(pct(b.get('rms_ratio')), '.3g')} % of the fundamental, χ² {_num(b.get('chi2'), '.3g')} per residual; with the "
-                   f"nonlinear law found {_worse(pct(a.get('rms_ratio')), pct(b.get('rms_ratio')), '.3g')} %, "
-                   f"χ² {_worse(a.get('chi2'), b.get('chi2'), '.3g')}.</p>")
+        pct = lambda x: None if x is None else 100.0 * x  # noqa: E731
+        out.append(
+            f"<p>The sweep's harmonics ({_e(b.get('n_segments'))} segment harmonics), which no linear model makes: rms "
+            f"{_num(pct(b.get('rms_ratio')), '.3g')} % of the fundamental, χ² {_num(b.get('chi2'), '.3g')} per residual; with the "
+            f"nonlinear law found {_worse(pct(a.get('rms_ratio')), pct(b.get('rms_ratio')), '.3g')} %, "
+            f"χ² {_worse(a.get('chi2'), b.get('chi2'), '.3g')}.</p>"
+        )
     refused = d.get("refused") or []
     if refused:
         items = "".join(f"<li>{_e(r.get('effect'))} ("
                         + ", ".join(f"{_e(k)} = {_num(v, '.4g')}" for k, v in (r.get("params") or {}).items())
                         + f"): {_e(r.get('reason'))}</li>" for r in refused)  # fmt: skip
-        out.append("<p>Candidates that passed the F-test but that these data do not show (not identifiable, or smaller than "
-                   f"the measurement's systematic floor), refused:</p><ul>{items}</ul>")
+        out.append(
+            "<p>Candidates that passed the F-test but that these data do not show (not identifiable, or smaller than "
+            f"the measurement's systematic floor), refused:</p><ul>{items}</ul>"
+        )
     un = d.get("unexplained") or []
     if un:
         items = "".join(f"<li>{_e(_CHANNELS.get(u.get('channel'), u.get('channel')))} over {_num(u.get('lo_hz'), '.3g')}–{_num(u.get('hi_hz'), '.3g')} Hz: "
@@ -347,12 +387,25 @@ def _diagnosis(run: RunFolder) -> str:
                         + ("" if u.get("why", "residual") == "residual" else f" ({_e(u.get('why'))}: the rig changed during the file)")
                         + "</li>" for u in un)  # fmt: skip
         out.append(f"<p>Left unexplained by the effect library (red bands below; orange where the records differ):</p><ul>{items}</ul>")
-    out.append(_stage_figure(run, "diagnose_bode", "data, baseline and the model with the effects",
-                       "Data, the baseline (the fit) and the model with the effects found. Where the data's coherence is below 0.5 "
-                       "(the identification figure above) there are no points, and the model there is an extrapolation. "
-                       "<code>diagnose/bode.png</code>."))
-    out.append(_stage_figure(run, "diagnose_residuals", "residuals", "Residuals data/model (magnitude in dB, phase in degrees) with the noise band (±2σ from the "
-                       "coherence and the record-to-record spread), before and after the effects. <code>diagnose/residuals.png</code>."))
+    out.append(
+        _stage_figure(
+            run,
+            "diagnose_bode",
+            "data, baseline and the model with the effects",
+            "Data, the baseline (the fit) and the model with the effects found. Where the data's coherence is below 0.5 "
+            "(the identification figure above) there are no points, and the model there is an extrapolation. "
+            "<code>diagnose/bode.png</code>.",
+        )
+    )
+    out.append(
+        _stage_figure(
+            run,
+            "diagnose_residuals",
+            "residuals",
+            "Residuals data/model (magnitude in dB, phase in degrees) with the noise band (±2σ from the "
+            "coherence and the record-to-record spread), before and after the effects. <code>diagnose/residuals.png</code>.",
+        )
+    )
     return "".join(out)
 
 
@@ -366,9 +419,11 @@ def _recordings(run: RunFolder, page_dir: Path) -> str:
         items.append(f'<li><a href="{_e(href)}">{_e(name)}</a> ({size / 1e6:.0f} MB): {_e(what)}</li>')
     if not items:
         return '<h2 id="recordings">Recordings</h2><p>No Rerun recording in this folder.</p>'
-    return ('<h2 id="recordings">Recordings</h2><p>The runs in 3D with the beam\'s deflection magnified, the tip\'s trail and every signal, '
-            "for the Rerun viewer (it comes with samii: <code>rerun closedloop.rrd</code> in this folder). The links open the files "
-            f"beside this page.</p><ul>{''.join(items)}</ul>")
+    return (
+        "<h2 id=\"recordings\">Recordings</h2><p>The runs in 3D with the beam's deflection magnified, the tip's trail and every signal, "
+        "for the Rerun viewer (it comes with samii: <code>rerun closedloop.rrd</code> in this folder). The links open the files "
+        f"beside this page.</p><ul>{''.join(items)}</ul>"
+    )
 
 
 def render_report(run: RunFolder, page_dir: Path | None = None) -> str:
@@ -380,12 +435,16 @@ def render_report(run: RunFolder, page_dir: Path | None = None) -> str:
     try:
         return _render(watched, page_dir)
     except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
-        what = f"field {exc.args[0]!r} missing" if isinstance(exc, KeyError) else str(exc).replace("_TracedList", "list").replace("_TracedDict", "dict")
+        what = (
+            f"field {exc.args[0]!r} missing" if isinstance(exc, KeyError) else str(exc).replace("_TracedList", "list").replace("_TracedDict", "dict")
+        )
         near = log.suspect(str(exc))
         if near:  # the field first, in the data's terms; Python's words after, for the record
-            raise InputError(f"{run.path}: a file of this main job's folder is not as samii run writes it: probably at {near}, a value "
-                             f"samii does not write there (the last field read that holds no number; Python said: {what}); run samii "
-                             "run again") from None
+            raise InputError(
+                f"{run.path}: a file of this main job's folder is not as samii run writes it: probably at {near}, a value "
+                f"samii does not write there (the last field read that holds no number; Python said: {what}); run samii "
+                "run again"
+            ) from None
         raise InputError(f"{run.path}: a file of this main job's folder is not as samii run writes it ({what}); run samii run again") from None
 
 
@@ -394,8 +453,10 @@ def _render(run: RunFolder, page_dir: Path | None) -> str:
 
     body = "".join([_header(run, summary_lines(run.summary, run.display_name or run.path.name)), _model(run), _measurement(run), _fit(run), _closed_loop(run),
                     _diagnosis(run), _recordings(run, page_dir if page_dir is not None else run.path)])  # fmt: skip
-    return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width, initial-scale=1">'
-            f"<title>SAMII main job report</title><style>{_CSS}</style></head><body><main>{body}</main></body></html>\n")
+    return (
+        f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width, initial-scale=1">'
+        f"<title>SAMII main job report</title><style>{_CSS}</style></head><body><main>{body}</main></body></html>\n"
+    )
 
 
 def write_report(run: RunFolder, path: Path | None = None) -> Path:

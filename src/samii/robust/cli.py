@@ -39,13 +39,25 @@ def _workers(text: str) -> int:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from samii.closedloop.cli import BUILTIN_CONTROLLERS, MAX_DELAY_STEPS
 
-    p.add_argument("--controller", required=True, metavar="SPEC",
-                   help=f"{', '.join(BUILTIN_CONTROLLERS)}, or a controller file (samii design ... --save); designed once, on the nominal plant")
-    p.add_argument("--scenario", choices=("step", "loper", "release"), default="step",
-                   help="the closed-loop test each sample runs (samii closedloop; default step: 5 deg at t = 1 s, 10 s)")
+    p.add_argument(
+        "--controller",
+        required=True,
+        metavar="SPEC",
+        help=f"{', '.join(BUILTIN_CONTROLLERS)}, or a controller file (samii design ... --save); designed once, on the nominal plant",
+    )
+    p.add_argument(
+        "--scenario",
+        choices=("step", "loper", "release"),
+        default="step",
+        help="the closed-loop test each sample runs (samii closedloop; default step: 5 deg at t = 1 s, 10 s)",
+    )
     p.add_argument("--samples", type=int_in(1, MAX_SAMPLES), default=100, metavar="N", help="number of plants drawn (default 100)")
-    p.add_argument("--seed", type=seed, default=0, help="seed of the draws (and of the sensor noise with --noise): the same seed "
-                   "gives the same table whatever runs it (default 0)")
+    p.add_argument(
+        "--seed",
+        type=seed,
+        default=0,
+        help="seed of the draws (and of the sensor noise with --noise): the same seed gives the same table whatever runs it (default 0)",
+    )
     p.add_argument("--spread", action="append", default=[], metavar="NAME=P%",
                    help="a physical spread: NAME normal about its nominal value with standard deviation P %% of it (NAME=SIGMA: "
                         "absolute, in its unit), truncated at 3 sigma and above 5 %% of a positive nominal; repeatable "
@@ -55,18 +67,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "writes calibration.json); the calibrated plant is then the nominal one")  # fmt: skip
     p.add_argument("--model", metavar="PARAMS.json", type=nonempty_path, help="the nominal plant's parameter file (default: the embedded model)")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a nominal parameter (repeatable)")
-    p.add_argument("--delay-samples", type=float_in(0.0, float(MAX_DELAY_STEPS), unit="samples"), default=0.0, metavar="N",
-                   help="the controller's computation delay [samples] (default 0)")
+    p.add_argument(
+        "--delay-samples",
+        type=float_in(0.0, float(MAX_DELAY_STEPS), unit="samples"),
+        default=0.0,
+        metavar="N",
+        help="the controller's computation delay [samples] (default 0)",
+    )
     p.add_argument("--noise", action="store_true", help="sensor noise on the controller's measurements, seeded per sample from --seed")
-    p.add_argument("--workers", type=_workers, default=None, metavar="N",
-                   help="0: run in this process (the default, unless Dask's configuration names a scheduler); N or auto: on a local "
-                        "Dask cluster of N worker processes (auto: one per core)")
+    p.add_argument(
+        "--workers",
+        type=_workers,
+        default=None,
+        metavar="N",
+        help="0: run in this process (the default, unless Dask's configuration names a scheduler); N or auto: on a local "
+        "Dask cluster of N worker processes (auto: one per core)",
+    )
     p.add_argument("--scheduler", metavar="ADDRESS", type=nonempty("a scheduler's address (tcp://host:port)"),
                    help="run on this Dask cluster (tcp://host:8786); its workers need samii installed. Without --scheduler and "
                         "--workers, Dask's own configured scheduler-address (DASK_SCHEDULER_ADDRESS) is used if set")  # fmt: skip
-    p.add_argument("--scheduler-timeout", type=float_in(1.0, 3600.0, unit="s"), default=None, metavar="S",
-                   help=f"seconds the --scheduler has to answer, and a worker to join it, before the run is refused (default "
-                        f"{SCHEDULER_TIMEOUT_S:g})")
+    p.add_argument(
+        "--scheduler-timeout",
+        type=float_in(1.0, 3600.0, unit="s"),
+        default=None,
+        metavar="S",
+        help=f"seconds the --scheduler has to answer, and a worker to join it, before the run is refused (default {SCHEDULER_TIMEOUT_S:g})",
+    )
     p.add_argument("--out", metavar="DIR", type=nonempty_path, help="write robust.json, samples.csv and the figures here")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs in --out")
     p.add_argument("--json", action="store_true", help="print robust.json's summary as JSON")
@@ -85,8 +111,11 @@ def _nominal_params(args):
             raise InputError("--model: with --covariance the nominal plant is the calibration's (its calibrated_params); give one of them")
         cov = read_covariance(args.covariance)
         if cov.converged is False:  # its standard errors are those of a point that is no minimum: said, used as asked
-            print(f"samii robust: warning: --covariance {args.covariance}: the calibration did not converge (field 'converged' is "
-                  "false): its standard errors and correlations describe no minimum of its cost; calibrate again", file=sys.stderr)
+            print(
+                f"samii robust: warning: --covariance {args.covariance}: the calibration did not converge (field 'converged' is "
+                "false): its standard errors and correlations describe no minimum of its cost; calibrate again",
+                file=sys.stderr,
+            )
         try:
             params = params_from_dict(cov.nominal, complete=True)
         except ValueError as exc:
@@ -110,12 +139,15 @@ def _study_warnings(args, spreads, nominal: dict) -> list[str]:
     for sp in spreads:
         value = nominal.get(sp.name)
         if sp.absolute is not None and isinstance(value, (int, float)) and value and 0 < sp.absolute < TINY_SPREAD * abs(value):
-            out.append(f"--spread {sp.name}={sp.absolute:g}: an absolute standard deviation of {sp.absolute:g} on a nominal "
-                       f"{value:.6g} ({sp.absolute / abs(value):.2g} of it): the study varies nothing; a relative spread is "
-                       f"written with % ({sp.name}={sp.absolute:g}%)")
+            out.append(
+                f"--spread {sp.name}={sp.absolute:g}: an absolute standard deviation of {sp.absolute:g} on a nominal "
+                f"{value:.6g} ({sp.absolute / abs(value):.2g} of it): the study varies nothing; a relative spread is "
+                f"written with % ({sp.name}={sp.absolute:g}%)"
+            )
     if args.samples < FEW_SAMPLES:
-        out.append(f"--samples {args.samples}: the 5 and 95 % percentiles of fewer than {FEW_SAMPLES} plants are the extremes "
-                   "drawn, not the spread's tails")
+        out.append(
+            f"--samples {args.samples}: the 5 and 95 % percentiles of fewer than {FEW_SAMPLES} plants are the extremes drawn, not the spread's tails"
+        )
     return out
 
 
@@ -152,13 +184,15 @@ def run(args: argparse.Namespace) -> int:
         from samii.robust.engine import check_address
 
         if check_address(scheduler, source) is None:
-            raise InputError(f"{source} {scheduler}: an in-process address (inproc://) names a scheduler inside one Python "
-                             "process, never another command's; give the scheduler's tcp://host:port")
+            raise InputError(
+                f"{source} {scheduler}: an in-process address (inproc://) names a scheduler inside one Python "
+                "process, never another command's; give the scheduler's tcp://host:port"
+            )
     if args.scheduler_timeout is not None and not scheduler:  # (it was accepted and did nothing)
-        raise InputError("--scheduler-timeout: only with a Dask cluster to wait for (--scheduler, or Dask's configured "
-                         "scheduler-address)")
-    engine = Engine(workers=args.workers or 0, scheduler=scheduler, connect_timeout_s=args.scheduler_timeout or SCHEDULER_TIMEOUT_S,
-                    scheduler_source=source)
+        raise InputError("--scheduler-timeout: only with a Dask cluster to wait for (--scheduler, or Dask's configured scheduler-address)")
+    engine = Engine(
+        workers=args.workers or 0, scheduler=scheduler, connect_timeout_s=args.scheduler_timeout or SCHEDULER_TIMEOUT_S, scheduler_source=source
+    )
 
     # the controller is designed (or read) once, on the nominal plant, in this process
     from samii.closedloop.cli import resolve_controller
@@ -182,17 +216,20 @@ def run(args: argparse.Namespace) -> int:
     tasks = [SampleTask(-1, base, {}, saved, args.scenario, args.delay_samples, noise_seed(-1))]
     tasks += [SampleTask(i, base, draws.overrides(i), saved, args.scenario, args.delay_samples, noise_seed(i)) for i in range(args.samples)]
 
-    from tqdm import tqdm
-
     import contextlib
     import time
+
+    from tqdm import tqdm
 
     t0 = time.perf_counter()
     with contextlib.ExitStack() as stack:
         if engine.scheduler:  # connected first (bounded in time): a scheduler that refuses or never answers is one line
             stack.enter_context(engine)
         if not args.json and not args.no_progress:  # (a progress line: not before a refusal's one line when asked for quiet)
-            print(f"samii robust: {args.controller}, {args.scenario} test, {args.samples} plants (seed {args.seed}) {engine.describe()}", file=sys.stderr)
+            print(
+                f"samii robust: {args.controller}, {args.scenario} test, {args.samples} plants (seed {args.seed}) {engine.describe()}",
+                file=sys.stderr,
+            )
         bar = tqdm(total=len(tasks), desc="samii robust", unit="run", file=sys.stderr, disable=True if args.no_progress else None, leave=False)
         try:
             results = engine.map(tasks, progress=bar.update)
@@ -262,16 +299,21 @@ def _lines(doc: dict, s) -> list[str]:
            + (f"base settles {nom['base_settle_s']:.2f} s" if nom["base_settle_s"] is not None else "base settling time n/a"),
            f"P(unstable) = {s.n_unstable}/{s.n} = {s.p_unstable:.3g} (95 % interval {lo:.3g}-{hi:.3g}, exact binomial)"]  # fmt: skip
     if s.zeta_percentiles:
-        out.append("closed-loop damping (least-damped mode) 5/50/95 %: " + " / ".join(f"{v:.3f}" for v in s.zeta_percentiles.values())
-                   + f" (over {s.n_zeta} samples)")
+        out.append(
+            "closed-loop damping (least-damped mode) 5/50/95 %: "
+            + " / ".join(f"{v:.3f}" for v in s.zeta_percentiles.values())
+            + f" (over {s.n_zeta} samples)"
+        )
     if s.settle_percentiles:
         out.append("base settling time 5/50/95 % [s]: " + " / ".join(f"{v:.2f}" for v in s.settle_percentiles.values()))
     if s.influence:
         out.append("influence on the damping (Spearman rho): " + ", ".join(f"{d['name']} {d['spearman']:+.2f}" for d in s.influence[:4]))
     out.append("worst samples:")
     if s.n_invalid:
-        out.append(f"{s.n_invalid} drawn plant(s) could not be built (no static equilibrium near the nominal pose, or a mode too stiff "
-                   "for the physics step) and are not counted")
+        out.append(
+            f"{s.n_invalid} drawn plant(s) could not be built (no static equilibrium near the nominal pose, or a mode too stiff "
+            "for the physics step) and are not counted"
+        )
     for w in s.worst[:3]:
         params = ", ".join(f"{k} {rel:+.1f} %" if rel is not None else f"{k} {w['params'][k]:.4g}" for k, rel in w["params_rel_pct"].items())
         state = "UNSTABLE" if not w["stable"] else "stable"

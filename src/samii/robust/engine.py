@@ -17,8 +17,8 @@ import os
 import shlex
 import socket
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
 
 import dask
 from distributed import Client, LocalCluster, as_completed
@@ -96,8 +96,7 @@ def _workers_deaf_to_terminal_signals():
         with open(wrapper, "w") as fh:
             # (and multiprocessing's resource tracker, spawned by the same executable, unlinks the semaphores of a
             # command killed outright without "UserWarning: ... leaked semaphore objects" on the user's terminal)
-            fh.write(f"#!{sh}\ntrap '' {' '.join(_WORKERS_IGNORE)}\nexec {shlex.quote(os.fsdecode(real))} "
-                     f"-W {_QUIET_TRACKER} \"$@\"\n")
+            fh.write(f"#!{sh}\ntrap '' {' '.join(_WORKERS_IGNORE)}\nexec {shlex.quote(os.fsdecode(real))} -W {_QUIET_TRACKER} \"$@\"\n")
         os.chmod(wrapper, 0o755)
         mp_spawn.set_executable(wrapper)
         try:
@@ -130,21 +129,26 @@ def check_address(address: str, where: str) -> tuple[str, str, int] | None:
     except ValueError:
         scheme, location = "", address
     if scheme not in registry.backends:
-        raise InputError(f"{where} {address}: unknown address scheme {scheme!r}; a Dask scheduler listens on "
-                         f"{', '.join(s + '://' for s in schemes)} (e.g. tcp://host:8786)")
+        raise InputError(
+            f"{where} {address}: unknown address scheme {scheme!r}; a Dask scheduler listens on "
+            f"{', '.join(s + '://' for s in schemes)} (e.g. tcp://host:8786)"
+        )
     if scheme == "inproc":
         return None
     if not _connects(registry, scheme):  # (ucx: a class Dask keeps, with its transport in a package of its own)
         usable = [s + "://" for s in schemes if s != "inproc" and _connects(registry, s)]
-        raise InputError(f"{where} {address}: this installation of Dask cannot connect over {scheme}:// (the transport's "
-                         f"own package is not installed); it connects over {', '.join(usable)} (e.g. tcp://host:8786)")
+        raise InputError(
+            f"{where} {address}: this installation of Dask cannot connect over {scheme}:// (the transport's "
+            f"own package is not installed); it connects over {', '.join(usable)} (e.g. tcp://host:8786)"
+        )
     try:
         host, port = parse_host_port(location)
     except ValueError:
         host, port = "", -1
     if not host or not 0 < port < 65536:
-        raise InputError(f"{where} {address}: expected HOST:PORT with a port from 1 to 65535 (e.g. tcp://host:8786, "
-                         "the port the scheduler printed at its start)")
+        raise InputError(
+            f"{where} {address}: expected HOST:PORT with a port from 1 to 65535 (e.g. tcp://host:8786, the port the scheduler printed at its start)"
+        )
     try:
         socket.getaddrinfo(host, port)
     except OSError:
@@ -167,8 +171,9 @@ def _connect(address: str, timeout_s: float, where: str = "--scheduler") -> Clie
         try:
             socket.create_connection((host, port), timeout=min(timeout_s, 10.0)).close()
         except ConnectionRefusedError:
-            raise InputError(f"{where} {address}: nothing listens there (connection refused); is the scheduler running, "
-                             "and is this its address and port?") from None
+            raise InputError(
+                f"{where} {address}: nothing listens there (connection refused); is the scheduler running, and is this its address and port?"
+            ) from None
         except OSError:
             pass  # unreachable, slow: Dask's own attempt says so, within the timeout
     box: dict = {}
@@ -188,17 +193,22 @@ def _connect(address: str, timeout_s: float, where: str = "--scheduler") -> Clie
         thread.join(min(0.2, max(deadline - time.monotonic(), 0.0)))
         raise_if_signalled()  # (a Ctrl-C whose exception a library's callback swallowed was lost until the timeout)
     if thread.is_alive():
-        raise InputError(f"{where} {address}: no Dask scheduler answered within {timeout_s:g} s (check the address and port, "
-                         "or give more time with --scheduler-timeout)")
+        raise InputError(
+            f"{where} {address}: no Dask scheduler answered within {timeout_s:g} s (check the address and port, "
+            "or give more time with --scheduler-timeout)"
+        )
     if "error" in box:
         exc = box["error"]
         if isinstance(exc, KeyboardInterrupt):
             raise exc
         if isinstance(exc, MemoryError):  # Dask read a length out of bytes that were no Dask message
-            raise InputError(f"{where} {address}: something answered there, but not as a Dask scheduler (its first bytes "
-                             "read as no Dask message); check the address and port") from None
-        raise InputError(f"{where} {address}: could not connect to a Dask scheduler ({type(exc).__name__}: "
-                         f"{' '.join(str(exc).split())[:200]})") from None
+            raise InputError(
+                f"{where} {address}: something answered there, but not as a Dask scheduler (its first bytes "
+                "read as no Dask message); check the address and port"
+            ) from None
+        raise InputError(
+            f"{where} {address}: could not connect to a Dask scheduler ({type(exc).__name__}: {' '.join(str(exc).split())[:200]})"
+        ) from None
     return box["client"]
 
 
@@ -264,7 +274,7 @@ class Engine:
     def uses_dask(self) -> bool:
         return bool(self.scheduler or self.workers)
 
-    def __enter__(self) -> "Engine":
+    def __enter__(self) -> Engine:
         if self.uses_dask and self._client is None:
             if self.scheduler:
                 # the client logs a lost scheduler, and its reconnection attempts, as ERROR with tracebacks: the study
@@ -281,16 +291,22 @@ class Engine:
                     from samii.errors import InputError
 
                     self.__exit__()
-                    raise InputError(f"{self.scheduler_source} {self.scheduler}: the scheduler answered, but no worker joined it "
-                                     f"within {self.connect_timeout_s:g} s; start workers (dask worker {self.scheduler}), or "
-                                     "give them more time with --scheduler-timeout") from None
+                    raise InputError(
+                        f"{self.scheduler_source} {self.scheduler}: the scheduler answered, but no worker joined it "
+                        f"within {self.connect_timeout_s:g} s; start workers (dask worker {self.scheduler}), or "
+                        "give them more time with --scheduler-timeout"
+                    ) from None
             else:
                 # fresh worker processes, one thread each (a MuJoCo run is single-threaded), no dashboard
                 # Dask's statistical profiler samples each worker's stack every 10 ms, holding the GIL to do it:
                 # 20 % of a 0.3 s sample here. Off, and the event loop's watchdog and system monitor polled less
                 # often, the engine costs about what the study's own bookkeeping does (benchmarks/robust_scaling.py)
-                quiet = {"distributed.worker.daemon": False, "distributed.worker.profile.enabled": False,
-                         "distributed.admin.tick.interval": "1s", "distributed.admin.system-monitor.interval": "2s"}
+                quiet = {
+                    "distributed.worker.daemon": False,
+                    "distributed.worker.profile.enabled": False,
+                    "distributed.admin.tick.interval": "1s",
+                    "distributed.admin.system-monitor.interval": "2s",
+                }
                 try:
                     with dask.config.set(quiet), _workers_deaf_to_terminal_signals():
                         # no dashboard; the scheduler's HTTP routes (health, metrics), which it serves anyway, on a free
@@ -367,8 +383,10 @@ class Engine:
         def lost(what: str) -> InputError:
             drawn = sum(1 for f in futures if f.key not in nominal)
             done = sum(1 for k in by_key if k not in nominal)
-            return InputError(f"{where}: during the study, after {done} of {drawn} samples, {what}; nothing "
-                              "was written (check the cluster, then run the study again)")
+            return InputError(
+                f"{where}: during the study, after {done} of {drawn} samples, {what}; nothing "
+                "was written (check the cluster, then run the study again)"
+            )
 
         try:
             while pending:
@@ -410,8 +428,10 @@ class Engine:
                     if (silent := _silent_workers(workers, heard, limit)) and time.monotonic() - last_done > limit:
                         # a stopped or hung worker keeps its samples and its place: the scheduler drops it only after its
                         # worker-ttl (5 min by default), and robust waited that long without a word
-                        raise lost(f"worker{'s' if len(silent) > 1 else ''} {', '.join(silent)} stopped answering (not heard "
-                                   f"from for {limit:g} s, no sample finished meanwhile)")
+                        raise lost(
+                            f"worker{'s' if len(silent) > 1 else ''} {', '.join(silent)} stopped answering (not heard "
+                            f"from for {limit:g} s, no sample finished meanwhile)"
+                        )
                 elif no_worker_since is None:
                     no_worker_since = time.monotonic()
                 elif time.monotonic() - no_worker_since > limit:

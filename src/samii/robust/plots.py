@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 
 from samii.robust.sampling import PlantDraws
-from samii.sim.cli_params import unit as param_unit
 from samii.robust.study import StudySummary
 from samii.robust.task import SampleResult
+from samii.sim.cli_params import unit as param_unit
 
 __all__ = ["plot_histograms", "plot_influence", "FIGURES"]
 
@@ -32,8 +32,7 @@ def _percentiles(ax, percentiles, fmt: str, unit: str = "") -> None:
         return
     top = ax.get_ylim()[1]
     ax.set_ylim(0, 1.3 * top)  # headroom for the labels, above the bars
-    label = (f"percentiles {' / '.join(str(p) for p in percentiles)} %: "
-             + " / ".join(f"{v:{fmt}}" for v in percentiles.values()) + unit)
+    label = f"percentiles {' / '.join(str(p) for p in percentiles)} %: " + " / ".join(f"{v:{fmt}}" for v in percentiles.values()) + unit
     for i, (p, v) in enumerate(percentiles.items()):
         ax.axvline(v, color="0.3", ls=":", lw=1, label=label if i == 0 else None)
         ax.text(v, top * (1.27 - 0.09 * i), f" {p}%", fontsize=7, va="top")

@@ -33,12 +33,19 @@ __all__ = ["Spread", "Covariance", "parse_spread", "read_covariance", "draw_plan
 TRUNCATE_SIGMA = 3.0  #: draws beyond this many standard deviations are drawn again
 MIN_FRACTION = 0.05  #: a positive parameter stays above this fraction of its nominal value
 _MAX_REDRAWS = 1000
-_DISCRETE = {"beam.n_segments": "the number of beam elements", "beam.accel_body_fixed": "a 0/1 switch", "beam.pitch_deg": "the beam's orientation",
-             "arm.heading_deg": "the arm's heading", "timestep_s": "the simulation step",
-             # 0 means "off" for these: an absolute spread about 0 would switch a filter or a limit on, not perturb it
-             "sensor.accel_lowpass_hz": "a filter corner, 0 for none", "sensor.accel_antialias_hz": "a filter corner, 0 for none",
-             "sensor.accel_highpass_hz": "a filter corner, 0 for none", "hydraulic.valve_saturation": "a limit, 0 for none",
-             "beam.tip_body_mass_kg": "a body's mass, 0 for none"}
+_DISCRETE = {
+    "beam.n_segments": "the number of beam elements",
+    "beam.accel_body_fixed": "a 0/1 switch",
+    "beam.pitch_deg": "the beam's orientation",
+    "arm.heading_deg": "the arm's heading",
+    "timestep_s": "the simulation step",
+    # 0 means "off" for these: an absolute spread about 0 would switch a filter or a limit on, not perturb it
+    "sensor.accel_lowpass_hz": "a filter corner, 0 for none",
+    "sensor.accel_antialias_hz": "a filter corner, 0 for none",
+    "sensor.accel_highpass_hz": "a filter corner, 0 for none",
+    "hydraulic.valve_saturation": "a limit, 0 for none",
+    "beam.tip_body_mass_kg": "a body's mass, 0 for none",
+}
 #: Parameters that may be negative (samii.calibrate's table, and the valve's asymmetry, which the model's own check
 #: bounds to -1...<1): not limited below.
 _SIGNED = ("beam.accel_offset_m", "arm.heading_deg", "beam.pitch_deg", "hydraulic.valve_asymmetry")
@@ -100,8 +107,9 @@ def read_covariance(path) -> Covariance:
         raise InputError(f"--covariance {path}: expected samii calibrate's calibration.json (a JSON object)")
     params, corr, nominal = d.get("parameters"), d.get("correlation"), d.get("calibrated_params")
     if not isinstance(params, list) or not params or not isinstance(corr, list) or not isinstance(nominal, dict):
-        raise InputError(f"--covariance {path}: expected samii calibrate's calibration.json (fields 'parameters', 'correlation', "
-                         "'calibrated_params')")
+        raise InputError(
+            f"--covariance {path}: expected samii calibrate's calibration.json (fields 'parameters', 'correlation', 'calibrated_params')"
+        )
     names, mean, se, bounds = [], [], [], []
     for i, p in enumerate(params):
         try:
@@ -112,22 +120,30 @@ def read_covariance(path) -> Covariance:
         except (KeyError, TypeError, ValueError, AttributeError):
             raise InputError(f"--covariance {path}: field 'parameters'[{i}] needs a name, a numeric value, stderr and bounds [lo, hi]") from None
         if not math.isfinite(mean[-1]):  # (it was said to disagree with 'calibrated_params')
-            raise InputError(f"--covariance {path}: field 'parameters'[{i}] ({names[-1]}): value {p['value']!r} is not a finite "
-                             "number; the file is damaged: calibrate again")
+            raise InputError(
+                f"--covariance {path}: field 'parameters'[{i}] ({names[-1]}): value {p['value']!r} is not a finite "
+                "number; the file is damaged: calibrate again"
+            )
         if names[-1].startswith("gain."):
-            raise InputError(f"--covariance {path}: parameter {names[-1]} is a measurement gain of the calibration, not a property of the "
-                             "plant; calibrate without it, or vary the plant with --spread")
+            raise InputError(
+                f"--covariance {path}: parameter {names[-1]} is a measurement gain of the calibration, not a property of the "
+                "plant; calibrate without it, or vary the plant with --spread"
+            )
         try:
             s = float(s)
         except (TypeError, ValueError):
             s = math.nan
         if not math.isfinite(s) or s <= 0:
-            raise InputError(f"--covariance {path}: parameter {names[-1]} has no finite positive standard error ({p['stderr']!r}): the "
-                             "calibration could not determine it; calibrate without it, or give its spread with --spread")
+            raise InputError(
+                f"--covariance {path}: parameter {names[-1]} has no finite positive standard error ({p['stderr']!r}): the "
+                "calibration could not determine it; calibrate without it, or give its spread with --spread"
+            )
         if not 0.0 < s * s < math.inf:  # (the covariance is built of their products)
-            raise InputError(f"--covariance {path}: field 'parameters'[{i}] ({names[-1]}): stderr {s:.3g} beside its value "
-                             f"{mean[-1]:.3g} is no standard error a calibration gives (its square leaves the range of numbers); "
-                             "the file is damaged: calibrate again, or give its spread with --spread")
+            raise InputError(
+                f"--covariance {path}: field 'parameters'[{i}] ({names[-1]}): stderr {s:.3g} beside its value "
+                f"{mean[-1]:.3g} is no standard error a calibration gives (its square leaves the range of numbers); "
+                "the file is damaged: calibrate again, or give its spread with --spread"
+            )
         if not lo < hi:
             raise InputError(f"--covariance {path}: parameter {names[-1]} has bounds [{lo:g}, {hi:g}]; expected [LO, HI] with LO < HI")
         se.append(s)
@@ -158,20 +174,20 @@ def read_covariance(path) -> Covariance:
             raise InputError(f"--covariance {path}: parameter {name} = {m:g} but field 'calibrated_params' holds {v!r}")
     if np.any(np.abs(c - c.T) > 1e-9):
         i, j = np.unravel_index(int(np.argmax(np.abs(c - c.T))), c.shape)
-        raise InputError(f"--covariance {path}: field 'correlation' is not symmetric (entry [{i}][{j}] = {c[i, j]:g}, "
-                         f"[{j}][{i}] = {c[j, i]:g})")
+        raise InputError(f"--covariance {path}: field 'correlation' is not symmetric (entry [{i}][{j}] = {c[i, j]:g}, [{j}][{i}] = {c[j, i]:g})")
     # checked on the correlation matrix itself (its eigenvalues are of order 1): on the covariance, standard errors
     # of 1e5 beside 1e-5 scale a negative eigenvalue of the correlation into rounding and it passed (issue 36)
     low = float(np.min(np.linalg.eigvalsh(0.5 * (c + c.T))))
     if low < -1e-9:
-        raise InputError(f"--covariance {path}: field 'correlation' is not positive semi-definite (its smallest eigenvalue is "
-                         f"{low:.3g}); no joint distribution has these correlations")
+        raise InputError(
+            f"--covariance {path}: field 'correlation' is not positive semi-definite (its smallest eigenvalue is "
+            f"{low:.3g}); no joint distribution has these correlations"
+        )
     s = np.asarray(se)
     cov = c * np.outer(s, s)
     cov = 0.5 * (cov + cov.T)
     converged = d.get("converged")
-    return Covariance(str(path), tuple(names), np.asarray(mean), cov, tuple(bounds), nominal,
-                      converged if isinstance(converged, bool) else None)
+    return Covariance(str(path), tuple(names), np.asarray(mean), cov, tuple(bounds), nominal, converged if isinstance(converged, bool) else None)
 
 
 @dataclass(frozen=True)
@@ -221,12 +237,16 @@ def draw_plants(n: int, seed: int, nominal: dict[str, float], spreads: list[Spre
             lows.append(max(b_lo, _lower_limit(m, name), m - TRUNCATE_SIGMA * sd))
             highs.append(min(b_hi, m + TRUNCATE_SIGMA * sd))
             spread = f"±{100 * sd / abs(m):.3g} %" if m != 0 else f"±{sd:.3g}"
-            sources.append(f"{name} {spread} (1σ, calibration covariance {covariance.source})"
-                           + (": calibrated on its bound, so drawn on one side of it" if edge else ""))
+            sources.append(
+                f"{name} {spread} (1σ, calibration covariance {covariance.source})"
+                + (": calibrated on its bound, so drawn on one side of it" if edge else "")
+            )
     sigmas: list[float] = []
     for sp in spreads:
         if sp.name in names:
-            raise InputError(f"--spread {sp.name}: already varied ({'by --covariance' if covariance is not None and sp.name in covariance.names else 'given twice'})")
+            raise InputError(
+                f"--spread {sp.name}: already varied ({'by --covariance' if covariance is not None and sp.name in covariance.names else 'given twice'})"
+            )
         if sp.name not in nominal:
             raise InputError(f"--spread {sp.name}: no such parameter (samii params lists them)")
         if sp.name in _DISCRETE:
@@ -268,10 +288,12 @@ def draw_plants(n: int, seed: int, nominal: dict[str, float], spreads: list[Spre
             else:
                 j = int(np.argmax(outside))
                 sd = float(np.sqrt(covariance.cov[j, j]))
-                raise InputError(f"--covariance {covariance.source}: no draw within the bounds in {_MAX_REDRAWS} tries; "
-                                 f"{covariance.names[j]} fell outside {lo[j]:.4g}...{hi[j]:.4g} in {outside[j]} of them (its "
-                                 f"value {covariance.mean[j]:.4g}, standard error {sd:.3g}: a spread that wide is no "
-                                 "calibration's; calibrate again, or give its spread with --spread)")
+                raise InputError(
+                    f"--covariance {covariance.source}: no draw within the bounds in {_MAX_REDRAWS} tries; "
+                    f"{covariance.names[j]} fell outside {lo[j]:.4g}...{hi[j]:.4g} in {outside[j]} of them (its "
+                    f"value {covariance.mean[j]:.4g}, standard error {sd:.3g}: a spread that wide is no "
+                    "calibration's; calibrate again, or give its spread with --spread)"
+                )
             values[i, :k] = x
         for j, sigma in enumerate(sigmas, start=k):
             for _ in range(_MAX_REDRAWS):  # the interval holds the nominal value: at least half the draws land in it

@@ -69,7 +69,9 @@ def summarise(draws: PlantDraws, results: list[SampleResult]) -> StudySummary:
     for r in sorted(results, key=badness)[:N_WORST]:
         row = r.table_row()
         row["params"] = draws.overrides(r.index)
-        row["params_rel_pct"] = {nm: 100.0 * (v / nom - 1.0) if nom else None for nm, v, nom in zip(draws.names, draws.values[r.index], draws.nominal)}
+        row["params_rel_pct"] = {
+            nm: 100.0 * (v / nom - 1.0) if nom else None for nm, v, nom in zip(draws.names, draws.values[r.index], draws.nominal)
+        }
         worst.append(row)
 
     influence = []

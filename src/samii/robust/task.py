@@ -124,8 +124,9 @@ def _run_sample(task: SampleTask) -> SampleResult:
     linear_ok = bool(r.linear_stable or r.linear_marginal)
     stable = bool(r.stable and linear_ok)
     zeta, hz = closed_loop_damping(stable, r.linear_poles_s, r.growth_rate_1_s, r.unstable_mode_hz)
-    note = r.instability() if not r.stable else ("" if linear_ok else "the linearised loop is unstable: the run is bounded only "
-                                                   "by the valve's limits")
+    note = (
+        r.instability() if not r.stable else ("" if linear_ok else "the linearised loop is unstable: the run is bounded only by the valve's limits")
+    )
     return SampleResult(
         index=task.index,
         stable=stable,

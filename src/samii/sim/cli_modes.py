@@ -11,8 +11,13 @@ from samii.json_output import dumps
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", help="MJCF file (default: the embedded SAMII model)")
-    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                   help="override a model parameter, e.g. beam.clamp_stiffness_Nm_rad=2e5 (repeatable)")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="override a model parameter, e.g. beam.clamp_stiffness_Nm_rad=2e5 (repeatable)",
+    )
     p.add_argument("--max-freq-hz", type=positive_float, default=45.0, help="list modes and poles up to this frequency (default 45)")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
 
@@ -30,6 +35,7 @@ def parse_overrides(items: list[str]) -> dict[str, float]:
             raise InputError(f"--set {name}: given twice")
         out[name] = number
     return out
+
 
 def run(args: argparse.Namespace) -> int:
     import warnings
@@ -61,6 +67,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"    {s.real:10.3f} {im}          {wn / (2 * np.pi):9.3f}   {zeta:.4f}{flag}")
     if not rep.stable:
         n = sum(1 for p in rep.unstable_poles if p.imag >= 0)
-        print(f"\nUNSTABLE: {n} pole(s) or pair(s) in the right half plane, marked above: the nominal pose is not a "
-              "stable rest state under the servo loop (samii measure refuses this model)")
+        print(
+            f"\nUNSTABLE: {n} pole(s) or pair(s) in the right half plane, marked above: the nominal pose is not a "
+            "stable rest state under the servo loop (samii measure refuses this model)"
+        )
     return 0

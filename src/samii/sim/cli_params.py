@@ -31,8 +31,18 @@ _UNITS = {
     "beam.section_side_m": "m",
     "beam.tip_body_damping_ratio": "1",
 }
-_SUFFIX_UNITS = {"_hz": "Hz", "_m": "m", "_Nm2": "N m²", "_kg_m": "kg/m", "_Nm_rad": "N m/rad", "_Nms_rad": "N m s/rad", "_s": "s",
-                 "_deg": "deg", "_kgm2": "kg m²", "_kg": "kg"}
+_SUFFIX_UNITS = {
+    "_hz": "Hz",
+    "_m": "m",
+    "_Nm2": "N m²",
+    "_kg_m": "kg/m",
+    "_Nm_rad": "N m/rad",
+    "_Nms_rad": "N m s/rad",
+    "_s": "s",
+    "_deg": "deg",
+    "_kgm2": "kg m²",
+    "_kg": "kg",
+}
 
 
 def unit(name: str) -> str:
@@ -54,7 +64,9 @@ def parameter_table(model: str | None = None) -> list[dict]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--model", metavar="PARAMS.json", type=nonempty_path, help="a parameter file (samii calibrate writes them; default: the embedded model's)")
+    p.add_argument(
+        "--model", metavar="PARAMS.json", type=nonempty_path, help="a parameter file (samii calibrate writes them; default: the embedded model's)"
+    )
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
 
 

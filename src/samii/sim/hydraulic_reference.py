@@ -26,8 +26,9 @@ solution.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Callable, Literal, Mapping
+from typing import Literal
 
 import numpy as np
 
@@ -80,11 +81,24 @@ VALVE_OPTIONS: Mapping[str, tuple[str, float, float, bool]] = {
 #: Optional attributes after the ten physical ones (hydraulic.c, same order): the servo loop's
 #: reference input and the digital controller card (samii.closedloop.card writes them).
 OPTIONAL_ATTRIBUTES: tuple[str, ...] = (
-    "reference_actuator", "controller_states", "controller_a", "controller_b", "controller_c",
-    "controller_d", "controller_steps", "controller_delay_steps", "controller_replaces_servo",
-    "controller_theta_sensor", "controller_accel_sensor", "controller_accel_direction",
-    "controller_accel_offset", "controller_theta_noise", "controller_accel_noise",
-    "controller_theta_lsb", "controller_accel_lsb", *VALVE_OPTIONS,
+    "reference_actuator",
+    "controller_states",
+    "controller_a",
+    "controller_b",
+    "controller_c",
+    "controller_d",
+    "controller_steps",
+    "controller_delay_steps",
+    "controller_replaces_servo",
+    "controller_theta_sensor",
+    "controller_accel_sensor",
+    "controller_accel_direction",
+    "controller_accel_offset",
+    "controller_theta_noise",
+    "controller_accel_noise",
+    "controller_theta_lsb",
+    "controller_accel_lsb",
+    *VALVE_OPTIONS,
 )
 
 _EXPECTED = {
@@ -111,13 +125,9 @@ def _validated(name: str, raw, source: str) -> float:
         value = math.nan if isinstance(raw, bool) or (isinstance(raw, str) and "_" in raw) else float(raw)
     except (TypeError, ValueError):
         value = math.nan
-    ok = math.isfinite(value) and (
-        rule == "finite" or (rule == "positive" and value > 0) or (rule == "nonnegative" and value >= 0)
-    )
+    ok = math.isfinite(value) and (rule == "finite" or (rule == "positive" and value > 0) or (rule == "nonnegative" and value >= 0))
     if not ok:
-        raise HydraulicConfigError(
-            f"{source}: config attribute '{name}' = {raw!r} is invalid (expected {_expected(name)})"
-        )
+        raise HydraulicConfigError(f"{source}: config attribute '{name}' = {raw!r} is invalid (expected {_expected(name)})")
     return value
 
 
@@ -170,7 +180,7 @@ class HydraulicParams:
             object.__setattr__(self, name, _validated(name, getattr(self, name), self.source))
 
     @classmethod
-    def from_config(cls, config: Mapping[str, str], *, source: str = "samii.hydraulic") -> "HydraulicParams":
+    def from_config(cls, config: Mapping[str, str], *, source: str = "samii.hydraulic") -> HydraulicParams:
         """Parse MJCF config strings (key -> value), as the plugin does.
 
         Raises
@@ -200,9 +210,7 @@ class HydraulicParams:
         for name in ATTRIBUTES:
             text = config.get(name)
             if text is None or str(text).strip() == "":
-                raise HydraulicConfigError(
-                    f"{source}: missing config attribute '{name}' (expected {_expected(name)})"
-                )
+                raise HydraulicConfigError(f"{source}: missing config attribute '{name}' (expected {_expected(name)})")
             values[name] = _validated(name, str(text), source)
         return cls(**values, source=source)
 

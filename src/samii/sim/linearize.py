@@ -20,7 +20,19 @@ import mujoco
 import numpy as np
 import scipy.linalg
 
-__all__ = ["LinearModel", "BaseCoefficient", "Mode", "UNSTABLE_RATE_1_S", "discrete_poles", "poles_per_s", "linearize", "modes_from_poles", "base_modes", "ModesReport", "modes_report"]
+__all__ = [
+    "LinearModel",
+    "BaseCoefficient",
+    "Mode",
+    "UNSTABLE_RATE_1_S",
+    "discrete_poles",
+    "poles_per_s",
+    "linearize",
+    "modes_from_poles",
+    "base_modes",
+    "ModesReport",
+    "modes_report",
+]
 
 
 @dataclass(frozen=True)
@@ -72,7 +84,7 @@ class LinearModel(_StateSpace):
     def poles(self) -> np.ndarray:
         return np.linalg.eigvals(self.A)
 
-    def open_loop(self) -> "LinearModel":
+    def open_loop(self) -> LinearModel:
         """The same system with the position loop opened: input v [V], the valve voltage.
 
         With v = r - Kp theta (unsaturated) the state equation in terms of v is
@@ -83,7 +95,7 @@ class LinearModel(_StateSpace):
         C = self.C + kp * self.D @ self.C[:1]
         return LinearModel(A, self.B, C, self.D, self.dt_s, 0.0, self.outputs, self.command_delay_s)
 
-    def with_position_gain(self, kp_v_per_rad: float) -> "LinearModel":
+    def with_position_gain(self, kp_v_per_rad: float) -> LinearModel:
         """Close the servo loop with gain ``kp_v_per_rad`` (from the open-loop form)."""
         ol = self.open_loop()
         A = ol.A - kp_v_per_rad * ol.B @ ol.C[:1]
@@ -101,7 +113,7 @@ class LinearModel(_StateSpace):
             out[:, k] = self.C @ x + self.D[:, 0]
         return dict(zip(self.outputs, out))
 
-    def base_coefficients(self, *, max_freq_hz: float = 45.0) -> list["BaseCoefficient"]:
+    def base_coefficients(self, *, max_freq_hz: float = 45.0) -> list[BaseCoefficient]:
         """The simulator's xdd/theta in the notebook's modal form (eq 9.2),
         ``xdd/theta = s^4 sum_k B_k / (s^2 + 2 zeta_k w_k s + w_k^2)``, one term per complex
         pole pair of xdd/theta below ``max_freq_hz``.
@@ -151,7 +163,7 @@ def _sensor_rows(model: mujoco.MjModel) -> tuple[int, np.ndarray]:
         raise ValueError("the model needs a sensor named 'theta' (jointpos of joint 2)")
     w = np.zeros(model.nsensordata)
     adr, weights = accel_weights(model)
-    w[adr:adr + 3] = weights  # the accelerometer's reading
+    w[adr : adr + 3] = weights  # the accelerometer's reading
     return int(model.sensor_adr[theta]), w
 
 
@@ -195,7 +207,9 @@ def _to_continuous(Ad: np.ndarray, Bd: np.ndarray, dt: float) -> tuple[np.ndarra
     return L[:n, :n], L[:n, n:]
 
 
-def linearize(model: mujoco.MjModel, data: mujoco.MjData | None = None, *, position_gain_v_per_rad: float | None = None, eps: float = 1e-6) -> LinearModel:
+def linearize(
+    model: mujoco.MjModel, data: mujoco.MjData | None = None, *, position_gain_v_per_rad: float | None = None, eps: float = 1e-6
+) -> LinearModel:
     """Linearise ``model`` about ``data`` (default: its ``home`` keyframe), with an ideal valve
     (its command delay kept aside in ``command_delay_s``; a dead band or saturation left out:
     the plant without the valve's law).
@@ -219,8 +233,9 @@ class DiscreteLinearModel(_StateSpace):
     command_delay_s: float = 0.0  #: as :attr:`LinearModel.command_delay_s`
 
 
-def linearize_discrete(model: mujoco.MjModel, data: mujoco.MjData | None = None, *, position_gain_v_per_rad: float | None = None,
-                       eps: float = 1e-6) -> DiscreteLinearModel:
+def linearize_discrete(
+    model: mujoco.MjModel, data: mujoco.MjData | None = None, *, position_gain_v_per_rad: float | None = None, eps: float = 1e-6
+) -> DiscreteLinearModel:
     """:func:`linearize`'s one-step map, before its conversion to continuous time."""
     from samii.sim.model import make_data
 

@@ -117,8 +117,9 @@ class BeamParams:
             v = getattr(self, f.name)
             if f.name == "n_segments":
                 if not isinstance(v, (int, np.integer)) or not 1 <= v <= MAX_BEAM_SEGMENTS:
-                    raise ValueError(f"n_segments must be an integer in 1...{MAX_BEAM_SEGMENTS}, got {v!r} "
-                                     "(4 converge the base modes: experiments/convergence)")
+                    raise ValueError(
+                        f"n_segments must be an integer in 1...{MAX_BEAM_SEGMENTS}, got {v!r} (4 converge the base modes: experiments/convergence)"
+                    )
             elif f.name == "accel_body_fixed":
                 if v not in (0.0, 1.0):
                     raise ValueError(f"beam parameter accel_body_fixed must be 0 (ideal, world frame) or 1 (body-fixed), got {v!r}")
@@ -128,8 +129,17 @@ class BeamParams:
             elif f.name == "pitch_deg":
                 if not (math.isfinite(v) and 0 <= v <= 90):
                     raise ValueError(f"beam parameter pitch_deg must lie in 0...90 deg, got {v!r}")
-            elif not (math.isfinite(v) and v >= 0) or (v == 0 and f.name not in ("clamp_damping_Nms_rad", "beam_damping_time_s", "clamp_maxwell_stiffness_Nm_rad",
-                                                                                      "tip_body_mass_kg", "tip_body_damping_ratio")):
+            elif not (math.isfinite(v) and v >= 0) or (
+                v == 0
+                and f.name
+                not in (
+                    "clamp_damping_Nms_rad",
+                    "beam_damping_time_s",
+                    "clamp_maxwell_stiffness_Nm_rad",
+                    "tip_body_mass_kg",
+                    "tip_body_damping_ratio",
+                )
+            ):
                 raise ValueError(f"beam parameter {f.name} must be finite and positive, got {v!r}")
 
 
@@ -206,9 +216,9 @@ class HydraulicConfig:
             ok = math.isfinite(v) and (v > 0 if rule == "positive" else v >= 0 if rule == "nonnegative" else True)
             if not ok:
                 need = {"positive": "> 0", "nonnegative": ">= 0", "finite": "finite"}[rule]
-                raise ValueError(f"hydraulic parameter {name} must be a finite number {need if rule != 'finite' else ''} in {unit}, got {v!r}"
-                                 .replace("  ", " "))
-
+                raise ValueError(
+                    f"hydraulic parameter {name} must be a finite number {need if rule != 'finite' else ''} in {unit}, got {v!r}".replace("  ", " ")
+                )
 
     def valve_config(self) -> dict[str, str]:
         """The valve options that are set (non-zero), as MJCF config text."""
@@ -237,8 +247,10 @@ class SamiiParams:
             raise ValueError(f"timestep_s must be a number in (0, {self.MAX_TIMESTEP_S:g}] s, got {dt!r}")
         b = self.beam
         if b.tip_body_mass_kg > 0 and 2 * math.pi * b.tip_body_freq_hz * dt > 1.0:  # its spring is explicit: w dt <= 1
-            raise ValueError(f"beam.tip_body_freq_hz = {b.tip_body_freq_hz:g} Hz is too fast for the {dt:g} s physics step "
-                             f"(at most {1 / (2 * math.pi * dt):.4g} Hz)")
+            raise ValueError(
+                f"beam.tip_body_freq_hz = {b.tip_body_freq_hz:g} Hz is too fast for the {dt:g} s physics step "
+                f"(at most {1 / (2 * math.pi * dt):.4g} Hz)"
+            )
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -350,7 +362,7 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     # no geom collides (contype 0 everywhere): skipping collision detection saves ~8 % of a step
     add(f'  <option timestep="{_fmt(params.timestep_s)}" integrator="implicitfast">')
     add('    <flag contact="disable"/>')
-    add('  </option>')
+    add("  </option>")
     add("  <extension>")
     add('    <plugin plugin="samii.hydraulic"/>')
     add("  </extension>")
@@ -367,11 +379,19 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
         add("      <!-- spatial beam: bending about z (EI/l), torsion about x (GJ/l); the same stiffness-proportional damping -->")
         add(f'      <default class="beam_lateral"><joint axis="0 0 1" stiffness="{_fmt(k_hinge)}" damping="{_fmt(c_hinge)}"/></default>')
         add(f'      <default class="beam_torsion"><joint axis="1 0 0" stiffness="{_fmt(k_torsion)}" damping="{_fmt(beta * k_torsion)}"/></default>')
-        add(f'      <default class="clamp_lateral"><joint axis="0 0 1" stiffness="{_fmt(b.clamp_lateral_stiffness_Nm_rad)}" damping="{_fmt(beta * b.clamp_lateral_stiffness_Nm_rad)}"/></default>')
-        add(f'      <default class="clamp_torsion"><joint axis="1 0 0" stiffness="{_fmt(b.clamp_torsion_stiffness_Nm_rad)}" damping="{_fmt(beta * b.clamp_torsion_stiffness_Nm_rad)}"/></default>')
-    add(f'      <default class="joint1"><joint stiffness="{_fmt(a.joint1_stiffness_Nm_rad)}" damping="{_fmt(a.joint1_damping_Nms_rad)}" springref="{_fmt(NOMINAL_POSE_RAD[0])}"/></default>')
+        add(
+            f'      <default class="clamp_lateral"><joint axis="0 0 1" stiffness="{_fmt(b.clamp_lateral_stiffness_Nm_rad)}" damping="{_fmt(beta * b.clamp_lateral_stiffness_Nm_rad)}"/></default>'
+        )
+        add(
+            f'      <default class="clamp_torsion"><joint axis="1 0 0" stiffness="{_fmt(b.clamp_torsion_stiffness_Nm_rad)}" damping="{_fmt(beta * b.clamp_torsion_stiffness_Nm_rad)}"/></default>'
+        )
+    add(
+        f'      <default class="joint1"><joint stiffness="{_fmt(a.joint1_stiffness_Nm_rad)}" damping="{_fmt(a.joint1_damping_Nms_rad)}" springref="{_fmt(NOMINAL_POSE_RAD[0])}"/></default>'
+    )
     add(f'      <default class="joint2"><joint damping="{_fmt(a.joint2_damping_Nms_rad)}"/></default>')
-    add(f'      <default class="held"><joint stiffness="{_fmt(a.held_stiffness_Nm_rad)}" damping="{_fmt(a.held_damping_Nms_rad)}" armature="{_fmt(a.held_armature_kgm2)}"/></default>')
+    add(
+        f'      <default class="held"><joint stiffness="{_fmt(a.held_stiffness_Nm_rad)}" damping="{_fmt(a.held_damping_Nms_rad)}" armature="{_fmt(a.held_armature_kgm2)}"/></default>'
+    )
     add('      <default class="beam_visual"><geom type="box" rgba="0.62 0.64 0.68 1"/></default>')
     add('      <default class="link_visual"><geom type="capsule" rgba="0.95 0.55 0.15 1"/></default>')
     add('      <default class="hydraulic_visual"><geom type="cylinder" rgba="0.25 0.35 0.75 1"/></default>')
@@ -420,8 +440,10 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     tip = ell / 2
     l0, l1 = TMM["link_l0"], TMM["link_l1"]
     if not -tip <= b.accel_offset_m <= 1.0:
-        raise ValueError(f"beam.accel_offset_m = {b.accel_offset_m} m: the accelerometer must sit on the last beam element "
-                         f"or the mount, {-tip:.3g} ... 1 m from the beam's end")
+        raise ValueError(
+            f"beam.accel_offset_m = {b.accel_offset_m} m: the accelerometer must sit on the last beam element "
+            f"or the mount, {-tip:.3g} ... 1 m from the beam's end"
+        )
     # the accelerometer: body-fixed, measuring along its site's x axis (samii.sim.sensors). Planar
     # beam: the beam's transverse direction w in joint 2's plane (local z of the beam: vertical
     # for the horizontal beam, horizontal for the vertical one); spatial beam: the horizontal
@@ -435,9 +457,13 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     foot = (tip + math.sin(pitch) * s / 2, 0.0, math.cos(pitch) * s / 2)
     add(f'{indent}<body name="l0" pos="{_vec(*foot)}"{l0_quat}>')
     ind = indent + "  "
-    add(f'{ind}<!-- l0: TMM link l0 (mounting post), rigidly fixed on the beam tip -->')
-    add(f'{ind}<inertial pos="{_vec(0, 0, l0["cg_m"])}" mass="{_fmt(l0["mass_kg"])}" diaginertia="{_vec(l0["I_cg_kgm2"], l0["I_cg_kgm2"], l0["mass_kg"] * 0.1**2 / 2)}"/>')
-    add(f'{ind}<geom class="link_visual" type="box" pos="{_vec(0, 0, l0["length_m"] / 2)}" size="0.09 0.09 {_fmt(l0["length_m"] / 2)}" rgba="0.35 0.35 0.38 1"/>')
+    add(f"{ind}<!-- l0: TMM link l0 (mounting post), rigidly fixed on the beam tip -->")
+    add(
+        f'{ind}<inertial pos="{_vec(0, 0, l0["cg_m"])}" mass="{_fmt(l0["mass_kg"])}" diaginertia="{_vec(l0["I_cg_kgm2"], l0["I_cg_kgm2"], l0["mass_kg"] * 0.1**2 / 2)}"/>'
+    )
+    add(
+        f'{ind}<geom class="link_visual" type="box" pos="{_vec(0, 0, l0["length_m"] / 2)}" size="0.09 0.09 {_fmt(l0["length_m"] / 2)}" rgba="0.35 0.35 0.38 1"/>'
+    )
     # joint 1 at the top of l0; body quat R_y(+90deg) so that q1 = -90 deg leaves l1 vertical
     qy = lambda ang: _vec(*_quat(_Y, ang))  # noqa: E731
     add(f'{ind}<body name="link1" pos="{_vec(0, 0, l0["length_m"])}" quat="{qy(math.pi / 2)}">')
@@ -445,7 +471,9 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     add(f'{ind2}<joint name="joint1" class="joint1"/>')
     # body frame = parent * quat * R_y(q1): identity at q1 = -90 deg, so l1 points up (+z)
     ind3 = ind2
-    add(f'{ind3}<inertial pos="{_vec(0, 0, l1["cg_m"])}" mass="{_fmt(l1["mass_kg"])}" diaginertia="{_vec(l1["I_cg_kgm2"], l1["I_cg_kgm2"], l1["mass_kg"] * 0.06**2 / 2)}"/>')
+    add(
+        f'{ind3}<inertial pos="{_vec(0, 0, l1["cg_m"])}" mass="{_fmt(l1["mass_kg"])}" diaginertia="{_vec(l1["I_cg_kgm2"], l1["I_cg_kgm2"], l1["mass_kg"] * 0.06**2 / 2)}"/>'
+    )
     add(f'{ind3}<geom class="link_visual" fromto="0 0 0 0 0 {_fmt(l1["length_m"])}" size="0.05"/>')
     add(f'{ind3}<geom class="hydraulic_visual" pos="0 0 {_fmt(l1["length_m"])}" euler="1.5707963 0 0" size="0.06 0.07"/>')
     # joint 2 at the top of l1, turning about -y: theta positive in the slope sense of the beam
@@ -492,15 +520,19 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
         axis = np.zeros(3)  # along the accelerometer's measuring direction, in the tip's frame
         mujoco.mju_rotVecQuat(axis, _X, q_site)
         side = 0.05  # a cube of this half-side beside the beam's end, clear of the post l0
-        add(f"{indent}<!-- beam.tip_body: {_fmt(mb)} kg on a mount of {_fmt(b.tip_body_freq_hz)} Hz, damping ratio "
-            f"{_fmt(b.tip_body_damping_ratio)} (k = m w^2, c = 2 zeta w m), sliding along the accelerometer's direction -->")
+        add(
+            f"{indent}<!-- beam.tip_body: {_fmt(mb)} kg on a mount of {_fmt(b.tip_body_freq_hz)} Hz, damping ratio "
+            f"{_fmt(b.tip_body_damping_ratio)} (k = m w^2, c = 2 zeta w m), sliding along the accelerometer's direction -->"
+        )
         add(f'{indent}<body name="tip_body" pos="{_vec(tip, s / 2 + side, 0)}">')
-        add(f'{indent}  <joint name="tip_body" type="slide" axis="{_vec(*axis)}" stiffness="{_fmt(mb * wb**2)}" '
-            f'damping="{_fmt(2 * b.tip_body_damping_ratio * wb * mb)}"/>')
+        add(
+            f'{indent}  <joint name="tip_body" type="slide" axis="{_vec(*axis)}" stiffness="{_fmt(mb * wb**2)}" '
+            f'damping="{_fmt(2 * b.tip_body_damping_ratio * wb * mb)}"/>'
+        )
         add(f'{indent}  <inertial pos="0 0 0" mass="{_fmt(mb)}" diaginertia="{_vec(*_box_inertia(mb, 2 * side, 2 * side, 2 * side))}"/>')
         add(f'{indent}  <geom type="box" size="{_vec(side, side, side)}" rgba="0.2 0.6 0.3 1"/>')
         add(f"{indent}</body>")
-    for i in range(n + 1):
+    for _ in range(n + 1):
         indent = indent[:-2]
         add(f"{indent}</body>")
     maxwell = b.clamp_maxwell_stiffness_Nm_rad > 0
@@ -521,7 +553,9 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     add("")
     if maxwell:
         add("  <tendon>")
-        add(f"    <!-- Maxwell spring k2 between the clamp hinge and the node: length q_clamp - q_node; relaxation time c2/k2 = {_fmt(b.clamp_relaxation_time_s)} s -->")
+        add(
+            f"    <!-- Maxwell spring k2 between the clamp hinge and the node: length q_clamp - q_node; relaxation time c2/k2 = {_fmt(b.clamp_relaxation_time_s)} s -->"
+        )
         add(f'    <fixed name="clamp_maxwell" stiffness="{_fmt(k2)}" springlength="0">')
         add('      <joint joint="clamp" coef="1"/>')
         add('      <joint joint="clamp_maxwell" coef="-1"/>')
@@ -531,9 +565,16 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     add("  <actuator>")
     add('    <plugin name="joint2" joint="joint2" plugin="samii.hydraulic" actdim="2" ctrlrange="-10 10">')
     hyd_units = {
-        "supply_pressure": "Pa", "bulk_modulus": "Pa", "total_volume": "m^3", "displacement": "m^3/rad",
-        "leakage_coefficient": "m^3/(s Pa)", "valve_time_constant": "s", "rated_flow": "m^3/s",
-        "rated_voltage": "V", "position_gain": "V/rad", "reference_angle": "rad",
+        "supply_pressure": "Pa",
+        "bulk_modulus": "Pa",
+        "total_volume": "m^3",
+        "displacement": "m^3/rad",
+        "leakage_coefficient": "m^3/(s Pa)",
+        "valve_time_constant": "s",
+        "rated_flow": "m^3/s",
+        "rated_voltage": "V",
+        "position_gain": "V/rad",
+        "reference_angle": "rad",
     }
     for key, unit in hyd_units.items():
         add(f'      <config key="{key}" value="{_fmt(getattr(h, key))}"/>  <!-- {unit} -->')
@@ -551,7 +592,9 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
         add("         its reading at rest removed in samii.sim.simulate: a tilt of a horizontal axis reads g sin(tilt)) -->")
         add('    <accelerometer name="base_accel" site="base_accel"/>')
     else:
-        add("    <!-- the tip's acceleration in the world frame (reads a - g), read along the direction w below, gravity removed in samii.sim.simulate -->")
+        add(
+            "    <!-- the tip's acceleration in the world frame (reads a - g), read along the direction w below, gravity removed in samii.sim.simulate -->"
+        )
         add('    <framelinacc name="base_accel" objtype="site" objname="base_accel"/>')
     add("  </sensor>")
     add("")

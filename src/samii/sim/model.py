@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Mapping
 from dataclasses import fields, is_dataclass, replace
 from pathlib import Path
-from typing import Mapping
 
 import mujoco
 import numpy as np
@@ -43,8 +43,9 @@ __all__ = [
 
 #: Parameters a complete parameter file may leave out: options whose default is "none" (the
 #: valve's, the body on the beam's end and, as a whole section, the sensors'), which older files do not list.
-OPTIONAL_PARAMETERS = frozenset({f"hydraulic.{name}" for name in VALVE_OPTIONS}
-                                | {"beam.tip_body_mass_kg", "beam.tip_body_freq_hz", "beam.tip_body_damping_ratio"})
+OPTIONAL_PARAMETERS = frozenset(
+    {f"hydraulic.{name}" for name in VALVE_OPTIONS} | {"beam.tip_body_mass_kg", "beam.tip_body_freq_hz", "beam.tip_body_damping_ratio"}
+)
 
 ACTUATOR = "joint2"  #: name of the hydraulic actuator
 JOINT = "joint2"  #: the joint it drives
@@ -95,11 +96,18 @@ def params_from_dict(d: Mapping, *, complete: bool = False) -> SamiiParams:
         # the options added with issue 11 default to "none" and files written before them lack them
         expected = {"beam": BeamParams, "arm": ArmParams, "hydraulic": HydraulicConfig}
         missing = [k for k in (*expected, "timestep_s") if k not in d]
-        missing += [f"{k}.{f.name}" for k, cls in expected.items() if isinstance(d.get(k), Mapping)
-                    for f in fields(cls) if f.name not in d[k] and f"{k}.{f.name}" not in OPTIONAL_PARAMETERS]
+        missing += [
+            f"{k}.{f.name}"
+            for k, cls in expected.items()
+            if isinstance(d.get(k), Mapping)
+            for f in fields(cls)
+            if f.name not in d[k] and f"{k}.{f.name}" not in OPTIONAL_PARAMETERS
+        ]
         if missing:
-            raise ValueError(f"missing {', '.join(missing[:4])}{', ...' if len(missing) > 4 else ''}: a parameter file lists every "
-                             "parameter (samii params --json shows them; samii calibrate writes complete files)")
+            raise ValueError(
+                f"missing {', '.join(missing[:4])}{', ...' if len(missing) > 4 else ''}: a parameter file lists every "
+                "parameter (samii params --json shows them; samii calibrate writes complete files)"
+            )
     return SamiiParams(**kw)
 
 
@@ -182,7 +190,9 @@ def read_params_file(path: str | Path) -> SamiiParams:
         raise InputError(f"{path}: {exc}") from None
 
 
-def load_spec(path: str | Path | None = None, *, params: SamiiParams | None = None, overrides: Mapping[str, float] | None = None) -> tuple[mujoco.MjSpec, bool]:
+def load_spec(
+    path: str | Path | None = None, *, params: SamiiParams | None = None, overrides: Mapping[str, float] | None = None
+) -> tuple[mujoco.MjSpec, bool]:
     """The MjSpec of a model and whether it was generated (so needs its equilibrium computed).
 
     ``path`` is an MJCF file, or a parameter file (``.json``: the model is written from its
@@ -214,8 +224,9 @@ def load_spec(path: str | Path | None = None, *, params: SamiiParams | None = No
     return mujoco.MjSpec.from_string(samii_xml(base)), True
 
 
-def load_model(path: str | Path | None = None, *, params: SamiiParams | None = None, overrides: Mapping[str, float] | None = None,
-               check_step: bool = True) -> mujoco.MjModel:
+def load_model(
+    path: str | Path | None = None, *, params: SamiiParams | None = None, overrides: Mapping[str, float] | None = None, check_step: bool = True
+) -> mujoco.MjModel:
     """Compile SAMII's model, with its ``home`` keyframe at static equilibrium.
 
     Parameters
@@ -243,7 +254,7 @@ def load_model(path: str | Path | None = None, *, params: SamiiParams | None = N
         if path is None or Path(path).suffix.lower() == ".json":
             raise
         text = " ".join(str(exc).split())
-        text = text[len("Error: "):] if text.startswith("Error: ") else text
+        text = text[len("Error: ") :] if text.startswith("Error: ") else text
         raise InputError(f"model file {path}: MuJoCo cannot compile it: {text}") from None
     _check_model(model, path)
     if check_step:
@@ -254,8 +265,10 @@ def load_model(path: str | Path | None = None, *, params: SamiiParams | None = N
         try:
             eq = static_equilibrium(model)
         except RuntimeError as exc:  # no rest state: the parameters describe no usable rig
-            raise InputError(f"the model with these parameters does not come to rest near its nominal pose ({exc}); "
-                             "check the overridden values (samii params lists the defaults)") from None
+            raise InputError(
+                f"the model with these parameters does not come to rest near its nominal pose ({exc}); "
+                "check the overridden values (samii params lists the defaults)"
+            ) from None
         model.key_qpos[0] = eq.qpos
         model.key_act[0] = eq.act
     return model
@@ -311,9 +324,11 @@ def _check_integrable(model: mujoco.MjModel, path, params, overrides: Mapping[st
                     break
             except ValueError:  # (InputError included: the halved step is refused for another reason)
                 break
-    raise InputError(f"the model{where} cannot be simulated at its {dt * 1e3:g} ms physics step: its one-step map has an "
-                     f"eigenvalue z = {worst:.3g} (|z| > 1 beyond a quarter of the step rate), a mode too stiff for the step "
-                     f"that would grow whatever the physics; {fix}")
+    raise InputError(
+        f"the model{where} cannot be simulated at its {dt * 1e3:g} ms physics step: its one-step map has an "
+        f"eigenvalue z = {worst:.3g} (|z| > 1 beyond a quarter of the step rate), a mode too stiff for the step "
+        f"that would grow whatever the physics; {fix}"
+    )
 
 
 def make_data(model: mujoco.MjModel) -> mujoco.MjData:

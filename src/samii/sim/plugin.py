@@ -33,19 +33,21 @@ from __future__ import annotations
 import json
 import math
 import threading
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Mapping
 
 import mujoco
 import numpy as np
 
 from samii.sim.hydraulic_reference import (
     ATTRIBUTES,
+    NOMINAL,
     OPTIONAL_ATTRIBUTES,
     VALVE_OPTIONS,
-    NOMINAL,
     HydraulicConfigError,
     HydraulicParams,
+)
+from samii.sim.hydraulic_reference import (
     valve_voltage as _valve_voltage,
 )
 
@@ -245,9 +247,9 @@ def spec_hydraulic_params(spec: mujoco.MjSpec) -> dict[str, HydraulicParams]:
         source = f"{PLUGIN_NAME} actuator '{name}'"
         params[name] = HydraulicParams.from_config(config, source=source)
         if actuator.actdim != ACTDIM:
-            raise HydraulicConfigError(f"{source}: actdim = {actuator.actdim} (expected actdim=\"{ACTDIM}\")")
+            raise HydraulicConfigError(f'{source}: actdim = {actuator.actdim} (expected actdim="{ACTDIM}")')
         if actuator.trntype != mujoco.mjtTrn.mjTRN_JOINT or not actuator.target:
-            raise HydraulicConfigError(f"{source}: must act on a hinge joint (expected joint=\"...\")")
+            raise HydraulicConfigError(f'{source}: must act on a hinge joint (expected joint="...")')
         if actuator.gear[0] != 1:
             raise HydraulicConfigError(f"{source}: gear = {actuator.gear[0]} (expected 1)")
     return params
@@ -272,10 +274,7 @@ def compile_spec(spec: mujoco.MjSpec) -> mujoco.MjModel:
 def hydraulic_actuators(model: mujoco.MjModel) -> list[int]:
     """Ids of the actuators driven by samii.hydraulic in ``model``."""
     load_plugin()
-    return [
-        i for i in range(model.nu)
-        if model.actuator_plugin[i] >= 0 and int(model.plugin[model.actuator_plugin[i]]) == _slot
-    ]
+    return [i for i in range(model.nu) if model.actuator_plugin[i] >= 0 and int(model.plugin[model.actuator_plugin[i]]) == _slot]
 
 
 def _instance_attributes(model: mujoco.MjModel, instance: int) -> dict[str, str]:
@@ -312,14 +311,17 @@ def ideal_valve_model(model: mujoco.MjModel) -> mujoco.MjModel:
     "0" padded with spaces to the same length, which the plugin's parser reads as 0."""
     import copy
 
-    edits = [(offset, len(raw)) for i in hydraulic_actuators(model)
-             for name, offset, raw in _instance_fields(model, int(model.actuator_plugin[i]))
-             if name in VALVE_OPTIONS and raw.strip() and float(raw) != 0]
+    edits = [
+        (offset, len(raw))
+        for i in hydraulic_actuators(model)
+        for name, offset, raw in _instance_fields(model, int(model.actuator_plugin[i]))
+        if name in VALVE_OPTIONS and raw.strip() and float(raw) != 0
+    ]
     if not edits:
         return model
     out = copy.copy(model)
     for offset, size in edits:
-        out.plugin_attr[offset:offset + size] = np.frombuffer(b"0" + b" " * (size - 1), dtype=np.int8)
+        out.plugin_attr[offset : offset + size] = np.frombuffer(b"0" + b" " * (size - 1), dtype=np.int8)
     return out
 
 
@@ -370,8 +372,6 @@ def valve_voltage(model: mujoco.MjModel, data: mujoco.MjData, actuator: str | in
     params = hydraulic_params(model, i)
     joint = int(model.actuator_trnid[i, 0])
     theta = float(data.qpos[model.jnt_qposadr[joint]])
-    limited = bool(model.actuator_ctrllimited[i]) and not (
-        model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CLAMPCTRL
-    )
+    limited = bool(model.actuator_ctrllimited[i]) and not (model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CLAMPCTRL)
     ctrlrange = tuple(model.actuator_ctrlrange[i]) if limited else None
     return float(_valve_voltage(params, data.ctrl[i], theta, ctrlrange=ctrlrange))

@@ -91,16 +91,15 @@ class SensorDynamics:
         return tuple(float(getattr(self, name)) for name, _ in FIELDS)
 
     @classmethod
-    def from_model(cls, model: mujoco.MjModel) -> "SensorDynamics":
+    def from_model(cls, model: mujoco.MjModel) -> SensorDynamics:
         """The options a model carries (ideal sensors when it has no ``samii_sensor_dynamics``)."""
         i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, NUMERIC)
         if i < 0:
             return cls()
         a, size = int(model.numeric_adr[i]), int(model.numeric_size[i])
-        data = np.asarray(model.numeric_data[a:a + size], float)
+        data = np.asarray(model.numeric_data[a : a + size], float)
         if data.size != len(FIELDS):
-            raise ValueError(f"custom numeric {NUMERIC!r} must hold {len(FIELDS)} numbers "
-                             f"({', '.join(n for n, _ in FIELDS)}), got {data.size}")
+            raise ValueError(f"custom numeric {NUMERIC!r} must hold {len(FIELDS)} numbers ({', '.join(n for n, _ in FIELDS)}), got {data.size}")
         return cls(**{name: float(v) for (name, _), v in zip(FIELDS, data)})
 
     def check_rate(self, rate_hz: float) -> None:
@@ -108,8 +107,7 @@ class SensorDynamics:
         for name in ("accel_lowpass_hz", "accel_antialias_hz", "accel_highpass_hz"):
             fc = getattr(self, name)
             if fc >= 0.5 * rate_hz:
-                raise ValueError(f"sensor parameter {name} = {fc:g} Hz must be below half the physics rate "
-                                 f"({0.5 * rate_hz:g} Hz) to be simulated")
+                raise ValueError(f"sensor parameter {name} = {fc:g} Hz must be below half the physics rate ({0.5 * rate_hz:g} Hz) to be simulated")
 
     # -- discrete filters at the physics rate ---------------------------------------------
     def _accel_sos(self, rate_hz: float) -> np.ndarray | None:

@@ -45,7 +45,7 @@ def accel_weights(model: mujoco.MjModel) -> tuple[int, np.ndarray]:
         if n < 0:
             return adr, np.array([0.0, 0.0, 1.0])
         a, size = int(model.numeric_adr[n]), int(model.numeric_size[n])
-        d = np.asarray(model.numeric_data[a:a + size], float)
+        d = np.asarray(model.numeric_data[a : a + size], float)
         if d.size != 3 or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
             raise ValueError(f"custom numeric {ACCEL_DIRECTION!r} must hold a non-zero 3-vector, got {d.tolist()}")
         return adr, d / np.linalg.norm(d)
@@ -71,4 +71,4 @@ def accel_offset(model: mujoco.MjModel) -> float:
 
     data = make_data(model)
     adr, w = accel_weights(model)
-    return float(w @ data.sensordata[adr:adr + 3])
+    return float(w @ data.sensordata[adr : adr + 3])

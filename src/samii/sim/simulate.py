@@ -8,8 +8,8 @@ at the speed of plain ``mj_step``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import mujoco
 import mujoco.rollout
@@ -171,7 +171,7 @@ def simulate(
                 ctrl=ctrl_v[lo:hi].copy(),
                 v=np.clip(ctrl_v[lo:hi] + hp.position_gain * (hp.reference_angle - theta_abs), -10.0, 10.0),
                 theta=theta_abs - hp.reference_angle,
-                accel=sd[:, accel_sensor:accel_sensor + 3] @ accel_dir - g_offset,
+                accel=sd[:, accel_sensor : accel_sensor + 3] @ accel_dir - g_offset,
                 p_load=before[:, act_start + act_adr + 1] * hp.supply_pressure,
                 spool=before[:, act_start + act_adr],
                 final_state=last.copy(),

@@ -141,8 +141,16 @@ def bode_plot(
             if coh is not None:
                 ax_coh.semilogx(frf.freq_hz, coh, color="C0", lw=1.0)
             else:
-                ax_coh.text(0.5, 0.5, "no coherence: one record\n(--averages 1)", transform=ax_coh.transAxes,
-                            ha="center", va="center", fontsize="small", color="0.4")
+                ax_coh.text(
+                    0.5,
+                    0.5,
+                    "no coherence: one record\n(--averages 1)",
+                    transform=ax_coh.transAxes,
+                    ha="center",
+                    va="center",
+                    fontsize="small",
+                    color="0.4",
+                )
             coherent = np.isfinite(_faded(phase, coh, coherence_threshold))  # incoherent phase must not squash the axis
             lims.append(phase[coherent])
         if reference is not None and ch in reference.channels:  # drawn after the measurement: legend order
@@ -168,8 +176,14 @@ def bode_plot(
         if stepped_ph is not None:  # incoherent points beyond the axis: shown on its edge and counted, never dropped silently
             n_off = _mark_off_scale(ax_ph, stepped.freq_hz, stepped_ph, "C3")
             if n_off:
-                ax_ph.text(0.02, 0.03, f"{n_off} stepped point(s) off scale (low coherence), drawn on the edge",
-                           transform=ax_ph.transAxes, fontsize="x-small", color="C3")
+                ax_ph.text(
+                    0.02,
+                    0.03,
+                    f"{n_off} stepped point(s) off scale (low coherence), drawn on the edge",
+                    transform=ax_ph.transAxes,
+                    fontsize="x-small",
+                    color="C3",
+                )
         ax_mag.set_title(name)
         ax_mag.set_ylabel(f"magnitude [dB re 1 {unit}]")
         ax_ph.set_ylabel("phase [deg]")

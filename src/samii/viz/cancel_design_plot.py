@@ -38,7 +38,14 @@ def plot_cancel_locus(design, *, notebook_gain: float | None = None, path: str |
         ax.plot(p.real, p.imag, "x", color="k", ms=7, label="open-loop poles")
         ax.plot(z.real, z.imag, "o", mfc="none", color="C2", ms=7, label="open-loop zeros")
         end = design.closed_loop
-        ax.plot(end.real, end.imag, "*", color="C3", ms=10, label=f"our K = {design.gain:.4g}: moving pairs zeta {zetas(design.gain)} (and the cancelled pair, on its zeros)")
+        ax.plot(
+            end.real,
+            end.imag,
+            "*",
+            color="C3",
+            ms=10,
+            label=f"our K = {design.gain:.4g}: moving pairs zeta {zetas(design.gain)} (and the cancelled pair, on its zeros)",
+        )
         if notebook_gain is not None:
             nbp = closed_loop_poles(design.open_loop, notebook_gain)
             ax.plot(nbp.real, nbp.imag, "^", mfc="none", color="C1", ms=8, label=f"notebook's K = {notebook_gain:g}: zeta {zetas(notebook_gain)}")

@@ -5,7 +5,7 @@ matplotlib is imported inside the functions (compute paths never import it).
 
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -36,7 +36,16 @@ def _figure_legend(fig, handles: Mapping[str, object], *, max_cols: int, title: 
     rows = int(np.ceil(len(handles) / max_cols))
     ncol = int(np.ceil(len(handles) / rows))  # balanced rows (matplotlib fills column by column)
     top = 1.0 - (0.035 if title else 0.0) - 0.026 * rows
-    fig.legend(list(handles.values()), list(handles), loc="lower center", bbox_to_anchor=(0.5, top - 0.012), ncol=ncol, fontsize=8, frameon=False, borderaxespad=0.0)
+    fig.legend(
+        list(handles.values()),
+        list(handles),
+        loc="lower center",
+        bbox_to_anchor=(0.5, top - 0.012),
+        ncol=ncol,
+        fontsize=8,
+        frameon=False,
+        borderaxespad=0.0,
+    )
     return top + 0.012
 
 
@@ -100,7 +109,14 @@ def plot_fit_overlay(
     fm = np.geomspace(*(model_span_hz or (f[0], f[-1])), n_model_points)
     has_coh = any(data.coherence(c) is not None for c in channels)
     rows = 3 if has_coh else 2
-    fig, axes = plt.subplots(rows, len(channels), figsize=(5.2 * len(channels), 7.4 if has_coh else 6.0), sharex=True, squeeze=False, gridspec_kw={"height_ratios": [3, 3, 1.3][:rows]})
+    fig, axes = plt.subplots(
+        rows,
+        len(channels),
+        figsize=(5.2 * len(channels), 7.4 if has_coh else 6.0),
+        sharex=True,
+        squeeze=False,
+        gridspec_kw={"height_ratios": [3, 3, 1.3][:rows]},
+    )
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     handles: dict = {}
     for j, ch in enumerate(channels):
@@ -134,7 +150,16 @@ def plot_fit_overlay(
                 a.axvspan(*band_hz, color="tab:green", alpha=0.06, lw=0)
         axes[-1, j].set_xlabel("frequency [Hz]")
     if band_hz is not None:
-        axes[0, -1].text(0.99, 0.02, f"fit band {band_hz[0]:.3g}-{band_hz[1]:.3g} Hz (shaded)", transform=axes[0, -1].transAxes, ha="right", va="bottom", fontsize=7, color="tab:green")
+        axes[0, -1].text(
+            0.99,
+            0.02,
+            f"fit band {band_hz[0]:.3g}-{band_hz[1]:.3g} Hz (shaded)",
+            transform=axes[0, -1].transAxes,
+            ha="right",
+            va="bottom",
+            fontsize=7,
+            color="tab:green",
+        )
     top = _figure_legend(fig, handles, max_cols=4 if len(channels) > 1 else 2, title=bool(title))
     return _finish(fig, title, note, note_height=0.04, top=top)
 
@@ -245,11 +270,17 @@ def _mark_not_identifiable(ax, x: np.ndarray, v: np.ndarray, se: np.ndarray, wil
     y0, y1 = ax.get_ylim()
     for xi, vi, si in zip(x[wild], v[wild], se[wild]):
         for end in (y1, y0):
-            ax.annotate("", xy=(xi, end), xytext=(xi, vi), annotation_clip=False,
-                        arrowprops=dict(arrowstyle="-|>", color=color, lw=0.8, ls=":", mutation_scale=7, shrinkA=0, shrinkB=0))
+            ax.annotate(
+                "",
+                xy=(xi, end),
+                xytext=(xi, vi),
+                annotation_clip=False,
+                arrowprops=dict(arrowstyle="-|>", color=color, lw=0.8, ls=":", mutation_scale=7, shrinkA=0, shrinkB=0),
+            )
         size = f"±{1.96 * si:.2g}" if np.isfinite(si) else "±inf"
-        ax.annotate(f"not identifiable\n({size})", (xi, vi), textcoords="offset points", xytext=(5, -3), fontsize=6, color="tab:red",
-                    ha="left", va="top")
+        ax.annotate(
+            f"not identifiable\n({size})", (xi, vi), textcoords="offset points", xytext=(5, -3), fontsize=6, color="tab:red", ha="left", va="top"
+        )
     ax.set_ylim(y0, y1)
 
 

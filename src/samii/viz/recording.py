@@ -158,7 +158,7 @@ class _Kinematics:
     beam: np.ndarray  #: qpos addresses of the beam's joints
 
     @classmethod
-    def of(cls, model: mujoco.MjModel) -> "_Kinematics":
+    def of(cls, model: mujoco.MjModel) -> _Kinematics:
         from samii.sim.modal import modal_projection
         from samii.sim.model import make_data
 
@@ -297,8 +297,18 @@ def _thinning(run: RunRecord, thin_frames: bool = True, thin_signals: bool = Tru
     return bucket, kept(run.frame_t_s, at_frames, per_period=FRAMES_PER_PERIOD_SWEPT, min_rate=MIN_THINNED_FPS)
 
 
-def _log_signals(rec, rr, run: RunRecord, projection, *, tag: str = "", rank: int = 0, modes: bool = True,
-                 bucket: np.ndarray | None = None, frame_keep: np.ndarray | None = None) -> list[str]:
+def _log_signals(
+    rec,
+    rr,
+    run: RunRecord,
+    projection,
+    *,
+    tag: str = "",
+    rank: int = 0,
+    modes: bool = True,
+    bucket: np.ndarray | None = None,
+    frame_keep: np.ndarray | None = None,
+) -> list[str]:
     """Log ``run``'s time series (the tip and the modes at its frames, from ``projection``) and
     return the groups it filled; ``tag`` prefixes the series' names. The later runs of a comparison
     (``rank`` > 0), in the same panels, have their colours dimmed (:data:`DIMMED`) towards the
@@ -336,8 +346,14 @@ def _log_signals(rec, rr, run: RunRecord, projection, *, tag: str = "", rank: in
     if command is not None:  # shown while the controller runs
         on = np.isfinite(command) & (ts.extra["controller_on"] > 0.5 if "controller_on" in ts.extra else True)
         if np.any(on):
-            put("volts", "command", command, "controller command [V]", t=ts.t,
-                mask=on if bucket is None else on & envelope(np.where(on, command, np.nan), bucket))
+            put(
+                "volts",
+                "command",
+                command,
+                "controller command [V]",
+                t=ts.t,
+                mask=on if bucket is None else on & envelope(np.where(on, command, np.nan), bucket),
+            )
     put("pressure_mpa", "p_load", None if ts.p_load is None else ts.p_load / 1e6, "load pressure [MPa]")
     if len(run.frame_t_s):
         q = run.frame_qpos[frame_keep]
@@ -415,8 +431,17 @@ def _blueprint(rrb, runs, groups_by_run: dict[str, list[str]], beam_scale: float
                          rrb.TimePanel(state="collapsed", timeline="time"))  # fmt: skip
 
 
-def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, beam_scale: float | None = None, fps: float | None = None,
-                    thin_frames: bool = True, thin_signals: bool = True) -> RecordingInfo:
+def write_recording(
+    path,
+    model: mujoco.MjModel,
+    runs,
+    *,
+    application_id: str,
+    beam_scale: float | None = None,
+    fps: float | None = None,
+    thin_frames: bool = True,
+    thin_signals: bool = True,
+) -> RecordingInfo:
     """Write ``runs`` (:class:`RunRecord`) of ``model`` to the ``.rrd`` file ``path`` with the stored layout.
 
     ``beam_scale``: the deformation scale (default: the largest tip deflection shown as
@@ -436,8 +461,12 @@ def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, b
         if r.model is not None and id(r.model) not in kin:
             kin[id(r.model)] = _Kinematics.of(r.model)
     main = kin[id(model)]
-    runs = [replace(r, frame_t_s=np.asarray(r.frame_t_s, float),
-                    frame_qpos=np.asarray(r.frame_qpos, float).reshape(len(r.frame_t_s), (r.model or model).nq)) for r in runs]
+    runs = [
+        replace(
+            r, frame_t_s=np.asarray(r.frame_t_s, float), frame_qpos=np.asarray(r.frame_qpos, float).reshape(len(r.frame_t_s), (r.model or model).nq)
+        )
+        for r in runs
+    ]
     run_kin = [kin[id(r.model or model)] for r in runs]
     projection = main.projection
 
@@ -487,18 +516,22 @@ def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, b
                 frames = (f"{rate:.4g} frames per second ({len(t)} frames): the 3D views, the tip and the modes; the other signals "
                           f"at the record's {samples_per_s:.4g} samples/s")  # fmt: skip
                 if thinned:
-                    frames = (f"the 3D views, the tip and the modes in {int(fk.sum())} of the run's {len(t)} frames ({rate:.4g} per second), "
-                              f"at least {FRAMES_PER_PERIOD_SWEPT} per period of the highest frequency the sweep drove in the last {RING_S:g} s "
-                              f"and {MIN_THINNED_FPS:g} per second; the other signals at the record's {samples_per_s:.4g} samples/s where the sweep "
-                              f"is fast, and where it is slow each one's smallest and largest sample in every {BUCKETS_PER_PERIOD}th of that "
-                              f"period (at least every {1 / MIN_BUCKET_RATE_HZ:g} s): the curves' peaks and the noise's width are the record's; "
-                              "every sample is in the run's time series file")
+                    frames = (
+                        f"the 3D views, the tip and the modes in {int(fk.sum())} of the run's {len(t)} frames ({rate:.4g} per second), "
+                        f"at least {FRAMES_PER_PERIOD_SWEPT} per period of the highest frequency the sweep drove in the last {RING_S:g} s "
+                        f"and {MIN_THINNED_FPS:g} per second; the other signals at the record's {samples_per_s:.4g} samples/s where the sweep "
+                        f"is fast, and where it is slow each one's smallest and largest sample in every {BUCKETS_PER_PERIOD}th of that "
+                        f"period (at least every {1 / MIN_BUCKET_RATE_HZ:g} s): the curves' peaks and the noise's width are the record's; "
+                        "every sample is in the run's time series file"
+                    )
             else:
                 frames = f"no animation frames (no joint positions: e.g. measured data); the signals at {samples_per_s:.4g} samples/s"
             own = "" if k is main else f"\n- its own model: base modes {', '.join(f'{f:.2f}' for f in k.projection.freq_hz)} Hz"
             about.append(f"## {run.name}\n\n{run.label}\n\n- {frames}{own}\n")
         rec.log("about", rr.TextDocument("\n".join(about), media_type="text/markdown"), static=True)
-        rec.send_property("deformation", rr.AnyValues(beam_scale=beam_scale, arm_scale=arm_scale, max_tip_deflection_m=deflection, fps=float(rate or 0.0)))
+        rec.send_property(
+            "deformation", rr.AnyValues(beam_scale=beam_scale, arm_scale=arm_scale, max_tip_deflection_m=deflection, fps=float(rate or 0.0))
+        )
         rec.send_blueprint(_blueprint(rrb, runs, groups_by_run, beam_scale, arm_scale, _eye(model, main.home)))
         out.write(stream.read(flush=True) or b"")
     finally:
@@ -508,7 +541,9 @@ def write_recording(path, model: mujoco.MjModel, runs, *, application_id: str, b
         except Exception:  # noqa: BLE001 (the failure being raised is the one to report)
             pass
         rec.disconnect()
-    return RecordingInfo(path, beam_scale, arm_scale, float(rate or 0.0), tuple(float(f) for f in projection.freq_hz), deflection, tuple(r.name for r in runs))
+    return RecordingInfo(
+        path, beam_scale, arm_scale, float(rate or 0.0), tuple(float(f) for f in projection.freq_hz), deflection, tuple(r.name for r in runs)
+    )
 
 
 def recording_failed(exc: Exception, final) -> OSError:

@@ -75,7 +75,12 @@ def plot_root_locus(data, *, ax=None, zoom: bool = False, best=None, limit=None,
     # the unstable half plane, behind everything
     ax.axvspan(0.0, max(x1, 1.0), color="C3", alpha=0.07, lw=0, label="unstable region (Re s > 0)")
     start = loci[0]
-    is_base = np.array([np.min(np.abs(data.base_modes - x)) < 1e-3 * max(abs(x), 1.0) or np.min(np.abs(np.conj(data.base_modes) - x)) < 1e-3 * max(abs(x), 1.0) for x in start])
+    is_base = np.array(
+        [
+            np.min(np.abs(data.base_modes - x)) < 1e-3 * max(abs(x), 1.0) or np.min(np.abs(np.conj(data.base_modes) - x)) < 1e-3 * max(abs(x), 1.0)
+            for x in start
+        ]
+    )
     first = {True: True, False: True}
     for j in np.argsort(is_base):  # base-mode branches drawn last, on top
         b = bool(is_base[j])

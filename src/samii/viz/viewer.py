@@ -79,7 +79,7 @@ class HeadlessViewer:
         self.time_s: float | None = None
         self._viewer = None
 
-    def __enter__(self) -> "HeadlessViewer":
+    def __enter__(self) -> HeadlessViewer:
         from rerun.experimental import ViewerClient
 
         # the viewer writes its runtime files under XDG_RUNTIME_DIR; a container may not set one:
@@ -92,8 +92,10 @@ class HeadlessViewer:
             self._viewer = ViewerClient.spawn(headless=True, port=_free_port(), hide_welcome_screen=True)
         except Exception as exc:
             self._cleanup()
-            raise RuntimeError(f"the Rerun viewer could not start headless (it needs a Vulkan driver, a software one will do: "
-                               f"Debian's mesa-vulkan-drivers): {' '.join(str(exc).split())}") from exc
+            raise RuntimeError(
+                f"the Rerun viewer could not start headless (it needs a Vulkan driver, a software one will do: "
+                f"Debian's mesa-vulkan-drivers): {' '.join(str(exc).split())}"
+            ) from exc
         finally:
             if self._runtime_dir is not None:
                 del os.environ["XDG_RUNTIME_DIR"]  # the spawned viewer has it
