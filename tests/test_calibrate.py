@@ -103,8 +103,13 @@ def test_calibrated_parameter_file_loads_as_a_model(truth_and_data, tmp_path):
     modes = base_modes(spec, np.pi / 2)
     expected = base_modes(load_spec(params=res.params)[0], np.pi / 2)
     assert [m.freq_hz for m in modes] == pytest.approx([m.freq_hz for m in expected], rel=1e-9)
-    # overrides apply on top of a parameter file
-    assert load_model(path, overrides={"hydraulic.bulk_modulus": 1e9}) is not None
+    # overrides apply on top of a parameter file: the override's value, the file's calibrated one beside it
+    from samii.sim.plugin import hydraulic_params
+
+    assert hydraulic_params(load_model(path)).bulk_modulus != pytest.approx(1e9)
+    assert hydraulic_params(load_model(path, overrides={"hydraulic.bulk_modulus": 1e9})).bulk_modulus == pytest.approx(1e9)
+    modes = base_modes(load_spec(path, overrides={"hydraulic.bulk_modulus": 1e9})[0], np.pi / 2)  # (joint 2 held: no oil column)
+    assert [m.freq_hz for m in modes] == pytest.approx([m.freq_hz for m in expected], rel=1e-9)
 
 
 def test_bad_requests_get_clear_errors(truth_and_data):

@@ -161,11 +161,15 @@ def test_result_exports():
 
 
 def test_fit_leaves_its_input_alone():
-    data = _data(ST3, nb.EQ9_4)
-    before = data.act.copy()
+    data = _data(ST3, nb.EQ9_4, noise=SweptSineNoise(), channels=("act", "base", "total"))
+    arrays = ("freq_hz", "act", "base", "total", "act_coh", "base_coh", "total_coh")
+    before = {k: getattr(data, k).copy() for k in arrays if getattr(data, k) is not None}
+    metadata = dict(data.metadata)
     fit(data, ST3, phase_weight=0.1, n_perturbed=0)
-    np.testing.assert_array_equal(data.act, before)
-    assert isinstance(data, FrequencyResponse)
+    assert before.keys() >= {"freq_hz", "act", "base", "total"}
+    for k, v in before.items():
+        np.testing.assert_array_equal(getattr(data, k), v, err_msg=k)
+    assert dict(data.metadata) == metadata
 
 
 def test_undetermined_single_parameter_is_named_plainly():

@@ -104,10 +104,6 @@ class SeedReport:
                 return e
         raise KeyError(key)
 
-    @property
-    def all_match(self) -> bool:
-        return all(e.matches for e in self.entries)
-
     def as_json(self) -> dict:
         """The CLI's ``--json``: keys eq8_1 ... eq10_gain with our values, plus ``comparison``."""
         out: dict = {}

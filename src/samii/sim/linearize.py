@@ -95,13 +95,6 @@ class LinearModel(_StateSpace):
         C = self.C + kp * self.D @ self.C[:1]
         return LinearModel(A, self.B, C, self.D, self.dt_s, 0.0, self.outputs, self.command_delay_s)
 
-    def with_position_gain(self, kp_v_per_rad: float) -> LinearModel:
-        """Close the servo loop with gain ``kp_v_per_rad`` (from the open-loop form)."""
-        ol = self.open_loop()
-        A = ol.A - kp_v_per_rad * ol.B @ ol.C[:1]
-        C = ol.C - kp_v_per_rad * ol.D @ ol.C[:1]
-        return LinearModel(A, ol.B, C, ol.D, self.dt_s, kp_v_per_rad, self.outputs, self.command_delay_s)
-
     def frequency_response(self, freq_hz: np.ndarray) -> dict[str, np.ndarray]:
         """Complex response of each output to ctrl at ``freq_hz``: C (jw - A)^-1 B + D."""
         freq_hz = np.atleast_1d(np.asarray(freq_hz, float))
@@ -146,12 +139,6 @@ class LinearModel(_StateSpace):
             b = residue * (p - np.conj(p)) / p**4
             out.append(BaseCoefficient(float(abs(p) / (2 * np.pi)), float(-p.real / abs(p)), float(b.real), float(b.imag)))
         return out
-
-    def to_control(self):
-        """python-control StateSpace (input ctrl, outputs theta, accel)."""
-        import control
-
-        return control.ss(self.A, self.B, self.C, self.D, inputs=["ctrl"], outputs=list(self.outputs))
 
 
 def _sensor_rows(model: mujoco.MjModel) -> tuple[int, np.ndarray]:

@@ -410,7 +410,6 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     # Beam bodies: body 0 [0, l/2] (clamp hinge at 0), bodies 1..n-1 of length l, body n [L-l/2, L].
     for i in range(n + 1):
         seg_len = ell / 2 if i in (0, n) else ell
-        x_start = 0.0 if i == 0 else (i - 0.5) * ell
         pos = 0.0 if i == 0 else (ell / 2 if i == 1 else ell)
         m = mu * seg_len
         Ixx = m * s * s / 6  # thin-walled square tube: polar moment m a^2/6 (torsion, unused in-plane)
@@ -434,7 +433,6 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
         add(f'{ind}<inertial pos="{_vec(seg_len / 2, 0, 0)}" mass="{_fmt(m)}" diaginertia="{_vec(Ixx, Iyy, Izz)}"/>')
         add(f'{ind}<geom class="beam_visual" pos="{_vec(seg_len / 2, 0, 0)}" size="{_vec(seg_len / 2, s / 2, s / 2)}"/>')
         indent = ind
-        del x_start
 
     # Tip of the beam: accelerometer site and the arm.
     tip = ell / 2
