@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from samii.diagnose import diagnosis
+from samii.diagnose import attribution
 from samii.diagnose.attribution import unattributed
 from samii.diagnose.effects import LIBRARY, Effect
 from samii.diagnose.model import Baseline, Dataset, Fit, _apply
@@ -37,7 +37,7 @@ def _bump(f, center_hz, db, deg, decades=0.15):
 
 @pytest.fixture(autouse=True)
 def closed_form(monkeypatch):
-    monkeypatch.setattr(diagnosis, "model_response", _response)
+    monkeypatch.setattr(attribution, "model_response", _response)
 
 
 def _case(true_gain, model_gain, misfit, channel):

@@ -122,7 +122,8 @@ def test_record_spread_predicts_the_error(sweep):
     """The variance stated for every point is the error's (Monte Carlo: 30 noise draws of one rig against its exact
     response). The sign-alternating sweep weighs its records 1/4, 1/2, 1/4: the earlier estimate,
     sum |c_k|^2 |d_k|^2 n/(n-1), came out 19 % short of the error (13/64 x 3/2 of s^2 against 3/8: the error 23 % above it), ratios 1.15-1.25."""
-    from samii.diagnose.measured import from_frf, timeseries_frf
+    from samii.diagnose.measured import from_frf
+    from samii.measure.frf_variance import timeseries_frf
 
     rig = EffectRig()
     layout = from_timeseries(rig.simulate(sweep, sample_rate_hz=FS), source="rig.csv").layout

@@ -1202,7 +1202,7 @@ def test_a_residual_far_above_the_noise_everywhere_is_not_called_explained(stepp
     """Four stepped frequencies without noise (judged against the 0.5 % floor): chi2 per residual 824, 460 and 22 after,
     and the verdict said "the baseline explains the data to within their noise" (the band test judges bands against
     their channel's median, and had too few points besides)."""
-    from samii.diagnose.diagnosis import ChannelError, band_tested, even_misfit
+    from samii.diagnose.residuals import ChannelError, band_tested, even_misfit
 
     assert main(["diagnose", stepped4["four"], "--no-progress"]) == 0
     verdict = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("verdict:"))

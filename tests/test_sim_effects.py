@@ -326,7 +326,7 @@ def test_the_ideal_valve_copy_keeps_the_whole_state():
     of qpos/qvel/act/ctrl alone came back with the card switched on by the plugin's reset)."""
     from samii.closedloop.card import build_card_model
     from samii.design.controller import LinearController
-    from samii.sim.linearize import _small_signal
+    from samii.sim.one_step import small_signal
 
     kp = 57.29577951308232
     m0 = load_model()
@@ -344,7 +344,7 @@ def test_the_ideal_valve_copy_keeps_the_whole_state():
     off = card.set_enabled(state, False)
     off[card.layout.buffer_slice()] = 0.25  # a delay line with history in it
     mujoco.mj_setState(card.model, d, off, full)
-    ideal, copy = _small_signal(card.model, d)
+    ideal, copy = small_signal(card.model, d)
     assert ideal is not card.model
     out = np.empty_like(off)
     mujoco.mj_getState(ideal, copy, out, full)

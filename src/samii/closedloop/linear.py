@@ -184,9 +184,10 @@ class LinearLoop:
 
 def linear_loop(cm: CardModel, *, eps: float = 1e-6) -> LinearLoop:
     """The linearised closed loop of ``cm`` about its ``home`` equilibrium."""
-    from samii.sim.linearize import _discrete, _sensor_rows
     from samii.sim.model import make_data
+    from samii.sim.one_step import transition
     from samii.sim.plugin import hydraulic_params
+    from samii.sim.sensors import output_rows
 
     m = cm.model
     data = make_data(m)
@@ -198,11 +199,11 @@ def linear_loop(cm: CardModel, *, eps: float = 1e-6) -> LinearLoop:
         state = np.empty(mujoco.mj_stateSize(m, full))
         mujoco.mj_getState(m, data, state, full)
         mujoco.mj_setState(m, data, cm.set_enabled(state, False), full)
-    Ad, Bd, Cs, Ds = _discrete(m, data, eps, True)
+    Ad, Bd, Cs, Ds = transition(m, data, eps, True)
     if np.max(np.abs(Ds[:, 0])) > 1e-9 * max(1.0, np.max(np.abs(Cs))):
         raise RuntimeError("the sensors feed through from the valve command: the linear loop assumes they do not")
     hp = hydraulic_params(m)
-    r_theta, w_accel = _sensor_rows(m)
+    r_theta, w_accel = output_rows(m)
     c_theta, c_accel = Cs[r_theta], w_accel @ Cs
     bd = Bd[:, 0]
     # the plugin's position loop (v = u + Kp (theta_0 + theta_r - theta)) taken out: input v

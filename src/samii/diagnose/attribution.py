@@ -23,6 +23,7 @@ import numpy as np
 
 from samii.diagnose.effects import LIBRARY, TWO_PI, Effect
 from samii.diagnose.model import Dataset, Fit
+from samii.diagnose.residuals import CHANNEL_NAMES, full_residuals, model_response, runs
 
 #: The residual's power left by an effect within the misfit bands it acts in, as a fraction of the power without
 #: it, above which it is not told from an image: its rms must at least halve (1/2 squared).
@@ -35,8 +36,6 @@ def _change(fit: Fit, i: int, freq_hz: np.ndarray, label: str, values: Mapping[s
     """ln(model with the effect / model without it) per channel of file ``i`` at ``freq_hz``: taken out of ``fit``
     when one of its effects has ``label`` and ``values``, else added to it (an effect the baseline already holds:
     carried into the simulator; to first order the same change)."""
-    from samii.diagnose.diagnosis import model_response
-
     mine = [
         j
         for j, e in enumerate(fit.effects)
@@ -57,7 +56,6 @@ def unattributed(fit: Fit, datasets: Sequence[Dataset], bands: Sequence, label: 
     """Why the effect ``label`` with ``values`` cannot be told from an image of what ``fit`` (the final model, the
     effect in it or in its baseline) lacks, or None (module docstring). ``bands``: where ``fit`` still misses the
     data (``samii.diagnose.simulator.Misfit``: source, channel, lo_hz, hi_hz, rms_db, rms_deg)."""
-    from samii.diagnose.diagnosis import CHANNEL_NAMES, _full_residuals
     from samii.diagnose.floor import PRACTICAL_FACTOR, REL_FLOOR
 
     if label not in _KINDS or not bands:
@@ -71,7 +69,7 @@ def unattributed(fit: Fit, datasets: Sequence[Dataset], bands: Sequence, label: 
         if not mine:
             continue
         change = _change(fit, i, ds.freq_hz, label, values)
-        res = _full_residuals(ds, fit.residuals[i])
+        res = full_residuals(ds, fit.residuals[i])
         for b in mine:
             if b.channel not in change or b.channel not in res:
                 continue
@@ -109,7 +107,6 @@ _FREQ_PARAMS = {"freq_hz": "pole", "corner_hz": "corner", "pole_hz": "pole", "ze
 def _product_only_runs(ds: Dataset) -> list[tuple[float, float, bool, bool]]:
     """The bands of ``ds`` where xdd/v is usable and neither theta/v nor xdd/theta is, runs of at least
     PRODUCT_ONLY_POINTS consecutive points: (lo Hz, hi Hz, whether theta/v is usable below lo, and above hi)."""
-    from samii.diagnose.diagnosis import _runs
 
     if "total" not in ds.keep:
         return []
@@ -120,7 +117,7 @@ def _product_only_runs(ds: Dataset) -> list[tuple[float, float, bool, bool]]:
     only = np.asarray(ds.keep["total"], bool) & ~others
     return [
         (float(ds.freq_hz[a]), float(ds.freq_hz[b - 1]), bool(others[:a].any()), bool(others[b:].any()))
-        for a, b in _runs(only)
+        for a, b in runs(only)
         if b - a >= PRODUCT_ONLY_POINTS
     ]
 
@@ -138,7 +135,6 @@ class Placed:
     roles: tuple[str, ...] = ()
 
     def text(self) -> str:
-        from samii.diagnose.diagnosis import CHANNEL_NAMES
 
         side = "both channels" if self.channel == "both" else CHANNEL_NAMES.get(self.channel, self.channel)
         if self.baseline:

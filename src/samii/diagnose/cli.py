@@ -279,9 +279,9 @@ def _write_rerun(d, path, fps):
 def _print(d, written) -> None:
     import numpy as np
 
-    from samii.diagnose.diagnosis import BAND_POINTS, band_tested, even_misfit
-    from samii.diagnose.diagnosis import CHANNEL_NAMES as _NAMES
     from samii.diagnose.model import MAX_VAR
+    from samii.diagnose.residuals import BAND_POINTS, band_tested, even_misfit
+    from samii.diagnose.residuals import CHANNEL_NAMES as _NAMES
     from samii.diagnose.select import theta_usable
 
     print(f"samii diagnose: {len(d.measured)} file(s) against {d.baseline.label}")

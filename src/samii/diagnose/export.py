@@ -118,7 +118,7 @@ def augmented_frd(fit, freq_hz, i: int = 0, channel: str = "total"):
     the rig's, without the DAQ's sampling of xdd/v's feedthrough (samii.diagnose.sampling), as augmented_tf."""
     import control
 
-    from samii.diagnose.diagnosis import model_response
+    from samii.diagnose.residuals import model_response
 
     f = np.asarray(freq_hz, float)
     return control.frd(model_response(fit, i, f, sampled=False)[channel], TWO_PI * f)

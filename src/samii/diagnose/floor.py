@@ -1,6 +1,6 @@
 """The systematic floor of a measured frequency response: what repeats in every record.
 
-The record-to-record spread (:mod:`samii.diagnose.measured`) sees only what
+The record-to-record spread (:mod:`samii.measure.frf_variance`) sees only what
 changes from one record to the next. What is the same in every record passes
 it unseen, and a diagnosis that weighs residuals against the spread alone
 then calls it an effect. Three such errors are added to each point's
@@ -43,6 +43,7 @@ import numpy as np
 import scipy.fft
 
 from samii.measure.frf import CHANNEL_PAIRS
+from samii.measure.frf_variance import POOL, pool_mean, spectra_at, timeseries_frf
 
 if TYPE_CHECKING:
     from samii.measure.timeseries import TimeSeries
@@ -145,7 +146,6 @@ def estimator_bias(
     the whole run is computed at once in the frequency domain (zero-padded 2x: an exact linear convolution for a
     loop whose response dies out within the run), cut into ``m``'s records and estimated as ``m`` was. The simulated
     time series is appended to ``keep`` when given."""
-    from samii.diagnose.measured import timeseries_frf
     from samii.measure.timeseries import TimeSeries
 
     ts, layout = m.timeseries, m.layout
@@ -213,7 +213,6 @@ def _quantisation_var(m, steps: Mapping[str, float]) -> dict[str, np.ndarray]:
 
     In the loop, theta's rounding enters the command too, but theta/v's error is still the rounding over theta
     (``dTheta/Theta - dV/V = E_q / Theta`` with v = r - C theta_q), and xdd/v has none of it."""
-    from samii.diagnose.measured import POOL, _pool, spectra_at
 
     spec, r_records = spectra_at(m.timeseries, m.layout, m.frf.freq_hz)
     n_rec = r_records.shape[1]
@@ -226,7 +225,7 @@ def _quantisation_var(m, steps: Mapping[str, float]) -> dict[str, np.ndarray]:
             broadband = q * q / 12.0 * n_rec / np.maximum(np.mean(Y**2, axis=0), 1e-300)
             amp = np.mean(Y / np.maximum(R, 1e-300), axis=0) * r_peak  # the signal's amplitude as the sweep passes f
             own = QUANT_FUNDAMENTAL**2 * (q / np.maximum(amp, 0.25 * q)) ** 3
-        rel[sig] = _pool(np.nan_to_num(broadband + own, nan=1.0, posinf=1.0), POOL)
+        rel[sig] = pool_mean(np.nan_to_num(broadband + own, nan=1.0, posinf=1.0), POOL)
     out = {}
     for ch, (num, den) in CHANNEL_PAIRS.items():
         if ch in m.frf.channels:
@@ -239,7 +238,6 @@ def with_floor(m, model: Callable[[np.ndarray], Mapping[str, np.ndarray]] | None
 
     ``model`` (freq_hz -> act, base) measures the estimator's bias on a time series; without it, or for an FRF
     file, the floor is the quantisation's and the stated relative one."""
-    from samii.diagnose.measured import POOL, _pool
 
     if m.var is None or any(m.var.get(ch) is None for ch in m.frf.channels):
         return m  # the noise is unknown: nothing to add a floor to (a roughness estimate, set earlier, gets the relative one)
@@ -267,7 +265,7 @@ def with_floor(m, model: Callable[[np.ndarray], Mapping[str, np.ndarray]] | None
             if bias is None:
                 parts.append(f"the estimator's bias not measured ({how})")
             else:
-                bias_var = {ch: np.nan_to_num(_pool(np.abs(np.nan_to_num(b)) ** 2, POOL)) for ch, b in bias.items()}
+                bias_var = {ch: np.nan_to_num(pool_mean(np.abs(np.nan_to_num(b)) ** 2, POOL)) for ch, b in bias.items()}
                 for ch in floor:
                     floor[ch] = floor[ch] + bias_var.get(ch, 0.0)
                 from samii.diagnose.model import MAX_VAR

@@ -82,7 +82,7 @@ import numpy as np
 from scipy import signal, stats
 from scipy.optimize import minimize_scalar
 
-from samii.diagnose.measured import moving_sum
+from samii.measure.frf_variance import moving_sum
 
 __all__ = [
     "HarmonicAnalysis",

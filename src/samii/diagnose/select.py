@@ -49,9 +49,9 @@ import numpy as np
 from scipy import stats
 
 from samii.diagnose.effects import TWO_PI, Effect, EffectKind
-from samii.diagnose.measured import moving_sum
 from samii.diagnose.model import Baseline, Dataset, Fit, fit_model, noise_level, relabel_modes, scaled_reference, start_vectors
 from samii.forkmap import fork_map, sharing
+from samii.measure.frf_variance import moving_sum
 
 __all__ = ["ALPHA", "Step", "forward_select", "starts_for", "sample_s", "within_sampling"]
 

@@ -60,6 +60,7 @@ from samii.calibrate.calibrate import MODE_KNOBS, PHYSICAL_LIMITS
 from samii.calibrate.simulator import parameter_value
 from samii.diagnose.measured import Measured
 from samii.diagnose.model import Baseline, Dataset
+from samii.diagnose.residuals import CHANNEL_NAMES, CHANNELS, errors_from_residuals, full_residuals, unexplained_bands
 from samii.errors import SimulationUnstable
 from samii.forkmap import fork_calls, fork_map, sharing
 from samii.frequency_response import FrequencyResponse, interpolate_frf
@@ -821,7 +822,7 @@ LOWERS = 0.01
 @dataclass(frozen=True)
 class Misfit:
     """A band where the simulator measured like the data misses them beyond their noise and floor
-    (``samii.diagnose.diagnosis.unexplained_bands``' test) by a practical amount: the rms of
+    (``samii.diagnose.residuals.unexplained_bands``' test) by a practical amount: the rms of
     |log(data/simulator)| over the band above ``PRACTICAL_FACTOR`` x the relative floor (1.5 %)."""
 
     source: str
@@ -846,7 +847,6 @@ class Misfit:
         }
 
     def text(self) -> str:
-        from samii.diagnose.diagnosis import CHANNEL_NAMES
 
         return (
             f"{CHANNEL_NAMES[self.channel]} {self.lo_hz:.3g}-{self.hi_hz:.3g} Hz (by {self.rms_db:.2g} dB, {self.rms_deg:.2g} deg "
@@ -858,7 +858,6 @@ def _worse(before: Mapping[str, object], after: Mapping[str, object], tolerance:
     """Each channel and measure (rms dB, rms deg, chi2) higher in ``after`` than in ``before`` by more than
     ``tolerance`` (default :data:`WORSE_TOLERANCE`), as text ("theta/v rms deg 20.2 -> 24 deg")."""
     tolerance = WORSE_TOLERANCE if tolerance is None else tolerance
-    from samii.diagnose.diagnosis import CHANNEL_NAMES
 
     out = []
     for ch, b in before.items():
@@ -880,13 +879,12 @@ def _largest(misfits: Sequence[Misfit], n: int = 3) -> list[Misfit]:
 def misfits(datasets: Sequence[Dataset], residuals: Sequence[Mapping[str, np.ndarray]]) -> tuple[Misfit, ...]:
     """Where residuals log(data/simulator) (one mapping per dataset, on its usable points) exceed the data's
     noise and floor, significantly (the diagnosis's band test) and practically (:class:`Misfit`)."""
-    from samii.diagnose.diagnosis import _full_residuals, unexplained_bands
     from samii.diagnose.floor import PRACTICAL_FACTOR, REL_FLOOR
 
     out = []
     for b in unexplained_bands(datasets, residuals):
         ds, res = next((ds, r) for ds, r in zip(datasets, residuals) if ds.source == b.source)
-        e, _ = _full_residuals(ds, res, noise_only=False)[b.channel]
+        e, _ = full_residuals(ds, res, noise_only=False)[b.channel]
         sel = (ds.freq_hz >= b.lo_hz) & (ds.freq_hz <= b.hi_hz) & np.isfinite(e)
         if not sel.any() or np.sqrt(np.mean(np.abs(e[sel]) ** 2)) < PRACTICAL_FACTOR * REL_FLOOR:
             continue
@@ -992,7 +990,6 @@ def simulator_report(
     rms deg or chi2 by more than :data:`UNDO_TOLERANCE`, is not carried, and the rest are
     recalibrated without it. A carry that still raises the chi2 summed over the channels, or any channel's
     rms dB, rms deg or chi2 by more than :data:`UNDO_TOLERANCE`, is undone."""
-    from samii.diagnose.diagnosis import CHANNEL_NAMES, CHANNELS, errors_from_residuals
 
     stage = progress.stage if progress is not None and hasattr(progress, "stage") else (lambda _: None)
     refuse = dict(refuse or {})

@@ -20,6 +20,10 @@ import mujoco
 import numpy as np
 import scipy.linalg
 
+from samii.sim.model import held_joint2_model, load_model, load_spec, make_data
+from samii.sim.one_step import one_step_poles, transition
+from samii.sim.sensors import output_rows
+
 __all__ = [
     "LinearModel",
     "BaseCoefficient",
@@ -141,49 +145,6 @@ class LinearModel(_StateSpace):
         return out
 
 
-def _sensor_rows(model: mujoco.MjModel) -> tuple[int, np.ndarray]:
-    """Row of theta, and the weights over all sensor rows that make the accelerometer's reading."""
-    from samii.sim.sensors import accel_weights
-
-    theta = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, "theta")
-    if theta < 0:
-        raise ValueError("the model needs a sensor named 'theta' (jointpos of joint 2)")
-    w = np.zeros(model.nsensordata)
-    adr, weights = accel_weights(model)
-    w[adr : adr + 3] = weights  # the accelerometer's reading
-    return int(model.sensor_adr[theta]), w
-
-
-def _small_signal(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[mujoco.MjModel, mujoco.MjData]:
-    """The model with an ideal valve (``plugin.ideal_valve_model``) and a copy of ``data``'s state
-    on it; ``(model, data)`` themselves when the valve is ideal already."""
-    from samii.sim.plugin import ideal_valve_model
-
-    ideal = ideal_valve_model(model) if model.nplugin else model
-    if ideal is model:
-        return model, data
-    out = mujoco.MjData(ideal)
-    # the whole state, the plugin's included (a controller card switched off stays off); the copy
-    # keeps the compiled plugin_state size, and the card's block comes first in both
-    spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS) | int(mujoco.mjtState.mjSTATE_USER) | int(mujoco.mjtState.mjSTATE_WARMSTART)
-    state = np.empty(mujoco.mj_stateSize(model, spec))
-    mujoco.mj_getState(model, data, state, spec)
-    mujoco.mj_setState(ideal, out, state, spec)
-    mujoco.mj_forward(ideal, out)
-    return ideal, out
-
-
-def _discrete(model: mujoco.MjModel, data: mujoco.MjData, eps: float, with_sensors: bool):
-    model, data = _small_signal(model, data)
-    nx = 2 * model.nv + model.na
-    A = np.zeros((nx, nx))
-    B = np.zeros((nx, model.nu))
-    C = np.zeros((model.nsensordata, nx)) if with_sensors else None
-    D = np.zeros((model.nsensordata, model.nu)) if with_sensors else None
-    mujoco.mjd_transitionFD(model, data, eps, True, A, B, C, D)
-    return A, B, C, D
-
-
 def _to_continuous(Ad: np.ndarray, Bd: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     n, m = Bd.shape
     M = np.zeros((n + m, n + m))
@@ -224,16 +185,14 @@ def linearize_discrete(
     model: mujoco.MjModel, data: mujoco.MjData | None = None, *, position_gain_v_per_rad: float | None = None, eps: float = 1e-6
 ) -> DiscreteLinearModel:
     """:func:`linearize`'s one-step map, before its conversion to continuous time."""
-    from samii.sim.model import make_data
-
     if data is None:
         data = make_data(model)
     if position_gain_v_per_rad is None:
         from samii.sim.plugin import hydraulic_params
 
         position_gain_v_per_rad = hydraulic_params(model).position_gain
-    Ad, Bd, Cs, Ds = _discrete(model, data, eps, True)
-    r_theta, w_accel = _sensor_rows(model)
+    Ad, Bd, Cs, Ds = transition(model, data, eps, True)
+    r_theta, w_accel = output_rows(model)
     C = np.vstack([Cs[r_theta], w_accel @ Cs])
     D = np.vstack([Ds[r_theta], w_accel @ Ds])
     delay = 0.0
@@ -252,10 +211,7 @@ UNSTABLE_RATE_1_S = 1e-6
 def discrete_poles(model: mujoco.MjModel, data: mujoco.MjData | None = None, *, eps: float = 1e-6) -> np.ndarray:
     """Eigenvalues z of the one-step map about ``data`` (default the ``home`` keyframe): the simulator is
     stable there when every ``|z| <= 1``; ``log(z)/dt`` are its poles, with no matrix logarithm taken."""
-    from samii.sim.model import make_data
-
-    Ad, _, _, _ = _discrete(model, make_data(model) if data is None else data, eps, False)
-    return np.linalg.eigvals(Ad)
+    return one_step_poles(model, make_data(model) if data is None else data, eps=eps)
 
 
 def poles_per_s(model: mujoco.MjModel, data: mujoco.MjData | None = None) -> np.ndarray:
@@ -276,7 +232,6 @@ def modes_from_poles(poles: np.ndarray, *, max_freq_hz: float = np.inf) -> list[
 def base_modes(spec: mujoco.MjSpec, theta2_rad: float, *, max_freq_hz: float = 45.0) -> list[Mode]:
     """Modes with joint 2 held at ``theta2_rad`` (link 2 welded), below ``max_freq_hz``."""
     from samii.sim.equilibrium import static_equilibrium
-    from samii.sim.model import held_joint2_model
 
     held = held_joint2_model(spec, theta2_rad)
     eq = static_equilibrium(held)
@@ -284,8 +239,7 @@ def base_modes(spec: mujoco.MjSpec, theta2_rad: float, *, max_freq_hz: float = 4
     data.qpos[:] = eq.qpos
     data.act[:] = eq.act
     mujoco.mj_forward(held, data)
-    Ad, Bd, _, _ = _discrete(held, data, 1e-6, False)
-    z = np.linalg.eigvals(Ad).astype(complex)
+    z = one_step_poles(held, data).astype(complex)
     s = np.log(z) / held.opt.timestep
     return modes_from_poles(s, max_freq_hz=max_freq_hz)
 
@@ -319,8 +273,6 @@ class ModesReport:
 
 def modes_report(path=None, *, overrides=None, max_freq_hz: float = 45.0) -> ModesReport:
     """Base modes (joint 2 held) and the coupled system's poles below ``max_freq_hz``."""
-    from samii.sim.model import load_model, load_spec, make_data
-
     spec, _ = load_spec(path, overrides=overrides)
     model = load_model(path, overrides=overrides)
     data = make_data(model)

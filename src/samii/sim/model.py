@@ -22,6 +22,7 @@ import numpy as np
 from samii.errors import InputError
 from samii.sim.hydraulic_reference import VALVE_OPTIONS
 from samii.sim.mjcf import ArmParams, BeamParams, HydraulicConfig, SamiiParams, samii_xml
+from samii.sim.one_step import one_step_poles
 from samii.sim.sensor_dynamics import SensorDynamics
 
 __all__ = [
@@ -290,12 +291,11 @@ def _unresolved(model: mujoco.MjModel) -> np.ndarray:
     the step rate (Re z < 0): modes too stiff for the step, which grow in the simulator whatever the physics."""
     import warnings
 
-    from samii.sim.linearize import discrete_poles
     from samii.sim.plugin import MuJoCoWarning
 
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", MuJoCoWarning)  # (the one-step map of such a model overflows: said by the caller)
-        z = discrete_poles(model)
+        z = one_step_poles(model, make_data(model))
     return z[(z.real < 0) & ~(np.abs(z) <= 1.0 + 1e-9)]  # (a nan counts: the step itself overflowed)
 
 

@@ -19,7 +19,9 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-__all__ = ["SENSOR", "accel_weights", "accel_offset", "accel_site", "accel_axis_world", "ACCEL_DIRECTION"]
+from samii.sim.model import make_data
+
+__all__ = ["SENSOR", "accel_weights", "accel_offset", "accel_site", "accel_axis_world", "output_rows", "ACCEL_DIRECTION"]
 
 SENSOR = "base_accel"
 #: Custom numeric of legacy (framelinacc) models: measuring direction in the world frame.
@@ -67,8 +69,17 @@ def accel_axis_world(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
 
 def accel_offset(model: mujoco.MjModel) -> float:
     """The reading at rest in the ``home`` keyframe (static equilibrium): what "gravity removed" subtracts."""
-    from samii.sim.model import make_data
-
     data = make_data(model)
     adr, w = accel_weights(model)
     return float(w @ data.sensordata[adr : adr + 3])
+
+
+def output_rows(model: mujoco.MjModel) -> tuple[int, np.ndarray]:
+    """The sensor row of theta, and the weights over all sensor rows that make the accelerometer's reading."""
+    theta = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, "theta")
+    if theta < 0:
+        raise ValueError("the model needs a sensor named 'theta' (jointpos of joint 2)")
+    w = np.zeros(model.nsensordata)
+    adr, weights = accel_weights(model)
+    w[adr : adr + 3] = weights  # the accelerometer's reading
+    return int(model.sensor_adr[theta]), w
