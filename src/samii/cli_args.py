@@ -11,7 +11,23 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["finite_float", "float_in", "int_in", "name_value", "positive_float", "nonnegative_float", "nonempty_path", "seed"]
+__all__ = [
+    "finite_float",
+    "float_in",
+    "int_in",
+    "name_value",
+    "positive_float",
+    "nonnegative_float",
+    "nonempty_path",
+    "seed",
+    "add_band",
+    "add_out",
+    "add_overwrite",
+    "add_json",
+    "add_model",
+    "add_set",
+    "add_no_progress",
+]
 
 
 def _number(text: str) -> float:
@@ -111,3 +127,53 @@ def nonempty_path(text: str) -> str:
 
 #: A random-generator seed: numpy accepts 0 .. 2**128 - 1.
 seed = int_in(0, 2**63 - 1)
+
+
+# ---- the options many commands share, declared once (each command says what its --out holds, --json prints) ----
+
+
+class _Band(argparse.Action):
+    """``--band-hz LO HI``: two positive numbers with LO < HI, checked at parse time."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        lo, hi = values
+        if not lo < hi:
+            parser.error(f"{option_string} {lo:g} {hi:g}: expected LO < HI")
+        setattr(namespace, self.dest, tuple(values))
+
+
+def add_band(parser: argparse.ArgumentParser, help: str, *, default: tuple[float, float] | None = None) -> None:
+    """``--band-hz LO HI`` (Hz, 0 < LO < HI)."""
+    parser.add_argument("--band-hz", type=positive_float, nargs=2, metavar=("LO", "HI"), default=default, action=_Band, help=help)
+
+
+def add_out(parser: argparse.ArgumentParser, help: str, *, default: str | None = None, metavar: str = "DIR") -> None:
+    """``--out``: where the command writes (a non-empty path)."""
+    parser.add_argument("--out", metavar=metavar, type=nonempty_path, default=default, help=help)
+
+
+def add_overwrite(parser: argparse.ArgumentParser, help: str = "replace existing output files") -> None:
+    """``--overwrite``, with ``--force`` its alias on every command (``args.overwrite``)."""
+    parser.add_argument("--overwrite", "--force", dest="overwrite", action="store_true", help=f"{help} (--force is an alias)")
+
+
+def add_json(parser: argparse.ArgumentParser, help: str = "print the result as JSON") -> None:
+    """``--json``: machine-readable output on stdout."""
+    parser.add_argument("--json", action="store_true", help=help)
+
+
+def add_model(
+    parser: argparse.ArgumentParser, help: str = "MJCF or parameter .json file (default: the embedded SAMII model)", *, metavar: str = "XML"
+) -> None:
+    """``--model``: the simulator's model file."""
+    parser.add_argument("--model", metavar=metavar, type=nonempty_path, help=help)
+
+
+def add_set(parser: argparse.ArgumentParser, help: str = "override a model parameter (samii params lists them); repeatable") -> None:
+    """``--set NAME=VALUE``, repeatable (``args.set``: the texts, parsed by the command)."""
+    parser.add_argument("--set", metavar="NAME=VALUE", action="append", default=[], help=help)
+
+
+def add_no_progress(parser: argparse.ArgumentParser) -> None:
+    """``--no-progress``: no progress display on stderr."""
+    parser.add_argument("--no-progress", action="store_true", help="no progress display on stderr")

@@ -39,6 +39,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from samii.cli_args import add_model, add_no_progress, add_out, add_overwrite, add_set
 from samii.errors import InputError
 
 __all__ = ["add_arguments", "run", "run_main_job", "run_pipeline", "summary_lines", "PipelineResult", "DEFAULT_OUT", "CONTROLLERS", "SCENARIOS"]
@@ -64,21 +65,16 @@ class PipelineResult:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from samii.cli_args import nonempty_path
     from samii.cli_args import seed as seed_type
 
-    parser.add_argument(
-        "--out", metavar="DIR", type=nonempty_path, default=DEFAULT_OUT, help=f"output folder (default ./{DEFAULT_OUT}); replaced whole at the end"
-    )
-    parser.add_argument("--model", metavar="XML", type=nonempty_path, help="MJCF model (default: the embedded one)")
-    parser.add_argument(
-        "--set", metavar="NAME=VALUE", action="append", default=[], help="override a model parameter (samii params lists them); repeatable"
-    )
+    add_out(parser, f"output folder (default ./{DEFAULT_OUT}); replaced whole at the end", default=DEFAULT_OUT)
+    add_model(parser, "MJCF model (default: the embedded one)")
+    add_set(parser, "override a model parameter (samii params lists them); repeatable")
     parser.add_argument(
         "--seed", type=seed_type, default=0, help="seed of the measurement's sensor noise (default 0): the same seed gives the same outputs"
     )
-    parser.add_argument("--overwrite", action="store_true", help="replace --out if it exists (a previous main job's output is replaced anyway)")
-    parser.add_argument("--no-progress", action="store_true", help="no progress display on stderr")
+    add_overwrite(parser, "replace --out if it exists (a previous main job's output is replaced anyway)")
+    add_no_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:

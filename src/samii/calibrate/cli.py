@@ -10,7 +10,7 @@ import argparse
 import math
 from pathlib import Path
 
-from samii.cli_args import float_in, int_in, name_value, nonempty_path, positive_float
+from samii.cli_args import add_band, add_json, add_model, add_out, add_overwrite, add_set, float_in, int_in, name_value
 from samii.errors import InputError
 
 __all__ = ["add_arguments", "run", "load_target"]
@@ -74,7 +74,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="W",
         help="weight on the phase error in degrees (default 0.1, the notebook's eq 9.4)",
     )
-    parser.add_argument("--band-hz", type=positive_float, nargs=2, metavar=("LO", "HI"), help="use only LO <= f <= HI Hz (default: all the data)")
+    add_band(parser, "use only LO <= f <= HI Hz (default: all the data)")
     parser.add_argument("--channels", default=None, metavar="C1,C2", help="channels in the cost (default act,base where present)")
     parser.add_argument(
         "--weighting",
@@ -83,23 +83,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="none: the notebook's cost; coherence: points weighted by the random error their coherence predicts; "
         "auto (default): coherence when the data have it for every channel in the cost, else none (as samii fit)",
     )
-    parser.add_argument(
-        "--model",
+    add_model(
+        parser,
+        "parameter file to start from (default: the embedded model's); an MJCF file cannot be calibrated, its physics is not parametrised",
         metavar="PARAMS.json",
-        help="parameter file to start from (default: the embedded model's); an MJCF file cannot be calibrated, its physics is not parametrised",
     )
-    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a model parameter before calibrating (repeatable)")
+    add_set(parser, "override a model parameter before calibrating (repeatable)")
     parser.add_argument("--max-iterations", type=int_in(1, 100000), default=60, metavar="N", help="solver iterations at most (default 60)")
     parser.add_argument(
         "--confirm",
         action="store_true",
         help="also measure the calibrated model with a swept sine in the nonlinear simulator and compare (about 5 s)",
     )
-    parser.add_argument(
-        "--out", metavar="DIR", type=nonempty_path, help="write calibration.json, calibrated_params.json (for --model) and calibration_bode.png here"
-    )
-    parser.add_argument("--overwrite", action="store_true", help="replace files already in --out")
-    parser.add_argument("--json", action="store_true", help="print the machine-readable report")
+    add_out(parser, "write calibration.json, calibrated_params.json (for --model) and calibration_bode.png here")
+    add_overwrite(parser, "replace files already in --out")
+    add_json(parser, "print the machine-readable report")
 
 
 def load_target(source: str):
@@ -160,8 +158,6 @@ def run(args: argparse.Namespace) -> int:
 
     prog = "samii calibrate"
     folder = OutputFolder(args.out, OUTPUTS, overwrite=args.overwrite) if args.out else None
-    if args.band_hz and not args.band_hz[0] < args.band_hz[1]:
-        raise InputError(f"--band-hz {args.band_hz[0]:g} {args.band_hz[1]:g}: expected LO < HI")
     if args.model is not None and Path(args.model).suffix.lower() != ".json":
         raise InputError(
             f"--model {args.model}: calibrate needs a parameter file (.json, e.g. samii_params.json or a calibrated_params.json), "

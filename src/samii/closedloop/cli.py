@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from samii.cli_args import float_in, nonempty_path, positive_float, seed
+from samii.cli_args import add_json, add_model, add_out, add_overwrite, add_set, float_in, nonempty_path, positive_float, seed
 from samii.errors import InputError
 
 __all__ = ["add_arguments", "run", "BUILTIN_CONTROLLERS", "resolve_controller", "model_at_rest", "check_fits"]
@@ -85,15 +85,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="seeded sensor noise and ADC quantisation on the controller's measurements (theta 5e-4 rad rms and "
                         "4096-count/rev encoder steps; acceleration 0.01 m/s² rms and a 16-bit +-10 V ADC at 1 V/g)")  # fmt: skip
     parser.add_argument("--seed", type=seed, default=None, help="seed of the sensor noise (with --noise; default 0)")
-    parser.add_argument("--model", metavar="XML", help="MJCF or parameter .json file (default: the embedded SAMII model)")
-    parser.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="NAME=VALUE",
-        help="override a model parameter, e.g. hydraulic.bulk_modulus=1e9 (repeatable; samii params lists them)",
-    )
-    parser.add_argument("--out", metavar="DIR", type=nonempty_path, help="write timeseries.csv, run.json and the figures here")
+    add_model(parser, "MJCF or parameter .json file (default: the embedded SAMII model)")
+    add_set(parser, "override a model parameter, e.g. hydraulic.bulk_modulus=1e9 (repeatable; samii params lists them)")
+    add_out(parser, "write timeseries.csv, run.json and the figures here")
     parser.add_argument("--no-plots", action="store_true", help="with --out, no figures")
     parser.add_argument(
         "--rerun",
@@ -109,8 +103,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="animation frames per second in the recording (default: 4 per period of base mode 3, at least 100)",
     )
-    parser.add_argument("--overwrite", "--force", dest="overwrite", action="store_true", help="replace existing output files")
-    parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_overwrite(parser, "replace existing output files")
+    add_json(parser, "print the result as JSON")
 
 
 def resolve_controller(spec: str, factory=None, quiet: bool = False):

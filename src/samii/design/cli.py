@@ -24,7 +24,7 @@ import sys
 
 import numpy as np
 
-from samii.cli_args import finite_float, float_in, int_in, nonempty_path, positive_float
+from samii.cli_args import add_json, add_no_progress, add_out, add_overwrite, finite_float, float_in, int_in, nonempty_path, positive_float
 from samii.cli_args import seed as seed_type
 from samii.errors import InputError
 
@@ -66,8 +66,8 @@ _noise_std = float_in(*NOISE_STD_RANGE, lo_open=False)
 
 
 def _add_out(p: argparse.ArgumentParser, what: str) -> None:
-    p.add_argument("--out", metavar="DIR", type=nonempty_path, help=f"folder for {what} (created if needed; all files appear together on success)")
-    p.add_argument("--force", "--overwrite", dest="force", action="store_true", help="replace existing files in --out (--overwrite is an alias)")
+    add_out(p, f"folder for {what} (created if needed; all files appear together on success)")
+    add_overwrite(p, "replace existing files in --out")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -77,8 +77,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p = sub.add_parser("seed-report", help="recompute eq 8.1-8.3 and 10.1-10.9 and the gain, beside the notebook's values",
                        description="Recompute the notebook's design tables (eq 8.1-8.3 from eq 1.4, eq 10.1-10.9 and the "
                        "chapter-10 gain from eq 9.4) and print each beside the notebook's value. Takes about 5 s.")  # fmt: skip
-    p.add_argument("--json", action="store_true", help="print machine-readable results")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    add_json(p, "print machine-readable results")
+    add_no_progress(p)
 
     lo, hi = N_GAINS_RANGE
     p = sub.add_parser("rlocus", help="mass-damping root-locus study (chapters 2-3): stable K_a intervals and best damping",
@@ -86,19 +86,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        "intervals, best damping per base mode, verdicts. About 10 s at the default --n-gains, 30-60 s with "
                        "the 28 figures; a progress bar on stderr shows how far it is.")  # fmt: skip
     _add_out(p, "summary.json, summary.md and one PNG per model and variant")
-    p.add_argument("--json", action="store_true", help="print the summary as JSON (non-finite values as null)")
+    add_json(p, "print the summary as JSON (non-finite values as null)")
     p.add_argument("--no-plots", action="store_true", help="with --out, write only the tables")
     p.add_argument("--n-gains", type=int_in(lo, hi), default=3000, metavar="N",
                    help=f"gains per sign on the log-spaced grid along which the root-locus branches are tracked "
                    f"(8 decades around the stability limits), {lo} to {hi}; default 3000 (about 10 s; time grows "
                    f"linearly); the figures draw min(N, {PLOT_MAX_GAINS})")  # fmt: skip
-    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    add_no_progress(p)
 
     p = sub.add_parser("canonical", help="controllable canonical form (chapters 5-7), checked against the transfer functions")
     p.add_argument("--modes", type=int, choices=(2, 3), default=2, help="base modes: 2 (eq 1.4) or 3 (eq 9.4)")
     p.add_argument("--outputs", choices=("accel", "modal"), default="accel", help="one accelerometer or modal feedback")
     _add_out(p, "the LaTeX file ccf_<modes>mode_<outputs>.tex")
-    p.add_argument("--json", action="store_true", help="print the check as JSON")
+    add_json(p, "print the check as JSON")
 
     p = sub.add_parser(
         "place",
@@ -136,7 +136,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--accel-noise-std", type=_noise_std, default=None, metavar="STD",
                    help="kalman: standard deviation of the base-acceleration measurement noise [ft/s², the notebook's "
                    "unit: samii.closedloop.controllers]")  # fmt: skip
-    p.add_argument("--json", action="store_true", help="print the design as JSON")
+    add_json(p, "print the design as JSON")
     _add_save(p)
 
     p = sub.add_parser(
@@ -151,7 +151,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--sample-time-s", type=float_in(0.0, MAX_CANCEL_SAMPLE_TIME_S, lo_open=True, unit="s"), default=1e-3, metavar="T",
                    help=f"sample time of the runnable controller (--save) [s], 0 < T <= {MAX_CANCEL_SAMPLE_TIME_S:g} (default 0.001): "
                    "10 samples per period of the fastest root, the cancelled third mode at 156.8 rad/s")  # fmt: skip
-    p.add_argument("--json", action="store_true", help="print the design as JSON (non-finite values as null)")
+    add_json(p, "print the design as JSON (non-finite values as null)")
     _add_save(p)
 
     p = sub.add_parser(
@@ -194,7 +194,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the servo amplifier's position gain [V/rad] the data were measured with (default: the embedded model's, 57.3 = 1 V/deg)",
     )
     p.add_argument("--seed", type=seed_type, default=0, help="without --frf: seed of the simulated measurement's sensor noise (default 0)")
-    p.add_argument("--json", action="store_true", help="print the design as JSON")
+    add_json(p, "print the design as JSON")
     _add_save(p)
 
 
@@ -202,7 +202,7 @@ def _add_save(p: argparse.ArgumentParser) -> None:
     p.add_argument("--save", metavar="FILE.json", type=nonempty_path,
                    help="write the runnable controller (matrices, sample time, inputs, units, provenance) for samii closedloop "
                    "--controller FILE.json; the file must not exist unless --force/--overwrite")  # fmt: skip
-    p.add_argument("--force", "--overwrite", dest="force", action="store_true", help="with --save, replace an existing file")
+    add_overwrite(p, "with --save, replace an existing file")
 
 
 # ---- output helpers ----
@@ -238,10 +238,10 @@ def _out_folder(args, names: list[str]):
     from samii.outputs import OutputFolder
 
     if args.out is None:
-        if args.force:
+        if args.overwrite:
             raise InputError("--force/--overwrite: only meaningful with --out")
         return None
-    return OutputFolder(args.out, names, overwrite=args.force, overwrite_option="--force")
+    return OutputFolder(args.out, names, overwrite=args.overwrite, overwrite_option="--force")
 
 
 # ---- actions ----
@@ -359,10 +359,10 @@ def _save_target(args):
     from samii.outputs import check_output_file
 
     if args.save is None:
-        if args.force:
+        if args.overwrite:
             raise InputError("--force/--overwrite: only meaningful with --save")
         return None
-    return check_output_file(args.save, overwrite=args.force, option="--save")
+    return check_output_file(args.save, overwrite=args.overwrite, option="--save")
 
 
 def _save(saved, path, args, out: dict) -> None:

@@ -18,7 +18,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from samii.cli_args import nonempty_path, positive_float
+from samii.cli_args import add_band, add_json, add_model, add_no_progress, add_out, add_overwrite, nonempty_path, positive_float
 from samii.errors import InputError, input_error_of
 
 __all__ = ["add_arguments", "run", "OUTPUTS", "MAX_FILES"]
@@ -47,11 +47,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "calibrated to the first file; the effects found are carried into it as physics, it is recalibrated and "
         "re-measured, and its error before and after is reported) or a saved fit (fit.json from samii fit --out), held fixed",
     )
-    parser.add_argument(
-        "--model",
+    add_model(
+        parser,
+        "with --baseline sim: the simulator to start from, a parameter file (samii calibrate --out writes one; default: the embedded model)",
         metavar="PARAMS.json",
-        type=nonempty_path,
-        help="with --baseline sim: the simulator to start from, a parameter file (samii calibrate --out writes one; default: the embedded model)",
     )
     parser.add_argument(
         "--record-s",
@@ -59,16 +58,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="S",
         help="length of one repetition of the excitation in the time series [s] (default: the file's record_s, else found from r)",
     )
-    parser.add_argument(
-        "--band-hz",
-        type=positive_float,
-        nargs=2,
-        metavar=("LO", "HI"),
-        help="frequency band (default: a time series' start_hz/stop_hz or 0.1-40 Hz; an FRF file's whole span)",
-    )
+    add_band(parser, "frequency band (default: a time series' start_hz/stop_hz or 0.1-40 Hz; an FRF file's whole span)")
     parser.add_argument("--mat-freq-name", metavar="NAME", default=None, help="name of the frequency vector in a .mat file")
     parser.add_argument("--mat-freq-unit", choices=("hz", "rad/s"), default="hz", help="unit of that vector (default hz)")
-    parser.add_argument("--out", metavar="DIR", type=nonempty_path, help="write diagnosis.json, residuals.png and bode.png here")
+    add_out(parser, "write diagnosis.json, residuals.png and bode.png here")
     parser.add_argument(
         "--rerun",
         metavar="FILE.rrd",
@@ -84,9 +77,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="animation frames per second in the recording (default: 4 per period of base mode 3, at least 100)",
     )
-    parser.add_argument("--overwrite", action="store_true", help="replace files already in --out (and --rerun)")
-    parser.add_argument("--json", action="store_true", help="print the diagnosis as JSON (numbers not defined are null)")
-    parser.add_argument("--no-progress", action="store_true", help="no progress display on stderr")
+    add_overwrite(parser, "replace files already in --out (and --rerun)")
+    add_json(parser, "print the diagnosis as JSON (numbers not defined are null)")
+    add_no_progress(parser)
 
 
 def _fmt(value: float, se: float, unit: str) -> str:
@@ -148,8 +141,6 @@ def run(args: argparse.Namespace) -> int:
 
     if len(args.data) > MAX_FILES:
         raise InputError(f"DATA: {len(args.data)} files given, at most {MAX_FILES} accepted")
-    if args.band_hz and not args.band_hz[0] < args.band_hz[1]:
-        raise InputError(f"--band-hz {args.band_hz[0]:g} {args.band_hz[1]:g}: expected LO < HI")
     sim_params = None
     if args.model is not None:
         if args.baseline != "sim":

@@ -17,7 +17,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from samii.cli_args import float_in, int_in, nonempty_path, positive_float
+from samii.cli_args import add_band, add_json, add_no_progress, add_out, add_overwrite, float_in, int_in, nonempty_path
 from samii.errors import InputError, input_error_of
 
 __all__ = ["add_arguments", "run", "MAX_MODES", "MAX_PHASE_WEIGHT", "MAX_PHASE_WEIGHTS", "MAX_AVERAGES"]
@@ -84,7 +84,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="W1,W2,...",
         help=f"one fit per weight, at most {MAX_PHASE_WEIGHTS} (chapter 9 swept 0,0.1,0.2,0.3,0.4,0.5)",
     )
-    parser.add_argument("--band-hz", type=positive_float, nargs=2, metavar=("LO", "HI"), help="fit only LO <= f <= HI Hz (eq 1.4 used 1 12)")
+    add_band(parser, "fit only LO <= f <= HI Hz (eq 1.4 used 1 12)")
     parser.add_argument(
         "--start",
         choices=("notebook", "auto"),
@@ -122,20 +122,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="name of the frequency vector in a .mat file (default: the first of freq_hz, freq, f, frequency, hz, fr, ...)",
     )
     parser.add_argument("--mat-freq-unit", choices=("hz", "rad/s"), default="hz", help="unit of that vector (default hz)")
-    parser.add_argument(
-        "--out",
-        metavar="DIR",
-        type=nonempty_path,
-        help="write fit.json (fit_pw<W>.json per weight), bode_fit.png and, for --phase-weights, parameters.png here",
-    )
-    parser.add_argument("--overwrite", action="store_true", help="replace files already in --out")
-    parser.add_argument(
-        "--json",
-        action="store_true",
-        help="print machine-readable results (one object, or a list for --phase-weights); numbers that are not "
+    add_out(parser, "write fit.json (fit_pw<W>.json per weight), bode_fit.png and, for --phase-weights, parameters.png here")
+    add_overwrite(parser, "replace files already in --out")
+    add_json(
+        parser,
+        "print machine-readable results (one object, or a list for --phase-weights); numbers that are not "
         "defined (a parameter not fitted, the infinite standard error of one the data do not determine) are null",
     )
-    parser.add_argument("--no-progress", action="store_true", help="no progress display on stderr")
+    add_no_progress(parser)
 
 
 # --------------------------------------------------------------------------- reading the file
@@ -255,8 +249,6 @@ class _Progress:
 
 def run(args: argparse.Namespace) -> int:
     weights = args.phase_weights if args.phase_weights is not None else [0.1 if args.phase_weight is None else args.phase_weight]
-    if args.band_hz and not args.band_hz[0] < args.band_hz[1]:
-        raise InputError(f"--band-hz {args.band_hz[0]:g} {args.band_hz[1]:g}: expected LO < HI")
     folder = None
     if args.out is not None:
         from samii.identify.report import fit_output_names

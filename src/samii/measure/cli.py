@@ -11,7 +11,20 @@ from __future__ import annotations
 import argparse
 import sys
 
-from samii.cli_args import float_in, int_in, nonempty_path, positive_float, seed
+from samii.cli_args import (
+    add_band,
+    add_json,
+    add_model,
+    add_no_progress,
+    add_out,
+    add_overwrite,
+    add_set,
+    float_in,
+    int_in,
+    nonempty_path,
+    positive_float,
+    seed,
+)
 from samii.errors import InputError, SimulationUnstable
 from samii.json_output import dumps
 
@@ -46,7 +59,7 @@ RAIL_FRACTION = 0.01
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", metavar="DIR", type=nonempty_path, default="measure_out", help="output folder (default measure_out)")
+    add_out(parser, "output folder (default measure_out)", default="measure_out")
     parser.add_argument(
         "--method",
         choices=("swept", "stepped", "both"),
@@ -82,20 +95,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="S",
         help="rest after each sweep, for the response to decay (default 20 s: 6.5 time constants of the embedded model's base mode 1)",
     )
-    parser.add_argument("--band-hz", type=positive_float, nargs=2, metavar=("LO", "HI"), default=(0.1, 40.0), help="swept-sine band (default 0.1 40)")
+    add_band(parser, "swept-sine band (default 0.1 40)", default=(0.1, 40.0))
     parser.add_argument(
         "--sample-rate-hz", type=positive_float, default=1000.0, metavar="HZ", help="DAQ sampling rate (default 1000; must divide the physics rate)"
     )
     parser.add_argument("--noise", action="store_true", help="add sensor noise (typical lab levels, see samii.measure.daq.SensorNoise)")
     parser.add_argument("--seed", type=seed, default=0, help="seed of the sensor-noise generator, an integer >= 0 (default 0)")
-    parser.add_argument("--model", metavar="XML", help="MJCF file (default: the embedded SAMII model)")
-    parser.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="NAME=VALUE",
-        help="override a model parameter, e.g. hydraulic.supply_pressure=2.1e7 (repeatable)",
-    )
+    add_model(parser, "MJCF file (default: the embedded SAMII model)")
+    add_set(parser, "override a model parameter, e.g. hydraulic.supply_pressure=2.1e7 (repeatable)")
     parser.add_argument(
         "--rerun",
         metavar="FILE.rrd",
@@ -109,9 +116,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="animation frames per second in the recording, every frame kept (default: 4 per period of base mode 3, at least 100, thinned where the sweep is slow: samii.viz.thinning)",
     )
-    parser.add_argument("--overwrite", action="store_true", help="replace existing output files")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.add_argument("--json", action="store_true", help="print the run summary as JSON")
+    add_overwrite(parser, "replace existing output files")
+    add_no_progress(parser)
+    add_json(parser, "print the run summary as JSON")
 
 
 def _versions() -> dict[str, str]:
@@ -133,8 +140,6 @@ def _excitations(args):
     lo, hi = args.band_hz
     if args.freqs_hz is not None and args.method == "swept":
         raise InputError("--freqs-hz sets the stepped-sine dwells: use it with --method stepped or both")
-    if not lo < hi:
-        raise InputError(f"--band-hz {lo:g} {hi:g}: expected LO < HI")
     if args.freqs_hz is not None and len(set(args.freqs_hz)) != len(args.freqs_hz):
         dup = sorted({f for f in args.freqs_hz if args.freqs_hz.count(f) > 1})
         raise InputError(f"--freqs-hz: {', '.join(f'{f:g}' for f in dup)} Hz given more than once; expected distinct frequencies")

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import argparse
 
-from samii.cli_args import nonempty_path, positive_float
+from samii.cli_args import add_band, add_json, add_out, add_overwrite, nonempty_path, positive_float
 from samii.errors import InputError
 
 __all__ = ["add_arguments", "run"]
@@ -25,22 +25,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "timeseries", metavar="TIMESERIES", type=nonempty_path, help="time-series CSV (DATA_FORMATS.md: t, v, theta, accel and the excitation r)"
     )
-    parser.add_argument("--out", metavar="DIR", type=nonempty_path, default="frf_out", help="output folder (default frf_out)")
+    add_out(parser, "output folder (default frf_out)", default="frf_out")
     parser.add_argument(
         "--record-s",
         type=positive_float,
         metavar="S",
         help="length of one repetition of the excitation [s] (default: the file's record_s line, else found from r)",
     )
-    parser.add_argument(
-        "--band-hz",
-        type=positive_float,
-        nargs=2,
-        metavar=("LO", "HI"),
-        help="frequency band (default: the file's start_hz/stop_hz, else 0.1-40 Hz below 0.45 x the sample rate)",
-    )
-    parser.add_argument("--overwrite", action="store_true", help="replace files already in --out")
-    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_band(parser, "frequency band (default: the file's start_hz/stop_hz, else 0.1-40 Hz below 0.45 x the sample rate)")
+    add_overwrite(parser, "replace files already in --out")
+    add_json(parser, "print the summary as JSON")
 
 
 def read_measured(path: str, *, record_s: float | None, band_hz):
@@ -97,8 +91,6 @@ def run(args: argparse.Namespace) -> int:
     from samii.outputs import OutputFolder
 
     band = tuple(args.band_hz) if args.band_hz else None
-    if band is not None and not band[0] < band[1]:
-        raise InputError(f"--band-hz {band[0]:g} {band[1]:g}: expected LO < HI")
     folder = OutputFolder(args.out, OUTPUTS, overwrite=args.overwrite)
     m = read_measured(args.timeseries, record_s=args.record_s, band_hz=band)
     from samii.measure.io import write_frf_csv

@@ -7,17 +7,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from samii.cli_args import nonempty_path
+from samii.cli_args import add_out, add_overwrite, nonempty_path
 
 __all__ = ["add_arguments", "run"]
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("folder", metavar="DIR", type=nonempty_path, help="a main job's output folder (samii run --out DIR)")
-    p.add_argument("--out", metavar="FILE", type=nonempty_path, help="where to write the page (default DIR/report.html)")
-    p.add_argument(
-        "--overwrite", action="store_true", help="replace the page (and --screenshot) if it exists; the main job's own DIR/report.html too"
-    )
+    add_out(p, "where to write the page (default DIR/report.html)", metavar="FILE")
+    add_overwrite(p, "replace the page (and --screenshot) if it exists; the main job's own DIR/report.html too")
     p.add_argument(
         "--screenshot",
         metavar="PNG",

@@ -14,7 +14,7 @@ import math
 import os
 import sys
 
-from samii.cli_args import float_in, int_in, nonempty, nonempty_path, seed
+from samii.cli_args import add_json, add_model, add_no_progress, add_out, add_overwrite, add_set, float_in, int_in, nonempty, nonempty_path, seed
 from samii.errors import InputError
 
 __all__ = ["add_arguments", "run", "MAX_SAMPLES"]
@@ -65,8 +65,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--covariance", metavar="CALIBRATION.json", type=nonempty_path,
                    help="draw the calibrated parameters jointly from their standard errors and correlations (samii calibrate --out "
                         "writes calibration.json); the calibrated plant is then the nominal one")  # fmt: skip
-    p.add_argument("--model", metavar="PARAMS.json", type=nonempty_path, help="the nominal plant's parameter file (default: the embedded model)")
-    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a nominal parameter (repeatable)")
+    add_model(p, "the nominal plant's parameter file (default: the embedded model)", metavar="PARAMS.json")
+    add_set(p, "override a nominal parameter (repeatable)")
     p.add_argument(
         "--delay-samples",
         type=float_in(0.0, float(MAX_DELAY_STEPS), unit="samples"),
@@ -93,10 +93,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="S",
         help=f"seconds the --scheduler has to answer, and a worker to join it, before the run is refused (default {SCHEDULER_TIMEOUT_S:g})",
     )
-    p.add_argument("--out", metavar="DIR", type=nonempty_path, help="write robust.json, samples.csv and the figures here")
-    p.add_argument("--overwrite", action="store_true", help="replace existing outputs in --out")
-    p.add_argument("--json", action="store_true", help="print robust.json's summary as JSON")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    add_out(p, "write robust.json, samples.csv and the figures here")
+    add_overwrite(p, "replace existing outputs in --out")
+    add_json(p, "print robust.json's summary as JSON")
+    add_no_progress(p)
 
 
 def _nominal_params(args):

@@ -4,22 +4,16 @@ from __future__ import annotations
 
 import argparse
 
-from samii.cli_args import name_value, positive_float
+from samii.cli_args import add_json, add_model, add_set, name_value, positive_float
 from samii.errors import InputError
 from samii.json_output import dumps
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--model", help="MJCF file (default: the embedded SAMII model)")
-    p.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="NAME=VALUE",
-        help="override a model parameter, e.g. beam.clamp_stiffness_Nm_rad=2e5 (repeatable)",
-    )
+    add_model(p, "MJCF file (default: the embedded SAMII model)")
+    add_set(p, "override a model parameter, e.g. beam.clamp_stiffness_Nm_rad=2e5 (repeatable)")
     p.add_argument("--max-freq-hz", type=positive_float, default=45.0, help="list modes and poles up to this frequency (default 45)")
-    p.add_argument("--json", action="store_true", help="print machine-readable JSON")
+    add_json(p, "print machine-readable JSON")
 
 
 def parse_overrides(items: list[str]) -> dict[str, float]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from samii.cli_args import nonempty_path
+from samii.cli_args import add_json, add_model
 
 __all__ = ["add_arguments", "run", "parameter_table", "unit"]
 
@@ -64,10 +64,8 @@ def parameter_table(model: str | None = None) -> list[dict]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--model", metavar="PARAMS.json", type=nonempty_path, help="a parameter file (samii calibrate writes them; default: the embedded model's)"
-    )
-    p.add_argument("--json", action="store_true", help="print machine-readable JSON")
+    add_model(p, "a parameter file (samii calibrate writes them; default: the embedded model's)", metavar="PARAMS.json")
+    add_json(p, "print machine-readable JSON")
 
 
 def run(args: argparse.Namespace) -> int:
