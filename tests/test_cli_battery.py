@@ -104,8 +104,14 @@ def test_top_level(argv, needle, capsys):
 
 
 def test_version_and_help_exit_zero(capsys):
+    from importlib import metadata
+
+    import samii
+
     assert main(["--version"]) == 0
-    assert capsys.readouterr().out.startswith("samii ")
+    assert capsys.readouterr().out.strip() == f"samii {samii.__version__}"
+    # the package's version is the installed distribution's (pyproject.toml's): the two cannot drift apart
+    assert samii.__version__ == metadata.version("samii")
     assert main(["measure", "--help"]) == 0
 
 

@@ -12,6 +12,8 @@ import argparse
 import importlib
 import sys
 
+import samii
+
 # subcommand -> (module, one-line help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "modes": ("samii.sim.cli_modes", "linearise the simulator at the nominal pose and print its modes"),
@@ -30,15 +32,6 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "report": ("samii.report.cli", "write a main job's report.html again from its folder, with a browser screenshot if asked"),
     "run": ("samii.main_job", "the main job on a model: measure, fit, design, closed loop, diagnose, into one folder with a summary"),
 }
-
-
-def _version() -> str:
-    from importlib import metadata
-
-    try:
-        return metadata.version("samii")
-    except metadata.PackageNotFoundError:  # pragma: no cover - running from a source tree
-        return "unknown"
 
 
 def _closest(word: str, options: list[str]) -> str | None:
@@ -109,7 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="SAMII: a hydraulic arm on a flexible cantilevered beam, simulated in MuJoCo. "
         "With no subcommand, runs the main job on the embedded default model.",
     )
-    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {samii.__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in SUBCOMMANDS.items():
         mod = importlib.import_module(module)

@@ -14,6 +14,7 @@ import os
 import urllib.parse
 from pathlib import Path
 
+import samii
 from samii.errors import InputError
 from samii.identify.profile import interval_text
 from samii.report.content import RECORDINGS, STAGE_FIGURES, RunFolder, parameter_rows
@@ -94,15 +95,13 @@ def _stage_figure(run: RunFolder, key: str, alt: str, caption: str) -> str:
 
 
 def _header(run: RunFolder, lines: list[str]) -> str:
-    from samii.cli import _version
-
     s = run.summary
     model = s["model"]["file"] + (f" with {', '.join(s['model']['overrides'])}" if s["model"].get("overrides") else "")
     sections = [("model", "Model"), ("measurement", "Measurement"), ("fit", "Identification"), ("control", "Control"),
                 ("diagnosis", "Diagnosis"), ("recordings", "Recordings")]  # fmt: skip
     nav = "".join(f'<a href="#{k}">{v}</a>' for k, v in sections)
     return (f"<h1>SAMII: main job report</h1><p class=\"lead\">Model: {_e(model)}. Sensor-noise seed {_e(s['seed'])}. "
-            f"samii {_e(_version())}; the whole pipeline took {_num(s.get('wall_s'), '.0f')} s. Every figure below is in this page; "
+            f"samii {_e(samii.__version__)}; the whole pipeline took {_num(s.get('wall_s'), '.0f')} s. Every figure below is in this page; "
             f"the numbers are the folder's own files (<code>summary.json</code> holds them all).</p><nav>{nav}</nav>"
             + _gaps(run)
             + f"<h2 id=\"summary\">Summary</h2><pre>{_e(chr(10).join(lines))}</pre>")  # fmt: skip
