@@ -451,6 +451,7 @@ def _spawn_measure(out, *extra):
     )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signame, code", [("SIGTERM", 143), ("SIGINT", 130), ("SIGHUP", 129)])
 def test_signal_mid_run_leaves_nothing(tmp_path, signame, code):
     """Killed while simulating: one line, exit 128 + N (130 for Ctrl-C), no folder, no temp file."""

@@ -22,6 +22,7 @@ def test_two_mode_forms_agree_with_transfer_functions(outputs):
         assert c["origin_zeros_ss"] == c["origin_zeros_tf"] == (0 if name == "theta" else 4)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("outputs", ["accel", "modal"])
 def test_three_mode_forms_agree_with_eq9_4_to_numerical_precision(outputs):
     # the modal form's qdd outputs see only one base mode each: the other modes are exact pole/zero
@@ -37,6 +38,7 @@ def test_three_mode_forms_agree_with_eq9_4_to_numerical_precision(outputs):
         assert check[name]["origin_zeros_ss"] == check[name]["origin_zeros_tf"] == (0 if name == "theta" else 4)
 
 
+@pytest.mark.slow
 def test_numerator_check_catches_a_wrong_model(monkeypatch):
     # the same comparison against a reference with B3 off by 1e-6 relative must fail by orders of magnitude
     form = cc.derive_canonical_form(3, "modal")

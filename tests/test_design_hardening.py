@@ -216,6 +216,7 @@ def test_failure_after_the_work_leaves_the_folder_untouched(capsys, out_dir):
     assert (out_dir / "summary.json").read_text() == "[]\n"
 
 
+@pytest.mark.slow
 def test_a_new_out_folder_is_not_left_behind_after_a_failure(capsys, tmp_path, monkeypatch):
     import samii.viz.rootlocus_plot as rp
 
@@ -284,6 +285,7 @@ def test_feedback_poles_agree_with_the_polynomial_away_from_the_singular_gain():
         assert np.min(np.abs(rl.closed_loop_poles(loop, [k])[0] - m2)) < 1e-9 * abs(m2)
 
 
+@pytest.mark.slow
 def test_rlocus_renders_every_plot(capsys, tmp_path):
     """The README command with figures (fewer gains for speed): 28 readable PNGs, strict JSON, progress on stderr only."""
     out = tmp_path / "rl"
@@ -402,6 +404,7 @@ def test_kalman_error_names_every_missing_option(capsys):
     assert line.split("(")[0].count("--accel-noise-std") == 1 and "--theta-noise-std and" not in line.split("(")[0]
 
 
+@pytest.mark.slow
 def test_no_numpy_reprs_and_strict_json_everywhere(capsys):
     runs = [
         ["cancel"], ["cancel", "--json"], ["cancel", "--loop", "accel", "--json"], ["cancel", "--gain", "0.0666"],
@@ -419,6 +422,7 @@ def test_no_numpy_reprs_and_strict_json_everywhere(capsys):
             assert err == ""
 
 
+@pytest.mark.slow
 def test_seed_report_progress_and_no_progress(capsys):
     rc, out, err = _run(["design", "seed-report", "--json", "--no-progress"], capsys)
     assert rc == 0 and err == ""

@@ -94,6 +94,7 @@ def test_json_has_the_issue_keys(report):
     assert out["comparison"]["eq8_1"]["within_printed_precision"] is True
 
 
+@pytest.mark.slow
 def test_cli_seed_report_json(capsys):
     from samii.cli import main
 

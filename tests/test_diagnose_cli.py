@@ -152,6 +152,7 @@ def test_frf_second_run_refuses_to_overwrite(frf_clean, clean_csv, capsys):
 # --------------------------------------------------------------------------- samii diagnose
 
 
+@pytest.mark.slow
 def test_diagnose_finds_the_command_delay(delay_diagnosis):
     rc, text, err, _ = delay_diagnosis
     assert rc == 0, err
@@ -186,6 +187,7 @@ def test_diagnose_finds_the_command_delay(delay_diagnosis):
     assert d["files"][0]["records"]["n_records"] == 3
 
 
+@pytest.mark.slow
 def test_diagnose_out_writes_the_report(delay_diagnosis):
     rc, text, err, out = delay_diagnosis
     assert rc == 0, err
@@ -198,6 +200,7 @@ def test_diagnose_out_writes_the_report(delay_diagnosis):
     assert saved == printed
 
 
+@pytest.mark.slow
 def test_diagnose_clean_text(clean_diagnosis_text):
     rc, text, err, out = clean_diagnosis_text
     assert rc == 0, err
@@ -221,6 +224,7 @@ def test_diagnose_the_frf_file_samii_frf_wrote(frf_clean, capsys):
     assert d["files"][0]["records"] is None
 
 
+@pytest.mark.slow
 def test_diagnose_against_a_saved_fit(saved_fit_diagnosis):
     """A fit of the delayed data, held fixed: what does the diagnosis make of it?
 
@@ -262,6 +266,7 @@ def test_diagnose_against_a_saved_fit(saved_fit_diagnosis):
     assert np.all(lag / (2 * np.pi * f) <= DELAY_S + 5e-4)
 
 
+@pytest.mark.slow
 def test_residual_left_in_xdd_v_is_reported_as_unexplained(saved_fit_diagnosis):
     rc, text, err, _, _ = saved_fit_diagnosis
     assert rc == 0, err
@@ -358,6 +363,7 @@ def test_diagnose_same_file_under_two_names(clean_csv, cwd, monkeypatch, capsys)
     assert "more than once" in err
 
 
+@pytest.mark.slow
 def test_refused_what_a_rig_file_gets_wrong(clean_csv, frf_clean, tmp_path, capsys):
     """Mistakes users make with rig files, each refused in one line that says what to fix, where each was taken
     as data before: theta recorded with the opposite sign (the notebook's gains sat on their bounds and "modes"
@@ -407,6 +413,7 @@ def test_refused_what_a_rig_file_gets_wrong(clean_csv, frf_clean, tmp_path, caps
 # --------------------------------------------------------------------------- noise-free data (issue 32 item 3)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("effects, found", [({}, []), ({"command_delay_s": DELAY_S}, ["command"])], ids=["clean", "delay"])
 def test_noise_free_data_are_said_so_and_judged_against_the_floor(tmp_path, sweep, effects, found, capsys):
     """A simulation without noise (as `samii measure` writes by default): its records repeat exactly, so the

@@ -118,6 +118,7 @@ def _diagnose(r, seed=3, **effects):
     return m, forward_select([ds], b, library(fixed_baseline=False, channels=("act", "base")))
 
 
+@pytest.mark.slow
 def test_record_spread_predicts_the_error(sweep):
     """The variance stated for every point is the error's (Monte Carlo: 30 noise draws of one rig against its exact
     response). The sign-alternating sweep weighs its records 1/4, 1/2, 1/4: the earlier estimate,
@@ -178,6 +179,7 @@ def test_clean_data_nothing_missing(sweep, seed):
     assert base.chi2 / base.dof < 1.25
 
 
+@pytest.mark.slow
 def test_command_delay_found(sweep):
     _, (base, final, steps, _) = _diagnose(sweep, command_delay_s=0.004)
     labels = [e.kind.label for e in final.effects]
@@ -186,6 +188,7 @@ def test_command_delay_found(sweep):
     assert final.chi2 < base.chi2
 
 
+@pytest.mark.slow
 def test_accel_delay_found(sweep):
     _, (_, final, _, _) = _diagnose(sweep, accel_delay_s=0.003)
     assert [e.kind.label for e in final.effects] == ["delay/accel_sensor"]
@@ -198,12 +201,14 @@ def test_ac_coupling_found(sweep):
     assert final.effects[0].values["corner_hz"] == pytest.approx(0.3, rel=0.15)
 
 
+@pytest.mark.slow
 def test_valve_dynamics_found(sweep):
     _, (_, final, steps, _) = _diagnose(sweep, valve_hz=50.0)
     assert [e.kind.label for e in final.effects] == ["actuator/valve"]
     assert final.effects[0].values["freq_hz"] == pytest.approx(50.0, rel=0.15)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("leak", [0.2, -0.5])
 def test_leaky_integrator_found(sweep, leak):
     """theta/v's integrator a real pole at ``leak`` [1/s]: at 0.1 Hz (0.63 rad/s) a phase of -a/w, 18 deg at +0.2 1/s,
@@ -214,6 +219,7 @@ def test_leaky_integrator_found(sweep, leak):
     assert final.chi2 < base.chi2
 
 
+@pytest.mark.slow
 def test_a_richer_reading_the_data_hardly_tell_apart_is_named(sweep):
     """Valve dynamics at 80 Hz, damping 0.5: below 40 Hz a group delay of 2 zeta / omega = 2.0 ms and 0.9 dB at
     40 Hz. On this noise the one-parameter command delay wins the F-test (seed 3 takes the valve); the swap tries
@@ -241,6 +247,7 @@ def test_a_richer_reading_the_data_hardly_tell_apart_is_named(sweep):
     assert [(e.kind, "in its place" in e.evidence) for e in d.effects] == [("command", False)]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed, mode", [(4, (15.0, 0.02, 0.02)), (3, (20.0, 0.03, 0.05))])
 def test_extra_base_mode_named_as_the_rig_has_it(sweep, seed, mode):
     """The free baseline may park its mode 3 on the rig's extra mode and report eq 9.4's 25 Hz mode as the
@@ -255,6 +262,7 @@ def test_extra_base_mode_named_as_the_rig_has_it(sweep, seed, mode):
     assert w3_hz == pytest.approx(notebook_reference()["w3"] / (2 * np.pi), rel=0.03)  # eq 9.4's mode 3 (24.9 Hz) stays the baseline's
 
 
+@pytest.mark.slow
 def test_frf_file_with_coherence_clean_and_delayed(sweep, tmp_path):
     """Through an FRF file (noise from 3-average coherence, pooled): no false alarm, the delay found."""
     from samii.diagnose.diagnosis import diagnose
@@ -270,6 +278,7 @@ def test_frf_file_with_coherence_clean_and_delayed(sweep, tmp_path):
             assert d.error_after["act"].rms_deg < d.error_before["act"].rms_deg
 
 
+@pytest.mark.slow
 def test_one_sample_delay_is_expected_from_the_series_and_its_frf(sweep):
     """0.6 ms on the command at 1 kHz is within one sample: verdict none, the delay reported as expected (beside the
     hold's half sample where the baseline carries it: samii.diagnose.sampling; the EffectRig's command is analogue,
@@ -302,6 +311,7 @@ def test_the_hold_is_dropped_where_the_data_show_less_delay(sweep):
     assert not any("zero-order hold" in n for n in d.notes)
 
 
+@pytest.mark.slow
 def test_files_without_coherence(sweep):
     """FRF files with no coherence (a rig-era .mat): the noise is estimated from the residual's roughness.
     Clean data: no false alarm (uniform weights gave 4 "modes" in theta/v's noise above 9 Hz). theta/v alone:
@@ -339,6 +349,7 @@ def _drawn_rig(seed: int, **effects) -> tuple[EffectRig, np.random.Generator]:
     return EffectRig(params=params, **effects), rng
 
 
+@pytest.mark.slow
 def test_long_delay_found_when_the_baseline_alone_bends_out_of_shape(sweep):
     """An 8 ms command delay (battery case, seed 110): the baseline fitted without it bends into a degenerate
     basin (mode 2 on mode 3, gains +-152) from which the delay's joint refit stalled at chi2 2810 and an
@@ -351,6 +362,7 @@ def test_long_delay_found_when_the_baseline_alone_bends_out_of_shape(sweep):
     assert d.effects[0].params["delay_s"] + d.after.baseline.hold(0) == pytest.approx(0.008, abs=5e-4)
 
 
+@pytest.mark.slow
 def test_roll_off_and_delay_that_the_data_hardly_tell_apart(sweep):
     """Delay 4 ms + first-order 30 Hz accelerometer roll-off (battery case, seed 116). Below 40 Hz a second-order
     roll-off at 45 Hz with a 1.7 ms delay fits as well (chi2 704.6 against 704.7 at the truth's structure, fitted
@@ -378,6 +390,7 @@ def test_roll_off_and_delay_that_the_data_hardly_tell_apart(sweep):
         assert m and float(m.group(1)) == pytest.approx(4.0, abs=0.5)
 
 
+@pytest.mark.slow
 def test_the_reading_that_swaps_to_the_fewest_parameters_goes_on(sweep):
     """Delay 4 ms + first-order 30 Hz roll-off on another rig (the battery's draw at seed 816, --seed-offset 700).
     One greedy reading per round took the roll-off as second-order (chi2 794), then a theta/v pole/zero pair

@@ -68,6 +68,7 @@ def test_valve_law_and_its_errors():
         valve_law("dead_band", -1.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("leak", [0.0, 0.2])
 def test_time_domain_loop_matches_the_frequency_domain_rig(leak):
     """The stepped loop with a law no command reaches is the linear rig delayed by its zero-order hold's half step
@@ -90,6 +91,7 @@ def test_time_domain_loop_matches_the_frequency_domain_rig(leak):
     assert f.min() < 0.2 and f.max() > 30.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rig, seed", [(EffectRig(), 3), (EffectRig(), 4), (EffectRig(valve_nonlinearity=("saturation", 100.0)), 5)])
 def test_clean_data_no_harmonics(rig, seed):
     m = _measured(rig, seed=seed)
@@ -101,6 +103,7 @@ def test_clean_data_no_harmonics(rig, seed):
     assert findings == [] and notes == []
 
 
+@pytest.mark.slow
 def test_harmonic_test_is_calibrated_on_clean_data():
     """Under linearity the segments' p-values are uniform: over 8 noise seeds the share below 1e-2 and 1e-3 stays near
     its level (a binomial allowance of ~3 sigma), and no seed gets a claim."""
@@ -116,6 +119,7 @@ def test_harmonic_test_is_calibrated_on_clean_data():
     assert ps.min() > h.threshold_log10_p
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "kind, level",
     [("dead_band", 0.005), ("dead_band", 0.02), ("saturation", 0.08), ("saturation", 0.15), ("hysteresis", 0.005), ("hysteresis", 0.02)],
@@ -133,17 +137,20 @@ def test_valve_nonlinearity_found_with_its_level(kind, level):
     assert "a linear system makes none" in f.evidence and "repeats in all 3 records" in f.evidence
 
 
+@pytest.mark.slow
 def test_asymmetric_valve_gives_even_harmonics():
     findings, _, _, _ = find_nonlinear([_measured(EffectRig(valve_nonlinearity=("asymmetry", 0.1)))])
     assert [f.kind for f in findings] == ["asymmetry"]
     assert findings[0].params["harmonic"] == 2 and "even harmonics dominate" in findings[0].evidence
 
 
+@pytest.mark.slow
 def test_a_file_without_records_has_no_harmonic_test():
     m = _measured(EffectRig(valve_nonlinearity=("dead_band", 0.02)))
     assert harmonic_analysis(from_frf(m.frf, source="frf.csv")) is None
 
 
+@pytest.mark.slow
 def test_amplitude_dependence_across_files():
     """A dead band's best linear approximation grows with the amplitude; tested on the FRFs alone (no harmonics)."""
     rig = EffectRig(valve_nonlinearity=("dead_band", 0.005))
@@ -159,6 +166,7 @@ def test_amplitude_dependence_across_files():
     assert "grows with amplitude" in findings[0].evidence and notes == []
 
 
+@pytest.mark.slow
 def test_clean_files_at_two_amplitudes_agree():
     """Over 5 pairs of clean files (0.05 and 0.3 V) none differs, and the windowed statistic sits at its degrees of
     freedom on average (each pair's chi2/dof scatters by sqrt(2/dof) ~ 0.23)."""
@@ -183,6 +191,7 @@ def test_same_amplitude_files_that_differ_are_a_changed_rig_not_a_nonlinearity()
     assert len(notes) == 1 and "rig changed between the runs" in notes[0]
 
 
+@pytest.mark.slow
 def test_diagnose_reports_the_nonlinearity_and_fits_the_plant_without_it():
     """A play of 10 mV: the diagnosis names it, fits the linear model to the data divided by its describing function
     (theta/v's error falls from several dB), and flags any linear effect found beside it as its possible image."""
@@ -219,6 +228,7 @@ def simulator_series():
     return out
 
 
+@pytest.mark.slow
 def test_simulator_at_its_default_amplitude_is_not_called_nonlinear(simulator_series):
     findings, _, analyses, _ = find_nonlinear([simulator_series[0.1]])
     assert findings == [] and analyses[0].n_significant == 0
@@ -234,6 +244,7 @@ def test_simulator_at_1_volt_shows_the_orifice_law(simulator_series):
     assert "depends on the loop's state" in findings[0].evidence
 
 
+@pytest.mark.slow
 def test_a_describing_function_s_approximation_weighs_the_fit_not_the_error():
     """A saturation at 0.4 V, files at 0.1 V (never reached) and 0.3 V (reached near the hydraulic resonance).
     Divided by the describing function, the 0.3 V file is still a little nonlinear there (the harmonics it
@@ -271,6 +282,7 @@ def test_a_describing_function_s_approximation_weighs_the_fit_not_the_error():
     assert np.allclose(before[1][ok], after[1][ok])
 
 
+@pytest.mark.slow
 def test_asymmetric_gain_measured_by_its_second_harmonic():
     """A gain 10 % lower for negative commands: u = (1 - d/2) v + (d/2) |v|, whose describing function is the plain
     gain 1 - d/2 (theta/v and xdd/v cannot show it: the baseline holds it) and whose c2/c1 is 2 d / (3 pi (1 - d/2))
@@ -296,6 +308,7 @@ def test_asymmetric_gain_measured_by_its_second_harmonic():
     json.dumps(d.to_dict()["harmonic_error"], allow_nan=False)
 
 
+@pytest.mark.slow
 def test_a_linear_effect_that_worsens_the_smaller_amplitude_is_the_nonlinearity_s_image():
     """A linear effect holds at every amplitude. Held-out battery rig (seed 510, eq 9.4 within 15 %), a saturation at
     0.4 V with files at 0.1 and 0.3 V: fitted to the 0.3 V file near the hydraulic resonance, a "base mode" at 8.6 Hz

@@ -40,6 +40,7 @@ def _measure(seed: int, fs: float, sweep: dict, daq: dict | None = None, **effec
     return from_timeseries(ts, source=f"second rig seed {seed}")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "seed, fs, sweep",
     [
@@ -75,6 +76,7 @@ def test_a_clean_rig_gets_no_effect_and_its_error_is_at_the_floor(seed, fs, swee
     assert lag is None or lag == pytest.approx(0.5, abs=0.2)
 
 
+@pytest.mark.slow
 def test_without_a_usable_theta_no_effect_is_placed_and_the_misfit_is_left_unexplained():
     """A 12-bit encoder (1.5 mrad a count) under a 0.1 V sweep: theta moves about one count, so theta/v has no usable
     point. In xdd/v alone an actuator, a base and a sensor effect multiply the same response: the battery's clean rig
@@ -107,6 +109,7 @@ def test_without_a_usable_theta_no_effect_is_placed_and_the_misfit_is_left_unexp
     plt.close(fig)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fs", [1000.0, 2000.0])
 def test_a_command_delay_is_found_beside_the_holds_half_sample(fs):
     """4 ms on the valve's command; the zero-order hold adds half a sample (0.5 ms at 1 kHz, 0.25 ms at 2 kHz) that
@@ -124,6 +127,7 @@ def test_a_command_delay_is_found_beside_the_holds_half_sample(fs):
     assert found[0].params["delay_s"] + hold == pytest.approx(0.004 + 0.5 / fs, abs=3e-4)
 
 
+@pytest.mark.slow
 def test_an_accelerometer_delay_is_read_as_such_beside_the_hold():
     """3 ms on the accelerometer, the command held at 1 kHz: theta/v is 0.5 ms late, xdd/v 3.5 ms. A command delay c
     and sensor delays t, a show only as c + t and c + a, so with the hold left to the selection the battery's rig
@@ -139,6 +143,7 @@ def test_an_accelerometer_delay_is_read_as_such_beside_the_hold():
     assert d.to_dict()["sampling"]["hold_s"] == [pytest.approx(0.0005)]
 
 
+@pytest.mark.slow
 def test_a_base_mode_is_found_once_and_a_bump_of_the_noise_beside_it_is_not():
     """The speed benchmark's second-rig file with a 15 Hz base mode (nuisance set N01, rig seed 5004, the clean
     file's noise): the mode is found at 15 Hz. A second "mode" at 33.5 Hz, damping 0.14, fitted a stretch of xdd/v's
@@ -170,6 +175,7 @@ def _saturated(seed: int, level: float, source: str):
     return from_timeseries(ts, source=source)
 
 
+@pytest.mark.slow
 def test_a_saturation_is_found_from_the_route_that_sees_its_harmonic():
     """The held-out battery's 150 mV saturation (run_second_rig.py --seed-offset 300, nuisance set N07: 500 Hz, five
     60 s sweeps up, back to back and alternating in sign, 0.1 V, a slow accelerometer drift; the rig drawn until its
@@ -190,6 +196,7 @@ def test_a_saturation_is_found_from_the_route_that_sees_its_harmonic():
     assert findings[0].params["saturation_v"] == pytest.approx(level, rel=0.15)  # the battery's tolerance (TOLERANCE)
 
 
+@pytest.mark.slow
 def test_a_saturation_named_by_where_its_harmonic_is_absent_too_is_divided_out():
     """The battery's 150 mV saturation at seed offset 0 (N07, rig seed 1201): its command passes the level only at
     7-8.5 Hz, near the hydraulic resonance, where the loop feeds the harmonics back and the describing function (a
@@ -212,6 +219,7 @@ def test_a_saturation_named_by_where_its_harmonic_is_absent_too_is_divided_out()
     assert d.harmonic_error is not None and d.harmonic_error[1].chi2 < d.harmonic_error[0].chi2
 
 
+@pytest.mark.slow
 def test_the_simulator_calibrated_to_a_rig_it_cannot_represent_stays_stable():
     """The battery's 2 ms command delay on a 1 kHz rig (run_second_rig.py, seed 1100, N01): eq 9.4's actuator is not
     the simulator's valve and orifice, and calibrated to it the simulator's knobs went where its position loop grows
@@ -229,6 +237,7 @@ def test_the_simulator_calibrated_to_a_rig_it_cannot_represent_stays_stable():
     assert "held where its position loop stays stable" in cal.result.status and not cal.result.converged
 
 
+@pytest.mark.slow
 def test_calibrating_the_simulator_to_a_file_without_a_usable_theta_warns_nothing():
     """A 12-bit encoder (the battery's N02): theta moves by under a count over much of the band, and theta/v has no
     usable point. The calibration's rms per channel took the mean of an empty slice: two RuntimeWarnings reached the

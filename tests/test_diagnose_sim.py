@@ -65,6 +65,7 @@ def tip_body(tmp_path_factory):
 TIP_BODY = {"beam.tip_body_mass_kg": 0.5, "beam.tip_body_freq_hz": 15.0, "beam.tip_body_damping_ratio": 0.02}
 
 
+@pytest.mark.slow
 def test_clean_simulator_data_need_nothing(clean):
     d = diagnose([load(clean)], baseline="sim")
     assert d.verdict == "none" and not d.effects
@@ -76,6 +77,7 @@ def test_clean_simulator_data_need_nothing(clean):
     assert out["changes"] == {} and set(out["error_before"]) == {"act", "base", "total"}
 
 
+@pytest.mark.slow
 def test_command_delay_found_carried_and_the_simulator_error_drops(delayed):
     d = diagnose([load(delayed)], baseline="sim")
     real = [e for e in d.effects if not e.expected]
@@ -89,6 +91,7 @@ def test_command_delay_found_carried_and_the_simulator_error_drops(delayed):
     assert d.error_after["total"].chi2 < d.error_before["total"].chi2
 
 
+@pytest.mark.slow
 def test_accelerometer_roll_off_found_and_carried(lowpass):
     d = diagnose([load(lowpass)], baseline="sim")
     real = [e for e in d.effects if not e.expected]
@@ -100,6 +103,7 @@ def test_accelerometer_roll_off_found_and_carried(lowpass):
     assert s.error_after["total"].chi2 < s.error_before["total"].chi2
 
 
+@pytest.mark.slow
 def test_cli_baseline_sim_writes_the_simulator_block(clean, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["diagnose", str(clean), "--baseline", "sim", "--out", str(out), "--no-progress"]) == 0
@@ -169,6 +173,7 @@ def test_carry_rules():
     assert not options and "beyond" in not_carried[0]
 
 
+@pytest.mark.slow
 def test_extra_base_mode_found_and_carried_as_a_body_on_the_tip(tip_body):
     from samii.diagnose.simulator import body_effect_values
     from samii.sim.model import default_params, params_with_overrides
@@ -197,6 +202,7 @@ def slow_spool(tmp_path_factory):
 SLOW_SPOOL_S = 0.00897
 
 
+@pytest.mark.slow
 def test_a_slower_spool_is_found_and_carried_as_the_spool_s_time_constant(slow_spool):
     """Against the simulator a spool twice as slow is (1 + s tau0)/(1 + s tau): a real pole/zero pair, 35.5 Hz zero
     and 17.7 Hz pole. The first selection (what carries directly) imitates it by a theta delay, an accelerometer
@@ -245,6 +251,7 @@ def test_an_extra_mode_becomes_a_body_of_the_mass_its_residue_needs():
     assert options[mass] > 0 and options[freq] == 4.86 and options[zeta] == 0.41
 
 
+@pytest.mark.slow
 def test_the_simulators_own_harmonics_are_not_a_missing_nonlinearity(tmp_path_factory):
     """The simulator's orifice law makes harmonics of the sweep: at 0.3 V a 3rd harmonic beyond
     1 % near the hydraulic resonance, which the harmonic test claims on its own. Against the
@@ -285,6 +292,7 @@ def _recorded(path, runs, keys=("volts/r", "accel_m_s2/accel")):
     return {(r, k): got.get(f"/{r}/{k}") for r in runs for k in keys}
 
 
+@pytest.mark.slow
 def test_recording_of_the_simulator_against_the_data(delayed, tmp_path):
     """``--rerun``: the file's record beside the simulator measured like it, before and after the
     4 ms delay was carried; the same excitation at the same times (the file's sweep from its
@@ -314,6 +322,7 @@ def test_recording_of_the_simulator_against_the_data(delayed, tmp_path):
     assert "/simulator_after/displacement_mm/mode_1" in entities and "/simulator_before/displacement_mm/mode_1" not in entities
 
 
+@pytest.mark.slow
 def test_cli_records_the_simulator_against_clean_data(clean, tmp_path, capsys):
     rrd = tmp_path / "clean.rrd"
     assert main(["diagnose", str(clean), "--baseline", "sim", "--rerun", str(rrd), "--rerun-fps", "10", "--no-progress"]) == 0
@@ -443,6 +452,7 @@ def test_a_carry_the_simulator_cannot_run_is_not_carried_and_says_why(monkeypatc
     ]
 
 
+@pytest.mark.slow
 def test_with_nothing_carried_the_second_selection_is_against_the_first_selections_simulator(monkeypatch):
     """Issue 31 item 4, on data the simulator cannot represent (the battery's second rig: eq 9.4 under a digital loop,
     a 2 ms command delay; three 20 s sweeps here). Nothing is carried, so the second selection must run against the

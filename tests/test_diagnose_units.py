@@ -72,6 +72,7 @@ def test_scaled_reference_follows_the_data_gains(record):
     assert 0.5 < a["K1"] / ref["K1"] < 2.0
 
 
+@pytest.mark.slow
 def test_theta_in_mrad_gives_the_same_diagnosis(record):
     found = []
     for path in record:
@@ -115,6 +116,7 @@ def _column_scaled(src, dst, column: str, factor: float) -> None:
 OIL_COLUMN_HZ = 31.74
 
 
+@pytest.mark.slow
 def test_a_time_series_in_degrees_says_what_only_xdd_v_places(record, tmp_path):
     """The same record's time series in rad and with theta in degrees (battery C, F2): theta/v is usable to about
     21 Hz, xdd/v to 40 Hz, and the oil column's lag at 31.7 Hz lies where only xdd/v sees it. Whether the actuator (a

@@ -226,6 +226,7 @@ def test_a_run_that_diverges_in_its_first_step_writes_its_verdict_only(tmp_path,
     assert doc["stable"] is False and doc["base"]["peak_m_s2"] is None
 
 
+@pytest.mark.slow
 def test_calibrate_refuses_too_few_frequencies_before_work(measured, tmp_path, capsys):
     _refused_alike(["calibrate", measured["one_freq"], "--param", "beam.clamp_stiffness_Nm_rad"], tmp_path / "c", capsys,
                    [measured["one_freq"], "1 frequency point", "at least 3"])  # fmt: skip
@@ -267,6 +268,7 @@ def test_diagnose_refuses_too_few_frequencies(measured, tmp_path, capsys):
     _refused_alike(["diagnose", measured["one_freq"], "--no-progress"], tmp_path / "d", capsys, [measured["one_freq"], "at least 3"])
 
 
+@pytest.mark.slow
 def test_diagnose_refuses_data_the_baseline_fits_exactly(measured, tmp_path, capsys):
     """10 samples per second: the band ends at 4.5 Hz and its few coherent points (theta/v 2, xdd/v 1 here) are fewer
     residuals than the baseline's 13 parameters, which fit them exactly; this said "the baseline explains the data to
@@ -279,6 +281,7 @@ def test_diagnose_refuses_data_the_baseline_fits_exactly(measured, tmp_path, cap
     )
 
 
+@pytest.mark.slow
 def test_diagnose_on_fewer_points_than_its_pooling_window_says_how_little_it_tests(measured, capsys):
     """Five frequencies: numpy's "operands could not be broadcast together with shapes (5,) (9,)" before (a moving mean
     over 9 points returned 9 values); now a verdict, with the note that 20 residuals for 13 parameters test little."""
@@ -292,6 +295,7 @@ def test_frf_refuses_a_response_no_frf_file_holds(measured, tmp_path, capsys):
     _refused_alike(["frf", measured["spike"]], tmp_path / "f", capsys, [measured["spike"], "outside 1e-20...1e+20", "column 'accel' reaches 1e+90"])
 
 
+@pytest.mark.slow
 def test_frf_warns_of_a_sweep_beyond_the_nyquist_frequency(measured, tmp_path, capsys):
     out = tmp_path / "f"
     assert main(["frf", measured["ts10"], "--out", str(out), "--json"]) == 0
@@ -318,6 +322,7 @@ def test_frf_warns_of_a_sweep_beyond_the_nyquist_frequency(measured, tmp_path, c
     assert "too few usable points" in line and "besides" in line and "sweep reached 40 Hz" in line
 
 
+@pytest.mark.slow
 def test_measure_judges_small_signal_on_a_band_not_on_one_noisy_point(measured, tmp_path, capsys):
     """The default noisy measurement (0.1 V, seed 0): one point at 20 Hz whose coherence is 0.969 by chance lay 6.8 dB
     from the linearised simulator, and measure warned "far from small-signal (valve and orifice nonlinearity) ... lower
@@ -349,6 +354,7 @@ def test_an_frf_whose_header_rate_cannot_hold_its_frequencies_is_refused(measure
         assert "expected '# sample_rate_hz:' to give a positive number of samples per second" in _one_line(capsys)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "which, needle",
     [
@@ -409,6 +415,7 @@ def test_a_text_file_named_mat_is_read_as_the_csv_it_is(measured, tmp_path, caps
     assert "characters)" not in str(info.value)
 
 
+@pytest.mark.slow
 def test_a_fit_on_noise_says_nothing_was_tested(measured):
     """The lack-of-fit verdict on data with no coherent point is 'not tested', never 'none'."""
     from samii.identify import fit
@@ -566,6 +573,7 @@ def report_folder(runs, tmp_path):
     return d
 
 
+@pytest.mark.slow
 def test_report_refuses_a_damaged_number_and_names_its_field(report_folder, capsys):
     s = json.loads((report_folder / "summary.json").read_text())
     s["closed_loop"]["damping_step"]["theta"]["settle_s"] = math.nan
@@ -577,6 +585,7 @@ def test_report_refuses_a_damaged_number_and_names_its_field(report_folder, caps
     assert not out.exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("file, path, value, shown", [
     ("summary.json", ("modes", "base_modes", 0, "freq_hz"), "x", "summary.json: modes.base_modes[0].freq_hz (holds 'x')"),
     ("summary.json", ("fit", "params", "wp"), None, "summary.json: fit.params.wp (holds None)"),
@@ -601,6 +610,7 @@ def test_report_names_a_field_of_the_wrong_kind(report_folder, file, path, value
     assert not out.exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "value, needle",
     [
@@ -621,6 +631,7 @@ def test_report_refuses_a_damaged_run_list_or_verdict(report_folder, value, need
     assert needle in _one_line(capsys) and not (report_folder / "r.html").exists()
 
 
+@pytest.mark.slow
 def test_a_browser_named_by_the_environment_that_is_no_program_is_said_so(report_folder, monkeypatch, capsys):
     monkeypatch.setenv("SAMII_BROWSER", "/nonexistent/chrome")
     out = report_folder / "r.html"
@@ -628,6 +639,7 @@ def test_a_browser_named_by_the_environment_that_is_no_program_is_said_so(report
     assert "SAMII_BROWSER=/nonexistent/chrome is no program" in _one_line(capsys) and not out.exists()
 
 
+@pytest.mark.slow
 def test_report_onto_a_folder_leaves_nothing_behind(report_folder, capsys):
     (report_folder / "report.html").mkdir()
     before = sorted(p.name for p in report_folder.iterdir())
@@ -637,6 +649,7 @@ def test_report_onto_a_folder_leaves_nothing_behind(report_folder, capsys):
         assert sorted(p.name for p in report_folder.iterdir()) == before
 
 
+@pytest.mark.slow
 def test_report_marks_what_a_readable_folder_lacks(report_folder, capsys):
     """A fitted parameter null and a stage's figure deleted: the K1 row and the measured FRF's figure vanished from
     the page without a word. Now the page's top lists what the folder lacks, the row stays (without a value) and the
@@ -713,6 +726,7 @@ def test_a_run_killed_between_its_two_renames_gives_the_previous_output_back(tmp
     assert not aside.exists() and not new.exists()  # the killed run's own staging: removed, as any dead run's
 
 
+@pytest.mark.slow
 def test_a_second_local_cluster_is_quiet_about_the_dashboard_port(tmp_path, capsys):
     """Port 8787 taken (a user's own Dask cluster, or another study running): the study's scheduler, whose HTTP routes
     Dask serves even without a dashboard, said "warning: UserWarning: Port 8787 is already in use. Perhaps you already
@@ -756,6 +770,7 @@ def _robust_study(*extra: str, via_main: bool = False):
             os.killpg(proc.pid, signal.SIGKILL)
 
 
+@pytest.mark.slow
 def test_robust_workers_stay_quiet_on_a_terminals_ctrl_c(tmp_path):
     """Ctrl-C to the process group (as a terminal sends it) while a local Dask cluster runs the study: the command's
     one line and exit 130, no worker traceback (two workers printed about 80 lines before), no folder, no worker left."""
@@ -770,6 +785,7 @@ def test_robust_workers_stay_quiet_on_a_terminals_ctrl_c(tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_robust_killed_outright_leaves_no_word_and_no_worker():
     """SIGKILL to the command alone while its local Dask cluster runs: it cannot speak, and multiprocessing's resource
     tracker (which outlives it to unlink the cluster's semaphores) printed "UserWarning: resource_tracker: There appear
@@ -787,6 +803,7 @@ def test_robust_killed_outright_leaves_no_word_and_no_worker():
     assert proc.returncode == -signal.SIGKILL and err.strip() == "" and not left, (err, left)
 
 
+@pytest.mark.slow
 def test_robust_given_ctrl_c_twice_then_sigterm_says_one_thing(tmp_path):
     """Two Ctrl-Cs during a study printed the one line, then the process sat 10 s in Dask's exit-time close of the
     cluster already stopped (10 of 10 tries), and a SIGTERM meanwhile added "stopped by signal 15 after the command had
@@ -830,6 +847,7 @@ except KeyboardInterrupt:
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signame, code", [("SIGTERM", 143), ("SIGHUP", 129), ("SIGINT", 130)])
 def test_a_signal_to_the_group_during_forked_work_stops_it_quietly(tmp_path, signame, code):
     """The diagnosis' forked workers (samii.forkmap) and a signal to the command's process group, as a terminal or
@@ -891,6 +909,7 @@ def test_a_signal_while_the_main_job_replaces_its_folder_waits_for_the_swap(tmp_
     assert (out / "NEW").is_file() and not (out / "OLD").exists() and [p.name for p in tmp_path.iterdir()] == ["D"]
 
 
+@pytest.mark.slow
 def test_a_signal_during_a_commands_moves_into_place_waits_for_them(measured, tmp_path, monkeypatch, capsys):
     """An output folder's files are moved into place one by one: a signal after the first left a folder mixing this
     run's frf.csv with an earlier run's bode.png. It waits for the moves now."""
@@ -1010,6 +1029,7 @@ def _silent_scheduler():
             c.close()
 
 
+@pytest.mark.slow
 def test_a_scheduler_that_accepts_and_never_answers_is_refused_in_time(capsys):
     from samii.errors import InputError
     from samii.robust.cli import SCHEDULER_TIMEOUT_S
@@ -1107,6 +1127,7 @@ def tiny_disk(tmp_path):
         subprocess.run(["umount", str(mount)], capture_output=True)
 
 
+@pytest.mark.slow
 def test_a_full_disk_is_said_in_words_and_leaves_nothing(tiny_disk, runs, capsys):
     for argv, target in (
         (["closedloop", "--controller", "unity", "--scenario", "step", "--out"], tiny_disk / "cl"),
@@ -1157,6 +1178,7 @@ def _noise_frf(measured, path, *, coherence=True):
     return str(path)
 
 
+@pytest.mark.slow
 def test_a_fit_of_noise_is_refused_and_is_never_sound(measured, tmp_path, capsys):
     """samii fit called random magnitudes and phases with coherence below 0.3 "a sound fit with caveats" (exit 0)
     while calibrate and diagnose refused them. The command refuses them now, and the library's fit is not sound."""
@@ -1180,6 +1202,7 @@ def stepped4(tmp_path_factory):
     return {"four": str(d / "s4" / "frf.csv"), "one": str(d / "s1" / "frf.csv")}
 
 
+@pytest.mark.slow
 def test_a_damping_design_needs_a_sound_fit_of_the_file(measured, stepped4, tmp_path, capsys):
     """design damping --frf designed k = 0.056 V/(m/s²) from noise, k = 8.6 from four frequencies whose fit samii fit calls
     not sound, and on one frequency said "band_hz must be 0 < lo < hi, got 5 5" (no file)."""
@@ -1198,6 +1221,7 @@ def test_a_damping_design_needs_a_sound_fit_of_the_file(measured, stepped4, tmp_
     assert json.loads(capsys.readouterr().out)["gain_v_per_m_s2"] > 0
 
 
+@pytest.mark.slow
 def test_a_residual_far_above_the_noise_everywhere_is_not_called_explained(stepped4, capsys):
     """Four stepped frequencies without noise (judged against the 0.5 % floor): chi2 per residual 824, 460 and 22 after,
     and the verdict said "the baseline explains the data to within their noise" (the band test judges bands against
@@ -1248,6 +1272,7 @@ def test_an_frf_header_rate_that_is_text_is_refused(measured, tmp_path, capsys):
         assert f"{f}, line " in line and "'# sample_rate_hz:' to give a positive number" in line and "'abc'" in line
 
 
+@pytest.mark.slow
 def test_a_screenshot_that_fails_keeps_neither_page_nor_picture(report_folder, tmp_path, monkeypatch, capsys):
     """A browser that failed (SAMII_BROWSER=/bin/false) gave exit 1, "internal error", and left the new page behind. It is
     the browser's failure: exit 2, said so, and nothing written, the folders made for them removed."""
@@ -1270,6 +1295,7 @@ def test_a_screenshot_that_fails_keeps_neither_page_nor_picture(report_folder, t
     assert sorted(p.name for p in page.parent.iterdir()) == ["r.html"] and sorted(p.name for p in png.parent.iterdir()) == ["r.png"]
 
 
+@pytest.mark.slow
 def test_a_report_never_replaces_a_file_it_is_made_from(report_folder, capsys):
     """samii report RUN --out RUN/summary.json --overwrite wrote the page over the run's summary (exit 0): the folder
     could not be reported again. So could --screenshot RUN/fit/bode_fit.png replace a stage's figure."""
@@ -1474,6 +1500,7 @@ def test_an_unknown_frf_column_that_is_not_numbers_is_ignored(tmp_path):
     assert frf.freq_hz.size == 30 and np.allclose(np.abs(frf.act), 1 / f)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("key", ["effects", "verdict"])
 def test_report_refuses_a_diagnosis_without_its_effects(report_folder, key, capsys):
     """diagnose/diagnosis.json without 'effects' was read as "No effect beyond the baseline's noise." (exit 0) beside a
@@ -1530,6 +1557,7 @@ def no_coherence(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_a_fit_without_coherence_whose_mode_sits_in_the_noise_is_not_called_sound(no_coherence, capsys):
     """Without coherence (a rig-era .mat, a CSV without *_coh, one average) the check of where a mode sits had nothing
     to read: the notebook's unweighted cost, drawn to xdd/theta's noise below 0.3 Hz, put base mode 1 at 0.16 Hz and
@@ -1755,6 +1783,7 @@ def _slow_sample(task):
     return task.index
 
 
+@pytest.mark.slow
 def test_a_cluster_left_without_workers_mid_study_is_said_within_the_timeout(monkeypatch):
     """The only worker of a user's cluster killed mid-study: robust waited for ever without a word (--scheduler-timeout
     applied only at the start)."""
@@ -1824,6 +1853,7 @@ def _study_on(address: str, tmp_path, samples: int, timeout_s: int) -> subproces
     return study
 
 
+@pytest.mark.slow
 def test_a_scheduler_that_stops_answering_mid_study_is_said_within_the_timeout(tmp_path):
     """A scheduler stopped mid-study (SIGSTOP: a hung host, a dropped network) kept robust waiting for ever, and one that
     was killed gave 30 lines of Dask's log and "internal error ... please report it" (exit 1): one line now, exit 2."""
@@ -1839,6 +1869,7 @@ def test_a_scheduler_that_stops_answering_mid_study_is_said_within_the_timeout(t
         assert f"--scheduler {address}: during the study, after" in lines[0] and "the scheduler stopped answering (nothing within 15 s)" in lines[0]
 
 
+@pytest.mark.slow
 def test_a_worker_that_stops_answering_mid_study_is_said_within_the_timeout(tmp_path):
     """The only worker of a user's cluster stopped mid-study (SIGSTOP: a hung process): the scheduler keeps it and its
     samples until its worker-ttl (5 minutes by default), and robust waited that long without a word (battery D, F3)."""
@@ -1957,6 +1988,7 @@ def test_the_servo_loops_gain_margin_is_the_notebooks_and_a_theta_in_mrad_is_ref
     capsys.readouterr()
 
 
+@pytest.mark.slow
 def test_a_fit_without_coherence_is_weighted_by_the_datas_scatter_where_the_notebooks_cost_fails(no_coherence, tmp_path, capsys):
     """The notebook's unweighted cost on the default measurement without its coherence (seed 1, 3 averages) put base
     mode 1 at 0.12-0.16 Hz in xdd/theta's noise and the hydraulic pair on mode 1: said as not sound (stop 43), but the

@@ -36,6 +36,7 @@ def _failures(params):
     return [c.row() for c in checks if not c.ok], checks
 
 
+@pytest.mark.slow
 def test_default_measurement_fitted_as_the_notebook_gives_eq9_4(measured):
     """`samii measure && samii fit frf.csv --modes 3 --numerator s4 --phase-weight 0.1`."""
     res = fit(measured.frf, ModelStructure(n_modes=3, numerator="s4"), phase_weight=0.1)

@@ -33,6 +33,7 @@ def _load(name: str):
     return mod
 
 
+@pytest.mark.slow
 def test_notebook_plants_spread_40_percent_reach_the_true_minimum():
     plants = _load("notebook_plants")
     rows = [plants.run_plant(i, seed=7) for i in range(24)]
@@ -41,6 +42,7 @@ def test_notebook_plants_spread_40_percent_reach_the_true_minimum():
     assert sum(r["ok"] for r in rows) >= 23  # the full draw: 199 of 200
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", [0, 1, 2, 3])
 def test_simulator_rigs_with_spread_parameters_are_fitted_in_their_physical_minimum(case, tmp_path):
     spread = _load("simulator_spread")
@@ -113,6 +115,7 @@ def test_base_modes_above_the_hydraulic_resonance_are_read_off_xdd_v_where_xdd_t
     assert modes_from_total(FitProblem(FrequencyResponse(f, act=act, base=base), st, phase_weight=0.1), true) is None
 
 
+@pytest.mark.slow
 def test_a_mode_3_that_xdd_theta_hides_in_its_noise_is_found_from_xdd_v(tmp_path):
     """Simulator rig 23 of the battery's seed 0 (the only silent miss of that draw before the xdd/v start): the
     0.1 V sweep leaves xdd/theta noise above 10 Hz, every start read off it put mode 3 at 10 Hz beside the
@@ -135,6 +138,7 @@ def test_a_point_whose_records_agreed_by_chance_does_not_decide_the_actuator_zer
     assert abs(row["errs"]["wz"][0]) < 0.03, row["errs"]["wz"]
 
 
+@pytest.mark.slow
 def test_a_start_s_search_never_narrows_a_mode_below_the_grid_s_resolution(tmp_path):
     """Simulator rig 39 of the battery's seed 1: the start read off xdd/v put mode 3 at 34 Hz and its grid search
     drove z3 from 0.04 to 0.0025, a half-power band of 0.17 Hz between points 0.78 Hz apart: the cost along w3 then
@@ -167,6 +171,7 @@ def test_a_start_s_search_never_narrows_a_mode_below_the_grid_s_resolution(tmp_p
     assert resolvable_damping(lin, 2 * np.pi * 50.0) == pytest.approx(0.5 * 0.05 / 50.0, rel=0.02)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed, case, name", [(4, 8, "wz"), (2, 6, "w3")])
 def test_a_lopsided_cost_is_read_off_its_profile_not_its_curvature(seed, case, name, tmp_path):
     """Two rigs of the battery whose data's own minimum lies more than 3 local standard errors from the

@@ -33,6 +33,7 @@ def test_auto_weighting_uses_coherence_when_every_channel_has_it(noisy):
     assert resolve_weighting(noisy, None, "none") == "none"
 
 
+@pytest.mark.slow
 def test_default_fit_of_noisy_data_is_sensible(noisy, tmp_path, capsys):
     """With coherence weighting (the CLI default for such files) mode 1 is where the simulator has
     it (1.737 Hz, model card) and B keeps eq 9.4's signs; the notebook's unweighted cost lets the

@@ -82,6 +82,7 @@ def test_workers_from_the_environment(monkeypatch):
     assert forkmap.workers() >= 1
 
 
+@pytest.mark.slow
 def test_forward_selection_is_the_same_bit_for_bit_on_one_worker_or_two(monkeypatch):
     """A 4 ms command delay on EffectRig (eq 9.4), 3 short sweeps: selection, values and every candidate's chi2
     the same whether the fits run in turn or in two workers."""

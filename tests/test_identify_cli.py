@@ -108,6 +108,7 @@ def test_actuator_only_file_fits_the_actuator(tmp_path, capsys):
     assert "act_only.csv has no base channel" in out and "not fitted" in out
 
 
+@pytest.mark.slow
 def test_more_modes_than_the_notebook_has(frf_csv, capsys):
     assert main(["fit", str(frf_csv), "--modes", "4", "--json"]) == 0
     d = json.loads(capsys.readouterr().out)

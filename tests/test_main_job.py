@@ -13,6 +13,7 @@ from samii.cli import main
 # the `runs` fixture (two main jobs with seed 3) is in conftest.py: test_report.py reads them too
 
 
+@pytest.mark.slow
 def test_main_job_writes_every_stage_and_a_short_summary(runs, capsys):
     a = runs[0]
     for path in ("measure/timeseries.csv", "measure/frf.csv", "measure/bode.png", "fit/fit.json", "controllers/damping.json",
@@ -50,6 +51,7 @@ def test_main_job_writes_every_stage_and_a_short_summary(runs, capsys):
         assert needle in text, needle
 
 
+@pytest.mark.slow
 def test_main_job_diagnosis_finds_the_simulator_s_leaky_integrator(runs):
     """The notebook's theta/v is a pure integrator; the simulator's has its pole at +0.199 1/s (leakage against
     gravity's pull at the nominal pose: twice the leakage coefficient doubles it, gravity off puts it at 0). The
@@ -79,6 +81,7 @@ def test_main_job_diagnosis_finds_the_simulator_s_leaky_integrator(runs):
     assert d["error_after"]["act"]["chi2"] < 2.0 < 10.0 < d["error_before"]["act"]["chi2"]
 
 
+@pytest.mark.slow
 def test_main_job_is_reproducible_from_its_seed(runs):
     a, b = runs
     sa, sb = (json.loads((r / "summary.json").read_text()) for r in runs)
@@ -92,6 +95,7 @@ def test_main_job_is_reproducible_from_its_seed(runs):
     assert np.array_equal(ta.accel, tb.accel) and np.array_equal(ta.theta, tb.theta)
 
 
+@pytest.mark.slow
 def test_main_job_recordings_have_the_layout(runs):
     from samii.viz.recording import read_scalars
 

@@ -24,6 +24,7 @@ RIGS = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed, sets", RIGS, ids=["clamp2e5-seed1", "volume-length-seed2"])
 def test_main_job_holds_on_another_rig(tmp_path, capsys, seed, sets):
     argv = ["run", "--out", str(tmp_path / "r"), "--seed", str(seed), "--no-progress"] + [a for s in sets for a in ("--set", s)]

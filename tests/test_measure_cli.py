@@ -12,9 +12,8 @@ pytest.importorskip("mujoco")
 from samii.cli import main  # noqa: E402
 from samii.measure.io import read_frf_csv, read_timeseries_csv  # noqa: E402
 
-pytestmark = pytest.mark.slow
 
-
+@pytest.mark.slow
 def test_default_run_writes_everything(tmp_path, capsys):
     out = tmp_path / "m"
     assert main(["measure", "--out", str(out), "--no-progress"]) == 0
@@ -40,6 +39,7 @@ def test_default_run_writes_everything(tmp_path, capsys):
     assert "--overwrite" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_stepped_with_noise_rerun_and_overwrite(tmp_path, capsys):
     out = tmp_path / "s"
     rrd = tmp_path / "run.rrd"
@@ -81,6 +81,7 @@ def test_bad_arguments(tmp_path, capsys):
     assert main(["measure", "--amplitude-v", "-1"]) == 2  # argparse: rejected before anything runs
 
 
+@pytest.mark.slow
 def test_load_pressure_above_supply_is_reported(tmp_path, capsys):
     """Issue 8: at 5 V and 5 Hz the motor pumps the load pressure past the 7 MPa supply (7.7 MPa);
     the run says so. At 3 Hz it stays below (3 MPa) and says nothing."""

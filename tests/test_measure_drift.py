@@ -58,6 +58,7 @@ def _chi2(m, truth) -> dict[str, float]:
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed, alternate", [(11, True), (12, False), (13, True)])
 def test_a_drift_is_subtracted_and_said_and_a_clean_file_is_left_as_recorded(seed, alternate):
     ts, truth = _rig_file(seed, alternate)

@@ -20,8 +20,6 @@ from samii.measure.daq import SensorNoise  # noqa: E402
 from samii.measure.excitation import SteppedSine, SweptSine  # noqa: E402
 from samii.measure.frf import estimate_frf  # noqa: E402
 
-pytestmark = pytest.mark.slow
-
 BAND = (0.5, 35.0)
 TOL_DB, TOL_DEG = 1.0, 5.0  # issue 3
 SMALL_V = 0.02  # peak load pressure ~0.3 MPa, 4 % of the 7 MPa supply
@@ -71,6 +69,7 @@ def test_swept_and_stepped_sine_agree(model, small):
         assert err_db < 0.1 and err_deg < 0.5, (ch, err_db, err_deg)
 
 
+@pytest.mark.slow
 def test_noise_lowers_coherence_only_where_the_signal_is_weak(model):
     from samii.sim.plugin import hydraulic_params
 

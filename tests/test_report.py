@@ -53,6 +53,7 @@ def _images(page: _Page):
     return out
 
 
+@pytest.mark.slow
 def test_report_is_self_contained(runs):
     report = runs[0] / "report.html"
     page = _parse(report)
@@ -76,6 +77,7 @@ def test_report_is_self_contained(runs):
     assert len(sizes) == 8 and all(w >= 600 and h >= 250 for w, h in sizes), sizes
 
 
+@pytest.mark.slow
 def test_report_states_the_folders_numbers(runs):
     """The page's figures are the run's: the fit beside eq 9.4 (in Hz), the stability of each controller, the diagnosis."""
     from samii import notebook as nb
@@ -111,6 +113,7 @@ def test_report_states_the_folders_numbers(runs):
     assert f"θ overshoots the step by {over:.0f} %" in text
 
 
+@pytest.mark.slow
 def test_closed_loop_records_read_back_even_when_the_controller_diverges(runs):
     """Pole placement's controller output runs away within milliseconds: the run ends there, and what is
     written is a valid time series (it held 1e+290 V before: samii's own reader refused the file)."""
@@ -124,6 +127,7 @@ def test_closed_loop_records_read_back_even_when_the_controller_diverges(runs):
     assert any("controller's output" in n for n in place["notes"])
 
 
+@pytest.mark.slow
 def test_samii_report_rewrites_the_page_elsewhere_with_links_that_still_work(runs, tmp_path, capsys):
     from urllib.parse import unquote, urljoin, urlparse
 
@@ -144,6 +148,7 @@ def test_samii_report_rewrites_the_page_elsewhere_with_links_that_still_work(run
     assert "--overwrite" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_samii_report_keeps_the_main_jobs_page_without_overwrite(runs, tmp_path, capsys):
     import shutil
 
@@ -167,6 +172,7 @@ def test_samii_report_refuses_a_folder_that_is_not_a_main_jobs(tmp_path, capsys)
     assert not (tmp_path / "report.html").exists()
 
 
+@pytest.mark.slow
 def test_report_in_a_real_headless_browser(runs, tmp_path):
     """Rendered by Chromium with every host unreachable: the page lays out at full length, its images decoded
     (a broken image would collapse to an icon and the page would be shorter than its figures)."""
@@ -192,6 +198,7 @@ def test_report_in_a_real_headless_browser(runs, tmp_path):
     assert inked > 0.8, inked
 
 
+@pytest.mark.slow
 def test_samii_report_names_what_a_damaged_folder_lacks(runs, tmp_path, capsys):
     import shutil
 

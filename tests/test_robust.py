@@ -166,6 +166,7 @@ def robust_runs(tmp_path_factory):
     return base / "inproc", base / "dask"
 
 
+@pytest.mark.slow
 def test_robust_gives_the_same_table_in_process_and_on_dask(robust_runs):
     a, b = robust_runs
     assert _csv(a / "samples.csv") == _csv(b / "samples.csv")
@@ -203,6 +204,7 @@ def test_robust_study_reads_as_physics(robust_runs):
     assert s["influence"][0]["name"] == "beam.clamp_stiffness_Nm_rad"
 
 
+@pytest.mark.slow
 def test_dask_workers_start_fresh_and_register_the_plugin():
     """A fresh worker process has not imported samii (the issue: a pickled plugin model crashes such a worker);
     the worker plugin registers the hydraulic plugin there, and a task builds its model inside the worker."""
@@ -279,6 +281,7 @@ def test_robust_from_a_calibrations_covariance(tmp_path, capsys):
     assert "--model" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_robust_on_a_cluster_given_by_its_address(robust_runs, tmp_path):
     """--scheduler ADDRESS: the study on a running Dask cluster (here a local one standing in for a user's), the
     same table as in this process."""

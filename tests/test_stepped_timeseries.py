@@ -62,6 +62,7 @@ def test_frf_reads_samiis_stepped_time_series_as_the_measurement_did(stepped):
         assert np.allclose(again.coherence(ch), measured.coherence(ch), atol=1e-9), ch
 
 
+@pytest.mark.slow
 def test_diagnose_reads_a_stepped_time_series_as_its_frf_file(stepped):
     _, ts, written = stepped
     a, b = load(ts), load(written)
@@ -98,6 +99,7 @@ def test_a_stepped_time_series_without_its_schedule_or_cut_short_is_refused_nami
     assert not (tmp_path / "o1").exists()
 
 
+@pytest.mark.slow
 def test_effects_found_with_the_residual_still_far_above_the_noise_are_not_called_the_whole_story(tmp_path):
     """The default stepped sine (17 dwells, 0.5-35 Hz, seed 3): one effect (the 32 Hz valve lag) and chi2 per residual
     33 after it, with no band of misfit on so few points; the verdict read "effects: 1 effect(s) the model lacks" as if
@@ -117,6 +119,7 @@ def test_effects_found_with_the_residual_still_far_above_the_noise_are_not_calle
     assert verdict.endswith("but the residual stays above the noise after them (note below)"), verdict
 
 
+@pytest.mark.slow
 def test_the_default_stepped_sine_finds_the_pair_mode_3_makes_in_theta_v(tmp_path):
     """The default stepped sine (17 dwells, 3 Hz apart at 22-25 Hz) measures theta/v's pole and zero of the simulator's
     base mode 3 (pole 23.3 Hz with the loop closed, zero at the held-joint mode 24.90 Hz: samii modes), +3.9 dB at

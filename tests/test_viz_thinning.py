@@ -60,6 +60,7 @@ def test_envelope_is_the_records_envelope():
     assert frames[0] and frames[-1] and frames[:50].all()  # 40 Hz: 320 frames/s asked, 100/s there
 
 
+@pytest.mark.slow
 def test_default_measurement_recording_is_small_and_keeps_what_is_seen(tmp_path, capsys):
     """`samii measure --noise --rerun` (the main job's measure.rrd): under 20 MB (58 MB with every sample),
     its size printed; theta read back has the record's envelope in every half second, and the animation

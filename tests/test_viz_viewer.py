@@ -30,6 +30,7 @@ def _changed(a, b) -> float:
     return float(np.mean(np.max(np.abs(x - y), axis=-1) > 0.1))
 
 
+@pytest.mark.slow
 def test_the_viewer_shows_the_layout_and_the_beam_moving(tmp_path):
     rrd = tmp_path / "release.rrd"
     assert main(["closedloop", "--controller", "unity", "--scenario", "release", "--duration-s", "3", "--out", str(tmp_path / "out"),
