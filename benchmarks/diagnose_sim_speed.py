@@ -46,10 +46,10 @@ CASES = [
 
 def write_case(folder: Path, overrides: dict, seed: int) -> Path:
     """The simulator with ``overrides`` measured as ``samii measure --noise --averages 4 --tail-s 26`` writes it."""
+    from samii.formats import write_timeseries_csv
     from samii.measure.campaign import measure_swept
     from samii.measure.daq import SensorNoise
     from samii.measure.excitation import SweptSine
-    from samii.measure.io import write_timeseries_csv
     from samii.sim.model import load_model
 
     sweep = SweptSine(repetitions=4, tail_s=26.0)

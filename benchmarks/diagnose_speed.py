@@ -39,8 +39,8 @@ import numpy as np
 
 from samii.diagnose.measured import load
 from samii.diagnose.rig import EffectRig
+from samii.formats import write_timeseries_csv
 from samii.measure.excitation import SweptSine
-from samii.measure.io import write_timeseries_csv
 
 FS = 1000.0
 GOAL_MAX_S = 30.0

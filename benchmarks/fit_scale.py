@@ -36,9 +36,9 @@ import numpy as np
 from _timing import median_time
 
 from samii.cli import main as samii_main
+from samii.formats import read_frf_csv, write_frf_csv
 from samii.identify.fit import fit
 from samii.identify.studies import synthetic_rig_frf
-from samii.measure.io import read_frf_csv, write_frf_csv
 
 SIZES = (247, 10_000, 100_000)
 GOALS_S = {10_000: 2.0, 100_000: 20.0}

@@ -36,9 +36,9 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
+from samii.formats import write_frf_csv
 from samii.measure.campaign import linearised_frf, measure
 from samii.measure.excitation import SteppedSine, SweptSine
-from samii.measure.io import write_frf_csv
 from samii.sim.model import load_model, make_data
 
 

@@ -17,9 +17,9 @@ from samii.calibrate import MODE_KNOBS, calibrate
 from samii.calibrate.cli import load_target
 from samii.calibrate.simulator import SimulatorFRF, parameter_value
 from samii.cli import main
+from samii.formats import write_frf_csv
 from samii.identify.synthetic import SweptSineNoise, synthesize
 from samii.measure.frf import log_frequency_grid
-from samii.measure.io import write_frf_csv
 from samii.sim.linearize import base_modes
 from samii.sim.model import default_params, load_model, load_spec
 

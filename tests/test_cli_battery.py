@@ -365,7 +365,7 @@ def test_measure_failure_while_writing_leaves_nothing(out_dir, capsys, monkeypat
     """A full disk (or any failure) after the simulation: no partial folder, the user's file untouched."""
     import errno
 
-    import samii.measure.io as io
+    import samii.formats as io
 
     def full_disk(*_a, **_k):
         raise OSError(errno.ENOSPC, "No space left on device", "frf.csv")
@@ -376,7 +376,7 @@ def test_measure_failure_while_writing_leaves_nothing(out_dir, capsys, monkeypat
 
 
 def test_measure_failure_in_a_new_folder_removes_it(tmp_path, capsys, monkeypatch):
-    import samii.measure.io as io
+    import samii.formats as io
 
     monkeypatch.setattr(io, "write_frf_csv", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt()))
     target = tmp_path / "new" / "deeper"
@@ -414,7 +414,7 @@ CALIBRATE = [
 @pytest.fixture(scope="module")
 def frf_csv(tmp_path_factory):
     from samii.calibrate.cli import load_target
-    from samii.measure.io import write_frf_csv
+    from samii.formats import write_frf_csv
 
     return str(write_frf_csv(load_target("eq9.4"), tmp_path_factory.mktemp("frf") / "frf.csv"))
 
@@ -495,8 +495,8 @@ def test_frf_records_metadata_is_checked(tmp_path, capsys):
 
     import numpy as np
 
+    from samii.formats import write_frf_csv
     from samii.identify.studies import synthetic_rig_frf
-    from samii.measure.io import write_frf_csv
 
     data = synthetic_rig_frf(np.geomspace(0.1, 40.0, 200), rng=np.random.default_rng(0))  # with coherence
     for bad in ("1000000000000", "nan", "0"):

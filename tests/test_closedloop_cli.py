@@ -598,7 +598,7 @@ def test_closedloop_json_contract(step_run):
 
 
 def test_closedloop_out_contract(step_run):
-    from samii.measure.io import read_timeseries_csv
+    from samii.formats import read_timeseries_csv
 
     rc, out, err, folder = step_run
     assert rc == 0, err
@@ -664,7 +664,7 @@ def test_release_impulse_along_the_accelerometer_in_the_world(tmp_path, capsys):
     frame: a body-fixed accelerometer (``beam.accel_body_fixed``: its axis +x in the site's frame,
     -x in the world at home) gets the same impulse, and reads the same response, as the default
     world-frame one (it used the body-frame axis as a world one: the impulse flipped)."""
-    from samii.measure.io import read_timeseries_csv
+    from samii.formats import read_timeseries_csv
 
     reads = {}
     for name, extra in (("world", []), ("body", ["--set", "beam.accel_body_fixed=1"])):
@@ -684,7 +684,7 @@ def test_damping_controller_switches_on_without_a_transient(tmp_path, capsys):
     the base settles about twice as fast as under the servo loop alone (measured 1.48 s against 2.93 s).
     The bumpless state once took the acceleration sampled at the switch-on as a constant input: the
     command ran to 340 V, the valve sat on its rail for 0.3 s and joint 2 swung to 76 deg."""
-    from samii.measure.io import read_timeseries_csv
+    from samii.formats import read_timeseries_csv
 
     out = tmp_path / "o"
     assert main(["closedloop", "--controller", "damping", "--scenario", "loper", "--out", str(out), "--no-plots", "--json"]) == 0

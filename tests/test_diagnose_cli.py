@@ -20,8 +20,8 @@ import pytest
 
 from samii.cli import main
 from samii.diagnose.rig import EffectRig
+from samii.formats import csv_header, read_frf_csv, write_timeseries_csv
 from samii.measure.excitation import SweptSine
-from samii.measure.io import csv_header, read_frf_csv, write_timeseries_csv
 
 FS = 1000.0
 DELAY_S = 0.004
@@ -372,7 +372,7 @@ def test_refused_what_a_rig_file_gets_wrong(clean_csv, frf_clean, tmp_path, caps
     stamps rounded to single precision, and an FRF file whose phase is in radians."""
     from dataclasses import replace
 
-    from samii.measure.io import read_timeseries_csv
+    from samii.formats import read_timeseries_csv
 
     ts = read_timeseries_csv(clean_csv)
 

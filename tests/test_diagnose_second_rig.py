@@ -15,7 +15,7 @@ import pytest
 
 from samii.diagnose.diagnosis import diagnose
 from samii.diagnose.measured import from_timeseries
-from samii.measure.timeseries import TimeSeries
+from samii.timeseries import TimeSeries
 
 RIG = Path(__file__).resolve().parents[1] / "experiments" / "diagnose_battery" / "second_rig.py"
 

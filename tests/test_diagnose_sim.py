@@ -464,7 +464,7 @@ def test_with_nothing_carried_the_second_selection_is_against_the_first_selectio
 
     from samii.diagnose import diagnosis
     from samii.diagnose.measured import from_timeseries
-    from samii.measure.timeseries import TimeSeries
+    from samii.timeseries import TimeSeries
 
     sr = _second_rig()
     fs = 1000.0

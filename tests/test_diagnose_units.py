@@ -21,8 +21,8 @@ from test_diagnose_cli import run_cli
 
 from samii.diagnose.measured import from_frf
 from samii.diagnose.model import Dataset, notebook_reference, scaled_reference
+from samii.formats import read_frf_csv
 from samii.identify.structures import ModelStructure
-from samii.measure.io import read_frf_csv
 
 #: The simulator's leak at its nominal pose [1/s] (samii.diagnose.effects, kind ``leak``).
 SIM_LEAK_PER_S = 0.199

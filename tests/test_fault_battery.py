@@ -243,8 +243,8 @@ def test_lack_of_fit_on_too_few_points_is_not_tested(measured):
     """Five frequencies: a band needs five flagged points, so a lack of fit could hardly show and three points could
     never; the verdict said "none". With fewer tested points than a band needs it says NOT TESTED."""
     from samii.calibrate import calibrate
+    from samii.formats import read_frf_csv
     from samii.frequency_response import FrequencyResponse
-    from samii.measure.io import read_frf_csv
 
     frf = read_frf_csv(measured["frf"])
     idx = np.array([60, 150, 240])
@@ -403,7 +403,7 @@ def test_a_text_file_named_mat_is_read_as_the_csv_it_is(measured, tmp_path, caps
     """The content decides, not the name: an FRF CSV saved as .mat is read as the CSV; a binary file that is no MAT-file
     is refused with scipy's reason whole (it was cut to 40 characters before)."""
     from samii.diagnose.measured import load
-    from samii.measure.io import DataFormatError, read_frf_csv
+    from samii.formats import DataFormatError, read_frf_csv
 
     named = tmp_path / "frf.mat"
     named.write_bytes(Path(measured["frf"]).read_bytes())
@@ -418,8 +418,8 @@ def test_a_text_file_named_mat_is_read_as_the_csv_it_is(measured, tmp_path, caps
 @pytest.mark.slow
 def test_a_fit_on_noise_says_nothing_was_tested(measured):
     """The lack-of-fit verdict on data with no coherent point is 'not tested', never 'none'."""
+    from samii.formats import read_frf_csv
     from samii.identify import fit
-    from samii.measure.io import read_frf_csv
 
     r = fit(read_frf_csv(measured["coh0"]), profile=False)
     lof = r.lack_of_fit
@@ -541,7 +541,7 @@ def test_a_covariance_naming_no_parameter_of_the_plant_is_refused_for_that(tmp_p
 def test_a_value_error_after_the_input_was_accepted_is_an_internal_error(tmp_path, capsys, monkeypatch):
     """Once the outputs are being written the input was accepted: a ValueError then is ours (exit 1, SAMII_DEBUG advice),
     not a bad input (exit 2 with an internal message naming no file, before)."""
-    import samii.measure.io as io
+    import samii.formats as io
 
     def broken(*_a, **_k):
         raise ValueError("an internal inconsistency")
@@ -1182,8 +1182,8 @@ def _noise_frf(measured, path, *, coherence=True):
 def test_a_fit_of_noise_is_refused_and_is_never_sound(measured, tmp_path, capsys):
     """samii fit called random magnitudes and phases with coherence below 0.3 "a sound fit with caveats" (exit 0)
     while calibrate and diagnose refused them. The command refuses them now, and the library's fit is not sound."""
+    from samii.formats import read_frf_csv
     from samii.identify import fit
-    from samii.measure.io import read_frf_csv
 
     f = _noise_frf(measured, tmp_path / "noise.csv")
     assert main(["fit", f, "--no-progress"]) == 2
@@ -1247,7 +1247,7 @@ def test_a_theta_rounded_to_a_constant_gives_no_numpy_warning(measured):
     from dataclasses import replace
 
     from samii.diagnose.measured import from_timeseries
-    from samii.measure.io import read_timeseries_csv
+    from samii.formats import read_timeseries_csv
 
     ts = read_timeseries_csv(measured["ts"])
     step = 1.9 * float(np.max(np.abs(ts.theta)))  # all but the peak samples round to 0
@@ -1383,7 +1383,7 @@ def test_a_flipped_theta_is_refused_when_the_data_begin_at_1_hz(measured, tmp_pa
     flipped.write_text("\n".join(head + rows) + "\n")
     straight.write_text("\n".join(head + kept) + "\n")
     from samii.diagnose.measured import check_actuator_sign, from_frf
-    from samii.measure.io import read_frf_csv
+    from samii.formats import read_frf_csv
 
     with pytest.raises(ValueError, match=r"theta/v.s phase below 2.03 Hz is \+\d+ deg over \d+ points.* opposite sign"):
         check_actuator_sign(from_frf(read_frf_csv(flipped), source=str(flipped)))
@@ -1474,7 +1474,7 @@ def test_an_unknown_column_that_is_not_numbers_is_ignored_as_the_format_says(tmp
     """DATA_FORMATS: unknown columns are kept and ignored. A logger's text column (an operator's name), a spare channel
     with one NaN or empty cells refused the whole file, naming the column: now it is left out; a column of numbers
     is kept in extra as before, and a defect in a column the format defines is still refused."""
-    from samii.measure.io import DataFormatError, read_timeseries_csv
+    from samii.formats import DataFormatError, read_timeseries_csv
 
     p = tmp_path / "ts.csv"
     _small_timeseries_csv(p, ",operator", cells)
@@ -1490,7 +1490,7 @@ def test_an_unknown_column_that_is_not_numbers_is_ignored_as_the_format_says(tmp
 
 
 def test_an_unknown_frf_column_that_is_not_numbers_is_ignored(tmp_path):
-    from samii.measure.io import read_frf_csv
+    from samii.formats import read_frf_csv
 
     f = np.geomspace(0.1, 40.0, 30)
     lines = ["freq_hz,act_mag,act_phase_deg,note"] + [f"{float(x)!r},{float(1 / x)!r},-90.0,{'ok' if k else 'first'}" for k, x in enumerate(f)]
@@ -1612,7 +1612,7 @@ def test_messages_that_misled(tmp_path, monkeypatch, capsys):
     precision; `run --out afile/sub` said the existing file afile did not exist; a JSON file replaced by a folder gave
     "[Errno 21] Is a directory"; calibrate's hint for the 0/1 switch beam.accel_body_fixed led to a second refusal; a
     NaN value in a covariance file was said to disagree with the calibrated plant."""
-    from samii.measure.io import DataFormatError, read_timeseries_csv
+    from samii.formats import DataFormatError, read_timeseries_csv
     from samii.sim.model import default_params
 
     p = tmp_path / "unix.csv"
@@ -1715,7 +1715,7 @@ def test_an_effect_on_an_end_of_its_range_is_refused(kind, values, inside):
 def test_a_saved_fit_far_from_the_datas_level_is_refused(tmp_path, capsys):
     """A fit of theta in mrad held against data in rad (60 dB apart) was diagnosed as effects on their bounds."""
     st, ref, _, frf = _eq94_dataset()
-    from samii.measure.io import write_frf_csv
+    from samii.formats import write_frf_csv
 
     write_frf_csv(frf, tmp_path / "frf.csv")
     mrad = {k: (v * 1e3 if k == "K1" else v / 1e3 if k.startswith("B") else v) for k, v in ref.items()}
@@ -1741,7 +1741,7 @@ def test_a_phase_in_radians_is_refused_in_every_channel_and_format(tmp_path):
     first mode (its s^4 rise) is a phase in degrees, and kept."""
     import scipy.io
 
-    from samii.measure.io import DataFormatError, read_frf_csv, read_mat_bode
+    from samii.formats import DataFormatError, read_frf_csv, read_mat_bode
 
     _, _, _, frf = _eq94_dataset()
     f = frf.freq_hz

@@ -146,10 +146,10 @@ def test_a_start_s_search_never_narrows_a_mode_below_the_grid_s_resolution(tmp_p
     start mode 3 slid to 13 Hz beside the actuator zero, 901.1) while the minimum with mode 3 at 30 Hz is 892.6. A
     start's search holds a damping at half the grid's local spacing (``starts.resolvable_damping``), and the fit
     reaches that minimum."""
+    from samii.formats import read_frf_csv
     from samii.frequency_response import FrequencyResponse
     from samii.identify.cost import FitProblem
     from samii.identify.starts import auto_start, modes_from_total, resolvable_damping
-    from samii.measure.io import read_frf_csv
 
     spread = _load("simulator_spread")
     rec = spread.measure_case(39, seed=1, cache=tmp_path)
@@ -187,7 +187,7 @@ def test_a_lopsided_cost_is_read_off_its_profile_not_its_curvature(seed, case, n
     row = spread.fit_case(rec)
     assert row["ok"], row
     assert not row["ok_local"] and row["errs"][name][1] > 3.0, row["errs"][name]  # the local reading misses
-    from samii.measure.io import read_frf_csv
+    from samii.formats import read_frf_csv
 
     data = read_frf_csv(rec["frf"])
     res = fit(data, ModelStructure.notebook_3mode(), phase_weight=0.1, weighting=resolve_weighting(data, None, "auto"))

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from samii.cli import main
+from samii.formats import write_frf_csv
 from samii.identify.fit import fit, resolve_weighting
 from samii.identify.lack_of_fit import MIN_COHERENCE
 from samii.identify.structures import ModelStructure
 from samii.measure.campaign import measure_swept
 from samii.measure.daq import SensorNoise
 from samii.measure.excitation import SweptSine
-from samii.measure.io import write_frf_csv
 from samii.sim.model import load_model
 
 

@@ -22,12 +22,12 @@ import pytest  # noqa: E402
 from samii import FrequencyResponse  # noqa: E402
 from samii import notebook as nb  # noqa: E402
 from samii.cli import main  # noqa: E402
+from samii.formats import write_frf_csv  # noqa: E402
 from samii.identify import FitProblem, ModelStructure, SweptSineNoise, fit, synthesize  # noqa: E402
 from samii.identify.cost import FREQ_RANGE_HZ, frequency_out_of_range, thinning_step  # noqa: E402
 from samii.identify.fit import SEARCH_POINTS  # noqa: E402
 from samii.identify.report import fit_output_names, json_text, summary_dict  # noqa: E402
 from samii.identify.studies import from_notebook_units  # noqa: E402
-from samii.measure.io import write_frf_csv  # noqa: E402
 
 ST3 = ModelStructure.notebook_3mode()
 SI_EQ9_4 = from_notebook_units(nb.EQ9_4)

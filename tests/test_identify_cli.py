@@ -7,9 +7,9 @@ import pytest
 
 from samii import notebook as nb
 from samii.cli import main
+from samii.formats import write_frf_csv
 from samii.identify import ModelStructure, synthesize
 from samii.identify.studies import from_notebook_units
-from samii.measure.io import write_frf_csv
 
 F_HZ = np.geomspace(0.1, 40.0, 300)
 SI_EQ9_4 = from_notebook_units(nb.EQ9_4)  # the data are SI (theta in rad)

@@ -123,7 +123,7 @@ def test_samii_fit_profiles_option(tmp_path, capsys):
     import json
 
     from samii.cli import main
-    from samii.measure.io import write_frf_csv
+    from samii.formats import write_frf_csv
 
     data = synthesize(F_HZ, {c: ST3.response(nb.EQ9_4, F_HZ, c) for c in ("act", "base")}, noise=SweptSineNoise(), rng=np.random.default_rng(5))
     path = tmp_path / "frf.csv"

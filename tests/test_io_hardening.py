@@ -15,10 +15,12 @@ import numpy as np
 import pytest
 from scipy.io import savemat
 
-import samii.measure.io as mio
+import samii.formats.files as mio
+import samii.formats.mat as mat_reader
+import samii.formats.timeseries_csv as timeseries_csv
 from samii import FrequencyResponse
 from samii.errors import InputError
-from samii.measure.io import (
+from samii.formats import (
     DataFormatError,
     TimeSeriesCsvWriter,
     read_frf_csv,
@@ -28,7 +30,7 @@ from samii.measure.io import (
     write_text,
     write_timeseries_csv,
 )
-from samii.measure.timeseries import TimeSeries
+from samii.timeseries import TimeSeries
 
 TS_HEADER = "t,v,theta,accel\n"
 FRF_HEADER = "freq_hz,act_mag,act_phase_deg\n"
@@ -160,7 +162,7 @@ def test_unreadable_file_even_as_root(tmp_path, monkeypatch, reader):
 def test_file_size_is_bounded_and_stated(tmp_path, monkeypatch, reader):
     monkeypatch.setattr(mio, "MAX_FILE_BYTES", 1000)
     p = _write(tmp_path, TS_HEADER + _rows(), "big.mat" if reader is read_mat_bode else "big.csv")
-    _raises(reader, p, "at most 1000 bytes (samii.measure.io.MAX_FILE_BYTES)")
+    _raises(reader, p, "at most 1000 bytes (samii.formats.MAX_FILE_BYTES)")
 
 
 def test_read_is_bounded_even_if_the_file_grows(tmp_path, monkeypatch):
@@ -190,7 +192,7 @@ def test_huge_single_line(tmp_path):
 
 def test_line_count_is_bounded(tmp_path, monkeypatch):
     monkeypatch.setattr(mio, "MAX_LINES", 100)
-    _raises(read_timeseries_csv, _write(tmp_path, TS_HEADER + _rows(200)), "at most 100 (samii.measure.io.MAX_LINES)")
+    _raises(read_timeseries_csv, _write(tmp_path, TS_HEADER + _rows(200)), "at most 100 (samii.formats.MAX_LINES)")
 
 
 def test_huge_header_is_cut_in_the_message(tmp_path):
@@ -281,7 +283,7 @@ def test_mat_non_numeric_variable(tmp_path):
 def test_mat_reads_through_the_child_and_in_process_alike(tmp_path, monkeypatch):
     p = _mat(tmp_path, freq=np.array([1.0, 2.0, 3.0]), mean_io_mr=np.ones(3), mean_io_ph=np.array([0.0, -90, -180]), note="x")
     a = read_mat_bode(p)
-    monkeypatch.setattr(mio, "_loadmat_isolated", mio._loadmat_in_process)
+    monkeypatch.setattr(mat_reader, "_loadmat_isolated", mat_reader._loadmat_in_process)
     b = read_mat_bode(p)
     np.testing.assert_array_equal(a.act, b.act)
     np.testing.assert_array_equal(a.freq_hz, b.freq_hz)
@@ -519,7 +521,7 @@ def test_streaming_writer_cleans_up_when_the_header_write_fails(tmp_path, monkey
         def close(self):
             self.fh.close()
 
-    monkeypatch.setattr(mio, "open", lambda *a, **k: HeaderFails(real_open(*a, **k)), raising=False)
+    monkeypatch.setattr(timeseries_csv, "open", lambda *a, **k: HeaderFails(real_open(*a, **k)), raising=False)
     with pytest.raises(_Boom):
         TimeSeriesCsvWriter(tmp_path / "a.csv", ["v", "theta", "accel"], {})
     _only(tmp_path)

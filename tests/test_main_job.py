@@ -89,7 +89,7 @@ def test_main_job_is_reproducible_from_its_seed(runs):
         sa.pop(k), sb.pop(k)
     assert sa == sb
     assert (a / "measure" / "frf.csv").read_bytes() == (b / "measure" / "frf.csv").read_bytes()
-    from samii.measure.io import read_timeseries_csv
+    from samii.formats import read_timeseries_csv
 
     ta, tb = (read_timeseries_csv(r / "closedloop" / "damping_loper" / "timeseries.csv") for r in runs)
     assert np.array_equal(ta.accel, tb.accel) and np.array_equal(ta.theta, tb.theta)

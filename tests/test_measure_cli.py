@@ -10,7 +10,7 @@ from samii.sim.model import default_params
 pytest.importorskip("mujoco")
 
 from samii.cli import main  # noqa: E402
-from samii.measure.io import read_frf_csv, read_timeseries_csv  # noqa: E402
+from samii.formats import read_frf_csv, read_timeseries_csv  # noqa: E402
 
 
 @pytest.mark.slow

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from samii.measure.daq import SensorNoise, acquire
-from samii.measure.timeseries import TimeSeries
+from samii.timeseries import TimeSeries
 
 PHYS_HZ = 4000.0
 

@@ -163,7 +163,7 @@ def test_one_record_gives_no_coherence(swept, sweep):
 
 
 def test_bad_inputs(swept, sweep):
-    from samii.measure.timeseries import TimeSeries
+    from samii.timeseries import TimeSeries
 
     no_r = TimeSeries(t=swept.t, v=swept.v, theta=swept.theta, accel=swept.accel)
     with pytest.raises(ValueError, match="excitation signal r"):

@@ -7,7 +7,7 @@ import pytest
 from scipy.io import savemat
 
 from samii import FrequencyResponse
-from samii.measure.io import (
+from samii.formats import (
     DataFormatError,
     read_frf_csv,
     read_mat_bode,
@@ -15,7 +15,7 @@ from samii.measure.io import (
     write_frf_csv,
     write_timeseries_csv,
 )
-from samii.measure.timeseries import TimeSeries
+from samii.timeseries import TimeSeries
 
 TS_HEADER = "t,v,theta,accel\n"
 
@@ -296,7 +296,8 @@ def test_rows_as_they_stand_and_rows_tidied_read_the_same(tmp_path, variant):
     """The reader takes the rows after the header at once when every one is a data row as it stands (no loop over
     361,000 lines of a 6-minute 1 kHz file) and line by line otherwise: the same table and line numbers either way,
     and a comment after the header still named with its line."""
-    from samii.measure.io import DataFormatError, _read_table
+    from samii.formats import DataFormatError
+    from samii.formats.files import _read_table
 
     rows = [f"{k * 1e-3:.3f},{np.sin(k):.6f},{np.cos(k):.6f}" for k in range(50)]
     plain = tmp_path / "plain.csv"

@@ -9,9 +9,9 @@ check that a failed run leaves no file behind.
 import numpy as np
 import pytest
 
+from samii.formats import TimeSeriesCsvWriter, read_timeseries_csv, write_timeseries_csv
 from samii.measure.daq import Daq, SensorNoise, acquire
-from samii.measure.io import TimeSeriesCsvWriter, read_timeseries_csv, write_timeseries_csv
-from samii.measure.timeseries import TimeSeries
+from samii.timeseries import TimeSeries
 
 PHYS_HZ = 4000.0
 COLUMNS = ("v", "theta", "accel", "r", "p_load", "spool")

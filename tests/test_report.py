@@ -117,7 +117,7 @@ def test_report_states_the_folders_numbers(runs):
 def test_closed_loop_records_read_back_even_when_the_controller_diverges(runs):
     """Pole placement's controller output runs away within milliseconds: the run ends there, and what is
     written is a valid time series (it held 1e+290 V before: samii's own reader refused the file)."""
-    from samii.measure.io import read_timeseries_csv
+    from samii.formats import read_timeseries_csv
 
     for d in sorted((runs[0] / "closedloop").iterdir()):
         ts = read_timeseries_csv(d / "timeseries.csv")

@@ -20,7 +20,7 @@ import pytest
 from test_diagnose_cli import run_cli
 
 from samii.diagnose.measured import from_frf, load
-from samii.measure.io import read_frf_csv
+from samii.formats import read_frf_csv
 
 
 @pytest.fixture(scope="module")

@@ -59,7 +59,7 @@ def loper(tmp_path_factory):
     rrd = d / "run.rrd"
     assert main(["closedloop", "--controller", "damping", "--scenario", "loper", "--duration-s", "6", "--out", str(d / "out"),
                  "--no-plots", "--rerun", str(rrd)]) == 0  # fmt: skip
-    from samii.measure.io import read_timeseries_csv
+    from samii.formats import read_timeseries_csv
 
     return _read(rrd) + (read_timeseries_csv(d / "out" / "timeseries.csv"), rrd)
 
@@ -281,8 +281,8 @@ def test_blueprint_views_look_at_each_run(loper):
 def test_a_run_with_its_own_model_and_a_run_without_frames(tmp_path):
     """A run may bring its own model (a simulator with a body on a compliant mount at the beam's end:
     one more joint, a slide, magnified like the beam), and a run of measured data has signals but no 3D."""
-    from samii.measure.timeseries import TimeSeries
     from samii.sim.model import load_model, make_data
+    from samii.timeseries import TimeSeries
     from samii.viz.recording import RunRecord, read_scalars, write_recording
 
     plain = load_model()

@@ -65,7 +65,7 @@ def test_default_measurement_recording_is_small_and_keeps_what_is_seen(tmp_path,
     """`samii measure --noise --rerun` (the main job's measure.rrd): under 20 MB (58 MB with every sample),
     its size printed; theta read back has the record's envelope in every half second, and the animation
     keeps every frame where the sweep is fast."""
-    from samii.measure.io import read_timeseries_csv
+    from samii.formats import read_timeseries_csv
     from samii.viz.recording import read_scalars
 
     rrd = tmp_path / "m.rrd"

@@ -114,9 +114,9 @@ def truth(model, overrides, data) -> dict:
 
 def measure_case(case: int, seed: int, cache: Path = OUT / "sim_cache") -> dict:
     """Draw rig ``case`` of ``seed``, measure it and find its truth; its FRF and record cached in ``cache``."""
+    from samii.formats import write_frf_csv
     from samii.measure.campaign import measure_swept
     from samii.measure.daq import SensorNoise
-    from samii.measure.io import write_frf_csv
     from samii.sim.linearize import modes_report
     from samii.sim.model import load_model
     from samii.sim.plugin import load_plugin
@@ -148,9 +148,9 @@ def measure_case(case: int, seed: int, cache: Path = OUT / "sim_cache") -> dict:
 
 
 def fit_case(rec: dict) -> dict:
+    from samii.formats import read_frf_csv
     from samii.identify import ModelStructure, fit
     from samii.identify.fit import resolve_weighting
-    from samii.measure.io import read_frf_csv
 
     data = read_frf_csv(rec["frf"])
     t0 = time.perf_counter()

@@ -190,7 +190,7 @@ class CalibrationResult:
 
     def write_params(self, path, *, overwrite: bool = False) -> Path:
         """The calibrated parameter set as a parameter file that ``load_model`` and ``--model`` accept."""
-        from samii.measure.io import write_text
+        from samii.formats import write_text
 
         note = f"written by samii calibrate from {self.data_source or 'FRF data'}: " + ", ".join(
             f"{n} = {self.values[n]:.6g}" for n in self.names if not n.startswith(GAIN_PREFIX)

@@ -129,13 +129,13 @@ def load_target(source: str):
         raise InputError(f"DATA {source!r}: no such file (DATA is an FRF CSV, a rig-era .mat, or one of {', '.join(NOTEBOOK_TARGETS)})")
     if path.suffix.lower() not in (".csv", ".mat", ".txt"):
         raise InputError(f"DATA {source}: expected an FRF CSV (docs/DATA_FORMATS.md) or a rig-era .mat, not a {path.suffix or 'suffix-less'} file")
-    from samii.measure.io import is_mat_file
+    from samii.formats import is_mat_file
 
     if is_mat_file(path):  # (the content decides: a text file named .mat is read as the CSV it is)
-        from samii.measure.io import read_mat_bode
+        from samii.formats import read_mat_bode
 
         return read_mat_bode(path)
-    from samii.measure.io import read_frf_csv
+    from samii.formats import read_frf_csv
 
     return read_frf_csv(path)
 
@@ -257,7 +257,7 @@ def _write_outputs(result, data, folder) -> None:
     import matplotlib.pyplot as plt
 
     from samii.calibrate.simulator import SimulatorFRF
-    from samii.measure.io import write_text
+    from samii.formats import write_text
     from samii.viz.fit_plot import plot_fit_overlay
 
     structure = SimulatorFRF(result.params, result.names)

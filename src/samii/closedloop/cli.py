@@ -258,8 +258,8 @@ def run(args) -> int:
     rrd_tmp = rerun_path.parent / f".{rerun_path.name}.{os.getpid()}.tmp" if rerun_path else None
     try:
         if folder is not None:
+            from samii.formats import write_timeseries_csv
             from samii.json_output import dumps
-            from samii.measure.io import write_timeseries_csv
 
             with folder:
                 if recorded:

@@ -67,7 +67,7 @@ NOTEBOOK_UNITS_SI = ("notebook units: theta in degrees, acceleration in ft/s² (
 
 _MAX_FILE_BYTES = 10_000_000
 #: Largest magnitude of a controller matrix entry or input scale read from a file, as for any number in a
-#: measurement file (samii.measure.io.MAX_ABS_VALUE): the product of two entries beyond it can overflow a double
+#: measurement file (samii.formats.MAX_ABS_VALUE): the product of two entries beyond it can overflow a double
 #: in the controller's first step, so the run would end at t = 0 with nothing to show. No controller's gain comes
 #: near it (the servo's is 57 V/rad, the notebook's compensators' entries are below 1e4).
 MAX_ENTRY = 1e100
@@ -183,8 +183,8 @@ def controller_json(saved: SavedController) -> dict:
 def write_controller(saved: SavedController, path: str | Path) -> Path:
     """Write ``saved`` as a controller file (strict JSON, every digit kept); all or nothing (a temporary file renamed;
     a full disk's error names ``path``)."""
+    from samii.formats import write_text
     from samii.json_output import dumps
-    from samii.measure.io import write_text
 
     return write_text(path, dumps(controller_json(saved), indent=1) + "\n", overwrite=True)
 

@@ -24,7 +24,7 @@ __all__ = ["LoopSignals", "bumpless_state", "run_loop", "measurements_at"]
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 #: A controller output beyond this has diverged numerically: the valve saturates at 10 V, so no working
 #: controller's output comes within five orders of it, and a file reader refuses such a value as a
-#: measurement (samii.measure.io bounds numbers at 1e100). The run ends there (``diverged_at_s``).
+#: measurement (samii.formats bounds numbers at 1e100). The run ends there (``diverged_at_s``).
 COMMAND_DIVERGED_V = 1e6
 
 

@@ -226,7 +226,7 @@ class ClosedLoopResult:
     def timeseries(self, *, comparison: bool = False):
         """The run (``comparison``: the comparison run) in the standard time-series format (physics
         rate); ``command`` and ``controller_on`` as extra columns."""
-        from samii.measure.timeseries import TimeSeries
+        from samii.timeseries import TimeSeries
 
         s = self.comparison if comparison else self.signals
         meta = {

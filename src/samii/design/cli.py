@@ -517,7 +517,7 @@ def run_damping(args) -> int:
     from samii.closedloop import damping as dm
 
     if args.frf is not None:
-        from samii.measure.io import read_frf_csv
+        from samii.formats import read_frf_csv
 
         data = read_frf_csv(args.frf)
         missing = ([] if "act" in data.channels else ["act"]) + ([] if {"base", "total"} & set(data.channels) else ["base or total"])

@@ -93,7 +93,7 @@ def _fmt(value: float, se: float, unit: str) -> str:
 
 def _load(args):
     from samii.diagnose.measured import load
-    from samii.measure.io import DataFormatError
+    from samii.formats import DataFormatError
 
     band = tuple(args.band_hz) if args.band_hz else None
     out = []
@@ -217,7 +217,7 @@ def run(args: argparse.Namespace) -> int:
             progress.stage("writing")
             from samii.diagnose.plots import bode_figure, harmonic_figure, residual_figure, simulator_figure
             from samii.forkmap import fork_map
-            from samii.measure.io import write_text
+            from samii.formats import write_text
 
             with folder:
                 write_text(folder.path("diagnosis.json"), dumps(d.to_dict(), indent=2) + "\n")

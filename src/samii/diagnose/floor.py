@@ -46,7 +46,7 @@ from samii.measure.frf import CHANNEL_PAIRS
 from samii.measure.frf_variance import POOL, pool_mean, spectra_at, timeseries_frf
 
 if TYPE_CHECKING:
-    from samii.measure.timeseries import TimeSeries
+    from samii.timeseries import TimeSeries
 
 __all__ = ["REL_FLOOR", "PRACTICAL_FACTOR", "Floor", "quantisation_step", "controller_fir", "estimator_bias", "with_floor"]
 
@@ -146,7 +146,7 @@ def estimator_bias(
     the whole run is computed at once in the frequency domain (zero-padded 2x: an exact linear convolution for a
     loop whose response dies out within the run), cut into ``m``'s records and estimated as ``m`` was. The simulated
     time series is appended to ``keep`` when given."""
-    from samii.measure.timeseries import TimeSeries
+    from samii.timeseries import TimeSeries
 
     ts, layout = m.timeseries, m.layout
     if ts is None or layout is None or ts.r is None:

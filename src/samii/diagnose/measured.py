@@ -46,7 +46,7 @@ from samii.identify.lack_of_fit import CHANNEL_NAMES, ROUGHNESS_LAG, averages_fr
 from samii.measure.frf import CHANNEL_PAIRS
 from samii.measure.frf_variance import POOL, pool_mean, timeseries_frf
 from samii.measure.records import RecordLayout, excitation_offset, find_records
-from samii.measure.timeseries import TimeSeries
+from samii.timeseries import TimeSeries
 
 if TYPE_CHECKING:
     from samii.diagnose.floor import Floor
@@ -337,9 +337,9 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
 
 
 def _check_scale(frf: FrequencyResponse, ts: TimeSeries, source: str) -> None:
-    """Refuse a response no FRF file can hold (samii.measure.io.MAG_RANGE; its own readers would refuse what frf wrote):
+    """Refuse a response no FRF file can hold (samii.formats.MAG_RANGE; its own readers would refuse what frf wrote):
     a sample far out of scale, which the time series' reader accepts (up to 1e100), names its column and time."""
-    from samii.measure.io import MAG_RANGE
+    from samii.formats import MAG_RANGE
 
     lo, hi = MAG_RANGE
     for ch in frf.channels:
@@ -526,7 +526,7 @@ def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
     if have and len(have) < len(frf.channels):  # one noise model for the whole file: a half-known one would mix real and placeholder weights
         var = dict.fromkeys(frf.channels)
         how = f"unknown (coherence for {', '.join(have)} only)"
-    from samii.measure.io import stated_sample_rate
+    from samii.formats import stated_sample_rate
 
     sr = stated_sample_rate(meta.get("sample_rate_hz"))  # (as the reader reads it: "1 kHz" is no rate of 1 per second)
     amp = _float_meta(meta, "amplitude_v")
@@ -594,7 +594,7 @@ def load(
     path, *, band_hz: tuple[float, float] | None = None, record_s: float | None = None, mat_freq_name: str | None = None, mat_freq_unit: str = "hz"
 ) -> Measured:
     """Read a time-series CSV, an FRF CSV or a rig-era .mat file (chosen by content) as :class:`Measured`."""
-    from samii.measure.io import DataFormatError, csv_header, is_mat_file, read_frf_csv, read_mat_bode, read_timeseries_csv
+    from samii.formats import DataFormatError, csv_header, is_mat_file, read_frf_csv, read_mat_bode, read_timeseries_csv
 
     path = Path(path)
     source = str(path)

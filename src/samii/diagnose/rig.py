@@ -48,7 +48,7 @@ import scipy.fft
 from scipy import signal
 
 from samii.measure.linear_rig import DEG
-from samii.measure.timeseries import TimeSeries
+from samii.timeseries import TimeSeries
 
 __all__ = ["EffectRig", "OVERSAMPLE", "valve_law"]
 

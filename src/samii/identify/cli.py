@@ -155,8 +155,8 @@ def _csv_line_of_row(path: Path, row: int) -> int | None:
 
 def _read(args):
     """The file as a FrequencyResponse; InputError naming the file for anything a user can fix."""
+    from samii.formats import DataFormatError, csv_header, is_mat_file, read_frf_csv, read_mat_bode
     from samii.identify.cost import frequency_out_of_range
-    from samii.measure.io import DataFormatError, csv_header, is_mat_file, read_frf_csv, read_mat_bode
 
     path = Path(args.frf)
     mat = is_mat_file(path)

@@ -117,7 +117,7 @@ def study_data(
     Returns (data, noise-free version or None, note for the figures).
     """
     if path is not None:
-        from samii.measure.io import read_frf_csv
+        from samii.formats import read_frf_csv
 
         return read_frf_csv(path), None, f"data: {path}"
     data = synthetic_rig_frf(freq_hz, rng=np.random.default_rng(seed))

@@ -2,12 +2,14 @@
 
 Modules (import from them; this package imports nothing heavy):
 
-- ``timeseries``: the sampled-signals value :class:`TimeSeries`.
-- ``io``: the file formats of DATA_FORMATS.md (time-series CSV, FRF CSV, rig-era .mat).
 - ``excitation``: swept sine (:class:`SweptSine`) and stepped sine (:class:`SteppedSine`).
 - ``daq``: anti-alias filtering, sampling at the DAQ rate, seeded sensor noise.
 - ``frf``: closed-loop FRF with the excitation as instrument, with coherence.
+- ``frf_variance``: a time series' FRF with the random error of every point, from its records' spread.
 - ``stepped``: steady-state sine correlation at the stepped-sine frequencies.
 - ``linear_rig``: the notebook's transfer functions under the position loop, a
   linear stand-in used to prove the chain against an exact FRF.
+
+(The sampled-signals value :class:`samii.timeseries.TimeSeries` and the file formats, :mod:`samii.formats`, are on
+the ground floor: every stage uses them.)
 """

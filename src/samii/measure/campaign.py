@@ -21,8 +21,8 @@ from samii.measure.daq import DEFAULT_SAMPLE_RATE_HZ, Daq, SensorNoise, daq_time
 from samii.measure.excitation import SteppedSine, SweptSine
 from samii.measure.frf import estimate_frf
 from samii.measure.stepped import estimate_stepped
-from samii.measure.timeseries import SIGNAL_COLUMNS, TimeSeries
 from samii.sim.sensor_dynamics import SensorDynamics
+from samii.timeseries import SIGNAL_COLUMNS, TimeSeries
 
 __all__ = ["Run", "Measurement", "record", "measure", "measure_swept", "measure_stepped", "linearised_frf"]
 
@@ -127,7 +127,7 @@ def record(
 
     import mujoco
 
-    from samii.measure.io import TimeSeriesCsvWriter
+    from samii.formats import TimeSeriesCsvWriter
     from samii.sim.simulate import simulate
 
     dt = float(model.opt.timestep)

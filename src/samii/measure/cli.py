@@ -222,10 +222,10 @@ def run(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
+    from samii.formats import write_frf_csv, write_text
     from samii.frequency_response import SUSTAINED_POINTS, max_deviation
     from samii.measure.campaign import linearised_frf, measure
     from samii.measure.daq import SensorNoise
-    from samii.measure.io import write_frf_csv, write_text
     from samii.sim.cli_modes import parse_overrides
     from samii.sim.model import default_params, load_model, params_with_overrides, read_params_file
     from samii.sim.plugin import hydraulic_params

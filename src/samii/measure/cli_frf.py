@@ -42,7 +42,7 @@ def read_measured(path: str, *, record_s: float | None, band_hz):
     from pathlib import Path
 
     from samii.diagnose.measured import load
-    from samii.measure.io import csv_header, is_mat_file
+    from samii.formats import csv_header, is_mat_file
 
     p = Path(path)
     if is_mat_file(p):
@@ -54,7 +54,7 @@ def read_measured(path: str, *, record_s: float | None, band_hz):
             "(t, v, theta, accel, r), as samii measure writes timeseries.csv"
         )
     if "t" not in header:
-        from samii.measure.io import read_timeseries_csv
+        from samii.formats import read_timeseries_csv
 
         read_timeseries_csv(p)  # raises, naming the file and the columns it lacks
     return load(p, band_hz=band_hz, record_s=record_s)
@@ -93,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
     band = tuple(args.band_hz) if args.band_hz else None
     folder = OutputFolder(args.out, OUTPUTS, overwrite=args.overwrite)
     m = read_measured(args.timeseries, record_s=args.record_s, band_hz=band)
-    from samii.measure.io import write_frf_csv
+    from samii.formats import write_frf_csv
     from samii.viz.bode_plot import bode_plot
 
     with folder:

@@ -15,9 +15,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy import signal
 
-from samii.measure.timeseries import SIGNAL_COLUMNS, TimeSeries
 from samii.sim.sensor_dynamics import FIELDS as SENSOR_FIELDS
 from samii.sim.sensor_dynamics import SensorDynamics, SensorFilter
+from samii.timeseries import SIGNAL_COLUMNS, TimeSeries
 
 __all__ = ["SensorNoise", "Daq", "acquire", "antialias_cutoff_hz", "daq_timeseries", "DEFAULT_SAMPLE_RATE_HZ"]
 

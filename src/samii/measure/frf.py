@@ -48,7 +48,7 @@ import numpy as np
 import scipy.fft
 
 from samii.frequency_response import FrequencyResponse
-from samii.measure.timeseries import TimeSeries
+from samii.timeseries import TimeSeries
 
 __all__ = ["estimate_frf", "record_spectra", "RecordSpectra", "CHANNEL_PAIRS", "split_records", "record_weights", "fourier_at", "log_frequency_grid"]
 

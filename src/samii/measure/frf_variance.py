@@ -30,7 +30,7 @@ import scipy.fft
 from samii.frequency_response import FrequencyResponse
 from samii.measure.frf import CHANNEL_PAIRS, estimate_frf, record_weights, split_records
 from samii.measure.records import RecordLayout
-from samii.measure.timeseries import TimeSeries
+from samii.timeseries import TimeSeries
 
 __all__ = ["POOL", "pool_mean", "moving_sum", "corr_length", "cut_to_records", "spectra_at", "timeseries_frf"]
 

@@ -33,7 +33,7 @@ import numpy as np
 from scipy import signal
 
 from samii.frequency_response import FrequencyResponse
-from samii.measure.timeseries import TimeSeries
+from samii.timeseries import TimeSeries
 
 __all__ = ["LinearRig", "DEG"]
 

@@ -36,7 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from samii.frequency_response import FrequencyResponse
-from samii.measure.timeseries import TimeSeries
+from samii.timeseries import TimeSeries
 
 __all__ = ["estimate_stepped", "sine_amplitude"]
 

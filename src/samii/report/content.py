@@ -182,7 +182,7 @@ def _kind(value) -> str:
 
 
 def _trace(path: Path) -> Trace:
-    from samii.measure.io import read_timeseries_csv
+    from samii.formats import read_timeseries_csv
 
     ts = read_timeseries_csv(path)
     ref = ts.theta_ref if ts.theta_ref is not None else np.zeros_like(ts.t)

@@ -460,7 +460,7 @@ def _render(run: RunFolder, page_dir: Path | None) -> str:
 
 def write_report(run: RunFolder, path: Path | None = None) -> Path:
     """Write ``report.html`` (default: into the run's folder) and return its path."""
-    from samii.measure.io import write_text
+    from samii.formats import write_text
     from samii.outputs import parent_made_for
 
     path = Path(path) if path is not None else run.path / REPORT_NAME

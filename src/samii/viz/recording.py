@@ -36,8 +36,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from samii.measure.timeseries import TimeSeries
 from samii.sim.sensors import accel_site
+from samii.timeseries import TimeSeries
 from samii.viz.thinning import BUCKETS_PER_PERIOD, FRAMES_PER_PERIOD_SWEPT, MIN_BUCKET_RATE_HZ, MIN_THINNED_FPS, RING_S, buckets, envelope, kept
 
 __all__ = ["RunRecord", "RecordingInfo", "write_recording", "recording_failed", "read_scalars", "frame_steps_for", "TRAIL_S", "BEAM_DEFLECTION_SHOWN"]
