@@ -69,7 +69,7 @@ def main() -> None:
     }
 
     # larger controllers: the card's cost grows with the states (n^2 per step); gains tiny so the response is the servo loop's
-    from samii.design.controller import LinearController
+    from samii.controller import LinearController
 
     rng = np.random.default_rng(0)
     for ns in (16, 64):

@@ -30,7 +30,7 @@ from samii.closedloop.controllers import (
 from samii.closedloop.linear import linear_loop
 from samii.closedloop.run import run_loop
 from samii.closedloop.scenario import default_spec_factory, run_closed_loop, scenario
-from samii.design.controller import LinearController, mass_damping_controller
+from samii.controller import LinearController, mass_damping_controller
 from samii.sim.model import load_model, load_spec, make_data
 from samii.sim.sensors import accel_offset, accel_weights
 

@@ -4,10 +4,10 @@ import control
 import numpy as np
 import pytest
 
+from samii import controller as ctl
 from samii import notebook as nb
 from samii.design import cancel as cn
 from samii.design import canonical as cc
-from samii.design import controller as ctl
 from samii.design import placement as pl
 from samii.design import rootlocus as rl
 

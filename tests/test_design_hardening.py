@@ -367,7 +367,7 @@ def test_place_reports_closed_loop_stability(capsys):
 
 
 def test_unstable_poles_helper():
-    from samii.design.controller import unstable_poles
+    from samii.controller import unstable_poles
 
     assert unstable_poles([-1 + 2j, 0.1, 0j, complex(np.inf, 0)], discrete=False).tolist() == [0.1, 0j, complex(np.inf, 0)]
     assert unstable_poles([0.5, 1.0, -1.2, 0.9j], discrete=True).tolist() == [1.0, -1.2]

@@ -153,7 +153,7 @@ def test_command_delay_adds_to_the_controller_cards_delay():
     excitation: the valve sees only the card's command, so a command delay of T and a card
     delay of c steps act as one card delay of c + T/dt steps."""
     from samii.closedloop.card import build_card_model
-    from samii.design.controller import LinearController
+    from samii.controller import LinearController
 
     kp = NOMINAL.position_gain if NOMINAL.position_gain else 57.29577951308232
     m0 = load_model()
@@ -325,7 +325,7 @@ def test_the_ideal_valve_copy_keeps_the_whole_state():
     ideal-valve model must carry the whole state, the card's flag and delay line included (a copy
     of qpos/qvel/act/ctrl alone came back with the card switched on by the plugin's reset)."""
     from samii.closedloop.card import build_card_model
-    from samii.design.controller import LinearController
+    from samii.controller import LinearController
     from samii.sim.one_step import small_signal
 
     kp = 57.29577951308232

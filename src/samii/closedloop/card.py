@@ -20,7 +20,7 @@ voltage, the held command, the delay line and ``z``) is part of
 ``mjSTATE_FULLPHYSICS``, so ``mujoco.rollout`` carries it and the runner can
 switch the card on mid-run (:func:`CardModel.set_enabled`).
 
-This module turns a :class:`samii.design.controller.LinearController` (in its
+This module turns a :class:`samii.controller.LinearController` (in its
 design units, with ``input_scale`` converting SI to them) into that configuration.
 """
 
@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from samii.design.controller import LinearController
+from samii.controller import LinearController
 from samii.errors import InputError
 
 __all__ = [

@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from samii.design.controller import LinearController
+from samii.controller import LinearController
 from samii.errors import InputError
 
 __all__ = [
@@ -259,7 +259,7 @@ def read_controller(path: str | Path) -> SavedController:
     inputs = doc.get("inputs")
     if not isinstance(inputs, list) or not inputs or not all(isinstance(s, str) for s in inputs):
         raise InputError(f"{where}: field 'inputs' must be a non-empty list of measurement names (theta_ref, theta, accel)")
-    from samii.design.controller import MEASUREMENTS
+    from samii.controller import MEASUREMENTS
 
     unknown = [s for s in inputs if s not in MEASUREMENTS]
     if unknown or len(set(inputs)) != len(inputs):

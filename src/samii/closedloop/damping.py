@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from samii.closedloop.controllers import SavedController
-from samii.design.controller import LinearController
+from samii.controller import LinearController
 
 __all__ = [
     "DampingDesign",

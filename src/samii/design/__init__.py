@@ -6,9 +6,11 @@ Modules (import what you need; this package imports nothing heavy):
 * ``canonical``: controllable canonical forms derived with sympy, numeric matrices, checks, LaTeX;
 * ``placement``: the desired-pole rule, ZOH discretisation, state feedback, observer at 2x or Kalman;
 * ``cancel``: the pole-cancelling compensator and the loop it closes;
-* ``controller``: the runnable discrete-time ``Controller`` interface and ``LinearController``;
 * ``seed_report``: the notebook's design tables recomputed and compared;
 * ``cli``: ``samii design ...``.
+
+The designs return runnable controllers of :mod:`samii.controller` (the ``Controller`` interface and
+``LinearController``), which the closed loop (:mod:`samii.closedloop`) runs: it sits below both.
 """
 
-__all__ = ["rootlocus", "canonical", "placement", "cancel", "controller", "seed_report"]
+__all__ = ["rootlocus", "canonical", "placement", "cancel", "seed_report"]

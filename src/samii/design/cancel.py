@@ -56,7 +56,7 @@ import numpy as np
 from scipy import optimize
 
 from samii import notebook as nb
-from samii.design.controller import NOTEBOOK_UNITS, LinearController, from_discrete_zpk
+from samii.controller import NOTEBOOK_UNITS, LinearController, from_discrete_zpk
 
 __all__ = [
     "CancelLoop",
@@ -252,7 +252,7 @@ class PoleCancelDesign:
     @property
     def unstable_poles(self) -> np.ndarray:
         """Closed-loop poles with ``Re s >= 0`` (empty for a stable loop)."""
-        from samii.design.controller import unstable_poles
+        from samii.controller import unstable_poles
 
         return unstable_poles(self.closed_loop, discrete=False)
 
@@ -322,7 +322,7 @@ class PoleCancelDesign:
             theta_ref (0.143 at K = 0.0721). The ``"accel"`` loop has unit DC gain
             without scaling (xdd vanishes at DC) and ignores it.
         input_scale, model_units
-            As :class:`samii.design.controller.LinearController`.
+            As :class:`samii.controller.LinearController`.
         """
         T = sample_time_s
         if method == "matched":  # python-control's pole-zero matching (z = exp(s T)), from the unrounded roots
