@@ -276,12 +276,12 @@ def test_mat_file_errors_say_what_is_supported(mats, good_csv, capsys):
 
 
 def test_full_disk_leaves_nothing_behind(good_csv, tmp_path, capsys, monkeypatch):
-    import samii.viz.fit_plot as fit_plot
+    import samii.viz.figures as figures
 
     def full_disk(fig, path, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device", str(path))
 
-    monkeypatch.setattr(fit_plot, "save_figure", full_disk)
+    monkeypatch.setattr(figures, "save_figure", full_disk)
     out = tmp_path / "out"
     assert main(["fit", str(good_csv), "--start", "notebook", "--out", str(out)]) == 2
     err = capsys.readouterr().err

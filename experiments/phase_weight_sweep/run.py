@@ -26,7 +26,8 @@ from samii import notebook as nb
 from samii.identify.cost import FitProblem
 from samii.identify.report import fits_markdown, params_markdown
 from samii.identify.studies import NOTEBOOK_PHASE_WEIGHTS, phase_weight_sweep, study_setup, to_notebook_units
-from samii.viz.fit_plot import plot_fit_overlay, plot_model_error, plot_panels, plot_parameter_sweep, save_figure
+from samii.viz.figures import save_figure
+from samii.viz.fit_plot import plot_fit_overlay, plot_model_error, plot_panels, plot_parameter_sweep
 
 HERE = Path(__file__).resolve().parent
 

@@ -26,7 +26,8 @@ from samii.identify.studies import NOTEBOOK_PHASE_WEIGHTS, phase_weight_sweep, t
 from samii.measure.campaign import measure_swept
 from samii.measure.excitation import SweptSine
 from samii.sim.model import load_model
-from samii.viz.fit_plot import plot_parameter_sweep, save_figure
+from samii.viz.figures import save_figure
+from samii.viz.fit_plot import plot_parameter_sweep
 
 OUT = Path(__file__).resolve().parent / "out_simulator"
 #: The trend is read from pw 0 to pw 0.4.

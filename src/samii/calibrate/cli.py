@@ -254,7 +254,9 @@ def run(args: argparse.Namespace) -> int:
 
 def _write_outputs(result, data, folder) -> None:
     """Report JSON, parameter file and overlay Bode plot, staged in ``folder`` (:class:`samii.outputs.OutputFolder`)."""
-    import matplotlib.pyplot as plt
+    from samii.viz.figures import pyplot
+
+    plt = pyplot()
 
     from samii.calibrate.simulator import SimulatorFRF
     from samii.formats import write_text

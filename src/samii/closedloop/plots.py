@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from samii.closedloop.scenario import ClosedLoopResult
+from samii.viz.figures import panels, pyplot, save_figure
 
 __all__ = ["plot_theta", "plot_base", "plot_linear", "FIGURES"]
 
@@ -14,19 +15,13 @@ FIGURES = ("theta.png", "base_accel.png", "linear_vs_nonlinear.png")
 
 
 def _figure(rows: int = 1, height: float = 3.6):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(rows, 1, figsize=(9.0, height * rows), sharex=True, squeeze=False)
-    return plt, fig, ax[:, 0]
+    fig, axes = panels(rows, height)
+    return pyplot(), fig, axes
 
 
 def _save(plt, fig, path: Path) -> None:
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def _mark_events(ax, r: ClosedLoopResult) -> None:
@@ -47,10 +42,7 @@ def _too_short(r: ClosedLoopResult) -> bool:
 
 def _figure_with_zoom():
     """One panel and, beside it, a narrow one for the first moments of a run too short to see in it."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, (ax, zoom) = plt.subplots(1, 2, figsize=(11.0, 3.6), gridspec_kw={"width_ratios": [3, 1.2]})
     return plt, fig, ax, zoom

@@ -9,6 +9,7 @@ import numpy as np
 
 from samii.diagnose.diagnosis import Diagnosis
 from samii.identify.lack_of_fit import is_stepped_sine
+from samii.viz.figures import pyplot, save_figure
 
 __all__ = ["residual_figure", "bode_figure", "harmonic_figure", "simulator_figure"]
 
@@ -20,15 +21,12 @@ _UNITS = {"act": "rad/V", "base": "(m/s²)/rad", "total": "(m/s²)/V"}
 
 def _finish(fig, title: str, path, fontsize: float | None = None):
     """Title and lay out ``fig``; saved to ``path`` and closed when a path is given."""
-    import matplotlib.pyplot as plt
-
     fig.suptitle(title, fontsize=fontsize)
     # laid out as it is drawn (the same layout as tight_layout(), without a second pass over every tick label first:
     # the residual figure's six log axes took 1.5 s to save, 1.0 s so)
     fig.set_layout_engine("tight")
     if path is not None:
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
+        save_figure(fig, path)
     return fig
 
 
@@ -69,10 +67,7 @@ def _label(d: Diagnosis, i: int) -> str:
 def residual_figure(d: Diagnosis, path=None):
     """Residual data/model of θ/v, ẍ/θ and ẍ/v, its magnitude in dB and its phase in degrees, before and after, with ±2σ of the data's noise (and
     systematic floor); unexplained bands in red, bands where the records differ in orange."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     before, after = d.residuals("before"), d.residuals("after")
     same = not d.effects and d.raw_measured is None  # nothing found: the residual before is the residual after
@@ -202,10 +197,7 @@ def _label_bode(axes, chans) -> None:
 
 def bode_figure(d: Diagnosis, path=None):
     """Magnitude and phase of θ/v, ẍ/θ and ẍ/v: data (points, where usable), baseline (dashed) and the augmented model (solid), every file."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     residuals = d.residuals("after")
     same = not d.effects and d.raw_measured is None  # nothing found: the augmented model is the baseline
@@ -259,10 +251,7 @@ def harmonic_figure(d: Diagnosis, path=None):
     """The sweep's 2nd and 3rd harmonics referred to the valve command, relative to its fundamental, per segment of
     every time-series file, with twice their noise and the 1 % level below which none is claimed; significant
     segments filled; the law found (its describing function's c3/c1, an asymmetry's c2/c1) as a line."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     import matplotlib.ticker
 
     from samii.diagnose.nonlinear import MATERIAL, predicted_ratio
@@ -344,10 +333,7 @@ def simulator_figure(d: Diagnosis, path=None):
     """``--baseline sim``: each file's data (points) beside the simulator measured like it, calibrated
     without the effects (dashed) and with them carried and recalibrated (solid); θ/v and ẍ/v, the
     channels the valve's command drives. None when the diagnosis has no simulator block."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     rep = d.simulator
     if rep is None:

@@ -150,7 +150,8 @@ def write_fit_outputs(data: FrequencyResponse, results: Sequence[FitResult], out
 
 
 def _write(folder, data: FrequencyResponse, results: Sequence[FitResult], note: str | None) -> None:
-    from samii.viz.fit_plot import plot_fit_overlay, plot_parameter_sweep, save_figure
+    from samii.viz.figures import save_figure
+    from samii.viz.fit_plot import plot_fit_overlay, plot_parameter_sweep
 
     many = len(results) > 1
     for r in results:

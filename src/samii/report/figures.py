@@ -8,6 +8,7 @@ import io
 import numpy as np
 
 from samii.report.content import Trace
+from samii.viz.figures import panels, pyplot
 
 __all__ = ["figure_ch11_step", "figure_ch11_loper", "figure_damping"]
 
@@ -16,13 +17,8 @@ _DPI = 100
 
 
 def _figure(rows: int, height: float = 2.9):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(rows, 1, figsize=(9.0, height * rows), sharex=True, squeeze=False)
-    return plt, fig, ax[:, 0]
+    fig, axes = panels(rows, height)
+    return pyplot(), fig, axes
 
 
 def _png(plt, fig, axes, t_end: float) -> bytes:

@@ -10,6 +10,7 @@ from samii.robust.sampling import PlantDraws
 from samii.robust.study import StudySummary
 from samii.robust.task import SampleResult
 from samii.sim.cli_params import unit as param_unit
+from samii.viz.figures import pyplot, save_figure
 
 __all__ = ["plot_histograms", "plot_influence", "FIGURES"]
 
@@ -17,10 +18,7 @@ FIGURES = ("histograms.png", "influence.png")
 
 
 def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     return plt
 
@@ -71,8 +69,7 @@ def plot_histograms(results: list[SampleResult], summary: StudySummary, title: s
     for a in (a1, a2):
         a.grid(True, alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def plot_influence(draws: PlantDraws, results: list[SampleResult], summary: StudySummary, path: Path, top: int = 3) -> None:
@@ -100,5 +97,4 @@ def plot_influence(draws: PlantDraws, results: list[SampleResult], summary: Stud
     axes[0][0].legend(fontsize=8)
     fig.suptitle("stability against the most influential parameters", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)

@@ -9,17 +9,17 @@ from pathlib import Path
 
 import numpy as np
 
+from samii.viz.figures import pyplot, save_figure
+
 __all__ = ["plot_cancel_locus"]
 
 
 def plot_cancel_locus(design, *, notebook_gain: float | None = None, path: str | Path | None = None, n_gains: int = 400):
     """Closed-loop poles of ``1 + K L = 0`` for K from 0 to the design gain; full view and zoom near the origin."""
-    import matplotlib
 
-    if path is not None:
-        matplotlib.use("Agg", force=False)
     import control
-    import matplotlib.pyplot as plt
+
+    plt = pyplot(agg=path is not None)
 
     from samii.design.cancel import closed_loop_poles, pair_zetas
 
@@ -73,6 +73,5 @@ def plot_cancel_locus(design, *, notebook_gain: float | None = None, path: str |
         fontsize=13,
     )
     if path is not None:
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
+        save_figure(fig, path, dpi=100)
     return fig

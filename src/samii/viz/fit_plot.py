@@ -12,8 +12,9 @@ import numpy as np
 from samii.frequency_response import Channel, FrequencyResponse
 from samii.viz.bode_plot import CHANNEL_LABELS
 
-__all__ = ["plot_fit_overlay", "plot_model_error", "plot_parameter_sweep", "plot_panels", "save_figure"]
+__all__ = ["plot_fit_overlay", "plot_model_error", "plot_parameter_sweep", "plot_panels"]
 
+from samii.viz.figures import pyplot
 from samii.viz.phase import ANCHOR_COHERENCE, anchored_phase_deg
 
 #: Alternate solid and dashed lines so that curves lying on top of each other stay visible.
@@ -102,7 +103,7 @@ def plot_fit_overlay(
     -------
     matplotlib.figure.Figure
     """
-    import matplotlib.pyplot as plt
+    plt = pyplot(agg=False)
 
     channels = tuple(channels or [c for c in ("act", "base") if c in data.channels] or data.channels)
     f = data.freq_hz
@@ -177,7 +178,7 @@ def plot_model_error(
 
     ``errors``: label -> channel -> (dB error, deg error) on ``freq_hz``.
     """
-    import matplotlib.pyplot as plt
+    plt = pyplot(agg=False)
 
     channels = list(next(iter(errors.values())))
     fig, axes = plt.subplots(2, len(channels), figsize=(5.2 * len(channels), 5.9), sharex=True, squeeze=False)
@@ -211,7 +212,7 @@ def plot_panels(
     logx: bool = False,
 ):
     """Side-by-side line plots: panel y-label -> series label -> values at ``x``."""
-    import matplotlib.pyplot as plt
+    plt = pyplot(agg=False)
 
     fig, axes = plt.subplots(1, len(panels), figsize=(4.6 * len(panels), 3.6), squeeze=False)
     for a, (ylabel, series) in zip(axes[0], panels.items()):
@@ -310,7 +311,7 @@ def plot_parameter_sweep(
     estimates and the reference. Positive values spanning more than a factor
     ``LOG_SPAN`` (a lag on its bound at 1e6 rad/s beside 100 rad/s) get a log axis.
     """
-    import matplotlib.pyplot as plt
+    plt = pyplot(agg=False)
 
     n = len(names)
     cols = 4 if n > 9 else 3
@@ -356,11 +357,3 @@ def plot_parameter_sweep(
             handles.setdefault(label, h)
     axes.flat[0].legend(list(handles.values()), list(handles), fontsize=6)
     return _finish(fig, title, note, note_height=0.04)
-
-
-def save_figure(fig, path, *, dpi: int = 110) -> None:
-    """Save and close ``fig`` (PNG at a modest dpi keeps committed figures small)."""
-    import matplotlib.pyplot as plt
-
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from samii.viz.figures import pyplot, save_figure
+
 __all__ = ["plot_pole_sets"]
 
 
@@ -14,11 +16,8 @@ def plot_pole_sets(design, *, path: str | Path | None = None):
 
     ``design`` is a :class:`samii.design.placement.PlacementDesign`.
     """
-    import matplotlib
 
-    if path is not None:
-        matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    plt = pyplot(agg=path is not None)
 
     from samii.design.placement import unity_feedback_poles
 
@@ -62,6 +61,5 @@ def plot_pole_sets(design, *, path: str | Path | None = None):
     fig.legend(*a2.get_legend_handles_labels(), loc="outside lower center", ncols=3, fontsize=10.5)
     fig.suptitle("Chapter 8 pole placement on the eq 1.4 model (1 accelerometer, canonical form of chapter 5)", fontsize=13)
     if path is not None:
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
+        save_figure(fig, path, dpi=100)
     return fig

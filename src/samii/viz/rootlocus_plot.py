@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from samii.viz.figures import pyplot, save_figure
+
 __all__ = ["plot_root_locus", "plot_variant", "stable_text", "ZOOM_RAD_S", "FONT", "DPI", "FIGSIZE_IN"]
 
 #: Zoomed view around the base modes and the origin (real, imaginary limits in 1/s and rad/s),
@@ -63,7 +65,7 @@ def plot_root_locus(data, *, ax=None, zoom: bool = False, best=None, limit=None,
     stable : str, optional
         The stable gain range of this sign, added as a legend entry.
     """
-    import matplotlib.pyplot as plt
+    plt = pyplot(agg=False)
 
     if ax is None:
         _, ax = plt.subplots(figsize=(8, 6.5))
@@ -145,11 +147,7 @@ def plot_variant(loop, summary=None, *, path: str | Path | None = None, n_gains:
     """
     import textwrap
 
-    import matplotlib
-
-    if path is not None:
-        matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    plt = pyplot(agg=path is not None)
 
     from samii.design import rootlocus as rl
 
@@ -181,6 +179,5 @@ def plot_variant(loop, summary=None, *, path: str | Path | None = None, n_gains:
                     title=f"{name}: {text.replace('K_a', '$K_a$')}", title_fontsize=FONT["legend"] + 0.5, alignment="left")  # fmt: skip
     fig.suptitle(header, fontsize=FONT["suptitle"], y=0.994, va="top")
     if path is not None:
-        fig.savefig(path, dpi=DPI)
-        plt.close(fig)
+        save_figure(fig, path, dpi=DPI)
     return fig

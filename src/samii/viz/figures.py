@@ -1,0 +1,31 @@
+"""The figure helpers every plotting module shares: pyplot (on the Agg backend for files), a column of panels
+sharing their x axis, and saving a figure and closing it. matplotlib is imported on first use: a command that draws
+nothing does not load it."""
+
+from __future__ import annotations
+
+__all__ = ["pyplot", "panels", "save_figure"]
+
+
+def pyplot(*, agg: bool = True):
+    """``matplotlib.pyplot``, on the Agg backend (files, no screen) when ``agg``; ``agg=False`` keeps the session's
+    backend (a figure only returned, for a notebook to show)."""
+    import matplotlib
+
+    if agg:
+        matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def panels(rows: int, height: float, *, width: float = 9.0):
+    """``(fig, axes)``: ``rows`` panels one above the other sharing their x axis, ``height`` [in] each; ``axes`` 1-D."""
+    fig, ax = pyplot().subplots(rows, 1, figsize=(width, height * rows), sharex=True, squeeze=False)
+    return fig, ax[:, 0]
+
+
+def save_figure(fig, path, *, dpi: int = 110) -> None:
+    """Save ``fig`` to ``path`` and close it (PNG at a modest dpi keeps committed figures small)."""
+    fig.savefig(path, dpi=dpi)
+    pyplot(agg=False).close(fig)
