@@ -708,7 +708,7 @@ def test_a_run_killed_between_its_two_renames_gives_the_previous_output_back(tmp
     into place. Killed outright between them, --out was missing, and the next run's clean-up removed both hidden
     folders: the user's previous output and the killed run's. Now the next run moves the previous one back first
     (and says so), then goes on as with any previous output."""
-    from samii.main_job import MARKER
+    from samii.run_summary import MARKER
 
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()

@@ -42,7 +42,7 @@ def test_main_job_writes_every_stage_and_a_short_summary(runs, capsys):
     for ch in ("act", "total"):
         assert dg["error_after"][ch]["chi2"] < dg["error_before"][ch]["chi2"], ch
     # the summary printed: at most 20 lines, naming what was done
-    from samii.main_job import summary_lines
+    from samii.run_summary import summary_lines
 
     lines = summary_lines(s, a)
     assert len(lines) <= 20

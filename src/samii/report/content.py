@@ -16,6 +16,7 @@ import numpy as np
 
 from samii.closedloop.controllers import FT_PER_M
 from samii.errors import InputError
+from samii.run_summary import MARKER
 
 __all__ = ["Trace", "RunFolder", "read_run_folder", "ParamRow", "parameter_rows", "STAGE_FIGURES", "RECORDINGS", "FieldLog", "traced"]
 
@@ -195,8 +196,8 @@ def read_run_folder(path) -> RunFolder:
     if not folder.is_dir():
         raise InputError(f"{folder}: not a folder (expected a main job's output, samii run --out)")
     summary = _json(folder, "summary.json")
-    if summary.get("written_by") != "samii run":
-        raise InputError(f"{folder / 'summary.json'}: field 'written_by' is {summary.get('written_by')!r}, expected 'samii run'")
+    if summary.get("written_by") != MARKER:
+        raise InputError(f"{folder / 'summary.json'}: field 'written_by' is {summary.get('written_by')!r}, expected {MARKER!r}")
     closed, traces = {}, {}
     runs = summary.get("closed_loop", {})
     if not isinstance(runs, dict) or not all(isinstance(v, dict) for v in runs.values()):

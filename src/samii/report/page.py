@@ -212,7 +212,7 @@ def _fit(run: RunFolder) -> str:
 
 
 def _closed_loop(run: RunFolder) -> str:
-    from samii.main_job import CONTROLLERS
+    from samii.run_summary import CONTROLLERS
 
     s = run.summary
     cl = s["closed_loop"]
@@ -448,7 +448,7 @@ def render_report(run: RunFolder, page_dir: Path | None = None) -> str:
 
 
 def _render(run: RunFolder, page_dir: Path | None) -> str:
-    from samii.main_job import summary_lines
+    from samii.run_summary import summary_lines
 
     body = "".join([_header(run, summary_lines(run.summary, run.display_name or run.path.name)), _model(run), _measurement(run), _fit(run), _closed_loop(run),
                     _diagnosis(run), _recordings(run, page_dir if page_dir is not None else run.path)])  # fmt: skip
