@@ -365,20 +365,20 @@ def test_measure_failure_while_writing_leaves_nothing(out_dir, capsys, monkeypat
     """A full disk (or any failure) after the simulation: no partial folder, the user's file untouched."""
     import errno
 
-    import samii.formats as io
+    import samii.formats as formats
 
     def full_disk(*_a, **_k):
         raise OSError(errno.ENOSPC, "No space left on device", "frf.csv")
 
-    monkeypatch.setattr(io, "write_frf_csv", full_disk)
+    monkeypatch.setattr(formats, "write_frf_csv", full_disk)
     _run_bad(["measure", "--out", str(out_dir), "--no-progress", "--method", "stepped", "--freqs-hz", "20"], capsys, 2, "space", out_dir)
     assert not [p for p in os.listdir(out_dir) if p.startswith(".samii-stage")]
 
 
 def test_measure_failure_in_a_new_folder_removes_it(tmp_path, capsys, monkeypatch):
-    import samii.formats as io
+    import samii.formats as formats
 
-    monkeypatch.setattr(io, "write_frf_csv", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt()))
+    monkeypatch.setattr(formats, "write_frf_csv", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt()))
     target = tmp_path / "new" / "deeper"
     assert main(["measure", "--out", str(target), "--no-progress", "--method", "stepped", "--freqs-hz", "20"]) == 130
     assert "interrupted" in capsys.readouterr().err

@@ -541,12 +541,12 @@ def test_a_covariance_naming_no_parameter_of_the_plant_is_refused_for_that(tmp_p
 def test_a_value_error_after_the_input_was_accepted_is_an_internal_error(tmp_path, capsys, monkeypatch):
     """Once the outputs are being written the input was accepted: a ValueError then is ours (exit 1, SAMII_DEBUG advice),
     not a bad input (exit 2 with an internal message naming no file, before)."""
-    import samii.formats as io
+    import samii.formats as formats
 
     def broken(*_a, **_k):
         raise ValueError("an internal inconsistency")
 
-    monkeypatch.setattr(io, "write_frf_csv", broken)
+    monkeypatch.setattr(formats, "write_frf_csv", broken)
     monkeypatch.delenv("SAMII_DEBUG", raising=False)
     out = tmp_path / "m"
     assert main(["measure", "--out", str(out), "--no-progress", "--method", "stepped", "--freqs-hz", "20"]) == 1

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.stats import norm
+from scipy.stats import chi2, norm
 
 from samii import notebook as nb
 from samii.identify import ModelStructure, SweptSineNoise, fit, synthesize
-from samii.identify.fit import PROFILE_3SIGMA
+from samii.identify.fit import PROFILE_3SIGMA, PROFILE_BELOW_CONCERN
 from samii.identify.profile import RANGE_FACTOR, TAU_STOP, profile_scan
 
 ST3 = ModelStructure.notebook_3mode()
@@ -135,6 +135,11 @@ def test_samii_fit_profiles_option(tmp_path, capsys):
     assert lo < out["params"]["w1"] < hi
     assert main(["fit", str(path), "--json", "--no-progress", "--profiles", "off"]) == 0
     assert json.loads(capsys.readouterr().out)["profile_intervals"] == {}
+
+
+def test_the_profile_concern_level_is_chi2_s_999_quantile_on_one_dof():
+    # fit.py keeps the number typed (scipy.stats is not imported by the fit): it must be the quantile its comment names
+    assert PROFILE_BELOW_CONCERN == pytest.approx(chi2.isf(1e-3, 1), abs=5e-3)
 
 
 def test_a_fit_its_own_profile_undercuts_is_not_sound(monkeypatch):

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from scipy.io import savemat
 
-import samii.formats.files as mio
+import samii.formats.files as files
 import samii.formats.mat as mat_reader
 import samii.formats.timeseries_csv as timeseries_csv
 from samii import FrequencyResponse
@@ -154,13 +154,13 @@ def test_unreadable_file_even_as_root(tmp_path, monkeypatch, reader):
     def refuse(*a, **k):
         raise PermissionError(13, "Permission denied", str(p))
 
-    monkeypatch.setattr(mio.os, "open", refuse)
+    monkeypatch.setattr(files.os, "open", refuse)
     _raises(reader, p, "is not readable (permission denied)")
 
 
 @pytest.mark.parametrize("reader", READERS)
 def test_file_size_is_bounded_and_stated(tmp_path, monkeypatch, reader):
-    monkeypatch.setattr(mio, "MAX_FILE_BYTES", 1000)
+    monkeypatch.setattr(files, "MAX_FILE_BYTES", 1000)
     p = _write(tmp_path, TS_HEADER + _rows(), "big.mat" if reader is read_mat_bode else "big.csv")
     _raises(reader, p, "at most 1000 bytes (samii.formats.MAX_FILE_BYTES)")
 
@@ -177,21 +177,21 @@ def test_read_is_bounded_even_if_the_file_grows(tmp_path, monkeypatch):
         def __getattr__(self, name):
             return 10 if name == "st_size" else getattr(self._st, name)
 
-    monkeypatch.setattr(mio.os, "stat", lambda path, *a, **k: SmallStat(real_stat(path, *a, **k)))
-    monkeypatch.setattr(mio, "MAX_FILE_BYTES", 5000)
+    monkeypatch.setattr(files.os, "stat", lambda path, *a, **k: SmallStat(real_stat(path, *a, **k)))
+    monkeypatch.setattr(files, "MAX_FILE_BYTES", 5000)
     _raises(read_timeseries_csv, p, "grew beyond that")
 
 
 def test_huge_single_line(tmp_path):
-    p = _write(tmp_path, "1," * (mio.MAX_LINE_CHARS // 2 + 10))
+    p = _write(tmp_path, "1," * (files.MAX_LINE_CHARS // 2 + 10))
     for reader in (read_timeseries_csv, read_frf_csv):
-        _raises(reader, p, f"expected at most {mio.MAX_LINE_CHARS}", line=1)
-    p = _write(tmp_path, TS_HEADER + "0,0,0,0\n" + "9" * (mio.MAX_LINE_CHARS + 1) + "\n", "late.csv")
+        _raises(reader, p, f"expected at most {files.MAX_LINE_CHARS}", line=1)
+    p = _write(tmp_path, TS_HEADER + "0,0,0,0\n" + "9" * (files.MAX_LINE_CHARS + 1) + "\n", "late.csv")
     _raises(read_timeseries_csv, p, "characters long", line=3)
 
 
 def test_line_count_is_bounded(tmp_path, monkeypatch):
-    monkeypatch.setattr(mio, "MAX_LINES", 100)
+    monkeypatch.setattr(files, "MAX_LINES", 100)
     _raises(read_timeseries_csv, _write(tmp_path, TS_HEADER + _rows(200)), "at most 100 (samii.formats.MAX_LINES)")
 
 
@@ -465,13 +465,13 @@ def test_write_atomic_removes_its_temp_file_on_ctrl_c(tmp_path, monkeypatch, whe
                 self.fh.write(text[:10])
                 raise _Boom()
 
-        monkeypatch.setattr(mio, "open", lambda *a, **k: Exploding(real_open(*a, **k)), raising=False)
+        monkeypatch.setattr(files, "open", lambda *a, **k: Exploding(real_open(*a, **k)), raising=False)
     else:
 
         def boom(*a, **k):
             raise _Boom()
 
-        monkeypatch.setattr(mio.os, where, boom)
+        monkeypatch.setattr(files.os, where, boom)
     with pytest.raises(_Boom):
         write_text(tmp_path / "out.txt", "hello\n" * 100, overwrite=overwrite)
     _only(tmp_path)
@@ -493,7 +493,7 @@ def test_streaming_writer_removes_its_temp_file_whatever_happens(tmp_path, monke
         raise _Boom()
 
     with monkeypatch.context() as m:
-        m.setattr(mio.os, "link", boom)
+        m.setattr(files.os, "link", boom)
         with pytest.raises(_Boom):
             w.close()
     _only(tmp_path)
@@ -595,7 +595,7 @@ def test_bad_timeseries_inputs(tmp_path, data, line, column, expected):
         (FRF_HEADER + "1,1,0,7\n", 2, None, "expected 3 comma-separated values"),
         (FRF_HEADER + "1,1\n", 2, None, "got 2"),
         ("# note: caf\xe9\n".encode("latin-1") + (FRF_HEADER + "1,1,0\n").encode(), 1, None, "UTF-8"),
-        ("x" * (mio.MAX_LINE_CHARS + 5), 1, None, "characters long"),
+        ("x" * (files.MAX_LINE_CHARS + 5), 1, None, "characters long"),
         ("freq_hz,other\n1,1\n", 1, None, "no channel found"),
     ],
 )

@@ -139,7 +139,9 @@ def test_the_default_stepped_sine_finds_the_pair_mode_3_makes_in_theta_v(tmp_pat
     assert found["act_mode"]["zero_freq_hz"] == pytest.approx(24.90, rel=0.03)
     assert found["valve"]["freq_hz"] == pytest.approx(31.74, rel=0.05)
     assert d["baseline_params"][0]["w3"] / (2 * np.pi) == pytest.approx(24.90, rel=0.03)
-    assert d["chi2_per_dof"]["after"] < 0.5 * 29.3  # (29.3 with the valve alone)
+    # 29.3: this command's chi2 per degree of freedom after the valve alone, measured (stop 45) before the spacing rule
+    # let the pair join; with the pair it was 8.8. (The docstring's 33 is per residual, on the time series.)
+    assert d["chi2_per_dof"]["after"] < 0.5 * 29.3
 
 
 def test_a_pair_closer_than_the_spacing_is_resolved_only_by_standard_errors_of_the_datas_own_noise():

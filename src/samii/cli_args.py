@@ -26,6 +26,7 @@ __all__ = [
     "add_json",
     "add_model",
     "add_set",
+    "add_rerun",
     "add_no_progress",
 ]
 
@@ -172,6 +173,16 @@ def add_model(
 def add_set(parser: argparse.ArgumentParser, help: str = "override a model parameter (samii params lists them); repeatable") -> None:
     """``--set NAME=VALUE``, repeatable (``args.set``: the texts, parsed by the command)."""
     parser.add_argument("--set", metavar="NAME=VALUE", action="append", default=[], help=help)
+
+
+#: --rerun-fps's help where a command keeps every frame.
+RERUN_FPS_HELP = "animation frames per second in the recording (default: 4 per period of base mode 3, at least 100)"
+
+
+def add_rerun(parser: argparse.ArgumentParser, help: str, *, fps_help: str = RERUN_FPS_HELP) -> None:
+    """``--rerun FILE.rrd`` (a Rerun recording beside the outputs) and ``--rerun-fps F``, its frame rate."""
+    parser.add_argument("--rerun", metavar="FILE.rrd", type=nonempty_path, help=help)
+    parser.add_argument("--rerun-fps", metavar="F", type=positive_float, default=None, help=fps_help)
 
 
 def add_no_progress(parser: argparse.ArgumentParser) -> None:

@@ -11,7 +11,7 @@ import math
 from pathlib import Path
 
 from samii.cli_args import add_band, add_json, add_model, add_out, add_overwrite, add_set, float_in, int_in, name_value
-from samii.errors import InputError
+from samii.errors import InputError, input_error_of
 
 __all__ = ["add_arguments", "run", "load_target"]
 
@@ -207,12 +207,10 @@ def run(args: argparse.Namespace) -> int:
             confirm=confirm,
             data_source=args.data,
         )
-    except KeyError as exc:
-        raise InputError(f"{args.data}: {exc.args[0] if exc.args else exc}") from None
-    except ValueError as exc:  # the data's validation (too few frequencies, a zero response, ...): name the file
+    except (KeyError, ValueError) as exc:  # the data's validation (too few frequencies, a zero response, ...): name the file
         if isinstance(exc, InputError):
             raise
-        raise InputError(f"{args.data}: {' '.join(str(exc).split())}") from None
+        raise input_error_of(args.data, exc) from None
     written = []
     if folder is not None:
         with folder:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from samii.cli_args import add_json, add_model, add_out, add_overwrite, add_set, float_in, nonempty_path, positive_float, seed
+from samii.cli_args import add_json, add_model, add_out, add_overwrite, add_rerun, add_set, float_in, seed
 from samii.errors import InputError
 
 __all__ = ["add_arguments", "run", "BUILTIN_CONTROLLERS", "resolve_controller", "model_at_rest", "check_fits"]
@@ -89,19 +89,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_set(parser, "override a model parameter, e.g. hydraulic.bulk_modulus=1e9 (repeatable; samii params lists them)")
     add_out(parser, "write timeseries.csv, run.json and the figures here")
     parser.add_argument("--no-plots", action="store_true", help="with --out, no figures")
-    parser.add_argument(
-        "--rerun",
-        metavar="FILE.rrd",
-        type=nonempty_path,
-        help="also write a Rerun recording of the run: the beam and arm in 3D with their deflection magnified, the signals grouped by unit, "
+    add_rerun(
+        parser,
+        "also write a Rerun recording of the run: the beam and arm in 3D with their deflection magnified, the signals grouped by unit, "
         "the base modes' coordinates, the controller's switch-on, and a stored layout",
-    )
-    parser.add_argument(
-        "--rerun-fps",
-        metavar="F",
-        type=positive_float,
-        default=None,
-        help="animation frames per second in the recording (default: 4 per period of base mode 3, at least 100)",
     )
     add_overwrite(parser, "replace existing output files")
     add_json(parser, "print the result as JSON")

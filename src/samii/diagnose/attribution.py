@@ -129,14 +129,14 @@ class Placed:
 
     what: str
     freqs_hz: tuple[float, ...]
-    channel: str  # "act", "base" or "both"
+    channel: str  # "act" or "base"
     baseline: bool = False
     #: What each frequency is where there are several ("pole", "zero"), in ``freqs_hz``'s order
     roles: tuple[str, ...] = ()
 
     def text(self) -> str:
 
-        side = "both channels" if self.channel == "both" else CHANNEL_NAMES.get(self.channel, self.channel)
+        side = CHANNEL_NAMES.get(self.channel, self.channel)
         if self.baseline:
             name = "theta/v resonance wp" if self.what == "wp" else self.what
             return f"the baseline's {name} ({self.freqs_hz[0]:.3g} Hz; {side})"

@@ -18,7 +18,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from samii.cli_args import add_band, add_json, add_model, add_no_progress, add_out, add_overwrite, nonempty_path, positive_float
+from samii.cli_args import add_band, add_json, add_model, add_no_progress, add_out, add_overwrite, add_rerun, nonempty_path, positive_float
 from samii.errors import InputError, input_error_of
 
 __all__ = ["add_arguments", "run", "OUTPUTS", "MAX_FILES"]
@@ -62,20 +62,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mat-freq-name", metavar="NAME", default=None, help="name of the frequency vector in a .mat file")
     parser.add_argument("--mat-freq-unit", choices=("hz", "rad/s"), default="hz", help="unit of that vector (default hz)")
     add_out(parser, "write diagnosis.json, residuals.png and bode.png here")
-    parser.add_argument(
-        "--rerun",
-        metavar="FILE.rrd",
-        type=nonempty_path,
-        help="with --baseline sim: also write a Rerun recording of the simulator against the data: each file's "
+    add_rerun(
+        parser,
+        "with --baseline sim: also write a Rerun recording of the simulator against the data: each file's "
         "record beside the simulator measured like it before and after the effects were carried (3D with the "
         "beam's deflection magnified, signals by unit; the file must not exist unless --overwrite)",
-    )
-    parser.add_argument(
-        "--rerun-fps",
-        metavar="F",
-        type=positive_float,
-        default=None,
-        help="animation frames per second in the recording (default: 4 per period of base mode 3, at least 100)",
     )
     add_overwrite(parser, "replace files already in --out (and --rerun)")
     add_json(parser, "print the diagnosis as JSON (numbers not defined are null)")

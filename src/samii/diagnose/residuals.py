@@ -10,7 +10,7 @@ Unexplained bands: :func:`unexplained_bands` (the test is described in :mod:`sam
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 from scipy import stats
@@ -55,7 +55,7 @@ class ChannelError:
     n_points: int
 
     def to_dict(self) -> dict:
-        return {"rms_db": self.rms_db, "rms_deg": self.rms_deg, "chi2": self.chi2, "n_points": self.n_points}
+        return asdict(self)
 
 
 @dataclass(frozen=True)
@@ -73,15 +73,7 @@ class Band:
     why: str = "residual"
 
     def to_dict(self) -> dict:
-        return {
-            "source": self.source,
-            "channel": self.channel,
-            "lo_hz": self.lo_hz,
-            "hi_hz": self.hi_hz,
-            "chi2": self.chi2,
-            "n_points": self.n_points,
-            "why": self.why,
-        }
+        return asdict(self)
 
 
 def model_response(fit: Fit, i: int, freq_hz: np.ndarray, *, sampled: bool = True) -> dict[str, np.ndarray]:

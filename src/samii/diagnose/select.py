@@ -264,6 +264,14 @@ def _duplicate_mode(e: Effect, fit: Fit) -> bool:
 RESOLVED_SE = 3.0
 
 
+def _pair_separation_se(e) -> float:
+    """How many joint standard errors an actuator mode's pole and zero stand apart, in ln: |ln(f_pole/f_zero)| over
+    the two frequencies' standard errors in ln added in quadrature (nan where they have none)."""
+    se = np.hypot(_log_se(e, "freq_hz"), _log_se(e, "zero_freq_hz"))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return float(abs(np.log(e.values["freq_hz"] / e.values["zero_freq_hz"])) / se)
+
+
 def _unresolved_mode(e: Effect, ds_list: list[Dataset]) -> bool:
     """``e`` is an extra mode the data cannot resolve: a mode whose half-power bandwidth 2 zeta f is under half the
     data's frequency spacing there (it fits one point, not a resonance), or an actuator mode whose pole and zero lie
@@ -282,9 +290,8 @@ def _unresolved_mode(e: Effect, ds_list: list[Dataset]) -> bool:
         return True
     if e.kind.kind != "act_mode" or abs(f - e.values["zero_freq_hz"]) >= spacing:
         return False
-    se = np.hypot(_log_se(e, "freq_hz"), _log_se(e, "zero_freq_hz"))
     known = all(ds.known_noise for ds in ds_list)
-    return not (known and np.isfinite(se) and abs(np.log(f / e.values["zero_freq_hz"])) > RESOLVED_SE * se)
+    return not (known and _pair_separation_se(e) > RESOLVED_SE)
 
 
 #: A corner, pole or zero may lie this factor beyond the excited band and still be identified as such: an octave
@@ -385,8 +392,7 @@ def _unidentifiable(e: Effect, ds_list: list[Dataset], free: bool = True) -> str
                 "in ln (more than a factor e either way)"
             )
     if k == "act_mode":
-        se = np.hypot(_log_se(e, "freq_hz"), _log_se(e, "zero_freq_hz"))
-        if abs(np.log(v["freq_hz"] / v["zero_freq_hz"])) < 2.0 * se:
+        if _pair_separation_se(e) < 2.0:
             return (
                 f"cancels within its uncertainty: its pole and zero pairs ({v['freq_hz']:.3g} and {v['zero_freq_hz']:.3g} Hz) differ "
                 f"by less than twice their standard error"

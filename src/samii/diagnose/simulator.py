@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -835,16 +835,7 @@ class Misfit:
     n_points: int
 
     def to_dict(self) -> dict:
-        return {
-            "source": self.source,
-            "channel": self.channel,
-            "lo_hz": self.lo_hz,
-            "hi_hz": self.hi_hz,
-            "rms_db": self.rms_db,
-            "rms_deg": self.rms_deg,
-            "chi2": self.chi2,
-            "n_points": self.n_points,
-        }
+        return asdict(self)
 
     def text(self) -> str:
 

@@ -105,7 +105,7 @@ PROFILE_TOL = 1e-6
 #: warning: the estimate is off by less than its uncertainty. A rig-era .mat of theta/v alone without coherence,
 #: fitted by the notebook's unweighted cost, ended at wp 19.5 Hz (the rig's: 8.3) with its profile 92 lower at 34 Hz
 #: and was called "a sound fit with caveats".
-PROFILE_BELOW_CONCERN = 10.83
+PROFILE_BELOW_CONCERN = 10.83  # scipy.stats.chi2.isf(1e-3, 1) = 10.828 (tests/test_identify_profile.py)
 #: The level of a 3-standard-error interval, erf(3 / sqrt(2)): the fit's JSON gives each profile's interval at it and at 95 %.
 PROFILE_3SIGMA = math.erf(3 / math.sqrt(2))
 

@@ -18,10 +18,10 @@ from samii.cli_args import (
     add_no_progress,
     add_out,
     add_overwrite,
+    add_rerun,
     add_set,
     float_in,
     int_in,
-    nonempty_path,
     positive_float,
     seed,
 )
@@ -103,18 +103,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=seed, default=0, help="seed of the sensor-noise generator, an integer >= 0 (default 0)")
     add_model(parser, "MJCF file (default: the embedded SAMII model)")
     add_set(parser, "override a model parameter, e.g. hydraulic.supply_pressure=2.1e7 (repeatable)")
-    parser.add_argument(
-        "--rerun",
-        metavar="FILE.rrd",
-        type=nonempty_path,
-        help="also write a Rerun recording: the beam and arm in 3D with their deflection magnified, the signals grouped by unit, the base modes' coordinates, and a stored layout (with --method both, both runs; the file must not exist unless --overwrite)",
-    )
-    parser.add_argument(
-        "--rerun-fps",
-        metavar="F",
-        type=positive_float,
-        default=None,
-        help="animation frames per second in the recording, every frame kept (default: 4 per period of base mode 3, at least 100, thinned where the sweep is slow: samii.viz.thinning)",
+    add_rerun(
+        parser,
+        "also write a Rerun recording: the beam and arm in 3D with their deflection magnified, the signals grouped by unit, the base modes' coordinates, and a stored layout (with --method both, both runs; the file must not exist unless --overwrite)",
+        fps_help="animation frames per second in the recording, every frame kept (default: 4 per period of base mode 3, at least 100, thinned where the sweep is slow: samii.viz.thinning)",
     )
     add_overwrite(parser, "replace existing output files")
     add_no_progress(parser)
