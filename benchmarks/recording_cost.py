@@ -50,12 +50,12 @@ def measurement(repeats: int, folder: Path) -> None:
 
 
 def closed_loop(repeats: int, folder: Path) -> None:
-    from samii.closedloop.cli import _resolve_controller, _write_rerun
     from samii.closedloop.scenario import default_spec_factory, run_closed_loop, scenario
+    from samii.closedloop.trial import resolve_controller, write_rerun
     from samii.sim.plugin import compile_spec
 
     factory = default_spec_factory(None, None)
-    saved = _resolve_controller("damping", factory, quiet=True)
+    saved = resolve_controller("damping", factory)
     sc = scenario("loper", duration_s=10.0)
     steps = frame_steps_for(compile_spec(factory()[0]))
 
@@ -64,7 +64,7 @@ def closed_loop(repeats: int, folder: Path) -> None:
 
     def recorded():
         result = run_closed_loop(saved, sc, label="damping", spec_factory=factory, qpos_every=steps)
-        _write_rerun(result, folder / "c.rrd", folder / "c.rrd", factory)
+        write_rerun(result, folder / "c.rrd", folder / "c.rrd", factory)
 
     ratio, lo, hi, base, rec = paired_ratio(plain, recorded, repeats)
     print(f"samii closedloop (damping, Loper test, 10 s): run {base:.2f} s, with recording {rec:.2f} s: overhead {_pct(ratio, lo, hi)} (goal < 30 %)")

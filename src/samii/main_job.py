@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import io
 import json
 import os
 import shutil
@@ -134,38 +133,29 @@ class _Progress:
         self.bar.close()
 
 
-def _stage(d: Path, argv: list[str]) -> str:
-    """Run ``samii ARGV`` in this process, in the output folder ``d`` (the paths the stage's files
-    and figures name are the folder's own, not the staging folder's), and return what it printed;
-    a failure names the stage."""
-    from samii.cli import build_parser
-
+@contextlib.contextmanager
+def _named_stage(name: str):
+    """A refusal of the request inside a stage, named by the stage's command."""
     try:
-        args = build_parser().parse_args(argv)
-    except SystemExit as exc:  # pragma: no cover - the arguments are built here
-        raise RuntimeError(f"samii {' '.join(argv)}: rejected its arguments") from exc
-    buf = io.StringIO()
-    try:
-        with contextlib.chdir(d), contextlib.redirect_stdout(buf):
-            code = int(args._run(args) or 0)
+        yield
     except InputError as exc:
-        raise InputError(f"stage `samii {argv[0]}`: {exc}") from None
-    if code != 0:
-        raise RuntimeError(f"stage `samii {' '.join(argv)}` exited with {code}")
-    return buf.getvalue()
+        raise InputError(f"stage `samii {name}`: {exc}") from None
 
 
-def _closed_loop(d: Path, name: str, argv: list[str]) -> dict:
-    """``samii closedloop ARGV --out closedloop/NAME --json``: the result's figures the summary takes."""
-    res = json.loads(_stage(d, ["closedloop", *argv, "--out", f"closedloop/{name}", "--json"]))
+def _model_path(model) -> str | None:
+    """The model file as the stages record it: absolute (as the folder's files name it, wherever it is moved)."""
+    return str(Path(model).absolute()) if model else None
+
+
+def _closed_loop(d: Path, name: str, request, model, overrides: dict, rerun) -> dict:
+    """One closed-loop trial written to ``closedloop/NAME``: the result's figures the summary takes."""
+    from samii.closedloop.trial import run_trial
+    from samii.json_output import finite_or_none
+
+    with _named_stage("closedloop"):
+        trial = run_trial(request, out=d / "closedloop" / name, model=model, overrides=overrides, rerun=rerun, relative_to=d)
+    res = finite_or_none(trial.result.as_json())
     return {k: res.get(k) for k in ("stable", "unstable_mode_hz", "growth_rate_1_s", "instability", "theta", "base")}
-
-
-def _model_args(model, overrides) -> list[str]:
-    out = ["--model", str(Path(model).absolute())] if model else []  # absolute: the stages run in the output folder
-    for s in overrides or ():
-        out += ["--set", s]
-    return out
 
 
 def run_pipeline(out, *, model=None, overrides=(), seed: int = 0, overwrite: bool = False, progress: bool = True) -> PipelineResult:
@@ -224,8 +214,8 @@ def run_pipeline(out, *, model=None, overrides=(), seed: int = 0, overwrite: boo
 
 def _run_stages(d: Path, model, overrides: list[str], seed: int, bar: _Progress) -> dict:
     from samii import notebook as nb
+    from samii.json_output import finite_or_none
 
-    margs = _model_args(model, overrides)
     s: dict = {"written_by": MARKER, "seed": seed, "model": {"file": str(model) if model else "embedded default", "overrides": overrides}}
 
     bar.start("modes")
@@ -233,8 +223,13 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, bar: _Progress)
     bar.done()
 
     bar.start("measuring (swept sine, 253 s simulated)")
-    _stage(d, ["measure", "--noise", "--seed", str(seed), "--out", "measure", "--rerun", "measure.rrd", "--no-progress", *margs])
-    run = json.loads((d / "measure" / "run.json").read_text())
+    from samii.measure.bode_test import BodeTestRequest, run_bode_test
+    from samii.sim.cli_modes import parse_overrides
+
+    with _named_stage("measure"):
+        test = run_bode_test(d / "measure", BodeTestRequest(noise=True, seed=seed), model=_model_path(model),
+                             overrides=parse_overrides(overrides), rerun=d / "measure.rrd", argv=sys.argv[1:], relative_to=d)  # fmt: skip
+    run = test.summary
     sweep = run["excitation"]["swept"]
     s["measurement"] = {
         "excitation": sweep["excitation"],
@@ -246,7 +241,10 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, bar: _Progress)
     bar.done()
 
     bar.start("fitting the notebook's 3-mode model")
-    _stage(d, ["fit", "measure/frf.csv", "--out", "fit", "--no-progress"])
+    from samii.identify.fit_file import fit_frf_file
+
+    with _named_stage("fit"):
+        fit_frf_file(d / "measure" / "frf.csv", out=d / "fit", relative_to=d)
     fit = json.loads((d / "fit" / "fit.json").read_text())
     p, se = fit["params"], fit["stderr"]
     s["fit"] = {
@@ -264,23 +262,39 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, bar: _Progress)
     from samii.sim.plugin import hydraulic_params
 
     kp = hydraulic_params(load_model(model, overrides=parse_overrides(overrides) or None)).position_gain  # what the data were measured with
-    design = json.loads(_stage(d, ["design", "damping", "--frf", "measure/frf.csv", "--position-gain", repr(float(kp)),
-                                   "--save", "controllers/damping.json", "--json"]))  # fmt: skip
+    from samii.closedloop.controllers import write_controller
+    from samii.closedloop.damping import damping_from_frf
+    from samii.formats import read_frf_csv
+
+    with _named_stage("design"):
+        designed = damping_from_frf(read_frf_csv(d / "measure" / "frf.csv"), source="measure/frf.csv", position_gain_v_per_rad=float(kp))
+    write_controller(designed.controller, d / "controllers" / "damping.json")
+    design = finite_or_none(designed.to_dict())
     s["damping_design"] = {k: design.get(k) for k in ("gain_v_per_m_s2", "gain_limit_v_per_m_s2", "gain_margin_db", "filter_hz", "rolloff_hz")}
     bar.done()
 
+    from samii.closedloop.trial import TrialRequest
+
     s["closed_loop"] = {}
     runs = [("servo_loop_alone", "unity", "step")] + [
-        (name, spec or "controllers/damping.json", sc) for name, spec, _ in CONTROLLERS for sc in SCENARIOS
+        (name, spec or str(d / "controllers" / "damping.json"), sc) for name, spec, _ in CONTROLLERS for sc in SCENARIOS
     ]
     for name, spec, sc in runs:
         bar.start(f"closed loop: {name}, {sc}")
-        extra = ["--rerun", "closedloop.rrd"] if (name, sc) == ("damping", "loper") else []
-        s["closed_loop"][f"{name}_{sc}"] = _closed_loop(d, f"{name}_{sc}", ["--controller", spec, "--scenario", sc, *extra, *margs])
+        rerun = d / "closedloop.rrd" if (name, sc) == ("damping", "loper") else None
+        s["closed_loop"][f"{name}_{sc}"] = _closed_loop(
+            d, f"{name}_{sc}", TrialRequest(spec, sc), _model_path(model), parse_overrides(overrides), rerun
+        )
         bar.done()
 
     bar.start("diagnosing the fit against the measured record")
-    diag = json.loads(_stage(d, ["diagnose", "measure/timeseries.csv", "--baseline", "fit/fit.json", "--out", "diagnose", "--json", "--no-progress"]))
+    from samii.diagnose.files import DiagnoseRequest, diagnose_files
+
+    with _named_stage("diagnose"):
+        done = diagnose_files(
+            [d / "measure" / "timeseries.csv"], DiagnoseRequest(baseline=str(d / "fit" / "fit.json")), out=d / "diagnose", relative_to=d
+        )
+    diag = finite_or_none(done.diagnosis.to_dict())
     s["diagnosis"] = {
         "verdict": diag.get("verdict"),
         "effects": [e for e in diag.get("effects", []) if not e.get("expected")],

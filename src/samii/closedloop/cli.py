@@ -14,17 +14,10 @@ import argparse
 import sys
 
 from samii.cli_args import add_json, add_model, add_out, add_overwrite, add_rerun, add_set, float_in, seed
-from samii.errors import InputError
+from samii.closedloop.trial import BUILTIN_CONTROLLERS
 
-__all__ = ["add_arguments", "run", "BUILTIN_CONTROLLERS", "resolve_controller", "model_at_rest", "check_fits"]
+__all__ = ["add_arguments", "run", "MAX_DELAY_STEPS"]
 
-BUILTIN_CONTROLLERS = {
-    "unity": "the servo amplifier's position loop alone (1 V/deg), no digital controller",
-    "notebook-place": "chapter 8: digital pole placement with observer on eq 1.4, as the notebook built it (whole position loop)",
-    "notebook-cancel": "chapter 10: pole-cancelling compensator on eq 9.4, the notebook's gain 0.0666 (whole position loop)",
-    "damping": "tuned acceleration feedback designed here from a simulated measurement of the model: measure, fit, design (about 3 s)",
-}
-_FILES = ("timeseries.csv", "run.json")
 MAX_DURATION_S = 600.0
 MAX_STEP_DEG = 30.0
 MAX_IMPULSE_N_S = 20.0
@@ -98,47 +91,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_json(parser, "print the result as JSON")
 
 
-def resolve_controller(spec: str, factory=None, quiet: bool = False):
-    from pathlib import Path
-
-    from samii.closedloop import controllers as cs
-
-    if not spec.strip():
-        raise InputError(f"--controller: expected {', '.join(BUILTIN_CONTROLLERS)} or a controller file, got an empty string")
-    if spec == "damping":
-        from samii.closedloop.damping import damping_from_simulation
-
-        model = model_at_rest(factory)
-
-        def say(what: str) -> None:
-            if not quiet:
-                print(f"  damping controller: {what}", file=sys.stderr)
-
-        return damping_from_simulation(model, progress=say).controller
-    if spec == "unity":
-        return None
-    if spec == "notebook-place":
-        return cs.notebook_place()
-    if spec == "notebook-cancel":
-        return cs.notebook_cancel()
-    if Path(spec).suffix.lower() == ".json" or Path(spec).exists():
-        return cs.read_controller(spec)
-    raise InputError(f"--controller {spec!r}: expected {', '.join(BUILTIN_CONTROLLERS)} or a controller file (.json)")
-
-
-def _check_options(args) -> None:
-    if args.step_deg is not None and args.scenario == "release":
-        raise InputError("--step-deg: the release scenario holds theta_ref (use --impulse-n-s for its size)")
-    if args.impulse_n_s is not None and args.scenario != "release":
-        raise InputError("--impulse-n-s: only the release scenario starts with an impulse")
-    if args.seed is not None and not args.noise:
-        raise InputError("--seed: only meaningful with --noise")
-    if args.no_plots and args.out is None:
-        raise InputError("--no-plots: only meaningful with --out")
-    if args.scenario == "loper" and args.duration_s < 4.0:
-        raise InputError(f"--duration-s {args.duration_s:g}: the loper scenario switches the controller on at t = 2 s and needs at least 4 s")
-
-
 def _summary(r, out_names: list[str]) -> str:
     lines = [
         f"closed loop: {r.controller}, {r.scenario.name} scenario, {r.scenario.duration_s:g} s"
@@ -189,158 +141,36 @@ def _summary(r, out_names: list[str]) -> str:
     return "\n".join(lines)
 
 
-def check_fits(saved, args, dt: float) -> None:
-    """The controller against the card's limits and the physics step, naming the file and field or the option."""
-    from samii.closedloop.card import CardFitError, check_fit
-
-    try:
-        check_fit(saved.controller, dt, args.delay_samples)
-    except CardFitError as exc:
-        if exc.field == "delay_samples":
-            raise InputError(f"--delay-samples {args.delay_samples:g}: {exc}") from None
-        where = f"controller file {args.controller}" if args.controller not in BUILTIN_CONTROLLERS else f"--controller {args.controller}"
-        raise InputError(f"{where}: {exc}") from None
-
-
 def run(args) -> int:
-    import os
-
-    _check_options(args)
-    from samii.closedloop.plots import FIGURES
-    from samii.outputs import OutputFolder, check_output_file
-
-    names = list(_FILES) + ([] if args.no_plots else list(FIGURES))
-    folder = OutputFolder(args.out, names, overwrite=args.overwrite) if args.out is not None else None
-    rerun_path = check_output_file(args.rerun, overwrite=args.overwrite, option="--rerun", beside=folder) if args.rerun else None
-    if args.controller == "unity" and args.delay_samples:
-        raise InputError("--delay-samples: the unity servo loop is analog (no digital controller to delay)")
-    if args.controller == "unity" and args.noise:
-        raise InputError("--noise: the unity servo loop samples no sensors (its analog loop reads the joint angle directly)")
-
-    from samii.closedloop.scenario import NoiseSpec, default_spec_factory, run_closed_loop, scenario
+    from samii.closedloop.trial import TrialRequest, run_trial
     from samii.sim.cli_modes import parse_overrides
 
-    overrides = parse_overrides(args.set)
-    factory = default_spec_factory(args.model, overrides or None)
-    saved = resolve_controller(args.controller, factory, quiet=args.json)
-    if saved is not None:
-        spec, _, _ = factory()
-        check_fits(saved, args, float(spec.option.timestep))
-    kw = {"duration_s": args.duration_s}
-    if args.step_deg is not None:
-        kw["step_deg"] = args.step_deg
-    if args.impulse_n_s is not None:
-        kw["impulse_n_s"] = args.impulse_n_s
-    sc = scenario(args.scenario, **kw)
-    noise = NoiseSpec(seed=args.seed or 0) if args.noise else None
-    frame_steps = None
-    if rerun_path:
-        from samii.viz.recording import frame_steps_for
+    request = TrialRequest(
+        controller=args.controller,
+        scenario=args.scenario,
+        duration_s=args.duration_s,
+        step_deg=args.step_deg,
+        impulse_n_s=args.impulse_n_s,
+        delay_samples=args.delay_samples,
+        noise=args.noise,
+        seed=args.seed,
+    )
 
-        frame_steps = frame_steps_for(model_at_rest(factory), args.rerun_fps)
-    result = run_closed_loop(saved, sc, label=args.controller, spec_factory=factory, delay_samples=args.delay_samples, noise=noise,
-                             qpos_every=frame_steps)  # fmt: skip
+    def say(what: str) -> None:  # the stages of a "damping" controller's design
+        if not args.json:
+            print(f"  damping controller: {what}", file=sys.stderr)
 
-    written: list[str] = []
-    recorded = result.signals.t.size >= 2  # a run that diverged in its first step has nothing to record or draw
-    if not recorded and rerun_path is not None:
-        print(f"samii closedloop: note: --rerun {rerun_path}: not written, the run diverged in its first step", file=sys.stderr)
-        rerun_path = None
-    rrd_tmp = rerun_path.parent / f".{rerun_path.name}.{os.getpid()}.tmp" if rerun_path else None
-    try:
-        if folder is not None:
-            from samii.formats import write_timeseries_csv
-            from samii.json_output import dumps
-
-            with folder:
-                if recorded:
-                    write_timeseries_csv(result.timeseries(), folder.path("timeseries.csv"), overwrite=True)
-                else:
-                    for name in [n for n in (*_FILES, *FIGURES) if n != "run.json"]:  # the verdict alone
-                        folder.omit(name)
-                doc = result.run_json()
-                doc["model"] = {"file": args.model or "embedded default", "overrides": overrides}
-                doc["controller_detail"] = None if saved is None else {
-                    "name": saved.controller.name, "method": saved.controller.method, "model_units": saved.controller.model_units,
-                    "servo_loop": "replaced" if saved.replaces_servo else "kept", "provenance": dict(saved.provenance)}  # fmt: skip
-                folder.path("run.json").write_text(dumps(doc, indent=1) + "\n")
-                if recorded and not args.no_plots:
-                    from samii.closedloop.plots import plot_base, plot_linear, plot_theta
-
-                    plot_theta(result, folder.path("theta.png"))
-                    plot_base(result, folder.path("base_accel.png"))
-                    plot_linear(result, folder.path("linear_vs_nonlinear.png"))
-                if rrd_tmp is not None:  # inside the folder's transaction: a failed recording leaves no folder behind
-                    _write_rerun(result, rrd_tmp, rerun_path, factory)
-            written = [str(folder.final(n)) for n in folder.names]
-        elif rrd_tmp is not None:
-            _write_rerun(result, rrd_tmp, rerun_path, factory)
-        if rrd_tmp is not None:
-            os.replace(rrd_tmp, rerun_path)
-            written.append(str(rerun_path))
-    finally:
-        if rrd_tmp is not None and rrd_tmp.exists():
-            rrd_tmp.unlink()
-
+    trial = run_trial(request, out=args.out, model=args.model, overrides=parse_overrides(args.set), plots=not args.no_plots, rerun=args.rerun,
+                      rerun_fps=args.rerun_fps, overwrite=args.overwrite, say=say)  # fmt: skip
+    for note in trial.notes:
+        print(f"samii closedloop: note: {note}", file=sys.stderr)
     if args.json:
         from samii.json_output import dumps
 
-        print(dumps(result.as_json()))
+        print(dumps(trial.result.as_json()))
     else:
-        print(_summary(result, written))
+        print(_summary(trial.result, trial.written))
     return 0
-
-
-def model_at_rest(factory):
-    """The run's model with its ``home`` keyframe at the static equilibrium the factory found (a
-    model changed by ``--set`` or a parameter file is not at rest in its written keyframe)."""
-    import mujoco
-
-    from samii.sim.plugin import compile_spec
-
-    spec, qpos, act = factory()
-    model = compile_spec(spec)
-    key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
-    model.key_qpos[key], model.key_act[key] = qpos, act
-    return model
-
-
-def _write_rerun(result, tmp, final, factory) -> None:
-    import numpy as np
-
-    from samii.outputs import create_parent
-    from samii.viz.recording import RunRecord, recording_failed, write_recording
-
-    create_parent(tmp)
-    s = result.signals
-    model = model_at_rest(factory)
-    frame_t = s.frame_t if s.frame_t is not None else np.zeros(0)
-    frame_q = s.frame_qpos if s.frame_qpos is not None else np.zeros((0, model.nq))
-    runs = [
-        RunRecord(
-            "closedloop",
-            result.timeseries(),
-            frame_t,
-            frame_q,
-            switch_on_s=s.switch_on_s,
-            label=f"samii closedloop: controller {result.controller}, scenario {result.scenario.name}",
-        )
-    ]
-    c = result.comparison
-    if c is not None and c.frame_t is not None:  # the same scenario under the servo amplifier alone (Figure 11.4 as a recording)
-        runs.append(
-            RunRecord(
-                "servo_loop_alone",
-                result.timeseries(comparison=True),
-                c.frame_t,
-                c.frame_qpos,
-                label=f"the comparison: scenario {result.scenario.name} under the servo amplifier alone (no controller)",
-            )
-        )
-    try:
-        write_recording(tmp, model, runs, application_id="samii_closedloop")
-    except (RuntimeError, OSError) as exc:  # rerun's writer reports file-system failures as RuntimeError
-        raise recording_failed(exc, final) from None
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -59,6 +59,7 @@ __all__ = [
     "measured_fit",
     "measured_sensitivity",
     "with_data_check",
+    "damping_from_frf",
     "damping_from_simulation",
     "FIT_BAND_HZ",
 ]
@@ -92,6 +93,25 @@ class DampingDesign:
     #: largest |1/(1 + L)| of the loop built from the measured FRF above the fit band (None: not checked)
     max_sensitivity_above_band: float | None = None
     sensitivity_band_hz: tuple[float, float] | None = None
+
+    def to_dict(self) -> dict:
+        """The design as ``samii design damping --json`` prints it (SI units; the controller itself is its own file)."""
+        return {
+            "method": "tuned acceleration feedback, added to the servo amplifier's command",
+            "fit": {k: (float(v) if isinstance(v, (int, float)) else v) for k, v in self.fit_summary.items()},
+            "fit_params": {k: float(v) for k, v in self.params.items()},
+            "sample_time_s": self.sample_time_s,
+            "delay_samples": self.delay_samples,
+            "filter_hz": self.filter_hz,
+            "filter_zeta": self.filter_zeta,
+            "rolloff_hz": self.rolloff_hz,
+            "gain_v_per_m_s2": self.gain_v_per_m_s2,
+            "gain_limit_v_per_m_s2": self.gain_limit_v_per_m_s2,
+            "gain_margin_db": self.gain_margin_db,
+            "modes_on_fitted_model": self.mode_table(),
+            "max_sensitivity_above_fit_band": self.max_sensitivity_above_band,
+            "sensitivity_band_hz": None if self.sensitivity_band_hz is None else list(self.sensitivity_band_hz),
+        }
 
     def mode_table(self) -> list[dict[str, float]]:
         """Open- and closed-loop frequency and damping of each complex pole pair of the fitted model."""
@@ -338,6 +358,49 @@ def measured_fit(frf, *, band_hz: tuple[float, float] = FIT_BAND_HZ):
         )
     check_not_noise(frf, band_hz=band)  # a design on noise: refused (a fit of it is not sound, said below in any case)
     return fit(frf, weighting="auto", band_hz=band, profile=False)  # the design reads the parameters, not their intervals
+
+
+def damping_from_frf(
+    data,
+    *,
+    source: str,
+    position_gain_v_per_rad: float,
+    sample_time_s: float = 1e-3,
+    delay_samples: int = 1,
+    gain_margin_db: float = GAIN_MARGIN_DB,
+) -> DampingDesign:
+    """The damping controller designed on a fit of measured Bode data ``data`` (read from the file ``source``, which
+    the refusals name): refused (:class:`~samii.errors.InputError`) when the data lack a channel, cannot be fitted, the
+    fit is not sound, or the fit says the servo loop the data were measured in was unstable."""
+    from samii.errors import InputError, input_error_of
+
+    missing = ([] if "act" in data.channels else ["act"]) + ([] if {"base", "total"} & set(data.channels) else ["base or total"])
+    if missing:
+        raise InputError(f"{source}: the damping design needs the act channel and base or total; missing {', '.join(missing)}")
+    kp = position_gain_v_per_rad
+    try:
+        fr = measured_fit(data)
+    except (ValueError, KeyError) as exc:  # the data cannot be fitted (too few points in the band, noise): the file's
+        raise input_error_of(source, exc) from None
+    if not fr.sound:  # a controller on parameters the fit says not to use: refused, in samii fit's words
+        why = "; ".join(fr.concerns) or f"it did not converge ({fr.message})"
+        raise InputError(
+            f"{source}: the notebook's 3-mode model fitted to it over {fr.band_hz[0]:.3g}-{fr.band_hz[1]:.3g} Hz is "
+            "not a sound fit, and a controller designed on its parameters would not be trusted; samii fit "
+            f"{source} --band-hz {fr.band_hz[0]:.3g} {fr.band_hz[1]:.3g} says why: {why}"
+        )
+    if (said := servo_loop_contradiction(fr.params, kp)) is not None:
+        raise InputError(
+            f"{source}: theta/v (the 3-mode model fitted to it) {said}: "
+            "the servo loop the data were measured in would be unstable, yet the rig ran (a hydraulic position servo keeps a gain margin there: the embedded model's measured fit "
+            "has 1.67). Is theta in rad (in mrad theta/v is 1000x too large, in degrees 57x), and is "
+            "--position-gain the servo amplifier's gain in V/rad?"
+        )
+    summary = {"data": source, "band_hz": list(fr.band_hz), "rms_mag_db": dict(fr.rms_mag_db),
+               "rms_phase_deg": dict(fr.rms_phase_deg), "converged": bool(fr.converged)}  # fmt: skip
+    d = design_damping(fr.params, position_gain_v_per_rad=kp, sample_time_s=sample_time_s, delay_samples=delay_samples,
+                       gain_margin_db=gain_margin_db, fit_summary=summary)  # fmt: skip
+    return with_data_check(d, data)
 
 
 def damping_from_simulation(

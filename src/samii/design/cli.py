@@ -520,40 +520,14 @@ def run_damping(args) -> int:
         from samii.formats import read_frf_csv
 
         data = read_frf_csv(args.frf)
-        missing = ([] if "act" in data.channels else ["act"]) + ([] if {"base", "total"} & set(data.channels) else ["base or total"])
-        if missing:
-            raise InputError(f"{args.frf}: the damping design needs the act channel and base or total; missing {', '.join(missing)}")
         kp = args.position_gain
         if kp is None:
             from samii.sim.model import load_model
             from samii.sim.plugin import hydraulic_params
 
             kp = hydraulic_params(load_model()).position_gain
-        try:
-            fr = dm.measured_fit(data)
-        except (ValueError, KeyError) as exc:  # the data cannot be fitted (too few points in the band, noise): the file's
-            from samii.errors import input_error_of
-
-            raise input_error_of(args.frf, exc) from None
-        if not fr.sound:  # a controller on parameters the fit says not to use: refused, in samii fit's words
-            why = "; ".join(fr.concerns) or f"it did not converge ({fr.message})"
-            raise InputError(
-                f"{args.frf}: the notebook's 3-mode model fitted to it over {fr.band_hz[0]:.3g}-{fr.band_hz[1]:.3g} Hz is "
-                "not a sound fit, and a controller designed on its parameters would not be trusted; samii fit "
-                f"{args.frf} --band-hz {fr.band_hz[0]:.3g} {fr.band_hz[1]:.3g} says why: {why}"
-            )
-        if (said := dm.servo_loop_contradiction(fr.params, kp)) is not None:
-            raise InputError(
-                f"{args.frf}: theta/v (the 3-mode model fitted to it) {said}: "
-                "the servo loop the data were measured in would be unstable, yet the rig ran (a hydraulic position servo keeps a gain margin there: the embedded model's measured fit "
-                "has 1.67). Is theta in rad (in mrad theta/v is 1000x too large, in degrees 57x), and is "
-                "--position-gain the servo amplifier's gain in V/rad?"
-            )
-        summary = {"data": str(args.frf), "band_hz": list(fr.band_hz), "rms_mag_db": dict(fr.rms_mag_db),
-                   "rms_phase_deg": dict(fr.rms_phase_deg), "converged": bool(fr.converged)}  # fmt: skip
-        d = dm.design_damping(fr.params, position_gain_v_per_rad=kp, sample_time_s=args.sample_time_s, delay_samples=args.delay_samples,
-                              gain_margin_db=args.gain_margin_db, fit_summary=summary)  # fmt: skip
-        d = dm.with_data_check(d, data)
+        d = dm.damping_from_frf(data, source=str(args.frf), position_gain_v_per_rad=kp, sample_time_s=args.sample_time_s,
+                                delay_samples=args.delay_samples, gain_margin_db=args.gain_margin_db)  # fmt: skip
     else:
         if args.position_gain is not None:
             raise InputError("--position-gain: only with --frf (the simulated measurement uses the model's own gain)")
@@ -565,22 +539,7 @@ def run_damping(args) -> int:
 
         d = dm.damping_from_simulation(load_model(), seed=args.seed, sample_time_s=args.sample_time_s, delay_samples=args.delay_samples,
                                        progress=say, gain_margin_db=args.gain_margin_db)  # fmt: skip
-    out = {
-        "method": "tuned acceleration feedback, added to the servo amplifier's command",
-        "fit": {k: (float(v) if isinstance(v, (int, float)) else v) for k, v in d.fit_summary.items()},
-        "fit_params": {k: float(v) for k, v in d.params.items()},
-        "sample_time_s": d.sample_time_s,
-        "delay_samples": d.delay_samples,
-        "filter_hz": d.filter_hz,
-        "filter_zeta": d.filter_zeta,
-        "rolloff_hz": d.rolloff_hz,
-        "gain_v_per_m_s2": d.gain_v_per_m_s2,
-        "gain_limit_v_per_m_s2": d.gain_limit_v_per_m_s2,
-        "gain_margin_db": d.gain_margin_db,
-        "modes_on_fitted_model": d.mode_table(),
-        "max_sensitivity_above_fit_band": d.max_sensitivity_above_band,
-        "sensitivity_band_hz": None if d.sensitivity_band_hz is None else list(d.sensitivity_band_hz),
-    }
+    out = d.to_dict()
     if save is not None:
         _save(d.controller, save, args, out)
     if args.json:

@@ -48,11 +48,13 @@ class SavedFit:
     concerns: tuple[str, ...] = ()
 
 
-def read_fit_json(path) -> SavedFit:
-    """The saved fit at ``path`` (``samii fit --out DIR`` writes DIR/fit.json); InputError naming the file and field."""
-    path = Path(path)
+def read_fit_json(path, *, name: str | None = None) -> SavedFit:
+    """The saved fit at ``path`` (``samii fit --out DIR`` writes DIR/fit.json), named ``name`` (default: the path as
+    given) in its messages and label; InputError naming the file and field."""
+    real = Path(path)
+    path = real if name is None else Path(name)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = real.read_text(encoding="utf-8")
     except UnicodeDecodeError:
         raise InputError(f"{path}: not a text file; expected a saved fit (fit.json as samii fit --out writes it)") from None
     try:

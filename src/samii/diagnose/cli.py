@@ -19,15 +19,9 @@ import argparse
 import sys
 
 from samii.cli_args import add_band, add_json, add_model, add_no_progress, add_out, add_overwrite, add_rerun, nonempty_path, positive_float
-from samii.errors import InputError, input_error_of
+from samii.diagnose.files import MAX_FILES
 
-__all__ = ["add_arguments", "run", "OUTPUTS", "MAX_FILES"]
-
-OUTPUTS = ("diagnosis.json", "residuals.png", "bode.png", "harmonics.png")
-#: Written with --baseline sim.
-SIM_OUTPUTS = ("simulator.png",)
-#: Most files one diagnosis takes (each adds the baseline's 13 parameters to the joint fit).
-MAX_FILES = 8
+__all__ = ["add_arguments", "run"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -82,22 +76,6 @@ def _fmt(value: float, se: float, unit: str) -> str:
     return f"{v:.4g}{err} {shown if shown != '1' else ''}".rstrip()
 
 
-def _load(args):
-    from samii.diagnose.measured import load
-    from samii.formats import DataFormatError
-
-    band = tuple(args.band_hz) if args.band_hz else None
-    out = []
-    for path in args.data:
-        try:
-            out.append(load(path, band_hz=band, record_s=args.record_s, mat_freq_name=args.mat_freq_name, mat_freq_unit=args.mat_freq_unit))
-        except DataFormatError:
-            raise
-        except ValueError as exc:
-            raise input_error_of(path, exc) from None
-    return out
-
-
 class _Progress:
     """Stages and candidates on stderr: a terminal only, after a second."""
 
@@ -128,134 +106,32 @@ class _Progress:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
+    from samii.diagnose.files import DiagnoseRequest, diagnose_files
 
-    if len(args.data) > MAX_FILES:
-        raise InputError(f"DATA: {len(args.data)} files given, at most {MAX_FILES} accepted")
-    sim_params = None
-    if args.model is not None:
-        if args.baseline != "sim":
-            raise InputError(f"--model {args.model}: the simulator to start from is used with --baseline sim only")
-        if not str(args.model).lower().endswith(".json"):
-            raise InputError(
-                f"--model {args.model}: expected a parameter file (.json, as samii calibrate --out writes), "
-                "the simulator's calibration moves its parameters"
-            )
-        from samii.sim.model import read_params_file
-
-        try:
-            sim_params = read_params_file(args.model)
-        except (OSError, ValueError) as exc:
-            raise InputError(f"--model {args.model}: {exc}") from None
-    if args.baseline == "sim":
-        baseline = "sim"
-    elif args.baseline != "notebook":
-        p = Path(args.baseline)
-        if not p.is_file():
-            raise InputError(
-                f"--baseline {args.baseline}: expected notebook or a saved fit (fit.json from samii fit --out); "
-                f"{'it is a folder' if p.is_dir() else 'no such file'}"
-            )
-        from samii.diagnose.baseline import read_fit_json
-
-        baseline = read_fit_json(p)  # bad input before any work
-    else:
-        baseline = "notebook"
-    import os
-
-    seen: dict[str, str] = {}
-    for d in args.data:  # the same file under two spellings (clean.csv, ./clean.csv, a link) counts once
-        key = os.path.realpath(d)
-        if key in seen:
-            same = f"{d}" if seen[key] == d else f"{seen[key]} and {d}"
-            raise InputError(f"DATA: {same} given more than once (the same file); its data would count twice")
-        seen[key] = d
-    folder = None
-    if args.out is not None:
-        from samii.outputs import OutputFolder
-
-        folder = OutputFolder(args.out, OUTPUTS + (SIM_OUTPUTS if baseline == "sim" else ()), overwrite=args.overwrite)
-    rerun_path = None
-    if args.rerun is not None:
-        if baseline != "sim":
-            raise InputError(f"--rerun {args.rerun}: the recording shows the simulator against the data; use it with --baseline sim")
-        from samii.outputs import check_output_file
-
-        rerun_path = check_output_file(args.rerun, overwrite=args.overwrite, option="--rerun", beside=folder)
-    elif args.rerun_fps is not None:
-        raise InputError("--rerun-fps: sets the frame rate of a recording; give --rerun FILE.rrd too")
-
-    from samii.diagnose.diagnosis import diagnose
-    from samii.json_output import dumps
-
-    progress = _Progress(not args.no_progress)
-    rrd_tmp = None
+    request = DiagnoseRequest(
+        baseline=args.baseline,
+        model=args.model,
+        band_hz=tuple(args.band_hz) if args.band_hz else None,
+        record_s=args.record_s,
+        mat_freq_name=args.mat_freq_name,
+        mat_freq_unit=args.mat_freq_unit,
+    )
+    progress = None
     try:
-        progress.stage("reading")
-        measured = _load(args)
-        progress.stage("fitting the baseline")
-        try:
-            d = diagnose(measured, baseline=baseline, progress=progress, simulator_params=sim_params)
-        except ValueError as exc:
-            import numpy as np
-
-            if isinstance(exc, np.linalg.LinAlgError):
-                raise
-            text = str(exc)
-            names = [str(m.source) for m in measured]
-            raise InputError(text if any(text.startswith(n) for n in names) else f"{', '.join(names)}: {text}") from None
-        if folder is not None:
-            progress.stage("writing")
-            from samii.diagnose.plots import bode_figure, harmonic_figure, residual_figure, simulator_figure
-            from samii.forkmap import fork_map
-            from samii.formats import write_text
-
-            with folder:
-                write_text(folder.path("diagnosis.json"), dumps(d.to_dict(), indent=2) + "\n")
-                figures = [(residual_figure, "residuals.png"), (bode_figure, "bode.png"), (harmonic_figure, "harmonics.png")]
-                if d.simulator is not None:
-                    figures.append((simulator_figure, "simulator.png"))
-
-                def draw(job) -> None:
-                    job[0](d, folder.path(job[1]))
-
-                fork_map(draw, figures)  # drawn at once on the machine's cores (samii.forkmap)
-                if rerun_path is not None:  # inside the folder's transaction: a failed recording leaves no folder behind
-                    progress.stage("recording")
-                    rrd_tmp = _write_rerun(d, rerun_path, args.rerun_fps)
-        elif rerun_path is not None:
-            progress.stage("recording")
-            rrd_tmp = _write_rerun(d, rerun_path, args.rerun_fps)
-        if rrd_tmp is not None:
-            os.replace(rrd_tmp, rerun_path)
+        progress = _Progress(not args.no_progress)
+        done = diagnose_files(
+            args.data, request, out=args.out, rerun=args.rerun, rerun_fps=args.rerun_fps, overwrite=args.overwrite, progress=progress
+        )
     finally:
-        progress.close()
-        if rrd_tmp is not None and rrd_tmp.exists():
-            rrd_tmp.unlink()
+        if progress is not None:
+            progress.close()
     if args.json:
-        print(dumps(d.to_dict(), indent=2))
+        from samii.json_output import dumps
+
+        print(dumps(done.diagnosis.to_dict(), indent=2))
         return 0
-    _print(d, (folder.written if folder is not None else []) + ([str(rerun_path)] if rerun_path is not None else []))
+    _print(done.diagnosis, done.written)
     return 0
-
-
-def _write_rerun(d, path, fps):
-    """The simulator against the data as a Rerun recording for ``path``, written beside it (the caller moves it in):
-    the temporary file's path."""
-    import os
-
-    from samii.diagnose.recording import write_diagnosis_recording
-    from samii.outputs import create_parent
-    from samii.viz.recording import recording_failed
-
-    tmp = create_parent(path.parent / f".{path.name}.{os.getpid()}.tmp")
-    try:
-        write_diagnosis_recording(tmp, d, fps=fps)
-    except (RuntimeError, OSError) as exc:  # rerun's writer reports file-system failures as RuntimeError
-        if tmp.exists():
-            tmp.unlink()
-        raise recording_failed(exc, path) from None
-    return tmp
 
 
 def _print(d, written) -> None:

@@ -591,13 +591,20 @@ def from_stepped(ts: TimeSeries, *, source: str, band_hz: tuple[float, float] | 
 
 
 def load(
-    path, *, band_hz: tuple[float, float] | None = None, record_s: float | None = None, mat_freq_name: str | None = None, mat_freq_unit: str = "hz"
+    path,
+    *,
+    band_hz: tuple[float, float] | None = None,
+    record_s: float | None = None,
+    mat_freq_name: str | None = None,
+    mat_freq_unit: str = "hz",
+    name: str | None = None,
 ) -> Measured:
-    """Read a time-series CSV, an FRF CSV or a rig-era .mat file (chosen by content) as :class:`Measured`."""
+    """Read a time-series CSV, an FRF CSV or a rig-era .mat file (chosen by content) as :class:`Measured`, its
+    ``source`` ``name`` (default: the path as given)."""
     from samii.formats import DataFormatError, csv_header, is_mat_file, read_frf_csv, read_mat_bode, read_timeseries_csv
 
     path = Path(path)
-    source = str(path)
+    source = str(path) if name is None else name
     if is_mat_file(path):
         return from_frf(read_mat_bode(path, freq_name=mat_freq_name, freq_unit=mat_freq_unit), source=source)
     header = csv_header(path)

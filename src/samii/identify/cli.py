@@ -15,10 +15,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from samii.cli_args import add_band, add_json, add_no_progress, add_out, add_overwrite, float_in, int_in, nonempty_path
-from samii.errors import InputError, input_error_of
 
 __all__ = ["add_arguments", "run", "MAX_MODES", "MAX_PHASE_WEIGHT", "MAX_PHASE_WEIGHTS", "MAX_AVERAGES"]
 
@@ -132,72 +130,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_no_progress(parser)
 
 
-# --------------------------------------------------------------------------- reading the file
-
-
-def _csv_line_of_row(path: Path, row: int) -> int | None:
-    """1-based file line of data row ``row`` (0-based) of a CSV read by ``read_frf_csv``."""
-    seen_header = False
-    k = -1
-    with open(path, encoding="utf-8", errors="replace", newline=None) as fh:
-        for number, line in enumerate(fh, start=1):
-            line = line.strip()
-            if not line or line.startswith("#"):
-                continue
-            if not seen_header:
-                seen_header = True
-                continue
-            k += 1
-            if k == row:
-                return number
-    return None
-
-
-def _read(args):
-    """The file as a FrequencyResponse; InputError naming the file for anything a user can fix."""
-    from samii.formats import DataFormatError, csv_header, is_mat_file, read_frf_csv, read_mat_bode
-    from samii.identify.cost import frequency_out_of_range
-
-    path = Path(args.frf)
-    mat = is_mat_file(path)
-    if mat:
-        try:
-            data = read_mat_bode(path, freq_name=args.mat_freq_name, freq_unit=args.mat_freq_unit)
-        except DataFormatError as exc:  # the library names its arguments: name the options
-            text = str(exc)
-            if text.endswith("pass freq_name="):
-                text = text[: -len("freq_name=")] + "--mat-freq-name NAME"
-            elif "freq_unit" in text:
-                text += " (samii fit: --mat-freq-unit rad/s)"
-            raise InputError(text) from None
-    else:
-        given = [o for o, v in (("--mat-freq-name", args.mat_freq_name is not None), ("--mat-freq-unit", args.mat_freq_unit != "hz")) if v]
-        if given:
-            raise InputError(f"{' and '.join(given)}: only for a .mat file; {path} is read as an FRF CSV")
-        try:
-            data = read_frf_csv(path)
-        except DataFormatError:
-            header = csv_header(path)
-            if "t" in header and "freq_hz" not in header:
-                shown = ", ".join(header[:6]) + (", ..." if len(header) > 6 else "")
-                raise InputError(
-                    f"{path}: this is a time series (columns {shown}), not a frequency response; samii fit expects an FRF: "
-                    "a CSV with freq_hz and <channel>_mag/<channel>_phase_deg columns (DATA_FORMATS.md, as samii measure "
-                    "writes frf.csv) or a rig-era .mat"
-                ) from None
-            raise
-    bad = frequency_out_of_range(data.freq_hz)
-    if bad is not None:
-        k, reason = bad
-        if mat:
-            where = f"{path}, variable {data.metadata.get('freq_vector', '?')!r}, element {k + 1}"
-        else:
-            line = _csv_line_of_row(path, k)
-            where = f"{path}, line {line}, column 'freq_hz'" if line is not None else f"{path}, data row {k + 1}"
-        raise InputError(f"{where}: {reason}")
-    return data
-
-
 # --------------------------------------------------------------------------- progress
 
 
@@ -248,69 +180,30 @@ class _Progress:
 
 
 def run(args: argparse.Namespace) -> int:
+    from samii.identify.fit_file import FitRequest, fit_frf_file
+    from samii.identify.report import json_text, summary_dict
+
     weights = args.phase_weights if args.phase_weights is not None else [0.1 if args.phase_weight is None else args.phase_weight]
-    folder = None
-    if args.out is not None:
-        from samii.identify.report import fit_output_names
-        from samii.outputs import OutputFolder
-
-        folder = OutputFolder(args.out, fit_output_names(weights), overwrite=args.overwrite)
-
-    import numpy as np
-
-    from samii.identify.fit import check_not_noise, fit
-    from samii.identify.report import json_text, summary_dict, write_fit_outputs
-    from samii.identify.structures import ModelStructure
-
-    progress = _Progress(f"samii fit {args.frf}", len(weights), enabled=not args.no_progress)
+    request = FitRequest(
+        n_modes=args.modes,
+        numerator=args.numerator,
+        phase_weights=tuple(weights),
+        band_hz=tuple(args.band_hz) if args.band_hz else None,
+        weighting=args.weighting,
+        start=args.start or "both",
+        averages=args.averages,
+        profiles=args.profiles,
+        mat_freq_name=args.mat_freq_name,
+        mat_freq_unit=args.mat_freq_unit,
+    )
+    progress = None
     try:
-        progress.stage("reading")
-        data = _read(args)
-        structure = ModelStructure(n_modes=args.modes, numerator=args.numerator)
-        if args.weighting == "coherence":
-            lacking = [c for c in data.channels if data.coherence(c) is None]
-            if lacking:
-                raise InputError(f"{args.frf}: --weighting coherence needs coherence, but channel(s) {', '.join(lacking)} have no *_coh column")
-        band = tuple(args.band_hz) if args.band_hz else None
-        if band is not None and not np.any((data.freq_hz >= band[0]) & (data.freq_hz <= band[1])):
-            raise InputError(
-                f"{args.frf}: --band-hz {band[0]:g} {band[1]:g}: no frequency point in the band (the data span "
-                f"{data.freq_hz[0]:g}-{data.freq_hz[-1]:g} Hz)"
-            )
-        rng = np.random.default_rng(0)
-        try:  # noise: refused before any work, as calibrate and diagnose refuse it (a fit of it converged to "a sound fit")
-            check_not_noise(data, structure, band_hz=band)
-        except ValueError as exc:
-            raise input_error_of(args.frf, exc) from None
-        results = []
-        for w in weights:
-            try:
-                results.append(
-                    fit(
-                        data,
-                        structure,
-                        phase_weight=w,
-                        band_hz=band,
-                        weighting=args.weighting,
-                        start=args.start or "both",
-                        rng=rng,
-                        n_averages=args.averages,
-                        progress=progress.fit_step,
-                        profile={"auto": "auto", "on": True, "off": False}[args.profiles],
-                    )
-                )
-            except np.linalg.LinAlgError:
-                raise  # numerical trouble: a defect, reported as an internal error
-            except (ValueError, KeyError) as exc:  # the data cannot be fitted as asked (InputError included)
-                raise input_error_of(args.frf, exc) from None
-            progress.next_fit()
-        if folder is not None:
-            progress.stage("writing plots")
-            with folder:
-                write_fit_outputs(data, results, folder, note=f"data: {args.frf}")
+        progress = _Progress(f"samii fit {args.frf}", len(weights), enabled=not args.no_progress)
+        fitted = fit_frf_file(args.frf, request, out=args.out, overwrite=args.overwrite, progress=progress)
     finally:
-        progress.close()
-    written = folder.written if folder is not None else []
+        if progress is not None:
+            progress.close()
+    data, structure, results, written = fitted.data, fitted.structure, fitted.results, fitted.written
     if args.json:
         out = [summary_dict(r) for r in results]
         print(json_text(out[0] if len(out) == 1 else out))

@@ -37,7 +37,8 @@ def _workers(text: str) -> int:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from samii.closedloop.cli import BUILTIN_CONTROLLERS, MAX_DELAY_STEPS
+    from samii.closedloop.cli import MAX_DELAY_STEPS
+    from samii.closedloop.trial import BUILTIN_CONTROLLERS
 
     p.add_argument(
         "--controller",
@@ -195,17 +196,20 @@ def run(args: argparse.Namespace) -> int:
     )
 
     # the controller is designed (or read) once, on the nominal plant, in this process
-    from samii.closedloop.cli import resolve_controller
+    from samii.closedloop.trial import check_fits, resolve_controller
     from samii.robust.task import SampleTask
     from samii.sim.model import load_model, load_spec
 
     nominal_model = load_model(params=params)
     qpos, act = nominal_model.key_qpos[0].copy(), nominal_model.key_act[0].copy()
-    saved = resolve_controller(args.controller, lambda: (load_spec(params=params)[0], qpos, act), quiet=args.json)
-    if saved is not None:
-        from samii.closedloop.cli import check_fits
 
-        check_fits(saved, args, float(nominal_model.opt.timestep))
+    def say(what: str) -> None:  # the stages of a "damping" controller's design
+        if not args.json:
+            print(f"  damping controller: {what}", file=sys.stderr)
+
+    saved = resolve_controller(args.controller, lambda: (load_spec(params=params)[0], qpos, act), say=say)
+    if saved is not None:
+        check_fits(saved, args.controller, args.delay_samples, float(nominal_model.opt.timestep))
     from samii.robust.sampling import sample_seeds
 
     base = params.as_dict()

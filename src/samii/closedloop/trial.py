@@ -1,0 +1,255 @@
+"""A closed-loop trial: one controller through one scenario in the nonlinear simulator, written to a folder.
+
+What ``samii closedloop`` does, as a library call: :func:`resolve_controller` turns a controller spec (a built-in
+name or a controller file) into the card's controller, :func:`check_fits` holds it against the card's limits,
+and :func:`run_trial` runs the scenario (:func:`samii.closedloop.scenario.run_closed_loop`) and writes
+``timeseries.csv``, ``run.json`` and the figures into an all-or-nothing folder (and a Rerun recording when asked).
+A run that is unstable by design is a result (``stable`` false), not an error. Refusals are
+:class:`~samii.errors.InputError` worded with the command's option names.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from samii.errors import InputError
+
+__all__ = ["TrialRequest", "Trial", "run_trial", "resolve_controller", "check_fits", "model_at_rest", "write_rerun", "BUILTIN_CONTROLLERS", "FILES"]
+
+BUILTIN_CONTROLLERS = {
+    "unity": "the servo amplifier's position loop alone (1 V/deg), no digital controller",
+    "notebook-place": "chapter 8: digital pole placement with observer on eq 1.4, as the notebook built it (whole position loop)",
+    "notebook-cancel": "chapter 10: pole-cancelling compensator on eq 9.4, the notebook's gain 0.0666 (whole position loop)",
+    "damping": "tuned acceleration feedback designed here from a simulated measurement of the model: measure, fit, design (about 3 s)",
+}
+#: The data files of a trial's folder (besides the figures, samii.closedloop.plots.FIGURES).
+FILES = ("timeseries.csv", "run.json")
+
+
+@dataclass(frozen=True)
+class TrialRequest:
+    """The scenario and the controller card's conditions, as ``samii closedloop``'s options say them."""
+
+    controller: str  #: a BUILTIN_CONTROLLERS name or a controller file
+    scenario: str  #: "step", "loper" or "release"
+    duration_s: float = 10.0
+    step_deg: float | None = None  #: None: the scenario's default
+    impulse_n_s: float | None = None  #: None: the scenario's default
+    delay_samples: float = 0.0  #: the controller's computation delay
+    noise: bool = False  #: seeded sensor noise and ADC quantisation on the controller's measurements
+    seed: int | None = None  #: of that noise (None: 0)
+
+
+@dataclass
+class Trial:
+    """A trial's result (samii.closedloop.scenario's ClosedLoopResult) and what was written, as the run names it."""
+
+    result: object
+    written: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  #: what was asked and not done, in words
+
+
+def resolve_controller(spec: str, factory=None, *, say: Callable[[str], None] | None = None):
+    """The controller ``spec`` names (None: the unity servo loop alone); ``factory`` builds the plant the "damping"
+    controller is designed on, and ``say`` hears that design's stages."""
+    from samii.closedloop import controllers as cs
+
+    if not spec.strip():
+        raise InputError(f"--controller: expected {', '.join(BUILTIN_CONTROLLERS)} or a controller file, got an empty string")
+    if spec == "damping":
+        from samii.closedloop.damping import damping_from_simulation
+
+        model = model_at_rest(factory)
+        return damping_from_simulation(model, progress=say).controller
+    if spec == "unity":
+        return None
+    if spec == "notebook-place":
+        return cs.notebook_place()
+    if spec == "notebook-cancel":
+        return cs.notebook_cancel()
+    if Path(spec).suffix.lower() == ".json" or Path(spec).exists():
+        return cs.read_controller(spec)
+    raise InputError(f"--controller {spec!r}: expected {', '.join(BUILTIN_CONTROLLERS)} or a controller file (.json)")
+
+
+def check_fits(saved, spec: str, delay_samples: float, dt: float) -> None:
+    """The controller against the card's limits and the physics step, naming the file and field or the option."""
+    from samii.closedloop.card import CardFitError, check_fit
+
+    try:
+        check_fit(saved.controller, dt, delay_samples)
+    except CardFitError as exc:
+        if exc.field == "delay_samples":
+            raise InputError(f"--delay-samples {delay_samples:g}: {exc}") from None
+        where = f"controller file {spec}" if spec not in BUILTIN_CONTROLLERS else f"--controller {spec}"
+        raise InputError(f"{where}: {exc}") from None
+
+
+def _check_request(req: TrialRequest, *, plots: bool, out) -> None:
+    if req.step_deg is not None and req.scenario == "release":
+        raise InputError("--step-deg: the release scenario holds theta_ref (use --impulse-n-s for its size)")
+    if req.impulse_n_s is not None and req.scenario != "release":
+        raise InputError("--impulse-n-s: only the release scenario starts with an impulse")
+    if req.seed is not None and not req.noise:
+        raise InputError("--seed: only meaningful with --noise")
+    if not plots and out is None:
+        raise InputError("--no-plots: only meaningful with --out")
+    if req.scenario == "loper" and req.duration_s < 4.0:
+        raise InputError(f"--duration-s {req.duration_s:g}: the loper scenario switches the controller on at t = 2 s and needs at least 4 s")
+
+
+def model_at_rest(factory):
+    """The run's model with its ``home`` keyframe at the static equilibrium the factory found (a
+    model changed by ``--set`` or a parameter file is not at rest in its written keyframe)."""
+    import mujoco
+
+    from samii.sim.plugin import compile_spec
+
+    spec, qpos, act = factory()
+    model = compile_spec(spec)
+    key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
+    model.key_qpos[key], model.key_act[key] = qpos, act
+    return model
+
+
+def write_rerun(result, tmp, final, factory) -> None:
+    """The trial (and its comparison run, if any) as a Rerun recording in ``tmp``; a failure names ``final``."""
+    import numpy as np
+
+    from samii.outputs import create_parent
+    from samii.viz.recording import RunRecord, recording_failed, write_recording
+
+    create_parent(tmp)
+    s = result.signals
+    model = model_at_rest(factory)
+    frame_t = s.frame_t if s.frame_t is not None else np.zeros(0)
+    frame_q = s.frame_qpos if s.frame_qpos is not None else np.zeros((0, model.nq))
+    runs = [
+        RunRecord(
+            "closedloop",
+            result.timeseries(),
+            frame_t,
+            frame_q,
+            switch_on_s=s.switch_on_s,
+            label=f"samii closedloop: controller {result.controller}, scenario {result.scenario.name}",
+        )
+    ]
+    c = result.comparison
+    if c is not None and c.frame_t is not None:  # the same scenario under the servo amplifier alone (Figure 11.4 as a recording)
+        runs.append(
+            RunRecord(
+                "servo_loop_alone",
+                result.timeseries(comparison=True),
+                c.frame_t,
+                c.frame_qpos,
+                label=f"the comparison: scenario {result.scenario.name} under the servo amplifier alone (no controller)",
+            )
+        )
+    try:
+        write_recording(tmp, model, runs, application_id="samii_closedloop")
+    except (RuntimeError, OSError) as exc:  # rerun's writer reports file-system failures as RuntimeError
+        raise recording_failed(exc, final) from None
+
+
+def _shown(path, relative_to) -> str:
+    return str(path) if relative_to is None else os.path.relpath(Path(path).absolute(), Path(relative_to).absolute())
+
+
+def run_trial(
+    request: TrialRequest,
+    *,
+    out=None,
+    model=None,
+    overrides: dict[str, float] | None = None,
+    plots: bool = True,
+    rerun=None,
+    rerun_fps: float | None = None,
+    overwrite: bool = False,
+    say: Callable[[str], None] | None = None,
+    relative_to=None,
+) -> Trial:
+    """Run ``request`` on ``model`` (an MJCF or parameter file; None: the embedded one) with ``overrides``; given
+    ``out``, write it into that folder (all or nothing, checked before any work), with its figures unless ``plots``
+    is false; given ``rerun``, a recording there. ``say`` hears the stages of a "damping" controller's design;
+    ``relative_to`` names the written files relative to that folder (the main job's) instead of as given."""
+    from samii.closedloop.plots import FIGURES
+    from samii.closedloop.scenario import NoiseSpec, default_spec_factory, run_closed_loop, scenario
+    from samii.outputs import OutputFolder, check_output_file
+
+    req = request
+    overrides = dict(overrides or {})
+    _check_request(req, plots=plots, out=out)
+    names = list(FILES) + (list(FIGURES) if plots else [])
+    folder = OutputFolder(out, names, overwrite=overwrite) if out is not None else None
+    rerun_path = check_output_file(rerun, overwrite=overwrite, option="--rerun", beside=folder) if rerun else None
+    if req.controller == "unity" and req.delay_samples:
+        raise InputError("--delay-samples: the unity servo loop is analog (no digital controller to delay)")
+    if req.controller == "unity" and req.noise:
+        raise InputError("--noise: the unity servo loop samples no sensors (its analog loop reads the joint angle directly)")
+
+    factory = default_spec_factory(model, overrides or None)
+    saved = resolve_controller(req.controller, factory, say=say)
+    if saved is not None:
+        spec, _, _ = factory()
+        check_fits(saved, req.controller, req.delay_samples, float(spec.option.timestep))
+    kw = {"duration_s": req.duration_s}
+    if req.step_deg is not None:
+        kw["step_deg"] = req.step_deg
+    if req.impulse_n_s is not None:
+        kw["impulse_n_s"] = req.impulse_n_s
+    sc = scenario(req.scenario, **kw)
+    noise = NoiseSpec(seed=req.seed or 0) if req.noise else None
+    frame_steps = None
+    if rerun_path:
+        from samii.viz.recording import frame_steps_for
+
+        frame_steps = frame_steps_for(model_at_rest(factory), rerun_fps)
+    label = req.controller if req.controller in BUILTIN_CONTROLLERS else _shown(req.controller, relative_to)
+    result = run_closed_loop(saved, sc, label=label, spec_factory=factory, delay_samples=req.delay_samples, noise=noise,
+                             qpos_every=frame_steps)  # fmt: skip
+
+    written: list[str] = []
+    notes: list[str] = []
+    recorded = result.signals.t.size >= 2  # a run that diverged in its first step has nothing to record or draw
+    if not recorded and rerun_path is not None:
+        notes.append(f"--rerun {rerun_path}: not written, the run diverged in its first step")
+        rerun_path = None
+    rrd_tmp = rerun_path.parent / f".{rerun_path.name}.{os.getpid()}.tmp" if rerun_path else None
+    try:
+        if folder is not None:
+            from samii.formats import write_timeseries_csv
+            from samii.json_output import dumps
+
+            with folder:
+                if recorded:
+                    write_timeseries_csv(result.timeseries(), folder.path("timeseries.csv"), overwrite=True)
+                else:
+                    for name in [n for n in (*FILES, *FIGURES) if n != "run.json"]:  # the verdict alone
+                        folder.omit(name)
+                doc = result.run_json()
+                doc["model"] = {"file": str(model) if model else "embedded default", "overrides": overrides}
+                doc["controller_detail"] = None if saved is None else {
+                    "name": saved.controller.name, "method": saved.controller.method, "model_units": saved.controller.model_units,
+                    "servo_loop": "replaced" if saved.replaces_servo else "kept", "provenance": dict(saved.provenance)}  # fmt: skip
+                folder.path("run.json").write_text(dumps(doc, indent=1) + "\n")
+                if recorded and plots:
+                    from samii.closedloop.plots import plot_base, plot_linear, plot_theta
+
+                    plot_theta(result, folder.path("theta.png"))
+                    plot_base(result, folder.path("base_accel.png"))
+                    plot_linear(result, folder.path("linear_vs_nonlinear.png"))
+                if rrd_tmp is not None:  # inside the folder's transaction: a failed recording leaves no folder behind
+                    write_rerun(result, rrd_tmp, rerun_path, factory)
+            written = [_shown(folder.final(n), relative_to) for n in folder.names]
+        elif rrd_tmp is not None:
+            write_rerun(result, rrd_tmp, rerun_path, factory)
+        if rrd_tmp is not None:
+            os.replace(rrd_tmp, rerun_path)
+            written.append(_shown(rerun_path, relative_to))
+    finally:
+        if rrd_tmp is not None and rrd_tmp.exists():
+            rrd_tmp.unlink()
+    return Trial(result=result, written=written, notes=notes)

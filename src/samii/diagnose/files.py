@@ -1,0 +1,208 @@
+"""Measured files diagnosed and the diagnosis written to a folder: what ``samii diagnose DATA`` does, as a library call.
+
+:func:`diagnose_files` checks the request (the files, the baseline, a simulator's parameter file), reads each file
+(:func:`samii.diagnose.measured.load`), diagnoses them (:func:`samii.diagnose.diagnosis.diagnose`) and writes
+``diagnosis.json`` and its figures into an all-or-nothing folder (and, against the simulator, a Rerun recording when
+asked). Refusals are :class:`~samii.errors.InputError` worded with the command's option names.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from samii.errors import InputError, input_error_of
+
+__all__ = ["DiagnoseRequest", "DiagnosedFiles", "diagnose_files", "OUTPUTS", "SIM_OUTPUTS", "MAX_FILES"]
+
+OUTPUTS = ("diagnosis.json", "residuals.png", "bode.png", "harmonics.png")
+#: Written with --baseline sim.
+SIM_OUTPUTS = ("simulator.png",)
+#: Most files one diagnosis takes (each adds the baseline's 13 parameters to the joint fit).
+MAX_FILES = 8
+
+
+@dataclass(frozen=True)
+class DiagnoseRequest:
+    """How to read the files and what to diagnose them against, as ``samii diagnose``'s options say it."""
+
+    baseline: str = "notebook"  #: "notebook", "sim" or a saved fit's path (fit.json)
+    model: str | None = None  #: with baseline "sim": the simulator's parameter file to start from
+    band_hz: tuple[float, float] | None = None
+    record_s: float | None = None
+    mat_freq_name: str | None = None
+    mat_freq_unit: str = "hz"
+
+
+@dataclass
+class DiagnosedFiles:
+    """The diagnosis (samii.diagnose.diagnosis.Diagnosis) and the files written, as the run names them."""
+
+    diagnosis: object
+    written: list[str] = field(default_factory=list)
+
+
+class _Silent:
+    def stage(self, what: str) -> None:
+        pass
+
+    def __call__(self, label: str) -> None:
+        pass
+
+
+def _named(path, relative_to) -> str:
+    return str(path) if relative_to is None else os.path.relpath(Path(path).absolute(), Path(relative_to).absolute())
+
+
+def _baseline(req: DiagnoseRequest, relative_to):
+    """The baseline and the simulator's parameters ``req`` names, checked before any work."""
+    sim_params = None
+    if req.model is not None:
+        if req.baseline != "sim":
+            raise InputError(f"--model {req.model}: the simulator to start from is used with --baseline sim only")
+        if not str(req.model).lower().endswith(".json"):
+            raise InputError(
+                f"--model {req.model}: expected a parameter file (.json, as samii calibrate --out writes), "
+                "the simulator's calibration moves its parameters"
+            )
+        from samii.sim.model import read_params_file
+
+        try:
+            sim_params = read_params_file(req.model)
+        except (OSError, ValueError) as exc:
+            raise InputError(f"--model {req.model}: {exc}") from None
+    if req.baseline in ("sim", "notebook"):
+        return req.baseline, sim_params
+    p = Path(req.baseline)
+    if not p.is_file():
+        raise InputError(
+            f"--baseline {req.baseline}: expected notebook or a saved fit (fit.json from samii fit --out); "
+            f"{'it is a folder' if p.is_dir() else 'no such file'}"
+        )
+    from samii.diagnose.baseline import read_fit_json
+
+    return read_fit_json(p, name=_named(p, relative_to)), sim_params  # bad input before any work
+
+
+def _write_rerun(d, path, fps):
+    """The simulator against the data as a Rerun recording for ``path``, written beside it (the caller moves it in):
+    the temporary file's path."""
+    from samii.diagnose.recording import write_diagnosis_recording
+    from samii.outputs import create_parent
+    from samii.viz.recording import recording_failed
+
+    tmp = create_parent(path.parent / f".{path.name}.{os.getpid()}.tmp")
+    try:
+        write_diagnosis_recording(tmp, d, fps=fps)
+    except (RuntimeError, OSError) as exc:  # rerun's writer reports file-system failures as RuntimeError
+        if tmp.exists():
+            tmp.unlink()
+        raise recording_failed(exc, path) from None
+    return tmp
+
+
+def diagnose_files(
+    data: Sequence,
+    request: DiagnoseRequest = DiagnoseRequest(),
+    *,
+    out=None,
+    rerun=None,
+    rerun_fps: float | None = None,
+    overwrite: bool = False,
+    progress=None,
+    relative_to=None,
+) -> DiagnosedFiles:
+    """Diagnose the measured files ``data`` of one rig as ``request`` asks; given ``out``, write the diagnosis into
+    that folder (all or nothing, checked before any work), and given ``rerun`` (baseline "sim" only) a recording.
+
+    ``progress``: ``progress(label)`` after every candidate tried and ``progress.stage(text)`` at each stage.
+    ``relative_to`` names the files relative to that folder (the main job's) instead of as given."""
+    from samii.diagnose.diagnosis import diagnose
+    from samii.diagnose.measured import load
+    from samii.json_output import dumps
+
+    data = [str(d) for d in data]
+    if len(data) > MAX_FILES:
+        raise InputError(f"DATA: {len(data)} files given, at most {MAX_FILES} accepted")
+    baseline, sim_params = _baseline(request, relative_to)
+    seen: dict[str, str] = {}
+    for d in data:  # the same file under two spellings (clean.csv, ./clean.csv, a link) counts once
+        key = os.path.realpath(d)
+        if key in seen:
+            same = f"{d}" if seen[key] == d else f"{seen[key]} and {d}"
+            raise InputError(f"DATA: {same} given more than once (the same file); its data would count twice")
+        seen[key] = d
+    folder = None
+    if out is not None:
+        from samii.outputs import OutputFolder
+
+        folder = OutputFolder(out, OUTPUTS + (SIM_OUTPUTS if baseline == "sim" else ()), overwrite=overwrite)
+    rerun_path = None
+    if rerun is not None:
+        if baseline != "sim":
+            raise InputError(f"--rerun {rerun}: the recording shows the simulator against the data; use it with --baseline sim")
+        from samii.outputs import check_output_file
+
+        rerun_path = check_output_file(rerun, overwrite=overwrite, option="--rerun", beside=folder)
+    elif rerun_fps is not None:
+        raise InputError("--rerun-fps: sets the frame rate of a recording; give --rerun FILE.rrd too")
+
+    progress = progress or _Silent()
+    rrd_tmp = None
+    try:
+        progress.stage("reading")
+        band = tuple(request.band_hz) if request.band_hz else None
+        measured = []
+        for path in data:
+            try:
+                measured.append(load(path, band_hz=band, record_s=request.record_s, mat_freq_name=request.mat_freq_name,
+                                     mat_freq_unit=request.mat_freq_unit, name=None if relative_to is None else _named(path, relative_to)))  # fmt: skip
+            except ValueError as exc:
+                from samii.formats import DataFormatError
+
+                if isinstance(exc, DataFormatError):
+                    raise
+                raise input_error_of(path, exc) from None
+        progress.stage("fitting the baseline")
+        try:
+            d = diagnose(measured, baseline=baseline, progress=progress, simulator_params=sim_params)
+        except ValueError as exc:
+            import numpy as np
+
+            if isinstance(exc, np.linalg.LinAlgError):
+                raise
+            text = str(exc)
+            names = [str(m.source) for m in measured]
+            raise InputError(text if any(text.startswith(n) for n in names) else f"{', '.join(names)}: {text}") from None
+        if folder is not None:
+            progress.stage("writing")
+            from samii.diagnose.plots import bode_figure, harmonic_figure, residual_figure, simulator_figure
+            from samii.forkmap import fork_map
+            from samii.formats import write_text
+
+            with folder:
+                write_text(folder.path("diagnosis.json"), dumps(d.to_dict(), indent=2) + "\n")
+                figures = [(residual_figure, "residuals.png"), (bode_figure, "bode.png"), (harmonic_figure, "harmonics.png")]
+                if d.simulator is not None:
+                    figures.append((simulator_figure, "simulator.png"))
+
+                def draw(job) -> None:
+                    job[0](d, folder.path(job[1]))
+
+                fork_map(draw, figures)  # drawn at once on the machine's cores (samii.forkmap)
+                if rerun_path is not None:  # inside the folder's transaction: a failed recording leaves no folder behind
+                    progress.stage("recording")
+                    rrd_tmp = _write_rerun(d, rerun_path, rerun_fps)
+        elif rerun_path is not None:
+            progress.stage("recording")
+            rrd_tmp = _write_rerun(d, rerun_path, rerun_fps)
+        if rrd_tmp is not None:
+            os.replace(rrd_tmp, rerun_path)
+    finally:
+        if rrd_tmp is not None and rrd_tmp.exists():
+            rrd_tmp.unlink()
+    written = [_named(p, relative_to) for p in (folder.written if folder is not None else [])]
+    written += [_named(rerun_path, relative_to)] if rerun_path is not None else []
+    return DiagnosedFiles(diagnosis=d, written=written)
