@@ -25,7 +25,9 @@ def cwd(tmp_path, monkeypatch):
 
 @pytest.fixture(scope="session")
 def runs(tmp_path_factory):
-    """Two main jobs with the same seed (about 25 s each), read by test_main_job.py and test_report.py."""
+    """Two main jobs with the same seed (about 25 s each), read by test_main_job.py, test_report.py and test_pipeline.py:
+    ``a`` by the command (``samii run``), ``b`` by the library (``samii.pipeline.run()`` into a temporary folder, then
+    ``Run.save``)."""
     import subprocess
     import sys
 
@@ -36,9 +38,10 @@ def runs(tmp_path_factory):
     dead.wait()
     stale = base / f".a.samii-run-{dead.pid}"  # what a main job killed outright (SIGKILL) leaves beside its --out
     (stale / "measure").mkdir(parents=True)
-    out = []
-    for name in ("a", "b"):
-        assert main(["run", "--out", str(base / name), "--seed", "3", "--no-progress"]) == 0
-        out.append(base / name)
+    assert main(["run", "--out", str(base / "a"), "--seed", "3", "--no-progress"]) == 0
+    from samii.pipeline import run
+
+    run(seed=3).save(base / "b")
+    out = [base / "a", base / "b"]
     assert not stale.exists(), "a rerun into the same --out removes what a killed run left (issue 36)"
     return out

@@ -883,16 +883,19 @@ def test_a_signal_while_the_main_job_replaces_its_folder_waits_for_the_swap(tmp_
     were complete. (The stages are stubbed: this is about the swap.)"""
     import signal
 
-    import samii.main_job as mj
+    import samii.pipeline as mj
+    from samii.run_summary import DampingSummary, DiagnosisSummary, FitSummary, MeasurementSummary, ModesSummary, RunSummary
 
     out = tmp_path / "D"
     out.mkdir()
     (out / "summary.json").write_text(json.dumps({"written_by": "samii run"}))
     (out / "OLD").write_text("the previous run's")
 
-    def stages(d, model, overrides, seed, bar):
+    def stages(d, model, overrides, seed, progress, argv):
         (d / "NEW").write_text("this run's")
-        return {"written_by": "samii run"}
+        return RunSummary(seed, "embedded default", (), ModesSummary((), (), None), MeasurementSummary("none", 0.1, 1e3, 1.0, None),
+                          FitSummary({}, {}, {}, True, "sound", (), (), (), None, {}, {}), DampingSummary(None, None, None, None, None), {},
+                          DiagnosisSummary("none", (), {}, {}))  # fmt: skip
 
     real_replace = os.replace
 

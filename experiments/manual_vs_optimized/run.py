@@ -26,12 +26,13 @@ from pathlib import Path
 import numpy as np
 
 from samii import notebook as nb
+from samii.identify.cli_studies import study_setup
 from samii.identify.cost import FitProblem
 from samii.identify.notebook_loop import nelder_mead_loop
 from samii.identify.report import params_markdown
 from samii.identify.starts import solve_gains
 from samii.identify.structures import ModelStructure
-from samii.identify.studies import manual_vs_optimized, study_setup, to_notebook_units
+from samii.identify.studies import manual_vs_optimized, to_notebook_units
 from samii.viz.fit_plot import plot_fit_overlay, plot_model_error, save_figure
 
 HERE = Path(__file__).resolve().parent

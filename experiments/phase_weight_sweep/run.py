@@ -23,9 +23,10 @@ from pathlib import Path
 import numpy as np
 
 from samii import notebook as nb
+from samii.identify.cli_studies import study_setup
 from samii.identify.cost import FitProblem
 from samii.identify.report import fits_markdown, params_markdown
-from samii.identify.studies import NOTEBOOK_PHASE_WEIGHTS, phase_weight_sweep, study_setup, to_notebook_units
+from samii.identify.studies import NOTEBOOK_PHASE_WEIGHTS, phase_weight_sweep, to_notebook_units
 from samii.viz.figures import save_figure
 from samii.viz.fit_plot import plot_fit_overlay, plot_model_error, plot_panels, plot_parameter_sweep
 

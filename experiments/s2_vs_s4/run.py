@@ -26,8 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
+from samii.identify.cli_studies import study_setup
 from samii.identify.report import fits_markdown
-from samii.identify.studies import STANDIN_SEED, s2_vs_s4, study_setup, synthetic_rig_frf, to_notebook_units
+from samii.identify.studies import STANDIN_SEED, s2_vs_s4, synthetic_rig_frf, to_notebook_units
 from samii.viz.fit_plot import plot_fit_overlay, plot_panels, save_figure
 
 HERE = Path(__file__).resolve().parent

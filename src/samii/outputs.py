@@ -46,6 +46,8 @@ __all__ = [
     "remove_stale_runs",
     "remove_stale_stages",
     "with_size",
+    "shown_path",
+    "written_beside",
 ]
 
 _STAGE_PREFIX = ".samii-stage-"
@@ -155,6 +157,31 @@ def create_parent(path) -> Path:
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     return p
+
+
+def shown_path(path, relative_to=None) -> str:
+    """``path`` as a run's files name it: as given, or relative to folder ``relative_to`` (the main job's folder, whose
+    files name each other by paths inside it, so that the folder can be moved)."""
+    return str(path) if relative_to is None else os.path.relpath(Path(path).absolute(), Path(relative_to).absolute())
+
+
+@contextlib.contextmanager
+def written_beside(path):
+    """A temporary name beside output file ``path`` (a recording: ``--rerun FILE.rrd``) for the block to write it under:
+    moved onto ``path`` when the block ends without an error (after the run's folder, which the block commits), removed
+    when it fails, so that ``path`` is the whole file or untouched. ``None`` in, ``None`` out (no such output)."""
+    if path is None:
+        yield None
+        return
+    path = Path(path)
+    tmp = path.parent / f".{path.name}.{os.getpid()}.tmp"
+    try:
+        yield tmp
+        if tmp.exists():
+            os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
 
 
 def with_size(path) -> str:

@@ -1,11 +1,33 @@
 """The main job's summary: what ``summary.json`` holds beside the stages' own files, and the lines a person reads.
 
-Shared by the main job (:mod:`samii.main_job`, which writes it) and the report (:mod:`samii.report.page`, which reads it).
+:class:`RunSummary` is the file as typed values (:meth:`RunSummary.to_json` writes it, :meth:`RunSummary.from_json`
+reads it back, refusing a field of the wrong kind by its name and a newer ``schema_version``, :mod:`samii.schema`).
+Shared by the pipeline (:mod:`samii.pipeline`, which writes it) and the report (:mod:`samii.report.page`, which
+reads it).
 """
 
 from __future__ import annotations
 
-__all__ = ["CONTROLLERS", "SCENARIOS", "MARKER", "summary_lines"]
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from samii.errors import InputError
+from samii.schema import SCHEMA_VERSION, schema_version
+
+__all__ = [
+    "CONTROLLERS",
+    "SCENARIOS",
+    "MARKER",
+    "summary_lines",
+    "RunSummary",
+    "ModesSummary",
+    "BaseMode",
+    "MeasurementSummary",
+    "FitSummary",
+    "DampingSummary",
+    "ClosedLoopSummary",
+    "DiagnosisSummary",
+]
 
 #: (name in the output, samii closedloop --controller, label in the summary) run closed loop; "damping" is designed by the main job.
 CONTROLLERS = (
@@ -16,6 +38,322 @@ CONTROLLERS = (
 SCENARIOS = ("step", "loper")
 #: summary.json says it is a main job's: a folder holding one may be replaced by the next main job.
 MARKER = "samii run"
+
+
+class _Reader:
+    """Fields of one JSON document, each taken with the kind it must have; a wrong one is an InputError naming the
+    file and the field."""
+
+    def __init__(self, where):
+        self.where = where
+
+    def fail(self, path: str, value, expected: str):
+        shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:40] + "..."
+        raise InputError(f"{self.where}: field '{path}' holds {shown}; expected {expected}")
+
+    def obj(self, d, path: str, *, optional: bool = False) -> Mapping | None:
+        if d is None and optional:
+            return None
+        if not isinstance(d, Mapping):
+            self.fail(path, d, "an object")
+        return d
+
+    def get(self, d: Mapping, key: str, path: str):
+        if key not in d:
+            raise InputError(f"{self.where}: field '{path}{key}' is missing")
+        return d[key]
+
+    def num(self, d: Mapping, key: str, path: str = "", *, optional: bool = False) -> float | None:
+        v = d.get(key) if optional else self.get(d, key, path)
+        if v is None and optional:
+            return None
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            self.fail(path + key, v, "a number" + (" or null" if optional else ""))
+        return float(v)
+
+    def text(self, d: Mapping, key: str, path: str = "", *, optional: bool = False) -> str | None:
+        v = d.get(key) if optional else self.get(d, key, path)
+        if v is None and optional:
+            return None
+        if not isinstance(v, str):
+            self.fail(path + key, v, "a string" + (" or null" if optional else ""))
+        return v
+
+    def flag(self, d: Mapping, key: str, path: str = "") -> bool:
+        v = self.get(d, key, path)
+        if not isinstance(v, bool):
+            self.fail(path + key, v, "true or false")
+        return v
+
+    def texts(self, d: Mapping, key: str, path: str = "") -> tuple[str, ...]:
+        v = d.get(key) or []
+        if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
+            self.fail(path + key, v, "a list of strings")
+        return tuple(v)
+
+    def numbers(self, d: Mapping, key: str, path: str = "") -> dict[str, float | None]:
+        v = self.obj(self.get(d, key, path), path + key)
+        for k, x in v.items():
+            if x is not None and (isinstance(x, bool) or not isinstance(x, (int, float))):
+                self.fail(f"{path}{key}.{k}", x, "a number or null")
+        return {k: None if x is None else float(x) for k, x in v.items()}
+
+
+@dataclass(frozen=True)
+class BaseMode:
+    freq_hz: float
+    zeta: float
+
+
+@dataclass(frozen=True)
+class ModesSummary:
+    """The model's base modes (joint 2 held) and servo-loop pair at the nominal pose, from its linearisation."""
+
+    pose_deg: tuple[float, ...]
+    base_modes: tuple[BaseMode, ...]
+    servo_pair_1_s: tuple[float, float] | None  #: (real part, |imaginary part|) [1/s]; None: no pair at 30-80 rad/s
+
+    def to_json(self) -> dict:
+        return {
+            "pose_deg": list(self.pose_deg),
+            "base_modes": [{"freq_hz": m.freq_hz, "zeta": m.zeta} for m in self.base_modes],
+            "servo_pair_1_s": None if self.servo_pair_1_s is None else list(self.servo_pair_1_s),
+        }
+
+
+@dataclass(frozen=True)
+class MeasurementSummary:
+    excitation: str
+    amplitude_v: float
+    sample_rate_hz: float
+    simulated_s: float
+    sensor_noise: Mapping[str, float] | None  #: rms of each sensor's noise (samii.measure.daq.SensorNoise)
+
+    def to_json(self) -> dict:
+        return {
+            "excitation": self.excitation,
+            "amplitude_v": self.amplitude_v,
+            "sample_rate_hz": self.sample_rate_hz,
+            "simulated_s": self.simulated_s,
+            "sensor_noise": None if self.sensor_noise is None else dict(self.sensor_noise),
+        }
+
+
+#: The fit's fields the summary repeats from fit/fit.json, after params, stderr and eq9_4.
+FIT_FIELDS = ("sound", "verdict", "concerns", "caveats", "undetermined", "lack_of_fit", "rms_mag_db", "rms_phase_deg")
+
+
+@dataclass(frozen=True)
+class FitSummary:
+    """The notebook's 3-mode model fitted to the measurement, beside eq 9.4 (SI: rad/s, theta in rad)."""
+
+    params: Mapping[str, float | None]
+    stderr: Mapping[str, float | None]
+    eq9_4: Mapping[str, float | None]
+    sound: bool
+    verdict: str
+    concerns: tuple[str, ...]
+    caveats: tuple[str, ...]
+    undetermined: tuple[str, ...]
+    lack_of_fit: Mapping | None  #: fit/fit.json's lack_of_fit (samii.identify.lack_of_fit)
+    rms_mag_db: Mapping[str, float | None]
+    rms_phase_deg: Mapping[str, float | None]
+
+    def to_json(self) -> dict:
+        return {
+            "params": dict(self.params),
+            "stderr": dict(self.stderr),
+            "eq9_4": dict(self.eq9_4),
+            "sound": self.sound,
+            "verdict": self.verdict,
+            "concerns": list(self.concerns),
+            "caveats": list(self.caveats),
+            "undetermined": list(self.undetermined),
+            "lack_of_fit": self.lack_of_fit,
+            "rms_mag_db": dict(self.rms_mag_db),
+            "rms_phase_deg": dict(self.rms_phase_deg),
+        }
+
+
+#: The damping design's fields the summary repeats (samii.closedloop.damping.DampingDesign.to_dict).
+DAMPING_FIELDS = ("gain_v_per_m_s2", "gain_limit_v_per_m_s2", "gain_margin_db", "filter_hz", "rolloff_hz")
+
+
+@dataclass(frozen=True)
+class DampingSummary:
+    gain_v_per_m_s2: float | None
+    gain_limit_v_per_m_s2: float | None
+    gain_margin_db: float | None
+    filter_hz: float | None
+    rolloff_hz: float | None  #: None: a design without a mode-3 roll-off
+
+    def to_json(self) -> dict:
+        return {k: getattr(self, k) for k in DAMPING_FIELDS}
+
+
+#: A closed-loop run's fields the summary repeats (samii.closedloop.scenario's as_json).
+CLOSED_LOOP_FIELDS = ("stable", "unstable_mode_hz", "growth_rate_1_s", "instability", "theta", "base")
+
+
+@dataclass(frozen=True)
+class ClosedLoopSummary:
+    stable: bool
+    unstable_mode_hz: float | None
+    growth_rate_1_s: float | None
+    instability: str | None  #: in words, for an unstable run
+    theta: Mapping | None  #: the step response's figures (samii.closedloop.metrics)
+    base: Mapping | None  #: the base vibration's figures
+
+    def to_json(self) -> dict:
+        return {k: getattr(self, k) for k in CLOSED_LOOP_FIELDS}
+
+
+@dataclass(frozen=True)
+class DiagnosisSummary:
+    verdict: str
+    effects: tuple[Mapping, ...]  #: the effects found that a fit does not expect (diagnosis.json's, as written)
+    error_before: Mapping  #: channel -> rms_db, rms_deg, chi2 ... (samii.diagnose.residuals.ChannelError)
+    error_after: Mapping
+
+    def to_json(self) -> dict:
+        return {
+            "verdict": self.verdict,
+            "effects": [dict(e) for e in self.effects],
+            "error_before": self.error_before,
+            "error_after": self.error_after,
+        }
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    """summary.json: the main job's figures, one value per line of its printed summary."""
+
+    seed: int
+    model_file: str  #: "embedded default" or the model's path
+    overrides: tuple[str, ...]  #: as given, NAME=VALUE
+    modes: ModesSummary
+    measurement: MeasurementSummary
+    fit: FitSummary
+    damping_design: DampingSummary
+    closed_loop: Mapping[str, ClosedLoopSummary]  #: "<controller>_<scenario>" (CONTROLLERS, SCENARIOS, servo_loop_alone_step)
+    diagnosis: DiagnosisSummary
+    wall_s: float | None = None
+    recordings_mb: Mapping[str, float] = field(default_factory=dict)
+    report_error: str | None = None  #: why report.html was not written
+    written_by: str = MARKER
+    schema_version: int = SCHEMA_VERSION
+
+    def to_json(self) -> dict:
+        doc = {
+            "schema_version": SCHEMA_VERSION,
+            "written_by": self.written_by,
+            "seed": self.seed,
+            "model": {"file": self.model_file, "overrides": list(self.overrides)},
+            "modes": self.modes.to_json(),
+            "measurement": self.measurement.to_json(),
+            "fit": self.fit.to_json(),
+            "damping_design": self.damping_design.to_json(),
+            "closed_loop": {k: v.to_json() for k, v in self.closed_loop.items()},
+            "diagnosis": self.diagnosis.to_json(),
+            "wall_s": self.wall_s,
+            "recordings_mb": dict(self.recordings_mb),
+        }
+        if self.report_error is not None:
+            doc["report_error"] = self.report_error
+        return doc
+
+    def lines(self, out) -> list[str]:
+        """The summary a person reads (:func:`summary_lines`), naming the folder ``out``."""
+        return summary_lines(self.to_json(), out)
+
+    @classmethod
+    def from_json(cls, doc, where="summary.json") -> RunSummary:
+        """The summary in ``doc`` (read from ``where``); InputError naming the field for one of the wrong kind."""
+        r = _Reader(where)
+        doc = r.obj(doc, "(the document)")
+        version = schema_version(doc, where)
+        if doc.get("written_by") != MARKER:
+            raise InputError(f"{where}: field 'written_by' is {doc.get('written_by')!r}, expected {MARKER!r}")
+        model = r.obj(r.get(doc, "model", ""), "model")
+        modes = r.obj(r.get(doc, "modes", ""), "modes")
+        pair = modes.get("servo_pair_1_s")
+        if pair is not None and (not isinstance(pair, list) or len(pair) != 2 or not all(isinstance(x, (int, float)) for x in pair)):
+            r.fail("modes.servo_pair_1_s", pair, "[real part, imaginary part] or null")
+        base_modes = r.get(modes, "base_modes", "modes.")
+        if not isinstance(base_modes, list):
+            r.fail("modes.base_modes", base_modes, "a list")
+        meas = r.obj(r.get(doc, "measurement", ""), "measurement")
+        fit = r.obj(r.get(doc, "fit", ""), "fit")
+        design = r.obj(r.get(doc, "damping_design", ""), "damping_design")
+        loops = r.obj(r.get(doc, "closed_loop", ""), "closed_loop")
+        diag = r.obj(r.get(doc, "diagnosis", ""), "diagnosis")
+        effects = diag.get("effects") or []
+        if not isinstance(effects, list) or not all(isinstance(e, Mapping) for e in effects):
+            r.fail("diagnosis.effects", effects, "a list of objects")
+        rec = r.obj(doc.get("recordings_mb") or {}, "recordings_mb")
+        seed = doc.get("seed")
+        if isinstance(seed, bool) or not isinstance(seed, int):
+            r.fail("seed", seed, "a whole number")
+
+        def loop(name: str, d) -> ClosedLoopSummary:
+            p = f"closed_loop.{name}."
+            d = r.obj(d, p[:-1])
+            return ClosedLoopSummary(
+                stable=r.flag(d, "stable", p),
+                unstable_mode_hz=r.num(d, "unstable_mode_hz", p, optional=True),
+                growth_rate_1_s=r.num(d, "growth_rate_1_s", p, optional=True),
+                instability=r.text(d, "instability", p, optional=True),
+                theta=r.obj(d.get("theta"), p + "theta", optional=True),
+                base=r.obj(d.get("base"), p + "base", optional=True),
+            )
+
+        return cls(
+            seed=seed,
+            model_file=r.text(model, "file", "model."),
+            overrides=r.texts(model, "overrides", "model."),
+            modes=ModesSummary(
+                pose_deg=tuple(r.num({"v": x}, "v", f"modes.pose_deg[{i}]") for i, x in enumerate(r.get(modes, "pose_deg", "modes.") or [])),
+                base_modes=tuple(
+                    BaseMode(
+                        r.num(r.obj(b, f"modes.base_modes[{i}]"), "freq_hz", f"modes.base_modes[{i}]."), r.num(b, "zeta", f"modes.base_modes[{i}].")
+                    )
+                    for i, b in enumerate(base_modes)
+                ),
+                servo_pair_1_s=None if pair is None else (float(pair[0]), float(pair[1])),
+            ),
+            measurement=MeasurementSummary(
+                excitation=r.text(meas, "excitation", "measurement."),
+                amplitude_v=r.num(meas, "amplitude_v", "measurement."),
+                sample_rate_hz=r.num(meas, "sample_rate_hz", "measurement."),
+                simulated_s=r.num(meas, "simulated_s", "measurement."),
+                sensor_noise=r.obj(meas.get("sensor_noise"), "measurement.sensor_noise", optional=True),
+            ),
+            fit=FitSummary(
+                params=r.numbers(fit, "params", "fit."),
+                stderr=r.numbers(fit, "stderr", "fit."),
+                eq9_4=r.numbers(fit, "eq9_4", "fit."),
+                sound=r.flag(fit, "sound", "fit."),
+                verdict=r.text(fit, "verdict", "fit."),
+                concerns=r.texts(fit, "concerns", "fit."),
+                caveats=r.texts(fit, "caveats", "fit."),
+                undetermined=r.texts(fit, "undetermined", "fit."),
+                lack_of_fit=r.obj(fit.get("lack_of_fit"), "fit.lack_of_fit", optional=True),
+                rms_mag_db=r.numbers(fit, "rms_mag_db", "fit."),
+                rms_phase_deg=r.numbers(fit, "rms_phase_deg", "fit."),
+            ),
+            damping_design=DampingSummary(**{k: r.num(design, k, "damping_design.", optional=True) for k in DAMPING_FIELDS}),
+            closed_loop={name: loop(name, d) for name, d in loops.items()},
+            diagnosis=DiagnosisSummary(
+                verdict=r.text(diag, "verdict", "diagnosis."),
+                effects=tuple(effects),
+                error_before=r.obj(r.get(diag, "error_before", "diagnosis."), "diagnosis.error_before"),
+                error_after=r.obj(r.get(diag, "error_after", "diagnosis."), "diagnosis.error_after"),
+            ),
+            wall_s=r.num(doc, "wall_s", "", optional=True),
+            recordings_mb={k: r.num(rec, k, "recordings_mb.") for k in rec},
+            report_error=r.text(doc, "report_error", "", optional=True),
+            schema_version=version,
+        )
 
 
 def summary_lines(s: dict, out) -> list[str]:

@@ -154,7 +154,7 @@ def _channels(text: str, data) -> tuple[str, ...]:
 
 def run(args: argparse.Namespace) -> int:
     from samii.outputs import OutputFolder
-    from samii.sim.cli_modes import parse_overrides
+    from samii.sim.overrides import parse_overrides
 
     prog = "samii calibrate"
     folder = OutputFolder(args.out, OUTPUTS, overwrite=args.overwrite) if args.out else None

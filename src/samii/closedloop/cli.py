@@ -143,7 +143,7 @@ def _summary(r, out_names: list[str]) -> str:
 
 def run(args) -> int:
     from samii.closedloop.trial import TrialRequest, run_trial
-    from samii.sim.cli_modes import parse_overrides
+    from samii.sim.overrides import parse_overrides
 
     request = TrialRequest(
         controller=args.controller,

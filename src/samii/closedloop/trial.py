@@ -10,7 +10,6 @@ A run that is unstable by design is a result (``stable`` false), not an error. R
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -154,10 +153,6 @@ def write_rerun(result, tmp, final, factory) -> None:
         raise recording_failed(exc, final) from None
 
 
-def _shown(path, relative_to) -> str:
-    return str(path) if relative_to is None else os.path.relpath(Path(path).absolute(), Path(relative_to).absolute())
-
-
 def run_trial(
     request: TrialRequest,
     *,
@@ -177,7 +172,7 @@ def run_trial(
     ``relative_to`` names the written files relative to that folder (the main job's) instead of as given."""
     from samii.closedloop.plots import FIGURES
     from samii.closedloop.scenario import NoiseSpec, default_spec_factory, run_closed_loop, scenario
-    from samii.outputs import OutputFolder, check_output_file
+    from samii.outputs import OutputFolder, check_output_file, shown_path, written_beside
 
     req = request
     overrides = dict(overrides or {})
@@ -207,7 +202,7 @@ def run_trial(
         from samii.viz.recording import frame_steps_for
 
         frame_steps = frame_steps_for(model_at_rest(factory), rerun_fps)
-    label = req.controller if req.controller in BUILTIN_CONTROLLERS else _shown(req.controller, relative_to)
+    label = req.controller if req.controller in BUILTIN_CONTROLLERS else shown_path(req.controller, relative_to)
     result = run_closed_loop(saved, sc, label=label, spec_factory=factory, delay_samples=req.delay_samples, noise=noise,
                              qpos_every=frame_steps)  # fmt: skip
 
@@ -217,11 +212,11 @@ def run_trial(
     if not recorded and rerun_path is not None:
         notes.append(f"--rerun {rerun_path}: not written, the run diverged in its first step")
         rerun_path = None
-    rrd_tmp = rerun_path.parent / f".{rerun_path.name}.{os.getpid()}.tmp" if rerun_path else None
-    try:
+    with written_beside(rerun_path) as rrd_tmp:
         if folder is not None:
             from samii.formats import write_timeseries_csv
             from samii.json_output import dumps
+            from samii.schema import versioned
 
             with folder:
                 if recorded:
@@ -234,7 +229,7 @@ def run_trial(
                 doc["controller_detail"] = None if saved is None else {
                     "name": saved.controller.name, "method": saved.controller.method, "model_units": saved.controller.model_units,
                     "servo_loop": "replaced" if saved.replaces_servo else "kept", "provenance": dict(saved.provenance)}  # fmt: skip
-                folder.path("run.json").write_text(dumps(doc, indent=1) + "\n")
+                folder.path("run.json").write_text(dumps(versioned(doc), indent=1) + "\n")
                 if recorded and plots:
                     from samii.closedloop.plots import plot_base, plot_linear, plot_theta
 
@@ -243,13 +238,9 @@ def run_trial(
                     plot_linear(result, folder.path("linear_vs_nonlinear.png"))
                 if rrd_tmp is not None:  # inside the folder's transaction: a failed recording leaves no folder behind
                     write_rerun(result, rrd_tmp, rerun_path, factory)
-            written = [_shown(folder.final(n), relative_to) for n in folder.names]
+            written = [shown_path(folder.final(n), relative_to) for n in folder.names]
         elif rrd_tmp is not None:
             write_rerun(result, rrd_tmp, rerun_path, factory)
-        if rrd_tmp is not None:
-            os.replace(rrd_tmp, rerun_path)
-            written.append(_shown(rerun_path, relative_to))
-    finally:
-        if rrd_tmp is not None and rrd_tmp.exists():
-            rrd_tmp.unlink()
+    if rerun_path is not None:
+        written.append(shown_path(rerun_path, relative_to))
     return Trial(result=result, written=written, notes=notes)

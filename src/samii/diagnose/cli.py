@@ -127,8 +127,9 @@ def run(args: argparse.Namespace) -> int:
             progress.close()
     if args.json:
         from samii.json_output import dumps
+        from samii.schema import versioned
 
-        print(dumps(done.diagnosis.to_dict(), indent=2))
+        print(dumps(versioned(done.diagnosis.to_dict()), indent=2))  # what diagnosis.json holds
         return 0
     _print(done.diagnosis, done.written)
     return 0

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from samii.errors import InputError, input_error_of
+from samii.outputs import shown_path, written_beside
 
 __all__ = ["DiagnoseRequest", "DiagnosedFiles", "diagnose_files", "OUTPUTS", "SIM_OUTPUTS", "MAX_FILES"]
 
@@ -52,10 +53,6 @@ class _Silent:
         pass
 
 
-def _named(path, relative_to) -> str:
-    return str(path) if relative_to is None else os.path.relpath(Path(path).absolute(), Path(relative_to).absolute())
-
-
 def _baseline(req: DiagnoseRequest, relative_to):
     """The baseline and the simulator's parameters ``req`` names, checked before any work."""
     sim_params = None
@@ -83,24 +80,20 @@ def _baseline(req: DiagnoseRequest, relative_to):
         )
     from samii.diagnose.baseline import read_fit_json
 
-    return read_fit_json(p, name=_named(p, relative_to)), sim_params  # bad input before any work
+    return read_fit_json(p, name=shown_path(p, relative_to)), sim_params  # bad input before any work
 
 
-def _write_rerun(d, path, fps):
-    """The simulator against the data as a Rerun recording for ``path``, written beside it (the caller moves it in):
-    the temporary file's path."""
+def _write_rerun(d, tmp, path, fps) -> None:
+    """The simulator against the data as a Rerun recording in ``tmp``, the temporary name of ``path`` (which a failure
+    names)."""
     from samii.diagnose.recording import write_diagnosis_recording
     from samii.outputs import create_parent
     from samii.viz.recording import recording_failed
 
-    tmp = create_parent(path.parent / f".{path.name}.{os.getpid()}.tmp")
     try:
-        write_diagnosis_recording(tmp, d, fps=fps)
+        write_diagnosis_recording(create_parent(tmp), d, fps=fps)
     except (RuntimeError, OSError) as exc:  # rerun's writer reports file-system failures as RuntimeError
-        if tmp.exists():
-            tmp.unlink()
         raise recording_failed(exc, path) from None
-    return tmp
 
 
 def diagnose_files(
@@ -150,15 +143,14 @@ def diagnose_files(
         raise InputError("--rerun-fps: sets the frame rate of a recording; give --rerun FILE.rrd too")
 
     progress = progress or _Silent()
-    rrd_tmp = None
-    try:
+    with written_beside(rerun_path) as rrd_tmp:
         progress.stage("reading")
         band = tuple(request.band_hz) if request.band_hz else None
         measured = []
         for path in data:
             try:
                 measured.append(load(path, band_hz=band, record_s=request.record_s, mat_freq_name=request.mat_freq_name,
-                                     mat_freq_unit=request.mat_freq_unit, name=None if relative_to is None else _named(path, relative_to)))  # fmt: skip
+                                     mat_freq_unit=request.mat_freq_unit, name=None if relative_to is None else shown_path(path, relative_to)))  # fmt: skip
             except ValueError as exc:
                 from samii.formats import DataFormatError
 
@@ -181,9 +173,10 @@ def diagnose_files(
             from samii.diagnose.plots import bode_figure, harmonic_figure, residual_figure, simulator_figure
             from samii.forkmap import fork_map
             from samii.formats import write_text
+            from samii.schema import versioned
 
             with folder:
-                write_text(folder.path("diagnosis.json"), dumps(d.to_dict(), indent=2) + "\n")
+                write_text(folder.path("diagnosis.json"), dumps(versioned(d.to_dict()), indent=2) + "\n")
                 figures = [(residual_figure, "residuals.png"), (bode_figure, "bode.png"), (harmonic_figure, "harmonics.png")]
                 if d.simulator is not None:
                     figures.append((simulator_figure, "simulator.png"))
@@ -194,15 +187,10 @@ def diagnose_files(
                 fork_map(draw, figures)  # drawn at once on the machine's cores (samii.forkmap)
                 if rerun_path is not None:  # inside the folder's transaction: a failed recording leaves no folder behind
                     progress.stage("recording")
-                    rrd_tmp = _write_rerun(d, rerun_path, rerun_fps)
-        elif rerun_path is not None:
+                    _write_rerun(d, rrd_tmp, rerun_path, rerun_fps)
+        elif rrd_tmp is not None:
             progress.stage("recording")
-            rrd_tmp = _write_rerun(d, rerun_path, rerun_fps)
-        if rrd_tmp is not None:
-            os.replace(rrd_tmp, rerun_path)
-    finally:
-        if rrd_tmp is not None and rrd_tmp.exists():
-            rrd_tmp.unlink()
-    written = [_named(p, relative_to) for p in (folder.written if folder is not None else [])]
-    written += [_named(rerun_path, relative_to)] if rerun_path is not None else []
+            _write_rerun(d, rrd_tmp, rerun_path, rerun_fps)
+    written = [shown_path(p, relative_to) for p in (folder.written if folder is not None else [])]
+    written += [shown_path(rerun_path, relative_to)] if rerun_path is not None else []
     return DiagnosedFiles(diagnosis=d, written=written)

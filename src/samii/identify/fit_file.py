@@ -9,7 +9,6 @@ command's option names.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
@@ -141,9 +140,9 @@ def fit_frf_file(
     from samii.identify.fit import check_not_noise, fit
     from samii.identify.report import fit_output_names, write_fit_outputs
     from samii.identify.structures import ModelStructure
-    from samii.outputs import OutputFolder
+    from samii.outputs import OutputFolder, shown_path
 
-    name = str(path) if relative_to is None else os.path.relpath(Path(path).absolute(), Path(relative_to).absolute())
+    name = shown_path(path, relative_to)
     folder = OutputFolder(out, fit_output_names(list(request.phase_weights)), overwrite=overwrite) if out is not None else None
     progress = progress or _Silent()
     progress.stage("reading")
@@ -190,5 +189,5 @@ def fit_frf_file(
         progress.stage("writing plots")
         with folder:
             write_fit_outputs(data, results, folder, note=f"data: {name}")
-        written = [str(p) if relative_to is None else os.path.relpath(Path(p).absolute(), Path(relative_to).absolute()) for p in folder.written]
+        written = [shown_path(p, relative_to) for p in folder.written]
     return FitFile(data=data, structure=structure, results=results, written=written)

@@ -48,7 +48,6 @@ __all__ = [
     "NOTEBOOK_PHASE_WEIGHTS",
     "STANDIN_NOTE",
     "study_data",
-    "study_setup",
     "from_notebook_units",
     "to_notebook_units",
     "synthetic_rig_frf",
@@ -122,22 +121,6 @@ def study_data(
         return read_frf_csv(path), None, f"data: {path}"
     data = synthetic_rig_frf(freq_hz, rng=np.random.default_rng(seed))
     return data, synthetic_rig_frf(freq_hz, rng=None, noise=None), STANDIN_NOTE
-
-
-def study_setup(description: str, default_out) -> tuple:
-    """Command line shared by the experiment scripts: ``[--data FRF.csv] [--out DIR]``.
-
-    Returns (out folder, created; data; noise-free data or None; note for the figures).
-    """
-    import argparse
-    from pathlib import Path
-
-    ap = argparse.ArgumentParser(description=description)
-    ap.add_argument("--data", help="FRF CSV to use instead of the synthetic stand-in")
-    ap.add_argument("--out", default=Path(default_out), type=Path, help=f"output folder (default {default_out})")
-    args = ap.parse_args()
-    args.out.mkdir(parents=True, exist_ok=True)
-    return (args.out, *study_data(args.data))
 
 
 def phase_weight_sweep(

@@ -11,20 +11,20 @@ model), worded with the command's option names.
 
 from __future__ import annotations
 
-import os
 import time
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from samii.errors import InputError, SimulationUnstable
+from samii.schema import SCHEMA_VERSION
 
 __all__ = [
     "BodeTestRequest",
     "BodeTest",
+    "MeasureWarning",
     "run_bode_test",
     "OUTPUTS",
     "METHOD_LABEL",
@@ -90,7 +90,7 @@ class BodeTest:
     coherence_ok: bool  #: whether the main record has coherence (false for one swept-sine record)
     supply_pressure_pa: float
     summary: dict  #: run.json's content
-    warnings: list[str] = field(default_factory=list)
+    warnings: list[MeasureWarning] = field(default_factory=list)  #: what the command prints after "warning:"
     written: list[str] = field(default_factory=list)  #: the files written, as the run names them
 
     @property
@@ -178,47 +178,69 @@ def _check_rails(ts, kind: str) -> None:
         )
 
 
-def _shown(path, relative_to: Path | None) -> str:
-    """``path`` as the run names it: as given, or relative to ``relative_to`` (the main job's folder, whose files name
-    each other by paths inside it)."""
-    return str(path) if relative_to is None else os.path.relpath(Path(path).absolute(), Path(relative_to).absolute())
+@dataclass(frozen=True)
+class MeasureWarning:
+    """A finding about the measurement that a user should act on, as data: ``code`` says what, ``run`` which run
+    ("swept" or "stepped"), ``values`` the numbers behind it (SI); :attr:`text` words it."""
+
+    code: str  #: "pressure_above_supply", "not_small_signal" or "no_coherence"
+    run: str
+    values: Mapping[str, object] = field(default_factory=dict)
+
+    @property
+    def text(self) -> str:
+        from samii.frequency_response import SUSTAINED_POINTS
+
+        v = self.values
+        if self.code == "pressure_above_supply":
+            p_peak, supply = v["peak_pa"], v["supply_pa"]
+            return (
+                f"{self.run} run: the load pressure reached {p_peak / 1e6:.2f} MPa, {100 * (p_peak / supply - 1):.0f} % above the "
+                f"{supply / 1e6:.3g} MPa supply: the motor pumped oil in faster than the partly closed valve returns it "
+                "to the supply (no relief valve is modelled; a rig's would clip the pressure). "
+                "The response is far from small-signal: lower --amplitude-v"
+            )
+        if self.code == "not_small_signal":
+            where = (
+                f"over a band (the median of {SUSTAINED_POINTS} neighbouring coherent points, 0.5-35 Hz; {v['deviation_deg']:.0f} deg)"
+                if self.run == "swept"
+                else f"(coherent points, 0.5-35 Hz; {v['deviation_deg']:.0f} deg)"
+            )
+            return (
+                f"{self.run} run: {v['channel']} lies {v['deviation_db']:.1f} dB from the linearised simulator {where}: the response at "
+                f"{v['amplitude_v']:g} V is far from small-signal (valve and orifice nonlinearity), so this FRF is not the plant's linear "
+                "model; lower --amplitude-v to measure that"
+            )
+        if self.code == "no_coherence":
+            return (
+                "one swept-sine record cannot estimate coherence (--averages 1): the coherence panels are empty "
+                "and the check against the linearised simulator uses every point"
+            )
+        raise ValueError(f"unknown measurement warning {self.code!r}")
 
 
-def _warnings(results, checks, peaks, coh_ok: bool, supply_pa: float, amp: float) -> list[str]:
-    from samii.frequency_response import SUSTAINED_POINTS
-
+def _warnings(results, checks, peaks, coh_ok: bool, supply_pa: float, amp: float) -> list[MeasureWarning]:
     out = []
     for kind, pk in peaks.items():
         p_peak = pk["load_pressure_pa"]
         if p_peak is not None and p_peak > supply_pa:
-            out.append(
-                f"{kind} run: the load pressure reached {p_peak / 1e6:.2f} MPa, {100 * (p_peak / supply_pa - 1):.0f} % above the "
-                f"{supply_pa / 1e6:.3g} MPa supply: the motor pumped oil in faster than the partly closed valve returns it "
-                "to the supply (no relief valve is modelled; a rig's would clip the pressure). "
-                "The response is far from small-signal: lower --amplitude-v"
-            )
+            out.append(MeasureWarning("pressure_above_supply", kind, {"peak_pa": p_peak, "supply_pa": supply_pa}))
     for kind, check in checks.items():
         # a swept sine's dense grid: the deviation of a band (a point whose coherence is high by chance deviated
         # 6.8 dB at 0.1 V with sensor noise, and lowering the amplitude was advised); a stepped sine's every point
-        key = "sustained_db" if kind == "swept" else "max_abs_db"
+        key, key_deg = ("sustained_db", "sustained_deg") if kind == "swept" else ("max_abs_db", "max_abs_deg")
         ch = max(check, key=lambda c: check[c][key], default=None)
         if ch is not None and check[ch][key] > LINEARITY_WARN_DB:
-            st = check[ch]
-            where = (
-                f"over a band (the median of {SUSTAINED_POINTS} neighbouring coherent points, 0.5-35 Hz; {st['sustained_deg']:.0f} deg)"
-                if kind == "swept"
-                else f"(coherent points, 0.5-35 Hz; {st['max_abs_deg']:.0f} deg)"
-            )
-            out.append(
-                f"{kind} run: {ch} lies {st[key]:.1f} dB from the linearised simulator {where}: the response at {amp:g} V "
-                "is far from small-signal (valve and orifice nonlinearity), so this FRF is not the plant's linear model; "
-                "lower --amplitude-v to measure that"
-            )
+            values = {
+                "channel": ch,
+                "deviation_db": check[ch][key],
+                "deviation_deg": check[ch][key_deg],
+                "amplitude_v": amp,
+                "limit_db": LINEARITY_WARN_DB,
+            }
+            out.append(MeasureWarning("not_small_signal", kind, values))
     if "swept" in results and not coh_ok:
-        out.append(
-            "one swept-sine record cannot estimate coherence (--averages 1): the coherence panels are empty "
-            "and the check against the linearised simulator uses every point"
-        )
+        out.append(MeasureWarning("no_coherence", "swept"))
     return out
 
 
@@ -261,7 +283,7 @@ def run_bode_test(
     from samii.json_output import dumps
     from samii.measure.campaign import linearised_frf, measure
     from samii.measure.daq import SensorNoise
-    from samii.outputs import OutputFolder, check_output_file, create_parent
+    from samii.outputs import OutputFolder, check_output_file, create_parent, shown_path, written_beside
     from samii.sim.model import load_model
     from samii.sim.plugin import hydraulic_params
 
@@ -306,125 +328,120 @@ def run_bode_test(
     # the first measurement's record is timeseries.csv; the stepped one of --method both is timeseries_stepped.csv
     ts_names = {kind: ("timeseries.csv" if i == 0 else f"timeseries_{kind}.csv") for i, (kind, _) in enumerate(plan)}
     results = {}
-    rrd_tmp = rerun_path.parent / f".{rerun_path.name}.{os.getpid()}.tmp" if rerun_path else None
-    try:
-        with folder:
-            for kind, excitation in plan:
-                results[kind] = measure(
-                    model_obj,
-                    excitation,
-                    sample_rate_hz=req.sample_rate_hz,
-                    noise=noise,
-                    rng=rng,
-                    frame_steps=frame_steps,
-                    progress=step_done,
-                    timeseries_path=folder.path(ts_names[kind]),
-                )
-                _check_rails(results[kind].timeseries, kind)
-                offset[0] += int(round(excitation.duration_s / dt))
-            sim_wall = sum(r.run.wall_s for r in results.values())
-            simulated_s = sum(e.duration_s for _, e in plan)
-
-            main = results.get("swept") or results["stepped"]
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                ref_grid = np.geomspace(min(main.frf.freq_hz[0], 0.1), max(main.frf.freq_hz[-1], 40.0), 400)
-                reference = linearised_frf(model_obj, ref_grid)
-                coh = main.frf.coherence(main.frf.channels[0])
-                coh_ok = coh is not None and bool(np.any(np.isfinite(coh)))
-                checks = {
-                    kind: max_deviation(
-                        r.frf,
-                        linearised_frf(model_obj, r.frf.freq_hz),
-                        band_hz=(0.5, 35.0),
-                        min_coherence=0.95 if coh_ok or kind == "stepped" else None,
-                    )
-                    for kind, r in results.items()
-                }
-            write_frf_csv(main.frf, folder.path("frf.csv"))
-            if req.method == "both":
-                write_frf_csv(results["stepped"].frf, folder.path("frf_stepped.csv"))
-
-            from samii.viz.bode_plot import bode_plot
-
-            amp = (sweep if "swept" in results else stepped).amplitude_v
-            model_name = str(model) if model else "embedded model"
-            if overrides:
-                model_name += " with " + ", ".join(f"{k}={v:g}" for k, v in overrides.items())
-            title = f"samii measure: {METHOD_LABEL[req.method]}, {amp:g} V, {'with' if noise else 'no'} sensor noise\n{model_name}"
-            bode_plot(
-                results.get("swept").frf if "swept" in results else None,
-                stepped=results["stepped"].frf if "stepped" in results else None,
-                reference=reference,
-                reference_label="linearised simulator",
-                title=title,
-                path=folder.path("bode.png"),
+    # the recording lives outside --out: moved into place once the folder is complete
+    with written_beside(rerun_path) as rrd_tmp, folder:
+        for kind, excitation in plan:
+            results[kind] = measure(
+                model_obj,
+                excitation,
+                sample_rate_hz=req.sample_rate_hz,
+                noise=noise,
+                rng=rng,
+                frame_steps=frame_steps,
+                progress=step_done,
+                timeseries_path=folder.path(ts_names[kind]),
             )
+            _check_rails(results[kind].timeseries, kind)
+            offset[0] += int(round(excitation.duration_s / dt))
+        sim_wall = sum(r.run.wall_s for r in results.values())
+        simulated_s = sum(e.duration_s for _, e in plan)
 
-            hp = hydraulic_params(model_obj)
-            peaks = {
-                kind: {
-                    "load_pressure_pa": float(np.max(np.abs(r.timeseries.p_load))) if r.timeseries.p_load is not None else None,
-                    "valve_command_v": float(np.max(np.abs(r.timeseries.v))),
-                    "joint_angle_rad": float(np.max(np.abs(r.timeseries.theta))),
-                }
+        main = results.get("swept") or results["stepped"]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            ref_grid = np.geomspace(min(main.frf.freq_hz[0], 0.1), max(main.frf.freq_hz[-1], 40.0), 400)
+            reference = linearised_frf(model_obj, ref_grid)
+            coh = main.frf.coherence(main.frf.channels[0])
+            coh_ok = coh is not None and bool(np.any(np.isfinite(coh)))
+            checks = {
+                kind: max_deviation(
+                    r.frf,
+                    linearised_frf(model_obj, r.frf.freq_hz),
+                    band_hz=(0.5, 35.0),
+                    min_coherence=0.95 if coh_ok or kind == "stepped" else None,
+                )
                 for kind, r in results.items()
             }
-            outputs = [_shown(folder.final(n), relative_to) for n in names] + ([_shown(rerun_path, relative_to)] if rerun_path else [])
-            summary = {
-                "command": "samii measure",
-                "argv": list(argv),
-                "method": req.method,
-                "excitation": {kind: e.describe() for kind, e in plan},
-                "daq": {
-                    "sample_rate_hz": req.sample_rate_hz,
-                    "antialias": main.timeseries.metadata.get("antialias"),
-                    "sensor_noise": asdict(noise) if noise else None,
-                    "seed": req.seed,
-                },
-                "frf": {k: v for k, v in main.frf.metadata.items() if k.startswith("frf_")},
-                "model": {
-                    "file": str(model) if model else "embedded default",
-                    "overrides": overrides,
-                    "timestep_s": dt,
-                    "params": _model_params(model, overrides),
-                    "hydraulic": {k: v for k, v in asdict(hp).items() if k != "source"},
-                },
-                "versions": _versions(),
-                "timing": {
-                    "simulated_s": simulated_s,
-                    "simulation_wall_s": sim_wall,
-                    "total_wall_s": time.perf_counter() - t_start,
-                    "real_time_factor": simulated_s / sim_wall if sim_wall > 0 else None,
-                },
-                "vs_linearised_simulator_0.5_35_hz": checks[plan[0][0]],
-                "peaks": peaks[plan[0][0]],
-                "outputs": outputs,
-            }
-            if req.method == "both":
-                summary["vs_linearised_simulator_0.5_35_hz_by_method"] = checks
-                summary["peaks_by_method"] = peaks
-            said = _warnings(results, checks, peaks, coh_ok, hp.supply_pressure, amp)
-            if said:
-                summary["warnings"] = said
-            write_text(folder.path("run.json"), dumps(summary, indent=2) + "\n")
-            if rerun_path is not None:
-                from samii.viz.recording import RunRecord, recording_failed, write_recording
+        write_frf_csv(main.frf, folder.path("frf.csv"))
+        if req.method == "both":
+            write_frf_csv(results["stepped"].frf, folder.path("frf_stepped.csv"))
 
-                runs = [RunRecord(kind, results[kind].timeseries, results[kind].run.frame_t_s, results[kind].run.frame_qpos,
+        from samii.viz.bode_plot import bode_plot
+
+        amp = (sweep if "swept" in results else stepped).amplitude_v
+        model_name = str(model) if model else "embedded model"
+        if overrides:
+            model_name += " with " + ", ".join(f"{k}={v:g}" for k, v in overrides.items())
+        title = f"samii measure: {METHOD_LABEL[req.method]}, {amp:g} V, {'with' if noise else 'no'} sensor noise\n{model_name}"
+        bode_plot(
+            results.get("swept").frf if "swept" in results else None,
+            stepped=results["stepped"].frf if "stepped" in results else None,
+            reference=reference,
+            reference_label="linearised simulator",
+            title=title,
+            path=folder.path("bode.png"),
+        )
+
+        hp = hydraulic_params(model_obj)
+        peaks = {
+            kind: {
+                "load_pressure_pa": float(np.max(np.abs(r.timeseries.p_load))) if r.timeseries.p_load is not None else None,
+                "valve_command_v": float(np.max(np.abs(r.timeseries.v))),
+                "joint_angle_rad": float(np.max(np.abs(r.timeseries.theta))),
+            }
+            for kind, r in results.items()
+        }
+        outputs = [shown_path(folder.final(n), relative_to) for n in names] + ([shown_path(rerun_path, relative_to)] if rerun_path else [])
+        summary = {
+            "schema_version": SCHEMA_VERSION,
+            "command": "samii measure",
+            "argv": list(argv),
+            "method": req.method,
+            "excitation": {kind: e.describe() for kind, e in plan},
+            "daq": {
+                "sample_rate_hz": req.sample_rate_hz,
+                "antialias": main.timeseries.metadata.get("antialias"),
+                "sensor_noise": asdict(noise) if noise else None,
+                "seed": req.seed,
+            },
+            "frf": {k: v for k, v in main.frf.metadata.items() if k.startswith("frf_")},
+            "model": {
+                "file": str(model) if model else "embedded default",
+                "overrides": overrides,
+                "timestep_s": dt,
+                "params": _model_params(model, overrides),
+                "hydraulic": {k: v for k, v in asdict(hp).items() if k != "source"},
+            },
+            "versions": _versions(),
+            "timing": {
+                "simulated_s": simulated_s,
+                "simulation_wall_s": sim_wall,
+                "total_wall_s": time.perf_counter() - t_start,
+                "real_time_factor": simulated_s / sim_wall if sim_wall > 0 else None,
+            },
+            "vs_linearised_simulator_0.5_35_hz": checks[plan[0][0]],
+            "peaks": peaks[plan[0][0]],
+            "outputs": outputs,
+        }
+        if req.method == "both":
+            summary["vs_linearised_simulator_0.5_35_hz_by_method"] = checks
+            summary["peaks_by_method"] = peaks
+        said = _warnings(results, checks, peaks, coh_ok, hp.supply_pressure, amp)
+        if said:
+            summary["warnings"] = [w.text for w in said]
+        write_text(folder.path("run.json"), dumps(summary, indent=2) + "\n")
+        if rerun_path is not None:
+            from samii.viz.recording import RunRecord, recording_failed, write_recording
+
+            runs = [RunRecord(kind, results[kind].timeseries, results[kind].run.frame_t_s, results[kind].run.frame_qpos,
                                   sweep_hz=exc.frequency_hz(results[kind].timeseries.t),
                                   label=f"samii measure: {kind} sine, {exc.amplitude_v:g} V on the valve command, joint 2 under its position loop")
                         for kind, exc in plan]  # fmt: skip
-                create_parent(rrd_tmp)
-                try:
-                    write_recording(rrd_tmp, model_obj, runs, application_id="samii_measure", thin_frames=rerun_fps is None)
-                except (RuntimeError, OSError) as exc:  # rerun's writer reports file-system failures as RuntimeError
-                    raise recording_failed(exc, rerun_path) from None
-        if rrd_tmp is not None:  # the recording lives outside --out: moved into place once the folder is complete
-            os.replace(rrd_tmp, rerun_path)
-    finally:
-        if rrd_tmp is not None and rrd_tmp.exists():
-            rrd_tmp.unlink()
+            create_parent(rrd_tmp)
+            try:
+                write_recording(rrd_tmp, model_obj, runs, application_id="samii_measure", thin_frames=rerun_fps is None)
+            except (RuntimeError, OSError) as exc:  # rerun's writer reports file-system failures as RuntimeError
+                raise recording_failed(exc, rerun_path) from None
     summary["timing"]["total_wall_s"] = time.perf_counter() - t_start
     return BodeTest(
         request=req,

@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
 
     from samii.measure.bode_test import BodeTestRequest, run_bode_test
     from samii.outputs import with_size
-    from samii.sim.cli_modes import parse_overrides
+    from samii.sim.overrides import parse_overrides
 
     request = BodeTestRequest(
         method=args.method,
@@ -141,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
             f"peak valve command {pk['valve_command_v']:.2f} V"
         )
     for w in test.warnings:
-        print(f"samii measure: warning: {w}")
+        print(f"samii measure: warning: {w.text}")
     for kind, check in test.checks.items():
         cond = "coherence > 0.95" if test.coherence_ok or kind == "stepped" else "every point"
         for ch, st in check.items():

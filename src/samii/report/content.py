@@ -167,6 +167,10 @@ def _json(folder: Path, rel: str) -> dict:
     data = read_json(path, "main job's file", missing=f"{path}: missing; is {folder} a main job's output (samii run)?")
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a JSON object")
+    if rel != "fit/fit.json":  # (the fit's file has no schema_version: samii.identify.report owns its layout)
+        from samii.schema import schema_version
+
+        schema_version(data, path)
     from samii.json_output import non_finite_fields
 
     bad = non_finite_fields(data)

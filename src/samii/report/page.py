@@ -119,8 +119,8 @@ def _gaps(run: RunFolder) -> str:
 
 def _model(run: RunFolder) -> str:
     from samii import notebook as nb
-    from samii.sim.cli_params import unit
     from samii.sim.model import dotted
+    from samii.sim.param_units import unit
 
     m = run.summary["modes"]
     rows = []

@@ -101,8 +101,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _nominal_params(args):
-    from samii.sim.cli_modes import parse_overrides
     from samii.sim.model import default_params, params_from_dict, params_with_overrides, read_params_file
+    from samii.sim.overrides import parse_overrides
 
     cov = None
     if args.covariance:
@@ -263,8 +263,9 @@ def run(args: argparse.Namespace) -> int:
         with folder:
             from samii.json_output import dumps
             from samii.robust.plots import plot_histograms, plot_influence
+            from samii.schema import versioned
 
-            folder.path("robust.json").write_text(dumps(doc, indent=1) + "\n")
+            folder.path("robust.json").write_text(dumps(versioned(doc), indent=1) + "\n")
             _write_csv(folder.path("samples.csv"), draws, samples)
             plot_histograms(samples, summary, f"{args.controller}, {args.scenario} test, {args.samples} plants", folder.path("histograms.png"))
             plot_influence(draws, samples, summary, folder.path("influence.png"))

@@ -9,7 +9,7 @@ import numpy as np
 from samii.robust.sampling import PlantDraws
 from samii.robust.study import StudySummary
 from samii.robust.task import SampleResult
-from samii.sim.cli_params import unit as param_unit
+from samii.sim.param_units import unit as param_unit
 from samii.viz.figures import pyplot, save_figure
 
 __all__ = ["plot_histograms", "plot_influence", "FIGURES"]

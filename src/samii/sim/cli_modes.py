@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-from samii.cli_args import add_json, add_model, add_set, name_value, positive_float
-from samii.errors import InputError
+from samii.cli_args import add_json, add_model, add_set, positive_float
 from samii.json_output import dumps
+from samii.sim.overrides import parse_overrides
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -14,21 +14,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_set(p, "override a model parameter, e.g. beam.clamp_stiffness_Nm_rad=2e5 (repeatable)")
     p.add_argument("--max-freq-hz", type=positive_float, default=45.0, help="list modes and poles up to this frequency (default 45)")
     add_json(p, "print machine-readable JSON")
-
-
-def parse_overrides(items: list[str]) -> dict[str, float]:
-    """``["beam.length_m=4.3", ...]`` as a dict; names are checked when the model is built
-    (``samii params`` lists them)."""
-    out = {}
-    for item in items:
-        try:
-            name, number = name_value(item)
-        except argparse.ArgumentTypeError as exc:
-            raise InputError(f"--set {exc} (samii params lists the names)") from None
-        if name in out:
-            raise InputError(f"--set {name}: given twice")
-        out[name] = number
-    return out
 
 
 def run(args: argparse.Namespace) -> int:

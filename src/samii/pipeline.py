@@ -1,0 +1,420 @@
+"""The whole pipeline on one model as one library call: :func:`run` returns a typed :class:`Run`.
+
+The stages, each the library call its command makes (so each stage's files are what that command writes):
+
+1. the base modes and the servo-loop poles at the nominal pose (:func:`samii.sim.linearize.modes_report`);
+2. ``measure/``: swept sine 0.1-40 Hz, 0.1 V, 3 sign-alternating records, sensor noise seeded by ``seed``
+   (:func:`samii.measure.bode_test.run_bode_test`), and ``measure.rrd``, its Rerun recording;
+3. ``fit/``: the notebook's 3-mode model fitted to that FRF (:func:`samii.identify.fit_file.fit_frf_file`);
+4. ``controllers/damping.json``: acceleration feedback designed on a fit of the same FRF
+   (:func:`samii.closedloop.damping.damping_from_frf`);
+5. ``closedloop/<controller>_<scenario>/``: the notebook's pole-cancelling compensator (chapter 10) and pole
+   placement (chapter 8), as the notebook built them, and the damping controller, each in the step and Loper tests
+   in the nonlinear simulator (:func:`samii.closedloop.trial.run_trial`), and ``closedloop.rrd``: the damping
+   controller's Loper test beside the servo loop alone;
+6. ``diagnose/``: the fit diagnosed against the measured record (:func:`samii.diagnose.files.diagnose_files`);
+7. ``summary.json``: the figures of the printed summary (:class:`samii.run_summary.RunSummary`);
+8. ``report.html``: one self-contained page with the figures and tables of all of it (:mod:`samii.report`).
+
+The stages hand each other the files a user's chain of commands would (the fit reads ``measure/frf.csv``, not the
+estimate in memory), so the numbers are those of the commands run one by one. The folder is written whole or not at
+all: the stages write into a staging folder beside it, which replaces ``out`` at the end (an existing ``out`` only
+with ``overwrite``, or when it holds a previous run's output). :meth:`Run.load` reads a folder back into the same
+types :func:`run` returns; :meth:`Run.save` writes a run to another folder.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import sys
+import time
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+from pathlib import Path
+
+from samii.errors import InputError
+from samii.progress import SILENT, Progress
+from samii.run_summary import (
+    CLOSED_LOOP_FIELDS,
+    CONTROLLERS,
+    DAMPING_FIELDS,
+    FIT_FIELDS,
+    MARKER,
+    SCENARIOS,
+    BaseMode,
+    ClosedLoopSummary,
+    DampingSummary,
+    DiagnosisSummary,
+    FitSummary,
+    MeasurementSummary,
+    ModesSummary,
+    RunSummary,
+)
+
+__all__ = ["run", "Run", "ClosedLoopRun", "N_STAGES", "RECORDINGS"]
+
+#: Stages :func:`run` reports to its progress: modes, measurement, fit, design, the closed-loop runs (the servo loop
+#: alone's step and each controller in each scenario), diagnosis, report.
+N_STAGES = 4 + 1 + len(CONTROLLERS) * len(SCENARIOS) + 2
+#: The Rerun recordings a run writes beside its stages' folders.
+RECORDINGS = ("measure.rrd", "closedloop.rrd")
+_STAGING = ".{name}.samii-run-"
+
+
+@dataclass(frozen=True)
+class ClosedLoopRun:
+    """One closed-loop trial as its folder holds it."""
+
+    record: Mapping  #: closedloop/<name>/run.json
+    trace: object | None  #: closedloop/<name>/timeseries.csv as a samii.timeseries.TimeSeries (None: the run diverged at once)
+
+
+@dataclass(frozen=True)
+class Run:
+    """A run of the pipeline, as its folder holds it: the summary typed, each stage's result as the type its files
+    are read into (SI units throughout)."""
+
+    path: Path  #: the folder (a temporary one for a run not saved)
+    summary: RunSummary
+    measurement_record: Mapping  #: measure/run.json
+    frf: object  #: measure/frf.csv, a samii.frequency_response.FrequencyResponse
+    fit: object  #: fit/fit.json as the baseline a diagnosis takes (samii.diagnose.baseline.SavedFit)
+    fit_record: Mapping  #: fit/fit.json
+    damping: object  #: controllers/damping.json (samii.closedloop.controllers.SavedController)
+    closed_loop: Mapping[str, ClosedLoopRun]  #: "<controller>_<scenario>"
+    diagnosis: Mapping  #: diagnose/diagnosis.json
+    _temporary: object = field(default=None, repr=False, compare=False)  #: keeps a run not saved alive
+
+    @cached_property
+    def timeseries(self):
+        """measure/timeseries.csv (samii.timeseries.TimeSeries), read when first asked for (a quarter-million rows)."""
+        from samii.formats import read_timeseries_csv
+
+        return read_timeseries_csv(self.path / "measure" / "timeseries.csv")
+
+    def lines(self, out=None) -> list[str]:
+        """The summary a person reads, naming the folder ``out`` (default: the run's)."""
+        return self.summary.lines(out if out is not None else self.path)
+
+    @classmethod
+    def load(cls, folder) -> Run:
+        """The run saved in ``folder``; InputError naming the file and field of anything missing, damaged or written
+        by a newer samii (:mod:`samii.schema`)."""
+        from samii.closedloop.controllers import read_controller
+        from samii.diagnose.baseline import read_fit_json
+        from samii.formats import read_frf_csv, read_timeseries_csv
+
+        folder = Path(folder)
+        if not folder.is_dir():
+            raise InputError(f"{folder}: not a folder (expected a main job's output, samii run --out)")
+        summary = RunSummary.from_json(_document(folder, "summary.json"), folder / "summary.json")
+        closed = {}
+        for name in summary.closed_loop:
+            if "/" in name or name in ("", ".", ".."):
+                raise InputError(f"{folder / 'summary.json'}: field 'closed_loop' names a run {name!r}, which is no folder name")
+            trace = folder / "closedloop" / name / "timeseries.csv"
+            closed[name] = ClosedLoopRun(_document(folder, f"closedloop/{name}/run.json"), read_timeseries_csv(trace) if trace.is_file() else None)
+        return cls(
+            path=folder,
+            summary=summary,
+            measurement_record=_document(folder, "measure/run.json"),
+            frf=read_frf_csv(folder / "measure" / "frf.csv"),
+            fit=read_fit_json(folder / "fit" / "fit.json", name="fit/fit.json"),
+            fit_record=_document(folder, "fit/fit.json", versioned=False),
+            damping=read_controller(folder / "controllers" / "damping.json"),
+            closed_loop=closed,
+            diagnosis=_document(folder, "diagnose/diagnosis.json"),
+        )
+
+    def save(self, folder, *, overwrite: bool = False) -> Run:
+        """The run written to ``folder`` (its files as they are, report.html naming the new folder), replacing it
+        whole under the rules of :func:`run`'s ``out``; the saved run."""
+        out = Path(folder)
+        if out.exists() and out.resolve() == self.path.resolve():
+            return self
+        _check_out(out, overwrite)
+        stage_dir = _stage_dir(out)
+        try:
+            shutil.copytree(self.path, stage_dir, symlinks=True)
+            if (stage_dir / "report.html").exists():
+                _report(stage_dir, out)
+            _replace_whole(stage_dir, out)
+        finally:
+            if stage_dir.exists():
+                shutil.rmtree(stage_dir)
+        return Run.load(out)
+
+
+def _document(folder: Path, rel: str, *, versioned: bool = True) -> dict:
+    """A JSON object of the run's folder, its version checked (samii.schema)."""
+    from samii.json_output import read_json
+    from samii.schema import schema_version
+
+    path = folder / rel
+    data = read_json(path, "main job's file", missing=f"{path}: missing; is {folder} a main job's output (samii run)?")
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: expected a JSON object")
+    if versioned:
+        schema_version(data, path)
+    return data
+
+
+def _is_previous_run(path: Path) -> bool:
+    try:
+        return json.loads((path / "summary.json").read_text()).get("written_by") == MARKER
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def _check_out(out: Path, overwrite: bool) -> None:
+    # the folder is replaced whole by a rename: the working folder (or one holding it) and a mount point cannot be
+    # (the rename fails after the whole pipeline has run, "Device or resource busy")
+    here, target = Path.cwd().resolve(), out.resolve()
+    if target == here or target in here.parents:
+        raise InputError(
+            f"--out {out}: is the working folder{'' if target == here else ' or holds it'}; the main job replaces "
+            "--out whole, so give a folder of its own (e.g. --out samii_run)"
+        )
+    if out.is_dir() and os.path.ismount(out):
+        raise InputError(f"--out {out}: is a mount point; the main job replaces --out whole, so give a folder inside it")
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: exists and is not a folder")
+    if out.exists() and any(out.iterdir()) and not overwrite and not _is_previous_run(out):
+        raise InputError(f"--out {out}: exists and is not a previous main job's output; pass --overwrite to replace it, or another --out")
+    parent = out.absolute().parent
+    if not parent.is_dir():
+        raise InputError(f"--out {out}: {parent} is {'a file, not a folder' if parent.exists() else 'a folder that does not exist'}")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"--out {out}: folder {parent} is not writable")
+
+
+def _stage_dir(out: Path) -> Path:
+    """A fresh staging folder beside ``out`` (what runs killed outright left there removed first)."""
+    from samii.errors import mark_outputs_started
+    from samii.outputs import remove_stale_runs
+
+    prefix = _STAGING.format(name=out.name)
+    stage_dir = out.absolute().parent / f"{prefix}{os.getpid()}"
+    remove_stale_runs(out.absolute().parent, prefix)  # what a killed run (SIGKILL) left
+    if stage_dir.exists():
+        shutil.rmtree(stage_dir)
+    mark_outputs_started(out)
+    return stage_dir
+
+
+def _replace_whole(stage_dir: Path, out: Path) -> None:
+    """``stage_dir`` moved into place as ``out``, replacing what was there."""
+    from samii.errors import raise_if_signalled, uninterrupted
+
+    raise_if_signalled()  # a signal whose exception a library swallowed (a finaliser's): keep nothing
+    # the old folder moved aside and the new one into place by renames a signal waits for: removed first, an
+    # interrupted removal left neither (a folder half-deleted); what it replaced goes after, as a killed run's does
+    with uninterrupted(done=out):
+        old = stage_dir.with_name(stage_dir.name + "-replaced")
+        if out.exists():
+            os.replace(out, old)
+        os.replace(stage_dir, out)
+        shutil.rmtree(old, ignore_errors=True)  # (left, a later run's remove_stale_runs takes it)
+
+
+@contextlib.contextmanager
+def _named_stage(name: str):
+    """A refusal of the request inside a stage, named by the stage's command."""
+    try:
+        yield
+    except InputError as exc:
+        raise InputError(f"stage `samii {name}`: {exc}") from None
+
+
+def _model_path(model) -> str | None:
+    """The model file as the stages record it: absolute (as the folder's files name it, wherever it is moved)."""
+    return str(Path(model).absolute()) if model else None
+
+
+def _override_texts(overrides) -> list[str]:
+    """Overrides as ``--set`` gives them (NAME=VALUE texts), from those or from a mapping of names to numbers."""
+    if isinstance(overrides, Mapping):
+        return [f"{k}={float(v)!r}" for k, v in overrides.items()]
+    return [str(o) for o in overrides or ()]
+
+
+def run(
+    out=None,
+    *,
+    model=None,
+    overrides: Sequence[str] | Mapping[str, float] = (),
+    seed: int = 0,
+    overwrite: bool = False,
+    progress: Progress | None = None,
+    argv: Sequence[str] = (),
+) -> Run:
+    """Run the pipeline (module docstring) on ``model`` (an MJCF or parameter file; None: the embedded one) with
+    ``overrides`` (``["hydraulic.supply_pressure=8e6"]`` or ``{"hydraulic.supply_pressure": 8e6}``), the
+    measurement's sensor noise seeded by ``seed``, into folder ``out`` (None: a temporary folder, kept while the
+    returned run is; :meth:`Run.save` writes it elsewhere). ``argv``: the command line recorded in measure/run.json.
+    """
+    import tempfile
+
+    from samii.outputs import restore_replaced
+
+    progress = progress or SILENT
+    temporary = None
+    if out is None:
+        temporary = tempfile.TemporaryDirectory(prefix="samii-run-")
+        out = Path(temporary.name) / "run"
+    out = Path(out)
+    texts = _override_texts(overrides)
+    if (back := restore_replaced(out, _STAGING.format(name=out.name))) is not None:  # a run killed between its two renames
+        print(f"samii run: {out} was missing and is back from {back.name}, where a run killed while replacing it had moved it", file=sys.stderr)
+    _check_out(out, overwrite)
+    stage_dir = _stage_dir(out)
+    stage_dir.mkdir()
+    started = time.perf_counter()
+    try:
+        summary = _run_stages(stage_dir, model, texts, seed, progress, argv)
+        summary = replace(
+            summary,
+            wall_s=time.perf_counter() - started,
+            recordings_mb={n: (stage_dir / n).stat().st_size / 1e6 for n in RECORDINGS if (stage_dir / n).is_file()},
+        )
+        _write_summary(stage_dir, summary)
+        progress.stage("writing report.html")
+        try:
+            _report(stage_dir, out)
+        except Exception as exc:  # noqa: BLE001 - the report is read from the stages' files: a fault in it loses none of them
+            summary = replace(summary, report_error=f"{type(exc).__name__}: {exc}")
+            print(
+                f"samii run: warning: report.html not written ({summary.report_error}); every other output is; samii report {out} tries again",
+                file=sys.stderr,
+            )
+            _write_summary(stage_dir, summary)
+        progress.advance()
+        _replace_whole(stage_dir, out)
+    finally:
+        if stage_dir.exists():
+            shutil.rmtree(stage_dir)
+    return replace(Run.load(out), _temporary=temporary)
+
+
+def _write_summary(d: Path, summary: RunSummary) -> None:
+    (d / "summary.json").write_text(json.dumps(summary.to_json(), indent=1, allow_nan=False) + "\n")
+
+
+def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progress, argv: Sequence[str]) -> RunSummary:
+    from samii import notebook as nb
+    from samii.closedloop.controllers import write_controller
+    from samii.closedloop.damping import damping_from_frf
+    from samii.closedloop.trial import TrialRequest, run_trial
+    from samii.diagnose.files import DiagnoseRequest, diagnose_files
+    from samii.formats import read_frf_csv
+    from samii.identify.fit_file import fit_frf_file
+    from samii.json_output import finite_or_none
+    from samii.measure.bode_test import BodeTestRequest, run_bode_test
+    from samii.sim.model import load_model
+    from samii.sim.overrides import parse_overrides
+    from samii.sim.plugin import hydraulic_params
+
+    parsed = parse_overrides(overrides)
+    model_file = _model_path(model)
+
+    progress.stage("modes")
+    modes = _modes(model, parsed)
+    progress.advance()
+
+    progress.stage("measuring (swept sine, 253 s simulated)")
+    with _named_stage("measure"):
+        test = run_bode_test(d / "measure", BodeTestRequest(noise=True, seed=seed), model=model_file, overrides=parsed,
+                             rerun=d / "measure.rrd", argv=argv, relative_to=d)  # fmt: skip
+    rec = test.summary
+    sweep = rec["excitation"]["swept"]
+    measurement = MeasurementSummary(
+        excitation=sweep["excitation"],
+        amplitude_v=sweep["amplitude_v"],
+        sample_rate_hz=rec["daq"]["sample_rate_hz"],
+        simulated_s=rec["timing"]["simulated_s"],
+        sensor_noise=rec["daq"]["sensor_noise"],
+    )
+    progress.advance()
+
+    progress.stage("fitting the notebook's 3-mode model")
+    with _named_stage("fit"):
+        fit_frf_file(d / "measure" / "frf.csv", out=d / "fit", relative_to=d)
+    fit = json.loads((d / "fit" / "fit.json").read_text())  # the summary repeats the file, as written
+    fit_summary = FitSummary(params=fit["params"], stderr=fit["stderr"], eq9_4=dict(nb.EQ9_4), **{k: fit.get(k) for k in FIT_FIELDS})
+    progress.advance()
+
+    progress.stage("designing the damping controller")
+    (d / "controllers").mkdir()
+    kp = hydraulic_params(load_model(model, overrides=parsed or None)).position_gain  # what the data were measured with
+    with _named_stage("design"):
+        designed = damping_from_frf(read_frf_csv(d / "measure" / "frf.csv"), source="measure/frf.csv", position_gain_v_per_rad=float(kp))
+    write_controller(designed.controller, d / "controllers" / "damping.json")
+    design = finite_or_none(designed.to_dict())
+    progress.advance()
+
+    closed = {}
+    runs = [("servo_loop_alone", "unity", "step")] + [
+        (name, spec or str(d / "controllers" / "damping.json"), sc) for name, spec, _ in CONTROLLERS for sc in SCENARIOS
+    ]
+    for name, spec, sc in runs:
+        progress.stage(f"closed loop: {name}, {sc}")
+        rerun = d / "closedloop.rrd" if (name, sc) == ("damping", "loper") else None
+        with _named_stage("closedloop"):
+            trial = run_trial(TrialRequest(spec, sc), out=d / "closedloop" / f"{name}_{sc}", model=model_file, overrides=parsed, rerun=rerun,
+                              relative_to=d)  # fmt: skip
+        res = finite_or_none(trial.result.as_json())
+        closed[f"{name}_{sc}"] = ClosedLoopSummary(**{k: res.get(k) for k in CLOSED_LOOP_FIELDS})
+        progress.advance()
+
+    progress.stage("diagnosing the fit against the measured record")
+    with _named_stage("diagnose"):
+        done = diagnose_files([d / "measure" / "timeseries.csv"], DiagnoseRequest(baseline=str(d / "fit" / "fit.json")), out=d / "diagnose",
+                              relative_to=d)  # fmt: skip
+    diag = finite_or_none(done.diagnosis.to_dict())
+    diagnosis = DiagnosisSummary(
+        verdict=diag.get("verdict"),
+        effects=tuple(e for e in diag.get("effects", []) if not e.get("expected")),
+        error_before=diag.get("error_before"),
+        error_after=diag.get("error_after"),
+    )
+    progress.advance()
+    return RunSummary(
+        seed=seed,
+        model_file=str(model) if model else "embedded default",
+        overrides=tuple(overrides),
+        modes=modes,
+        measurement=measurement,
+        fit=fit_summary,
+        damping_design=DampingSummary(**{k: design.get(k) for k in DAMPING_FIELDS}),
+        closed_loop=closed,
+        diagnosis=diagnosis,
+    )
+
+
+def _report(d: Path, out: Path) -> None:
+    """``report.html``, from the folder's own files (``samii report``), naming the folder as it will be called."""
+    from samii.report.content import read_run_folder
+    from samii.report.page import write_report
+
+    folder = read_run_folder(d)
+    folder.display_name = out.name
+    write_report(folder)
+
+
+def _modes(model, overrides: dict) -> ModesSummary:
+    from samii.sim.linearize import modes_report
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        rep = modes_report(model, overrides=overrides or None)
+    pair = [z for z in rep.coupled_poles if 30 < abs(z.imag) < 80]
+    return ModesSummary(
+        pose_deg=tuple(float(a) for a in rep.pose_deg),
+        base_modes=tuple(BaseMode(float(m.freq_hz), float(m.zeta)) for m in rep.base_modes[:3]),
+        servo_pair_1_s=(float(pair[0].real), float(abs(pair[0].imag))) if pair else None,
+    )

@@ -1,0 +1,178 @@
+"""The pipeline as a library (samii.pipeline): typed results, a folder read back into the same types, a run saved
+elsewhere, the run folder's schema versions; and library modules that leave the command line to the commands."""
+
+from __future__ import annotations
+
+import ast
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import samii
+from samii.errors import InputError
+
+# the `runs` fixture (conftest.py): a by `samii run --seed 3`, b by samii.pipeline.run(seed=3) saved with Run.save
+
+
+def _copy(run_folder: Path, to: Path) -> Path:
+    """A main job's folder without its recordings (20 MB the tests below do not read)."""
+    shutil.copytree(run_folder, to, ignore=shutil.ignore_patterns("*.rrd"))
+    return to
+
+
+@pytest.mark.slow
+def test_a_saved_folder_reads_back_into_typed_results(runs):
+    from samii.closedloop.controllers import SavedController
+    from samii.diagnose.baseline import SavedFit
+    from samii.frequency_response import FrequencyResponse
+    from samii.pipeline import Run
+    from samii.run_summary import RunSummary
+    from samii.timeseries import TimeSeries
+
+    a = runs[0]
+    run = Run.load(a)
+    doc = json.loads((a / "summary.json").read_text())
+    assert isinstance(run.summary, RunSummary) and run.summary.schema_version == doc["schema_version"] == 1
+    assert run.summary.to_json() == doc  # every field of summary.json, typed and back, unchanged
+    assert run.summary.seed == 3 and run.summary.model_file == "embedded default"
+    assert run.summary.fit.params["w1"] == doc["fit"]["params"]["w1"]
+    assert isinstance(run.frf, FrequencyResponse) and set(run.frf.channels) >= {"act", "base"}
+    assert isinstance(run.fit, SavedFit) and run.fit.path == "fit/fit.json"
+    assert run.fit.params == pytest.approx({k: v for k, v in run.fit_record["params"].items() if v is not None})
+    assert isinstance(run.damping, SavedController)
+    assert run.damping.controller.name == json.loads((a / "controllers" / "damping.json").read_text())["name"]
+    assert set(run.closed_loop) == set(doc["closed_loop"]) and len(run.closed_loop) == 7
+    loper = run.closed_loop["damping_loper"]
+    assert isinstance(loper.trace, TimeSeries) and loper.record["stable"] is run.summary.closed_loop["damping_loper"].stable is True
+    rate = run.measurement_record["daq"]["sample_rate_hz"]
+    assert isinstance(run.timeseries, TimeSeries) and abs(run.timeseries.t.size - run.measurement_record["timing"]["simulated_s"] * rate) <= 1
+    assert run.diagnosis["verdict"] == run.summary.diagnosis.verdict
+    # the lines a person reads are the command's
+    assert run.lines(a)[-1].startswith(f"wrote {a}/ in ")
+
+
+@pytest.mark.slow
+def test_the_library_run_and_the_command_write_the_same_numbers(runs):
+    """b is samii.pipeline.run() into a temporary folder, then Run.save(b): the same summary as the command's run a
+    (wall time and recording sizes aside), the same measured FRF to the byte, and its report names its own folder."""
+    from samii.pipeline import Run
+
+    a, b = (Run.load(r) for r in runs)
+    ja, jb = a.summary.to_json(), b.summary.to_json()
+    for k in ("wall_s", "recordings_mb"):
+        ja.pop(k), jb.pop(k)
+    assert ja == jb
+    assert (runs[0] / "measure" / "frf.csv").read_bytes() == (runs[1] / "measure" / "frf.csv").read_bytes()
+    assert np.array_equal(a.closed_loop["damping_loper"].trace.accel, b.closed_loop["damping_loper"].trace.accel)
+    page = (runs[1] / "report.html").read_text()
+    assert f"wrote {runs[1].name}/" in page and "samii-run-" not in page
+    assert b.measurement_record["argv"] == []  # (the library records no command line unless given one)
+
+
+@pytest.mark.slow
+def test_a_newer_schema_version_is_refused_by_name_and_an_older_one_read(runs, tmp_path, capsys):
+    from samii.cli import main
+    from samii.pipeline import Run
+
+    folder = _copy(runs[0], tmp_path / "run")
+    summary = folder / "summary.json"
+    doc = json.loads(summary.read_text())
+
+    summary.write_text(json.dumps({**doc, "schema_version": 2}))
+    with pytest.raises(InputError, match=r"summary.json: schema_version 2, written by a newer samii; this one \(.*\) reads versions up to 1"):
+        Run.load(folder)
+    capsys.readouterr()
+    assert main(["report", str(folder), "--out", str(tmp_path / "page.html")]) == 2
+    assert "summary.json: schema_version 2, written by a newer samii" in capsys.readouterr().err
+
+    summary.write_text(json.dumps({**doc, "schema_version": "1"}))
+    with pytest.raises(InputError, match=r"summary.json: field 'schema_version' holds '1'; expected a whole number"):
+        Run.load(folder)
+
+    # a folder written before versions were stated (no key anywhere): version 0, the same fields, read
+    summary.write_text(json.dumps({k: v for k, v in doc.items() if k != "schema_version"}))
+    for rel in ("measure/run.json", "diagnose/diagnosis.json", *(f"closedloop/{n}/run.json" for n in doc["closed_loop"])):
+        d = json.loads((folder / rel).read_text())
+        (folder / rel).write_text(json.dumps({k: v for k, v in d.items() if k != "schema_version"}))
+    old = Run.load(folder)
+    assert old.summary.schema_version == 0 and old.summary.fit == Run.load(runs[0]).summary.fit
+
+    diag = folder / "diagnose" / "diagnosis.json"
+    diag.write_text(json.dumps({**json.loads(diag.read_text()), "schema_version": 7}))
+    with pytest.raises(InputError, match=r"diagnose/diagnosis.json: schema_version 7, written by a newer samii"):
+        Run.load(folder)
+
+
+@pytest.mark.slow
+def test_a_summary_field_of_the_wrong_kind_is_named(runs):
+    from samii.run_summary import RunSummary
+
+    doc = json.loads((runs[0] / "summary.json").read_text())
+    for path, value, said in (
+        (("fit", "sound"), "yes", "field 'fit.sound' holds 'yes'; expected true or false"),
+        (("closed_loop", "damping_step", "stable"), "false", "field 'closed_loop.damping_step.stable' holds 'false'; expected true or false"),
+        (("measurement", "amplitude_v"), None, "field 'measurement.amplitude_v' holds None; expected a number"),
+        (("seed",), 3.5, "field 'seed' holds 3.5; expected a whole number"),
+    ):
+        bad = json.loads(json.dumps(doc))
+        d = bad
+        for k in path[:-1]:
+            d = d[k]
+        d[path[-1]] = value
+        with pytest.raises(InputError) as exc:
+            RunSummary.from_json(bad, "summary.json")
+        assert str(exc.value) == f"summary.json: {said}", exc.value
+    missing = json.loads(json.dumps(doc))
+    del missing["fit"]["verdict"]
+    with pytest.raises(InputError, match=r"^summary.json: field 'fit.verdict' is missing$"):
+        RunSummary.from_json(missing, "summary.json")
+
+
+def test_overrides_given_as_a_mapping_are_recorded_as_set_texts():
+    from samii.pipeline import _override_texts
+    from samii.sim.overrides import parse_overrides
+
+    texts = _override_texts({"hydraulic.supply_pressure": 8e6, "beam.length_m": 4.3})
+    assert texts == ["hydraulic.supply_pressure=8000000.0", "beam.length_m=4.3"]
+    assert parse_overrides(texts) == {"hydraulic.supply_pressure": 8e6, "beam.length_m": 4.3}  # the same numbers, exactly
+    assert _override_texts(["beam.length_m=4.0"]) == ["beam.length_m=4.0"]  # texts kept as given
+
+
+#: The command layer: modules that parse a command line, show progress and print. Everything else is library.
+_COMMANDS = ("samii.cli", "samii.cli_args", "samii.main_job", "samii.__main__")
+
+
+def _library_modules():
+    root = Path(samii.__file__).parent
+    for path in sorted(root.rglob("*.py")):
+        name = ".".join(("samii", *path.relative_to(root).with_suffix("").parts)).removesuffix(".__init__")
+        if name in _COMMANDS or name.rsplit(".", 1)[-1].startswith("cli"):
+            continue
+        yield name, path
+
+
+def test_library_modules_leave_the_command_line_to_the_commands():
+    """No library module imports argparse, changes the working folder or captures stdout (issue 33): a Python user
+    calls them in a notebook, and the main job calls them in one process."""
+    found = []
+    for name, path in _library_modules():
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import) and any(a.name == "argparse" for a in node.names):
+                found.append(f"{name}: imports argparse")
+            elif isinstance(node, ast.ImportFrom) and node.module == "argparse":
+                found.append(f"{name}: imports from argparse")
+            elif isinstance(node, ast.Attribute) and node.attr in ("chdir", "redirect_stdout", "redirect_stderr"):
+                found.append(f"{name}: uses {node.attr}")
+            elif (
+                isinstance(node, ast.ImportFrom)
+                and node.module
+                and (node.module.endswith(".cli") or ".cli_" in node.module or node.module == "samii.cli")
+            ):
+                if node.module != "samii.cli_args" or name.endswith("cli_args"):
+                    found.append(f"{name}: imports from the command module {node.module}")
+    assert len(list(_library_modules())) > 100
+    assert not found, found
