@@ -884,7 +884,16 @@ def test_a_signal_while_the_main_job_replaces_its_folder_waits_for_the_swap(tmp_
     import signal
 
     import samii.pipeline as mj
-    from samii.run_summary import DampingSummary, DiagnosisSummary, FitSummary, MeasurementSummary, ModesSummary, RunSummary
+    from samii.run_summary import (
+        DAMPING_FIELDS,
+        FIT_FIELDS,
+        DampingSummary,
+        DiagnosisSummary,
+        FitSummary,
+        MeasurementSummary,
+        ModesSummary,  # fmt: skip
+        RunSummary,
+    )
 
     out = tmp_path / "D"
     out.mkdir()
@@ -893,9 +902,11 @@ def test_a_signal_while_the_main_job_replaces_its_folder_waits_for_the_swap(tmp_
 
     def stages(d, model, overrides, seed, progress, argv):
         (d / "NEW").write_text("this run's")
-        return RunSummary(seed, "embedded default", (), ModesSummary((), (), None), MeasurementSummary("none", 0.1, 1e3, 1.0, None),
-                          FitSummary({}, {}, {}, True, "sound", (), (), (), None, {}, {}), DampingSummary(None, None, None, None, None), {},
-                          DiagnosisSummary("none", (), {}, {}))  # fmt: skip
+        none = dict.fromkeys
+        return RunSummary(seed=seed, model_file="embedded default", overrides=(), modes=ModesSummary((), (), None),
+                          measurement=MeasurementSummary("none", 0.1, 1e3, 1.0, None), closed_loop={},
+                          fit=FitSummary(**none(FIT_FIELDS), params={}, stderr={}, eq9_4={}),
+                          damping_design=DampingSummary(**none(DAMPING_FIELDS)), diagnosis=DiagnosisSummary("none", (), {}, {}))  # fmt: skip
 
     real_replace = os.replace
 

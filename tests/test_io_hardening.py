@@ -162,7 +162,7 @@ def test_unreadable_file_even_as_root(tmp_path, monkeypatch, reader):
 def test_file_size_is_bounded_and_stated(tmp_path, monkeypatch, reader):
     monkeypatch.setattr(files, "MAX_FILE_BYTES", 1000)
     p = _write(tmp_path, TS_HEADER + _rows(), "big.mat" if reader is read_mat_bode else "big.csv")
-    _raises(reader, p, "at most 1000 bytes (samii.formats.MAX_FILE_BYTES)")
+    _raises(reader, p, "at most 1000 bytes (samii.formats.files.MAX_FILE_BYTES)")
 
 
 def test_read_is_bounded_even_if_the_file_grows(tmp_path, monkeypatch):
@@ -192,7 +192,7 @@ def test_huge_single_line(tmp_path):
 
 def test_line_count_is_bounded(tmp_path, monkeypatch):
     monkeypatch.setattr(files, "MAX_LINES", 100)
-    _raises(read_timeseries_csv, _write(tmp_path, TS_HEADER + _rows(200)), "at most 100 (samii.formats.MAX_LINES)")
+    _raises(read_timeseries_csv, _write(tmp_path, TS_HEADER + _rows(200)), "at most 100 (samii.formats.files.MAX_LINES)")
 
 
 def test_huge_header_is_cut_in_the_message(tmp_path):

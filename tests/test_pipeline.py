@@ -44,7 +44,10 @@ def test_a_saved_folder_reads_back_into_typed_results(runs):
     assert run.fit.params == pytest.approx({k: v for k, v in run.fit_record["params"].items() if v is not None})
     assert isinstance(run.damping, SavedController)
     assert run.damping.controller.name == json.loads((a / "controllers" / "damping.json").read_text())["name"]
-    assert set(run.closed_loop) == set(doc["closed_loop"]) and len(run.closed_loop) == 7
+    from samii.run_summary import CONTROLLERS, SCENARIOS
+
+    # the servo loop alone's step, and each controller in each scenario
+    assert set(run.closed_loop) == set(doc["closed_loop"]) and len(run.closed_loop) == 1 + len(CONTROLLERS) * len(SCENARIOS)
     loper = run.closed_loop["damping_loper"]
     assert isinstance(loper.trace, TimeSeries) and loper.record["stable"] is run.summary.closed_loop["damping_loper"].stable is True
     rate = run.measurement_record["daq"]["sample_rate_hz"]
@@ -141,7 +144,8 @@ def test_overrides_given_as_a_mapping_are_recorded_as_set_texts():
     assert _override_texts(["beam.length_m=4.0"]) == ["beam.length_m=4.0"]  # texts kept as given
 
 
-#: The command layer: modules that parse a command line, show progress and print. Everything else is library.
+#: The command layer: modules that parse a command line, show progress and print (and every module named cli*: the
+#: commands' own, and identify/cli_studies, the experiment scripts' shared command line). Everything else is library.
 _COMMANDS = ("samii.cli", "samii.cli_args", "samii.main_job", "samii.__main__")
 
 
@@ -163,6 +167,8 @@ def test_library_modules_leave_the_command_line_to_the_commands():
         for node in ast.walk(tree):
             if isinstance(node, ast.Import) and any(a.name == "argparse" for a in node.names):
                 found.append(f"{name}: imports argparse")
+            elif isinstance(node, ast.Import) and any(a.name.rsplit(".", 1)[-1].startswith("cli") for a in node.names if a.name.startswith("samii")):
+                found.append(f"{name}: imports a command module")
             elif isinstance(node, ast.ImportFrom) and node.module == "argparse":
                 found.append(f"{name}: imports from argparse")
             elif isinstance(node, ast.Attribute) and node.attr in ("chdir", "redirect_stdout", "redirect_stderr"):
@@ -174,5 +180,5 @@ def test_library_modules_leave_the_command_line_to_the_commands():
             ):
                 if node.module != "samii.cli_args" or name.endswith("cli_args"):
                     found.append(f"{name}: imports from the command module {node.module}")
-    assert len(list(_library_modules())) > 100
+    assert len(list(_library_modules())) > 100  # (117 at this writing: fewer than 100 is a walk that missed folders)
     assert not found, found

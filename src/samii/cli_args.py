@@ -27,6 +27,7 @@ __all__ = [
     "add_model",
     "add_set",
     "add_rerun",
+    "add_seed",
     "add_no_progress",
 ]
 
@@ -98,16 +99,12 @@ def nonnegative_float(text: str) -> float:
 
 def name_value(text: str) -> tuple[str, float]:
     """``NAME=VALUE`` with a finite number: ``("beam.length_m", 4.3)`` (``--set``, ``--start``)."""
-    name, sep, value = text.partition("=")
-    if not sep or not name.strip():
-        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
+    from samii.sim.overrides import name_value as parse
+
     try:
-        v = float(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: value {value!r} is not a number") from None
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a finite number, got {value!r}")
-    return name.strip(), v
+        return parse(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def nonempty(what: str):
@@ -183,6 +180,11 @@ def add_rerun(parser: argparse.ArgumentParser, help: str, *, fps_help: str = RER
     """``--rerun FILE.rrd`` (a Rerun recording beside the outputs) and ``--rerun-fps F``, its frame rate."""
     parser.add_argument("--rerun", metavar="FILE.rrd", type=nonempty_path, help=help)
     parser.add_argument("--rerun-fps", metavar="F", type=positive_float, default=None, help=fps_help)
+
+
+def add_seed(parser: argparse.ArgumentParser, help: str, *, default: int | None = 0) -> None:
+    """``--seed S``: a random generator's seed, an integer >= 0."""
+    parser.add_argument("--seed", type=seed, default=default, help=help)
 
 
 def add_no_progress(parser: argparse.ArgumentParser) -> None:

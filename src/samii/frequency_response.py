@@ -22,10 +22,12 @@ from typing import Literal, get_args
 
 import numpy as np
 
-__all__ = ["Channel", "CHANNELS", "FrequencyResponse", "max_deviation", "interpolate_frf"]
+__all__ = ["Channel", "CHANNELS", "CHANNEL_NAMES", "FrequencyResponse", "max_deviation", "interpolate_frf"]
 
 Channel = Literal["act", "base", "total"]
 CHANNELS: tuple[Channel, ...] = get_args(Channel)
+#: How the channels are named in text: theta/v, xdd/theta, xdd/v.
+CHANNEL_NAMES = {"act": "theta/v", "base": "xdd/theta", "total": "xdd/v"}
 
 
 def _as_array(name: str, value, dtype) -> np.ndarray:

@@ -12,7 +12,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from samii.cli_args import add_model, add_no_progress, add_out, add_overwrite, add_set
+from samii.cli_args import add_model, add_no_progress, add_out, add_overwrite, add_seed, add_set
 
 __all__ = ["add_arguments", "run", "run_main_job", "DEFAULT_OUT"]
 
@@ -21,14 +21,10 @@ DEFAULT_OUT = "samii_run"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from samii.cli_args import seed as seed_type
-
     add_out(parser, f"output folder (default ./{DEFAULT_OUT}); replaced whole at the end", default=DEFAULT_OUT)
     add_model(parser, "MJCF model (default: the embedded one)")
     add_set(parser, "override a model parameter (samii params lists them); repeatable")
-    parser.add_argument(
-        "--seed", type=seed_type, default=0, help="seed of the measurement's sensor noise (default 0): the same seed gives the same outputs"
-    )
+    add_seed(parser, "seed of the measurement's sensor noise (default 0): the same seed gives the same outputs")
     add_overwrite(parser, "replace --out if it exists (a previous main job's output is replaced anyway)")
     add_no_progress(parser)
 

@@ -45,6 +45,7 @@ from samii.run_summary import (
     DAMPING_FIELDS,
     FIT_FIELDS,
     MARKER,
+    RECORDINGS,
     SCENARIOS,
     BaseMode,
     ClosedLoopSummary,
@@ -56,13 +57,11 @@ from samii.run_summary import (
     RunSummary,
 )
 
-__all__ = ["run", "Run", "ClosedLoopRun", "N_STAGES", "RECORDINGS"]
+__all__ = ["run", "Run", "ClosedLoopRun", "N_STAGES"]
 
 #: Stages :func:`run` reports to its progress: modes, measurement, fit, design, the closed-loop runs (the servo loop
 #: alone's step and each controller in each scenario), diagnosis, report.
 N_STAGES = 4 + 1 + len(CONTROLLERS) * len(SCENARIOS) + 2
-#: The Rerun recordings a run writes beside its stages' folders.
-RECORDINGS = ("measure.rrd", "closedloop.rrd")
 _STAGING = ".{name}.samii-run-"
 
 
@@ -108,27 +107,30 @@ class Run:
         from samii.closedloop.controllers import read_controller
         from samii.diagnose.baseline import read_fit_json
         from samii.formats import read_frf_csv, read_timeseries_csv
+        from samii.report.content import read_document
 
         folder = Path(folder)
         if not folder.is_dir():
             raise InputError(f"{folder}: not a folder (expected a main job's output, samii run --out)")
-        summary = RunSummary.from_json(_document(folder, "summary.json"), folder / "summary.json")
+        summary = RunSummary.from_json(read_document(folder, "summary.json"), folder / "summary.json")
         closed = {}
         for name in summary.closed_loop:
             if "/" in name or name in ("", ".", ".."):
                 raise InputError(f"{folder / 'summary.json'}: field 'closed_loop' names a run {name!r}, which is no folder name")
             trace = folder / "closedloop" / name / "timeseries.csv"
-            closed[name] = ClosedLoopRun(_document(folder, f"closedloop/{name}/run.json"), read_timeseries_csv(trace) if trace.is_file() else None)
+            closed[name] = ClosedLoopRun(
+                read_document(folder, f"closedloop/{name}/run.json"), read_timeseries_csv(trace) if trace.is_file() else None
+            )
         return cls(
             path=folder,
             summary=summary,
-            measurement_record=_document(folder, "measure/run.json"),
+            measurement_record=read_document(folder, "measure/run.json"),
             frf=read_frf_csv(folder / "measure" / "frf.csv"),
             fit=read_fit_json(folder / "fit" / "fit.json", name="fit/fit.json"),
-            fit_record=_document(folder, "fit/fit.json", versioned=False),
+            fit_record=read_document(folder, "fit/fit.json", versioned=False),
             damping=read_controller(folder / "controllers" / "damping.json"),
             closed_loop=closed,
-            diagnosis=_document(folder, "diagnose/diagnosis.json"),
+            diagnosis=read_document(folder, "diagnose/diagnosis.json"),
         )
 
     def save(self, folder, *, overwrite: bool = False) -> Run:
@@ -148,20 +150,6 @@ class Run:
             if stage_dir.exists():
                 shutil.rmtree(stage_dir)
         return Run.load(out)
-
-
-def _document(folder: Path, rel: str, *, versioned: bool = True) -> dict:
-    """A JSON object of the run's folder, its version checked (samii.schema)."""
-    from samii.json_output import read_json
-    from samii.schema import schema_version
-
-    path = folder / rel
-    data = read_json(path, "main job's file", missing=f"{path}: missing; is {folder} a main job's output (samii run)?")
-    if not isinstance(data, dict):
-        raise InputError(f"{path}: expected a JSON object")
-    if versioned:
-        schema_version(data, path)
-    return data
 
 
 def _is_previous_run(path: Path) -> bool:
@@ -315,6 +303,7 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progr
     from samii.identify.fit_file import fit_frf_file
     from samii.json_output import finite_or_none
     from samii.measure.bode_test import BodeTestRequest, run_bode_test
+    from samii.outputs import shown_path
     from samii.sim.model import load_model
     from samii.sim.overrides import parse_overrides
     from samii.sim.plugin import hydraulic_params
@@ -353,22 +342,24 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progr
     kp = hydraulic_params(load_model(model, overrides=parsed or None)).position_gain  # what the data were measured with
     with _named_stage("design"):
         designed = damping_from_frf(read_frf_csv(d / "measure" / "frf.csv"), source="measure/frf.csv", position_gain_v_per_rad=float(kp))
-    write_controller(designed.controller, d / "controllers" / "damping.json")
+    damping = d / "controllers" / "damping.json"  # named in the run's files as the folder names it: controllers/damping.json
+    write_controller(designed.controller, damping)
     design = finite_or_none(designed.to_dict())
     progress.advance()
 
     closed = {}
-    runs = [("servo_loop_alone", "unity", "step")] + [
-        (name, spec or str(d / "controllers" / "damping.json"), sc) for name, spec, _ in CONTROLLERS for sc in SCENARIOS
+    trials = [("servo_loop_alone_step", TrialRequest("unity", "step"))] + [
+        (f"{name}_{sc}", TrialRequest(spec, sc) if spec else TrialRequest(str(damping), sc, label=shown_path(damping, d)))
+        for name, spec, _ in CONTROLLERS
+        for sc in SCENARIOS
     ]
-    for name, spec, sc in runs:
-        progress.stage(f"closed loop: {name}, {sc}")
-        rerun = d / "closedloop.rrd" if (name, sc) == ("damping", "loper") else None
+    for name, request in trials:
+        progress.stage(f"closed loop: {name}")
+        rerun = d / "closedloop.rrd" if name == "damping_loper" else None
         with _named_stage("closedloop"):
-            trial = run_trial(TrialRequest(spec, sc), out=d / "closedloop" / f"{name}_{sc}", model=model_file, overrides=parsed, rerun=rerun,
-                              relative_to=d)  # fmt: skip
+            trial = run_trial(request, out=d / "closedloop" / name, model=model_file, overrides=parsed, rerun=rerun, relative_to=d)
         res = finite_or_none(trial.result.as_json())
-        closed[f"{name}_{sc}"] = ClosedLoopSummary(**{k: res.get(k) for k in CLOSED_LOOP_FIELDS})
+        closed[name] = ClosedLoopSummary(**{k: res.get(k) for k in CLOSED_LOOP_FIELDS})
         progress.advance()
 
     progress.stage("diagnosing the fit against the measured record")

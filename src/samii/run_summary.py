@@ -9,7 +9,7 @@ reads it).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 
 from samii.errors import InputError
 from samii.schema import SCHEMA_VERSION, schema_version
@@ -18,6 +18,7 @@ __all__ = [
     "CONTROLLERS",
     "SCENARIOS",
     "MARKER",
+    "RECORDINGS",
     "summary_lines",
     "RunSummary",
     "ModesSummary",
@@ -36,6 +37,8 @@ CONTROLLERS = (
     ("damping", None, "damping controller"),
 )
 SCENARIOS = ("step", "loper")
+#: The Rerun recordings a main job writes beside its stages' folders, and what each shows.
+RECORDINGS = {"measure.rrd": "the swept-sine measurement", "closedloop.rrd": "the damping controller's Loper test beside the servo loop alone"}
 #: summary.json says it is a main job's: a folder holding one may be replaced by the next main job.
 MARKER = "samii run"
 
@@ -99,6 +102,22 @@ class _Reader:
         return {k: None if x is None else float(x) for k, x in v.items()}
 
 
+def _plain(value):
+    """``value`` as JSON values: tuples as lists, mappings as dicts (a part's fields as summary.json holds them)."""
+    if isinstance(value, Mapping):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value
+
+
+class _Part:
+    """A part of the summary: its fields are summary.json's keys, in order."""
+
+    def to_json(self) -> dict:
+        return _plain(asdict(self))
+
+
 @dataclass(frozen=True)
 class BaseMode:
     freq_hz: float
@@ -106,45 +125,25 @@ class BaseMode:
 
 
 @dataclass(frozen=True)
-class ModesSummary:
+class ModesSummary(_Part):
     """The model's base modes (joint 2 held) and servo-loop pair at the nominal pose, from its linearisation."""
 
     pose_deg: tuple[float, ...]
     base_modes: tuple[BaseMode, ...]
     servo_pair_1_s: tuple[float, float] | None  #: (real part, |imaginary part|) [1/s]; None: no pair at 30-80 rad/s
 
-    def to_json(self) -> dict:
-        return {
-            "pose_deg": list(self.pose_deg),
-            "base_modes": [{"freq_hz": m.freq_hz, "zeta": m.zeta} for m in self.base_modes],
-            "servo_pair_1_s": None if self.servo_pair_1_s is None else list(self.servo_pair_1_s),
-        }
-
 
 @dataclass(frozen=True)
-class MeasurementSummary:
+class MeasurementSummary(_Part):
     excitation: str
     amplitude_v: float
     sample_rate_hz: float
     simulated_s: float
     sensor_noise: Mapping[str, float] | None  #: rms of each sensor's noise (samii.measure.daq.SensorNoise)
 
-    def to_json(self) -> dict:
-        return {
-            "excitation": self.excitation,
-            "amplitude_v": self.amplitude_v,
-            "sample_rate_hz": self.sample_rate_hz,
-            "simulated_s": self.simulated_s,
-            "sensor_noise": None if self.sensor_noise is None else dict(self.sensor_noise),
-        }
-
-
-#: The fit's fields the summary repeats from fit/fit.json, after params, stderr and eq9_4.
-FIT_FIELDS = ("sound", "verdict", "concerns", "caveats", "undetermined", "lack_of_fit", "rms_mag_db", "rms_phase_deg")
-
 
 @dataclass(frozen=True)
-class FitSummary:
+class FitSummary(_Part):
     """The notebook's 3-mode model fitted to the measurement, beside eq 9.4 (SI: rad/s, theta in rad)."""
 
     params: Mapping[str, float | None]
@@ -159,44 +158,22 @@ class FitSummary:
     rms_mag_db: Mapping[str, float | None]
     rms_phase_deg: Mapping[str, float | None]
 
-    def to_json(self) -> dict:
-        return {
-            "params": dict(self.params),
-            "stderr": dict(self.stderr),
-            "eq9_4": dict(self.eq9_4),
-            "sound": self.sound,
-            "verdict": self.verdict,
-            "concerns": list(self.concerns),
-            "caveats": list(self.caveats),
-            "undetermined": list(self.undetermined),
-            "lack_of_fit": self.lack_of_fit,
-            "rms_mag_db": dict(self.rms_mag_db),
-            "rms_phase_deg": dict(self.rms_phase_deg),
-        }
-
-
-#: The damping design's fields the summary repeats (samii.closedloop.damping.DampingDesign.to_dict).
-DAMPING_FIELDS = ("gain_v_per_m_s2", "gain_limit_v_per_m_s2", "gain_margin_db", "filter_hz", "rolloff_hz")
-
 
 @dataclass(frozen=True)
-class DampingSummary:
+class DampingSummary(_Part):
+    """The damping design's figures (samii.closedloop.damping.DampingDesign.to_dict's)."""
+
     gain_v_per_m_s2: float | None
     gain_limit_v_per_m_s2: float | None
     gain_margin_db: float | None
     filter_hz: float | None
     rolloff_hz: float | None  #: None: a design without a mode-3 roll-off
 
-    def to_json(self) -> dict:
-        return {k: getattr(self, k) for k in DAMPING_FIELDS}
-
-
-#: A closed-loop run's fields the summary repeats (samii.closedloop.scenario's as_json).
-CLOSED_LOOP_FIELDS = ("stable", "unstable_mode_hz", "growth_rate_1_s", "instability", "theta", "base")
-
 
 @dataclass(frozen=True)
-class ClosedLoopSummary:
+class ClosedLoopSummary(_Part):
+    """A closed-loop run's figures (samii.closedloop.scenario's as_json)."""
+
     stable: bool
     unstable_mode_hz: float | None
     growth_rate_1_s: float | None
@@ -204,24 +181,25 @@ class ClosedLoopSummary:
     theta: Mapping | None  #: the step response's figures (samii.closedloop.metrics)
     base: Mapping | None  #: the base vibration's figures
 
-    def to_json(self) -> dict:
-        return {k: getattr(self, k) for k in CLOSED_LOOP_FIELDS}
-
 
 @dataclass(frozen=True)
-class DiagnosisSummary:
+class DiagnosisSummary(_Part):
     verdict: str
     effects: tuple[Mapping, ...]  #: the effects found that a fit does not expect (diagnosis.json's, as written)
     error_before: Mapping  #: channel -> rms_db, rms_deg, chi2 ... (samii.diagnose.residuals.ChannelError)
     error_after: Mapping
 
-    def to_json(self) -> dict:
-        return {
-            "verdict": self.verdict,
-            "effects": [dict(e) for e in self.effects],
-            "error_before": self.error_before,
-            "error_after": self.error_after,
-        }
+
+def _names(part, skip: tuple[str, ...] = ()) -> tuple[str, ...]:
+    return tuple(f.name for f in fields(part) if f.name not in skip)
+
+
+#: The fit's fields the summary repeats from fit/fit.json, after params, stderr and eq9_4.
+FIT_FIELDS = _names(FitSummary, skip=("params", "stderr", "eq9_4"))
+#: The damping design's fields the summary repeats.
+DAMPING_FIELDS = _names(DampingSummary)
+#: A closed-loop run's fields the summary repeats.
+CLOSED_LOOP_FIELDS = _names(ClosedLoopSummary)
 
 
 @dataclass(frozen=True)
@@ -240,13 +218,13 @@ class RunSummary:
     wall_s: float | None = None
     recordings_mb: Mapping[str, float] = field(default_factory=dict)
     report_error: str | None = None  #: why report.html was not written
-    written_by: str = MARKER
+    #: The version the file was read as (samii.schema); to_json writes this samii's layout, version SCHEMA_VERSION.
     schema_version: int = SCHEMA_VERSION
 
     def to_json(self) -> dict:
         doc = {
             "schema_version": SCHEMA_VERSION,
-            "written_by": self.written_by,
+            "written_by": MARKER,
             "seed": self.seed,
             "model": {"file": self.model_file, "overrides": list(self.overrides)},
             "modes": self.modes.to_json(),
@@ -436,9 +414,7 @@ def summary_lines(s: dict, out) -> list[str]:
                 f"{num(a, 'rms_db'):.2g} dB / {num(a, 'rms_deg'):.2g} deg, chi2 {num(a, 'chi2'):.3g} with them{note}"
             )
     report = "report.html (open it in a browser), " if not s.get("report_error") else "(NOT report.html: see the warning above) "
-    rrd = " and ".join(
-        f"{n} ({s['recordings_mb'][n]:.0f} MB)" if (s.get("recordings_mb") or {}).get(n) is not None else n for n in ("measure.rrd", "closedloop.rrd")
-    )
+    rrd = " and ".join(f"{n} ({s['recordings_mb'][n]:.0f} MB)" if (s.get("recordings_mb") or {}).get(n) is not None else n for n in RECORDINGS)
     lines.append(
         f"wrote {out}/ in {s['wall_s']:.0f} s: {report}summary.json, measure/, fit/, controllers/, "
         f"closedloop/, diagnose/; {rrd} (open with `rerun FILE`)"

@@ -252,9 +252,9 @@ def run(args: argparse.Namespace) -> int:
 
 def _write_outputs(result, data, folder) -> None:
     """Report JSON, parameter file and overlay Bode plot, staged in ``folder`` (:class:`samii.outputs.OutputFolder`)."""
-    from samii.viz.figures import pyplot
+    from samii.viz.figures import pyplot, save_figure
 
-    plt = pyplot()
+    pyplot()  # on Agg: the figure below goes to a file
 
     from samii.calibrate.simulator import SimulatorFRF
     from samii.formats import write_text
@@ -278,9 +278,6 @@ def _write_outputs(result, data, folder) -> None:
         note=note,
         n_model_points=300,
     )
-    try:
-        fig.savefig(folder.path("calibration_bode.png"), dpi=110)
-    finally:
-        plt.close(fig)
+    save_figure(fig, folder.path("calibration_bode.png"))
     write_text(folder.path("calibration.json"), result.to_json(indent=2) + "\n")
     result.write_params(folder.path("calibrated_params.json"))

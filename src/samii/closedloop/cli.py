@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from samii.cli_args import add_json, add_model, add_out, add_overwrite, add_rerun, add_set, float_in, seed
+from samii.cli_args import add_json, add_model, add_out, add_overwrite, add_rerun, add_seed, add_set, float_in
 from samii.closedloop.trial import BUILTIN_CONTROLLERS
 
 __all__ = ["add_arguments", "run", "MAX_DELAY_STEPS"]
@@ -77,7 +77,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--noise", action="store_true",
                         help="seeded sensor noise and ADC quantisation on the controller's measurements (theta 5e-4 rad rms and "
                         "4096-count/rev encoder steps; acceleration 0.01 m/s² rms and a 16-bit +-10 V ADC at 1 V/g)")  # fmt: skip
-    parser.add_argument("--seed", type=seed, default=None, help="seed of the sensor noise (with --noise; default 0)")
+    add_seed(parser, "seed of the sensor noise (with --noise; default 0)", default=None)
     add_model(parser, "MJCF or parameter .json file (default: the embedded SAMII model)")
     add_set(parser, "override a model parameter, e.g. hydraulic.bulk_modulus=1e9 (repeatable; samii params lists them)")
     add_out(parser, "write timeseries.csv, run.json and the figures here")
@@ -143,7 +143,6 @@ def _summary(r, out_names: list[str]) -> str:
 
 def run(args) -> int:
     from samii.closedloop.trial import TrialRequest, run_trial
-    from samii.sim.overrides import parse_overrides
 
     request = TrialRequest(
         controller=args.controller,
@@ -160,10 +159,9 @@ def run(args) -> int:
         if not args.json:
             print(f"  damping controller: {what}", file=sys.stderr)
 
-    trial = run_trial(request, out=args.out, model=args.model, overrides=parse_overrides(args.set), plots=not args.no_plots, rerun=args.rerun,
-                      rerun_fps=args.rerun_fps, overwrite=args.overwrite, say=say)  # fmt: skip
-    for note in trial.notes:
-        print(f"samii closedloop: note: {note}", file=sys.stderr)
+    trial = run_trial(request, out=args.out, model=args.model, overrides=args.set, plots=not args.no_plots, rerun=args.rerun,
+                      rerun_fps=args.rerun_fps, overwrite=args.overwrite, say=say,
+                      note=lambda text: print(f"samii closedloop: note: {text}", file=sys.stderr))  # fmt: skip
     if args.json:
         from samii.json_output import dumps
 

@@ -14,12 +14,7 @@ __all__ = ["plot_theta", "plot_base", "plot_linear", "FIGURES"]
 FIGURES = ("theta.png", "base_accel.png", "linear_vs_nonlinear.png")
 
 
-def _figure(rows: int = 1, height: float = 3.6):
-    fig, axes = panels(rows, height)
-    return pyplot(), fig, axes
-
-
-def _save(plt, fig, path: Path) -> None:
+def _save(fig, path: Path) -> None:
     fig.tight_layout()
     save_figure(fig, path)
 
@@ -45,15 +40,15 @@ def _figure_with_zoom():
     plt = pyplot()
 
     fig, (ax, zoom) = plt.subplots(1, 2, figsize=(11.0, 3.6), gridspec_kw={"width_ratios": [3, 1.2]})
-    return plt, fig, ax, zoom
+    return fig, ax, zoom
 
 
 def _axes(r: ClosedLoopResult):
-    """``(plt, fig, ax, zoom)``: ``zoom`` is None unless the run is too short to see (:func:`_too_short`)."""
+    """``(fig, ax, zoom)``: ``zoom`` is None unless the run is too short to see (:func:`_too_short`)."""
     if _too_short(r):
         return _figure_with_zoom()
-    plt, fig, (ax,) = _figure()
-    return plt, fig, ax, None
+    fig, (ax,) = panels(1, 3.6)
+    return fig, ax, None
 
 
 def _zoom(zoom, r: ClosedLoopResult, curves: list[tuple[np.ndarray, np.ndarray, dict]], ylabel: str) -> None:
@@ -88,7 +83,7 @@ _GREY = {"color": "tab:gray", "lw": 2.2, "alpha": 0.6}
 def plot_theta(r: ClosedLoopResult, path: Path) -> None:
     """Desired vs actual joint-2 angle (Figures 11.1-11.3), with the servo loop alone for comparison; a run
     that diverged at once gets a panel of its own first moments beside."""
-    plt, fig, ax, zoom = _axes(r)
+    fig, ax, zoom = _axes(r)
     s, c = r.signals, r.comparison
     ref_t, ref = (c.t, c.theta_ref) if zoom is not None else (s.t, s.theta_ref)  # a diverged run's reference: the whole test's
     ax.plot(ref_t, np.degrees(ref), color="k", lw=1.2, ls="--", label="desired theta_ref")
@@ -109,14 +104,14 @@ def plot_theta(r: ClosedLoopResult, path: Path) -> None:
     ax.set_title(_title(r), fontsize=10)
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize=8)
-    _save(plt, fig, path)
+    _save(fig, path)
 
 
 def plot_base(r: ClosedLoopResult, path: Path) -> None:
     """Base acceleration with and without the controller (Figures 11.4-11.5); a run that diverged at once
     gets a panel of its own first moments beside."""
     accel_rest = r.accel_rest_m_s2
-    plt, fig, ax, zoom = _axes(r)
+    fig, ax, zoom = _axes(r)
     s, c = r.signals, r.comparison
     if c is not None:
         label = "free decay (never switched on)" if r.scenario.name == "loper" else "servo loop alone"
@@ -133,13 +128,13 @@ def plot_base(r: ClosedLoopResult, path: Path) -> None:
     ax.set_title(f"{_title(r)}\n{extra}", fontsize=10)
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize=8)
-    _save(plt, fig, path)
+    _save(fig, path)
 
 
 def plot_linear(r: ClosedLoopResult, path: Path) -> None:
     """The nonlinear run against the linear prediction, theta and base acceleration."""
     theta_rest, accel_rest = r.theta_rest_rad, r.accel_rest_m_s2
-    plt, fig, (a1, a2) = _figure(2, 3.0)
+    fig, (a1, a2) = panels(2, 3.0)
     s = r.signals
     a1.plot(s.t, np.degrees(s.theta - theta_rest), color="tab:blue", lw=1.0, label="nonlinear simulator")
     a2.plot(s.t, s.accel - accel_rest, color="tab:red", lw=0.8, label="nonlinear simulator")
@@ -159,4 +154,4 @@ def plot_linear(r: ClosedLoopResult, path: Path) -> None:
     a1.set_ylabel("theta from rest [deg]")
     a2.set_ylabel("base acceleration [m/s²]")
     a2.set_xlabel("time [s]")
-    _save(plt, fig, path)
+    _save(fig, path)

@@ -10,7 +10,7 @@ A run that is unstable by design is a result (``stable`` false), not an error. R
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -40,6 +40,7 @@ class TrialRequest:
     delay_samples: float = 0.0  #: the controller's computation delay
     noise: bool = False  #: seeded sensor noise and ADC quantisation on the controller's measurements
     seed: int | None = None  #: of that noise (None: 0)
+    label: str | None = None  #: the controller's name in the run's files and figures (None: ``controller`` as given)
 
 
 @dataclass
@@ -158,52 +159,53 @@ def run_trial(
     *,
     out=None,
     model=None,
-    overrides: dict[str, float] | None = None,
+    overrides: Sequence[str] | Mapping[str, float] | None = None,
     plots: bool = True,
     rerun=None,
     rerun_fps: float | None = None,
     overwrite: bool = False,
     say: Callable[[str], None] | None = None,
+    note: Callable[[str], None] | None = None,
     relative_to=None,
 ) -> Trial:
     """Run ``request`` on ``model`` (an MJCF or parameter file; None: the embedded one) with ``overrides``; given
     ``out``, write it into that folder (all or nothing, checked before any work), with its figures unless ``plots``
-    is false; given ``rerun``, a recording there. ``say`` hears the stages of a "damping" controller's design;
+    is false; given ``rerun``, a recording there. ``say`` hears the stages of a "damping" controller's design, ``note``
+    what was asked and will not be done (as it is found; also in ``Trial.notes``);
     ``relative_to`` names the written files relative to that folder (the main job's) instead of as given."""
     from samii.closedloop.plots import FIGURES
     from samii.closedloop.scenario import NoiseSpec, default_spec_factory, run_closed_loop, scenario
     from samii.outputs import OutputFolder, check_output_file, shown_path, written_beside
+    from samii.sim.overrides import as_overrides
 
-    req = request
-    overrides = dict(overrides or {})
-    _check_request(req, plots=plots, out=out)
+    _check_request(request, plots=plots, out=out)
     names = list(FILES) + (list(FIGURES) if plots else [])
     folder = OutputFolder(out, names, overwrite=overwrite) if out is not None else None
     rerun_path = check_output_file(rerun, overwrite=overwrite, option="--rerun", beside=folder) if rerun else None
-    if req.controller == "unity" and req.delay_samples:
+    if request.controller == "unity" and request.delay_samples:
         raise InputError("--delay-samples: the unity servo loop is analog (no digital controller to delay)")
-    if req.controller == "unity" and req.noise:
+    if request.controller == "unity" and request.noise:
         raise InputError("--noise: the unity servo loop samples no sensors (its analog loop reads the joint angle directly)")
 
+    overrides = as_overrides(overrides)  # (read after the request's own checks)
     factory = default_spec_factory(model, overrides or None)
-    saved = resolve_controller(req.controller, factory, say=say)
+    saved = resolve_controller(request.controller, factory, say=say)
     if saved is not None:
         spec, _, _ = factory()
-        check_fits(saved, req.controller, req.delay_samples, float(spec.option.timestep))
-    kw = {"duration_s": req.duration_s}
-    if req.step_deg is not None:
-        kw["step_deg"] = req.step_deg
-    if req.impulse_n_s is not None:
-        kw["impulse_n_s"] = req.impulse_n_s
-    sc = scenario(req.scenario, **kw)
-    noise = NoiseSpec(seed=req.seed or 0) if req.noise else None
+        check_fits(saved, request.controller, request.delay_samples, float(spec.option.timestep))
+    kw = {"duration_s": request.duration_s}
+    if request.step_deg is not None:
+        kw["step_deg"] = request.step_deg
+    if request.impulse_n_s is not None:
+        kw["impulse_n_s"] = request.impulse_n_s
+    sc = scenario(request.scenario, **kw)
+    noise = NoiseSpec(seed=request.seed or 0) if request.noise else None
     frame_steps = None
     if rerun_path:
         from samii.viz.recording import frame_steps_for
 
         frame_steps = frame_steps_for(model_at_rest(factory), rerun_fps)
-    label = req.controller if req.controller in BUILTIN_CONTROLLERS else shown_path(req.controller, relative_to)
-    result = run_closed_loop(saved, sc, label=label, spec_factory=factory, delay_samples=req.delay_samples, noise=noise,
+    result = run_closed_loop(saved, sc, label=request.label or request.controller, spec_factory=factory, delay_samples=request.delay_samples, noise=noise,
                              qpos_every=frame_steps)  # fmt: skip
 
     written: list[str] = []
@@ -211,6 +213,8 @@ def run_trial(
     recorded = result.signals.t.size >= 2  # a run that diverged in its first step has nothing to record or draw
     if not recorded and rerun_path is not None:
         notes.append(f"--rerun {rerun_path}: not written, the run diverged in its first step")
+        if note is not None:
+            note(notes[-1])
         rerun_path = None
     with written_beside(rerun_path) as rrd_tmp:
         if folder is not None:

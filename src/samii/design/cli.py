@@ -24,8 +24,7 @@ import sys
 
 import numpy as np
 
-from samii.cli_args import add_json, add_no_progress, add_out, add_overwrite, finite_float, float_in, int_in, nonempty_path, positive_float
-from samii.cli_args import seed as seed_type
+from samii.cli_args import add_json, add_no_progress, add_out, add_overwrite, add_seed, finite_float, float_in, int_in, nonempty_path, positive_float
 from samii.errors import InputError
 
 __all__ = ["add_arguments", "run", "N_GAINS_RANGE", "MAX_ABS_CANCEL_GAIN", "PLOT_MAX_GAINS"]
@@ -193,7 +192,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="KP",
         help="the servo amplifier's position gain [V/rad] the data were measured with (default: the embedded model's, 57.3 = 1 V/deg)",
     )
-    p.add_argument("--seed", type=seed_type, default=0, help="without --frf: seed of the simulated measurement's sensor noise (default 0)")
+    add_seed(p, "without --frf: seed of the simulated measurement's sensor noise (default 0)")
     add_json(p, "print the design as JSON")
     _add_save(p)
 

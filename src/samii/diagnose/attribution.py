@@ -23,7 +23,8 @@ import numpy as np
 
 from samii.diagnose.effects import LIBRARY, TWO_PI, Effect
 from samii.diagnose.model import Dataset, Fit
-from samii.diagnose.residuals import CHANNEL_NAMES, full_residuals, model_response, runs
+from samii.diagnose.residuals import full_residuals, model_response, runs
+from samii.frequency_response import CHANNEL_NAMES
 
 #: The residual's power left by an effect within the misfit bands it acts in, as a fraction of the power without
 #: it, above which it is not told from an image: its rms must at least halve (1/2 squared).

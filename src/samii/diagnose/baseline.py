@@ -120,7 +120,7 @@ def check_level(saved: SavedFit, datasets: Sequence[Dataset], baseline: Baseline
     """Refuse data whose level a saved fit misses by LEVEL_MISMATCH or more, naming the channel and the factor: a fit of
     theta in mrad held against data in rad was "diagnosed" as a pole at 0.01 Hz, a leak of -10 1/s and an accelerometer
     gain of 100, each on its bound, with 60 dB of error left."""
-    from samii.identify.lack_of_fit import CHANNEL_NAMES
+    from samii.frequency_response import CHANNEL_NAMES
 
     for ds, per in zip(datasets, baseline.fixed):
         for ch, resp in per.items():

@@ -140,8 +140,8 @@ def _print(d, written) -> None:
 
     from samii.diagnose.model import MAX_VAR
     from samii.diagnose.residuals import BAND_POINTS, band_tested, even_misfit
-    from samii.diagnose.residuals import CHANNEL_NAMES as _NAMES
     from samii.diagnose.select import theta_usable
+    from samii.frequency_response import CHANNEL_NAMES as _NAMES
 
     print(f"samii diagnose: {len(d.measured)} file(s) against {d.baseline.label}")
     for m, ds in zip(d.measured, d.datasets):

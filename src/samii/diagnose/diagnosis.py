@@ -49,9 +49,6 @@ from samii.diagnose.measured import Measured, check_actuator_sign
 from samii.diagnose.model import MAX_VAR, Baseline, Dataset, Fit
 from samii.diagnose.nonlinear import MAX_DF_CHI2, distortion_var, find_nonlinear, harmonic_errors, linearised
 from samii.diagnose.residuals import (
-    BAND_POINTS,
-    CHANNEL_NAMES,
-    CHANNELS,
     Band,
     ChannelError,
     channel_errors,
@@ -62,8 +59,9 @@ from samii.diagnose.residuals import (
 )
 from samii.diagnose.sampling import feedthrough_note, feedthrough_of, hold_note, with_hold_found, with_sampling
 from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select, refusal_class, sample_s, within_sampling
+from samii.frequency_response import CHANNEL_NAMES
 
-__all__ = ["ChannelError", "FoundEffect", "Band", "Diagnosis", "diagnose", "CHANNELS", "BAND_POINTS", "RULE"]
+__all__ = ["ChannelError", "FoundEffect", "Band", "Diagnosis", "diagnose", "RULE"]
 
 RULE = (
     f"an effect joins when its F-test against the model without it passes at alpha = {ALPHA:g} "
@@ -85,15 +83,7 @@ class FoundEffect:
     expected: bool = False
 
     def to_dict(self) -> dict:
-        return {
-            "category": self.category,
-            "kind": self.kind,
-            "channel": self.channel,
-            "params": dict(self.params),
-            "stderr": dict(self.stderr),
-            "evidence": self.evidence,
-            "expected": self.expected,
-        }
+        return asdict(self)
 
 
 @dataclass(frozen=True, eq=False)

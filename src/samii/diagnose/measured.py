@@ -41,8 +41,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from samii.frequency_response import FrequencyResponse
-from samii.identify.lack_of_fit import CHANNEL_NAMES, ROUGHNESS_LAG, averages_from_metadata, is_stepped_sine, roughness_variance
+from samii.frequency_response import CHANNEL_NAMES, FrequencyResponse
+from samii.identify.lack_of_fit import ROUGHNESS_LAG, averages_from_metadata, is_stepped_sine, roughness_variance
 from samii.measure.frf import CHANNEL_PAIRS
 from samii.measure.frf_variance import POOL, pool_mean, timeseries_frf
 from samii.measure.records import RecordLayout, excitation_offset, find_records

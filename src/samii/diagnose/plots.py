@@ -8,13 +8,13 @@ from __future__ import annotations
 import numpy as np
 
 from samii.diagnose.diagnosis import Diagnosis
+from samii.identify.cost import DB_PER_NEPER, DEG_PER_RAD
 from samii.identify.lack_of_fit import is_stepped_sine
 from samii.viz.figures import pyplot, save_figure
 
 __all__ = ["residual_figure", "bode_figure", "harmonic_figure", "simulator_figure"]
 
-_DB = 20.0 / np.log(10.0)
-_DEG = 180.0 / np.pi
+_DB, _DEG = DB_PER_NEPER, DEG_PER_RAD
 _NAMES = {"act": "θ/v", "base": "ẍ/θ", "total": "ẍ/v"}
 _UNITS = {"act": "rad/V", "base": "(m/s²)/rad", "total": "(m/s²)/V"}
 

@@ -17,10 +17,10 @@ from scipy import stats
 
 from samii.diagnose.model import FEEDTHROUGH_KEY, Dataset, Fit, _apply, feedthrough_term, hold_factor, sampled_images
 from samii.diagnose.select import ALPHA
+from samii.frequency_response import CHANNELS
+from samii.identify.cost import DB_PER_NEPER, DEG_PER_RAD
 
 __all__ = [
-    "CHANNELS",
-    "CHANNEL_NAMES",
     "BAND_POINTS",
     "ChannelError",
     "Band",
@@ -35,14 +35,8 @@ __all__ = [
     "runs",
 ]
 
-#: Channels reported: theta/v, xdd/theta, xdd/v.
-CHANNELS = ("act", "base", "total")
-#: How the channels are named in text.
-CHANNEL_NAMES = {"act": "theta/v", "base": "xdd/theta", "total": "xdd/v"}
 #: Points averaged when looking for a band the final model leaves unexplained.
 BAND_POINTS = 9
-_DB = 20.0 / np.log(10.0)
-_DEG = 180.0 / np.pi
 
 
 @dataclass(frozen=True)
@@ -148,8 +142,8 @@ def errors_from_residuals(datasets: Sequence[Dataset], residuals: Sequence[Mappi
         if e.size == 0:
             continue
         out[ch] = ChannelError(
-            rms_db=float(_DB * np.sqrt(np.mean(e.real**2))),
-            rms_deg=float(_DEG * np.sqrt(np.mean(e.imag**2))),
+            rms_db=float(DB_PER_NEPER * np.sqrt(np.mean(e.real**2))),
+            rms_deg=float(DEG_PER_RAD * np.sqrt(np.mean(e.imag**2))),
             chi2=float(np.mean(np.abs(e) ** 2 / v)) if known else None,
             n_points=int(e.size),
         )

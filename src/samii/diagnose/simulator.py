@@ -60,10 +60,10 @@ from samii.calibrate.calibrate import MODE_KNOBS, PHYSICAL_LIMITS
 from samii.calibrate.simulator import parameter_value
 from samii.diagnose.measured import Measured
 from samii.diagnose.model import Baseline, Dataset
-from samii.diagnose.residuals import CHANNEL_NAMES, CHANNELS, errors_from_residuals, full_residuals, unexplained_bands
+from samii.diagnose.residuals import errors_from_residuals, full_residuals, unexplained_bands
 from samii.errors import SimulationUnstable
 from samii.forkmap import fork_calls, fork_map, sharing
-from samii.frequency_response import FrequencyResponse, interpolate_frf
+from samii.frequency_response import CHANNEL_NAMES, CHANNELS, FrequencyResponse, interpolate_frf
 from samii.sim.linearize import UNSTABLE_RATE_1_S, poles_per_s
 from samii.sim.mjcf import SamiiParams
 from samii.sim.model import params_with_overrides

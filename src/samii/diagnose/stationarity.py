@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from samii.frequency_response import CHANNEL_NAMES
 from samii.measure.frf import CHANNEL_PAIRS
 from samii.measure.frf_variance import spectra_at
 
@@ -64,7 +65,7 @@ class RecordChange:
     record: int  # which record (0-based) deviates most
 
     def text(self) -> str:
-        name = {"act": "theta/v", "base": "xdd/theta", "total": "xdd/v"}.get(self.channel, self.channel)
+        name = CHANNEL_NAMES.get(self.channel, self.channel)
         return (
             f"{self.source}: the records are not repeats over {name} {self.lo_hz:.3g}-{self.hi_hz:.3g} Hz: record {self.record + 1} "
             f"differs from their estimate by {self.largest_pct:.2g} %, smoothly over frequency (chi2 {self.chi2:.3g} per degree of "

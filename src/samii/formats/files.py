@@ -132,7 +132,8 @@ def _size(n: int) -> str:
 def _too_big(path: Path, size: int | None) -> DataFormatError:
     got = f"is {_size(size)}" if size is not None else "grew beyond that while being read"
     return DataFormatError(
-        path, f"the file {got}; the readers take at most {_size(MAX_FILE_BYTES)} (samii.formats.MAX_FILE_BYTES): split the record or decimate it"
+        path,
+        f"the file {got}; the readers take at most {_size(MAX_FILE_BYTES)} (samii.formats.files.MAX_FILE_BYTES): split the record or decimate it",
     )
 
 
@@ -300,7 +301,8 @@ def _read_table(path, known: Callable[[str], bool] | None = None) -> _Table:
     n_lines = text.count("\n") + 1
     if n_lines > MAX_LINES:
         raise DataFormatError(
-            path, f"the file has {n_lines} lines; the readers take at most {MAX_LINES} (samii.formats.MAX_LINES): split the record or decimate it"
+            path,
+            f"the file has {n_lines} lines; the readers take at most {MAX_LINES} (samii.formats.files.MAX_LINES): split the record or decimate it",
         )
     all_lines = text.split("\n")
     del text
@@ -309,7 +311,7 @@ def _read_table(path, known: Callable[[str], bool] | None = None) -> _Table:
         raise DataFormatError(
             path,
             f"the line is {len(all_lines[k])} characters long; expected at most {MAX_LINE_CHARS} "
-            "(samii.formats.MAX_LINE_CHARS): is this a CSV file with line breaks?",
+            "(samii.formats.files.MAX_LINE_CHARS): is this a CSV file with line breaks?",
             line=k + 1,
         )
     metadata: dict[str, str] = {}

@@ -115,7 +115,7 @@ def _loadmat_isolated(path: Path, data: bytes) -> dict:
         proc = subprocess.run([sys.executable, "-c", _MAT_CHILD], input=data, capture_output=True, timeout=MAT_TIMEOUT_S, env=env)
     except subprocess.TimeoutExpired:
         raise DataFormatError(
-            path, f"reading the .mat file took longer than {MAT_TIMEOUT_S:g} s (samii.formats.MAT_TIMEOUT_S); is it corrupt?"
+            path, f"reading the .mat file took longer than {MAT_TIMEOUT_S:g} s (samii.formats.mat.MAT_TIMEOUT_S); is it corrupt?"
         ) from None
     except OSError:  # no interpreter to start
         return _loadmat_in_process(path, data)

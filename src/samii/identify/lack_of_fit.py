@@ -58,6 +58,7 @@ from types import MappingProxyType
 
 import numpy as np
 
+from samii.frequency_response import CHANNEL_NAMES
 from samii.identify.cost import COHERENCE_CLIP, DB_PER_NEPER, DEG_PER_RAD, FitProblem
 
 __all__ = [
@@ -88,8 +89,6 @@ RUN_DB = 1.0
 RUN_DEG = 6.6
 #: Averages assumed when the data do not say: chapter 9, "The swept sine data is based on 3 averages".
 DEFAULT_AVERAGES = 3
-
-CHANNEL_NAMES = {"act": "theta/v", "base": "xdd/theta", "total": "xdd/v"}
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from samii.errors import InputError, SimulationUnstable
-from samii.schema import SCHEMA_VERSION
+from samii.schema import versioned
 
 __all__ = [
     "BodeTestRequest",
@@ -91,12 +91,11 @@ class BodeTest:
     supply_pressure_pa: float
     summary: dict  #: run.json's content
     warnings: list[MeasureWarning] = field(default_factory=list)  #: what the command prints after "warning:"
-    written: list[str] = field(default_factory=list)  #: the files written, as the run names them
 
     @property
-    def main(self):
-        """The measurement frf.csv and timeseries.csv hold: the swept sine's, or the stepped one alone."""
-        return self.results.get("swept") or self.results["stepped"]
+    def written(self) -> list[str]:
+        """The files written, as the run names them (run.json's outputs)."""
+        return self.summary["outputs"]
 
 
 def _versions() -> dict[str, str]:
@@ -264,7 +263,7 @@ def run_bode_test(
     request: BodeTestRequest = BodeTestRequest(),
     *,
     model=None,
-    overrides: dict[str, float] | None = None,
+    overrides: Sequence[str] | Mapping[str, float] | None = None,
     rerun=None,
     rerun_fps: float | None = None,
     overwrite: bool = False,
@@ -273,7 +272,7 @@ def run_bode_test(
     relative_to=None,
 ) -> BodeTest:
     """Run the Bode test ``request`` on ``model`` (an MJCF or parameter file; None: the embedded one) with
-    ``overrides`` and write it into folder ``out`` (all or nothing), with a Rerun recording at ``rerun`` if given.
+    ``overrides`` (``--set`` texts or a mapping, read after the request's own checks) and write it into folder ``out`` (all or nothing), with a Rerun recording at ``rerun`` if given.
 
     ``progress(done, total)`` counts physics steps over the whole test; ``argv`` is recorded in run.json as the
     command that ran it; ``relative_to`` names the written files relative to that folder (the main job's) instead
@@ -285,22 +284,22 @@ def run_bode_test(
     from samii.measure.daq import SensorNoise
     from samii.outputs import OutputFolder, check_output_file, create_parent, shown_path, written_beside
     from samii.sim.model import load_model
+    from samii.sim.overrides import as_overrides
     from samii.sim.plugin import hydraulic_params
 
     t_start = time.perf_counter()
-    req = request
-    overrides = dict(overrides or {})
-    sweep, stepped, plan = _excitations(req)
-    names = list(OUTPUTS[req.method]) + ["bode.png", "run.json"]
+    sweep, stepped, plan = _excitations(request)
+    names = list(OUTPUTS[request.method]) + ["bode.png", "run.json"]
     folder = OutputFolder(out, names, overwrite=overwrite)
     rerun_path = check_output_file(rerun, overwrite=overwrite, option="--rerun", beside=folder) if rerun else None
 
+    overrides = as_overrides(overrides)
     model_obj = load_model(model, overrides=overrides or None)
     dt = float(model_obj.opt.timestep)
     physics_hz = 1.0 / dt
-    ratio = physics_hz / req.sample_rate_hz
-    if abs(ratio - round(ratio)) > 1e-6 or physics_hz < req.sample_rate_hz:
-        raise InputError(f"--sample-rate-hz {req.sample_rate_hz:g} must divide the physics rate {physics_hz:g} Hz")
+    ratio = physics_hz / request.sample_rate_hz
+    if abs(ratio - round(ratio)) > 1e-6 or physics_hz < request.sample_rate_hz:
+        raise InputError(f"--sample-rate-hz {request.sample_rate_hz:g} must divide the physics rate {physics_hz:g} Hz")
     steps = sum(e.duration_s for _, e in plan) / dt
     if steps > MAX_PHYSICS_STEPS:
         raise InputError(
@@ -310,8 +309,8 @@ def run_bode_test(
             "1e-3 s), or a shorter run"
         )
     _check_loop_stable(model_obj)
-    noise = SensorNoise() if req.noise else None
-    rng = np.random.default_rng(req.seed)
+    noise = SensorNoise() if request.noise else None
+    rng = np.random.default_rng(request.seed)
     frame_steps = None
     if rerun_path:
         from samii.viz.recording import frame_steps_for
@@ -334,7 +333,7 @@ def run_bode_test(
             results[kind] = measure(
                 model_obj,
                 excitation,
-                sample_rate_hz=req.sample_rate_hz,
+                sample_rate_hz=request.sample_rate_hz,
                 noise=noise,
                 rng=rng,
                 frame_steps=frame_steps,
@@ -363,7 +362,7 @@ def run_bode_test(
                 for kind, r in results.items()
             }
         write_frf_csv(main.frf, folder.path("frf.csv"))
-        if req.method == "both":
+        if request.method == "both":
             write_frf_csv(results["stepped"].frf, folder.path("frf_stepped.csv"))
 
         from samii.viz.bode_plot import bode_plot
@@ -372,7 +371,7 @@ def run_bode_test(
         model_name = str(model) if model else "embedded model"
         if overrides:
             model_name += " with " + ", ".join(f"{k}={v:g}" for k, v in overrides.items())
-        title = f"samii measure: {METHOD_LABEL[req.method]}, {amp:g} V, {'with' if noise else 'no'} sensor noise\n{model_name}"
+        title = f"samii measure: {METHOD_LABEL[request.method]}, {amp:g} V, {'with' if noise else 'no'} sensor noise\n{model_name}"
         bode_plot(
             results.get("swept").frf if "swept" in results else None,
             stepped=results["stepped"].frf if "stepped" in results else None,
@@ -392,38 +391,39 @@ def run_bode_test(
             for kind, r in results.items()
         }
         outputs = [shown_path(folder.final(n), relative_to) for n in names] + ([shown_path(rerun_path, relative_to)] if rerun_path else [])
-        summary = {
-            "schema_version": SCHEMA_VERSION,
-            "command": "samii measure",
-            "argv": list(argv),
-            "method": req.method,
-            "excitation": {kind: e.describe() for kind, e in plan},
-            "daq": {
-                "sample_rate_hz": req.sample_rate_hz,
-                "antialias": main.timeseries.metadata.get("antialias"),
-                "sensor_noise": asdict(noise) if noise else None,
-                "seed": req.seed,
-            },
-            "frf": {k: v for k, v in main.frf.metadata.items() if k.startswith("frf_")},
-            "model": {
-                "file": str(model) if model else "embedded default",
-                "overrides": overrides,
-                "timestep_s": dt,
-                "params": _model_params(model, overrides),
-                "hydraulic": {k: v for k, v in asdict(hp).items() if k != "source"},
-            },
-            "versions": _versions(),
-            "timing": {
-                "simulated_s": simulated_s,
-                "simulation_wall_s": sim_wall,
-                "total_wall_s": time.perf_counter() - t_start,
-                "real_time_factor": simulated_s / sim_wall if sim_wall > 0 else None,
-            },
-            "vs_linearised_simulator_0.5_35_hz": checks[plan[0][0]],
-            "peaks": peaks[plan[0][0]],
-            "outputs": outputs,
-        }
-        if req.method == "both":
+        summary = versioned(
+            {
+                "command": "samii measure",
+                "argv": list(argv),
+                "method": request.method,
+                "excitation": {kind: e.describe() for kind, e in plan},
+                "daq": {
+                    "sample_rate_hz": request.sample_rate_hz,
+                    "antialias": main.timeseries.metadata.get("antialias"),
+                    "sensor_noise": asdict(noise) if noise else None,
+                    "seed": request.seed,
+                },
+                "frf": {k: v for k, v in main.frf.metadata.items() if k.startswith("frf_")},
+                "model": {
+                    "file": str(model) if model else "embedded default",
+                    "overrides": overrides,
+                    "timestep_s": dt,
+                    "params": _model_params(model, overrides),
+                    "hydraulic": {k: v for k, v in asdict(hp).items() if k != "source"},
+                },
+                "versions": _versions(),
+                "timing": {
+                    "simulated_s": simulated_s,
+                    "simulation_wall_s": sim_wall,
+                    "total_wall_s": time.perf_counter() - t_start,
+                    "real_time_factor": simulated_s / sim_wall if sim_wall > 0 else None,
+                },
+                "vs_linearised_simulator_0.5_35_hz": checks[plan[0][0]],
+                "peaks": peaks[plan[0][0]],
+                "outputs": outputs,
+            }
+        )
+        if request.method == "both":
             summary["vs_linearised_simulator_0.5_35_hz_by_method"] = checks
             summary["peaks_by_method"] = peaks
         said = _warnings(results, checks, peaks, coh_ok, hp.supply_pressure, amp)
@@ -444,7 +444,7 @@ def run_bode_test(
                 raise recording_failed(exc, rerun_path) from None
     summary["timing"]["total_wall_s"] = time.perf_counter() - t_start
     return BodeTest(
-        request=req,
+        request=request,
         results=results,
         checks=checks,
         peaks=peaks,
@@ -452,5 +452,4 @@ def run_bode_test(
         supply_pressure_pa=hp.supply_pressure,
         summary=summary,
         warnings=said,
-        written=outputs,
     )

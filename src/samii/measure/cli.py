@@ -20,11 +20,11 @@ from samii.cli_args import (
     add_out,
     add_overwrite,
     add_rerun,
+    add_seed,
     add_set,
     float_in,
     int_in,
     positive_float,
-    seed,
 )
 from samii.json_output import dumps
 from samii.measure.bode_test import METHOD_LABEL, MIN_AMPLITUDE_V, VALVE_RANGE_V
@@ -74,7 +74,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--sample-rate-hz", type=positive_float, default=1000.0, metavar="HZ", help="DAQ sampling rate (default 1000; must divide the physics rate)"
     )
     parser.add_argument("--noise", action="store_true", help="add sensor noise (typical lab levels, see samii.measure.daq.SensorNoise)")
-    parser.add_argument("--seed", type=seed, default=0, help="seed of the sensor-noise generator, an integer >= 0 (default 0)")
+    add_seed(parser, "seed of the sensor-noise generator, an integer >= 0 (default 0)")
     add_model(parser, "MJCF file (default: the embedded SAMII model)")
     add_set(parser, "override a model parameter, e.g. hydraulic.supply_pressure=2.1e7 (repeatable)")
     add_rerun(
@@ -92,7 +92,6 @@ def run(args: argparse.Namespace) -> int:
 
     from samii.measure.bode_test import BodeTestRequest, run_bode_test
     from samii.outputs import with_size
-    from samii.sim.overrides import parse_overrides
 
     request = BodeTestRequest(
         method=args.method,
@@ -105,19 +104,20 @@ def run(args: argparse.Namespace) -> int:
         noise=args.noise,
         seed=args.seed,
     )
-    bar = tqdm(total=None, unit="step", unit_scale=True, desc="samii measure", disable=args.no_progress, file=sys.stderr)
+    bars = []  # made at the first step, once the request has passed its checks (a refusal shows no bar)
 
     def progress(done: int, total: int) -> None:
-        bar.total = total
-        bar.n = done
-        bar.refresh()
+        if not bars:
+            bars.append(tqdm(total=total, unit="step", unit_scale=True, desc="samii measure", disable=args.no_progress, file=sys.stderr))
+        bars[0].n = done
+        bars[0].refresh()
 
     try:
         test = run_bode_test(
             args.out,
             request,
             model=args.model,
-            overrides=parse_overrides(args.set),
+            overrides=args.set,
             rerun=args.rerun,
             rerun_fps=args.rerun_fps,
             overwrite=args.overwrite,
@@ -125,7 +125,8 @@ def run(args: argparse.Namespace) -> int:
             argv=sys.argv[1:],
         )
     finally:
-        bar.close()
+        for bar in bars:
+            bar.close()
     summary = test.summary
     if args.json:
         print(dumps(summary, indent=2))

@@ -16,9 +16,20 @@ import numpy as np
 
 from samii.closedloop.controllers import FT_PER_M
 from samii.errors import InputError
-from samii.run_summary import MARKER
+from samii.run_summary import MARKER, RECORDINGS  # (linked by the page, not embedded: tens of MB)
 
-__all__ = ["Trace", "RunFolder", "read_run_folder", "ParamRow", "parameter_rows", "STAGE_FIGURES", "RECORDINGS", "FieldLog", "traced"]
+__all__ = [
+    "Trace",
+    "RunFolder",
+    "read_run_folder",
+    "ParamRow",
+    "parameter_rows",
+    "STAGE_FIGURES",
+    "RECORDINGS",
+    "read_document",
+    "FieldLog",
+    "traced",
+]
 
 #: Figures a stage drew, embedded as they are: key -> path in the folder.
 STAGE_FIGURES = {
@@ -28,8 +39,6 @@ STAGE_FIGURES = {
     "diagnose_residuals": "diagnose/residuals.png",
     "diagnose_harmonics": "diagnose/harmonics.png",
 }
-#: The Rerun recordings the main job writes, linked (not embedded: tens of MB).
-RECORDINGS = {"measure.rrd": "the swept-sine measurement", "closedloop.rrd": "the damping controller's Loper test beside the servo loop alone"}
 
 
 @dataclass(frozen=True)
@@ -160,14 +169,16 @@ def traced(run: RunFolder) -> tuple[RunFolder, FieldLog]:
     ), log
 
 
-def _json(folder: Path, rel: str) -> dict:
+def read_document(folder: Path, rel: str, *, versioned: bool = True) -> dict:
+    """The JSON object at ``rel`` in a main job's folder, checked: a missing, malformed or damaged file (NaN, which samii
+    never writes) and, when ``versioned``, one of a newer schema_version (samii.schema) is an InputError naming it."""
     from samii.json_output import read_json
 
     path = folder / rel
     data = read_json(path, "main job's file", missing=f"{path}: missing; is {folder} a main job's output (samii run)?")
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a JSON object")
-    if rel != "fit/fit.json":  # (the fit's file has no schema_version: samii.identify.report owns its layout)
+    if versioned:
         from samii.schema import schema_version
 
         schema_version(data, path)
@@ -199,7 +210,7 @@ def read_run_folder(path) -> RunFolder:
     folder = Path(path)
     if not folder.is_dir():
         raise InputError(f"{folder}: not a folder (expected a main job's output, samii run --out)")
-    summary = _json(folder, "summary.json")
+    summary = read_document(folder, "summary.json")
     if summary.get("written_by") != MARKER:
         raise InputError(f"{folder / 'summary.json'}: field 'written_by' is {summary.get('written_by')!r}, expected {MARKER!r}")
     closed, traces = {}, {}
@@ -210,7 +221,7 @@ def read_run_folder(path) -> RunFolder:
         if "/" in name or name in ("", ".", ".."):
             raise InputError(f"{folder / 'summary.json'}: field 'closed_loop' names a run {name!r}, which is no folder name")
         run_dir = folder / "closedloop" / name
-        closed[name] = _json(folder, f"closedloop/{name}/run.json")
+        closed[name] = read_document(folder, f"closedloop/{name}/run.json")
         traces[name] = _trace(run_dir / "timeseries.csv")
         # a verdict is shown as it is read: a string "false" would read as stable
         for where, doc in (
@@ -222,9 +233,9 @@ def read_run_folder(path) -> RunFolder:
     run = RunFolder(
         path=folder,
         summary=summary,
-        measurement=_json(folder, "measure/run.json"),
-        fit=_json(folder, "fit/fit.json"),
-        diagnosis=_json(folder, "diagnose/diagnosis.json"),
+        measurement=read_document(folder, "measure/run.json"),
+        fit=read_document(folder, "fit/fit.json", versioned=False),  # (samii.identify.report owns its layout, unversioned)
+        diagnosis=read_document(folder, "diagnose/diagnosis.json"),
         closed_loop=closed,
         traces=traces,
         figures={k: folder / rel for k, rel in STAGE_FIGURES.items() if _is_png(folder / rel)},

@@ -14,7 +14,19 @@ import math
 import os
 import sys
 
-from samii.cli_args import add_json, add_model, add_no_progress, add_out, add_overwrite, add_set, float_in, int_in, nonempty, nonempty_path, seed
+from samii.cli_args import (
+    add_json,
+    add_model,
+    add_no_progress,
+    add_out,
+    add_overwrite,
+    add_seed,
+    add_set,
+    float_in,
+    int_in,
+    nonempty,
+    nonempty_path,
+)
 from samii.errors import InputError
 
 __all__ = ["add_arguments", "run", "MAX_SAMPLES"]
@@ -53,12 +65,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the closed-loop test each sample runs (samii closedloop; default step: 5 deg at t = 1 s, 10 s)",
     )
     p.add_argument("--samples", type=int_in(1, MAX_SAMPLES), default=100, metavar="N", help="number of plants drawn (default 100)")
-    p.add_argument(
-        "--seed",
-        type=seed,
-        default=0,
-        help="seed of the draws (and of the sensor noise with --noise): the same seed gives the same table whatever runs it (default 0)",
-    )
+    add_seed(p, "seed of the draws (and of the sensor noise with --noise): the same seed gives the same table whatever runs it (default 0)")
     p.add_argument("--spread", action="append", default=[], metavar="NAME=P%",
                    help="a physical spread: NAME normal about its nominal value with standard deviation P %% of it (NAME=SIGMA: "
                         "absolute, in its unit), truncated at 3 sigma and above 5 %% of a positive nominal; repeatable "

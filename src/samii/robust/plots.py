@@ -17,12 +17,6 @@ __all__ = ["plot_histograms", "plot_influence", "FIGURES"]
 FIGURES = ("histograms.png", "influence.png")
 
 
-def _plt():
-    plt = pyplot()
-
-    return plt
-
-
 def _percentiles(ax, percentiles, fmt: str, unit: str = "") -> None:
     """Dotted lines at the percentiles, each labelled at its own height (close percentiles never overprint),
     and their values in the legend."""
@@ -39,7 +33,7 @@ def _percentiles(ax, percentiles, fmt: str, unit: str = "") -> None:
 def plot_histograms(results: list[SampleResult], summary: StudySummary, title: str, path: Path) -> None:
     from matplotlib.ticker import MaxNLocator
 
-    plt = _plt()
+    plt = pyplot()
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4.3))
     for a in (a1, a2):
         a.yaxis.set_major_locator(MaxNLocator(integer=True))
@@ -74,7 +68,7 @@ def plot_histograms(results: list[SampleResult], summary: StudySummary, title: s
 
 def plot_influence(draws: PlantDraws, results: list[SampleResult], summary: StudySummary, path: Path, top: int = 3) -> None:
     """Closed-loop damping against the most influential parameters (in % from nominal), unstable samples in red."""
-    plt = _plt()
+    plt = pyplot()
     names = [d["name"] for d in summary.influence[:top]] or list(draws.names[:top])
     fig, axes = plt.subplots(1, len(names), figsize=(4.0 * len(names), 3.6), squeeze=False, sharey=True)
     for a, name in zip(axes[0], names):

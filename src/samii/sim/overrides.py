@@ -7,14 +7,15 @@ lists them).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 from samii.errors import InputError
 
-__all__ = ["parse_overrides"]
+__all__ = ["parse_overrides", "as_overrides", "name_value"]
 
 
-def _name_value(text: str) -> tuple[str, float]:
+def name_value(text: str) -> tuple[str, float]:
+    """``NAME=VALUE`` with a finite number: ``("beam.length_m", 4.3)``; ValueError saying what is wrong."""
     name, sep, value = text.partition("=")
     if not sep or not name.strip():
         raise ValueError(f"expected NAME=VALUE, got {text!r}")
@@ -32,10 +33,17 @@ def parse_overrides(items: Iterable[str]) -> dict[str, float]:
     out = {}
     for item in items:
         try:
-            name, number = _name_value(item)
+            name, number = name_value(item)
         except ValueError as exc:
             raise InputError(f"--set {exc} (samii params lists the names)") from None
         if name in out:
             raise InputError(f"--set {name}: given twice")
         out[name] = number
     return out
+
+
+def as_overrides(overrides: Iterable[str] | Mapping[str, float] | None) -> dict[str, float]:
+    """Overrides given as ``--set`` texts or as a mapping of names to numbers, as that mapping."""
+    if isinstance(overrides, Mapping):
+        return {str(k): float(v) for k, v in overrides.items()}
+    return parse_overrides(overrides or ())

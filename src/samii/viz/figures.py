@@ -27,5 +27,7 @@ def panels(rows: int, height: float, *, width: float = 9.0):
 
 def save_figure(fig, path, *, dpi: int = 110) -> None:
     """Save ``fig`` to ``path`` and close it (PNG at a modest dpi keeps committed figures small)."""
-    fig.savefig(path, dpi=dpi)
-    pyplot(agg=False).close(fig)
+    try:
+        fig.savefig(path, dpi=dpi)
+    finally:
+        pyplot(agg=False).close(fig)
