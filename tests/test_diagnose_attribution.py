@@ -75,7 +75,13 @@ def test_a_small_gain_fitted_into_a_misfit_of_another_shape_is_not_attributed():
     # no gain error: a 4 dB, 30 deg bump on xdd/v at 8 Hz, and a gain of 1.1 (0.83 dB) fitted into it
     fit, ds = _case(1.0, 1.1, _bump(F, 8.0, 4.0, 30.0), "total")
     why = unattributed(fit, ds, [_band("total", 5.0, 15.0)], "sensor/accel_gain", {"gain": 1.1})
-    assert why is not None and "not told from an image" in why and "xdd/v 5-15 Hz" in why
+    assert why is not None and (why.code, why.cls, why.values["channel"], why.values["band_hz"]) == (
+        "image",
+        "not told from an image",
+        "total",
+        (5.0, 15.0),
+    )
+    assert why.values["takes_out_pct"] < why.values["needed_pct"] and "xdd/v 5-15 Hz" in why.text
     # the same change, held in the baseline (carried into the simulator), is judged the same way
     held, _ = _case(1.0, None, _bump(F, 8.0, 4.0, 30.0) / 1.1, "total")
     assert unattributed(held, ds, [_band("total", 5.0, 15.0)], "sensor/accel_gain", {"gain": 1.1}) is not None

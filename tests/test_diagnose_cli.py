@@ -174,6 +174,10 @@ def test_diagnose_finds_the_command_delay(delay_diagnosis):
     se = e["stderr"]["delay_s"]
     assert isinstance(se, float) and 0 < se < 5e-4
     assert isinstance(e["evidence"], str) and e["evidence"]
+    # the test that admitted it, as figures: its one parameter lowers chi2, F on (1, n) dof, and the sentence says them
+    j = e["joined"]
+    assert j["how"] == "f_test" and j["dof"][0] == 1 and j["chi2_after"] < j["chi2_before"] and j["log10_p"] < -10
+    assert f"F = {j['f_stat']:.3g} on (1, {j['dof'][1]}) dof" in e["evidence"] and e["rivals"] == []
     for which in ("error_before", "error_after"):
         for ch in ("act", "base"):
             assert {"rms_db", "rms_deg", "chi2"} <= set(d[which][ch]), (which, ch)

@@ -16,7 +16,7 @@ from samii.diagnose.effects import library
 from samii.diagnose.measured import from_timeseries
 from samii.diagnose.model import Baseline, Dataset, notebook_reference, start_params
 from samii.diagnose.rig import EffectRig
-from samii.diagnose.select import forward_select
+from samii.diagnose.select import AMBIGUOUS_CHI2, forward_select
 from samii.identify.structures import ModelStructure
 from samii.measure.excitation import SweptSine
 from samii.measure.records import find_records
@@ -235,16 +235,20 @@ def test_a_richer_reading_the_data_hardly_tell_apart_is_named(sweep):
     hold = d.after.baseline.hold(0)
     [e] = [e for e in d.effects if not e.expected]
     assert (e.category, e.kind) == ("delay", "command") and e.params["delay_s"] + hold == pytest.approx(2.0e-3, rel=0.35)
+    [r] = e.rivals
+    assert (r.how, r.effect, r.extra_params) == ("richer", "actuator/valve", 1) and np.isfinite(r.delta_in_noise)
     assert "actuator/valve in its place fits almost as well" in e.evidence and "do not justify by the F-test" in e.evidence
-    richer = [t for t in d.tried if t.get("round") == "richer"]
-    rival = richer[0]["rival_params"]
+    rival = r.values
     # the rival's group delay below 40 Hz, 2 zeta / omega: the valve's 2.0 ms (fitted in the model the selection found;
     # with the hold beside it where the hold was in that model)
     group = 2 * rival["zeta"] / (2 * np.pi * rival["freq_hz"])
     assert min(abs(group - 2.0e-3), abs(group + hold - 2.0e-3)) < 2e-4, (group, hold)
     ts = EffectRig(command_delay_s=0.006).simulate(sweep, sample_rate_hz=FS, rng=np.random.default_rng(4))
     d = diagnose([from_timeseries(ts, source="rig.csv")])
-    assert [(e.kind, "in its place" in e.evidence) for e in d.effects] == [("command", False)]
+    assert [(e.kind, e.rivals) for e in d.effects] == [("command", ())]
+    j = d.effects[0].joined  # the F-test that admitted it, as fields (chi2 falls, F on its one parameter)
+    assert j.how == "f_test" and j.dof[0] == 1 and j.chi2_after < j.chi2_before and j.log10_p < -10
+    assert f"F = {j.f_stat:.3g} on (1, {j.dof[1]}) dof" in d.effects[0].evidence
 
 
 @pytest.mark.slow
@@ -368,8 +372,6 @@ def test_roll_off_and_delay_that_the_data_hardly_tell_apart(sweep):
     roll-off at 45 Hz with a 1.7 ms delay fits as well (chi2 704.6 against 704.7 at the truth's structure, fitted
     from the truth): whichever is kept, the report names the other and the values that go with it, so the truth
     is among what it says."""
-    import re
-
     from samii.diagnose.diagnosis import diagnose
 
     rig, rng = _drawn_rig(116, command_delay_s=0.004, accel_lowpass_hz=30.0)
@@ -379,15 +381,16 @@ def test_roll_off_and_delay_that_the_data_hardly_tell_apart(sweep):
     if "sensor/accel_lowpass" in found:
         assert found["delay/command"].params["delay_s"] == pytest.approx(0.004, abs=5e-4)
         assert found["sensor/accel_lowpass"].params["corner_hz"] == pytest.approx(30.0, rel=0.15)
+        assert [r.how for r in found["sensor/accel_lowpass"].rivals] == ["in_its_place"]
         assert "hardly tell the two apart" in found["sensor/accel_lowpass"].evidence
     else:
-        roll = found["sensor/accel_lowpass2"].evidence
-        assert "but sensor/accel_lowpass in its place fits almost as well" in roll
-        corner = float(re.search(r"its corner_hz ([0-9.]+) Hz", roll).group(1))
-        assert corner == pytest.approx(30.0, rel=0.15)
-        delay = found["delay/command"].evidence
-        m = re.search(r"with sensor/accel_lowpass in place of sensor/accel_lowpass2 \(which fits almost as well\) it is delay_s ([0-9.]+) ms", delay)
-        assert m and float(m.group(1)) == pytest.approx(4.0, abs=0.5)
+        [roll] = [r for r in found["sensor/accel_lowpass2"].rivals if r.how == "in_its_place"]
+        assert roll.effect == "sensor/accel_lowpass" and roll.delta_in_noise < AMBIGUOUS_CHI2
+        assert roll.values["corner_hz"] == pytest.approx(30.0, rel=0.15)
+        [moves] = [r for r in found["delay/command"].rivals if r.how == "moves_it"]
+        assert (moves.effect, moves.in_place_of) == ("sensor/accel_lowpass", "sensor/accel_lowpass2")
+        assert moves.values["delay_s"] == pytest.approx(0.004, abs=5e-4)
+        assert "but sensor/accel_lowpass in its place fits almost as well" in found["sensor/accel_lowpass2"].evidence
 
 
 @pytest.mark.slow

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from samii.diagnose.effects import LIBRARY, Effect
-from samii.diagnose.floor import REL_FLOOR, controller_fir, estimator_bias, quantisation_step, with_floor
+from samii.diagnose.floor import PRACTICAL_FACTOR, REL_FLOOR, controller_fir, estimator_bias, quantisation_step, with_floor
 from samii.diagnose.measured import from_timeseries
 from samii.diagnose.rig import EffectRig
 from samii.diagnose.select import _below_floor, _f_limit, _f_test, _refused, _unidentifiable, search_places, within_sampling
@@ -132,7 +132,7 @@ def _datasets(lo=0.1, hi=40.0, record_s=120.0, fs=1000.0):
     ],
 )
 def test_what_the_data_cannot_identify_is_refused_with_its_reason(effect, reason):
-    assert reason in _unidentifiable(effect, _datasets())
+    assert reason in _unidentifiable(effect, _datasets()).text
 
 
 @pytest.mark.parametrize(
@@ -167,15 +167,19 @@ def test_a_mode_on_an_end_of_the_range_searched_is_not_placed():
     ds = _datasets()
     base, act = _within_band(KIND["base_mode"], ds), _within_band(KIND["act_mode"], ds)
     top, bottom = 40.0 * BAND_MARGIN, 0.1 / BAND_MARGIN
-    assert "not placed by the data: its freq_hz" in _unidentifiable(Effect(base, {"freq_hz": top, "zeta": 0.15, "residue": 0.035}, {}), ds)
+    r = _unidentifiable(Effect(base, {"freq_hz": top, "zeta": 0.15, "residue": 0.035}, {}), ds)
+    assert (r.code, r.cls, r.values["param"], r.values["value"]) == ("mode_on_range_end", "not placed by the data", "freq_hz", top)
+    assert r.values["range"][1] == pytest.approx(top) and "not placed by the data: its freq_hz" in r.text
     assert _unidentifiable(Effect(base, {"freq_hz": 0.97 * top, "zeta": 0.15, "residue": 0.035}, {}), ds) is None
     low_zero = {"freq_hz": 0.0866, "zeta": 0.41, "zero_freq_hz": bottom, "zero_zeta": 0.36}
-    assert "its zero_freq_hz" in _unidentifiable(Effect(act, low_zero, {}), ds)
+    assert _unidentifiable(Effect(act, low_zero, {}), ds).values["param"] == "zero_freq_hz"
 
 
 def test_a_pair_below_the_band_is_a_gain_a_fixed_baseline_cannot_hold():
     pair = _effect("pole_zero", zero_hz=0.01, pole_hz=0.012)
-    assert "below the excited band" in _unidentifiable(pair, _datasets(), free=True)
+    r = _unidentifiable(pair, _datasets(), free=True)
+    assert (r.code, r.cls, r.values["zero_hz"], r.values["pole_hz"]) == ("pair_below_band", "below the excited band", 0.01, 0.012)
+    assert r.values["pole_hz"] < r.values["band_hz"][0] / r.values["margin"] and "below the excited band" in r.text
     assert _unidentifiable(pair, _datasets(), free=False) is None
     # straddling the band: a tilt of +20 dB/decade the data show, whatever the corners
     assert _unidentifiable(_effect("pole_zero", zero_hz=0.01, pole_hz=500.0), _datasets()) is None
@@ -191,7 +195,11 @@ def test_a_change_under_the_floor_is_refused_and_one_over_it_is_not():
     ]
     before = SimpleNamespace(residuals=({"act": np.zeros(f.size, complex)},))
     small = SimpleNamespace(residuals=({"act": np.full(f.size, 2.0 * REL_FLOOR + 0j)},))  # 1 %: under 3 x 0.5 %
-    assert "smaller than the measurement's floor" in _below_floor(before, small, ds)
+    r = _below_floor(before, small, ds)
+    assert (r.code, r.cls, r.values["points"], r.values["channel"]) == ("below_floor", "smaller than the measurement's floor", 0, "act")
+    # the change is 2 x REL_FLOOR everywhere, under PRACTICAL_FACTOR x the floor's REL_FLOOR
+    assert r.values["largest_change"] == pytest.approx(2.0 * REL_FLOOR)
+    assert r.values["largest_ratio"] == pytest.approx(2.0 / PRACTICAL_FACTOR) and "smaller than the measurement's floor" in r.text
     bump = np.zeros(f.size, complex)
     bump[100:104] = 4.0j * REL_FLOOR  # 2 % of phase at four points
     assert _below_floor(before, SimpleNamespace(residuals=({"act": bump},)), ds) is None
@@ -248,7 +256,7 @@ def test_the_samplings_own_delay_is_not_held_to_the_floor_and_a_longer_one_is():
     assert not within_sampling(hold, None)  # a file that does not state its rate gets no allowance
     assert _refused(hold, small, ds, before=before) is None
     assert _refused(edge, small, ds, before=before) is None
-    assert "smaller than the measurement's floor" in _refused(late, small, ds, before=before)
+    assert _refused(late, small, ds, before=before).cls == "smaller than the measurement's floor"
 
 
 def test_a_modes_p_counts_the_places_its_frequency_was_searched_over():

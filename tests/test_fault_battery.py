@@ -1204,7 +1204,9 @@ def test_a_fit_of_noise_is_refused_and_is_never_sound(measured, tmp_path, capsys
     line = _one_line(capsys)
     assert line.startswith(f"samii fit: error: {f}: no point has coherence >= 0.5") and "the data are noise" in line
     r = fit(read_frf_csv(f), profile=False)
-    assert r.verdict == "not sound" and r.concerns[0].startswith("no point has coherence >= 0.5")
+    c = r.concerns[0]
+    assert r.verdict == "not sound" and (c.code, c.kind, c.values["min_coherence"]) == ("noise_only", "noise", 0.5)
+    assert c.values["highest"] < 0.5 and c.text.startswith("no point has coherence >= 0.5")
 
 
 @pytest.fixture(scope="module")
@@ -1721,9 +1723,13 @@ def test_an_effect_on_an_end_of_its_range_is_refused(kind, values, inside):
     _, _, ds, _ = _eq94_dataset()
     e = Effect(kind_, values, {n: 0.01 * abs(x) for n, x in values.items()})
     why = _unidentifiable(e, [ds], free=False)
-    assert why is not None and why.startswith("not placed by the data") and "sits on an end of the range the library searches" in why, why
+    assert why is not None and (why.code, why.cls) == ("on_range_end", "not placed by the data"), why
+    name = why.values["param"]  # the parameter on its end, one of the library's ends for it
+    assert values[name] == why.values["value"] and why.values["value"] == pytest.approx(min(why.values["range"], key=lambda b: abs(b - values[name])))
+    assert "sits on an end of the range the library searches" in why.text
     within = Effect(kind_, inside, {n: 0.01 * abs(x) for n, x in inside.items()})
-    assert "range the library searches" not in (_unidentifiable(within, [ds], free=False) or "")
+    inner = _unidentifiable(within, [ds], free=False)
+    assert inner is None or inner.code != "on_range_end", inner
 
 
 def test_a_saved_fit_far_from_the_datas_level_is_refused(tmp_path, capsys):

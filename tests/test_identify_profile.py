@@ -160,7 +160,11 @@ def test_a_fit_its_own_profile_undercuts_is_not_sound(monkeypatch):
 
         monkeypatch.setattr(fit_module, "profile_scan", undercut)
         r = fit(data, ST3, phase_weight=0.1)
-        said = [c for c in r.concerns if c.startswith("wp is not at the minimum of the fit's cost")]
+        said = [c for c in r.concerns if c.code == "not_lowest" and c.names == ("wp",)]
         assert bool(said) == concern, r.concerns
+        if concern:  # the figures it rests on: the drop and where the profile found it
+            v = said[0].values
+            assert v["below"] == pytest.approx(30.0) and v["held_hz"] == pytest.approx(1.3 * v["fit_hz"])
+            assert said[0].text.startswith("wp is not at the minimum of the fit's cost")
         assert any(w.startswith("holding wp at") for w in r.warnings)
         assert r.sound == (not concern) and (r.verdict == "not sound") == concern

@@ -253,7 +253,7 @@ def _confusion(results: list[dict]) -> str:
 
 
 def _refused_text(results: list[dict]) -> str:
-    """The candidates refused over the battery, by class (samii.diagnose.select.REFUSAL_CLASSES)."""
+    """The candidates refused over the battery, by class (samii.diagnose.evidence.REFUSALS)."""
     from collections import Counter
 
     counts = Counter(x["class"] for r in results for x in r.get("refused", []))

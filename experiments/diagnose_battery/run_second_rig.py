@@ -422,7 +422,7 @@ def _better(r: dict) -> bool:
 
 
 def _refused_text(results: list[dict]) -> str:
-    """The candidates refused over the battery, by class (samii.diagnose.select.REFUSAL_CLASSES)."""
+    """The candidates refused over the battery, by class (samii.diagnose.evidence.REFUSALS)."""
     from collections import Counter
 
     counts = Counter(x["class"] for r in results for x in r.get("refused", []))

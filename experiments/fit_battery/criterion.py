@@ -73,8 +73,8 @@ def row(res, truth: Mapping[str, float], wall_s: float) -> dict:
         "params_hz": {k: res.params[k] / 2 / np.pi for k in KEYS},
         "truth_hz": {k: truth[k] / 2 / np.pi for k in KEYS},
         "covered_95": covered,
-        "concerns": list(res.concerns),
-        "caveats": list(res.caveats),
+        "concerns": [c.text for c in res.concerns],
+        "caveats": [c.text for c in res.caveats],
         "undetermined": list(res.undetermined),
     }
 

@@ -383,7 +383,7 @@ def damping_from_frf(
     except (ValueError, KeyError) as exc:  # the data cannot be fitted (too few points in the band, noise): the file's
         raise input_error_of(source, exc) from None
     if not fr.sound:  # a controller on parameters the fit says not to use: refused, in samii fit's words
-        why = "; ".join(fr.concerns) or f"it did not converge ({fr.message})"
+        why = "; ".join(c.text for c in fr.concerns) or f"it did not converge ({fr.message})"
         raise InputError(
             f"{source}: the notebook's 3-mode model fitted to it over {fr.band_hz[0]:.3g}-{fr.band_hz[1]:.3g} Hz is "
             "not a sound fit, and a controller designed on its parameters would not be trusted; samii fit "

@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from samii.diagnose.effects import LIBRARY, TWO_PI, Effect
+from samii.diagnose.evidence import Refusal
 from samii.diagnose.model import Dataset, Fit
 from samii.diagnose.residuals import full_residuals, model_response, runs
 from samii.frequency_response import CHANNEL_NAMES
@@ -53,7 +54,7 @@ def _change(fit: Fit, i: int, freq_hz: np.ndarray, label: str, values: Mapping[s
     return {ch: np.log(a[ch] / b[ch]) for ch in a}
 
 
-def unattributed(fit: Fit, datasets: Sequence[Dataset], bands: Sequence, label: str, values: Mapping[str, float]) -> str | None:
+def unattributed(fit: Fit, datasets: Sequence[Dataset], bands: Sequence, label: str, values: Mapping[str, float]) -> Refusal | None:
     """Why the effect ``label`` with ``values`` cannot be told from an image of what ``fit`` (the final model, the
     effect in it or in its baseline) lacks, or None (module docstring). ``bands``: where ``fit`` still misses the
     data (``samii.diagnose.simulator.Misfit``: source, channel, lo_hz, hi_hz, rms_db, rms_deg)."""
@@ -85,12 +86,9 @@ def unattributed(fit: Fit, datasets: Sequence[Dataset], bands: Sequence, label: 
     if not where or with_power <= EXPLAINS * without_power:
         return None
     worst = max(where, key=lambda b: b.chi2 * b.n_points)
-    return (
-        f"not told from an image of what the model lacks: with it the model still misses the data where it acts "
-        f"({len(where)} band(s), the largest {CHANNEL_NAMES[worst.channel]} {worst.lo_hz:.3g}-{worst.hi_hz:.3g} Hz by "
-        f"{worst.rms_db:.2g} dB, {worst.rms_deg:.2g} deg rms), and there it takes out {100 * (1 - with_power / without_power):.0f} % "
-        f"of the residual's power, less than the {100 * (1 - EXPLAINS):.0f} % an effect of the rig takes out of its own change"
-    )
+    said = {"n_bands": len(where), "channel": worst.channel, "channel_name": CHANNEL_NAMES[worst.channel]}
+    said |= {"band_hz": (worst.lo_hz, worst.hi_hz), "rms_db": worst.rms_db, "rms_deg": worst.rms_deg}
+    return Refusal("image", {**said, "takes_out_pct": 100 * (1 - with_power / without_power), "needed_pct": 100 * (1 - EXPLAINS)})
 
 
 #: Points a band where only xdd/v is usable must hold to be named: fewer are the odd point where theta/v's variance

@@ -45,6 +45,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from samii.diagnose.effects import library
+from samii.diagnose.evidence import REFUSALS, Joined, Rival, evidence_text, joined_text, values_text
 from samii.diagnose.measured import Measured, check_actuator_sign
 from samii.diagnose.model import MAX_VAR, Baseline, Dataset, Fit
 from samii.diagnose.nonlinear import MAX_DF_CHI2, distortion_var, find_nonlinear, harmonic_errors, linearised
@@ -58,7 +59,7 @@ from samii.diagnose.residuals import (
     unexplained_bands,
 )
 from samii.diagnose.sampling import feedthrough_note, feedthrough_of, hold_note, with_hold_found, with_sampling
-from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select, refusal_class, sample_s, within_sampling
+from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select, sample_s, within_sampling
 from samii.frequency_response import CHANNEL_NAMES
 
 __all__ = ["ChannelError", "FoundEffect", "Band", "Diagnosis", "diagnose", "RULE"]
@@ -81,6 +82,14 @@ class FoundEffect:
     stderr: dict
     evidence: str
     expected: bool = False
+    #: The test that admitted it (samii.diagnose.evidence.Joined: chi2 before and after, F, dof, p), where it has one.
+    joined: Joined | None = None
+    #: Readings that fit almost as well in its place, or that move its values (samii.diagnose.evidence.Rival).
+    rivals: tuple[Rival, ...] = ()
+    #: The sampling interval [s] when it is within one sample (``expected``: the sampling itself, not a miss).
+    sample_s: float | None = None
+    #: Found beside a nonlinearity: it may be that nonlinearity's image (said in ``evidence``).
+    beside_nonlinearity: bool = False
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -122,14 +131,17 @@ class Diagnosis:
     @property
     def refused(self) -> list[dict]:
         """Every candidate that passed the F-test but was refused, with its reason (below the excited band, cancels
-        within its uncertainty, smaller than the measurement's floor, indistinguishable from the sampling...)."""
+        within its uncertainty, smaller than the measurement's floor, indistinguishable from the sampling...): its
+        words, its class, and the code and figures they are rendered from (samii.diagnose.evidence.Refusal)."""
         return [
             {
                 "round": t["round"],
                 "effect": t["effect"],
                 "params": dict(t["params"]),
                 "reason": t["refused"],
-                "class": refusal_class(t["refused"]),
+                "class": REFUSALS[t["refusal"]["code"]][0],
+                "code": t["refusal"]["code"],
+                "values": dict(t["refusal"]["values"]),
                 "log10_p": t["log10_p_test"],
             }
             for t in self.tried
@@ -329,21 +341,11 @@ def _drop_amplitude_images(datasets: Sequence[Dataset], baseline: Baseline, fit:
             break
         gain, e, fit = worst
         dropped.append(
-            f"{e.kind.label} ({_values_text(e.kind.label, dict(e.values))}): without it the {amps[lo]:.3g} V file, the "
+            f"{e.kind.label} ({values_text(e.kind.label, dict(e.values))}): without it the {amps[lo]:.3g} V file, the "
             f"least distorted, fits better by {gain / s2:.3g} of the fit's variances"
         )
         fit = relabel_modes(list(datasets), fit)
     return fit, dropped
-
-
-def _values_text(label: str, values: dict) -> str:
-    """``values`` of the effect ``label`` in units a reader knows (a delay in ms)."""
-    from samii.diagnose.effects import LIBRARY
-
-    units = {p.name: p.unit for k in LIBRARY if k.label == label for p in k.params}
-    return ", ".join(
-        f"{n} {1e3 * v:.3g} ms" if n == "delay_s" else f"{n} {v:.4g}{' ' + units[n] if units.get(n, '1') != '1' else ''}" for n, v in values.items()
-    )
 
 
 def _log_distance(a: dict, b: dict) -> float:
@@ -375,14 +377,19 @@ def _moved(v_alt: dict, v_now: dict) -> bool:
     return any(abs(v_alt[n] / v_now[n] - 1.0) > 0.05 for n in v_now if v_now[n])
 
 
-def _rival_values(rival: dict) -> str:
-    """The rival's parameters, and the other effects whose values it moves by more than 5 % (the found values
-    of those depend on which of the two is taken)."""
-    parts = [f"; its {_values_text(rival['rival'], rival['rival_params'])}"] if rival["rival_params"] else []
-    moved = [f"{lab} {_values_text(lab, v_alt)}" for (lab, v_alt), (_, v_now) in zip(rival["rival_rest"], rival["kept_rest"]) if _moved(v_alt, v_now)]
-    if moved:
-        parts.append("; with it " + ", ".join(moved))
-    return "".join(parts)
+def _rival(how: str, record: dict, without_hold: bool) -> Rival:
+    """A swap or richer round's record as a :class:`Rival` of its kept effect, with the other effects whose values
+    it moves by more than 5 % (the found values of those depend on which of the two is taken)."""
+    moved = tuple((lab, dict(v_alt)) for (lab, v_alt), (_, v_now) in zip(record["rival_rest"], record["kept_rest"]) if _moved(v_alt, v_now))
+    return Rival(
+        how,
+        record["rival"],
+        record["delta_in_noise"],
+        record["extra_params"] if how == "richer" else None,
+        dict(record["rival_params"]),
+        moved,
+        without_hold=without_hold,
+    )
 
 
 def _effects(
@@ -407,45 +414,32 @@ def _effects(
         if j is not None:
             used.add(j)
             s = added[j]
-            p = "p < 1e-300" if s.log10_p <= -300 else f"p = 10^{s.log10_p:.1f}"
-            if s.places > 1.0 and s.log10_p > -300:
-                p += f" (the best of the {s.places:.0f} places a mode this broad has in the band)"
-            test = (
-                f"adding it lowers chi2 from {s.chi2_before:.4g} to {s.chi2_after:.4g} for {s.dof[0]} parameter(s): "
-                f"F = {s.f_stat:.3g} on ({s.dof[0]}, {s.dof[1]}) dof, {p}"
-            )
+            joined = Joined("f_test", s.chi2_before, s.chi2_after, tuple(s.dof), s.f_stat, s.log10_p, s.places)
         else:
             swap = next((t for t in reversed(swaps) if t.get("swapped") and t["effect"] == k.label), None)  # the latest
             if swap is None:
-                test = "kept by the joint refit"
+                joined = Joined("refit")
             else:
-                more = f"{swap['extra_params']} more parameter(s)" if swap.get("richer") else "no more parameters"
-                test = (
-                    f"it replaced {swap['alternative_to']}, which had joined by F-test, with {more}: chi2 "
-                    f"{swap['chi2_current']:.4g} -> {swap['chi2']:.4g}"
+                richer = bool(swap.get("richer"))
+                joined = Joined(
+                    "swap",
+                    swap["chi2_current"],
+                    swap["chi2"],
+                    f_stat=swap["F"] if richer else None,
+                    log10_p=swap["log10_p"] if richer else None,
+                    replaced=swap["alternative_to"],
+                    extra_params=swap["extra_params"] if richer else 0,
                 )
-                if swap.get("richer"):
-                    test += f", F = {swap['F']:.3g}, " + ("p < 1e-300" if swap["log10_p"] <= -300 else f"p = 10^{swap['log10_p']:.1f}")
-        expected = False
-        text = f"{k.describe(e.values)}; {test}"
+        rivals = []
         near_equal = [t for t in final_swaps if t["delta_in_noise"] < AMBIGUOUS_CHI2 and "kept" in t]
         lookup = pre.get(k.label, e.values)
-        without_hold = " in the model without the command's hold" if k.label in pre else ""
+        without_hold = k.label in pre
         rival = _record_for(near_equal, k.label, lookup)
         if rival is not None:
-            text += (
-                f"; but {rival['rival']} in its place fits almost as well (chi2 differs by {rival['delta_in_noise']:.2g} noise variances"
-                f"{_rival_values(rival)}{without_hold}): these data hardly tell the two apart"
-            )
+            rivals.append(_rival("in_its_place", rival, without_hold))
         richer = _record_for([t for t in tried if t.get("round") == "richer"], k.label, lookup)
         if richer is not None:
-            better = richer["delta_in_noise"]
-            how = f"lower by {better:.2g} noise variances" if better > 0 else f"higher by {-better:.2g} noise variances"
-            text += (
-                f"; but {richer['rival']} in its place fits almost as well (with {richer['extra_params']} more parameter(s) its chi2 "
-                f"is {how}, which its extra parameters do not justify by the F-test{_rival_values(richer)}{without_hold}): these data "
-                "hardly tell the two apart, and the simpler is kept"
-            )
+            rivals.append(_rival("richer", richer, without_hold))
         for t in near_equal:  # another effect's near-equal rival that moves this one's values
             if t is rival:
                 continue
@@ -458,14 +452,23 @@ def _effects(
                 None,
             )
             if v_alt is not None:
-                text += f"; with {t['rival']} in place of {t['kept']} (which fits almost as well) it is {_values_text(k.label, v_alt)}"
-        if within_sampling(e, sample):
-            expected = True
-            text += (
-                f"; at most one sample ({1e3 * sample:.3g} ms at {1.0 / sample:.4g} Hz), the sampling itself "
-                "(zero-order hold, a command computed from the last reading): expected, not a miss"
+                rivals.append(Rival("moves_it", t["rival"], values=dict(v_alt), in_place_of=t["kept"]))
+        sampled = sample if within_sampling(e, sample) else None
+        text = evidence_text(k.label, k.describe(e.values), joined, rivals, sampled)
+        out.append(
+            FoundEffect(
+                k.category,
+                k.kind,
+                k.channel,
+                dict(e.values),
+                dict(e.stderr),
+                text,
+                sampled is not None,
+                joined=joined,
+                rivals=tuple(rivals),
+                sample_s=sampled,
             )
-        out.append(FoundEffect(k.category, k.kind, k.channel, dict(e.values), dict(e.stderr), text, expected))
+        )
     return out
 
 
@@ -693,8 +696,10 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
         judged_by.append(dict(e.params))  # (each effect carried is appended to ``out`` once, below)
         r = report.after.result
         step = steps_by_label.get(label)
-        p_text = "" if step is None else "p < 1e-300" if step.log10_p <= -300 else f"p = 10^{step.log10_p:.1f}"
-        why = f"F = {step.f_stat:.3g}, {p_text} against the simulator calibrated without it; " if step else ""
+        joined = (
+            None if step is None else Joined("simulator", step.chi2_before, step.chi2_after, tuple(step.dof), step.f_stat, step.log10_p, step.places)
+        )
+        why = f"{joined_text(joined)}; " if joined else ""
         if label in BODY:
             values, se = body_effect_values(report.after.params, r.stderr)
             mass, freq, zeta = (parameter_value(report.after.params, n) for n in BODY[label])
@@ -708,6 +713,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
                     f"{why}carried into the simulator as a body on the beam's end ({mass:.3g} kg on a mount of "
                     f"{freq:.4g} Hz, damping ratio {zeta:.3g}: {', '.join(BODY[label])}) and recalibrated with its "
                     "mode knobs; the mode it adds, joint 2 held",
+                    joined=joined,
                 )
             )
             continue
@@ -724,12 +730,13 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
                     f"{why}the valve is {'slower' if tau > tau0 else 'faster'} than the simulator's: carried into the simulator as {name} (its "
                     f"first-order spool, {1e3 * tau0:.3g} -> {1e3 * tau:.3g} ms, corner {1 / (2 * np.pi * tau):.3g} Hz), "
                     f"found after the first carry as {'a real pole/zero pair' if e.kind == 'pole_zero' else 'valve dynamics'} "
-                    f"({_values_text(label, e.params)}"
+                    f"({values_text(label, e.params)}"
                     + (f"; the simulator's spool corner is {1 / (2 * np.pi * tau0):.3g} Hz" if e.kind == "pole_zero" else "")
                     + "); "
                     f"the spool started at {1e3 * (tau0 + spool_lag_s(e)):.3g} ms, its low-frequency group delay "
                     f"({1e3 * spool_lag_s(e):+.3g} ms) added, and was recalibrated with the mode knobs"
                     + (" (a resonant valve's peak it cannot take)" if e.kind == "valve" else ""),
+                    joined=joined,
                 )
             )
             continue
@@ -743,11 +750,14 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
                 {key: value},
                 {key: se},
                 f"{why}carried into the simulator as {name} and recalibrated with its mode knobs",
+                joined=joined,
             )
         )
     if nonlinear:
         second = [
-            e if e.expected else replace(e, evidence=e.evidence + "; found beside a nonlinearity: it may be that nonlinearity's image")
+            e
+            if e.expected
+            else replace(e, evidence=e.evidence + "; found beside a nonlinearity: it may be that nonlinearity's image", beside_nonlinearity=True)
             for e in second
         ]
     judged_by += [dict(e.params) for e in second]
@@ -765,7 +775,8 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
             "round": "attribution",
             "effect": label,
             "params": dict(e.params),
-            "refused": why,
+            "refused": why.text,
+            "refusal": {"code": why.code, "values": dict(why.values)},
             "log10_p_test": None if step is None else step.log10_p,
         }
 
@@ -956,7 +967,9 @@ def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float 
             e
             if e.expected
             else replace(
-                e, evidence=e.evidence + "; found beside a nonlinearity: it may be that nonlinearity's image in the best linear approximation"
+                e,
+                evidence=e.evidence + "; found beside a nonlinearity: it may be that nonlinearity's image in the best linear approximation",
+                beside_nonlinearity=True,
             )
             for e in effects
         ]

@@ -49,6 +49,7 @@ import numpy as np
 from scipy import stats
 
 from samii.diagnose.effects import TWO_PI, Effect, EffectKind
+from samii.diagnose.evidence import REFUSALS, Refusal
 from samii.diagnose.model import Baseline, Dataset, Fit, fit_model, noise_level, relabel_modes, scaled_reference, start_vectors
 from samii.forkmap import fork_map, sharing
 from samii.measure.frf_variance import moving_sum
@@ -336,20 +337,17 @@ def theta_usable(ds_list) -> bool:
     return any(ds.keep[ch].any() for ds in ds_list for ch in THETA_CHANNELS if ch in ds.keep)
 
 
-def _unidentifiable(e: Effect, ds_list: list[Dataset], free: bool = True) -> str | None:
+def _unidentifiable(e: Effect, ds_list: list[Dataset], free: bool = True) -> Refusal | None:
     """Why the data cannot identify ``e`` as what it says it is, or None (module docstring; CORNER_MARGIN); ``free``:
     the baseline is refitted (its gain holds a constant factor). A real pole/zero pair's cancellation is left to the
     floor (:func:`_below_floor`, on the change it makes): its corners' errors are strongly correlated, and their
     marginal standard errors refused real pairs 5 joint standard errors apart. An actuator mode's pole and zero
     pairs are still compared on their marginal errors (conservative: it refuses more than the joint error would)."""
     if not theta_usable(ds_list):
-        return (
-            "cannot be placed: no point of theta/v or xdd/theta is usable (theta under its noise or its encoder's step), "
-            "and in xdd/v alone an actuator, a base and a sensor effect multiply the same response"
-        )
+        return Refusal("theta_unusable")
     k, v = e.kind.kind, e.values
     lo, hi = _excited_band(ds_list)
-    band = f"the excited band {lo:.3g}-{hi:.3g} Hz"
+    band = {"band_hz": (float(lo), float(hi)), "margin": CORNER_MARGIN}
     rec = _record_s(ds_list)
     sample = sample_s(ds_list)
     if k == "pole_zero":
@@ -359,66 +357,45 @@ def _unidentifiable(e: Effect, ds_list: list[Dataset], free: bool = True) -> str
         # (below the band the pair is a constant gain there, which a refitted baseline's gain holds; against a fixed
         # one it is a gain error the data do show. Straddling the band it is a tilt the data show too.)
         if (below and free) or above:
-            return (
-                f"{'below' if below else 'above'} the excited band: neither its zero ({fz:.3g} Hz) nor its pole ({fp:.3g} Hz) lies "
-                f"within a factor {CORNER_MARGIN:g} of {band}" + ("" if below else " (there it is a group delay or lead)")
-            )
+            return Refusal("pair_below_band" if below else "pair_above_band", {"zero_hz": fz, "pole_hz": fp, **band})
         worst = max(_log_se(e, "zero_hz"), _log_se(e, "pole_hz"))
         if len(inside) == 2 and worst > 1.0:
-            return (
-                f"not determined by the data: its corners ({fz:.3g} and {fp:.3g} Hz) have a standard error of {worst:.2g} in ln "
-                "(more than a factor e either way)"
-            )
+            return Refusal("corners_undetermined", {"zero_hz": fz, "pole_hz": fp, "ln_se": worst})
     if e.kind.category == "extra_mode":
         top = max(p.hi for p in e.kind.params if p.name == "zeta")
         if v["zeta"] >= top * (1.0 - 1e-3):
-            return f"not a resonance: its damping sits on the library's bound ({top:g}), the data want a broader shape than a mode (a tilt or a bump)"
+            return Refusal("damping_on_bound", {"zeta": v["zeta"], "bound": top})
         # a frequency on an end of its search range (the measured band widened by diagnosis.BAND_MARGIN) is not placed
         # either: the data want it further out, where a mode is a shape they cannot tell (against a simulator that
         # cannot represent the second rig's plants, base "modes" at exactly 50.0 Hz from 0.1-40 Hz data)
         for p in e.kind.params:
             if p.unit == "Hz" and np.isfinite(p.hi) and not p.lo * (1.0 + 1e-3) < v[p.name] < p.hi * (1.0 - 1e-3):
-                return (
-                    f"not placed by the data: its {p.name} ({v[p.name]:.4g} Hz) sits on an end of the range searched "
-                    f"({p.lo:.3g}-{p.hi:.3g} Hz, the measured band widened by a factor): the data want it further out"
-                )
+                return Refusal("mode_on_range_end", {"param": p.name, "value": v[p.name], "range": (p.lo, p.hi)})
         # a mode is where it is: one whose frequency the data do not place (as a pole/zero pair's corners above) is a
         # shape, not a resonance (on the held-out second rig's 1 Hz AC coupling a base "mode" at 0.08 +- 5.9 Hz, damping
         # 0.27 +- 21, below the excited band, took up the low end of xdd/v)
         spread = _log_se(e, "freq_hz") if "freq_hz" in e.stderr else 0.0
         if spread > 1.0:
-            return (
-                f"not determined by the data: its frequency ({v['freq_hz']:.3g} Hz) has a standard error of {spread:.2g} "
-                "in ln (more than a factor e either way)"
-            )
+            return Refusal("frequency_undetermined", {"freq_hz": v["freq_hz"], "ln_se": spread})
     if k == "act_mode":
         if _pair_separation_se(e) < 2.0:
-            return (
-                f"cancels within its uncertainty: its pole and zero pairs ({v['freq_hz']:.3g} and {v['zero_freq_hz']:.3g} Hz) differ "
-                f"by less than twice their standard error"
-            )
+            return Refusal("cancels", {"freq_hz": v["freq_hz"], "zero_freq_hz": v["zero_freq_hz"], "separation_se": _pair_separation_se(e)})
     if k == "leak":
         a = v["pole_per_s"]
         if rec is not None and abs(a) * rec < 1.0:
-            return f"its time constant ({1.0 / abs(a):.3g} s) is longer than a record ({rec:.3g} s): the data cannot see it settle"
+            return Refusal("longer_than_record", {"time_constant_s": 1.0 / abs(a), "record_s": rec})
     if k == "accel_highpass":
         tc = 1.0 / (2.0 * np.pi * v["corner_hz"])
         if rec is not None and tc > rec:
-            return f"its time constant ({tc:.3g} s) is longer than a record ({rec:.3g} s): the data cannot see it settle"
+            return Refusal("longer_than_record", {"time_constant_s": tc, "record_s": rec})
     if k in ("accel_lowpass", "accel_lowpass2", "valve"):
         fc = v["corner_hz"] if "corner_hz" in v else v["freq_hz"]
         if fc > hi * CORNER_MARGIN:
             w = 2.0 * np.pi * fc
             lag = 1.0 / w if k == "accel_lowpass" else np.sqrt(2.0) / w if k == "accel_lowpass2" else 2.0 * v["zeta"] / w
             if sample is not None and lag <= sample:
-                return (
-                    f"indistinguishable from the sampling: its corner ({fc:.3g} Hz) lies beyond a factor {CORNER_MARGIN:g} of {band}, "
-                    f"where it is a group delay of {1e3 * lag:.3g} ms, at most one sample ({1e3 * sample:.3g} ms)"
-                )
-            return (
-                f"above the excited band: its corner ({fc:.3g} Hz) lies beyond a factor {CORNER_MARGIN:g} of {band}, where it is a "
-                f"group delay of {1e3 * lag:.3g} ms (a delay, not a corner the data can place)"
-            )
+                return Refusal("corner_within_sampling", {"corner_hz": fc, "lag_s": lag, "sample_s": sample, **band})
+            return Refusal("corner_above_band", {"corner_hz": fc, "lag_s": lag, **band})
     # a parameter on an end of the range the library searches where that end is no limiting form the data can show
     # (README: "the data want it further out"): against a saved fit 60 dB off the data, a leak of -10.0 1/s, an
     # accelerometer gain of 100 and a valve damped 0.05, each on its bound, were reported as found. (A pole-zero
@@ -429,10 +406,7 @@ def _unidentifiable(e: Effect, ds_list: list[Dataset], free: bool = True) -> str
         low = x <= p.lo * (1.0 + ON_BOUND) if p.transform == "log" else x - p.lo <= ON_BOUND * span
         high = x >= p.hi * (1.0 - ON_BOUND) if p.transform == "log" else p.hi - x <= ON_BOUND * span
         if (low and "lo" in p.not_a_limit) or (high and "hi" in p.not_a_limit):
-            return (
-                f"not placed by the data: its {p.name} ({x:.6g} {p.unit}) sits on an end of the range the library searches "
-                f"({p.lo:g} to {p.hi:g}): the data want it further out, where it is no {e.kind.kind} they show"
-            )
+            return Refusal("on_range_end", {"param": p.name, "value": x, "unit": p.unit, "range": (p.lo, p.hi), "kind": e.kind.kind})
     return None
 
 
@@ -441,28 +415,9 @@ def _unidentifiable(e: Effect, ds_list: list[Dataset], free: bool = True) -> str
 ON_BOUND = 1e-6
 
 
-#: The classes of the reasons a candidate that passed the F-test is refused for, each a phrase its reason holds
-#: (:func:`refusal_class`); attribution's is samii.diagnose.attribution's.
-REFUSAL_CLASSES = (
-    "below the excited band",
-    "above the excited band",
-    "not determined by the data",
-    "not a resonance",
-    "not placed by the data",
-    "cancels within its uncertainty",
-    "smaller than the measurement's floor",
-    "indistinguishable from the sampling",
-    "longer than a record",
-    "a mode split in two",
-    "a mode the data cannot resolve",
-    "not told from an image",
-    "cannot be placed",
-)
-
-
-def refusal_class(reason: str) -> str:
-    """The class of a refusal's ``reason`` (one of :data:`REFUSAL_CLASSES`, else "other")."""
-    return next((c for c in REFUSAL_CLASSES if c in reason), "other")
+#: The classes of the reasons a candidate that passed the F-test is refused for, in the order said (each
+#: samii.diagnose.evidence.REFUSALS code's first field).
+REFUSAL_CLASSES = tuple(dict.fromkeys(cls for cls, _ in REFUSALS.values()))
 
 
 #: A finding must change the response by more than the floor's PRACTICAL_FACTOR standard deviations (and the
@@ -470,7 +425,7 @@ def refusal_class(reason: str) -> str:
 PRACTICAL_POINTS = 3
 
 
-def _below_floor(before: Fit, after: Fit, ds_list: list[Dataset]) -> str | None:
+def _below_floor(before: Fit, after: Fit, ds_list: list[Dataset]) -> Refusal | None:
     """Why the change ``after`` makes to ``before``'s model is not practically significant, or None: it must exceed
     PRACTICAL_FACTOR x the systematic floor's standard deviation (samii.diagnose.floor) at PRACTICAL_POINTS points,
     or twice the correlation length. The F-test weighs the change against the noise over every point, and many
@@ -499,13 +454,10 @@ def _below_floor(before: Fit, after: Fit, ds_list: list[Dataset]) -> str | None:
     if count >= need:
         return None
     if where is None:
-        return "smaller than the measurement's floor: it changes no usable point"
+        return Refusal("no_usable_point")
     ch, f, change = where
-    return (
-        f"smaller than the measurement's floor: it changes the response by more than {PRACTICAL_FACTOR:g} x the systematic floor "
-        f"at {count} point(s), fewer than {need} (at most {100 * change:.2g} % at {f:.3g} Hz on {ch}, "
-        f"{largest:.2g} x that limit)"
-    )
+    said = {"factor": PRACTICAL_FACTOR, "points": count, "needed": need, "largest_change": change, "freq_hz": f, "channel": ch}
+    return Refusal("below_floor", {**said, "largest_ratio": largest})
 
 
 def within_sampling(e: Effect, sample: float | None) -> bool:
@@ -538,7 +490,7 @@ def search_places(e: Effect, ds_list: list[Dataset]) -> float:
     return float(max(1.0, min(cells, points)))
 
 
-def _refused(e: Effect, fit: Fit, ds_list: list[Dataset], before: Fit | None = None) -> str | None:
+def _refused(e: Effect, fit: Fit, ds_list: list[Dataset], before: Fit | None = None) -> Refusal | None:
     """Why ``e`` (in ``fit``) is not an effect these data show, whatever its F, or None: a mode split in two, one the
     data cannot resolve, one they cannot identify (:func:`_unidentifiable`), or, against ``before`` (the model
     without it), a change smaller than the measurement's floor (:func:`_below_floor`). (A value on an end of its
@@ -549,9 +501,9 @@ def _refused(e: Effect, fit: Fit, ds_list: list[Dataset], before: Fit | None = N
     say, reported as expected, not as a finding, and left out it bends the findings (at 500 Hz the hold's 1 ms,
     refused as "smaller than the floor" beside an accelerometer delay, left a 30 Hz roll-off read at 39 Hz)."""
     if _duplicate_mode(e, fit):
-        return "a mode split in two: within 5 % of a mode the model has"
+        return Refusal("split_mode")
     if _unresolved_mode(e, ds_list):
-        return "a mode the data cannot resolve: narrower than the frequency spacing, or its pole and zero closer than it"
+        return Refusal("unresolved_mode")
     why = _unidentifiable(e, ds_list, fit.baseline.free)
     if why is None and before is not None and not within_sampling(e, sample_s(ds_list)):
         why = _below_floor(before, fit, ds_list)
@@ -842,7 +794,7 @@ def _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress):
                 **({"places": places} if places > 1.0 else {}),
             }
             if why is not None:  # it passed the F-test, but the data do not show it (its reason is reported)
-                record.update(refused=why, log10_p=0.0, log10_p_test=logp)
+                record.update(refused=why.text, refusal={"code": why.code, "values": dict(why.values)}, log10_p=0.0, log10_p_test=logp)
                 logp = 0.0
             tried.append(record)
             if progress:
@@ -899,7 +851,7 @@ def _drop_unidentified(ds_list, baseline, fit: Fit, steps: list, tried: list) ->
         rest = [x for j, x in enumerate(fit.effects) if j != i]
         return fit_model(ds_list, baseline, _vectors(rest), start_baseline=start_vectors(fit))
 
-    def first_refused() -> tuple[int, str, Fit] | None:
+    def first_refused() -> tuple[int, Refusal, Fit] | None:
         for i, e in enumerate(fit.effects):
             if (why := _unidentifiable(e, ds_list, fit.baseline.free)) is not None:
                 return i, why, without(i)
@@ -924,7 +876,8 @@ def _drop_unidentified(ds_list, baseline, fit: Fit, steps: list, tried: list) ->
                 "chi2": less.chi2,
                 "log10_p": 0.0,
                 "log10_p_test": None,
-                "refused": why,
+                "refused": why.text,
+                "refusal": {"code": why.code, "values": dict(why.values)},
             }
         )
         fit = less

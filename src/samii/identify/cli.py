@@ -17,6 +17,7 @@ import argparse
 import sys
 
 from samii.cli_args import add_band, add_json, add_no_progress, add_out, add_overwrite, float_in, int_in, nonempty_path
+from samii.identify.concerns import COMMAND_LINE
 
 __all__ = ["add_arguments", "run", "MAX_MODES", "MAX_PHASE_WEIGHT", "MAX_PHASE_WEIGHTS", "MAX_AVERAGES"]
 
@@ -254,12 +255,12 @@ def run(args: argparse.Namespace) -> int:
                 + (":" if r.concerns else " (the solver stopped before a minimum)")
             )
             for c in r.concerns:
-                print(f"  !! {c}")
+                print(f"  !! {c.words(COMMAND_LINE)}")
         if r.caveats:
             said = f" but {', '.join(r.undetermined)}, which the data do not determine" if r.undetermined else ""
             print(f"caveats (the parameters can be used{said}):")
             for c in r.caveats:
-                print(f"  - {c}")
+                print(f"  - {c.words(COMMAND_LINE)}")
     for p in written:
         print(f"wrote {p}")
     return 0

@@ -56,6 +56,7 @@ from typing import Literal
 import numpy as np
 
 from samii.frequency_response import Channel, FrequencyResponse
+from samii.identify.concerns import Finding
 from samii.identify.cost import FitProblem, Weighting, thinning_step
 from samii.identify.lack_of_fit import (
     MIN_COHERENCE,
@@ -180,13 +181,14 @@ class FitResult:
     not_fitted: tuple[str, ...] = ()
     #: Why the fit's parameters should not be used even if converged, each with what to try (a
     #: parameter put where no reading of the data would: a damping on its bound, modes out of their
-    #: order, two modes on one resonance, a mode in the noise below modes the data place).
-    concerns: tuple[str, ...] = ()
+    #: order, two modes on one resonance, a mode in the noise below modes the data place), as
+    #: :class:`samii.identify.concerns.Finding` (a code, its figures, what to try; ``.text`` words it).
+    concerns: tuple[Finding, ...] = ()
     #: What to know before using them, each with what to try: a mode the data do not determine
     #: (outside the band, in the noise above the modes the data place, no resonant peak: its
     #: parameters are in ``undetermined``), residuals far above the noise in bands (the structure
-    #: misses an effect there).
-    caveats: tuple[str, ...] = ()
+    #: misses an effect there). :class:`samii.identify.concerns.Finding` as ``concerns``.
+    caveats: tuple[Finding, ...] = ()
     #: Parameters the data do not determine (named in ``caveats``): not to be used.
     undetermined: tuple[str, ...] = ()
     #: Profiles of the frequencies (``samii.identify.profile``): each held away from its estimate with
@@ -273,8 +275,9 @@ class FitResult:
             "converged": bool(self.converged),
             "sound": bool(self.sound),
             "verdict": self.verdict,
-            "concerns": list(self.concerns),
-            "caveats": list(self.caveats),
+            "concerns": [c.text for c in self.concerns],
+            "caveats": [c.text for c in self.caveats],
+            "findings": {"concerns": [c.to_dict() for c in self.concerns], "caveats": [c.to_dict() for c in self.caveats]},
             "undetermined": list(self.undetermined),
             "profile_intervals": {k: p.to_dict((0.95, PROFILE_3SIGMA)) for k, p in self.profiles.items()},
             "message": self.message,
@@ -694,12 +697,8 @@ def _profiles(
                 f"holding {name} at {f_hz:.4g} Hz, its profile found a cost {-p.lowest:.3g} squared standard errors below the fit's{where}"
             )
             if not beside and -p.lowest > PROFILE_BELOW_CONCERN:
-                concerns.append(
-                    f"{name} is not at the minimum of the fit's cost: held at {f_hz:.4g} Hz (the fit's {x[i] / (2 * np.pi):.4g} Hz) "
-                    f"the others re-solved reach a cost {-p.lowest:.3g} squared standard errors lower, so the fit's value "
-                    "lies outside its own 99.9 % interval: the starts did not reach the cost's lowest minimum (fit from "
-                    "other starts, or with coherence, where the data have it)"
-                )
+                said = {"param": name, "held_hz": f_hz, "fit_hz": x[i] / (2 * np.pi), "below": -p.lowest}
+                concerns.append(Finding("not_lowest", "start", said, (name,), ("other_starts",)))
     return out, warnings, concerns
 
 
@@ -800,24 +799,9 @@ def _mode_names(structure: ModelStructure) -> list[tuple[str, str]]:
 OVERDAMPED = 1 / np.sqrt(2)
 
 
-@dataclass(frozen=True)
-class _Defect:
-    """Why a minimum's parameter should not be used: ``kind`` "misplaced" or "unmeasured" (``_defects``);
-    ``names`` the parameters it concerns (a mode's frequency and damping)."""
-
-    kind: str
-    finding: str
-    advice: str
-    names: tuple[str, ...] = ()
-
-    @property
-    def text(self) -> str:
-        return f"{self.finding}: {self.advice}"
-
-
 def _defects(
     problem: FitProblem, params: Mapping[str, float], n_averages: int | None = None, model: Mapping[str, float] | None = None
-) -> list[_Defect]:
+) -> list[Finding]:
     """Reasons the parameters of a minimum should not be used.
 
     ``"misplaced"``: a damping ratio on its bound, modes out of their order
@@ -840,11 +824,11 @@ def _defects(
     lo, hi = data.freq_hz[0], data.freq_hz[-1]
     st = problem.structure
     weighable = problem.weighting == "none" and all(data.coherence(c) is not None for c in problem.channels)
-    reweigh = "fit with --weighting coherence (the noise floor counts as much as the resonances in the notebook's cost), " if weighable else ""
-    fewer = ", or fewer --modes" if st.n_modes > 1 else ""  # advice never names what cannot be done
-    out: list[_Defect] = []
+    reweigh = ("weigh_by_coherence",) if weighable else ()
+    fewer = ("fewer_modes",) if st.n_modes > 1 else ()  # advice never names what cannot be done
+    out: list[Finding] = []
     undetermined: set[str] = set()  # modes the data do not determine
-    noise: list[tuple[float, str, str]] = []  # modes where the fitted channels are noise: (w, name, finding)
+    noise: list[tuple[float, tuple[str, str], dict]] = []  # modes where the fitted channels are noise: (w, names, values)
     placed: list[float] = []  # base modes the data place
     rough = _roughness_coherence(problem, params if model is None else model)  # channels without coherence
     # wp and wz are not read off a resonance of their own: wp sits where theta/v starts to roll off into the noise
@@ -859,11 +843,12 @@ def _defects(
         if not lo <= fz <= hi:
             undetermined.add(wn)
             out.append(
-                _Defect(
+                Finding(
+                    "outside_band",
                     "unmeasured",
-                    f"mode {wn} = {fz:.3g} Hz lies outside the fitted band {lo:.3g}-{hi:.3g} Hz",
-                    f"widen --band-hz to include it{fewer}",
+                    {"mode": wn, "freq_hz": float(fz), "band_hz": (float(lo), float(hi))},
                     (wn, zn),
+                    ("widen_band", *fewer),
                 )
             )
         elif wn == "wz":
@@ -873,32 +858,29 @@ def _defects(
         elif zeta > OVERDAMPED:
             undetermined.add(wn)
             out.append(
-                _Defect(
+                Finding(
+                    "overdamped",
                     "unmeasured",
-                    f"mode {wn} = {fz:.3g} Hz has damping {zn} = {zeta:.3g}, above 1/sqrt(2): it has no resonant peak, "
-                    "so it is a shape the fit chose, not a mode the data show",
-                    f"{reweigh}fit --band-hz where the structure holds{fewer}",
+                    {"mode": wn, "freq_hz": fz, "damping": zn, "zeta": zeta},
                     (wn, zn),
+                    (*reweigh, "band_where_holds", *fewer),
                 )
             )
         elif (found := _resonance_coherence(problem, v, zeta, n_averages, rough)) is not None and found[0] < MIN_COHERENCE:
             undetermined.add(wn)
-            how = (
-                f"coherence {found[0]:.2f} in {found[1]} around it, corrected for the bias of {n_averages or 'its'} averages"
-                if found[2] == "coherence" and problem.coherence_from == "data"
-                else f"{found[1]} has no coherence; its scatter about the fit there is {np.sqrt(1 / found[0] - 1):.2g} of the response, "
-                f"a coherence of {found[0]:.2f}"
-            )
-            noise.append((v, (wn, zn), f"mode {wn} = {fz:.3g} Hz sits where the data are noise ({how}), not at a measured resonance"))
+            read_from = "coherence" if found[2] == "coherence" and problem.coherence_from == "data" else "scatter"
+            said = {"mode": wn, "freq_hz": fz, "coherence": found[0], "channel": found[1], "read_from": read_from, "averages": n_averages}
+            noise.append((v, (wn, zn), said))
         else:
             placed.append(v)
-    for v, names, finding in noise:
+    for v, names, said in noise:
         out.append(
-            _Defect(
+            Finding(
+                "in_noise",
                 "misplaced" if any(p > v for p in placed) else "unmeasured",
-                finding,
-                f"the data do not determine it; {reweigh}measure with more excitation there, fit --band-hz where the coherence is high{fewer}",
+                said,
                 names,
+                (*reweigh, "more_excitation_there", "band_where_coherent", *fewer),
             )
         )
     lz, hz = BOUNDS["z"]
@@ -907,41 +889,42 @@ def _defects(
         if n.startswith("z") and np.isfinite(v) and (v < 1.01 * lz or v > 0.99 * hz):
             # the damping of a mode the data do not determine follows the noise: said, not held against the minimum
             out.append(
-                _Defect(
+                Finding(
+                    "damping_on_bound",
                     "unmeasured" if owner.get(n) in undetermined else "misplaced",
-                    f"damping {n} = {v:.4g} is on its bound {BOUNDS['z']}",
-                    f"the mode is not in the data as modelled; try a narrower --band-hz{fewer}",
+                    {"damping": n, "zeta": v, "bounds": BOUNDS["z"]},
                     (owner.get(n, n), n),
+                    ("narrower_band", *fewer),
                 )
             )
     order = [(params[wn], wn) for wn, _ in _mode_names(st) if np.isfinite(params[wn])]
     for (wa, a), (wb, b) in zip(order, order[1:]):
         if not wb > wa:
             out.append(
-                _Defect(
+                Finding(
+                    "out_of_order",
                     "misplaced",
-                    f"mode {b} = {wb / (2 * np.pi):.3g} Hz lies below mode {a} = {wa / (2 * np.pi):.3g} Hz",
-                    f"the structure numbers its modes upward{' (mode 2 is the actuator zero wz)' if st.tie_mode2 else ''}, so a "
-                    f"mode has left the place the data give it; try a narrower --band-hz{fewer}",
+                    {"lower": a, "lower_hz": wa / (2 * np.pi), "upper": b, "upper_hz": wb / (2 * np.pi), "tied": st.tie_mode2},
                     (a, b),
+                    ("narrower_band", *fewer),
                 )
             )
     for a, b in _unresolved_pairs(params, st):
         out.append(
-            _Defect(
+            Finding(
+                "unresolved_pair",
                 "misplaced",
-                f"modes {a} = {params[a] / (2 * np.pi):.3g} Hz and {b} = {params[b] / (2 * np.pi):.3g} Hz are closer "
-                "than their half-power bandwidths",
-                "one resonance fitted by two modes; try fewer --modes",
+                {"lower": a, "lower_hz": params[a] / (2 * np.pi), "upper": b, "upper_hz": params[b] / (2 * np.pi)},
                 (a, b),
+                ("try_fewer_modes",),
             )
         )
     return out
 
 
 def _assess(
-    problem: FitProblem, params: Mapping[str, float], lof: LackOfFit, n_averages: int | None, defects: list[_Defect] | None = None
-) -> tuple[list[str], list[str], tuple[str, ...]]:
+    problem: FitProblem, params: Mapping[str, float], lof: LackOfFit, n_averages: int | None, defects: list[Finding] | None = None
+) -> tuple[list[Finding], list[Finding], tuple[str, ...]]:
     """``(concerns, caveats, undetermined)`` of a converged minimum, each reason with what to try (``defects``: its
     ``_defects``, where the caller has them already).
 
@@ -953,23 +936,14 @@ def _assess(
     best compromise, usable where it holds).
     """
     defects = _defects(problem, params, n_averages) if defects is None else defects
-    concerns = [d.text for d in defects if d.kind == "misplaced"]
+    concerns = [d for d in defects if d.kind == "misplaced"]
     if (best := noise_only(problem.data, problem.channels)) is not None:  # a minimum of noise (it said "a sound fit")
-        concerns.insert(
-            0,
-            f"no point has coherence >= {MIN_COHERENCE:g} in the fitted channels (the highest is {best:.3g}): the "
-            "data are noise, and no parameter is determined by them; measure with more excitation",
-        )
-    caveats = [d.text for d in defects if d.kind == "unmeasured"]
+        concerns.insert(0, Finding("noise_only", "noise", {"min_coherence": MIN_COHERENCE, "highest": best}, (), ("more_excitation",)))
+    caveats = [d for d in defects if d.kind == "unmeasured"]
     undetermined = tuple(dict.fromkeys(n for d in defects if d.kind == "unmeasured" for n in d.names))
     if lof.found:
-        ratio = ", ".join(f"{c} {v:.3g}" for c, v in lof.noise_ratio.items() if v is not None)
-        caveats.append(
-            f"the residuals are far above the data's noise in {len(lof.bands)} band(s) ({lof.summary()})"
-            + (f"; RMS residual / random error: {ratio}" if ratio else "")
-            + ": the model structure misses an effect there, and the parameters are this structure's best compromise, "
-            "not the system's; fit --band-hz where the structure holds, or look at the bands for the missing effect"
-        )
+        said = {"bands": [(b.channel, b.f_lo_hz, b.f_hi_hz) for b in lof.bands], "noise_ratio": dict(lof.noise_ratio)}
+        caveats.append(Finding("misfit_bands", "structure", said, (), ("band_where_holds", "look_at_bands")))
     return concerns, caveats, undetermined
 
 
@@ -1396,10 +1370,10 @@ def _weighted_by_scatter(
         before = (len(unweighted.undetermined), len(unweighted.lack_of_fit.bands))
         if not (fewer[0] <= before[0] and fewer[1] <= before[1] and fewer != before):
             return None
-    why = f"not sound ({unweighted.concerns[0]})" if unweighted.concerns else f"sound with caveats ({unweighted.caveats[0]})"
+    why = f"not sound ({unweighted.concerns[0].text})" if unweighted.concerns else f"sound with caveats ({unweighted.caveats[0].text})"
     # the scatter about the weighted fit read as the unweighted fit is: its modes undetermined that the weighted fit's
     # own findings do not name (one "mode w3 ... sits where the data are noise", not two with 0.30 and 0.31)
-    own = [d.text for d in defects if d.kind == "unmeasured" and not set(d.names) <= set(res.undetermined)]
+    own = [d for d in defects if d.kind == "unmeasured" and not set(d.names) <= set(res.undetermined)]
     return dataclasses.replace(
         res,
         weighting="scatter",

@@ -48,6 +48,7 @@ def summary_dict(result: FitResult) -> dict:
         "verdict",
         "concerns",
         "caveats",
+        "findings",
         "undetermined",
         "profile_intervals",
         "phase_weight",
