@@ -38,7 +38,7 @@ class Joined:
 
     ``chi2_before``/``chi2_after``: the model's chi2 before and after it joined; ``dof``: the F-test's degrees of
     freedom (its parameters, the residual's); ``f_stat`` and ``log10_p`` (-300 or below: p underflows, said
-    "p < 1e-300"); ``places``: the independent places a broad mode's frequency was searched over (``log10_p``
+    "p < 1e-300"; -inf where F's tail underflows entirely, null in JSON); ``places``: the independent places a broad mode's frequency was searched over (``log10_p``
     includes them). A swap: ``replaced`` names the effect it replaced, ``extra_params`` its parameters beyond that
     effect's (0: none; F and p given only when more).
     """
