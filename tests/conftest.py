@@ -45,3 +45,31 @@ def runs(tmp_path_factory):
     out = [base / "a", base / "b"]
     assert not stale.exists(), "a rerun into the same --out removes what a killed run left (issue 36)"
     return out
+
+
+class Heard:
+    """A samii.progress.Progress that keeps what it was told, in order (the ``heard`` fixture)."""
+
+    def __init__(self):
+        self.said, self.total, self.done = [], None, 0.0
+
+    def expect(self, total):
+        self.said.append(("expect", total))
+        self.total = total
+
+    def advance(self, n=1):
+        self.said.append(("advance", n))
+        self.done += n
+
+    def stage(self, what):
+        self.said.append(("stage", what))
+
+    @property
+    def stages(self):
+        return [v for k, v in self.said if k == "stage"]
+
+
+@pytest.fixture
+def heard():
+    """A progress that keeps what a long call reports (samii.progress.Progress)."""
+    return Heard()

@@ -67,7 +67,7 @@ def test_thinned_problem_keeps_every_kth_point_and_the_settings():
     assert problem.thinned(2500) is problem
 
 
-def test_large_data_are_searched_on_a_subset_and_refined_on_all_points(monkeypatch):
+def test_large_data_are_searched_on_a_subset_and_refined_on_all_points(monkeypatch, heard):
     """The work on all points is a bounded number of passes, whatever the number of points: the
     starts (and their grid searches) see at most SEARCH_POINTS points."""
     n = 5 * SEARCH_POINTS
@@ -81,8 +81,7 @@ def test_large_data_are_searched_on_a_subset_and_refined_on_all_points(monkeypat
         return original(self, x, jacobian=jacobian)
 
     monkeypatch.setattr(FitProblem, "residuals_and_jacobian", counting)
-    stages = []
-    res = fit(data, ST3, phase_weight=0.1, progress=lambda done, total, what: stages.append((done, total, what)))
+    res = fit(data, ST3, phase_weight=0.1, progress=heard)
     full = sum(1 for s in sizes if s == n)
     assert set(sizes) <= {n, SEARCH_POINTS} and 0 < full <= 40, (full, len(sizes))
     assert sum(1 for s in sizes if s == SEARCH_POINTS) > 100  # the search did the bulk of the work
@@ -90,10 +89,12 @@ def test_large_data_are_searched_on_a_subset_and_refined_on_all_points(monkeypat
     assert f"refined on all {n} points" in res.message and "1 point in 5" in res.message
     for k, v in SI_EQ9_4.items():
         assert res.params[k] == pytest.approx(v, rel=1e-6), k
-    done = [s[0] for s in stages]
-    assert done == sorted(done) and done[-1] == stages[-1][1] and all(s[1] == stages[0][1] for s in stages)
-    assert any(f"refining on all {n} points, evaluation 1" == s[2] for s in stages)  # a long stage shows it is alive
-    assert any(f"refined on all {n} points" == s[2] for s in stages)
+    # its total said once, before it advanced, and reached exactly at the end
+    assert heard.said[0][0] == "expect" and [k for k, _ in heard.said].count("expect") == 1
+    assert heard.done == heard.total and heard.total >= 4
+    stages = heard.stages
+    assert f"refining on all {n} points, evaluation 1" in stages  # a long stage shows it is alive
+    assert f"refined on all {n} points" in stages
 
 
 def test_small_data_are_fitted_as_before():

@@ -159,14 +159,17 @@ def _library_modules():
 
 
 def test_library_modules_leave_the_command_line_to_the_commands():
-    """No library module imports argparse, changes the working folder or captures stdout (issue 33): a Python user
-    calls them in a notebook, and the main job calls them in one process."""
+    """No library module imports argparse or tqdm, changes the working folder or captures stdout (issue 33): a Python
+    user calls them in a notebook, and the main job calls them in one process; a long call reports to a
+    samii.progress.Progress, which the commands show."""
     found = []
     for name, path in _library_modules():
         tree = ast.parse(path.read_text())
         for node in ast.walk(tree):
-            if isinstance(node, ast.Import) and any(a.name == "argparse" for a in node.names):
-                found.append(f"{name}: imports argparse")
+            if isinstance(node, ast.Import) and any(a.name in ("argparse", "tqdm") for a in node.names):
+                found.append(f"{name}: imports {node.names[0].name}")
+            elif isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] == "tqdm":
+                found.append(f"{name}: imports from tqdm (progress is shown by the commands: samii.cli_progress)")
             elif isinstance(node, ast.Import) and any(a.name.rsplit(".", 1)[-1].startswith("cli") for a in node.names if a.name.startswith("samii")):
                 found.append(f"{name}: imports a command module")
             elif isinstance(node, ast.ImportFrom) and node.module == "argparse":

@@ -30,10 +30,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from samii.pipeline import N_STAGES
+    from samii.cli_progress import Bar
     from samii.pipeline import run as run_pipeline
 
-    bar = _Progress(not args.no_progress, N_STAGES)
+    bar = Bar("samii", unit="stage", leave=False, enabled=not args.no_progress, bar_format="{desc}: {n}/{total} stages {elapsed} {postfix}")
     try:
         result = run_pipeline(
             args.out, model=args.model, overrides=args.set, seed=args.seed, overwrite=args.overwrite, progress=bar, argv=sys.argv[1:]
@@ -47,30 +47,3 @@ def run(args: argparse.Namespace) -> int:
 def run_main_job() -> int:
     """``samii`` with no arguments: the pipeline on the embedded model into ``./samii_run``."""
     return run(argparse.Namespace(out=DEFAULT_OUT, model=None, set=[], seed=0, overwrite=False, no_progress=False))
-
-
-class _Progress:
-    """The pipeline's stages on stderr (samii.progress.Progress): a terminal only."""
-
-    def __init__(self, enabled: bool, total: int):
-        from tqdm import tqdm
-
-        self.bar = tqdm(
-            total=total,
-            desc="samii",
-            unit="stage",
-            leave=False,
-            file=sys.stderr,
-            dynamic_ncols=True,
-            disable=None if enabled else True,
-            bar_format="{desc}: {n}/{total} stages {elapsed} {postfix}",
-        )
-
-    def stage(self, what: str) -> None:
-        self.bar.set_postfix_str(what)
-
-    def advance(self, n: int = 1) -> None:
-        self.bar.update(n)
-
-    def close(self) -> None:
-        self.bar.close()

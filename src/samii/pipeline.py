@@ -262,6 +262,7 @@ def run(
     _check_out(out, overwrite)
     stage_dir = _stage_dir(out)
     stage_dir.mkdir()
+    progress.expect(N_STAGES)
     started = time.perf_counter()
     try:
         summary = _run_stages(stage_dir, model, texts, seed, progress, argv)

@@ -41,13 +41,14 @@ three-mode pole placement with an observer on the same fit.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from samii.closedloop.controllers import SavedController
 from samii.controller import LinearController
+from samii.progress import SILENT, Progress, part
 
 __all__ = [
     "DampingDesign",
@@ -410,23 +411,25 @@ def damping_from_simulation(
     sample_time_s: float = 1e-3,
     delay_samples: int = 1,
     gain_margin_db: float = GAIN_MARGIN_DB,
-    progress: Callable[[str], None] | None = None,
+    progress: Progress | None = None,
 ) -> DampingDesign:
-    """Measure ``model`` (swept sine, sensor noise on), fit, design: the damping controller of the current model."""
+    """Measure ``model`` (swept sine, sensor noise on), fit, design: the damping controller of the current model.
+    ``progress`` (samii.progress.Progress) is told the three stages, the measurement's physics steps within the first."""
     from samii.measure.campaign import measure_swept
     from samii.measure.daq import SensorNoise
     from samii.sim.plugin import hydraulic_params
 
-    if progress:
-        progress("measuring (swept sine 0.1-40 Hz, 3 records, sensor noise)")
-    meas = measure_swept(model, noise=SensorNoise(), rng=np.random.default_rng(seed))
-    if progress:
-        progress("fitting the notebook's 3-mode model")
+    progress = progress or SILENT
+    progress.expect(3)
+    progress.stage("measuring (swept sine 0.1-40 Hz, 3 records, sensor noise)")
+    meas = measure_swept(model, noise=SensorNoise(), rng=np.random.default_rng(seed), progress=part(progress, 1))
+    progress.stage("fitting the notebook's 3-mode model")
     fr = measured_fit(meas.frf)
+    progress.advance()
     summary = {"band_hz": list(fr.band_hz), "rms_mag_db": dict(fr.rms_mag_db), "rms_phase_deg": dict(fr.rms_phase_deg),
                "converged": bool(fr.converged), "measurement": f"samii measure (swept sine, noise, seed {seed})"}  # fmt: skip
-    if progress:
-        progress("designing the acceleration feedback")
+    progress.stage("designing the acceleration feedback")
     d = design_damping(fr.params, position_gain_v_per_rad=hydraulic_params(model).position_gain, sample_time_s=sample_time_s,
                        delay_samples=delay_samples, gain_margin_db=gain_margin_db, fit_summary=summary)  # fmt: skip
+    progress.advance()
     return with_data_check(d, meas.frf)

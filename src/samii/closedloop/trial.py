@@ -61,9 +61,10 @@ def resolve_controller(spec: str, factory=None, *, say: Callable[[str], None] | 
         raise InputError(f"--controller: expected {', '.join(BUILTIN_CONTROLLERS)} or a controller file, got an empty string")
     if spec == "damping":
         from samii.closedloop.damping import damping_from_simulation
+        from samii.progress import said
 
         model = model_at_rest(factory)
-        return damping_from_simulation(model, progress=say).controller
+        return damping_from_simulation(model, progress=said(say)).controller
     if spec == "unity":
         return None
     if spec == "notebook-place":

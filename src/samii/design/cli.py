@@ -226,10 +226,10 @@ def _fmt_complex(z: complex, width: int = 10, digits: int = 4) -> str:
     return f"{z.real:{width}.{digits}f} {z.imag:+{width}.{digits}f}j"
 
 
-def _progress(total: int, what: str, disabled: bool):
-    from tqdm import tqdm
+def _progress(total: int | None, what: str, disabled: bool):
+    from samii.cli_progress import Bar
 
-    return tqdm(total=total, desc=f"samii design {what}", unit="step", disable=disabled, file=sys.stderr, dynamic_ncols=True)
+    return Bar(f"samii design {what}", unit="step", total=total, enabled=not disabled, terminal_only=False)
 
 
 def _out_folder(args, names: list[str]):
@@ -247,17 +247,10 @@ def _out_folder(args, names: list[str]):
 
 
 def run_seed_report(args) -> int:
-    from samii.design.seed_report import STEPS, seed_report
+    from samii.design.seed_report import seed_report
 
-    with _progress(len(STEPS), "seed-report", args.no_progress) as bar:
-        bar.set_postfix_str(STEPS[0], refresh=False)
-
-        def step(label: str) -> None:  # label is done: show the one now running
-            i = STEPS.index(label) + 1
-            bar.set_postfix_str(STEPS[i] if i < len(STEPS) else "done", refresh=False)
-            bar.update(1)
-
-        report = seed_report(progress=step)
+    with _progress(None, "seed-report", args.no_progress) as bar:
+        report = seed_report(progress=bar)
     if args.json:
         print(_dumps(report.as_json()))
     else:
@@ -279,11 +272,11 @@ def run_rlocus(args) -> int:
     loops, summaries = [], []
     with _progress(len(plan) * (2 if plots else 1), "rlocus", args.no_progress) as bar:
         for label, p, num, v in plan:
-            bar.set_postfix_str(f"{label} {v.name}", refresh=False)
+            bar.stage(f"{label} {v.name}")
             loop = rl.mass_damping_loop(p, numerator=num, variant=v, model=label)
             loops.append(loop)
             summaries.append(rl.summarize(loop, n_gains=args.n_gains))
-            bar.update(1)
+            bar.advance()
         table = rl.summary_table(summaries)
         rows = [s.as_dict() for s in summaries]
         if folder is not None:
@@ -294,9 +287,9 @@ def run_rlocus(args) -> int:
                     from samii.viz.rootlocus_plot import plot_variant
 
                     for lp, s, name in zip(loops, summaries, pngs):
-                        bar.set_postfix_str(f"plot {lp.model} {lp.variant.name}", refresh=False)
+                        bar.stage(f"plot {lp.model} {lp.variant.name}")
                         plot_variant(lp, s, path=folder.path(name), n_gains=min(args.n_gains, PLOT_MAX_GAINS))
-                        bar.update(1)
+                        bar.advance()
     if args.json:
         print(_dumps(rows))
     else:
@@ -530,6 +523,7 @@ def run_damping(args) -> int:
     else:
         if args.position_gain is not None:
             raise InputError("--position-gain: only with --frf (the simulated measurement uses the model's own gain)")
+        from samii.progress import said
         from samii.sim.model import load_model
 
         def say(what: str) -> None:
@@ -537,7 +531,7 @@ def run_damping(args) -> int:
                 print(f"  {what}", file=sys.stderr)
 
         d = dm.damping_from_simulation(load_model(), seed=args.seed, sample_time_s=args.sample_time_s, delay_samples=args.delay_samples,
-                                       progress=say, gain_margin_db=args.gain_margin_db)  # fmt: skip
+                                       progress=said(say), gain_margin_db=args.gain_margin_db)  # fmt: skip
     out = d.to_dict()
     if save is not None:
         _save(d.controller, save, args, out)

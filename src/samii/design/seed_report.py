@@ -13,13 +13,13 @@ Sources: eq 8.x from the eq 1.4 fit through the chapter-5 canonical form
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from samii import notebook as nb
+from samii.progress import SILENT, Progress
 
 __all__ = ["SeedEntry", "SeedReport", "seed_report", "half_unit_of_last_digit", "ZETA_EQ8_3", "STEPS"]
 
@@ -139,16 +139,22 @@ def _wrap(text: str, width: int) -> list[str]:
     return textwrap.wrap(text, width)
 
 
-def seed_report(*, sample_time_s: float | None = None, progress: Callable[[str], None] | None = None) -> SeedReport:
+def seed_report(*, sample_time_s: float | None = None, progress: Progress | None = None) -> SeedReport:
     """Recompute eq 8.1-8.3 (from eq 1.4) and eq 10.1-10.9 and the gain (from eq 9.4).
 
-    ``progress(step)`` is called after each of :data:`STEPS` (the last, the gain analysis, takes most of the time).
+    ``progress`` (samii.progress.Progress) is told the :data:`STEPS` and each as it starts (the last, the gain
+    analysis, takes most of the time), advanced as each is done.
     """
     from samii.design import cancel, canonical, placement
 
-    def done(step: str) -> None:
-        if progress is not None:
-            progress(step)
+    progress = progress or SILENT
+    progress.expect(len(STEPS))
+    progress.stage(STEPS[0])
+
+    def done(step: str) -> None:  # ``step`` is done: say the one now running
+        i = STEPS.index(step) + 1
+        progress.stage(STEPS[i] if i < len(STEPS) else "done")
+        progress.advance()
 
     entries = []
     # chapter 8, eq 1.4, 1-accelerometer canonical form (chapter 5)

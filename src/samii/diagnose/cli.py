@@ -16,7 +16,6 @@ of the simulator against the data (``samii.diagnose.recording``). Imports nothin
 from __future__ import annotations
 
 import argparse
-import sys
 
 from samii.cli_args import add_band, add_json, add_model, add_no_progress, add_out, add_overwrite, add_rerun, nonempty_path, positive_float
 from samii.diagnose.files import MAX_FILES
@@ -76,36 +75,8 @@ def _fmt(value: float, se: float, unit: str) -> str:
     return f"{v:.4g}{err} {shown if shown != '1' else ''}".rstrip()
 
 
-class _Progress:
-    """Stages and candidates on stderr: a terminal only, after a second."""
-
-    def __init__(self, enabled: bool):
-        from tqdm import tqdm
-
-        self.bar = tqdm(
-            total=None,
-            desc="samii diagnose",
-            unit="fit",
-            delay=1.0,
-            leave=False,
-            file=sys.stderr,
-            dynamic_ncols=True,
-            disable=None if enabled else True,
-            bar_format="{desc}: {n} fits {elapsed}{postfix}",
-        )
-
-    def stage(self, what: str) -> None:
-        self.bar.set_postfix_str(what)
-
-    def __call__(self, label: str) -> None:
-        self.bar.update(1)
-        self.bar.set_postfix_str(f"tried {label}")
-
-    def close(self) -> None:
-        self.bar.close()
-
-
 def run(args: argparse.Namespace) -> int:
+    from samii.cli_progress import Bar
     from samii.diagnose.files import DiagnoseRequest, diagnose_files
 
     request = DiagnoseRequest(
@@ -116,15 +87,9 @@ def run(args: argparse.Namespace) -> int:
         mat_freq_name=args.mat_freq_name,
         mat_freq_unit=args.mat_freq_unit,
     )
-    progress = None
-    try:
-        progress = _Progress(not args.no_progress)
-        done = diagnose_files(
-            args.data, request, out=args.out, rerun=args.rerun, rerun_fps=args.rerun_fps, overwrite=args.overwrite, progress=progress
-        )
-    finally:
-        if progress is not None:
-            progress.close()
+    bar = Bar("samii diagnose", unit="fit", enabled=not args.no_progress, delay=1.0, leave=False, bar_format="{desc}: {n} fits {elapsed}{postfix}")
+    with bar:
+        done = diagnose_files(args.data, request, out=args.out, rerun=args.rerun, rerun_fps=args.rerun_fps, overwrite=args.overwrite, progress=bar)
     if args.json:
         from samii.json_output import dumps
         from samii.schema import versioned

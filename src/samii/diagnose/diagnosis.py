@@ -61,6 +61,7 @@ from samii.diagnose.residuals import (
 from samii.diagnose.sampling import feedthrough_note, feedthrough_of, hold_note, with_hold_found, with_sampling
 from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select, sample_s, within_sampling
 from samii.frequency_response import CHANNEL_NAMES
+from samii.progress import Progress
 
 __all__ = ["ChannelError", "FoundEffect", "Band", "Diagnosis", "diagnose", "RULE"]
 
@@ -528,9 +529,8 @@ def _kinds(datasets: Sequence[Dataset], *, fixed_baseline: bool, simulator: bool
     return [_within_band(k, datasets) for k in library(fixed_baseline=fixed_baseline, channels=channels, pure_integrator=not simulator)]
 
 
-def _stage(progress, text: str) -> None:
-    """``progress.stage(text)`` when the progress display has stages."""
-    if progress is not None and hasattr(progress, "stage"):
+def _stage(progress: Progress | None, text: str) -> None:
+    if progress is not None:
         progress.stage(text)
 
 
@@ -814,12 +814,15 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
     return out, (tuple(files), datasets, after), report, more_steps, more_tried
 
 
-def diagnose(measured: Sequence[Measured], *, baseline="notebook", alpha: float = ALPHA, progress=None, simulator_params=None) -> Diagnosis:
+def diagnose(
+    measured: Sequence[Measured], *, baseline="notebook", alpha: float = ALPHA, progress: Progress | None = None, simulator_params=None
+) -> Diagnosis:
     """Diagnose the files of one rig against ``baseline``: "notebook", "sim" (the calibrated simulator,
     started from ``simulator_params``, default the embedded model's; the effects found are carried into
     it, :mod:`samii.diagnose.simulator`), a saved fit (:class:`SavedFit`) or its path.
 
-    ``progress(label)`` is called after every candidate tried; ``progress.stage(text)``, if it exists, at each stage.
+    ``progress`` (samii.progress.Progress) is told each stage and advanced by every candidate tried (a unit each; the
+    count is not known ahead, so it never says a total).
     """
     from samii.diagnose.baseline import SavedFit, notebook_baseline, read_fit_json, saved_fit_baseline
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from samii.errors import InputError, input_error_of
 from samii.outputs import shown_path, written_beside
+from samii.progress import SILENT, Progress
 
 __all__ = ["DiagnoseRequest", "DiagnosedFiles", "diagnose_files", "OUTPUTS", "SIM_OUTPUTS", "MAX_FILES"]
 
@@ -43,14 +44,6 @@ class DiagnosedFiles:
 
     diagnosis: object
     written: list[str] = field(default_factory=list)
-
-
-class _Silent:
-    def stage(self, what: str) -> None:
-        pass
-
-    def __call__(self, label: str) -> None:
-        pass
 
 
 def _baseline(req: DiagnoseRequest, relative_to):
@@ -104,13 +97,13 @@ def diagnose_files(
     rerun=None,
     rerun_fps: float | None = None,
     overwrite: bool = False,
-    progress=None,
+    progress: Progress | None = None,
     relative_to=None,
 ) -> DiagnosedFiles:
     """Diagnose the measured files ``data`` of one rig as ``request`` asks; given ``out``, write the diagnosis into
     that folder (all or nothing, checked before any work), and given ``rerun`` (baseline "sim" only) a recording.
 
-    ``progress``: ``progress(label)`` after every candidate tried and ``progress.stage(text)`` at each stage.
+    ``progress`` (samii.progress.Progress): told each stage, advanced by every candidate tried.
     ``relative_to`` names the files relative to that folder (the main job's) instead of as given."""
     from samii.diagnose.diagnosis import diagnose
     from samii.diagnose.measured import load
@@ -142,7 +135,7 @@ def diagnose_files(
     elif rerun_fps is not None:
         raise InputError("--rerun-fps: sets the frame rate of a recording; give --rerun FILE.rrd too")
 
-    progress = progress or _Silent()
+    progress = progress or SILENT
     with written_beside(rerun_path) as rrd_tmp:
         progress.stage("reading")
         band = tuple(request.band_hz) if request.band_hz else None

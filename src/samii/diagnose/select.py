@@ -53,6 +53,7 @@ from samii.diagnose.evidence import REFUSALS, Refusal
 from samii.diagnose.model import Baseline, Dataset, Fit, fit_model, noise_level, relabel_modes, scaled_reference, start_vectors
 from samii.forkmap import fork_map, sharing
 from samii.measure.frf_variance import moving_sum
+from samii.progress import Progress
 
 __all__ = ["ALPHA", "Step", "forward_select", "starts_for", "sample_s", "within_sampling"]
 
@@ -725,7 +726,13 @@ def _candidate(ds_list, baseline, current: Fit, kind: EffectKind, reference_b) -
 
 
 def forward_select(
-    ds_list: list[Dataset], baseline: Baseline, kinds: list[EffectKind], *, alpha: float = ALPHA, max_effects: int = MAX_EFFECTS, progress=None
+    ds_list: list[Dataset],
+    baseline: Baseline,
+    kinds: list[EffectKind],
+    *,
+    alpha: float = ALPHA,
+    max_effects: int = MAX_EFFECTS,
+    progress: Progress | None = None,
 ) -> tuple[Fit, Fit, list[Step], list[dict]]:
     """Select effects from ``kinds`` (module docstring).
 
@@ -797,8 +804,9 @@ def _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress):
                 record.update(refused=why.text, refusal={"code": why.code, "values": dict(why.values)}, log10_p=0.0, log10_p_test=logp)
                 logp = 0.0
             tried.append(record)
-            if progress:
-                progress(kind.label)
+            if progress is not None:  # (a candidate fitted: one unit; how many a selection tries is not known ahead)
+                progress.stage(f"tried {kind.label}")
+                progress.advance()
             if logp < level:
                 candidates.append((logp, fstat, dof, cand, kind, places))
         if not candidates:

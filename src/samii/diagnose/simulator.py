@@ -64,6 +64,7 @@ from samii.diagnose.residuals import errors_from_residuals, full_residuals, unex
 from samii.errors import SimulationUnstable
 from samii.forkmap import fork_calls, fork_map, sharing
 from samii.frequency_response import CHANNEL_NAMES, CHANNELS, FrequencyResponse, interpolate_frf
+from samii.progress import SILENT, Progress
 from samii.sim.linearize import UNSTABLE_RATE_1_S, poles_per_s
 from samii.sim.mjcf import SamiiParams
 from samii.sim.model import params_with_overrides
@@ -917,7 +918,7 @@ def carry_and_recalibrate(
     before: SimulatorCalibration,
     effects: Sequence,
     *,
-    progress=None,
+    progress: Progress | None = None,
     refuse: Mapping[str, str] | None = None,
     correction_steps: int = CORRECTION_STEPS,
 ):
@@ -925,7 +926,7 @@ def carry_and_recalibrate(
     carried into the simulator calibrated as ``before`` (:func:`carry`) and the knobs recalibrated
     with the linear options (:func:`simulator_report`'s steps 3 and 4), the correction recomputed at
     most ``correction_steps`` times; ``before`` itself when nothing is carried."""
-    stage = progress.stage if progress is not None and hasattr(progress, "stage") else (lambda _: None)
+    stage = (progress or SILENT).stage
     options, carried, not_carried = carry(effects, before.params, refuse=refuse)
     if not options:
         return before, options, carried, not_carried
@@ -964,7 +965,7 @@ def simulator_report(
     before: SimulatorCalibration,
     effects: Sequence,
     *,
-    progress=None,
+    progress: Progress | None = None,
     refuse: Mapping[str, str] | None = None,
 ) -> SimulatorReport:
     """Carry ``effects`` into the simulator calibrated as ``before``, recalibrate, re-measure both
@@ -982,7 +983,7 @@ def simulator_report(
     recalibrated without it. A carry that still raises the chi2 summed over the channels, or any channel's
     rms dB, rms deg or chi2 by more than :data:`UNDO_TOLERANCE`, is undone."""
 
-    stage = progress.stage if progress is not None and hasattr(progress, "stage") else (lambda _: None)
+    stage = (progress or SILENT).stage
     refuse = dict(refuse or {})
     datasets = [Dataset.from_measured(m) for m in measured_raw]
 

@@ -14,7 +14,6 @@ stage's cli module to build its help).
 from __future__ import annotations
 
 import argparse
-import sys
 
 from samii.cli_args import add_band, add_json, add_no_progress, add_out, add_overwrite, float_in, int_in, nonempty_path
 from samii.identify.concerns import COMMAND_LINE
@@ -131,56 +130,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_no_progress(parser)
 
 
-# --------------------------------------------------------------------------- progress
-
-
-class _Progress:
-    """Progress of the whole command on stderr: a terminal only, and only once the run has taken PROGRESS_DELAY_S."""
-
-    def __init__(self, label: str, n_fits: int, *, enabled: bool):
-        import time
-
-        from tqdm import tqdm
-
-        self._clock = time.monotonic
-        self._start = self._clock()
-        self.fit_index = 0
-        self.bar = tqdm(
-            total=n_fits,
-            desc=label,
-            unit="fit",
-            delay=PROGRESS_DELAY_S,
-            leave=False,
-            file=sys.stderr,
-            dynamic_ncols=True,
-            disable=None if enabled else True,
-            bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}{postfix}",
-        )
-
-    def _show(self, what: str) -> None:
-        self.bar.set_postfix_str(what, refresh=False)
-        if self._clock() - self._start >= PROGRESS_DELAY_S:
-            self.bar.refresh()
-
-    def stage(self, what: str) -> None:
-        self._show(what)
-
-    def fit_step(self, done: int, total: int, what: str) -> None:
-        """``fit``'s progress callback: stage ``done`` of ``total`` of the current fit (``done`` repeats within a long stage)."""
-        self.bar.n = self.fit_index + done / total
-        self._show(what)
-
-    def next_fit(self) -> None:
-        self.fit_index += 1
-
-    def close(self) -> None:
-        self.bar.close()
-
-
-# --------------------------------------------------------------------------- the command
-
-
 def run(args: argparse.Namespace) -> int:
+    from samii.cli_progress import Bar
     from samii.identify.fit_file import FitRequest, fit_frf_file
     from samii.identify.report import json_text, summary_dict
 
@@ -197,13 +148,17 @@ def run(args: argparse.Namespace) -> int:
         mat_freq_name=args.mat_freq_name,
         mat_freq_unit=args.mat_freq_unit,
     )
-    progress = None
-    try:
-        progress = _Progress(f"samii fit {args.frf}", len(weights), enabled=not args.no_progress)
-        fitted = fit_frf_file(args.frf, request, out=args.out, overwrite=args.overwrite, progress=progress)
-    finally:
-        if progress is not None:
-            progress.close()
+    bar = Bar(
+        f"samii fit {args.frf}",
+        unit="fit",
+        total=len(weights),
+        enabled=not args.no_progress,
+        delay=PROGRESS_DELAY_S,
+        leave=False,
+        bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}{postfix}",
+    )
+    with bar:
+        fitted = fit_frf_file(args.frf, request, out=args.out, overwrite=args.overwrite, progress=bar)
     data, structure, results, written = fitted.data, fitted.structure, fitted.results, fitted.written
     if args.json:
         out = [summary_dict(r) for r in results]

@@ -72,6 +72,7 @@ from samii.identify.notebook_loop import NOTEBOOK_TOL_PCT, PercentChange, percen
 from samii.identify.profile import Profile, interval_text, profile_scan
 from samii.identify.starts import auto_start, modes_from_total, notebook_start, perturbed_start, scan_modes, snap_to_peaks
 from samii.identify.structures import ModelStructure
+from samii.progress import SILENT, Progress, part
 
 __all__ = ["FitResult", "check_not_noise", "fit", "fit_problem", "profile_names", "resolve_weighting", "BOUNDS"]
 
@@ -89,8 +90,6 @@ _PENALTY = 1e8
 _TOL = 1e-10
 
 StartSpec = Literal["notebook", "auto", "both"] | Mapping[str, float]
-#: ``progress(done, total, what)``: called after each stage of a fit (a start solved, the refinement, the diagnosis).
-Progress = Callable[[int, int, str], None]
 
 #: Starts are searched on at most this many frequency points (every k-th point of larger data,
 #: ``FitProblem.thinned``); the best is then refined on all points. Keeps a fit's cost linear in
@@ -1009,16 +1008,16 @@ def fit_problem(
     total = (
         n_labels + int(bool(scan)) + n_perturbed + int(thinned) + 1 + int(bool(names))
     )  # starts, scan, perturbed starts, refinement, diagnosis, profiles
-    step = [0]
+    progress = progress or SILENT
 
     def done(what: str) -> None:
-        step[0] += 1
-        if progress is not None:
-            progress(step[0], total, what)
+        progress.stage(what)
+        progress.advance()
 
     starts, notes = _build_starts(search, start)
     averages = n_averages if n_averages is not None else averages_from_metadata(problem.data.metadata)
     total += len(starts) - n_labels  # a start skipped, or the fallback added
+    progress.expect(total)
     runs = []
 
     def run(label: str, p: Mapping[str, float]) -> None:
@@ -1049,7 +1048,7 @@ def fit_problem(
     agree = sum(1 for r in runs if r[2] <= cost * (1 + 1e-6) + 1e-12)
     if thinned:
         refining = f"refining on all {problem.n_points} points"
-        tick = (lambda k: progress(step[0], total, f"{refining}, evaluation {k}")) if progress is not None else None
+        tick = None if progress is SILENT else (lambda k: progress.stage(f"{refining}, evaluation {k}"))
         x, sol, (x_prev, cost_prev), rj = _solve(problem, x, max_nfev=max_nfev, on_evaluation=tick)
         cost = float(rj[0] @ rj[0])
         nfev += int(sol.nfev)
@@ -1235,8 +1234,9 @@ def fit(
     n_averages : int, optional
         Averages behind the coherence, for the lack-of-fit test; default from the
         metadata ``frf_records``, else 3 (stated in the result).
-    progress : callable(done, total, what), optional
-        Called after each stage (a start solved, the refinement, the diagnosis, the profiles).
+    progress : samii.progress.Progress, optional
+        Told the fit's stages (``expect``: its starts, the scan, the refinement, the diagnosis, the profiles), then
+        each as it is done (``stage``, ``advance``); a second reading weighted by the scatter says its stages only.
     profile : "auto", bool or sequence of names
         Frequencies to profile (``samii.identify.profile``: each held at values stepped away from
         its estimate, the others re-solved; ``FitResult.interval`` then reads the interval off the
@@ -1285,11 +1285,7 @@ def fit(
     if requested == "auto" and weighting == "none" and (not result.sound or result.caveats) and isinstance(start, str):
         try:
             # (its progress said as a second reading, the bar at the end of the first: 3-5 s more showed nothing)
-            second = (
-                None
-                if progress is None
-                else (lambda done, total, what: progress(total, total, f"second reading, weighted by the data's scatter: {what}"))
-            )
+            second = part(progress, 0, prefix="second reading, weighted by the data's scatter: ")
             mended = _weighted_by_scatter(problem, result, n_perturbed=n_perturbed, rng=rng, max_nfev=max_nfev, profile=profile, progress=second)
         except (ValueError, np.linalg.LinAlgError, FloatingPointError):
             mended = None  # (a second reading that fails leaves the first as it was)

@@ -11,14 +11,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
 
 import numpy as np
 
 from samii.errors import InputError, input_error_of
 from samii.frequency_response import FrequencyResponse
+from samii.progress import SILENT, Progress, part
 
-__all__ = ["FitRequest", "FitFile", "FitProgress", "read_frf_file", "fit_frf_file"]
+__all__ = ["FitRequest", "FitFile", "read_frf_file", "fit_frf_file"]
 
 
 @dataclass(frozen=True)
@@ -35,16 +35,6 @@ class FitRequest:
     profiles: str = "auto"  #: "auto", "on" or "off"
     mat_freq_name: str | None = None
     mat_freq_unit: str = "hz"
-
-
-class FitProgress(Protocol):
-    """What a long fit reports: a stage's name, a fit's own progress, and the start of the next phase weight's fit."""
-
-    def stage(self, what: str) -> None: ...
-
-    def fit_step(self, done: int, total: int, what: str) -> None: ...
-
-    def next_fit(self) -> None: ...
 
 
 @dataclass
@@ -120,19 +110,8 @@ def read_frf_file(path, *, mat_freq_name: str | None = None, mat_freq_unit: str 
     return data
 
 
-class _Silent:
-    def stage(self, what: str) -> None:
-        pass
-
-    def fit_step(self, done: int, total: int, what: str) -> None:
-        pass
-
-    def next_fit(self) -> None:
-        pass
-
-
 def fit_frf_file(
-    path, request: FitRequest = FitRequest(), *, out=None, overwrite: bool = False, progress: FitProgress | None = None, relative_to=None
+    path, request: FitRequest = FitRequest(), *, out=None, overwrite: bool = False, progress: Progress | None = None, relative_to=None
 ) -> FitFile:
     """Fit the FRF file ``path`` as ``request`` asks and, given ``out``, write the fits into that folder (all or
     nothing; checked before any work). ``relative_to``: the folder whose files name ``path`` relative to it (the
@@ -144,7 +123,7 @@ def fit_frf_file(
 
     name = shown_path(path, relative_to)
     folder = OutputFolder(out, fit_output_names(list(request.phase_weights)), overwrite=overwrite) if out is not None else None
-    progress = progress or _Silent()
+    progress = progress or SILENT
     progress.stage("reading")
     data = read_frf_file(path, mat_freq_name=request.mat_freq_name, mat_freq_unit=request.mat_freq_unit)
     structure = ModelStructure(n_modes=request.n_modes, numerator=request.numerator)
@@ -158,6 +137,7 @@ def fit_frf_file(
             f"{name}: --band-hz {band[0]:g} {band[1]:g}: no frequency point in the band (the data span {data.freq_hz[0]:g}-{data.freq_hz[-1]:g} Hz)"
         )
     rng = np.random.default_rng(0)
+    progress.expect(len(request.phase_weights))  # a fit per phase weight, each one unit
     try:  # noise: refused before any work, as calibrate and diagnose refuse it (a fit of it converged to "a sound fit")
         check_not_noise(data, structure, band_hz=band)
     except ValueError as exc:
@@ -175,7 +155,7 @@ def fit_frf_file(
                     start=request.start or "both",
                     rng=rng,
                     n_averages=request.averages,
-                    progress=progress.fit_step,
+                    progress=part(progress, 1),
                     profile={"auto": "auto", "on": True, "off": False}[request.profiles],
                 )
             )
@@ -183,7 +163,6 @@ def fit_frf_file(
             raise  # numerical trouble: a defect, reported as an internal error
         except (ValueError, KeyError) as exc:  # the data cannot be fitted as asked (InputError included)
             raise input_error_of(name, exc) from None
-        progress.next_fit()
     written: list[str] = []
     if folder is not None:
         progress.stage("writing plots")

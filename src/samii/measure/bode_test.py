@@ -13,12 +13,13 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
 from samii.errors import InputError, SimulationUnstable
+from samii.progress import SILENT, Progress, part
 from samii.schema import versioned
 
 __all__ = [
@@ -267,14 +268,14 @@ def run_bode_test(
     rerun=None,
     rerun_fps: float | None = None,
     overwrite: bool = False,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Progress | None = None,
     argv: Sequence[str] = (),
     relative_to=None,
 ) -> BodeTest:
     """Run the Bode test ``request`` on ``model`` (an MJCF or parameter file; None: the embedded one) with
     ``overrides`` (``--set`` texts or a mapping, read after the request's own checks) and write it into folder ``out`` (all or nothing), with a Rerun recording at ``rerun`` if given.
 
-    ``progress(done, total)`` counts physics steps over the whole test; ``argv`` is recorded in run.json as the
+    ``progress`` (samii.progress.Progress) counts physics steps over the whole test; ``argv`` is recorded in run.json as the
     command that ran it; ``relative_to`` names the written files relative to that folder (the main job's) instead
     of as given."""
     from samii.formats import write_frf_csv, write_text
@@ -318,12 +319,8 @@ def run_bode_test(
         frame_steps = frame_steps_for(model_obj, rerun_fps)
 
     total_steps = sum(int(round(e.duration_s / dt)) for _, e in plan)
-    offset = [0]
-
-    def step_done(done: int, _total: int) -> None:
-        if progress is not None:
-            progress(offset[0] + done, total_steps)
-
+    progress = progress or SILENT
+    progress.expect(total_steps)
     # the first measurement's record is timeseries.csv; the stepped one of --method both is timeseries_stepped.csv
     ts_names = {kind: ("timeseries.csv" if i == 0 else f"timeseries_{kind}.csv") for i, (kind, _) in enumerate(plan)}
     results = {}
@@ -337,11 +334,10 @@ def run_bode_test(
                 noise=noise,
                 rng=rng,
                 frame_steps=frame_steps,
-                progress=step_done,
+                progress=part(progress, int(round(excitation.duration_s / dt))),
                 timeseries_path=folder.path(ts_names[kind]),
             )
             _check_rails(results[kind].timeseries, kind)
-            offset[0] += int(round(excitation.duration_s / dt))
         sim_wall = sum(r.run.wall_s for r in results.values())
         simulated_s = sum(e.duration_s for _, e in plan)
 

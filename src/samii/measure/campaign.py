@@ -11,7 +11,6 @@ actuator's ``ctrl`` and the simulator's signals are those a rig records.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,12 +20,11 @@ from samii.measure.daq import DEFAULT_SAMPLE_RATE_HZ, Daq, SensorNoise, daq_time
 from samii.measure.excitation import SteppedSine, SweptSine
 from samii.measure.frf import estimate_frf
 from samii.measure.stepped import estimate_stepped
+from samii.progress import Progress
 from samii.sim.sensor_dynamics import SensorDynamics
 from samii.timeseries import SIGNAL_COLUMNS, TimeSeries
 
 __all__ = ["Run", "Measurement", "record", "measure", "measure_swept", "measure_stepped", "linearised_frf"]
-
-Progress = Callable[[int, int], None]
 
 
 @dataclass(frozen=True)
@@ -110,7 +108,8 @@ def record(
         Replace an existing ``timeseries_path``.
     frame_steps : int, optional
         Keep qpos every this many physics steps (for a Rerun animation).
-    progress : callable(done_steps, total_steps), optional
+    progress : samii.progress.Progress, optional
+        Told the run's physics steps, advanced as they are stepped (:func:`samii.sim.simulate.simulate`).
 
     Returns
     -------

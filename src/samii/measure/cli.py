@@ -88,8 +88,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
+    from samii.cli_progress import Bar
     from samii.measure.bode_test import BodeTestRequest, run_bode_test
     from samii.outputs import with_size
 
@@ -104,14 +103,7 @@ def run(args: argparse.Namespace) -> int:
         noise=args.noise,
         seed=args.seed,
     )
-    bars = []  # made at the first step, once the request has passed its checks (a refusal shows no bar)
-
-    def progress(done: int, total: int) -> None:
-        if not bars:
-            bars.append(tqdm(total=total, unit="step", unit_scale=True, desc="samii measure", disable=args.no_progress, file=sys.stderr))
-        bars[0].n = done
-        bars[0].refresh()
-
+    progress = Bar("samii measure", unit="step", unit_scale=True, enabled=not args.no_progress, terminal_only=False)
     try:
         test = run_bode_test(
             args.out,
@@ -125,8 +117,7 @@ def run(args: argparse.Namespace) -> int:
             argv=sys.argv[1:],
         )
     finally:
-        for bar in bars:
-            bar.close()
+        progress.close()
     summary = test.summary
     if args.json:
         print(dumps(summary, indent=2))

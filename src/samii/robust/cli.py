@@ -230,7 +230,7 @@ def run(args: argparse.Namespace) -> int:
     import contextlib
     import time
 
-    from tqdm import tqdm
+    from samii.cli_progress import Bar
 
     t0 = time.perf_counter()
     with contextlib.ExitStack() as stack:
@@ -241,11 +241,8 @@ def run(args: argparse.Namespace) -> int:
                 f"samii robust: {args.controller}, {args.scenario} test, {args.samples} plants (seed {args.seed}) {engine.describe()}",
                 file=sys.stderr,
             )
-        bar = tqdm(total=len(tasks), desc="samii robust", unit="run", file=sys.stderr, disable=True if args.no_progress else None, leave=False)
-        try:
-            results = engine.map(tasks, progress=bar.update)
-        finally:
-            bar.close()
+        with Bar("samii robust", unit="run", enabled=not args.no_progress, leave=False) as bar:
+            results = engine.map(tasks, progress=bar)
     wall = time.perf_counter() - t0
     nominal, samples = results[0], results[1:]
     for w in warnings:

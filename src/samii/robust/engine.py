@@ -17,7 +17,7 @@ import os
 import shlex
 import socket
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import dask
@@ -25,6 +25,7 @@ from distributed import Client, LocalCluster, as_completed
 from distributed.diagnostics.plugin import WorkerPlugin
 
 import samii
+from samii.progress import SILENT, Progress
 from samii.robust.task import SampleResult, SampleTask, run_sample
 
 __all__ = ["DEFAULT_CONNECT_TIMEOUT_S", "Engine", "SamiiWorkerPlugin", "check_address", "configured_scheduler"]
@@ -335,14 +336,16 @@ class Engine:
         self._failed = False
         self._quiet.close()
 
-    def map(self, tasks: Sequence[SampleTask], progress: Callable[[int], None] | None = None) -> list[SampleResult]:
-        """Run every task; the results in the tasks' order."""
+    def map(self, tasks: Sequence[SampleTask], progress: Progress | None = None) -> list[SampleResult]:
+        """Run every task; the results in the tasks' order. ``progress`` (samii.progress.Progress) is told the tasks
+        and advanced by each as it ends."""
+        progress = progress or SILENT
+        progress.expect(len(tasks))
         if not self.uses_dask:
             out = []
             for t in tasks:
                 out.append(run_sample(t))
-                if progress:
-                    progress(1)
+                progress.advance()
             return out
         if self._client is None:
             with self:
@@ -358,8 +361,7 @@ class Engine:
             by_key = {}
             for fut in as_completed(futures):
                 by_key[fut.key] = fut.result()
-                if progress:
-                    progress(1)
+                progress.advance()
             return [by_key[f.key] for f in futures]
         nominal = {f.key for f, t in zip(futures, tasks) if t.index < 0}  # (the nominal plant: no drawn sample)
         return self._watched(futures, progress, nominal)
@@ -411,8 +413,7 @@ class Engine:
                         if "cancel" in type(exc).__name__.lower():
                             raise lost("the scheduler was lost (the study's tasks were cancelled)") from None
                         raise
-                    if progress:
-                        progress(1)
+                    progress.advance()
                 if done:
                     last_done = time.monotonic()
                 if done or not pending:

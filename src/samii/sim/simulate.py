@@ -16,6 +16,7 @@ import mujoco.rollout
 import numpy as np
 
 from samii.errors import SimulationUnstable
+from samii.progress import SILENT, Progress
 
 __all__ = ["SimResult", "SimulationUnstable", "check_rollout", "simulate", "tip_accel_offset"]
 
@@ -71,7 +72,7 @@ def simulate(
     data: mujoco.MjData | None = None,
     initial_state: np.ndarray | None = None,
     chunk_steps: int = 20000,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Progress | None = None,
     on_chunk: Callable[[SimResult], None] | None = None,
     qpos_every: int | None = None,
 ) -> SimResult:
@@ -94,7 +95,9 @@ def simulate(
         mjSTATE_FULLPHYSICS state to start from; default the ``home`` keyframe
         (static equilibrium).
     chunk_steps : int
-        Steps per rollout call (``progress(done, total)`` is called after each).
+        Steps per rollout call.
+    progress : samii.progress.Progress, optional
+        Told the run's physics steps (``expect``), then advanced by each chunk's as it is stepped.
     on_chunk : callable(SimResult), optional
         Called in the calling thread with each chunk's signals, in order, while
         the next chunk is stepped (so it must not touch ``data``). The chunk in
@@ -153,6 +156,8 @@ def simulate(
         return mujoco.rollout.rollout(model, data, state[None, :], ctrl_v[None, lo:hi, None])
 
     bounds = [(lo, min(lo + chunk_steps, n)) for lo in range(0, n, chunk_steps)]
+    progress = progress or SILENT
+    progress.expect(n)
     state = initial_state
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="samii-rollout") as pool:
         pending = pool.submit(step, state, *bounds[0])
@@ -185,8 +190,7 @@ def simulate(
             state = last
             if on_chunk is not None:
                 on_chunk(chunk)
-            if progress is not None:
-                progress(hi, n)
+            progress.advance(hi - lo)
 
     return SimResult(
         t=initial_state[0] + np.arange(n) * dt,
