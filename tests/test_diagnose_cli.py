@@ -20,6 +20,7 @@ import pytest
 
 from samii.cli import main
 from samii.diagnose.rig import EffectRig
+from samii.diagnose.select import ALPHA
 from samii.formats import csv_header, read_frf_csv, write_timeseries_csv
 from samii.measure.excitation import SweptSine
 
@@ -180,7 +181,8 @@ def test_diagnose_finds_the_command_delay(delay_diagnosis):
     assert j["chi2_after"] < j["chi2_before"], j
     if j["how"] == "f_test":
         # (log10 p is null where F's tail underflows, below 1e-300: the sentence says "p < 1e-300")
-        small_p = "p < 1e-300" in e["evidence"] if j["log10_p"] is None else j["log10_p"] < -10
+        # (below the selection's level, ALPHA over the candidates, where it joined)
+        small_p = "p < 1e-300" in e["evidence"] if j["log10_p"] is None else j["log10_p"] < math.log10(ALPHA)
         assert j["dof"][0] == 1 and small_p and f"F = {j['f_stat']:.3g} on (1, {j['dof'][1]}) dof" in e["evidence"]
     else:
         assert j["how"] == "swap" and f"it replaced {j['replaced']}, which had joined by F-test" in e["evidence"], j

@@ -16,7 +16,7 @@ from samii.diagnose.effects import library
 from samii.diagnose.measured import from_timeseries
 from samii.diagnose.model import Baseline, Dataset, notebook_reference, start_params
 from samii.diagnose.rig import EffectRig
-from samii.diagnose.select import AMBIGUOUS_CHI2, forward_select
+from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, forward_select
 from samii.identify.structures import ModelStructure
 from samii.measure.excitation import SweptSine
 from samii.measure.records import find_records
@@ -247,7 +247,8 @@ def test_a_richer_reading_the_data_hardly_tell_apart_is_named(sweep):
     d = diagnose([from_timeseries(ts, source="rig.csv")])
     assert [(e.kind, e.rivals) for e in d.effects] == [("command", ())]
     j = d.effects[0].joined  # the F-test that admitted it, as fields (chi2 falls, F on its one parameter)
-    assert j.how == "f_test" and j.dof[0] == 1 and j.chi2_after < j.chi2_before and j.log10_p < -10
+    # (it joined below the selection's level, ALPHA over the candidates: below ALPHA itself)
+    assert j.how == "f_test" and j.dof[0] == 1 and j.chi2_after < j.chi2_before and j.log10_p < np.log10(ALPHA)
     assert f"F = {j.f_stat:.3g} on (1, {j.dof[1]}) dof" in d.effects[0].evidence
 
 

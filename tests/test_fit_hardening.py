@@ -91,6 +91,7 @@ def test_large_data_are_searched_on_a_subset_and_refined_on_all_points(monkeypat
         assert res.params[k] == pytest.approx(v, rel=1e-6), k
     # its total said once, before it advanced, and reached exactly at the end
     assert heard.said[0][0] == "expect" and [k for k, _ in heard.said].count("expect") == 1
+    # (at least the notebook's and the automatic start, the refinement on all points and the diagnosis)
     assert heard.done == heard.total and heard.total >= 4
     stages = heard.stages
     assert f"refining on all {n} points, evaluation 1" in stages  # a long stage shows it is alive

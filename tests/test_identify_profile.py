@@ -164,7 +164,7 @@ def test_a_fit_its_own_profile_undercuts_is_not_sound(monkeypatch):
         assert bool(said) == concern, r.concerns
         if concern:  # the figures it rests on: the drop and where the profile found it
             v = said[0].values
-            assert v["below"] == pytest.approx(30.0) and v["held_hz"] == pytest.approx(1.3 * v["fit_hz"])
+            assert v["below"] == pytest.approx(drop) and v["held_hz"] == pytest.approx(1.3 * v["fit_hz"])  # (undercut's)
             assert said[0].text.startswith("wp is not at the minimum of the fit's cost")
         assert any(w.startswith("holding wp at") for w in r.warnings)
         assert r.sound == (not concern) and (r.verdict == "not sound") == concern

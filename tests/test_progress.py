@@ -59,18 +59,18 @@ def test_a_fit_file_counts_one_unit_per_phase_weight(tmp_path, heard):
 def test_the_bar_shows_on_stderr_when_asked_and_never_with_no_progress(capsys):
     from samii.cli_progress import Bar
 
-    with Bar("samii test", unit="step", terminal_only=False) as bar:
+    with Bar("samii test", unit="step", disable=False) as bar:
         bar.expect(4)
         bar.stage("half")
         bar.advance(2)
     err = capsys.readouterr().err
     assert "samii test" in err and "half" in err
-    with Bar("samii quiet", enabled=False, terminal_only=False) as bar:  # --no-progress: every report, nothing shown
+    with Bar("samii quiet", disable=True) as bar:  # --no-progress: every report, nothing shown
         bar.expect(4)
         bar.stage("quiet")
         bar.advance(4)
         bar.expect(5)
     assert capsys.readouterr().err == ""
-    with Bar("samii never") as bar:  # made at the first report only
+    with Bar("samii never", disable=False) as bar:  # made at the first report only (shown on any stderr once made)
         pass
     assert capsys.readouterr().err == ""

@@ -1,6 +1,6 @@
 """The commands' progress bar: a :class:`samii.progress.Progress` shown by tqdm on stderr.
 
-One bar for every command: on a terminal only (tqdm's ``disable=None``), never with ``--no-progress``; made at the
+One bar for every command: on a terminal only unless the command says otherwise, never with ``--no-progress``; made at the
 call's first report (the library calls report once their request has passed its checks, so a refusal shows none);
 its stage after the units as a postfix.
 """
@@ -16,37 +16,14 @@ __all__ = ["Bar"]
 class Bar:
     """A tqdm bar on stderr that a library call reports to (stage, advance, expect).
 
-    ``desc`` names the command; ``unit`` its units (what the call it is given counts); ``total`` when the command
-    knows it before the call does (the call's ``expect`` replaces it); ``delay`` [s]: shown only once the call has
-    taken that long (and its stages too); ``leave``: kept on screen when done; ``bar_format``: tqdm's, where the
-    default does not say it; ``terminal_only`` False: shown on any stderr (``samii measure``'s, as before).
+    ``desc`` names the command; ``disable`` is tqdm's: None shows the bar on a terminal only, True never
+    (``--no-progress``), False on any stderr (``samii measure``'s and ``samii design``'s, as before); ``delay`` [s]:
+    shown only once the call has taken that long (its stages too); the other options are tqdm's (``unit``, what the
+    call counts; ``total``, when the command knows it before the call does; ``leave``, ``unit_scale``, ``bar_format``).
     """
 
-    def __init__(
-        self,
-        desc: str,
-        *,
-        unit: str = "step",
-        total: float | None = None,
-        enabled: bool = True,
-        terminal_only: bool = True,
-        delay: float = 0.0,
-        leave: bool = True,
-        unit_scale: bool = False,
-        bar_format: str | None = None,
-    ) -> None:
-        self._options = dict(
-            desc=desc,
-            unit=unit,
-            total=total,
-            delay=delay,
-            leave=leave,
-            unit_scale=unit_scale,
-            file=sys.stderr,
-            dynamic_ncols=True,
-            disable=(None if terminal_only else False) if enabled else True,
-            **({"bar_format": bar_format} if bar_format else {}),
-        )
+    def __init__(self, desc: str, *, disable: bool | None = None, delay: float = 0.0, **options) -> None:
+        self._options = dict(desc=desc, disable=disable, delay=delay, file=sys.stderr, dynamic_ncols=True, **options)
         self._delay = delay
         self._start = time.monotonic()
         self._bar = None

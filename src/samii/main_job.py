@@ -33,14 +33,12 @@ def run(args: argparse.Namespace) -> int:
     from samii.cli_progress import Bar
     from samii.pipeline import run as run_pipeline
 
-    bar = Bar("samii", unit="stage", leave=False, enabled=not args.no_progress, bar_format="{desc}: {n}/{total} stages {elapsed} {postfix}")
-    try:
+    bar = Bar("samii", unit="stage", leave=False, disable=args.no_progress or None, bar_format="{desc}: {n}/{total} stages {elapsed} {postfix}")
+    with bar:
         result = run_pipeline(
             args.out, model=args.model, overrides=args.set, seed=args.seed, overwrite=args.overwrite, progress=bar, argv=sys.argv[1:]
         )
-    finally:
-        bar.close()
-    print("\n".join(result.lines(Path(args.out))))
+    print("\n".join(result.summary.lines(Path(args.out))))
     return 0
 
 

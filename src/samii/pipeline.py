@@ -96,10 +96,6 @@ class Run:
 
         return read_timeseries_csv(self.path / "measure" / "timeseries.csv")
 
-    def lines(self, out=None) -> list[str]:
-        """The summary a person reads, naming the folder ``out`` (default: the run's)."""
-        return self.summary.lines(out if out is not None else self.path)
-
     @classmethod
     def load(cls, folder) -> Run:
         """The run saved in ``folder``; InputError naming the file and field of anything missing, damaged or written
@@ -304,10 +300,7 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progr
     from samii.identify.fit_file import fit_frf_file
     from samii.json_output import finite_or_none
     from samii.measure.bode_test import BodeTestRequest, run_bode_test
-    from samii.outputs import shown_path
-    from samii.sim.model import load_model
     from samii.sim.overrides import parse_overrides
-    from samii.sim.plugin import hydraulic_params
 
     parsed = parse_overrides(overrides)
     model_file = _model_path(model)
@@ -340,7 +333,7 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progr
 
     progress.stage("designing the damping controller")
     (d / "controllers").mkdir()
-    kp = hydraulic_params(load_model(model, overrides=parsed or None)).position_gain  # what the data were measured with
+    kp = rec["model"]["hydraulic"]["position_gain"]  # what the data were measured with (the Bode test's model)
     with _named_stage("design"):
         designed = damping_from_frf(read_frf_csv(d / "measure" / "frf.csv"), source="measure/frf.csv", position_gain_v_per_rad=float(kp))
     damping = d / "controllers" / "damping.json"  # named in the run's files as the folder names it: controllers/damping.json
@@ -350,15 +343,14 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progr
 
     closed = {}
     trials = [("servo_loop_alone_step", TrialRequest("unity", "step"))] + [
-        (f"{name}_{sc}", TrialRequest(spec, sc) if spec else TrialRequest(str(damping), sc, label=shown_path(damping, d)))
-        for name, spec, _ in CONTROLLERS
-        for sc in SCENARIOS
+        (f"{name}_{sc}", TrialRequest(spec or str(damping), sc)) for name, spec, _ in CONTROLLERS for sc in SCENARIOS
     ]
     for name, request in trials:
         progress.stage(f"closed loop: {name}")
         rerun = d / "closedloop.rrd" if name == "damping_loper" else None
         with _named_stage("closedloop"):
-            trial = run_trial(request, out=d / "closedloop" / name, model=model_file, overrides=parsed, rerun=rerun, relative_to=d)
+            trial = run_trial(request, out=d / "closedloop" / name, model=model_file, overrides=parsed, rerun=rerun, relative_to=d,
+                              note=lambda text, name=name: print(f"samii run: note: closed loop {name}: {text}", file=sys.stderr))  # fmt: skip
         res = finite_or_none(trial.result.as_json())
         closed[name] = ClosedLoopSummary(**{k: res.get(k) for k in CLOSED_LOOP_FIELDS})
         progress.advance()

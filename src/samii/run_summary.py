@@ -94,6 +94,17 @@ class _Reader:
             self.fail(path + key, v, "a list of strings")
         return tuple(v)
 
+    def nums(self, d: Mapping, key: str, path: str = "", *, length: int | None = None, optional: bool = False) -> tuple[float, ...] | None:
+        v = d.get(key) if optional else self.get(d, key, path)
+        if v is None and optional:
+            return None
+        said = f"a list of {length or 'some'} numbers" + (" or null" if optional else "")
+        if not isinstance(v, list) or (length is not None and len(v) != length):
+            self.fail(path + key, v, said)
+        if any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in v):
+            self.fail(path + key, v, said)
+        return tuple(float(x) for x in v)
+
     def numbers(self, d: Mapping, key: str, path: str = "") -> dict[str, float | None]:
         v = self.obj(self.get(d, key, path), path + key)
         for k, x in v.items():
@@ -254,9 +265,6 @@ class RunSummary:
             raise InputError(f"{where}: field 'written_by' is {doc.get('written_by')!r}, expected {MARKER!r}")
         model = r.obj(r.get(doc, "model", ""), "model")
         modes = r.obj(r.get(doc, "modes", ""), "modes")
-        pair = modes.get("servo_pair_1_s")
-        if pair is not None and (not isinstance(pair, list) or len(pair) != 2 or not all(isinstance(x, (int, float)) for x in pair)):
-            r.fail("modes.servo_pair_1_s", pair, "[real part, imaginary part] or null")
         base_modes = r.get(modes, "base_modes", "modes.")
         if not isinstance(base_modes, list):
             r.fail("modes.base_modes", base_modes, "a list")
@@ -290,14 +298,14 @@ class RunSummary:
             model_file=r.text(model, "file", "model."),
             overrides=r.texts(model, "overrides", "model."),
             modes=ModesSummary(
-                pose_deg=tuple(r.num({"v": x}, "v", f"modes.pose_deg[{i}]") for i, x in enumerate(r.get(modes, "pose_deg", "modes.") or [])),
+                pose_deg=r.nums(modes, "pose_deg", "modes."),
                 base_modes=tuple(
                     BaseMode(
                         r.num(r.obj(b, f"modes.base_modes[{i}]"), "freq_hz", f"modes.base_modes[{i}]."), r.num(b, "zeta", f"modes.base_modes[{i}].")
                     )
                     for i, b in enumerate(base_modes)
                 ),
-                servo_pair_1_s=None if pair is None else (float(pair[0]), float(pair[1])),
+                servo_pair_1_s=r.nums(modes, "servo_pair_1_s", "modes.", length=2, optional=True),
             ),
             measurement=MeasurementSummary(
                 excitation=r.text(meas, "excitation", "measurement."),

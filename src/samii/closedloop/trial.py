@@ -40,7 +40,6 @@ class TrialRequest:
     delay_samples: float = 0.0  #: the controller's computation delay
     noise: bool = False  #: seeded sensor noise and ADC quantisation on the controller's measurements
     seed: int | None = None  #: of that noise (None: 0)
-    label: str | None = None  #: the controller's name in the run's files and figures (None: ``controller`` as given)
 
 
 @dataclass
@@ -49,7 +48,6 @@ class Trial:
 
     result: object
     written: list[str] = field(default_factory=list)
-    notes: list[str] = field(default_factory=list)  #: what was asked and not done, in words
 
 
 def resolve_controller(spec: str, factory=None, *, say: Callable[[str], None] | None = None):
@@ -172,7 +170,7 @@ def run_trial(
     """Run ``request`` on ``model`` (an MJCF or parameter file; None: the embedded one) with ``overrides``; given
     ``out``, write it into that folder (all or nothing, checked before any work), with its figures unless ``plots``
     is false; given ``rerun``, a recording there. ``say`` hears the stages of a "damping" controller's design, ``note``
-    what was asked and will not be done (as it is found; also in ``Trial.notes``);
+    what was asked and will not be done (as it is found);
     ``relative_to`` names the written files relative to that folder (the main job's) instead of as given."""
     from samii.closedloop.plots import FIGURES
     from samii.closedloop.scenario import NoiseSpec, default_spec_factory, run_closed_loop, scenario
@@ -206,16 +204,16 @@ def run_trial(
         from samii.viz.recording import frame_steps_for
 
         frame_steps = frame_steps_for(model_at_rest(factory), rerun_fps)
-    result = run_closed_loop(saved, sc, label=request.label or request.controller, spec_factory=factory, delay_samples=request.delay_samples, noise=noise,
+    # the controller's name in the run's files and figures: a built-in's, or the file as the run names it
+    label = request.controller if request.controller in BUILTIN_CONTROLLERS else shown_path(request.controller, relative_to)
+    result = run_closed_loop(saved, sc, label=label, spec_factory=factory, delay_samples=request.delay_samples, noise=noise,
                              qpos_every=frame_steps)  # fmt: skip
 
     written: list[str] = []
-    notes: list[str] = []
     recorded = result.signals.t.size >= 2  # a run that diverged in its first step has nothing to record or draw
     if not recorded and rerun_path is not None:
-        notes.append(f"--rerun {rerun_path}: not written, the run diverged in its first step")
         if note is not None:
-            note(notes[-1])
+            note(f"--rerun {rerun_path}: not written, the run diverged in its first step")
         rerun_path = None
     with written_beside(rerun_path) as rrd_tmp:
         if folder is not None:
@@ -248,4 +246,4 @@ def run_trial(
             write_rerun(result, rrd_tmp, rerun_path, factory)
     if rerun_path is not None:
         written.append(shown_path(rerun_path, relative_to))
-    return Trial(result=result, written=written, notes=notes)
+    return Trial(result=result, written=written)

@@ -229,7 +229,7 @@ def _fmt_complex(z: complex, width: int = 10, digits: int = 4) -> str:
 def _progress(total: int | None, what: str, disabled: bool):
     from samii.cli_progress import Bar
 
-    return Bar(f"samii design {what}", unit="step", total=total, enabled=not disabled, terminal_only=False)
+    return Bar(f"samii design {what}", unit="step", total=total, disable=disabled)
 
 
 def _out_folder(args, names: list[str]):

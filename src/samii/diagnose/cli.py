@@ -87,7 +87,9 @@ def run(args: argparse.Namespace) -> int:
         mat_freq_name=args.mat_freq_name,
         mat_freq_unit=args.mat_freq_unit,
     )
-    bar = Bar("samii diagnose", unit="fit", enabled=not args.no_progress, delay=1.0, leave=False, bar_format="{desc}: {n} fits {elapsed}{postfix}")
+    bar = Bar(
+        "samii diagnose", unit="fit", disable=args.no_progress or None, delay=1.0, leave=False, bar_format="{desc}: {n} fits {elapsed}{postfix}"
+    )
     with bar:
         done = diagnose_files(args.data, request, out=args.out, rerun=args.rerun, rerun_fps=args.rerun_fps, overwrite=args.overwrite, progress=bar)
     if args.json:

@@ -45,7 +45,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from samii.diagnose.effects import library
-from samii.diagnose.evidence import REFUSALS, Joined, Rival, evidence_text, joined_text, values_text
+from samii.diagnose.evidence import Joined, Refusal, Rival, evidence_text, joined_text, values_text
 from samii.diagnose.measured import Measured, check_actuator_sign
 from samii.diagnose.model import MAX_VAR, Baseline, Dataset, Fit
 from samii.diagnose.nonlinear import MAX_DF_CHI2, distortion_var, find_nonlinear, harmonic_errors, linearised
@@ -61,7 +61,7 @@ from samii.diagnose.residuals import (
 from samii.diagnose.sampling import feedthrough_note, feedthrough_of, hold_note, with_hold_found, with_sampling
 from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select, sample_s, within_sampling
 from samii.frequency_response import CHANNEL_NAMES
-from samii.progress import Progress
+from samii.progress import SILENT, Progress
 
 __all__ = ["ChannelError", "FoundEffect", "Band", "Diagnosis", "diagnose", "RULE"]
 
@@ -140,9 +140,8 @@ class Diagnosis:
                 "effect": t["effect"],
                 "params": dict(t["params"]),
                 "reason": t["refused"],
-                "class": REFUSALS[t["refusal"]["code"]][0],
-                "code": t["refusal"]["code"],
-                "values": dict(t["refusal"]["values"]),
+                "class": Refusal(**t["refusal"]).cls,
+                **Refusal(**t["refusal"]).to_dict(),
                 "log10_p": t["log10_p_test"],
             }
             for t in self.tried
@@ -415,7 +414,7 @@ def _effects(
         if j is not None:
             used.add(j)
             s = added[j]
-            joined = Joined("f_test", s.chi2_before, s.chi2_after, tuple(s.dof), s.f_stat, s.log10_p, s.places)
+            joined = Joined.of_step("f_test", s)
         else:
             swap = next((t for t in reversed(swaps) if t.get("swapped") and t["effect"] == k.label), None)  # the latest
             if swap is None:
@@ -529,9 +528,11 @@ def _kinds(datasets: Sequence[Dataset], *, fixed_baseline: bool, simulator: bool
     return [_within_band(k, datasets) for k in library(fixed_baseline=fixed_baseline, channels=channels, pure_integrator=not simulator)]
 
 
-def _stage(progress: Progress | None, text: str) -> None:
-    if progress is not None:
-        progress.stage(text)
+def _beside_nonlinearity(effects: Sequence[FoundEffect], where: str) -> list[FoundEffect]:
+    """``effects`` found beside a nonlinearity, each but the expected marked so and its evidence saying it may be that
+    nonlinearity's image (``where``: in what)."""
+    said = f"; found beside a nonlinearity: it may be that nonlinearity's image{where}"
+    return [e if e.expected else replace(e, evidence=e.evidence + said, beside_nonlinearity=True) for e in effects]
 
 
 def _select_against(cal, files, keep, *, alpha, progress, baseline=None):
@@ -601,6 +602,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
     at the end; the rest is listed as refused (round "attribution") and not carried.
 
     Returns (effects, (files, datasets, final fit), SimulatorReport, later steps, later candidates)."""
+    progress = progress or SILENT
     from samii.calibrate.simulator import parameter_value
     from samii.diagnose.attribution import unattributed as unattributed_why
     from samii.diagnose.simulator import (
@@ -646,7 +648,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
         uncarried_law = any(f"nonlinear/{f.kind}" not in report.carried for f in nonlinear)
         # with every law in the simulator, its correction holds their describing functions: the data as measured
         files = measured if uncarried_law else raw
-        _stage(progress, "selecting again against the simulator with the effects")
+        progress.stage("selecting again against the simulator with the effects")
         # nothing carried: against the simulator of the first selection, with the correction its knobs were calibrated
         # with. Recomputed at those knobs, on data the simulator cannot represent (the second rig's eq 9.4 plants, knobs
         # bent far), the correction no longer matched them and the second selection ended 6x above the error before
@@ -678,7 +680,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
         if not body_carried:
             body_not_carried = list(body_not)  # (why: its residue's sign, or the simulator with it diverges)
             break  # (a residue no body on the tip makes): reported as found, not carried
-        _stage(progress, "selecting again against the simulator with the extra mode")
+        progress.stage("selecting again against the simulator with the extra mode")
         ds_b, after_b, steps_b, tried_b = _select_against(with_body, measured, lambda label: label in CARRY, alpha=alpha, progress=progress)
         more_steps += steps_b
         steps_by_label.update({s.label: s for s in steps_b})
@@ -696,9 +698,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
         judged_by.append(dict(e.params))  # (each effect carried is appended to ``out`` once, below)
         r = report.after.result
         step = steps_by_label.get(label)
-        joined = (
-            None if step is None else Joined("simulator", step.chi2_before, step.chi2_after, tuple(step.dof), step.f_stat, step.log10_p, step.places)
-        )
+        joined = None if step is None else Joined.of_step("simulator", step)
         why = f"{joined_text(joined)}; " if joined else ""
         if label in BODY:
             values, se = body_effect_values(report.after.params, r.stderr)
@@ -754,12 +754,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
             )
         )
     if nonlinear:
-        second = [
-            e
-            if e.expected
-            else replace(e, evidence=e.evidence + "; found beside a nonlinearity: it may be that nonlinearity's image", beside_nonlinearity=True)
-            for e in second
-        ]
+        second = _beside_nonlinearity(second, "")
     judged_by += [dict(e.params) for e in second]
     out += second
     # where the simulator with everything found still cannot represent the data, what was found there must explain
@@ -776,7 +771,7 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
             "effect": label,
             "params": dict(e.params),
             "refused": why.text,
-            "refusal": {"code": why.code, "values": dict(why.values)},
+            "refusal": why.to_dict(),
             "log10_p_test": None if step is None else step.log10_p,
         }
 
@@ -826,6 +821,7 @@ def diagnose(
     """
     from samii.diagnose.baseline import SavedFit, notebook_baseline, read_fit_json, saved_fit_baseline
 
+    progress = progress or SILENT
     sim = baseline == "sim"
     saved = None if baseline in ("notebook", "sim") else baseline if isinstance(baseline, SavedFit) else read_fit_json(baseline)
     given = tuple(measured)
@@ -843,7 +839,7 @@ def diagnose(
         from samii.diagnose.simulator import measured_like
         from samii.sim.model import default_params
 
-        _stage(progress, "measuring the systematic floor and the simulator's own harmonics")
+        progress.stage("measuring the systematic floor and the simulator's own harmonics")
         own = default_params() if simulator_params is None else simulator_params
         # (only where the harmonic test can run: records found, theta/v measured; the floor changes none of these)
         jobs += [
@@ -851,7 +847,7 @@ def diagnose(
             for m in measured
         ]
     else:
-        _stage(progress, "measuring the systematic floor")
+        progress.stage("measuring the systematic floor")
     done = fork_calls(jobs)  # each file's floor (and the simulator like it) at once
     measured, references = tuple(done[: len(measured)]), (done[len(measured) :] if sim else None)
     from samii.diagnose.stationarity import record_changes
@@ -884,7 +880,7 @@ def diagnose(
         from samii.diagnose.simulator import CARRY, calibrate_simulator, correction, simulator_baseline
         from samii.sim.model import default_params
 
-        _stage(progress, "calibrating the simulator")
+        progress.stage("calibrating the simulator")
 
         start = default_params() if simulator_params is None else simulator_params
         corrections = [correction(start, m) for m in measured]
@@ -966,16 +962,7 @@ def diagnose(
             )
     effects = _effects(after, steps, tried, measured, pre)
     if nonlinear:
-        effects = [
-            e
-            if e.expected
-            else replace(
-                e,
-                evidence=e.evidence + "; found beside a nonlinearity: it may be that nonlinearity's image in the best linear approximation",
-                beside_nonlinearity=True,
-            )
-            for e in effects
-        ]
+        effects = _beside_nonlinearity(effects, " in the best linear approximation")
         notes.append(
             "the data are nonlinear: the linear model is fitted to their best linear approximation at the amplitude "
             "measured, and linear effects found with it may be the nonlinearity's image (compare a file at another amplitude)"

@@ -57,6 +57,11 @@ class Joined:
         if self.how not in JOINED_HOW:
             raise ValueError(f"Joined.how must be one of {', '.join(JOINED_HOW)}, got {self.how!r}")
 
+    @classmethod
+    def of_step(cls, how: str, step) -> Joined:
+        """The F-test of a selection's step (samii.diagnose.select.Step) as ``how`` it joined."""
+        return cls(how, step.chi2_before, step.chi2_after, tuple(step.dof), step.f_stat, step.log10_p, step.places)
+
 
 @dataclass(frozen=True)
 class Rival:
@@ -292,3 +297,7 @@ class Refusal:
 
     def __str__(self) -> str:
         return self.text
+
+    def to_dict(self) -> dict:
+        """``{"code", "values"}``: what a tried record keeps (``Refusal(**d)`` reads it back)."""
+        return {"code": self.code, "values": dict(self.values)}

@@ -53,7 +53,7 @@ from samii.diagnose.evidence import REFUSALS, Refusal
 from samii.diagnose.model import Baseline, Dataset, Fit, fit_model, noise_level, relabel_modes, scaled_reference, start_vectors
 from samii.forkmap import fork_map, sharing
 from samii.measure.frf_variance import moving_sum
-from samii.progress import Progress
+from samii.progress import SILENT, Progress
 
 __all__ = ["ALPHA", "Step", "forward_select", "starts_for", "sample_s", "within_sampling"]
 
@@ -741,7 +741,7 @@ def forward_select(
     candidate's baseline that went further (a mode parked on another is a local minimum).
     """
     with sharing(baseline, *kinds, *ds_list):  # fits computed in workers come back holding these very objects
-        return _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress)
+        return _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress or SILENT)
 
 
 def _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress):
@@ -801,12 +801,11 @@ def _forward_select(ds_list, baseline, kinds, alpha, max_effects, progress):
                 **({"places": places} if places > 1.0 else {}),
             }
             if why is not None:  # it passed the F-test, but the data do not show it (its reason is reported)
-                record.update(refused=why.text, refusal={"code": why.code, "values": dict(why.values)}, log10_p=0.0, log10_p_test=logp)
+                record.update(refused=why.text, refusal=why.to_dict(), log10_p=0.0, log10_p_test=logp)
                 logp = 0.0
             tried.append(record)
-            if progress is not None:  # (a candidate fitted: one unit; how many a selection tries is not known ahead)
-                progress.stage(f"tried {kind.label}")
-                progress.advance()
+            progress.stage(f"tried {kind.label}")  # (a candidate fitted: one unit; how many are tried is not known ahead)
+            progress.advance()
             if logp < level:
                 candidates.append((logp, fstat, dof, cand, kind, places))
         if not candidates:
@@ -885,7 +884,7 @@ def _drop_unidentified(ds_list, baseline, fit: Fit, steps: list, tried: list) ->
                 "log10_p": 0.0,
                 "log10_p_test": None,
                 "refused": why.text,
-                "refusal": {"code": why.code, "values": dict(why.values)},
+                "refusal": why.to_dict(),
             }
         )
         fit = less

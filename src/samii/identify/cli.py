@@ -152,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
         f"samii fit {args.frf}",
         unit="fit",
         total=len(weights),
-        enabled=not args.no_progress,
+        disable=args.no_progress or None,
         delay=PROGRESS_DELAY_S,
         leave=False,
         bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}{postfix}",

@@ -17,6 +17,8 @@ from types import MappingProxyType
 
 import numpy as np
 
+from samii.json_output import finite_or_none
+
 __all__ = ["CODES", "COMMAND_LINE", "KINDS", "PYTHON", "REMEDIES", "Finding"]
 
 #: What each code finds. ``kind`` (below) sorts them further: a "misplaced" parameter makes a concern, an
@@ -102,25 +104,15 @@ class Finding:
         return self.words()
 
     def to_dict(self) -> dict:
-        """JSON-ready: the code, kind, values (tuples as lists), names, remedies and the text."""
+        """JSON-ready: the code, kind, values (tuples as lists, numpy numbers as Python's), names, remedies and the text."""
         return {
             "code": self.code,
             "kind": self.kind,
-            "values": {k: _plain(v) for k, v in self.values.items()},
+            "values": finite_or_none(dict(self.values)),
             "names": list(self.names),
             "remedies": list(self.remedies),
             "text": self.text,
         }
-
-
-def _plain(v):
-    if isinstance(v, Mapping):
-        return {k: _plain(x) for k, x in v.items()}
-    if isinstance(v, (tuple, list)):
-        return [_plain(x) for x in v]
-    if isinstance(v, (np.floating, np.integer)):
-        return v.item()
-    return v
 
 
 def _noise_how(v: Mapping) -> str:

@@ -1048,8 +1048,7 @@ def fit_problem(
     agree = sum(1 for r in runs if r[2] <= cost * (1 + 1e-6) + 1e-12)
     if thinned:
         refining = f"refining on all {problem.n_points} points"
-        tick = None if progress is SILENT else (lambda k: progress.stage(f"{refining}, evaluation {k}"))
-        x, sol, (x_prev, cost_prev), rj = _solve(problem, x, max_nfev=max_nfev, on_evaluation=tick)
+        x, sol, (x_prev, cost_prev), rj = _solve(problem, x, max_nfev=max_nfev, on_evaluation=lambda k: progress.stage(f"{refining}, evaluation {k}"))
         cost = float(rj[0] @ rj[0])
         nfev += int(sol.nfev)
         done(f"refined on all {problem.n_points} points")

@@ -90,7 +90,7 @@ class BodeTest:
     peaks: dict  #: kind -> peak load pressure [Pa], valve command [V], joint angle [rad]
     coherence_ok: bool  #: whether the main record has coherence (false for one swept-sine record)
     supply_pressure_pa: float
-    summary: dict  #: run.json's content
+    summary: dict  #: run.json's content, but timing.total_wall_s: measured once the recording is written too
     warnings: list[MeasureWarning] = field(default_factory=list)  #: what the command prints after "warning:"
 
     @property
@@ -219,7 +219,7 @@ class MeasureWarning:
         raise ValueError(f"unknown measurement warning {self.code!r}")
 
 
-def _warnings(results, checks, peaks, coh_ok: bool, supply_pa: float, amp: float) -> list[MeasureWarning]:
+def _warnings(checks, peaks, coh_ok: bool, supply_pa: float, amp: float) -> list[MeasureWarning]:
     out = []
     for kind, pk in peaks.items():
         p_peak = pk["load_pressure_pa"]
@@ -239,7 +239,7 @@ def _warnings(results, checks, peaks, coh_ok: bool, supply_pa: float, amp: float
                 "limit_db": LINEARITY_WARN_DB,
             }
             out.append(MeasureWarning("not_small_signal", kind, values))
-    if "swept" in results and not coh_ok:
+    if "swept" in checks and not coh_ok:
         out.append(MeasureWarning("no_coherence", "swept"))
     return out
 
@@ -422,7 +422,7 @@ def run_bode_test(
         if request.method == "both":
             summary["vs_linearised_simulator_0.5_35_hz_by_method"] = checks
             summary["peaks_by_method"] = peaks
-        said = _warnings(results, checks, peaks, coh_ok, hp.supply_pressure, amp)
+        said = _warnings(checks, peaks, coh_ok, hp.supply_pressure, amp)
         if said:
             summary["warnings"] = [w.text for w in said]
         write_text(folder.path("run.json"), dumps(summary, indent=2) + "\n")

@@ -103,8 +103,7 @@ def run(args: argparse.Namespace) -> int:
         noise=args.noise,
         seed=args.seed,
     )
-    progress = Bar("samii measure", unit="step", unit_scale=True, enabled=not args.no_progress, terminal_only=False)
-    try:
+    with Bar("samii measure", unit="step", unit_scale=True, disable=args.no_progress) as bar:
         test = run_bode_test(
             args.out,
             request,
@@ -113,11 +112,9 @@ def run(args: argparse.Namespace) -> int:
             rerun=args.rerun,
             rerun_fps=args.rerun_fps,
             overwrite=args.overwrite,
-            progress=progress,
+            progress=bar,
             argv=sys.argv[1:],
         )
-    finally:
-        progress.close()
     summary = test.summary
     if args.json:
         print(dumps(summary, indent=2))

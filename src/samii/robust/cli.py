@@ -241,7 +241,7 @@ def run(args: argparse.Namespace) -> int:
                 f"samii robust: {args.controller}, {args.scenario} test, {args.samples} plants (seed {args.seed}) {engine.describe()}",
                 file=sys.stderr,
             )
-        with Bar("samii robust", unit="run", enabled=not args.no_progress, leave=False) as bar:
+        with Bar("samii robust", unit="run", disable=args.no_progress or None, leave=False) as bar:
             results = engine.map(tasks, progress=bar)
     wall = time.perf_counter() - t0
     nominal, samples = results[0], results[1:]
