@@ -61,8 +61,8 @@ def write_case(folder: Path, overrides: dict, seed: int) -> Path:
 
 def one_measurement_s(path: Path) -> tuple[float, float]:
     """(file length [s], wall time [s] of one simulated measurement like it, the embedded model)."""
-    from samii.diagnose.measured import load
     from samii.diagnose.simulator import measurement_like
+    from samii.measure.measured import load
     from samii.sim.model import default_params
 
     m = load(path)

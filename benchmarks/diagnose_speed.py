@@ -3,7 +3,7 @@
 Goal (issue 31, item 5): every diagnosis of a 6-minute 1 kHz time series of three
 sweeps at most 30 s on 2 cores, the median at most 10 s over both rigs' cases (issue
 11's was 20 s a file, most of it reading the file). The baseline measured in the
-same run is reading the file alone (``samii.diagnose.measured.load``: parse the CSV,
+same run is reading the file alone (``samii.measure.measured.load``: parse the CSV,
 find the records from r, estimate the FRFs and their noise).
 
 The same six cases on each rig: clean data, one effect in each category that costs
@@ -37,10 +37,10 @@ from pathlib import Path
 
 import numpy as np
 
-from samii.diagnose.measured import load
 from samii.diagnose.rig import EffectRig
 from samii.formats import write_timeseries_csv
 from samii.measure.excitation import SweptSine
+from samii.measure.measured import load
 
 FS = 1000.0
 GOAL_MAX_S = 30.0

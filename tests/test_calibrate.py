@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from samii.calibrate import MODE_KNOBS, calibrate
-from samii.calibrate.cli import load_target
+from samii.calibrate.calibrate_file import load_target
 from samii.calibrate.simulator import SimulatorFRF, parameter_value
 from samii.cli import main
 from samii.formats import write_frf_csv

@@ -413,7 +413,7 @@ CALIBRATE = [
 
 @pytest.fixture(scope="module")
 def frf_csv(tmp_path_factory):
-    from samii.calibrate.cli import load_target
+    from samii.calibrate.calibrate_file import load_target
     from samii.formats import write_frf_csv
 
     return str(write_frf_csv(load_target("eq9.4"), tmp_path_factory.mktemp("frf") / "frf.csv"))

@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 
 from samii.diagnose.effects import library
-from samii.diagnose.measured import from_timeseries
 from samii.diagnose.model import Baseline, Dataset, notebook_reference, start_params
 from samii.diagnose.rig import EffectRig
 from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, forward_select
 from samii.identify.structures import ModelStructure
 from samii.measure.excitation import SweptSine
+from samii.measure.measured import from_timeseries
 from samii.measure.records import find_records
 
 FS = 1000.0
@@ -123,8 +123,8 @@ def test_record_spread_predicts_the_error(sweep):
     """The variance stated for every point is the error's (Monte Carlo: 30 noise draws of one rig against its exact
     response). The sign-alternating sweep weighs its records 1/4, 1/2, 1/4: the earlier estimate,
     sum |c_k|^2 |d_k|^2 n/(n-1), came out 19 % short of the error (13/64 x 3/2 of s^2 against 3/8: the error 23 % above it), ratios 1.15-1.25."""
-    from samii.diagnose.measured import from_frf
     from samii.measure.frf_variance import timeseries_frf
+    from samii.measure.measured import from_frf
 
     rig = EffectRig()
     layout = from_timeseries(rig.simulate(sweep, sample_rate_hz=FS), source="rig.csv").layout
@@ -271,7 +271,7 @@ def test_extra_base_mode_named_as_the_rig_has_it(sweep, seed, mode):
 def test_frf_file_with_coherence_clean_and_delayed(sweep, tmp_path):
     """Through an FRF file (noise from 3-average coherence, pooled): no false alarm, the delay found."""
     from samii.diagnose.diagnosis import diagnose
-    from samii.diagnose.measured import from_frf
+    from samii.measure.measured import from_frf
 
     for kw, expect in (({}, []), ({"command_delay_s": 0.004}, ["delay/command"])):
         ts = EffectRig(**kw).simulate(sweep, sample_rate_hz=FS, rng=np.random.default_rng(4))
@@ -290,7 +290,7 @@ def test_one_sample_delay_is_expected_from_the_series_and_its_frf(sweep):
     and a delay of 0.6 ms is as long as a held command's 0.5 ms) -- also from the FRF alone, which carries the sample
     rate in its metadata."""
     from samii.diagnose.diagnosis import diagnose
-    from samii.diagnose.measured import from_frf
+    from samii.measure.measured import from_frf
 
     ts = EffectRig(command_delay_s=0.0006).simulate(sweep, sample_rate_hz=FS, rng=np.random.default_rng(4))
     m = from_timeseries(ts, source="rig.csv")
@@ -322,8 +322,8 @@ def test_files_without_coherence(sweep):
     Clean data: no false alarm (uniform weights gave 4 "modes" in theta/v's noise above 9 Hz). theta/v alone:
     the base's parameters are undetermined (infinite standard error, not 0). theta/v + xdd/v: the delay found."""
     from samii.diagnose.diagnosis import diagnose
-    from samii.diagnose.measured import from_frf
     from samii.frequency_response import FrequencyResponse
+    from samii.measure.measured import from_frf
 
     for kw in ({}, {"command_delay_s": 0.004}):
         ts = EffectRig(**kw).simulate(sweep, sample_rate_hz=FS, rng=np.random.default_rng(5))

@@ -1,4 +1,4 @@
-"""The systematic floor (samii.diagnose.floor) and the identifiability and practical-significance refusals
+"""The systematic floor (samii.measure.floor) and the identifiability and practical-significance refusals
 (samii.diagnose.select): what repeats in every record is measured, and a candidate the data cannot identify
 or that the floor could produce is refused with its reason."""
 
@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from samii.diagnose.effects import LIBRARY, Effect
-from samii.diagnose.floor import PRACTICAL_FACTOR, REL_FLOOR, controller_fir, estimator_bias, quantisation_step, with_floor
-from samii.diagnose.measured import from_timeseries
 from samii.diagnose.rig import EffectRig
 from samii.diagnose.select import _below_floor, _f_limit, _f_test, _refused, _unidentifiable, search_places, within_sampling
 from samii.measure.excitation import SweptSine
+from samii.measure.floor import PRACTICAL_FACTOR, REL_FLOOR, controller_fir, estimator_bias, quantisation_step, with_floor
+from samii.measure.measured import from_timeseries
 
 FS = 1000.0
 KIND = {k.kind: k for k in LIBRARY}

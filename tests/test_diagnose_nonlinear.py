@@ -14,10 +14,10 @@ import json
 import numpy as np
 import pytest
 
-from samii.diagnose.measured import from_frf, from_timeseries
 from samii.diagnose.nonlinear import MATERIAL, amplitude_test, describing_ratio, find_nonlinear, harmonic_analysis
 from samii.diagnose.rig import EffectRig, valve_law
 from samii.measure.excitation import SweptSine
+from samii.measure.measured import from_frf, from_timeseries
 
 FS = 1000.0
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from samii.diagnose.diagnosis import diagnose
-from samii.diagnose.measured import from_timeseries
+from samii.measure.measured import from_timeseries
 from samii.timeseries import TimeSeries
 
 RIG = Path(__file__).resolve().parents[1] / "experiments" / "diagnose_battery" / "second_rig.py"
@@ -183,8 +183,8 @@ def test_a_saturation_is_found_from_the_route_that_sees_its_harmonic():
     deviations there (4.5 in the combination before); theta/v at 3 f (22-24 Hz, beyond its notch) is noise (relative sd ~1), and weighted by the records' spread
     alone that route took half the weight and its FRF's error, referred, held the combination to 1 significant segment:
     the saturation was missed. Each route weighted by its whole variance: found, with its level."""
-    from samii.diagnose.floor import with_floor
     from samii.diagnose.nonlinear import find_nonlinear, harmonic_analysis
+    from samii.measure.floor import with_floor
 
     level = 0.15
     m = with_floor(_saturated(1501, level, source="second rig, held-out saturation"))
@@ -204,8 +204,8 @@ def test_a_saturation_named_by_where_its_harmonic_is_absent_too_is_divided_out()
     segment the saturation alone predicts the harmonic's absence below its level (chi2 5.7 against 61 for the play and
     the dead band): the data name it, and its law is divided out. Before, it was "indicative only", nothing was
     divided, and the error after was the error before."""
-    from samii.diagnose.floor import with_floor
     from samii.diagnose.nonlinear import find_nonlinear
+    from samii.measure.floor import with_floor
 
     level = 0.15
     m = _saturated(1201, level, source="second rig, saturation seen near the hydraulic resonance")
@@ -225,8 +225,8 @@ def test_the_simulator_calibrated_to_a_rig_it_cannot_represent_stays_stable():
     the simulator's valve and orifice, and calibrated to it the simulator's knobs went where its position loop grows
     (a pole at +3.0 1/s, 8.0 Hz: its re-measurement a limit cycle, 10 dB jagged). The calibration is held where the
     loop stays stable, and says so."""
-    from samii.diagnose.floor import with_floor
     from samii.diagnose.simulator import calibrate_simulator, closed_loop_growth, correction
+    from samii.measure.floor import with_floor
     from samii.sim.linearize import UNSTABLE_RATE_1_S
     from samii.sim.model import default_params, load_model
 
@@ -244,9 +244,9 @@ def test_calibrating_the_simulator_to_a_file_without_a_usable_theta_warns_nothin
     terminal (issue 31 item 4: none may)."""
     import warnings
 
-    from samii.diagnose.floor import with_floor
     from samii.diagnose.model import Dataset
     from samii.diagnose.simulator import calibrate_simulator
+    from samii.measure.floor import with_floor
 
     m = with_floor(_measure(1001, 1000.0, dict(direction="up", n_records=3, sweep_s=120.0, rest_s=20.0, amplitude_v=0.1), daq=dict(encoder_bits=12)))
     assert not Dataset.from_measured(m).keep["act"].any()

@@ -28,9 +28,9 @@ import pytest
 
 from samii.cli import main
 from samii.diagnose.diagnosis import diagnose
-from samii.diagnose.measured import load
 from samii.measure.campaign import measure_swept
 from samii.measure.daq import SensorNoise
+from samii.measure.measured import load
 from samii.sim.model import load_model
 
 
@@ -384,11 +384,11 @@ def test_misfits_say_where_and_by_how_much_the_simulator_misses():
     floor, band by band, with its size. Residuals drawn at each point's stated error find no band; 2 dB and 10 deg
     added to theta/v (and so xdd/v) over 2-5 Hz come back as that band, that size (above ~9 Hz theta is noisy at
     0.1 V: there 2 dB on theta/v is within its noise, and only xdd/v shows it)."""
-    from samii.diagnose.measured import from_timeseries
     from samii.diagnose.model import Dataset
     from samii.diagnose.rig import EffectRig
     from samii.diagnose.simulator import misfits
     from samii.measure.excitation import SweptSine
+    from samii.measure.measured import from_timeseries
 
     fs = 1000.0
     sw = SweptSine(start_hz=1.0, stop_hz=40.0, seconds_per_octave=2.0, repetitions=3)
@@ -463,7 +463,7 @@ def test_with_nothing_carried_the_second_selection_is_against_the_first_selectio
     from test_diagnose_second_rig import _second_rig
 
     from samii.diagnose import diagnosis
-    from samii.diagnose.measured import from_timeseries
+    from samii.measure.measured import from_timeseries
     from samii.timeseries import TimeSeries
 
     sr = _second_rig()

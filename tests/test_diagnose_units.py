@@ -19,10 +19,10 @@ import numpy as np
 import pytest
 from test_diagnose_cli import run_cli
 
-from samii.diagnose.measured import from_frf
 from samii.diagnose.model import Dataset, notebook_reference, scaled_reference
 from samii.formats import read_frf_csv
 from samii.identify.structures import ModelStructure
+from samii.measure.measured import from_frf
 
 #: The simulator's leak at its nominal pose [1/s] (samii.diagnose.effects, kind ``leak``).
 SIM_LEAK_PER_S = 0.199

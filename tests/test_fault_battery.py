@@ -312,7 +312,7 @@ def test_frf_warns_of_a_sweep_beyond_the_nyquist_frequency(measured, tmp_path, c
     assert measured["ts10"] in line and "Nyquist" in line
     # the FRF file frf wrote keeps the header that says so: read again (diagnose, a later session), it still warns,
     # and a refusal of it names the aliasing beside its own cause
-    from samii.diagnose.measured import load
+    from samii.measure.measured import load
 
     again = load(out / "frf.csv")
     assert len(again.warnings) == 2 and "sweep reached 40 Hz" in again.warnings[0] and str(out / "frf.csv") in again.warnings[0]
@@ -402,8 +402,8 @@ def test_names_on_the_command_line_are_refused_as_the_command_lines(measured, tm
 def test_a_text_file_named_mat_is_read_as_the_csv_it_is(measured, tmp_path, capsys):
     """The content decides, not the name: an FRF CSV saved as .mat is read as the CSV; a binary file that is no MAT-file
     is refused with scipy's reason whole (it was cut to 40 characters before)."""
-    from samii.diagnose.measured import load
     from samii.formats import DataFormatError, read_frf_csv
+    from samii.measure.measured import load
 
     named = tmp_path / "frf.mat"
     named.write_bytes(Path(measured["frf"]).read_bytes())
@@ -587,16 +587,19 @@ def test_report_refuses_a_damaged_number_and_names_its_field(report_folder, caps
 
 @pytest.mark.slow
 @pytest.mark.parametrize("file, path, value, shown", [
-    ("summary.json", ("modes", "base_modes", 0, "freq_hz"), "x", "summary.json: modes.base_modes[0].freq_hz (holds 'x')"),
-    ("summary.json", ("fit", "params", "wp"), None, "summary.json: fit.params.wp (holds None)"),
+    # summary.json is typed: a field of the wrong kind is refused where it is read, by its name and the kind expected
+    ("summary.json", ("modes", "base_modes", 0, "freq_hz"), "x", "summary.json: field 'modes.base_modes[0].freq_hz' holds 'x'; expected a number"),
+    ("summary.json", ("fit", "params", "wp"), None, "summary.json: field 'fit.params.wp' holds None; expected a number"),
+    ("summary.json", ("damping_design", "gain_margin_db"), [6.0], "summary.json: field 'damping_design.gain_margin_db' holds [6.0]; expected a number or null"),
+    ("summary.json", ("modes",), None, "summary.json: field 'modes' holds None; expected an object"),
+    ("summary.json", ("closed_loop", "damping_step", "theta", "settle_s"), "1.4", "summary.json: field 'closed_loop.damping_step.theta.settle_s' holds '1.4'; expected a number or null"),
+    # a stage's own document is read as it was written: the field is named where the page uses it
     ("fit/fit.json", ("stderr", "K1"), "1.5", "fit/fit.json: stderr.K1 (holds '1.5')"),
-    ("summary.json", ("damping_design", "gain_margin_db"), [6.0], "summary.json: damping_design.gain_margin_db (holds a list)"),
-    ("summary.json", ("modes",), None, "summary.json: modes (holds None)"),  # (a string read after it was named before)
 ])  # fmt: skip
 def test_report_names_a_field_of_the_wrong_kind(report_folder, file, path, value, shown, capsys):
     """A string or null where samii writes a number failed where it was used, with Python's words ("Unknown format code
-    'f' for object of type 'str'") and the folder only: the field is named (the last read that holds no number; every
-    one of the 273 numbers of a main job's files whose damage stops the page was named so, by a sweep)."""
+    'f' for object of type 'str'") and the folder only: the field is named (summary.json's when it is read, the typed
+    summary's reader; a stage's document's where the page uses it, the last read that holds no number)."""
     doc = json.loads((report_folder / file).read_text())
     node = doc
     for key in path[:-1]:
@@ -606,7 +609,8 @@ def test_report_names_a_field_of_the_wrong_kind(report_folder, file, path, value
     out = report_folder / "r.html"
     assert main(["report", str(report_folder), "--out", str(out)]) == 2
     line = _one_line(capsys)
-    assert str(report_folder) in line and shown in line and "run samii run again" in line, line
+    assert str(report_folder) in line and shown in line, line
+    assert file == "summary.json" or "run samii run again" in line, line  # (a typed field says what it expected instead)
     assert not out.exists()
 
 
@@ -614,7 +618,7 @@ def test_report_names_a_field_of_the_wrong_kind(report_folder, file, path, value
 @pytest.mark.parametrize(
     "value, needle",
     [
-        (None, "field 'closed_loop' must map each run's name to an object, got null"),
+        (None, "field 'closed_loop' holds None; expected an object"),
         ("false", "field 'closed_loop.notebook_place_step.stable' holds 'false'; expected true or false"),
     ],
 )
@@ -900,7 +904,7 @@ def test_a_signal_while_the_main_job_replaces_its_folder_waits_for_the_swap(tmp_
     (out / "summary.json").write_text(json.dumps({"written_by": "samii run"}))
     (out / "OLD").write_text("the previous run's")
 
-    def stages(d, model, overrides, seed, progress, argv):
+    def stages(d, model, overrides, seed, progress, said, argv):
         (d / "NEW").write_text("this run's")
         none = dict.fromkeys
         return RunSummary(seed=seed, model_file="embedded default", overrides=(), modes=ModesSummary((), (), None),
@@ -1262,8 +1266,8 @@ def test_a_theta_rounded_to_a_constant_gives_no_numpy_warning(measured):
     import warnings
     from dataclasses import replace
 
-    from samii.diagnose.measured import from_timeseries
     from samii.formats import read_timeseries_csv
+    from samii.measure.measured import from_timeseries
 
     ts = read_timeseries_csv(measured["ts"])
     step = 1.9 * float(np.max(np.abs(ts.theta)))  # all but the peak samples round to 0
@@ -1398,8 +1402,8 @@ def test_a_flipped_theta_is_refused_when_the_data_begin_at_1_hz(measured, tmp_pa
     flipped, straight = tmp_path / "flipped.csv", tmp_path / "from1hz.csv"
     flipped.write_text("\n".join(head + rows) + "\n")
     straight.write_text("\n".join(head + kept) + "\n")
-    from samii.diagnose.measured import check_actuator_sign, from_frf
     from samii.formats import read_frf_csv
+    from samii.measure.measured import check_actuator_sign, from_frf
 
     with pytest.raises(ValueError, match=r"theta/v.s phase below 2.03 Hz is \+\d+ deg over \d+ points.* opposite sign"):
         check_actuator_sign(from_frf(read_frf_csv(flipped), source=str(flipped)))
@@ -1669,8 +1673,8 @@ def test_messages_that_misled(tmp_path, monkeypatch, capsys):
 
 def test_a_record_cut_short_at_the_files_end_is_said():
     """A file that stopped 5 ms into the last record's 20 s rest lost a third of its data (2 records of 3) without a word."""
-    from samii.diagnose.measured import short_record_warnings
     from samii.measure.excitation import SweptSine
+    from samii.measure.measured import short_record_warnings
     from samii.measure.records import find_records
 
     sw = SweptSine(repetitions=3, amplitude_v=0.1)
@@ -1686,10 +1690,10 @@ def test_a_record_cut_short_at_the_files_end_is_said():
 
 
 def _eq94_dataset():
-    from samii.diagnose.measured import from_frf
     from samii.diagnose.model import Dataset, notebook_reference
     from samii.frequency_response import FrequencyResponse
     from samii.identify.structures import ModelStructure
+    from samii.measure.measured import from_frf
 
     st = ModelStructure.notebook_3mode()
     ref = {k: v for k, v in notebook_reference().items() if k in st.param_names}
@@ -1954,7 +1958,7 @@ def test_a_closed_port_is_refused_at_once_over_every_tcp_scheme(scheme, capsys):
 def test_theta_that_barely_leaves_its_encoders_count_is_said():
     """theta on a 10-bit encoder's lattice (2 pi/1024 rad) moving one count either way: samii frf wrote theta/v 30-45 dB
     low with coherence up to 0.96 and no warning. A 16-bit encoder under the same sweep (42 counts) is not said."""
-    from samii.diagnose.measured import coarse_encoder_warnings
+    from samii.measure.measured import coarse_encoder_warnings
 
     t = np.arange(20000) / 1000.0
     theta = 4e-3 * np.sin(2 * np.pi * 0.5 * t)  # 0.65 of a 10-bit count, 42 of a 16-bit one

@@ -13,13 +13,13 @@ import pytest
 
 from samii import forkmap
 from samii.diagnose.effects import library
-from samii.diagnose.measured import from_timeseries
 from samii.diagnose.model import Baseline, Dataset, notebook_reference, start_params
 from samii.diagnose.rig import EffectRig
 from samii.diagnose.select import forward_select
 from samii.errors import InputError
 from samii.identify.structures import ModelStructure
 from samii.measure.excitation import SweptSine
+from samii.measure.measured import from_timeseries
 
 pytestmark = pytest.mark.skipif("fork" not in __import__("multiprocessing").get_all_start_methods(), reason="no fork here")
 

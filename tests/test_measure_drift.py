@@ -1,4 +1,4 @@
-"""Sensor drift (samii.measure.drift, samii.diagnose.measured._without_drift): a level that changes from record to
+"""Sensor drift (samii.measure.drift, samii.measure.measured._without_drift): a level that changes from record to
 record is subtracted as the line through consecutive records' means and said; a file without one is left exactly as
 recorded. Checked on drawn rigs (eq 9.4's parameters spread 15 %), with sign-alternating records (the drift cancels
 from the estimate and inflates the spread) and with repeats of one sign (it biases the estimate), for a linear drift
@@ -11,10 +11,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from samii.diagnose.measured import from_timeseries
 from samii.diagnose.rig import EffectRig
 from samii.measure.drift import drift_from_rests
 from samii.measure.excitation import SweptSine
+from samii.measure.measured import from_timeseries
 
 FS = 1000.0
 
@@ -76,7 +76,7 @@ def test_a_drift_is_subtracted_and_said_and_a_clean_file_is_left_as_recorded(see
     for ch in ("act", "base", "total"):
         assert 0.5 < before[ch] < 2.0 and 0.5 < after[ch] < 2.0, (ch, before, after)
     # without the subtraction it is not so (the drift moves or spreads the low end of the band far beyond its noise)
-    import samii.diagnose.measured as measured
+    import samii.measure.measured as measured
 
     kept = measured.DRIFT_STANDARD_ERRORS, measured.DRIFT_SPREAD_FACTOR
     try:

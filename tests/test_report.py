@@ -210,5 +210,5 @@ def test_samii_report_names_what_a_damaged_folder_lacks(runs, tmp_path, capsys):
     (d / "report.html").unlink()
     assert main(["report", str(d)]) == 2
     err = capsys.readouterr().err
-    assert "'modes' missing" in err and "internal error" not in err
+    assert "summary.json: field 'modes' is missing" in err and "internal error" not in err
     assert not (d / "report.html").exists()

@@ -295,3 +295,27 @@ def test_robust_on_a_cluster_given_by_its_address(robust_runs, tmp_path):
                      "--spread", "hydraulic.command_delay=0.002", "--no-progress", "--scheduler", cluster.scheduler_address, "--out", str(out)]) == 0  # fmt: skip
     assert _csv(out / "samples.csv") == _csv(robust_runs[0] / "samples.csv")
     assert json.loads((out / "robust.json").read_text())["engine"].startswith("Dask cluster at tcp://")
+
+
+def test_a_study_is_one_library_call_with_the_commands_table(robust_runs, tmp_path):
+    """samii.robust.runner.run_study (issue 33, item 3): the command's study as typed values, its warnings as codes
+    with their figures, and the same table as `samii robust` for the same request."""
+    from samii.robust.runner import FEW_SAMPLES, StudyRequest, StudyWarning, plan_study, run_study
+    from samii.robust.study import StudySummary
+    from samii.robust.task import SampleResult
+
+    request = StudyRequest("notebook-cancel", samples=8, seed=11, spreads=("beam.clamp_stiffness_Nm_rad=20%", "hydraulic.command_delay=0.002"))
+    result = run_study(request, out=tmp_path / "lib")
+    assert isinstance(result.summary, StudySummary) and isinstance(result.nominal, SampleResult) and len(result.samples) == 8
+    command = json.loads((robust_runs[0] / "robust.json").read_text())
+    assert result.document["summary"] == command["summary"] and result.document["samples"] == command["samples"]
+    assert _csv(tmp_path / "lib" / "samples.csv") == _csv(robust_runs[0] / "samples.csv")
+    assert {p.name for p in result.written} == {"robust.json", "samples.csv", "histograms.png", "influence.png"}
+    # 8 plants: fewer than the percentiles need, said as a code with its figures, worded as the command prints it
+    assert result.warnings == (StudyWarning("few_samples", {"samples": 8, "few": FEW_SAMPLES}),)
+    assert command["warnings"] == [w.text for w in result.warnings]
+    # an absolute spread that varies nothing ('%' forgotten) is found when the study is planned, before any run
+    study = plan_study(StudyRequest("unity", samples=FEW_SAMPLES, spreads=("hydraulic.bulk_modulus=20",)))
+    (tiny,) = study.warnings
+    assert tiny.code == "tiny_spread" and tiny.values["name"] == "hydraulic.bulk_modulus" and tiny.values["sigma"] == 20
+    assert "the study varies nothing" in tiny.text and len(study.tasks) == FEW_SAMPLES + 1

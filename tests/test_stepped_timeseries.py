@@ -3,7 +3,7 @@
 `samii measure --method stepped` writes timeseries.csv with its schedule in the header (freqs_hz, settle_s, ramp_s,
 measure_cycles, measure_s, lead_s); frf and diagnose said "the excitation r does not repeat" and, given --record-s,
 "r has no energy at ...": DATA_FORMATS says samii's own data can be fed back in like measured data. Each dwell's
-window is now estimated as the measurement did (samii.diagnose.measured.from_stepped).
+window is now estimated as the measurement did (samii.measure.measured.from_stepped).
 
 A dwell's coherence is its sine fit's residual over thousands of samples, ``g = |Y|^2/(|Y|^2 + 4 s^2/N)``, so the
 relative error's variance is ``(1 - g)/g``: read as 3 averages and pooled over nine dwells the observed error was
@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 from test_diagnose_cli import run_cli
 
-from samii.diagnose.measured import from_frf, load
 from samii.formats import read_frf_csv
+from samii.measure.measured import from_frf, load
 
 
 @pytest.fixture(scope="module")

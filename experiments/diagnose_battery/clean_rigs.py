@@ -18,8 +18,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from run import FS, SPREAD, _sweep  # noqa: E402
 
 from samii.diagnose.diagnosis import diagnose  # noqa: E402
-from samii.diagnose.measured import from_timeseries  # noqa: E402
 from samii.diagnose.rig import EffectRig  # noqa: E402
+from samii.measure.measured import from_timeseries  # noqa: E402
 
 SEEDS = [(s, 0.1) for s in (*range(1000, 1040), *range(300, 321))] + [(s, 0.05) for s in range(2000, 2020)] + [(s, 0.3) for s in range(3000, 3020)]
 

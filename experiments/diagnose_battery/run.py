@@ -30,9 +30,9 @@ from pathlib import Path
 import numpy as np
 
 from samii.diagnose.diagnosis import diagnose
-from samii.diagnose.measured import from_timeseries
 from samii.diagnose.rig import EffectRig
 from samii.measure.excitation import SweptSine
+from samii.measure.measured import from_timeseries
 
 HERE = Path(__file__).resolve().parent
 FS = 1000.0

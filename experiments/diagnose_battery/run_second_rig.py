@@ -3,7 +3,7 @@
 Every case is a rig drawn within +-15 % of eq 9.4 (``second_rig.Rig.drawn``: the sampled loop stable),
 excited by second_rig's own swept sine, simulated in time with a zero-order-hold controller at the DAQ
 rate, written as a time-series CSV (``# sample_rate_hz`` and a free-text ``# excitation`` only: the reader
-finds the records from r), read back with ``samii.diagnose.measured.load`` and diagnosed with
+finds the records from r), read back with ``samii.measure.measured.load`` and diagnosed with
 ``samii.diagnose.diagnosis.diagnose`` against the notebook baseline (as run.py does).
 
 Cases:
@@ -302,7 +302,7 @@ def run_case(case: dict, csv_dir: str | None = None) -> dict:
     except ImportError:
         pass
     from samii.diagnose.diagnosis import diagnose
-    from samii.diagnose.measured import load
+    from samii.measure.measured import load
 
     out = {
         "name": case["name"],

@@ -99,9 +99,9 @@ EXTRA_TOLERANCE = {("sensor", "gain"): ("rel", 0.15), ("actuator", "spool_time_c
 
 def run_case(name: str, overrides: dict, injected: list, seed: int) -> dict:
     from samii.diagnose.diagnosis import diagnose
-    from samii.diagnose.measured import from_timeseries
     from samii.measure.campaign import measure_swept
     from samii.measure.daq import SensorNoise
+    from samii.measure.measured import from_timeseries
     from samii.sim.model import load_model
 
     meas = measure_swept(load_model(overrides=overrides) if overrides else load_model(), noise=SensorNoise(), rng=np.random.default_rng(seed))

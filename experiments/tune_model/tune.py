@@ -44,7 +44,7 @@ from scipy.optimize import least_squares
 
 from samii import notebook as nb
 from samii.calibrate import calibrate
-from samii.calibrate.cli import load_target
+from samii.calibrate.calibrate_file import load_target
 from samii.calibrate.targets import check_fit_against_eq9_4
 from samii.identify.fit import fit
 from samii.identify.structures import ModelStructure

@@ -36,7 +36,14 @@ def run(args: argparse.Namespace) -> int:
     bar = Bar("samii", unit="stage", leave=False, disable=args.no_progress or None, bar_format="{desc}: {n}/{total} stages {elapsed} {postfix}")
     with bar:
         result = run_pipeline(
-            args.out, model=args.model, overrides=args.set, seed=args.seed, overwrite=args.overwrite, progress=bar, argv=sys.argv[1:]
+            args.out,
+            model=args.model,
+            overrides=args.set,
+            seed=args.seed,
+            overwrite=args.overwrite,
+            progress=bar,
+            argv=sys.argv[1:],
+            note=lambda text: print(f"samii run: {text}", file=sys.stderr),
         )
     print("\n".join(result.summary.lines(Path(args.out))))
     return 0

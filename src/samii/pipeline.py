@@ -29,10 +29,9 @@ import contextlib
 import json
 import os
 import shutil
-import sys
 import time
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
@@ -75,23 +74,46 @@ class ClosedLoopRun:
 
 @dataclass(frozen=True)
 class Run:
-    """A run of the pipeline, as its folder holds it: the summary typed, each stage's result as the type its files
-    are read into (SI units throughout)."""
+    """A run of the pipeline, as its folder holds it: the summary typed, each stage's document as written, each stage's
+    result as the type its files are read into (SI units throughout). :meth:`load` checks the documents (the JSON
+    files); the stages' results (:attr:`frf`, :attr:`fit`, :attr:`damping`, :attr:`timeseries`) are read from their
+    files when first asked for, each file's damage an InputError naming it then."""
 
     path: Path  #: the folder (a temporary one for a run not saved)
     summary: RunSummary
     measurement_record: Mapping  #: measure/run.json
-    frf: object  #: measure/frf.csv, a samii.frequency_response.FrequencyResponse
-    fit: object  #: fit/fit.json as the baseline a diagnosis takes (samii.diagnose.baseline.SavedFit)
     fit_record: Mapping  #: fit/fit.json
-    damping: object  #: controllers/damping.json (samii.closedloop.controllers.SavedController)
     closed_loop: Mapping[str, ClosedLoopRun]  #: "<controller>_<scenario>"
     diagnosis: Mapping  #: diagnose/diagnosis.json
+    #: What :func:`run` had to say beside the results, in words (a previous output restored, a closed-loop run's note,
+    #: report.html not written); not in the folder: a run read back has none
+    notes: tuple[str, ...] = field(default=(), compare=False)
     _temporary: object = field(default=None, repr=False, compare=False)  #: keeps a run not saved alive
 
     @cached_property
+    def frf(self):
+        """measure/frf.csv, a samii.frequency_response.FrequencyResponse."""
+        from samii.formats import read_frf_csv
+
+        return read_frf_csv(self.path / "measure" / "frf.csv")
+
+    @cached_property
+    def fit(self):
+        """fit/fit.json as the baseline a diagnosis takes (samii.diagnose.baseline.SavedFit)."""
+        from samii.diagnose.baseline import read_fit_json
+
+        return read_fit_json(self.path / "fit" / "fit.json", name="fit/fit.json")
+
+    @cached_property
+    def damping(self):
+        """controllers/damping.json (samii.closedloop.controllers.SavedController)."""
+        from samii.closedloop.controllers import read_controller
+
+        return read_controller(self.path / "controllers" / "damping.json")
+
+    @cached_property
     def timeseries(self):
-        """measure/timeseries.csv (samii.timeseries.TimeSeries), read when first asked for (a quarter-million rows)."""
+        """measure/timeseries.csv (samii.timeseries.TimeSeries), a quarter-million rows."""
         from samii.formats import read_timeseries_csv
 
         return read_timeseries_csv(self.path / "measure" / "timeseries.csv")
@@ -100,10 +122,8 @@ class Run:
     def load(cls, folder) -> Run:
         """The run saved in ``folder``; InputError naming the file and field of anything missing, damaged or written
         by a newer samii (:mod:`samii.schema`)."""
-        from samii.closedloop.controllers import read_controller
-        from samii.diagnose.baseline import read_fit_json
-        from samii.formats import read_frf_csv, read_timeseries_csv
-        from samii.report.content import read_document
+        from samii.formats import read_timeseries_csv
+        from samii.schema import read_document
 
         folder = Path(folder)
         if not folder.is_dir():
@@ -121,10 +141,7 @@ class Run:
             path=folder,
             summary=summary,
             measurement_record=read_document(folder, "measure/run.json"),
-            frf=read_frf_csv(folder / "measure" / "frf.csv"),
-            fit=read_fit_json(folder / "fit" / "fit.json", name="fit/fit.json"),
-            fit_record=read_document(folder, "fit/fit.json", versioned=False),
-            damping=read_controller(folder / "controllers" / "damping.json"),
+            fit_record=read_document(folder, "fit/fit.json"),
             closed_loop=closed,
             diagnosis=read_document(folder, "diagnose/diagnosis.json"),
         )
@@ -235,18 +252,27 @@ def run(
     seed: int = 0,
     overwrite: bool = False,
     progress: Progress | None = None,
+    note: Callable[[str], None] | None = None,
     argv: Sequence[str] = (),
 ) -> Run:
     """Run the pipeline (module docstring) on ``model`` (an MJCF or parameter file; None: the embedded one) with
     ``overrides`` (``["hydraulic.supply_pressure=8e6"]`` or ``{"hydraulic.supply_pressure": 8e6}``), the
     measurement's sensor noise seeded by ``seed``, into folder ``out`` (None: a temporary folder, kept while the
-    returned run is; :meth:`Run.save` writes it elsewhere). ``argv``: the command line recorded in measure/run.json.
+    returned run is; :meth:`Run.save` writes it elsewhere). ``note`` hears what the run has to say beside its results
+    as it happens (the returned run's ``notes`` keep it too). ``argv``: the command line recorded in measure/run.json.
     """
     import tempfile
 
     from samii.outputs import restore_replaced
 
     progress = progress or SILENT
+    notes: list[str] = []
+
+    def said(text: str) -> None:
+        notes.append(text)
+        if note is not None:
+            note(text)
+
     temporary = None
     if out is None:
         temporary = tempfile.TemporaryDirectory(prefix="samii-run-")
@@ -254,14 +280,14 @@ def run(
     out = Path(out)
     texts = _override_texts(overrides)
     if (back := restore_replaced(out, _STAGING.format(name=out.name))) is not None:  # a run killed between its two renames
-        print(f"samii run: {out} was missing and is back from {back.name}, where a run killed while replacing it had moved it", file=sys.stderr)
+        said(f"{out} was missing and is back from {back.name}, where a run killed while replacing it had moved it")
     _check_out(out, overwrite)
     stage_dir = _stage_dir(out)
     stage_dir.mkdir()
     progress.expect(N_STAGES)
     started = time.perf_counter()
     try:
-        summary = _run_stages(stage_dir, model, texts, seed, progress, argv)
+        summary = _run_stages(stage_dir, model, texts, seed, progress, said, argv)
         summary = replace(
             summary,
             wall_s=time.perf_counter() - started,
@@ -273,24 +299,21 @@ def run(
             _report(stage_dir, out)
         except Exception as exc:  # noqa: BLE001 - the report is read from the stages' files: a fault in it loses none of them
             summary = replace(summary, report_error=f"{type(exc).__name__}: {exc}")
-            print(
-                f"samii run: warning: report.html not written ({summary.report_error}); every other output is; samii report {out} tries again",
-                file=sys.stderr,
-            )
+            said(f"warning: report.html not written ({summary.report_error}); every other output is; samii report {out} tries again")
             _write_summary(stage_dir, summary)
         progress.advance()
         _replace_whole(stage_dir, out)
     finally:
         if stage_dir.exists():
             shutil.rmtree(stage_dir)
-    return replace(Run.load(out), _temporary=temporary)
+    return replace(Run.load(out), notes=tuple(notes), _temporary=temporary)
 
 
 def _write_summary(d: Path, summary: RunSummary) -> None:
     (d / "summary.json").write_text(json.dumps(summary.to_json(), indent=1, allow_nan=False) + "\n")
 
 
-def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progress, argv: Sequence[str]) -> RunSummary:
+def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progress, said, argv: Sequence[str]) -> RunSummary:
     from samii import notebook as nb
     from samii.closedloop.controllers import write_controller
     from samii.closedloop.damping import damping_from_frf
@@ -350,7 +373,7 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progr
         rerun = d / "closedloop.rrd" if name == "damping_loper" else None
         with _named_stage("closedloop"):
             trial = run_trial(request, out=d / "closedloop" / name, model=model_file, overrides=parsed, rerun=rerun, relative_to=d,
-                              note=lambda text, name=name: print(f"samii run: note: closed loop {name}: {text}", file=sys.stderr))  # fmt: skip
+                              note=lambda text, name=name: said(f"note: closed loop {name}: {text}"))  # fmt: skip
         res = finite_or_none(trial.result.as_json())
         closed[name] = ClosedLoopSummary(**{k: res.get(k) for k in CLOSED_LOOP_FIELDS})
         progress.advance()
@@ -382,12 +405,9 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progr
 
 def _report(d: Path, out: Path) -> None:
     """``report.html``, from the folder's own files (``samii report``), naming the folder as it will be called."""
-    from samii.report.content import read_run_folder
     from samii.report.page import write_report
 
-    folder = read_run_folder(d)
-    folder.display_name = out.name
-    write_report(folder)
+    write_report(Run.load(d), name=out.name)
 
 
 def _modes(model, overrides: dict) -> ModesSummary:

@@ -9,7 +9,9 @@ reads it).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass
+from types import UnionType
+from typing import Union, get_args, get_origin, get_type_hints
 
 from samii.errors import InputError
 from samii.schema import SCHEMA_VERSION, schema_version
@@ -44,8 +46,9 @@ MARKER = "samii run"
 
 
 class _Reader:
-    """Fields of one JSON document, each taken with the kind it must have; a wrong one is an InputError naming the
-    file and the field."""
+    """A JSON document read into the types of a dataclass's fields (``float``, ``int``, ``bool``, ``str``, ``X | None``,
+    ``tuple[X, ...]``, ``tuple[X, Y]``, ``Mapping[str, X]``, a bare ``Mapping``, another dataclass); a value of the wrong
+    kind is an InputError naming the file and the field. Numbers are kept as read (a whole number stays one)."""
 
     def __init__(self, where):
         self.where = where
@@ -54,63 +57,72 @@ class _Reader:
         shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:40] + "..."
         raise InputError(f"{self.where}: field '{path}' holds {shown}; expected {expected}")
 
-    def obj(self, d, path: str, *, optional: bool = False) -> Mapping | None:
-        if d is None and optional:
-            return None
-        if not isinstance(d, Mapping):
-            self.fail(path, d, "an object")
-        return d
+    def missing(self, path: str):
+        raise InputError(f"{self.where}: field '{path}' is missing")
 
-    def get(self, d: Mapping, key: str, path: str):
-        if key not in d:
-            raise InputError(f"{self.where}: field '{path}{key}' is missing")
-        return d[key]
+    def part(self, cls, d, path: str = ""):
+        """An instance of dataclass ``cls`` from the object ``d`` at ``path``; a field with a default or of a type that
+        admits None may be absent."""
+        d = self.read(Mapping, d, path or "(the document)")
+        hints = get_type_hints(cls)
+        values = {}
+        for f in fields(cls):
+            where = f"{path}.{f.name}" if path else f.name
+            if f.name in d:
+                values[f.name] = self.read(hints[f.name], d[f.name], where)
+            elif f.default is MISSING and f.default_factory is MISSING:
+                if not _admits_none(hints[f.name]):
+                    self.missing(where)
+                values[f.name] = None
+        return cls(**values)
 
-    def num(self, d: Mapping, key: str, path: str = "", *, optional: bool = False) -> float | None:
-        v = d.get(key) if optional else self.get(d, key, path)
-        if v is None and optional:
-            return None
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            self.fail(path + key, v, "a number" + (" or null" if optional else ""))
-        return float(v)
-
-    def text(self, d: Mapping, key: str, path: str = "", *, optional: bool = False) -> str | None:
-        v = d.get(key) if optional else self.get(d, key, path)
-        if v is None and optional:
-            return None
-        if not isinstance(v, str):
-            self.fail(path + key, v, "a string" + (" or null" if optional else ""))
+    def read(self, tp, v, path: str, *, or_null: bool = False):
+        """``v`` read as type ``tp`` at ``path`` (``or_null``: said to admit null, in a message)."""
+        null = " or null" if or_null else ""
+        if _admits_none(tp):
+            return None if v is None else self.read(_without_none(tp), v, path, or_null=True)
+        origin, args = get_origin(tp) or tp, get_args(tp)
+        if tp is float:
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                self.fail(path, v, "a number" + null)
+        elif tp is int:
+            if isinstance(v, bool) or not isinstance(v, int):
+                self.fail(path, v, "a whole number" + null)
+        elif tp in (bool, str):
+            if not isinstance(v, tp):
+                self.fail(path, v, ("true or false" if tp is bool else "a string") + null)
+        elif is_dataclass(tp):
+            return self.part(tp, v, path)
+        elif origin is tuple:
+            each = args[0] if len(args) == 2 and args[1] is Ellipsis else None
+            kinds = [each] * len(v) if each and isinstance(v, list) else list(args)
+            said = "a list of " + ({float: "some numbers", str: "strings"}.get(each, "objects") if each else f"{len(args)} numbers") + null
+            if not isinstance(v, list) or len(v) != len(kinds):
+                self.fail(path, v, said)
+            if not all(_is(x, k) for x, k in zip(v, kinds) if k in (float, str)):  # (a list of plain values shown whole)
+                self.fail(path, v, said)
+            return tuple(self.read(k, x, f"{path}[{i}]") for i, (x, k) in enumerate(zip(v, kinds)))
+        elif origin is Mapping:
+            if not isinstance(v, Mapping):
+                self.fail(path, v, "an object" + null)
+            if args:
+                return {k: self.read(args[1], x, f"{path}.{k}") for k, x in v.items()}
+        else:  # (a type this reader was not taught: a programming error, not the file's)
+            raise TypeError(f"_Reader cannot read {tp!r}")
         return v
 
-    def flag(self, d: Mapping, key: str, path: str = "") -> bool:
-        v = self.get(d, key, path)
-        if not isinstance(v, bool):
-            self.fail(path + key, v, "true or false")
-        return v
 
-    def texts(self, d: Mapping, key: str, path: str = "") -> tuple[str, ...]:
-        v = d.get(key) or []
-        if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
-            self.fail(path + key, v, "a list of strings")
-        return tuple(v)
+def _admits_none(tp) -> bool:
+    return get_origin(tp) in (Union, UnionType) and type(None) in get_args(tp)
 
-    def nums(self, d: Mapping, key: str, path: str = "", *, length: int | None = None, optional: bool = False) -> tuple[float, ...] | None:
-        v = d.get(key) if optional else self.get(d, key, path)
-        if v is None and optional:
-            return None
-        said = f"a list of {length or 'some'} numbers" + (" or null" if optional else "")
-        if not isinstance(v, list) or (length is not None and len(v) != length):
-            self.fail(path + key, v, said)
-        if any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in v):
-            self.fail(path + key, v, said)
-        return tuple(float(x) for x in v)
 
-    def numbers(self, d: Mapping, key: str, path: str = "") -> dict[str, float | None]:
-        v = self.obj(self.get(d, key, path), path + key)
-        for k, x in v.items():
-            if x is not None and (isinstance(x, bool) or not isinstance(x, (int, float))):
-                self.fail(f"{path}{key}.{k}", x, "a number or null")
-        return {k: None if x is None else float(x) for k, x in v.items()}
+def _without_none(tp):
+    (inner,) = (a for a in get_args(tp) if a is not type(None))
+    return inner
+
+
+def _is(x, kind) -> bool:
+    return isinstance(x, str) if kind is str else not isinstance(x, bool) and isinstance(x, (int, float))
 
 
 def _plain(value):
@@ -154,12 +166,22 @@ class MeasurementSummary(_Part):
 
 
 @dataclass(frozen=True)
+class _Band:
+    """What the summary's lines read of a band of fit/fit.json's lack_of_fit (samii.identify.lack_of_fit.MisfitBand):
+    checked when read, the band kept as written."""
+
+    channel: str
+    f_lo_hz: float
+    f_hi_hz: float
+
+
+@dataclass(frozen=True)
 class FitSummary(_Part):
     """The notebook's 3-mode model fitted to the measurement, beside eq 9.4 (SI: rad/s, theta in rad)."""
 
-    params: Mapping[str, float | None]
-    stderr: Mapping[str, float | None]
-    eq9_4: Mapping[str, float | None]
+    params: Mapping[str, float]
+    stderr: Mapping[str, float | None]  #: None: not determined by the data (an infinite standard error)
+    eq9_4: Mapping[str, float]
     sound: bool
     verdict: str
     concerns: tuple[str, ...]
@@ -189,16 +211,16 @@ class ClosedLoopSummary(_Part):
     unstable_mode_hz: float | None
     growth_rate_1_s: float | None
     instability: str | None  #: in words, for an unstable run
-    theta: Mapping | None  #: the step response's figures (samii.closedloop.metrics)
-    base: Mapping | None  #: the base vibration's figures
+    theta: Mapping[str, float | None] | None  #: the step response's figures (samii.closedloop.metrics)
+    base: Mapping[str, float | None] | None  #: the base vibration's figures
 
 
 @dataclass(frozen=True)
 class DiagnosisSummary(_Part):
     verdict: str
     effects: tuple[Mapping, ...]  #: the effects found that a fit does not expect (diagnosis.json's, as written)
-    error_before: Mapping  #: channel -> rms_db, rms_deg, chi2 ... (samii.diagnose.residuals.ChannelError)
-    error_after: Mapping
+    error_before: Mapping[str, Mapping[str, float | None]]  #: channel -> rms_db, rms_deg, chi2 ... (samii.diagnose.residuals.ChannelError)
+    error_after: Mapping[str, Mapping[str, float | None]]
 
 
 def _names(part, skip: tuple[str, ...] = ()) -> tuple[str, ...]:
@@ -253,124 +275,82 @@ class RunSummary:
 
     def lines(self, out) -> list[str]:
         """The summary a person reads (:func:`summary_lines`), naming the folder ``out``."""
-        return summary_lines(self.to_json(), out)
+        return summary_lines(self, out)
 
     @classmethod
     def from_json(cls, doc, where="summary.json") -> RunSummary:
-        """The summary in ``doc`` (read from ``where``); InputError naming the field for one of the wrong kind."""
+        """The summary in ``doc`` (read from ``where``); InputError naming the field for one missing or of the wrong
+        kind (each part read into its fields' types)."""
         r = _Reader(where)
-        doc = r.obj(doc, "(the document)")
+        doc = r.read(Mapping, doc, "(the document)")
         version = schema_version(doc, where)
         if doc.get("written_by") != MARKER:
             raise InputError(f"{where}: field 'written_by' is {doc.get('written_by')!r}, expected {MARKER!r}")
-        model = r.obj(r.get(doc, "model", ""), "model")
-        modes = r.obj(r.get(doc, "modes", ""), "modes")
-        base_modes = r.get(modes, "base_modes", "modes.")
-        if not isinstance(base_modes, list):
-            r.fail("modes.base_modes", base_modes, "a list")
-        meas = r.obj(r.get(doc, "measurement", ""), "measurement")
-        fit = r.obj(r.get(doc, "fit", ""), "fit")
-        design = r.obj(r.get(doc, "damping_design", ""), "damping_design")
-        loops = r.obj(r.get(doc, "closed_loop", ""), "closed_loop")
-        diag = r.obj(r.get(doc, "diagnosis", ""), "diagnosis")
-        effects = diag.get("effects") or []
-        if not isinstance(effects, list) or not all(isinstance(e, Mapping) for e in effects):
-            r.fail("diagnosis.effects", effects, "a list of objects")
-        rec = r.obj(doc.get("recordings_mb") or {}, "recordings_mb")
-        seed = doc.get("seed")
-        if isinstance(seed, bool) or not isinstance(seed, int):
-            r.fail("seed", seed, "a whole number")
 
-        def loop(name: str, d) -> ClosedLoopSummary:
-            p = f"closed_loop.{name}."
-            d = r.obj(d, p[:-1])
-            return ClosedLoopSummary(
-                stable=r.flag(d, "stable", p),
-                unstable_mode_hz=r.num(d, "unstable_mode_hz", p, optional=True),
-                growth_rate_1_s=r.num(d, "growth_rate_1_s", p, optional=True),
-                instability=r.text(d, "instability", p, optional=True),
-                theta=r.obj(d.get("theta"), p + "theta", optional=True),
-                base=r.obj(d.get("base"), p + "base", optional=True),
-            )
+        def get(key: str, tp, within: str | None = None):
+            d, where = doc, key
+            if within is not None:
+                if within not in doc:
+                    r.missing(within)
+                d, where = r.read(Mapping, doc[within], within), f"{within}.{key}"
+            if key not in d:
+                r.missing(where)
+            return r.read(tp, d[key], where)
 
+        fit = get("fit", FitSummary)
+        if fit.lack_of_fit is not None:  # (kept as written; the bands the lines name are checked)
+            r.read(tuple[_Band, ...], fit.lack_of_fit.get("bands") or [], "fit.lack_of_fit.bands")
         return cls(
-            seed=seed,
-            model_file=r.text(model, "file", "model."),
-            overrides=r.texts(model, "overrides", "model."),
-            modes=ModesSummary(
-                pose_deg=r.nums(modes, "pose_deg", "modes."),
-                base_modes=tuple(
-                    BaseMode(
-                        r.num(r.obj(b, f"modes.base_modes[{i}]"), "freq_hz", f"modes.base_modes[{i}]."), r.num(b, "zeta", f"modes.base_modes[{i}].")
-                    )
-                    for i, b in enumerate(base_modes)
-                ),
-                servo_pair_1_s=r.nums(modes, "servo_pair_1_s", "modes.", length=2, optional=True),
-            ),
-            measurement=MeasurementSummary(
-                excitation=r.text(meas, "excitation", "measurement."),
-                amplitude_v=r.num(meas, "amplitude_v", "measurement."),
-                sample_rate_hz=r.num(meas, "sample_rate_hz", "measurement."),
-                simulated_s=r.num(meas, "simulated_s", "measurement."),
-                sensor_noise=r.obj(meas.get("sensor_noise"), "measurement.sensor_noise", optional=True),
-            ),
-            fit=FitSummary(
-                params=r.numbers(fit, "params", "fit."),
-                stderr=r.numbers(fit, "stderr", "fit."),
-                eq9_4=r.numbers(fit, "eq9_4", "fit."),
-                sound=r.flag(fit, "sound", "fit."),
-                verdict=r.text(fit, "verdict", "fit."),
-                concerns=r.texts(fit, "concerns", "fit."),
-                caveats=r.texts(fit, "caveats", "fit."),
-                undetermined=r.texts(fit, "undetermined", "fit."),
-                lack_of_fit=r.obj(fit.get("lack_of_fit"), "fit.lack_of_fit", optional=True),
-                rms_mag_db=r.numbers(fit, "rms_mag_db", "fit."),
-                rms_phase_deg=r.numbers(fit, "rms_phase_deg", "fit."),
-            ),
-            damping_design=DampingSummary(**{k: r.num(design, k, "damping_design.", optional=True) for k in DAMPING_FIELDS}),
-            closed_loop={name: loop(name, d) for name, d in loops.items()},
-            diagnosis=DiagnosisSummary(
-                verdict=r.text(diag, "verdict", "diagnosis."),
-                effects=tuple(effects),
-                error_before=r.obj(r.get(diag, "error_before", "diagnosis."), "diagnosis.error_before"),
-                error_after=r.obj(r.get(diag, "error_after", "diagnosis."), "diagnosis.error_after"),
-            ),
-            wall_s=r.num(doc, "wall_s", "", optional=True),
-            recordings_mb={k: r.num(rec, k, "recordings_mb.") for k in rec},
-            report_error=r.text(doc, "report_error", "", optional=True),
+            seed=get("seed", int),
+            model_file=get("file", str, "model"),
+            overrides=get("overrides", tuple[str, ...], "model"),
+            modes=get("modes", ModesSummary),
+            measurement=get("measurement", MeasurementSummary),
+            fit=fit,
+            damping_design=get("damping_design", DampingSummary),
+            closed_loop=get("closed_loop", Mapping[str, ClosedLoopSummary]),
+            diagnosis=get("diagnosis", DiagnosisSummary),
+            wall_s=r.read(float | None, doc.get("wall_s"), "wall_s"),
+            recordings_mb=r.read(Mapping[str, float], doc.get("recordings_mb") or {}, "recordings_mb"),
+            report_error=r.read(str | None, doc.get("report_error"), "report_error"),
             schema_version=version,
         )
 
 
-def summary_lines(s: dict, out) -> list[str]:
+def _f(x, spec: str) -> str:
+    """``x`` formatted, "n/a" for None (a figure a run does not have: the settling time of a joint that did not follow
+    its step)."""
+    return "n/a" if x is None else format(x, spec)
+
+
+def summary_lines(s: RunSummary, out) -> list[str]:
     """The summary a person reads: at most 20 lines."""
     import numpy as np
 
-    m = s["modes"]
+    from samii.identify.report import verdict_text
+
+    m = s.modes
     lines = [
         "SAMII main job: "
-        + ("embedded model" if s["model"]["file"] == "embedded default" else s["model"]["file"])
-        + (f" with {', '.join(s['model']['overrides'])}" if s["model"]["overrides"] else "")
+        + ("embedded model" if s.model_file == "embedded default" else s.model_file)
+        + (f" with {', '.join(s.overrides)}" if s.overrides else "")
     ]
     lines.append(
         "base modes (joint 2 held): "
-        + ", ".join(f"{b['freq_hz']:.2f} Hz (zeta {b['zeta']:.3f})" for b in m["base_modes"])
-        + (f"; servo-loop pair {m['servo_pair_1_s'][0]:.1f} ± {m['servo_pair_1_s'][1]:.1f}j 1/s" if m["servo_pair_1_s"] else "")
+        + ", ".join(f"{b.freq_hz:.2f} Hz (zeta {b.zeta:.3f})" for b in m.base_modes)
+        + (f"; servo-loop pair {m.servo_pair_1_s[0]:.1f} ± {m.servo_pair_1_s[1]:.1f}j 1/s" if m.servo_pair_1_s else "")
     )
-    me = s["measurement"]
+    me = s.measurement
     lines.append(
-        f"measured: {me['excitation']}, {me['amplitude_v']:g} V on the valve command, {me['simulated_s']:.0f} s at "
-        f"{me['sample_rate_hz']:g} samples/s, sensor noise (seed {s['seed']})"
+        f"measured: {me.excitation}, {me.amplitude_v:g} V on the valve command, {me.simulated_s:.0f} s at "
+        f"{me.sample_rate_hz:g} samples/s, sensor noise (seed {s.seed})"
     )
-    f = s["fit"]["params"]
-    eq = s["fit"]["eq9_4"]
+    f, eq = s.fit.params, s.fit.eq9_4
 
     def hz(w):
         return w / (2 * np.pi)
 
-    from samii.identify.report import verdict_text
-
-    lines.append(f"fit of the notebook's 3-mode model beside eq 9.4: {verdict_text(s['fit'])} (fit/fit.json):")
+    lines.append(f"fit of the notebook's 3-mode model beside eq 9.4: {verdict_text(s.fit.to_json())} (fit/fit.json):")
     lines.append(
         f"  modes {hz(f['w1']):.2f} / {hz(f['wz']):.2f} / {hz(f['w3']):.2f} Hz (eq 9.4: {hz(eq['w1']):.2f} / {hz(eq['wz']):.2f} / "
         f"{hz(eq['w3']):.2f}); zeta {f['z1']:.3f} / {f['zz']:.3f} / {f['z3']:.3f} ({eq['z1']:.3f} / {eq['zz']:.3f} / {eq['z3']:.3f})"
@@ -379,52 +359,55 @@ def summary_lines(s: dict, out) -> list[str]:
         f"  actuator pair {hz(f['wp']):.2f} Hz zeta {f['zp']:.3f} (eq 9.4: {hz(eq['wp']):.2f} Hz, {eq['zp']:.3f}); "
         f"B2/B1 {f['B2'] / f['B1']:.3f} ({eq['B2'] / eq['B1']:.3f}), B3/B1 {f['B3'] / f['B1']:.3f} ({eq['B3'] / eq['B1']:.3f})"
     )
-    cl = s["closed_loop"]
+    cl = s.closed_loop
     lines.append("closed loop in the nonlinear simulator (step 5 deg; Loper: switched on at 2 s):")
     for name, _, label in CONTROLLERS:
         st, lo = cl[f"{name}_step"], cl[f"{name}_loper"]
-        if not st["stable"] or not lo["stable"]:
-            bad = st if not st["stable"] else lo
-            if bad.get("instability"):
-                grow, hz_ = bad["instability"], ""
+        if not st.stable or not lo.stable:
+            bad = st if not st.stable else lo
+            if bad.instability:
+                grow, hz_ = bad.instability, ""
             else:
-                grow = f"growing at {bad['growth_rate_1_s']:.3g} 1/s" if bad.get("growth_rate_1_s") else "diverging"
-                hz_ = f" at {bad['unstable_mode_hz']:.3g} Hz" if bad.get("unstable_mode_hz") else ""
+                grow = f"growing at {bad.growth_rate_1_s:.3g} 1/s" if bad.growth_rate_1_s else "diverging"
+                hz_ = f" at {bad.unstable_mode_hz:.3g} Hz" if bad.unstable_mode_hz else ""
             what = f"UNSTABLE ({grow}{hz_}; the run is in closedloop/{name}_{'step' if bad is st else 'loper'}/)"
         else:
+            th, ba, lb = st.theta or {}, st.base or {}, lo.base or {}
             what = (
-                f"stable; step: theta settles {st['theta']['settle_s']:.2f} s, base {st['base']['settle_s']:.2f} s; "
-                f"Loper: base decays at {lo['base']['decay_rate_1_s']:.2f} 1/s"
+                f"stable; step: theta settles {_f(th.get('settle_s'), '.2f')} s, base {_f(ba.get('settle_s'), '.2f')} s; "
+                f"Loper: base decays at {_f(lb.get('decay_rate_1_s'), '.2f')} 1/s"
             )
         lines.append(f"  {label:<24} {what}")
     dl, ds, alone = cl["damping_loper"], cl["damping_step"], cl["servo_loop_alone_step"]
-    over = [(r.get("theta") or {}).get("overshoot_pct") for r in (ds, alone)]  # what damping the base costs the joint
-    if dl["stable"] and ds["stable"] and dl["base"].get("free_decay_rate_1_s"):
+    over = [(r.theta or {}).get("overshoot_pct") for r in (ds, alone)]  # what damping the base costs the joint
+    (t_alone, t_damped), (rate, free) = ([(r.base or {}).get("settle_s") for r in (alone, ds)],
+                                         [(dl.base or {}).get(k) for k in ("decay_rate_1_s", "free_decay_rate_1_s")])  # fmt: skip
+    if dl.stable and ds.stable and None not in (t_alone, rate) and t_damped and free:  # (ratios of figures each run has)
         lines.append(
-            f"damping controller: the base settles {alone['base']['settle_s'] / ds['base']['settle_s']:.1f}x sooner after the step "
-            f"({ds['base']['settle_s']:.2f} s against {alone['base']['settle_s']:.2f} s under the servo loop alone); in the Loper test "
-            f"its vibration decays {dl['base']['decay_rate_1_s'] / dl['base']['free_decay_rate_1_s']:.1f}x faster than free"
+            f"damping controller: the base settles {t_alone / t_damped:.1f}x sooner after the step "
+            f"({t_damped:.2f} s against {t_alone:.2f} s under the servo loop alone); in the Loper test "
+            f"its vibration decays {rate / free:.1f}x faster than free"
             + ("" if None in over else f"; theta overshoots the step by {over[0]:.0f} % ({over[1]:.0f} % alone)")
         )
-    dg = s["diagnosis"]
-    eff = ", ".join(f"{e['category']}/{e['kind']}" for e in dg["effects"]) or "nothing"
-    lines.append(f"diagnosis of the fit against the measured record: {dg['verdict']}; found {eff}")
+    dg = s.diagnosis
+    eff = ", ".join(f"{e['category']}/{e['kind']}" for e in dg.effects) or "nothing"
+    lines.append(f"diagnosis of the fit against the measured record: {dg.verdict}; found {eff}")
 
-    def num(d: dict, key: str) -> float:  # (a figure may be null: chi2 with no noise estimate)
+    def num(d: Mapping, key: str) -> float:  # (a figure may be null: chi2 with no noise estimate)
         v = d.get(key)
         return float("nan") if v is None else float(v)
 
     for ch, name, note in (("act", "theta/v", " (chi2 1: the noise)"), ("total", "xdd/v", "")):
-        b, a = dg["error_before"].get(ch, {}), dg["error_after"].get(ch, {})
+        b, a = dg.error_before.get(ch, {}), dg.error_after.get(ch, {})
         if b and a:
             lines.append(
                 f"  {name} error {num(b, 'rms_db'):.2g} dB / {num(b, 'rms_deg'):.2g} deg, chi2 {num(b, 'chi2'):.3g} -> "
                 f"{num(a, 'rms_db'):.2g} dB / {num(a, 'rms_deg'):.2g} deg, chi2 {num(a, 'chi2'):.3g} with them{note}"
             )
-    report = "report.html (open it in a browser), " if not s.get("report_error") else "(NOT report.html: see the warning above) "
-    rrd = " and ".join(f"{n} ({s['recordings_mb'][n]:.0f} MB)" if (s.get("recordings_mb") or {}).get(n) is not None else n for n in RECORDINGS)
+    report = "report.html (open it in a browser), " if not s.report_error else "(NOT report.html: see the warning above) "
+    rrd = " and ".join(f"{n} ({s.recordings_mb[n]:.0f} MB)" if s.recordings_mb.get(n) is not None else n for n in RECORDINGS)
     lines.append(
-        f"wrote {out}/ in {s['wall_s']:.0f} s: {report}summary.json, measure/, fit/, controllers/, "
+        f"wrote {out}/ in {_f(s.wall_s, '.0f')} s: {report}summary.json, measure/, fit/, controllers/, "
         f"closedloop/, diagnose/; {rrd} (open with `rerun FILE`)"
     )
     return lines[:20]

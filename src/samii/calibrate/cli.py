@@ -8,17 +8,10 @@ from __future__ import annotations
 
 import argparse
 import math
-from pathlib import Path
 
 from samii.cli_args import add_band, add_json, add_model, add_out, add_overwrite, add_set, float_in, int_in, name_value
-from samii.errors import InputError, input_error_of
 
-__all__ = ["add_arguments", "run", "load_target"]
-
-#: Output files written into --out.
-OUTPUTS = ("calibration.json", "calibrated_params.json", "calibration_bode.png")
-#: Named model curves that can stand in for data.
-NOTEBOOK_TARGETS = ("eq9.4",)
+__all__ = ["add_arguments", "run"]
 
 
 def _name_bounds(text: str) -> tuple[str, tuple[float, float]]:
@@ -100,122 +93,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_json(parser, "print the machine-readable report")
 
 
-def load_target(source: str):
-    """The FRF to calibrate to: a file, or the notebook's eq 9.4 curves in SI with theta in degrees.
-
-    eq 9.4 was fitted to theta in degrees (unity feedback 1 V/deg gives its K1 = 27.9/s), so its
-    theta/v is converted from deg/V to rad/V and its xdd/theta from per degree to per radian; its
-    acceleration unit is not stated, so the base channel keeps that unknown factor.
-    """
-    import numpy as np
-
-    from samii.frequency_response import FrequencyResponse
-
-    if source.lower() in NOTEBOOK_TARGETS:
-        from samii import notebook as nb
-        from samii.identify.structures import ModelStructure
-        from samii.measure.frf import log_frequency_grid
-
-        st = ModelStructure.notebook_3mode("s4")
-        f = log_frequency_grid(0.1, 40.0, 100)
-        deg = 180.0 / np.pi
-        act = st.response(nb.EQ9_4, f, "act") / deg  # theta_deg / v -> theta_rad / v
-        base = st.response(nb.EQ9_4, f, "base") * deg  # xdd / theta_deg -> xdd / theta_rad (xdd in the notebook's unit)
-        return FrequencyResponse(
-            f, act=act, base=base, metadata={"source": "notebook eq 9.4 over 0.1-40 Hz; theta in degrees converted to rad; acceleration unit unknown"}
-        )
-    path = Path(source)
-    if not path.is_file():
-        raise InputError(f"DATA {source!r}: no such file (DATA is an FRF CSV, a rig-era .mat, or one of {', '.join(NOTEBOOK_TARGETS)})")
-    if path.suffix.lower() not in (".csv", ".mat", ".txt"):
-        raise InputError(f"DATA {source}: expected an FRF CSV (docs/DATA_FORMATS.md) or a rig-era .mat, not a {path.suffix or 'suffix-less'} file")
-    from samii.formats import is_mat_file
-
-    if is_mat_file(path):  # (the content decides: a text file named .mat is read as the CSV it is)
-        from samii.formats import read_mat_bode
-
-        return read_mat_bode(path)
-    from samii.formats import read_frf_csv
-
-    return read_frf_csv(path)
-
-
-def _channels(text: str, data) -> tuple[str, ...]:
-    """``--channels act,base`` checked against the channels a calibration can use and the data hold."""
-    names = tuple(c.strip() for c in text.split(","))
-    allowed = ("act", "base", "total")
-    if not names or any(n not in allowed for n in names) or len(set(names)) != len(names):
-        raise InputError(f"--channels {text!r}: expected distinct names from {', '.join(allowed)}, comma-separated")
-    missing = [n for n in names if n not in data.channels]
-    if missing:
-        raise InputError(f"--channels {text!r}: the data have no {', '.join(missing)} channel (they hold {', '.join(data.channels)})")
-    return names
-
-
 def run(args: argparse.Namespace) -> int:
-    from samii.outputs import OutputFolder
-    from samii.sim.overrides import parse_overrides
+    from samii.calibrate.calibrate_file import CalibrateRequest, calibrate_file
 
     prog = "samii calibrate"
-    folder = OutputFolder(args.out, OUTPUTS, overwrite=args.overwrite) if args.out else None
-    if args.model is not None and Path(args.model).suffix.lower() != ".json":
-        raise InputError(
-            f"--model {args.model}: calibrate needs a parameter file (.json, e.g. samii_params.json or a calibrated_params.json), "
-            "not an MJCF file, whose physics is not parametrised"
-        )
-    overrides = parse_overrides(args.set)
-    from samii.calibrate.calibrate import calibrate
-    from samii.sim.model import default_params, params_with_overrides, read_params_file
-
-    base = read_params_file(args.model) if args.model else default_params()
-    if overrides:
-        base = params_with_overrides(base, overrides)
-    from samii.calibrate.simulator import check_parameter_name
-
-    for name in args.param:  # before the data are read: the name is the command line's, not the file's
-        try:
-            check_parameter_name(base, name)
-        except ValueError as exc:
-            raise InputError(f"--param {name}: {str(exc).split(': ', 1)[-1]}") from None
-    for option, given in (("--start", args.start), ("--bound", args.bound)):
-        unknown = sorted({name for name, _ in given} - set(args.param))
-        if unknown:
-            raise InputError(f"{option} {', '.join(unknown)}: not calibrated; {option} applies to the --param names ({', '.join(args.param)})")
-    data = load_target(args.data)
-    channels = _channels(args.channels, data) if args.channels is not None else None
-    confirm = None
-    if args.confirm:
-        from samii.measure.excitation import SweptSine
-
-        lo = max(0.1, float(data.freq_hz[0]))
-        hi = min(40.0, float(data.freq_hz[-1]))
-        if not lo < hi:
-            raise InputError(f"--confirm: the data's band {data.freq_hz[0]:g}-{data.freq_hz[-1]:g} Hz leaves nothing of 0.1-40 Hz to sweep")
-        confirm = SweptSine(start_hz=lo, stop_hz=hi)
-    try:
-        result = calibrate(
-            data,
-            args.param,
-            base=base,
-            start=dict(args.start),
-            bounds=dict(args.bound),
-            phase_weight=args.phase_weight,
-            band_hz=tuple(args.band_hz) if args.band_hz else None,
-            channels=channels,
-            weighting=args.weighting,
-            max_nfev=args.max_iterations,
-            confirm=confirm,
-            data_source=args.data,
-        )
-    except (KeyError, ValueError) as exc:  # the data's validation (too few frequencies, a zero response, ...): name the file
-        if isinstance(exc, InputError):
-            raise
-        raise input_error_of(args.data, exc) from None
-    written = []
-    if folder is not None:
-        with folder:
-            _write_outputs(result, data, folder)
-        written = folder.written
+    request = CalibrateRequest(
+        params=tuple(args.param),
+        start=dict(args.start),
+        bounds=dict(args.bound),
+        phase_weight=args.phase_weight,
+        band_hz=tuple(args.band_hz) if args.band_hz else None,
+        channels=args.channels,
+        weighting=args.weighting,
+        model=args.model,
+        overrides=tuple(args.set),
+        max_iterations=args.max_iterations,
+        confirm=args.confirm,
+    )
+    done = calibrate_file(args.data, request, out=args.out, overwrite=args.overwrite)
+    result, written = done.result, done.written
     if args.json:
         print(result.to_json(indent=2))
         return 0
@@ -248,36 +144,3 @@ def run(args: argparse.Namespace) -> int:
     for p in written:
         print(f"wrote {p}")
     return 0
-
-
-def _write_outputs(result, data, folder) -> None:
-    """Report JSON, parameter file and overlay Bode plot, staged in ``folder`` (:class:`samii.outputs.OutputFolder`)."""
-    from samii.viz.figures import pyplot, save_figure
-
-    pyplot()  # on Agg: the figure below goes to a file
-
-    from samii.calibrate.simulator import SimulatorFRF
-    from samii.formats import write_text
-    from samii.viz.fit_plot import plot_fit_overlay
-
-    structure = SimulatorFRF(result.params, result.names)
-    models = {"start": (structure, dict(result.start)), "calibrated": (structure, dict(result.values))}
-    note = (
-        f"data: {result.data_source}; calibrated: "
-        + ", ".join(f"{n} = {result.values[n]:.4g}" for n in result.names)
-        + f"; phase weight {result.phase_weight:g}"
-    )
-    if "gain.base" in result.names:
-        note += "; xdd in the data's own unit: the model curves are multiplied by gain.base"
-    fig = plot_fit_overlay(
-        data,
-        models,
-        channels=result.channels,
-        band_hz=result.band_hz,
-        title="samii calibrate: linearised simulator against the data",
-        note=note,
-        n_model_points=300,
-    )
-    save_figure(fig, folder.path("calibration_bode.png"))
-    write_text(folder.path("calibration.json"), result.to_json(indent=2) + "\n")
-    result.write_params(folder.path("calibrated_params.json"))

@@ -14,7 +14,8 @@ naming the option); numeric options are checked at parse time
 (:class:`samii.outputs.OutputFolder`, checked before any work). JSON output
 is strict: non-finite numbers are written as ``null``.
 
-Only numpy and the light samii.cli_args and samii.errors are imported at module level (the CLI builds its parser cheaply).
+Only numpy and light samii modules (cli_args, errors, design.rlocus_study's constant) are imported at module level (the CLI
+builds its parser cheaply).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import sys
 import numpy as np
 
 from samii.cli_args import add_json, add_no_progress, add_out, add_overwrite, add_seed, finite_float, float_in, int_in, nonempty_path, positive_float
+from samii.design.rlocus_study import PLOT_MAX_GAINS  # (a light module: python-control is imported when the study runs)
 from samii.errors import InputError
 
 __all__ = ["add_arguments", "run", "N_GAINS_RANGE", "MAX_ABS_CANCEL_GAIN", "PLOT_MAX_GAINS"]
@@ -36,9 +38,6 @@ N_GAINS_RANGE = (100, 100_000)
 #: ``cancel --sample-time-s`` bound [s]: 10 samples per period of the fastest root of the compensator
 #: (the cancelled third-mode pair of eq 10.2, |s| = 156.8 rad/s): 2 pi / 156.8 / 10 = 4.0 ms.
 MAX_CANCEL_SAMPLE_TIME_S = 4e-3
-
-#: Gains per sign drawn in each root-locus figure (at most ``--n-gains``).
-PLOT_MAX_GAINS = 1500
 
 #: ``cancel --gain`` magnitude bound: the chosen gain is 0.072; beyond 1e12 the closed-loop matrix
 #: overflows the double range the eigenvalue solver needs.
@@ -214,12 +213,6 @@ def _dumps(obj) -> str:
     return dumps(obj, indent=1)
 
 
-def _pairs(z) -> list[list[float | None]]:
-    from samii.json_output import finite_or_none
-
-    return [finite_or_none(complex(x)) for x in np.atleast_1d(z)]
-
-
 def _fmt_complex(z: complex, width: int = 10, digits: int = 4) -> str:
     if not np.isfinite(z):
         return "infinity"
@@ -261,41 +254,18 @@ def run_seed_report(args) -> int:
 def run_rlocus(args) -> int:
     if args.no_plots and args.out is None:
         raise InputError("--no-plots: only meaningful with --out (without --out no figures are drawn)")
-    from samii.design import rootlocus as rl
+    from samii.design.rlocus_study import rlocus_outputs, run_rlocus_study
 
-    models = rl.default_models()
-    plan = [(label, p, num, v) for label, (p, num) in models.items() for v in rl.NOTEBOOK_VARIANTS]
     plots = args.out is not None and not args.no_plots
-    pngs = [f"rlocus_{label}_{v.name}.png" for label, _, _, v in plan] if plots else []
-    folder = _out_folder(args, ["summary.json", "summary.md", *pngs])
-
-    loops, summaries = [], []
-    with _progress(len(plan) * (2 if plots else 1), "rlocus", args.no_progress) as bar:
-        for label, p, num, v in plan:
-            bar.stage(f"{label} {v.name}")
-            loop = rl.mass_damping_loop(p, numerator=num, variant=v, model=label)
-            loops.append(loop)
-            summaries.append(rl.summarize(loop, n_gains=args.n_gains))
-            bar.advance()
-        table = rl.summary_table(summaries)
-        rows = [s.as_dict() for s in summaries]
-        if folder is not None:
-            with folder:
-                folder.path("summary.json").write_text(_dumps(rows) + "\n")
-                folder.path("summary.md").write_text(table)
-                if plots:
-                    from samii.viz.rootlocus_plot import plot_variant
-
-                    for lp, s, name in zip(loops, summaries, pngs):
-                        bar.stage(f"plot {lp.model} {lp.variant.name}")
-                        plot_variant(lp, s, path=folder.path(name), n_gains=min(args.n_gains, PLOT_MAX_GAINS))
-                        bar.advance()
+    folder = _out_folder(args, rlocus_outputs(plots))
+    with _progress(None, "rlocus", args.no_progress) as bar:
+        study = run_rlocus_study(n_gains=args.n_gains, out=folder, plots=plots, progress=bar)
     if args.json:
-        print(_dumps(rows))
+        print(_dumps(study.rows()))
     else:
-        print(table)
+        print(study.table)
         if folder is not None:
-            print(f"wrote {len(folder.written)} files to {folder.root}")
+            print(f"wrote {len(study.written)} files to {folder.root}")
     return 0
 
 
@@ -369,59 +339,13 @@ def _save(saved, path, args, out: dict) -> None:
 def run_place(args) -> int:
     _check_place_options(args)
     save = _save_target(args)
-    from samii import notebook as nb
-    from samii.design import canonical as cc
-    from samii.design import placement as pl
+    from samii.design.notebook_designs import place_on_eq1_4
 
-    model = cc.numeric_statespace(cc.derive_canonical_form(2, "accel"), nb.EQ1_4_OPTIMIZED)
-    T = args.sample_time_s
-    t_max = pl.max_sample_time_s(model, zeta=args.zeta, observer=args.observer)
-    if T > t_max:
-        w, which = pl.fastest_pole(model, zeta=args.zeta, observer=args.observer)
-        raise InputError(
-            f"--sample-time-s {T:g}: too long; the fastest {which} pole of this design (|s| = {w:.4g} rad/s, period "
-            f"2 pi/|s| = {2e3 * np.pi / w:.3g} ms) needs at least {pl.MIN_SAMPLES_PER_PERIOD} samples per period, so "
-            f"--sample-time-s must be <= {pl._floor_digits(t_max, 4):g} s with --observer {args.observer}"
-        )
-    noise = (args.theta_noise_std, args.accel_noise_std) if args.observer == "kalman" else None
-    try:
-        d = pl.design_placement(
-            model, sample_time_s=T, zeta=args.zeta, observer=args.observer,
-            input_noise_std=args.input_noise_std, measurement_noise_std=noise,
-        )  # fmt: skip
-    except pl.PlacementInaccurate as exc:
-        raise InputError(f"--sample-time-s {T:g} (with --zeta {args.zeta:g}): {exc}") from None
-    cl = d.closed_loop_poles_z
-    bad = d.unstable_poles_z
-    stable = bad.size == 0
-    out = {
-        "model": "eq 1.4 (2-mode s^4), canonical form of chapter 5, notebook units",
-        "sample_time_s": d.sample_time_s,
-        "max_sample_time_s": t_max,
-        "zeta": d.zeta,
-        "observer": d.observer,
-        "kalman_noise_std": None if d.kalman_covariances is None else {
-            "input_V": d.kalman_covariances[0], "theta": d.kalman_covariances[1][0], "accel": d.kalman_covariances[1][1]},
-        "controller_poles_s": _pairs(d.poles_s),
-        "controller_poles_z": _pairs(d.poles_z),
-        "observer_poles_z": _pairs(d.observer_poles_z),
-        "closed_loop_poles_z": _pairs(cl),
-        "closed_loop_max_abs_z": float(np.max(np.abs(cl))),
-        "closed_loop_stable": stable,
-        "unstable_closed_loop_poles_z": _pairs(bad),
-        "K": d.K.ravel().tolist(),
-        "L": d.L.tolist(),
-        "N": d.N,
-    }  # fmt: skip
+    placed = place_on_eq1_4(sample_time_s=args.sample_time_s, zeta=args.zeta, observer=args.observer, input_noise_std=args.input_noise_std,
+                            theta_noise_std=args.theta_noise_std, accel_noise_std=args.accel_noise_std)  # fmt: skip
+    d, out = placed.design, placed.to_dict()
     if save is not None:
-        from samii.closedloop.controllers import NOTEBOOK_INPUT_SCALE, NOTEBOOK_UNITS_SI, SavedController
-
-        scale = {k: NOTEBOOK_INPUT_SCALE[k] for k in ("theta_ref", "theta", "accel")}
-        c = d.controller(input_scale=scale, model_units=NOTEBOOK_UNITS_SI)
-        prov = {"designed_on": "eq 1.4 (notebook, 2 base modes), canonical form of chapter 5", "design": "samii design place (chapter 8)",
-                "sample_time_s": T, "zeta": d.zeta, "observer": d.observer, "kalman_noise_std": out["kalman_noise_std"],
-                "closed_loop_stable_on_design_model": stable}  # fmt: skip
-        _save(SavedController(c, True, prov), save, args, out)
+        _save(placed.saved_controller(), save, args, out)
     if args.json:
         print(_dumps(out))
         return 0
@@ -429,13 +353,14 @@ def run_place(args) -> int:
     def flag(z: complex) -> str:
         return "  UNSTABLE (|z| >= 1)" if not abs(z) < 1 else ""
 
+    cl, bad = d.closed_loop_poles_z, d.unstable_poles_z
     print(f"pole placement on eq 1.4 (notebook units), T = {d.sample_time_s:g} s, zeta = {d.zeta:.5g}, observer: {d.observer}")
     for s, z in zip(d.poles_s, d.poles_z):
         print(f"  controller pole s = {_fmt_complex(s)}  ->  z = {z.real:.6f} {z.imag:+.6f}j{flag(z)}")
     for z in d.observer_poles_z:
         print(f"  observer pole z = {z.real:.6f} {z.imag:+.6f}j{flag(z)}")
     print(f"  K = {np.array2string(d.K.ravel(), precision=4)}\n  N = {d.N:.6g}")
-    if stable:
+    if placed.stable:
         print(f"  closed loop: stable, all {cl.size} poles inside the unit circle (largest |z| = {np.max(np.abs(cl)):.6f})")
     else:
         print(f"  closed loop: UNSTABLE, {bad.size} of {cl.size} poles on or outside the unit circle: "
@@ -444,45 +369,17 @@ def run_place(args) -> int:
 
 
 def run_cancel(args) -> int:
-    from samii import notebook as nb
-    from samii.design.cancel import design_pole_cancel
+    from samii.design.notebook_designs import cancel_on_eq9_4
 
     save = _save_target(args)
-    d = design_pole_cancel(nb.EQ9_4, loop=args.loop, gain=args.gain)
-    cl = d.closed_loop
-    bad = d.unstable_poles
-    stable = bad.size == 0
-    dc = d.dc_gain_as_drawn if stable else float("nan")
-    out = {
-        "model": "eq 9.4 (3-mode s^4), notebook units",
-        "loop": d.loop,
-        "zeros": _pairs(d.zeros),
-        "poles": _pairs(d.poles),
-        "num": np.asarray(d.Gc.num[0][0], float).tolist(),
-        "den": np.asarray(d.Gc.den[0][0], float).tolist(),
-        "gain": d.gain,
-        "gain_chosen_by_rule": args.gain is None,
-        "closed_loop_poles": _pairs(cl),
-        "closed_loop_stable": stable,
-        "unstable_closed_loop_poles": _pairs(bad),
-        "dc_gain_as_drawn": dc,
-        "reference_gain_for_unit_dc": d.reference_gain if stable else None,
-        "controller_scales_reference_by_default": d.loop == "theta",
-    }
+    cancelled = cancel_on_eq9_4(loop=args.loop, gain=args.gain, sample_time_s=args.sample_time_s)
+    d, out = cancelled.design, cancelled.to_dict()
     if save is not None:
-        if not stable:
-            raise InputError(f"--save: the closed loop on eq 9.4 is unstable at K = {d.gain:g}; a controller that is unstable on its own "
-                             "design model is not saved")  # fmt: skip
-        from samii.closedloop.controllers import NOTEBOOK_INPUT_SCALE, NOTEBOOK_UNITS_SI, SavedController
-
-        names = ("theta_ref", "theta") if d.loop == "theta" else ("theta_ref", "theta", "accel")
-        c = d.controller(sample_time_s=args.sample_time_s, input_scale={k: NOTEBOOK_INPUT_SCALE[k] for k in names}, model_units=NOTEBOOK_UNITS_SI)
-        prov = {"designed_on": "eq 9.4 (notebook, 3 base modes)", "design": "samii design cancel (chapter 10)", "loop": d.loop,
-                "gain": d.gain, "gain_chosen_by_rule": args.gain is None, "sample_time_s": args.sample_time_s}  # fmt: skip
-        _save(SavedController(c, True, prov), save, args, out)
+        _save(cancelled.saved_controller(), save, args, out)
     if args.json:
         print(_dumps(out))
         return 0
+    cl, bad = d.closed_loop, d.unstable_poles
     print(f"pole-cancelling compensator on eq 9.4, {d.loop} loop, K = {d.gain:.5g}")
     print(f"  numerator   {np.array2string(np.asarray(out['num']), precision=4)}")
     print(f"  denominator {np.array2string(np.asarray(out['den']), precision=4)}")
@@ -491,14 +388,14 @@ def run_cancel(args) -> int:
             zeta = -z.real / abs(z) if np.isfinite(z) and abs(z) > 0 else float("nan")
             mark = "  UNSTABLE (Re s >= 0)" if not z.real < 0 else ""
             print(f"  closed-loop pole {_fmt_complex(z)}  zeta {zeta:.3f}{mark}")
-    if not stable:
+    if not cancelled.stable:
         print(f"  closed loop: UNSTABLE, {bad.size} of {cl.size} poles with Re s >= 0 (largest real part {np.max(bad.real):.5g} 1/s); "
               "no DC gain or reference scaling applies")  # fmt: skip
         return 0
     print(f"  closed loop: stable, all {cl.size} poles in the left half plane (largest real part {np.max(cl.real):.4g} 1/s)")
     if d.loop == "theta":
         print(
-            f"  theta/theta_ref DC gain of the loop as drawn {dc:.3f}; the runnable controller scales "
+            f"  theta/theta_ref DC gain of the loop as drawn {out['dc_gain_as_drawn']:.3f}; the runnable controller scales "
             f"theta_ref by {d.reference_gain:.4g} (unit DC gain) unless told not to"
         )
     return 0

@@ -58,7 +58,7 @@ def unattributed(fit: Fit, datasets: Sequence[Dataset], bands: Sequence, label: 
     """Why the effect ``label`` with ``values`` cannot be told from an image of what ``fit`` (the final model, the
     effect in it or in its baseline) lacks, or None (module docstring). ``bands``: where ``fit`` still misses the
     data (``samii.diagnose.simulator.Misfit``: source, channel, lo_hz, hi_hz, rms_db, rms_deg)."""
-    from samii.diagnose.floor import PRACTICAL_FACTOR, REL_FLOOR
+    from samii.measure.floor import PRACTICAL_FACTOR, REL_FLOOR
 
     if label not in _KINDS or not bands:
         return None

@@ -20,10 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from samii.diagnose.measured import Measured
 from samii.diagnose.model import Baseline, Dataset, level_ratio, notebook_reference, start_params
 from samii.errors import InputError
 from samii.identify.structures import ModelStructure
+from samii.measure.measured import Measured
+from samii.schema import schema_version
 
 __all__ = ["SavedFit", "notebook_baseline", "saved_fit_baseline", "read_fit_json", "check_level", "LEVEL_MISMATCH"]
 
@@ -65,6 +66,7 @@ def read_fit_json(path, *, name: str | None = None) -> SavedFit:
         d = d[0]
     if not isinstance(d, dict):
         raise InputError(f"{path}: expected one fit (a JSON object with 'structure' and 'params'), got {type(d).__name__}")
+    schema_version(d, path)
     for key in ("structure", "params"):
         if not isinstance(d.get(key), dict):
             raise InputError(f"{path}: field '{key}' missing or not an object; expected a saved fit (fit.json as samii fit --out writes it)")

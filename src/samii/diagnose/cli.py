@@ -105,10 +105,10 @@ def run(args: argparse.Namespace) -> int:
 def _print(d, written) -> None:
     import numpy as np
 
-    from samii.diagnose.model import MAX_VAR
     from samii.diagnose.residuals import BAND_POINTS, band_tested, even_misfit
     from samii.diagnose.select import theta_usable
     from samii.frequency_response import CHANNEL_NAMES as _NAMES
+    from samii.measure.frf_variance import MAX_VAR
 
     print(f"samii diagnose: {len(d.measured)} file(s) against {d.baseline.label}")
     for m, ds in zip(d.measured, d.datasets):

@@ -1,7 +1,7 @@
 """A diagnosis: what the model lacks, found in the residual against the data's own noise.
 
 :func:`diagnose` takes one or more measured files of one rig
-(:mod:`samii.diagnose.measured`), fits the baseline
+(:mod:`samii.measure.measured`), fits the baseline
 (:mod:`samii.diagnose.baseline`), selects effects from the library by F-test
 (:mod:`samii.diagnose.select`) and returns a :class:`Diagnosis`: the effects
 with their evidence, the error before and after per channel, and the bands
@@ -46,8 +46,7 @@ import numpy as np
 
 from samii.diagnose.effects import library
 from samii.diagnose.evidence import Joined, Refusal, Rival, evidence_text, joined_text, values_text
-from samii.diagnose.measured import Measured, check_actuator_sign
-from samii.diagnose.model import MAX_VAR, Baseline, Dataset, Fit
+from samii.diagnose.model import Baseline, Dataset, Fit
 from samii.diagnose.nonlinear import MAX_DF_CHI2, distortion_var, find_nonlinear, harmonic_errors, linearised
 from samii.diagnose.residuals import (
     Band,
@@ -61,6 +60,8 @@ from samii.diagnose.residuals import (
 from samii.diagnose.sampling import feedthrough_note, feedthrough_of, hold_note, with_hold_found, with_sampling
 from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select, sample_s, within_sampling
 from samii.frequency_response import CHANNEL_NAMES
+from samii.measure.frf_variance import MAX_VAR
+from samii.measure.measured import Measured, check_actuator_sign
 from samii.progress import SILENT, Progress
 
 __all__ = ["ChannelError", "FoundEffect", "Band", "Diagnosis", "diagnose", "RULE"]
@@ -489,10 +490,10 @@ def _within_band(kind, datasets: Sequence[Dataset]):
 
 def _noise_from_roughness(m: Measured, saved) -> Measured:
     """``m`` itself if its noise is known, else with the noise estimated from its residual against the baseline
-    fitted with uniform weights (:func:`samii.diagnose.measured.with_roughness_noise`)."""
+    fitted with uniform weights (:func:`samii.measure.measured.with_roughness_noise`)."""
     from samii.diagnose.baseline import notebook_baseline, saved_fit_baseline
-    from samii.diagnose.measured import with_roughness_noise
     from samii.diagnose.model import fit_model
+    from samii.measure.measured import with_roughness_noise
 
     ds = Dataset.from_measured(m)
     if ds.known_noise:
@@ -504,12 +505,12 @@ def _noise_from_roughness(m: Measured, saved) -> Measured:
 
 
 def _with_floor(m: Measured) -> Measured:
-    """``m`` with its systematic floor (:mod:`samii.diagnose.floor`): the estimator's bias measured through the
+    """``m`` with its systematic floor (:mod:`samii.measure.floor`): the estimator's bias measured through the
     notebook's structure fitted to the file alone (a description of its dynamics, whatever the baseline), the
     quantisation of its columns and the stated relative floor."""
     from samii.diagnose.baseline import notebook_baseline
-    from samii.diagnose.floor import with_floor
     from samii.diagnose.model import fit_model
+    from samii.measure.floor import with_floor
 
     if m.timeseries is None or m.layout is None or any(m.var.get(ch) is None for ch in m.frf.channels):
         return with_floor(m)

@@ -1,7 +1,7 @@
 """Measured files diagnosed and the diagnosis written to a folder: what ``samii diagnose DATA`` does, as a library call.
 
 :func:`diagnose_files` checks the request (the files, the baseline, a simulator's parameter file), reads each file
-(:func:`samii.diagnose.measured.load`), diagnoses them (:func:`samii.diagnose.diagnosis.diagnose`) and writes
+(:func:`samii.measure.measured.load`), diagnoses them (:func:`samii.diagnose.diagnosis.diagnose`) and writes
 ``diagnosis.json`` and its figures into an all-or-nothing folder (and, against the simulator, a Rerun recording when
 asked). Refusals are :class:`~samii.errors.InputError` worded with the command's option names.
 """
@@ -106,8 +106,8 @@ def diagnose_files(
     ``progress`` (samii.progress.Progress): told each stage, advanced by every candidate tried.
     ``relative_to`` names the files relative to that folder (the main job's) instead of as given."""
     from samii.diagnose.diagnosis import diagnose
-    from samii.diagnose.measured import load
     from samii.json_output import dumps
+    from samii.measure.measured import load
 
     data = [str(d) for d in data]
     if len(data) > MAX_FILES:

@@ -3,7 +3,7 @@
 The residual of a point is the log ratio of data to model,
 ``e = ln(H_data / H_model)`` (real part: log magnitude, imaginary part: phase),
 divided by the point's random error: each part has variance ``var/2``
-(:mod:`samii.diagnose.measured`), so for a right model the weighted residuals
+(:mod:`samii.measure.measured`), so for a right model the weighted residuals
 are standard normal and their sum of squares is chi-square.
 
 The baseline is either the notebook's structure with its parameters refitted
@@ -29,17 +29,9 @@ from scipy.optimize import least_squares
 
 from samii.diagnose.effects import Effect, EffectKind
 from samii.identify.structures import ModelStructure
+from samii.measure.frf_variance import MAX_VAR
 
-__all__ = ["Dataset", "Baseline", "Fit", "fit_model", "relabel_modes", "notebook_reference", "scaled_reference", "level_ratio", "MAX_VAR"]
-
-#: Points whose relative random error exceeds this variance (each of log magnitude and phase std
-#: sqrt(0.1/2) = 0.22: 1.9 dB, 13 deg) carry no usable information: there the estimate is dominated by
-#: noise and its spread says nothing about its error. Why not more: where the response is pure noise, the
-#: spread of 3 records gives 1/var ~ F(2, 4), below 0.25 at one point in 9 (below 0.1 at one in 36); pooled
-#: over 9 correlated neighbours, islands of pure noise still passed 0.25 (xdd/v at 0.30 Hz, 50x the
-#: response, stated sigma 0.5: a base "mode" at p = 10^-22.7 on a clean rig). Points between 0.1 and 0.25
-#: weigh 1/400 of a typical point's: little is lost.
-MAX_VAR = 0.1
+__all__ = ["Dataset", "Baseline", "Fit", "fit_model", "relabel_modes", "notebook_reference", "scaled_reference", "level_ratio"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,7 +50,7 @@ class Dataset:
     #: approximation (Measured.model_var); None when they are the noise alone
     noise_inv_sigma: Mapping[str, np.ndarray] | None = None
     #: channel -> variance of the systematic floor on its usable points (part of the noise above;
-    #: samii.diagnose.floor), None when the file's has none
+    #: samii.measure.floor), None when the file's has none
     floor_var: Mapping[str, np.ndarray] | None = None
     #: The file's record length [s] (a time series cut into records) and sample rate [Hz], when known.
     record_s: float | None = None
@@ -836,7 +828,7 @@ def noise_level(chi2: float, dof: int) -> float:
 
     Above 1 the data (or the model) are worse than stated: counted in that, an understated noise does not make
     effects appear. Below 1 the stated noise is larger than the scatter somewhere (a systematic floor,
-    samii.diagnose.floor, on a channel an effect does not touch: a 16-bit encoder's quantisation held theta/v's chi2
+    samii.measure.floor, on a channel an effect does not touch: a 16-bit encoder's quantisation held theta/v's chi2
     at 0.47 beside xdd/v's 0.78), not smaller where the effect acts: counted in that smaller level a 3-parameter
     "mode" fitted to one rough point of a clean xdd/v passed at p = 10^-4.9 (F 8.6; 5.3 in the stated noise). The
     floors are what the measurement vouches for; the level does not undo them."""

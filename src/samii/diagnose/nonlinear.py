@@ -212,7 +212,7 @@ class AmplitudeTest:
     n_points: int
     channel: str = "act"  # the channel compared: theta/v, else xdd/v
     #: The largest change |ln(H_large/H_small)| of a window of WINDOW points (inverse-variance weighted): what an
-    #: amplitude dependence must show beyond the floor of the two files (samii.diagnose.floor.PRACTICAL_FACTOR)
+    #: amplitude dependence must show beyond the floor of the two files (samii.measure.floor.PRACTICAL_FACTOR)
     max_change: float = float("nan")
 
     @property
@@ -470,7 +470,7 @@ def _span(dphi: np.ndarray, a: int, b: int) -> float:
 
 
 def harmonic_analysis(m, *, alpha: float = ALPHA) -> HarmonicAnalysis | None:
-    """Harmonics of the sweep in ``m`` (a :class:`samii.diagnose.measured.Measured` with its time series), or None
+    """Harmonics of the sweep in ``m`` (a :class:`samii.measure.measured.Measured` with its time series), or None
     when it has no time series, fewer than 2 records or no theta/v to refer the distortion with."""
     ts, layout = m.timeseries, m.layout
     if ts is None or layout is None or layout.n_records < 2 or "act" not in m.frf.channels:
@@ -1011,7 +1011,7 @@ def find_nonlinear(
     differ = [t for t in tests if t.log10_p <= level]
     # practically significant too: a window must change by more than the floor of the two files allows (a clean rig's
     # 0.05 and 0.2 V files differed at p < 1e-3 by -0.0065 dB, a "saturation")
-    from samii.diagnose.floor import PRACTICAL_FACTOR, REL_FLOOR
+    from samii.measure.floor import PRACTICAL_FACTOR, REL_FLOOR
 
     least = PRACTICAL_FACTOR * np.sqrt(2.0) * REL_FLOOR
     for t in [t for t in differ if not t.max_change > least]:

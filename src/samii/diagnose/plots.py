@@ -39,7 +39,7 @@ def _unusable(residuals, ch: str) -> bool:
 def _say_unusable(axes, y: float = 0.5) -> None:
     """Write on each of ``axes``, at height ``y`` (axes fraction), that its channel has no usable point (an empty
     panel with no word reads as a bug)."""
-    from samii.diagnose.model import MAX_VAR
+    from samii.measure.frf_variance import MAX_VAR
 
     for ax in axes:
         ax.text(

@@ -6,7 +6,7 @@ Rule (stated in every report): an effect is added when its F statistic,
 
 exceeds the ``1 - alpha/K`` quantile of F(dp, m - p_with): ``dp`` its
 parameters, ``m`` the weighted residuals, ``L`` the noise's correlation length
-(:mod:`samii.diagnose.measured`), ``K`` the kinds tried in that round
+(:mod:`samii.measure.measured`), ``K`` the kinds tried in that round
 (Bonferroni: the chance that any of them passes on noise alone stays
 ``alpha``), ``alpha = ALPHA``; an extra mode's p is multiplied by the places
 its frequency was searched over (:func:`search_places`). The noise's level is the richer model's
@@ -428,12 +428,12 @@ PRACTICAL_POINTS = 3
 
 def _below_floor(before: Fit, after: Fit, ds_list: list[Dataset]) -> Refusal | None:
     """Why the change ``after`` makes to ``before``'s model is not practically significant, or None: it must exceed
-    PRACTICAL_FACTOR x the systematic floor's standard deviation (samii.diagnose.floor) at PRACTICAL_POINTS points,
+    PRACTICAL_FACTOR x the systematic floor's standard deviation (samii.measure.floor) at PRACTICAL_POINTS points,
     or twice the correlation length. The F-test weighs the change against the noise over every point, and many
     points make a tiny change significant; this asks that somewhere it stand clear of what repeats in every record,
     which no number of points averages away. (Asking it also to stand clear of each point's noise refused a real
     1 ms delay that only the band's noisy top shows, together.)"""
-    from samii.diagnose.floor import PRACTICAL_FACTOR
+    from samii.measure.floor import PRACTICAL_FACTOR
 
     if any(ds.floor_var is None for ds in ds_list):
         return None

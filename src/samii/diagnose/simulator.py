@@ -58,12 +58,12 @@ import numpy as np
 
 from samii.calibrate.calibrate import MODE_KNOBS, PHYSICAL_LIMITS
 from samii.calibrate.simulator import parameter_value
-from samii.diagnose.measured import Measured
 from samii.diagnose.model import Baseline, Dataset
 from samii.diagnose.residuals import errors_from_residuals, full_residuals, unexplained_bands
 from samii.errors import SimulationUnstable
 from samii.forkmap import fork_calls, fork_map, sharing
 from samii.frequency_response import CHANNEL_NAMES, CHANNELS, FrequencyResponse, interpolate_frf
+from samii.measure.measured import Measured
 from samii.progress import SILENT, Progress
 from samii.sim.linearize import UNSTABLE_RATE_1_S, poles_per_s
 from samii.sim.mjcf import SamiiParams
@@ -776,8 +776,8 @@ def measured_like(params: SamiiParams, m: Measured) -> Measured | None:
     sweep (``samii.diagnose.nonlinear.excess_over``). None when ``m`` has no time series."""
     from dataclasses import replace
 
-    from samii.diagnose.measured import from_timeseries
     from samii.measure.daq import SensorNoise
+    from samii.measure.measured import from_timeseries
 
     if m.timeseries is None:
         return None
@@ -871,7 +871,7 @@ def _largest(misfits: Sequence[Misfit], n: int = 3) -> list[Misfit]:
 def misfits(datasets: Sequence[Dataset], residuals: Sequence[Mapping[str, np.ndarray]]) -> tuple[Misfit, ...]:
     """Where residuals log(data/simulator) (one mapping per dataset, on its usable points) exceed the data's
     noise and floor, significantly (the diagnosis's band test) and practically (:class:`Misfit`)."""
-    from samii.diagnose.floor import PRACTICAL_FACTOR, REL_FLOOR
+    from samii.measure.floor import PRACTICAL_FACTOR, REL_FLOOR
 
     out = []
     for b in unexplained_bands(datasets, residuals):

@@ -22,7 +22,7 @@ chi-square, let pure noise pass a nominal 1e-5 at 1e-4 to 1e-3). Sign-alternatin
 the rig. Records that do not rest between sweeps differ by the tails they
 inherit from the one before (the first inherits none): the same deviations of
 the model's noise-free response to the file's own r, recorded the same way
-(:attr:`samii.diagnose.floor.Floor.simulated`), are subtracted first. A window beyond its ``ALPHA`` / (windows x channels) quantile, whose
+(:attr:`samii.measure.floor.Floor.simulated`), are subtracted first. A window beyond its ``ALPHA`` / (windows x channels) quantile, whose
 largest record mean also exceeds ``PRACTICAL_FACTOR`` x the stated relative
 floor (a change the floor could make is no change), is a band where the
 records differ; merged, the bands are reported as unexplained.
@@ -77,7 +77,7 @@ class RecordChange:
 def record_changes(m, *, alpha: float = ALPHA) -> list[RecordChange]:
     """The bands where ``m``'s records differ (module docstring); none for a file that is not a time series of at
     least 3 records."""
-    from samii.diagnose.floor import PRACTICAL_FACTOR, REL_FLOOR
+    from samii.measure.floor import PRACTICAL_FACTOR, REL_FLOOR
 
     ts, layout = m.timeseries, m.layout
     if ts is None or layout is None or layout.n_records < 3 or ts.r is None:

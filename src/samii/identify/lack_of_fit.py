@@ -399,7 +399,7 @@ def roughness_variance(e: np.ndarray, lag: int = ROUGHNESS_LAG, pool: int = ROUG
     e[k]|^2 / 2`` (the variance of one of two independent errors), each difference the point midway's (the ends repeat
     the nearest), pooled by a moving mean over ``pool`` points (its window shrinking at the ends). Noise changes from
     point to point, a missed effect slowly: the roughness is the noise's whatever the model misses. For data that say
-    nothing of their noise (no coherence, no records): samii.diagnose.measured.with_roughness_noise, and the check of
+    nothing of their noise (no coherence, no records): samii.measure.measured.with_roughness_noise, and the check of
     where a fit's modes sit (samii.identify.fit)."""
     e = np.asarray(e)
     lag = min(lag, e.size - 1)

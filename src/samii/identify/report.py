@@ -151,12 +151,13 @@ def write_fit_outputs(data: FrequencyResponse, results: Sequence[FitResult], out
 
 
 def _write(folder, data: FrequencyResponse, results: Sequence[FitResult], note: str | None) -> None:
+    from samii.schema import versioned
     from samii.viz.figures import save_figure
     from samii.viz.fit_plot import plot_fit_overlay, plot_parameter_sweep
 
     many = len(results) > 1
     for r in results:
-        folder.path(fit_filename(r, many)).write_text(json_text(r.to_dict()) + "\n")
+        folder.path(fit_filename(r, many)).write_text(json_text(versioned(r.to_dict())) + "\n")
     band = results[0].band_hz
     full = (data.freq_hz[0], data.freq_hz[-1])
     models = {(f"fit, phase weight {r.phase_weight:g}" if many else "fit"): r for r in results}

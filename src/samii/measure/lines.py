@@ -22,7 +22,7 @@ squares at that frequency. A subtraction that does not take at least 90 % of the
 line's power away (the mains drifted during the file: one sinusoid cannot follow
 it) is undone and said. A column on a lattice (an encoder, a converter) is left
 as it is: it picked up no hum after its rounding, and subtracting one would
-lose its lattice (samii.diagnose.floor)."""
+lose its lattice (samii.measure.floor)."""
 
 from __future__ import annotations
 

@@ -28,7 +28,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from samii.errors import InputError
     from samii.outputs import check_output_file
-    from samii.report.content import read_run_folder
+    from samii.pipeline import Run
+    from samii.report.content import gaps
     from samii.report.page import REPORT_NAME, write_report
 
     if args.screenshot and not str(args.screenshot).lower().endswith(".png"):
@@ -57,16 +58,16 @@ def run(args: argparse.Namespace) -> int:
             if os.environ.get("SAMII_BROWSER"):
                 raise InputError(f"--screenshot: SAMII_BROWSER={os.environ['SAMII_BROWSER']} is no program (neither a file nor a command on PATH)")
             raise InputError("--screenshot: no Chromium found (install chromium, e.g. apt-get install chromium, or set SAMII_BROWSER)")
-    run_folder = read_run_folder(folder)
+    run = Run.load(folder)
     if args.screenshot:
-        path, shot = _page_and_screenshot(run_folder, out, Path(args.screenshot), args.width)
+        path, shot = _page_and_screenshot(run, out, Path(args.screenshot), args.width)
     else:
-        path, shot = write_report(run_folder, out), None
+        path, shot = write_report(run, out), None
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB, self-contained: open it in a browser)")
-    if run_folder.gaps:
+    if lacks := gaps(run):
         import sys
 
-        print(f"warning: {folder} lacks what a main job writes (the page marks it): {'; '.join(run_folder.gaps)}", file=sys.stderr)
+        print(f"warning: {folder} lacks what a main job writes (the page marks it): {'; '.join(lacks)}", file=sys.stderr)
     if shot is not None:
         print(f"wrote {shot.path} ({shot.width}x{shot.height} px, {shot.browser})")
     return 0
@@ -88,7 +89,7 @@ def _not_the_runs_own(folder: Path, path: Path, *, option: str, allowed, instead
         )
 
 
-def _page_and_screenshot(run_folder, out: Path, png: Path, width: int):
+def _page_and_screenshot(run, out: Path, png: Path, width: int):
     """The page and its screenshot, both or neither: the page is written and shot under hidden names beside their places,
     then both renamed into place (a browser that failed left the new page without its screenshot, and exit 1)."""
     import dataclasses
@@ -103,7 +104,7 @@ def _page_and_screenshot(run_folder, out: Path, png: Path, width: int):
     tmp_png = png.parent / f".{png.stem}.samii-{os.getpid()}.png"
     with parent_made_for(out), parent_made_for(png):  # (a folder made for them removed again on failure: after the finally)
         try:
-            write_report(run_folder, tmp_page)
+            write_report(run, tmp_page)
             try:
                 shot = screenshot(tmp_page, tmp_png, width=width)
             except RuntimeError as exc:  # the browser's failure, not the run's: said as such, nothing kept

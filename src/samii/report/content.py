@@ -1,32 +1,34 @@
-"""What a main job's output folder holds, read back for the report (no plotting, no HTML).
+"""What a main job's output folder holds, as the report reads it (no plotting, no HTML).
 
-:func:`read_run_folder` reads the files the stages wrote (``summary.json``, ``measure/run.json``,
-``fit/fit.json``, ``diagnose/diagnosis.json``, ``closedloop/*/run.json`` and ``timeseries.csv``) and
-returns them as a :class:`RunFolder`; a missing or unreadable file is an :class:`InputError` that
-names it. The figures the stages drew are referenced by path, to be embedded as they are.
+The folder is read by :meth:`samii.pipeline.Run.load` (its files checked, ``summary.json`` typed); this module adds
+what the page needs beside it: the figures the stages drew (referenced by path, embedded as they are), the recordings'
+sizes, what a folder lacks (:func:`gaps`), the fit's parameters beside eq 9.4 (:func:`parameter_rows`), and a log of
+the fields the page reads from the stages' own documents (:func:`traced`), which names the field a damaged value
+most likely sits in.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 from pathlib import Path
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from samii.closedloop.controllers import FT_PER_M
-from samii.errors import InputError
-from samii.run_summary import MARKER, RECORDINGS  # (linked by the page, not embedded: tens of MB)
+from samii.run_summary import RECORDINGS  # (linked by the page, not embedded: tens of MB)
+
+if TYPE_CHECKING:  # (the type only: samii.pipeline writes its report through this package)
+    from samii.pipeline import Run
 
 __all__ = [
-    "Trace",
-    "RunFolder",
-    "read_run_folder",
+    "stage_figures",
+    "recordings",
+    "traces",
+    "gaps",
     "ParamRow",
     "parameter_rows",
     "STAGE_FIGURES",
     "RECORDINGS",
-    "read_document",
     "FieldLog",
     "traced",
 ]
@@ -41,31 +43,19 @@ STAGE_FIGURES = {
 }
 
 
-@dataclass(frozen=True)
-class Trace:
-    """One closed-loop run's signals (SI: s, rad, m/s²)."""
-
-    t: np.ndarray
-    theta: np.ndarray
-    theta_ref: np.ndarray
-    accel: np.ndarray
+def stage_figures(run: Run) -> dict[str, Path]:
+    """The STAGE_FIGURES in ``run``'s folder that are PNG images: key -> path."""
+    return {k: run.path / rel for k, rel in STAGE_FIGURES.items() if _is_png(run.path / rel)}
 
 
-@dataclass
-class RunFolder:
-    path: Path
-    summary: dict
-    measurement: dict  #: measure/run.json
-    fit: dict  #: fit/fit.json
-    diagnosis: dict  #: diagnose/diagnosis.json
-    closed_loop: dict[str, dict]  #: "<controller>_<scenario>" -> its run.json
-    traces: dict[str, Trace]  #: "<controller>_<scenario>" -> its signals
-    figures: dict[str, Path] = field(default_factory=dict)  #: STAGE_FIGURES present
-    recordings: dict[str, int] = field(default_factory=dict)  #: recording -> size in bytes, those present
-    display_name: str | None = None  #: the folder's name as the reader knows it (the main job writes in a staging folder)
-    #: What a main job writes and this folder lacks, in words ("measure/bode.png is missing"): the page says so at its top
-    #: rather than leave a row or a figure out without a word
-    gaps: list[str] = field(default_factory=list)
+def recordings(run: Run) -> dict[str, int]:
+    """The RECORDINGS in ``run``'s folder: name -> size in bytes."""
+    return {name: (run.path / name).stat().st_size for name in RECORDINGS if (run.path / name).is_file()}
+
+
+def traces(run: Run) -> dict:
+    """The closed-loop runs' signals (samii.timeseries.TimeSeries) by name; a run that diverged at once has none."""
+    return {name: cl.trace for name, cl in run.closed_loop.items() if cl.trace is not None}
 
 
 class FieldLog(list):
@@ -154,95 +144,21 @@ def _traced_value(value, where: str, log: FieldLog):
     return value
 
 
-def traced(run: RunFolder) -> tuple[RunFolder, FieldLog]:
-    """``run`` with its JSON files' reads logged (the report names the field a failure most likely comes from)."""
-    from dataclasses import replace
-
+def traced(run: Run) -> tuple[Run, FieldLog]:
+    """``run`` with the reads of its stages' documents logged (the report names the field a failure most likely comes
+    from; summary.json is typed, its fields checked when read)."""
     log = FieldLog()
     return replace(
         run,
-        summary=_TracedDict(run.summary, "summary.json: ", log),
-        measurement=_TracedDict(run.measurement, "measure/run.json: ", log),
-        fit=_TracedDict(run.fit, "fit/fit.json: ", log),
+        measurement_record=_TracedDict(run.measurement_record, "measure/run.json: ", log),
+        fit_record=_TracedDict(run.fit_record, "fit/fit.json: ", log),
         diagnosis=_TracedDict(run.diagnosis, "diagnose/diagnosis.json: ", log),
-        closed_loop={name: _TracedDict(doc, f"closedloop/{name}/run.json: ", log) for name, doc in run.closed_loop.items()},
+        closed_loop={name: replace(cl, record=_TracedDict(cl.record, f"closedloop/{name}/run.json: ", log)) for name, cl in run.closed_loop.items()},
     ), log
-
-
-def read_document(folder: Path, rel: str, *, versioned: bool = True) -> dict:
-    """The JSON object at ``rel`` in a main job's folder, checked: a missing, malformed or damaged file (NaN, which samii
-    never writes) and, when ``versioned``, one of a newer schema_version (samii.schema) is an InputError naming it."""
-    from samii.json_output import read_json
-
-    path = folder / rel
-    data = read_json(path, "main job's file", missing=f"{path}: missing; is {folder} a main job's output (samii run)?")
-    if not isinstance(data, dict):
-        raise InputError(f"{path}: expected a JSON object")
-    if versioned:
-        from samii.schema import schema_version
-
-        schema_version(data, path)
-    from samii.json_output import non_finite_fields
-
-    bad = non_finite_fields(data)
-    if bad:  # samii writes null, never NaN or Infinity: the file was damaged after the run (no number shown is trusted)
-        shown = ", ".join(bad[:4]) + (f" and {len(bad) - 4} more" if len(bad) > 4 else "")
-        raise InputError(
-            f"{path}: field {shown} holds NaN or an infinity, which samii never writes: the file is damaged; run samii run again for a report"
-        )
-    return data
 
 
 def _kind(value) -> str:
     return {list: "a list", str: "a string", type(None): "null", bool: "a boolean"}.get(type(value), type(value).__name__)
-
-
-def _trace(path: Path) -> Trace:
-    from samii.formats import read_timeseries_csv
-
-    ts = read_timeseries_csv(path)
-    ref = ts.theta_ref if ts.theta_ref is not None else np.zeros_like(ts.t)
-    return Trace(t=ts.t, theta=ts.theta, theta_ref=ref, accel=ts.accel)
-
-
-def read_run_folder(path) -> RunFolder:
-    """Read a main job's output folder (``samii run --out PATH``)."""
-    folder = Path(path)
-    if not folder.is_dir():
-        raise InputError(f"{folder}: not a folder (expected a main job's output, samii run --out)")
-    summary = read_document(folder, "summary.json")
-    if summary.get("written_by") != MARKER:
-        raise InputError(f"{folder / 'summary.json'}: field 'written_by' is {summary.get('written_by')!r}, expected {MARKER!r}")
-    closed, traces = {}, {}
-    runs = summary.get("closed_loop", {})
-    if not isinstance(runs, dict) or not all(isinstance(v, dict) for v in runs.values()):
-        raise InputError(f"{folder / 'summary.json'}: field 'closed_loop' must map each run's name to an object, got {_kind(runs)}")
-    for name in sorted(runs):
-        if "/" in name or name in ("", ".", ".."):
-            raise InputError(f"{folder / 'summary.json'}: field 'closed_loop' names a run {name!r}, which is no folder name")
-        run_dir = folder / "closedloop" / name
-        closed[name] = read_document(folder, f"closedloop/{name}/run.json")
-        traces[name] = _trace(run_dir / "timeseries.csv")
-        # a verdict is shown as it is read: a string "false" would read as stable
-        for where, doc in (
-            (f"{folder / 'summary.json'}: field 'closed_loop.{name}.stable'", runs[name]),
-            (f"{run_dir / 'run.json'}: field 'stable'", closed[name]),
-        ):
-            if "stable" in doc and not isinstance(doc["stable"], bool):
-                raise InputError(f"{where} holds {doc['stable']!r}; expected true or false (the file is damaged; run samii run again)")
-    run = RunFolder(
-        path=folder,
-        summary=summary,
-        measurement=read_document(folder, "measure/run.json"),
-        fit=read_document(folder, "fit/fit.json", versioned=False),  # (samii.identify.report owns its layout, unversioned)
-        diagnosis=read_document(folder, "diagnose/diagnosis.json"),
-        closed_loop=closed,
-        traces=traces,
-        figures={k: folder / rel for k, rel in STAGE_FIGURES.items() if _is_png(folder / rel)},
-        recordings={name: (folder / name).stat().st_size for name in RECORDINGS if (folder / name).is_file()},
-    )
-    run.gaps = gaps(run)
-    return run
 
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -262,26 +178,26 @@ def _is_png(path: Path) -> bool:
 _DESIGN_NUMBERS = ("gain_v_per_m_s2", "gain_limit_v_per_m_s2", "gain_margin_db", "filter_hz")
 
 
-def gaps(run: RunFolder) -> list[str]:
+def gaps(run: Run) -> list[str]:
     """What a main job writes and ``run`` lacks (figures, fitted parameters), one phrase each. A closed-loop run missing
     from summary.json is refused instead (the summary's lines need each); the recordings are not counted (tens of MB a
     user may remove to archive a folder; the page's Recordings section says what is there)."""
+    present = stage_figures(run)
     out = [
         f"{rel} is {'not a PNG image (damaged)' if (run.path / rel).exists() else 'missing'}"
         for key, rel in STAGE_FIGURES.items()
-        if key not in run.figures
+        if key not in present
     ]
-    design = run.summary.get("damping_design")
-    if isinstance(design, dict):
-        out += [f"summary.json: damping_design.{k} holds null" for k in _DESIGN_NUMBERS if k in design and design[k] is None]
+    design = run.summary.damping_design
+    out += [f"summary.json: damping_design.{k} holds null" for k in _DESIGN_NUMBERS if getattr(design, k) is None]
     effects = run.diagnosis.get("effects")
     for i, e in enumerate(effects if isinstance(effects, list) else []):
         params = e.get("params") if isinstance(e, dict) else None
         if isinstance(params, dict):
             out += [f"diagnose/diagnosis.json: effects[{i}].params.{k} holds null" for k, v in params.items() if v is None]
-    params = run.fit.get("params")
+    params = run.fit_record.get("params")
     if not isinstance(params, dict):
-        out.append(f"fit/fit.json: params holds {_kind(params) if 'params' in run.fit else 'nothing (missing)'}, not the fitted parameters")
+        out.append(f"fit/fit.json: params holds {_kind(params) if 'params' in run.fit_record else 'nothing (missing)'}, not the fitted parameters")
     else:
         for name in _PARAMS:
             if name not in params:
@@ -298,7 +214,7 @@ class ParamRow:
     name: str
     meaning: str
     unit: str
-    value: float | None  #: None: the fit's file holds no value (RunFolder.gaps says so)
+    value: float | None  #: None: the fit's file holds no value (gaps says so)
     stderr: float | None
     notebook: float | None
     #: The fit's 95 % profile interval in the unit shown (``samii.identify.profile``), a side the data
@@ -348,7 +264,7 @@ def parameter_rows(fit: dict, notebook: dict) -> list[ParamRow]:
     profiles = fit.get("profile_intervals") or {}
     for name, (meaning, unit, to_shown, nb_to_shown) in _PARAMS.items():
         nb = notebook.get(name)
-        if params.get(name) is None:  # shown as a row without a value (RunFolder.gaps names it), not left out
+        if params.get(name) is None:  # shown as a row without a value (gaps names it), not left out
             rows.append(ParamRow(name, meaning, unit, None, None, None if nb is None else float(nb) * nb_to_shown))
             continue
         se = stderr.get(name)

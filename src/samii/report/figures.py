@@ -1,5 +1,6 @@
 """The report's closed-loop figures: the notebook's Figures 11.1-11.5 as simulations, and the damping
-controller in the same tests. Plotting only: each function takes traces and returns PNG bytes."""
+controller in the same tests. Plotting only: each function takes closed-loop runs' time series (samii.timeseries.TimeSeries: t [s], theta and
+theta_ref [rad], accel [m/s²]) and returns PNG bytes."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import io
 
 import numpy as np
 
-from samii.report.content import Trace
+from samii.timeseries import TimeSeries
 from samii.viz.figures import panels, pyplot
 
 __all__ = ["figure_ch11_step", "figure_ch11_loper", "figure_damping"]
@@ -34,20 +35,21 @@ def _png(plt, fig, axes, t_end: float) -> bytes:
     return buf.getvalue()
 
 
-def _rest(tr: Trace) -> float:
+def _rest(tr: TimeSeries) -> float:
     """The base acceleration at rest (the first sample), removed so the traces show the vibration."""
     return float(tr.accel[0]) if tr.accel.size else 0.0
 
 
-def _angle(ax, alone: Trace, run: Trace, labels: tuple[str, str], color: str) -> None:
+def _angle(ax, alone: TimeSeries, run: TimeSeries, labels: tuple[str, str], color: str) -> None:
     """Desired and actual joint-2 angle: the servo loop alone beside ``run``."""
-    ax.plot(alone.t, np.degrees(alone.theta_ref), "k--", lw=1, label="desired")
+    if alone.theta_ref is not None:  # (samii closedloop writes it; a time series without it shows no desired angle)
+        ax.plot(alone.t, np.degrees(alone.theta_ref), "k--", lw=1, label="desired")
     ax.plot(alone.t, np.degrees(alone.theta), **_ALONE, label=labels[0])
     ax.plot(run.t, np.degrees(run.theta), color=color, lw=1.2, label=labels[1])
     ax.set_ylabel("joint-2 angle [deg]")
 
 
-def _accel(ax, ref: Trace, run: Trace, labels: tuple[str, str], color: str, ylabel: str, switch_on_s: float | None = None) -> None:
+def _accel(ax, ref: TimeSeries, run: TimeSeries, labels: tuple[str, str], color: str, ylabel: str, switch_on_s: float | None = None) -> None:
     """The base acceleration of ``run`` beside a reference run (grey)."""
     ax.plot(ref.t, ref.accel - _rest(ref), **_ALONE, label=labels[0])
     ax.plot(run.t, run.accel - _rest(run), color=color, lw=0.9, label=labels[1])
@@ -56,7 +58,7 @@ def _accel(ax, ref: Trace, run: Trace, labels: tuple[str, str], color: str, ylab
     ax.set_ylabel(ylabel)
 
 
-def figure_ch11_step(alone: Trace, cancel: Trace, *, t_end: float = 5.0) -> bytes:
+def figure_ch11_step(alone: TimeSeries, cancel: TimeSeries, *, t_end: float = 5.0) -> bytes:
     """Figures 11.1-11.4: desired vs actual joint-2 angle, and the base acceleration, with and without the
     pole-cancelling compensator (5 deg step)."""
     plt, fig, (a1, a2) = _figure(2)
@@ -66,7 +68,7 @@ def figure_ch11_step(alone: Trace, cancel: Trace, *, t_end: float = 5.0) -> byte
     return _png(plt, fig, (a1, a2), t_end)
 
 
-def figure_ch11_loper(free: Trace, cancel: Trace, switch_on_s: float, *, t_end: float = 10.0) -> bytes:
+def figure_ch11_loper(free: TimeSeries, cancel: TimeSeries, switch_on_s: float, *, t_end: float = 10.0) -> bytes:
     """Figure 11.5: the Loper test: the arm moved by the servo loop alone, the compensator switched on after."""
     plt, fig, (a1,) = _figure(1, 3.2)
     _accel(
@@ -82,7 +84,7 @@ def figure_ch11_loper(free: Trace, cancel: Trace, switch_on_s: float, *, t_end: 
     return _png(plt, fig, (a1,), t_end)
 
 
-def figure_damping(alone: Trace, step: Trace, loper: Trace, switch_on_s: float, *, t_end: float = 10.0) -> bytes:
+def figure_damping(alone: TimeSeries, step: TimeSeries, loper: TimeSeries, switch_on_s: float, *, t_end: float = 10.0) -> bytes:
     """The damping controller in the same tests: the step (angle, base) and the Loper test, beside the servo loop alone."""
     plt, fig, (a1, a2, a3) = _figure(3, 2.6)
     _angle(a1, alone, step, ("servo loop alone", "damping controller"), "tab:green")

@@ -13,12 +13,19 @@ import math
 import os
 import urllib.parse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import samii
 from samii.errors import InputError
 from samii.identify.profile import interval_text
-from samii.report.content import RECORDINGS, STAGE_FIGURES, RunFolder, parameter_rows
+from samii.report.content import RECORDINGS, STAGE_FIGURES, gaps, parameter_rows, recordings, stage_figures, traces
 from samii.report.figures import figure_ch11_loper, figure_ch11_step, figure_damping
+
+if TYPE_CHECKING:  # (the types only: samii.pipeline writes its report through this module)
+    from collections.abc import Mapping
+
+    from samii.pipeline import Run
+    from samii.run_summary import ClosedLoopSummary
 
 __all__ = ["render_report", "write_report", "REPORT_NAME"]
 
@@ -82,9 +89,9 @@ def _table(header: list[str], rows: list[list[str]], left: int = 1) -> str:
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
-def _stage_figure(run: RunFolder, key: str, alt: str, caption: str) -> str:
+def _stage_figure(run: Run, key: str, alt: str, caption: str) -> str:
     """A figure a stage drew (``STAGE_FIGURES``), or a line naming its file where the folder lacks it."""
-    p = run.figures.get(key)
+    p = stage_figures(run).get(key)
     if p is None:
         why = "is not a PNG image (damaged)" if (run.path / STAGE_FIGURES[key]).exists() else "is not in the folder"
         return f'<p class="warn">(Figure: {_e(alt)}: <code>{_e(STAGE_FIGURES[key])}</code> {why}.)</p>'
@@ -94,54 +101,52 @@ def _stage_figure(run: RunFolder, key: str, alt: str, caption: str) -> str:
 # ---- sections ----
 
 
-def _header(run: RunFolder, lines: list[str]) -> str:
+def _header(run: Run, lines: list[str], lacks: list[str]) -> str:
     s = run.summary
-    model = s["model"]["file"] + (f" with {', '.join(s['model']['overrides'])}" if s["model"].get("overrides") else "")
+    model = s.model_file + (f" with {', '.join(s.overrides)}" if s.overrides else "")
     sections = [("model", "Model"), ("measurement", "Measurement"), ("fit", "Identification"), ("control", "Control"),
                 ("diagnosis", "Diagnosis"), ("recordings", "Recordings")]  # fmt: skip
     nav = "".join(f'<a href="#{k}">{v}</a>' for k, v in sections)
-    return (f"<h1>SAMII: main job report</h1><p class=\"lead\">Model: {_e(model)}. Sensor-noise seed {_e(s['seed'])}. "
-            f"samii {_e(samii.__version__)}; the whole pipeline took {_num(s.get('wall_s'), '.0f')} s. Every figure below is in this page; "
+    return (f"<h1>SAMII: main job report</h1><p class=\"lead\">Model: {_e(model)}. Sensor-noise seed {_e(s.seed)}. "
+            f"samii {_e(samii.__version__)}; the whole pipeline took {_num(s.wall_s, '.0f')} s. Every figure below is in this page; "
             f"the numbers are the folder's own files (<code>summary.json</code> holds them all).</p><nav>{nav}</nav>"
-            + _gaps(run)
+            + _gaps(lacks)
             + f"<h2 id=\"summary\">Summary</h2><pre>{_e(chr(10).join(lines))}</pre>")  # fmt: skip
 
 
-def _gaps(run: RunFolder) -> str:
-    if not run.gaps:
+def _gaps(lacks: list[str]) -> str:
+    if not lacks:
         return ""
-    items = "".join(f"<li>{_e(g)}</li>" for g in run.gaps)
+    items = "".join(f"<li>{_e(g)}</li>" for g in lacks)
     return (
         f'<p class="bad">This folder lacks what a main job writes; the page shows what is there and marks the rest '
         f'(run <code>samii run</code> again for a whole report):</p><ul class="warn">{items}</ul>'
     )
 
 
-def _model(run: RunFolder) -> str:
+def _model(run: Run) -> str:
     from samii import notebook as nb
     from samii.sim.model import dotted
     from samii.sim.param_units import unit
 
-    m = run.summary["modes"]
+    m = run.summary.modes
     rows = []
-    for i, b in enumerate(m["base_modes"]):
+    for i, b in enumerate(m.base_modes):
         tgt_f = nb.BASE_MODES_HZ[i] if i < len(nb.BASE_MODES_HZ) else None
         tgt_z = nb.BASE_ZETAS[i] if i < len(nb.BASE_ZETAS) else None
-        diff = None if tgt_f is None else 100 * (b["freq_hz"] - tgt_f) / tgt_f
-        rows.append(
-            [f"base mode {i + 1}", _num(b["freq_hz"], ".3f"), _num(tgt_f, ".2f"), _num(diff, "+.2f"), _num(b["zeta"], ".3f"), _num(tgt_z, ".3f")]
-        )
+        diff = None if tgt_f is None else 100 * (b.freq_hz - tgt_f) / tgt_f
+        rows.append([f"base mode {i + 1}", _num(b.freq_hz, ".3f"), _num(tgt_f, ".2f"), _num(diff, "+.2f"), _num(b.zeta, ".3f"), _num(tgt_z, ".3f")])
     out = ['<h2 id="model">Model</h2>', "<p>SAMII, a 6-DOF hydraulic arm at the tip of a flexible cantilevered beam, in MuJoCo. "
            "The base modes are the linearised simulator's with joint 2 held, at the nominal pose (joints "
-           + _e(", ".join(str(round(a)) for a in m["pose_deg"])) + " deg); the notebook's eq 9.4 modes are the simulator's calibration targets.</p>",
+           + _e(", ".join(str(round(a)) for a in m.pose_deg)) + " deg); the notebook's eq 9.4 modes are the simulator's calibration targets.</p>",
            _table(["", "simulator [Hz]", "eq 9.4 [Hz]", "difference [%]", "ζ simulator", "ζ eq 9.4"], rows)]  # fmt: skip
-    if m.get("servo_pair_1_s"):
-        re_, im = m["servo_pair_1_s"]
+    if m.servo_pair_1_s:
+        re_, im = m.servo_pair_1_s
         out.append(
             f"<p>Servo position loop (joint 2 free, unity feedback): the lightly damped pair at {_num(re_, '.2f')} ± {_num(im, '.1f')}j 1/s "
             f"({_num(im / (2 * math.pi), '.2f')} Hz, ζ {_num(-re_ / math.hypot(re_, im), '.3f')}).</p>"
         )
-    flat = dotted(run.measurement.get("model", {}).get("params") or {})
+    flat = dotted(run.measurement_record.get("model", {}).get("params") or {})
     prow = [[_e(what), f"<code>{_e(name)}</code>", _num(flat[name], ".5g"), _e(unit(name))] for name, what in _KEY_PARAMS.items() if name in flat]
     if prow:
         out.append(
@@ -153,14 +158,13 @@ def _model(run: RunFolder) -> str:
     return "".join(out)
 
 
-def _measurement(run: RunFolder) -> str:
-    me = run.summary["measurement"]
-    noise = me.get("sensor_noise") or {}
-    noise_txt = ", ".join(f"{_e(k)} {_num(v, '.3g')}" for k, v in noise.items()) if isinstance(noise, dict) else _e(noise)
+def _measurement(run: Run) -> str:
+    me = run.summary.measurement
+    noise_txt = ", ".join(f"{_e(k)} {_num(v, '.3g')}" for k, v in (me.sensor_noise or {}).items())
     return ('<h2 id="measurement">Measurement</h2>'
-            f"<p>{_e(me['excitation'])}, {_num(me['amplitude_v'], 'g')} V on the valve command, {_num(me['simulated_s'], '.0f')} s simulated "
-            f"at {_num(me['sample_rate_hz'], 'g')} samples/s, recorded by the simulated DAQ with sensor noise (standard deviations: {noise_txt}; "
-            f"seed {_e(run.summary['seed'])}). Joint 2 runs under its unity position loop, as on the rig. The FRF (<code>measure/frf.csv</code>) "
+            f"<p>{_e(me.excitation)}, {_num(me.amplitude_v, 'g')} V on the valve command, {_num(me.simulated_s, '.0f')} s simulated "
+            f"at {_num(me.sample_rate_hz, 'g')} samples/s, recorded by the simulated DAQ with sensor noise (standard deviations: {noise_txt}; "
+            f"seed {_e(run.summary.seed)}). Joint 2 runs under its unity position loop, as on the rig. The FRF (<code>measure/frf.csv</code>) "
             "is estimated from the record with the excitation as the instrument.</p>"
             + _stage_figure(run, "measure_bode", "the measured FRF", "The measured FRF (solid; pale where the coherence is below 0.95) "
                       "beside the linearised simulator (dashed), and the coherence. Where the coherence falls the channel is noise: a "
@@ -177,10 +181,10 @@ def _interval(iv: tuple[float | None, float | None] | None) -> str:
     return "" if iv is None else _e(interval_text(*iv))
 
 
-def _fit(run: RunFolder) -> str:
+def _fit(run: Run) -> str:
     from samii import notebook as nb
 
-    f = run.fit
+    f = run.fit_record
     from samii.identify.report import verdict_of, verdict_text
 
     verdict = f'<span class="{"bad" if verdict_of(f) == "not sound" else "ok"}">{_e(verdict_text(f))}</span>'  # a failure told apart from caveats
@@ -211,17 +215,16 @@ def _fit(run: RunFolder) -> str:
             "data do not bound it on that side), and it is the one to use for a mode the data barely see.</p>")  # fmt: skip
 
 
-def _closed_loop(run: RunFolder) -> str:
+def _closed_loop(run: Run) -> str:
     from samii.run_summary import CONTROLLERS
 
-    s = run.summary
-    cl = s["closed_loop"]
-    d = s.get("damping_design") or {}
+    cl = run.summary.closed_loop
+    d = run.summary.damping_design
     out = ['<h2 id="control">Control: the notebook\'s controllers and the damping controller, closed loop in the nonlinear simulator</h2>',
            f"<p>The damping controller is acceleration feedback designed on a fit of the measured FRF (<code>samii design damping --frf</code>): "
-           f"gain {_num(d.get('gain_v_per_m_s2'), '.3g')} V/(m/s²), {_num(d.get('gain_margin_db'), '.2g')} dB below the fitted model's "
-           f"stability limit of {_num(d.get('gain_limit_v_per_m_s2'), '.3g')}, a low-pass at {_num(d.get('filter_hz'), '.3g')} Hz and a roll-off "
-           f"at {_num(d.get('rolloff_hz'), '.3g')} Hz. The notebook's pole-cancelling compensator (chapter 10) and pole placement (chapter 8) run "
+           f"gain {_num(d.gain_v_per_m_s2, '.3g')} V/(m/s²), {_num(d.gain_margin_db, '.2g')} dB below the fitted model's "
+           f"stability limit of {_num(d.gain_limit_v_per_m_s2, '.3g')}, a low-pass at {_num(d.filter_hz, '.3g')} Hz and a roll-off "
+           f"at {_num(d.rolloff_hz, '.3g')} Hz. The notebook's pole-cancelling compensator (chapter 10) and pole placement (chapter 8) run "
            "as the notebook built them. Every controller runs at 1 kHz inside the simulator (sampled θ and ẍ, zero-order hold, the valve's "
            "±10 V). Step: 5 deg on joint 2 at t = 1 s. Loper test: the same step under the servo loop alone, the controller switched on at "
            "t = 2 s.</p>"]  # fmt: skip
@@ -232,10 +235,10 @@ def _closed_loop(run: RunFolder) -> str:
             r = cl.get(f"{name}_{sc}")
             if r is None:
                 continue
-            th, ba = r.get("theta") or {}, r.get("base") or {}
-            ok = bool(r.get("stable"))
-            hz = f", {_num(r.get('unstable_mode_hz'), '.3g')} Hz" if r.get("unstable_mode_hz") else ""
-            why = _e(r["instability"]) if isinstance(r.get("instability"), str) else f"grows at {_num(r.get('growth_rate_1_s'), '.3g')} 1/s{hz}"
+            th, ba = r.theta or {}, r.base or {}
+            ok = r.stable
+            hz = f", {_num(r.unstable_mode_hz, '.3g')} Hz" if r.unstable_mode_hz else ""
+            why = _e(r.instability) if r.instability is not None else f"grows at {_num(r.growth_rate_1_s, '.3g')} 1/s{hz}"
             state = '<span class="ok">stable</span>' if ok else f'<span class="bad">UNSTABLE</span> ({why})'
             rows.append([_e(label), sc, state,
                          _num(th.get("overshoot_pct"), ".1f") if ok and sc == "step" else "–",
@@ -251,7 +254,7 @@ def _closed_loop(run: RunFolder) -> str:
         "after the switch-on; the free decay is the servo loop alone's over the same time. Each run's own figures, its linear "
         "prediction and its time series are in <code>closedloop/&lt;controller&gt;_&lt;test&gt;/</code>.</p>"
     )
-    tr = run.traces
+    tr = traces(run)
     if {"servo_loop_alone_step", "notebook_cancel_step"} <= tr.keys():
         out.append(
             _figure(
@@ -281,21 +284,20 @@ def _closed_loop(run: RunFolder) -> str:
             )
         )
     place = cl.get("notebook_place_step")
-    if place is not None and not place.get("stable"):
+    if place is not None and not place.stable:
         out.append(
             "<p>Pole placement (chapter 8) is unstable on every plant but the notebook's own 2-mode eq 1.4: its observer uses eq 1.4's "
             "direct feedthrough of ẍ/v, which no valve-driven actuator has, so any mismatch closes a loop at the sample rate with a "
             "gain far above 1 (<code>experiments/closed_loop/README.md</code>). Its runs stop where the controller's output diverges: "
-            + _e("; ".join(n for n in run.closed_loop.get("notebook_place_step", {}).get("notes", []) if "diverged at" in n))
+            + _e("; ".join(n for n in run.closed_loop["notebook_place_step"].record.get("notes", []) if "diverged at" in n))
             + ".</p>"
         )
     return "".join(out)
 
 
-def _overshoot(cl: dict) -> str:
+def _overshoot(cl: Mapping[str, ClosedLoopSummary]) -> str:
     """What the damping controller costs the joint: its θ overshoot beside the servo loop alone's, said when larger."""
-    mine = ((cl.get("damping_step") or {}).get("theta") or {}).get("overshoot_pct")
-    alone = ((cl.get("servo_loop_alone_step") or {}).get("theta") or {}).get("overshoot_pct")
+    mine, alone = ((cl[k].theta or {}).get("overshoot_pct") if k in cl else None for k in ("damping_step", "servo_loop_alone_step"))
     if mine is None or alone is None or not mine > alone:
         return ""
     return (
@@ -313,11 +315,11 @@ def _worse(after, before, fmt: str) -> str:
     return txt
 
 
-def _switch_on(run: RunFolder, name: str) -> float:
-    return float((run.closed_loop.get(name, {}).get("scenario_settings") or {}).get("switch_on_s", 2.0))
+def _switch_on(run: Run, name: str) -> float:
+    return float((run.closed_loop[name].record.get("scenario_settings") or {}).get("switch_on_s", 2.0))
 
 
-def _diagnosis(run: RunFolder) -> str:
+def _diagnosis(run: Run) -> str:
     d = run.diagnosis
     # (samii diagnose always writes both: a file without them is damaged, not a diagnosis that found nothing)
     effects = [e for e in d["effects"] if not e.get("expected")]
@@ -348,7 +350,7 @@ def _diagnosis(run: RunFolder) -> str:
             rows.append([_CHANNELS[ch]] + [c for key, fmt in (("rms_db", ".2f"), ("rms_deg", ".1f"), ("chi2", ".3g"))
                                             for c in (_num(b.get(key), fmt), _worse(a.get(key), b.get(key), fmt))])  # fmt: skip
     if rows:
-        fr, fp = run.fit.get("rms_mag_db") or {}, run.fit.get("rms_phase_deg") or {}
+        fr, fp = run.fit_record.get("rms_mag_db") or {}, run.fit_record.get("rms_phase_deg") or {}
         why = ""
         if "act" in fr and "act" in eb:
             why = (
@@ -408,10 +410,11 @@ def _diagnosis(run: RunFolder) -> str:
     return "".join(out)
 
 
-def _recordings(run: RunFolder, page_dir: Path) -> str:
+def _recordings(run: Run, page_dir: Path) -> str:
     items = []
+    sizes = recordings(run)
     for name, what in RECORDINGS.items():
-        size = run.recordings.get(name)
+        size = sizes.get(name)
         if size is None:
             continue
         href = urllib.parse.quote(Path(os.path.relpath(run.path.absolute() / name, page_dir.absolute())).as_posix())  # a URL: '#', '%', ' ' escaped
@@ -425,14 +428,16 @@ def _recordings(run: RunFolder, page_dir: Path) -> str:
     )
 
 
-def render_report(run: RunFolder, page_dir: Path | None = None) -> str:
-    """The page's HTML; the links to the recordings are relative to ``page_dir`` (default: the run's folder).
-    A file of the folder that lacks a field the page needs, or holds a value of the wrong kind, is an InputError."""
+def render_report(run: Run, page_dir: Path | None = None, *, name: str | None = None) -> str:
+    """The page's HTML, naming the run's folder ``name`` (default: its folder's name; the main job writes the page in a
+    staging folder); the links to the recordings are relative to ``page_dir`` (default: the run's folder). A stage's
+    document that lacks a field the page needs, or holds a value of the wrong kind, is an InputError naming the field
+    (summary.json's are checked when the run is read, samii.pipeline.Run.load)."""
     from samii.report.content import traced
 
     watched, log = traced(run)
     try:
-        return _render(watched, page_dir)
+        return _render(watched, page_dir, name or run.path.name)
     except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
         what = (
             f"field {exc.args[0]!r} missing" if isinstance(exc, KeyError) else str(exc).replace("_TracedList", "list").replace("_TracedDict", "dict")
@@ -447,10 +452,10 @@ def render_report(run: RunFolder, page_dir: Path | None = None) -> str:
         raise InputError(f"{run.path}: a file of this main job's folder is not as samii run writes it ({what}); run samii run again") from None
 
 
-def _render(run: RunFolder, page_dir: Path | None) -> str:
+def _render(run: Run, page_dir: Path | None, name: str) -> str:
     from samii.run_summary import summary_lines
 
-    body = "".join([_header(run, summary_lines(run.summary, run.display_name or run.path.name)), _model(run), _measurement(run), _fit(run), _closed_loop(run),
+    body = "".join([_header(run, summary_lines(run.summary, name), gaps(run)), _model(run), _measurement(run), _fit(run), _closed_loop(run),
                     _diagnosis(run), _recordings(run, page_dir if page_dir is not None else run.path)])  # fmt: skip
     return (
         f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width, initial-scale=1">'
@@ -458,8 +463,8 @@ def _render(run: RunFolder, page_dir: Path | None) -> str:
     )
 
 
-def write_report(run: RunFolder, path: Path | None = None) -> Path:
-    """Write ``report.html`` (default: into the run's folder) and return its path."""
+def write_report(run: Run, path: Path | None = None, *, name: str | None = None) -> Path:
+    """Write ``report.html`` (default: into the run's folder; ``name``: as :func:`render_report`) and return its path."""
     from samii.formats import write_text
     from samii.outputs import parent_made_for
 
@@ -467,7 +472,7 @@ def write_report(run: RunFolder, path: Path | None = None) -> Path:
     if path.is_dir():
         raise InputError(f"{path}: is a folder; the report is a file (remove the folder or give --out FILE)")
     with parent_made_for(path):  # atomic, and a folder made for it removed again: a failure (a full disk) leaves nothing
-        page = render_report(run, path.parent)
+        page = render_report(run, path.parent, name=name)
         try:
             return write_text(path, page, overwrite=True)
         except OSError as exc:  # named as the report, not as the hidden temporary file beside it (a read-only folder)

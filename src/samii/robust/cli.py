@@ -2,9 +2,10 @@
 
 Each sample is a plant drawn from the given spreads and/or a calibration's covariance
 (:mod:`samii.robust.sampling`), run closed loop (:mod:`samii.robust.task`) in this process or on
-Dask (:mod:`samii.robust.engine`). Writes into ``--out``: ``robust.json`` (the summary, the
-nominal plant's run, every sample), ``samples.csv`` (one line per sample: its parameters and
-results) and the figures ``histograms.png`` and ``influence.png``. Imports nothing heavy at module level.
+Dask (:mod:`samii.robust.engine`); the study is one library call (:mod:`samii.robust.runner`), which
+writes into ``--out``: ``robust.json`` (the summary, the nominal plant's run, every sample), ``samples.csv``
+(one line per sample: its parameters and results) and the figures ``histograms.png`` and ``influence.png``.
+This module parses, shows progress and prints. Imports nothing heavy at module level (the runner imports Dask).
 """
 
 from __future__ import annotations
@@ -27,7 +28,6 @@ from samii.cli_args import (
     nonempty,
     nonempty_path,
 )
-from samii.errors import InputError
 
 __all__ = ["add_arguments", "run", "MAX_SAMPLES"]
 
@@ -35,12 +35,6 @@ __all__ = ["add_arguments", "run", "MAX_SAMPLES"]
 SCHEDULER_TIMEOUT_S = 30.0
 
 MAX_SAMPLES = 100_000
-_FILES = ("robust.json", "samples.csv")
-#: An absolute spread below this fraction of its nominal value varies nothing (double precision keeps 1e-16; a
-#: parameter known to 1e-4 of itself is known better than any rig's).
-TINY_SPREAD = 1e-4
-#: Fewer plants than this: the 5 % and 95 % percentiles are the smallest and largest drawn (1/0.05 = 20).
-FEW_SAMPLES = 20
 
 
 def _workers(text: str) -> int:
@@ -107,179 +101,47 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_no_progress(p)
 
 
-def _nominal_params(args):
-    from samii.sim.model import default_params, params_from_dict, params_with_overrides, read_params_file
-    from samii.sim.overrides import parse_overrides
-
-    cov = None
-    if args.covariance:
-        from samii.robust.sampling import read_covariance
-
-        if args.model:
-            raise InputError("--model: with --covariance the nominal plant is the calibration's (its calibrated_params); give one of them")
-        cov = read_covariance(args.covariance)
-        if cov.converged is False:  # its standard errors are those of a point that is no minimum: said, used as asked
-            print(
-                f"samii robust: warning: --covariance {args.covariance}: the calibration did not converge (field 'converged' is "
-                "false): its standard errors and correlations describe no minimum of its cost; calibrate again",
-                file=sys.stderr,
-            )
-        try:
-            params = params_from_dict(cov.nominal, complete=True)
-        except ValueError as exc:
-            raise InputError(f"--covariance {args.covariance}: field 'calibrated_params': {exc}") from None
-    elif args.model:
-        if not str(args.model).lower().endswith(".json"):
-            raise InputError(f"--model {args.model}: samii robust varies a parameter file's values (.json; samii params lists them), not an MJCF")
-        params = read_params_file(args.model)
-    else:
-        params = default_params()
-    overrides = parse_overrides(args.set)
-    if cov is not None and set(overrides) & set(cov.names):
-        raise InputError(f"--set {sorted(set(overrides) & set(cov.names))[0]}: also drawn by --covariance; give one of them")
-    return params_with_overrides(params, overrides) if overrides else params, cov
-
-
-def _study_warnings(args, spreads, nominal: dict) -> list[str]:
-    """What makes a study say less than it seems to: an absolute spread that is a rounding error of its parameter (the
-    '%' forgotten: NAME=20 is 20 in the parameter's unit), percentiles of fewer plants than they need."""
-    out = []
-    for sp in spreads:
-        value = nominal.get(sp.name)
-        if sp.absolute is not None and isinstance(value, (int, float)) and value and 0 < sp.absolute < TINY_SPREAD * abs(value):
-            out.append(
-                f"--spread {sp.name}={sp.absolute:g}: an absolute standard deviation of {sp.absolute:g} on a nominal "
-                f"{value:.6g} ({sp.absolute / abs(value):.2g} of it): the study varies nothing; a relative spread is "
-                f"written with % ({sp.name}={sp.absolute:g}%)"
-            )
-    if args.samples < FEW_SAMPLES:
-        out.append(
-            f"--samples {args.samples}: the 5 and 95 % percentiles of fewer than {FEW_SAMPLES} plants are the extremes drawn, not the spread's tails"
-        )
-    return out
-
-
 def run(args: argparse.Namespace) -> int:
-    from samii.outputs import OutputFolder
+    from samii.cli_progress import Bar
     from samii.robust.plots import FIGURES
+    from samii.robust.runner import StudyRequest, plan_study
 
-    if args.controller == "unity" and args.delay_samples:
-        raise InputError("--delay-samples: the unity servo loop is analog (no digital controller to delay)")
-    if args.controller == "unity" and args.noise:
-        raise InputError("--noise: the unity servo loop samples no sensors (its analog loop reads the joint angle directly)")
-    folder = OutputFolder(args.out, list(_FILES) + list(FIGURES), overwrite=args.overwrite) if args.out is not None else None
-    from samii.robust.engine import Engine, configured_scheduler
-    from samii.robust.sampling import draw_plants, parse_spread
-
-    spreads = [parse_spread(s) for s in args.spread]
-    params, cov = _nominal_params(args)
-    from samii.sim.model import dotted, params_with_overrides
-
-    draws = draw_plants(args.samples, args.seed, dotted(params), spreads, cov)
-    warnings = _study_warnings(args, spreads, dotted(params))  # (said with the result, after every refusal's one line)
-
-    for i in range(args.samples):  # every drawn value is one the model accepts, checked before any run
-        try:
-            params_with_overrides(params, draws.overrides(i))
-        except InputError as exc:
-            raise InputError(f"sample {i}: {exc}: narrow the spread (or give it as an absolute value)") from None
-    if args.scheduler and args.workers is not None:
-        raise InputError("--workers: with --scheduler the cluster's own workers run the study; give one of them")
-    # an explicit --workers (0 included) wins over Dask's configured scheduler address
-    scheduler = args.scheduler or (configured_scheduler() if args.workers is None else None)
-    source = "--scheduler" if args.scheduler else "Dask's configured scheduler-address (DASK_SCHEDULER_ADDRESS or ~/.config/dask)"
-    if scheduler:  # before any work: an address Dask cannot connect to is refused at once
-        from samii.robust.engine import check_address
-
-        if check_address(scheduler, source) is None:
-            raise InputError(
-                f"{source} {scheduler}: an in-process address (inproc://) names a scheduler inside one Python "
-                "process, never another command's; give the scheduler's tcp://host:port"
-            )
-    if args.scheduler_timeout is not None and not scheduler:  # (it was accepted and did nothing)
-        raise InputError("--scheduler-timeout: only with a Dask cluster to wait for (--scheduler, or Dask's configured scheduler-address)")
-    engine = Engine(
-        workers=args.workers or 0, scheduler=scheduler, connect_timeout_s=args.scheduler_timeout or SCHEDULER_TIMEOUT_S, scheduler_source=source
+    request = StudyRequest(
+        controller=args.controller,
+        scenario=args.scenario,
+        samples=args.samples,
+        seed=args.seed,
+        spreads=tuple(args.spread),
+        covariance=args.covariance,
+        model=args.model,
+        overrides=tuple(args.set),
+        delay_samples=args.delay_samples,
+        noise=args.noise,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        scheduler_timeout_s=args.scheduler_timeout,
     )
 
-    # the controller is designed (or read) once, on the nominal plant, in this process
-    from samii.closedloop.trial import check_fits, resolve_controller
-    from samii.robust.task import SampleTask
-    from samii.sim.model import load_model, load_spec
-
-    nominal_model = load_model(params=params)
-    qpos, act = nominal_model.key_qpos[0].copy(), nominal_model.key_act[0].copy()
-
     def say(what: str) -> None:  # the stages of a "damping" controller's design
-        if not args.json:
-            print(f"  damping controller: {what}", file=sys.stderr)
+        print(f"  damping controller: {what}", file=sys.stderr)
 
-    saved = resolve_controller(args.controller, lambda: (load_spec(params=params)[0], qpos, act), say=say)
-    if saved is not None:
-        check_fits(saved, args.controller, args.delay_samples, float(nominal_model.opt.timestep))
-    from samii.robust.sampling import sample_seeds
-
-    base = params.as_dict()
-
-    def noise_seed(i: int) -> int | None:
-        return sample_seeds(args.seed, i)[1] if args.noise else None
-
-    tasks = [SampleTask(-1, base, {}, saved, args.scenario, args.delay_samples, noise_seed(-1))]
-    tasks += [SampleTask(i, base, draws.overrides(i), saved, args.scenario, args.delay_samples, noise_seed(i)) for i in range(args.samples)]
-
-    import contextlib
-    import time
-
-    from samii.cli_progress import Bar
-
-    t0 = time.perf_counter()
-    with contextlib.ExitStack() as stack:
-        if engine.scheduler:  # connected first (bounded in time): a scheduler that refuses or never answers is one line
-            stack.enter_context(engine)
+    study = plan_study(request, out=args.out, overwrite=args.overwrite, say=None if args.json else say)
+    with study:  # (connected to a user's cluster first: one that refuses or never answers is one line)
         if not args.json and not args.no_progress:  # (a progress line: not before a refusal's one line when asked for quiet)
-            print(
-                f"samii robust: {args.controller}, {args.scenario} test, {args.samples} plants (seed {args.seed}) {engine.describe()}",
-                file=sys.stderr,
-            )
+            print(f"samii robust: {study.describe()}", file=sys.stderr)
         with Bar("samii robust", unit="run", disable=args.no_progress or None, leave=False) as bar:
-            results = engine.map(tasks, progress=bar)
-    wall = time.perf_counter() - t0
-    nominal, samples = results[0], results[1:]
-    for w in warnings:
-        print(f"samii robust: warning: {w}", file=sys.stderr)
-
-    from samii.robust.study import summarise
-
-    summary = summarise(draws, samples)
-    if summary.n == 0:
-        why = samples[0].note.removeprefix("no plant: ")
-        raise InputError(f"none of the {args.samples} drawn plants could be built (the first: {why}); narrow the spreads")
-    doc = {
-        "controller": args.controller, "scenario": args.scenario, "seed": args.seed, "n_samples": args.samples,
-        "engine": engine.describe(), "wall_s": wall, "warnings": warnings,
-        "varied": [{"name": n, "nominal": float(v), "source": s} for n, v, s in zip(draws.names, draws.nominal, draws.sources)],
-        "nominal_plant": nominal.table_row(),
-        "summary": summary.as_json(),
-        "samples": [dict(r.table_row(), params=draws.overrides(r.index)) for r in samples],
-    }  # fmt: skip
-    lines = _lines(doc, summary)
-    if folder is not None:
-        with folder:
-            from samii.json_output import dumps
-            from samii.robust.plots import plot_histograms, plot_influence
-            from samii.schema import versioned
-
-            folder.path("robust.json").write_text(dumps(versioned(doc), indent=1) + "\n")
-            _write_csv(folder.path("samples.csv"), draws, samples)
-            plot_histograms(samples, summary, f"{args.controller}, {args.scenario} test, {args.samples} plants", folder.path("histograms.png"))
-            plot_influence(draws, samples, summary, folder.path("influence.png"))
-        lines.append(f"wrote {args.out}/robust.json, samples.csv, {', '.join(FIGURES)}")
+            result = study.run(progress=bar)
+    for w in result.warnings:
+        print(f"samii robust: warning: {w.text}", file=sys.stderr)
     if args.json:
         from samii.json_output import dumps
 
-        print(dumps({k: v for k, v in doc.items() if k != "samples"}, indent=1))
-    else:
-        print("\n".join(lines))
+        print(dumps({k: v for k, v in result.document.items() if k != "samples"}, indent=1))
+        return 0
+    lines = _lines(result.document, result.summary)
+    if result.written:
+        lines.append(f"wrote {args.out}/robust.json, samples.csv, {', '.join(FIGURES)}")
+    print("\n".join(lines))
     return 0
 
 
@@ -328,16 +190,3 @@ def _lines(doc: dict, s) -> list[str]:
         state = "UNSTABLE" if not w["stable"] else "stable"
         out.append(f"  #{w['index']}: {state}, {_mode(w)}; {params}")
     return out
-
-
-def _write_csv(path, draws, samples) -> None:
-    import csv
-
-    numbers = ["zeta", "mode_hz", "growth_rate_1_s", "base_settle_s", "theta_settle_s", "theta_overshoot_pct"]
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["index", *draws.names, "valid", "stable", "linear_stable", *numbers, "note"])
-        for r in samples:
-            row = r.table_row()
-            w.writerow([r.index, *(repr(float(v)) for v in draws.values[r.index]), int(r.valid), int(r.stable), int(r.linear_stable),
-                        *("" if row[c] is None else repr(float(row[c])) for c in numbers), r.note])  # fmt: skip

@@ -43,7 +43,7 @@ import numpy as np
 import scipy.fft
 
 from samii.measure.frf import CHANNEL_PAIRS
-from samii.measure.frf_variance import POOL, pool_mean, spectra_at, timeseries_frf
+from samii.measure.frf_variance import MAX_VAR, POOL, pool_mean, spectra_at, timeseries_frf
 
 if TYPE_CHECKING:
     from samii.timeseries import TimeSeries
@@ -268,7 +268,6 @@ def with_floor(m, model: Callable[[np.ndarray], Mapping[str, np.ndarray]] | None
                 bias_var = {ch: np.nan_to_num(pool_mean(np.abs(np.nan_to_num(b)) ** 2, POOL)) for ch, b in bias.items()}
                 for ch in floor:
                     floor[ch] = floor[ch] + bias_var.get(ch, 0.0)
-                from samii.diagnose.model import MAX_VAR
 
                 # the largest where the data are usable (where the response is noise, the ringing dwarfs it too)
                 worst = {ch: float(np.sqrt(np.max(np.where(np.asarray(m.var[ch]) <= MAX_VAR, v, 0.0)))) for ch, v in bias_var.items()}

@@ -49,7 +49,7 @@ from samii.measure.records import RecordLayout, excitation_offset, find_records
 from samii.timeseries import TimeSeries
 
 if TYPE_CHECKING:
-    from samii.diagnose.floor import Floor
+    from samii.measure.floor import Floor
 
 __all__ = ["Measured", "from_timeseries", "from_frf", "with_roughness_noise"]
 
@@ -84,9 +84,9 @@ class Measured:
         the point by ``var + model_var``, the error reported is against ``var`` alone (set by
         :func:`samii.diagnose.nonlinear.distortion_var`: the distortion measured, and
         :func:`samii.diagnose.nonlinear.linearised`: a describing function's neglected harmonics).
-    floor : samii.diagnose.floor.Floor or None
+    floor : samii.measure.floor.Floor or None
         The systematic floor already added to ``var`` (what repeats in every record: the estimator's bias,
-        quantisation, a stated relative floor; :mod:`samii.diagnose.floor`), None before it is added.
+        quantisation, a stated relative floor; :mod:`samii.measure.floor`), None before it is added.
     """
 
     source: str
@@ -131,7 +131,7 @@ BAND_TOP_OF_RATE = 0.45
 def _without_mains(ts: TimeSeries) -> tuple[TimeSeries, list[str]]:
     """``ts`` with the mains lines of v, theta and accel subtracted (:mod:`samii.measure.lines`: leaking through the
     records' rectangular window they repeat in every record that lasts whole mains periods), and what was removed."""
-    from samii.diagnose.floor import quantisation_step
+    from samii.measure.floor import quantisation_step
     from samii.measure.lines import remove_lines
 
     fs = ts.sample_rate_hz
@@ -167,9 +167,9 @@ DRIFT_REST_S = 2.0
 def _drift_effect(frf: FrequencyResponse, var, frf2: FrequencyResponse, var2) -> list[str]:
     """What a subtraction that turned (``frf``, ``var``) into (``frf2``, ``var2``) did, where it matters (none: []): a point moved
     by :data:`DRIFT_STANDARD_ERRORS` of the new estimate, a spread that fell :data:`DRIFT_SPREAD_FACTOR`-fold, each
-    with the relative floor (samii.diagnose.floor.REL_FLOOR) added to the variances (noise-free data's rests differ
+    with the relative floor (samii.measure.floor.REL_FLOOR) added to the variances (noise-free data's rests differ
     by the sweep's last ringing, and a zero spread made any change count)."""
-    from samii.diagnose.floor import REL_FLOOR
+    from samii.measure.floor import REL_FLOOR
 
     moved, spread = [], []
     for ch in CHANNEL_PAIRS:
@@ -200,8 +200,8 @@ def _without_drift(
     matters (:func:`_drift_effect`, channel by channel against the FRF ``frf`` estimated without it, point variances
     ``var``), and what was subtracted; else ``ts`` unchanged. Only records that rest give a drift; a column on a
     lattice keeps it (as for hum)."""
-    from samii.diagnose.floor import quantisation_step
     from samii.measure.drift import drift_from_rests
+    from samii.measure.floor import quantisation_step
 
     if not (layout.rest_s > 0 and layout.baseline_s > 0):
         return ts, []
@@ -361,7 +361,7 @@ def _check_scale(frf: FrequencyResponse, ts: TimeSeries, source: str) -> None:
 
 
 #: theta swinging fewer of its encoder's counts than this (amplitude, counts) is said: a sine of amplitude A rounded to q
-#: is off at its own frequency by up to 0.53 (q/A)^1.5 (samii.diagnose.floor), 4.7 % at 5 counts, 53 % at one.
+#: is off at its own frequency by up to 0.53 (q/A)^1.5 (samii.measure.floor), 4.7 % at 5 counts, 53 % at one.
 COARSE_COUNTS = 5.0
 
 
@@ -369,7 +369,7 @@ def coarse_encoder_warnings(theta: np.ndarray, *, source: str) -> list[str]:
     """theta on a lattice (an encoder's count) that it barely leaves: its FRF is the rounding's, and the coherence does
     not show it (the rounding follows the excitation). `samii frf` wrote theta/v 30-45 dB low with coherence 0.96 from
     a 10-bit encoder (theta on -1, 0, +1 counts) and said nothing; diagnose refused every theta point, rightly."""
-    from samii.diagnose.floor import QUANT_FUNDAMENTAL, quantisation_step
+    from samii.measure.floor import QUANT_FUNDAMENTAL, quantisation_step
 
     q = quantisation_step(theta)
     if q is None:
