@@ -121,3 +121,96 @@ def test_a_refusal_is_a_code_with_its_figures_and_its_class_is_not_read_off_its_
         assert cls in Refusal(code, figures.get(code, {})).text, code
     with pytest.raises(ValueError, match="Refusal.code must be one of"):
         Refusal("too small")
+
+
+# -- a nonlinearity's evidence (samii.diagnose.nonlinear.HarmonicEvidence, NonlinearEvidence) ------------------------
+
+
+def _seen(harmonic: int, **kw):
+    from samii.diagnose.nonlinear import HarmonicEvidence
+
+    return HarmonicEvidence(source="rig.csv", harmonic=harmonic, n_records=3, n_significant=12, n_tested=18, band_hz=(1.46, 12.6),
+                            peak_ratio=0.045, peak_hz=1.46, peak_command_v=0.0377, log10_p=-13.2, **kw)  # fmt: skip
+
+
+_BASE3 = (
+    "rig.csv: the 3rd harmonic of the sweep, referred to the valve command, repeats in all 3 records beyond their spread (p = "
+    "10^-13 in the strongest segment) in 12 of 18 segments, 1.46-12.6 Hz, up to 4.5 % of the fundamental (-27 dB) at 1.46 Hz "
+    "where the valve command is 37.7 mV; a linear system makes none"
+)
+
+
+def test_an_odd_law_is_worded_from_its_figures():
+    chi2 = {"dead_band": 2.17, "saturation": 62.3, "hysteresis": 62.2}
+    every = {"dead_band": 1.92, "saturation": 44.5, "hysteresis": 44.5}
+    law = dict(phase_deg=-4.2, law="dead_band", level_v=0.00504, level_se_v=0.00019, law_chi2=chi2, phase_spread_deg=12.0)
+    fits = _seen(3, **law, every_segments=18, every_chi2=every, trend=-0.84, law_fits=True)
+    assert fits.text() == (
+        _BASE3 + "; the 3rd harmonic (-4 deg from cos 3phi) says the centre of the wave is missing: a dead band (spool overlap; "
+        "Coulomb friction that holds the joint at small commands looks alike): its describing function fits a level of 5.04 +- "
+        "0.19 mV with chi2 2.17 per degree of freedom (the other laws: saturation 62.3, hysteresis 62.2; over all 18 tested "
+        "segments, where it is absent too: dead_band 1.92, saturation 44.5, hysteresis 44.5); the distortion falls with the "
+        "command's amplitude (correlation -0.84)"
+    )
+    # no law on the command alone: the kind and level indicative only
+    loose = _seen(3, **law, law_fits=False, reference="the model's own")
+    assert "that is in excess of the model's own, measured like the file;" in loose.text()
+    assert loose.text().endswith("but no law on the command alone tells it apart (phase spread 12 deg over the segments): the nonlinearity "
+                                 "depends on the loop's state too (the load pressure through the valve's orifice law, say), and the kind and "
+                                 "level are indicative only")  # fmt: skip
+    # a chi2 above MAX_DF_CHI2 that is not far below the others' where the harmonic is: identified over every segment
+    wide = _seen(3, **{**law, "law_chi2": {**chi2, "dead_band": 40.0}}, law_fits=True)
+    assert wide.text().endswith("it fits far better than the others over every tested segment, where the harmonic is and where it is absent, "
+                                "and its chi2 above 1 is the describing function's own approximation (a pure sine at the valve, where "
+                                "the loop feeds the harmonics back)")  # fmt: skip
+    narrow = _seen(3, **{**law, "law_chi2": {**chi2, "dead_band": 14.5}}, law_fits=True)
+    assert "it fits far better than the others where the harmonic is, and" in narrow.text()
+
+
+def test_a_gain_asymmetry_is_worded_from_its_figures():
+    from dataclasses import replace
+
+    from samii.diagnose.nonlinear import AlsoIn
+
+    even = (
+        _BASE3.replace("3rd", "2nd")
+        + "; even harmonics dominate: the valve's two directions differ (its orifice law under load, unequal piston areas)"
+    )
+    few = _seen(2)
+    assert few.text() == even  # fewer than 2 segments tested: no ratio
+    assert _seen(2, mean_ratio=0.5, ratio_segments=27).text() == even + "; their mean ratio +50 % is beyond any gain asymmetry's"
+    gain = _seen(2, mean_ratio=0.022, ratio_segments=27, asymmetry=0.097, asymmetry_se=0.002, ratio_chi2=1.16)
+    assert gain.text() == even + (
+        "; their mean ratio +2.2 % over 27 segments is a gain 9.7 +- 0.2 % lower in the negative direction (c2/c1 = 2 d / (3 pi "
+        "(1 - d/2)), real and the same at every amplitude; that constant fits with chi2 1.16 per degree of freedom)"
+    )
+    orifice = replace(gain, asymmetry=-0.097, ratio_chi2=25.0)
+    assert "lower in the positive direction" in orifice.text()
+    assert orifice.text().endswith("chi2 25 per degree of freedom: far from constant, so the two directions differ by more than a gain (the "
+                                   "orifice law's share grows with the command))")  # fmt: skip
+    also = replace(gain, also=(AlsoIn("b.csv", 4), AlsoIn("c.csv", 2, 0.00496)))
+    assert also.text().endswith("; also in b.csv (4 segments); also in c.csv (2 segments, level 4.96 mV)")
+
+
+def test_an_amplitude_dependence_is_worded_from_its_test_and_joined_to_the_harmonics():
+    from samii.diagnose.nonlinear import AmplitudeTest, NonlinearEvidence, NonlinearFinding, amplitude_kind
+
+    grows = AmplitudeTest(("a.csv", "b.csv"), (0.05, 0.3), 4004.2, 38.0, -400.0, 6.66, 179)
+    said = (
+        "theta/v at 0.3 V differs from that at 0.05 V by chi2 4004 on 38 dof (p < 1e-300; 179 points), +6.66 dB on average "
+        "(inverse-variance weighted) at the larger amplitude: the response grows with amplitude, as a dead band's or friction's "
+        "(small commands lose more)"
+    )
+    assert amplitude_kind(grows) == "dead_band" and NonlinearFinding("dead_band", {}, {}, NonlinearEvidence(across_files=grows)).evidence == said
+    seen = _seen(3, phase_deg=-4.2, law="saturation", level_v=0.08, level_se_v=0.001, law_chi2={"dead_band": 9.0, "saturation": 2.0, "hysteresis": 9.0},
+                 phase_spread_deg=5.0, law_fits=True)  # fmt: skip
+    both = NonlinearFinding("saturation", {}, {}, NonlinearEvidence(seen, grows))
+    assert both.evidence == seen.text() + "; across files: " + said + " (the harmonics say saturation)"  # they disagree: said
+    shrinks = AmplitudeTest(("a.csv", "b.csv"), (0.1, 0.3), 1210.0, 40.0, -227.0, -0.05, 183, channel="total")
+    agreed = NonlinearFinding("saturation", {}, {}, NonlinearEvidence(seen, shrinks)).evidence
+    assert agreed.endswith("; across files: xdd/v at 0.3 V differs from that at 0.1 V by chi2 1210 on 40 dof (p = 10^-227; 183 points), "
+                           "-0.05 dB on average (inverse-variance weighted) at the larger amplitude: the response shrinks with amplitude, "
+                           "as a saturation's")  # fmt: skip
+    # the figures, not the words, in diagnosis.json
+    doc = json.loads(dumps(FoundEffect("nonlinear", "saturation", "act", {}, {}, agreed, nonlinear=NonlinearEvidence(seen, shrinks)).to_dict()))
+    assert doc["nonlinear"]["harmonics"]["level_v"] == 0.08 and doc["nonlinear"]["across_files"]["gain_change_db"] == -0.05

@@ -47,7 +47,7 @@ import numpy as np
 from samii.diagnose.effects import library
 from samii.diagnose.evidence import Joined, Refusal, Rival, evidence_text, joined_text, values_text
 from samii.diagnose.model import Baseline, Dataset, Fit
-from samii.diagnose.nonlinear import MAX_DF_CHI2, distortion_var, find_nonlinear, harmonic_errors, linearised
+from samii.diagnose.nonlinear import MAX_DF_CHI2, NonlinearEvidence, distortion_var, find_nonlinear, harmonic_errors, linearised
 from samii.diagnose.residuals import (
     Band,
     ChannelError,
@@ -92,6 +92,9 @@ class FoundEffect:
     sample_s: float | None = None
     #: Found beside a nonlinearity: it may be that nonlinearity's image (said in ``evidence``).
     beside_nonlinearity: bool = False
+    #: A nonlinear effect's evidence as figures (samii.diagnose.nonlinear.NonlinearEvidence: its harmonics, the
+    #: amplitude test across files).
+    nonlinear: NonlinearEvidence | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -968,7 +971,7 @@ def diagnose(
             "the data are nonlinear: the linear model is fitted to their best linear approximation at the amplitude "
             "measured, and linear effects found with it may be the nonlinearity's image (compare a file at another amplitude)"
         )
-    effects += [FoundEffect("nonlinear", f.kind, "act", dict(f.params), dict(f.stderr), f.evidence) for f in nonlinear]
+    effects += [FoundEffect("nonlinear", f.kind, "act", dict(f.params), dict(f.stderr), f.evidence, nonlinear=f.data) for f in nonlinear]
     report = None
     final = (datasets, after)
     if sim:

@@ -6,7 +6,8 @@ effect that had joined by F-test; the joint refit; the F-test against the calibr
 reading of the data that fits almost as well in its place (chi2 within samii.diagnose.select.AMBIGUOUS_CHI2 noise
 variances; a richer one whose extra parameters the F-test does not justify; another effect's rival that moves this
 one's values). :func:`evidence_text` renders a found effect's sentence from them, so a reader (or a test) takes the
-figures from the fields, never from the words.
+figures from the fields, never from the words. A nonlinear effect's evidence lives beside its laws, in
+:mod:`samii.diagnose.nonlinear` (``NonlinearEvidence``: its harmonics and the amplitude test across files).
 """
 
 from __future__ import annotations

@@ -74,7 +74,7 @@ segments; the others named in its evidence).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from functools import cache
 
@@ -88,6 +88,12 @@ __all__ = [
     "HarmonicAnalysis",
     "AmplitudeTest",
     "NonlinearFinding",
+    "NonlinearEvidence",
+    "HarmonicEvidence",
+    "AlsoIn",
+    "LAW_WORDS",
+    "amplitude_kind",
+    "amplitude_text",
     "harmonic_analysis",
     "excess_over",
     "amplitude_test",
@@ -220,17 +226,191 @@ class AmplitudeTest:
         return self.log10_p <= np.log10(ALPHA)
 
 
+#: What each odd law's 3rd harmonic says of the wave (HarmonicEvidence's words).
+LAW_WORDS = {
+    "dead_band": "the centre of the wave is missing: a dead band (spool overlap; Coulomb friction that holds the joint "
+    "at small commands looks alike)",
+    "saturation": "the peaks are flattened: a saturation (spool travel, flow limit)",
+    "hysteresis": "the output holds at each reversal: a play (hysteresis of the spool or the torque motor, backlash)",
+}
+
+
+@dataclass(frozen=True)
+class AlsoIn:
+    """Another file that shows the same kind of nonlinearity in its harmonics."""
+
+    source: str
+    n_significant: int
+    level_v: float | None = None  #: its law's level, for an odd law
+
+
+@dataclass(frozen=True)
+class HarmonicEvidence:
+    """What a nonlinear finding from the sweep's harmonics rests on, as figures (Hz, V; ratios of the harmonic to the
+    fundamental, both referred to the valve command); :meth:`text` words it.
+
+    The harmonic (2 or 3) with the most energy where it repeats in every record beyond their spread: in how many of
+    the tested segments, over which band, its largest ratio (at which frequency and command amplitude), the strongest
+    segment's log10 p; ``reference``: the harmonics were tested in excess of this (a model's own, measured like the
+    file), None: against none (a linear system makes none).
+
+    2nd harmonic, one constant ratio c2/c1 read as a gain asymmetry: ``mean_ratio`` over ``ratio_segments`` (None:
+    fewer than 2 segments tested), ``asymmetry`` the fraction d a direction's gain is lower by with its standard error
+    (None with a mean ratio: beyond any gain asymmetry's), ``ratio_chi2`` how well one constant fits (per dof).
+
+    3rd harmonic, the odd laws' describing functions: the harmonic's phase, the ``law`` that fits best with its level
+    and standard error, each law's chi2 per dof where the harmonic is significant (``law_chi2``) and over every tested
+    segment (``every_chi2``, where more segments were tested than are significant), the correlation of the distortion
+    with the command's amplitude (``trend``), the harmonic's phase spread over the segments, and whether a law on the
+    command alone explains it (``law_fits``: its describing function can be divided out)."""
+
+    source: str
+    harmonic: int
+    n_records: int
+    n_significant: int
+    n_tested: int
+    band_hz: tuple[float, float]
+    peak_ratio: float
+    peak_hz: float
+    peak_command_v: float
+    log10_p: float
+    reference: str | None = None
+    mean_ratio: float | None = None
+    ratio_segments: int | None = None
+    asymmetry: float | None = None
+    asymmetry_se: float | None = None
+    ratio_chi2: float | None = None
+    phase_deg: float | None = None
+    law: str | None = None
+    level_v: float | None = None
+    level_se_v: float | None = None
+    law_chi2: Mapping[str, float] = field(default_factory=dict)
+    every_segments: int | None = None
+    every_chi2: Mapping[str, float] = field(default_factory=dict)
+    trend: float | None = None
+    phase_spread_deg: float | None = None
+    law_fits: bool = False
+    also: tuple[AlsoIn, ...] = ()
+
+    def text(self) -> str:
+        """The finding's sentence, its file first and the other files that show it last."""
+        also = "".join(
+            f"; also in {a.source} ({a.n_significant} segments" + (f", level {1e3 * a.level_v:.3g} mV)" if a.level_v is not None else ")")
+            for a in self.also
+        )
+        return f"{self.source}: {self._body()}{also}"
+
+    def _body(self) -> str:
+        k = self.harmonic
+        base = (
+            f"the {'2nd' if k == 2 else '3rd'} harmonic of the sweep, referred to the valve command, repeats in all "
+            f"{self.n_records} records beyond their spread (p = 10^{self.log10_p:.0f} in the strongest segment) in "
+            f"{self.n_significant} of {self.n_tested} segments, {self.band_hz[0]:.3g}-{self.band_hz[1]:.3g} Hz, "
+            f"up to {100 * self.peak_ratio:.2g} % of the fundamental ({20 * np.log10(self.peak_ratio):.0f} dB) at {self.peak_hz:.3g} Hz "
+            f"where the valve command is {1e3 * self.peak_command_v:.3g} mV; "
+            + (f"that is in excess of {self.reference}, measured like the file" if self.reference else "a linear system makes none")
+        )
+        if k == 2:
+            text = base + "; even harmonics dominate: the valve's two directions differ (its orifice law under load, unequal piston areas)"
+            if self.mean_ratio is None:
+                return text
+            rho = self.mean_ratio
+            if self.asymmetry is None:
+                return text + f"; their mean ratio {100 * rho:+.2g} % is beyond any gain asymmetry's"
+            delta, se, chi2 = self.asymmetry, self.asymmetry_se, self.ratio_chi2
+            text += (
+                f"; their mean ratio {100 * rho:+.2g} % over {self.ratio_segments} segments is a gain {100 * abs(delta):.2g} +- {100 * se:.1g} % "
+                f"lower in the {'negative' if delta > 0 else 'positive'} direction (c2/c1 = 2 d / (3 pi (1 - d/2)), real and the same at "
+                f"every amplitude; that constant fits with chi2 {chi2:.3g} per degree of freedom"
+            )
+            if chi2 > MAX_DF_CHI2:
+                text += ": far from constant, so the two directions differ by more than a gain (the orifice law's share grows with the command)"
+            return text + ")"
+        kind, chi2 = self.law, self.law_chi2[self.law]
+        rivals = ", ".join(f"{o} {self.law_chi2[o]:.3g}" for o in ODD_KINDS if o != kind)
+        if self.every_segments is not None:
+            rivals += f"; over all {self.every_segments} tested segments, where it is absent too: {kind} {self.every_chi2[kind]:.3g}, " + ", ".join(
+                f"{o} {self.every_chi2[o]:.3g}" for o in ODD_KINDS if o != kind
+            )
+        text = (
+            f"{base}; the 3rd harmonic ({self.phase_deg:+.0f} deg from cos 3phi) says {LAW_WORDS[kind]}: its describing function fits a "
+            f"level of {1e3 * self.level_v:.3g} +- {1e3 * self.level_se_v:.2g} mV with chi2 {chi2:.3g} per degree of freedom (the other "
+            f"laws: {rivals})"
+        )
+        if self.trend is not None:
+            text += f"; the distortion {'falls' if self.trend < 0 else 'grows'} with the command's amplitude (correlation {self.trend:+.2f})"
+        if not self.law_fits:
+            text += (
+                f"; but no law on the command alone tells it apart (phase spread {self.phase_spread_deg:.0f} deg over the segments): the "
+                "nonlinearity depends on the loop's state too (the load pressure through the valve's orifice law, say), and "
+                "the kind and level are indicative only"
+            )
+        elif chi2 > MAX_DF_CHI2:
+            second = min(self.law_chi2[o] for o in ODD_KINDS if o != kind)
+            where_better = (
+                "over every tested segment, where the harmonic is and where it is absent" if chi2 > 0.5 * second else "where the harmonic is"
+            )
+            text += (
+                f"; it fits far better than the others {where_better}, and its chi2 above 1 is the describing function's "
+                "own approximation (a pure sine at the valve, where the loop feeds the harmonics back)"
+            )
+        return text
+
+
+def amplitude_kind(t: AmplitudeTest) -> str:
+    """The law an amplitude dependence points to: a response that grows with the amplitude is a dead band's (or
+    friction's), one that shrinks a saturation's; no finite gain change names none."""
+    return "amplitude_dependence" if not np.isfinite(t.gain_change_db) else "dead_band" if t.gain_change_db > 0 else "saturation"
+
+
+def amplitude_text(t: AmplitudeTest) -> str:
+    """An amplitude dependence across two files in words."""
+    name = {"act": "theta/v", "total": "xdd/v"}[t.channel]
+    return (
+        f"{name} at {t.amplitudes_v[1]:.3g} V differs from that at {t.amplitudes_v[0]:.3g} V by chi2 "
+        f"{t.chi2:.4g} on {t.dof:.0f} dof ({_p_text(t.log10_p)}; {t.n_points} points), "
+        f"{t.gain_change_db:+.2f} dB on average (inverse-variance weighted) at the larger amplitude: the response "
+        + (
+            "grows with amplitude, as a dead band's or friction's (small commands lose more)"
+            if t.gain_change_db > 0
+            else "shrinks with amplitude, as a saturation's"
+        )
+    )
+
+
+@dataclass(frozen=True)
+class NonlinearEvidence:
+    """A nonlinear finding's evidence as data: its harmonics (:class:`HarmonicEvidence`) and the amplitude test across
+    files (:class:`AmplitudeTest`), either or both; ``text`` words them."""
+
+    harmonics: HarmonicEvidence | None = None
+    across_files: AmplitudeTest | None = None
+
+    def text(self, kind: str) -> str:
+        if self.harmonics is None:
+            return amplitude_text(self.across_files)
+        text = self.harmonics.text()
+        if self.across_files is not None:
+            agrees = amplitude_kind(self.across_files) == kind
+            text += f"; across files: {amplitude_text(self.across_files)}" + ("" if agrees else f" (the harmonics say {kind})")
+        return text
+
+
 @dataclass(frozen=True)
 class NonlinearFinding:
-    """A nonlinearity claimed, with what it rests on."""
+    """A nonlinearity claimed, with what it rests on (``data``; ``evidence`` is its sentence)."""
 
     kind: str  # dead_band | saturation | hysteresis | asymmetry | amplitude_dependence
     params: dict
     stderr: dict
-    evidence: str
+    data: NonlinearEvidence
     harmonics: tuple = field(default=())
     amplitude: tuple = field(default=())
     law_fits: bool = False  # a law on the command (its describing function) explains the harmonics: the data can be linearised
+
+    @property
+    def evidence(self) -> str:
+        return self.data.text(self.kind)
 
 
 # -- describing functions ---------------------------------------------------------------
@@ -837,7 +1017,8 @@ def _p_text(log10_p: float) -> str:
 
 
 # -- the finding -------------------------------------------------------------------------------
-def _harmonic_kind(h: HarmonicAnalysis) -> tuple[str, dict, dict, str, bool]:
+def _harmonic_kind(h: HarmonicAnalysis) -> tuple[str, dict, dict, HarmonicEvidence]:
+    """The kind the harmonics of ``h`` point to, its parameters and standard errors, and what it rests on."""
     sig2, sig3 = h.significant(2), h.significant(3)
     e2 = float(np.sum(np.abs(h.ratio[2][sig2]) ** 2))
     e3 = float(np.sum(np.abs(h.ratio[3][sig3]) ** 2))
@@ -847,44 +1028,30 @@ def _harmonic_kind(h: HarmonicAnalysis) -> tuple[str, dict, dict, str, bool]:
     f = h.freq_hz[sel]
     a = h.command_v[sel]
     peak = int(np.argmax(np.abs(r)))
-    where = (
-        f"{sel.sum()} of {np.isfinite(h.log10_p[worst_k]).sum()} segments, {f.min():.3g}-{f.max():.3g} Hz, "
-        f"up to {100 * abs(r[peak]):.2g} % of the fundamental ({20 * np.log10(abs(r[peak])):.0f} dB) at {f[peak]:.3g} Hz "
-        f"where the valve command is {1e3 * a[peak]:.3g} mV"
-    )
-    best_p = float(np.nanmin(h.log10_p[worst_k][sel]))
-    base = (
-        f"the {'2nd' if worst_k == 2 else '3rd'} harmonic of the sweep, referred to the valve command, repeats in all "
-        f"{h.n_records} records beyond their spread (p = 10^{best_p:.0f} in the strongest segment) in {where}; "
-        + (f"that is in excess of {h.reference}, measured like the file" if h.reference else "a linear system makes none")
-    )
+    seen = HarmonicEvidence(
+        source=h.source, harmonic=worst_k, n_records=h.n_records, n_significant=int(sel.sum()),
+        n_tested=int(np.isfinite(h.log10_p[worst_k]).sum()), band_hz=(float(f.min()), float(f.max())), peak_ratio=float(abs(r[peak])),
+        peak_hz=float(f[peak]), peak_command_v=float(a[peak]), log10_p=float(np.nanmin(h.log10_p[worst_k][sel])), reference=h.reference or None,
+    )  # fmt: skip
     params = {"harmonic": float(worst_k), "max_ratio": float(abs(r[peak])), "at_hz": float(f[peak])}
     stderr = {"max_ratio": float(h.ratio_sd[worst_k][sel][peak])}
     if worst_k == 2:
-        text = base + "; even harmonics dominate: the valve's two directions differ (its orifice law under load, unequal piston areas)"
         tested = np.isfinite(h.log10_p[2]) & np.isfinite(h.ratio[2]) & (h.ratio_sd[2] > 0)
         if tested.sum() < 2:
-            return "asymmetry", params, stderr, text, False
+            return "asymmetry", params, stderr, seen
         w = 1.0 / h.ratio_sd[2][tested] ** 2
         r2 = h.ratio[2][tested]
         rho = float(np.sum(w * r2.real) / np.sum(w))
+        seen = replace(seen, mean_ratio=rho, ratio_segments=int(tested.sum()))
         # a gain that differs between the directions is scale-free: its c2/c1 is real and one number at every amplitude
         chi2 = float(np.sum(w * ((r2.real - rho) ** 2 + r2.imag**2)) / max(2 * r2.size - 1, 1))
         if not abs(rho) < ASYMMETRY_MAX_RATIO:
-            return "asymmetry", params, stderr, text + f"; their mean ratio {100 * rho:+.2g} % is beyond any gain asymmetry's", False
+            return "asymmetry", params, stderr, seen
         delta = asymmetry_fraction(rho)
         se = float(abs(delta - asymmetry_fraction(rho + np.sqrt(max(chi2, 1.0) / np.sum(w)))))
         params["asymmetry_fraction"], stderr["asymmetry_fraction"] = delta, se
         params["ratio_chi2"] = chi2  # how well one constant ratio fits: a gain asymmetry's is one number
-        weaker = "negative" if delta > 0 else "positive"
-        text += (
-            f"; their mean ratio {100 * rho:+.2g} % over {int(tested.sum())} segments is a gain {100 * abs(delta):.2g} +- {100 * se:.1g} % "
-            f"lower in the {weaker} direction (c2/c1 = 2 d / (3 pi (1 - d/2)), real and the same at every amplitude; that constant "
-            f"fits with chi2 {chi2:.3g} per degree of freedom"
-        )
-        if chi2 > MAX_DF_CHI2:
-            text += ": far from constant, so the two directions differ by more than a gain (the orifice law's share grows with the command)"
-        return "asymmetry", params, stderr, text + ")", False
+        return "asymmetry", params, stderr, replace(seen, asymmetry=delta, asymmetry_se=se, ratio_chi2=chi2)
     phase = np.angle(np.sum(r * np.abs(r)))  # amplitude-weighted phase of c3 in the fundamental's frame
     deg = float(np.degrees(phase))
     params["phase_deg"] = deg
@@ -907,27 +1074,10 @@ def _harmonic_kind(h: HarmonicAnalysis) -> tuple[str, dict, dict, str, bool]:
     name = f"{kind}_v"
     params[name] = level
     stderr[name] = se
-    what = {
-        "dead_band": "the centre of the wave is missing: a dead band (spool overlap; Coulomb friction that holds the joint "
-        "at small commands looks alike)",
-        "saturation": "the peaks are flattened: a saturation (spool travel, flow limit)",
-        "hysteresis": "the output holds at each reversal: a play (hysteresis of the spool or the torque motor, backlash)",
-    }[kind]
-    rivals = ", ".join(f"{k} {fits[k][2]:.3g}" for k in ODD_KINDS if k != kind)
-    if every.sum() > sel.sum():
-        rivals += f"; over all {int(every.sum())} tested segments, where it is absent too: {kind} {named[kind]:.3g}, " + ", ".join(
-            f"{k} {named[k]:.3g}" for k in ODD_KINDS if k != kind
-        )
     # the phase's spread over the segments: a law on the command alone keeps it where its describing function says
     spread = float(np.degrees(np.sqrt(-2.0 * np.log(max(abs(np.sum(r / np.abs(r))) / r.size, 1e-12)))))
     params["phase_spread_deg"] = spread
     trend = np.corrcoef(np.log(a), np.log(np.abs(r)))[0, 1] if a.size > 2 else float("nan")
-    text = (
-        f"{base}; the 3rd harmonic ({deg:+.0f} deg from cos 3phi) says {what}: its describing function fits a level of "
-        f"{1e3 * level:.3g} +- {1e3 * se:.2g} mV with chi2 {chi2:.3g} per degree of freedom (the other laws: {rivals})"
-    )
-    if np.isfinite(trend):
-        text += f"; the distortion {'falls' if trend < 0 else 'grows'} with the command's amplitude (correlation {trend:+.2f})"
     second = min(fits[k][2] for k in ODD_KINDS if k != kind)
     # the law fits where it explains the significant segments within the describing function's approximation or far
     # better than the others there; or where, over every tested segment, it predicts the harmonic where it stands and
@@ -938,19 +1088,13 @@ def _harmonic_kind(h: HarmonicAnalysis) -> tuple[str, dict, dict, str, bool]:
     named_second = min(named[k] for k in ODD_KINDS if k != kind)
     identified = every.sum() > sel.sum() and named[kind] <= MAX_DF_CHI2 and named[kind] < 0.5 * named_second
     law_fits = spread <= 45.0 and (chi2 <= MAX_DF_CHI2 or chi2 <= 0.5 * second or identified)
-    if not law_fits:
-        text += (
-            f"; but no law on the command alone tells it apart (phase spread {spread:.0f} deg over the segments): the "
-            "nonlinearity depends on the loop's state too (the load pressure through the valve's orifice law, say), and "
-            "the kind and level are indicative only"
-        )
-    elif chi2 > MAX_DF_CHI2:
-        where_better = "over every tested segment, where the harmonic is and where it is absent" if chi2 > 0.5 * second else "where the harmonic is"
-        text += (
-            f"; it fits far better than the others {where_better}, and its chi2 above 1 is the describing function's "
-            "own approximation (a pure sine at the valve, where the loop feeds the harmonics back)"
-        )
-    return kind, params, stderr, text, law_fits
+    seen = replace(
+        seen, phase_deg=deg, law=kind, level_v=float(level), level_se_v=float(se), law_chi2={k: float(fits[k][2]) for k in ODD_KINDS},
+        every_segments=int(every.sum()) if every.sum() > sel.sum() else None,
+        every_chi2={k: float(named[k]) for k in ODD_KINDS} if every.sum() > sel.sum() else {},
+        trend=float(trend) if np.isfinite(trend) else None, phase_spread_deg=spread, law_fits=bool(law_fits),
+    )  # fmt: skip
+    return kind, params, stderr, seen
 
 
 def find_nonlinear(
@@ -990,15 +1134,16 @@ def find_nonlinear(
         analyses.append(h)
     by_kind: dict[str, list] = {}
     for h in sorted((h for h in analyses if h.claimed), key=lambda h: -h.n_significant):
-        kind, params, stderr, text, law_fits = _harmonic_kind(h)
-        by_kind.setdefault(kind, []).append((h, params, stderr, text, law_fits))
+        kind, params, stderr, seen = _harmonic_kind(h)
+        by_kind.setdefault(kind, []).append((h, params, stderr, seen))
     for kind, group in by_kind.items():  # one finding per kind, from the file that shows it most
-        h, params, stderr, text, law_fits = group[0]
-        also = "".join(
-            f"; also in {g[0].source} ({g[0].n_significant} segments" + (f", level {1e3 * g[1][kind + '_v']:.3g} mV)" if kind + "_v" in g[1] else ")")
-            for g in group[1:]
+        h, params, stderr, seen = group[0]
+        also = tuple(AlsoIn(g[0].source, g[0].n_significant, g[1].get(kind + "_v")) for g in group[1:])
+        findings.append(
+            NonlinearFinding(
+                kind, params, stderr, NonlinearEvidence(replace(seen, also=also)), harmonics=tuple(g[0] for g in group), law_fits=seen.law_fits
+            )
         )
-        findings.append(NonlinearFinding(kind, params, stderr, f"{h.source}: {text}{also}", harmonics=tuple(g[0] for g in group), law_fits=law_fits))
     tests = []
     ms = list(measured)
     for i in range(len(ms)):
@@ -1034,38 +1179,17 @@ def find_nonlinear(
     amp = [t for t in differ if np.isfinite(t.amplitudes_v[0]) and t.amplitudes_v[1] >= MIN_AMPLITUDE_RATIO * t.amplitudes_v[0]]
     if amp:
         t = max(amp, key=lambda t: -t.log10_p)
-        name = {"act": "theta/v", "total": "xdd/v"}[t.channel]
-        grows = t.gain_change_db > 0
-        kind = "amplitude_dependence" if not np.isfinite(t.gain_change_db) else "dead_band" if grows else "saturation"
-        text = (
-            f"{name} at {t.amplitudes_v[1]:.3g} V differs from that at {t.amplitudes_v[0]:.3g} V by chi2 "
-            f"{t.chi2:.4g} on {t.dof:.0f} dof ({_p_text(t.log10_p)}; {t.n_points} points), "
-            f"{t.gain_change_db:+.2f} dB on average (inverse-variance weighted) at the larger amplitude: the response "
-            + (
-                "grows with amplitude, as a dead band's or friction's (small commands lose more)"
-                if grows
-                else "shrinks with amplitude, as a saturation's"
-            )
-        )
+        kind = amplitude_kind(t)
         found = next((f for f in findings if f.kind in ("dead_band", "saturation", "hysteresis")), None)
         if found is not None:
-            agrees = found.kind == kind
-            findings[findings.index(found)] = NonlinearFinding(
-                found.kind,
-                found.params,
-                found.stderr,
-                found.evidence + f"; across files: {text}" + ("" if agrees else f" (the harmonics say {found.kind})"),
-                found.harmonics,
-                tuple(amp),
-                found.law_fits,
-            )
+            findings[findings.index(found)] = replace(found, data=replace(found.data, across_files=t), amplitude=tuple(amp))
         else:
             findings.append(
                 NonlinearFinding(
                     kind if not findings else "amplitude_dependence",
                     {"gain_change_db": t.gain_change_db, "amplitude_low_v": t.amplitudes_v[0], "amplitude_high_v": t.amplitudes_v[1]},
                     {},
-                    text,
+                    NonlinearEvidence(across_files=t),
                     (),
                     tuple(amp),
                 )
