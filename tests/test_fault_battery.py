@@ -589,7 +589,8 @@ def test_report_refuses_a_damaged_number_and_names_its_field(report_folder, caps
 @pytest.mark.parametrize("file, path, value, shown", [
     # summary.json is typed: a field of the wrong kind is refused where it is read, by its name and the kind expected
     ("summary.json", ("modes", "base_modes", 0, "freq_hz"), "x", "summary.json: field 'modes.base_modes[0].freq_hz' holds 'x'; expected a number"),
-    ("summary.json", ("fit", "params", "wp"), None, "summary.json: field 'fit.params.wp' holds None; expected a number"),
+    ("summary.json", ("fit", "params", "wp"), "8.8", "summary.json: field 'fit.params.wp' holds '8.8'; expected a number or null"),
+    ("summary.json", ("diagnosis", "effects", 0, "kind"), None, "summary.json: field 'diagnosis.effects[0].kind' holds None; expected a string"),
     ("summary.json", ("damping_design", "gain_margin_db"), [6.0], "summary.json: field 'damping_design.gain_margin_db' holds [6.0]; expected a number or null"),
     ("summary.json", ("modes",), None, "summary.json: field 'modes' holds None; expected an object"),
     ("summary.json", ("closed_loop", "damping_step", "theta", "settle_s"), "1.4", "summary.json: field 'closed_loop.damping_step.theta.settle_s' holds '1.4'; expected a number or null"),

@@ -152,20 +152,31 @@ def test_a_stages_result_is_read_when_asked_for_and_its_damage_named_then(runs, 
 
 
 @pytest.mark.slow
-def test_a_closed_loop_run_without_its_time_series_is_reported_without_its_figure(runs, tmp_path, capsys):
-    """A run that diverged at once writes no timeseries.csv: Run.load reads its record without one (trace None), and
-    the report is written without the figure that needs it (it failed before: the report's own reader required one)."""
+def test_a_closed_loop_run_without_its_time_series_is_read_only_when_it_diverged_at_its_start(runs, tmp_path, capsys):
+    """A run that diverged in its first step writes run.json alone (samii.closedloop.trial): Run.load reads it without a
+    time series (trace None) and the report is written. A run that did not diverge and lacks its time series is a
+    folder not whole: refused naming the file (the report's own reader refused every missing one before)."""
     from samii.cli import main
     from samii.pipeline import Run
 
     folder = _copy(runs[0], tmp_path / "run")
-    (folder / "closedloop" / "damping_loper" / "timeseries.csv").unlink()
-    assert Run.load(folder).closed_loop["damping_loper"].trace is None
-    out = tmp_path / "page.html"
-    assert main(["report", str(folder), "--out", str(out)]) == 0
-    page = out.read_text()
-    assert "Figure 11.5" in page and 'alt="The damping controller"' not in page
-    assert 'alt="The damping controller"' in (runs[0] / "report.html").read_text()  # (the control: the intact folder has it)
+    place = json.loads((folder / "closedloop" / "notebook_place_step" / "run.json").read_text())
+    assert place["stable"] is False and place["diverged_at_s"] is not None  # (pole placement diverges within ms: chapter 8)
+    (folder / "closedloop" / "notebook_place_step" / "timeseries.csv").unlink()
+    assert Run.load(folder).closed_loop["notebook_place_step"].trace is None
+    assert main(["report", str(folder), "--out", str(tmp_path / "page.html")]) == 0
+    capsys.readouterr()
+    lost = folder / "closedloop" / "damping_loper" / "timeseries.csv"
+    lost.unlink()
+    with pytest.raises(InputError, match=rf"{lost}: missing, and the run did not diverge at its start"):
+        Run.load(folder)
+    assert main(["report", str(folder), "--out", str(tmp_path / "again.html")]) == 2
+    assert f"{lost}: missing" in capsys.readouterr().err and not (tmp_path / "again.html").exists()
+    # a damaged verdict in a run's own record is refused too, not only the summary's copy
+    record = folder / "closedloop" / "notebook_place_step" / "run.json"
+    record.write_text(json.dumps({**place, "stable": "false"}))
+    with pytest.raises(InputError, match=r"notebook_place_step/run.json: field 'stable' holds 'false'; expected true or false"):
+        Run.load(folder)
 
 
 @pytest.mark.slow
@@ -193,6 +204,13 @@ def test_a_summary_field_of_the_wrong_kind_is_named(runs):
     del missing["fit"]["verdict"]
     with pytest.raises(InputError, match=r"^summary.json: field 'fit.verdict' is missing$"):
         RunSummary.from_json(missing, "summary.json")
+    # what a run may not have is null and reads n/a: a parameter not fitted, a settling time of a joint that did not follow
+    gaps = json.loads(json.dumps(doc))
+    gaps["fit"]["params"]["w1"] = None
+    gaps["closed_loop"]["damping_step"]["theta"]["settle_s"] = None
+    gaps["fit"]["concerns"] = None  # (samii 0.1.0 wrote an empty list so; read as none)
+    text = "\n".join(RunSummary.from_json(gaps, "summary.json").lines("out"))
+    assert "modes n/a / " in text and "damping controller       stable; step: theta settles n/a s" in text
 
 
 def test_overrides_given_as_a_mapping_are_recorded_as_set_texts():

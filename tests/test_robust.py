@@ -319,3 +319,21 @@ def test_a_study_is_one_library_call_with_the_commands_table(robust_runs, tmp_pa
     (tiny,) = study.warnings
     assert tiny.code == "tiny_spread" and tiny.values["name"] == "hydraulic.bulk_modulus" and tiny.values["sigma"] == 20
     assert "the study varies nothing" in tiny.text and len(study.tasks) == FEW_SAMPLES + 1
+
+
+def test_when_no_drawn_plant_can_be_built_the_study_says_its_warnings_then_refuses(monkeypatch, capsys):
+    """The refusal comes once the plants have been tried: what the study's request says (here: too few plants) is said
+    before it, as with a result (the command said them first before its study was a library call)."""
+    from samii.robust.engine import Engine
+    from samii.robust.runner import FEW_SAMPLES, NoPlantBuilt
+    from samii.robust.task import SampleResult
+
+    def no_plant(self, tasks, progress=None):
+        return [SampleResult(t.index, False, None, None, None, None, None, None, note="no plant: no static equilibrium", valid=False) for t in tasks]
+
+    monkeypatch.setattr(Engine, "map", no_plant)
+    assert main(["robust", "--controller", "unity", "--samples", "3", "--spread", "beam.clamp_stiffness_Nm_rad=20%", "--no-progress"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2 and f"fewer than {FEW_SAMPLES} plants" in err[0]
+    assert "none of the 3 drawn plants could be built (the first: no static equilibrium)" in err[1]
+    assert issubclass(NoPlantBuilt, InputError)

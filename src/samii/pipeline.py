@@ -69,7 +69,7 @@ class ClosedLoopRun:
     """One closed-loop trial as its folder holds it."""
 
     record: Mapping  #: closedloop/<name>/run.json
-    trace: object | None  #: closedloop/<name>/timeseries.csv as a samii.timeseries.TimeSeries (None: the run diverged at once)
+    trace: object | None  #: closedloop/<name>/timeseries.csv as a samii.timeseries.TimeSeries (None: the run diverged at its start)
 
 
 @dataclass(frozen=True)
@@ -133,10 +133,21 @@ class Run:
         for name in summary.closed_loop:
             if "/" in name or name in ("", ".", ".."):
                 raise InputError(f"{folder / 'summary.json'}: field 'closed_loop' names a run {name!r}, which is no folder name")
+            record = read_document(folder, f"closedloop/{name}/run.json")
+            if "stable" in record and not isinstance(record["stable"], bool):  # (a string "false" would read as stable)
+                raise InputError(
+                    f"{folder / 'closedloop' / name / 'run.json'}: field 'stable' holds {record['stable']!r}; expected true or false "
+                    "(the file is damaged; run samii run again)"
+                )
             trace = folder / "closedloop" / name / "timeseries.csv"
-            closed[name] = ClosedLoopRun(
-                read_document(folder, f"closedloop/{name}/run.json"), read_timeseries_csv(trace) if trace.is_file() else None
-            )
+            if not trace.exists() and record.get("stable") is False and record.get("diverged_at_s") is not None:
+                closed[name] = ClosedLoopRun(record, None)  # a run that diverged at its start writes no time series
+                continue
+            if not trace.exists():
+                raise InputError(
+                    f"{trace}: missing, and the run did not diverge at its start (its run.json): the folder is not whole; run samii run again"
+                )
+            closed[name] = ClosedLoopRun(record, read_timeseries_csv(trace))
         return cls(
             path=folder,
             summary=summary,

@@ -48,7 +48,10 @@ MARKER = "samii run"
 class _Reader:
     """A JSON document read into the types of a dataclass's fields (``float``, ``int``, ``bool``, ``str``, ``X | None``,
     ``tuple[X, ...]``, ``tuple[X, Y]``, ``Mapping[str, X]``, a bare ``Mapping``, another dataclass); a value of the wrong
-    kind is an InputError naming the file and the field. Numbers are kept as read (a whole number stays one)."""
+    kind is an InputError naming the file and the field. Numbers are kept as read (a whole number stays one).
+
+    Every field is present in what samii writes: one absent is refused, but for a field with a default, and a list of
+    strings (the fit's concerns, caveats, undetermined), absent or null, which reads as none (as samii 0.1.0 wrote them)."""
 
     def __init__(self, where):
         self.where = where
@@ -61,8 +64,7 @@ class _Reader:
         raise InputError(f"{self.where}: field '{path}' is missing")
 
     def part(self, cls, d, path: str = ""):
-        """An instance of dataclass ``cls`` from the object ``d`` at ``path``; a field with a default or of a type that
-        admits None may be absent."""
+        """An instance of dataclass ``cls`` from the object ``d`` at ``path``."""
         d = self.read(Mapping, d, path or "(the document)")
         hints = get_type_hints(cls)
         values = {}
@@ -70,10 +72,10 @@ class _Reader:
             where = f"{path}.{f.name}" if path else f.name
             if f.name in d:
                 values[f.name] = self.read(hints[f.name], d[f.name], where)
+            elif hints[f.name] == tuple[str, ...]:
+                values[f.name] = ()
             elif f.default is MISSING and f.default_factory is MISSING:
-                if not _admits_none(hints[f.name]):
-                    self.missing(where)
-                values[f.name] = None
+                self.missing(where)
         return cls(**values)
 
     def read(self, tp, v, path: str, *, or_null: bool = False):
@@ -81,26 +83,27 @@ class _Reader:
         null = " or null" if or_null else ""
         if _admits_none(tp):
             return None if v is None else self.read(_without_none(tp), v, path, or_null=True)
+        if tp == tuple[str, ...] and v is None:
+            return ()
         origin, args = get_origin(tp) or tp, get_args(tp)
-        if tp is float:
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                self.fail(path, v, "a number" + null)
-        elif tp is int:
-            if isinstance(v, bool) or not isinstance(v, int):
-                self.fail(path, v, "a whole number" + null)
-        elif tp in (bool, str):
-            if not isinstance(v, tp):
-                self.fail(path, v, ("true or false" if tp is bool else "a string") + null)
+        if tp in _PLAIN:
+            if not _is(v, tp):
+                self.fail(path, v, _PLAIN[tp][0] + null)
         elif is_dataclass(tp):
             return self.part(tp, v, path)
         elif origin is tuple:
             each = args[0] if len(args) == 2 and args[1] is Ellipsis else None
             kinds = [each] * len(v) if each and isinstance(v, list) else list(args)
-            said = "a list of " + ({float: "some numbers", str: "strings"}.get(each, "objects") if each else f"{len(args)} numbers") + null
+            if each:
+                said = "a list of " + ("some numbers" if each is float else _PLAIN[each][1] if each in _PLAIN else "objects")
+            elif len(set(args)) == 1 and args[0] in _PLAIN:
+                said = f"a list of {len(args)} {_PLAIN[args[0]][1]}"
+            else:
+                said = f"a list of {len(args)} values"
             if not isinstance(v, list) or len(v) != len(kinds):
-                self.fail(path, v, said)
-            if not all(_is(x, k) for x, k in zip(v, kinds) if k in (float, str)):  # (a list of plain values shown whole)
-                self.fail(path, v, said)
+                self.fail(path, v, said + null)
+            if not all(_is(x, k) for x, k in zip(v, kinds) if k in _PLAIN):  # (a list of plain values shown whole)
+                self.fail(path, v, said + null)
             return tuple(self.read(k, x, f"{path}[{i}]") for i, (x, k) in enumerate(zip(v, kinds)))
         elif origin is Mapping:
             if not isinstance(v, Mapping):
@@ -112,17 +115,32 @@ class _Reader:
         return v
 
 
+#: The plain kinds a field can have: (one said, several said).
+_PLAIN = {
+    float: ("a number", "numbers"),
+    int: ("a whole number", "whole numbers"),
+    bool: ("true or false", "true or false values"),
+    str: ("a string", "strings"),
+}
+
+
 def _admits_none(tp) -> bool:
     return get_origin(tp) in (Union, UnionType) and type(None) in get_args(tp)
 
 
 def _without_none(tp):
-    (inner,) = (a for a in get_args(tp) if a is not type(None))
-    return inner
+    inner = [a for a in get_args(tp) if a is not type(None)]
+    if len(inner) != 1:  # (a programming error: the reader says which kind it expects, one)
+        raise TypeError(f"_Reader reads X | None, not {tp!r}")
+    return inner[0]
 
 
 def _is(x, kind) -> bool:
-    return isinstance(x, str) if kind is str else not isinstance(x, bool) and isinstance(x, (int, float))
+    if kind is float:
+        return not isinstance(x, bool) and isinstance(x, (int, float))
+    if kind is int:
+        return not isinstance(x, bool) and isinstance(x, int)
+    return isinstance(x, kind)
 
 
 def _plain(value):
@@ -162,7 +180,15 @@ class MeasurementSummary(_Part):
     amplitude_v: float
     sample_rate_hz: float
     simulated_s: float
-    sensor_noise: Mapping[str, float] | None  #: rms of each sensor's noise (samii.measure.daq.SensorNoise)
+    sensor_noise: Mapping[str, float | None] | None  #: rms of each sensor's noise (samii.measure.daq.SensorNoise)
+
+
+@dataclass(frozen=True)
+class _Effect:
+    """What the summary's lines read of a found effect (diagnosis.json's, kept as written): checked when read."""
+
+    category: str
+    kind: str
 
 
 @dataclass(frozen=True)
@@ -179,9 +205,9 @@ class _Band:
 class FitSummary(_Part):
     """The notebook's 3-mode model fitted to the measurement, beside eq 9.4 (SI: rad/s, theta in rad)."""
 
-    params: Mapping[str, float]
+    params: Mapping[str, float | None]  #: None: not fitted (the data lack its channel)
     stderr: Mapping[str, float | None]  #: None: not determined by the data (an infinite standard error)
-    eq9_4: Mapping[str, float]
+    eq9_4: Mapping[str, float | None]
     sound: bool
     verdict: str
     concerns: tuple[str, ...]
@@ -297,9 +323,11 @@ class RunSummary:
                 r.missing(where)
             return r.read(tp, d[key], where)
 
-        fit = get("fit", FitSummary)
-        if fit.lack_of_fit is not None:  # (kept as written; the bands the lines name are checked)
-            r.read(tuple[_Band, ...], fit.lack_of_fit.get("bands") or [], "fit.lack_of_fit.bands")
+        fit, diagnosis = get("fit", FitSummary), get("diagnosis", DiagnosisSummary)
+        # (kept as written, the parts the lines read checked: the misfit bands, each effect's category and kind)
+        if fit.lack_of_fit is not None and fit.lack_of_fit.get("bands") is not None:
+            r.read(tuple[_Band, ...], fit.lack_of_fit["bands"], "fit.lack_of_fit.bands")
+        r.read(tuple[_Effect, ...], list(diagnosis.effects), "diagnosis.effects")
         return cls(
             seed=get("seed", int),
             model_file=get("file", str, "model"),
@@ -309,7 +337,7 @@ class RunSummary:
             fit=fit,
             damping_design=get("damping_design", DampingSummary),
             closed_loop=get("closed_loop", Mapping[str, ClosedLoopSummary]),
-            diagnosis=get("diagnosis", DiagnosisSummary),
+            diagnosis=diagnosis,
             wall_s=r.read(float | None, doc.get("wall_s"), "wall_s"),
             recordings_mb=r.read(Mapping[str, float], doc.get("recordings_mb") or {}, "recordings_mb"),
             report_error=r.read(str | None, doc.get("report_error"), "report_error"),
@@ -347,17 +375,25 @@ def summary_lines(s: RunSummary, out) -> list[str]:
     )
     f, eq = s.fit.params, s.fit.eq9_4
 
-    def hz(w):
-        return w / (2 * np.pi)
+    def hz(d: Mapping, name: str) -> str:  # a frequency [rad/s] in Hz; n/a for a parameter not fitted
+        w = d.get(name)
+        return _f(None if w is None else w / (2 * np.pi), ".2f")
+
+    def zeta(d: Mapping, name: str) -> str:
+        return _f(d.get(name), ".3f")
+
+    def ratio(d: Mapping, a: str, b: str) -> str:
+        x, y = d.get(a), d.get(b)
+        return _f(None if x is None or not y else x / y, ".3f")
 
     lines.append(f"fit of the notebook's 3-mode model beside eq 9.4: {verdict_text(s.fit.to_json())} (fit/fit.json):")
     lines.append(
-        f"  modes {hz(f['w1']):.2f} / {hz(f['wz']):.2f} / {hz(f['w3']):.2f} Hz (eq 9.4: {hz(eq['w1']):.2f} / {hz(eq['wz']):.2f} / "
-        f"{hz(eq['w3']):.2f}); zeta {f['z1']:.3f} / {f['zz']:.3f} / {f['z3']:.3f} ({eq['z1']:.3f} / {eq['zz']:.3f} / {eq['z3']:.3f})"
+        f"  modes {hz(f, 'w1')} / {hz(f, 'wz')} / {hz(f, 'w3')} Hz (eq 9.4: {hz(eq, 'w1')} / {hz(eq, 'wz')} / {hz(eq, 'w3')}); "
+        f"zeta {zeta(f, 'z1')} / {zeta(f, 'zz')} / {zeta(f, 'z3')} ({zeta(eq, 'z1')} / {zeta(eq, 'zz')} / {zeta(eq, 'z3')})"
     )
     lines.append(
-        f"  actuator pair {hz(f['wp']):.2f} Hz zeta {f['zp']:.3f} (eq 9.4: {hz(eq['wp']):.2f} Hz, {eq['zp']:.3f}); "
-        f"B2/B1 {f['B2'] / f['B1']:.3f} ({eq['B2'] / eq['B1']:.3f}), B3/B1 {f['B3'] / f['B1']:.3f} ({eq['B3'] / eq['B1']:.3f})"
+        f"  actuator pair {hz(f, 'wp')} Hz zeta {zeta(f, 'zp')} (eq 9.4: {hz(eq, 'wp')} Hz, {zeta(eq, 'zp')}); "
+        f"B2/B1 {ratio(f, 'B2', 'B1')} ({ratio(eq, 'B2', 'B1')}), B3/B1 {ratio(f, 'B3', 'B1')} ({ratio(eq, 'B3', 'B1')})"
     )
     cl = s.closed_loop
     lines.append("closed loop in the nonlinear simulator (step 5 deg; Loper: switched on at 2 s):")

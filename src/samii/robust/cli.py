@@ -104,7 +104,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from samii.cli_progress import Bar
     from samii.robust.plots import FIGURES
-    from samii.robust.runner import StudyRequest, plan_study
+    from samii.robust.runner import NoPlantBuilt, StudyRequest, plan_study
 
     request = StudyRequest(
         controller=args.controller,
@@ -126,13 +126,21 @@ def run(args: argparse.Namespace) -> int:
         print(f"  damping controller: {what}", file=sys.stderr)
 
     study = plan_study(request, out=args.out, overwrite=args.overwrite, say=None if args.json else say)
-    with study:  # (connected to a user's cluster first: one that refuses or never answers is one line)
-        if not args.json and not args.no_progress:  # (a progress line: not before a refusal's one line when asked for quiet)
-            print(f"samii robust: {study.describe()}", file=sys.stderr)
-        with Bar("samii robust", unit="run", disable=args.no_progress or None, leave=False) as bar:
-            result = study.run(progress=bar)
-    for w in result.warnings:
-        print(f"samii robust: warning: {w.text}", file=sys.stderr)
+
+    def warn() -> None:  # what makes the study say less than it seems to: said once the plants have run
+        for w in study.warnings:
+            print(f"samii robust: warning: {w.text}", file=sys.stderr)
+
+    try:
+        with study:  # (connected to a user's cluster first: one that refuses or never answers is one line)
+            if not args.json and not args.no_progress:  # (a progress line: not before a refusal's one line when asked for quiet)
+                print(f"samii robust: {study.describe()}", file=sys.stderr)
+            with Bar("samii robust", unit="run", disable=args.no_progress or None, leave=False) as bar:
+                result = study.run(progress=bar)
+    except NoPlantBuilt:  # (the plants have run: what the study's spreads say is said before the refusal, as with a result)
+        warn()
+        raise
+    warn()
     if args.json:
         from samii.json_output import dumps
 

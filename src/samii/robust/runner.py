@@ -24,7 +24,7 @@ from samii.robust.sampling import Covariance, PlantDraws, parse_spread
 from samii.robust.study import StudySummary, summarise
 from samii.robust.task import SampleResult, SampleTask
 
-__all__ = ["StudyRequest", "StudyWarning", "Study", "StudyResult", "plan_study", "run_study", "FILES", "TINY_SPREAD", "FEW_SAMPLES"]
+__all__ = ["StudyRequest", "StudyWarning", "Study", "StudyResult", "NoPlantBuilt", "plan_study", "run_study", "FILES", "TINY_SPREAD", "FEW_SAMPLES"]
 
 #: The files a study writes with ``out`` beside its figures (samii.robust.plots.FIGURES).
 FILES = ("robust.json", "samples.csv")
@@ -33,6 +33,11 @@ FILES = ("robust.json", "samples.csv")
 TINY_SPREAD = 1e-4
 #: Fewer plants than this: the 5 % and 95 % percentiles are the smallest and largest drawn (1/0.05 = 20).
 FEW_SAMPLES = 20
+
+
+class NoPlantBuilt(InputError):
+    """None of the drawn plants could be built (no static equilibrium near the nominal pose, a mode too stiff for the
+    physics step): the spreads are too wide. Raised by :meth:`Study.run` once the plants have been tried."""
 
 
 @dataclass(frozen=True)
@@ -193,7 +198,7 @@ class Study:
         summary = summarise(self.draws, samples)
         if summary.n == 0:
             why = samples[0].note.removeprefix("no plant: ")
-            raise InputError(f"none of the {r.samples} drawn plants could be built (the first: {why}); narrow the spreads")
+            raise NoPlantBuilt(f"none of the {r.samples} drawn plants could be built (the first: {why}); narrow the spreads")
         d = self.draws
         document = {
             "controller": r.controller, "scenario": r.scenario, "seed": r.seed, "n_samples": r.samples,
