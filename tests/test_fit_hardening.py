@@ -207,12 +207,13 @@ def test_json_output_has_no_nan_or_infinity(good_csv, tmp_path, capsys, monkeypa
 
     fit_module = importlib.import_module("samii.identify.fit")  # the package's `fit` attribute is the function
     real_fit = fit_module.fit
+    import samii.identify.fit_file as fit_file  # (patched where the command's call looks it up)
 
     def unidentifiable(*args, **kwargs):
         res = real_fit(*args, **kwargs)
         return dataclasses.replace(res, stderr=dict(res.stderr, tau=np.inf), cost=np.inf)
 
-    monkeypatch.setattr(fit_module, "fit", unidentifiable)
+    monkeypatch.setattr(fit_file, "fit", unidentifiable)
     out = tmp_path / "out"
     assert main(["fit", str(good_csv), "--start", "notebook", "--json", "--out", str(out)]) == 0
     text = capsys.readouterr().out
@@ -278,12 +279,12 @@ def test_mat_file_errors_say_what_is_supported(mats, good_csv, capsys):
 
 
 def test_full_disk_leaves_nothing_behind(good_csv, tmp_path, capsys, monkeypatch):
-    import samii.viz.figures as figures
+    import samii.identify.report as report  # (patched where the fit's outputs look it up)
 
     def full_disk(fig, path, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device", str(path))
 
-    monkeypatch.setattr(figures, "save_figure", full_disk)
+    monkeypatch.setattr(report, "save_figure", full_disk)
     out = tmp_path / "out"
     assert main(["fit", str(good_csv), "--start", "notebook", "--out", str(out)]) == 2
     err = capsys.readouterr().err

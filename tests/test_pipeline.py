@@ -367,3 +367,24 @@ def test_every_library_module_imports():
     for name in _modules():
         if name != "samii.__main__":  # (it runs the main job)
             importlib.import_module(name)
+
+
+def test_a_library_modules_lazy_imports_say_why():
+    """Issue 33, item 6: an import inside a function only where it saves start-up time for a command that does not
+    need it, with that reason beside it ("(lazy: ...)": a heavy package imported only when called, or a module that
+    samii's start-up imports deferring one it does not need). The commands' own modules defer every import by rule
+    (samii builds its parser from all of them): they are not walked."""
+    unsaid = []
+
+    def visit(node, in_function: bool, name: str, lines: list[str]) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test):
+                continue
+            if in_function and isinstance(child, (ast.Import, ast.ImportFrom)) and "(lazy:" not in lines[child.lineno - 1]:
+                unsaid.append(f"{name}:{child.lineno}: {lines[child.lineno - 1].strip()}")
+            visit(child, in_function or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)), name, lines)
+
+    for name, path in _library_modules():
+        text = path.read_text()
+        visit(ast.parse(text), False, name, text.splitlines())
+    assert not unsaid, unsaid

@@ -159,7 +159,7 @@ class LinearController:
 
     def statespace(self):
         """The controller as a discrete-time :class:`control.StateSpace` (input in model units, before scaling)."""
-        import control
+        import control  # (lazy: imports control, only when called)
 
         return control.ss(self.A, self.B, self.C, self.D, self.sample_time_s, inputs=list(self.inputs), outputs=["v"])
 
@@ -175,7 +175,7 @@ def unity_theta_controller(*, sample_time_s: float, input_scale: Mapping[str, fl
 
 def from_discrete_tf(num: np.ndarray, den: np.ndarray, *, sample_time_s: float):
     """State-space matrices (A, B, C, D) of a discrete SISO transfer function, via python-control."""
-    import control
+    import control  # (lazy: imports control, only when called)
 
     ss = control.tf2ss(control.tf(num, den, sample_time_s))
     return np.asarray(ss.A), np.asarray(ss.B), np.asarray(ss.C), np.asarray(ss.D)
@@ -213,7 +213,7 @@ def from_discrete_zpk(zeros, poles, dc_gain: float, *, sample_time_s: float):
         If there are more zeros than poles (not realisable) or a root lies at
         ``z = 1`` (no unit-DC normalisation).
     """
-    import control
+    import control  # (lazy: imports control, only when called)
 
     nums, dens = _real_factors(zeros), _real_factors(poles)
     if len(zeros) > len(poles):
@@ -247,7 +247,7 @@ def mass_damping_controller(
     ``filter_tf`` is the continuous filter F(s) (None: F = 1), discretised by
     ``method`` with :func:`control.sample_system`.
     """
-    import control
+    import control  # (lazy: imports control, only when called)
 
     if filter_tf is None:
         A, B, C, D = np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.array([[1.0]])

@@ -29,15 +29,18 @@ from __future__ import annotations
 
 import contextlib
 import copyreg
+import ctypes
 import io
 import multiprocessing
 import os
 import pickle
 import signal
 import sys
+import traceback
 import types
 import warnings
 from collections.abc import Callable, Iterable, Iterator
+from multiprocessing.connection import wait
 from multiprocessing.pool import RemoteTraceback
 from typing import Any, TypeVar
 
@@ -118,7 +121,7 @@ def _one_blas_thread():
     """A context in which BLAS uses one thread (threadpoolctl; its scan of the loaded libraries made once)."""
     global _CONTROLLER
     if _CONTROLLER is None:
-        from threadpoolctl import ThreadpoolController
+        from threadpoolctl import ThreadpoolController  # (lazy: imports threadpoolctl, only when called)
 
         _CONTROLLER = ThreadpoolController()
     return _CONTROLLER.limit(limits=1, user_api="blas")
@@ -166,8 +169,6 @@ def _die_with_parent(parent: int) -> None:
     """Linux: the kernel kills this worker when the thread that forked it ends (a parent killed outright, even by
     SIGKILL, leaves no worker computing on); elsewhere the closed task pipe ends it at its next item."""
     try:
-        import ctypes
-
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
     except (OSError, AttributeError):
@@ -190,8 +191,6 @@ def _work(tasks, results) -> None:
             _Pickler(buf, protocol=pickle.HIGHEST_PROTOCOL).dump(fn(items[i]))
             blob = b"R" + buf.getvalue()
         except BaseException as exc:  # raised in the parent, with this traceback as its cause
-            import traceback
-
             tb = "".join(traceback.format_exception(exc))
             try:
                 blob = b"E" + pickle.dumps((exc, tb), protocol=pickle.HIGHEST_PROTOCOL)
@@ -273,7 +272,6 @@ _MISSING = object()
 
 
 def _serve(fn: Callable, items: list, workers: list[_Worker]) -> list:
-    from multiprocessing.connection import wait
 
     results: list = [_MISSING] * len(items)
     todo = list(range(len(items)))[::-1]  # (popped from the end: in order)

@@ -15,13 +15,16 @@ import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from samii.errors import InputError
+
 __all__ = ["dumps", "finite_or_none", "non_finite_fields", "read_json"]
 
 
 def read_json(path, what: str, *, missing: str | None = None) -> Any:
     """The JSON value in file ``path``; a missing, unreadable or malformed file is an InputError naming
     it as ``what`` (``missing``: the message for a file that is not there)."""
-    from samii.errors import InputError
 
     path = Path(path)
     try:
@@ -55,7 +58,6 @@ def non_finite_fields(obj: Any, where: str = "") -> list[str]:
 def finite_or_none(obj: Any) -> Any:
     """``obj`` as plain JSON values: numpy scalars and arrays as Python ones, complex numbers as
     ``[re, im]``, dict keys as strings, and every non-finite float replaced by None."""
-    import numpy as np
 
     if isinstance(obj, dict):
         return {str(k): finite_or_none(v) for k, v in obj.items()}

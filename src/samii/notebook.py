@@ -168,14 +168,14 @@ TMM: Mapping[str, Mapping[str, float]] = MappingProxyType(
 
 def second_order(wn: float, zeta: float) -> control.TransferFunction:
     """The monic quadratic ``s^2 + 2 zeta wn s + wn^2`` as a transfer function numerator/1."""
-    import control  # python-control takes ~1 s to import: only when a transfer function is built
+    import control  # (lazy: python-control takes ~1 s to import: only when a transfer function is built)
 
     return control.tf([1.0, 2.0 * zeta * wn, wn**2], [1.0])
 
 
 def actuator_tf(p: Mapping[str, float]) -> control.TransferFunction:
     """theta/v of eq 9.1 for parameters ``p`` (keys K1, wp, zp, wz, zz, tau)."""
-    import control
+    import control  # (lazy: imports control, only when called)
 
     K1, wp, zp, wz, zz, tau = (p[k] for k in ("K1", "wp", "zp", "wz", "zz", "tau"))
     num = K1 * wp**2 * tau * np.array([1.0, 2.0 * zz * wz, wz**2])
@@ -204,7 +204,7 @@ def base_tf(p: Mapping[str, float], *, numerator: str = "s4", w2_factors: bool |
         Multiply each B_i by w_i^2 as eq 1.2 prints it. Default: True for the
         2-mode model (eq 1.2), False for 3 or more modes (eq 9.2).
     """
-    import control
+    import control  # (lazy: imports control, only when called)
 
     modes = _mode_names(p)
     if w2_factors is None:

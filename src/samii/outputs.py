@@ -27,6 +27,7 @@ place together only when the whole run succeeded::
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import os
 import secrets
 import shutil
@@ -34,7 +35,7 @@ import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 
-from samii.errors import InputError
+from samii.errors import InputError, mark_outputs_started, raise_if_signalled, uninterrupted
 
 __all__ = [
     "OutputFolder",
@@ -312,7 +313,6 @@ class OutputFolder:
         return self.root / name
 
     def __enter__(self) -> OutputFolder:
-        from samii.errors import mark_outputs_started
 
         mark_outputs_started(self.root)
         self._created = make_folder(self.root)  # removed again (when empty) if the run fails
@@ -325,8 +325,6 @@ class OutputFolder:
         committed = False
         try:
             if exc_type is None:
-                from samii.errors import raise_if_signalled
-
                 raise_if_signalled()  # interrupted, though the exception was swallowed on the way: keep nothing
                 self._commit()
                 committed = True
@@ -339,14 +337,12 @@ class OutputFolder:
         return False
 
     def _commit(self) -> None:
-        import fcntl
 
         staged = [n for n in self.names if (self._stage / n).exists()]
         fd = os.open(self.root, os.O_RDONLY)  # the folder itself is the lock: no lock file left behind
         try:
             fcntl.flock(fd, fcntl.LOCK_EX)
             self._check_existing()  # again, under the lock: another run may have written meanwhile
-            from samii.errors import uninterrupted
 
             with uninterrupted(done=self.root):  # a signal waits for the moves: never half of the files replaced
                 for name in staged:

@@ -29,6 +29,7 @@ import contextlib
 import json
 import os
 import shutil
+import tempfile
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
@@ -36,8 +37,19 @@ from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 
-from samii.errors import InputError
+from samii import notebook as nb
+from samii.closedloop.controllers import read_controller, write_controller
+from samii.closedloop.damping import damping_from_frf
+from samii.closedloop.trial import TrialRequest, run_trial
+from samii.diagnose.files import DiagnoseRequest, diagnose_files
+from samii.errors import InputError, mark_outputs_started, raise_if_signalled, uninterrupted
+from samii.formats import read_frf_csv, read_timeseries_csv
+from samii.identify.fit_file import fit_frf_file
+from samii.json_output import finite_or_none
+from samii.measure.bode_test import BodeTestRequest, run_bode_test
+from samii.outputs import remove_stale_runs, restore_replaced
 from samii.progress import SILENT, Progress
+from samii.report.page import write_report
 from samii.run_summary import (
     CLOSED_LOOP_FIELDS,
     CONTROLLERS,
@@ -55,6 +67,8 @@ from samii.run_summary import (
     ModesSummary,
     RunSummary,
 )
+from samii.schema import read_document
+from samii.sim.overrides import parse_overrides
 
 __all__ = ["run", "Run", "ClosedLoopRun", "N_STAGES"]
 
@@ -93,28 +107,25 @@ class Run:
     @cached_property
     def frf(self):
         """measure/frf.csv, a samii.frequency_response.FrequencyResponse."""
-        from samii.formats import read_frf_csv
 
         return read_frf_csv(self.path / "measure" / "frf.csv")
 
     @cached_property
     def fit(self):
         """fit/fit.json as the baseline a diagnosis takes (samii.diagnose.baseline.SavedFit)."""
-        from samii.diagnose.baseline import read_fit_json
+        from samii.diagnose.baseline import read_fit_json  # (lazy: imports scipy, only when called)
 
         return read_fit_json(self.path / "fit" / "fit.json", name="fit/fit.json")
 
     @cached_property
     def damping(self):
         """controllers/damping.json (samii.closedloop.controllers.SavedController)."""
-        from samii.closedloop.controllers import read_controller
 
         return read_controller(self.path / "controllers" / "damping.json")
 
     @cached_property
     def timeseries(self):
         """measure/timeseries.csv (samii.timeseries.TimeSeries), a quarter-million rows."""
-        from samii.formats import read_timeseries_csv
 
         return read_timeseries_csv(self.path / "measure" / "timeseries.csv")
 
@@ -122,8 +133,6 @@ class Run:
     def load(cls, folder) -> Run:
         """The run saved in ``folder``; InputError naming the file and field of anything missing, damaged or written
         by a newer samii (:mod:`samii.schema`)."""
-        from samii.formats import read_timeseries_csv
-        from samii.schema import read_document
 
         folder = Path(folder)
         if not folder.is_dir():
@@ -207,8 +216,6 @@ def _check_out(out: Path, overwrite: bool) -> None:
 
 def _stage_dir(out: Path) -> Path:
     """A fresh staging folder beside ``out`` (what runs killed outright left there removed first)."""
-    from samii.errors import mark_outputs_started
-    from samii.outputs import remove_stale_runs
 
     prefix = _STAGING.format(name=out.name)
     stage_dir = out.absolute().parent / f"{prefix}{os.getpid()}"
@@ -221,7 +228,6 @@ def _stage_dir(out: Path) -> Path:
 
 def _replace_whole(stage_dir: Path, out: Path) -> None:
     """``stage_dir`` moved into place as ``out``, replacing what was there."""
-    from samii.errors import raise_if_signalled, uninterrupted
 
     raise_if_signalled()  # a signal whose exception a library swallowed (a finaliser's): keep nothing
     # the old folder moved aside and the new one into place by renames a signal waits for: removed first, an
@@ -272,9 +278,6 @@ def run(
     returned run is; :meth:`Run.save` writes it elsewhere). ``note`` hears what the run has to say beside its results
     as it happens (the returned run's ``notes`` keep it too). ``argv``: the command line recorded in measure/run.json.
     """
-    import tempfile
-
-    from samii.outputs import restore_replaced
 
     progress = progress or SILENT
     notes: list[str] = []
@@ -325,16 +328,6 @@ def _write_summary(d: Path, summary: RunSummary) -> None:
 
 
 def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progress, said, argv: Sequence[str]) -> RunSummary:
-    from samii import notebook as nb
-    from samii.closedloop.controllers import write_controller
-    from samii.closedloop.damping import damping_from_frf
-    from samii.closedloop.trial import TrialRequest, run_trial
-    from samii.diagnose.files import DiagnoseRequest, diagnose_files
-    from samii.formats import read_frf_csv
-    from samii.identify.fit_file import fit_frf_file
-    from samii.json_output import finite_or_none
-    from samii.measure.bode_test import BodeTestRequest, run_bode_test
-    from samii.sim.overrides import parse_overrides
 
     parsed = parse_overrides(overrides)
     model_file = _model_path(model)
@@ -416,13 +409,12 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progr
 
 def _report(d: Path, out: Path) -> None:
     """``report.html``, from the folder's own files (``samii report``), naming the folder as it will be called."""
-    from samii.report.page import write_report
 
     write_report(Run.load(d), name=out.name)
 
 
 def _modes(model, overrides: dict) -> ModesSummary:
-    from samii.sim.linearize import modes_report
+    from samii.sim.linearize import modes_report  # (lazy: imports mujoco, scipy, only when called)
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)

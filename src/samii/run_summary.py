@@ -13,7 +13,10 @@ from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass
 from types import UnionType
 from typing import Union, get_args, get_origin, get_type_hints
 
+import numpy as np
+
 from samii.errors import InputError
+from samii.identify.report import verdict_text
 from samii.schema import SCHEMA_VERSION, schema_version
 
 __all__ = [
@@ -353,9 +356,6 @@ def _f(x, spec: str) -> str:
 
 def summary_lines(s: RunSummary, out) -> list[str]:
     """The summary a person reads: at most 20 lines."""
-    import numpy as np
-
-    from samii.identify.report import verdict_text
 
     m = s.modes
     lines = [

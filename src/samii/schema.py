@@ -16,7 +16,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from pathlib import Path
 
+from samii import __version__
 from samii.errors import InputError
+from samii.json_output import non_finite_fields, read_json
 
 __all__ = ["SCHEMA_VERSION", "versioned", "schema_version", "read_document"]
 
@@ -36,8 +38,6 @@ def schema_version(doc: Mapping, where) -> int:
     if isinstance(v, bool) or not isinstance(v, int) or v < 0:
         raise InputError(f"{where}: field 'schema_version' holds {v!r}; expected a whole number >= 0 (the file is damaged)")
     if v > SCHEMA_VERSION:
-        from samii import __version__
-
         raise InputError(
             f"{where}: schema_version {v}, written by a newer samii; this one ({__version__}) reads versions up to "
             f"{SCHEMA_VERSION}: upgrade samii to read it"
@@ -48,7 +48,6 @@ def schema_version(doc: Mapping, where) -> int:
 def read_document(folder, rel: str) -> dict:
     """The JSON object at ``rel`` in the run folder ``folder`` (a main job's), checked: a missing, malformed or damaged
     file (NaN, which samii never writes) and one of a newer schema_version is an InputError naming it."""
-    from samii.json_output import non_finite_fields, read_json
 
     folder = Path(folder)
     path = folder / rel

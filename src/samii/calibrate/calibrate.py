@@ -43,7 +43,9 @@ import numpy as np
 from samii.calibrate.simulator import GAIN_PREFIX, SIGNED, SimulatorFRF, check_parameter_name, parameter_value
 from samii.frequency_response import Channel, FrequencyResponse
 from samii.identify.cost import FitProblem, Weighting
-from samii.identify.lack_of_fit import LackOfFit, lack_of_fit
+from samii.identify.fit import _covariance, resolve_weighting
+from samii.identify.lack_of_fit import LackOfFit, lack_of_fit, refuse_noise
+from samii.json_output import dumps
 from samii.sim.mjcf import SamiiParams
 
 __all__ = ["MODE_KNOBS", "PHYSICAL_LIMITS", "CalibrationResult", "calibrate", "default_bounds"]
@@ -174,7 +176,6 @@ class CalibrationResult:
         }
 
     def to_json(self, **kwargs) -> str:
-        from samii.json_output import dumps
 
         return dumps(self.to_dict(), **kwargs)
 
@@ -190,7 +191,7 @@ class CalibrationResult:
 
     def write_params(self, path, *, overwrite: bool = False) -> Path:
         """The calibrated parameter set as a parameter file that ``load_model`` and ``--model`` accept."""
-        from samii.formats import write_text
+        from samii.formats import write_text  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
         note = f"written by samii calibrate from {self.data_source or 'FRF data'}: " + ", ".join(
             f"{n} = {self.values[n]:.6g}" for n in self.names if not n.startswith(GAIN_PREFIX)
@@ -263,10 +264,9 @@ def calibrate(
     data_source : str
         Where the data came from (for the report).
     """
-    from scipy.optimize import least_squares
+    from scipy.optimize import least_squares  # (lazy: imports scipy, only when called)
 
-    from samii.identify.fit import _covariance  # the same uncertainty and identifiability as samii fit
-    from samii.sim.model import default_params
+    from samii.sim.model import default_params  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
     t0 = time.perf_counter()
     base = default_params() if base is None else base
@@ -304,9 +304,6 @@ def calibrate(
         lo, hi, _ = bnds[n]
         if not lo <= v <= hi:
             raise ValueError(f"parameter {n}: start {v:.6g} lies outside its bounds [{lo:.6g}, {hi:.6g}]")
-
-    from samii.identify.fit import resolve_weighting
-    from samii.identify.lack_of_fit import refuse_noise
 
     weighting = resolve_weighting(data, channels, weighting)
     structure = SimulatorFRF(base, names)
@@ -422,8 +419,8 @@ def calibrate(
 def _confirm(structure: SimulatorFRF, x: np.ndarray, problem: FitProblem, sweep) -> dict:
     """Measure the calibrated model with ``sweep`` in the nonlinear simulator (noise-free DAQ)
     and compare that measurement and the linearisation with the data (unweighted RMS errors)."""
-    from samii.measure.campaign import record
-    from samii.measure.frf import estimate_frf
+    from samii.measure.campaign import record  # (lazy: this module is imported at samii's start-up, that one is not needed there)
+    from samii.measure.frf import estimate_frf  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
     f = problem.data.freq_hz
     inside = (f >= sweep.start_hz) & (f <= sweep.stop_hz)

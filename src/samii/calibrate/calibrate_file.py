@@ -13,7 +13,21 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
+from samii import notebook as nb
+from samii.calibrate.calibrate import calibrate
+from samii.calibrate.simulator import SimulatorFRF, check_parameter_name
 from samii.errors import InputError, input_error_of
+from samii.formats import is_mat_file, read_frf_csv, read_mat_bode, write_text
+from samii.frequency_response import FrequencyResponse
+from samii.identify.structures import ModelStructure
+from samii.measure.excitation import SweptSine
+from samii.outputs import OutputFolder
+from samii.sim.model import default_params, params_with_overrides, read_params_file
+from samii.sim.overrides import parse_overrides
+from samii.viz.figures import pyplot, save_figure
+from samii.viz.fit_plot import plot_fit_overlay
 
 __all__ = ["CalibrateRequest", "Calibrated", "calibrate_file", "load_target", "OUTPUTS", "NOTEBOOK_TARGETS", "CHANNELS"]
 
@@ -56,14 +70,9 @@ def load_target(source: str):
     theta/v is converted from deg/V to rad/V and its xdd/theta from per degree to per radian; its
     acceleration unit is not stated, so the base channel keeps that unknown factor.
     """
-    import numpy as np
-
-    from samii.frequency_response import FrequencyResponse
 
     if source.lower() in NOTEBOOK_TARGETS:
-        from samii import notebook as nb
-        from samii.identify.structures import ModelStructure
-        from samii.measure.frf import log_frequency_grid
+        from samii.measure.frf import log_frequency_grid  # (lazy: imports scipy, only when called)
 
         st = ModelStructure.notebook_3mode("s4")
         f = log_frequency_grid(0.1, 40.0, 100)
@@ -78,13 +87,9 @@ def load_target(source: str):
         raise InputError(f"DATA {source!r}: no such file (DATA is an FRF CSV, a rig-era .mat, or one of {', '.join(NOTEBOOK_TARGETS)})")
     if path.suffix.lower() not in (".csv", ".mat", ".txt"):
         raise InputError(f"DATA {source}: expected an FRF CSV (docs/DATA_FORMATS.md) or a rig-era .mat, not a {path.suffix or 'suffix-less'} file")
-    from samii.formats import is_mat_file
 
     if is_mat_file(path):  # (the content decides: a text file named .mat is read as the CSV it is)
-        from samii.formats import read_mat_bode
-
         return read_mat_bode(path)
-    from samii.formats import read_frf_csv
 
     return read_frf_csv(path)
 
@@ -104,10 +109,6 @@ def _channels(asked: str | Sequence[str], data) -> tuple[str, ...]:
 def calibrate_file(source: str, request: CalibrateRequest, *, out=None, overwrite: bool = False) -> Calibrated:
     """Calibrate ``request.params`` to the FRF in ``source`` (a file, or ``eq9.4``); with ``out`` (a folder, checked
     before any work) its outputs written there. Every refusal an InputError naming the option or the file."""
-    from samii.calibrate.calibrate import calibrate
-    from samii.calibrate.simulator import check_parameter_name
-    from samii.outputs import OutputFolder
-    from samii.sim.model import default_params, params_with_overrides, read_params_file
 
     req = request
     folder = OutputFolder(out, OUTPUTS, overwrite=overwrite) if out else None
@@ -116,7 +117,6 @@ def calibrate_file(source: str, request: CalibrateRequest, *, out=None, overwrit
             f"--model {req.model}: calibrate needs a parameter file (.json, e.g. samii_params.json or a calibrated_params.json), "
             "not an MJCF file, whose physics is not parametrised"
         )
-    from samii.sim.overrides import parse_overrides
 
     overrides = dict(req.overrides) if isinstance(req.overrides, Mapping) else parse_overrides(list(req.overrides))
     base = read_params_file(req.model) if req.model else default_params()
@@ -135,8 +135,6 @@ def calibrate_file(source: str, request: CalibrateRequest, *, out=None, overwrit
     channels = _channels(req.channels, data) if req.channels is not None else None
     confirm = None
     if req.confirm:
-        from samii.measure.excitation import SweptSine
-
         lo, hi = max(0.1, float(data.freq_hz[0])), min(40.0, float(data.freq_hz[-1]))
         if not lo < hi:
             raise InputError(f"--confirm: the data's band {data.freq_hz[0]:g}-{data.freq_hz[-1]:g} Hz leaves nothing of 0.1-40 Hz to sweep")
@@ -170,10 +168,6 @@ def calibrate_file(source: str, request: CalibrateRequest, *, out=None, overwrit
 
 def _write_outputs(result, data, folder) -> None:
     """Report JSON, parameter file and overlay Bode plot, staged in ``folder`` (:class:`samii.outputs.OutputFolder`)."""
-    from samii.calibrate.simulator import SimulatorFRF
-    from samii.formats import write_text
-    from samii.viz.figures import pyplot, save_figure
-    from samii.viz.fit_plot import plot_fit_overlay
 
     pyplot()  # on Agg: the figure below goes to a file
     structure = SimulatorFRF(result.params, result.names)

@@ -131,7 +131,7 @@ class SimulatorFRF:
     # -- evaluation ------------------------------------------------------------------
     def samii_params(self, x: Sequence[float]) -> SamiiParams:
         """The full parameter set for ``x`` (channel gains are not model parameters)."""
-        from samii.sim.model import params_with_overrides
+        from samii.sim.model import params_with_overrides  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
         physical = {n: float(v) for n, v in zip(self.param_names, x) if not n.startswith(GAIN_PREFIX)}
         return params_with_overrides(self.base, physical)
@@ -141,7 +141,7 @@ class SimulatorFRF:
 
     def model(self, x: Sequence[float]):
         """The compiled MuJoCo model for ``x``, at its static equilibrium (not to be modified: it may be kept)."""
-        from samii.sim.model import load_model
+        from samii.sim.model import load_model  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
         key = np.asarray(x, float).tobytes()
         hit = self._models.get(key)
@@ -176,7 +176,7 @@ class SimulatorFRF:
         hit = self._cache.get(key)
         if hit is not None:
             return hit
-        from samii.measure.campaign import linearised_frf
+        from samii.measure.campaign import linearised_frf  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
         out = self.with_gains(x, linearised_frf(self.model(x), freq_hz))
         if len(self._cache) > 64:

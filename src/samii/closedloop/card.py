@@ -34,6 +34,9 @@ import numpy as np
 
 from samii.controller import LinearController
 from samii.errors import InputError
+from samii.sim.model import ACTUATOR, JOINT
+from samii.sim.plugin import command_ring_entries, compile_spec
+from samii.sim.sensors import accel_offset, accel_weights
 
 __all__ = [
     "CardFitError",
@@ -209,8 +212,6 @@ def build_card_model(
         If the controller's sample time is not a whole number of physics steps,
         its delay is too long or it has too many states.
     """
-    from samii.sim.model import ACTUATOR, JOINT
-    from samii.sim.plugin import compile_spec
 
     dt = float(spec.option.timestep)
     hyd = next((a for a in spec.actuators if a.name == ACTUATOR), None)
@@ -243,8 +244,6 @@ def build_card_model(
     model = compile_with(config)
     steps, n_buffer, n = 1, 0, 0
     if controller is not None:
-        from samii.sim.sensors import accel_offset, accel_weights
-
         n = controller.n_states
         steps = check_fit(controller, dt, delay_samples)
         delay_steps = float(delay_samples) * steps
@@ -281,7 +280,6 @@ def build_card_model(
         n_states=n,
         act_adr=1 + model.nq + model.nv + int(model.actuator_actadr[act_id]),
     )
-    from samii.sim.plugin import command_ring_entries
 
     # after the card's entries, the valve's command delay keeps its own (hydraulic.c)
     expected = (4 + n_buffer + n if controller is not None else 0) + command_ring_entries(float(config.get("command_delay") or 0.0), dt)

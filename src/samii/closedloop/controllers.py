@@ -30,8 +30,10 @@ back bit for bit.
 
 from __future__ import annotations
 
+import datetime
 import json
 import math
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,8 +41,12 @@ from typing import Any
 
 import numpy as np
 
-from samii.controller import LinearController
+from samii import __version__
+from samii import notebook as nb
+from samii.controller import MEASUREMENTS, LinearController
 from samii.errors import InputError
+from samii.formats import write_text
+from samii.json_output import dumps
 
 __all__ = [
     "FT_PER_M",
@@ -96,11 +102,9 @@ class NotebookUnitEvidence:
 
 def accel_unit_evidence(model=None) -> NotebookUnitEvidence:
     """Eq 9.4's B_k against the simulator's (``model``, default the embedded one), theta in degrees."""
-    import warnings
 
-    from samii import notebook as nb
-    from samii.sim.linearize import linearize
-    from samii.sim.model import load_model
+    from samii.sim.linearize import linearize  # (lazy: imports mujoco, scipy, only when called)
+    from samii.sim.model import load_model  # (lazy: imports mujoco, only when called)
 
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="logm result may be inaccurate")  # error ~1e-12, well below what is compared here
@@ -120,9 +124,8 @@ def notebook_place(*, sample_time_s: float = 1e-3) -> SavedController:
     reads theta_ref, theta and the base acceleration in the notebook's units
     and is the whole position loop.
     """
-    from samii import notebook as nb
-    from samii.design import canonical as cc
-    from samii.design import placement as pl
+    from samii.design import canonical as cc  # (lazy: imports PIL, control, matplotlib, scipy, sympy, only when called)
+    from samii.design import placement as pl  # (lazy: imports PIL, control, matplotlib, scipy, only when called)
 
     model = cc.numeric_statespace(cc.derive_canonical_form(2, "accel"), nb.EQ1_4_OPTIMIZED)
     d = pl.design_placement(model, sample_time_s=sample_time_s, zeta=nb.EQ8_3_ZETA, observer="placement")
@@ -138,8 +141,7 @@ def notebook_cancel(*, sample_time_s: float = 1e-3, gain: float | None = None) -
     0.14 of the step; the notebook's Figure 11.2 shows theta reaching the
     desired angle), discretised by pole-zero matching.
     """
-    from samii import notebook as nb
-    from samii.design.cancel import design_pole_cancel
+    from samii.design.cancel import design_pole_cancel  # (lazy: imports PIL, control, matplotlib, scipy, only when called)
 
     k = nb.EQ10_GAIN if gain is None else gain
     d = design_pole_cancel(nb.EQ9_4, loop="theta", gain=k)
@@ -153,9 +155,6 @@ def notebook_cancel(*, sample_time_s: float = 1e-3, gain: float | None = None) -
 
 
 def _provenance_defaults() -> dict:
-    import datetime
-
-    from samii import __version__
 
     return {"samii_version": __version__, "written_utc": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")}
 
@@ -183,8 +182,6 @@ def controller_json(saved: SavedController) -> dict:
 def write_controller(saved: SavedController, path: str | Path) -> Path:
     """Write ``saved`` as a controller file (strict JSON, every digit kept); all or nothing (a temporary file renamed;
     a full disk's error names ``path``)."""
-    from samii.formats import write_text
-    from samii.json_output import dumps
 
     return write_text(path, dumps(controller_json(saved), indent=1) + "\n", overwrite=True)
 
@@ -259,7 +256,6 @@ def read_controller(path: str | Path) -> SavedController:
     inputs = doc.get("inputs")
     if not isinstance(inputs, list) or not inputs or not all(isinstance(s, str) for s in inputs):
         raise InputError(f"{where}: field 'inputs' must be a non-empty list of measurement names (theta_ref, theta, accel)")
-    from samii.controller import MEASUREMENTS
 
     unknown = [s for s in inputs if s not in MEASUREMENTS]
     if unknown or len(set(inputs)) != len(inputs):

@@ -42,12 +42,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from samii import notebook as nb
 from samii.closedloop.controllers import SavedController
 from samii.controller import LinearController
+from samii.errors import InputError, input_error_of
+from samii.identify.fit import check_not_noise, fit
 from samii.progress import SILENT, Progress, part
 
 __all__ = [
@@ -128,9 +131,7 @@ class DampingDesign:
 
 def damping_plant(params: Mapping[str, float], position_gain_v_per_rad: float):
     """``xdd / v_added`` with the servo loop closed: ``(xdd/theta) G / (1 + Kp G)`` (python-control, continuous)."""
-    import control
-
-    from samii import notebook as nb
+    import control  # (lazy: imports control, only when called)
 
     G = nb.actuator_tf(params)
     H = nb.base_tf(params, numerator="s4", w2_factors=False)
@@ -153,9 +154,7 @@ def servo_gain_margin(params: Mapping[str, float], position_gain_v_per_rad: floa
     together: theta in mrad (1000x) or degrees (57x), or another amplifier gain. A relative-degree-2 fit can be
     stable conditionally at such gains, a rig with its valve lag and sampling is not: on theta in mrad the damping
     design came out 74x too hot, called 6 dB from its limit, and the loop ran away."""
-    import control
-
-    from samii import notebook as nb
+    import control  # (lazy: imports control, only when called)
 
     gm, _, w_gm, _ = control.margin(position_gain_v_per_rad * nb.actuator_tf(params))
     if not np.isfinite(gm) or not np.isfinite(w_gm) or w_gm <= 0:
@@ -169,9 +168,7 @@ def servo_loop_growing(params: Mapping[str, float], position_gain_v_per_rad: flo
     FRF with theta x10 the loop crosses -180 deg twice and ``control.margin`` gave 1.35 at 9.6 Hz where the loop has a
     pole growing at 9.5 Hz (a damping design then came out 121 dB below a limit of 0.0001, k = 9e-11, doing nothing,
     and said so as a design); with theta x2 the margin was 0.83, above the refusal's 0.5."""
-    import control
-
-    from samii import notebook as nb
+    import control  # (lazy: imports control, only when called)
 
     G = nb.actuator_tf(params)
     poles = np.asarray(control.poles(control.feedback(position_gain_v_per_rad * G, 1)), complex)
@@ -200,7 +197,7 @@ def servo_loop_contradiction(params: Mapping[str, float], position_gain_v_per_ra
 
 def _discrete_loop(params, kp, T, delay):
     """(plant ZOH with the delay, filter factory): python-control discrete state-space objects."""
-    import control
+    import control  # (lazy: imports control, only when called)
 
     Pd = control.c2d(control.ss(damping_plant(params, kp)), T, "zoh")
     for _ in range(delay):
@@ -210,7 +207,7 @@ def _discrete_loop(params, kp, T, delay):
 
 def _filter(wf: float, zf: float, T: float, w_rolloff: float | None = None):
     """F(s) of the module docstring, discretised by ZOH."""
-    import control
+    import control  # (lazy: imports control, only when called)
 
     F = control.tf([wf**2], [1.0, 2 * zf * wf, wf**2])
     if w_rolloff is not None:
@@ -219,7 +216,7 @@ def _filter(wf: float, zf: float, T: float, w_rolloff: float | None = None):
 
 
 def _closed_poles(Pd, Fd, k: float) -> np.ndarray:
-    import control
+    import control  # (lazy: imports control, only when called)
 
     T = Pd.dt
     z = control.poles(control.feedback(Pd, Fd * k, sign=-1))
@@ -337,7 +334,6 @@ def measured_sensitivity(design: DampingDesign, frf, *, above_hz: float) -> tupl
 
 def with_data_check(design: DampingDesign, frf) -> DampingDesign:
     """``design`` with :func:`measured_sensitivity` above its fit band filled in."""
-    from dataclasses import replace
 
     hi = float(design.fit_summary.get("band_hz", FIT_BAND_HZ)[1]) if design.fit_summary else FIT_BAND_HZ[1]
     smax, band = measured_sensitivity(design, frf, above_hz=hi)
@@ -346,7 +342,6 @@ def with_data_check(design: DampingDesign, frf) -> DampingDesign:
 
 def measured_fit(frf, *, band_hz: tuple[float, float] = FIT_BAND_HZ):
     """The notebook's 3-mode s^4 structure fitted to ``frf`` (coherence-weighted when it has coherence)."""
-    from samii.identify.fit import check_not_noise, fit
 
     lo, hi = band_hz
     f = np.asarray(frf.freq_hz)
@@ -373,7 +368,6 @@ def damping_from_frf(
     """The damping controller designed on a fit of measured Bode data ``data`` (read from the file ``source``, which
     the refusals name): refused (:class:`~samii.errors.InputError`) when the data lack a channel, cannot be fitted, the
     fit is not sound, or the fit says the servo loop the data were measured in was unstable."""
-    from samii.errors import InputError, input_error_of
 
     missing = ([] if "act" in data.channels else ["act"]) + ([] if {"base", "total"} & set(data.channels) else ["base or total"])
     if missing:
@@ -415,9 +409,9 @@ def damping_from_simulation(
 ) -> DampingDesign:
     """Measure ``model`` (swept sine, sensor noise on), fit, design: the damping controller of the current model.
     ``progress`` (samii.progress.Progress) is told the three stages, the measurement's physics steps within the first."""
-    from samii.measure.campaign import measure_swept
-    from samii.measure.daq import SensorNoise
-    from samii.sim.plugin import hydraulic_params
+    from samii.measure.campaign import measure_swept  # (lazy: imports mujoco, scipy, only when called)
+    from samii.measure.daq import SensorNoise  # (lazy: imports mujoco, scipy, only when called)
+    from samii.sim.plugin import hydraulic_params  # (lazy: imports mujoco, only when called)
 
     progress = progress or SILENT
     progress.expect(3)

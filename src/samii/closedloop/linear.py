@@ -28,6 +28,11 @@ import mujoco
 import numpy as np
 
 from samii.closedloop.card import CardModel, si_matrices
+from samii.closedloop.run import bumpless_state
+from samii.sim.model import make_data
+from samii.sim.one_step import transition
+from samii.sim.plugin import hydraulic_params
+from samii.sim.sensors import output_rows
 
 __all__ = ["LinearLoop", "linear_loop", "LinearResponse"]
 
@@ -111,7 +116,6 @@ class LinearLoop:
         does (:func:`samii.closedloop.run.bumpless_state`). ``x0``: initial
         plant state (deviation from the equilibrium, mjd_transitionFD's coordinates).
         """
-        from samii.closedloop.run import bumpless_state
 
         theta_ref = np.asarray(theta_ref, float)
         n = theta_ref.size
@@ -184,10 +188,6 @@ class LinearLoop:
 
 def linear_loop(cm: CardModel, *, eps: float = 1e-6) -> LinearLoop:
     """The linearised closed loop of ``cm`` about its ``home`` equilibrium."""
-    from samii.sim.model import make_data
-    from samii.sim.one_step import transition
-    from samii.sim.plugin import hydraulic_params
-    from samii.sim.sensors import output_rows
 
     m = cm.model
     data = make_data(m)

@@ -18,6 +18,10 @@ import numpy as np
 
 from samii.closedloop.card import CardModel, si_matrices
 from samii.errors import SimulationUnstable
+from samii.sim.model import make_data
+from samii.sim.plugin import hydraulic_params
+from samii.sim.sensors import accel_offset, accel_weights
+from samii.sim.simulate import check_rollout
 
 __all__ = ["LoopSignals", "bumpless_state", "run_loop", "measurements_at"]
 
@@ -61,8 +65,6 @@ ACCEL_INPUT = 2
 
 def measurements_at(cm: CardModel, state: np.ndarray, theta_ref_rad: float) -> np.ndarray:
     """``w = (theta_ref, theta, accel)`` (SI, noise-free) the card would sample in ``state``."""
-    from samii.sim.plugin import hydraulic_params
-    from samii.sim.sensors import accel_offset, accel_weights
 
     m = cm.model
     d = mujoco.MjData(m)
@@ -145,7 +147,6 @@ def run_loop(
     qpos_every : int, optional
         Keep ``qpos`` every this many steps (``frame_t``, ``frame_qpos``: an animation).
     """
-    from samii.sim.model import make_data
 
     m = cm.model
     theta_ref_rad = np.asarray(theta_ref_rad, float)
@@ -189,9 +190,6 @@ def _quiet(message: str) -> None:
 
 
 def _run_segments(cm, ctrl, theta_ref_rad, state, data, switch_on_step, chunk_steps, keep_partial, qpos_every) -> LoopSignals:
-    from samii.sim.plugin import hydraulic_params
-    from samii.sim.sensors import accel_offset, accel_weights
-    from samii.sim.simulate import check_rollout
 
     m = cm.model
     L = cm.layout

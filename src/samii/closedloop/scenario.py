@@ -39,7 +39,13 @@ from samii.closedloop.metrics import (
     sustained_oscillation,
 )
 from samii.closedloop.run import LoopSignals, measurements_at, run_loop
+from samii.json_output import finite_or_none
+from samii.json_output import finite_or_none as f
 from samii.measure.daq import SensorNoise
+from samii.sim.hydraulic_reference import AMPLIFIER_LIMIT_V
+from samii.sim.model import load_model, load_spec, make_data
+from samii.sim.sensors import accel_axis_world, accel_site
+from samii.timeseries import TimeSeries
 
 __all__ = [
     "SCENARIOS",
@@ -159,7 +165,6 @@ class ClosedLoopResult:
         return f"{ran}; the base {what}" if ran else what
 
     def as_json(self) -> dict:
-        from samii.json_output import finite_or_none
 
         def f(x):  # 12 significant digits: times like 59 * 0.001 print as 0.059, not 0.05899999999999994
             x = finite_or_none(x)
@@ -205,7 +210,6 @@ class ClosedLoopResult:
 
     def run_json(self) -> dict:
         """Everything of :meth:`as_json` and how the run was made (``run.json``)."""
-        from samii.json_output import finite_or_none as f
 
         sc = self.scenario
         return {
@@ -226,7 +230,6 @@ class ClosedLoopResult:
     def timeseries(self, *, comparison: bool = False):
         """The run (``comparison``: the comparison run) in the standard time-series format (physics
         rate); ``command`` and ``controller_on`` as extra columns."""
-        from samii.timeseries import TimeSeries
 
         s = self.comparison if comparison else self.signals
         meta = {
@@ -248,8 +251,6 @@ class ClosedLoopResult:
 def _impulse_state(cm: CardModel, impulse_n_s: float) -> np.ndarray:
     """The ``home`` state with the velocity change of an impulse at the accelerometer's site along
     its measuring axis in the world frame (a body-fixed accelerometer's axis turned by its site)."""
-    from samii.sim.model import make_data
-    from samii.sim.sensors import accel_axis_world, accel_site
 
     m = cm.model
     d = make_data(m)
@@ -300,7 +301,6 @@ def _worst_pole(poles_s: np.ndarray) -> str:
 
 def _fd_deviation(cm: CardModel, state: np.ndarray) -> np.ndarray:
     """``state`` as a deviation from ``home`` in mjd_transitionFD's coordinates (dqpos, qvel, act)."""
-    from samii.sim.model import make_data
 
     m = cm.model
     home = make_data(m)
@@ -430,8 +430,6 @@ def run_closed_loop(
                 notes.append(f"the base oscillation at {osc.freq_hz:.3g} Hz is still growing at the end of the run")
     ran_away = None
     if sig.t.size >= 30:  # (a diverged run too, up to its divergence: what ran away before it)
-        from samii.sim.hydraulic_reference import AMPLIFIER_LIMIT_V
-
         ran_away = runaway(sig.t, sig.theta - th_rest - sig.theta_ref, sig.v, t_event=t_ev, rail_v=AMPLIFIER_LIMIT_V)
         if ran_away is not None:  # (said by instability(), not again as a note)
             stable = False
@@ -489,7 +487,6 @@ def run_closed_loop(
 
 def default_spec_factory(path=None, overrides=None):
     """A factory of fresh specs of a model (default the embedded one) with its static equilibrium."""
-    from samii.sim.model import load_model, load_spec
 
     model = load_model(path, overrides=overrides)
     qpos, act = model.key_qpos[0].copy(), model.key_act[0].copy()

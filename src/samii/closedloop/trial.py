@@ -14,7 +14,14 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from samii.errors import InputError
+from samii.json_output import dumps
+from samii.outputs import OutputFolder, check_output_file, create_parent, shown_path, written_beside
+from samii.progress import said
+from samii.schema import versioned
+from samii.sim.overrides import as_overrides
 
 __all__ = ["TrialRequest", "Trial", "run_trial", "resolve_controller", "check_fits", "model_at_rest", "write_rerun", "BUILTIN_CONTROLLERS", "FILES"]
 
@@ -53,13 +60,14 @@ class Trial:
 def resolve_controller(spec: str, factory=None, *, say: Callable[[str], None] | None = None):
     """The controller ``spec`` names (None: the unity servo loop alone); ``factory`` builds the plant the "damping"
     controller is designed on, and ``say`` hears that design's stages."""
-    from samii.closedloop import controllers as cs
+    from samii.closedloop import controllers as cs  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
     if not spec.strip():
         raise InputError(f"--controller: expected {', '.join(BUILTIN_CONTROLLERS)} or a controller file, got an empty string")
     if spec == "damping":
-        from samii.closedloop.damping import damping_from_simulation
-        from samii.progress import said
+        from samii.closedloop.damping import (  # (lazy: this module is imported at samii's start-up, that one is not needed there)
+            damping_from_simulation,
+        )
 
         model = model_at_rest(factory)
         return damping_from_simulation(model, progress=said(say)).controller
@@ -76,7 +84,7 @@ def resolve_controller(spec: str, factory=None, *, say: Callable[[str], None] | 
 
 def check_fits(saved, spec: str, delay_samples: float, dt: float) -> None:
     """The controller against the card's limits and the physics step, naming the file and field or the option."""
-    from samii.closedloop.card import CardFitError, check_fit
+    from samii.closedloop.card import CardFitError, check_fit  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
     try:
         check_fit(saved.controller, dt, delay_samples)
@@ -103,9 +111,9 @@ def _check_request(req: TrialRequest, *, plots: bool, out) -> None:
 def model_at_rest(factory):
     """The run's model with its ``home`` keyframe at the static equilibrium the factory found (a
     model changed by ``--set`` or a parameter file is not at rest in its written keyframe)."""
-    import mujoco
+    import mujoco  # (lazy: imports mujoco, only when called)
 
-    from samii.sim.plugin import compile_spec
+    from samii.sim.plugin import compile_spec  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
     spec, qpos, act = factory()
     model = compile_spec(spec)
@@ -116,10 +124,12 @@ def model_at_rest(factory):
 
 def write_rerun(result, tmp, final, factory) -> None:
     """The trial (and its comparison run, if any) as a Rerun recording in ``tmp``; a failure names ``final``."""
-    import numpy as np
 
-    from samii.outputs import create_parent
-    from samii.viz.recording import RunRecord, recording_failed, write_recording
+    from samii.viz.recording import (  # (lazy: this module is imported at samii's start-up, that one is not needed there)
+        RunRecord,
+        recording_failed,
+        write_recording,
+    )
 
     create_parent(tmp)
     s = result.signals
@@ -172,10 +182,13 @@ def run_trial(
     is false; given ``rerun``, a recording there. ``say`` hears the stages of a "damping" controller's design, ``note``
     what was asked and will not be done (as it is found);
     ``relative_to`` names the written files relative to that folder (the main job's) instead of as given."""
-    from samii.closedloop.plots import FIGURES
-    from samii.closedloop.scenario import NoiseSpec, default_spec_factory, run_closed_loop, scenario
-    from samii.outputs import OutputFolder, check_output_file, shown_path, written_beside
-    from samii.sim.overrides import as_overrides
+    from samii.closedloop.plots import FIGURES  # (lazy: this module is imported at samii's start-up, that one is not needed there)
+    from samii.closedloop.scenario import (  # (lazy: this module is imported at samii's start-up, that one is not needed there)
+        NoiseSpec,
+        default_spec_factory,
+        run_closed_loop,
+        scenario,
+    )
 
     _check_request(request, plots=plots, out=out)
     names = list(FILES) + (list(FIGURES) if plots else [])
@@ -201,7 +214,7 @@ def run_trial(
     noise = NoiseSpec(seed=request.seed or 0) if request.noise else None
     frame_steps = None
     if rerun_path:
-        from samii.viz.recording import frame_steps_for
+        from samii.viz.recording import frame_steps_for  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
         frame_steps = frame_steps_for(model_at_rest(factory), rerun_fps)
     # the controller's name in the run's files and figures: a built-in's, or the file as the run names it
@@ -217,9 +230,7 @@ def run_trial(
         rerun_path = None
     with written_beside(rerun_path) as rrd_tmp:
         if folder is not None:
-            from samii.formats import write_timeseries_csv
-            from samii.json_output import dumps
-            from samii.schema import versioned
+            from samii.formats import write_timeseries_csv  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
             with folder:
                 if recorded:
@@ -234,7 +245,11 @@ def run_trial(
                     "servo_loop": "replaced" if saved.replaces_servo else "kept", "provenance": dict(saved.provenance)}  # fmt: skip
                 folder.path("run.json").write_text(dumps(versioned(doc), indent=1) + "\n")
                 if recorded and plots:
-                    from samii.closedloop.plots import plot_base, plot_linear, plot_theta
+                    from samii.closedloop.plots import (  # (lazy: this module is imported at samii's start-up, that one is not needed there)
+                        plot_base,
+                        plot_linear,
+                        plot_theta,
+                    )
 
                     plot_theta(result, folder.path("theta.png"))
                     plot_base(result, folder.path("base_accel.png"))

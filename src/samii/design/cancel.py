@@ -56,7 +56,8 @@ import numpy as np
 from scipy import optimize
 
 from samii import notebook as nb
-from samii.controller import NOTEBOOK_UNITS, LinearController, from_discrete_zpk
+from samii.controller import NOTEBOOK_UNITS, LinearController, from_discrete_zpk, unstable_poles
+from samii.design.rootlocus import feedback_poles
 
 __all__ = [
     "CancelLoop",
@@ -131,7 +132,6 @@ def cancel_open_loop(p: Mapping[str, float], Gc: control.TransferFunction, *, lo
 
 def closed_loop_poles(L: control.TransferFunction, K: float) -> np.ndarray:
     """Roots of ``1 + K L = 0``, all of them including the cancelled ones (eigenvalues of a realisation of L)."""
-    from samii.design.rootlocus import feedback_poles
 
     ss = control.tf2ss(L)
     return feedback_poles(ss.A, ss.B, ss.C, ss.D, -K)  # 1 + K L = 0 is positive feedback with gain -K
@@ -252,7 +252,6 @@ class PoleCancelDesign:
     @property
     def unstable_poles(self) -> np.ndarray:
         """Closed-loop poles with ``Re s >= 0`` (empty for a stable loop)."""
-        from samii.controller import unstable_poles
 
         return unstable_poles(self.closed_loop, discrete=False)
 

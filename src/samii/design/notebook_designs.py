@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from samii import notebook as nb
+from samii.closedloop.controllers import NOTEBOOK_INPUT_SCALE, NOTEBOOK_UNITS_SI, SavedController
+from samii.design import placement as pl
 from samii.design.cancel import PoleCancelDesign, design_pole_cancel
 from samii.design.placement import PlacementDesign
 from samii.errors import InputError
@@ -67,7 +69,6 @@ class PlaceOnEq14:
 
     def saved_controller(self):
         """The runnable controller (samii.closedloop.controllers.SavedController), reading SI, with its provenance."""
-        from samii.closedloop.controllers import NOTEBOOK_INPUT_SCALE, NOTEBOOK_UNITS_SI, SavedController
 
         d = self.design
         c = d.controller(input_scale={k: NOTEBOOK_INPUT_SCALE[k] for k in ("theta_ref", "theta", "accel")}, model_units=NOTEBOOK_UNITS_SI)
@@ -89,8 +90,7 @@ def place_on_eq1_4(
     """Pole placement with an observer on eq 1.4 in the canonical form of chapter 5 (the noise standard deviations, in
     the notebook's units, for ``observer="kalman"``). A sample time too long for the design's fastest pole, or so short
     that the poles miss their targets, is an InputError naming it."""
-    from samii.design import canonical as cc
-    from samii.design import placement as pl
+    from samii.design import canonical as cc  # (lazy: imports sympy, only when called)
 
     model = cc.numeric_statespace(cc.derive_canonical_form(2, "accel"), nb.EQ1_4_OPTIMIZED)
     T = sample_time_s
@@ -145,7 +145,6 @@ class CancelOnEq94:
     def saved_controller(self):
         """The runnable controller (SavedController), reading SI, with its provenance; a design unstable on eq 9.4 is
         refused (InputError)."""
-        from samii.closedloop.controllers import NOTEBOOK_INPUT_SCALE, NOTEBOOK_UNITS_SI, SavedController
 
         d = self.design
         if not self.stable:

@@ -51,7 +51,7 @@ from scipy import linalg
 from scipy.optimize import linear_sum_assignment
 
 from samii import notebook as nb
-from samii.controller import NOTEBOOK_UNITS, LinearController
+from samii.controller import NOTEBOOK_UNITS, LinearController, unstable_poles
 
 __all__ = [
     "MIN_SAMPLES_PER_PERIOD",
@@ -264,7 +264,6 @@ class PlacementDesign:
     @property
     def unstable_poles_z(self) -> np.ndarray:
         """Closed-loop poles on or outside the unit circle (empty for a usable design)."""
-        from samii.controller import unstable_poles
 
         return unstable_poles(self.closed_loop_poles_z, discrete=True)
 

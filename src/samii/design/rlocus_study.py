@@ -10,6 +10,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from samii.json_output import dumps
+from samii.outputs import OutputFolder
 from samii.progress import SILENT, Progress
 
 if TYPE_CHECKING:
@@ -37,7 +39,7 @@ class RlocusStudy:
 def _plan():
     # (imported here, as every heavy module of this one: the command's parser reads PLOT_MAX_GAINS, and python-control,
     # which samii.design.rootlocus imports, is not needed to build it)
-    from samii.design import rootlocus as rl
+    from samii.design import rootlocus as rl  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
     return [(label, p, num, v) for label, (p, num) in rl.default_models().items() for v in rl.NOTEBOOK_VARIANTS]
 
@@ -51,9 +53,7 @@ def run_rlocus_study(*, n_gains: int = 3000, out=None, overwrite: bool = False, 
     """The study, tracking each locus on ``n_gains`` gains per sign; with ``out`` (a folder path, or a
     samii.outputs.OutputFolder made for :func:`rlocus_outputs` and not yet entered) its tables and, with ``plots``, its
     figures written there. ``progress`` hears a unit per loop summarised and per figure drawn."""
-    from samii.design import rootlocus as rl
-    from samii.json_output import dumps
-    from samii.outputs import OutputFolder
+    from samii.design import rootlocus as rl  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
     progress = progress or SILENT
     folder = out if isinstance(out, OutputFolder) or out is None else OutputFolder(out, rlocus_outputs(plots), overwrite=overwrite)
@@ -73,7 +73,7 @@ def run_rlocus_study(*, n_gains: int = 3000, out=None, overwrite: bool = False, 
             folder.path("summary.json").write_text(dumps(study.rows(), indent=1) + "\n")
             folder.path("summary.md").write_text(study.table)
             if plots:
-                from samii.viz.rootlocus_plot import plot_variant
+                from samii.viz.rootlocus_plot import plot_variant  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
                 for lp, s, name in zip(loops, summaries, rlocus_outputs(True)[2:]):
                     progress.stage(f"plot {lp.model} {lp.variant.name}")

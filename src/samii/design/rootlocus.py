@@ -62,7 +62,7 @@ from typing import Literal
 
 import control
 import numpy as np
-from scipy import optimize, signal
+from scipy import linalg, optimize, signal
 from scipy.optimize import linear_sum_assignment
 
 from samii import notebook as nb
@@ -320,7 +320,6 @@ def feedback_poles(A, B, C, D, k: float) -> np.ndarray:
     den = 1.0 - k * d
     if abs(den) > _ILL_POSED_TOL:
         return np.linalg.eigvals(A + B @ ((k / den) * C))
-    from scipy import linalg
 
     n = A.shape[0]
     M = np.block([[A, B], [k * C, np.array([[k * d - 1.0]])]])

@@ -13,6 +13,7 @@ Sources: eq 8.x from the eq 1.4 fit through the chapter-5 canonical form
 
 from __future__ import annotations
 
+import textwrap
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -134,7 +135,6 @@ def _fmt(z) -> str:
 
 
 def _wrap(text: str, width: int) -> list[str]:
-    import textwrap
 
     return textwrap.wrap(text, width)
 
@@ -145,7 +145,7 @@ def seed_report(*, sample_time_s: float | None = None, progress: Progress | None
     ``progress`` (samii.progress.Progress) is told the :data:`STEPS` and each as it starts (the last, the gain
     analysis, takes most of the time), advanced as each is done.
     """
-    from samii.design import cancel, canonical, placement
+    from samii.design import cancel, canonical, placement  # (lazy: imports PIL, control, matplotlib, sympy, only when called)
 
     progress = progress or SILENT
     progress.expect(len(STEPS))
@@ -271,12 +271,12 @@ def gain_analysis() -> dict:
         with the compensator built from the printed eq 10.9 coefficients.
         ``accel_loop_zetas_at_notebook_gain``: the other reading of the loop.
     """
-    from samii.design import cancel
+    from samii.design import cancel  # (lazy: imports PIL, control, matplotlib, only when called)
 
     d = cancel.design_pole_cancel(nb.EQ9_4, loop="theta")
     L = d.open_loop
     k_nb = nb.EQ10_GAIN
-    import control
+    import control  # (lazy: imports control, only when called)
 
     L_printed = control.tf(list(nb.EQ10_9_NUM), list(nb.EQ10_9_DEN)) * control.feedback(nb.actuator_tf(nb.EQ9_4), 1)
 

@@ -26,6 +26,7 @@ from samii.diagnose.evidence import Refusal
 from samii.diagnose.model import Dataset, Fit
 from samii.diagnose.residuals import full_residuals, model_response, runs
 from samii.frequency_response import CHANNEL_NAMES
+from samii.measure.floor import PRACTICAL_FACTOR, REL_FLOOR
 
 #: The residual's power left by an effect within the misfit bands it acts in, as a fraction of the power without
 #: it, above which it is not told from an image: its rms must at least halve (1/2 squared).
@@ -58,7 +59,6 @@ def unattributed(fit: Fit, datasets: Sequence[Dataset], bands: Sequence, label: 
     """Why the effect ``label`` with ``values`` cannot be told from an image of what ``fit`` (the final model, the
     effect in it or in its baseline) lacks, or None (module docstring). ``bands``: where ``fit`` still misses the
     data (``samii.diagnose.simulator.Misfit``: source, channel, lo_hz, hi_hz, rms_db, rms_deg)."""
-    from samii.measure.floor import PRACTICAL_FACTOR, REL_FLOOR
 
     if label not in _KINDS or not bands:
         return None

@@ -22,6 +22,7 @@ import numpy as np
 
 from samii.diagnose.model import Baseline, Dataset, level_ratio, notebook_reference, start_params
 from samii.errors import InputError
+from samii.frequency_response import CHANNEL_NAMES
 from samii.identify.structures import ModelStructure
 from samii.measure.measured import Measured
 from samii.schema import schema_version
@@ -122,7 +123,6 @@ def check_level(saved: SavedFit, datasets: Sequence[Dataset], baseline: Baseline
     """Refuse data whose level a saved fit misses by LEVEL_MISMATCH or more, naming the channel and the factor: a fit of
     theta in mrad held against data in rad was "diagnosed" as a pole at 0.01 Hz, a leak of -10 1/s and an accelerometer
     gain of 100, each on its bound, with 60 dB of error left."""
-    from samii.frequency_response import CHANNEL_NAMES
 
     for ds, per in zip(datasets, baseline.fixed):
         for ch, resp in per.items():

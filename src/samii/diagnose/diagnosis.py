@@ -44,10 +44,13 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
+from samii.diagnose.attribution import product_only
+from samii.diagnose.attribution import unattributed as unattributed_why
+from samii.diagnose.baseline import SavedFit, check_level, notebook_baseline, read_fit_json, saved_fit_baseline
 from samii.diagnose.effects import library
 from samii.diagnose.evidence import Joined, Refusal, Rival, evidence_text, joined_text, values_text
-from samii.diagnose.model import Baseline, Dataset, Fit
-from samii.diagnose.nonlinear import MAX_DF_CHI2, NonlinearEvidence, distortion_var, find_nonlinear, harmonic_errors, linearised
+from samii.diagnose.model import Baseline, Dataset, Fit, fit_model, relabel_modes, start_vectors
+from samii.diagnose.nonlinear import MAX_DF_CHI2, MIN_AMPLITUDE_RATIO, NonlinearEvidence, distortion_var, find_nonlinear, harmonic_errors, linearised
 from samii.diagnose.residuals import (
     Band,
     ChannelError,
@@ -58,10 +61,13 @@ from samii.diagnose.residuals import (
     unexplained_bands,
 )
 from samii.diagnose.sampling import feedthrough_note, feedthrough_of, hold_note, with_hold_found, with_sampling
-from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, forward_select, sample_s, within_sampling
+from samii.diagnose.select import ALPHA, AMBIGUOUS_CHI2, Step, _noise_var, _vectors, forward_select, sample_s, within_sampling
+from samii.diagnose.stationarity import record_changes
+from samii.forkmap import fork_calls
 from samii.frequency_response import CHANNEL_NAMES
+from samii.measure.floor import with_floor
 from samii.measure.frf_variance import MAX_VAR
-from samii.measure.measured import Measured, check_actuator_sign
+from samii.measure.measured import Measured, check_actuator_sign, with_roughness_noise
 from samii.progress import SILENT, Progress
 
 __all__ = ["ChannelError", "FoundEffect", "Band", "Diagnosis", "diagnose", "RULE"]
@@ -322,9 +328,6 @@ def _drop_amplitude_images(datasets: Sequence[Dataset], baseline: Baseline, fit:
     0.13, fitted to the 0.3 V file near the hydraulic resonance, made the 0.1 V file's xdd/v chi2 there 3x its
     noise). Dropped one at a time, the largest gain first, refitted, until none is. The threshold is one effect's,
     with no correction for the effects tried. Returns the fit and the dropped effects' descriptions."""
-    from samii.diagnose.model import fit_model, relabel_modes, start_vectors
-    from samii.diagnose.nonlinear import MIN_AMPLITUDE_RATIO
-    from samii.diagnose.select import _noise_var, _vectors
 
     amps = [ds.amplitude_v for ds in datasets]
     if len(datasets) < 2 or any(not a for a in amps) or max(amps) < MIN_AMPLITUDE_RATIO * min(amps):
@@ -494,9 +497,6 @@ def _within_band(kind, datasets: Sequence[Dataset]):
 def _noise_from_roughness(m: Measured, saved) -> Measured:
     """``m`` itself if its noise is known, else with the noise estimated from its residual against the baseline
     fitted with uniform weights (:func:`samii.measure.measured.with_roughness_noise`)."""
-    from samii.diagnose.baseline import notebook_baseline, saved_fit_baseline
-    from samii.diagnose.model import fit_model
-    from samii.measure.measured import with_roughness_noise
 
     ds = Dataset.from_measured(m)
     if ds.known_noise:
@@ -511,9 +511,6 @@ def _with_floor(m: Measured) -> Measured:
     """``m`` with its systematic floor (:mod:`samii.measure.floor`): the estimator's bias measured through the
     notebook's structure fitted to the file alone (a description of its dynamics, whatever the baseline), the
     quantisation of its columns and the stated relative floor."""
-    from samii.diagnose.baseline import notebook_baseline
-    from samii.diagnose.model import fit_model
-    from samii.measure.floor import with_floor
 
     if m.timeseries is None or m.layout is None or any(m.var.get(ch) is None for ch in m.frf.channels):
         return with_floor(m)
@@ -543,7 +540,7 @@ def _select_against(cal, files, keep, *, alpha, progress, baseline=None):
     """(datasets, fit, steps, candidates): the forward selection on ``files`` against the simulator
     calibrated as ``cal`` (its correction recomputed at it; or ``baseline``, that simulator with the
     correction it was calibrated with), over the library's kinds ``keep`` accepts."""
-    from samii.diagnose.simulator import correction, simulator_baseline
+    from samii.diagnose.simulator import correction, simulator_baseline  # (lazy: imports mujoco, only when called)
 
     datasets = tuple(Dataset.from_measured(m) for m in files)
     bl = baseline if baseline is not None else simulator_baseline(cal, [correction(cal.params, m) for m in files])
@@ -607,9 +604,8 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
 
     Returns (effects, (files, datasets, final fit), SimulatorReport, later steps, later candidates)."""
     progress = progress or SILENT
-    from samii.calibrate.simulator import parameter_value
-    from samii.diagnose.attribution import unattributed as unattributed_why
-    from samii.diagnose.simulator import (
+    from samii.calibrate.simulator import parameter_value  # (lazy: imports mujoco, only when called)
+    from samii.diagnose.simulator import (  # (lazy: imports mujoco, only when called)
         BODY,
         CARRY,
         LATE,
@@ -784,8 +780,6 @@ def _simulator_pass(raw, measured, calibrated, effects, nonlinear, steps, *, alp
     rest = [x for x in after.effects if not any(x.kind.label == f"{e.category}/{e.kind}" and dict(x.values) == e.params for e in gone)]
     if len(rest) < len(after.effects):
         # the final model without them: the error after and the bands left are of what is reported
-        from samii.diagnose.model import fit_model, start_vectors
-        from samii.diagnose.select import _vectors
 
         after = fit_model(list(datasets), after.baseline, _vectors(rest), start_baseline=start_vectors(after))
     out += [e for e in effects if e.category == "nonlinear"]
@@ -823,7 +817,6 @@ def diagnose(
     ``progress`` (samii.progress.Progress) is told each stage and advanced by every candidate tried (a unit each; the
     count is not known ahead, so it never says a total).
     """
-    from samii.diagnose.baseline import SavedFit, notebook_baseline, read_fit_json, saved_fit_baseline
 
     progress = progress or SILENT
     sim = baseline == "sim"
@@ -836,12 +829,11 @@ def diagnose(
     measured = tuple(_noise_from_roughness(m, saved) for m in given)
     notes = [w for m in given for w in m.warnings]
     notes += [f"{m.source}: no coherence and no records; the noise of each point is {m.noise_source}" for m, g in zip(measured, given) if m is not g]
-    from samii.forkmap import fork_calls
 
     jobs = [lambda m=m: _with_floor(m) for m in measured]
     if sim:  # the simulator's own harmonics (its orifice law) are not what it lacks: the data's are tested in excess of them
-        from samii.diagnose.simulator import measured_like
-        from samii.sim.model import default_params
+        from samii.diagnose.simulator import measured_like  # (lazy: imports mujoco, only when called)
+        from samii.sim.model import default_params  # (lazy: imports mujoco, only when called)
 
         progress.stage("measuring the systematic floor and the simulator's own harmonics")
         own = default_params() if simulator_params is None else simulator_params
@@ -854,7 +846,6 @@ def diagnose(
         progress.stage("measuring the systematic floor")
     done = fork_calls(jobs)  # each file's floor (and the simulator like it) at once
     measured, references = tuple(done[: len(measured)]), (done[len(measured) :] if sim else None)
-    from samii.diagnose.stationarity import record_changes
 
     changes = [c for m in measured for c in record_changes(m, alpha=alpha)]
     floored = measured
@@ -881,8 +872,8 @@ def diagnose(
     datasets = tuple(Dataset.from_measured(m) for m in measured)
     calibrated = None
     if sim:
-        from samii.diagnose.simulator import CARRY, calibrate_simulator, correction, simulator_baseline
-        from samii.sim.model import default_params
+        from samii.diagnose.simulator import CARRY, calibrate_simulator, correction, simulator_baseline  # (lazy: imports mujoco, only when called)
+        from samii.sim.model import default_params  # (lazy: imports mujoco, only when called)
 
         progress.stage("calibrating the simulator")
 
@@ -910,8 +901,6 @@ def diagnose(
 
     bl = baseline_for(measured, datasets)
     if saved is not None:
-        from samii.diagnose.baseline import check_level
-
         check_level(saved, datasets, bl)
         notes += list(saved.concerns)
     # the simulator's knobs cannot make an accelerometer's gain error: testable against it
@@ -937,7 +926,6 @@ def diagnose(
     pre: dict[str, dict] = {}
     if (with_hold := with_hold_found(datasets, after, steps, alpha=alpha, n_kinds=len(kinds))) is not None:
         # the command's hold on the model found: the model with it, and the baseline alone with it for the error before
-        from samii.diagnose.model import fit_model, relabel_modes, start_vectors
 
         labels = [e.kind.label for e in after.effects]
         pre = {e.kind.label: dict(e.values) for e in after.effects if labels.count(e.kind.label) == 1}
@@ -950,8 +938,6 @@ def diagnose(
         notes.append(feedthrough_note(*feedthrough_of(after)))
     error_before = channel_errors(datasets, before)
     if raw is not measured:  # the baseline on the data as measured, for the error before
-        from samii.diagnose.model import fit_model
-
         if not sim:  # on the points the divided data keep (where the law passes at least half the command)
             raw = tuple(_on_points_of(r, m) for r, m in zip(raw, measured))
         raw_datasets = tuple(Dataset.from_measured(m) for m in raw)
@@ -995,7 +981,6 @@ def diagnose(
                 "(images of the first calibration's compromise)"
             )
     datasets, after = final
-    from samii.diagnose.attribution import product_only
 
     placed_by_total = tuple(product_only(datasets, after))
     notes += [p.text() for p in placed_by_total]

@@ -15,6 +15,8 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
+from samii.diagnose.effects import LIBRARY
+
 __all__ = ["JOINED_HOW", "REFUSALS", "RIVAL_HOW", "Joined", "Refusal", "Rival", "evidence_text", "values_text"]
 
 #: How a found effect joined the model (``Joined.how``).
@@ -91,7 +93,6 @@ class Rival:
 
 def values_text(label: str, values: Mapping[str, float]) -> str:
     """``values`` of the effect ``label`` in units a reader knows (a delay in ms)."""
-    from samii.diagnose.effects import LIBRARY
 
     units = {p.name: p.unit for k in LIBRARY if k.label == label for p in k.params}
     return ", ".join(

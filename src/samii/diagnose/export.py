@@ -21,7 +21,7 @@ __all__ = ["effect_tfs", "augmented_tf", "augmented_frd"]
 
 
 def _delay(t: float, order: int | None):
-    import control
+    import control  # (lazy: imports control, only when called)
 
     if order is None:
         raise ValueError("a delay needs a Pade order for a transfer function (pade_order=N), or use augmented_frd")
@@ -33,7 +33,7 @@ def _delay(t: float, order: int | None):
 
 def effect_tfs(kind: EffectKind, values: Mapping[str, float], *, pade_order: int | None = 3):
     """(M_act, M_base, A_base) of one effect as python-control transfer functions (None: no change)."""
-    import control
+    import control  # (lazy: imports control, only when called)
 
     s = control.tf("s")
     k, v = kind.kind, values
@@ -77,7 +77,7 @@ def augmented_tf(fit, i: int = 0, channel: str = "total", *, pade_order: int = 3
     A theta-sensor delay is a lag in theta/v and an advance in xdd/theta: ``base`` is refused then,
     and ``total`` leaves both out (they cancel exactly). A leaky integrator moves theta/v's pole at 0
     to ``a`` (no pole-zero pair at 0 left to cancel)."""
-    import control
+    import control  # (lazy: imports control, only when called)
 
     st = fit.baseline.structure
     if st is None or not fit.baseline_params or not hasattr(st, "to_tf"):
@@ -116,9 +116,9 @@ def augmented_tf(fit, i: int = 0, channel: str = "total", *, pade_order: int = 3
 def augmented_frd(fit, freq_hz, i: int = 0, channel: str = "total"):
     """The same model as an exact ``control.FRD`` (delays exact) at ``freq_hz`` [Hz] (e.g. ``Diagnosis.datasets[i].freq_hz``):
     the rig's, without the DAQ's sampling of xdd/v's feedthrough (samii.diagnose.sampling), as augmented_tf."""
-    import control
+    import control  # (lazy: imports control, only when called)
 
-    from samii.diagnose.residuals import model_response
+    from samii.diagnose.residuals import model_response  # (lazy: imports scipy, only when called)
 
     f = np.asarray(freq_hz, float)
     return control.frd(model_response(fit, i, f, sampled=False)[channel], TWO_PI * f)

@@ -13,9 +13,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from samii.errors import InputError, input_error_of
-from samii.outputs import shown_path, written_beside
+from samii.json_output import dumps
+from samii.outputs import OutputFolder, check_output_file, create_parent, shown_path, written_beside
 from samii.progress import SILENT, Progress
+from samii.schema import versioned
 
 __all__ = ["DiagnoseRequest", "DiagnosedFiles", "diagnose_files", "OUTPUTS", "SIM_OUTPUTS", "MAX_FILES"]
 
@@ -57,7 +61,7 @@ def _baseline(req: DiagnoseRequest, relative_to):
                 f"--model {req.model}: expected a parameter file (.json, as samii calibrate --out writes), "
                 "the simulator's calibration moves its parameters"
             )
-        from samii.sim.model import read_params_file
+        from samii.sim.model import read_params_file  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
         try:
             sim_params = read_params_file(req.model)
@@ -71,7 +75,7 @@ def _baseline(req: DiagnoseRequest, relative_to):
             f"--baseline {req.baseline}: expected notebook or a saved fit (fit.json from samii fit --out); "
             f"{'it is a folder' if p.is_dir() else 'no such file'}"
         )
-    from samii.diagnose.baseline import read_fit_json
+    from samii.diagnose.baseline import read_fit_json  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
     return read_fit_json(p, name=shown_path(p, relative_to)), sim_params  # bad input before any work
 
@@ -79,9 +83,10 @@ def _baseline(req: DiagnoseRequest, relative_to):
 def _write_rerun(d, tmp, path, fps) -> None:
     """The simulator against the data as a Rerun recording in ``tmp``, the temporary name of ``path`` (which a failure
     names)."""
-    from samii.diagnose.recording import write_diagnosis_recording
-    from samii.outputs import create_parent
-    from samii.viz.recording import recording_failed
+    from samii.diagnose.recording import (  # (lazy: this module is imported at samii's start-up, that one is not needed there)
+        write_diagnosis_recording,
+    )
+    from samii.viz.recording import recording_failed  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
     try:
         write_diagnosis_recording(create_parent(tmp), d, fps=fps)
@@ -105,9 +110,8 @@ def diagnose_files(
 
     ``progress`` (samii.progress.Progress): told each stage, advanced by every candidate tried.
     ``relative_to`` names the files relative to that folder (the main job's) instead of as given."""
-    from samii.diagnose.diagnosis import diagnose
-    from samii.json_output import dumps
-    from samii.measure.measured import load
+    from samii.diagnose.diagnosis import diagnose  # (lazy: this module is imported at samii's start-up, that one is not needed there)
+    from samii.measure.measured import load  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
     data = [str(d) for d in data]
     if len(data) > MAX_FILES:
@@ -122,14 +126,11 @@ def diagnose_files(
         seen[key] = d
     folder = None
     if out is not None:
-        from samii.outputs import OutputFolder
-
         folder = OutputFolder(out, OUTPUTS + (SIM_OUTPUTS if baseline == "sim" else ()), overwrite=overwrite)
     rerun_path = None
     if rerun is not None:
         if baseline != "sim":
             raise InputError(f"--rerun {rerun}: the recording shows the simulator against the data; use it with --baseline sim")
-        from samii.outputs import check_output_file
 
         rerun_path = check_output_file(rerun, overwrite=overwrite, option="--rerun", beside=folder)
     elif rerun_fps is not None:
@@ -145,7 +146,7 @@ def diagnose_files(
                 measured.append(load(path, band_hz=band, record_s=request.record_s, mat_freq_name=request.mat_freq_name,
                                      mat_freq_unit=request.mat_freq_unit, name=None if relative_to is None else shown_path(path, relative_to)))  # fmt: skip
             except ValueError as exc:
-                from samii.formats import DataFormatError
+                from samii.formats import DataFormatError  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
                 if isinstance(exc, DataFormatError):
                     raise
@@ -154,8 +155,6 @@ def diagnose_files(
         try:
             d = diagnose(measured, baseline=baseline, progress=progress, simulator_params=sim_params)
         except ValueError as exc:
-            import numpy as np
-
             if isinstance(exc, np.linalg.LinAlgError):
                 raise
             text = str(exc)
@@ -163,10 +162,14 @@ def diagnose_files(
             raise InputError(text if any(text.startswith(n) for n in names) else f"{', '.join(names)}: {text}") from None
         if folder is not None:
             progress.stage("writing")
-            from samii.diagnose.plots import bode_figure, harmonic_figure, residual_figure, simulator_figure
-            from samii.forkmap import fork_map
-            from samii.formats import write_text
-            from samii.schema import versioned
+            from samii.diagnose.plots import (  # (lazy: this module is imported at samii's start-up, that one is not needed there)
+                bode_figure,
+                harmonic_figure,
+                residual_figure,
+                simulator_figure,
+            )
+            from samii.forkmap import fork_map  # (lazy: this module is imported at samii's start-up, that one is not needed there)
+            from samii.formats import write_text  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
             with folder:
                 write_text(folder.path("diagnosis.json"), dumps(versioned(d.to_dict()), indent=2) + "\n")

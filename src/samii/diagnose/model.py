@@ -21,15 +21,21 @@ error carry less information than their number says).
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+import scipy.linalg
 from scipy.optimize import least_squares
 
 from samii.diagnose.effects import Effect, EffectKind
+from samii.forkmap import fork_calls
+from samii.frequency_response import FrequencyResponse, interpolate_frf
+from samii.identify.fit import fit
 from samii.identify.structures import ModelStructure
 from samii.measure.frf_variance import MAX_VAR
+from samii.notebook import EQ9_4
 
 __all__ = ["Dataset", "Baseline", "Fit", "fit_model", "relabel_modes", "notebook_reference", "scaled_reference", "level_ratio"]
 
@@ -160,7 +166,6 @@ class Baseline:
         """The correction of dataset ``i``'s channel ``c`` at ``freq_hz`` (1 without one)."""
         if not self.correction:
             return 1.0
-        from samii.frequency_response import interpolate_frf
 
         corr = self.correction[i]
         f = np.asarray(freq_hz, float)
@@ -775,7 +780,6 @@ NULL_RCOND = 1e-8
 def _standard_errors(jac: np.ndarray, s2: float) -> np.ndarray:
     """sqrt(diag(s2 (J'J)^-1)) in the determined directions; infinite for a parameter with a share in a
     direction the data do not determine (e.g. the base's parameters when a file has only theta/v)."""
-    import scipy.linalg
 
     _, sv, vt = scipy.linalg.svd(jac, full_matrices=False, check_finite=False)
     ok = sv > NULL_RCOND * (sv[0] if sv.size else 0.0)
@@ -961,7 +965,6 @@ def relabel_modes(datasets: Sequence[Dataset], fit: Fit) -> Fit:
     bounds, a damping above 0.5 or a frequency beyond the band) the fit is kept as it was, names
     unchanged. Modes tied to the actuator (mode 2 = wz) stay where they are.
     """
-    import itertools
 
     bl = fit.baseline
     st = bl.structure
@@ -1018,7 +1021,6 @@ def relabel_modes(datasets: Sequence[Dataset], fit: Fit) -> Fit:
 
 def notebook_reference() -> dict[str, float]:
     """Eq 9.4 in SI (theta in rad: K1 x pi/180, B_k x 180/pi): the notebook's model, the default baseline."""
-    from samii.notebook import EQ9_4
 
     deg = np.pi / 180.0
     return {k: (v * deg if k == "K1" else v / deg if k.startswith("B") else v) for k, v in EQ9_4.items()}
@@ -1065,7 +1067,6 @@ def start_params(m, structure: ModelStructure, *, rng_seed: int = 0) -> dict[str
     A swept sine's noisy ends can lead the
     first into a basin that loses a mode; the notebook's own model rarely is far from a rig like it.
     """
-    from samii.forkmap import fork_calls
 
     ref = notebook_reference()
     ds = Dataset.from_measured(m)
@@ -1093,8 +1094,6 @@ def _fitted_start(m, structure: ModelStructure, *, rng_seed: int = 0) -> dict[st
     ``g = 1/(1 + 3 var)``, so that noise-dominated points (a weak xdd at 0.1 Hz)
     weigh nothing; the result starts the weighted fit of :func:`fit_model`.
     """
-    from samii.frequency_response import FrequencyResponse
-    from samii.identify.fit import fit
 
     frf = m.frf
     kw = {}

@@ -80,8 +80,10 @@ from functools import cache
 
 import numpy as np
 from scipy import signal, stats
+from scipy.interpolate import CubicSpline
 from scipy.optimize import minimize_scalar
 
+from samii.measure.floor import PRACTICAL_FACTOR, REL_FLOOR
 from samii.measure.frf_variance import moving_sum
 
 __all__ = [
@@ -596,7 +598,6 @@ def _interp_response(freq_hz: np.ndarray, h: np.ndarray, f: np.ndarray) -> np.nd
     interpolation at each grid point are a ripple in frequency with the grid's period, i.e. an echo ``1/spacing``
     later in time; at 100 points per decade and a sweep of 4-8 s per octave that echo lands where the sweep was
     at 2-3 f, where the test looks for harmonics."""
-    from scipy.interpolate import CubicSpline
 
     x = np.log(np.asarray(f, float))
     out = np.full(x.shape, np.nan, complex)
@@ -885,8 +886,6 @@ def linearised(m, finding: NonlinearFinding, h: HarmonicAnalysis | None = None):
     there the describing function says little of the loop (a play at a command a few times its width). The
     diagnosis leaves them out of the error before too, so that both are on the same points.
     ``h``: the analysis of ``m`` (its command amplitudes; default the finding's first)."""
-    from dataclasses import replace
-
     h = finding.harmonics[0] if h is None else h
     level = finding.params[f"{finding.kind}_v"]
     f_c, a_c = h.cycle_freq_hz, h.cycle_command_v
@@ -925,8 +924,6 @@ def distortion_var(m, h: HarmonicAnalysis):
     at f stands for the misfit the linear model may have there): near a lightly damped resonance, where
     the command is largest, a saturation's few per cent on a response measured to 0.1 % otherwise draws
     linear "effects" that make the rest of the band worse (held-out battery rig: theta/v chi2 1.15 -> 2.4)."""
-    from dataclasses import replace
-
     f = m.frf.freq_hz
     ok = np.isfinite(h.freq_hz) & (h.freq_hz > 0)
     if not ok.any():
@@ -1156,7 +1153,6 @@ def find_nonlinear(
     differ = [t for t in tests if t.log10_p <= level]
     # practically significant too: a window must change by more than the floor of the two files allows (a clean rig's
     # 0.05 and 0.2 V files differed at p < 1e-3 by -0.0065 dB, a "saturation")
-    from samii.measure.floor import PRACTICAL_FACTOR, REL_FLOOR
 
     least = PRACTICAL_FACTOR * np.sqrt(2.0) * REL_FLOOR
     for t in [t for t in differ if not t.max_change > least]:

@@ -8,8 +8,11 @@ from __future__ import annotations
 import numpy as np
 
 from samii.diagnose.diagnosis import Diagnosis
+from samii.diagnose.model import Dataset
+from samii.diagnose.nonlinear import MATERIAL, predicted_ratio
 from samii.identify.cost import DB_PER_NEPER, DEG_PER_RAD
 from samii.identify.lack_of_fit import is_stepped_sine
+from samii.measure.frf_variance import MAX_VAR
 from samii.viz.figures import pyplot, save_figure
 
 __all__ = ["residual_figure", "bode_figure", "harmonic_figure", "simulator_figure"]
@@ -39,7 +42,6 @@ def _unusable(residuals, ch: str) -> bool:
 def _say_unusable(axes, y: float = 0.5) -> None:
     """Write on each of ``axes``, at height ``y`` (axes fraction), that its channel has no usable point (an empty
     panel with no word reads as a bug)."""
-    from samii.measure.frf_variance import MAX_VAR
 
     for ax in axes:
         ax.text(
@@ -252,9 +254,7 @@ def harmonic_figure(d: Diagnosis, path=None):
     every time-series file, with twice their noise and the 1 % level below which none is claimed; significant
     segments filled; the law found (its describing function's c3/c1, an asymmetry's c2/c1) as a line."""
     plt = pyplot()
-    import matplotlib.ticker
-
-    from samii.diagnose.nonlinear import MATERIAL, predicted_ratio
+    import matplotlib.ticker  # (lazy: imports matplotlib, only when called)
 
     hs = list(d.harmonics)
     laws = list(d.nonlinear)
@@ -340,7 +340,6 @@ def simulator_figure(d: Diagnosis, path=None):
         return None
     measured = d.raw_measured if d.raw_measured is not None else d.measured
     chans = [c for c in ("act", "total") if any(c in m.frf.channels for m in measured)]
-    from samii.diagnose.model import Dataset
 
     usable = [Dataset.from_measured(m, channels=chans) for m in measured]
     fig, axes = plt.subplots(2, len(chans), figsize=(6.0 * len(chans), 6.5), sharex=True, squeeze=False)

@@ -19,16 +19,18 @@ the carry dimmer, before it dimmest.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+
+from samii.measure.excitation import SweptSine
 
 __all__ = ["diagnosis_runs", "write_diagnosis_recording"]
 
 
 def _stated_sweep(meta):
     """The sweep a file's header states, or None."""
-    from samii.measure.excitation import SweptSine
 
     try:
         return SweptSine.from_metadata(meta)
@@ -45,16 +47,15 @@ def _sweep_hz(ts) -> np.ndarray | None:
 
 def _from_zero(ts):
     """``ts`` with its time counted from its first sample (the simulator's runs start at 0)."""
-    from dataclasses import replace
 
     return ts if ts.t[0] == 0 else replace(ts, t=ts.t - ts.t[0])
 
 
 def diagnosis_runs(d, *, fps: float | None = None):
     """(the recording's model, the runs) of diagnosis ``d`` (``--baseline sim``)."""
-    from samii.diagnose.simulator import measurement_like, sweep_like
-    from samii.sim.model import load_model
-    from samii.viz.recording import RunRecord, frame_steps_for
+    from samii.diagnose.simulator import measurement_like, sweep_like  # (lazy: imports mujoco, scipy, only when called)
+    from samii.sim.model import load_model  # (lazy: imports mujoco, only when called)
+    from samii.viz.recording import RunRecord, frame_steps_for  # (lazy: imports mujoco, scipy, only when called)
 
     rep = d.simulator
     if rep is None:
@@ -91,7 +92,7 @@ def diagnosis_runs(d, *, fps: float | None = None):
 def write_diagnosis_recording(path, d, *, fps: float | None = None, thin: bool = True):
     """Write diagnosis ``d``'s data and simulator runs (:func:`diagnosis_runs`) to the ``.rrd`` ``path``; ``thin``:
     where the sweep is slow keep what the eye needs (:mod:`samii.viz.thinning`), else every sample and frame."""
-    from samii.viz.recording import write_recording
+    from samii.viz.recording import write_recording  # (lazy: imports mujoco, scipy, only when called)
 
     model, runs = diagnosis_runs(d, fps=fps)
     return write_recording(Path(path), model, runs, application_id="samii_diagnose", thin_frames=thin and fps is None, thin_signals=thin)

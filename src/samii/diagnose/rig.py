@@ -46,8 +46,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.fft
 from scipy import signal
+from scipy.interpolate import CubicSpline
 
+from samii.identify.structures import ModelStructure
 from samii.measure.linear_rig import DEG
+from samii.notebook import EQ9_4, actuator_tf
 from samii.timeseries import TimeSeries
 
 __all__ = ["EffectRig", "OVERSAMPLE", "valve_law"]
@@ -107,13 +110,11 @@ class EffectRig:
     noise: dict = field(default_factory=lambda: {"v": 1e-3, "theta": 5e-4, "accel": 1e-2})
 
     def _p(self) -> dict:
-        from samii.notebook import EQ9_4
 
         return dict(self.params or EQ9_4)
 
     def responses(self, f_hz: np.ndarray) -> dict[str, np.ndarray]:
         """Open-loop G (theta/v), B (xdd/theta) and the recording factors at ``f_hz``."""
-        from samii.identify.structures import ModelStructure
 
         p = self._p()
         st = ModelStructure.notebook_3mode()
@@ -174,9 +175,7 @@ class EffectRig:
         """Poles [1/s] of the position loop ``theta/r = G/(1 + Kp G)`` with the linear plant (the valve
         nonlinearity left out), the command delay as a Pade approximant of ``pade_order`` (exact to far above
         the loop's crossover for the delays here: a phase error below 1e-6 rad at 8 ms and 40 Hz)."""
-        import control
-
-        from samii.identify.structures import ModelStructure
+        import control  # (lazy: imports control, only when called)
 
         g = ModelStructure.notebook_3mode().to_tf(self._p(), "act") * DEG
         g = control.tf(*self._leaky(g.num[0][0], g.den[0][0]))
@@ -203,7 +202,6 @@ class EffectRig:
         drawn again while the position loop is unstable (:meth:`check_stable`). About 7 % of draws at 15 % are with
         no effect (eq 9.4's loop has a gain margin of only 3.04 at the actuator's 8.9 Hz resonance), 11 % with a
         4 ms command delay, 15 % with 8 ms. Raises ``ValueError`` after ``max_draws`` unstable ones."""
-        from samii.notebook import EQ9_4
 
         last = None
         for _ in range(max_draws):
@@ -246,7 +244,6 @@ class EffectRig:
 
     def _loop_in_time(self, r: np.ndarray, sample_rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
         """v and theta at the sample times, the loop stepped with the valve nonlinearity (module docstring)."""
-        from samii.notebook import actuator_tf
 
         law = valve_law(*self.valve_nonlinearity)
         tf = actuator_tf(self._p())
@@ -270,7 +267,6 @@ class EffectRig:
         # r between its samples: a cubic spline (through the samples; error ~(w dt)^4/384, 1e-5 at 40 Hz). A polyphase
         # filter's passband ripple (resample_poly's, ~1e-3) scales r between samples, and at low frequency, where
         # v = S r is small, that was a 0.4 deg phase error in theta/v at 0.1 Hz
-        from scipy.interpolate import CubicSpline
 
         ri = CubicSpline(np.arange(n), r)(np.arange(n * OVERSAMPLE) / OVERSAMPLE).tolist()
         kp = self.position_gain_v_per_rad

@@ -52,6 +52,7 @@ from samii.diagnose.effects import TWO_PI, Effect, EffectKind
 from samii.diagnose.evidence import REFUSALS, Refusal
 from samii.diagnose.model import Baseline, Dataset, Fit, fit_model, noise_level, relabel_modes, scaled_reference, start_vectors
 from samii.forkmap import fork_map, sharing
+from samii.measure.floor import PRACTICAL_FACTOR
 from samii.measure.frf_variance import moving_sum
 from samii.progress import SILENT, Progress
 
@@ -433,7 +434,6 @@ def _below_floor(before: Fit, after: Fit, ds_list: list[Dataset]) -> Refusal | N
     points make a tiny change significant; this asks that somewhere it stand clear of what repeats in every record,
     which no number of points averages away. (Asking it also to stand clear of each point's noise refused a real
     1 ms delay that only the band's noisy top shows, together.)"""
-    from samii.measure.floor import PRACTICAL_FACTOR
 
     if any(ds.floor_var is None for ds in ds_list):
         return None

@@ -52,22 +52,28 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
+from scipy.optimize import least_squares
 
-from samii.calibrate.calibrate import MODE_KNOBS, PHYSICAL_LIMITS
-from samii.calibrate.simulator import parameter_value
+from samii.calibrate.calibrate import MODE_KNOBS, PHYSICAL_LIMITS, default_bounds
+from samii.calibrate.simulator import SimulatorFRF, parameter_value
 from samii.diagnose.model import Baseline, Dataset
+from samii.diagnose.nonlinear import ASYMMETRY_MAX_RATIO, asymmetry_fraction, asymmetry_ratio
 from samii.diagnose.residuals import errors_from_residuals, full_residuals, unexplained_bands
 from samii.errors import SimulationUnstable
 from samii.forkmap import fork_calls, fork_map, sharing
 from samii.frequency_response import CHANNEL_NAMES, CHANNELS, FrequencyResponse, interpolate_frf
-from samii.measure.measured import Measured
+from samii.measure.campaign import linearised_frf, measure
+from samii.measure.daq import SensorNoise
+from samii.measure.excitation import SweptSine
+from samii.measure.floor import PRACTICAL_FACTOR, REL_FLOOR
+from samii.measure.measured import Measured, from_timeseries
 from samii.progress import SILENT, Progress
-from samii.sim.linearize import UNSTABLE_RATE_1_S, poles_per_s
+from samii.sim.linearize import UNSTABLE_RATE_1_S, base_modes, poles_per_s
 from samii.sim.mjcf import SamiiParams
-from samii.sim.model import params_with_overrides
+from samii.sim.model import default_params, load_model, load_spec, make_data, params_with_overrides
 
 __all__ = [
     "CARRY",
@@ -290,11 +296,6 @@ def calibrate_simulator(
     recalibration's correction rounds, each bounded a factor 10 about the one before, to 7.7e-8
     (1/120 of the start), where the simulator diverged at its 1 ms step; anchored, it stops at 1/10.
     """
-    from scipy.optimize import least_squares
-
-    from samii.calibrate.calibrate import default_bounds
-    from samii.calibrate.simulator import SimulatorFRF
-    from samii.sim.model import default_params
 
     base = default_params() if start is None else start
     extra = dict(extra or {})
@@ -404,8 +405,6 @@ def closed_loop_growth(model) -> float:
 
 def _linearised(params: SamiiParams, freq_hz: np.ndarray) -> FrequencyResponse:
     """The linearised simulator with ``params`` at ``freq_hz``."""
-    from samii.measure.campaign import linearised_frf
-    from samii.sim.model import load_model
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # scipy logm accuracy notes
@@ -428,7 +427,6 @@ class LocalSimulator:
     n_modes: int = 0
 
     def __post_init__(self) -> None:
-        from samii.calibrate.simulator import SimulatorFRF
 
         object.__setattr__(self, "_sim", SimulatorFRF(self.at, self.names))
         object.__setattr__(self, "x0", np.array([parameter_value(self.at, n) for n in self.names]))
@@ -571,7 +569,6 @@ def carry(effects: Sequence, params: SamiiParams, *, refuse: Mapping[str, str] |
             value *= params.sensor.accel_gain
         elif name == "hydraulic.valve_asymmetry":
             # found in excess of the simulator's own 2nd harmonic (samii.diagnose.nonlinear.excess_over): the ratios add
-            from samii.diagnose.nonlinear import ASYMMETRY_MAX_RATIO, asymmetry_fraction, asymmetry_ratio
 
             rho = float(asymmetry_ratio(parameter_value(params, name)) + asymmetry_ratio(value))
             value = asymmetry_fraction(rho) if abs(rho) < ASYMMETRY_MAX_RATIO else np.inf
@@ -645,8 +642,6 @@ def tip_body_options(effect, params: SamiiParams) -> dict[str, float] | str:
 
 def simulator_base_modes(params: SamiiParams):
     """The simulator's base modes with joint 2 held (the poles of xdd/theta) at ``params``, below its Nyquist rate."""
-    from samii.sim.linearize import base_modes
-    from samii.sim.model import load_model, load_spec, make_data
 
     spec, _ = load_spec(params=params)
     model = load_model(params=params)
@@ -702,9 +697,6 @@ def sweep_like(m: Measured):
     """The swept sine a file was measured with, from its metadata (``samii measure`` writes every
     setting), else one over its band at its amplitude (0.1 V when unknown), two sign-alternating
     repetitions. Repetitions are capped at 2: the simulator's re-measurement is noise-free."""
-    from dataclasses import replace
-
-    from samii.measure.excitation import SweptSine
 
     meta = dict(m.timeseries.metadata) if m.timeseries is not None else dict(m.frf.metadata)
     try:
@@ -718,8 +710,6 @@ def sweep_like(m: Measured):
 def _measure_like(params: SamiiParams, m: Measured, sweep, **kwargs):
     """The nonlinear simulator with ``params`` measured with ``sweep`` at file ``m``'s DAQ rate
     (``samii.measure.campaign.measure``; ``kwargs`` its noise and rng)."""
-    from samii.measure.campaign import measure
-    from samii.sim.model import load_model
 
     physics = 1.0 / params.timestep_s
     # the DAQ needs a rate the physics rate is a whole multiple of: the file's, else the nearest such
@@ -774,10 +764,6 @@ def measured_like(params: SamiiParams, m: Measured) -> Measured | None:
     """The nonlinear simulator with ``params`` measured like file ``m`` (:func:`sweep_like`, 3 sweeps,
     a tenth of the DAQ's noise, seeded): the reference for the simulator's own harmonics of the
     sweep (``samii.diagnose.nonlinear.excess_over``). None when ``m`` has no time series."""
-    from dataclasses import replace
-
-    from samii.measure.daq import SensorNoise
-    from samii.measure.measured import from_timeseries
 
     if m.timeseries is None:
         return None
@@ -871,7 +857,6 @@ def _largest(misfits: Sequence[Misfit], n: int = 3) -> list[Misfit]:
 def misfits(datasets: Sequence[Dataset], residuals: Sequence[Mapping[str, np.ndarray]]) -> tuple[Misfit, ...]:
     """Where residuals log(data/simulator) (one mapping per dataset, on its usable points) exceed the data's
     noise and floor, significantly (the diagnosis's band test) and practically (:class:`Misfit`)."""
-    from samii.measure.floor import PRACTICAL_FACTOR, REL_FLOOR
 
     out = []
     for b in unexplained_bands(datasets, residuals):

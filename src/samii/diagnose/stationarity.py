@@ -36,6 +36,7 @@ import numpy as np
 from scipy import stats
 
 from samii.frequency_response import CHANNEL_NAMES
+from samii.measure.floor import PRACTICAL_FACTOR, REL_FLOOR
 from samii.measure.frf import CHANNEL_PAIRS
 from samii.measure.frf_variance import spectra_at
 
@@ -77,7 +78,6 @@ class RecordChange:
 def record_changes(m, *, alpha: float = ALPHA) -> list[RecordChange]:
     """The bands where ``m``'s records differ (module docstring); none for a file that is not a time series of at
     least 3 records."""
-    from samii.measure.floor import PRACTICAL_FACTOR, REL_FLOOR
 
     ts, layout = m.timeseries, m.layout
     if ts is None or layout is None or layout.n_records < 3 or ts.r is None:

@@ -165,7 +165,7 @@ def _phase_in_radians(ch: str, mag: np.ndarray, phase: np.ndarray) -> str | None
         return None
     if ch in ("act", "total"):
         return f"{'theta/v' if ch == 'act' else 'xdd/v'}'s phase is near -90 deg at low frequency, where theta/v integrates"
-    from scipy.signal import find_peaks
+    from scipy.signal import find_peaks  # (lazy: imports scipy, only when called)
 
     with np.errstate(divide="ignore"):
         db = 20.0 * np.log10(np.abs(mag))

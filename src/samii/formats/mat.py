@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import io
 import os
+import signal
+import subprocess
+import sys
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Literal
@@ -68,7 +71,7 @@ sys.stdout.buffer.write(buf.getvalue())
 
 
 def _loadmat_in_process(path: Path, data: bytes) -> dict:
-    from scipy.io import loadmat  # scipy.io is slow to import; only needed here
+    from scipy.io import loadmat  # (lazy: scipy.io is slow to import; only needed here)
 
     try:
         raw = loadmat(io.BytesIO(data), squeeze_me=True)
@@ -104,9 +107,6 @@ def _loadmat_isolated(path: Path, data: bytes) -> dict:
     loadmat runs in a child Python (see _MAT_CHILD); where no child can be
     started (a frozen application, no interpreter) it runs in this process.
     """
-    import signal
-    import subprocess
-    import sys
 
     if not sys.executable or getattr(sys, "frozen", False):
         return _loadmat_in_process(path, data)

@@ -72,6 +72,7 @@ from samii.identify.notebook_loop import NOTEBOOK_TOL_PCT, PercentChange, percen
 from samii.identify.profile import Profile, interval_text, profile_scan
 from samii.identify.starts import auto_start, modes_from_total, notebook_start, perturbed_start, scan_modes, snap_to_peaks
 from samii.identify.structures import ModelStructure
+from samii.json_output import dumps
 from samii.progress import SILENT, Progress, part
 
 __all__ = ["FitResult", "check_not_noise", "fit", "fit_problem", "profile_names", "resolve_weighting", "BOUNDS"]
@@ -243,7 +244,7 @@ class FitResult:
         """Confidence interval of one parameter: its profile's where it was profiled (``profiles``;
         lopsided where the cost is, ending at the scan's end where the data do not bound it), else
         ``value +- z SE`` (normal approximation)."""
-        from scipy.stats import norm
+        from scipy.stats import norm  # (lazy: imports scipy, only when called)
 
         if name in self.profiles:
             return self.profiles[name].interval(level)
@@ -302,7 +303,6 @@ class FitResult:
 
     def to_json(self, **kwargs) -> str:
         """Strict JSON of ``to_dict`` (RFC 8259: non-finite numbers are null, never NaN or Infinity)."""
-        from samii.json_output import dumps
 
         return dumps(self.to_dict(), **kwargs)
 
@@ -467,7 +467,7 @@ def _solve(
     ``tol``: the relative tolerances of cost, step and gradient; above ``_TOL`` (a profile's points, whose
     cost is read to a fraction of a squared standard error) the notebook's percent-change test is not applied.
     """
-    from scipy.optimize import least_squares
+    from scipy.optimize import least_squares  # (lazy: imports scipy, only when called)
 
     st = problem.structure
     free = problem.fitted & ~np.isin(st.param_names, list(hold))
@@ -817,7 +817,7 @@ def _defects(
     ones are said, not ranked (where the data are noise no place is better than
     another).
     """
-    from samii.identify.lack_of_fit import MIN_COHERENCE
+    from samii.identify.lack_of_fit import MIN_COHERENCE  # (lazy: the name is another at this module's top)
 
     data = problem.data
     lo, hi = data.freq_hz[0], data.freq_hz[-1]

@@ -15,7 +15,13 @@ from pathlib import Path
 import numpy as np
 
 from samii.errors import InputError, input_error_of
+from samii.formats import DataFormatError, csv_header, is_mat_file, read_frf_csv, read_mat_bode
 from samii.frequency_response import FrequencyResponse
+from samii.identify.cost import frequency_out_of_range
+from samii.identify.fit import check_not_noise, fit
+from samii.identify.report import fit_output_names, write_fit_outputs
+from samii.identify.structures import ModelStructure
+from samii.outputs import OutputFolder, shown_path
 from samii.progress import SILENT, Progress, part
 
 __all__ = ["FitRequest", "FitFile", "read_frf_file", "fit_frf_file"]
@@ -67,8 +73,6 @@ def _csv_line_of_row(path: Path, row: int) -> int | None:
 
 def read_frf_file(path, *, mat_freq_name: str | None = None, mat_freq_unit: str = "hz") -> FrequencyResponse:
     """The file as a FrequencyResponse; InputError naming the file for anything a user can fix."""
-    from samii.formats import DataFormatError, csv_header, is_mat_file, read_frf_csv, read_mat_bode
-    from samii.identify.cost import frequency_out_of_range
 
     path = Path(path)
     mat = is_mat_file(path)
@@ -116,10 +120,6 @@ def fit_frf_file(
     """Fit the FRF file ``path`` as ``request`` asks and, given ``out``, write the fits into that folder (all or
     nothing; checked before any work). ``relative_to``: the folder whose files name ``path`` relative to it (the
     main job's) rather than as given."""
-    from samii.identify.fit import check_not_noise, fit
-    from samii.identify.report import fit_output_names, write_fit_outputs
-    from samii.identify.structures import ModelStructure
-    from samii.outputs import OutputFolder, shown_path
 
     name = shown_path(path, relative_to)
     folder = OutputFolder(out, fit_output_names(list(request.phase_weights)), overwrite=overwrite) if out is not None else None

@@ -86,7 +86,7 @@ def nelder_mead_loop(
     """Restart Nelder-Mead up to ``loops`` times (``maxiter`` iterations each) until the
     percent-change criterion has held for ``consecutive`` successive loops.
     """
-    from scipy.optimize import minimize
+    from scipy.optimize import minimize  # (lazy: imports scipy, only when called)
 
     x = np.asarray(x0, float)
     c = float(cost(x))

@@ -84,7 +84,7 @@ class Profile:
         """``(lo, hi)``: the outermost values where ``|tau|`` is within the normal quantile of ``level``,
         each end interpolated linearly to where ``|tau|`` crosses it; an open side ends at
         the scan's end (``bounded`` says which sides are)."""
-        from scipy.stats import norm
+        from scipy.stats import norm  # (lazy: imports scipy, only when called)
 
         z = float(norm.ppf(0.5 + level / 2))
         t = np.abs(np.where(np.isfinite(self.tau), self.tau, np.inf))

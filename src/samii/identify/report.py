@@ -16,8 +16,15 @@ from pathlib import Path
 
 import numpy as np
 
+from samii import notebook as nb
 from samii.frequency_response import FrequencyResponse
 from samii.identify.fit import FitResult
+from samii.identify.structures import ModelStructure
+from samii.json_output import dumps
+from samii.outputs import OutputFolder
+from samii.schema import versioned
+from samii.viz.figures import save_figure
+from samii.viz.fit_plot import plot_fit_overlay, plot_parameter_sweep
 
 __all__ = [
     "CLI_KEYS",
@@ -91,7 +98,6 @@ def verdict_text(d: Mapping) -> str:
 
 def json_text(obj) -> str:
     """Strict JSON (indented): non-finite numbers become null (``samii.json_output``)."""
-    from samii.json_output import dumps
 
     return dumps(obj, indent=2)
 
@@ -115,8 +121,6 @@ def notebook_reference(results: Sequence[FitResult]) -> dict[str, list[float]] |
     unstated unit of theta. NaN at a phase weight the notebook did not fit;
     None when no result has the notebook's structure and one of its weights.
     """
-    from samii import notebook as nb
-    from samii.identify.structures import ModelStructure
 
     st = results[0].structure
     if st != ModelStructure.notebook_3mode() or not any(r.phase_weight in nb.EQ9_FITS for r in results):
@@ -139,7 +143,6 @@ def write_fit_outputs(data: FrequencyResponse, results: Sequence[FitResult], out
     samii.errors.InputError
         ``out`` is not a usable folder, or holds one of the files and ``overwrite`` is False.
     """
-    from samii.outputs import OutputFolder
 
     if isinstance(out, OutputFolder):
         _write(out, data, results, note)
@@ -151,9 +154,6 @@ def write_fit_outputs(data: FrequencyResponse, results: Sequence[FitResult], out
 
 
 def _write(folder, data: FrequencyResponse, results: Sequence[FitResult], note: str | None) -> None:
-    from samii.schema import versioned
-    from samii.viz.figures import save_figure
-    from samii.viz.fit_plot import plot_fit_overlay, plot_parameter_sweep
 
     many = len(results) > 1
     for r in results:

@@ -116,7 +116,7 @@ def notebook_start(problem: FitProblem) -> dict[str, float]:
 
 def _prominent(logmag: np.ndarray, n: int) -> np.ndarray:
     """Indices of the ``n`` most prominent local maxima of ``logmag``, ascending in frequency."""
-    from scipy.signal import find_peaks
+    from scipy.signal import find_peaks  # (lazy: imports scipy, only when called)
 
     peaks, props = find_peaks(logmag, prominence=0.0)
     order = np.argsort(props["prominences"])[::-1][:n]

@@ -31,6 +31,7 @@ from typing import Literal, get_args
 
 import numpy as np
 
+from samii import notebook as nb
 from samii.frequency_response import Channel
 
 __all__ = ["Numerator", "ModelStructure"]
@@ -302,7 +303,6 @@ class ModelStructure:
         improper (relative degree -2, chapter 2 notes it is non-causal); the total
         xdd/v is proper.
         """
-        from samii import notebook as nb
 
         p = self.params(self.vector(params))
         if channel not in ("act", "base", "total"):
@@ -318,7 +318,7 @@ class ModelStructure:
         For ``total`` the tied mode 2 cancels the actuator's zero pair (eq 8.1
         lists no mode-2 pole for that reason); the minimal realisation drops it.
         """
-        import control
+        import control  # (lazy: imports control, only when called)
 
         tf = self.to_tf(params, channel)
         num, den = (np.trim_zeros(np.asarray(c[0][0], float), "f") for c in (tf.num, tf.den))

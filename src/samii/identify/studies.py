@@ -116,7 +116,7 @@ def study_data(
     Returns (data, noise-free version or None, note for the figures).
     """
     if path is not None:
-        from samii.formats import read_frf_csv
+        from samii.formats import read_frf_csv  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
         return read_frf_csv(path), None, f"data: {path}"
     data = synthetic_rig_frf(freq_hz, rng=np.random.default_rng(seed))

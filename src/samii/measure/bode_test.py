@@ -15,12 +15,17 @@ import time
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
+from importlib import metadata
 
 import numpy as np
 
 from samii.errors import InputError, SimulationUnstable
+from samii.frequency_response import SUSTAINED_POINTS, max_deviation
+from samii.json_output import dumps
+from samii.outputs import OutputFolder, check_output_file, create_parent, shown_path, written_beside
 from samii.progress import SILENT, Progress, part
 from samii.schema import versioned
+from samii.sim.overrides import as_overrides
 
 __all__ = [
     "BodeTestRequest",
@@ -100,7 +105,6 @@ class BodeTest:
 
 
 def _versions() -> dict[str, str]:
-    from importlib import metadata
 
     out = {}
     for name in ("samii", "numpy", "scipy", "mujoco", "matplotlib", "rerun-sdk", "control"):
@@ -113,8 +117,8 @@ def _versions() -> dict[str, str]:
 
 def _excitations(req: BodeTestRequest):
     """The excitations ``req`` asks for, checked; raises InputError naming the option."""
-    from samii.measure.daq import antialias_cutoff_hz
-    from samii.measure.excitation import SteppedSine, SweptSine
+    from samii.measure.daq import antialias_cutoff_hz  # (lazy: this module is imported at samii's start-up, that one is not needed there)
+    from samii.measure.excitation import SteppedSine, SweptSine  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
     lo, hi = req.band_hz
     freqs = None if req.freqs_hz is None else list(req.freqs_hz)
@@ -151,7 +155,10 @@ def _excitations(req: BodeTestRequest):
 
 def _check_loop_stable(model) -> None:
     """Refuse a model whose servo loop is unstable at the nominal pose: it would oscillate on its own, not measure."""
-    from samii.sim.linearize import UNSTABLE_RATE_1_S, poles_per_s
+    from samii.sim.linearize import (  # (lazy: this module is imported at samii's start-up, that one is not needed there)
+        UNSTABLE_RATE_1_S,
+        poles_per_s,
+    )
 
     s = poles_per_s(model)
     bad = s[s.real > UNSTABLE_RATE_1_S]
@@ -189,7 +196,6 @@ class MeasureWarning:
 
     @property
     def text(self) -> str:
-        from samii.frequency_response import SUSTAINED_POINTS
 
         v = self.values
         if self.code == "pressure_above_supply":
@@ -247,7 +253,11 @@ def _warnings(checks, peaks, coh_ok: bool, supply_pa: float, amp: float) -> list
 def _model_params(model_file, overrides: dict) -> dict | None:
     """The physical parameters run.json records: the embedded model's or a parameter file's with the overrides; None
     for an MJCF file (its physics is in the file)."""
-    from samii.sim.model import default_params, params_with_overrides, read_params_file
+    from samii.sim.model import (  # (lazy: this module is imported at samii's start-up, that one is not needed there)
+        default_params,
+        params_with_overrides,
+        read_params_file,
+    )
 
     try:
         if model_file is None:
@@ -278,15 +288,11 @@ def run_bode_test(
     ``progress`` (samii.progress.Progress) counts physics steps over the whole test; ``argv`` is recorded in run.json as the
     command that ran it; ``relative_to`` names the written files relative to that folder (the main job's) instead
     of as given."""
-    from samii.formats import write_frf_csv, write_text
-    from samii.frequency_response import max_deviation
-    from samii.json_output import dumps
-    from samii.measure.campaign import linearised_frf, measure
-    from samii.measure.daq import SensorNoise
-    from samii.outputs import OutputFolder, check_output_file, create_parent, shown_path, written_beside
-    from samii.sim.model import load_model
-    from samii.sim.overrides import as_overrides
-    from samii.sim.plugin import hydraulic_params
+    from samii.formats import write_frf_csv, write_text  # (lazy: this module is imported at samii's start-up, that one is not needed there)
+    from samii.measure.campaign import linearised_frf, measure  # (lazy: this module is imported at samii's start-up, that one is not needed there)
+    from samii.measure.daq import SensorNoise  # (lazy: this module is imported at samii's start-up, that one is not needed there)
+    from samii.sim.model import load_model  # (lazy: this module is imported at samii's start-up, that one is not needed there)
+    from samii.sim.plugin import hydraulic_params  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
     t_start = time.perf_counter()
     sweep, stepped, plan = _excitations(request)
@@ -314,7 +320,7 @@ def run_bode_test(
     rng = np.random.default_rng(request.seed)
     frame_steps = None
     if rerun_path:
-        from samii.viz.recording import frame_steps_for
+        from samii.viz.recording import frame_steps_for  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
         frame_steps = frame_steps_for(model_obj, rerun_fps)
 
@@ -361,7 +367,7 @@ def run_bode_test(
         if request.method == "both":
             write_frf_csv(results["stepped"].frf, folder.path("frf_stepped.csv"))
 
-        from samii.viz.bode_plot import bode_plot
+        from samii.viz.bode_plot import bode_plot  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
         amp = (sweep if "swept" in results else stepped).amplitude_v
         model_name = str(model) if model else "embedded model"
@@ -427,7 +433,11 @@ def run_bode_test(
             summary["warnings"] = [w.text for w in said]
         write_text(folder.path("run.json"), dumps(summary, indent=2) + "\n")
         if rerun_path is not None:
-            from samii.viz.recording import RunRecord, recording_failed, write_recording
+            from samii.viz.recording import (  # (lazy: this module is imported at samii's start-up, that one is not needed there)
+                RunRecord,
+                recording_failed,
+                write_recording,
+            )
 
             runs = [RunRecord(kind, results[kind].timeseries, results[kind].run.frame_t_s, results[kind].run.frame_qpos,
                                   sweep_hz=exc.frequency_hz(results[kind].timeseries.t),

@@ -11,17 +11,23 @@ actuator's ``ctrl`` and the simulator's signals are those a rig records.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
+import mujoco
 import numpy as np
+import scipy.linalg
 
+from samii.formats import TimeSeriesCsvWriter
 from samii.frequency_response import FrequencyResponse
 from samii.measure.daq import DEFAULT_SAMPLE_RATE_HZ, Daq, SensorNoise, daq_timeseries
 from samii.measure.excitation import SteppedSine, SweptSine
 from samii.measure.frf import estimate_frf
 from samii.measure.stepped import estimate_stepped
 from samii.progress import Progress
+from samii.sim.linearize import linearize_discrete
 from samii.sim.sensor_dynamics import SensorDynamics
+from samii.sim.simulate import simulate
 from samii.timeseries import SIGNAL_COLUMNS, TimeSeries
 
 __all__ = ["Run", "Measurement", "record", "measure", "measure_swept", "measure_stepped", "linearised_frf"]
@@ -122,12 +128,6 @@ def record(
     samii.sim.simulate.SimulationUnstable
         If the run diverges; nothing is written.
     """
-    import time
-
-    import mujoco
-
-    from samii.formats import TimeSeriesCsvWriter
-    from samii.sim.simulate import simulate
 
     dt = float(model.opt.timestep)
     n = int(round(excitation.duration_s / dt))
@@ -236,13 +236,9 @@ def linearised_frf(model, freqs_hz, *, linear_model=None) -> FrequencyResponse:
         Reuse a linearisation (default: linearise ``model`` at its equilibrium).
     """
     if linear_model is None:  # the one-step map itself: no matrix logarithm and exponential (a third of a calibration's time)
-        from samii.sim.linearize import linearize_discrete
-
         lm = linearize_discrete(model)
         ad, bd = lm.A, lm.B
     else:
-        import scipy.linalg
-
         lm = linear_model
         n = lm.A.shape[0]
         block = np.zeros((n + 1, n + 1))

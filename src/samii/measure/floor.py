@@ -44,6 +44,7 @@ import scipy.fft
 
 from samii.measure.frf import CHANNEL_PAIRS
 from samii.measure.frf_variance import MAX_VAR, POOL, pool_mean, spectra_at, timeseries_frf
+from samii.timeseries import TimeSeries
 
 if TYPE_CHECKING:
     from samii.timeseries import TimeSeries
@@ -146,7 +147,6 @@ def estimator_bias(
     the whole run is computed at once in the frequency domain (zero-padded 2x: an exact linear convolution for a
     loop whose response dies out within the run), cut into ``m``'s records and estimated as ``m`` was. The simulated
     time series is appended to ``keep`` when given."""
-    from samii.timeseries import TimeSeries
 
     ts, layout = m.timeseries, m.layout
     if ts is None or layout is None or ts.r is None:

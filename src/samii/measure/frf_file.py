@@ -12,6 +12,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from samii.errors import InputError
+from samii.formats import csv_header, is_mat_file, read_timeseries_csv, write_frf_csv
+from samii.outputs import OutputFolder
+from samii.viz.bode_plot import bode_plot
 
 __all__ = ["FrfOfFile", "frf_of_file", "read_measured", "OUTPUTS"]
 
@@ -61,8 +64,7 @@ class FrfOfFile:
 
 def read_measured(path, *, record_s: float | None = None, band_hz=None):
     """A time-series CSV as :class:`samii.measure.measured.Measured`; InputError naming the file for what a user can fix."""
-    from samii.formats import csv_header, is_mat_file
-    from samii.measure.measured import load
+    from samii.measure.measured import load  # (lazy: imports scipy, only when called)
 
     p = Path(path)
     if is_mat_file(p):
@@ -74,8 +76,6 @@ def read_measured(path, *, record_s: float | None = None, band_hz=None):
             "(t, v, theta, accel, r), as samii measure writes timeseries.csv"
         )
     if "t" not in header:
-        from samii.formats import read_timeseries_csv
-
         read_timeseries_csv(p)  # raises, naming the file and the columns it lacks
     return load(p, band_hz=band_hz, record_s=record_s)
 
@@ -83,9 +83,6 @@ def read_measured(path, *, record_s: float | None = None, band_hz=None):
 def frf_of_file(path, *, out, record_s: float | None = None, band_hz=None, overwrite: bool = False) -> FrfOfFile:
     """The FRF of the time series at ``path``, written into the folder ``out`` (checked before any work; all or
     nothing)."""
-    from samii.formats import write_frf_csv
-    from samii.outputs import OutputFolder
-    from samii.viz.bode_plot import bode_plot
 
     folder = OutputFolder(out, OUTPUTS, overwrite=overwrite)
     done = FrfOfFile(read_measured(path, record_s=record_s, band_hz=tuple(band_hz) if band_hz else None))

@@ -33,6 +33,7 @@ import numpy as np
 from scipy import signal
 
 from samii.frequency_response import FrequencyResponse
+from samii.notebook import EQ9_4, actuator_tf, base_tf
 from samii.timeseries import TimeSeries
 
 __all__ = ["LinearRig", "DEG"]
@@ -42,7 +43,6 @@ DEG = np.pi / 180.0
 
 
 def _default_params() -> Mapping[str, float]:
-    from samii.notebook import EQ9_4
 
     return EQ9_4
 
@@ -69,7 +69,6 @@ class LinearRig:
 
     def open_loop_tf(self):
         """(G, B) as python-control transfer functions in SI: theta/v [rad/V], xdd/theta [(m/s²)/rad]."""
-        from samii.notebook import actuator_tf, base_tf
 
         return actuator_tf(self.params) * DEG, base_tf(self.params) * (1.0 / DEG)
 
@@ -83,7 +82,7 @@ class LinearRig:
 
     def closed_loop(self):
         """python-control state space, input r [V], outputs v [V], theta [rad], accel [m/s²]."""
-        import control
+        import control  # (lazy: imports control, only when called)
 
         p = self.params
         K1, wp, zp, wz, zz, tau = (p[k] for k in ("K1", "wp", "zp", "wz", "zz", "tau"))

@@ -41,11 +41,18 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from samii.formats import MAG_RANGE, DataFormatError, csv_header, is_mat_file, read_frf_csv, read_mat_bode, read_timeseries_csv, stated_sample_rate
 from samii.frequency_response import CHANNEL_NAMES, FrequencyResponse
-from samii.identify.lack_of_fit import ROUGHNESS_LAG, averages_from_metadata, is_stepped_sine, roughness_variance
+from samii.identify.cost import MIN_FREQUENCIES
+from samii.identify.lack_of_fit import MIN_COHERENCE, ROUGHNESS_LAG, averages_from_metadata, is_stepped_sine, noise_only, roughness_variance
+from samii.measure.drift import drift_from_rests
+from samii.measure.excitation import SteppedSine
+from samii.measure.floor import QUANT_FUNDAMENTAL, REL_FLOOR, quantisation_step
 from samii.measure.frf import CHANNEL_PAIRS
 from samii.measure.frf_variance import POOL, pool_mean, timeseries_frf
+from samii.measure.lines import remove_lines
 from samii.measure.records import RecordLayout, excitation_offset, find_records
+from samii.measure.stepped import estimate_stepped
 from samii.timeseries import TimeSeries
 
 if TYPE_CHECKING:
@@ -131,8 +138,6 @@ BAND_TOP_OF_RATE = 0.45
 def _without_mains(ts: TimeSeries) -> tuple[TimeSeries, list[str]]:
     """``ts`` with the mains lines of v, theta and accel subtracted (:mod:`samii.measure.lines`: leaking through the
     records' rectangular window they repeat in every record that lasts whole mains periods), and what was removed."""
-    from samii.measure.floor import quantisation_step
-    from samii.measure.lines import remove_lines
 
     fs = ts.sample_rate_hz
     cols, said = {}, []
@@ -169,7 +174,6 @@ def _drift_effect(frf: FrequencyResponse, var, frf2: FrequencyResponse, var2) ->
     by :data:`DRIFT_STANDARD_ERRORS` of the new estimate, a spread that fell :data:`DRIFT_SPREAD_FACTOR`-fold, each
     with the relative floor (samii.measure.floor.REL_FLOOR) added to the variances (noise-free data's rests differ
     by the sweep's last ringing, and a zero spread made any change count)."""
-    from samii.measure.floor import REL_FLOOR
 
     moved, spread = [], []
     for ch in CHANNEL_PAIRS:
@@ -200,8 +204,6 @@ def _without_drift(
     matters (:func:`_drift_effect`, channel by channel against the FRF ``frf`` estimated without it, point variances
     ``var``), and what was subtracted; else ``ts`` unchanged. Only records that rest give a drift; a column on a
     lattice keeps it (as for hum)."""
-    from samii.measure.drift import drift_from_rests
-    from samii.measure.floor import quantisation_step
 
     if not (layout.rest_s > 0 and layout.baseline_s > 0):
         return ts, []
@@ -339,7 +341,6 @@ def from_timeseries(ts: TimeSeries, *, source: str, band_hz: tuple[float, float]
 def _check_scale(frf: FrequencyResponse, ts: TimeSeries, source: str) -> None:
     """Refuse a response no FRF file can hold (samii.formats.MAG_RANGE; its own readers would refuse what frf wrote):
     a sample far out of scale, which the time series' reader accepts (up to 1e100), names its column and time."""
-    from samii.formats import MAG_RANGE
 
     lo, hi = MAG_RANGE
     for ch in frf.channels:
@@ -369,7 +370,6 @@ def coarse_encoder_warnings(theta: np.ndarray, *, source: str) -> list[str]:
     """theta on a lattice (an encoder's count) that it barely leaves: its FRF is the rounding's, and the coherence does
     not show it (the rounding follows the excitation). `samii frf` wrote theta/v 30-45 dB low with coherence 0.96 from
     a 10-bit encoder (theta on -1, 0, +1 counts) and said nothing; diagnose refused every theta point, rightly."""
-    from samii.measure.floor import QUANT_FUNDAMENTAL, quantisation_step
 
     q = quantisation_step(theta)
     if q is None:
@@ -451,8 +451,6 @@ def check_testable(frf: FrequencyResponse, *, source: str) -> None:
     """Refuse data a diagnosis could test nothing on: fewer frequencies than a fit takes, or coherence below
     the lack-of-fit test's floor at every point of every channel (the data are noise: without this, every
     point's error is so large that any baseline would be said to explain them)."""
-    from samii.identify.cost import MIN_FREQUENCIES
-    from samii.identify.lack_of_fit import MIN_COHERENCE, noise_only
 
     n = frf.freq_hz.size
     if n < MIN_FREQUENCIES:
@@ -526,7 +524,6 @@ def from_frf(frf: FrequencyResponse, *, source: str) -> Measured:
     if have and len(have) < len(frf.channels):  # one noise model for the whole file: a half-known one would mix real and placeholder weights
         var = dict.fromkeys(frf.channels)
         how = f"unknown (coherence for {', '.join(have)} only)"
-    from samii.formats import stated_sample_rate
 
     sr = stated_sample_rate(meta.get("sample_rate_hz"))  # (as the reader reads it: "1 kHz" is no rate of 1 per second)
     amp = _float_meta(meta, "amplitude_v")
@@ -553,8 +550,6 @@ def from_stepped(ts: TimeSeries, *, source: str, band_hz: tuple[float, float] | 
     each dwell's measurement window estimated as ``samii measure`` does (:func:`samii.measure.stepped.estimate_stepped`),
     then read as an FRF file is (:func:`from_frf`). The windows are where the header's schedule puts them, counted
     from the file's first sample."""
-    from samii.measure.excitation import SteppedSine
-    from samii.measure.stepped import estimate_stepped
 
     try:
         sched = SteppedSine.from_metadata(ts.metadata)
@@ -601,7 +596,6 @@ def load(
 ) -> Measured:
     """Read a time-series CSV, an FRF CSV or a rig-era .mat file (chosen by content) as :class:`Measured`, its
     ``source`` ``name`` (default: the path as given)."""
-    from samii.formats import DataFormatError, csv_header, is_mat_file, read_frf_csv, read_mat_bode, read_timeseries_csv
 
     path = Path(path)
     source = str(path) if name is None else name

@@ -15,6 +15,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from samii.outputs import create_parent
+
 __all__ = ["find_browser", "screenshot", "Screenshot"]
 
 _NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable", "chrome")
@@ -48,7 +50,7 @@ def screenshot(page: Path, png: Path, *, width: int = 1200, max_height: int = 16
     loopback included, goes through a proxy on a closed port (the discard port, 9), so a page that
     needed the network would show it.
     """
-    from PIL import Image, ImageChops
+    from PIL import Image, ImageChops  # (lazy: imports PIL, only when called)
 
     browser = find_browser()
     if browser is None:
@@ -71,7 +73,6 @@ def screenshot(page: Path, png: Path, *, width: int = 1200, max_height: int = 16
     box = ImageChops.difference(img, Image.new("RGB", img.size, bg)).point(lambda v: 255 if v > 6 else 0).getbbox()
     bottom = box[3] + 24 if box else img.height
     img = img.crop((0, 0, img.width, min(bottom, img.height)))
-    from samii.outputs import create_parent
 
     img.save(create_parent(png), optimize=True)
     return Screenshot(png, img.width, img.height, Path(browser).name)
@@ -81,7 +82,7 @@ def _run(cmd: list[str], raw: Path, timeout_s: float) -> tuple[bool, str]:
     """Run the browser until it exits or its screenshot is complete (about 1 run in 10, headless Chromium
     150 writes the file and then never exits: it is stopped once the file has stopped growing and reads
     as a whole PNG). Returns (screenshot written, why not)."""
-    from PIL import Image
+    from PIL import Image  # (lazy: imports PIL, only when called)
 
     log = raw.with_name("browser.log")  # a file, not a pipe: a chatty browser cannot block on a full pipe
     with open(log, "w") as err_file:

@@ -16,10 +16,16 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import samii
+from samii import notebook as nb
 from samii.errors import InputError
+from samii.formats import write_text
 from samii.identify.profile import interval_text
-from samii.report.content import RECORDINGS, STAGE_FIGURES, gaps, parameter_rows, recordings, stage_figures, traces
+from samii.identify.report import verdict_of, verdict_text
+from samii.outputs import parent_made_for
+from samii.report.content import RECORDINGS, STAGE_FIGURES, gaps, parameter_rows, recordings, stage_figures, traced, traces
 from samii.report.figures import figure_ch11_loper, figure_ch11_step, figure_damping
+from samii.run_summary import CONTROLLERS, summary_lines
+from samii.sim.param_units import unit
 
 if TYPE_CHECKING:  # (the types only: samii.pipeline writes its report through this module)
     from collections.abc import Mapping
@@ -125,9 +131,7 @@ def _gaps(lacks: list[str]) -> str:
 
 
 def _model(run: Run) -> str:
-    from samii import notebook as nb
-    from samii.sim.model import dotted
-    from samii.sim.param_units import unit
+    from samii.sim.model import dotted  # (lazy: imports mujoco, only when called)
 
     m = run.summary.modes
     rows = []
@@ -182,10 +186,8 @@ def _interval(iv: tuple[float | None, float | None] | None) -> str:
 
 
 def _fit(run: Run) -> str:
-    from samii import notebook as nb
 
     f = run.fit_record
-    from samii.identify.report import verdict_of, verdict_text
 
     verdict = f'<span class="{"bad" if verdict_of(f) == "not sound" else "ok"}">{_e(verdict_text(f))}</span>'  # a failure told apart from caveats
     rows = []
@@ -216,7 +218,6 @@ def _fit(run: Run) -> str:
 
 
 def _closed_loop(run: Run) -> str:
-    from samii.run_summary import CONTROLLERS
 
     cl = run.summary.closed_loop
     d = run.summary.damping_design
@@ -433,7 +434,6 @@ def render_report(run: Run, page_dir: Path | None = None, *, name: str | None = 
     staging folder); the links to the recordings are relative to ``page_dir`` (default: the run's folder). A stage's
     document that lacks a field the page needs, or holds a value of the wrong kind, is an InputError naming the field
     (summary.json's are checked when the run is read, samii.pipeline.Run.load)."""
-    from samii.report.content import traced
 
     watched, log = traced(run)
     try:
@@ -453,8 +453,6 @@ def render_report(run: Run, page_dir: Path | None = None, *, name: str | None = 
 
 
 def _render(run: Run, page_dir: Path | None, name: str) -> str:
-    from samii.run_summary import summary_lines
-
     body = "".join([_header(run, summary_lines(run.summary, name), gaps(run)), _model(run), _measurement(run), _fit(run), _closed_loop(run),
                     _diagnosis(run), _recordings(run, page_dir if page_dir is not None else run.path)])  # fmt: skip
     return (
@@ -465,8 +463,6 @@ def _render(run: Run, page_dir: Path | None, name: str) -> str:
 
 def write_report(run: Run, path: Path | None = None, *, name: str | None = None) -> Path:
     """Write ``report.html`` (default: into the run's folder; ``name``: as :func:`render_report`) and return its path."""
-    from samii.formats import write_text
-    from samii.outputs import parent_made_for
 
     path = Path(path) if path is not None else run.path / REPORT_NAME
     if path.is_dir():

@@ -13,18 +13,30 @@ depend on the engine.
 from __future__ import annotations
 
 import contextlib
+import logging
+import multiprocessing.spawn as mp_spawn
 import os
 import shlex
+import shutil
 import socket
+import tempfile
+import threading
 import time
+import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import dask
-from distributed import Client, LocalCluster, as_completed
+from distributed import Client, LocalCluster, as_completed, wait
+from distributed.comm import registry
+from distributed.comm.addressing import parse_address, parse_host_port
 from distributed.diagnostics.plugin import WorkerPlugin
 
 import samii
+import samii as worker_samii
+from samii.errors import InputError, raise_if_signalled
+from samii.outputs import remove_stale_runs
 from samii.progress import SILENT, Progress
 from samii.robust.task import SampleResult, SampleTask, run_sample
 
@@ -51,8 +63,7 @@ class SamiiWorkerPlugin(WorkerPlugin):
         self.version = version
 
     def setup(self, worker):
-        import samii as worker_samii  # the worker's own installation
-        from samii.sim.plugin import load_plugin
+        from samii.sim.plugin import load_plugin  # (lazy: imports mujoco, only when called)
 
         load_plugin()
         if worker_samii.__version__ != self.version:
@@ -76,17 +87,11 @@ def _workers_deaf_to_terminal_signals():
     meanwhile start through ``/bin/sh -c "trap '' INT HUP; exec python ..."``: multiprocessing's spawn executable
     is pointed at a two-line wrapper for the cluster's start and restored after. This process keeps its own handlers
     throughout (ignoring them here instead lost a Ctrl-C that came while the cluster started: the study ran on)."""
-    import multiprocessing.spawn as mp_spawn
-    import shutil
-    import tempfile
 
     sh = shutil.which("sh")
     if sh is None or os.name != "posix":
         yield
         return
-    from pathlib import Path
-
-    from samii.outputs import remove_stale_runs
 
     real = mp_spawn.get_executable()
     # named with this process's id: a command killed outright while its cluster started left its wrapper's folder in
@@ -119,10 +124,6 @@ def check_address(address: str, where: str) -> tuple[str, str, int] | None:
     """Refuse a scheduler address Dask cannot connect to, before any wait: an unknown scheme, no or an invalid port, a
     host name that does not resolve (``where``: the option or setting it came from, for the message). Returns (scheme,
     host, port) as Dask reads the address (``distributed.comm.addressing``), None for an in-process one."""
-    from distributed.comm import registry
-    from distributed.comm.addressing import parse_address, parse_host_port
-
-    from samii.errors import InputError
 
     schemes = sorted(registry.backends)
     try:
@@ -161,9 +162,6 @@ def _connect(address: str, timeout_s: float, where: str = "--scheduler") -> Clie
     """A client of the scheduler at ``address``, or :class:`InputError` naming it (``where``: the option or setting it
     came from) when it refuses or does not answer within ``timeout_s`` (the attempt runs in a daemon thread: one that
     never returns is left behind without holding the process)."""
-    import threading
-
-    from samii.errors import InputError
 
     parsed = check_address(address, where)
     if parsed is not None and parsed[0] in ("tcp", "tls", "ws", "wss"):  # all over TCP: a refused connection is known at once
@@ -184,8 +182,6 @@ def _connect(address: str, timeout_s: float, where: str = "--scheduler") -> Clie
             box["client"] = Client(address, timeout=f"{timeout_s}s")
         except BaseException as exc:  # noqa: BLE001 - handed to the caller
             box["error"] = exc
-
-    from samii.errors import raise_if_signalled
 
     thread = threading.Thread(target=attempt, name="samii-dask-connect", daemon=True)
     thread.start()
@@ -216,7 +212,6 @@ def _connect(address: str, timeout_s: float, where: str = "--scheduler") -> Clie
 @contextlib.contextmanager
 def _quiet_dask_logs():
     """Dask's loggers (``distributed`` and every one below it) held at CRITICAL, then restored."""
-    import logging
 
     names = ["distributed"] + [n for n in logging.root.manager.loggerDict if n.startswith("distributed.")]
     saved = {n: logging.getLogger(n).level for n in names}
@@ -289,8 +284,6 @@ class Engine:
                 try:  # a scheduler without workers took the study and waited for ever, without a word
                     self._client.wait_for_workers(1, timeout=self.connect_timeout_s)
                 except TimeoutError:
-                    from samii.errors import InputError
-
                     self.__exit__()
                     raise InputError(
                         f"{self.scheduler_source} {self.scheduler}: the scheduler answered, but no worker joined it "
@@ -353,7 +346,6 @@ class Engine:
         return self._dask(tasks, progress)
 
     def _dask(self, tasks, progress) -> list[SampleResult]:
-        import uuid
 
         study = uuid.uuid4().hex[:12]  # keys unique to this study: a shared cluster may hold another study's results
         futures = self._client.map(run_sample, list(tasks), pure=False, key=[f"samii-sample-{study}-{t.index}" for t in tasks])
@@ -371,9 +363,6 @@ class Engine:
         without a worker for ``connect_timeout_s``, or a worker the scheduler has not heard from for that long while no
         sample finished, ends the study with one line naming it (the cluster's own failures came as 30 lines of Dask's
         log and an "internal error", or as a wait for ever; a stopped worker as a silent wait of 5 minutes)."""
-        from distributed import wait
-
-        from samii.errors import InputError
 
         where = f"{self.scheduler_source} {self.scheduler}"
         limit = self.connect_timeout_s

@@ -31,7 +31,7 @@ def _percentiles(ax, percentiles, fmt: str, unit: str = "") -> None:
 
 
 def plot_histograms(results: list[SampleResult], summary: StudySummary, title: str, path: Path) -> None:
-    from matplotlib.ticker import MaxNLocator
+    from matplotlib.ticker import MaxNLocator  # (lazy: imports matplotlib, only when called)
 
     plt = pyplot()
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4.3))

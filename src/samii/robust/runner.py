@@ -12,17 +12,24 @@ before any work).
 
 from __future__ import annotations
 
+import csv
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from samii.closedloop.trial import check_fits, resolve_controller
 from samii.errors import InputError
+from samii.json_output import dumps
+from samii.outputs import OutputFolder
 from samii.progress import SILENT, Progress
 from samii.robust.engine import DEFAULT_CONNECT_TIMEOUT_S, Engine, check_address, configured_scheduler
-from samii.robust.sampling import Covariance, PlantDraws, parse_spread
+from samii.robust.plots import FIGURES, plot_histograms, plot_influence
+from samii.robust.sampling import Covariance, PlantDraws, draw_plants, parse_spread, read_covariance, sample_seeds
 from samii.robust.study import StudySummary, summarise
 from samii.robust.task import SampleResult, SampleTask
+from samii.schema import versioned
+from samii.sim.overrides import parse_overrides
 
 __all__ = ["StudyRequest", "StudyWarning", "Study", "StudyResult", "NoPlantBuilt", "plan_study", "run_study", "FILES", "TINY_SPREAD", "FEW_SAMPLES"]
 
@@ -104,13 +111,10 @@ class StudyResult:
 
 
 def _nominal_params(req: StudyRequest) -> tuple[object, Covariance | None, list[StudyWarning]]:
-    from samii.sim.model import default_params, params_from_dict, params_with_overrides, read_params_file
-    from samii.sim.overrides import parse_overrides
+    from samii.sim.model import default_params, params_from_dict, params_with_overrides, read_params_file  # (lazy: imports mujoco, only when called)
 
     cov, said = None, []
     if req.covariance:
-        from samii.robust.sampling import read_covariance
-
         if req.model:
             raise InputError("--model: with --covariance the nominal plant is the calibration's (its calibrated_params); give one of them")
         cov = read_covariance(req.covariance)
@@ -219,10 +223,7 @@ def plan_study(request: StudyRequest, *, out=None, overwrite: bool = False, say:
     output folder ``out`` (None: nothing written), the nominal plant, the draws (each a plant the model accepts),
     the engine, and the controller designed (``say`` hears a "damping" design's stages) or read, once, on the nominal
     plant and checked against the controller card."""
-    from samii.outputs import OutputFolder
-    from samii.robust.plots import FIGURES
-    from samii.robust.sampling import draw_plants, sample_seeds
-    from samii.sim.model import dotted, load_model, load_spec, params_with_overrides
+    from samii.sim.model import dotted, load_model, load_spec, params_with_overrides  # (lazy: imports mujoco, only when called)
 
     req = request
     if req.controller == "unity" and req.delay_samples:
@@ -240,8 +241,6 @@ def plan_study(request: StudyRequest, *, out=None, overwrite: bool = False, say:
         except InputError as exc:
             raise InputError(f"sample {i}: {exc}: narrow the spread (or give it as an absolute value)") from None
     engine = _engine(req)
-
-    from samii.closedloop.trial import check_fits, resolve_controller
 
     nominal_model = load_model(params=params)
     qpos, act = nominal_model.key_qpos[0].copy(), nominal_model.key_act[0].copy()
@@ -265,9 +264,6 @@ def run_study(request: StudyRequest, *, out=None, overwrite: bool = False, progr
 
 
 def _write(folder, result: StudyResult) -> None:
-    from samii.json_output import dumps
-    from samii.robust.plots import plot_histograms, plot_influence
-    from samii.schema import versioned
 
     r = result.request
     with folder:
@@ -279,7 +275,6 @@ def _write(folder, result: StudyResult) -> None:
 
 
 def _write_csv(path, draws: PlantDraws, samples: list[SampleResult]) -> None:
-    import csv
 
     numbers = ["zeta", "mode_hz", "growth_rate_1_s", "base_settle_s", "theta_settle_s", "theta_overshoot_pct"]
     with open(path, "w", newline="") as f:

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from samii.errors import InputError
+from samii.json_output import read_json
 
 __all__ = ["Spread", "Covariance", "parse_spread", "read_covariance", "draw_plants", "PlantDraws", "sample_seeds", "TRUNCATE_SIGMA", "MIN_FRACTION"]
 
@@ -99,7 +100,6 @@ def parse_spread(text: str) -> Spread:
 
 def read_covariance(path) -> Covariance:
     """The parameters, standard errors and correlations of ``samii calibrate``'s ``calibration.json``."""
-    from samii.json_output import read_json
 
     path = Path(path)
     d = read_json(path, "calibration file", missing=f"--covariance {path}: no such file")
@@ -158,8 +158,8 @@ def read_covariance(path) -> Covariance:
         raise InputError(f"--covariance {path}: field 'correlation' must be a {len(names)}x{len(names)} matrix of finite numbers")
     if np.any(np.abs(np.diag(c) - 1.0) > 1e-6) or np.any(np.abs(c) > 1.0 + 1e-9):
         raise InputError(f"--covariance {path}: field 'correlation' is not a correlation matrix (ones on its diagonal, |r| <= 1)")
-    from samii.calibrate.simulator import check_parameter_name
-    from samii.sim.model import default_params
+    from samii.calibrate.simulator import check_parameter_name  # (lazy: imports mujoco, only when called)
+    from samii.sim.model import default_params  # (lazy: imports mujoco, only when called)
 
     plant = default_params()
     for name in names:

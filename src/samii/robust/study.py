@@ -49,7 +49,7 @@ def _pct(x: list[float]) -> dict[int, float] | None:
 
 
 def summarise(draws: PlantDraws, results: list[SampleResult]) -> StudySummary:
-    from scipy import stats
+    from scipy import stats  # (lazy: imports scipy, only when called)
 
     invalid = [r for r in results if not r.valid]
     results = [r for r in results if r.valid]

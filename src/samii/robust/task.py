@@ -9,7 +9,12 @@ unpickled in a process where the plugin is not registered it crashes that proces
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
+
+import numpy as np
+
+from samii.errors import InputError
 
 __all__ = ["SampleTask", "SampleResult", "run_sample", "closed_loop_damping", "DAMPING_BAND_HZ"]
 
@@ -57,7 +62,6 @@ def closed_loop_damping(stable: bool, poles_s, growth_rate_1_s: float | None, un
     stays there (it is only made unobservable from the reference), which a fit to the step response would miss.
     When the nonlinear run is unstable but the linear loop is not (the valve's rails, a limit cycle), the
     growing mode's: -sigma/|s| for s = sigma + j 2 pi f."""
-    import numpy as np
 
     p = np.asarray(poles_s, complex).ravel()
     hz = np.abs(p) / (2 * math.pi)
@@ -86,19 +90,17 @@ def run_sample(task: SampleTask) -> SampleResult:
     With one BLAS thread, as in a Dask worker (its nanny sets OMP_NUM_THREADS=1): a sum split over
     threads rounds differently, and the equilibrium and the fitted modes would differ in their last
     bits between engines; with it, every engine gives the same bits."""
-    from threadpoolctl import threadpool_limits
+    from threadpoolctl import threadpool_limits  # (lazy: imports threadpoolctl, only when called)
 
     with threadpool_limits(limits=1):
         return _run_sample(task)
 
 
 def _run_sample(task: SampleTask) -> SampleResult:
-    import warnings
 
-    from samii.closedloop.scenario import NoiseSpec, run_closed_loop, scenario
-    from samii.errors import InputError
-    from samii.sim.model import load_model, load_spec, params_from_dict
-    from samii.sim.plugin import load_plugin
+    from samii.closedloop.scenario import NoiseSpec, run_closed_loop, scenario  # (lazy: imports mujoco, scipy, only when called)
+    from samii.sim.model import load_model, load_spec, params_from_dict  # (lazy: imports mujoco, only when called)
+    from samii.sim.plugin import load_plugin  # (lazy: imports mujoco, only when called)
 
     load_plugin()  # idempotent; a fresh worker process has not registered the hydraulic plugin yet
     params = params_from_dict(task.base_params)

@@ -419,7 +419,7 @@ def _simulate_mujoco_euler(params, load, ctrl, h, n_steps, initial, ctrlrange):
 
 
 def _simulate_continuous(params, load, ctrl, time, initial, ctrlrange, rtol):
-    from scipy.integrate import solve_ivp
+    from scipy.integrate import solve_ivp  # (lazy: imports scipy, only when called)
 
     Dm, Ps = params.displacement, params.supply_pressure
 

@@ -20,8 +20,10 @@ import mujoco
 import numpy as np
 import scipy.linalg
 
+from samii.sim.equilibrium import static_equilibrium
 from samii.sim.model import held_joint2_model, load_model, load_spec, make_data
 from samii.sim.one_step import one_step_poles, transition
+from samii.sim.plugin import hydraulic_params, valve_options
 from samii.sim.sensors import output_rows
 
 __all__ = [
@@ -123,7 +125,7 @@ class LinearModel(_StateSpace):
         frequency). Its imaginary part (``B_imag``) measures how far the true response is from
         the real-coefficient form of eq 9.2.
         """
-        import control
+        import control  # (lazy: imports control, only when called)
 
         ol = self.open_loop()
         n = ol.A.shape[0]
@@ -188,8 +190,6 @@ def linearize_discrete(
     if data is None:
         data = make_data(model)
     if position_gain_v_per_rad is None:
-        from samii.sim.plugin import hydraulic_params
-
         position_gain_v_per_rad = hydraulic_params(model).position_gain
     Ad, Bd, Cs, Ds = transition(model, data, eps, True)
     r_theta, w_accel = output_rows(model)
@@ -197,8 +197,6 @@ def linearize_discrete(
     D = np.vstack([Ds[r_theta], w_accel @ Ds])
     delay = 0.0
     if model.nplugin:
-        from samii.sim.plugin import valve_options
-
         delay = valve_options(model)["command_delay"]
     return DiscreteLinearModel(Ad, Bd, C, D, float(model.opt.timestep), float(position_gain_v_per_rad), delay)
 
@@ -231,7 +229,6 @@ def modes_from_poles(poles: np.ndarray, *, max_freq_hz: float = np.inf) -> list[
 
 def base_modes(spec: mujoco.MjSpec, theta2_rad: float, *, max_freq_hz: float = 45.0) -> list[Mode]:
     """Modes with joint 2 held at ``theta2_rad`` (link 2 welded), below ``max_freq_hz``."""
-    from samii.sim.equilibrium import static_equilibrium
 
     held = held_joint2_model(spec, theta2_rad)
     eq = static_equilibrium(held)

@@ -25,6 +25,9 @@ import mujoco
 import numpy as np
 import scipy.linalg
 
+from samii.sim.model import JOINT, make_data
+from samii.sim.sensors import accel_axis_world, accel_site
+
 __all__ = ["ModalProjection", "modal_projection"]
 
 
@@ -51,8 +54,6 @@ def modal_projection(model: mujoco.MjModel, *, n_modes: int = 3) -> ModalProject
 
     Needs hinge/slide joints only (``nq == nv``), as SAMII's model has.
     """
-    from samii.sim.model import JOINT, make_data
-    from samii.sim.sensors import accel_axis_world, accel_site
 
     if model.nq != model.nv:
         raise ValueError(f"modal coordinates need hinge or slide joints only (nq = {model.nq}, nv = {model.nv})")

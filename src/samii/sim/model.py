@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from collections.abc import Mapping
 from dataclasses import fields, is_dataclass, replace
 from pathlib import Path
@@ -20,9 +21,11 @@ import mujoco
 import numpy as np
 
 from samii.errors import InputError
+from samii.json_output import read_json
 from samii.sim.hydraulic_reference import VALVE_OPTIONS
 from samii.sim.mjcf import ArmParams, BeamParams, HydraulicConfig, SamiiParams, samii_xml
 from samii.sim.one_step import one_step_poles
+from samii.sim.plugin import MuJoCoWarning, compile_spec, load_plugin
 from samii.sim.sensor_dynamics import SensorDynamics
 
 __all__ = [
@@ -171,7 +174,6 @@ def params_with_overrides(params: SamiiParams, overrides: Mapping[str, float]) -
 
 
 def _load_plugin() -> None:
-    from samii.sim.plugin import load_plugin
 
     load_plugin()
 
@@ -179,7 +181,6 @@ def _load_plugin() -> None:
 def read_params_file(path: str | Path) -> SamiiParams:
     """Parameters from a parameter file (``{"params": {...}}``, as :func:`write_params` and
     ``samii calibrate`` write it; ``samii_params.json`` is one)."""
-    from samii.json_output import read_json
 
     path = Path(path)
     data = read_json(path, "parameter file")
@@ -244,7 +245,6 @@ def load_model(
         Refuse (InputError) a model its own physics step cannot integrate, a mode too stiff for it (default); False
         compiles it anyway, and a simulation of it diverges (``SimulationUnstable``).
     """
-    from samii.sim.plugin import compile_spec
 
     spec, generated = load_spec(path, params=params, overrides=overrides)
     try:
@@ -261,7 +261,7 @@ def load_model(
     if check_step:
         _check_integrable(model, path, params, overrides)
     if generated:
-        from samii.sim.equilibrium import static_equilibrium
+        from samii.sim.equilibrium import static_equilibrium  # (lazy: imports scipy, only when called)
 
         try:
             eq = static_equilibrium(model)
@@ -289,9 +289,6 @@ def _check_model(model: mujoco.MjModel, path) -> None:
 def _unresolved(model: mujoco.MjModel) -> np.ndarray:
     """Eigenvalues of ``model``'s one-step map (about its ``home`` keyframe) outside the unit circle above a quarter of
     the step rate (Re z < 0): modes too stiff for the step, which grow in the simulator whatever the physics."""
-    import warnings
-
-    from samii.sim.plugin import MuJoCoWarning
 
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", MuJoCoWarning)  # (the one-step map of such a model overflows: said by the caller)
@@ -314,8 +311,6 @@ def _check_integrable(model: mujoco.MjModel, path, params, overrides: Mapping[st
     where = f" with {given}" if given else (f" {path}" if path is not None else "")
     fix = "check the values (samii params lists the defaults)"
     if path is None or str(path).lower().endswith(".json"):
-        from samii.sim.plugin import compile_spec
-
         for k in range(1, 5):
             try:
                 spec, _ = load_spec(path, params=params, overrides={**(overrides or {}), "timestep_s": dt / 2**k})

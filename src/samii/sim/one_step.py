@@ -11,13 +11,14 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from samii.sim.plugin import ideal_valve_model
+
 __all__ = ["small_signal", "transition", "one_step_poles"]
 
 
 def small_signal(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[mujoco.MjModel, mujoco.MjData]:
     """The model with an ideal valve (``plugin.ideal_valve_model``) and a copy of ``data``'s state
     on it; ``(model, data)`` themselves when the valve is ideal already."""
-    from samii.sim.plugin import ideal_valve_model  # (plugin loads the compiled plugin: not at import)
 
     ideal = ideal_valve_model(model) if model.nplugin else model
     if ideal is model:

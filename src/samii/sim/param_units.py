@@ -52,7 +52,11 @@ def unit(name: str) -> str:
 
 def parameter_table(model: str | None = None) -> list[dict]:
     """``[{"name", "value", "unit"}]`` for the embedded default (or a parameter file's) parameters."""
-    from samii.sim.model import default_params, dotted, read_params_file
+    from samii.sim.model import (  # (lazy: this module is imported at samii's start-up, that one is not needed there)
+        default_params,
+        dotted,
+        read_params_file,
+    )
 
     params = read_params_file(model) if model else default_params()
     return [{"name": name, "value": v, "unit": unit(name)} for name, v in dotted(params).items()]

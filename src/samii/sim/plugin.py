@@ -30,9 +30,12 @@ naming the actuator, the attribute, its value and what was expected.
 
 from __future__ import annotations
 
+import copy
 import json
 import math
+import re
 import threading
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -158,8 +161,6 @@ def _route_mujoco_warnings() -> None:
         return
 
     def warn(message: str) -> None:
-        import re
-        import warnings
 
         text = re.sub(r"\s*Time = [-+0-9.eE]+\.?\s*$", "", str(message)).strip()  # (one message, whenever it came)
         warnings.warn(text, MuJoCoWarning, stacklevel=2)
@@ -309,7 +310,6 @@ def ideal_valve_model(model: mujoco.MjModel) -> mujoco.MjModel:
     finite-difference derivatives (they perturb qpos, qvel and act, not the plugin's state), and a
     dead band has no slope at rest. The values are overwritten in place in ``plugin_attr`` by
     "0" padded with spaces to the same length, which the plugin's parser reads as 0."""
-    import copy
 
     edits = [
         (offset, len(raw))

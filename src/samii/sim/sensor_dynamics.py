@@ -111,7 +111,7 @@ class SensorDynamics:
 
     # -- discrete filters at the physics rate ---------------------------------------------
     def _accel_sos(self, rate_hz: float) -> np.ndarray | None:
-        from scipy import signal  # here, not at import: scipy.signal takes ~0.7 s and every command imports this module
+        from scipy import signal  # (lazy: scipy.signal takes ~0.7 s and every command imports this module)
 
         sections = []
         if self.accel_lowpass_hz > 0:
@@ -136,7 +136,7 @@ class SensorDynamics:
         accel = _fir_response(_delay_fir(self.accel_delay_s * rate_hz), w)
         sos = self._accel_sos(rate_hz)
         if sos is not None:
-            from scipy import signal
+            from scipy import signal  # (lazy: imports scipy, only when called)
 
             accel = accel * signal.sosfreqz(sos, worN=w)[1]
         else:
@@ -188,7 +188,7 @@ class SensorFilter:
     def _fir(self, key: str, taps: np.ndarray, x: np.ndarray) -> np.ndarray:
         if taps.size == 1:
             return x * taps[0]
-        from scipy import signal
+        from scipy import signal  # (lazy: imports scipy, only when called)
 
         zi = self._state.get(key)
         if zi is None:
@@ -207,7 +207,7 @@ class SensorFilter:
             if self._sos is None:
                 x = x * self.dynamics.accel_gain
             else:
-                from scipy import signal
+                from scipy import signal  # (lazy: imports scipy, only when called)
 
                 zi = self._state.get("sos")
                 if zi is None:

@@ -9,6 +9,7 @@ at the speed of plain ``mj_step``.
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import mujoco
@@ -17,6 +18,9 @@ import numpy as np
 
 from samii.errors import SimulationUnstable
 from samii.progress import SILENT, Progress
+from samii.sim.model import ACTUATOR, make_data
+from samii.sim.plugin import hydraulic_params
+from samii.sim.sensors import accel_offset, accel_weights
 
 __all__ = ["SimResult", "SimulationUnstable", "check_rollout", "simulate", "tip_accel_offset"]
 
@@ -43,7 +47,6 @@ class SimResult:
 
 def tip_accel_offset(model: mujoco.MjModel) -> float:
     """What the base accelerometer reads at rest (``samii.sim.sensors.accel_offset``): removed from ``accel``."""
-    from samii.sim.sensors import accel_offset
 
     return accel_offset(model)
 
@@ -114,10 +117,6 @@ def simulate(
         If the state becomes non-finite or MuJoCo raises any warning (bad
         acceleration, velocity or position).
     """
-    from concurrent.futures import ThreadPoolExecutor
-
-    from samii.sim.model import ACTUATOR, make_data
-    from samii.sim.plugin import hydraulic_params
 
     ctrl_v = np.asarray(ctrl_v, float)
     if ctrl_v.ndim != 1 or ctrl_v.size == 0:
@@ -142,7 +141,6 @@ def simulate(
     act_adr = int(model.actuator_actadr[act_id])
     act_start = 1 + model.nq + model.nv  # FULLPHYSICS layout: time, qpos, qvel, act, ...
     theta_sensor = int(model.sensor_adr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, "theta")])
-    from samii.sim.sensors import accel_weights
 
     accel_sensor, accel_dir = accel_weights(model)
     hp = hydraulic_params(model, ACTUATOR)

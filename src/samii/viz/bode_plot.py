@@ -102,7 +102,7 @@ def bode_plot(
     -------
     matplotlib.figure.Figure
     """
-    from matplotlib.figure import Figure
+    from matplotlib.figure import Figure  # (lazy: imports matplotlib, only when called)
 
     if frf is None and stepped is None:
         raise ValueError("bode_plot needs frf or stepped")

@@ -17,11 +17,11 @@ __all__ = ["plot_cancel_locus"]
 def plot_cancel_locus(design, *, notebook_gain: float | None = None, path: str | Path | None = None, n_gains: int = 400):
     """Closed-loop poles of ``1 + K L = 0`` for K from 0 to the design gain; full view and zoom near the origin."""
 
-    import control
+    import control  # (lazy: imports control, only when called)
 
     plt = pyplot(agg=path is not None)
 
-    from samii.design.cancel import closed_loop_poles, pair_zetas
+    from samii.design.cancel import closed_loop_poles, pair_zetas  # (lazy: imports PIL, control, matplotlib, scipy, only when called)
 
     def zetas(k: float) -> str:
         return ", ".join(f"{z:.3f}" for z in pair_zetas(design.open_loop, k))

@@ -10,11 +10,11 @@ __all__ = ["pyplot", "panels", "save_figure"]
 def pyplot(*, agg: bool = True):
     """``matplotlib.pyplot``, on the Agg backend (files, no screen) when ``agg``; ``agg=False`` keeps the session's
     backend (a figure only returned, for a notebook to show)."""
-    import matplotlib
+    import matplotlib  # (lazy: imports matplotlib, only when called)
 
     if agg:
         matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # (lazy: imports matplotlib, only when called)
 
     return plt
 

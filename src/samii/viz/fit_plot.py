@@ -219,7 +219,7 @@ def plot_panels(
         for label, y in series.items():
             (a.semilogx if logx else a.plot)(x, y, "o-", ms=4, lw=1.2, label=label)
         if logx:  # label the points themselves, not powers of ten
-            from matplotlib.ticker import NullFormatter
+            from matplotlib.ticker import NullFormatter  # (lazy: imports matplotlib, only when called)
 
             a.set_xticks(list(x), [f"{v:g}" for v in x])
             a.xaxis.set_minor_formatter(NullFormatter())

@@ -19,7 +19,7 @@ def plot_pole_sets(design, *, path: str | Path | None = None):
 
     plt = pyplot(agg=path is not None)
 
-    from samii.design.placement import unity_feedback_poles
+    from samii.design.placement import unity_feedback_poles  # (lazy: imports PIL, control, matplotlib, scipy, only when called)
 
     T = design.sample_time_s
     ol = np.linalg.eigvals(np.asarray(design.model.A))

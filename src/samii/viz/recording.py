@@ -36,7 +36,9 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from samii.sim.sensors import accel_site
+from samii.sim.modal import modal_projection
+from samii.sim.model import make_data
+from samii.sim.sensors import accel_axis_world, accel_site
 from samii.timeseries import TimeSeries
 from samii.viz.thinning import BUCKETS_PER_PERIOD, FRAMES_PER_PERIOD_SWEPT, MIN_BUCKET_RATE_HZ, MIN_THINNED_FPS, RING_S, buckets, envelope, kept
 
@@ -89,7 +91,6 @@ class RecordingInfo:
 def frame_steps_for(model: mujoco.MjModel, fps: float | None = None) -> int:
     """Physics steps per animation frame: ``fps`` if given, else at least ``FRAMES_PER_PERIOD``
     frames per period of base mode 3 and at least ``MIN_FPS`` (100 frames/s on the embedded model)."""
-    from samii.sim.modal import modal_projection
 
     dt = float(model.opt.timestep)
     if fps is None:
@@ -159,8 +160,6 @@ class _Kinematics:
 
     @classmethod
     def of(cls, model: mujoco.MjModel) -> _Kinematics:
-        from samii.sim.modal import modal_projection
-        from samii.sim.model import make_data
 
         return cls(model, make_data(model), accel_site(model), modal_projection(model), _beam_dofs(model))
 
@@ -377,7 +376,6 @@ def _eye(model: mujoco.MjModel, home: mujoco.MjData) -> dict:
     """Where the 3D views' camera starts: the whole structure in view, looking across the
     accelerometer's axis (the base's vibration lies in the picture's plane), turned 30 deg and
     raised 15 deg for depth."""
-    from samii.sim.sensors import accel_axis_world
 
     drawn = [g for g in range(model.ngeom) if model.geom_type[g] in _DRAWN]
     if drawn:  # each geom's bounding sphere
@@ -452,8 +450,8 @@ def write_recording(
     the motion (``thin_frames`` False: every frame, as a frame rate the user asked for;
     ``thin_signals`` False: every sample).
     """
-    import rerun as rr
-    import rerun.blueprint as rrb
+    import rerun as rr  # (lazy: imports rerun, only when called)
+    import rerun.blueprint as rrb  # (lazy: imports rerun, only when called)
 
     path = Path(path)
     kin: dict[int, _Kinematics] = {id(model): _Kinematics.of(model)}
@@ -562,7 +560,7 @@ def read_scalars(path, entities) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Read time series back from a recording: {entity: (t [s], values)} for each entity path in
     ``entities`` (e.g. ``"/swept/displacement_mm/tip"``) that holds scalars on the ``time``
     timeline, sorted by time (``rerun.chunk.RrdReader``)."""
-    import rerun.chunk as rc
+    import rerun.chunk as rc  # (lazy: imports rerun, only when called)
 
     want = {e if e.startswith("/") else f"/{e}" for e in ([entities] if isinstance(entities, str) else entities)}
     parts: dict[str, list] = {}

@@ -5,6 +5,7 @@ matplotlib is imported inside the functions, so importing this module is cheap.
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +32,7 @@ def _fmt_gain(x: float) -> str:
 
 def stable_text(intervals, sign: int) -> str:
     """``"stable for -2.467 < K_a < 0"`` for the stable intervals of one sign (``"never stable"`` if none)."""
-    from samii.design.rootlocus import intervals_of_sign
+    from samii.design.rootlocus import intervals_of_sign  # (lazy: imports PIL, control, matplotlib, scipy, only when called)
 
     parts = [f"{_fmt_gain(a)} < K_a < {_fmt_gain(b)}" for a, b in intervals_of_sign(intervals, sign)]
     return "stable for " + " and ".join(parts) if parts else f"unstable for every K_a {'> 0' if sign > 0 else '< 0'}"
@@ -123,7 +124,6 @@ def plot_root_locus(data, *, ax=None, zoom: bool = False, best=None, limit=None,
 
 
 def _header(loop, summary) -> str:
-    import textwrap
 
     lines = [f"Mass-damping root locus: {loop.label} ({loop.variant.describe()})"]
     if summary is not None:
@@ -145,11 +145,10 @@ def plot_variant(loop, summary=None, *, path: str | Path | None = None, n_gains:
     ``K_a = 1/D``, where a pole passes through infinity) the finite poles are
     drawn and the legend says how many are at infinity.
     """
-    import textwrap
 
     plt = pyplot(agg=path is not None)
 
-    from samii.design import rootlocus as rl
+    from samii.design import rootlocus as rl  # (lazy: imports PIL, control, matplotlib, scipy, only when called)
 
     header = _header(loop, summary)
     # a fixed layout (constrained layout costs a third of the drawing time): the header's lines, then two rows

@@ -80,7 +80,7 @@ class HeadlessViewer:
         self._viewer = None
 
     def __enter__(self) -> HeadlessViewer:
-        from rerun.experimental import ViewerClient
+        from rerun.experimental import ViewerClient  # (lazy: imports rerun, only when called)
 
         # the viewer writes its runtime files under XDG_RUNTIME_DIR; a container may not set one:
         # then a folder of its own for the spawned viewer, removed on exit (our environment unchanged)
