@@ -152,29 +152,32 @@ def test_a_stages_result_is_read_when_asked_for_and_its_damage_named_then(runs, 
 
 
 @pytest.mark.slow
-def test_a_closed_loop_run_without_its_time_series_is_read_only_when_it_diverged_at_its_start(runs, tmp_path, capsys):
-    """A run that diverged in its first step writes run.json alone (samii.closedloop.trial): Run.load reads it without a
-    time series (trace None) and the report is written. A run that did not diverge and lacks its time series is a
-    folder not whole: refused naming the file (the report's own reader refused every missing one before)."""
+def test_a_closed_loop_run_without_its_time_series_is_read_only_when_it_was_not_recorded(runs, tmp_path, capsys):
+    """A run that diverged in its first step writes run.json alone, saying so ("recorded": false, samii.closedloop.trial):
+    Run.load reads it without a time series (trace None) and the report is written. A recorded run that lacks its time
+    series, stable or not, is a folder not whole: refused naming the file."""
     from samii.cli import main
     from samii.pipeline import Run
 
     folder = _copy(runs[0], tmp_path / "run")
-    place = json.loads((folder / "closedloop" / "notebook_place_step" / "run.json").read_text())
-    assert place["stable"] is False and place["diverged_at_s"] is not None  # (pole placement diverges within ms: chapter 8)
+    record = folder / "closedloop" / "notebook_place_step" / "run.json"
+    place = json.loads(record.read_text())
+    assert place["stable"] is False and place["recorded"] is True  # (pole placement diverges within ms, after its first step)
     (folder / "closedloop" / "notebook_place_step" / "timeseries.csv").unlink()
+    with pytest.raises(InputError, match=r"notebook_place_step/timeseries.csv: missing, and the run was recorded"):
+        Run.load(folder)  # (an unstable run's lost record is a folder not whole, as any other's)
+    record.write_text(json.dumps({**place, "recorded": False}))  # as a run that diverged in its first step writes it
     assert Run.load(folder).closed_loop["notebook_place_step"].trace is None
     assert main(["report", str(folder), "--out", str(tmp_path / "page.html")]) == 0
     capsys.readouterr()
     lost = folder / "closedloop" / "damping_loper" / "timeseries.csv"
     lost.unlink()
-    with pytest.raises(InputError, match=rf"{lost}: missing, and the run did not diverge at its start"):
+    with pytest.raises(InputError, match=rf"{lost}: missing, and the run was recorded"):
         Run.load(folder)
     assert main(["report", str(folder), "--out", str(tmp_path / "again.html")]) == 2
     assert f"{lost}: missing" in capsys.readouterr().err and not (tmp_path / "again.html").exists()
     # a damaged verdict in a run's own record is refused too, not only the summary's copy
-    record = folder / "closedloop" / "notebook_place_step" / "run.json"
-    record.write_text(json.dumps({**place, "stable": "false"}))
+    record.write_text(json.dumps({**place, "recorded": False, "stable": "false"}))
     with pytest.raises(InputError, match=r"notebook_place_step/run.json: field 'stable' holds 'false'; expected true or false"):
         Run.load(folder)
 
@@ -357,6 +360,17 @@ def test_what_the_run_has_to_say_reaches_the_caller_and_the_run(tmp_path, monkey
     ]
     assert run.notes == tuple(heard)
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["report_error"] == "RuntimeError: no page today"
+
+
+def test_samii_imports_no_numpy_before_its_main():
+    """The samii command installs its Ctrl-C and SIGTERM handling first thing in main; an import of numpy before it
+    (a package __init__ importing a module at its top) turns a Ctrl-C during start-up into a traceback."""
+    import subprocess
+    import sys
+
+    code = "import sys, samii.cli; print(sorted(m for m in ('numpy', 'scipy', 'mujoco') if m in sys.modules))"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=Path(samii.__file__).parents[2], check=True)
+    assert done.stdout.strip() == "[]", done.stdout
 
 
 def test_every_library_module_imports():

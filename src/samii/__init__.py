@@ -8,14 +8,13 @@ Each stage is a subpackage; values passed between stages are typed
 (``FrequencyResponse``, fit results, controllers). Everything is SI inside.
 """
 
-from samii import frequency_response
-
 __version__ = "0.1.0"
 __all__ = ["CHANNELS", "FrequencyResponse", "__version__"]
 
 
 def __getattr__(name: str):
-    # imported on first use: the ``samii`` command starts (and handles Ctrl-C) before numpy is loaded
     if name in ("CHANNELS", "FrequencyResponse"):
+        from samii import frequency_response  # (lazy: the samii command installs its Ctrl-C handling before numpy loads)
+
         return getattr(frequency_response, name)
     raise AttributeError(f"module 'samii' has no attribute {name!r}")

@@ -83,7 +83,9 @@ class ClosedLoopRun:
     """One closed-loop trial as its folder holds it."""
 
     record: Mapping  #: closedloop/<name>/run.json
-    trace: object | None  #: closedloop/<name>/timeseries.csv as a samii.timeseries.TimeSeries (None: the run diverged at its start)
+    trace: (
+        object | None
+    )  #: closedloop/<name>/timeseries.csv as a samii.timeseries.TimeSeries (None: the run diverged in its first step, run.json's "recorded" false)
 
 
 @dataclass(frozen=True)
@@ -149,13 +151,11 @@ class Run:
                     "(the file is damaged; run samii run again)"
                 )
             trace = folder / "closedloop" / name / "timeseries.csv"
-            if not trace.exists() and record.get("stable") is False and record.get("diverged_at_s") is not None:
-                closed[name] = ClosedLoopRun(record, None)  # a run that diverged at its start writes no time series
+            if not trace.exists() and record.get("recorded") is False:
+                closed[name] = ClosedLoopRun(record, None)  # a run that diverged in its first step writes run.json alone
                 continue
             if not trace.exists():
-                raise InputError(
-                    f"{trace}: missing, and the run did not diverge at its start (its run.json): the folder is not whole; run samii run again"
-                )
+                raise InputError(f"{trace}: missing, and the run was recorded (its run.json): the folder is not whole; run samii run again")
             closed[name] = ClosedLoopRun(record, read_timeseries_csv(trace))
         return cls(
             path=folder,

@@ -53,8 +53,9 @@ class _Reader:
     ``tuple[X, ...]``, ``tuple[X, Y]``, ``Mapping[str, X]``, a bare ``Mapping``, another dataclass); a value of the wrong
     kind is an InputError naming the file and the field. Numbers are kept as read (a whole number stays one).
 
-    Every field is present in what samii writes: one absent is refused, but for a field with a default, and a list of
-    strings (the fit's concerns, caveats, undetermined), absent or null, which reads as none (as samii 0.1.0 wrote them)."""
+    A field absent is refused, but for one with a default or one that admits null (read as null: a field added since a
+    folder was written, as the closed-loop runs' ``instability``), and a list of strings or of objects (the fit's
+    concerns, the diagnosis's effects), absent or null, which reads as none (as the first readers took them)."""
 
     def __init__(self, where):
         self.where = where
@@ -75,8 +76,10 @@ class _Reader:
             where = f"{path}.{f.name}" if path else f.name
             if f.name in d:
                 values[f.name] = self.read(hints[f.name], d[f.name], where)
-            elif hints[f.name] == tuple[str, ...]:
+            elif hints[f.name] in _NONE_IS_EMPTY:
                 values[f.name] = ()
+            elif _admits_none(hints[f.name]) and f.default is MISSING and f.default_factory is MISSING:
+                values[f.name] = None
             elif f.default is MISSING and f.default_factory is MISSING:
                 self.missing(where)
         return cls(**values)
@@ -86,7 +89,7 @@ class _Reader:
         null = " or null" if or_null else ""
         if _admits_none(tp):
             return None if v is None else self.read(_without_none(tp), v, path, or_null=True)
-        if tp == tuple[str, ...] and v is None:
+        if tp in _NONE_IS_EMPTY and v is None:
             return ()
         origin, args = get_origin(tp) or tp, get_args(tp)
         if tp in _PLAIN:
@@ -117,6 +120,9 @@ class _Reader:
             raise TypeError(f"_Reader cannot read {tp!r}")
         return v
 
+
+#: Lists that read as none when absent or null.
+_NONE_IS_EMPTY = (tuple[str, ...], tuple[Mapping, ...])
 
 #: The plain kinds a field can have: (one said, several said).
 _PLAIN = {

@@ -14,6 +14,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import mujoco
 import numpy as np
 
 from samii.errors import InputError
@@ -111,7 +112,6 @@ def _check_request(req: TrialRequest, *, plots: bool, out) -> None:
 def model_at_rest(factory):
     """The run's model with its ``home`` keyframe at the static equilibrium the factory found (a
     model changed by ``--set`` or a parameter file is not at rest in its written keyframe)."""
-    import mujoco  # (lazy: imports mujoco, only when called)
 
     from samii.sim.plugin import compile_spec  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
@@ -243,6 +243,7 @@ def run_trial(
                 doc["controller_detail"] = None if saved is None else {
                     "name": saved.controller.name, "method": saved.controller.method, "model_units": saved.controller.model_units,
                     "servo_loop": "replaced" if saved.replaces_servo else "kept", "provenance": dict(saved.provenance)}  # fmt: skip
+                doc["recorded"] = recorded  # (false: the run diverged in its first step; run.json alone is written)
                 folder.path("run.json").write_text(dumps(versioned(doc), indent=1) + "\n")
                 if recorded and plots:
                     from samii.closedloop.plots import (  # (lazy: this module is imported at samii's start-up, that one is not needed there)

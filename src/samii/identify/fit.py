@@ -817,7 +817,6 @@ def _defects(
     ones are said, not ranked (where the data are noise no place is better than
     another).
     """
-    from samii.identify.lack_of_fit import MIN_COHERENCE  # (lazy: the name is another at this module's top)
 
     data = problem.data
     lo, hi = data.freq_hz[0], data.freq_hz[-1]

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from samii import notebook as nb
+from samii.formats import read_frf_csv
 from samii.frequency_response import FrequencyResponse
 from samii.identify.cost import FitProblem
 from samii.identify.fit import FitResult, fit
@@ -116,8 +117,6 @@ def study_data(
     Returns (data, noise-free version or None, note for the figures).
     """
     if path is not None:
-        from samii.formats import read_frf_csv  # (lazy: this module is imported at samii's start-up, that one is not needed there)
-
         return read_frf_csv(path), None, f"data: {path}"
     data = synthetic_rig_frf(freq_hz, rng=np.random.default_rng(seed))
     return data, synthetic_rig_frf(freq_hz, rng=None, noise=None), STANDIN_NOTE

@@ -189,7 +189,7 @@ def gaps(run: Run) -> list[str]:
         if key not in present
     ]
     design = run.summary.damping_design
-    out += [f"summary.json: damping_design.{k} holds null" for k in _DESIGN_NUMBERS if getattr(design, k) is None]
+    out += [f"summary.json: damping_design.{k} holds null (or is missing)" for k in _DESIGN_NUMBERS if getattr(design, k) is None]
     effects = run.diagnosis.get("effects")
     for i, e in enumerate(effects if isinstance(effects, list) else []):
         params = e.get("params") if isinstance(e, dict) else None

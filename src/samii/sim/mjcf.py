@@ -40,6 +40,7 @@ import mujoco
 import numpy as np
 
 from samii.notebook import TMM
+from samii.sim.hydraulic_reference import ATTRIBUTES, VALVE_OPTIONS, HydraulicConfigError, HydraulicParams
 from samii.sim.sensor_dynamics import FIELDS, NUMERIC, SensorDynamics
 
 __all__ = ["BeamParams", "ArmParams", "HydraulicConfig", "SamiiParams", "NOMINAL_POSE_RAD", "samii_xml"]
@@ -204,11 +205,6 @@ class HydraulicConfig:
     valve_asymmetry: float = 0.0
 
     def __post_init__(self) -> None:
-        from samii.sim.hydraulic_reference import (  # (lazy: this module is imported at samii's start-up, that one is not needed there)
-            ATTRIBUTES,
-            HydraulicConfigError,
-            HydraulicParams,
-        )
 
         try:
             HydraulicParams.from_config({**{k: "1" for k in ATTRIBUTES}, **self.valve_config()}, source="hydraulic")
@@ -226,7 +222,6 @@ class HydraulicConfig:
 
     def valve_config(self) -> dict[str, str]:
         """The valve options that are set (non-zero), as MJCF config text."""
-        from samii.sim.hydraulic_reference import VALVE_OPTIONS  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
         return {k: _fmt(getattr(self, k)) for k in VALVE_OPTIONS if getattr(self, k) != 0}
 
@@ -580,7 +575,6 @@ def samii_xml(params: SamiiParams = SamiiParams(), *, keyframe_qpos=None, keyfra
     }
     for key, unit in hyd_units.items():
         add(f'      <config key="{key}" value="{_fmt(getattr(h, key))}"/>  <!-- {unit} -->')
-    from samii.sim.hydraulic_reference import VALVE_OPTIONS  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
     for key, value in h.valve_config().items():
         add(f'      <config key="{key}" value="{value}"/>  <!-- {VALVE_OPTIONS[key][0]} -->')
