@@ -358,6 +358,14 @@ class Engine:
         nominal = {f.key for f, t in zip(futures, tasks) if t.index < 0}  # (the nominal plant: no drawn sample)
         return self._watched(futures, progress, nominal)
 
+    def _holders(self, fut, limit: float) -> list[str] | None:
+        """The workers that hold ``fut``'s result, as the scheduler says within ``limit`` seconds (None: it does not)."""
+        try:
+            who = self._client.sync(self._client.scheduler.who_has, keys=[fut.key], callback_timeout=limit)
+        except Exception:  # noqa: BLE001 - no answer within the limit, or the connection failed asking
+            return None
+        return sorted(who.get(fut.key) or []) or None
+
     def _watched(self, futures, progress, nominal: set) -> list[SampleResult]:
         """The results of a study on a user's cluster, watched: a scheduler that is lost, stops answering, or is left
         without a worker for ``connect_timeout_s``, or a worker the scheduler has not heard from for that long while no
@@ -395,6 +403,13 @@ class Engine:
                     try:  # (fetched through the scheduler: bounded, a stopped one never answers)
                         by_key[fut.key] = fut.result(timeout=limit)
                     except TimeoutError:
+                        # the result stays on the worker that made it: one stopped after finishing it keeps it, while
+                        # the scheduler answers (under load the worker's stop came between the two, and was blamed on it)
+                        if holders := self._holders(fut, limit):
+                            raise lost(
+                                f"worker{'s' if len(holders) > 1 else ''} {', '.join(holders)} stopped answering (not heard "
+                                f"from for {limit:g} s, no sample finished meanwhile)"
+                            ) from None
                         raise lost(f"the scheduler stopped answering (nothing within {limit:g} s)") from None
                     except OSError as exc:
                         raise lost(f"the connection to the scheduler failed ({type(exc).__name__})") from None
