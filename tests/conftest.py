@@ -73,3 +73,29 @@ class Heard:
 def heard():
     """A progress that keeps what a long call reports (samii.progress.Progress)."""
     return Heard()
+
+
+def empty_summary(seed: int = 0):
+    """A main job's summary with nothing in it: what a test's stubbed pipeline stages return (samii.run_summary)."""
+    from samii.run_summary import (
+        DAMPING_FIELDS,
+        FIT_FIELDS,
+        DampingSummary,
+        DiagnosisSummary,
+        FitSummary,
+        MeasurementSummary,
+        ModesSummary,
+        RunSummary,
+    )
+
+    none = dict.fromkeys
+    return RunSummary(seed=seed, model_file="embedded default", overrides=(), modes=ModesSummary((), (), None),
+                      measurement=MeasurementSummary("none", 0.1, 1e3, 1.0, None), closed_loop={},
+                      fit=FitSummary(**none(FIT_FIELDS), params={}, stderr={}, eq9_4={}),
+                      damping_design=DampingSummary(**none(DAMPING_FIELDS)), diagnosis=DiagnosisSummary("none", (), {}, {}))  # fmt: skip
+
+
+@pytest.fixture
+def stub_summary():
+    """:func:`empty_summary`, for a test that stubs the pipeline's stages."""
+    return empty_summary

@@ -158,7 +158,8 @@ def test_an_odd_law_is_worded_from_its_figures():
     assert loose.text().endswith("but no law on the command alone tells it apart (phase spread 12 deg over the segments): the nonlinearity "
                                  "depends on the loop's state too (the load pressure through the valve's orifice law, say), and the kind and "
                                  "level are indicative only")  # fmt: skip
-    # a chi2 above MAX_DF_CHI2 that is not far below the others' where the harmonic is: identified over every segment
+    # a chi2 above MAX_DF_CHI2 (10) that is not far below the others' where the harmonic is (40 > 0.5 x 62.2, the
+    # runner-up's): identified over every segment; 14.5 lies between the two cut-offs: far better where the harmonic is
     wide = _seen(3, **{**law, "law_chi2": {**chi2, "dead_band": 40.0}}, law_fits=True)
     assert wide.text().endswith("it fits far better than the others over every tested segment, where the harmonic is and where it is absent, "
                                 "and its chi2 above 1 is the describing function's own approximation (a pure sine at the valve, where "

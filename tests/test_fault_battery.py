@@ -881,7 +881,7 @@ def test_a_signal_to_the_group_during_forked_work_stops_it_quietly(tmp_path, sig
     assert p.returncode == code and err == "", err
 
 
-def test_a_signal_while_the_main_job_replaces_its_folder_waits_for_the_swap(tmp_path, monkeypatch, capsys):
+def test_a_signal_while_the_main_job_replaces_its_folder_waits_for_the_swap(tmp_path, monkeypatch, capsys, stub_summary):
     """The old folder was removed before the new one was moved in, and a signal during the removal (8 of 18 timed tries
     of a battery) left neither: the old folder half-deleted, the new run discarded, "nothing half-written was kept".
     Now the old folder is moved aside and the new one in by renames a signal waits for; the command says the outputs
@@ -889,16 +889,6 @@ def test_a_signal_while_the_main_job_replaces_its_folder_waits_for_the_swap(tmp_
     import signal
 
     import samii.pipeline as mj
-    from samii.run_summary import (
-        DAMPING_FIELDS,
-        FIT_FIELDS,
-        DampingSummary,
-        DiagnosisSummary,
-        FitSummary,
-        MeasurementSummary,
-        ModesSummary,  # fmt: skip
-        RunSummary,
-    )
 
     out = tmp_path / "D"
     out.mkdir()
@@ -907,11 +897,7 @@ def test_a_signal_while_the_main_job_replaces_its_folder_waits_for_the_swap(tmp_
 
     def stages(d, model, overrides, seed, progress, said, argv):
         (d / "NEW").write_text("this run's")
-        none = dict.fromkeys
-        return RunSummary(seed=seed, model_file="embedded default", overrides=(), modes=ModesSummary((), (), None),
-                          measurement=MeasurementSummary("none", 0.1, 1e3, 1.0, None), closed_loop={},
-                          fit=FitSummary(**none(FIT_FIELDS), params={}, stderr={}, eq9_4={}),
-                          damping_design=DampingSummary(**none(DAMPING_FIELDS)), diagnosis=DiagnosisSummary("none", (), {}, {}))  # fmt: skip
+        return stub_summary(seed)
 
     real_replace = os.replace
 

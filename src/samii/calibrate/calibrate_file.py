@@ -25,7 +25,7 @@ from samii.identify.structures import ModelStructure
 from samii.measure.excitation import SweptSine
 from samii.outputs import OutputFolder
 from samii.sim.model import default_params, params_with_overrides, read_params_file
-from samii.sim.overrides import parse_overrides
+from samii.sim.overrides import as_overrides
 from samii.viz.figures import pyplot, save_figure
 from samii.viz.fit_plot import plot_fit_overlay
 
@@ -60,7 +60,7 @@ class CalibrateRequest:
 class Calibrated:
     result: object  #: samii.calibrate.calibrate.CalibrationResult
     data: object  #: the FrequencyResponse it was fitted to
-    written: list[Path] = field(default_factory=list)  #: the files written (with ``out``)
+    written: tuple[Path, ...] = ()  #: the files written (with ``out``)
 
 
 def load_target(source: str):
@@ -118,7 +118,7 @@ def calibrate_file(source: str, request: CalibrateRequest, *, out=None, overwrit
             "not an MJCF file, whose physics is not parametrised"
         )
 
-    overrides = dict(req.overrides) if isinstance(req.overrides, Mapping) else parse_overrides(list(req.overrides))
+    overrides = as_overrides(req.overrides)
     base = read_params_file(req.model) if req.model else default_params()
     if overrides:
         base = params_with_overrides(base, overrides)
@@ -158,12 +158,11 @@ def calibrate_file(source: str, request: CalibrateRequest, *, out=None, overwrit
         if isinstance(exc, InputError):
             raise
         raise input_error_of(source, exc) from None
-    done = Calibrated(result, data)
-    if folder is not None:
-        with folder:
-            _write_outputs(result, data, folder)
-        done.written.extend(folder.written)
-    return done
+    if folder is None:
+        return Calibrated(result, data)
+    with folder:
+        _write_outputs(result, data, folder)
+    return Calibrated(result, data, tuple(folder.written))
 
 
 def _write_outputs(result, data, folder) -> None:

@@ -6,7 +6,7 @@ figure per model and variant, all or nothing.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -29,7 +29,7 @@ class RlocusStudy:
     loops: tuple[MassDampingLoop, ...]
     summaries: tuple[RootLocusSummary, ...]
     table: str  #: summary.md: the summaries as a markdown table
-    written: list[Path] = field(default_factory=list)  #: the files written (with ``out``)
+    written: tuple[Path, ...] = ()  #: the files written (with ``out``)
 
     def rows(self) -> list[dict]:
         """summary.json's rows."""
@@ -44,9 +44,13 @@ def _plan():
     return [(label, p, num, v) for label, (p, num) in rl.default_models().items() for v in rl.NOTEBOOK_VARIANTS]
 
 
+def _figure_name(label: str, variant) -> str:
+    return f"rlocus_{label}_{variant.name}.png"
+
+
 def rlocus_outputs(plots: bool = True) -> list[str]:
     """The files the study writes into its folder (known before any work)."""
-    return ["summary.json", "summary.md", *([f"rlocus_{label}_{v.name}.png" for label, _, _, v in _plan()] if plots else [])]
+    return ["summary.json", "summary.md", *([_figure_name(label, v) for label, _, _, v in _plan()] if plots else [])]
 
 
 def run_rlocus_study(*, n_gains: int = 3000, out=None, overwrite: bool = False, plots: bool = True, progress: Progress | None = None) -> RlocusStudy:
@@ -75,9 +79,9 @@ def run_rlocus_study(*, n_gains: int = 3000, out=None, overwrite: bool = False, 
             if plots:
                 from samii.viz.rootlocus_plot import plot_variant  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
-                for lp, s, name in zip(loops, summaries, rlocus_outputs(True)[2:]):
+                for (label, _, _, v), lp, s in zip(plan, loops, summaries):
                     progress.stage(f"plot {lp.model} {lp.variant.name}")
-                    plot_variant(lp, s, path=folder.path(name), n_gains=min(n_gains, PLOT_MAX_GAINS))
+                    plot_variant(lp, s, path=folder.path(_figure_name(label, v)), n_gains=min(n_gains, PLOT_MAX_GAINS))
                     progress.advance()
-        study.written.extend(folder.written)
+        study = replace(study, written=tuple(folder.written))
     return study

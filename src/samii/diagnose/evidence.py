@@ -100,14 +100,15 @@ def values_text(label: str, values: Mapping[str, float]) -> str:
     )
 
 
-def _p_text(log10_p: float) -> str:
-    return "p < 1e-300" if log10_p <= -300 else f"p = 10^{log10_p:.1f}"
+def p_text(log10_p: float, digits: int = 1) -> str:
+    """A p-value in words from its log10 (``digits`` after the point): p < 1e-300 where it underflows."""
+    return "p < 1e-300" if log10_p <= -300 else f"p = 10^{log10_p:.{digits}f}"
 
 
 def joined_text(j: Joined) -> str:
     """How ``j``'s effect joined, in words."""
     if j.how == "f_test":
-        p = _p_text(j.log10_p)
+        p = p_text(j.log10_p)
         if j.places > 1.0 and j.log10_p > -300:
             p += f" (the best of the {j.places:.0f} places a mode this broad has in the band)"
         return (
@@ -117,9 +118,9 @@ def joined_text(j: Joined) -> str:
     if j.how == "swap":
         more = f"{j.extra_params} more parameter(s)" if j.extra_params else "no more parameters"
         text = f"it replaced {j.replaced}, which had joined by F-test, with {more}: chi2 {j.chi2_before:.4g} -> {j.chi2_after:.4g}"
-        return text + (f", F = {j.f_stat:.3g}, {_p_text(j.log10_p)}" if j.extra_params else "")
+        return text + (f", F = {j.f_stat:.3g}, {p_text(j.log10_p)}" if j.extra_params else "")
     if j.how == "simulator":
-        return f"F = {j.f_stat:.3g}, {_p_text(j.log10_p)} against the simulator calibrated without it"
+        return f"F = {j.f_stat:.3g}, {p_text(j.log10_p)} against the simulator calibrated without it"
     return "kept by the joint refit"
 
 

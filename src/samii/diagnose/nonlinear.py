@@ -83,6 +83,7 @@ from scipy import signal, stats
 from scipy.interpolate import CubicSpline
 from scipy.optimize import minimize_scalar
 
+from samii.diagnose.evidence import p_text
 from samii.measure.floor import PRACTICAL_FACTOR, REL_FLOOR
 from samii.measure.frf_variance import moving_sum
 
@@ -370,7 +371,7 @@ def amplitude_text(t: AmplitudeTest) -> str:
     name = {"act": "theta/v", "total": "xdd/v"}[t.channel]
     return (
         f"{name} at {t.amplitudes_v[1]:.3g} V differs from that at {t.amplitudes_v[0]:.3g} V by chi2 "
-        f"{t.chi2:.4g} on {t.dof:.0f} dof ({_p_text(t.log10_p)}; {t.n_points} points), "
+        f"{t.chi2:.4g} on {t.dof:.0f} dof ({p_text(t.log10_p, digits=0)}; {t.n_points} points), "
         f"{t.gain_change_db:+.2f} dB on average (inverse-variance weighted) at the larger amplitude: the response "
         + (
             "grows with amplitude, as a dead band's or friction's (small commands lose more)"
@@ -408,11 +409,15 @@ class NonlinearFinding:
     data: NonlinearEvidence
     harmonics: tuple = field(default=())
     amplitude: tuple = field(default=())
-    law_fits: bool = False  # a law on the command (its describing function) explains the harmonics: the data can be linearised
 
     @property
     def evidence(self) -> str:
         return self.data.text(self.kind)
+
+    @property
+    def law_fits(self) -> bool:
+        """A law on the command (its describing function) explains the harmonics: the data can be linearised."""
+        return self.data.harmonics is not None and self.data.harmonics.law_fits
 
 
 # -- describing functions ---------------------------------------------------------------
@@ -1009,10 +1014,6 @@ def _log10_sf(stat: float, dof: float) -> float:
     return max(float(stats.norm.logsf(z)) / np.log(10.0), -1e4)
 
 
-def _p_text(log10_p: float) -> str:
-    return "p < 1e-300" if log10_p <= -300 else f"p = 10^{log10_p:.0f}"
-
-
 # -- the finding -------------------------------------------------------------------------------
 def _harmonic_kind(h: HarmonicAnalysis) -> tuple[str, dict, dict, HarmonicEvidence]:
     """The kind the harmonics of ``h`` point to, its parameters and standard errors, and what it rests on."""
@@ -1136,11 +1137,7 @@ def find_nonlinear(
     for kind, group in by_kind.items():  # one finding per kind, from the file that shows it most
         h, params, stderr, seen = group[0]
         also = tuple(AlsoIn(g[0].source, g[0].n_significant, g[1].get(kind + "_v")) for g in group[1:])
-        findings.append(
-            NonlinearFinding(
-                kind, params, stderr, NonlinearEvidence(replace(seen, also=also)), harmonics=tuple(g[0] for g in group), law_fits=seen.law_fits
-            )
-        )
+        findings.append(NonlinearFinding(kind, params, stderr, NonlinearEvidence(replace(seen, also=also)), harmonics=tuple(g[0] for g in group)))
     tests = []
     ms = list(measured)
     for i in range(len(ms)):

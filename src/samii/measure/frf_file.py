@@ -8,7 +8,7 @@ stepped`` writes it) is estimated dwell by dwell as the measurement did (:mod:`s
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from samii.errors import InputError
@@ -25,7 +25,7 @@ OUTPUTS = ("frf.csv", "bode.png")
 @dataclass(frozen=True)
 class FrfOfFile:
     measured: object  #: samii.measure.measured.Measured: the FRF, each point's variance, the records' layout, warnings
-    written: list[Path] = field(default_factory=list)  #: the files written
+    written: tuple[Path, ...] = ()  #: the files written
 
     def layout_text(self) -> str:
         """How the time series was cut: its records, or a stepped sine's dwells."""
@@ -96,5 +96,4 @@ def frf_of_file(path, *, out, record_s: float | None = None, band_hz=None, overw
             bode_plot(None, stepped=m.frf, title=title, path=folder.path("bode.png"))
         else:
             bode_plot(m.frf, title=title, path=folder.path("bode.png"))
-    done.written.extend(folder.written)
-    return done
+    return replace(done, written=tuple(folder.written))

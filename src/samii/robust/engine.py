@@ -34,7 +34,6 @@ from distributed.comm.addressing import parse_address, parse_host_port
 from distributed.diagnostics.plugin import WorkerPlugin
 
 import samii
-import samii as worker_samii
 from samii.errors import InputError, raise_if_signalled
 from samii.outputs import remove_stale_runs
 from samii.progress import SILENT, Progress
@@ -66,8 +65,8 @@ class SamiiWorkerPlugin(WorkerPlugin):
         from samii.sim.plugin import load_plugin  # (lazy: imports mujoco, only when called)
 
         load_plugin()
-        if worker_samii.__version__ != self.version:
-            raise RuntimeError(f"this worker has samii {worker_samii.__version__}, the client {self.version}: install the same samii on every worker")
+        if samii.__version__ != self.version:  # (in a worker: its own installation's samii)
+            raise RuntimeError(f"this worker has samii {samii.__version__}, the client {self.version}: install the same samii on every worker")
 
 
 #: Signals a terminal sends the whole process group (Ctrl-C; a closed terminal's hangup) that local workers ignore:
@@ -359,12 +358,13 @@ class Engine:
         return self._watched(futures, progress, nominal)
 
     def _holders(self, fut, limit: float) -> list[str] | None:
-        """The workers that hold ``fut``'s result, as the scheduler says within ``limit`` seconds (None: it does not)."""
+        """The workers that hold ``fut``'s result, as the scheduler says within ``limit`` seconds (None: it does not
+        answer; [] it answers that none does)."""
         try:
             who = self._client.sync(self._client.scheduler.who_has, keys=[fut.key], callback_timeout=limit)
         except Exception:  # noqa: BLE001 - no answer within the limit, or the connection failed asking
             return None
-        return sorted(who.get(fut.key) or []) or None
+        return sorted(who.get(fut.key) or [])
 
     def _watched(self, futures, progress, nominal: set) -> list[SampleResult]:
         """The results of a study on a user's cluster, watched: a scheduler that is lost, stops answering, or is left
@@ -405,7 +405,7 @@ class Engine:
                     except TimeoutError:
                         # the result stays on the worker that made it: one stopped after finishing it keeps it, while
                         # the scheduler answers (under load the worker's stop came between the two, and was blamed on it)
-                        if holders := self._holders(fut, limit):
+                        if holders := self._holders(fut, limit):  # (None or []: the scheduler is the one not answering)
                             raise lost(
                                 f"worker{'s' if len(holders) > 1 else ''} {', '.join(holders)} stopped answering (not heard "
                                 f"from for {limit:g} s, no sample finished meanwhile)"

@@ -15,7 +15,7 @@ from __future__ import annotations
 import csv
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from samii.closedloop.trial import check_fits, resolve_controller
@@ -29,7 +29,7 @@ from samii.robust.sampling import Covariance, PlantDraws, draw_plants, parse_spr
 from samii.robust.study import StudySummary, summarise
 from samii.robust.task import SampleResult, SampleTask
 from samii.schema import versioned
-from samii.sim.overrides import parse_overrides
+from samii.sim.overrides import as_overrides
 
 __all__ = ["StudyRequest", "StudyWarning", "Study", "StudyResult", "NoPlantBuilt", "plan_study", "run_study", "FILES", "TINY_SPREAD", "FEW_SAMPLES"]
 
@@ -107,7 +107,7 @@ class StudyResult:
     engine: str  #: what ran it, in words
     wall_s: float
     document: dict
-    written: list[Path] = field(default_factory=list)  #: the files written (with ``out``)
+    written: tuple[Path, ...] = ()  #: the files written (with ``out``)
 
 
 def _nominal_params(req: StudyRequest) -> tuple[object, Covariance | None, list[StudyWarning]]:
@@ -130,7 +130,7 @@ def _nominal_params(req: StudyRequest) -> tuple[object, Covariance | None, list[
         params = read_params_file(req.model)
     else:
         params = default_params()
-    overrides = dict(req.overrides) if isinstance(req.overrides, Mapping) else parse_overrides(list(req.overrides))
+    overrides = as_overrides(req.overrides)
     if cov is not None and set(overrides) & set(cov.names):
         raise InputError(f"--set {sorted(set(overrides) & set(cov.names))[0]}: also drawn by --covariance; give one of them")
     return (params_with_overrides(params, overrides) if overrides else params), cov, said
@@ -214,7 +214,7 @@ class Study:
         }  # fmt: skip
         result = StudyResult(r, summary, d, nominal, samples, tuple(self.warnings), self.engine.describe(), wall, document)
         if self.folder is not None:
-            _write(self.folder, result)
+            result = replace(result, written=_write(self.folder, result))
         return result
 
 
@@ -263,7 +263,7 @@ def run_study(request: StudyRequest, *, out=None, overwrite: bool = False, progr
         return study.run(progress)
 
 
-def _write(folder, result: StudyResult) -> None:
+def _write(folder, result: StudyResult) -> tuple[Path, ...]:
 
     r = result.request
     with folder:
@@ -271,7 +271,7 @@ def _write(folder, result: StudyResult) -> None:
         _write_csv(folder.path("samples.csv"), result.draws, result.samples)
         plot_histograms(result.samples, result.summary, f"{r.controller}, {r.scenario} test, {r.samples} plants", folder.path("histograms.png"))
         plot_influence(result.draws, result.samples, result.summary, folder.path("influence.png"))
-    result.written.extend(folder.written)
+    return tuple(folder.written)
 
 
 def _write_csv(path, draws: PlantDraws, samples: list[SampleResult]) -> None:
