@@ -76,8 +76,8 @@ def heard():
 
 
 def empty_summary(seed: int = 0):
-    """A main job's summary with nothing in it: what a test's stubbed pipeline stages return (samii.run_summary)."""
-    from samii.run_summary import (
+    """A main job's summary with nothing in it: what a test's stubbed pipeline stages return (samii.schema.summary)."""
+    from samii.schema.summary import (
         DAMPING_FIELDS,
         FIT_FIELDS,
         DampingSummary,

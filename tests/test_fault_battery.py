@@ -713,7 +713,7 @@ def test_a_run_killed_between_its_two_renames_gives_the_previous_output_back(tmp
     into place. Killed outright between them, --out was missing, and the next run's clean-up removed both hidden
     folders: the user's previous output and the killed run's. Now the next run moves the previous one back first
     (and says so), then goes on as with any previous output."""
-    from samii.run_summary import MARKER
+    from samii.schema.summary import MARKER
 
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
@@ -1518,7 +1518,7 @@ def test_report_refuses_a_diagnosis_without_its_effects(report_folder, key, caps
     out = report_folder / "r.html"
     assert main(["report", str(report_folder), "--out", str(out)]) == 2
     line = _one_line(capsys)
-    assert f"diagnose/diagnosis.json: {key} (missing)" in line and "run samii run again" in line, line
+    assert f"diagnose/diagnosis.json: field '{key}' is missing" in line and "run samii run again" in line, line
     assert not out.exists()
 
 

@@ -42,9 +42,10 @@ def test_main_job_writes_every_stage_and_a_short_summary(runs, capsys):
     for ch in ("act", "total"):
         assert dg["error_after"][ch]["chi2"] < dg["error_before"][ch]["chi2"], ch
     # the summary printed: at most 20 lines, naming what was done
-    from samii.run_summary import RunSummary
+    from samii.run_summary import summary_lines
+    from samii.schema.summary import RunSummary
 
-    lines = RunSummary.from_json(s).lines(a)
+    lines = summary_lines(RunSummary.from_json(s), a)
     assert len(lines) <= 20
     text = "\n".join(lines)
     for needle in ("base modes", "measured:", "eq 9.4", "damping controller", "diagnosis", "wrote"):

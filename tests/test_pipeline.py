@@ -13,6 +13,7 @@ import pytest
 
 import samii
 from samii.errors import InputError
+from samii.run_summary import summary_lines
 from samii.schema import SCHEMA_VERSION
 
 # the `runs` fixture (conftest.py): a by `samii run --seed 3`, b by samii.pipeline.run(seed=3) saved with Run.save
@@ -30,7 +31,7 @@ def test_a_saved_folder_reads_back_into_typed_results(runs):
     from samii.diagnose.baseline import SavedFit
     from samii.frequency_response import FrequencyResponse
     from samii.pipeline import Run
-    from samii.run_summary import RunSummary
+    from samii.schema.summary import RunSummary
     from samii.timeseries import TimeSeries
 
     a = runs[0]
@@ -50,12 +51,14 @@ def test_a_saved_folder_reads_back_into_typed_results(runs):
     # the servo loop alone's step, and each controller in each scenario
     assert set(run.closed_loop) == set(doc["closed_loop"]) and len(run.closed_loop) == 1 + len(CONTROLLERS) * len(SCENARIOS)
     loper = run.closed_loop["damping_loper"]
-    assert isinstance(loper.trace, TimeSeries) and loper.record["stable"] is run.summary.closed_loop["damping_loper"].stable is True
-    rate = run.measurement_record["daq"]["sample_rate_hz"]
-    assert isinstance(run.timeseries, TimeSeries) and abs(run.timeseries.t.size - run.measurement_record["timing"]["simulated_s"] * rate) <= 1
-    assert run.diagnosis["verdict"] == run.summary.diagnosis.verdict
+    assert isinstance(loper.trace, TimeSeries) and loper.record.stable is run.summary.closed_loop["damping_loper"].stable is True
+    assert loper.record.scenario_settings.switch_on_s == 2.0 and loper.record.theta == run.summary.closed_loop["damping_loper"].theta
+    rate = run.measurement_record.daq.sample_rate_hz
+    assert isinstance(run.timeseries, TimeSeries) and abs(run.timeseries.t.size - run.measurement_record.timing.simulated_s * rate) <= 1
+    assert run.diagnosis.verdict == run.summary.diagnosis.verdict
+    assert run.summary.diagnosis.effects == run.diagnosis.found
     # the lines a person reads are the command's
-    assert run.summary.lines(a)[-1].startswith(f"wrote {a}/ in ")
+    assert summary_lines(run.summary, a)[-1].startswith(f"wrote {a}/ in ")
 
 
 @pytest.mark.slow
@@ -73,7 +76,7 @@ def test_the_library_run_and_the_command_write_the_same_numbers(runs):
     assert np.array_equal(a.closed_loop["damping_loper"].trace.accel, b.closed_loop["damping_loper"].trace.accel)
     page = (runs[1] / "report.html").read_text()
     assert f"wrote {runs[1].name}/" in page and "samii-run-" not in page
-    assert b.measurement_record["argv"] == []  # (the library records no command line unless given one)
+    assert b.measurement_record.argv == ()  # (the library records no command line unless given one)
 
 
 @pytest.mark.slow
@@ -184,7 +187,7 @@ def test_a_closed_loop_run_without_its_time_series_is_read_only_when_it_was_not_
 
 @pytest.mark.slow
 def test_a_summary_field_of_the_wrong_kind_is_named(runs):
-    from samii.run_summary import RunSummary
+    from samii.schema.summary import RunSummary
 
     doc = json.loads((runs[0] / "summary.json").read_text())
     for path, value, said in (
@@ -212,7 +215,7 @@ def test_a_summary_field_of_the_wrong_kind_is_named(runs):
     gaps["fit"]["params"]["w1"] = None
     gaps["closed_loop"]["damping_step"]["theta"]["settle_s"] = None
     gaps["fit"]["concerns"] = None  # (samii 0.1.0 wrote an empty list so; read as none)
-    text = "\n".join(RunSummary.from_json(gaps, "summary.json").lines("out"))
+    text = "\n".join(summary_lines(RunSummary.from_json(gaps, "summary.json"), "out"))
     assert "modes n/a / " in text and "damping controller       stable; step: theta settles n/a s" in text
 
 

@@ -308,7 +308,13 @@ def test_a_study_is_one_library_call_with_the_commands_table(robust_runs, tmp_pa
     result = run_study(request, out=tmp_path / "lib")
     assert isinstance(result.summary, StudySummary) and isinstance(result.nominal, SampleResult) and len(result.samples) == 8
     command = json.loads((robust_runs[0] / "robust.json").read_text())
-    assert result.document["summary"] == command["summary"] and result.document["samples"] == command["samples"]
+    from samii.schema import as_json
+    from samii.schema.robust import RobustRecord, read_robust_json
+
+    assert isinstance(result.record, RobustRecord) and result.record.summary.n_samples == result.summary.n
+    assert as_json(result.record)["summary"] == command["summary"] and as_json(result.record)["samples"] == command["samples"]
+    # robust.json read back into its type is the study's record, every field (samii.schema)
+    assert read_robust_json(tmp_path / "lib" / "robust.json") == result.record
     assert _csv(tmp_path / "lib" / "samples.csv") == _csv(robust_runs[0] / "samples.csv")
     assert {p.name for p in result.written} == {"robust.json", "samples.csv", "histograms.png", "influence.png"}
     # 8 plants: fewer than the percentiles need, said as a code with its figures, worded as the command prints it

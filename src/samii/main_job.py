@@ -32,6 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from samii.cli_progress import Bar
     from samii.pipeline import run as run_pipeline
+    from samii.run_summary import summary_lines
 
     bar = Bar("samii", unit="stage", leave=False, disable=args.no_progress or None, bar_format="{desc}: {n}/{total} stages {elapsed} {postfix}")
     with bar:
@@ -45,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
             argv=sys.argv[1:],
             note=lambda text: print(f"samii run: {text}", file=sys.stderr),
         )
-    print("\n".join(result.summary.lines(Path(args.out))))
+    print("\n".join(summary_lines(result.summary, Path(args.out))))
     return 0
 
 

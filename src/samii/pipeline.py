@@ -13,7 +13,7 @@ The stages, each the library call its command makes (so each stage's files are w
    in the nonlinear simulator (:func:`samii.closedloop.trial.run_trial`), and ``closedloop.rrd``: the damping
    controller's Loper test beside the servo loop alone;
 6. ``diagnose/``: the fit diagnosed against the measured record (:func:`samii.diagnose.files.diagnose_files`);
-7. ``summary.json``: the figures of the printed summary (:class:`samii.run_summary.RunSummary`);
+7. ``summary.json``: the figures of the printed summary (:class:`samii.schema.summary.RunSummary`);
 8. ``report.html``: one self-contained page with the figures and tables of all of it (:mod:`samii.report`).
 
 The stages hand each other the files a user's chain of commands would (the fit reads ``measure/frf.csv``, not the
@@ -50,14 +50,16 @@ from samii.measure.bode_test import BodeTestRequest, run_bode_test
 from samii.outputs import remove_stale_runs, restore_replaced
 from samii.progress import SILENT, Progress
 from samii.report.page import write_report
-from samii.run_summary import (
+from samii.run_summary import CONTROLLERS, RECORDINGS, SCENARIOS
+from samii.schema import read_document
+from samii.schema.closed_loop import ClosedLoopRecord
+from samii.schema.diagnosis import DiagnosisRecord
+from samii.schema.measurement import MeasurementRecord
+from samii.schema.summary import (
     CLOSED_LOOP_FIELDS,
-    CONTROLLERS,
     DAMPING_FIELDS,
     FIT_FIELDS,
     MARKER,
-    RECORDINGS,
-    SCENARIOS,
     BaseMode,
     ClosedLoopSummary,
     DampingSummary,
@@ -67,7 +69,6 @@ from samii.run_summary import (
     ModesSummary,
     RunSummary,
 )
-from samii.schema import read_document
 from samii.sim.overrides import parse_overrides
 
 __all__ = ["run", "Run", "ClosedLoopRun", "N_STAGES"]
@@ -82,7 +83,7 @@ _STAGING = ".{name}.samii-run-"
 class ClosedLoopRun:
     """One closed-loop trial as its folder holds it."""
 
-    record: Mapping  #: closedloop/<name>/run.json
+    record: ClosedLoopRecord  #: closedloop/<name>/run.json
     trace: (
         object | None
     )  #: closedloop/<name>/timeseries.csv as a samii.timeseries.TimeSeries (None: the run diverged in its first step, run.json's "recorded" false)
@@ -97,10 +98,10 @@ class Run:
 
     path: Path  #: the folder (a temporary one for a run not saved)
     summary: RunSummary
-    measurement_record: Mapping  #: measure/run.json
-    fit_record: Mapping  #: fit/fit.json
+    measurement_record: MeasurementRecord  #: measure/run.json
+    fit_record: Mapping  #: fit/fit.json as written (typed: :attr:`fit`)
     closed_loop: Mapping[str, ClosedLoopRun]  #: "<controller>_<scenario>"
-    diagnosis: Mapping  #: diagnose/diagnosis.json
+    diagnosis: DiagnosisRecord  #: diagnose/diagnosis.json
     #: What :func:`run` had to say beside the results, in words (a previous output restored, a closed-loop run's note,
     #: report.html not written); not in the folder: a run read back has none
     notes: tuple[str, ...] = field(default=(), compare=False)
@@ -144,14 +145,9 @@ class Run:
         for name in summary.closed_loop:
             if "/" in name or name in ("", ".", ".."):
                 raise InputError(f"{folder / 'summary.json'}: field 'closed_loop' names a run {name!r}, which is no folder name")
-            record = read_document(folder, f"closedloop/{name}/run.json")
-            if "stable" in record and not isinstance(record["stable"], bool):  # (a string "false" would read as stable)
-                raise InputError(
-                    f"{folder / 'closedloop' / name / 'run.json'}: field 'stable' holds {record['stable']!r}; expected true or false "
-                    "(the file is damaged; run samii run again)"
-                )
+            record = read_document(folder, f"closedloop/{name}/run.json", ClosedLoopRecord)
             trace = folder / "closedloop" / name / "timeseries.csv"
-            if not trace.exists() and record.get("recorded") is False:
+            if not trace.exists() and not record.recorded:
                 closed[name] = ClosedLoopRun(record, None)  # a run that diverged in its first step writes run.json alone
                 continue
             if not trace.exists():
@@ -160,10 +156,10 @@ class Run:
         return cls(
             path=folder,
             summary=summary,
-            measurement_record=read_document(folder, "measure/run.json"),
+            measurement_record=read_document(folder, "measure/run.json", MeasurementRecord),
             fit_record=read_document(folder, "fit/fit.json"),
             closed_loop=closed,
-            diagnosis=read_document(folder, "diagnose/diagnosis.json"),
+            diagnosis=read_document(folder, "diagnose/diagnosis.json", DiagnosisRecord),
         )
 
     def save(self, folder, *, overwrite: bool = False) -> Run:
@@ -340,14 +336,14 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progr
     with _named_stage("measure"):
         test = run_bode_test(d / "measure", BodeTestRequest(noise=True, seed=seed), model=model_file, overrides=parsed,
                              rerun=d / "measure.rrd", argv=argv, relative_to=d)  # fmt: skip
-    rec = test.summary
-    sweep = rec["excitation"]["swept"]
+    rec = test.record
+    sweep = rec.excitation["swept"]
     measurement = MeasurementSummary(
         excitation=sweep["excitation"],
         amplitude_v=sweep["amplitude_v"],
-        sample_rate_hz=rec["daq"]["sample_rate_hz"],
-        simulated_s=rec["timing"]["simulated_s"],
-        sensor_noise=rec["daq"]["sensor_noise"],
+        sample_rate_hz=rec.daq.sample_rate_hz,
+        simulated_s=rec.timing.simulated_s,
+        sensor_noise=rec.daq.sensor_noise,
     )
     progress.advance()
 
@@ -360,7 +356,7 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progr
 
     progress.stage("designing the damping controller")
     (d / "controllers").mkdir()
-    kp = rec["model"]["hydraulic"]["position_gain"]  # what the data were measured with (the Bode test's model)
+    kp = rec.model.hydraulic["position_gain"]  # what the data were measured with (the Bode test's model)
     with _named_stage("design"):
         designed = damping_from_frf(read_frf_csv(d / "measure" / "frf.csv"), source="measure/frf.csv", position_gain_v_per_rad=float(kp))
     damping = d / "controllers" / "damping.json"  # named in the run's files as the folder names it: controllers/damping.json
@@ -378,21 +374,15 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progr
         with _named_stage("closedloop"):
             trial = run_trial(request, out=d / "closedloop" / name, model=model_file, overrides=parsed, rerun=rerun, relative_to=d,
                               note=lambda text, name=name: said(f"note: closed loop {name}: {text}"))  # fmt: skip
-        res = finite_or_none(trial.result.as_json())
-        closed[name] = ClosedLoopSummary(**{k: res.get(k) for k in CLOSED_LOOP_FIELDS})
+        closed[name] = ClosedLoopSummary(**{k: getattr(trial.record, k) for k in CLOSED_LOOP_FIELDS})
         progress.advance()
 
     progress.stage("diagnosing the fit against the measured record")
     with _named_stage("diagnose"):
         done = diagnose_files([d / "measure" / "timeseries.csv"], DiagnoseRequest(baseline=str(d / "fit" / "fit.json")), out=d / "diagnose",
                               relative_to=d)  # fmt: skip
-    diag = finite_or_none(done.diagnosis.to_dict())
-    diagnosis = DiagnosisSummary(
-        verdict=diag.get("verdict"),
-        effects=tuple(e for e in diag.get("effects", []) if not e.get("expected")),
-        error_before=diag.get("error_before"),
-        error_after=diag.get("error_after"),
-    )
+    diag = done.record
+    diagnosis = DiagnosisSummary(verdict=diag.verdict, effects=diag.found, error_before=diag.error_before, error_after=diag.error_after)
     progress.advance()
     return RunSummary(
         seed=seed,

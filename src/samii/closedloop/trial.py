@@ -21,7 +21,8 @@ from samii.errors import InputError
 from samii.json_output import dumps
 from samii.outputs import OutputFolder, check_output_file, create_parent, shown_path, written_beside
 from samii.progress import said
-from samii.schema import versioned
+from samii.schema import as_json, record_of, versioned
+from samii.schema.closed_loop import ClosedLoopRecord
 from samii.sim.overrides import as_overrides
 
 __all__ = ["TrialRequest", "Trial", "run_trial", "resolve_controller", "check_fits", "model_at_rest", "write_rerun", "BUILTIN_CONTROLLERS", "FILES"]
@@ -52,9 +53,11 @@ class TrialRequest:
 
 @dataclass
 class Trial:
-    """A trial's result (samii.closedloop.scenario's ClosedLoopResult) and what was written, as the run names it."""
+    """A trial's result (samii.closedloop.scenario's ClosedLoopResult), its run.json as typed values, and what was
+    written, as the run names it."""
 
     result: object
+    record: ClosedLoopRecord
     written: list[str] = field(default_factory=list)
 
 
@@ -228,6 +231,13 @@ def run_trial(
         if note is not None:
             note(f"--rerun {rerun_path}: not written, the run diverged in its first step")
         rerun_path = None
+    doc = result.run_json()
+    doc["model"] = {"file": str(model) if model else "embedded default", "overrides": overrides}
+    doc["controller_detail"] = None if saved is None else {
+        "name": saved.controller.name, "method": saved.controller.method, "model_units": saved.controller.model_units,
+        "servo_loop": "replaced" if saved.replaces_servo else "kept", "provenance": dict(saved.provenance)}  # fmt: skip
+    doc["recorded"] = recorded  # (false: the run diverged in its first step; run.json alone is written)
+    record = record_of(ClosedLoopRecord, doc, "samii.closedloop.trial.run_trial")
     with written_beside(rerun_path) as rrd_tmp:
         if folder is not None:
             from samii.formats import write_timeseries_csv  # (lazy: this module is imported at samii's start-up, that one is not needed there)
@@ -238,13 +248,7 @@ def run_trial(
                 else:
                     for name in [n for n in (*FILES, *FIGURES) if n != "run.json"]:  # the verdict alone
                         folder.omit(name)
-                doc = result.run_json()
-                doc["model"] = {"file": str(model) if model else "embedded default", "overrides": overrides}
-                doc["controller_detail"] = None if saved is None else {
-                    "name": saved.controller.name, "method": saved.controller.method, "model_units": saved.controller.model_units,
-                    "servo_loop": "replaced" if saved.replaces_servo else "kept", "provenance": dict(saved.provenance)}  # fmt: skip
-                doc["recorded"] = recorded  # (false: the run diverged in its first step; run.json alone is written)
-                folder.path("run.json").write_text(dumps(versioned(doc), indent=1) + "\n")
+                folder.path("run.json").write_text(dumps(versioned(as_json(record)), indent=1) + "\n")
                 if recorded and plots:
                     from samii.closedloop.plots import (  # (lazy: this module is imported at samii's start-up, that one is not needed there)
                         plot_base,
@@ -262,4 +266,4 @@ def run_trial(
             write_rerun(result, rrd_tmp, rerun_path, factory)
     if rerun_path is not None:
         written.append(shown_path(rerun_path, relative_to))
-    return Trial(result=result, written=written)
+    return Trial(result=result, record=record, written=written)

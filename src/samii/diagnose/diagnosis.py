@@ -69,6 +69,8 @@ from samii.measure.floor import with_floor
 from samii.measure.frf_variance import MAX_VAR
 from samii.measure.measured import Measured, check_actuator_sign, with_roughness_noise
 from samii.progress import SILENT, Progress
+from samii.schema import record_of
+from samii.schema.diagnosis import DiagnosisRecord
 
 __all__ = ["ChannelError", "FoundEffect", "Band", "Diagnosis", "diagnose", "RULE"]
 
@@ -173,6 +175,10 @@ class Diagnosis:
     def model(self, i: int, freq_hz: np.ndarray, which: str = "after") -> dict[str, np.ndarray]:
         """act, base and total of the baseline (``before``) or the augmented model (``after``) of file ``i``."""
         return model_response(self.after if which == "after" else self.before, i, freq_hz)
+
+    def record(self) -> DiagnosisRecord:
+        """diagnosis.json as typed values (samii.schema.diagnosis), checked against its schema."""
+        return record_of(DiagnosisRecord, self.to_dict(), "samii.diagnose.diagnosis.Diagnosis.to_dict")
 
     def to_dict(self) -> dict:
         he = self.harmonic_error

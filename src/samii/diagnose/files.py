@@ -19,7 +19,8 @@ from samii.errors import InputError, input_error_of
 from samii.json_output import dumps
 from samii.outputs import OutputFolder, check_output_file, create_parent, shown_path, written_beside
 from samii.progress import SILENT, Progress
-from samii.schema import versioned
+from samii.schema import as_json, versioned
+from samii.schema.diagnosis import DiagnosisRecord
 
 __all__ = ["DiagnoseRequest", "DiagnosedFiles", "diagnose_files", "OUTPUTS", "SIM_OUTPUTS", "MAX_FILES"]
 
@@ -44,9 +45,11 @@ class DiagnoseRequest:
 
 @dataclass
 class DiagnosedFiles:
-    """The diagnosis (samii.diagnose.diagnosis.Diagnosis) and the files written, as the run names them."""
+    """The diagnosis (samii.diagnose.diagnosis.Diagnosis), diagnosis.json as typed values, and the files written, as
+    the run names them."""
 
     diagnosis: object
+    record: DiagnosisRecord
     written: list[str] = field(default_factory=list)
 
 
@@ -160,6 +163,7 @@ def diagnose_files(
             text = str(exc)
             names = [str(m.source) for m in measured]
             raise InputError(text if any(text.startswith(n) for n in names) else f"{', '.join(names)}: {text}") from None
+        record = d.record()
         if folder is not None:
             progress.stage("writing")
             from samii.diagnose.plots import (  # (lazy: this module is imported at samii's start-up, that one is not needed there)
@@ -172,7 +176,7 @@ def diagnose_files(
             from samii.formats import write_text  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
             with folder:
-                write_text(folder.path("diagnosis.json"), dumps(versioned(d.to_dict()), indent=2) + "\n")
+                write_text(folder.path("diagnosis.json"), dumps(versioned(as_json(record)), indent=2) + "\n")
                 figures = [(residual_figure, "residuals.png"), (bode_figure, "bode.png"), (harmonic_figure, "harmonics.png")]
                 if d.simulator is not None:
                     figures.append((simulator_figure, "simulator.png"))
@@ -189,4 +193,4 @@ def diagnose_files(
             _write_rerun(d, rrd_tmp, rerun_path, rerun_fps)
     written = [shown_path(p, relative_to) for p in (folder.written if folder is not None else [])]
     written += [shown_path(rerun_path, relative_to)] if rerun_path is not None else []
-    return DiagnosedFiles(diagnosis=d, written=written)
+    return DiagnosedFiles(diagnosis=d, record=record, written=written)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from importlib import metadata
 
 import numpy as np
@@ -24,7 +24,8 @@ from samii.frequency_response import SUSTAINED_POINTS, max_deviation
 from samii.json_output import dumps
 from samii.outputs import OutputFolder, check_output_file, create_parent, shown_path, written_beside
 from samii.progress import SILENT, Progress, part
-from samii.schema import versioned
+from samii.schema import as_json, record_of, versioned
+from samii.schema.measurement import MeasurementRecord
 from samii.sim.overrides import as_overrides
 
 __all__ = [
@@ -95,13 +96,13 @@ class BodeTest:
     peaks: dict  #: kind -> peak load pressure [Pa], valve command [V], joint angle [rad]
     coherence_ok: bool  #: whether the main record has coherence (false for one swept-sine record)
     supply_pressure_pa: float
-    summary: dict  #: run.json's content, but timing.total_wall_s: measured once the recording is written too
+    record: MeasurementRecord  #: run.json's content, but timing.total_wall_s: measured once the recording is written too
     warnings: list[MeasureWarning] = field(default_factory=list)  #: what the command prints after "warning:"
 
     @property
     def written(self) -> list[str]:
         """The files written, as the run names them (run.json's outputs)."""
-        return self.summary["outputs"]
+        return list(self.record.outputs)
 
 
 def _versions() -> dict[str, str]:
@@ -393,45 +394,44 @@ def run_bode_test(
             for kind, r in results.items()
         }
         outputs = [shown_path(folder.final(n), relative_to) for n in names] + ([shown_path(rerun_path, relative_to)] if rerun_path else [])
-        summary = versioned(
-            {
-                "command": "samii measure",
-                "argv": list(argv),
-                "method": request.method,
-                "excitation": {kind: e.describe() for kind, e in plan},
-                "daq": {
-                    "sample_rate_hz": request.sample_rate_hz,
-                    "antialias": main.timeseries.metadata.get("antialias"),
-                    "sensor_noise": asdict(noise) if noise else None,
-                    "seed": request.seed,
-                },
-                "frf": {k: v for k, v in main.frf.metadata.items() if k.startswith("frf_")},
-                "model": {
-                    "file": str(model) if model else "embedded default",
-                    "overrides": overrides,
-                    "timestep_s": dt,
-                    "params": _model_params(model, overrides),
-                    "hydraulic": {k: v for k, v in asdict(hp).items() if k != "source"},
-                },
-                "versions": _versions(),
-                "timing": {
-                    "simulated_s": simulated_s,
-                    "simulation_wall_s": sim_wall,
-                    "total_wall_s": time.perf_counter() - t_start,
-                    "real_time_factor": simulated_s / sim_wall if sim_wall > 0 else None,
-                },
-                "vs_linearised_simulator_0.5_35_hz": checks[plan[0][0]],
-                "peaks": peaks[plan[0][0]],
-                "outputs": outputs,
-            }
-        )
+        summary = {
+            "command": "samii measure",
+            "argv": list(argv),
+            "method": request.method,
+            "excitation": {kind: e.describe() for kind, e in plan},
+            "daq": {
+                "sample_rate_hz": request.sample_rate_hz,
+                "antialias": main.timeseries.metadata.get("antialias"),
+                "sensor_noise": asdict(noise) if noise else None,
+                "seed": request.seed,
+            },
+            "frf": {k: v for k, v in main.frf.metadata.items() if k.startswith("frf_")},
+            "model": {
+                "file": str(model) if model else "embedded default",
+                "overrides": overrides,
+                "timestep_s": dt,
+                "params": _model_params(model, overrides),
+                "hydraulic": {k: v for k, v in asdict(hp).items() if k != "source"},
+            },
+            "versions": _versions(),
+            "timing": {
+                "simulated_s": simulated_s,
+                "simulation_wall_s": sim_wall,
+                "total_wall_s": time.perf_counter() - t_start,
+                "real_time_factor": simulated_s / sim_wall if sim_wall > 0 else None,
+            },
+            "vs_linearised_simulator_0.5_35_hz": checks[plan[0][0]],
+            "peaks": peaks[plan[0][0]],
+            "outputs": outputs,
+        }
         if request.method == "both":
             summary["vs_linearised_simulator_0.5_35_hz_by_method"] = checks
             summary["peaks_by_method"] = peaks
         said = _warnings(checks, peaks, coh_ok, hp.supply_pressure, amp)
         if said:
             summary["warnings"] = [w.text for w in said]
-        write_text(folder.path("run.json"), dumps(summary, indent=2) + "\n")
+        record = record_of(MeasurementRecord, summary, "samii.measure.bode_test.run_bode_test")
+        write_text(folder.path("run.json"), dumps(versioned(as_json(record)), indent=2) + "\n")
         if rerun_path is not None:
             from samii.viz.recording import (  # (lazy: this module is imported at samii's start-up, that one is not needed there)
                 RunRecord,
@@ -448,7 +448,7 @@ def run_bode_test(
                 write_recording(rrd_tmp, model_obj, runs, application_id="samii_measure", thin_frames=rerun_fps is None)
             except (RuntimeError, OSError) as exc:  # rerun's writer reports file-system failures as RuntimeError
                 raise recording_failed(exc, rerun_path) from None
-    summary["timing"]["total_wall_s"] = time.perf_counter() - t_start
+    record = replace(record, timing=replace(record.timing, total_wall_s=time.perf_counter() - t_start))
     return BodeTest(
         request=request,
         results=results,
@@ -456,6 +456,6 @@ def run_bode_test(
         peaks=peaks,
         coherence_ok=coh_ok,
         supply_pressure_pa=hp.supply_pressure,
-        summary=summary,
+        record=record,
         warnings=said,
     )

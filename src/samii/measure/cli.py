@@ -115,14 +115,15 @@ def run(args: argparse.Namespace) -> int:
             progress=bar,
             argv=sys.argv[1:],
         )
-    summary = test.summary
     if args.json:
-        print(dumps(summary, indent=2))
+        from samii.schema import as_json, versioned
+
+        print(dumps(versioned(as_json(test.record)), indent=2))
         return 0
-    tm = summary["timing"]
+    tm = test.record.timing
     print(
-        f"samii measure: {METHOD_LABEL[args.method]}, {tm['simulated_s']:.0f} s simulated in {tm['simulation_wall_s']:.1f} s "
-        f"({tm['real_time_factor']:.0f}x real time), {tm['total_wall_s']:.1f} s in all"
+        f"samii measure: {METHOD_LABEL[args.method]}, {tm.simulated_s:.0f} s simulated in {tm.simulation_wall_s:.1f} s "
+        f"({tm.real_time_factor:.0f}x real time), {tm.total_wall_s:.1f} s in all"
     )
     for kind, pk in test.peaks.items():
         print(

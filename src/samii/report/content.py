@@ -145,16 +145,10 @@ def _traced_value(value, where: str, log: FieldLog):
 
 
 def traced(run: Run) -> tuple[Run, FieldLog]:
-    """``run`` with the reads of its stages' documents logged (the report names the field a failure most likely comes
-    from; summary.json is typed, its fields checked when read)."""
+    """``run`` with the reads of fit/fit.json logged (the report names the field a failure most likely comes from; the
+    other documents are typed, their fields checked when the folder is read, samii.schema)."""
     log = FieldLog()
-    return replace(
-        run,
-        measurement_record=_TracedDict(run.measurement_record, "measure/run.json: ", log),
-        fit_record=_TracedDict(run.fit_record, "fit/fit.json: ", log),
-        diagnosis=_TracedDict(run.diagnosis, "diagnose/diagnosis.json: ", log),
-        closed_loop={name: replace(cl, record=_TracedDict(cl.record, f"closedloop/{name}/run.json: ", log)) for name, cl in run.closed_loop.items()},
-    ), log
+    return replace(run, fit_record=_TracedDict(run.fit_record, "fit/fit.json: ", log)), log
 
 
 def _kind(value) -> str:
@@ -190,11 +184,8 @@ def gaps(run: Run) -> list[str]:
     ]
     design = run.summary.damping_design
     out += [f"summary.json: damping_design.{k} holds null (or is missing)" for k in _DESIGN_NUMBERS if getattr(design, k) is None]
-    effects = run.diagnosis.get("effects")
-    for i, e in enumerate(effects if isinstance(effects, list) else []):
-        params = e.get("params") if isinstance(e, dict) else None
-        if isinstance(params, dict):
-            out += [f"diagnose/diagnosis.json: effects[{i}].params.{k} holds null" for k, v in params.items() if v is None]
+    for i, e in enumerate(run.diagnosis.effects):
+        out += [f"diagnose/diagnosis.json: effects[{i}].params.{k} holds null" for k, v in e.params.items() if v is None]
     params = run.fit_record.get("params")
     if not isinstance(params, dict):
         out.append(f"fit/fit.json: params holds {_kind(params) if 'params' in run.fit_record else 'nothing (missing)'}, not the fitted parameters")

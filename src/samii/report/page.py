@@ -12,6 +12,7 @@ import html
 import math
 import os
 import urllib.parse
+from dataclasses import is_dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -25,13 +26,14 @@ from samii.outputs import parent_made_for
 from samii.report.content import RECORDINGS, STAGE_FIGURES, gaps, parameter_rows, recordings, stage_figures, traced, traces
 from samii.report.figures import figure_ch11_loper, figure_ch11_step, figure_damping
 from samii.run_summary import CONTROLLERS, summary_lines
+from samii.schema.closed_loop import BaseFigures, ThetaFigures
 from samii.sim.param_units import unit
 
 if TYPE_CHECKING:  # (the types only: samii.pipeline writes its report through this module)
     from collections.abc import Mapping
 
     from samii.pipeline import Run
-    from samii.run_summary import ClosedLoopSummary
+    from samii.schema.summary import ClosedLoopSummary
 
 __all__ = ["render_report", "write_report", "REPORT_NAME"]
 
@@ -150,7 +152,7 @@ def _model(run: Run) -> str:
             f"<p>Servo position loop (joint 2 free, unity feedback): the lightly damped pair at {_num(re_, '.2f')} ± {_num(im, '.1f')}j 1/s "
             f"({_num(im / (2 * math.pi), '.2f')} Hz, ζ {_num(-re_ / math.hypot(re_, im), '.3f')}).</p>"
         )
-    flat = dotted(run.measurement_record.get("model", {}).get("params") or {})
+    flat = dotted(run.measurement_record.model.params or {})
     prow = [[_e(what), f"<code>{_e(name)}</code>", _num(flat[name], ".5g"), _e(unit(name))] for name, what in _KEY_PARAMS.items() if name in flat]
     if prow:
         out.append(
@@ -236,18 +238,18 @@ def _closed_loop(run: Run) -> str:
             r = cl.get(f"{name}_{sc}")
             if r is None:
                 continue
-            th, ba = r.theta or {}, r.base or {}
+            th, ba = r.theta or ThetaFigures(None, None, None, None), r.base or BaseFigures(None, None, None, None, None)
             ok = r.stable
             hz = f", {_num(r.unstable_mode_hz, '.3g')} Hz" if r.unstable_mode_hz else ""
             why = _e(r.instability) if r.instability is not None else f"grows at {_num(r.growth_rate_1_s, '.3g')} 1/s{hz}"
             state = '<span class="ok">stable</span>' if ok else f'<span class="bad">UNSTABLE</span> ({why})'
             rows.append([_e(label), sc, state,
-                         _num(th.get("overshoot_pct"), ".1f") if ok and sc == "step" else "–",
-                         _num(th.get("settle_s"), ".2f") if ok and sc == "step" else "–",
-                         _num(ba.get("peak_m_s2"), ".3g") if ok else "–",
-                         _num(ba.get("settle_s"), ".2f") if ok else "–",
-                         _num(ba.get("decay_rate_1_s"), ".3g") if ok and sc == "loper" else "–",
-                         _num(ba.get("free_decay_rate_1_s"), ".3g") if ok and sc == "loper" else "–"])  # fmt: skip
+                         _num(th.overshoot_pct, ".1f") if ok and sc == "step" else "–",
+                         _num(th.settle_s, ".2f") if ok and sc == "step" else "–",
+                         _num(ba.peak_m_s2, ".3g") if ok else "–",
+                         _num(ba.settle_s, ".2f") if ok else "–",
+                         _num(ba.decay_rate_1_s, ".3g") if ok and sc == "loper" else "–",
+                         _num(ba.free_decay_rate_1_s, ".3g") if ok and sc == "loper" else "–"])  # fmt: skip
     out.append(_table(["controller", "test", "", "θ overshoot [%]", "θ settles [s]", "base peak [m/s²]", "base settles [s]",
                        "base decay after switch-on [1/s]", "free decay [1/s]"], rows, left=3))  # fmt: skip
     out.append(
@@ -290,7 +292,7 @@ def _closed_loop(run: Run) -> str:
             "<p>Pole placement (chapter 8) is unstable on every plant but the notebook's own 2-mode eq 1.4: its observer uses eq 1.4's "
             "direct feedthrough of ẍ/v, which no valve-driven actuator has, so any mismatch closes a loop at the sample rate with a "
             "gain far above 1 (<code>experiments/closed_loop/README.md</code>). Its runs stop where the controller's output diverges: "
-            + _e("; ".join(n for n in run.closed_loop["notebook_place_step"].record.get("notes", []) if "diverged at" in n))
+            + _e("; ".join(n for n in run.closed_loop["notebook_place_step"].record.notes if "diverged at" in n))
             + ".</p>"
         )
     return "".join(out)
@@ -298,7 +300,7 @@ def _closed_loop(run: Run) -> str:
 
 def _overshoot(cl: Mapping[str, ClosedLoopSummary]) -> str:
     """What the damping controller costs the joint: its θ overshoot beside the servo loop alone's, said when larger."""
-    mine, alone = ((cl[k].theta or {}).get("overshoot_pct") if k in cl else None for k in ("damping_step", "servo_loop_alone_step"))
+    mine, alone = (cl[k].theta.overshoot_pct if k in cl and cl[k].theta else None for k in ("damping_step", "servo_loop_alone_step"))
     if mine is None or alone is None or not mine > alone:
         return ""
     return (
@@ -317,77 +319,73 @@ def _worse(after, before, fmt: str) -> str:
 
 
 def _switch_on(run: Run, name: str) -> float:
-    return float((run.closed_loop[name].record.get("scenario_settings") or {}).get("switch_on_s", 2.0))
+    on = run.closed_loop[name].record.scenario_settings.switch_on_s
+    return 2.0 if on is None else float(on)
 
 
 def _diagnosis(run: Run) -> str:
-    d = run.diagnosis
-    # (samii diagnose always writes both: a file without them is damaged, not a diagnosis that found nothing)
-    effects = [e for e in d["effects"] if not e.get("expected")]
-    verdict = d["verdict"]
+    d = run.diagnosis  # (samii.schema.diagnosis.DiagnosisRecord: its fields checked when the folder was read)
+    effects = d.found
     out = [
         '<h2 id="diagnosis">Diagnosis: what the fit lacks, found in the measured record</h2>',
-        f"<p><code>samii diagnose measure/timeseries.csv --baseline fit/fit.json</code>: verdict <b>{_e(verdict)}</b>. Each effect is a physical "
-        f"hypothesis fitted jointly with the baseline; {_e(d.get('rule', ''))}.</p>",
+        f"<p><code>samii diagnose measure/timeseries.csv --baseline fit/fit.json</code>: verdict <b>{_e(d.verdict)}</b>. Each effect is a physical "
+        f"hypothesis fitted jointly with the baseline; {_e(d.rule)}.</p>",
     ]
-    for n in d.get("notes") or []:
+    for n in d.notes:
         out.append(f'<p class="warn">{_e(n)}</p>')
     if effects:
         rows = []
         for e in effects:
-            ps = ", ".join(f"{_e(k)} = {_num(v, '.4g')}" + (f" ± {_num(e.get('stderr', {}).get(k), '.2g')}" if e.get("stderr", {}).get(k) is not None else "")
-                           for k, v in (e.get("params") or {}).items())  # fmt: skip
-            rows.append(
-                [_e(e.get("category")), _e(e.get("kind")), _e(_CHANNELS.get(e.get("channel"), e.get("channel"))), ps, _e(e.get("evidence", ""))]
-            )
+            ps = ", ".join(f"{_e(k)} = {_num(v, '.4g')}" + (f" ± {_num(e.stderr.get(k), '.2g')}" if e.stderr.get(k) is not None else "")
+                           for k, v in e.params.items())  # fmt: skip
+            rows.append([_e(e.category), _e(e.kind), _e(_CHANNELS.get(e.channel, e.channel)), ps, _e(e.evidence)])
         out.append(_table(["category", "kind", "channel", "parameters ± std. error", "evidence"], rows, left=5))
     else:
         out.append("<p>No effect beyond the baseline's noise.</p>")
-    eb, ea = d.get("error_before") or {}, d.get("error_after") or {}
+    eb, ea = d.error_before, d.error_after
     rows = []
     for ch in ("act", "base", "total"):
         if ch in eb:
-            b, a = eb[ch], ea.get(ch, {})
+            b, a = eb[ch], ea.get(ch)
             rows.append([_CHANNELS[ch]] + [c for key, fmt in (("rms_db", ".2f"), ("rms_deg", ".1f"), ("chi2", ".3g"))
-                                            for c in (_num(b.get(key), fmt), _worse(a.get(key), b.get(key), fmt))])  # fmt: skip
+                                            for c in (_num(getattr(b, key), fmt),
+                                                      _worse(getattr(a, key) if a else None, getattr(b, key), fmt))])  # fmt: skip
     if rows:
         fr, fp = run.fit_record.get("rms_mag_db") or {}, run.fit_record.get("rms_phase_deg") or {}
         why = ""
         if "act" in fr and "act" in eb:
             why = (
                 f" These are smaller than the Identification section's RMS error (θ/v {_num(fr['act'], '.2f')} dB, {_num(fp.get('act'), '.1f')} deg "
-                f"there, {_num(eb['act'].get('rms_db'), '.2f')} dB, {_num(eb['act'].get('rms_deg'), '.1f')} deg here before the effects) "
+                f"there, {_num(eb['act'].rms_db, '.2f')} dB, {_num(eb['act'].rms_deg, '.1f')} deg here before the effects) "
                 "for one reason: the fit's is over every point of its band, those where the channel is noise (coherence below 0.5) "
                 "included, while the diagnosis counts only the points its noise estimate says are usable."
             )
         out.append("<h3>Error before and after the effects</h3><p>Residual over the data's usable points; "
                    f"an error that grows with the effects is in red.{why}</p>" + _table(["channel", "rms dB before", "after", "rms deg before", "after",
                                                                           "χ² per residual before (1: the noise)", "after"], rows))  # fmt: skip
-    he = d.get("harmonic_error")
-    if he and he.get("before") and he.get("after"):
-        b, a = he["before"], he["after"]
+    he = d.harmonic_error
+    if he is not None:
+        b, a = he.before, he.after
         pct = lambda x: None if x is None else 100.0 * x  # noqa: E731
         out.append(
-            f"<p>The sweep's harmonics ({_e(b.get('n_segments'))} segment harmonics), which no linear model makes: rms "
-            f"{_num(pct(b.get('rms_ratio')), '.3g')} % of the fundamental, χ² {_num(b.get('chi2'), '.3g')} per residual; with the "
-            f"nonlinear law found {_worse(pct(a.get('rms_ratio')), pct(b.get('rms_ratio')), '.3g')} %, "
-            f"χ² {_worse(a.get('chi2'), b.get('chi2'), '.3g')}.</p>"
+            f"<p>The sweep's harmonics ({_e(b.n_segments)} segment harmonics), which no linear model makes: rms "
+            f"{_num(pct(b.rms_ratio), '.3g')} % of the fundamental, χ² {_num(b.chi2, '.3g')} per residual; with the "
+            f"nonlinear law found {_worse(pct(a.rms_ratio), pct(b.rms_ratio), '.3g')} %, "
+            f"χ² {_worse(a.chi2, b.chi2, '.3g')}.</p>"
         )
-    refused = d.get("refused") or []
-    if refused:
-        items = "".join(f"<li>{_e(r.get('effect'))} ("
-                        + ", ".join(f"{_e(k)} = {_num(v, '.4g')}" for k, v in (r.get("params") or {}).items())
-                        + f"): {_e(r.get('reason'))}</li>" for r in refused)  # fmt: skip
+    if d.refused:
+        items = "".join(f"<li>{_e(r.effect)} ("
+                        + ", ".join(f"{_e(k)} = {_num(v, '.4g')}" for k, v in r.params.items())
+                        + f"): {_e(r.reason)}</li>" for r in d.refused)  # fmt: skip
         out.append(
             "<p>Candidates that passed the F-test but that these data do not show (not identifiable, or smaller than "
             f"the measurement's systematic floor), refused:</p><ul>{items}</ul>"
         )
-    un = d.get("unexplained") or []
-    if un:
-        items = "".join(f"<li>{_e(_CHANNELS.get(u.get('channel'), u.get('channel')))} over {_num(u.get('lo_hz'), '.3g')}–{_num(u.get('hi_hz'), '.3g')} Hz: "
-                        f"χ² {_num(u.get('chi2'), '.3g')} over {_e(u.get('n_points'))} points"
-                        + ("" if u.get("why", "residual") == "residual" else f" ({_e(u.get('why'))}: the rig changed during the file)")
-                        + "</li>" for u in un)  # fmt: skip
+    if d.unexplained:
+        items = "".join(f"<li>{_e(_CHANNELS.get(u.channel, u.channel))} over {_num(u.lo_hz, '.3g')}–{_num(u.hi_hz, '.3g')} Hz: "
+                        f"χ² {_num(u.chi2, '.3g')} over {_e(u.n_points)} points"
+                        + ("" if u.why == "residual" else f" ({_e(u.why)}: the rig changed during the file)")
+                        + "</li>" for u in d.unexplained)  # fmt: skip
         out.append(f"<p>Left unexplained by the effect library (red bands below; orange where the records differ):</p><ul>{items}</ul>")
     out.append(
         _stage_figure(
@@ -439,6 +437,8 @@ def render_report(run: Run, page_dir: Path | None = None, *, name: str | None = 
     try:
         return _render(watched, page_dir, name or run.path.name)
     except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
+        if isinstance(exc, AttributeError) and is_dataclass(getattr(exc, "obj", None)):
+            raise  # (a typed document has its fields checked when read: a name it lacks is this page's mistake, not the folder's)
         what = (
             f"field {exc.args[0]!r} missing" if isinstance(exc, KeyError) else str(exc).replace("_TracedList", "list").replace("_TracedDict", "dict")
         )

@@ -143,10 +143,11 @@ def run(args: argparse.Namespace) -> int:
     warn()
     if args.json:
         from samii.json_output import dumps
+        from samii.schema import as_json
 
-        print(dumps({k: v for k, v in result.document.items() if k != "samples"}, indent=1))
+        print(dumps({k: v for k, v in as_json(result.record).items() if k != "samples"}, indent=1))
         return 0
-    lines = _lines(result.document, result.summary)
+    lines = _lines(result.record, result.summary)
     if result.written:
         lines.append(f"wrote {args.out}/robust.json, samples.csv, {', '.join(FIGURES)}")
     print("\n".join(lines))
@@ -157,25 +158,26 @@ def _fmt(x, spec: str) -> str:
     return "n/a" if x is None else format(x, spec)
 
 
-def _mode(row: dict) -> str:
+def _mode(row) -> str:
     """A sample's least-damped mode in words: "zeta Z at F Hz", or a real pole by its s = -zeta 2 pi F (it does not
     oscillate: "zeta -1 at 8.7 Hz" read as an 8.7 Hz oscillation), or by the run's growth rate where the pole lies
     below the damping band (F = 0: a joint creeping at +0.197 1/s)."""
-    zeta, hz, growth = row["zeta"], row["mode_hz"], row.get("growth_rate_1_s")
+    zeta, hz, growth = row.zeta, row.mode_hz, row.growth_rate_1_s
     if zeta is not None and abs(zeta) > 1.0 - 1e-9:
         s = -zeta * 2 * math.pi * hz if hz else growth
         return f"a real pole at s = {s:+.3g} 1/s (zeta {zeta:+.0f})" if s is not None else f"a real pole (zeta {zeta:+.0f})"
     return f"zeta {_fmt(zeta, '.3f')} at {_fmt(hz, '.3g')} Hz"
 
 
-def _lines(doc: dict, s) -> list[str]:
+def _lines(doc, s) -> list[str]:
+    """The study's summary in words: ``doc`` is robust.json (samii.schema.robust.RobustRecord), ``s`` its summary."""
     lo, hi = s.p_unstable_ci95
-    nom = doc["nominal_plant"]
-    out = [f"robustness of {doc['controller']} ({doc['scenario']} test), {doc['n_samples']} plants, seed {doc['seed']}, {doc['engine']}, "
-           f"{doc['wall_s']:.1f} s",
-           "varied: " + "; ".join(v["source"] for v in doc["varied"]),
-           f"nominal plant: {'stable' if nom['stable'] else 'UNSTABLE'}, least-damped mode {_mode(nom)}, "
-           + (f"base settles {nom['base_settle_s']:.2f} s" if nom["base_settle_s"] is not None else "base settling time n/a"),
+    nom = doc.nominal_plant
+    out = [f"robustness of {doc.controller} ({doc.scenario} test), {doc.n_samples} plants, seed {doc.seed}, {doc.engine}, "
+           f"{doc.wall_s:.1f} s",
+           "varied: " + "; ".join(v.source for v in doc.varied),
+           f"nominal plant: {'stable' if nom.stable else 'UNSTABLE'}, least-damped mode {_mode(nom)}, "
+           + (f"base settles {nom.base_settle_s:.2f} s" if nom.base_settle_s is not None else "base settling time n/a"),
            f"P(unstable) = {s.n_unstable}/{s.n} = {s.p_unstable:.3g} (95 % interval {lo:.3g}-{hi:.3g}, exact binomial)"]  # fmt: skip
     if s.zeta_percentiles:
         out.append(
@@ -193,8 +195,8 @@ def _lines(doc: dict, s) -> list[str]:
             f"{s.n_invalid} drawn plant(s) could not be built (no static equilibrium near the nominal pose, or a mode too stiff "
             "for the physics step) and are not counted"
         )
-    for w in s.worst[:3]:
-        params = ", ".join(f"{k} {rel:+.1f} %" if rel is not None else f"{k} {w['params'][k]:.4g}" for k, rel in w["params_rel_pct"].items())
-        state = "UNSTABLE" if not w["stable"] else "stable"
-        out.append(f"  #{w['index']}: {state}, {_mode(w)}; {params}")
+    for w in doc.summary.worst[:3]:
+        params = ", ".join(f"{k} {rel:+.1f} %" if rel is not None else f"{k} {w.params[k]:.4g}" for k, rel in w.params_rel_pct.items())
+        state = "UNSTABLE" if not w.stable else "stable"
+        out.append(f"  #{w.index}: {state}, {_mode(w)}; {params}")
     return out

@@ -28,7 +28,8 @@ from samii.robust.plots import FIGURES, plot_histograms, plot_influence
 from samii.robust.sampling import Covariance, PlantDraws, draw_plants, parse_spread, read_covariance, sample_seeds
 from samii.robust.study import StudySummary, summarise
 from samii.robust.task import SampleResult, SampleTask
-from samii.schema import versioned
+from samii.schema import as_json, record_of, versioned
+from samii.schema.robust import RobustRecord
 from samii.sim.overrides import as_overrides
 
 __all__ = ["StudyRequest", "StudyWarning", "Study", "StudyResult", "NoPlantBuilt", "plan_study", "run_study", "FILES", "TINY_SPREAD", "FEW_SAMPLES"]
@@ -96,7 +97,7 @@ class StudyWarning:
 
 @dataclass(frozen=True)
 class StudyResult:
-    """A study's outcome: ``document`` is robust.json's content (without its schema_version), the rest typed."""
+    """A study's outcome: ``record`` is robust.json's content (without its schema_version) as typed values."""
 
     request: StudyRequest
     summary: StudySummary
@@ -106,7 +107,7 @@ class StudyResult:
     warnings: tuple[StudyWarning, ...]
     engine: str  #: what ran it, in words
     wall_s: float
-    document: dict
+    record: RobustRecord
     written: tuple[Path, ...] = ()  #: the files written (with ``out``)
 
 
@@ -212,7 +213,8 @@ class Study:
             "summary": summary.as_json(),
             "samples": [dict(s.table_row(), params=d.overrides(s.index)) for s in samples],
         }  # fmt: skip
-        result = StudyResult(r, summary, d, nominal, samples, tuple(self.warnings), self.engine.describe(), wall, document)
+        record = record_of(RobustRecord, document, "samii.robust.runner.Study.run")
+        result = StudyResult(r, summary, d, nominal, samples, tuple(self.warnings), self.engine.describe(), wall, record)
         if self.folder is not None:
             result = replace(result, written=_write(self.folder, result))
         return result
@@ -267,7 +269,7 @@ def _write(folder, result: StudyResult) -> tuple[Path, ...]:
 
     r = result.request
     with folder:
-        folder.path("robust.json").write_text(dumps(versioned(result.document), indent=1) + "\n")
+        folder.path("robust.json").write_text(dumps(versioned(as_json(result.record)), indent=1) + "\n")
         _write_csv(folder.path("samples.csv"), result.draws, result.samples)
         plot_histograms(result.samples, result.summary, f"{r.controller}, {r.scenario} test, {r.samples} plants", folder.path("histograms.png"))
         plot_influence(result.draws, result.samples, result.summary, folder.path("influence.png"))
