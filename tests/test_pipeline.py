@@ -52,6 +52,7 @@ def test_a_saved_folder_reads_back_into_typed_results(runs):
     assert set(run.closed_loop) == set(doc["closed_loop"]) and len(run.closed_loop) == 1 + len(CONTROLLERS) * len(SCENARIOS)
     loper = run.closed_loop["damping_loper"]
     assert isinstance(loper.trace, TimeSeries) and loper.record.stable is run.summary.closed_loop["damping_loper"].stable is True
+    # (2 s: the Loper scenario's switch-on, samii.closedloop.scenario.scenario("loper"))
     assert loper.record.scenario_settings.switch_on_s == 2.0 and loper.record.theta == run.summary.closed_loop["damping_loper"].theta
     rate = run.measurement_record.daq.sample_rate_hz
     assert isinstance(run.timeseries, TimeSeries) and abs(run.timeseries.t.size - run.measurement_record.timing.simulated_s * rate) <= 1

@@ -299,7 +299,8 @@ def test_robust_on_a_cluster_given_by_its_address(robust_runs, tmp_path):
 
 def test_a_study_is_one_library_call_with_the_commands_table(robust_runs, tmp_path):
     """samii.robust.runner.run_study (issue 33, item 3): the command's study as typed values, its warnings as codes
-    with their figures, and the same table as `samii robust` for the same request."""
+    with their figures; the command (which calls it) and the library give the same table for the same request, whichever
+    writes it (the command's robust.json was written in another process, by robust_runs)."""
     from samii.robust.runner import FEW_SAMPLES, StudyRequest, StudyWarning, plan_study, run_study
     from samii.robust.study import StudySummary
     from samii.robust.task import SampleResult
@@ -311,7 +312,7 @@ def test_a_study_is_one_library_call_with_the_commands_table(robust_runs, tmp_pa
     from samii.schema import as_json
     from samii.schema.robust import RobustRecord, read_robust_json
 
-    assert isinstance(result.record, RobustRecord) and result.record.summary.n_samples == result.summary.n
+    assert isinstance(result.record, RobustRecord)
     assert as_json(result.record)["summary"] == command["summary"] and as_json(result.record)["samples"] == command["samples"]
     # robust.json read back into its type is the study's record, every field (samii.schema)
     assert read_robust_json(tmp_path / "lib" / "robust.json") == result.record
@@ -331,7 +332,7 @@ def test_when_no_drawn_plant_can_be_built_the_study_says_its_warnings_then_refus
     """The refusal comes once the plants have been tried: what the study's request says (here: too few plants) is said
     before it, as with a result (the command said them first before its study was a library call)."""
     from samii.robust.engine import Engine
-    from samii.robust.runner import FEW_SAMPLES, NoPlantBuilt
+    from samii.robust.runner import FEW_SAMPLES
     from samii.robust.task import SampleResult
 
     def no_plant(self, tasks, progress=None):
@@ -342,4 +343,3 @@ def test_when_no_drawn_plant_can_be_built_the_study_says_its_warnings_then_refus
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 2 and f"fewer than {FEW_SAMPLES} plants" in err[0]
     assert "none of the 3 drawn plants could be built (the first: no static equilibrium)" in err[1]
-    assert issubclass(NoPlantBuilt, InputError)

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field, replace
 import pytest
 
 from samii.errors import InputError
-from samii.schema import SCHEMA_VERSION, as_json, checked, key, read_as, read_typed, record_of, written
+from samii.schema import SCHEMA_VERSION, as_json, document, key, read_as, read_typed, record_of
 from samii.schema.closed_loop import ClosedLoopRecord
 from samii.schema.diagnosis import DiagnosisRecord
 from samii.schema.measurement import MeasurementRecord
@@ -38,7 +38,7 @@ def test_every_document_of_a_main_job_reads_into_its_type_and_back_unchanged(run
         rec = read_typed(tp, doc, rel)
         assert isinstance(rec, tp)
         # every key, in order, every value: nothing the type does not hold (json.dumps keeps the order)
-        assert json.dumps(written(tp, as_json(rec), "test")) == json.dumps(doc), rel
+        assert json.dumps(document(rec)) == json.dumps(doc), rel
     diag = read_typed(DiagnosisRecord, json.loads((folder / "diagnose/diagnosis.json").read_text()), "diagnosis.json")
     assert all(e.category and e.kind for e in diag.found) and set(diag.error_before) >= {"act", "total"}
     loper = read_typed(ClosedLoopRecord, json.loads((folder / "closedloop/damping_loper/run.json").read_text()), "run.json")
@@ -146,9 +146,9 @@ def test_a_writers_document_is_written_only_as_its_type_says():
     assert rec.part.a == 1 and isinstance(rec.part.a, int)  # (a number kept as read: a whole number stays one)
     assert as_json(rec) == doc and list(as_json(rec)) == list(doc)  # the optional field left out when None, in order
     assert as_json(replace(rec, sometimes=("said",)))["sometimes"] == ["said"]
-    assert checked(_Doc, {**doc, "odd.key": float("nan")}, "w")["odd.key"] is None  # non-finite: null where null is allowed
+    assert record_of(_Doc, {**doc, "odd.key": float("nan")}, "w").odd is None  # non-finite: null where null is allowed
     with pytest.raises(TypeError, match=r"^w writes a document its schema does not describe: field 'part.a' holds None; expected a number$"):
-        checked(_Doc, {**doc, "part": {"a": float("inf"), "b": []}}, "w")  # and refused where it is not
+        record_of(_Doc, {**doc, "part": {"a": float("inf"), "b": []}}, "w")  # and refused where it is not
     # the writer's mistakes are programming errors (TypeError), not the file's
     with pytest.raises(TypeError, match=r"test writer writes a document its schema does not describe: field 'extra' of"):
         record_of(_Doc, {**doc, "extra": 1}, "test writer")
@@ -182,7 +182,7 @@ def test_robust_json_reads_back_into_its_type_and_a_newer_one_is_refused(tmp_pat
     path.write_text(json.dumps(doc))
     rec = read_robust_json(path)
     assert isinstance(rec, RobustRecord) and rec.summary.worst[0].params_rel_pct == {"beam.EI_Nm2": 2.9}
-    assert json.dumps(written(RobustRecord, as_json(rec), "test")) == json.dumps(doc)
+    assert json.dumps(document(rec)) == json.dumps(doc)
     path.write_text(json.dumps({**doc, "schema_version": SCHEMA_VERSION + 1}))
     with pytest.raises(InputError, match=rf"robust.json: schema_version {SCHEMA_VERSION + 1}, written by a newer samii"):
         read_robust_json(path)

@@ -272,7 +272,6 @@ _MISSING = object()
 
 
 def _serve(fn: Callable, items: list, workers: list[_Worker]) -> list:
-
     results: list = [_MISSING] * len(items)
     todo = list(range(len(items)))[::-1]  # (popped from the end: in order)
     idle = list(workers)[::-1]

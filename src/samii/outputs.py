@@ -313,7 +313,6 @@ class OutputFolder:
         return self.root / name
 
     def __enter__(self) -> OutputFolder:
-
         mark_outputs_started(self.root)
         self._created = make_folder(self.root)  # removed again (when empty) if the run fails
         remove_stale_stages(self.root)
@@ -337,7 +336,6 @@ class OutputFolder:
         return False
 
     def _commit(self) -> None:
-
         staged = [n for n in self.names if (self._stage / n).exists()]
         fd = os.open(self.root, os.O_RDONLY)  # the folder itself is the lock: no lock file left behind
         try:

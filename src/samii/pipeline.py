@@ -70,6 +70,7 @@ from samii.schema.summary import (
     RunSummary,
 )
 from samii.sim.overrides import parse_overrides
+from samii.timeseries import TimeSeries
 
 __all__ = ["run", "Run", "ClosedLoopRun", "N_STAGES"]
 
@@ -84,9 +85,8 @@ class ClosedLoopRun:
     """One closed-loop trial as its folder holds it."""
 
     record: ClosedLoopRecord  #: closedloop/<name>/run.json
-    trace: (
-        object | None
-    )  #: closedloop/<name>/timeseries.csv as a samii.timeseries.TimeSeries (None: the run diverged in its first step, run.json's "recorded" false)
+    #: closedloop/<name>/timeseries.csv (None: the run diverged in its first step, run.json's "recorded" false)
+    trace: TimeSeries | None
 
 
 @dataclass(frozen=True)
@@ -324,7 +324,6 @@ def _write_summary(d: Path, summary: RunSummary) -> None:
 
 
 def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progress, said, argv: Sequence[str]) -> RunSummary:
-
     parsed = parse_overrides(overrides)
     model_file = _model_path(model)
 

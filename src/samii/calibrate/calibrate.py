@@ -176,7 +176,6 @@ class CalibrationResult:
         }
 
     def to_json(self, **kwargs) -> str:
-
         return dumps(self.to_dict(), **kwargs)
 
     def table(self) -> str:

@@ -20,7 +20,7 @@ from samii.calibrate.calibrate import calibrate
 from samii.calibrate.simulator import SimulatorFRF, check_parameter_name
 from samii.errors import InputError, input_error_of
 from samii.formats import is_mat_file, read_frf_csv, read_mat_bode, write_text
-from samii.frequency_response import FrequencyResponse
+from samii.frequency_response import CHANNELS, FrequencyResponse
 from samii.identify.structures import ModelStructure
 from samii.measure.excitation import SweptSine
 from samii.outputs import OutputFolder
@@ -29,14 +29,12 @@ from samii.sim.overrides import as_overrides
 from samii.viz.figures import pyplot, save_figure
 from samii.viz.fit_plot import plot_fit_overlay
 
-__all__ = ["CalibrateRequest", "Calibrated", "calibrate_file", "load_target", "OUTPUTS", "NOTEBOOK_TARGETS", "CHANNELS"]
+__all__ = ["CalibrateRequest", "Calibrated", "calibrate_file", "load_target", "OUTPUTS", "NOTEBOOK_TARGETS"]
 
 #: Output files written into ``out``.
 OUTPUTS = ("calibration.json", "calibrated_params.json", "calibration_bode.png")
 #: Named model curves that can stand in for data.
 NOTEBOOK_TARGETS = ("eq9.4",)
-#: The channels a calibration's cost can use.
-CHANNELS = ("act", "base", "total")
 
 
 @dataclass(frozen=True)
@@ -154,9 +152,9 @@ def calibrate_file(source: str, request: CalibrateRequest, *, out=None, overwrit
             confirm=confirm,
             data_source=source,
         )
+    except InputError:
+        raise
     except (KeyError, ValueError) as exc:  # the data's validation (too few frequencies, a zero response, ...): name the file
-        if isinstance(exc, InputError):
-            raise
         raise input_error_of(source, exc) from None
     if folder is None:
         return Calibrated(result, data)

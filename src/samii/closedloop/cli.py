@@ -163,14 +163,9 @@ def run(args) -> int:
                       rerun_fps=args.rerun_fps, overwrite=args.overwrite, say=say,
                       note=lambda text: print(f"samii closedloop: note: {text}", file=sys.stderr))  # fmt: skip
     if args.json:
-        from dataclasses import fields
-
         from samii.json_output import dumps
-        from samii.schema import as_json
-        from samii.schema.closed_loop import ClosedLoopFigures
 
-        doc = as_json(trial.record)
-        print(dumps({f.name: doc[f.name] for f in fields(ClosedLoopFigures)}))  # what the run found (run.json's first part)
+        print(dumps(trial.result.as_json()))  # what the run found (run.json's first part, samii.schema.closed_loop.ClosedLoopFigures)
     else:
         print(_summary(trial.result, trial.written))
     return 0

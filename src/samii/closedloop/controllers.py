@@ -155,7 +155,6 @@ def notebook_cancel(*, sample_time_s: float = 1e-3, gain: float | None = None) -
 
 
 def _provenance_defaults() -> dict:
-
     return {"samii_version": __version__, "written_utc": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")}
 
 

@@ -72,7 +72,6 @@ def _zoom(zoom, r: ClosedLoopResult, curves: list[tuple[np.ndarray, np.ndarray, 
 
 
 def _title(r: ClosedLoopResult) -> str:
-
     state = "stable" if r.stable else f"UNSTABLE ({r.instability()})"
     return textwrap.fill(f"{r.controller}, {r.scenario.name} scenario: {state}", width=100)  # a runaway's reason is long
 

@@ -190,7 +190,6 @@ def _quiet(message: str) -> None:
 
 
 def _run_segments(cm, ctrl, theta_ref_rad, state, data, switch_on_step, chunk_steps, keep_partial, qpos_every) -> LoopSignals:
-
     m = cm.model
     L = cm.layout
     n = theta_ref_rad.size

@@ -40,7 +40,6 @@ from samii.closedloop.metrics import (
 )
 from samii.closedloop.run import LoopSignals, measurements_at, run_loop
 from samii.json_output import finite_or_none
-from samii.json_output import finite_or_none as f
 from samii.measure.daq import SensorNoise
 from samii.sim.hydraulic_reference import AMPLIFIER_LIMIT_V
 from samii.sim.model import load_model, load_spec, make_data
@@ -165,7 +164,6 @@ class ClosedLoopResult:
         return f"{ran}; the base {what}" if ran else what
 
     def as_json(self) -> dict:
-
         def f(x):  # 12 significant digits: times like 59 * 0.001 print as 0.059, not 0.05899999999999994
             x = finite_or_none(x)
             return None if x is None else float(f"{x:.12g}")
@@ -220,9 +218,9 @@ class ClosedLoopResult:
             "delay_samples": self.delay_samples,
             "servo_loop": "replaced" if self.replaces_servo else "kept",
             "noise": None if self.noise is None else vars(self.noise),
-            "diverged_at_s": f(self.signals.diverged_at_s),
-            "switch_jump_v": f(self.signals.switch_jump_v),
-            "linear_poles": [[f(p.real), f(p.imag)] for p in self.linear_poles_s if p.imag >= 0],
+            "diverged_at_s": finite_or_none(self.signals.diverged_at_s),
+            "switch_jump_v": finite_or_none(self.signals.switch_jump_v),
+            "linear_poles": [[finite_or_none(p.real), finite_or_none(p.imag)] for p in self.linear_poles_s if p.imag >= 0],
             "modes_detail": [{"freq_hz": m.freq_hz, "zeta": m.zeta, "amplitude_m_s2": m.amplitude_m_s2} for m in self.modes],
             "notes": list(self.notes),
         }  # fmt: skip

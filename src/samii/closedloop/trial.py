@@ -21,7 +21,7 @@ from samii.errors import InputError
 from samii.json_output import dumps
 from samii.outputs import OutputFolder, check_output_file, create_parent, shown_path, written_beside
 from samii.progress import said
-from samii.schema import as_json, record_of, versioned
+from samii.schema import document, record_of
 from samii.schema.closed_loop import ClosedLoopRecord
 from samii.sim.overrides import as_overrides
 
@@ -248,7 +248,7 @@ def run_trial(
                 else:
                     for name in [n for n in (*FILES, *FIGURES) if n != "run.json"]:  # the verdict alone
                         folder.omit(name)
-                folder.path("run.json").write_text(dumps(versioned(as_json(record)), indent=1) + "\n")
+                folder.path("run.json").write_text(dumps(document(record), indent=1) + "\n")
                 if recorded and plots:
                     from samii.closedloop.plots import (  # (lazy: this module is imported at samii's start-up, that one is not needed there)
                         plot_base,

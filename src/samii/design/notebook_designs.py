@@ -19,10 +19,10 @@ from samii.design.placement import PlacementDesign
 from samii.errors import InputError
 from samii.json_output import finite_or_none
 
-__all__ = ["PlaceOnEq14", "place_on_eq1_4", "CancelOnEq94", "cancel_on_eq9_4", "pole_pairs"]
+__all__ = ["PlaceOnEq14", "place_on_eq1_4", "CancelOnEq94", "cancel_on_eq9_4"]
 
 
-def pole_pairs(z) -> list[list[float | None]]:
+def _pole_pairs(z) -> list[list[float | None]]:
     """Complex numbers as JSON's [real, imaginary] pairs (a non-finite part null)."""
     return [finite_or_none(complex(x)) for x in np.atleast_1d(z)]
 
@@ -55,13 +55,13 @@ class PlaceOnEq14:
             "zeta": d.zeta,
             "observer": d.observer,
             "kalman_noise_std": self.kalman_noise_std(),
-            "controller_poles_s": pole_pairs(d.poles_s),
-            "controller_poles_z": pole_pairs(d.poles_z),
-            "observer_poles_z": pole_pairs(d.observer_poles_z),
-            "closed_loop_poles_z": pole_pairs(cl),
+            "controller_poles_s": _pole_pairs(d.poles_s),
+            "controller_poles_z": _pole_pairs(d.poles_z),
+            "observer_poles_z": _pole_pairs(d.observer_poles_z),
+            "closed_loop_poles_z": _pole_pairs(cl),
             "closed_loop_max_abs_z": float(np.max(np.abs(cl))),
             "closed_loop_stable": self.stable,
-            "unstable_closed_loop_poles_z": pole_pairs(d.unstable_poles_z),
+            "unstable_closed_loop_poles_z": _pole_pairs(d.unstable_poles_z),
             "K": d.K.ravel().tolist(),
             "L": d.L.tolist(),
             "N": d.N,
@@ -128,15 +128,15 @@ class CancelOnEq94:
         return {
             "model": "eq 9.4 (3-mode s^4), notebook units",
             "loop": d.loop,
-            "zeros": pole_pairs(d.zeros),
-            "poles": pole_pairs(d.poles),
+            "zeros": _pole_pairs(d.zeros),
+            "poles": _pole_pairs(d.poles),
             "num": np.asarray(d.Gc.num[0][0], float).tolist(),
             "den": np.asarray(d.Gc.den[0][0], float).tolist(),
             "gain": d.gain,
             "gain_chosen_by_rule": self.gain_chosen_by_rule,
-            "closed_loop_poles": pole_pairs(d.closed_loop),
+            "closed_loop_poles": _pole_pairs(d.closed_loop),
             "closed_loop_stable": self.stable,
-            "unstable_closed_loop_poles": pole_pairs(d.unstable_poles),
+            "unstable_closed_loop_poles": _pole_pairs(d.unstable_poles),
             "dc_gain_as_drawn": d.dc_gain_as_drawn if self.stable else float("nan"),
             "reference_gain_for_unit_dc": d.reference_gain if self.stable else None,
             "controller_scales_reference_by_default": d.loop == "theta",

@@ -135,7 +135,6 @@ def _fmt(z) -> str:
 
 
 def _wrap(text: str, width: int) -> list[str]:
-
     return textwrap.wrap(text, width)
 
 

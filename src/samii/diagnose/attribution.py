@@ -134,7 +134,6 @@ class Placed:
     roles: tuple[str, ...] = ()
 
     def text(self) -> str:
-
         side = CHANNEL_NAMES.get(self.channel, self.channel)
         if self.baseline:
             name = "theta/v resonance wp" if self.what == "wp" else self.what

@@ -94,9 +94,9 @@ def run(args: argparse.Namespace) -> int:
         done = diagnose_files(args.data, request, out=args.out, rerun=args.rerun, rerun_fps=args.rerun_fps, overwrite=args.overwrite, progress=bar)
     if args.json:
         from samii.json_output import dumps
-        from samii.schema import as_json, versioned
+        from samii.schema import document
 
-        print(dumps(versioned(as_json(done.record)), indent=2))  # what diagnosis.json holds
+        print(dumps(document(done.record), indent=2))  # what diagnosis.json holds
         return 0
     _print(done.diagnosis, done.written)
     return 0

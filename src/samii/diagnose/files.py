@@ -19,7 +19,7 @@ from samii.errors import InputError, input_error_of
 from samii.json_output import dumps
 from samii.outputs import OutputFolder, check_output_file, create_parent, shown_path, written_beside
 from samii.progress import SILENT, Progress
-from samii.schema import as_json, versioned
+from samii.schema import document
 from samii.schema.diagnosis import DiagnosisRecord
 
 __all__ = ["DiagnoseRequest", "DiagnosedFiles", "diagnose_files", "OUTPUTS", "SIM_OUTPUTS", "MAX_FILES"]
@@ -176,7 +176,7 @@ def diagnose_files(
             from samii.formats import write_text  # (lazy: this module is imported at samii's start-up, that one is not needed there)
 
             with folder:
-                write_text(folder.path("diagnosis.json"), dumps(versioned(as_json(record)), indent=2) + "\n")
+                write_text(folder.path("diagnosis.json"), dumps(document(record), indent=2) + "\n")
                 figures = [(residual_figure, "residuals.png"), (bode_figure, "bode.png"), (harmonic_figure, "harmonics.png")]
                 if d.simulator is not None:
                     figures.append((simulator_figure, "simulator.png"))

@@ -84,6 +84,7 @@ from scipy.interpolate import CubicSpline
 from scipy.optimize import minimize_scalar
 
 from samii.diagnose.evidence import p_text
+from samii.frequency_response import CHANNEL_NAMES
 from samii.measure.floor import PRACTICAL_FACTOR, REL_FLOOR
 from samii.measure.frf_variance import moving_sum
 
@@ -368,7 +369,7 @@ def amplitude_kind(t: AmplitudeTest) -> str:
 
 def amplitude_text(t: AmplitudeTest) -> str:
     """An amplitude dependence across two files in words."""
-    name = {"act": "theta/v", "total": "xdd/v"}[t.channel]
+    name = CHANNEL_NAMES[t.channel]
     return (
         f"{name} at {t.amplitudes_v[1]:.3g} V differs from that at {t.amplitudes_v[0]:.3g} V by chi2 "
         f"{t.chi2:.4g} on {t.dof:.0f} dof ({p_text(t.log10_p, digits=0)}; {t.n_points} points), "

@@ -110,7 +110,6 @@ class EffectRig:
     noise: dict = field(default_factory=lambda: {"v": 1e-3, "theta": 5e-4, "accel": 1e-2})
 
     def _p(self) -> dict:
-
         return dict(self.params or EQ9_4)
 
     def responses(self, f_hz: np.ndarray) -> dict[str, np.ndarray]:

@@ -427,7 +427,6 @@ class LocalSimulator:
     n_modes: int = 0
 
     def __post_init__(self) -> None:
-
         object.__setattr__(self, "_sim", SimulatorFRF(self.at, self.names))
         object.__setattr__(self, "x0", np.array([parameter_value(self.at, n) for n in self.names]))
         object.__setattr__(self, "_tables", {})
@@ -825,7 +824,6 @@ class Misfit:
         return asdict(self)
 
     def text(self) -> str:
-
         return (
             f"{CHANNEL_NAMES[self.channel]} {self.lo_hz:.3g}-{self.hi_hz:.3g} Hz (by {self.rms_db:.2g} dB, {self.rms_deg:.2g} deg "
             f"rms; chi2 {self.chi2:.3g})"

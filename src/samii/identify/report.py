@@ -154,7 +154,6 @@ def write_fit_outputs(data: FrequencyResponse, results: Sequence[FitResult], out
 
 
 def _write(folder, data: FrequencyResponse, results: Sequence[FitResult], note: str | None) -> None:
-
     many = len(results) > 1
     for r in results:
         folder.path(fit_filename(r, many)).write_text(json_text(versioned(r.to_dict())) + "\n")

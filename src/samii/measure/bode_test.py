@@ -24,7 +24,7 @@ from samii.frequency_response import SUSTAINED_POINTS, max_deviation
 from samii.json_output import dumps
 from samii.outputs import OutputFolder, check_output_file, create_parent, shown_path, written_beside
 from samii.progress import SILENT, Progress, part
-from samii.schema import as_json, record_of, versioned
+from samii.schema import document, record_of
 from samii.schema.measurement import MeasurementRecord
 from samii.sim.overrides import as_overrides
 
@@ -106,7 +106,6 @@ class BodeTest:
 
 
 def _versions() -> dict[str, str]:
-
     out = {}
     for name in ("samii", "numpy", "scipy", "mujoco", "matplotlib", "rerun-sdk", "control"):
         try:
@@ -197,7 +196,6 @@ class MeasureWarning:
 
     @property
     def text(self) -> str:
-
         v = self.values
         if self.code == "pressure_above_supply":
             p_peak, supply = v["peak_pa"], v["supply_pa"]
@@ -431,7 +429,7 @@ def run_bode_test(
         if said:
             summary["warnings"] = [w.text for w in said]
         record = record_of(MeasurementRecord, summary, "samii.measure.bode_test.run_bode_test")
-        write_text(folder.path("run.json"), dumps(versioned(as_json(record)), indent=2) + "\n")
+        write_text(folder.path("run.json"), dumps(document(record), indent=2) + "\n")
         if rerun_path is not None:
             from samii.viz.recording import (  # (lazy: this module is imported at samii's start-up, that one is not needed there)
                 RunRecord,

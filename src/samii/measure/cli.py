@@ -116,9 +116,9 @@ def run(args: argparse.Namespace) -> int:
             argv=sys.argv[1:],
         )
     if args.json:
-        from samii.schema import as_json, versioned
+        from samii.schema import document
 
-        print(dumps(versioned(as_json(test.record)), indent=2))
+        print(dumps(document(test.record), indent=2))
         return 0
     tm = test.record.timing
     print(

@@ -37,7 +37,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.fft
@@ -45,9 +44,6 @@ import scipy.fft
 from samii.measure.frf import CHANNEL_PAIRS
 from samii.measure.frf_variance import MAX_VAR, POOL, pool_mean, spectra_at, timeseries_frf
 from samii.timeseries import TimeSeries
-
-if TYPE_CHECKING:
-    from samii.timeseries import TimeSeries
 
 __all__ = ["REL_FLOOR", "PRACTICAL_FACTOR", "Floor", "quantisation_step", "controller_fir", "estimator_bias", "with_floor"]
 

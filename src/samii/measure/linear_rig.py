@@ -43,7 +43,6 @@ DEG = np.pi / 180.0
 
 
 def _default_params() -> Mapping[str, float]:
-
     return EQ9_4
 
 

@@ -37,7 +37,6 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -47,16 +46,13 @@ from samii.identify.cost import MIN_FREQUENCIES
 from samii.identify.lack_of_fit import MIN_COHERENCE, ROUGHNESS_LAG, averages_from_metadata, is_stepped_sine, noise_only, roughness_variance
 from samii.measure.drift import drift_from_rests
 from samii.measure.excitation import SteppedSine
-from samii.measure.floor import QUANT_FUNDAMENTAL, REL_FLOOR, quantisation_step
+from samii.measure.floor import QUANT_FUNDAMENTAL, REL_FLOOR, Floor, quantisation_step
 from samii.measure.frf import CHANNEL_PAIRS
 from samii.measure.frf_variance import POOL, pool_mean, timeseries_frf
 from samii.measure.lines import remove_lines
 from samii.measure.records import RecordLayout, excitation_offset, find_records
 from samii.measure.stepped import estimate_stepped
 from samii.timeseries import TimeSeries
-
-if TYPE_CHECKING:
-    from samii.measure.floor import Floor
 
 __all__ = ["Measured", "from_timeseries", "from_frf", "with_roughness_noise"]
 

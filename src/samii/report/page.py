@@ -55,6 +55,8 @@ _KEY_PARAMS = {
     "timestep_s": "simulation time step",
 }
 _CHANNELS = {"act": "θ/v", "base": "ẍ/θ", "total": "ẍ/v"}
+#: A closed-loop run's figures where summary.json holds none (null: a folder of samii 0.1.0 may): each shown as "–".
+_NO_THETA, _NO_BASE = ThetaFigures(None, None, None, None), BaseFigures(None, None, None, None, None)
 
 _CSS = """
 body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,"DejaVu Sans",sans-serif;margin:0;background:#fafafa;color:#222;line-height:1.45}
@@ -188,7 +190,6 @@ def _interval(iv: tuple[float | None, float | None] | None) -> str:
 
 
 def _fit(run: Run) -> str:
-
     f = run.fit_record
 
     verdict = f'<span class="{"bad" if verdict_of(f) == "not sound" else "ok"}">{_e(verdict_text(f))}</span>'  # a failure told apart from caveats
@@ -220,7 +221,6 @@ def _fit(run: Run) -> str:
 
 
 def _closed_loop(run: Run) -> str:
-
     cl = run.summary.closed_loop
     d = run.summary.damping_design
     out = ['<h2 id="control">Control: the notebook\'s controllers and the damping controller, closed loop in the nonlinear simulator</h2>',
@@ -238,7 +238,7 @@ def _closed_loop(run: Run) -> str:
             r = cl.get(f"{name}_{sc}")
             if r is None:
                 continue
-            th, ba = r.theta or ThetaFigures(None, None, None, None), r.base or BaseFigures(None, None, None, None, None)
+            th, ba = r.theta or _NO_THETA, r.base or _NO_BASE
             ok = r.stable
             hz = f", {_num(r.unstable_mode_hz, '.3g')} Hz" if r.unstable_mode_hz else ""
             why = _e(r.instability) if r.instability is not None else f"grows at {_num(r.growth_rate_1_s, '.3g')} 1/s{hz}"

@@ -345,7 +345,6 @@ class Engine:
         return self._dask(tasks, progress)
 
     def _dask(self, tasks, progress) -> list[SampleResult]:
-
         study = uuid.uuid4().hex[:12]  # keys unique to this study: a shared cluster may hold another study's results
         futures = self._client.map(run_sample, list(tasks), pure=False, key=[f"samii-sample-{study}-{t.index}" for t in tasks])
         if not self.scheduler:

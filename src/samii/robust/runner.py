@@ -28,7 +28,7 @@ from samii.robust.plots import FIGURES, plot_histograms, plot_influence
 from samii.robust.sampling import Covariance, PlantDraws, draw_plants, parse_spread, read_covariance, sample_seeds
 from samii.robust.study import StudySummary, summarise
 from samii.robust.task import SampleResult, SampleTask
-from samii.schema import as_json, record_of, versioned
+from samii.schema import document, record_of
 from samii.schema.robust import RobustRecord
 from samii.sim.overrides import as_overrides
 
@@ -105,10 +105,17 @@ class StudyResult:
     nominal: SampleResult  #: the nominal plant's run
     samples: list[SampleResult]
     warnings: tuple[StudyWarning, ...]
-    engine: str  #: what ran it, in words
-    wall_s: float
     record: RobustRecord
     written: tuple[Path, ...] = ()  #: the files written (with ``out``)
+
+    @property
+    def engine(self) -> str:
+        """What ran it, in words."""
+        return self.record.engine
+
+    @property
+    def wall_s(self) -> float:
+        return self.record.wall_s
 
 
 def _nominal_params(req: StudyRequest) -> tuple[object, Covariance | None, list[StudyWarning]]:
@@ -214,7 +221,7 @@ class Study:
             "samples": [dict(s.table_row(), params=d.overrides(s.index)) for s in samples],
         }  # fmt: skip
         record = record_of(RobustRecord, document, "samii.robust.runner.Study.run")
-        result = StudyResult(r, summary, d, nominal, samples, tuple(self.warnings), self.engine.describe(), wall, record)
+        result = StudyResult(r, summary, d, nominal, samples, tuple(self.warnings), record)
         if self.folder is not None:
             result = replace(result, written=_write(self.folder, result))
         return result
@@ -266,10 +273,9 @@ def run_study(request: StudyRequest, *, out=None, overwrite: bool = False, progr
 
 
 def _write(folder, result: StudyResult) -> tuple[Path, ...]:
-
     r = result.request
     with folder:
-        folder.path("robust.json").write_text(dumps(versioned(as_json(result.record)), indent=1) + "\n")
+        folder.path("robust.json").write_text(dumps(document(result.record), indent=1) + "\n")
         _write_csv(folder.path("samples.csv"), result.draws, result.samples)
         plot_histograms(result.samples, result.summary, f"{r.controller}, {r.scenario} test, {r.samples} plants", folder.path("histograms.png"))
         plot_influence(result.draws, result.samples, result.summary, folder.path("influence.png"))
@@ -277,7 +283,6 @@ def _write(folder, result: StudyResult) -> tuple[Path, ...]:
 
 
 def _write_csv(path, draws: PlantDraws, samples: list[SampleResult]) -> None:
-
     numbers = ["zeta", "mode_hz", "growth_rate_1_s", "base_settle_s", "theta_settle_s", "theta_overshoot_pct"]
     with open(path, "w", newline="") as f:
         w = csv.writer(f)

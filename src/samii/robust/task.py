@@ -97,7 +97,6 @@ def run_sample(task: SampleTask) -> SampleResult:
 
 
 def _run_sample(task: SampleTask) -> SampleResult:
-
     from samii.closedloop.scenario import NoiseSpec, run_closed_loop, scenario  # (lazy: imports mujoco, scipy, only when called)
     from samii.sim.model import load_model, load_spec, params_from_dict  # (lazy: imports mujoco, only when called)
     from samii.sim.plugin import load_plugin  # (lazy: imports mujoco, only when called)

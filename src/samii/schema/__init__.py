@@ -10,7 +10,7 @@ History: 0 (no key), the layouts of samii 0.1.0; 1, the same fields with ``schem
 the key later than the others, without a change of its fields: one without it is version 0 as well).
 
 :func:`read_document` reads one of these documents from a main job's folder, checked; :func:`read_typed` reads it
-into its type, :func:`written` is a writer's document as its type says it. The types: :mod:`samii.schema.summary`
+into its type, :func:`document` is the object a record is written as (a writer builds its record with :func:`record_of`). The types: :mod:`samii.schema.summary`
 (``summary.json``), :mod:`samii.schema.closed_loop` (a closed-loop run's ``run.json``), :mod:`samii.schema.measurement`
 (a measurement's ``run.json``), :mod:`samii.schema.diagnosis` (``diagnosis.json``), :mod:`samii.schema.robust`
 (``robust.json``); how a document becomes a type and back: :mod:`samii.schema.typed`."""
@@ -23,7 +23,7 @@ from pathlib import Path
 from samii import __version__
 from samii.errors import InputError
 from samii.json_output import non_finite_fields, read_json
-from samii.schema.typed import EMPTY, OPTIONAL, as_json, checked, key, read_as, record_of
+from samii.schema.typed import EMPTY, OPTIONAL, as_json, key, read_as, record_of
 
 __all__ = [
     "SCHEMA_VERSION",
@@ -35,8 +35,7 @@ __all__ = [
     "read_typed",
     "as_json",
     "record_of",
-    "checked",
-    "written",
+    "document",
     "key",
     "OPTIONAL",
     "EMPTY",
@@ -96,10 +95,9 @@ def read_file(path, what: str, tp=None, *, missing: str | None = None, again: st
         raise InputError(f"{exc} (the file is not as samii writes it; {again})") from None
 
 
-def written(tp, doc: Mapping, who: str) -> dict:
-    """The document ``doc`` that ``who`` writes (a function's name, in a programming error), as type ``tp`` says it
-    (:func:`checked`), with this samii's ``schema_version`` first."""
-    return versioned(checked(tp, doc, who))
+def document(record) -> dict:
+    """The JSON object a record (one of this package's types) is written as, this samii's ``schema_version`` first."""
+    return versioned(as_json(record))
 
 
 def read_typed(tp, doc, where):

@@ -1,5 +1,5 @@
 """JSON documents to and from frozen dataclasses: :func:`read_as` reads a parsed document into the types of a
-dataclass's fields, :func:`as_json` writes one back as JSON values, :func:`checked` is the writer's side of it.
+dataclass's fields, :func:`as_json` writes one back as JSON values, :func:`record_of` is the writer's side of it.
 
 A field's type says what the document holds there: ``float``, ``int``, ``bool``, ``str``, one of these
 (``int | str``), ``X | None``,
@@ -10,7 +10,7 @@ so a document read and written back is the same document. A field's metadata may
 
 Reading a file, a value of the wrong kind is an InputError naming the file and the field; a field absent is refused,
 but for one with a default or one that admits null (read as null: a field added since a folder was written), and a
-list marked :data:`EMPTY`, absent or null, which reads as none. Writing, :func:`checked` reads the writer's own
+list marked :data:`EMPTY`, absent or null, which reads as none. Writing, :func:`record_of` reads the writer's own
 document strictly (a key its type does not know or one missing but an optional one, a value of the wrong kind: a
 programming error, TypeError), so a file is written only as its type says."""
 
@@ -24,7 +24,7 @@ from typing import Union, get_args, get_origin, get_type_hints
 from samii.errors import InputError
 from samii.json_output import finite_or_none
 
-__all__ = ["read_as", "as_json", "record_of", "checked", "key", "OPTIONAL", "EMPTY"]
+__all__ = ["read_as", "as_json", "record_of", "key", "OPTIONAL", "EMPTY"]
 
 _ROOT = "(the document)"
 
@@ -42,7 +42,7 @@ def key(name: str, **more) -> dict:
 def read_as(tp, doc, where, *, at: str = _ROOT, strict: bool = False):
     """``doc`` (parsed JSON) read as type ``tp`` (a dataclass, or any type a field may have) from ``where`` (a
     file's path, in messages), at field ``at`` of it (default: the whole document); InputError naming the field of a
-    value of the wrong kind or a field missing. ``strict``: the writer's check (:func:`checked`): a key the type does
+    value of the wrong kind or a field missing. ``strict``: the writer's check (:func:`record_of`): a key the type does
     not know is refused too, and every error is TypeError."""
     return _Reader(where, strict).read(tp, doc, at)
 
@@ -72,11 +72,6 @@ def record_of(tp, doc, who: str):
     return read_as(tp, finite_or_none(doc), who, strict=True)
 
 
-def checked(tp, doc, who: str) -> dict:
-    """The document ``doc`` that ``who`` writes, as type ``tp`` writes it (:func:`record_of`, :func:`as_json`)."""
-    return as_json(record_of(tp, doc, who))
-
-
 class _Reader:
     def __init__(self, where, strict: bool):
         self.where, self.strict = where, strict
@@ -87,7 +82,8 @@ class _Reader:
         return InputError(f"{self.where}: {text}")
 
     def fail(self, path: str, value, expected: str):
-        shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:40] + "..."
+        text = repr(value)
+        shown = text if len(text) <= 40 else text[:40] + "..."
         raise self._error(f"field '{path}' holds {shown}; expected {expected}")
 
     def part(self, cls, d, path: str):

@@ -205,7 +205,6 @@ class HydraulicConfig:
     valve_asymmetry: float = 0.0
 
     def __post_init__(self) -> None:
-
         try:
             HydraulicParams.from_config({**{k: "1" for k in ATTRIBUTES}, **self.valve_config()}, source="hydraulic")
         except HydraulicConfigError as exc:

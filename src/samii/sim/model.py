@@ -174,7 +174,6 @@ def params_with_overrides(params: SamiiParams, overrides: Mapping[str, float]) -
 
 
 def _load_plugin() -> None:
-
     load_plugin()
 
 

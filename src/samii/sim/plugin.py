@@ -161,7 +161,6 @@ def _route_mujoco_warnings() -> None:
         return
 
     def warn(message: str) -> None:
-
         text = re.sub(r"\s*Time = [-+0-9.eE]+\.?\s*$", "", str(message)).strip()  # (one message, whenever it came)
         warnings.warn(text, MuJoCoWarning, stacklevel=2)
 

@@ -160,7 +160,6 @@ class _Kinematics:
 
     @classmethod
     def of(cls, model: mujoco.MjModel) -> _Kinematics:
-
         return cls(model, make_data(model), accel_site(model), modal_projection(model), _beam_dofs(model))
 
     def scale(self, beam_scale: float, arm_scale: float) -> np.ndarray:

@@ -124,7 +124,6 @@ def plot_root_locus(data, *, ax=None, zoom: bool = False, best=None, limit=None,
 
 
 def _header(loop, summary) -> str:
-
     lines = [f"Mass-damping root locus: {loop.label} ({loop.variant.describe()})"]
     if summary is not None:
         iv = ", ".join(f"({_fmt_gain(a)}, {_fmt_gain(b)})" for a, b in summary.stable_intervals)
