@@ -45,6 +45,7 @@ from multiprocessing.pool import RemoteTraceback
 from typing import Any, TypeVar
 
 from samii.errors import InputError
+from samii.threads import one_blas_thread
 
 __all__ = ["fork_calls", "fork_map", "sharing", "workers"]
 
@@ -112,19 +113,8 @@ class _Unpickler(pickle.Unpickler):
         return _SHARED[pid]
 
 
-_CONTROLLER = None
 #: The signals a command stops on (samii.cli): blocked while workers are forked, so that each is born deaf to them.
 _STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
-
-
-def _one_blas_thread():
-    """A context in which BLAS uses one thread (threadpoolctl; its scan of the loaded libraries made once)."""
-    global _CONTROLLER
-    if _CONTROLLER is None:
-        from threadpoolctl import ThreadpoolController  # (lazy: imports threadpoolctl, only when called)
-
-        _CONTROLLER = ThreadpoolController()
-    return _CONTROLLER.limit(limits=1, user_api="blas")
 
 
 def _init_worker() -> None:
@@ -339,7 +329,7 @@ def fork_map(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
     n = min(workers(), len(items))
     # one BLAS thread a worker: two workers of two threads each on two cores spin against each other (a diagnosis
     # took 2-3x longer); the serial path does the same, so the bits do not depend on the workers
-    with _one_blas_thread():
+    with one_blas_thread():
         if n <= 1 or not hasattr(os, "fork"):
             return [fn(x) for x in items]
         with warnings.catch_warnings():

@@ -146,6 +146,8 @@ class CardModel:
     delay_samples: float  #: computation delay in controller samples
     steps_per_sample: int
     layout: CardLayout
+    #: m/s², what the accelerometer reads at rest (``home``), which the card and every reading of the run subtract
+    accel_offset_m_s2: float
 
     @property
     def sample_time_s(self) -> float:
@@ -242,14 +244,15 @@ def build_card_model(
         return m
 
     model = compile_with(config)
+    # the accelerometer's measuring direction and rest reading, as samii.sim.simulate removes them
+    _, direction = accel_weights(model)
+    offset = float(accel_offset(model))
     steps, n_buffer, n = 1, 0, 0
     if controller is not None:
         n = controller.n_states
         steps = check_fit(controller, dt, delay_samples)
         delay_steps = float(delay_samples) * steps
         A, B, C, D = si_matrices(controller)
-        # the accelerometer's measuring direction and rest reading, as samii.sim.simulate removes them
-        _, direction = accel_weights(model)
         config.update({
             "controller_states": str(n),
             "controller_d": _join(D),
@@ -259,7 +262,7 @@ def build_card_model(
             "controller_theta_sensor": "theta",
             "controller_accel_sensor": "base_accel",
             "controller_accel_direction": _join(direction),
-            "controller_accel_offset": repr(float(accel_offset(model))),
+            "controller_accel_offset": repr(offset),
             "controller_theta_noise": THETA_NOISE_ACTUATOR,
             "controller_accel_noise": ACCEL_NOISE_ACTUATOR,
             "controller_theta_lsb": repr(float(theta_lsb_rad)),
@@ -287,4 +290,4 @@ def build_card_model(
         raise RuntimeError(f"the plugin's state has {n_plugin} entries, expected {expected}: plugin and samii.closedloop.card disagree")
     # without a controller the servo amplifier runs alone: nothing replaces it, nothing is delayed
     replaces = bool(replaces_servo) and controller is not None
-    return CardModel(model, controller, replaces, float(delay_samples) if controller is not None else 0.0, steps, layout)
+    return CardModel(model, controller, replaces, float(delay_samples) if controller is not None else 0.0, steps, layout, offset)

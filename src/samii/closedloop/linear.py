@@ -29,7 +29,7 @@ import numpy as np
 
 from samii.closedloop.card import CardModel, si_matrices
 from samii.closedloop.run import bumpless_state
-from samii.sim.model import make_data
+from samii.sim.model import make_data, reset_home
 from samii.sim.one_step import transition
 from samii.sim.plugin import hydraulic_params
 from samii.sim.sensors import output_rows
@@ -78,23 +78,25 @@ class LinearLoop:
         full = 1 - math.exp(-h / tau)
         return (1 - math.exp(-f * h / tau)) * math.exp(-(1 - f) * h / tau) / full, (1 - math.exp(-(1 - f) * h / tau)) / full
 
-    def _step(self, x, z, buf, held: float, *, sample: bool, enabled: bool, theta_ref: float, r: float):
-        """One physics step as the card runs it: sample (every ``steps``), the delay line, the valve, the plant.
+    def _step(self, x, z, buf, held, *, sample: bool, enabled: bool, theta_ref, r):
+        """One physics step as the card runs it: sample (every ``steps``), the delay line, the valve, the plant;
+        of one loop (``x``, ``z``, ``buf`` vectors, the rest numbers) or of a batch of ``k`` loops at once (each a
+        column: ``x`` (nx, k), ``z`` (nz, k), ``buf`` (nb, k), ``held``, ``theta_ref`` and ``r`` (k,)).
 
         Returns ``(x, z, buf, held, theta, accel, v)``: the next plant and controller states and delay line,
         the held command, the outputs at this step's start and the valve voltage (the step's later piece).
         """
-        th, ac = float(self.c_theta @ x), float(self.c_accel @ x)
+        th, ac = self.c_theta @ x, self.c_accel @ x
         servo = self.kp * (theta_ref - th)
         if enabled:
             if sample:
-                w = np.array([theta_ref, th, ac])
-                held = float(self.C[0] @ z + self.D[0] @ w)
+                w = np.stack([theta_ref, th, ac])
+                held = self.C[0] @ z + self.D[0] @ w
                 z = self.A @ z + self.B @ w
         else:
-            held = servo if self.replaces else 0.0  # the card records what the servo loop commands
-        if buf.size:
-            buf = np.concatenate([[held], buf[:-1]])
+            held = servo if self.replaces else np.zeros_like(th)  # the card records what the servo loop commands
+        if buf.shape[0]:
+            buf = np.concatenate([np.asarray(held)[None], buf[:-1]])
         if enabled:
             m = int(math.floor(self.delay_steps))
             a_old, a_new = self._weights()
@@ -103,7 +105,7 @@ class LinearLoop:
             u = a_new * v + a_old * (base + buf[m + 1])
         else:
             v = u = r + servo
-        return self.Ad @ x + self.bd * u, z, buf, held, th, ac, v
+        return self.Ad @ x + np.multiply.outer(self.bd, u), z, buf, held, th, ac, v
 
     def simulate(
         self, theta_ref: np.ndarray, r: np.ndarray | None = None, *, enabled: np.ndarray | None = None, x0: np.ndarray | None = None
@@ -150,17 +152,15 @@ class LinearLoop:
     def step_map(self, enabled: bool, sample: bool) -> tuple[np.ndarray, np.ndarray]:
         """One physics step (:meth:`_step`) as the linear map it is: ``[X'; y] = Ms X + Mu (theta_ref, r)``, ``X`` the
         plant state, the controller state, the delay line and the held command, ``y`` theta, accel and the valve
-        voltage at the step's start. Built column by column from :meth:`_step` itself (exact: the step has no
-        constant term), so the loop that applies it is the card's logic, one matrix product per step."""
+        voltage at the step's start. Built from :meth:`_step` itself, every unit column probed at once as a batch
+        (exact: the step has no constant term), so the loop that applies it is the card's logic, one matrix product
+        per step."""
         nx, nz, nb = self.Ad.shape[0], self.A.shape[0], self.n_buffer
         dim = nx + nz + nb + 1
-        M = np.empty((dim + 3, dim + 2))
-        for col in range(dim + 2):
-            e = np.zeros(dim + 2)
-            e[col] = 1.0
-            x, z, buf, held = e[:nx], e[nx : nx + nz], e[nx + nz : dim - 1], float(e[dim - 1])
-            x2, z2, buf2, held2, th, ac, v = self._step(x, z, buf, held, sample=sample, enabled=enabled, theta_ref=float(e[dim]), r=float(e[dim + 1]))
-            M[:, col] = np.concatenate([x2, z2, buf2, [held2, th, ac, v]])
+        e = np.eye(dim + 2)
+        x, z, buf, held = e[:nx], e[nx : nx + nz], e[nx + nz : dim - 1], e[dim - 1]
+        x2, z2, buf2, held2, th, ac, v = self._step(x, z, buf, held, sample=sample, enabled=enabled, theta_ref=e[dim], r=e[dim + 1])
+        M = np.vstack([x2, z2, buf2, held2, th, ac, v])
         return M[:, :dim], M[:, dim:]
 
     def sample_map(self) -> np.ndarray:
@@ -186,11 +186,12 @@ class LinearLoop:
         return np.log(z.astype(complex)) / (self.steps * self.dt_s)
 
 
-def linear_loop(cm: CardModel, *, eps: float = 1e-6) -> LinearLoop:
-    """The linearised closed loop of ``cm`` about its ``home`` equilibrium."""
+def linear_loop(cm: CardModel, *, eps: float = 1e-6, data: mujoco.MjData | None = None) -> LinearLoop:
+    """The linearised closed loop of ``cm`` about its ``home`` equilibrium (computed in ``data``, a MjData of
+    ``cm.model`` whose state it overwrites; default a new one)."""
 
     m = cm.model
-    data = make_data(m)
+    data = make_data(m) if data is None else reset_home(m, data)
     if cm.controller is not None:
         # linearise the plant with the card switched off: the servo amplifier alone, whose gain is
         # taken out below (an enabled card would act inside the finite differences from its frozen

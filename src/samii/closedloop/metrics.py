@@ -146,7 +146,13 @@ def envelope(x: np.ndarray, dt: float, smooth_s: float = ENVELOPE_SMOOTH_S) -> n
 
 
 def base_metrics(
-    t: np.ndarray, accel: np.ndarray, t_disturbance: float, *, t_decay_s: float | None = None, residual_from_s: float | None = None
+    t: np.ndarray,
+    accel: np.ndarray,
+    t_disturbance: float,
+    *,
+    t_decay_s: float | None = None,
+    residual_from_s: float | None = None,
+    env: np.ndarray | None = None,
 ) -> BaseMetrics:
     """Peak, residual rms, settle time and decay rate of the base acceleration.
 
@@ -154,7 +160,8 @@ def base_metrics(
     and settle time count from ``t_disturbance`` (the step, the impulse); the
     decay rate is fitted from the envelope's peak after ``t_decay_s`` (default
     ``t_disturbance``; the switch-on in a Loper test); the residual rms is over
-    ``t >= residual_from_s`` (None: not computed).
+    ``t >= residual_from_s`` (None: not computed). ``env``: :func:`envelope` of ``accel`` from ``t_disturbance`` on,
+    when the caller has it (:func:`sustained_oscillation` reads the same).
     """
     a = np.asarray(accel, float)
     dt = float(t[1] - t[0])
@@ -168,7 +175,7 @@ def base_metrics(
         kr = int(np.searchsorted(t, residual_from_s))
         if kr < t.size:
             residual = float(np.sqrt(np.mean(a[kr:] ** 2)))
-    env = envelope(seg, dt)
+    env = envelope(seg, dt) if env is None else env
     limit = BASE_SETTLE_FRACTION * float(np.max(env))
     above = np.flatnonzero(env > limit)
     settle = None if above.size == 0 or above[-1] + 1 >= env.size else float((above[-1] + 1) * dt)
@@ -356,7 +363,14 @@ def _dominant_freq_hz(x: np.ndarray, dt: float) -> float:
 
 
 def sustained_oscillation(
-    t: np.ndarray, accel: np.ndarray, t_event: float, *, min_decay_1_s: float = 0.05, tail_fraction: float = 0.4, min_tail_level: float = 0.3
+    t: np.ndarray,
+    accel: np.ndarray,
+    t_event: float,
+    *,
+    min_decay_1_s: float = 0.05,
+    tail_fraction: float = 0.4,
+    min_tail_level: float = 0.3,
+    env: np.ndarray | None = None,
 ) -> Instability | None:
     """The base oscillation after ``t_event`` if it does not decay, else None.
 
@@ -369,14 +383,15 @@ def sustained_oscillation(
     its largest value (still small signal), or 80 % when that is too short to
     fit (a fast growth); None when it did not grow (a disturbance that only
     persisted). The frequency is the spectrum's peak over the growth (a limit
-    cycle's frequency can differ), else over the tail.
+    cycle's frequency can differ), else over the tail. ``env``: :func:`envelope` of ``accel`` from ``t_event`` on,
+    when the caller has it.
     """
     dt = float(t[1] - t[0])
     k0 = int(np.searchsorted(t, t_event))
     seg = np.asarray(accel[k0:], float)
     if seg.size < int(2.0 / dt):
         return None
-    env = envelope(seg, dt)
+    env = envelope(seg, dt) if env is None else env
     k_tail = int((1 - tail_fraction) * env.size)
     tail = env[k_tail:]
     tt = np.arange(k_tail, env.size) * dt

@@ -18,9 +18,9 @@ import numpy as np
 
 from samii.closedloop.card import CardModel, si_matrices
 from samii.errors import SimulationUnstable
-from samii.sim.model import make_data
+from samii.sim.model import make_data, reset_home
 from samii.sim.plugin import hydraulic_params
-from samii.sim.sensors import accel_offset, accel_weights
+from samii.sim.sensors import accel_weights
 from samii.sim.simulate import check_rollout
 
 __all__ = ["LoopSignals", "bumpless_state", "run_loop", "measurements_at"]
@@ -63,11 +63,12 @@ class LoopSignals:
 ACCEL_INPUT = 2
 
 
-def measurements_at(cm: CardModel, state: np.ndarray, theta_ref_rad: float) -> np.ndarray:
-    """``w = (theta_ref, theta, accel)`` (SI, noise-free) the card would sample in ``state``."""
+def measurements_at(cm: CardModel, state: np.ndarray, theta_ref_rad: float, data: mujoco.MjData | None = None) -> np.ndarray:
+    """``w = (theta_ref, theta, accel)`` (SI, noise-free) the card would sample in ``state`` (computed in ``data``, a
+    MjData of ``cm.model`` whose state it overwrites; default a new one)."""
 
     m = cm.model
-    d = mujoco.MjData(m)
+    d = mujoco.MjData(m) if data is None else data
     mujoco.mj_setState(m, d, np.asarray(state, float), _FULL)
     d.ctrl[:] = 0.0
     d.ctrl[1] = theta_ref_rad
@@ -75,7 +76,7 @@ def measurements_at(cm: CardModel, state: np.ndarray, theta_ref_rad: float) -> n
     theta_adr = int(m.sensor_adr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, "theta")])
     adr, direction = accel_weights(m)
     theta0 = hydraulic_params(m).reference_angle
-    return np.array([theta_ref_rad, d.sensordata[theta_adr] - theta0, d.sensordata[adr : adr + 3] @ direction - accel_offset(m)])
+    return np.array([theta_ref_rad, d.sensordata[theta_adr] - theta0, d.sensordata[adr : adr + 3] @ direction - cm.accel_offset_m_s2])
 
 
 def bumpless_state(matrices: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], w: np.ndarray, target_v: float) -> tuple[np.ndarray, float]:
@@ -124,6 +125,7 @@ def run_loop(
     chunk_steps: int = 2000,
     keep_partial: bool = False,
     qpos_every: int | None = None,
+    data: mujoco.MjData | None = None,
 ) -> LoopSignals:
     """Run ``len(theta_ref_rad)`` physics steps of the closed loop.
 
@@ -146,6 +148,8 @@ def run_loop(
         ``diverged_at_s``) instead of raising :class:`SimulationUnstable`.
     qpos_every : int, optional
         Keep ``qpos`` every this many steps (``frame_t``, ``frame_qpos``: an animation).
+    data : MjData, optional
+        A MjData of ``cm.model`` to step in (its state is overwritten); default a new one.
     """
 
     m = cm.model
@@ -165,7 +169,7 @@ def run_loop(
     if switch_on_step is not None and not 0 <= switch_on_step < n:
         raise ValueError(f"switch_on_step must lie in 0...{n - 1}, got {switch_on_step}")
 
-    data = make_data(m)
+    data = make_data(m) if data is None else reset_home(m, data)
     L = cm.layout
     if initial_state is None:
         initial_state = np.empty(L.nstate)
@@ -198,11 +202,16 @@ def _run_segments(cm, ctrl, theta_ref_rad, state, data, switch_on_step, chunk_st
     t0 = float(state[0])
     theta_adr = int(m.sensor_adr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, "theta")])
     acc_adr, direction = accel_weights(m)
-    g_off = accel_offset(m)
+    g_off = cm.accel_offset_m_s2
     segments = [(0, n)] if switch_on_step in (None, 0) else [(0, switch_on_step), (switch_on_step, n)]
     if switch_on_step == 0:
         segments = [(0, n)]
-    states, sensors = [], []
+    # the run's states and sensor readings, written by the rollouts in place: row j of ``traj`` is the state before
+    # step j and after step j - 1 (at a switch-on the card's flag, counter and states are set in it, which leaves the
+    # valve and command slots read from "after" as the step before left them)
+    traj = np.empty((n + 1, L.nstate))
+    traj[0] = state
+    sd_all = np.empty((n, m.nsensordata))
     jump = None
     diverged = None
     what = "the simulation"
@@ -212,14 +221,13 @@ def _run_segments(cm, ctrl, theta_ref_rad, state, data, switch_on_step, chunk_st
             w = measurements_at(cm, state, float(theta_ref_rad[a]))
             target = hp.position_gain * (w[0] - w[1]) if cm.replaces_servo else 0.0
             z0, jump = bumpless_state(si_matrices(cm.controller), w, target)
-            state = cm.set_enabled(state, True, z0)
+            state = traj[a] = cm.set_enabled(state, True, z0)
         lo, size = a, chunk_steps
         while lo < b:
             hi = min(lo + size, b)
-            s, sd = mujoco.rollout.rollout(m, data, state[None, :], ctrl[None, lo:hi])
-            s, sd = s[0], sd[0]
+            mujoco.rollout.rollout(m, data, state[None, :], ctrl[None, lo:hi], state=traj[None, lo + 1 : hi + 1], sensordata=sd_all[None, lo:hi])
             try:
-                check_rollout(data, s[-1], t0 + hi * dt, hi * dt)
+                check_rollout(data, traj[hi], t0 + hi * dt, hi * dt)
             except SimulationUnstable:
                 if not keep_partial:
                     raise
@@ -228,16 +236,12 @@ def _run_segments(cm, ctrl, theta_ref_rad, state, data, switch_on_step, chunk_st
                     continue
                 diverged = t0 + lo * dt
                 break
-            states.append(np.vstack([state[None, :], s]))
-            sensors.append(sd)
-            state = s[-1]
+            state = traj[hi]
             done = lo = hi
         if diverged is not None:
             break
 
-    before = np.vstack([x[:-1] for x in states]) if states else np.zeros((0, L.nstate))
-    after = np.vstack([x[1:] for x in states]) if states else np.zeros((0, L.nstate))
-    sd = np.vstack(sensors) if sensors else np.zeros((0, m.nsensordata))
+    before, after, sd = traj[:done], traj[1 : done + 1], sd_all[:done]
     k = np.arange(done)
     theta_abs = sd[:, theta_adr]
     theta = theta_abs - hp.reference_angle
@@ -273,7 +277,7 @@ def _run_segments(cm, ctrl, theta_ref_rad, state, data, switch_on_step, chunk_st
         p_load=before[:, L.act_adr + 1] * hp.supply_pressure,
         spool=before[:, L.act_adr],
         enabled=enabled,
-        final_state=np.array(state, float),
+        final_state=state.copy(),
         switch_on_s=None if switch_on_step is None else t0 + switch_on_step * dt,
         switch_jump_v=jump,
         diverged_at_s=diverged,

@@ -32,6 +32,7 @@ from samii.closedloop.metrics import (
     Runaway,
     StepMetrics,
     base_metrics,
+    envelope,
     growth,
     response_modes,
     runaway,
@@ -42,7 +43,7 @@ from samii.closedloop.run import LoopSignals, measurements_at, run_loop
 from samii.json_output import finite_or_none
 from samii.measure.daq import SensorNoise
 from samii.sim.hydraulic_reference import AMPLIFIER_LIMIT_V
-from samii.sim.model import load_model, load_spec, make_data
+from samii.sim.model import load_model, load_spec, make_data, reset_home
 from samii.sim.sensors import accel_axis_world, accel_site
 from samii.timeseries import TimeSeries
 
@@ -246,12 +247,13 @@ class ClosedLoopResult:
                           spool=s.spool, extra=extra, metadata=meta)  # fmt: skip
 
 
-def _impulse_state(cm: CardModel, impulse_n_s: float) -> np.ndarray:
+def _impulse_state(cm: CardModel, impulse_n_s: float, data: mujoco.MjData) -> np.ndarray:
     """The ``home`` state with the velocity change of an impulse at the accelerometer's site along
-    its measuring axis in the world frame (a body-fixed accelerometer's axis turned by its site)."""
+    its measuring axis in the world frame (a body-fixed accelerometer's axis turned by its site); ``data``, a
+    MjData of ``cm.model``, is left at ``home``."""
 
     m = cm.model
-    d = make_data(m)
+    d = reset_home(m, data)
     full = mujoco.mjtState.mjSTATE_FULLPHYSICS
     state = np.empty(cm.layout.nstate)
     mujoco.mj_getState(m, d, state, full)
@@ -297,11 +299,12 @@ def _worst_pole(poles_s: np.ndarray) -> str:
     return f"a pair of poles at {abs(p.imag) / (2 * np.pi):.3g} Hz growing at {p.real:.3g} 1/s"
 
 
-def _fd_deviation(cm: CardModel, state: np.ndarray) -> np.ndarray:
-    """``state`` as a deviation from ``home`` in mjd_transitionFD's coordinates (dqpos, qvel, act)."""
+def _fd_deviation(cm: CardModel, state: np.ndarray, data: mujoco.MjData) -> np.ndarray:
+    """``state`` as a deviation from ``home`` in mjd_transitionFD's coordinates (dqpos, qvel, act); ``data``, a
+    MjData of ``cm.model``, is left at ``home``."""
 
     m = cm.model
-    home = make_data(m)
+    home = reset_home(m, data)
     qpos = state[1 : 1 + m.nq]
     dq = np.zeros(m.nv)
     mujoco.mj_differentiatePos(m, dq, 1.0, home.qpos, qpos)
@@ -310,13 +313,13 @@ def _fd_deviation(cm: CardModel, state: np.ndarray) -> np.ndarray:
     return np.concatenate([dq, qvel, act])
 
 
-def _inputs(cm: CardModel, sc: Scenario) -> tuple[np.ndarray, np.ndarray | None, int | None]:
+def _inputs(cm: CardModel, sc: Scenario, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray | None, int | None]:
     dt = float(cm.model.opt.timestep)
     n = int(round(sc.duration_s / dt))
     theta_ref = np.zeros(n)
     if sc.name in ("step", "loper"):
         theta_ref[int(round(sc.t_step_s / dt)) :] = math.radians(sc.step_deg)
-    initial = _impulse_state(cm, sc.impulse_n_s) if sc.name == "release" else None
+    initial = _impulse_state(cm, sc.impulse_n_s, data) if sc.name == "release" else None
     switch = int(round(sc.switch_on_s / dt)) if sc.name == "loper" and cm.controller is not None else None
     return theta_ref, initial, switch
 
@@ -364,7 +367,8 @@ def run_closed_loop(
     spec, qpos, act = spec_factory()
     cm = build_card_model(spec, controller, replaces_servo=replaces, delay_samples=delay_samples,
                           theta_lsb_rad=q.theta_lsb_rad, accel_lsb_m_s2=q.accel_lsb_m_s2, home_qpos=qpos, home_act=act)  # fmt: skip
-    theta_ref, initial, switch = _inputs(cm, sc)
+    data = make_data(cm.model)  # (one MjData for the run, its rest readings and its linearisation: a new one costs 0.4 ms)
+    theta_ref, initial, switch = _inputs(cm, sc, data)
     n = theta_ref.size
     noise_th = noise_ac = None
     if noise is not None:
@@ -372,10 +376,10 @@ def run_closed_loop(
         noise_th = rng.normal(0.0, noise.theta_std_rad, n)
         noise_ac = rng.normal(0.0, noise.accel_std_m_s2, n)
     sig = run_loop(cm, theta_ref, theta_noise_rad=noise_th, accel_noise_m_s2=noise_ac, switch_on_step=switch,
-                   initial_state=initial, keep_partial=True, qpos_every=qpos_every)  # fmt: skip
+                   initial_state=initial, keep_partial=True, qpos_every=qpos_every, data=data)  # fmt: skip
     notes: list[str] = []
     # readings at rest (the static equilibrium): the responses are taken relative to them
-    rest = measurements_at(cm, _impulse_state(cm, 0.0), 0.0)
+    rest = measurements_at(cm, _impulse_state(cm, 0.0, data), 0.0, data)
     th_rest, ac_rest = float(rest[1]), float(rest[2])
     accel = sig.accel - ac_rest
 
@@ -383,15 +387,17 @@ def run_closed_loop(
     if comparison and controller is not None:
         spec0, qpos0, act0 = spec_factory()
         cm0 = build_card_model(spec0, None, home_qpos=qpos0, home_act=act0)
-        comp = run_loop(cm0, theta_ref, initial_state=_impulse_state(cm0, sc.impulse_n_s) if sc.name == "release" else None, qpos_every=qpos_every)
+        data0 = make_data(cm0.model)
+        comp = run_loop(cm0, theta_ref, initial_state=_impulse_state(cm0, sc.impulse_n_s, data0) if sc.name == "release" else None,
+                        qpos_every=qpos_every, data=data0)  # fmt: skip
 
     # linear prediction
-    ll: LinearLoop = linear_loop(cm)
+    ll: LinearLoop = linear_loop(cm, data=data)
     poles_s = ll.poles_s()
     linear_stable = _linear_stable(poles_s)
     lin = None
     err: dict[str, float | None] = {"theta": None, "accel": None}
-    x0 = _fd_deviation(cm, initial) if initial is not None else None
+    x0 = _fd_deviation(cm, initial, data) if initial is not None else None
     enabled = np.zeros(n, bool)
     if controller is not None:
         enabled[(switch or 0) :] = True
@@ -405,6 +411,7 @@ def run_closed_loop(
     # stability from the nonlinear response
     t_ev = sc.t_event_s
     stable, mode_hz, rate = True, None, None
+    shared_env = None
     if sig.diverged_at_s is not None or sig.t.size < 30:
         stable = False
         g = growth(sig.t, accel, min(t_ev, sig.t[-1] if sig.t.size else 0.0)) if sig.t.size >= 30 else None
@@ -418,7 +425,9 @@ def run_closed_loop(
             f"{sig.diverged_what} diverged at t = {sig.diverged_at_s:.4g} s" if sig.diverged_at_s is not None else "the simulation diverged at once"
         )
     else:
-        osc = sustained_oscillation(sig.t, accel, t_ev)
+        if sc.t_disturbance_s == t_ev:  # (the step, the release: the oscillation test and the base's metrics read one envelope)
+            shared_env = envelope(accel[int(np.searchsorted(sig.t, t_ev)) :], sig.dt_s)
+        osc = sustained_oscillation(sig.t, accel, t_ev, env=shared_env)
         if osc is not None:
             stable, rate, mode_hz = False, osc.growth_rate_1_s, osc.freq_hz
             held = "the valve's +-10 V saturation" if np.mean(np.abs(sig.v) >= 9.999) > 0.01 else "the valve's pressure-flow law (no saturation)"
@@ -459,7 +468,7 @@ def run_closed_loop(
     theta_m = step_metrics(sig.t, sig.theta, sig.theta_ref, sc.t_step_s) if sc.name in ("step", "loper") else StepMetrics(None, None, None)
     residual_from = sc.t_disturbance_s + 2.0
     base = (
-        base_metrics(sig.t, accel, sc.t_disturbance_s, t_decay_s=t_ev, residual_from_s=residual_from)
+        base_metrics(sig.t, accel, sc.t_disturbance_s, t_decay_s=t_ev, residual_from_s=residual_from, env=shared_env)
         if sig.t.size > 1
         else BaseMetrics(float("nan"), None, None, None)
     )

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from samii.errors import InputError
+from samii.threads import one_blas_thread
 
 __all__ = ["SampleTask", "SampleResult", "run_sample", "closed_loop_damping", "DAMPING_BAND_HZ"]
 
@@ -90,28 +91,26 @@ def run_sample(task: SampleTask) -> SampleResult:
     With one BLAS thread, as in a Dask worker (its nanny sets OMP_NUM_THREADS=1): a sum split over
     threads rounds differently, and the equilibrium and the fitted modes would differ in their last
     bits between engines; with it, every engine gives the same bits."""
-    from threadpoolctl import threadpool_limits  # (lazy: imports threadpoolctl, only when called)
-
-    with threadpool_limits(limits=1):
+    with one_blas_thread():
         return _run_sample(task)
 
 
 def _run_sample(task: SampleTask) -> SampleResult:
     from samii.closedloop.scenario import NoiseSpec, run_closed_loop, scenario  # (lazy: imports mujoco, scipy, only when called)
-    from samii.sim.model import load_model, load_spec, params_from_dict  # (lazy: imports mujoco, only when called)
+    from samii.sim.model import compile_model, load_spec, params_from_dict  # (lazy: imports mujoco, only when called)
     from samii.sim.plugin import load_plugin  # (lazy: imports mujoco, only when called)
 
     load_plugin()  # idempotent; a fresh worker process has not registered the hydraulic plugin yet
     params = params_from_dict(task.base_params)
     try:
-        model = load_model(params=params, overrides=task.overrides)
+        spec, generated = load_spec(params=params, overrides=task.overrides)
+        model = compile_model(spec, generated, params=params, overrides=task.overrides)
     except InputError as exc:  # no static equilibrium near the nominal pose, or too stiff for the step: a plant the rig could not be
         return SampleResult(task.index, False, None, None, None, None, None, None, note=f"no plant: {exc}", valid=False)
     qpos, act = model.key_qpos[0].copy(), model.key_act[0].copy()
 
     def factory():
-        spec, _ = load_spec(params=params, overrides=task.overrides)
-        return spec, qpos, act
+        return spec.copy(), qpos, act  # (compiling left the spec as it was: the card is built on a copy)
 
     noise = NoiseSpec(seed=task.noise_seed) if task.noise_seed is not None else None
     with warnings.catch_warnings():

@@ -39,7 +39,9 @@ __all__ = [
     "read_params_file",
     "load_model",
     "load_spec",
+    "compile_model",
     "make_data",
+    "reset_home",
     "held_joint2_model",
     "ACTUATOR",
     "JOINT",
@@ -246,6 +248,21 @@ def load_model(
     """
 
     spec, generated = load_spec(path, params=params, overrides=overrides)
+    return compile_model(spec, generated, path=path, params=params, overrides=overrides, check_step=check_step)
+
+
+def compile_model(
+    spec: mujoco.MjSpec,
+    generated: bool,
+    *,
+    path: str | Path | None = None,
+    params: SamiiParams | None = None,
+    overrides: Mapping[str, float] | None = None,
+    check_step: bool = True,
+) -> mujoco.MjModel:
+    """:func:`load_model` of a spec :func:`load_spec` returned (``generated``) for ``path``, ``params`` and
+    ``overrides``: a caller that needs the spec as well (to build a controller card on it) builds it once."""
+
     try:
         model = compile_spec(spec)  # validates the hydraulic config, naming any bad attribute
     except InputError:
@@ -327,7 +344,11 @@ def _check_integrable(model: mujoco.MjModel, path, params, overrides: Mapping[st
 
 def make_data(model: mujoco.MjModel) -> mujoco.MjData:
     """MjData at the ``home`` keyframe (static equilibrium), forward-computed."""
-    data = mujoco.MjData(model)
+    return reset_home(model, mujoco.MjData(model))
+
+
+def reset_home(model: mujoco.MjModel, data: mujoco.MjData) -> mujoco.MjData:
+    """``data`` reset to the ``home`` keyframe and forward-computed (a new MjData costs 0.4 ms, a reset microseconds)."""
     key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
     mujoco.mj_resetDataKeyframe(model, data, key)
     mujoco.mj_forward(model, data)

@@ -60,7 +60,7 @@ def check_rollout(data: mujoco.MjData, last_state: np.ndarray, t_end_s: float, s
     any warning, a non-finite state or a clock that did not reach the chunk's
     end (``last_state[0]``, mjSTATE_FULLPHYSICS) is a diverged run.
     """
-    warned = [mujoco.mjtWarning(i).name for i, w in enumerate(data.warning) if int(w.number) > 0]
+    warned = [mujoco.mjtWarning(int(i)).name for i in np.flatnonzero(data.warning.number)]
     clock_ok = abs(float(last_state[0]) - t_end_s) <= 1e-6 * max(1.0, span_s)
     finite = bool(np.all(np.isfinite(last_state)))
     if warned or not clock_ok or not finite:
