@@ -732,10 +732,10 @@ def test_a_run_killed_between_its_two_renames_gives_the_previous_output_back(tmp
 
 
 @pytest.mark.slow
-def test_a_second_local_cluster_is_quiet_about_the_dashboard_port(tmp_path, capsys):
-    """Port 8787 taken (a user's own Dask cluster, or another study running): the study's scheduler, whose HTTP routes
-    Dask serves even without a dashboard, said "warning: UserWarning: Port 8787 is already in use. Perhaps you already
-    have a cluster running?" (found when two studies ran at once). It serves them on a free local port now."""
+def test_a_study_on_local_workers_opens_no_port(tmp_path, capsys):
+    """Port 8787 taken (a user's own Dask cluster, or another study running): the local Dask cluster a study started
+    served its scheduler's HTTP routes there and warned "Port 8787 is already in use". Local workers are forked
+    processes now: no scheduler, no port, no word."""
     holder = socket.socket()
     holder.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
@@ -751,23 +751,24 @@ def test_a_second_local_cluster_is_quiet_about_the_dashboard_port(tmp_path, caps
         holder.close()
     err = "\n".join(ln for ln in capsys.readouterr().err.splitlines() if not ln.startswith(_FEW_PLANTS))
     assert "8787" not in err and "warning" not in err, err
+    assert json.loads((tmp_path / "r" / "robust.json").read_text())["engine"] == "in 2 worker processes on this machine"
 
 
 @contextlib.contextmanager
 def _robust_study(*extra: str, via_main: bool = False):
-    """``samii robust`` on a local Dask cluster of two workers (300 samples: about a minute), in a session of its own,
-    yielded once its cluster is up and sampling; killed at the end if it still runs. ``via_main``: through
+    """``samii robust`` in two local worker processes (2,000 samples: about a minute), in a session of its own,
+    yielded once its workers are up and sampling; killed at the end if it still runs. ``via_main``: through
     ``samii.cli.main`` rather than the program (``python -m samii``)."""
     import signal
 
     launcher = ["-c", "import sys; from samii.cli import main; sys.exit(main(sys.argv[1:]))"] if via_main else ["-m", "samii"]
-    proc = subprocess.Popen([sys.executable, *launcher, "robust", "--controller", "unity", "--samples", "300", "--spread",
+    proc = subprocess.Popen([sys.executable, *launcher, "robust", "--controller", "unity", "--samples", "2000", "--spread",
                              "hydraulic.bulk_modulus=5%", "--workers", "2", *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
     try:
-        header = proc.stderr.readline()  # printed once the study is about to start its cluster (no bar: stderr is no terminal)
-        assert "local Dask cluster" in header, header
-        time.sleep(4.0)  # the cluster is up and sampling
+        header = proc.stderr.readline()  # printed once the study is about to start its workers (no bar: stderr is no terminal)
+        assert "in 2 worker processes on this machine" in header, header
+        time.sleep(4.0)  # the workers are up and sampling
         assert proc.poll() is None
         yield proc
     finally:
@@ -775,37 +776,57 @@ def _robust_study(*extra: str, via_main: bool = False):
             os.killpg(proc.pid, signal.SIGKILL)
 
 
+def _workers_of(pid: int) -> list[int]:
+    """The processes ``pid`` started (its local workers: each in a process group of its own)."""
+    return [int(x) for x in subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True).stdout.split()]
+
+
+def _left(pids: list[int]) -> list[int]:
+    """Those of ``pids`` still running a second or two after their parent ended (the time they take to notice)."""
+
+    def running(pid: int) -> bool:
+        try:
+            return "zombie" not in Path(f"/proc/{pid}/status").read_text().lower()
+        except OSError:  # gone
+            return False
+
+    for _ in range(100):
+        left = [p for p in pids if running(p)]
+        if not left:
+            break
+        time.sleep(0.1)
+    return left
+
+
 @pytest.mark.slow
 def test_robust_workers_stay_quiet_on_a_terminals_ctrl_c(tmp_path):
-    """Ctrl-C to the process group (as a terminal sends it) while a local Dask cluster runs the study: the command's
+    """Ctrl-C to the process group (as a terminal sends it) while local workers run the study: the command's
     one line and exit 130, no worker traceback (two workers printed about 80 lines before), no folder, no worker left."""
     import signal
 
     out = tmp_path / "r"
     with _robust_study("--out", str(out), via_main=True) as proc:
+        workers = _workers_of(proc.pid)
         os.killpg(proc.pid, signal.SIGINT)
         _, err = proc.communicate(timeout=60)
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert proc.returncode == 130 and lines == ["samii robust: interrupted; nothing half-written was kept"], err
-    assert not out.exists()
+    assert len(workers) == 2 and not _left(workers) and not out.exists()
 
 
 @pytest.mark.slow
 def test_robust_killed_outright_leaves_no_word_and_no_worker():
-    """SIGKILL to the command alone while its local Dask cluster runs: it cannot speak, and multiprocessing's resource
-    tracker (which outlives it to unlink the cluster's semaphores) printed "UserWarning: resource_tracker: There appear
-    to be 12 leaked semaphore objects" and a source line on the user's terminal. Now nothing, and no process left."""
+    """SIGKILL to the command alone while its workers run: it cannot speak (a local Dask cluster's resource tracker,
+    which outlived it, printed "UserWarning: resource_tracker: There appear to be 12 leaked semaphore objects" and a
+    source line on the user's terminal), and its workers end with it (the kernel ends them: PR_SET_PDEATHSIG)."""
     import signal
 
     with _robust_study() as proc:
+        workers = _workers_of(proc.pid)
         os.kill(proc.pid, signal.SIGKILL)
         _, err = proc.communicate(timeout=60)
-        for _ in range(100):  # (the workers and the tracker notice the parent's death within a second or two)
-            left = subprocess.run(["pgrep", "-g", str(proc.pid)], capture_output=True, text=True).stdout.split()
-            if not left:
-                break
-            time.sleep(0.1)
-    assert proc.returncode == -signal.SIGKILL and err.strip() == "" and not left, (err, left)
+        left = _left(workers)
+    assert proc.returncode == -signal.SIGKILL and err.strip() == "" and len(workers) == 2 and not left, (err, workers, left)
 
 
 @pytest.mark.slow
@@ -1421,28 +1442,6 @@ def test_a_covariance_of_a_calibration_that_did_not_converge_is_said(tmp_path, c
     assert main(["robust", "--controller", "unity", "--covariance", str(p), "--samples", "2", "--no-progress"]) == 0
     line = _one_line(capsys)
     assert line.startswith(f"samii robust: warning: --covariance {p}: the calibration did not converge")
-
-
-def test_a_wrapper_folder_left_by_a_killed_robust_is_removed_by_the_next(tmp_path, monkeypatch):
-    """SIGKILL while the local cluster started (3 of 8 tries at 0.8-1.2 s) left /tmp/samii-workers-XXXX/ with its
-    wrapper script for good. The folder is named with the process id now, and the next start removes a dead one's."""
-    import tempfile
-
-    from samii.robust.engine import _workers_deaf_to_terminal_signals
-
-    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
-    dead = subprocess.Popen([sys.executable, "-c", "pass"])
-    dead.wait()
-    stale = tmp_path / f"samii-workers-{dead.pid}-abc"
-    stale.mkdir()
-    (stale / "python").write_text("#!/bin/sh\n")
-    mine = tmp_path / f"samii-workers-{os.getpid()}-live"  # a live process's (this one's) is left alone
-    mine.mkdir()
-    with _workers_deaf_to_terminal_signals():
-        inside = [p.name for p in tmp_path.iterdir()]
-    assert not stale.exists() and mine.exists()
-    assert any(n.startswith(f"samii-workers-{os.getpid()}-") and n != mine.name for n in inside)
-    assert [p.name for p in tmp_path.iterdir()] == [mine.name]
 
 
 def test_a_scheduler_without_workers_is_said_within_the_timeout(capsys):

@@ -48,6 +48,19 @@ def test_results_in_order_closures_and_shared_objects_by_reference(two_workers):
     assert {pid for *_, pid in out} - {os.getpid()}, "computed in workers"
 
 
+def test_processes_bounds_the_workers_and_done_hears_every_item(monkeypatch):
+    """``processes`` caps the workers whatever ``SAMII_WORKERS`` says (``samii robust --workers N``), 1 is this
+    process; ``done`` is called here once per item as its result comes in (a progress bar's advance)."""
+    import time
+
+    monkeypatch.setenv("SAMII_WORKERS", "4")
+    heard = []
+    out = forkmap.fork_map(lambda x: (time.sleep(0.01), os.getpid())[1], range(12), processes=2, done=lambda: heard.append(os.getpid()))
+    assert len(set(out) - {os.getpid()}) == 2 and heard == [os.getpid()] * 12
+    heard.clear()
+    assert forkmap.fork_map(lambda x: os.getpid(), range(3), processes=1, done=lambda: heard.append(1)) == [os.getpid()] * 3 and heard == [1] * 3
+
+
 def test_an_unshared_object_that_cannot_travel_fails_loudly(two_workers):
     with pytest.raises(Exception, match="pickle|lambda"):
         forkmap.fork_map(lambda k: _Unpicklable(k), [1, 2])

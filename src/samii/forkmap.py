@@ -227,7 +227,7 @@ def _raise_from(blob: bytes) -> None:
     raise exc
 
 
-def _forked(fn: Callable, items: list, n: int) -> list:
+def _forked(fn: Callable, items: list, n: int, on_result: Callable[[], None] | None = None) -> list:
     """The items' results computed by ``n`` forked workers, one item at a time each, in the items' order.
 
     Each worker has pipes of its own and shares no lock with the others (a multiprocessing.Pool's workers share a queue
@@ -250,7 +250,7 @@ def _forked(fn: Callable, items: list, n: int) -> list:
                 workers.append(_fork_worker(parent, workers))
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, before)
-        results = _serve(fn, items, workers)
+        results = _serve(fn, items, workers, on_result)
         done = True
         return results
     finally:
@@ -261,7 +261,7 @@ def _forked(fn: Callable, items: list, n: int) -> list:
 _MISSING = object()
 
 
-def _serve(fn: Callable, items: list, workers: list[_Worker]) -> list:
+def _serve(fn: Callable, items: list, workers: list[_Worker], done: Callable[[], None] | None = None) -> list:
     results: list = [_MISSING] * len(items)
     todo = list(range(len(items)))[::-1]  # (popped from the end: in order)
     idle = list(workers)[::-1]
@@ -290,8 +290,12 @@ def _serve(fn: Callable, items: list, workers: list[_Worker]) -> list:
                 _raise_from(blob[1:])
             results[i] = blob
             idle.append(w)
+            if done is not None:
+                done()
     for k in reversed(todo):
         results[k] = fn(items[k])
+        if done is not None:
+            done()
     return [_Unpickler(io.BytesIO(r[1:])).load() if isinstance(r, bytes) else r for r in results]
 
 
@@ -321,21 +325,33 @@ def _stop(workers: list[_Worker], *, kill: bool) -> None:
         raise
 
 
-def fork_map(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
-    """``[fn(x) for x in items]``, computed in forked workers (module docstring); an exception in ``fn`` is raised here."""
+def fork_map(fn: Callable[[T], R], items: Iterable[T], *, processes: int | None = None, done: Callable[[], None] | None = None) -> list[R]:
+    """``[fn(x) for x in items]``, computed in forked workers (module docstring); an exception in ``fn`` is raised here.
+
+    ``processes``: at most this many workers (default :func:`workers`); ``done`` is called here as each item's result
+    comes in (in whatever order they finish: a progress bar's advance)."""
     items = list(items)
     if _IN_WORKER:  # nested: in turn, in this worker (its BLAS already on one thread)
-        return [fn(x) for x in items]
-    n = min(workers(), len(items))
+        return _serially(fn, items, done)
+    n = min(workers() if processes is None else processes, len(items))
     # one BLAS thread a worker: two workers of two threads each on two cores spin against each other (a diagnosis
     # took 2-3x longer); the serial path does the same, so the bits do not depend on the workers
     with one_blas_thread():
         if n <= 1 or not hasattr(os, "fork"):
-            return [fn(x) for x in items]
+            return _serially(fn, items, done)
         with warnings.catch_warnings():
             # Python 3.12+ warns that forking a process with threads (BLAS's) may deadlock; the workers run numpy only
             warnings.simplefilter("ignore", DeprecationWarning)
-            return _forked(fn, items, n)
+            return _forked(fn, items, n, done)
+
+
+def _serially(fn: Callable, items: list, done: Callable[[], None] | None) -> list:
+    out = []
+    for x in items:
+        out.append(fn(x))
+        if done is not None:
+            done()
+    return out
 
 
 def _call(job: Callable[[], R]) -> R:

@@ -1,8 +1,8 @@
 """``samii robust``: Monte Carlo robustness of a controller in the nonlinear simulator.
 
 Each sample is a plant drawn from the given spreads and/or a calibration's covariance
-(:mod:`samii.robust.sampling`), run closed loop (:mod:`samii.robust.task`) in this process or on
-Dask (:mod:`samii.robust.engine`); the study is one library call (:mod:`samii.robust.runner`), which
+(:mod:`samii.robust.sampling`), run closed loop (:mod:`samii.robust.task`) in this process, in worker processes
+forked from it, or on a user's Dask cluster (:mod:`samii.robust.engine`); the study is one library call (:mod:`samii.robust.runner`), which
 writes into ``--out``: ``robust.json`` (the summary, the nominal plant's run, every sample), ``samples.csv``
 (one line per sample: its parameters and results) and the figures ``histograms.png`` and ``influence.png``.
 This module parses, shows progress and prints. Imports nothing heavy at module level (the runner imports Dask).
@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 
 from samii.cli_args import (
@@ -38,8 +37,10 @@ MAX_SAMPLES = 100_000
 
 
 def _workers(text: str) -> int:
-    """A number of worker processes, or ``auto``: one per core."""
-    return (os.cpu_count() or 1) if text == "auto" else int_in(0, 1024)(text)
+    """A number of worker processes, or ``auto``: one per core this process may run on."""
+    from samii.forkmap import workers
+
+    return workers() if text == "auto" else int_in(0, 1024)(text)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -82,8 +83,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=_workers,
         default=None,
         metavar="N",
-        help="0: run in this process (the default, unless Dask's configuration names a scheduler); N or auto: on a local "
-        "Dask cluster of N worker processes (auto: one per core)",
+        help="0: run in this process; N: in N worker processes on this machine; auto (the default, unless Dask's "
+        "configuration names a scheduler): one per core this process may run on (SAMII_WORKERS sets it)",
     )
     p.add_argument("--scheduler", metavar="ADDRESS", type=nonempty("a scheduler's address (tcp://host:port)"),
                    help="run on this Dask cluster (tcp://host:8786); its workers need samii installed. Without --scheduler and "

@@ -1,10 +1,17 @@
-"""Where a study's samples run: in this process, or on Dask (a local cluster or a user's).
+"""Where a study's samples run: in this process, in forked processes on this machine, or on a user's Dask cluster.
 
-* ``Engine(workers=0)``: one after the other in this process.
-* ``Engine(workers=N)``: a local Dask cluster of N single-threaded worker processes (fresh
-  processes: samii is imported and the hydraulic plugin registered in each, by :class:`SamiiWorkerPlugin`).
+* ``Engine(workers=0)`` (or 1): one after the other in this process.
+* ``Engine(workers=N)``: N worker processes forked from this one (:func:`samii.forkmap.fork_map`; the hydraulic
+  plugin registered and samii imported already, nothing to ship but the task and its result).
 * ``Engine(scheduler="tcp://host:8786")``: a user's Dask cluster, unchanged; its workers need samii
   installed (the same version; the plugin checks and names a worker that lacks it).
+
+On one machine forked processes are what samii uses (``benchmarks/robust_scaling.py``, 2 cores, the 10 s step test,
+a sample 67 ms in this process): 35 ms a sample in 2 forked processes, 34 ms in 2 threads of this process (within
+the runs' spread of each other: 33.4 against 33.8 ms over 200 samples), 44 ms on a local Dask cluster of 2 worker
+processes (its per-task cost, and half a second to start it). Threads run in parallel only while ``mujoco.rollout``
+steps (it releases the GIL); the Python around each run, about a fifth of a sample, holds it, so threads cannot pass
+about 5x whatever the cores, where processes scale with them.
 
 Results come back in sample order whatever order the workers finish in, so a study's table does not
 depend on the engine.
@@ -14,28 +21,22 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import multiprocessing.spawn as mp_spawn
-import os
-import shlex
-import shutil
 import socket
-import tempfile
 import threading
 import time
 import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import dask
-from distributed import Client, LocalCluster, as_completed, wait
+from distributed import Client, wait
 from distributed.comm import registry
 from distributed.comm.addressing import parse_address, parse_host_port
 from distributed.diagnostics.plugin import WorkerPlugin
 
 import samii
 from samii.errors import InputError, raise_if_signalled
-from samii.outputs import remove_stale_runs
+from samii.forkmap import fork_map
 from samii.progress import SILENT, Progress
 from samii.robust.task import SampleResult, SampleTask, run_sample
 
@@ -67,47 +68,6 @@ class SamiiWorkerPlugin(WorkerPlugin):
         load_plugin()
         if samii.__version__ != self.version:  # (in a worker: its own installation's samii)
             raise RuntimeError(f"this worker has samii {samii.__version__}, the client {self.version}: install the same samii on every worker")
-
-
-#: Signals a terminal sends the whole process group (Ctrl-C; a closed terminal's hangup) that local workers ignore:
-#: they are this process's to act on, and it stops the workers by closing the cluster. (SIGTERM is left to them:
-#: the cluster's close uses it.)
-_WORKERS_IGNORE = ("INT", "HUP")
-#: The warning filter the spawned processes start with: the resource tracker's word on cleaning up after a killed parent.
-_QUIET_TRACKER = "ignore::UserWarning:multiprocessing.resource_tracker"
-
-
-@contextlib.contextmanager
-def _workers_deaf_to_terminal_signals():
-    """Start local workers ignoring ``_WORKERS_IGNORE``: a terminal's Ctrl-C reached each worker, which printed a
-    traceback (about 80 lines for two) before the command's own one line, and a hangup killed multiprocessing's
-    resource tracker (a dozen KeyErrors). An ignored disposition survives exec and a Python started so keeps it (a
-    handler does not survive exec; a blocked mask is cleared in a spawned child: measured), so the processes spawned
-    meanwhile start through ``/bin/sh -c "trap '' INT HUP; exec python ..."``: multiprocessing's spawn executable
-    is pointed at a two-line wrapper for the cluster's start and restored after. This process keeps its own handlers
-    throughout (ignoring them here instead lost a Ctrl-C that came while the cluster started: the study ran on)."""
-
-    sh = shutil.which("sh")
-    if sh is None or os.name != "posix":
-        yield
-        return
-
-    real = mp_spawn.get_executable()
-    # named with this process's id: a command killed outright while its cluster started left its wrapper's folder in
-    # the temporary folder for good; the next start removes those whose process is gone
-    remove_stale_runs(Path(tempfile.gettempdir()), "samii-workers-")
-    with tempfile.TemporaryDirectory(prefix=f"samii-workers-{os.getpid()}-") as tmp:
-        wrapper = os.path.join(tmp, "python")
-        with open(wrapper, "w") as fh:
-            # (and multiprocessing's resource tracker, spawned by the same executable, unlinks the semaphores of a
-            # command killed outright without "UserWarning: ... leaked semaphore objects" on the user's terminal)
-            fh.write(f"#!{sh}\ntrap '' {' '.join(_WORKERS_IGNORE)}\nexec {shlex.quote(os.fsdecode(real))} -W {_QUIET_TRACKER} \"$@\"\n")
-        os.chmod(wrapper, 0o755)
-        mp_spawn.set_executable(wrapper)
-        try:
-            yield
-        finally:
-            mp_spawn.set_executable(real)
 
 
 def _connects(registry, scheme: str) -> bool:
@@ -243,16 +203,15 @@ def _silent_workers(workers: dict, heard: dict[str, tuple[float, float]], limit:
 
 @dataclass
 class Engine:
-    """Runs sample tasks. Use as a context manager to keep a Dask cluster up over several :meth:`map` calls;
-    without it, each call starts and stops its own."""
+    """Runs sample tasks. Use as a context manager to keep the connection to a user's Dask cluster over several
+    :meth:`map` calls; without it, each call connects and closes its own."""
 
-    workers: int = 0  #: 0: in this process; N: a local Dask cluster of N worker processes
+    workers: int = 0  #: 0 or 1: in this process; N: N worker processes forked from this one
     scheduler: str | None = None  #: a Dask scheduler's address: the user's cluster
     connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S  #: how long the scheduler has to answer the first contact
     #: where ``scheduler`` came from, for messages: the option, or Dask's own configuration
     scheduler_source: str = "--scheduler"
     _client: object = field(default=None, repr=False)
-    _cluster: object = field(default=None, repr=False)
     #: a study on the user's cluster failed: closing its client may fail too, and is not said again
     _failed: bool = field(default=False, repr=False)
     #: Dask's loggers held quiet while connected to a user's cluster (_quiet_dask_logs)
@@ -261,70 +220,44 @@ class Engine:
     def describe(self) -> str:
         if self.scheduler:
             return f"Dask cluster at {self.scheduler}"
-        if self.workers:
-            return f"local Dask cluster, {self.workers} worker process{'es' if self.workers > 1 else ''}"
+        if self.workers > 1:
+            return f"in {self.workers} worker processes on this machine"
         return "in this process"
 
     @property
     def uses_dask(self) -> bool:
-        return bool(self.scheduler or self.workers)
+        return bool(self.scheduler)
 
     def __enter__(self) -> Engine:
         if self.uses_dask and self._client is None:
-            if self.scheduler:
-                # the client logs a lost scheduler, and its reconnection attempts, as ERROR with tracebacks: the study
-                # says it in one line (_watched)
-                self._quiet.enter_context(_quiet_dask_logs())
-                try:
-                    self._client = _connect(self.scheduler, self.connect_timeout_s, self.scheduler_source)
-                except BaseException:
-                    self._quiet.close()
-                    raise
-                try:  # a scheduler without workers took the study and waited for ever, without a word
-                    self._client.wait_for_workers(1, timeout=self.connect_timeout_s)
-                except TimeoutError:
-                    self.__exit__()
-                    raise InputError(
-                        f"{self.scheduler_source} {self.scheduler}: the scheduler answered, but no worker joined it "
-                        f"within {self.connect_timeout_s:g} s; start workers (dask worker {self.scheduler}), or "
-                        "give them more time with --scheduler-timeout"
-                    ) from None
-            else:
-                # fresh worker processes, one thread each (a MuJoCo run is single-threaded), no dashboard
-                # Dask's statistical profiler samples each worker's stack every 10 ms, holding the GIL to do it:
-                # 20 % of a 0.3 s sample here. Off, and the event loop's watchdog and system monitor polled less
-                # often, the engine costs about what the study's own bookkeeping does (benchmarks/robust_scaling.py)
-                quiet = {
-                    "distributed.worker.daemon": False,
-                    "distributed.worker.profile.enabled": False,
-                    "distributed.admin.tick.interval": "1s",
-                    "distributed.admin.system-monitor.interval": "2s",
-                }
-                try:
-                    with dask.config.set(quiet), _workers_deaf_to_terminal_signals():
-                        # no dashboard; the scheduler's HTTP routes (health, metrics), which it serves anyway, on a free
-                        # local port: on 8787, its default, a second study or a user's own cluster made it warn that
-                        # the port was taken
-                        self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                                     dashboard_address=None, scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
-                                                     silence_logs=50)  # fmt: skip
-                    self._client = Client(self._cluster)
-                except BaseException:  # stopped (a signal) or failed while starting: close what was built
-                    self.__exit__()
-                    raise
+            # the client logs a lost scheduler, and its reconnection attempts, as ERROR with tracebacks: the study
+            # says it in one line (_watched)
+            self._quiet.enter_context(_quiet_dask_logs())
+            try:
+                self._client = _connect(self.scheduler, self.connect_timeout_s, self.scheduler_source)
+            except BaseException:
+                self._quiet.close()
+                raise
+            try:  # a scheduler without workers took the study and waited for ever, without a word
+                self._client.wait_for_workers(1, timeout=self.connect_timeout_s)
+            except TimeoutError:
+                self.__exit__()
+                raise InputError(
+                    f"{self.scheduler_source} {self.scheduler}: the scheduler answered, but no worker joined it "
+                    f"within {self.connect_timeout_s:g} s; start workers (dask worker {self.scheduler}), or "
+                    "give them more time with --scheduler-timeout"
+                ) from None
             self._client.register_plugin(SamiiWorkerPlugin())
         return self
 
     def __exit__(self, *exc) -> None:
         if self._client is not None:
             try:
-                self._client.close(timeout=self.connect_timeout_s if self.scheduler else None)
+                self._client.close(timeout=self.connect_timeout_s)
             except Exception:  # noqa: BLE001 - a lost or stopped scheduler: the study has already said so
                 if not self._failed:
                     raise
-        if self._cluster is not None:
-            self._cluster.close()
-        self._client = self._cluster = None
+        self._client = None
         self._failed = False
         self._quiet.close()
 
@@ -333,12 +266,8 @@ class Engine:
         and advanced by each as it ends."""
         progress = progress or SILENT
         progress.expect(len(tasks))
-        if not self.uses_dask:
-            out = []
-            for t in tasks:
-                out.append(run_sample(t))
-                progress.advance()
-            return out
+        if not self.uses_dask:  # (fork_map runs in this process for one worker, as where the platform cannot fork)
+            return fork_map(run_sample, tasks, processes=max(1, self.workers), done=progress.advance)
         if self._client is None:
             with self:
                 return self._dask(tasks, progress)
@@ -347,12 +276,6 @@ class Engine:
     def _dask(self, tasks, progress) -> list[SampleResult]:
         study = uuid.uuid4().hex[:12]  # keys unique to this study: a shared cluster may hold another study's results
         futures = self._client.map(run_sample, list(tasks), pure=False, key=[f"samii-sample-{study}-{t.index}" for t in tasks])
-        if not self.scheduler:
-            by_key = {}
-            for fut in as_completed(futures):
-                by_key[fut.key] = fut.result()
-                progress.advance()
-            return [by_key[f.key] for f in futures]
         nominal = {f.key for f, t in zip(futures, tasks) if t.index < 0}  # (the nominal plant: no drawn sample)
         return self._watched(futures, progress, nominal)
 

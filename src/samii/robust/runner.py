@@ -18,6 +18,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from samii import forkmap
 from samii.closedloop.trial import check_fits, resolve_controller
 from samii.errors import InputError
 from samii.json_output import dumps
@@ -62,7 +63,8 @@ class StudyRequest:
     overrides: Sequence[str] | Mapping[str, float] = ()  #: NAME=VALUE texts or a mapping, on the nominal plant
     delay_samples: float = 0.0  #: the controller's computation delay [samples]
     noise: bool = False  #: sensor noise on the controller's measurements, seeded per sample
-    workers: int | None = None  #: 0: this process; N: a local Dask cluster; None: Dask's configured scheduler if any
+    #: 0: this process; N: N worker processes on this machine; None: Dask's configured scheduler if any, else one process per core
+    workers: int | None = None
     scheduler: str | None = None  #: a Dask scheduler's address (tcp://host:8786)
     scheduler_timeout_s: float | None = None  #: how long the scheduler has to answer (None: DEFAULT_CONNECT_TIMEOUT_S)
 
@@ -171,7 +173,8 @@ def _engine(req: StudyRequest) -> Engine:
     if req.scheduler_timeout_s is not None and not scheduler:  # (it was accepted and did nothing)
         raise InputError("--scheduler-timeout: only with a Dask cluster to wait for (--scheduler, or Dask's configured scheduler-address)")
     timeout = req.scheduler_timeout_s or DEFAULT_CONNECT_TIMEOUT_S
-    return Engine(workers=req.workers or 0, scheduler=scheduler, connect_timeout_s=timeout, scheduler_source=source)
+    workers = 0 if scheduler else forkmap.workers() if req.workers is None else req.workers
+    return Engine(workers=workers, scheduler=scheduler, connect_timeout_s=timeout, scheduler_source=source)
 
 
 @dataclass
@@ -192,7 +195,7 @@ class Study:
         return f"{r.controller}, {r.scenario} test, {r.samples} plants (seed {r.seed}) {self.engine.describe()}"
 
     def __enter__(self) -> Study:
-        if self.engine.scheduler:  # (a local cluster is started and stopped by the run itself)
+        if self.engine.scheduler:  # (local workers are forked and ended by the run itself)
             self.engine.__enter__()
         return self
 
