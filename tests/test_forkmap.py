@@ -252,3 +252,78 @@ def test_a_group_signal_as_workers_are_forked_leaves_none(tmp_path):
     assert p.returncode == 143 and p.stderr == "", p.stderr
     pids = [int(x) for x in p.stdout.split()]
     assert len(pids) == 2 and all(_gone(pid) for pid in pids)
+
+
+def test_fork_later_runs_a_stage_in_a_worker_while_the_block_runs_here(two_workers):
+    """The main job's diagnosis runs in a worker while the closed-loop trials run here: the job gets its own process
+    (its fork_map in turn inside it, one core each), the block goes on at once, the result comes back by value."""
+    import tempfile
+    import time
+    from pathlib import Path
+
+    marker = Path(tempfile.mkdtemp()) / "job ended"
+
+    def job():
+        inner = forkmap.fork_map(lambda x: os.getpid(), range(3))  # (in turn, in the job's own worker)
+        time.sleep(1.0)
+        marker.touch()
+        return os.getpid(), inner
+
+    with forkmap.fork_later(job) as result:
+        went_on = not marker.exists()  # (the block runs while the job does)
+        pid, inner = result()
+    assert went_on and marker.exists() and pid != os.getpid() and inner == [pid] * 3
+
+
+def test_fork_later_raises_the_jobs_error_and_leaves_no_worker(two_workers):
+    def bad():
+        raise InputError("stage `samii diagnose`: bad file")
+
+    with forkmap.fork_later(bad) as result:
+        for _ in range(2):  # (asked again, the same error: not a wait for a worker that has nothing more to send)
+            with pytest.raises(InputError, match="bad file"):
+                result()
+    # a block that fails (or never asks) ends the worker: none is left behind
+    with pytest.raises(KeyError), forkmap.fork_later(lambda: __import__("time").sleep(60)):
+        {}["a trial that fails"]
+    assert not _children()
+
+
+def test_fork_later_on_one_worker_runs_the_job_here_when_asked(monkeypatch):
+    """With one worker the job runs here, once, when first asked, with one BLAS thread as in a worker (the same bits
+    either way); its error is kept and raised again."""
+    from threadpoolctl import threadpool_info
+
+    monkeypatch.setenv("SAMII_WORKERS", "1")
+    calls = []
+
+    def job():
+        calls.append(os.getpid())
+        return {lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}
+
+    with forkmap.fork_later(job) as result:
+        assert calls == []  # (not before it is asked for)
+        assert result() == {1} and result() == {1}
+    assert calls == [os.getpid()]
+    with forkmap.fork_later(lambda: {}["x"]) as result:
+        for _ in range(2):
+            with pytest.raises(KeyError):
+                result()
+
+
+def test_fork_later_computes_here_what_a_killed_worker_lost(two_workers):
+    import signal
+
+    def job():
+        if forkmap._IN_WORKER:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return "here"
+
+    with pytest.warns(RuntimeWarning, match=r"a worker process ended \(signal 9\)"), forkmap.fork_later(job) as result:
+        assert result() == "here"
+
+
+def _children() -> list[str]:
+    import subprocess
+
+    return subprocess.run(["pgrep", "-P", str(os.getpid())], capture_output=True, text=True).stdout.split()

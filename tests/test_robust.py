@@ -228,8 +228,12 @@ def test_dask_workers_start_fresh_and_register_the_plugin():
         assert r.stable and r.zeta is not None and 0 < r.zeta < 0.2
 
 
-def test_robust_refusals(tmp_path, capsys):
+def test_robust_refusals(tmp_path, capsys, monkeypatch):
     base = ["robust", "--controller", "unity", "--samples", "2", "--no-progress"]
+    with monkeypatch.context() as m:  # --workers auto reads SAMII_WORKERS: a bad one is named (not "invalid value: 'auto'")
+        m.setenv("SAMII_WORKERS", "two")
+        assert main([*base, "--spread", "hydraulic.bulk_modulus=5%", "--workers", "auto"]) == 2
+        assert "SAMII_WORKERS: expected a positive integer, got 'two'" in capsys.readouterr().err
     assert main(base) == 2
     assert "nothing to vary" in capsys.readouterr().err
     assert main([*base, "--spread", "beam.nothing=5%"]) == 2

@@ -248,8 +248,8 @@ def program() -> None:
     code = main(program=True)
     if _SIGNALLED:  # interrupted: its one line is said and its outputs are cleaned up; the libraries' exit callbacks are
         # skipped (Dask's close of a local cluster already stopped waited 10 s, and a signal meanwhile added a second line),
-        # and the child processes still there (a local cluster's, which would end on their own a second or two later)
-        # are ended first
+        # and multiprocessing's child processes still there are ended first (samii.forkmap's workers are not among them:
+        # their parent ended them as the signal came, and the kernel ends any left when it exits)
         mp = sys.modules.get("multiprocessing")
         children = mp.active_children() if mp is not None else []
         for child in children:

@@ -47,7 +47,7 @@ from typing import Any, TypeVar
 from samii.errors import InputError
 from samii.threads import one_blas_thread
 
-__all__ = ["fork_calls", "fork_map", "sharing", "workers"]
+__all__ = ["fork_calls", "fork_later", "fork_map", "sharing", "workers"]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -361,3 +361,80 @@ def _call(job: Callable[[], R]) -> R:
 def fork_calls(jobs: Iterable[Callable[[], R]]) -> list[R]:
     """``[job() for job in jobs]``, computed as :func:`fork_map` computes (different computations at once)."""
     return fork_map(_call, jobs)
+
+
+@contextlib.contextmanager
+def fork_later(job: Callable[[], R]) -> Iterator[Callable[[], R]]:
+    """``job()`` computed in one forked worker while the block runs here (two stages that do not depend on each other,
+    on two cores); the block gets a function that waits for the result and returns it (an exception in ``job`` is
+    raised there, and again at every later call). The job runs with one BLAS thread wherever it runs, and a
+    :func:`fork_map` inside it runs serially in the worker (the block has the other core). Leaving the block ends the
+    worker: killed if the block raised or never asked.
+
+    Where :func:`fork_map` would run serially (one worker, inside a worker, no fork), ``job`` runs here when its
+    result is first asked for; a worker that dies (killed from outside) has it computed here, with a warning."""
+    outcome: list = []  # (True, result) or (False, exception), once known
+
+    def here() -> None:
+        try:
+            with one_blas_thread():  # (as in the worker: the same bits wherever it runs)
+                outcome.append((True, job()))
+        except Exception as exc:  # noqa: BLE001 - raised to the caller by known()
+            outcome.append((False, exc))
+
+    def known() -> R:
+        ok, value = outcome[0]
+        if not ok:
+            raise value
+        return value
+
+    if _IN_WORKER or workers() <= 1 or not hasattr(os, "fork"):
+
+        def inline() -> R:
+            if not outcome:
+                here()
+            return known()
+
+        yield inline
+        return
+    global _TASK
+    worker: _Worker | None = None
+    done = False
+    try:
+        _TASK = (_call, [job])
+        sys.stdout.flush()
+        sys.stderr.flush()
+        with one_blas_thread(), warnings.catch_warnings():  # (the worker keeps the limit it is forked with; here it is restored)
+            # Python 3.12+ warns that forking a process with threads (BLAS's) may deadlock; the worker runs numpy only
+            warnings.simplefilter("ignore", DeprecationWarning)
+            before = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+            try:
+                worker = _fork_worker(os.getpid(), [])
+            finally:
+                signal.pthread_sigmask(signal.SIG_SETMASK, before)  # (a signal meanwhile is raised here: the finally ends it)
+        _TASK = None
+        worker.tasks.send(0)
+
+        def result() -> R:
+            if not outcome:
+                try:
+                    blob = worker.results.recv_bytes()
+                except (EOFError, OSError):  # died computing it
+                    _dead(worker, 0, 1)
+                    here()
+                    return known()
+                if blob[:1] == b"E":
+                    try:
+                        _raise_from(blob[1:])
+                    except Exception as exc:  # noqa: BLE001 - kept, and raised again at every call
+                        outcome.append((False, exc))
+                else:
+                    outcome.append((True, _Unpickler(io.BytesIO(blob[1:])).load()))
+            return known()
+
+        yield result
+        done = bool(outcome)
+    finally:
+        _TASK = None
+        if worker is not None:
+            _stop([worker], kill=not done)

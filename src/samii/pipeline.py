@@ -16,6 +16,10 @@ The stages, each the library call its command makes (so each stage's files are w
 7. ``summary.json``: the figures of the printed summary (:class:`samii.schema.summary.RunSummary`);
 8. ``report.html``: one self-contained page with the figures and tables of all of it (:mod:`samii.report`).
 
+The diagnosis (6) needs the measurement and the fit alone: it runs in a worker process of its own
+(:func:`samii.forkmap.fork_later`) while the design (4) and the closed-loop trials (5) run here, each on a core; the
+folder is the same as with the stages one after the other (``SAMII_WORKERS=1``).
+
 The stages hand each other the files a user's chain of commands would (the fit reads ``measure/frf.csv``, not the
 estimate in memory), so the numbers are those of the commands run one by one. The folder is written whole or not at
 all: the stages write into a staging folder beside it, which replaces ``out`` at the end (an existing ``out`` only
@@ -43,6 +47,7 @@ from samii.closedloop.damping import damping_from_frf
 from samii.closedloop.trial import TrialRequest, run_trial
 from samii.diagnose.files import DiagnoseRequest, diagnose_files
 from samii.errors import InputError, mark_outputs_started, raise_if_signalled, uninterrupted
+from samii.forkmap import fork_later
 from samii.formats import read_frf_csv, read_timeseries_csv
 from samii.identify.fit_file import fit_frf_file
 from samii.json_output import finite_or_none
@@ -353,34 +358,20 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progr
     fit_summary = FitSummary(params=fit["params"], stderr=fit["stderr"], eq9_4=dict(nb.EQ9_4), **{k: fit.get(k) for k in FIT_FIELDS})
     progress.advance()
 
-    progress.stage("designing the damping controller")
-    (d / "controllers").mkdir()
-    kp = rec.model.hydraulic["position_gain"]  # what the data were measured with (the Bode test's model)
-    with _named_stage("design"):
-        designed = damping_from_frf(read_frf_csv(d / "measure" / "frf.csv"), source="measure/frf.csv", position_gain_v_per_rad=float(kp))
-    damping = d / "controllers" / "damping.json"  # named in the run's files as the folder names it: controllers/damping.json
-    write_controller(designed.controller, damping)
-    design = finite_or_none(designed.to_dict())
-    progress.advance()
+    def diagnosed():
+        with _named_stage("diagnose"):
+            return diagnose_files([d / "measure" / "timeseries.csv"], DiagnoseRequest(baseline=str(d / "fit" / "fit.json")),
+                                  out=d / "diagnose", relative_to=d).record  # fmt: skip
 
-    closed = {}
-    trials = [("servo_loop_alone_step", TrialRequest("unity", "step"))] + [
-        (f"{name}_{sc}", TrialRequest(spec or str(damping), sc)) for name, spec, _ in CONTROLLERS for sc in SCENARIOS
-    ]
-    for name, request in trials:
-        progress.stage(f"closed loop: {name}")
-        rerun = d / "closedloop.rrd" if name == "damping_loper" else None
-        with _named_stage("closedloop"):
-            trial = run_trial(request, out=d / "closedloop" / name, model=model_file, overrides=parsed, rerun=rerun, relative_to=d,
-                              note=lambda text, name=name: said(f"note: closed loop {name}: {text}"))  # fmt: skip
-        closed[name] = ClosedLoopSummary(**{k: getattr(trial.record, k) for k in CLOSED_LOOP_FIELDS})
+    # the diagnosis needs the measurement and the fit alone: it runs in a worker of its own while the damping design
+    # and the closed-loop trials run here (each on a core; their folders are apart)
+    with fork_later(diagnosed) as diagnosis_record:
+        progress.stage("designing the damping controller")
+        damping, design = _design_stage(d, float(rec.model.hydraulic["position_gain"]))
         progress.advance()
-
-    progress.stage("diagnosing the fit against the measured record")
-    with _named_stage("diagnose"):
-        done = diagnose_files([d / "measure" / "timeseries.csv"], DiagnoseRequest(baseline=str(d / "fit" / "fit.json")), out=d / "diagnose",
-                              relative_to=d)  # fmt: skip
-    diag = done.record
+        closed = _closed_loop_stage(d, damping, model_file, parsed, progress, said)
+        progress.stage("diagnosing the fit against the measured record")
+        diag = diagnosis_record()
     diagnosis = DiagnosisSummary(verdict=diag.verdict, effects=diag.found, error_before=diag.error_before, error_after=diag.error_after)
     progress.advance()
     return RunSummary(
@@ -394,6 +385,34 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progr
         closed_loop=closed,
         diagnosis=diagnosis,
     )
+
+
+def _design_stage(d: Path, kp: float) -> tuple[Path, dict]:
+    """``controllers/damping.json``, designed on the measured FRF with the servo gain ``kp`` the data were measured
+    with (the Bode test's model); the file and the design's figures."""
+    (d / "controllers").mkdir()
+    with _named_stage("design"):
+        designed = damping_from_frf(read_frf_csv(d / "measure" / "frf.csv"), source="measure/frf.csv", position_gain_v_per_rad=kp)
+    damping = d / "controllers" / "damping.json"  # named in the run's files as the folder names it: controllers/damping.json
+    write_controller(designed.controller, damping)
+    return damping, finite_or_none(designed.to_dict())
+
+
+def _closed_loop_stage(d: Path, damping: Path, model_file, parsed, progress: Progress, said) -> dict[str, ClosedLoopSummary]:
+    """The closed-loop trials: the servo loop alone's step, each controller in each scenario."""
+    closed = {}
+    trials = [("servo_loop_alone_step", TrialRequest("unity", "step"))] + [
+        (f"{name}_{sc}", TrialRequest(spec or str(damping), sc)) for name, spec, _ in CONTROLLERS for sc in SCENARIOS
+    ]
+    for name, request in trials:
+        progress.stage(f"closed loop: {name}")
+        rerun = d / "closedloop.rrd" if name == "damping_loper" else None
+        with _named_stage("closedloop"):
+            trial = run_trial(request, out=d / "closedloop" / name, model=model_file, overrides=parsed, rerun=rerun, relative_to=d,
+                              note=lambda text, name=name: said(f"note: closed loop {name}: {text}"))  # fmt: skip
+        closed[name] = ClosedLoopSummary(**{k: getattr(trial.record, k) for k in CLOSED_LOOP_FIELDS})
+        progress.advance()
+    return closed
 
 
 def _report(d: Path, out: Path) -> None:

@@ -38,9 +38,15 @@ MAX_SAMPLES = 100_000
 
 def _workers(text: str) -> int:
     """A number of worker processes, or ``auto``: one per core this process may run on."""
+    from samii.errors import InputError
     from samii.forkmap import workers
 
-    return workers() if text == "auto" else int_in(0, 1024)(text)
+    if text != "auto":
+        return int_in(0, 1024)(text)
+    try:
+        return workers()
+    except InputError as exc:  # (a bad SAMII_WORKERS: argparse would have said only "invalid _workers value: 'auto'")
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
