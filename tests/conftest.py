@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import shutil
+
 import pytest
 
 
@@ -24,16 +26,34 @@ def cwd(tmp_path, monkeypatch):
 
 
 @pytest.fixture(scope="session")
-def runs(tmp_path_factory):
-    """Two main jobs with the same seed (about 25 s each), read by test_main_job.py, test_report.py and test_pipeline.py:
-    ``a`` by the command (``samii run``), ``b`` by the library (``samii.pipeline.run()`` into a temporary folder, then
-    ``Run.save``)."""
+def runs(tmp_path_factory, worker_id):
+    """Two main jobs with the same seed (about 13 s each on 2 cores), read by test_main_job.py, test_report.py,
+    test_pipeline.py and test_fault_battery.py: ``a`` by the command (``samii run``), ``b`` by the library
+    (``samii.pipeline.run()`` into a temporary folder, then ``Run.save``). Run once per test session: where pytest-xdist
+    shares the tests out (pyproject.toml), the first worker to ask runs them into the folder the workers share, under a
+    lock, and the others read its folders."""
+    if worker_id == "master":  # pytest-xdist's name for a session it does not share out (-n 0)
+        return _main_jobs(tmp_path_factory.mktemp("main"))
+    import fcntl
+
+    shared = tmp_path_factory.getbasetemp().parent / "main-jobs"  # one folder per session, above each worker's own
+    with open(shared.with_suffix(".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, also if the worker dies
+        if not (shared / "done").is_file():
+            shutil.rmtree(shared, ignore_errors=True)  # what a worker that died half-way left
+            shared.mkdir()
+            out = _main_jobs(shared)
+            (shared / "done").touch()
+            return out
+    return [shared / "a", shared / "b"]
+
+
+def _main_jobs(base):
     import subprocess
     import sys
 
     from samii.cli import main
 
-    base = tmp_path_factory.mktemp("main")
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
     stale = base / f".a.samii-run-{dead.pid}"  # what a main job killed outright (SIGKILL) leaves beside its --out
