@@ -227,7 +227,7 @@ def _raise_from(blob: bytes) -> None:
     raise exc
 
 
-def _forked(fn: Callable, items: list, n: int, on_result: Callable[[], None] | None = None) -> list:
+def _forked(fn: Callable, items: list, n: int, done: Callable[[], None] | None = None) -> list:
     """The items' results computed by ``n`` forked workers, one item at a time each, in the items' order.
 
     Each worker has pipes of its own and shares no lock with the others (a multiprocessing.Pool's workers share a queue
@@ -237,7 +237,7 @@ def _forked(fn: Callable, items: list, n: int, on_result: Callable[[], None] | N
     global _TASK
     _TASK = (fn, items)
     workers: list[_Worker] = []
-    done = False
+    finished = False
     try:
         # forked with the stop signals blocked, so each worker is born deaf to them (see _init_worker); a signal
         # meanwhile is raised here once they all exist, and the finally stops them all
@@ -250,12 +250,12 @@ def _forked(fn: Callable, items: list, n: int, on_result: Callable[[], None] | N
                 workers.append(_fork_worker(parent, workers))
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, before)
-        results = _serve(fn, items, workers, on_result)
-        done = True
+        results = _serve(fn, items, workers, done)
+        finished = True
         return results
     finally:
         _TASK = None
-        _stop(workers, kill=not done)
+        _stop(workers, kill=not finished)
 
 
 _MISSING = object()
@@ -399,7 +399,7 @@ def fork_later(job: Callable[[], R]) -> Iterator[Callable[[], R]]:
         return
     global _TASK
     worker: _Worker | None = None
-    done = False
+    finished = False
     try:
         _TASK = (_call, [job])
         sys.stdout.flush()
@@ -433,8 +433,8 @@ def fork_later(job: Callable[[], R]) -> Iterator[Callable[[], R]]:
             return known()
 
         yield result
-        done = bool(outcome)
+        finished = bool(outcome)
     finally:
         _TASK = None
         if worker is not None:
-            _stop([worker], kill=not done)
+            _stop([worker], kill=not finished)

@@ -3,17 +3,21 @@ a process pool, a Dask worker and the command's own process are computed with on
 
 from __future__ import annotations
 
+import functools
+
 __all__ = ["one_blas_thread"]
 
-_CONTROLLER = []
+
+@functools.cache
+def _controller():
+    """threadpoolctl's view of the loaded libraries: its scan (about 1 ms) made once per process, after scipy is
+    imported so that scipy's own BLAS (a wheel's, beside numpy's) is among them."""
+    import scipy.linalg  # noqa: F401  (lazy: imports scipy, only when called; its BLAS is loaded to be limited too)
+    from threadpoolctl import ThreadpoolController  # (lazy: imports threadpoolctl, only when called)
+
+    return ThreadpoolController()
 
 
 def one_blas_thread():
-    """A context in which BLAS uses one thread (threadpoolctl). Its scan of the loaded libraries (about 1 ms) is made
-    once per process, after scipy is imported so that scipy's own BLAS (a wheel's, beside numpy's) is among them."""
-    if not _CONTROLLER:
-        import scipy.linalg  # noqa: F401  (lazy: imports scipy, only when called; its BLAS is loaded to be limited too)
-        from threadpoolctl import ThreadpoolController  # (lazy: imports threadpoolctl, only when called)
-
-        _CONTROLLER.append(ThreadpoolController())
-    return _CONTROLLER[0].limit(limits=1, user_api="blas")
+    """A context in which BLAS uses one thread (threadpoolctl)."""
+    return _controller().limit(limits=1, user_api="blas")
