@@ -696,3 +696,20 @@ def test_damping_controller_switches_on_without_a_transient(tmp_path, capsys):
     assert np.max(np.abs(np.degrees(ts.theta[on]) - 5.0)) < 1.0  # deg about the 5 deg reference
     assert doc["stable"] and doc["base"]["settle_s"] < 0.6 * 2.93  # the servo loop alone settles in 2.93 s
     assert doc["theta"]["overshoot_pct"] < 20
+
+
+def test_closedloop_says_the_sensors_the_controller_reads_through(tmp_path, capsys):
+    """``--set sensor.*`` reaches the controller card: the summary and run.json say which options it read through; the
+    servo amplifier alone (unity) reads the joint directly, so none."""
+    sensors = ["--set", "sensor.accel_lowpass_hz=30", "--set", "sensor.theta_delay_s=0.002"]
+    out_dir = tmp_path / "run"
+    assert main(["closedloop", "--controller", "notebook-cancel", *_STEP, "--duration-s", "3", *sensors, "--out", str(out_dir), "--no-plots"]) == 0
+    assert "the controller reads through the sensors: accel_lowpass_hz 30 Hz, theta_delay_s 0.002 s" in capsys.readouterr().out
+    doc = json.loads((out_dir / "run.json").read_text())
+    assert doc["sensors"] == {"accel_lowpass_hz": 30.0, "theta_delay_s": 0.002}
+    assert doc["model"]["overrides"] == {"sensor.accel_lowpass_hz": 30.0, "sensor.theta_delay_s": 0.002}
+    assert (
+        main(["closedloop", "--controller", "unity", *_STEP, "--duration-s", "3", *sensors, "--out", str(out_dir), "--no-plots", "--overwrite"]) == 0
+    )
+    assert "reads through the sensors" not in capsys.readouterr().out
+    assert json.loads((out_dir / "run.json").read_text())["sensors"] is None

@@ -27,11 +27,15 @@ import numpy as np
 import pytest
 
 from samii.cli import main
+from samii.closedloop.card import build_card_model
+from samii.closedloop.controllers import notebook_cancel
+from samii.closedloop.scenario import default_spec_factory
 from samii.diagnose.diagnosis import diagnose
+from samii.diagnose.files import simulator_params_text
 from samii.measure.campaign import measure_swept
 from samii.measure.daq import SensorNoise
 from samii.measure.measured import load
-from samii.sim.model import load_model
+from samii.sim.model import dotted, load_model, params_from_dict
 
 
 def _measured(tmp_path_factory, name: str, overrides: dict, seed: int):
@@ -92,7 +96,7 @@ def test_command_delay_found_carried_and_the_simulator_error_drops(delayed):
 
 
 @pytest.mark.slow
-def test_accelerometer_roll_off_found_and_carried(lowpass):
+def test_accelerometer_roll_off_found_and_carried(lowpass, tmp_path):
     d = diagnose([load(lowpass)], baseline="sim")
     real = [e for e in d.effects if not e.expected]
     assert ("sensor", "accel_lowpass") in [(e.category, e.kind) for e in real]
@@ -101,6 +105,14 @@ def test_accelerometer_roll_off_found_and_carried(lowpass):
     s = d.simulator
     assert "sensor/accel_lowpass" in s.carried
     assert s.error_after["total"].chi2 < s.error_before["total"].chi2
+    # the simulator as diagnosed, as a parameter file (simulator_params.json of --out): a closed loop on it reads its
+    # accelerometer through the roll-off found
+    path = tmp_path / "simulator_params.json"
+    path.write_text(simulator_params_text(s))
+    assert "sensor.accel_lowpass_hz" in json.loads(path.read_text())["note"]
+    spec, qpos, act = default_spec_factory(path)()
+    cm = build_card_model(spec, notebook_cancel().controller, replaces_servo=True, home_qpos=qpos, home_act=act)
+    assert abs(cm.sensors.accel_lowpass_hz / 20.0 - 1) < 0.15 and cm.layout.n_sensor_state > 0
 
 
 @pytest.mark.slow
@@ -109,10 +121,15 @@ def test_cli_baseline_sim_writes_the_simulator_block(clean, tmp_path, capsys):
     assert main(["diagnose", str(clean), "--baseline", "sim", "--out", str(out), "--no-progress"]) == 0
     text = capsys.readouterr().out
     assert "simulator: carried nothing" in text
-    for name in ("diagnosis.json", "simulator.png", "bode.png", "residuals.png"):
+    for name in ("diagnosis.json", "simulator.png", "bode.png", "residuals.png", "simulator_params.json"):
         assert (out / name).is_file(), name
     d = json.loads((out / "diagnosis.json").read_text())
     assert d["verdict"] == "none" and d["simulator"]["changes"] == {}
+    # the calibrated simulator, which every --model takes: its knobs as diagnosis.json reports them
+    params = dotted(params_from_dict(json.loads((out / "simulator_params.json").read_text())["params"]))
+    for name, value in d["simulator"]["calibration"]["after"]["values"].items():
+        if not name.startswith("gain."):
+            assert params[name] == pytest.approx(value, rel=1e-12), name
 
 
 def test_carry_rules():

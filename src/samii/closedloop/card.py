@@ -10,7 +10,10 @@ the next sample; the analog servo amplifier adds its own position loop. The
   reference offset (the ctrl of a second, force-free actuator ``theta_ref``);
 - the card: every ``steps`` physics steps it samples ``w = (theta_r, theta, accel)``
   at ``t_k`` (SI; optional noise from two more force-free actuators and ADC
-  quantisation), computes ``c = C z + D w`` and ``z <- A z + B w``, and the valve
+  quantisation) as the rig's sensors give them: through the model's sensor
+  dynamics (:mod:`samii.sim.sensor_dynamics`: delays, an accelerometer's roll-off,
+  an anti-alias filter, AC coupling, a gain error), the same filters at the
+  physics rate as a measurement's, run every step; it computes ``c = C z + D w`` and ``z <- A z + B w``, and the valve
   sees ``c`` after ``delay_steps`` physics steps (fractional delays split the
   step and integrate the spool exactly over both pieces). While the card
   replaces the servo loop (``replaces_servo``) the ``Kp`` term is dropped.
@@ -35,7 +38,8 @@ import numpy as np
 from samii.controller import LinearController
 from samii.errors import InputError
 from samii.sim.model import ACTUATOR, JOINT
-from samii.sim.plugin import command_ring_entries, compile_spec
+from samii.sim.plugin import command_ring_entries, compile_spec, hydraulic_params
+from samii.sim.sensor_dynamics import SensorDynamics
 from samii.sim.sensors import accel_offset, accel_weights
 
 __all__ = [
@@ -63,6 +67,8 @@ ACCEL_NOISE_ACTUATOR = "accel_noise"
 
 # plugin_state layout (hydraulic.c: ST_ENABLED, ST_COUNTER, ST_VALVE, ST_COMMAND, ST_BUFFER)
 _ST_ENABLED, _ST_COUNTER, _ST_VALVE, _ST_COMMAND, _ST_BUFFER = range(5)
+# the sensors' block after the controller's states (hydraulic.c: SN_COUNT, SN_RINGS)
+_SN_COUNT, _SN_RINGS = range(2)
 
 
 #: Longest controller sample [physics steps]: 1 s at 1 ms (base mode 1 has a 0.58 s period).
@@ -117,6 +123,15 @@ class CardLayout:
     n_buffer: int  #: delay line length
     n_states: int  #: controller states
     act_adr: int  #: the hydraulic actuator's act (spool x, P/Ps) in the FULLPHYSICS vector
+    #: the sensor filters' sizes: FIR taps on theta and on accel, second-order sections on accel (0, 0, 0: ideal sensors,
+    #: no block in the state)
+    sensor_sizes: tuple[int, int, int] = (0, 0, 0)
+
+    @property
+    def n_sensor_state(self) -> int:
+        """Entries of the sensors' block (0 without sensor filters)."""
+        n_theta, n_accel, n_sos = self.sensor_sizes
+        return _SN_RINGS + n_theta + n_accel + 2 * n_sos if n_theta else 0
 
     def enabled_index(self) -> int:
         return self.plugin_adr + _ST_ENABLED
@@ -135,6 +150,11 @@ class CardLayout:
         a = self.plugin_adr + _ST_BUFFER + self.n_buffer
         return slice(a, a + self.n_states)
 
+    def sensor_slice(self) -> slice:
+        """The sensors' block (empty without sensor filters)."""
+        a = self.plugin_adr + _ST_BUFFER + self.n_buffer + self.n_states
+        return slice(a, a + self.n_sensor_state)
+
 
 @dataclass(frozen=True)
 class CardModel:
@@ -148,10 +168,37 @@ class CardModel:
     layout: CardLayout
     #: m/s², what the accelerometer reads at rest (``home``), which the card and every reading of the run subtract
     accel_offset_m_s2: float
+    #: the sensors' dynamics between the physics and the card (the model's, :mod:`samii.sim.sensor_dynamics`)
+    sensors: SensorDynamics = SensorDynamics()
 
     @property
     def sample_time_s(self) -> float:
         return self.steps_per_sample * float(self.model.opt.timestep)
+
+    def reads(self, state: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """What the card samples in the FULLPHYSICS ``state`` whose true readings are ``w = (theta_ref, theta, accel)``
+        (SI, noise-free): ``w`` through the sensors' filters, whose histories the state holds (hydraulic.c,
+        ``sensors_step``; ``w`` itself for ideal sensors)."""
+        w = np.array(w, float)
+        if not self.layout.n_sensor_state:
+            return w
+        n_theta, n_accel, n_sos = self.layout.sensor_sizes
+        block = np.asarray(state, float)[self.layout.sensor_slice()]
+        k = int(block[_SN_COUNT])
+        rings = block[_SN_RINGS:]
+        theta_taps, accel_taps, sos = self.sensors.filters(1.0 / float(self.model.opt.timestep))
+
+        def fir(taps: np.ndarray, ring: np.ndarray, x: float) -> float:
+            past = ring[(k - np.arange(1, taps.size)) % taps.size]  # samples k-1, k-2, ...
+            return float(taps[0] * x + taps[1:] @ past)
+
+        theta = fir(theta_taps, rings[:n_theta], w[1])
+        accel = fir(accel_taps, rings[n_theta : n_theta + n_accel], w[2])
+        sections = rings[n_theta + n_accel :]
+        for i, q in enumerate([] if sos is None else sos):
+            accel = float(q[0] / q[3] * accel + sections[2 * i])  # direct form II transposed: y = b0 x + s0
+        w[1], w[2] = theta, accel
+        return w
 
     def set_enabled(self, state: np.ndarray, enabled: bool, z0: np.ndarray | None = None) -> np.ndarray:
         """A copy of the FULLPHYSICS ``state`` with the card switched on (counter 0, states ``z0``) or off."""
@@ -247,7 +294,8 @@ def build_card_model(
     # the accelerometer's measuring direction and rest reading, as samii.sim.simulate removes them
     _, direction = accel_weights(model)
     offset = float(accel_offset(model))
-    steps, n_buffer, n = 1, 0, 0
+    sensors = SensorDynamics.from_model(model)
+    steps, n_buffer, n, sensor_sizes = 1, 0, 0, (0, 0, 0)
     if controller is not None:
         n = controller.n_states
         steps = check_fit(controller, dt, delay_samples)
@@ -270,6 +318,15 @@ def build_card_model(
         })  # fmt: skip
         if n:
             config.update({"controller_a": _join(A), "controller_b": _join(B), "controller_c": _join(C)})
+        if not sensors.ideal:  # the card reads through the sensors' dynamics, from rest after a reset
+            theta_taps, accel_taps, sos = sensors.filters(1.0 / dt)
+            qadr = int(model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, JOINT)])
+            theta_rest = float(model.key_qpos[0, qadr]) - hydraulic_params(model, ACTUATOR).reference_angle
+            config.update({"controller_theta_filter": _join(theta_taps), "controller_accel_filter": _join(accel_taps),
+                           "controller_theta_rest": repr(theta_rest)})  # fmt: skip
+            if sos is not None:
+                config["controller_accel_sos"] = _join(sos)
+            sensor_sizes = (theta_taps.size, accel_taps.size, 0 if sos is None else sos.shape[0])
         n_buffer = int(math.floor(delay_steps)) + 2
         model = compile_with(config)
 
@@ -282,12 +339,15 @@ def build_card_model(
         n_buffer=n_buffer,
         n_states=n,
         act_adr=1 + model.nq + model.nv + int(model.actuator_actadr[act_id]),
+        sensor_sizes=sensor_sizes,
     )
 
     # after the card's entries, the valve's command delay keeps its own (hydraulic.c)
-    expected = (4 + n_buffer + n if controller is not None else 0) + command_ring_entries(float(config.get("command_delay") or 0.0), dt)
+    expected = (4 + n_buffer + n + layout.n_sensor_state if controller is not None else 0) + command_ring_entries(
+        float(config.get("command_delay") or 0.0), dt
+    )
     if n_plugin != expected:
         raise RuntimeError(f"the plugin's state has {n_plugin} entries, expected {expected}: plugin and samii.closedloop.card disagree")
     # without a controller the servo amplifier runs alone: nothing replaces it, nothing is delayed
     replaces = bool(replaces_servo) and controller is not None
-    return CardModel(model, controller, replaces, float(delay_samples) if controller is not None else 0.0, steps, layout, offset)
+    return CardModel(model, controller, replaces, float(delay_samples) if controller is not None else 0.0, steps, layout, offset, sensors)

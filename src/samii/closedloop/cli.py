@@ -97,6 +97,10 @@ def _summary(r, out_names: list[str]) -> str:
         + (f", delay {r.delay_samples:g} samples" if r.delay_samples else "")
         + (", sensor noise on" if r.noise else "")
     ]
+    if r.sensors:
+        from samii.sim.sensor_dynamics import SensorDynamics  # (lazy: imports mujoco, only when called)
+
+        lines.append(f"  the controller reads through the sensors: {SensorDynamics(**r.sensors).text()}")
     lines.append("  stable in the nonlinear simulator" if r.stable else f"  UNSTABLE: {r.instability()}")
     for n in r.notes:
         lines.append(f"  note: {n}")

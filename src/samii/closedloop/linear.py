@@ -11,7 +11,10 @@ commands (``z^-n``), the position loop added or replaced. Only the saturation
 is missing. The input enters the map through the spool alone
 (``Bd`` is zero but for the spool row, and the sensors do not feed through),
 so a fractional delay, which splits a step in two, is exact too: the spool's
-exact response to the two pieces weights ``Bd``.
+exact response to the two pieces weights ``Bd``. The card reads theta and accel
+through the sensors' dynamics (:meth:`samii.sim.sensor_dynamics.SensorDynamics.filters`,
+run every physics step as the plugin runs them): here they are linear
+state-space filters on the plant's outputs, from rest, exactly the same filters.
 
 python-control refuses to connect continuous and discrete systems; here
 everything is discrete at the physics step, and the stability of the loop is
@@ -22,7 +25,7 @@ controller sample), whose eigenvalues are returned.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
@@ -34,7 +37,56 @@ from samii.sim.one_step import transition
 from samii.sim.plugin import hydraulic_params
 from samii.sim.sensors import output_rows
 
-__all__ = ["LinearLoop", "linear_loop", "LinearResponse"]
+__all__ = ["LinearLoop", "linear_loop", "LinearResponse", "SensorPath", "sensor_paths"]
+
+
+@dataclass(frozen=True, eq=False)
+class SensorPath:
+    """A sensor's dynamics as a discrete state-space filter at the physics step: ``s[j+1] = A s[j] + b y[j]``, what the
+    card reads ``c s[j] + d y[j]`` (``y`` the plant's output at step j). Zero states are the sensor at rest."""
+
+    A: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    d: float
+
+    @property
+    def n(self) -> int:
+        return self.A.shape[0]
+
+    @classmethod
+    def fir(cls, taps: np.ndarray) -> SensorPath:
+        """``sum_k taps[k] y[j-k]``: the states are the previous inputs, newest first."""
+        taps = np.asarray(taps, float)
+        n = taps.size - 1
+        return cls(np.eye(n, k=-1), np.eye(n)[:, 0] if n else np.zeros(0), taps[1:].copy(), float(taps[0]))
+
+    @classmethod
+    def section(cls, q: np.ndarray) -> SensorPath:
+        """A second-order section ``(b0, b1, b2, a0, a1, a2)`` in direct form II transposed (its two states as scipy's
+        sosfilt and the plugin keep them)."""
+        b0, b1, b2, a0, a1, a2 = np.asarray(q, float) / float(q[3])
+        return cls(np.array([[-a1, 1.0], [-a2, 0.0]]), np.array([b1 - a1 * b0, b2 - a2 * b0]), np.array([1.0, 0.0]), b0)
+
+    def then(self, other: SensorPath) -> SensorPath:
+        """This filter followed by ``other``."""
+        n1, n2 = self.n, other.n
+        A = np.zeros((n1 + n2, n1 + n2))
+        A[:n1, :n1], A[n1:, :n1], A[n1:, n1:] = self.A, np.outer(other.b, self.c), other.A
+        return SensorPath(A, np.concatenate([self.b, other.b * self.d]), np.concatenate([other.d * self.c, other.c]), other.d * self.d)
+
+
+def sensor_paths(cm: CardModel) -> tuple[SensorPath, SensorPath]:
+    """(theta, accel): the card's sensors of ``cm`` as state-space filters at the physics step (pass-through for ideal
+    sensors)."""
+    if cm.sensors.ideal or cm.controller is None:
+        one = SensorPath.fir(np.ones(1))
+        return one, one
+    theta_taps, accel_taps, sos = cm.sensors.filters(1.0 / float(cm.model.opt.timestep))
+    accel = SensorPath.fir(accel_taps)
+    for q in [] if sos is None else sos:
+        accel = accel.then(SensorPath.section(q))
+    return SensorPath.fir(theta_taps), accel
 
 
 @dataclass(frozen=True)
@@ -64,6 +116,13 @@ class LinearLoop:
     replaces: bool
     has_controller: bool
     tau_v: float  #: valve time constant (splits a step for a fractional delay)
+    #: what the card reads of theta and accel: the sensors' dynamics (default ideal sensors)
+    sensor_theta: SensorPath = field(default_factory=lambda: SensorPath.fir(np.ones(1)))
+    sensor_accel: SensorPath = field(default_factory=lambda: SensorPath.fir(np.ones(1)))
+
+    @property
+    def n_sensor(self) -> int:
+        return self.sensor_theta.n + self.sensor_accel.n
 
     @property
     def n_buffer(self) -> int:
@@ -78,19 +137,23 @@ class LinearLoop:
         full = 1 - math.exp(-h / tau)
         return (1 - math.exp(-f * h / tau)) * math.exp(-(1 - f) * h / tau) / full, (1 - math.exp(-(1 - f) * h / tau)) / full
 
-    def _step(self, x, z, buf, held, *, sample: bool, enabled: bool, theta_ref, r):
-        """One physics step as the card runs it: sample (every ``steps``), the delay line, the valve, the plant;
-        of one loop (``x``, ``z``, ``buf`` vectors, the rest numbers) or of a batch of ``k`` loops at once (each a
-        column: ``x`` (nx, k), ``z`` (nz, k), ``buf`` (nb, k), ``held``, ``theta_ref`` and ``r`` (k,)).
+    def _step(self, x, s, z, buf, held, *, sample: bool, enabled: bool, theta_ref, r):
+        """One physics step as the card runs it: the sensors, sample (every ``steps``), the delay line, the valve, the
+        plant; of one loop (``x``, ``s``, ``z``, ``buf`` vectors, the rest numbers) or of a batch of ``k`` loops at
+        once (each a column: ``x`` (nx, k), ``s`` (ns, k), ``z`` (nz, k), ``buf`` (nb, k), ``held``, ``theta_ref`` and
+        ``r`` (k,)). ``s``: the sensors' states, theta's then accel's.
 
-        Returns ``(x, z, buf, held, theta, accel, v)``: the next plant and controller states and delay line,
-        the held command, the outputs at this step's start and the valve voltage (the step's later piece).
+        Returns ``(x, s, z, buf, held, theta, accel, v)``: the next plant, sensor and controller states and delay
+        line, the held command, the outputs at this step's start and the valve voltage (the step's later piece).
         """
         th, ac = self.c_theta @ x, self.c_accel @ x
-        servo = self.kp * (theta_ref - th)
+        servo = self.kp * (theta_ref - th)  # (the servo amplifier reads the joint directly)
+        st, sa, n_th = self.sensor_theta, self.sensor_accel, self.sensor_theta.n
+        read_th, read_ac = st.c @ s[:n_th] + st.d * th, sa.c @ s[n_th:] + sa.d * ac
+        s = np.concatenate([st.A @ s[:n_th] + np.multiply.outer(st.b, th), sa.A @ s[n_th:] + np.multiply.outer(sa.b, ac)])
         if enabled:
             if sample:
-                w = np.stack([theta_ref, th, ac])
+                w = np.stack([theta_ref, read_th, read_ac])
                 held = self.C[0] @ z + self.D[0] @ w
                 z = self.A @ z + self.B @ w
         else:
@@ -105,7 +168,7 @@ class LinearLoop:
             u = a_new * v + a_old * (base + buf[m + 1])
         else:
             v = u = r + servo
-        return self.Ad @ x + np.multiply.outer(self.bd, u), z, buf, held, th, ac, v
+        return self.Ad @ x + np.multiply.outer(self.bd, u), s, z, buf, held, th, ac, v
 
     def simulate(
         self, theta_ref: np.ndarray, r: np.ndarray | None = None, *, enabled: np.ndarray | None = None, x0: np.ndarray | None = None
@@ -115,17 +178,18 @@ class LinearLoop:
 
         A run that starts enabled starts with the controller at rest; a
         switch-on mid-run initialises it bumplessly, as the nonlinear runner
-        does (:func:`samii.closedloop.run.bumpless_state`). ``x0``: initial
-        plant state (deviation from the equilibrium, mjd_transitionFD's coordinates).
+        does (:func:`samii.closedloop.run.bumpless_state`, from what the card reads).
+        ``x0``: initial plant state (deviation from the equilibrium,
+        mjd_transitionFD's coordinates); the sensors start at rest.
         """
 
         theta_ref = np.asarray(theta_ref, float)
         n = theta_ref.size
         r = np.zeros(n) if r is None else np.asarray(r, float)
         enabled = np.full(n, self.has_controller) if enabled is None else np.asarray(enabled, bool)
-        nx, nz = self.Ad.shape[0], self.A.shape[0]
-        dim = nx + nz + self.n_buffer + 1
-        state = np.zeros(dim)  # (x, z, delay line, held command)
+        nx, ns, nz = self.Ad.shape[0], self.n_sensor, self.A.shape[0]
+        dim = nx + ns + nz + self.n_buffer + 1
+        state = np.zeros(dim)  # (x, sensors, z, delay line, held command)
         if x0 is not None:
             state[:nx] = x0
         inputs = np.stack([theta_ref, r])
@@ -136,10 +200,12 @@ class LinearLoop:
             if enabled[j] and (j == 0 or not enabled[j - 1]):
                 counter = 0
                 if j > 0:  # switched on mid-run
-                    x = state[:nx]
+                    x, s = state[:nx], state[nx : nx + ns]
                     th, ac = float(self.c_theta @ x), float(self.c_accel @ x)
+                    st, sa, n_th = self.sensor_theta, self.sensor_accel, self.sensor_theta.n
+                    read = np.array([theta_ref[j], st.c @ s[:n_th] + st.d * th, sa.c @ s[n_th:] + sa.d * ac])
                     target = self.kp * (theta_ref[j] - th) if self.replaces else 0.0
-                    state[nx : nx + nz], _ = bumpless_state((self.A, self.B, self.C, self.D), np.array([theta_ref[j], th, ac]), target)
+                    state[nx + ns : nx + ns + nz], _ = bumpless_state((self.A, self.B, self.C, self.D), read, target)
             key = (bool(enabled[j]), counter % self.steps == 0)
             if key not in maps:
                 maps[key] = self.step_map(*key)
@@ -151,20 +217,20 @@ class LinearLoop:
 
     def step_map(self, enabled: bool, sample: bool) -> tuple[np.ndarray, np.ndarray]:
         """One physics step (:meth:`_step`) as the linear map it is: ``[X'; y] = Ms X + Mu (theta_ref, r)``, ``X`` the
-        plant state, the controller state, the delay line and the held command, ``y`` theta, accel and the valve
-        voltage at the step's start. Built from :meth:`_step` itself, every unit column probed at once as a batch
-        (exact: the step has no constant term), so the loop that applies it is the card's logic, one matrix product
-        per step."""
-        nx, nz, nb = self.Ad.shape[0], self.A.shape[0], self.n_buffer
-        dim = nx + nz + nb + 1
+        plant state, the sensors' states, the controller state, the delay line and the held command, ``y`` theta,
+        accel and the valve voltage at the step's start. Built from :meth:`_step` itself, every unit column probed at
+        once as a batch (exact: the step has no constant term), so the loop that applies it is the card's logic, one
+        matrix product per step."""
+        nx, ns, nz, nb = self.Ad.shape[0], self.n_sensor, self.A.shape[0], self.n_buffer
+        dim = nx + ns + nz + nb + 1
         e = np.eye(dim + 2)
-        x, z, buf, held = e[:nx], e[nx : nx + nz], e[nx + nz : dim - 1], e[dim - 1]
-        x2, z2, buf2, held2, th, ac, v = self._step(x, z, buf, held, sample=sample, enabled=enabled, theta_ref=e[dim], r=e[dim + 1])
-        M = np.vstack([x2, z2, buf2, held2, th, ac, v])
+        x, s, z, buf, held = e[:nx], e[nx : nx + ns], e[nx + ns : nx + ns + nz], e[nx + ns + nz : dim - 1], e[dim - 1]
+        x2, s2, z2, buf2, held2, th, ac, v = self._step(x, s, z, buf, held, sample=sample, enabled=enabled, theta_ref=e[dim], r=e[dim + 1])
+        M = np.vstack([x2, s2, z2, buf2, held2, th, ac, v])
         return M[:, :dim], M[:, dim:]
 
     def sample_map(self) -> np.ndarray:
-        """The loop's one-sample map (controller running, zero inputs) on ``(x, z, delay line)``: the sampling
+        """The loop's one-sample map (controller running, zero inputs) on ``(x, sensors, z, delay line)``: the sampling
         step's map, then ``steps - 1`` steps holding the command (:meth:`step_map`). The held command starts
         no sample's map: the sampling step overwrites it, controller running or not."""
         first, _ = self.step_map(self.has_controller, True)
@@ -213,8 +279,10 @@ def linear_loop(cm: CardModel, *, eps: float = 1e-6, data: mujoco.MjData | None 
         A, B, C, D = si_matrices(cm.controller)
     else:
         A, B, C, D = np.zeros((0, 0)), np.zeros((0, 3)), np.zeros((1, 0)), np.zeros((1, 3))
+    sensor_theta, sensor_accel = sensor_paths(cm)
     return LinearLoop(
         Ad=Ad_v, bd=bd, c_theta=c_theta, c_accel=c_accel, kp=hp.position_gain, dt_s=float(m.opt.timestep),
         A=A, B=B, C=C, D=D, steps=cm.steps_per_sample, delay_steps=cm.delay_samples * cm.steps_per_sample,
         replaces=cm.replaces_servo, has_controller=cm.controller is not None, tau_v=hp.valve_time_constant,
+        sensor_theta=sensor_theta, sensor_accel=sensor_accel,
     )  # fmt: skip

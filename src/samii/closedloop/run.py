@@ -219,8 +219,8 @@ def _run_segments(cm, ctrl, theta_ref_rad, state, data, switch_on_step, chunk_st
     for a, b in segments:
         if switch_on_step is not None and a == switch_on_step:
             w = measurements_at(cm, state, float(theta_ref_rad[a]))
-            target = hp.position_gain * (w[0] - w[1]) if cm.replaces_servo else 0.0
-            z0, jump = bumpless_state(si_matrices(cm.controller), w, target)
+            target = hp.position_gain * (w[0] - w[1]) if cm.replaces_servo else 0.0  # (the servo reads the joint)
+            z0, jump = bumpless_state(si_matrices(cm.controller), cm.reads(state, w), target)
             state = traj[a] = cm.set_enabled(state, True, z0)
         lo, size = a, chunk_steps
         while lo < b:

@@ -131,6 +131,9 @@ class ClosedLoopResult:
     replaces_servo: bool
     noise: NoiseSpec | None
     notes: list[str] = field(default_factory=list)
+    #: the sensor options the controller read through (samii.sim.sensor_dynamics, those not ideal; empty: ideal sensors,
+    #: or no controller: the servo amplifier reads the joint directly)
+    sensors: dict[str, float] = field(default_factory=dict)
     theta_rest_rad: float = 0.0  #: theta at the static equilibrium (the responses are relative to it)
     accel_rest_m_s2: float = 0.0  #: accelerometer reading there (after the gravity offset is removed: ~0)
     comparison_base: BaseMetrics | None = None  #: the base figures of the comparison run, over the same windows
@@ -219,6 +222,7 @@ class ClosedLoopResult:
             "delay_samples": self.delay_samples,
             "servo_loop": "replaced" if self.replaces_servo else "kept",
             "noise": None if self.noise is None else vars(self.noise),
+            "sensors": dict(self.sensors) or None,
             "diverged_at_s": finite_or_none(self.signals.diverged_at_s),
             "switch_jump_v": finite_or_none(self.signals.switch_jump_v),
             "linear_poles": [[finite_or_none(p.real), finite_or_none(p.imag)] for p in self.linear_poles_s if p.imag >= 0],
@@ -489,6 +493,7 @@ def run_closed_loop(
         free_decay_rate_1_s=free, modes=modes, rms_error_pct=err, delay_samples=float(delay_samples),
         sample_time_s=cm.sample_time_s, replaces_servo=cm.replaces_servo, noise=noise, notes=notes,
         theta_rest_rad=th_rest, accel_rest_m_s2=ac_rest, comparison_base=comp_base, runaway=ran_away, linear_only=linear_only,
+        sensors=cm.sensors.changed() if controller is not None else {},
     )  # fmt: skip
 
 

@@ -25,8 +25,9 @@ from samii.schema.diagnosis import DiagnosisRecord
 __all__ = ["DiagnoseRequest", "DiagnosedFiles", "diagnose_files", "OUTPUTS", "SIM_OUTPUTS", "MAX_FILES"]
 
 OUTPUTS = ("diagnosis.json", "residuals.png", "bode.png", "harmonics.png")
-#: Written with --baseline sim.
-SIM_OUTPUTS = ("simulator.png",)
+#: Written with --baseline sim: the figure, and the simulator the diagnosis ends with (calibrated, the effects found
+#: carried) as a parameter file every command's ``--model`` takes (a closed loop on the rig as diagnosed).
+SIM_OUTPUTS = ("simulator.png", "simulator_params.json")
 #: Most files one diagnosis takes (each adds the baseline's 13 parameters to the joint fit).
 MAX_FILES = 8
 
@@ -51,6 +52,20 @@ class DiagnosedFiles:
     diagnosis: object
     record: DiagnosisRecord
     written: list[str] = field(default_factory=list)
+
+
+def simulator_params_text(report) -> str:
+    """The simulator a diagnosis against it ends with (``report``, a samii.diagnose.simulator.SimulatorReport: its
+    calibration after the effects were carried) as a parameter file's text (``load_model`` and ``--model`` read it)."""
+    import json
+
+    carried = ", ".join(report.carried) or "none"
+    changes = ", ".join(f"{n} = {v:.6g}" for n, v in report.changes.items()) or "none"
+    note = (
+        f"written by samii diagnose --baseline sim: the simulator calibrated to {report.after.source} with the effects "
+        f"found carried into it (carried: {carried}; changed from the first calibration: {changes})"
+    )
+    return json.dumps({"note": note, "params": report.after.params.as_dict()}, indent=2, allow_nan=False) + "\n"
 
 
 def _baseline(req: DiagnoseRequest, relative_to):
@@ -177,6 +192,8 @@ def diagnose_files(
 
             with folder:
                 write_text(folder.path("diagnosis.json"), dumps(document(record), indent=2) + "\n")
+                if d.simulator is not None:
+                    write_text(folder.path("simulator_params.json"), simulator_params_text(d.simulator))
                 figures = [(residual_figure, "residuals.png"), (bode_figure, "bode.png"), (harmonic_figure, "harmonics.png")]
                 if d.simulator is not None:
                     figures.append((simulator_figure, "simulator.png"))

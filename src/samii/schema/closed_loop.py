@@ -142,3 +142,6 @@ class ClosedLoopRecord(ClosedLoopFigures):
     model: ModelUsed | None = None  #: (None: ScenarioResult.run_json alone, before the trial adds it)
     controller_detail: ControllerDetail | None = None  #: None: a built-in controller
     recorded: bool = True  #: false: the run diverged in its first step and run.json alone was written
+    #: the sensor options the controller read through (samii.sim.sensor_dynamics: those not at their ideal value);
+    #: None: ideal sensors, or no controller (the servo amplifier reads the joint)
+    sensors: Mapping[str, float] | None = None

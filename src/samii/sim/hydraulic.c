@@ -58,6 +58,12 @@
 //     sensordata (valid in `advance`: mj_forward computed the sensors of t_n; accel does not depend
 //     on the valve command of the step, which only moves the spool), adds the ctrl of two force-free
 //     noise actuators and quantises to the ADC steps;
+//   - theta and accel reach it through the sensors' own dynamics when configured
+//     (`controller_theta_filter`, `controller_accel_filter`: FIR taps at the physics rate, a delay;
+//     `controller_accel_sos`: second-order sections after the accel FIR, a roll-off, an anti-alias
+//     filter, an AC coupling; samii.sim.sensor_dynamics computes them as it does for a measurement).
+//     They run every physics step, card on or off, from rest after a reset (theta's history
+//     `controller_theta_rest`, accel's 0); the servo amplifier still reads the joint directly;
 //   - it computes c = C z + D w and z <- A z + B w (SI inputs; the caller folds unit scales in);
 //   - the command is held (ZOH) and reaches the valve `controller_delay_steps` later through a ring
 //     of held commands; a fractional delay splits the step: the spool is integrated exactly for the
@@ -67,7 +73,8 @@
 // theta_r, the reference offset, is the ctrl of the actuator named by `reference_actuator` and also
 // feeds the position loop. The card's state lives in mjData.plugin_state (part of
 // mjSTATE_FULLPHYSICS, so rollouts carry it): [enabled, step counter, valve voltage of the last step,
-// held command, ring (delay_whole + 2, newest first), z]. `enabled` is 1 after a reset; the caller
+// held command, ring (delay_whole + 2, newest first), z, and with sensor filters their block:
+// steps since the reset, the rings of raw theta and accel, two states per section]. `enabled` is 1 after a reset; the caller
 // sets it (0: the servo amplifier alone, the ring recording its command) to switch the card on
 // mid-run. The card needs the Euler or implicit integrators (RK4 does not call `advance` per step).
 //
@@ -151,6 +158,13 @@ enum {
   OPT_VALVE_DEAD_BAND,             // [V] dead band of the valve on its input (0 = none, < 10)
   OPT_VALVE_SATURATION,            // [V] the valve's input is limited to +-this (0 = none, <= 10)
   OPT_VALVE_ASYMMETRY,             // [1] a negative input passes with gain 1 - this (0 = none, -1...<1)
+  OPT_CONTROLLER_THETA_FILTER,     // FIR taps on the card's theta at the physics rate (the angle
+                                   // sensor's delay), newest sample first; absent = 1
+  OPT_CONTROLLER_ACCEL_FILTER,     // FIR taps on the card's accel (the accelerometer's delay, and its
+                                   // gain when there are no sections); absent = 1
+  OPT_CONTROLLER_ACCEL_SOS,        // second-order sections after it, 6 numbers each (b0 b1 b2 a0 a1 a2)
+  OPT_CONTROLLER_THETA_REST,       // [rad] the card's theta at rest (the home keyframe): the angle
+                                   // filter's history after a reset
   NATTR_ALL
 };
 
@@ -162,13 +176,16 @@ static const char* const kAttributes[NATTR_ALL] = {
   "controller_theta_sensor", "controller_accel_sensor", "controller_accel_direction",
   "controller_accel_offset", "controller_theta_noise", "controller_accel_noise",
   "controller_theta_lsb", "controller_accel_lsb", "command_delay", "valve_dead_band",
-  "valve_saturation", "valve_asymmetry",
+  "valve_saturation", "valve_asymmetry", "controller_theta_filter", "controller_accel_filter",
+  "controller_accel_sos", "controller_theta_rest",
 };
 
 #define CTRL_NIN 3                 // controller inputs: theta_r [rad], theta [rad], accel [m/s^2]
 #define CTRL_MAX_STATES 64
 #define CTRL_MAX_DELAY_STEPS 200
 #define CMD_MAX_DELAY_S 1.0        // longest command delay [s]
+#define SENSOR_MAX_TAPS 1000004    // longest sensor FIR (a 1 s delay at 1 us, with its 4 fraction taps)
+#define SENSOR_MAX_SECTIONS 8      // most second-order sections on the card's accel
 
 // Plugin state of an instance with a controller (mjData.plugin_state, part of
 // mjSTATE_FULLPHYSICS, so rollouts carry it): see the header comment.
@@ -179,6 +196,11 @@ enum {
   ST_COMMAND,      // the controller's latest command (held, zero-order) [V]
   ST_BUFFER        // ring of held commands, newest first (delay_whole + 2), then the n states
 };
+
+// The sensors' block after the controller's states (only when a sensor filter is configured):
+// the physics steps since the reset, then the rings of raw theta and accel (entry k % size holds
+// step k) and the sections' states (two each, direct form II transposed, as scipy's sosfilt).
+enum { SN_COUNT = 0, SN_RINGS };
 
 typedef struct {
   int n;                        // states
@@ -196,6 +218,13 @@ typedef struct {
   mjtNum theta_lsb, accel_lsb;
   int nbuf;                     // delay_whole + 2
   mjtNum* z_scratch;            // n
+  // the sensors' dynamics before sampling (samii.sim.sensor_dynamics; all absent: ideal sensors)
+  int sensors;                  // 1: the block below is in plugin_state after z
+  int ntheta, naccel, nsos;     // FIR taps of theta and accel, second-order sections of accel
+  mjtNum* theta_taps;           // ntheta
+  mjtNum* accel_taps;           // naccel
+  mjtNum* sos;                  // 6 nsos, each normalised to a0 = 1
+  mjtNum theta_rest;            // [rad]
 } Card;
 
 // rule for each attribute: 1 = must be > 0, 0 = must be >= 0, -1 = any finite value
@@ -339,8 +368,42 @@ static void card_free(Card* c) {
     free(c->B);
     free(c->C);
     free(c->z_scratch);
+    free(c->theta_taps);
+    free(c->accel_taps);
+    free(c->sos);
     free(c);
   }
+}
+
+// How many numbers an optional attribute holds (0 when absent; counted as parse_numbers reads them).
+static int count_numbers(const mjModel* m, int instance, int i) {
+  const char* p = optional_text(m, instance, i);
+  int count = 0;
+  while (p) {
+    char* end = NULL;
+    strtod(p, &end);
+    if (end == p) break;
+    count++;
+    p = end;
+  }
+  return count;
+}
+
+// Sizes of the sensors' filters a config asks for (used by nstate before init and by reset);
+// returns the block's plugin_state entries, 0 when no filter is configured (ideal sensors).
+static int sensor_size(const mjModel* m, int instance, int* ntheta, int* naccel, int* nsos) {
+  int theta = count_numbers(m, instance, OPT_CONTROLLER_THETA_FILTER);
+  int accel = count_numbers(m, instance, OPT_CONTROLLER_ACCEL_FILTER);
+  int sos = count_numbers(m, instance, OPT_CONTROLLER_ACCEL_SOS) / 6;
+  *ntheta = theta > 0 && theta <= SENSOR_MAX_TAPS ? theta : 1;  // (init reports a bad count)
+  *naccel = accel > 0 && accel <= SENSOR_MAX_TAPS ? accel : 1;
+  *nsos = sos <= SENSOR_MAX_SECTIONS ? sos : 0;
+  if (!optional_text(m, instance, OPT_CONTROLLER_THETA_FILTER) &&
+      !optional_text(m, instance, OPT_CONTROLLER_ACCEL_FILTER) &&
+      !optional_text(m, instance, OPT_CONTROLLER_ACCEL_SOS)) {
+    return 0;
+  }
+  return SN_RINGS + *ntheta + *naccel + 2 * *nsos;
 }
 
 // The states and delay a config asks for (used by nstate before init); 0 = no controller.
@@ -363,7 +426,8 @@ static int card_nstate(const mjModel* m, int instance) {
   int n, nbuf;
   if (!card_size(m, instance, &n, &nbuf)) return 0;
   if (n < 0 || n > CTRL_MAX_STATES) n = 0;  // init reports it
-  return ST_BUFFER + nbuf + n;
+  int ntheta, naccel, nsos;
+  return ST_BUFFER + nbuf + n + sensor_size(m, instance, &ntheta, &naccel, &nsos);
 }
 
 // The command delay a config asks for, in physics steps (whole + fraction); returns the ring's
@@ -382,14 +446,79 @@ static int delay_size(const mjModel* m, int instance, int* whole, mjtNum* frac) 
   return *whole + 2;
 }
 
+// FIR taps of a sensor filter (attribute i): absent = the single tap 1; -1 with a message if wrong.
+static int parse_taps(const mjModel* m, int instance, int i, int count, mjtNum** out,
+                      const char* name) {
+  int given = count_numbers(m, instance, i);
+  if (optional_text(m, instance, i) && (given < 1 || given > SENSOR_MAX_TAPS)) {
+    mju_warning("%s (actuator '%s'): config attribute '%s' must hold 1...%d FIR taps (got %d)",
+                SAMII_PLUGIN_NAME, name, kAttributes[i], SENSOR_MAX_TAPS, given);
+    return -1;
+  }
+  *out = (mjtNum*) calloc(count, sizeof(mjtNum));
+  if (!*out) {
+    mju_warning("%s: out of memory", SAMII_PLUGIN_NAME);
+    return -1;
+  }
+  if (!optional_text(m, instance, i)) {
+    (*out)[0] = 1;
+    return 0;
+  }
+  return parse_numbers(m, instance, i, *out, count, name);
+}
+
+// The sensors' filters of the card (none configured: ideal sensors); -1 with a message if wrong.
+static int sensors_create(const mjModel* m, int instance, Card* c, const char* name) {
+  c->sensors = sensor_size(m, instance, &c->ntheta, &c->naccel, &c->nsos) > 0;
+  if (!c->sensors) {
+    if (optional_text(m, instance, OPT_CONTROLLER_THETA_REST)) {
+      mju_warning("%s (actuator '%s'): config attribute 'controller_theta_rest' given without a "
+                  "sensor filter", SAMII_PLUGIN_NAME, name);
+      return -1;
+    }
+    return 0;
+  }
+  int numbers = count_numbers(m, instance, OPT_CONTROLLER_ACCEL_SOS);
+  if (optional_text(m, instance, OPT_CONTROLLER_ACCEL_SOS) &&
+      (numbers < 6 || numbers % 6 || numbers > 6 * SENSOR_MAX_SECTIONS)) {
+    mju_warning("%s (actuator '%s'): config attribute 'controller_accel_sos' must hold 6 numbers "
+                "per section, 1...%d sections (got %d numbers)", SAMII_PLUGIN_NAME, name,
+                SENSOR_MAX_SECTIONS, numbers);
+    return -1;
+  }
+  if (parse_taps(m, instance, OPT_CONTROLLER_THETA_FILTER, c->ntheta, &c->theta_taps, name) ||
+      parse_taps(m, instance, OPT_CONTROLLER_ACCEL_FILTER, c->naccel, &c->accel_taps, name)) {
+    return -1;
+  }
+  c->sos = (mjtNum*) calloc(6 * c->nsos + 1, sizeof(mjtNum));
+  if (!c->sos) {
+    mju_warning("%s: out of memory", SAMII_PLUGIN_NAME);
+    return -1;
+  }
+  if (c->nsos && parse_numbers(m, instance, OPT_CONTROLLER_ACCEL_SOS, c->sos, 6 * c->nsos, name)) {
+    return -1;
+  }
+  for (int k = 0; k < c->nsos; k++) {
+    mjtNum* q = c->sos + 6*k;
+    if (q[3] == 0) {
+      mju_warning("%s (actuator '%s'): section %d of 'controller_accel_sos' has a0 = 0",
+                  SAMII_PLUGIN_NAME, name, k);
+      return -1;
+    }
+    for (int j = 5; j >= 0; j--) q[j] /= q[3];
+  }
+  return parse_optional(m, instance, OPT_CONTROLLER_THETA_REST, -1e3, 1e3, 0, &c->theta_rest, name);
+}
+
 // Build the controller card from the config; NULL (card_ok = 1) when none is configured,
 // NULL with card_ok = 0 (after mju_warning) when the config is wrong.
 static Card* card_create(const mjModel* m, int instance, int actuator, const char* name,
                          int* card_ok) {
   *card_ok = 0;
   if (!optional_text(m, instance, OPT_CONTROLLER_STATES)) {
-    for (int i = OPT_CONTROLLER_A; i <= OPT_CONTROLLER_ACCEL_LSB; i++) {
-      if (optional_text(m, instance, i)) {
+    for (int i = OPT_CONTROLLER_A; i < NATTR_ALL; i++) {
+      if ((i <= OPT_CONTROLLER_ACCEL_LSB || i >= OPT_CONTROLLER_THETA_FILTER) &&
+          optional_text(m, instance, i)) {
         mju_warning("%s (actuator '%s'): config attribute '%s' given without controller_states",
                     SAMII_PLUGIN_NAME, name, kAttributes[i]);
         return NULL;
@@ -494,7 +623,7 @@ static Card* card_create(const mjModel* m, int instance, int actuator, const cha
   }
   c->theta_noise = named_id(m, instance, OPT_CONTROLLER_THETA_NOISE, mjOBJ_ACTUATOR, "actuator", name);
   c->accel_noise = named_id(m, instance, OPT_CONTROLLER_ACCEL_NOISE, mjOBJ_ACTUATOR, "actuator", name);
-  if (c->theta_noise < -1 || c->accel_noise < -1) {
+  if (c->theta_noise < -1 || c->accel_noise < -1 || sensors_create(m, instance, c, name)) {
     card_free(c);
     return NULL;
   }
@@ -809,6 +938,37 @@ static mjtNum quantise(mjtNum x, mjtNum lsb) {
   return lsb > 0 ? lsb * round(x / lsb) : x;
 }
 
+// The sensors' filters over one physics step: raw *theta and *accel of t_n in, what the sensors
+// give the card at t_n out (the newest sample weighs in: taps[0], b0).
+static void sensors_step(const Card* c, mjtNum* card_state, mjtNum* theta, mjtNum* accel) {
+  mjtNum* block = card_state + ST_BUFFER + c->nbuf + c->n;
+  long long k = (long long) block[SN_COUNT];
+  mjtNum* ring_theta = block + SN_RINGS;
+  mjtNum* ring_accel = ring_theta + c->ntheta;
+  mjtNum* st = ring_accel + c->naccel;
+  ring_theta[k % c->ntheta] = *theta;
+  ring_accel[k % c->naccel] = *accel;
+  mjtNum y = 0;
+  for (int j = 0; j < c->ntheta; j++) {
+    if (c->theta_taps[j] != 0) y += c->theta_taps[j] * ring_theta[(k - j + c->ntheta) % c->ntheta];
+  }
+  *theta = y;
+  y = 0;
+  for (int j = 0; j < c->naccel; j++) {
+    if (c->accel_taps[j] != 0) y += c->accel_taps[j] * ring_accel[(k - j + c->naccel) % c->naccel];
+  }
+  for (int i = 0; i < c->nsos; i++) {  // direct form II transposed
+    const mjtNum* q = c->sos + 6*i;
+    mjtNum* z = st + 2*i;
+    mjtNum x = y;
+    y = q[0]*x + z[0];
+    z[0] = q[1]*x - q[4]*y + z[1];
+    z[1] = q[2]*x - q[5]*y;
+  }
+  *accel = y;
+  block[SN_COUNT] = (mjtNum) (k + 1);
+}
+
 // One physics step of the controller card (from advance, after MuJoCo's integration): sample the
 // measurements of t_n (sensordata still holds them), update the controller every `steps` steps,
 // and return the amplifier output over [t_n, t_n + h) in two pieces, *a over the first
@@ -825,17 +985,21 @@ static void card_step(const mjModel* m, mjData* d, int instance, const Hydraulic
   mjtNum servo = h->value[ATTR_POSITION_GAIN] * (theta_r - theta);
   mjtNum u = excitation(m, d, h);
   int enabled = s[ST_ENABLED] != 0;
+  // what the sensors give the card at t_n: the joint and the base (the servo amplifier reads the
+  // joint directly), through the sensors' dynamics when configured (run every step, card on or off)
+  const mjtNum* acc = d->sensordata + c->accel_adr;
+  mjtNum read_theta = theta;
+  mjtNum read_accel = c->direction[0]*acc[0] + c->direction[1]*acc[1] + c->direction[2]*acc[2]
+                      - c->accel_offset;
+  if (c->sensors) sensors_step(c, s, &read_theta, &read_accel);
 
   memmove(buf + 1, buf, (c->nbuf - 1) * sizeof(mjtNum));
   if (enabled) {
     if (((long long) s[ST_COUNTER]) % c->steps == 0) {
-      const mjtNum* a = d->sensordata + c->accel_adr;
-      mjtNum accel = c->direction[0]*a[0] + c->direction[1]*a[1] + c->direction[2]*a[2]
-                     - c->accel_offset;
       mjtNum w[CTRL_NIN] = {
         theta_r,
-        quantise(theta + (c->theta_noise >= 0 ? d->ctrl[c->theta_noise] : 0), c->theta_lsb),
-        quantise(accel + (c->accel_noise >= 0 ? d->ctrl[c->accel_noise] : 0), c->accel_lsb),
+        quantise(read_theta + (c->theta_noise >= 0 ? d->ctrl[c->theta_noise] : 0), c->theta_lsb),
+        quantise(read_accel + (c->accel_noise >= 0 ? d->ctrl[c->accel_noise] : 0), c->accel_lsb),
       };
       int n = c->n;
       mjtNum v = c->D[0]*w[0] + c->D[1]*w[1] + c->D[2]*w[2];
@@ -990,6 +1154,17 @@ static void hydraulic_reset(const mjModel* m, mjtNum* plugin_state, void* plugin
   int n = m->plugin_statenum[instance];  // as compiled (init refuses a configuration that disagrees)
   if (n) mju_zero(plugin_state, n);
   if (card_nstate(m, instance)) plugin_state[ST_ENABLED] = 1;
+  // the sensors at rest since long before: the angle filter's history is the rest angle (the
+  // accelerometer reads 0 at rest: its rest reading is the card's offset)
+  int states, nbuf, ntheta, naccel, nsos;
+  if (card_size(m, instance, &states, &nbuf) && sensor_size(m, instance, &ntheta, &naccel, &nsos)) {
+    const char* rest = optional_text(m, instance, OPT_CONTROLLER_THETA_REST);
+    double theta = rest ? strtod(rest, NULL) : 0;
+    int at = ST_BUFFER + nbuf + states + SN_RINGS;
+    if (isfinite(theta) && at + ntheta <= n) {
+      for (int k = 0; k < ntheta; k++) plugin_state[at + k] = theta;
+    }
+  }
 }
 
 mjPLUGIN_LIB_INIT(samii_hydraulic) {

@@ -99,6 +99,10 @@ OPTIONAL_ATTRIBUTES: tuple[str, ...] = (
     "controller_theta_lsb",
     "controller_accel_lsb",
     *VALVE_OPTIONS,
+    "controller_theta_filter",
+    "controller_accel_filter",
+    "controller_accel_sos",
+    "controller_theta_rest",
 )
 
 _EXPECTED = {

@@ -87,6 +87,16 @@ class SensorDynamics:
         """True when every option is at its default (the sensors are ideal)."""
         return self == SensorDynamics()
 
+    def changed(self) -> dict[str, float]:
+        """The options not at their default (ideal) value, by name."""
+        ideal = SensorDynamics()
+        return {name: float(getattr(self, name)) for name, _ in FIELDS if getattr(self, name) != getattr(ideal, name)}
+
+    def text(self) -> str:
+        """The options not at their default, in words with units ("accel_lowpass_hz 30 Hz, theta_delay_s 0.002 s")."""
+        units = dict(FIELDS)
+        return ", ".join(f"{name} {value:g}" + ("" if units[name] == "1" else f" {units[name]}") for name, value in self.changed().items())
+
     def values(self) -> tuple[float, ...]:
         return tuple(float(getattr(self, name)) for name, _ in FIELDS)
 
@@ -125,6 +135,18 @@ class SensorDynamics:
         sos = np.vstack(sections)
         sos[0, :3] *= self.accel_gain
         return sos
+
+    def filters(self, rate_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """``(theta taps, accel taps, accel sections)``: the filters at ``rate_hz`` as one FIR on theta and, on
+        accel, an FIR followed by second-order sections (scipy's ``sos`` layout, None when there are none; the gain
+        is in the first section, else in the accel taps). The same filters :class:`SensorFilter` applies to a
+        measurement and :meth:`response` describes; the controller card runs them before it samples
+        (:mod:`samii.closedloop.card`)."""
+        self.check_rate(rate_hz)
+        theta = _delay_fir(self.theta_delay_s * rate_hz)
+        accel = _delay_fir(self.accel_delay_s * rate_hz)
+        sos = self._accel_sos(rate_hz)
+        return theta, accel if sos is not None else accel * self.accel_gain, sos
 
     def response(self, freq_hz: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
         """(theta factor, accel factor): the complex response of the sensors' filters at the
