@@ -247,7 +247,7 @@ def test_robust_refusals(tmp_path, capsys, monkeypatch):
     # the servo loop alone has no digital controller to delay, and "off" switches have no spread
     assert main([*base, "--spread", "hydraulic.bulk_modulus=5%", "--delay-samples", "5"]) == 2
     assert "--delay-samples" in capsys.readouterr().err
-    assert main([*base, "--spread", "sensor.accel_lowpass_hz=3"]) == 2
+    assert main([*base, "--spread", "sensor.accel_lowpass_hz=3"]) == 2  # (about 0, none: its --set first, below)
     assert "0 for none" in capsys.readouterr().err
 
 
@@ -346,3 +346,41 @@ def test_when_no_drawn_plant_can_be_built_the_study_says_its_warnings_then_refus
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 2 and f"fewer than {FEW_SAMPLES} plants" in err[0]
     assert "none of the 3 drawn plants could be built (the first: no static equilibrium)" in err[1]
+
+
+@pytest.mark.slow
+def test_a_study_spreads_a_sensor_corner_and_the_computation_delay(capsys):
+    """Issue 35, item 3: the damping controller (acceleration feedback, designed on the nominal rig) on rigs whose
+    accelerometer rolls off at 15 Hz +-30 % (1 sigma) and whose computation delay is half-normal (1 sample, 1 sigma).
+    Every drawn corner stays above 5 % of the nominal (the filter is on in every plant) and every delay at or above 0;
+    a sample is the closed loop run alone with its drawn corner and delay (the corner reaches the card: the same run
+    with the corner at its nominal value gives another damping), and a corner about 0 is refused with what to do."""
+    from samii.closedloop.scenario import default_spec_factory, run_closed_loop, scenario
+    from samii.robust.runner import StudyRequest, plan_study
+    from samii.robust.sampling import DELAY_SAMPLES
+    from samii.robust.task import closed_loop_damping
+
+    request = StudyRequest("damping", samples=6, seed=3, overrides={"sensor.accel_lowpass_hz": 15.0},
+                           spreads=("sensor.accel_lowpass_hz=30%", f"{DELAY_SAMPLES}=1"), workers=0)  # fmt: skip
+    study = plan_study(request)
+    result = study.run()
+    draws = result.draws
+    assert draws.names == ("sensor.accel_lowpass_hz", DELAY_SAMPLES)
+    corner, delay = draws.values[:, 0], draws.values[:, 1]
+    assert np.all(corner > 0.05 * 15.0) and np.all(np.abs(corner - 15.0) <= 3 * 0.3 * 15.0) and np.all(delay >= 0)
+    controller = study.tasks[0].controller
+
+    def zeta(corner_hz: float, delay_samples: float) -> float:
+        factory = default_spec_factory(overrides={"sensor.accel_lowpass_hz": corner_hz})
+        r = run_closed_loop(
+            controller, scenario("step"), label="alone", spec_factory=factory, delay_samples=delay_samples, comparison=False, details=False
+        )
+        return closed_loop_damping(r.stable, r.linear_poles_s, r.growth_rate_1_s, r.unstable_mode_hz)[0]
+
+    i = int(np.argmax(np.abs(corner - 15.0)))  # the sample whose corner is farthest from the nominal
+    assert result.samples[i].zeta == pytest.approx(zeta(float(corner[i]), float(delay[i])), rel=1e-9)
+    assert abs(zeta(15.0, float(delay[i])) - result.samples[i].zeta) > 1e-5
+    assert main(["robust", "--controller", "damping", "--samples", "2", "--spread", "sensor.accel_lowpass_hz=30%", "--no-progress"]) == 2
+    assert "--set sensor.accel_lowpass_hz=VALUE" in capsys.readouterr().err
+    assert main(["robust", "--controller", "unity", "--samples", "2", "--spread", f"{DELAY_SAMPLES}=1", "--no-progress"]) == 2
+    assert "analog" in capsys.readouterr().err

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from samii.robust.sampling import PlantDraws
+from samii.robust.sampling import DELAY_SAMPLES, PlantDraws
 from samii.robust.study import StudySummary
 from samii.robust.task import SampleResult
 from samii.sim.param_units import unit as param_unit
@@ -73,7 +73,7 @@ def plot_influence(draws: PlantDraws, results: list[SampleResult], summary: Stud
     fig, axes = plt.subplots(1, len(names), figsize=(4.0 * len(names), 3.6), squeeze=False, sharey=True)
     for a, name in zip(axes[0], names):
         j = draws.names.index(name)
-        unit = param_unit(name)
+        unit = "controller samples" if name == DELAY_SAMPLES else param_unit(name)
         scale, shown = (1e3, "ms") if unit == "s" else (1.0, unit or "-")  # a delay about 0 reads in ms
         rho = next((d["spearman"] for d in summary.influence if d["name"] == name), None)
         for stable, color, label in ((True, "tab:green", "stable"), (False, "tab:red", "unstable")):

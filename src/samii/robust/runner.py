@@ -26,7 +26,7 @@ from samii.outputs import OutputFolder
 from samii.progress import SILENT, Progress
 from samii.robust.engine import DEFAULT_CONNECT_TIMEOUT_S, Engine, check_address, configured_scheduler
 from samii.robust.plots import FIGURES, plot_histograms, plot_influence
-from samii.robust.sampling import Covariance, PlantDraws, draw_plants, parse_spread, read_covariance, sample_seeds
+from samii.robust.sampling import DELAY_SAMPLES, Covariance, PlantDraws, draw_plants, parse_spread, read_covariance, sample_seeds
 from samii.robust.study import StudySummary, summarise
 from samii.robust.task import SampleResult, SampleTask
 from samii.schema import document, record_of
@@ -244,12 +244,22 @@ def plan_study(request: StudyRequest, *, out=None, overwrite: bool = False, say:
         raise InputError("--noise: the unity servo loop samples no sensors (its analog loop reads the joint angle directly)")
     folder = OutputFolder(out, list(FILES) + list(FIGURES), overwrite=overwrite) if out is not None else None
     spreads = [parse_spread(s) for s in req.spreads]
+    if req.controller == "unity" and any(sp.name == DELAY_SAMPLES for sp in spreads):
+        raise InputError(f"--spread {DELAY_SAMPLES}: the unity servo loop is analog (no digital controller to delay)")
     params, cov, said = _nominal_params(req)
-    draws = draw_plants(req.samples, req.seed, dotted(params), spreads, cov)
-    said += _study_warnings(req, spreads, dotted(params))
+    nominal = {**dotted(params), DELAY_SAMPLES: float(req.delay_samples)}
+    draws = draw_plants(req.samples, req.seed, nominal, spreads, cov)
+    said += _study_warnings(req, spreads, nominal)
+
+    def plant(i: int) -> dict[str, float]:
+        return {n: v for n, v in draws.overrides(i).items() if n != DELAY_SAMPLES}
+
+    def delay(i: int) -> float:
+        return draws.overrides(i).get(DELAY_SAMPLES, float(req.delay_samples))
+
     for i in range(req.samples):  # every drawn value is one the model accepts, checked before any run
         try:
-            params_with_overrides(params, draws.overrides(i))
+            params_with_overrides(params, plant(i))
         except InputError as exc:
             raise InputError(f"sample {i}: {exc}: narrow the spread (or give it as an absolute value)") from None
     engine = _engine(req)
@@ -259,13 +269,20 @@ def plan_study(request: StudyRequest, *, out=None, overwrite: bool = False, say:
     saved = resolve_controller(req.controller, lambda: (load_spec(params=params)[0], qpos, act), say=say)
     if saved is not None:
         check_fits(saved, req.controller, req.delay_samples, float(nominal_model.opt.timestep))
+        from samii.closedloop.card import CardFitError, check_fit  # (lazy: imports mujoco, only when called)
+
+        for i in range(req.samples):  # and every drawn delay one the card can run
+            try:
+                check_fit(saved.controller, float(nominal_model.opt.timestep), delay(i))
+            except CardFitError as exc:
+                raise InputError(f"sample {i}: --spread {DELAY_SAMPLES} drew a delay of {delay(i):.4g} samples, {exc}: narrow the spread") from None
     base = params.as_dict()
 
     def noise_seed(i: int) -> int | None:
         return sample_seeds(req.seed, i)[1] if req.noise else None
 
     tasks = [SampleTask(-1, base, {}, saved, req.scenario, req.delay_samples, noise_seed(-1))]
-    tasks += [SampleTask(i, base, draws.overrides(i), saved, req.scenario, req.delay_samples, noise_seed(i)) for i in range(req.samples)]
+    tasks += [SampleTask(i, base, plant(i), saved, req.scenario, delay(i), noise_seed(i)) for i in range(req.samples)]
     return Study(req, draws, tasks, engine, said, folder)
 
 

@@ -7,7 +7,11 @@ Two sources, combinable:
   value in the parameter's unit: ``--spread hydraulic.command_delay=0.002``), truncated at ±3σ and,
   for a parameter whose nominal value is positive, above 5 % of it (a bulk modulus, a stiffness or a
   mass cannot reach zero); one whose nominal value is 0 (a delay, a damping, a dead band) stays at or
-  above 0, so an absolute spread about 0 is drawn from the half-normal;
+  above 0, so an absolute spread about 0 is drawn from the half-normal. A quantity whose 0 means
+  "none" (a sensor's filter corner, the valve's saturation, a tip body's mass) is spread about a
+  value given with ``--set`` and stays above 5 % of it, so the filter or the body is there in every
+  plant. The controller's computation delay is spread as ``controller.delay_samples`` (in controller
+  samples, about ``--delay-samples``);
 * **a calibration's covariance** (``--covariance calibration.json``, written by ``samii calibrate
   --out``): what the data could not pin down. The calibrated parameters jointly normal with their
   standard errors and correlations, about the calibrated values; a draw outside the calibration's
@@ -29,7 +33,18 @@ import numpy as np
 from samii.errors import InputError
 from samii.json_output import read_json
 
-__all__ = ["Spread", "Covariance", "parse_spread", "read_covariance", "draw_plants", "PlantDraws", "sample_seeds", "TRUNCATE_SIGMA", "MIN_FRACTION"]
+__all__ = [
+    "Spread",
+    "Covariance",
+    "parse_spread",
+    "read_covariance",
+    "draw_plants",
+    "PlantDraws",
+    "sample_seeds",
+    "TRUNCATE_SIGMA",
+    "MIN_FRACTION",
+    "DELAY_SAMPLES",
+]
 
 TRUNCATE_SIGMA = 3.0  #: draws beyond this many standard deviations are drawn again
 MIN_FRACTION = 0.05  #: a positive parameter stays above this fraction of its nominal value
@@ -40,13 +55,19 @@ _DISCRETE = {
     "beam.pitch_deg": "the beam's orientation",
     "arm.heading_deg": "the arm's heading",
     "timestep_s": "the simulation step",
-    # 0 means "off" for these: an absolute spread about 0 would switch a filter or a limit on, not perturb it
+}
+#: 0 means "none" for these: a spread about 0 would switch a filter, a limit or a body on, not perturb it; about a
+#: value given with --set they are spread as any positive quantity (above 5 % of it: on in every plant).
+_NONE_AT_ZERO = {
     "sensor.accel_lowpass_hz": "a filter corner, 0 for none",
     "sensor.accel_antialias_hz": "a filter corner, 0 for none",
     "sensor.accel_highpass_hz": "a filter corner, 0 for none",
     "hydraulic.valve_saturation": "a limit, 0 for none",
     "beam.tip_body_mass_kg": "a body's mass, 0 for none",
 }
+#: The controller's computation delay [controller samples], spread by this name about ``--delay-samples``: not a
+#: parameter of the plant but of the card that runs the controller (samii.closedloop.card).
+DELAY_SAMPLES = "controller.delay_samples"
 #: Parameters that may be negative (samii.calibrate's table, and the valve's asymmetry, which the model's own check
 #: bounds to -1...<1): not limited below.
 _SIGNED = ("beam.accel_offset_m", "arm.heading_deg", "beam.pitch_deg", "hydraulic.valve_asymmetry")
@@ -248,10 +269,15 @@ def draw_plants(n: int, seed: int, nominal: dict[str, float], spreads: list[Spre
                 f"--spread {sp.name}: already varied ({'by --covariance' if covariance is not None and sp.name in covariance.names else 'given twice'})"
             )
         if sp.name not in nominal:
-            raise InputError(f"--spread {sp.name}: no such parameter (samii params lists them)")
+            raise InputError(f"--spread {sp.name}: no such parameter (samii params lists them; {DELAY_SAMPLES} is the computation delay)")
         if sp.name in _DISCRETE:
             raise InputError(f"--spread {sp.name}: {_DISCRETE[sp.name]}, not a physical quantity with a spread about its value")
         mu = float(nominal[sp.name])
+        if sp.name in _NONE_AT_ZERO and mu == 0:
+            raise InputError(
+                f"--spread {sp.name}: {_NONE_AT_ZERO[sp.name]}, and it is 0 here: give it a value with --set {sp.name}=VALUE "
+                "to spread it about (a spread about 0 would switch it on, not perturb it)"
+            )
         sigma = sp.sigma(mu)
         if sigma <= 0:
             raise InputError(f"--spread {sp.describe()}: the nominal value is 0, so a relative spread is 0; give an absolute one")
