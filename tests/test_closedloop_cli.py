@@ -700,7 +700,7 @@ def test_damping_controller_switches_on_without_a_transient(tmp_path, capsys):
 
 def test_closedloop_says_the_sensors_the_controller_reads_through(tmp_path, capsys):
     """``--set sensor.*`` reaches the controller card: the summary and run.json say which options it read through; the
-    servo amplifier alone (unity) reads the joint directly, so none."""
+    servo amplifier alone (unity) reads the joint directly, so none; ``--antialias`` likewise."""
     sensors = ["--set", "sensor.accel_lowpass_hz=30", "--set", "sensor.theta_delay_s=0.002"]
     out_dir = tmp_path / "run"
     assert main(["closedloop", "--controller", "notebook-cancel", *_STEP, "--duration-s", "3", *sensors, "--out", str(out_dir), "--no-plots"]) == 0
@@ -712,4 +712,17 @@ def test_closedloop_says_the_sensors_the_controller_reads_through(tmp_path, caps
         main(["closedloop", "--controller", "unity", *_STEP, "--duration-s", "3", *sensors, "--out", str(out_dir), "--no-plots", "--overwrite"]) == 0
     )
     assert "reads through the sensors" not in capsys.readouterr().out
-    assert json.loads((out_dir / "run.json").read_text())["sensors"] is None
+    doc = json.loads((out_dir / "run.json").read_text())
+    assert doc["sensors"] is None and doc["antialias_hz"] is None
+    # --antialias: the card's data acquisition filter, at a quarter of the controller's rate or where asked
+    assert main(["closedloop", "--controller", "notebook-cancel", *_STEP, "--duration-s", "3", "--antialias", "--out", str(out_dir),
+                 "--no-plots", "--overwrite"]) == 0  # fmt: skip
+    assert "filters theta and accel at 250 Hz (8th-order Butterworth)" in capsys.readouterr().out
+    assert json.loads((out_dir / "run.json").read_text())["antialias_hz"] == 250.0
+    assert main(["closedloop", "--controller", "notebook-cancel", *_STEP, "--duration-s", "3", "--antialias", "120", "--json"]) == 0
+    assert '"stable": true' in capsys.readouterr().out
+    for bad, needle in ((["--antialias", "600"], "below half the physics rate (500 Hz)"), (["--antialias", "-5"], "auto or a corner > 0 Hz")):
+        assert main(["closedloop", "--controller", "notebook-cancel", *_STEP, "--duration-s", "3", *bad]) == 2
+        assert needle in capsys.readouterr().err
+    assert main(["closedloop", "--controller", "unity", *_STEP, "--duration-s", "3", "--antialias"]) == 2
+    assert "--antialias: the unity servo loop samples no sensors" in capsys.readouterr().err

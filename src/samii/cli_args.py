@@ -182,6 +182,32 @@ def add_rerun(parser: argparse.ArgumentParser, help: str, *, fps_help: str = RER
     parser.add_argument("--rerun-fps", metavar="F", type=positive_float, default=None, help=fps_help)
 
 
+def _antialias(text: str) -> str | float:
+    if text.strip().lower() == "auto":
+        return "auto"
+    v = _number(text)
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"expected auto or a corner > 0 Hz, got {text!r}")
+    return v
+
+
+_antialias.__name__ = "corner"
+
+
+def add_antialias(parser: argparse.ArgumentParser) -> None:
+    """``--antialias [HZ]``: the controller card's anti-alias filter (``args.antialias``: None, "auto" or the corner)."""
+    parser.add_argument(
+        "--antialias",
+        nargs="?",
+        const="auto",
+        default=None,
+        type=_antialias,
+        metavar="HZ",
+        help="the controller's data acquisition filters theta and accel before it samples them: an 8th-order Butterworth "
+        "low-pass, as the measurement's DAQ, at HZ or, without it, at a quarter of the controller's sample rate (default: none)",
+    )
+
+
 def add_seed(parser: argparse.ArgumentParser, help: str, *, default: int | None = 0) -> None:
     """``--seed S``: a random generator's seed, an integer >= 0."""
     parser.add_argument("--seed", type=seed, default=default, help=help)

@@ -30,19 +30,23 @@ design units, with ``input_scale`` converting SI to them) into that configuratio
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
 
 from samii.controller import LinearController
 from samii.errors import InputError
+from samii.measure.daq import antialias_cutoff_hz, antialias_sos
 from samii.sim.model import ACTUATOR, JOINT
 from samii.sim.plugin import command_ring_entries, compile_spec, hydraulic_params
 from samii.sim.sensor_dynamics import SensorDynamics
 from samii.sim.sensors import accel_offset, accel_weights
 
 __all__ = [
+    "CardFilters",
+    "card_filters",
+    "default_antialias_hz",
     "CardFitError",
     "CardModel",
     "CardLayout",
@@ -91,8 +95,9 @@ def check_fit(controller: LinearController, dt: float, delay_samples: float) -> 
     ratio = T / dt
     steps = round(ratio)
     if not (1 <= steps <= MAX_SAMPLE_STEPS and abs(ratio - steps) <= 1e-9 * max(1.0, ratio)):
+        faster = f" (a controller faster than the physics runs on a model with a shorter step: --set timestep_s={T:g})" if T < dt else ""
         raise CardFitError("sample_time_s", f"field 'sample_time_s' = {T:g} s must be a whole number (1...{MAX_SAMPLE_STEPS}) of "
-                                            f"the model's physics step {dt:g} s")  # fmt: skip
+                                            f"the model's physics step {dt:g} s{faster}")  # fmt: skip
     delay_steps = float(delay_samples) * steps
     if not (math.isfinite(delay_steps) and 0.0 <= delay_steps <= MAX_DELAY_STEPS):
         raise CardFitError("delay_samples", f"{delay_steps:g} physics steps at the sample time {T:g} s; at most {MAX_DELAY_STEPS} "
@@ -123,15 +128,15 @@ class CardLayout:
     n_buffer: int  #: delay line length
     n_states: int  #: controller states
     act_adr: int  #: the hydraulic actuator's act (spool x, P/Ps) in the FULLPHYSICS vector
-    #: the sensor filters' sizes: FIR taps on theta and on accel, second-order sections on accel (0, 0, 0: ideal sensors,
-    #: no block in the state)
-    sensor_sizes: tuple[int, int, int] = (0, 0, 0)
+    #: the card's filters' sizes (:meth:`CardFilters.sizes`: FIR taps on theta and on accel, sections on theta and on
+    #: accel; zeros: no filters, no block in the state)
+    sensor_sizes: tuple[int, int, int, int] = (0, 0, 0, 0)
 
     @property
     def n_sensor_state(self) -> int:
-        """Entries of the sensors' block (0 without sensor filters)."""
-        n_theta, n_accel, n_sos = self.sensor_sizes
-        return _SN_RINGS + n_theta + n_accel + 2 * n_sos if n_theta else 0
+        """Entries of the sensors' block (0 without filters)."""
+        taps_theta, taps_accel, sos_theta, sos_accel = self.sensor_sizes
+        return _SN_RINGS + taps_theta + taps_accel + 2 * (sos_theta + sos_accel) if taps_theta else 0
 
     def enabled_index(self) -> int:
         return self.plugin_adr + _ST_ENABLED
@@ -156,6 +161,49 @@ class CardLayout:
         return slice(a, a + self.n_sensor_state)
 
 
+@dataclass(frozen=True, eq=False)
+class CardFilters:
+    """What the card's readings pass through before it samples them, at the physics rate: per channel an FIR, then
+    second-order sections (scipy's ``sos`` layout, ``(k, 6)``, ``k`` may be 0). The sensors' own dynamics
+    (:meth:`samii.sim.sensor_dynamics.SensorDynamics.filters`, the same a measurement applies) and the card's
+    anti-alias filter on both channels (the measurement DAQ's: :func:`samii.measure.daq.antialias_sos`)."""
+
+    theta_taps: np.ndarray
+    theta_sos: np.ndarray
+    accel_taps: np.ndarray
+    accel_sos: np.ndarray
+
+    @property
+    def ideal(self) -> bool:
+        """Nothing between the physics and the card."""
+        one = np.ones(1)
+        return (np.array_equal(self.theta_taps, one) and np.array_equal(self.accel_taps, one)
+                and not self.theta_sos.size and not self.accel_sos.size)  # fmt: skip
+
+    def sizes(self) -> tuple[int, int, int, int]:
+        """FIR taps on theta and on accel, sections on theta and on accel."""
+        return self.theta_taps.size, self.accel_taps.size, self.theta_sos.shape[0], self.accel_sos.shape[0]
+
+
+def card_filters(sensors: SensorDynamics, antialias_hz: float | None, rate_hz: float) -> CardFilters:
+    """The card's filters at the physics rate ``rate_hz``: the sensors', then, with ``antialias_hz``, the card's
+    anti-alias filter at that corner on both channels."""
+    theta_taps, accel_taps, sos = sensors.filters(rate_hz)
+    none = np.zeros((0, 6))
+    aa = none
+    if antialias_hz is not None:
+        if not (math.isfinite(antialias_hz) and 0 < antialias_hz < 0.5 * rate_hz):
+            raise InputError(f"the card's anti-alias corner {antialias_hz:g} Hz must lie between 0 and half the physics rate ({0.5 * rate_hz:g} Hz)")
+        aa = antialias_sos(antialias_hz, rate_hz)
+    return CardFilters(theta_taps, aa, accel_taps, np.vstack([none if sos is None else sos, aa]))
+
+
+def default_antialias_hz(sample_time_s: float) -> float:
+    """The card's anti-alias corner when none is given: the measurement DAQ's rule at the controller's rate (a quarter
+    of it, :func:`samii.measure.daq.antialias_cutoff_hz`)."""
+    return antialias_cutoff_hz(1.0 / sample_time_s)
+
+
 @dataclass(frozen=True)
 class CardModel:
     """A compiled SAMII model with the reference input, noise inputs and (optionally) a controller card."""
@@ -170,6 +218,9 @@ class CardModel:
     accel_offset_m_s2: float
     #: the sensors' dynamics between the physics and the card (the model's, :mod:`samii.sim.sensor_dynamics`)
     sensors: SensorDynamics = SensorDynamics()
+    antialias_hz: float | None = None  #: the card's anti-alias corner (None: none)
+    #: everything between the physics and the card (the sensors', then the anti-alias filter)
+    filters: CardFilters = field(default_factory=lambda: CardFilters(np.ones(1), np.zeros((0, 6)), np.ones(1), np.zeros((0, 6))))
 
     @property
     def sample_time_s(self) -> float:
@@ -177,28 +228,35 @@ class CardModel:
 
     def reads(self, state: np.ndarray, w: np.ndarray) -> np.ndarray:
         """What the card samples in the FULLPHYSICS ``state`` whose true readings are ``w = (theta_ref, theta, accel)``
-        (SI, noise-free): ``w`` through the sensors' filters, whose histories the state holds (hydraulic.c,
-        ``sensors_step``; ``w`` itself for ideal sensors)."""
+        (SI, noise-free): ``w`` through the card's filters, whose histories the state holds (hydraulic.c,
+        ``path_step``: each filter on the deviation from its rest reading; ``w`` itself without filters)."""
         w = np.array(w, float)
         if not self.layout.n_sensor_state:
             return w
-        n_theta, n_accel, n_sos = self.layout.sensor_sizes
+        f = self.filters
+        taps_theta, taps_accel, sos_theta, _ = f.sizes()
         block = np.asarray(state, float)[self.layout.sensor_slice()]
         k = int(block[_SN_COUNT])
-        rings = block[_SN_RINGS:]
-        theta_taps, accel_taps, sos = self.sensors.filters(1.0 / float(self.model.opt.timestep))
+        rings = block[_SN_RINGS : _SN_RINGS + taps_theta + taps_accel]
+        sections = block[_SN_RINGS + taps_theta + taps_accel :]
 
-        def fir(taps: np.ndarray, ring: np.ndarray, x: float) -> float:
-            past = ring[(k - np.arange(1, taps.size)) % taps.size]  # samples k-1, k-2, ...
-            return float(taps[0] * x + taps[1:] @ past)
+        def read(taps: np.ndarray, sos: np.ndarray, ring: np.ndarray, st: np.ndarray, x: float, rest: float) -> float:
+            past = ring[(k - np.arange(1, taps.size)) % taps.size]  # deviations of samples k-1, k-2, ...
+            y = float(taps[0] * (x - rest) + taps[1:] @ past)
+            gain = float(np.sum(taps))
+            for i, q in enumerate(sos):
+                y = float(q[0] / q[3] * y + st[2 * i])  # direct form II transposed: y = b0 x + s0
+                gain *= float(np.sum(q[:3]) / np.sum(q[3:]))
+            return y + gain * rest
 
-        theta = fir(theta_taps, rings[:n_theta], w[1])
-        accel = fir(accel_taps, rings[n_theta : n_theta + n_accel], w[2])
-        sections = rings[n_theta + n_accel :]
-        for i, q in enumerate([] if sos is None else sos):
-            accel = float(q[0] / q[3] * accel + sections[2 * i])  # direct form II transposed: y = b0 x + s0
-        w[1], w[2] = theta, accel
+        w[1] = read(f.theta_taps, f.theta_sos, rings[:taps_theta], sections[: 2 * sos_theta], w[1], self.theta_rest_rad)
+        w[2] = read(f.accel_taps, f.accel_sos, rings[taps_theta:], sections[2 * sos_theta :], w[2], 0.0)
         return w
+
+    @property
+    def theta_rest_rad(self) -> float:
+        """What the card reads of theta at rest (the ``home`` keyframe): the joint's angle from the servo's reference."""
+        return _theta_rest(self.model)
 
     def set_enabled(self, state: np.ndarray, enabled: bool, z0: np.ndarray | None = None) -> np.ndarray:
         """A copy of the FULLPHYSICS ``state`` with the card switched on (counter 0, states ``z0``) or off."""
@@ -211,6 +269,12 @@ class CardModel:
         if z0 is not None:
             s[L.z_slice()] = z0
         return s
+
+
+def _theta_rest(model: mujoco.MjModel) -> float:
+    """theta as the card reads it in the ``home`` keyframe (static equilibrium): the joint from the servo's reference."""
+    qadr = int(model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, JOINT)])
+    return float(model.key_qpos[0, qadr]) - hydraulic_params(model, ACTUATOR).reference_angle
 
 
 def _plugin_offset(model: mujoco.MjModel) -> int:
@@ -234,6 +298,7 @@ def build_card_model(
     accel_lsb_m_s2: float = 0.0,
     home_qpos: np.ndarray | None = None,
     home_act: np.ndarray | None = None,
+    antialias_hz: float | None = None,
 ) -> CardModel:
     """Compile ``spec`` (SAMII's, from :func:`samii.sim.model.load_spec`) with the card configured.
 
@@ -295,7 +360,8 @@ def build_card_model(
     _, direction = accel_weights(model)
     offset = float(accel_offset(model))
     sensors = SensorDynamics.from_model(model)
-    steps, n_buffer, n, sensor_sizes = 1, 0, 0, (0, 0, 0)
+    filters = card_filters(sensors, antialias_hz if controller is not None else None, 1.0 / dt)
+    steps, n_buffer, n, sensor_sizes = 1, 0, 0, (0, 0, 0, 0)
     if controller is not None:
         n = controller.n_states
         steps = check_fit(controller, dt, delay_samples)
@@ -318,15 +384,14 @@ def build_card_model(
         })  # fmt: skip
         if n:
             config.update({"controller_a": _join(A), "controller_b": _join(B), "controller_c": _join(C)})
-        if not sensors.ideal:  # the card reads through the sensors' dynamics, from rest after a reset
-            theta_taps, accel_taps, sos = sensors.filters(1.0 / dt)
-            qadr = int(model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, JOINT)])
-            theta_rest = float(model.key_qpos[0, qadr]) - hydraulic_params(model, ACTUATOR).reference_angle
-            config.update({"controller_theta_filter": _join(theta_taps), "controller_accel_filter": _join(accel_taps),
-                           "controller_theta_rest": repr(theta_rest)})  # fmt: skip
-            if sos is not None:
-                config["controller_accel_sos"] = _join(sos)
-            sensor_sizes = (theta_taps.size, accel_taps.size, 0 if sos is None else sos.shape[0])
+        if not filters.ideal:  # the card reads through the sensors' dynamics and its anti-alias filter, from rest
+            config.update({"controller_theta_filter": _join(filters.theta_taps), "controller_accel_filter": _join(filters.accel_taps),
+                           "controller_theta_rest": repr(_theta_rest(model))})  # fmt: skip
+            if filters.theta_sos.size:
+                config["controller_theta_sos"] = _join(filters.theta_sos)
+            if filters.accel_sos.size:
+                config["controller_accel_sos"] = _join(filters.accel_sos)
+            sensor_sizes = filters.sizes()
         n_buffer = int(math.floor(delay_steps)) + 2
         model = compile_with(config)
 
@@ -350,4 +415,7 @@ def build_card_model(
         raise RuntimeError(f"the plugin's state has {n_plugin} entries, expected {expected}: plugin and samii.closedloop.card disagree")
     # without a controller the servo amplifier runs alone: nothing replaces it, nothing is delayed
     replaces = bool(replaces_servo) and controller is not None
-    return CardModel(model, controller, replaces, float(delay_samples) if controller is not None else 0.0, steps, layout, offset, sensors)
+    aa = float(antialias_hz) if antialias_hz is not None and controller is not None else None
+    return CardModel(
+        model, controller, replaces, float(delay_samples) if controller is not None else 0.0, steps, layout, offset, sensors, aa, filters
+    )

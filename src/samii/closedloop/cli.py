@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from samii.cli_args import add_json, add_model, add_out, add_overwrite, add_rerun, add_seed, add_set, float_in
+from samii.cli_args import add_antialias, add_json, add_model, add_out, add_overwrite, add_rerun, add_seed, add_set, float_in
 from samii.closedloop.trial import BUILTIN_CONTROLLERS
 
 __all__ = ["add_arguments", "run", "MAX_DELAY_STEPS"]
@@ -78,6 +78,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="seeded sensor noise and ADC quantisation on the controller's measurements (theta 5e-4 rad rms and "
                         "4096-count/rev encoder steps; acceleration 0.01 m/s² rms and a 16-bit +-10 V ADC at 1 V/g)")  # fmt: skip
     add_seed(parser, "seed of the sensor noise (with --noise; default 0)", default=None)
+    add_antialias(parser)
     add_model(parser, "MJCF or parameter .json file (default: the embedded SAMII model)")
     add_set(parser, "override a model parameter, e.g. hydraulic.bulk_modulus=1e9 (repeatable; samii params lists them)")
     add_out(parser, "write timeseries.csv, run.json and the figures here")
@@ -101,6 +102,8 @@ def _summary(r, out_names: list[str]) -> str:
         from samii.sim.sensor_dynamics import SensorDynamics  # (lazy: imports mujoco, only when called)
 
         lines.append(f"  the controller reads through the sensors: {SensorDynamics(**r.sensors).text()}")
+    if r.antialias_hz is not None:
+        lines.append(f"  the controller's data acquisition filters theta and accel at {r.antialias_hz:.4g} Hz (8th-order Butterworth)")
     lines.append("  stable in the nonlinear simulator" if r.stable else f"  UNSTABLE: {r.instability()}")
     for n in r.notes:
         lines.append(f"  note: {n}")
@@ -157,6 +160,7 @@ def run(args) -> int:
         delay_samples=args.delay_samples,
         noise=args.noise,
         seed=args.seed,
+        antialias=args.antialias,
     )
 
     def say(what: str) -> None:  # the stages of a "damping" controller's design

@@ -77,16 +77,15 @@ class SensorPath:
 
 
 def sensor_paths(cm: CardModel) -> tuple[SensorPath, SensorPath]:
-    """(theta, accel): the card's sensors of ``cm`` as state-space filters at the physics step (pass-through for ideal
-    sensors)."""
-    if cm.sensors.ideal or cm.controller is None:
-        one = SensorPath.fir(np.ones(1))
-        return one, one
-    theta_taps, accel_taps, sos = cm.sensors.filters(1.0 / float(cm.model.opt.timestep))
-    accel = SensorPath.fir(accel_taps)
-    for q in [] if sos is None else sos:
+    """(theta, accel): what the card of ``cm`` reads through (its sensors' dynamics and its anti-alias filter) as
+    state-space filters at the physics step (pass-through for ideal sensors and no anti-alias filter)."""
+    f = cm.filters
+    theta, accel = SensorPath.fir(f.theta_taps), SensorPath.fir(f.accel_taps)
+    for q in f.theta_sos:
+        theta = theta.then(SensorPath.section(q))
+    for q in f.accel_sos:
         accel = accel.then(SensorPath.section(q))
-    return SensorPath.fir(theta_taps), accel
+    return theta, accel
 
 
 @dataclass(frozen=True)

@@ -134,6 +134,7 @@ class ClosedLoopResult:
     #: the sensor options the controller read through (samii.sim.sensor_dynamics, those not ideal; empty: ideal sensors,
     #: or no controller: the servo amplifier reads the joint directly)
     sensors: dict[str, float] = field(default_factory=dict)
+    antialias_hz: float | None = None  #: the card's anti-alias corner (None: none)
     theta_rest_rad: float = 0.0  #: theta at the static equilibrium (the responses are relative to it)
     accel_rest_m_s2: float = 0.0  #: accelerometer reading there (after the gravity offset is removed: ~0)
     comparison_base: BaseMetrics | None = None  #: the base figures of the comparison run, over the same windows
@@ -223,6 +224,7 @@ class ClosedLoopResult:
             "servo_loop": "replaced" if self.replaces_servo else "kept",
             "noise": None if self.noise is None else vars(self.noise),
             "sensors": dict(self.sensors) or None,
+            "antialias_hz": finite_or_none(self.antialias_hz),
             "diverged_at_s": finite_or_none(self.signals.diverged_at_s),
             "switch_jump_v": finite_or_none(self.signals.switch_jump_v),
             "linear_poles": [[finite_or_none(p.real), finite_or_none(p.imag)] for p in self.linear_poles_s if p.imag >= 0],
@@ -346,6 +348,7 @@ def run_closed_loop(
     comparison: bool = True,
     qpos_every: int | None = None,
     details: bool = True,
+    antialias_hz: float | None = None,
 ) -> ClosedLoopResult:
     """Run ``saved`` (None: the servo amplifier alone) through scenario ``sc`` on the model from ``spec_factory``.
 
@@ -362,6 +365,8 @@ def run_closed_loop(
         fitted modes (matrix pencil). Off, the result has ``linear`` None, no errors and no ``modes``; its
         stability, growth, poles and step and base metrics are the same: what ``samii robust`` reads (the
         two cost about three times the nonlinear run itself).
+    antialias_hz : float, optional
+        The card's anti-alias filter on theta and accel at this corner (:func:`samii.closedloop.card.card_filters`).
     """
     if spec_factory is None:
         spec_factory = default_spec_factory()
@@ -370,7 +375,8 @@ def run_closed_loop(
     q = noise or NoiseSpec(0.0, 0.0, 0.0, 0.0)
     spec, qpos, act = spec_factory()
     cm = build_card_model(spec, controller, replaces_servo=replaces, delay_samples=delay_samples,
-                          theta_lsb_rad=q.theta_lsb_rad, accel_lsb_m_s2=q.accel_lsb_m_s2, home_qpos=qpos, home_act=act)  # fmt: skip
+                          theta_lsb_rad=q.theta_lsb_rad, accel_lsb_m_s2=q.accel_lsb_m_s2, home_qpos=qpos, home_act=act,
+                          antialias_hz=antialias_hz)  # fmt: skip
     data = make_data(cm.model)  # (one MjData for the run, its rest readings and its linearisation: a new one costs 0.4 ms)
     theta_ref, initial, switch = _inputs(cm, sc, data)
     n = theta_ref.size
@@ -493,7 +499,7 @@ def run_closed_loop(
         free_decay_rate_1_s=free, modes=modes, rms_error_pct=err, delay_samples=float(delay_samples),
         sample_time_s=cm.sample_time_s, replaces_servo=cm.replaces_servo, noise=noise, notes=notes,
         theta_rest_rad=th_rest, accel_rest_m_s2=ac_rest, comparison_base=comp_base, runaway=ran_away, linear_only=linear_only,
-        sensors=cm.sensors.changed() if controller is not None else {},
+        sensors=cm.sensors.changed() if controller is not None else {}, antialias_hz=cm.antialias_hz,
     )  # fmt: skip
 
 

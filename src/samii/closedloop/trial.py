@@ -49,6 +49,8 @@ class TrialRequest:
     delay_samples: float = 0.0  #: the controller's computation delay
     noise: bool = False  #: seeded sensor noise and ADC quantisation on the controller's measurements
     seed: int | None = None  #: of that noise (None: 0)
+    #: the card's anti-alias filter: None (none), "auto" (a quarter of the controller's rate) or its corner [Hz]
+    antialias: str | float | None = None
 
 
 @dataclass
@@ -84,6 +86,25 @@ def resolve_controller(spec: str, factory=None, *, say: Callable[[str], None] | 
     if Path(spec).suffix.lower() == ".json" or Path(spec).exists():
         return cs.read_controller(spec)
     raise InputError(f"--controller {spec!r}: expected {', '.join(BUILTIN_CONTROLLERS)} or a controller file (.json)")
+
+
+def antialias_hz(antialias: str | float | None, saved) -> float | None:
+    """The card's anti-alias corner [Hz] ``antialias`` asks for (None, "auto" or a corner) with controller ``saved``:
+    "auto" is the measurement DAQ's rule at the controller's rate (a quarter of it)."""
+    if antialias is None or saved is None:
+        return None
+    if antialias == "auto":
+        from samii.closedloop.card import default_antialias_hz  # (lazy: imports mujoco, only when called)
+
+        return default_antialias_hz(saved.controller.sample_time_s)
+    return float(antialias)
+
+
+def check_antialias(antialias: str | float | None, saved, dt: float) -> None:
+    """The anti-alias corner against the physics rate, named as the option."""
+    hz = antialias_hz(antialias, saved)
+    if hz is not None and not hz < 0.5 / dt:
+        raise InputError(f"--antialias {hz:g}: the corner must lie below half the physics rate ({0.5 / dt:g} Hz)")
 
 
 def check_fits(saved, spec: str, delay_samples: float, dt: float) -> None:
@@ -201,6 +222,8 @@ def run_trial(
         raise InputError("--delay-samples: the unity servo loop is analog (no digital controller to delay)")
     if request.controller == "unity" and request.noise:
         raise InputError("--noise: the unity servo loop samples no sensors (its analog loop reads the joint angle directly)")
+    if request.controller == "unity" and request.antialias is not None:
+        raise InputError("--antialias: the unity servo loop samples no sensors (its analog loop reads the joint angle directly)")
 
     overrides = as_overrides(overrides)  # (read after the request's own checks)
     factory = default_spec_factory(model, overrides or None)
@@ -208,6 +231,7 @@ def run_trial(
     if saved is not None:
         spec, _, _ = factory()
         check_fits(saved, request.controller, request.delay_samples, float(spec.option.timestep))
+        check_antialias(request.antialias, saved, float(spec.option.timestep))
     kw = {"duration_s": request.duration_s}
     if request.step_deg is not None:
         kw["step_deg"] = request.step_deg
@@ -223,7 +247,7 @@ def run_trial(
     # the controller's name in the run's files and figures: a built-in's, or the file as the run names it
     label = request.controller if request.controller in BUILTIN_CONTROLLERS else shown_path(request.controller, relative_to)
     result = run_closed_loop(saved, sc, label=label, spec_factory=factory, delay_samples=request.delay_samples, noise=noise,
-                             qpos_every=frame_steps)  # fmt: skip
+                             qpos_every=frame_steps, antialias_hz=antialias_hz(request.antialias, saved))  # fmt: skip
 
     written: list[str] = []
     recorded = result.signals.t.size >= 2  # a run that diverged in its first step has nothing to record or draw

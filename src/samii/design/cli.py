@@ -165,10 +165,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--sample-time-s",
-        type=float_in(0.0, 5e-3, lo_open=True, unit="s"),
+        type=float_in(0.0, 1e-2, lo_open=True, unit="s"),
         default=1e-3,
         metavar="T",
-        help="controller sample time [s], 0 < T <= 0.005 (default 0.001)",
+        help="controller sample time [s], 0 < T <= 0.01 (default 0.001: 1 kHz; 0.01: 100 Hz; a controller faster than the physics step runs on a model with a shorter one: samii closedloop --set timestep_s=0.0002 for 5 kHz)",
     )
     p.add_argument(
         "--delay-samples",

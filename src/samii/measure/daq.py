@@ -19,7 +19,7 @@ from samii.sim.sensor_dynamics import FIELDS as SENSOR_FIELDS
 from samii.sim.sensor_dynamics import SensorDynamics, SensorFilter
 from samii.timeseries import SIGNAL_COLUMNS, TimeSeries
 
-__all__ = ["SensorNoise", "Daq", "acquire", "antialias_cutoff_hz", "daq_timeseries", "DEFAULT_SAMPLE_RATE_HZ"]
+__all__ = ["SensorNoise", "Daq", "acquire", "antialias_cutoff_hz", "antialias_sos", "daq_timeseries", "DEFAULT_SAMPLE_RATE_HZ"]
 
 #: Rig DAQ rate [Hz] (issue 3): 25 samples per period at the top of the 40 Hz band.
 DEFAULT_SAMPLE_RATE_HZ = 1000.0
@@ -33,6 +33,12 @@ _AA_CUTOFF_RATIO = 0.25
 def antialias_cutoff_hz(sample_rate_hz: float) -> float:
     """Corner of the DAQ's anti-alias filter [Hz] at ``sample_rate_hz``: no response above it is measured."""
     return _AA_CUTOFF_RATIO * float(sample_rate_hz)
+
+
+def antialias_sos(cutoff_hz: float, physics_rate_hz: float) -> np.ndarray:
+    """The DAQ's anti-alias filter at ``cutoff_hz`` as second-order sections at the physics rate (scipy's layout): the
+    Butterworth of the module's order, bilinear, prewarped at the corner."""
+    return signal.butter(_AA_ORDER, cutoff_hz, fs=physics_rate_hz, output="sos")
 
 
 @dataclass(frozen=True)
@@ -124,7 +130,7 @@ class Daq:
         self._sensor_filter = None if self.sensors is None else SensorFilter(self.sensors, physics_rate_hz)
         self._q = q
         self.cutoff_hz = _AA_CUTOFF_RATIO * sample_rate_hz
-        self._sos = signal.butter(_AA_ORDER, self.cutoff_hz, fs=physics_rate_hz, output="sos")
+        self._sos = antialias_sos(self.cutoff_hz, physics_rate_hz)
         self._zi: np.ndarray | None = None
         self._names: list[str] | None = None
         self._phase = 0  # physics samples to skip before the next DAQ sample

@@ -15,6 +15,7 @@ import math
 import sys
 
 from samii.cli_args import (
+    add_antialias,
     add_json,
     add_model,
     add_no_progress,
@@ -84,6 +85,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the controller's computation delay [samples] (default 0)",
     )
     p.add_argument("--noise", action="store_true", help="sensor noise on the controller's measurements, seeded per sample from --seed")
+    add_antialias(p)
     p.add_argument(
         "--workers",
         type=_workers,
@@ -124,6 +126,7 @@ def run(args: argparse.Namespace) -> int:
         overrides=tuple(args.set),
         delay_samples=args.delay_samples,
         noise=args.noise,
+        antialias=args.antialias,
         workers=args.workers,
         scheduler=args.scheduler,
         scheduler_timeout_s=args.scheduler_timeout,

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from samii import forkmap
-from samii.closedloop.trial import check_fits, resolve_controller
+from samii.closedloop.trial import antialias_hz, check_antialias, check_fits, resolve_controller
 from samii.errors import InputError
 from samii.json_output import dumps
 from samii.outputs import OutputFolder
@@ -63,6 +63,8 @@ class StudyRequest:
     overrides: Sequence[str] | Mapping[str, float] = ()  #: NAME=VALUE texts or a mapping, on the nominal plant
     delay_samples: float = 0.0  #: the controller's computation delay [samples]
     noise: bool = False  #: sensor noise on the controller's measurements, seeded per sample
+    #: the card's anti-alias filter: None (none), "auto" (a quarter of the controller's rate) or its corner [Hz]
+    antialias: str | float | None = None
     #: 0: this process; N: N worker processes on this machine; None: Dask's configured scheduler if any, else one process per core
     workers: int | None = None
     scheduler: str | None = None  #: a Dask scheduler's address (tcp://host:8786)
@@ -242,6 +244,8 @@ def plan_study(request: StudyRequest, *, out=None, overwrite: bool = False, say:
         raise InputError("--delay-samples: the unity servo loop is analog (no digital controller to delay)")
     if req.controller == "unity" and req.noise:
         raise InputError("--noise: the unity servo loop samples no sensors (its analog loop reads the joint angle directly)")
+    if req.controller == "unity" and req.antialias is not None:
+        raise InputError("--antialias: the unity servo loop samples no sensors (its analog loop reads the joint angle directly)")
     folder = OutputFolder(out, list(FILES) + list(FIGURES), overwrite=overwrite) if out is not None else None
     spreads = [parse_spread(s) for s in req.spreads]
     if req.controller == "unity" and any(sp.name == DELAY_SAMPLES for sp in spreads):
@@ -269,6 +273,7 @@ def plan_study(request: StudyRequest, *, out=None, overwrite: bool = False, say:
     saved = resolve_controller(req.controller, lambda: (load_spec(params=params)[0], qpos, act), say=say)
     if saved is not None:
         check_fits(saved, req.controller, req.delay_samples, float(nominal_model.opt.timestep))
+        check_antialias(req.antialias, saved, float(nominal_model.opt.timestep))
         from samii.closedloop.card import CardFitError, check_fit  # (lazy: imports mujoco, only when called)
 
         for i in range(req.samples):  # and every drawn delay one the card can run
@@ -281,8 +286,9 @@ def plan_study(request: StudyRequest, *, out=None, overwrite: bool = False, say:
     def noise_seed(i: int) -> int | None:
         return sample_seeds(req.seed, i)[1] if req.noise else None
 
-    tasks = [SampleTask(-1, base, {}, saved, req.scenario, req.delay_samples, noise_seed(-1))]
-    tasks += [SampleTask(i, base, plant(i), saved, req.scenario, delay(i), noise_seed(i)) for i in range(req.samples)]
+    aa = antialias_hz(req.antialias, saved)
+    tasks = [SampleTask(-1, base, {}, saved, req.scenario, req.delay_samples, noise_seed(-1), aa)]
+    tasks += [SampleTask(i, base, plant(i), saved, req.scenario, delay(i), noise_seed(i), aa) for i in range(req.samples)]
     return Study(req, draws, tasks, engine, said, folder)
 
 

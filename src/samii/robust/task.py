@@ -29,6 +29,7 @@ class SampleTask:
     scenario: str  #: samii closedloop's scenario, at its default settings
     delay_samples: float = 0.0
     noise_seed: int | None = None  #: sensor noise on, with this seed (None: off)
+    antialias_hz: float | None = None  #: the card's anti-alias filter's corner (None: none)
 
 
 @dataclass(frozen=True)
@@ -117,7 +118,7 @@ def _run_sample(task: SampleTask) -> SampleResult:
         warnings.simplefilter("ignore", RuntimeWarning)
         r = run_closed_loop(task.controller, scenario(task.scenario), label=f"sample {task.index}",
                             spec_factory=factory, delay_samples=task.delay_samples, noise=noise, comparison=False,
-                            details=False)  # fmt: skip
+                            details=False, antialias_hz=task.antialias_hz)  # fmt: skip
     # unstable: the nonlinear run diverges or oscillates without decaying, or its linearisation is unstable and only
     # the valve's +-10 V rails bound it (a limit cycle is no stable loop)
     # (a marginal prediction, an integrator at |z| = 1 to within rounding, is no instability: closedloop's verdict)

@@ -145,3 +145,4 @@ class ClosedLoopRecord(ClosedLoopFigures):
     #: the sensor options the controller read through (samii.sim.sensor_dynamics: those not at their ideal value);
     #: None: ideal sensors, or no controller (the servo amplifier reads the joint)
     sensors: Mapping[str, float] | None = None
+    antialias_hz: float | None = None  #: the controller's anti-alias filter's corner (None: none)

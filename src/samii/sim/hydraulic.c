@@ -60,9 +60,10 @@
 //     noise actuators and quantises to the ADC steps;
 //   - theta and accel reach it through the sensors' own dynamics when configured
 //     (`controller_theta_filter`, `controller_accel_filter`: FIR taps at the physics rate, a delay;
-//     `controller_accel_sos`: second-order sections after the accel FIR, a roll-off, an anti-alias
-//     filter, an AC coupling; samii.sim.sensor_dynamics computes them as it does for a measurement).
-//     They run every physics step, card on or off, from rest after a reset (theta's history
+//     `controller_theta_sos`, `controller_accel_sos`: second-order sections after the FIR, a
+//     roll-off, an anti-alias filter, an AC coupling; samii.closedloop.card computes them as
+//     samii.sim.sensor_dynamics does for a measurement, with the card's own anti-alias filter).
+//     They run every physics step, card on or off, from rest after a reset (theta's rest reading
 //     `controller_theta_rest`, accel's 0); the servo amplifier still reads the joint directly;
 //   - it computes c = C z + D w and z <- A z + B w (SI inputs; the caller folds unit scales in);
 //   - the command is held (ZOH) and reaches the valve `controller_delay_steps` later through a ring
@@ -165,6 +166,7 @@ enum {
   OPT_CONTROLLER_ACCEL_SOS,        // second-order sections after it, 6 numbers each (b0 b1 b2 a0 a1 a2)
   OPT_CONTROLLER_THETA_REST,       // [rad] the card's theta at rest (the home keyframe): the angle
                                    // filter's history after a reset
+  OPT_CONTROLLER_THETA_SOS,        // second-order sections after the theta FIR (6 numbers each)
   NATTR_ALL
 };
 
@@ -177,7 +179,7 @@ static const char* const kAttributes[NATTR_ALL] = {
   "controller_accel_offset", "controller_theta_noise", "controller_accel_noise",
   "controller_theta_lsb", "controller_accel_lsb", "command_delay", "valve_dead_band",
   "valve_saturation", "valve_asymmetry", "controller_theta_filter", "controller_accel_filter",
-  "controller_accel_sos", "controller_theta_rest",
+  "controller_accel_sos", "controller_theta_rest", "controller_theta_sos",
 };
 
 #define CTRL_NIN 3                 // controller inputs: theta_r [rad], theta [rad], accel [m/s^2]
@@ -198,9 +200,24 @@ enum {
 };
 
 // The sensors' block after the controller's states (only when a sensor filter is configured):
-// the physics steps since the reset, then the rings of raw theta and accel (entry k % size holds
-// step k) and the sections' states (two each, direct form II transposed, as scipy's sosfilt).
+// the physics steps since the reset, then the rings of theta's and accel's deviations from rest
+// (entry k % size holds step k), then the sections' states, theta's then accel's (two each, direct
+// form II transposed, as scipy's sosfilt). All zero: the sensors at rest since long before.
 enum { SN_COUNT = 0, SN_RINGS };
+
+// One sensor's filter: an FIR, then second-order sections, on the deviation from its rest reading
+// (the output is the filtered deviation plus the filter's DC gain times the rest reading).
+typedef struct {
+  int ntaps, nsos;
+  mjtNum* taps;                 // ntaps
+  mjtNum* sos;                  // 6 nsos, each normalised to a0 = 1
+  mjtNum rest;                  // the reading at rest
+  mjtNum gain_dc;               // the filter's gain at 0 Hz
+} SensorPath;
+
+enum { PATH_THETA = 0, PATH_ACCEL, NPATH };
+static const int kPathTaps[NPATH] = {OPT_CONTROLLER_THETA_FILTER, OPT_CONTROLLER_ACCEL_FILTER};
+static const int kPathSos[NPATH] = {OPT_CONTROLLER_THETA_SOS, OPT_CONTROLLER_ACCEL_SOS};
 
 typedef struct {
   int n;                        // states
@@ -219,12 +236,8 @@ typedef struct {
   int nbuf;                     // delay_whole + 2
   mjtNum* z_scratch;            // n
   // the sensors' dynamics before sampling (samii.sim.sensor_dynamics; all absent: ideal sensors)
-  int sensors;                  // 1: the block below is in plugin_state after z
-  int ntheta, naccel, nsos;     // FIR taps of theta and accel, second-order sections of accel
-  mjtNum* theta_taps;           // ntheta
-  mjtNum* accel_taps;           // naccel
-  mjtNum* sos;                  // 6 nsos, each normalised to a0 = 1
-  mjtNum theta_rest;            // [rad]
+  int sensors;                  // 1: the sensors' block is in plugin_state after z
+  SensorPath path[NPATH];       // theta's, accel's
 } Card;
 
 // rule for each attribute: 1 = must be > 0, 0 = must be >= 0, -1 = any finite value
@@ -368,9 +381,10 @@ static void card_free(Card* c) {
     free(c->B);
     free(c->C);
     free(c->z_scratch);
-    free(c->theta_taps);
-    free(c->accel_taps);
-    free(c->sos);
+    for (int i = 0; i < NPATH; i++) {
+      free(c->path[i].taps);
+      free(c->path[i].sos);
+    }
     free(c);
   }
 }
@@ -389,21 +403,19 @@ static int count_numbers(const mjModel* m, int instance, int i) {
   return count;
 }
 
-// Sizes of the sensors' filters a config asks for (used by nstate before init and by reset);
-// returns the block's plugin_state entries, 0 when no filter is configured (ideal sensors).
-static int sensor_size(const mjModel* m, int instance, int* ntheta, int* naccel, int* nsos) {
-  int theta = count_numbers(m, instance, OPT_CONTROLLER_THETA_FILTER);
-  int accel = count_numbers(m, instance, OPT_CONTROLLER_ACCEL_FILTER);
-  int sos = count_numbers(m, instance, OPT_CONTROLLER_ACCEL_SOS) / 6;
-  *ntheta = theta > 0 && theta <= SENSOR_MAX_TAPS ? theta : 1;  // (init reports a bad count)
-  *naccel = accel > 0 && accel <= SENSOR_MAX_TAPS ? accel : 1;
-  *nsos = sos <= SENSOR_MAX_SECTIONS ? sos : 0;
-  if (!optional_text(m, instance, OPT_CONTROLLER_THETA_FILTER) &&
-      !optional_text(m, instance, OPT_CONTROLLER_ACCEL_FILTER) &&
-      !optional_text(m, instance, OPT_CONTROLLER_ACCEL_SOS)) {
-    return 0;
+// Sizes of the sensors' filters a config asks for (used by nstate before init): FIR taps and
+// sections per path; returns the block's plugin_state entries, 0 when no filter is configured.
+static int sensor_size(const mjModel* m, int instance, int ntaps[NPATH], int nsos[NPATH]) {
+  int any = 0, size = SN_RINGS;
+  for (int i = 0; i < NPATH; i++) {
+    int taps = count_numbers(m, instance, kPathTaps[i]);
+    int sos = count_numbers(m, instance, kPathSos[i]) / 6;
+    ntaps[i] = taps > 0 && taps <= SENSOR_MAX_TAPS ? taps : 1;  // (init reports a bad count)
+    nsos[i] = sos <= SENSOR_MAX_SECTIONS ? sos : 0;
+    any |= optional_text(m, instance, kPathTaps[i]) || optional_text(m, instance, kPathSos[i]);
+    size += ntaps[i] + 2 * nsos[i];
   }
-  return SN_RINGS + *ntheta + *naccel + 2 * *nsos;
+  return any ? size : 0;
 }
 
 // The states and delay a config asks for (used by nstate before init); 0 = no controller.
@@ -426,8 +438,8 @@ static int card_nstate(const mjModel* m, int instance) {
   int n, nbuf;
   if (!card_size(m, instance, &n, &nbuf)) return 0;
   if (n < 0 || n > CTRL_MAX_STATES) n = 0;  // init reports it
-  int ntheta, naccel, nsos;
-  return ST_BUFFER + nbuf + n + sensor_size(m, instance, &ntheta, &naccel, &nsos);
+  int ntaps[NPATH], nsos[NPATH];
+  return ST_BUFFER + nbuf + n + sensor_size(m, instance, ntaps, nsos);
 }
 
 // The command delay a config asks for, in physics steps (whole + fraction); returns the ring's
@@ -467,9 +479,38 @@ static int parse_taps(const mjModel* m, int instance, int i, int count, mjtNum**
   return parse_numbers(m, instance, i, *out, count, name);
 }
 
+// The sections of a sensor path (attribute i), normalised to a0 = 1; -1 with a message if wrong.
+static int parse_sections(const mjModel* m, int instance, int i, SensorPath* p, const char* name) {
+  int numbers = count_numbers(m, instance, i);
+  if (optional_text(m, instance, i) &&
+      (numbers < 6 || numbers % 6 || numbers > 6 * SENSOR_MAX_SECTIONS)) {
+    mju_warning("%s (actuator '%s'): config attribute '%s' must hold 6 numbers per section, "
+                "1...%d sections (got %d numbers)", SAMII_PLUGIN_NAME, name, kAttributes[i],
+                SENSOR_MAX_SECTIONS, numbers);
+    return -1;
+  }
+  p->sos = (mjtNum*) calloc(6 * p->nsos + 1, sizeof(mjtNum));
+  if (!p->sos) {
+    mju_warning("%s: out of memory", SAMII_PLUGIN_NAME);
+    return -1;
+  }
+  if (p->nsos && parse_numbers(m, instance, i, p->sos, 6 * p->nsos, name)) return -1;
+  for (int k = 0; k < p->nsos; k++) {
+    mjtNum* q = p->sos + 6*k;
+    if (q[3] == 0) {
+      mju_warning("%s (actuator '%s'): section %d of '%s' has a0 = 0", SAMII_PLUGIN_NAME, name, k,
+                  kAttributes[i]);
+      return -1;
+    }
+    for (int j = 5; j >= 0; j--) q[j] /= q[3];
+  }
+  return 0;
+}
+
 // The sensors' filters of the card (none configured: ideal sensors); -1 with a message if wrong.
 static int sensors_create(const mjModel* m, int instance, Card* c, const char* name) {
-  c->sensors = sensor_size(m, instance, &c->ntheta, &c->naccel, &c->nsos) > 0;
+  int ntaps[NPATH], nsos[NPATH];
+  c->sensors = sensor_size(m, instance, ntaps, nsos) > 0;
   if (!c->sensors) {
     if (optional_text(m, instance, OPT_CONTROLLER_THETA_REST)) {
       mju_warning("%s (actuator '%s'): config attribute 'controller_theta_rest' given without a "
@@ -478,36 +519,25 @@ static int sensors_create(const mjModel* m, int instance, Card* c, const char* n
     }
     return 0;
   }
-  int numbers = count_numbers(m, instance, OPT_CONTROLLER_ACCEL_SOS);
-  if (optional_text(m, instance, OPT_CONTROLLER_ACCEL_SOS) &&
-      (numbers < 6 || numbers % 6 || numbers > 6 * SENSOR_MAX_SECTIONS)) {
-    mju_warning("%s (actuator '%s'): config attribute 'controller_accel_sos' must hold 6 numbers "
-                "per section, 1...%d sections (got %d numbers)", SAMII_PLUGIN_NAME, name,
-                SENSOR_MAX_SECTIONS, numbers);
-    return -1;
-  }
-  if (parse_taps(m, instance, OPT_CONTROLLER_THETA_FILTER, c->ntheta, &c->theta_taps, name) ||
-      parse_taps(m, instance, OPT_CONTROLLER_ACCEL_FILTER, c->naccel, &c->accel_taps, name)) {
-    return -1;
-  }
-  c->sos = (mjtNum*) calloc(6 * c->nsos + 1, sizeof(mjtNum));
-  if (!c->sos) {
-    mju_warning("%s: out of memory", SAMII_PLUGIN_NAME);
-    return -1;
-  }
-  if (c->nsos && parse_numbers(m, instance, OPT_CONTROLLER_ACCEL_SOS, c->sos, 6 * c->nsos, name)) {
-    return -1;
-  }
-  for (int k = 0; k < c->nsos; k++) {
-    mjtNum* q = c->sos + 6*k;
-    if (q[3] == 0) {
-      mju_warning("%s (actuator '%s'): section %d of 'controller_accel_sos' has a0 = 0",
-                  SAMII_PLUGIN_NAME, name, k);
+  for (int i = 0; i < NPATH; i++) {
+    SensorPath* p = &c->path[i];
+    p->ntaps = ntaps[i];
+    p->nsos = nsos[i];
+    if (parse_taps(m, instance, kPathTaps[i], p->ntaps, &p->taps, name) ||
+        parse_sections(m, instance, kPathSos[i], p, name)) {
       return -1;
     }
-    for (int j = 5; j >= 0; j--) q[j] /= q[3];
+    p->gain_dc = 0;
+    for (int k = 0; k < p->ntaps; k++) p->gain_dc += p->taps[k];
+    for (int k = 0; k < p->nsos; k++) {
+      const mjtNum* q = p->sos + 6*k;
+      mjtNum den = q[3] + q[4] + q[5];
+      p->gain_dc *= den != 0 ? (q[0] + q[1] + q[2]) / den : 0;  // (a pole at z = 1: no rest level)
+    }
   }
-  return parse_optional(m, instance, OPT_CONTROLLER_THETA_REST, -1e3, 1e3, 0, &c->theta_rest, name);
+  // the accelerometer reads 0 at rest (its rest reading is the card's offset)
+  return parse_optional(m, instance, OPT_CONTROLLER_THETA_REST, -1e3, 1e3, 0,
+                        &c->path[PATH_THETA].rest, name);
 }
 
 // Build the controller card from the config; NULL (card_ok = 1) when none is configured,
@@ -938,34 +968,39 @@ static mjtNum quantise(mjtNum x, mjtNum lsb) {
   return lsb > 0 ? lsb * round(x / lsb) : x;
 }
 
+// A sensor path over one physics step k: the reading x of t_n in, what the sensor gives out (the
+// newest sample weighs in: taps[0], b0). `ring` holds the past deviations from rest, `st` the
+// sections' states.
+static mjtNum path_step(const SensorPath* p, mjtNum* ring, mjtNum* st, long long k, mjtNum x) {
+  ring[k % p->ntaps] = x - p->rest;
+  mjtNum y = 0;
+  for (int j = 0; j < p->ntaps; j++) {
+    if (p->taps[j] != 0) y += p->taps[j] * ring[(k - j + p->ntaps) % p->ntaps];
+  }
+  for (int i = 0; i < p->nsos; i++) {  // direct form II transposed
+    const mjtNum* q = p->sos + 6*i;
+    mjtNum* z = st + 2*i;
+    mjtNum u = y;
+    y = q[0]*u + z[0];
+    z[0] = q[1]*u - q[4]*y + z[1];
+    z[1] = q[2]*u - q[5]*y;
+  }
+  return y + p->gain_dc * p->rest;
+}
+
 // The sensors' filters over one physics step: raw *theta and *accel of t_n in, what the sensors
-// give the card at t_n out (the newest sample weighs in: taps[0], b0).
+// give the card at t_n out.
 static void sensors_step(const Card* c, mjtNum* card_state, mjtNum* theta, mjtNum* accel) {
   mjtNum* block = card_state + ST_BUFFER + c->nbuf + c->n;
   long long k = (long long) block[SN_COUNT];
+  const SensorPath* pt = &c->path[PATH_THETA];
+  const SensorPath* pa = &c->path[PATH_ACCEL];
   mjtNum* ring_theta = block + SN_RINGS;
-  mjtNum* ring_accel = ring_theta + c->ntheta;
-  mjtNum* st = ring_accel + c->naccel;
-  ring_theta[k % c->ntheta] = *theta;
-  ring_accel[k % c->naccel] = *accel;
-  mjtNum y = 0;
-  for (int j = 0; j < c->ntheta; j++) {
-    if (c->theta_taps[j] != 0) y += c->theta_taps[j] * ring_theta[(k - j + c->ntheta) % c->ntheta];
-  }
-  *theta = y;
-  y = 0;
-  for (int j = 0; j < c->naccel; j++) {
-    if (c->accel_taps[j] != 0) y += c->accel_taps[j] * ring_accel[(k - j + c->naccel) % c->naccel];
-  }
-  for (int i = 0; i < c->nsos; i++) {  // direct form II transposed
-    const mjtNum* q = c->sos + 6*i;
-    mjtNum* z = st + 2*i;
-    mjtNum x = y;
-    y = q[0]*x + z[0];
-    z[0] = q[1]*x - q[4]*y + z[1];
-    z[1] = q[2]*x - q[5]*y;
-  }
-  *accel = y;
+  mjtNum* ring_accel = ring_theta + pt->ntaps;
+  mjtNum* st_theta = ring_accel + pa->ntaps;
+  mjtNum* st_accel = st_theta + 2 * pt->nsos;
+  *theta = path_step(pt, ring_theta, st_theta, k, *theta);
+  *accel = path_step(pa, ring_accel, st_accel, k, *accel);
   block[SN_COUNT] = (mjtNum) (k + 1);
 }
 
@@ -1154,17 +1189,7 @@ static void hydraulic_reset(const mjModel* m, mjtNum* plugin_state, void* plugin
   int n = m->plugin_statenum[instance];  // as compiled (init refuses a configuration that disagrees)
   if (n) mju_zero(plugin_state, n);
   if (card_nstate(m, instance)) plugin_state[ST_ENABLED] = 1;
-  // the sensors at rest since long before: the angle filter's history is the rest angle (the
-  // accelerometer reads 0 at rest: its rest reading is the card's offset)
-  int states, nbuf, ntheta, naccel, nsos;
-  if (card_size(m, instance, &states, &nbuf) && sensor_size(m, instance, &ntheta, &naccel, &nsos)) {
-    const char* rest = optional_text(m, instance, OPT_CONTROLLER_THETA_REST);
-    double theta = rest ? strtod(rest, NULL) : 0;
-    int at = ST_BUFFER + nbuf + states + SN_RINGS;
-    if (isfinite(theta) && at + ntheta <= n) {
-      for (int k = 0; k < ntheta; k++) plugin_state[at + k] = theta;
-    }
-  }
+  // (the sensors' block all zero: at rest since long before)
 }
 
 mjPLUGIN_LIB_INIT(samii_hydraulic) {

@@ -103,6 +103,7 @@ OPTIONAL_ATTRIBUTES: tuple[str, ...] = (
     "controller_accel_filter",
     "controller_accel_sos",
     "controller_theta_rest",
+    "controller_theta_sos",
 )
 
 _EXPECTED = {
