@@ -29,12 +29,15 @@ import pytest
 from samii.cli import main
 from samii.closedloop.card import build_card_model
 from samii.closedloop.controllers import notebook_cancel
+from samii.closedloop.damping import sensors_from_diagnosis
 from samii.closedloop.scenario import default_spec_factory
 from samii.diagnose.diagnosis import diagnose
 from samii.diagnose.files import simulator_params_text
+from samii.json_output import dumps
 from samii.measure.campaign import measure_swept
 from samii.measure.daq import SensorNoise
 from samii.measure.measured import load
+from samii.schema import document
 from samii.sim.model import dotted, load_model, params_from_dict
 
 
@@ -113,6 +116,11 @@ def test_accelerometer_roll_off_found_and_carried(lowpass, tmp_path):
     spec, qpos, act = default_spec_factory(path)()
     cm = build_card_model(spec, notebook_cancel().controller, replaces_servo=True, home_qpos=qpos, home_act=act)
     assert abs(cm.sensors.accel_lowpass_hz / 20.0 - 1) < 0.15 and cm.layout.n_sensor_state > 0
+    # and a damping design told the sensors by the diagnosis (samii design damping --sensors-from diagnosis.json)
+    diag = tmp_path / "diagnosis.json"
+    diag.write_text(dumps(document(d.record())))
+    found = sensors_from_diagnosis(diag)
+    assert set(found) >= {"sensor.accel_lowpass_hz"} and found["sensor.accel_lowpass_hz"] == s.changes["sensor.accel_lowpass_hz"]
 
 
 @pytest.mark.slow

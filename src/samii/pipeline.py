@@ -367,7 +367,7 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progr
     # and the closed-loop trials run here (each on a core; their folders are apart)
     with fork_later(diagnosed) as diagnosis_record:
         progress.stage("designing the damping controller")
-        damping, design = _design_stage(d, float(rec.model.hydraulic["position_gain"]))
+        damping, design = _design_stage(d, float(rec.model.hydraulic["position_gain"]), _sensor_chain(model_file, parsed))
         progress.advance()
         closed = _closed_loop_stage(d, damping, model_file, parsed, progress, said)
         progress.stage("diagnosing the fit against the measured record")
@@ -387,12 +387,24 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progr
     )
 
 
-def _design_stage(d: Path, kp: float) -> tuple[Path, dict]:
+def _sensor_chain(model_file, overrides: dict):
+    """The model's sensors (its ``sensor.*`` options), which the damping design takes into account (None: ideal)."""
+    from samii.closedloop.damping import SensorChain  # (lazy: imports mujoco, only when called)
+    from samii.sim.model import load_model  # (lazy: imports mujoco, only when called)
+    from samii.sim.sensor_dynamics import SensorDynamics  # (lazy: imports mujoco, only when called)
+
+    chain = SensorChain(SensorDynamics.from_model(load_model(model_file, overrides=overrides or None)))
+    return None if chain.ideal else chain
+
+
+def _design_stage(d: Path, kp: float, chain=None) -> tuple[Path, dict]:
     """``controllers/damping.json``, designed on the measured FRF with the servo gain ``kp`` the data were measured
-    with (the Bode test's model); the file and the design's figures."""
+    with (the Bode test's model), through the model's sensors ``chain`` (None: ideal); the file and the design's
+    figures."""
     (d / "controllers").mkdir()
     with _named_stage("design"):
-        designed = damping_from_frf(read_frf_csv(d / "measure" / "frf.csv"), source="measure/frf.csv", position_gain_v_per_rad=kp)
+        designed = damping_from_frf(read_frf_csv(d / "measure" / "frf.csv"), source="measure/frf.csv", position_gain_v_per_rad=kp,
+                                    chain=chain)  # fmt: skip
     damping = d / "controllers" / "damping.json"  # named in the run's files as the folder names it: controllers/damping.json
     write_controller(designed.controller, damping)
     return damping, finite_or_none(designed.to_dict())

@@ -33,6 +33,13 @@ considering the third mode"), made robust rather than exact. The method:
 4. **Check on the data**: with an FRF, the sensitivity ``|1/(1 + L)|`` of the
    loop built from the *measured* theta/v and xdd/v (not the fit) is reported
    above the fit band, where the model is not trusted (``max_sensitivity_above_band``).
+5. **The sensors** (issue 35, item 4), when the rig's are known (:class:`SensorChain`: the
+   model's ``sensor.*`` options, a diagnosis's, and the controller card's anti-alias filter):
+   the data were measured through them, so their response is divided out of theta/v and xdd/v
+   before the fit (the fit is of the plant, as the structure assumes), and the controller reads
+   the base through them, so their continuous laws (delays as 3rd-order Padé) are in the loop whose
+   stability limit sets the gain. A design blind to a 10 Hz roll-off takes the roll-off's lag for
+   the plant's and its gain for one with a margin it does not have on the rig.
 
 :func:`compare_methods` (used by ``experiments/closed_loop``) sets this against
 three-mode pole placement with an observer on the same fit.
@@ -66,6 +73,9 @@ __all__ = [
     "damping_from_frf",
     "damping_from_simulation",
     "FIT_BAND_HZ",
+    "SensorChain",
+    "without_sensors",
+    "sensors_from_diagnosis",
 ]
 
 #: Fit band [Hz]: the base modes (1.7, 9.9, 25 Hz) and the servo pair (8 Hz); above 30 Hz the
@@ -97,6 +107,8 @@ class DampingDesign:
     #: largest |1/(1 + L)| of the loop built from the measured FRF above the fit band (None: not checked)
     max_sensitivity_above_band: float | None = None
     sensitivity_band_hz: tuple[float, float] | None = None
+    #: the sensor chain the design took into account (SensorChain.describe(): options by name; empty: none)
+    sensor_chain: Mapping[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """The design as ``samii design damping --json`` prints it (SI units; the controller itself is its own file)."""
@@ -115,6 +127,7 @@ class DampingDesign:
             "modes_on_fitted_model": self.mode_table(),
             "max_sensitivity_above_fit_band": self.max_sensitivity_above_band,
             "sensitivity_band_hz": None if self.sensitivity_band_hz is None else list(self.sensitivity_band_hz),
+            "sensor_chain": dict(self.sensor_chain),
         }
 
     def mode_table(self) -> list[dict[str, float]]:
@@ -195,11 +208,129 @@ def servo_loop_contradiction(params: Mapping[str, float], position_gain_v_per_ra
     return None
 
 
-def _discrete_loop(params, kp, T, delay):
-    """(plant ZOH with the delay, filter factory): python-control discrete state-space objects."""
+@dataclass(frozen=True)
+class SensorChain:
+    """What lies between the rig and the controller's samples: the sensors' dynamics (``samii.sim.sensor_dynamics``:
+    their ``sensor.*`` options) and the controller card's anti-alias filter (``samii.closedloop.card``), as continuous
+    laws: first-order roll-off and AC coupling, second-order Butterworth, the card's 8th-order Butterworth, a gain,
+    delays."""
+
+    sensors: object  #: a samii.sim.sensor_dynamics.SensorDynamics
+    antialias_hz: float | None = None
+
+    @property
+    def ideal(self) -> bool:
+        return bool(self.sensors.ideal) and self.antialias_hz is None
+
+    def describe(self) -> dict:
+        """The options not ideal, by name (``antialias_hz`` the card's filter)."""
+        return {**self.sensors.changed(), **({"antialias_hz": self.antialias_hz} if self.antialias_hz is not None else {})}
+
+    def _accel_rational(self):
+        """accel's filters without its delay: (numerator, denominator) polynomials in s (numpy, highest power first)."""
+        from scipy import signal  # (lazy: scipy.signal takes ~0.7 s to import)
+
+        num, den = np.array([float(self.sensors.accel_gain)]), np.array([1.0])
+        s = self.sensors
+        if s.accel_lowpass_hz > 0:
+            w = 2 * np.pi * s.accel_lowpass_hz
+            num, den = num * w, np.polymul(den, [1.0, w])
+        if s.accel_antialias_hz > 0:
+            b, a = signal.butter(2, 2 * np.pi * s.accel_antialias_hz, analog=True)
+            num, den = np.polymul(num, b), np.polymul(den, a)
+        if s.accel_highpass_hz > 0:
+            num, den = np.polymul(num, [1.0, 0.0]), np.polymul(den, [1.0, 2 * np.pi * s.accel_highpass_hz])
+        for b, a in self._card_filter():
+            num, den = np.polymul(num, b), np.polymul(den, a)
+        return num, den
+
+    def _card_filter(self) -> list:
+        from scipy import signal  # (lazy: scipy.signal takes ~0.7 s to import)
+
+        if self.antialias_hz is None:
+            return []
+        from samii.measure.daq import ANTIALIAS_ORDER  # (lazy: imports scipy.signal, only when called)
+
+        return [signal.butter(ANTIALIAS_ORDER, 2 * np.pi * self.antialias_hz, analog=True)]
+
+    def response(self, freq_hz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(theta's, accel's) complex response at ``freq_hz``: exact delays. theta's is the angle sensor's delay and the
+        card's filter (what the controller would read of theta); :meth:`measured_response` is what a measurement saw."""
+        f = np.asarray(freq_hz, float)
+        jw = 2j * np.pi * f
+        num, den = self._accel_rational()
+        accel = np.polyval(num, jw) / np.polyval(den, jw) * np.exp(-jw * self.sensors.accel_delay_s)
+        theta = np.exp(-jw * self.sensors.theta_delay_s)
+        for b, a in self._card_filter():
+            theta = theta * np.polyval(b, jw) / np.polyval(a, jw)
+        return theta, accel
+
+    def measured_response(self, freq_hz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(theta's, accel's) response a measurement's data carry: the sensors' alone (a measurement has its own DAQ,
+        whose anti-alias filter its FRF estimate divides out), exact delays."""
+        return SensorChain(self.sensors).response(freq_hz)
+
+    def accel_tf(self):
+        """accel's chain as a continuous python-control transfer function (its delay a 3rd-order Padé)."""
+        import control  # (lazy: imports control, only when called)
+
+        num, den = self._accel_rational()
+        tf = control.tf(num, den)
+        if self.sensors.accel_delay_s > 0:
+            tf = tf * control.tf(*control.pade(self.sensors.accel_delay_s, 3))
+        return tf
+
+
+#: The sensor options a diagnosis names, by its effects' labels (samii.diagnose.simulator.CARRY's sensor entries).
+SENSOR_EFFECTS = (
+    "delay/theta_sensor",
+    "delay/accel_sensor",
+    "sensor/accel_lowpass",
+    "sensor/accel_lowpass2",
+    "sensor/accel_highpass",
+    "sensor/accel_gain",
+)
+
+
+def sensors_from_diagnosis(path) -> dict[str, float]:
+    """The sensor options (``sensor.*`` by name, SI) a diagnosis found: ``diagnosis.json`` of ``samii diagnose``. Against
+    the simulator, the values it carried into it (recalibrated); else each sensor effect's own reading. An InputError
+    names the file when it is not a diagnosis; an empty mapping when it found nothing of the sensors."""
+    from samii.diagnose.simulator import CARRY  # (lazy: imports mujoco, only when called)
+    from samii.schema import read_file  # (lazy: read only when a diagnosis is given)
+    from samii.schema.diagnosis import DiagnosisRecord  # (lazy: read only when a diagnosis is given)
+
+    record = read_file(path, "diagnosis file", DiagnosisRecord, missing=f"--sensors-from {path}: no such file")
+    options = {CARRY[label][0]: None for label in SENSOR_EFFECTS}
+    out: dict[str, float] = {}
+    for e in record.found:
+        label = f"{e.category}/{e.kind}"
+        if label in SENSOR_EFFECTS and e.params.get(CARRY[label][1]) is not None:
+            out[CARRY[label][0]] = float(e.params[CARRY[label][1]])
+    if record.simulator:  # carried into the simulator and recalibrated there: those values
+        out.update({k: float(v) for k, v in dict(record.simulator.get("changes") or {}).items() if k in options and v is not None})
+    return out
+
+
+def without_sensors(frf, chain: SensorChain):
+    """``frf`` (measured through the sensors of ``chain``) with their response divided out: the plant's theta/v and
+    xdd/v (and xdd/theta), as the notebook's structure describes them."""
+    g_theta, g_accel = chain.measured_response(frf.freq_hz)
+    act = None if frf.act is None else frf.act / g_theta
+    total = None if frf.total is None else frf.total / g_accel
+    base = None if frf.base is None else frf.base * g_theta / g_accel
+    return replace(frf, act=act, base=base, total=total)
+
+
+def _discrete_loop(params, kp, T, delay, chain: SensorChain | None = None):
+    """(plant ZOH with the delay, filter factory): python-control discrete state-space objects; the plant seen through
+    ``chain``'s accelerometer when given."""
     import control  # (lazy: imports control, only when called)
 
-    Pd = control.c2d(control.ss(damping_plant(params, kp)), T, "zoh")
+    plant = damping_plant(params, kp)
+    if chain is not None and not chain.ideal:
+        plant = control.minreal(plant * chain.accel_tf(), verbose=False)
+    Pd = control.c2d(control.ss(plant), T, "zoh")
     for _ in range(delay):
         Pd = Pd * control.ss(control.tf([1.0], [1.0, 0.0], T))
     return Pd
@@ -247,14 +378,20 @@ def design_damping(
     gain_margin_db: float = GAIN_MARGIN_DB,
     filter_zeta: float = FILTER_ZETA,
     fit_summary: Mapping[str, object] | None = None,
+    chain: SensorChain | None = None,
 ) -> DampingDesign:
-    """Tuned acceleration feedback on the fitted model ``params`` (module docstring)."""
+    """Tuned acceleration feedback on the fitted model ``params`` (module docstring), the base read through ``chain``
+    (None: ideal sensors)."""
     T = float(sample_time_s)
-    Pd = _discrete_loop(params, position_gain_v_per_rad, T, int(delay_samples))
+    Pd = _discrete_loop(params, position_gain_v_per_rad, T, int(delay_samples), chain)
     wf = float(params["w1"])
     w_roll = float(params["w3"]) if "w3" in params and np.isfinite(params["w3"]) else None
     Fd = _filter(wf, filter_zeta, T, w_roll)
-    ol = np.log(np.asarray(Pd.poles(), complex)[np.abs(Pd.poles()) > 1e-12]) / T
+    # the plant's modes: with a sensor chain, the loop's poles without it (the sensors' own, a roll-off's or a delay's
+    # Pade pair, are no modes to keep damped); the computation delay's are at z = 0 and dropped
+    blind = chain is None or chain.ideal
+    plant_poles = np.asarray((Pd if blind else _discrete_loop(params, position_gain_v_per_rad, T, int(delay_samples))).poles(), complex)
+    ol = np.log(plant_poles[np.abs(plant_poles) > 1e-12]) / T
     # sign: the one that moves mode 1 to the left at a small gain
     p1 = ol[ol.imag > 0][np.argmin(np.abs(np.abs(ol[ol.imag > 0]) - wf))]
     probe = 1e-4
@@ -306,18 +443,25 @@ def design_damping(
         "gain_limit_v_per_m_s2": sign * k_lim,
         "gain_margin_db": 20 * math.log10(k_lim / k),
         **({"fit": dict(fit_summary)} if fit_summary else {}),
+        **({"sensor_chain": chain.describe()} if chain is not None and not chain.ideal else {}),
     }
     return DampingDesign(
         params=dict(params), position_gain_v_per_rad=position_gain_v_per_rad, sample_time_s=T, delay_samples=int(delay_samples),
         filter_hz=wf / (2 * np.pi), filter_zeta=filter_zeta, rolloff_hz=None if w_roll is None else w_roll / (2 * np.pi), gain_v_per_m_s2=gain, gain_limit_v_per_m_s2=sign * k_lim,
         gain_margin_db=20 * math.log10(k_lim / k), open_loop_poles_s=ol, closed_loop_poles_s=cl,
         controller=SavedController(c, False, prov), fit_summary=dict(fit_summary or {}),
+        sensor_chain=chain.describe() if chain is not None else {},
     )  # fmt: skip
 
 
-def measured_sensitivity(design: DampingDesign, frf, *, above_hz: float) -> tuple[float | None, tuple[float, float] | None]:
+def measured_sensitivity(
+    design: DampingDesign, frf, *, above_hz: float, chain: SensorChain | None = None
+) -> tuple[float | None, tuple[float, float] | None]:
     """Largest ``|1/(1 - C P)|`` over the measured points above ``above_hz``, with ``P = (xdd/v) / (1 + Kp theta/v)``
-    from the data (not the fit) and ``C`` the controller with its design delay; ``(None, None)`` without such points."""
+    from the data (not the fit) and ``C`` the controller with its design delay; ``(None, None)`` without such points.
+    With ``chain``, the data were measured through its sensors: the servo loop's theta/v is the data's with the angle
+    sensor's response divided out (the amplifier reads the joint), xdd/v the data's (the controller reads the
+    accelerometer) times the card's anti-alias filter."""
     f = np.asarray(frf.freq_hz, float)
     act = frf.act
     total = frf.total if frf.total is not None else (act * frf.base if act is not None and frf.base is not None else None)
@@ -327,16 +471,21 @@ def measured_sensitivity(design: DampingDesign, frf, *, above_hz: float) -> tupl
     c = design.controller.controller
     z = np.exp(2j * np.pi * f[sel] * c.sample_time_s)
     Cz = np.asarray(c.statespace()(z)).ravel() * z ** (-design.delay_samples)  # python-control evaluates C(z)
-    P = total[sel] / (1 + design.position_gain_v_per_rad * act[sel])
+    act, total = act[sel], total[sel]
+    if chain is not None and not chain.ideal:
+        g_theta, _ = chain.measured_response(f[sel])
+        card = SensorChain(type(chain.sensors)(), chain.antialias_hz).response(f[sel])[1]  # (the card's filter alone)
+        act, total = act / g_theta, total * card
+    P = total / (1 + design.position_gain_v_per_rad * act)
     S = 1.0 / (1.0 - Cz * P)
     return float(np.max(np.abs(S))), (float(f[sel].min()), float(f[sel].max()))
 
 
-def with_data_check(design: DampingDesign, frf) -> DampingDesign:
-    """``design`` with :func:`measured_sensitivity` above its fit band filled in."""
+def with_data_check(design: DampingDesign, frf, chain: SensorChain | None = None) -> DampingDesign:
+    """``design`` with :func:`measured_sensitivity` above its fit band filled in (``frf`` measured through ``chain``)."""
 
     hi = float(design.fit_summary.get("band_hz", FIT_BAND_HZ)[1]) if design.fit_summary else FIT_BAND_HZ[1]
-    smax, band = measured_sensitivity(design, frf, above_hz=hi)
+    smax, band = measured_sensitivity(design, frf, above_hz=hi, chain=chain)
     return replace(design, max_sensitivity_above_band=smax, sensitivity_band_hz=band)
 
 
@@ -364,17 +513,20 @@ def damping_from_frf(
     sample_time_s: float = 1e-3,
     delay_samples: int = 1,
     gain_margin_db: float = GAIN_MARGIN_DB,
+    chain: SensorChain | None = None,
 ) -> DampingDesign:
     """The damping controller designed on a fit of measured Bode data ``data`` (read from the file ``source``, which
     the refusals name): refused (:class:`~samii.errors.InputError`) when the data lack a channel, cannot be fitted, the
-    fit is not sound, or the fit says the servo loop the data were measured in was unstable."""
+    fit is not sound, or the fit says the servo loop the data were measured in was unstable. ``chain``: the sensors
+    the data were measured through and the controller will read through (step 5 of the module docstring)."""
 
     missing = ([] if "act" in data.channels else ["act"]) + ([] if {"base", "total"} & set(data.channels) else ["base or total"])
     if missing:
         raise InputError(f"{source}: the damping design needs the act channel and base or total; missing {', '.join(missing)}")
     kp = position_gain_v_per_rad
+    aware = chain is not None and not chain.ideal
     try:
-        fr = measured_fit(data)
+        fr = measured_fit(without_sensors(data, chain) if aware else data)
     except (ValueError, KeyError) as exc:  # the data cannot be fitted (too few points in the band, noise): the file's
         raise input_error_of(source, exc) from None
     if not fr.sound:  # a controller on parameters the fit says not to use: refused, in samii fit's words
@@ -394,8 +546,8 @@ def damping_from_frf(
     summary = {"data": source, "band_hz": list(fr.band_hz), "rms_mag_db": dict(fr.rms_mag_db),
                "rms_phase_deg": dict(fr.rms_phase_deg), "converged": bool(fr.converged)}  # fmt: skip
     d = design_damping(fr.params, position_gain_v_per_rad=kp, sample_time_s=sample_time_s, delay_samples=delay_samples,
-                       gain_margin_db=gain_margin_db, fit_summary=summary)  # fmt: skip
-    return with_data_check(d, data)
+                       gain_margin_db=gain_margin_db, fit_summary=summary, chain=chain)  # fmt: skip
+    return with_data_check(d, data, chain)
 
 
 def damping_from_simulation(
@@ -406,24 +558,30 @@ def damping_from_simulation(
     delay_samples: int = 1,
     gain_margin_db: float = GAIN_MARGIN_DB,
     progress: Progress | None = None,
+    antialias_hz: float | None = None,
 ) -> DampingDesign:
-    """Measure ``model`` (swept sine, sensor noise on), fit, design: the damping controller of the current model.
-    ``progress`` (samii.progress.Progress) is told the three stages, the measurement's physics steps within the first."""
+    """Measure ``model`` (swept sine, sensor noise on), fit, design: the damping controller of the current model, which
+    knows its own sensors (``sensor.*``: divided out of the data before the fit and in the loop it is designed on) and,
+    with ``antialias_hz``, the card's anti-alias filter. ``progress`` (samii.progress.Progress) is told the three
+    stages, the measurement's physics steps within the first."""
     from samii.measure.campaign import measure_swept  # (lazy: imports mujoco, scipy, only when called)
     from samii.measure.daq import SensorNoise  # (lazy: imports mujoco, scipy, only when called)
     from samii.sim.plugin import hydraulic_params  # (lazy: imports mujoco, only when called)
+    from samii.sim.sensor_dynamics import SensorDynamics  # (lazy: imports mujoco, only when called)
 
+    chain = SensorChain(SensorDynamics.from_model(model), antialias_hz)
+    aware = not chain.ideal
     progress = progress or SILENT
     progress.expect(3)
     progress.stage("measuring (swept sine 0.1-40 Hz, 3 records, sensor noise)")
     meas = measure_swept(model, noise=SensorNoise(), rng=np.random.default_rng(seed), progress=part(progress, 1))
     progress.stage("fitting the notebook's 3-mode model")
-    fr = measured_fit(meas.frf)
+    fr = measured_fit(without_sensors(meas.frf, chain) if aware else meas.frf)
     progress.advance()
     summary = {"band_hz": list(fr.band_hz), "rms_mag_db": dict(fr.rms_mag_db), "rms_phase_deg": dict(fr.rms_phase_deg),
                "converged": bool(fr.converged), "measurement": f"samii measure (swept sine, noise, seed {seed})"}  # fmt: skip
     progress.stage("designing the acceleration feedback")
     d = design_damping(fr.params, position_gain_v_per_rad=hydraulic_params(model).position_gain, sample_time_s=sample_time_s,
-                       delay_samples=delay_samples, gain_margin_db=gain_margin_db, fit_summary=summary)  # fmt: skip
+                       delay_samples=delay_samples, gain_margin_db=gain_margin_db, fit_summary=summary, chain=chain)  # fmt: skip
     progress.advance()
-    return with_data_check(d, meas.frf)
+    return with_data_check(d, meas.frf, chain)

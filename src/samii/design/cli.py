@@ -25,7 +25,21 @@ import sys
 
 import numpy as np
 
-from samii.cli_args import add_json, add_no_progress, add_out, add_overwrite, add_seed, finite_float, float_in, int_in, nonempty_path, positive_float
+from samii.cli_args import (
+    add_antialias,
+    add_json,
+    add_model,
+    add_no_progress,
+    add_out,
+    add_overwrite,
+    add_seed,
+    add_set,
+    finite_float,
+    float_in,
+    int_in,
+    nonempty_path,
+    positive_float,
+)
 from samii.design.rlocus_study import PLOT_MAX_GAINS  # (a light module: python-control is imported when the study runs)
 from samii.errors import InputError
 
@@ -192,6 +206,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the servo amplifier's position gain [V/rad] the data were measured with (default: the embedded model's, 57.3 = 1 V/deg)",
     )
     add_seed(p, "without --frf: seed of the simulated measurement's sensor noise (default 0)")
+    add_model(p, "without --frf: the model measured (MJCF or parameter .json; default the embedded one); with it, the rig's sensors "
+                 "(its sensor.* options): the design takes them into account (the data were measured through them, the controller reads through them)")  # fmt: skip
+    add_set(p, "override a model parameter (repeatable): sensor.* states the rig's sensor chain, e.g. sensor.accel_lowpass_hz=30")
+    p.add_argument("--sensors-from", metavar="DIAGNOSIS.json", type=nonempty_path, default=None,
+                   help="the rig's sensor chain as a diagnosis found it (diagnosis.json of samii diagnose; against the simulator, "
+                        "the values it carried), on top of --model and --set")  # fmt: skip
+    add_antialias(p)
     add_json(p, "print the design as JSON")
     _add_save(p)
 
@@ -404,31 +425,37 @@ def run_cancel(args) -> int:
 def run_damping(args) -> int:
     save = _save_target(args)
     from samii.closedloop import damping as dm
+    from samii.closedloop.card import default_antialias_hz
+    from samii.sim.model import load_model
+    from samii.sim.overrides import as_overrides
+    from samii.sim.plugin import hydraulic_params
+    from samii.sim.sensor_dynamics import SensorDynamics
 
+    found = dm.sensors_from_diagnosis(args.sensors_from) if args.sensors_from else {}
+    overrides = {**as_overrides(args.set), **found}
+    model = load_model(args.model, overrides=overrides or None)  # the model measured, or the rig's sensors with --frf
+    antialias = default_antialias_hz(args.sample_time_s) if args.antialias == "auto" else args.antialias
+    if antialias is not None and not antialias < 0.5 / float(model.opt.timestep):
+        raise InputError(f"--antialias {antialias:g}: the corner must lie below half the physics rate ({0.5 / float(model.opt.timestep):g} Hz)")
     if args.frf is not None:
         from samii.formats import read_frf_csv
 
         data = read_frf_csv(args.frf)
-        kp = args.position_gain
-        if kp is None:
-            from samii.sim.model import load_model
-            from samii.sim.plugin import hydraulic_params
-
-            kp = hydraulic_params(load_model()).position_gain
+        kp = args.position_gain if args.position_gain is not None else hydraulic_params(model).position_gain
+        chain = dm.SensorChain(SensorDynamics.from_model(model), antialias)
         d = dm.damping_from_frf(data, source=str(args.frf), position_gain_v_per_rad=kp, sample_time_s=args.sample_time_s,
-                                delay_samples=args.delay_samples, gain_margin_db=args.gain_margin_db)  # fmt: skip
+                                delay_samples=args.delay_samples, gain_margin_db=args.gain_margin_db, chain=chain)  # fmt: skip
     else:
         if args.position_gain is not None:
             raise InputError("--position-gain: only with --frf (the simulated measurement uses the model's own gain)")
         from samii.progress import said
-        from samii.sim.model import load_model
 
         def say(what: str) -> None:
             if not args.json:
                 print(f"  {what}", file=sys.stderr)
 
-        d = dm.damping_from_simulation(load_model(), seed=args.seed, sample_time_s=args.sample_time_s, delay_samples=args.delay_samples,
-                                       progress=said(say), gain_margin_db=args.gain_margin_db)  # fmt: skip
+        d = dm.damping_from_simulation(model, seed=args.seed, sample_time_s=args.sample_time_s, delay_samples=args.delay_samples,
+                                       progress=said(say), gain_margin_db=args.gain_margin_db, antialias_hz=antialias)  # fmt: skip
     out = d.to_dict()
     if save is not None:
         _save(d.controller, save, args, out)
@@ -438,6 +465,9 @@ def run_damping(args) -> int:
     roll = f", rolled off beyond {d.rolloff_hz:.4g} Hz" if d.rolloff_hz else ""
     print(f"tuned acceleration feedback on the fitted 3-mode model: v_added = -k F(s) xdd, F a 2nd-order low-pass at {d.filter_hz:.4g} Hz "
           f"(zeta {d.filter_zeta:.3g}){roll}")  # fmt: skip
+    if d.sensor_chain:
+        print("  through the sensor chain (divided out of the data before the fit, in the loop designed on): "
+              + ", ".join(f"{n} {v:g}" for n, v in d.sensor_chain.items()))  # fmt: skip
     print(f"  k = {d.gain_v_per_m_s2:.4g} V/(m/s²): {d.gain_margin_db:.3g} dB below the fitted model's stability limit {d.gain_limit_v_per_m_s2:.4g}")
     for r in d.mode_table():
         print(f"  mode {r['freq_hz']:6.3g} Hz: zeta {r['zeta_open']:.3f} -> {r['zeta_closed']:.3f} (at {r['freq_hz_closed']:.3g} Hz)")

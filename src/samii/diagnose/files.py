@@ -8,6 +8,7 @@ asked). Refusals are :class:`~samii.errors.InputError` worded with the command's
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -57,8 +58,6 @@ class DiagnosedFiles:
 def simulator_params_text(report) -> str:
     """The simulator a diagnosis against it ends with (``report``, a samii.diagnose.simulator.SimulatorReport: its
     calibration after the effects were carried) as a parameter file's text (``load_model`` and ``--model`` read it)."""
-    import json
-
     carried = ", ".join(report.carried) or "none"
     changes = ", ".join(f"{n} = {v:.6g}" for n, v in report.changes.items()) or "none"
     note = (

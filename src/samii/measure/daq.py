@@ -19,7 +19,7 @@ from samii.sim.sensor_dynamics import FIELDS as SENSOR_FIELDS
 from samii.sim.sensor_dynamics import SensorDynamics, SensorFilter
 from samii.timeseries import SIGNAL_COLUMNS, TimeSeries
 
-__all__ = ["SensorNoise", "Daq", "acquire", "antialias_cutoff_hz", "antialias_sos", "daq_timeseries", "DEFAULT_SAMPLE_RATE_HZ"]
+__all__ = ["SensorNoise", "Daq", "acquire", "antialias_cutoff_hz", "antialias_sos", "ANTIALIAS_ORDER", "daq_timeseries", "DEFAULT_SAMPLE_RATE_HZ"]
 
 #: Rig DAQ rate [Hz] (issue 3): 25 samples per period at the top of the 40 Hz band.
 DEFAULT_SAMPLE_RATE_HZ = 1000.0
@@ -28,6 +28,8 @@ DEFAULT_SAMPLE_RATE_HZ = 1000.0
 # flat to < 0.001 dB over the 0-40 Hz measurement band.
 _AA_ORDER = 8
 _AA_CUTOFF_RATIO = 0.25
+#: The anti-alias filter's order (its Butterworth's), public for the designs that model it.
+ANTIALIAS_ORDER = _AA_ORDER
 
 
 def antialias_cutoff_hz(sample_rate_hz: float) -> float:
