@@ -226,42 +226,42 @@ class SensorChain:
         """The options not ideal, by name (``antialias_hz`` the card's filter)."""
         return {**self.sensors.changed(), **({"antialias_hz": self.antialias_hz} if self.antialias_hz is not None else {})}
 
-    def _accel_rational(self):
-        """accel's filters without its delay: (numerator, denominator) polynomials in s (numpy, highest power first)."""
+    def _accel_factors(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """accel's filters without its delay, as factors of first and second order: (numerator, denominator) polynomials
+        in s (highest power first; an 8th-order Butterworth as one polynomial is too ill-conditioned to discretise)."""
         from scipy import signal  # (lazy: scipy.signal takes ~0.7 s to import)
 
-        num, den = np.array([float(self.sensors.accel_gain)]), np.array([1.0])
         s = self.sensors
+        out = [(np.array([float(s.accel_gain)]), np.array([1.0]))]
         if s.accel_lowpass_hz > 0:
             w = 2 * np.pi * s.accel_lowpass_hz
-            num, den = num * w, np.polymul(den, [1.0, w])
+            out.append((np.array([w]), np.array([1.0, w])))
         if s.accel_antialias_hz > 0:
-            b, a = signal.butter(2, 2 * np.pi * s.accel_antialias_hz, analog=True)
-            num, den = np.polymul(num, b), np.polymul(den, a)
+            out.append(signal.butter(2, 2 * np.pi * s.accel_antialias_hz, analog=True))
         if s.accel_highpass_hz > 0:
-            num, den = np.polymul(num, [1.0, 0.0]), np.polymul(den, [1.0, 2 * np.pi * s.accel_highpass_hz])
-        for b, a in self._card_filter():
-            num, den = np.polymul(num, b), np.polymul(den, a)
-        return num, den
+            out.append((np.array([1.0, 0.0]), np.array([1.0, 2 * np.pi * s.accel_highpass_hz])))
+        return out + self._card_factors()
 
-    def _card_filter(self) -> list:
-        from scipy import signal  # (lazy: scipy.signal takes ~0.7 s to import)
-
+    def _card_factors(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The card's anti-alias filter (an even-order Butterworth) as second-order factors of unit DC gain."""
         if self.antialias_hz is None:
             return []
         from samii.measure.daq import ANTIALIAS_ORDER  # (lazy: imports scipy.signal, only when called)
 
-        return [signal.butter(ANTIALIAS_ORDER, 2 * np.pi * self.antialias_hz, analog=True)]
+        w = 2 * np.pi * self.antialias_hz
+        angles = np.pi * (2 * np.arange(ANTIALIAS_ORDER // 2) + 1) / (2 * ANTIALIAS_ORDER)  # the poles' angles from -j
+        return [(np.array([w * w]), np.array([1.0, 2 * np.sin(a) * w, w * w])) for a in angles]
 
     def response(self, freq_hz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(theta's, accel's) complex response at ``freq_hz``: exact delays. theta's is the angle sensor's delay and the
         card's filter (what the controller would read of theta); :meth:`measured_response` is what a measurement saw."""
         f = np.asarray(freq_hz, float)
         jw = 2j * np.pi * f
-        num, den = self._accel_rational()
-        accel = np.polyval(num, jw) / np.polyval(den, jw) * np.exp(-jw * self.sensors.accel_delay_s)
+        accel = np.exp(-jw * self.sensors.accel_delay_s)
+        for b, a in self._accel_factors():
+            accel = accel * np.polyval(b, jw) / np.polyval(a, jw)
         theta = np.exp(-jw * self.sensors.theta_delay_s)
-        for b, a in self._card_filter():
+        for b, a in self._card_factors():
             theta = theta * np.polyval(b, jw) / np.polyval(a, jw)
         return theta, accel
 
@@ -270,15 +270,18 @@ class SensorChain:
         whose anti-alias filter its FRF estimate divides out), exact delays."""
         return SensorChain(self.sensors).response(freq_hz)
 
-    def accel_tf(self):
-        """accel's chain as a continuous python-control transfer function (its delay a 3rd-order Padé)."""
+    def accel_ss(self):
+        """accel's chain as a continuous python-control state-space system, its factors in series (its delay a 3rd-order
+        Padé)."""
         import control  # (lazy: imports control, only when called)
 
-        num, den = self._accel_rational()
-        tf = control.tf(num, den)
+        factors = self._accel_factors()
         if self.sensors.accel_delay_s > 0:
-            tf = tf * control.tf(*control.pade(self.sensors.accel_delay_s, 3))
-        return tf
+            factors.append(control.pade(self.sensors.accel_delay_s, 3))
+        out = control.ss(control.tf(*factors[0]))
+        for b, a in factors[1:]:
+            out = control.ss(control.tf(b, a)) * out
+        return out
 
 
 #: The sensor options a diagnosis names, by its effects' labels (samii.diagnose.simulator.CARRY's sensor entries).
@@ -327,10 +330,10 @@ def _discrete_loop(params, kp, T, delay, chain: SensorChain | None = None):
     ``chain``'s accelerometer when given."""
     import control  # (lazy: imports control, only when called)
 
-    plant = damping_plant(params, kp)
+    plant = control.ss(damping_plant(params, kp))
     if chain is not None and not chain.ideal:
-        plant = control.minreal(plant * chain.accel_tf(), verbose=False)
-    Pd = control.c2d(control.ss(plant), T, "zoh")
+        plant = chain.accel_ss() * plant
+    Pd = control.c2d(plant, T, "zoh")
     for _ in range(delay):
         Pd = Pd * control.ss(control.tf([1.0], [1.0, 0.0], T))
     return Pd
