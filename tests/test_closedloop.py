@@ -698,3 +698,27 @@ def test_a_damping_design_that_knows_the_sensors_keeps_its_margin_on_the_rig(ove
         assert z3_aware > 0.95 * z3_open and z3_blind < 0.92 * z3_open
     else:
         assert _rig_zeta(overrides, aware.controller, 1.73)[1] > 3 * _rig_zeta(overrides, blind.controller, 1.73)[1]
+
+
+def test_the_plugin_normalises_a_section_by_its_own_a0(home, monkeypatch):
+    """A section given with a0 != 1 (a hand-written configuration: scipy's are normalised) is the same filter: the card
+    built from sections scaled by 2 runs the same commands, to rounding."""
+    from samii.sim.sensor_dynamics import SensorDynamics
+
+    overrides = {"sensor.accel_lowpass_hz": 30.0, "sensor.accel_highpass_hz": 0.5}
+    n = 800
+    theta_ref = np.zeros(n)
+    theta_ref[200:] = math.radians(0.5)
+    plain = run_loop(_card(home, _filtered_md(), overrides, replaces_servo=True), theta_ref)
+    filters = SensorDynamics.filters
+    monkeypatch.setattr(SensorDynamics, "filters", lambda self, rate_hz: (lambda t, a, s: (t, a, 2.0 * s))(*filters(self, rate_hz)))
+    scaled = run_loop(_card(home, _filtered_md(), overrides, replaces_servo=True), theta_ref)
+    np.testing.assert_allclose(scaled.command, plain.command, rtol=0, atol=1e-12)
+
+
+def test_without_a_controller_nothing_reads_through_the_sensors(home):
+    """The servo amplifier alone reads the joint: a model's sensor options and an anti-alias corner put no filter in its
+    card, its state or its linear prediction (whose poles would otherwise show a sensor's as a mode)."""
+    cm = _card(home, None, SENSOR_OPTIONS[-1], antialias_hz=100.0)
+    assert cm.filters.ideal and cm.layout.n_sensor_state == 0 and cm.antialias_hz is None
+    assert linear_loop(cm).n_sensor == 0

@@ -385,3 +385,8 @@ def test_a_study_spreads_a_sensor_corner_and_the_computation_delay(capsys):
     assert "--set sensor.accel_lowpass_hz=VALUE" in capsys.readouterr().err
     assert main(["robust", "--controller", "unity", "--samples", "2", "--spread", f"{DELAY_SAMPLES}=1", "--no-progress"]) == 2
     assert "analog" in capsys.readouterr().err
+    # a corner drawn where the physics rate cannot filter (above 500 Hz at 1 ms): refused before any run, naming the sample
+    assert main(["robust", "--controller", "notebook-cancel", "--samples", "20", "--set", "sensor.accel_lowpass_hz=400",
+                 "--spread", "sensor.accel_lowpass_hz=50%", "--no-progress"]) == 2  # fmt: skip
+    err = capsys.readouterr().err
+    assert "sample " in err and "below half the physics rate" in err and "narrow the spread" in err

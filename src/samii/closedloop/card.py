@@ -13,7 +13,8 @@ the next sample; the analog servo amplifier adds its own position loop. The
   quantisation) as the rig's sensors give them: through the model's sensor
   dynamics (:mod:`samii.sim.sensor_dynamics`: delays, an accelerometer's roll-off,
   an anti-alias filter, AC coupling, a gain error), the same filters at the
-  physics rate as a measurement's, run every step; it computes ``c = C z + D w`` and ``z <- A z + B w``, and the valve
+  physics rate as a measurement's, and optionally its own data acquisition's
+  anti-alias filter on both (:func:`card_filters`), run every step; it computes ``c = C z + D w`` and ``z <- A z + B w``, and the valve
   sees ``c`` after ``delay_steps`` physics steps (fractional delays split the
   step and integrate the spool exactly over both pieces). While the card
   replaces the servo loop (``replaces_servo``) the ``Kp`` term is dropped.
@@ -173,6 +174,11 @@ class CardFilters:
     accel_taps: np.ndarray
     accel_sos: np.ndarray
 
+    @classmethod
+    def none(cls) -> CardFilters:
+        """Nothing between the physics and the card."""
+        return cls(np.ones(1), np.zeros((0, 6)), np.ones(1), np.zeros((0, 6)))
+
     @property
     def ideal(self) -> bool:
         """Nothing between the physics and the card."""
@@ -220,7 +226,7 @@ class CardModel:
     sensors: SensorDynamics = SensorDynamics()
     antialias_hz: float | None = None  #: the card's anti-alias corner (None: none)
     #: everything between the physics and the card (the sensors', then the anti-alias filter)
-    filters: CardFilters = field(default_factory=lambda: CardFilters(np.ones(1), np.zeros((0, 6)), np.ones(1), np.zeros((0, 6))))
+    filters: CardFilters = field(default_factory=CardFilters.none)
 
     @property
     def sample_time_s(self) -> float:
@@ -360,7 +366,8 @@ def build_card_model(
     _, direction = accel_weights(model)
     offset = float(accel_offset(model))
     sensors = SensorDynamics.from_model(model)
-    filters = card_filters(sensors, antialias_hz if controller is not None else None, 1.0 / dt)
+    # (without a controller nothing samples the sensors: the servo amplifier reads the joint)
+    filters = card_filters(sensors, antialias_hz, 1.0 / dt) if controller is not None else CardFilters.none()
     steps, n_buffer, n, sensor_sizes = 1, 0, 0, (0, 0, 0, 0)
     if controller is not None:
         n = controller.n_states

@@ -50,6 +50,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -59,6 +60,9 @@ from samii.controller import LinearController
 from samii.errors import InputError, input_error_of
 from samii.identify.fit import check_not_noise, fit
 from samii.progress import SILENT, Progress, part
+
+if TYPE_CHECKING:
+    from samii.sim.sensor_dynamics import SensorDynamics
 
 __all__ = [
     "DampingDesign",
@@ -215,7 +219,7 @@ class SensorChain:
     laws: first-order roll-off and AC coupling, second-order Butterworth, the card's 8th-order Butterworth, a gain,
     delays."""
 
-    sensors: object  #: a samii.sim.sensor_dynamics.SensorDynamics
+    sensors: SensorDynamics  #: the sensors' options (samii.sim.sensor_dynamics)
     antialias_hz: float | None = None
 
     @property
@@ -249,7 +253,7 @@ class SensorChain:
         from samii.measure.daq import ANTIALIAS_ORDER  # (lazy: imports scipy.signal, only when called)
 
         w = 2 * np.pi * self.antialias_hz
-        angles = np.pi * (2 * np.arange(ANTIALIAS_ORDER // 2) + 1) / (2 * ANTIALIAS_ORDER)  # the poles' angles from -j
+        angles = np.pi * (2 * np.arange(ANTIALIAS_ORDER // 2) + 1) / (2 * ANTIALIAS_ORDER)  # each pair's angle off the imaginary axis
         return [(np.array([w * w]), np.array([1.0, 2 * np.sin(a) * w, w * w])) for a in angles]
 
     def response(self, freq_hz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -304,14 +308,14 @@ def sensors_from_diagnosis(path) -> dict[str, float]:
     from samii.schema.diagnosis import DiagnosisRecord  # (lazy: read only when a diagnosis is given)
 
     record = read_file(path, "diagnosis file", DiagnosisRecord, missing=f"--sensors-from {path}: no such file")
-    options = {CARRY[label][0]: None for label in SENSOR_EFFECTS}
+    names = {CARRY[label][0] for label in SENSOR_EFFECTS}
+    if record.simulator:  # what was carried into the simulator and recalibrated there (an effect not carried: not taken)
+        return {k: float(v) for k, v in dict(record.simulator.get("changes") or {}).items() if k in names and v is not None}
     out: dict[str, float] = {}
     for e in record.found:
         label = f"{e.category}/{e.kind}"
         if label in SENSOR_EFFECTS and e.params.get(CARRY[label][1]) is not None:
             out[CARRY[label][0]] = float(e.params[CARRY[label][1]])
-    if record.simulator:  # carried into the simulator and recalibrated there: those values
-        out.update({k: float(v) for k, v in dict(record.simulator.get("changes") or {}).items() if k in options and v is not None})
     return out
 
 
@@ -356,6 +360,21 @@ def _closed_poles(Pd, Fd, k: float) -> np.ndarray:
     z = control.poles(control.feedback(Pd, Fd * k, sign=-1))
     z = z[np.abs(z) > 1e-12]
     return np.log(z.astype(complex)) / T
+
+
+def _plant_partners(ol: np.ndarray, Pd, Fd, cl: np.ndarray) -> np.ndarray:
+    """The closed-loop poles ``cl`` paired with the plant's poles ``ol``: every closed-loop pole is assigned to one of
+    the loop's open-loop poles (those of ``Pd`` and ``Fd``, where the closed loop's start at gain 0) by the least total
+    distance (scipy's linear_sum_assignment), and those of the plant's are kept."""
+    from scipy.optimize import linear_sum_assignment  # (lazy: imports scipy.optimize, only when called)
+
+    T = Pd.dt
+    z = np.concatenate([np.asarray(Pd.poles(), complex), np.asarray(Fd.poles(), complex)])
+    start = np.log(z[np.abs(z) > 1e-12]) / T
+    rows, cols = linear_sum_assignment(np.abs(start[:, None] - cl[None, :]))
+    partner = dict(zip(rows, cols))
+    mine = [int(np.argmin(np.abs(start - p))) for p in ol]
+    return np.array([cl[partner[i]] for i in mine if i in partner])
 
 
 def _stable(Pd, Fd, k: float) -> bool:
@@ -424,10 +443,18 @@ def design_damping(
             hi = mid
     k_lim = lo
     k = k_lim * 10 ** (-gain_margin_db / 20)
-    cl = _closed_poles(Pd, Fd, sign * k)
+
+    def modes_at(gain: float) -> np.ndarray:
+        """The closed loop's poles at ``gain`` that belong to the plant's (with a sensor chain, its own and the
+        controller's poles are set apart, each closed-loop pole paired with one open-loop pole: a plant mode nearest a
+        filter's pole must not be judged by that pole)."""
+        cl = _closed_poles(Pd, Fd, gain)
+        return cl if blind else _plant_partners(ol, Pd, Fd, cl)
+
+    cl = modes_at(sign * k)
     while not _no_mode_worse(ol, cl) and k > 1e-6 * k_lim:
         k *= 10 ** (-1 / 20)  # 1 dB at a time
-        cl = _closed_poles(Pd, Fd, sign * k)
+        cl = modes_at(sign * k)
     gain = sign * k
     A, B, C, D = (np.atleast_2d(np.asarray(x, float)) for x in (Fd.A, Fd.B, Fd.C, Fd.D))
     c = LinearController(

@@ -123,6 +123,11 @@ class LinearLoop:
     def n_sensor(self) -> int:
         return self.sensor_theta.n + self.sensor_accel.n
 
+    def reads(self, s, th, ac):
+        """What the card reads of theta and accel, ``th`` and ``ac`` the plant's, ``s`` the sensors' states."""
+        st, sa, n_th = self.sensor_theta, self.sensor_accel, self.sensor_theta.n
+        return st.c @ s[:n_th] + st.d * th, sa.c @ s[n_th:] + sa.d * ac
+
     @property
     def n_buffer(self) -> int:
         return int(math.floor(self.delay_steps)) + 2 if self.has_controller else 0
@@ -147,8 +152,8 @@ class LinearLoop:
         """
         th, ac = self.c_theta @ x, self.c_accel @ x
         servo = self.kp * (theta_ref - th)  # (the servo amplifier reads the joint directly)
+        read_th, read_ac = self.reads(s, th, ac)
         st, sa, n_th = self.sensor_theta, self.sensor_accel, self.sensor_theta.n
-        read_th, read_ac = st.c @ s[:n_th] + st.d * th, sa.c @ s[n_th:] + sa.d * ac
         s = np.concatenate([st.A @ s[:n_th] + np.multiply.outer(st.b, th), sa.A @ s[n_th:] + np.multiply.outer(sa.b, ac)])
         if enabled:
             if sample:
@@ -201,8 +206,7 @@ class LinearLoop:
                 if j > 0:  # switched on mid-run
                     x, s = state[:nx], state[nx : nx + ns]
                     th, ac = float(self.c_theta @ x), float(self.c_accel @ x)
-                    st, sa, n_th = self.sensor_theta, self.sensor_accel, self.sensor_theta.n
-                    read = np.array([theta_ref[j], st.c @ s[:n_th] + st.d * th, sa.c @ s[n_th:] + sa.d * ac])
+                    read = np.array([theta_ref[j], *self.reads(s, th, ac)])
                     target = self.kp * (theta_ref[j] - th) if self.replaces else 0.0
                     state[nx + ns : nx + ns + nz], _ = bumpless_state((self.A, self.B, self.C, self.D), read, target)
             key = (bool(enabled[j]), counter % self.steps == 0)

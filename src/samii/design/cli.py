@@ -211,7 +211,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_set(p, "override a model parameter (repeatable): sensor.* states the rig's sensor chain, e.g. sensor.accel_lowpass_hz=30")
     p.add_argument("--sensors-from", metavar="DIAGNOSIS.json", type=nonempty_path, default=None,
                    help="the rig's sensor chain as a diagnosis found it (diagnosis.json of samii diagnose; against the simulator, "
-                        "the values it carried), on top of --model and --set")  # fmt: skip
+                        "the values it carried), on top of --model; --set wins over it")  # fmt: skip
     add_antialias(p)
     add_json(p, "print the design as JSON")
     _add_save(p)
@@ -432,7 +432,7 @@ def run_damping(args) -> int:
     from samii.sim.sensor_dynamics import SensorDynamics
 
     found = dm.sensors_from_diagnosis(args.sensors_from) if args.sensors_from else {}
-    overrides = {**as_overrides(args.set), **found}
+    overrides = {**found, **as_overrides(args.set)}  # (what --set says outright wins over what the diagnosis found)
     model = load_model(args.model, overrides=overrides or None)  # the model measured, or the rig's sensors with --frf
     antialias = default_antialias_hz(args.sample_time_s) if args.antialias == "auto" else args.antialias
     if antialias is not None and not antialias < 0.5 / float(model.opt.timestep):
@@ -466,8 +466,12 @@ def run_damping(args) -> int:
     print(f"tuned acceleration feedback on the fitted 3-mode model: v_added = -k F(s) xdd, F a 2nd-order low-pass at {d.filter_hz:.4g} Hz "
           f"(zeta {d.filter_zeta:.3g}){roll}")  # fmt: skip
     if d.sensor_chain:
-        print("  through the sensor chain (divided out of the data before the fit, in the loop designed on): "
-              + ", ".join(f"{n} {v:g}" for n, v in d.sensor_chain.items()))  # fmt: skip
+        from samii.sim.sensor_dynamics import SensorDynamics
+
+        chain = dict(d.sensor_chain)
+        aa = chain.pop("antialias_hz", None)
+        said = ", ".join(x for x in (SensorDynamics(**chain).text(), f"the card's anti-alias filter at {aa:g} Hz" if aa else "") if x)
+        print(f"  through the sensor chain (divided out of the data before the fit, in the loop designed on): {said}")
     print(f"  k = {d.gain_v_per_m_s2:.4g} V/(m/s²): {d.gain_margin_db:.3g} dB below the fitted model's stability limit {d.gain_limit_v_per_m_s2:.4g}")
     for r in d.mode_table():
         print(f"  mode {r['freq_hz']:6.3g} Hz: zeta {r['zeta_open']:.3f} -> {r['zeta_closed']:.3f} (at {r['freq_hz_closed']:.3g} Hz)")

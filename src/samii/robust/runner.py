@@ -261,10 +261,15 @@ def plan_study(request: StudyRequest, *, out=None, overwrite: bool = False, say:
     def delay(i: int) -> float:
         return draws.overrides(i).get(DELAY_SAMPLES, float(req.delay_samples))
 
+    from samii.sim.sensor_dynamics import SensorDynamics  # (lazy: imports mujoco, only when called)
+
+    rate_hz = 1.0 / float(dotted(params)["timestep_s"])
     for i in range(req.samples):  # every drawn value is one the model accepts, checked before any run
         try:
-            params_with_overrides(params, plant(i))
-        except InputError as exc:
+            drawn = dotted(params_with_overrides(params, plant(i)))
+            # (a sensor's corner the physics rate cannot filter at: refused here, not by a worker mid-study)
+            SensorDynamics(**{n.removeprefix("sensor."): v for n, v in drawn.items() if n.startswith("sensor.")}).check_rate(rate_hz)
+        except (InputError, ValueError) as exc:
             raise InputError(f"sample {i}: {exc}: narrow the spread (or give it as an absolute value)") from None
     engine = _engine(req)
 

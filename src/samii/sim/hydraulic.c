@@ -75,7 +75,8 @@
 // feeds the position loop. The card's state lives in mjData.plugin_state (part of
 // mjSTATE_FULLPHYSICS, so rollouts carry it): [enabled, step counter, valve voltage of the last step,
 // held command, ring (delay_whole + 2, newest first), z, and with sensor filters their block:
-// steps since the reset, the rings of raw theta and accel, two states per section]. `enabled` is 1 after a reset; the caller
+// steps since the reset, the rings of theta's and accel's deviations from rest, two states per
+// section]. `enabled` is 1 after a reset; the caller
 // sets it (0: the servo amplifier alone, the ring recording its command) to switch the card on
 // mid-run. The card needs the Euler or implicit integrators (RK4 does not call `advance` per step).
 //
@@ -161,12 +162,12 @@ enum {
   OPT_VALVE_ASYMMETRY,             // [1] a negative input passes with gain 1 - this (0 = none, -1...<1)
   OPT_CONTROLLER_THETA_FILTER,     // FIR taps on the card's theta at the physics rate (the angle
                                    // sensor's delay), newest sample first; absent = 1
+  OPT_CONTROLLER_THETA_SOS,        // second-order sections after it, 6 numbers each (b0 b1 b2 a0 a1 a2)
+  OPT_CONTROLLER_THETA_REST,       // [rad] the card's theta at rest (the home keyframe): the theta
+                                   // filter works on the deviation from it
   OPT_CONTROLLER_ACCEL_FILTER,     // FIR taps on the card's accel (the accelerometer's delay, and its
                                    // gain when there are no sections); absent = 1
-  OPT_CONTROLLER_ACCEL_SOS,        // second-order sections after it, 6 numbers each (b0 b1 b2 a0 a1 a2)
-  OPT_CONTROLLER_THETA_REST,       // [rad] the card's theta at rest (the home keyframe): the angle
-                                   // filter's history after a reset
-  OPT_CONTROLLER_THETA_SOS,        // second-order sections after the theta FIR (6 numbers each)
+  OPT_CONTROLLER_ACCEL_SOS,        // second-order sections after it, 6 numbers each
   NATTR_ALL
 };
 
@@ -178,8 +179,8 @@ static const char* const kAttributes[NATTR_ALL] = {
   "controller_theta_sensor", "controller_accel_sensor", "controller_accel_direction",
   "controller_accel_offset", "controller_theta_noise", "controller_accel_noise",
   "controller_theta_lsb", "controller_accel_lsb", "command_delay", "valve_dead_band",
-  "valve_saturation", "valve_asymmetry", "controller_theta_filter", "controller_accel_filter",
-  "controller_accel_sos", "controller_theta_rest", "controller_theta_sos",
+  "valve_saturation", "valve_asymmetry", "controller_theta_filter", "controller_theta_sos",
+  "controller_theta_rest", "controller_accel_filter", "controller_accel_sos",
 };
 
 #define CTRL_NIN 3                 // controller inputs: theta_r [rad], theta [rad], accel [m/s^2]
@@ -187,7 +188,7 @@ static const char* const kAttributes[NATTR_ALL] = {
 #define CTRL_MAX_DELAY_STEPS 200
 #define CMD_MAX_DELAY_S 1.0        // longest command delay [s]
 #define SENSOR_MAX_TAPS 1000004    // longest sensor FIR (a 1 s delay at 1 us, with its 4 fraction taps)
-#define SENSOR_MAX_SECTIONS 8      // most second-order sections on the card's accel
+#define SENSOR_MAX_SECTIONS 8      // most second-order sections on each of the card's inputs
 
 // Plugin state of an instance with a controller (mjData.plugin_state, part of
 // mjSTATE_FULLPHYSICS, so rollouts carry it): see the header comment.
@@ -502,7 +503,8 @@ static int parse_sections(const mjModel* m, int instance, int i, SensorPath* p, 
                   kAttributes[i]);
       return -1;
     }
-    for (int j = 5; j >= 0; j--) q[j] /= q[3];
+    mjtNum a0 = q[3];
+    for (int j = 0; j < 6; j++) q[j] /= a0;
   }
   return 0;
 }
@@ -546,9 +548,17 @@ static Card* card_create(const mjModel* m, int instance, int actuator, const cha
                          int* card_ok) {
   *card_ok = 0;
   if (!optional_text(m, instance, OPT_CONTROLLER_STATES)) {
-    for (int i = OPT_CONTROLLER_A; i < NATTR_ALL; i++) {
-      if ((i <= OPT_CONTROLLER_ACCEL_LSB || i >= OPT_CONTROLLER_THETA_FILTER) &&
-          optional_text(m, instance, i)) {
+    static const int kCardOnly[] = {
+      OPT_CONTROLLER_A, OPT_CONTROLLER_B, OPT_CONTROLLER_C, OPT_CONTROLLER_D, OPT_CONTROLLER_STEPS,
+      OPT_CONTROLLER_DELAY, OPT_CONTROLLER_REPLACES_SERVO, OPT_CONTROLLER_THETA_SENSOR,
+      OPT_CONTROLLER_ACCEL_SENSOR, OPT_CONTROLLER_ACCEL_DIRECTION, OPT_CONTROLLER_ACCEL_OFFSET,
+      OPT_CONTROLLER_THETA_NOISE, OPT_CONTROLLER_ACCEL_NOISE, OPT_CONTROLLER_THETA_LSB,
+      OPT_CONTROLLER_ACCEL_LSB, OPT_CONTROLLER_THETA_FILTER, OPT_CONTROLLER_ACCEL_FILTER,
+      OPT_CONTROLLER_ACCEL_SOS, OPT_CONTROLLER_THETA_REST, OPT_CONTROLLER_THETA_SOS,
+    };
+    for (size_t j = 0; j < sizeof(kCardOnly) / sizeof(kCardOnly[0]); j++) {
+      int i = kCardOnly[j];
+      if (optional_text(m, instance, i)) {
         mju_warning("%s (actuator '%s'): config attribute '%s' given without controller_states",
                     SAMII_PLUGIN_NAME, name, kAttributes[i]);
         return NULL;

@@ -100,10 +100,10 @@ OPTIONAL_ATTRIBUTES: tuple[str, ...] = (
     "controller_accel_lsb",
     *VALVE_OPTIONS,
     "controller_theta_filter",
+    "controller_theta_sos",
+    "controller_theta_rest",
     "controller_accel_filter",
     "controller_accel_sos",
-    "controller_theta_rest",
-    "controller_theta_sos",
 )
 
 _EXPECTED = {
