@@ -22,7 +22,10 @@ DEFAULT_OUT = "samii_run"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_out(parser, f"output folder (default ./{DEFAULT_OUT}); replaced whole at the end", default=DEFAULT_OUT)
-    add_model(parser, "MJCF model (default: the embedded one)")
+    add_model(
+        parser,
+        "MJCF or parameter .json file (samii calibrate --out writes one, samii diagnose --baseline sim --out its simulator_params.json; default: the embedded model)",
+    )
     add_set(parser, "override a model parameter (samii params lists them); repeatable")
     add_seed(parser, "seed of the measurement's sensor noise (default 0): the same seed gives the same outputs")
     add_overwrite(parser, "replace --out if it exists (a previous main job's output is replaced anyway)")
