@@ -87,6 +87,17 @@ def _filtered_md(sample_time_s=1e-3):
                                    input_scale={"theta_ref": DEG, "theta": DEG})  # fmt: skip
 
 
+def _rms(x) -> float:
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+def _card_run_and_prediction(cm, ll, theta_ref):
+    """``theta_ref`` run by the card of ``cm`` and predicted by its linear loop ``ll``: the run's theta and accel from
+    their rest values, and the prediction."""
+    sig = run_loop(cm, theta_ref)
+    return sig.theta - sig.theta[0], sig.accel - sig.accel[0], ll.simulate(theta_ref)
+
+
 def _python_loop(controller, theta_ref, *, replaces, delay_samples, steps=1, overrides=None, antialias_hz=None):
     """The same loop written out by hand: mj_forward for the sensors at t_k, through the sensors' dynamics as a
     measurement applies them (``SensorFilter``, scipy's filters, from rest), the controller every ``steps`` physics
@@ -273,15 +284,9 @@ def test_linear_prediction_at_every_controller_rate(home, sample_time_s, timeste
     n = int(round(3.0 / timestep_s))
     theta_ref = np.zeros(n)
     theta_ref[n // 6 :] = math.radians(0.01)
-    sig = run_loop(cm, theta_ref)
-    lin = ll.simulate(theta_ref)
-
-    def rms(x):
-        return float(np.sqrt(np.mean(x**2)))
-
-    theta, accel = sig.theta - sig.theta[0], sig.accel - sig.accel[0]
-    assert rms(theta - lin.theta) <= 0.01 * rms(lin.theta)
-    assert rms(accel - lin.accel) <= 0.02 * rms(lin.accel)
+    theta, accel, lin = _card_run_and_prediction(cm, ll, theta_ref)
+    assert _rms(theta - lin.theta) <= 0.01 * _rms(lin.theta)
+    assert _rms(accel - lin.accel) <= 0.02 * _rms(lin.accel)
 
 
 @pytest.mark.parametrize("overrides", SENSOR_OPTIONS, ids=lambda o: "+".join(k.split(".")[1] for k in o))
@@ -300,17 +305,11 @@ def test_linear_prediction_through_the_sensors(home, overrides):
     n = 3000
     theta_ref = np.zeros(n)
     theta_ref[500:] = math.radians(0.01)
-    sig = run_loop(cm, theta_ref)
-    lin = ll.simulate(theta_ref)
+    theta, accel, lin = _card_run_and_prediction(cm, ll, theta_ref)
     blind = linear_loop(_card(home, c, replaces_servo=True, delay_samples=0.75)).simulate(theta_ref)
-
-    def rms(x):
-        return float(np.sqrt(np.mean(x**2)))
-
-    theta, accel = sig.theta - sig.theta[0], sig.accel - sig.accel[0]
-    assert rms(theta - lin.theta) <= 0.01 * rms(lin.theta)
-    assert rms(accel - lin.accel) <= 0.02 * rms(lin.accel)
-    assert rms(accel - blind.accel) >= 5 * rms(accel - lin.accel)
+    assert _rms(theta - lin.theta) <= 0.01 * _rms(lin.theta)
+    assert _rms(accel - lin.accel) <= 0.02 * _rms(lin.accel)
+    assert _rms(accel - blind.accel) >= 5 * _rms(accel - lin.accel)
 
 
 def test_switch_on_through_the_sensors_is_bumpless():

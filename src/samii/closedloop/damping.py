@@ -111,8 +111,13 @@ class DampingDesign:
     #: largest |1/(1 + L)| of the loop built from the measured FRF above the fit band (None: not checked)
     max_sensitivity_above_band: float | None = None
     sensitivity_band_hz: tuple[float, float] | None = None
-    #: the sensor chain the design took into account (SensorChain.describe(): options by name; empty: none)
-    sensor_chain: Mapping[str, float] = field(default_factory=dict)
+    #: the sensor chain the design took into account (None: ideal sensors, no anti-alias filter)
+    chain: SensorChain | None = None
+
+    @property
+    def sensor_chain(self) -> dict[str, float]:
+        """The chain's options not ideal, by name (:meth:`SensorChain.describe`; empty: none)."""
+        return self.chain.describe() if self.chain is not None else {}
 
     def to_dict(self) -> dict:
         """The design as ``samii design damping --json`` prints it (SI units; the controller itself is its own file)."""
@@ -131,7 +136,7 @@ class DampingDesign:
             "modes_on_fitted_model": self.mode_table(),
             "max_sensitivity_above_fit_band": self.max_sensitivity_above_band,
             "sensitivity_band_hz": None if self.sensitivity_band_hz is None else list(self.sensitivity_band_hz),
-            "sensor_chain": dict(self.sensor_chain),
+            "sensor_chain": self.sensor_chain,
         }
 
     def mode_table(self) -> list[dict[str, float]]:
@@ -230,6 +235,11 @@ class SensorChain:
         """The options not ideal, by name (``antialias_hz`` the card's filter)."""
         return {**self.sensors.changed(), **({"antialias_hz": self.antialias_hz} if self.antialias_hz is not None else {})}
 
+    def text(self) -> str:
+        """The options not ideal, in words with units."""
+        card = f"the card's anti-alias filter at {self.antialias_hz:g} Hz" if self.antialias_hz is not None else ""
+        return ", ".join(x for x in (self.sensors.text(), card) if x)
+
     def _accel_factors(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """accel's filters without its delay, as factors of first and second order: (numerator, denominator) polynomials
         in s (highest power first; an 8th-order Butterworth as one polynomial is too ill-conditioned to discretise)."""
@@ -259,15 +269,14 @@ class SensorChain:
     def response(self, freq_hz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(theta's, accel's) complex response at ``freq_hz``: exact delays. theta's is the angle sensor's delay and the
         card's filter (what the controller would read of theta); :meth:`measured_response` is what a measurement saw."""
-        f = np.asarray(freq_hz, float)
-        jw = 2j * np.pi * f
-        accel = np.exp(-jw * self.sensors.accel_delay_s)
-        for b, a in self._accel_factors():
-            accel = accel * np.polyval(b, jw) / np.polyval(a, jw)
-        theta = np.exp(-jw * self.sensors.theta_delay_s)
-        for b, a in self._card_factors():
-            theta = theta * np.polyval(b, jw) / np.polyval(a, jw)
+        jw = 2j * np.pi * np.asarray(freq_hz, float)
+        accel = np.exp(-jw * self.sensors.accel_delay_s) * _product(self._accel_factors(), jw)
+        theta = np.exp(-jw * self.sensors.theta_delay_s) * _product(self._card_factors(), jw)
         return theta, accel
+
+    def card_response(self, freq_hz: np.ndarray) -> np.ndarray:
+        """The card's anti-alias filter alone at ``freq_hz`` (1 without one)."""
+        return _product(self._card_factors(), 2j * np.pi * np.asarray(freq_hz, float))
 
     def measured_response(self, freq_hz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(theta's, accel's) response a measurement's data carry: the sensors' alone (a measurement has its own DAQ,
@@ -286,6 +295,20 @@ class SensorChain:
         for b, a in factors[1:]:
             out = control.ss(control.tf(b, a)) * out
         return out
+
+
+def _product(factors: list[tuple[np.ndarray, np.ndarray]], s: np.ndarray) -> np.ndarray:
+    """The product of the rational factors ``(numerator, denominator)`` at ``s``."""
+    out = np.ones_like(s)
+    for b, a in factors:
+        out = out * np.polyval(b, s) / np.polyval(a, s)
+    return out
+
+
+def _known(chain: SensorChain | None) -> SensorChain | None:
+    """``chain`` when it has anything to say, else None (ideal sensors and no anti-alias filter: the design as it was
+    before sensor chains)."""
+    return None if chain is None or chain.ideal else chain
 
 
 #: The sensor options a diagnosis names, by its effects' labels (samii.diagnose.simulator.CARRY's sensor entries).
@@ -321,7 +344,9 @@ def sensors_from_diagnosis(path) -> dict[str, float]:
 
 def without_sensors(frf, chain: SensorChain):
     """``frf`` (measured through the sensors of ``chain``) with their response divided out: the plant's theta/v and
-    xdd/v (and xdd/theta), as the notebook's structure describes them."""
+    xdd/v (and xdd/theta), as the notebook's structure describes them; ``frf`` itself without a chain."""
+    if _known(chain) is None:
+        return frf
     g_theta, g_accel = chain.measured_response(frf.freq_hz)
     act = None if frf.act is None else frf.act / g_theta
     total = None if frf.total is None else frf.total / g_accel
@@ -335,7 +360,7 @@ def _discrete_loop(params, kp, T, delay, chain: SensorChain | None = None):
     import control  # (lazy: imports control, only when called)
 
     plant = control.ss(damping_plant(params, kp))
-    if chain is not None and not chain.ideal:
+    if _known(chain) is not None:
         plant = chain.accel_ss() * plant
     Pd = control.c2d(plant, T, "zoh")
     for _ in range(delay):
@@ -405,13 +430,14 @@ def design_damping(
     """Tuned acceleration feedback on the fitted model ``params`` (module docstring), the base read through ``chain``
     (None: ideal sensors)."""
     T = float(sample_time_s)
+    chain = _known(chain)
     Pd = _discrete_loop(params, position_gain_v_per_rad, T, int(delay_samples), chain)
     wf = float(params["w1"])
     w_roll = float(params["w3"]) if "w3" in params and np.isfinite(params["w3"]) else None
     Fd = _filter(wf, filter_zeta, T, w_roll)
     # the plant's modes: with a sensor chain, the loop's poles without it (the sensors' own, a roll-off's or a delay's
     # Pade pair, are no modes to keep damped); the computation delay's are at z = 0 and dropped
-    blind = chain is None or chain.ideal
+    blind = chain is None
     plant_poles = np.asarray((Pd if blind else _discrete_loop(params, position_gain_v_per_rad, T, int(delay_samples))).poles(), complex)
     ol = np.log(plant_poles[np.abs(plant_poles) > 1e-12]) / T
     # sign: the one that moves mode 1 to the left at a small gain
@@ -445,11 +471,10 @@ def design_damping(
     k = k_lim * 10 ** (-gain_margin_db / 20)
 
     def modes_at(gain: float) -> np.ndarray:
-        """The closed loop's poles at ``gain`` that belong to the plant's (with a sensor chain, its own and the
-        controller's poles are set apart, each closed-loop pole paired with one open-loop pole: a plant mode nearest a
-        filter's pole must not be judged by that pole)."""
-        cl = _closed_poles(Pd, Fd, gain)
-        return cl if blind else _plant_partners(ol, Pd, Fd, cl)
+        """The closed loop's poles at ``gain`` that belong to the plant's: each closed-loop pole paired with one
+        open-loop pole, the controller's and a sensor chain's set apart (a plant mode nearest a filter's pole must not
+        be judged by that pole; on the designs without a chain the pairing is the nearest pole's, as it was)."""
+        return _plant_partners(ol, Pd, Fd, _closed_poles(Pd, Fd, gain))
 
     cl = modes_at(sign * k)
     while not _no_mode_worse(ol, cl) and k > 1e-6 * k_lim:
@@ -473,14 +498,14 @@ def design_damping(
         "gain_limit_v_per_m_s2": sign * k_lim,
         "gain_margin_db": 20 * math.log10(k_lim / k),
         **({"fit": dict(fit_summary)} if fit_summary else {}),
-        **({"sensor_chain": chain.describe()} if chain is not None and not chain.ideal else {}),
+        **({"sensor_chain": chain.describe()} if chain is not None else {}),
     }
     return DampingDesign(
         params=dict(params), position_gain_v_per_rad=position_gain_v_per_rad, sample_time_s=T, delay_samples=int(delay_samples),
         filter_hz=wf / (2 * np.pi), filter_zeta=filter_zeta, rolloff_hz=None if w_roll is None else w_roll / (2 * np.pi), gain_v_per_m_s2=gain, gain_limit_v_per_m_s2=sign * k_lim,
         gain_margin_db=20 * math.log10(k_lim / k), open_loop_poles_s=ol, closed_loop_poles_s=cl,
         controller=SavedController(c, False, prov), fit_summary=dict(fit_summary or {}),
-        sensor_chain=chain.describe() if chain is not None else {},
+        chain=chain,
     )  # fmt: skip
 
 
@@ -502,10 +527,9 @@ def measured_sensitivity(
     z = np.exp(2j * np.pi * f[sel] * c.sample_time_s)
     Cz = np.asarray(c.statespace()(z)).ravel() * z ** (-design.delay_samples)  # python-control evaluates C(z)
     act, total = act[sel], total[sel]
-    if chain is not None and not chain.ideal:
+    if _known(chain) is not None:
         g_theta, _ = chain.measured_response(f[sel])
-        card = SensorChain(type(chain.sensors)(), chain.antialias_hz).response(f[sel])[1]  # (the card's filter alone)
-        act, total = act / g_theta, total * card
+        act, total = act / g_theta, total * chain.card_response(f[sel])
     P = total / (1 + design.position_gain_v_per_rad * act)
     S = 1.0 / (1.0 - Cz * P)
     return float(np.max(np.abs(S))), (float(f[sel].min()), float(f[sel].max()))
@@ -554,9 +578,8 @@ def damping_from_frf(
     if missing:
         raise InputError(f"{source}: the damping design needs the act channel and base or total; missing {', '.join(missing)}")
     kp = position_gain_v_per_rad
-    aware = chain is not None and not chain.ideal
     try:
-        fr = measured_fit(without_sensors(data, chain) if aware else data)
+        fr = measured_fit(without_sensors(data, chain))
     except (ValueError, KeyError) as exc:  # the data cannot be fitted (too few points in the band, noise): the file's
         raise input_error_of(source, exc) from None
     if not fr.sound:  # a controller on parameters the fit says not to use: refused, in samii fit's words
@@ -600,13 +623,12 @@ def damping_from_simulation(
     from samii.sim.sensor_dynamics import SensorDynamics  # (lazy: imports mujoco, only when called)
 
     chain = SensorChain(SensorDynamics.from_model(model), antialias_hz)
-    aware = not chain.ideal
     progress = progress or SILENT
     progress.expect(3)
     progress.stage("measuring (swept sine 0.1-40 Hz, 3 records, sensor noise)")
     meas = measure_swept(model, noise=SensorNoise(), rng=np.random.default_rng(seed), progress=part(progress, 1))
     progress.stage("fitting the notebook's 3-mode model")
-    fr = measured_fit(without_sensors(meas.frf, chain) if aware else meas.frf)
+    fr = measured_fit(without_sensors(meas.frf, chain))
     progress.advance()
     summary = {"band_hz": list(fr.band_hz), "rms_mag_db": dict(fr.rms_mag_db), "rms_phase_deg": dict(fr.rms_phase_deg),
                "converged": bool(fr.converged), "measurement": f"samii measure (swept sine, noise, seed {seed})"}  # fmt: skip

@@ -88,23 +88,18 @@ def resolve_controller(spec: str, factory=None, *, say: Callable[[str], None] | 
     raise InputError(f"--controller {spec!r}: expected {', '.join(BUILTIN_CONTROLLERS)} or a controller file (.json)")
 
 
-def antialias_hz(antialias: str | float | None, saved) -> float | None:
-    """The card's anti-alias corner [Hz] ``antialias`` asks for (None, "auto" or a corner) with controller ``saved``:
-    "auto" is the measurement DAQ's rule at the controller's rate (a quarter of it)."""
-    if antialias is None or saved is None:
+def resolve_antialias(antialias: str | float | None, sample_time_s: float, dt: float) -> float | None:
+    """The card's anti-alias corner [Hz] ``--antialias`` asks for (None, "auto" or a corner) for a controller sampling
+    every ``sample_time_s`` on a model stepping ``dt``: "auto" is the measurement DAQ's rule at the controller's rate
+    (a quarter of it); refused, naming the option, at or above half the physics rate."""
+    if antialias is None:
         return None
-    if antialias == "auto":
-        from samii.closedloop.card import default_antialias_hz  # (lazy: imports mujoco, only when called)
+    from samii.closedloop.card import default_antialias_hz  # (lazy: imports mujoco, only when called)
 
-        return default_antialias_hz(saved.controller.sample_time_s)
-    return float(antialias)
-
-
-def check_antialias(antialias: str | float | None, saved, dt: float) -> None:
-    """The anti-alias corner against the physics rate, named as the option."""
-    hz = antialias_hz(antialias, saved)
-    if hz is not None and not hz < 0.5 / dt:
+    hz = default_antialias_hz(sample_time_s) if antialias == "auto" else float(antialias)
+    if not hz < 0.5 / dt:
         raise InputError(f"--antialias {hz:g}: the corner must lie below half the physics rate ({0.5 / dt:g} Hz)")
+    return hz
 
 
 def check_fits(saved, spec: str, delay_samples: float, dt: float) -> None:
@@ -228,10 +223,11 @@ def run_trial(
     overrides = as_overrides(overrides)  # (read after the request's own checks)
     factory = default_spec_factory(model, overrides or None)
     saved = resolve_controller(request.controller, factory, say=say)
+    antialias = None
     if saved is not None:
         spec, _, _ = factory()
         check_fits(saved, request.controller, request.delay_samples, float(spec.option.timestep))
-        check_antialias(request.antialias, saved, float(spec.option.timestep))
+        antialias = resolve_antialias(request.antialias, saved.controller.sample_time_s, float(spec.option.timestep))
     kw = {"duration_s": request.duration_s}
     if request.step_deg is not None:
         kw["step_deg"] = request.step_deg
@@ -247,7 +243,7 @@ def run_trial(
     # the controller's name in the run's files and figures: a built-in's, or the file as the run names it
     label = request.controller if request.controller in BUILTIN_CONTROLLERS else shown_path(request.controller, relative_to)
     result = run_closed_loop(saved, sc, label=label, spec_factory=factory, delay_samples=request.delay_samples, noise=noise,
-                             qpos_every=frame_steps, antialias_hz=antialias_hz(request.antialias, saved))  # fmt: skip
+                             qpos_every=frame_steps, antialias_hz=antialias)  # fmt: skip
 
     written: list[str] = []
     recorded = result.signals.t.size >= 2  # a run that diverged in its first step has nothing to record or draw

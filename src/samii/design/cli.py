@@ -425,7 +425,7 @@ def run_cancel(args) -> int:
 def run_damping(args) -> int:
     save = _save_target(args)
     from samii.closedloop import damping as dm
-    from samii.closedloop.card import default_antialias_hz
+    from samii.closedloop.trial import resolve_antialias
     from samii.sim.model import load_model
     from samii.sim.overrides import as_overrides
     from samii.sim.plugin import hydraulic_params
@@ -434,9 +434,7 @@ def run_damping(args) -> int:
     found = dm.sensors_from_diagnosis(args.sensors_from) if args.sensors_from else {}
     overrides = {**found, **as_overrides(args.set)}  # (what --set says outright wins over what the diagnosis found)
     model = load_model(args.model, overrides=overrides or None)  # the model measured, or the rig's sensors with --frf
-    antialias = default_antialias_hz(args.sample_time_s) if args.antialias == "auto" else args.antialias
-    if antialias is not None and not antialias < 0.5 / float(model.opt.timestep):
-        raise InputError(f"--antialias {antialias:g}: the corner must lie below half the physics rate ({0.5 / float(model.opt.timestep):g} Hz)")
+    antialias = resolve_antialias(args.antialias, args.sample_time_s, float(model.opt.timestep))
     if args.frf is not None:
         from samii.formats import read_frf_csv
 
@@ -465,13 +463,8 @@ def run_damping(args) -> int:
     roll = f", rolled off beyond {d.rolloff_hz:.4g} Hz" if d.rolloff_hz else ""
     print(f"tuned acceleration feedback on the fitted 3-mode model: v_added = -k F(s) xdd, F a 2nd-order low-pass at {d.filter_hz:.4g} Hz "
           f"(zeta {d.filter_zeta:.3g}){roll}")  # fmt: skip
-    if d.sensor_chain:
-        from samii.sim.sensor_dynamics import SensorDynamics
-
-        chain = dict(d.sensor_chain)
-        aa = chain.pop("antialias_hz", None)
-        said = ", ".join(x for x in (SensorDynamics(**chain).text(), f"the card's anti-alias filter at {aa:g} Hz" if aa else "") if x)
-        print(f"  through the sensor chain (divided out of the data before the fit, in the loop designed on): {said}")
+    if d.chain is not None:
+        print(f"  through the sensor chain (divided out of the data before the fit, in the loop designed on): {d.chain.text()}")
     print(f"  k = {d.gain_v_per_m_s2:.4g} V/(m/s²): {d.gain_margin_db:.3g} dB below the fitted model's stability limit {d.gain_limit_v_per_m_s2:.4g}")
     for r in d.mode_table():
         print(f"  mode {r['freq_hz']:6.3g} Hz: zeta {r['zeta_open']:.3f} -> {r['zeta_closed']:.3f} (at {r['freq_hz_closed']:.3g} Hz)")

@@ -249,6 +249,7 @@ class SamiiParams:
                 f"beam.tip_body_freq_hz = {b.tip_body_freq_hz:g} Hz is too fast for the {dt:g} s physics step "
                 f"(at most {1 / (2 * math.pi * dt):.4g} Hz)"
             )
+        self.sensor.check_rate(1.0 / dt)  # (the sensors' filters run at the physics rate)
 
     def as_dict(self) -> dict:
         return asdict(self)
