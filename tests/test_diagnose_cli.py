@@ -435,13 +435,13 @@ def test_noise_free_data_are_said_so_and_judged_against_the_floor(tmp_path, swee
     ts = EffectRig(**effects).simulate(sweep[1], sample_rate_hz=FS)  # no rng: no noise
     path = tmp_path / "noise_free.csv"
     write_timeseries_csv(ts, path)
-    assert main(["diagnose", str(path), "--json", "--no-progress"]) == 0
-    d = strict_json(capsys.readouterr().out)
+    # one run: the words on stdout, diagnosis.json (what --json prints) in --out
+    assert main(["diagnose", str(path), "--no-progress", "--out", str(tmp_path / "d")]) == 0
+    assert f"NO NOISE in {path}" in capsys.readouterr().out
+    d = strict_json((tmp_path / "d" / "diagnosis.json").read_text())
     assert d["files"][0]["noise_free"] is True and "NO NOISE" in d["files"][0]["noise"]
     assert [e["kind"] for e in d["effects"]] == found and d["unexplained"] == []
     for ch, after in d["error_after"].items():
         assert after["chi2"] < 1.0, ch  # within the floor: nothing left to find
     if found:
         assert d["effects"][0]["params"]["delay_s"] == pytest.approx(DELAY_S, rel=1e-3)
-    assert main(["diagnose", str(path), "--no-progress"]) == 0
-    assert f"NO NOISE in {path}" in capsys.readouterr().out

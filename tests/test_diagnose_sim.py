@@ -25,6 +25,7 @@ import json
 
 import numpy as np
 import pytest
+from test_diagnose_cli import run_cli
 
 from samii.cli import main
 from samii.closedloop.card import build_card_model
@@ -65,6 +66,23 @@ def lowpass(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
+def delayed_diagnosis(delayed):
+    """``diagnose`` of the 4 ms delay record against the simulator, once for the tests that read it (30-35 s each time)."""
+    return diagnose([load(delayed)], baseline="sim")
+
+
+@pytest.fixture(scope="module")
+def clean_cli(tmp_path_factory, clean):
+    """``samii diagnose CLEAN --baseline sim --out DIR --rerun RRD --rerun-fps 10`` (text), once for the tests that
+    read its folder, its recording or its words: (exit code, stdout, DIR, RRD)."""
+    root = tmp_path_factory.mktemp("clean_cli")
+    out, rrd = root / "out", root / "rec" / "clean.rrd"
+    rrd.parent.mkdir()
+    rc, text, _ = run_cli(["diagnose", str(clean), "--baseline", "sim", "--out", str(out), "--rerun", str(rrd), "--rerun-fps", "10", "--no-progress"])
+    return rc, text, out, rrd
+
+
+@pytest.fixture(scope="module")
 def tip_body(tmp_path_factory):
     return _measured(tmp_path_factory, "tip_body", TIP_BODY, 31)
 
@@ -85,8 +103,8 @@ def test_clean_simulator_data_need_nothing(clean):
 
 
 @pytest.mark.slow
-def test_command_delay_found_carried_and_the_simulator_error_drops(delayed):
-    d = diagnose([load(delayed)], baseline="sim")
+def test_command_delay_found_carried_and_the_simulator_error_drops(delayed_diagnosis):
+    d = delayed_diagnosis
     real = [e for e in d.effects if not e.expected]
     assert [(e.category, e.kind) for e in real] == [("delay", "command")]
     assert abs(real[0].params["delay_s"] - 0.004) < 5e-4
@@ -124,10 +142,9 @@ def test_accelerometer_roll_off_found_and_carried(lowpass, tmp_path):
 
 
 @pytest.mark.slow
-def test_cli_baseline_sim_writes_the_simulator_block(clean, tmp_path, capsys):
-    out = tmp_path / "out"
-    assert main(["diagnose", str(clean), "--baseline", "sim", "--out", str(out), "--no-progress"]) == 0
-    text = capsys.readouterr().out
+def test_cli_baseline_sim_writes_the_simulator_block(clean_cli):
+    rc, text, out, _ = clean_cli
+    assert rc == 0
     assert "simulator: carried nothing" in text
     for name in ("diagnosis.json", "simulator.png", "bode.png", "residuals.png", "simulator_params.json"):
         assert (out / name).is_file(), name
@@ -318,14 +335,14 @@ def _recorded(path, runs, keys=("volts/r", "accel_m_s2/accel")):
 
 
 @pytest.mark.slow
-def test_recording_of_the_simulator_against_the_data(delayed, tmp_path):
+def test_recording_of_the_simulator_against_the_data(delayed_diagnosis, tmp_path):
     """``--rerun``: the file's record beside the simulator measured like it, before and after the
     4 ms delay was carried; the same excitation at the same times (the file's sweep from its
     metadata), and the base acceleration's residual against the data falling with the delay
     carried (measured 0.030 -> 0.010 m/s^2 rms, the data's noise)."""
     from samii.diagnose.recording import write_diagnosis_recording
 
-    d = diagnose([load(delayed)], baseline="sim")
+    d = delayed_diagnosis
     rrd = tmp_path / "d.rrd"
     info = write_diagnosis_recording(rrd, d, fps=10, thin=False)  # every sample, to compare them (thinned: samii.viz.thinning)
     assert info.runs == ("data", "simulator_after", "simulator_before")
@@ -348,14 +365,14 @@ def test_recording_of_the_simulator_against_the_data(delayed, tmp_path):
 
 
 @pytest.mark.slow
-def test_cli_records_the_simulator_against_clean_data(clean, tmp_path, capsys):
-    rrd = tmp_path / "clean.rrd"
-    assert main(["diagnose", str(clean), "--baseline", "sim", "--rerun", str(rrd), "--rerun-fps", "10", "--no-progress"]) == 0
-    assert f"wrote {rrd}" in capsys.readouterr().out
+def test_cli_records_the_simulator_against_clean_data(clean_cli):
+    rc, text, _, rrd = clean_cli
+    assert rc == 0
+    assert f"wrote {rrd}" in text
     s = _recorded(rrd, ("data", "simulator_before", "simulator_after"), keys=("volts/r",))
     assert s[("data", "volts/r")] is not None and s[("simulator_before", "volts/r")] is not None
     assert s[("simulator_after", "volts/r")] is None  # nothing carried: no second simulator
-    assert not list(tmp_path.glob(".*.tmp"))
+    assert [p.name for p in rrd.parent.iterdir()] == [rrd.name]  # no temporary file left beside it
 
 
 def test_cli_recording_needs_the_simulator(clean, tmp_path, capsys):

@@ -49,6 +49,16 @@ def stepped(tmp_path_factory):
     return root, root / "m" / "timeseries.csv", root / "m" / "frf.csv"
 
 
+@pytest.fixture(scope="module")
+def default_stepped(tmp_path_factory):
+    """``samii measure --method stepped --noise --seed 3`` (the default 17 dwells), once for the tests that read it:
+    its folder."""
+    m = tmp_path_factory.mktemp("default_stepped") / "m"
+    rc, _, err = run_cli(["measure", "--method", "stepped", "--noise", "--seed", "3", "--out", str(m), "--no-progress"])
+    assert rc == 0, err
+    return m
+
+
 def test_frf_reads_samiis_stepped_time_series_as_the_measurement_did(stepped):
     root, ts, written = stepped
     rc, out, err = run_cli(["frf", str(ts), "--out", str(root / "frf"), "--json"])
@@ -100,35 +110,30 @@ def test_a_stepped_time_series_without_its_schedule_or_cut_short_is_refused_nami
 
 
 @pytest.mark.slow
-def test_effects_found_with_the_residual_still_far_above_the_noise_are_not_called_the_whole_story(tmp_path):
+def test_effects_found_with_the_residual_still_far_above_the_noise_are_not_called_the_whole_story(default_stepped, tmp_path):
     """The default stepped sine (17 dwells, 0.5-35 Hz, seed 3): one effect (the 32 Hz valve lag) and chi2 per residual
     33 after it, with no band of misfit on so few points; the verdict read "effects: 1 effect(s) the model lacks" as if
-    it explained the data. The rule is even_misfit's, the one a verdict of none already obeyed."""
-
-    rc, _, err = run_cli(["measure", "--method", "stepped", "--noise", "--seed", "3", "--out", str(tmp_path / "m"), "--no-progress"])
+    it explained the data. The rule is even_misfit's, the one a verdict of none already obeyed. One run gives the words
+    (stdout) and diagnosis.json (--out; what --json prints)."""
+    rc, out, err = run_cli(["diagnose", str(default_stepped / "timeseries.csv"), "--no-progress", "--out", str(tmp_path / "d")])
     assert rc == 0, err
-    rc, out, err = run_cli(["diagnose", str(tmp_path / "m" / "timeseries.csv"), "--no-progress", "--json"])
-    assert rc == 0, err
-    d = json.loads(out)
+    d = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
     real = [e for e in d["effects"] if not e.get("expected")]
     assert real and not d["unexplained"]
     note = [n for n in d["notes"] if n.startswith("after the effects found the residual stays above the noise")]
     assert len(note) == 1 and "not explained" in note[0]
-    rc, out, _ = run_cli(["diagnose", str(tmp_path / "m" / "timeseries.csv"), "--no-progress"])
     verdict = next(ln for ln in out.splitlines() if ln.startswith("verdict:"))
     assert verdict.endswith("but the residual stays above the noise after them (note below)"), verdict
 
 
 @pytest.mark.slow
-def test_the_default_stepped_sine_finds_the_pair_mode_3_makes_in_theta_v(tmp_path):
+def test_the_default_stepped_sine_finds_the_pair_mode_3_makes_in_theta_v(default_stepped):
     """The default stepped sine (17 dwells, 3 Hz apart at 22-25 Hz) measures theta/v's pole and zero of the simulator's
     base mode 3 (pole 23.3 Hz with the loop closed, zero at the held-joint mode 24.90 Hz: samii modes), +3.9 dB at
     22 Hz and -6.4 dB at 25 Hz with errors of about 2 %. The pair was refused as closer than the dwells' spacing (a rule
     for a swept sine's noise wiggle) and the diagnosis ended on the valve alone at chi2 33 per residual. The points
     either side show it: it joins, at the simulator's frequencies, and the baseline's mode 3 stays the held joint's."""
-    rc, _, err = run_cli(["measure", "--method", "stepped", "--noise", "--seed", "3", "--out", str(tmp_path / "m"), "--no-progress"])
-    assert rc == 0, err
-    rc, out, err = run_cli(["diagnose", str(tmp_path / "m" / "frf.csv"), "--json", "--no-progress"])
+    rc, out, err = run_cli(["diagnose", str(default_stepped / "frf.csv"), "--json", "--no-progress"])
     assert rc == 0, err
     d = json.loads(out)
     found = {e["kind"]: e["params"] for e in d["effects"]}
