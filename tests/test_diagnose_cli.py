@@ -435,7 +435,7 @@ def test_noise_free_data_are_said_so_and_judged_against_the_floor(tmp_path, swee
     ts = EffectRig(**effects).simulate(sweep[1], sample_rate_hz=FS)  # no rng: no noise
     path = tmp_path / "noise_free.csv"
     write_timeseries_csv(ts, path)
-    # one run: the words on stdout, diagnosis.json (what --json prints) in --out
+    # one run: the words on stdout, diagnosis.json in --out (what --json prints: test_diagnose_out_writes_the_report)
     assert main(["diagnose", str(path), "--no-progress", "--out", str(tmp_path / "d")]) == 0
     assert f"NO NOISE in {path}" in capsys.readouterr().out
     d = strict_json((tmp_path / "d" / "diagnosis.json").read_text())

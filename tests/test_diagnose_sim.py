@@ -67,19 +67,23 @@ def lowpass(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def delayed_diagnosis(delayed):
-    """``diagnose`` of the 4 ms delay record against the simulator, once for the tests that read it (30-35 s each time)."""
+    """``diagnose`` of the 4 ms delay record against the simulator, once for the two tests that read it (33-36 s each
+    time, measured with pytest-xdist on 2 cores)."""
     return diagnose([load(delayed)], baseline="sim")
 
 
 @pytest.fixture(scope="module")
 def clean_cli(tmp_path_factory, clean):
     """``samii diagnose CLEAN --baseline sim --out DIR --rerun RRD --rerun-fps 10`` (text), once for the tests that
-    read its folder, its recording or its words: (exit code, stdout, DIR, RRD)."""
+    read its folder, its recording or its words: (stdout, DIR, RRD)."""
     root = tmp_path_factory.mktemp("clean_cli")
     out, rrd = root / "out", root / "rec" / "clean.rrd"
     rrd.parent.mkdir()
-    rc, text, _ = run_cli(["diagnose", str(clean), "--baseline", "sim", "--out", str(out), "--rerun", str(rrd), "--rerun-fps", "10", "--no-progress"])
-    return rc, text, out, rrd
+    rc, text, err = run_cli(
+        ["diagnose", str(clean), "--baseline", "sim", "--out", str(out), "--rerun", str(rrd), "--rerun-fps", "10", "--no-progress"]
+    )
+    assert rc == 0, err
+    return text, out, rrd
 
 
 @pytest.fixture(scope="module")
@@ -143,8 +147,7 @@ def test_accelerometer_roll_off_found_and_carried(lowpass, tmp_path):
 
 @pytest.mark.slow
 def test_cli_baseline_sim_writes_the_simulator_block(clean_cli):
-    rc, text, out, _ = clean_cli
-    assert rc == 0
+    text, out, _ = clean_cli
     assert "simulator: carried nothing" in text
     for name in ("diagnosis.json", "simulator.png", "bode.png", "residuals.png", "simulator_params.json"):
         assert (out / name).is_file(), name
@@ -366,8 +369,7 @@ def test_recording_of_the_simulator_against_the_data(delayed_diagnosis, tmp_path
 
 @pytest.mark.slow
 def test_cli_records_the_simulator_against_clean_data(clean_cli):
-    rc, text, _, rrd = clean_cli
-    assert rc == 0
+    text, _, rrd = clean_cli
     assert f"wrote {rrd}" in text
     s = _recorded(rrd, ("data", "simulator_before", "simulator_after"), keys=("volts/r",))
     assert s[("data", "volts/r")] is not None and s[("simulator_before", "volts/r")] is not None

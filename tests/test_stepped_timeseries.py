@@ -114,7 +114,7 @@ def test_effects_found_with_the_residual_still_far_above_the_noise_are_not_calle
     """The default stepped sine (17 dwells, 0.5-35 Hz, seed 3): one effect (the 32 Hz valve lag) and chi2 per residual
     33 after it, with no band of misfit on so few points; the verdict read "effects: 1 effect(s) the model lacks" as if
     it explained the data. The rule is even_misfit's, the one a verdict of none already obeyed. One run gives the words
-    (stdout) and diagnosis.json (--out; what --json prints)."""
+    (stdout) and diagnosis.json (--out; what --json prints: test_diagnose_cli's test_diagnose_out_writes_the_report)."""
     rc, out, err = run_cli(["diagnose", str(default_stepped / "timeseries.csv"), "--no-progress", "--out", str(tmp_path / "d")])
     assert rc == 0, err
     d = json.loads((tmp_path / "d" / "diagnosis.json").read_text())

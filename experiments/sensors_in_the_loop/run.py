@@ -185,11 +185,13 @@ def _figure(results: list[dict], path: Path) -> None:
         axes[0, col].set_title(f"controller at {rate:.0f} Hz")
         axes[0, col].set_ylabel("mode-1 damping ratio ζ (closed loop)")
         axes[1, col].axhline(0.0, color="k", lw=1)
+        goal = axes[1, col].axhline(-100 * GOALS["mode_loss"], color="k", ls="--", lw=1, label=f"goal: loses at most {100 * GOALS['mode_loss']:g} %")
         axes[1, col].set_ylabel("base mode 3 (23.3 Hz): change of ζ [%]")
         axes[1, col].set_xticks(x, cases, rotation=25, ha="right")
         for a in axes[:, col]:
             a.grid(axis="y", alpha=0.3)
     axes[0, 0].legend(fontsize=8, loc="upper right")
+    axes[1, 0].legend(handles=[goal], fontsize=8, loc="upper left")
     fig.suptitle("the damping controller (blind to the sensors, told them) and the chapter-10 compensator, through the rig's sensors")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
