@@ -90,6 +90,15 @@ def _effects():
     ]
 
 
+def _kept_is_fresh(problem, z, analytic):
+    """The Jacobian the residuals keep for the optimiser's next call (``_Problem.residuals``) is the one computed afresh
+    at that point, bit for bit, and is not given for another point."""
+    problem.residuals(z)
+    assert np.array_equal(problem.jacobian(z), analytic)
+    problem.residuals(z + 0.01)
+    assert np.array_equal(problem.jacobian(z), analytic)
+
+
 def _check(datasets, baseline, effects, free, xb, every_column=True):
     kinds = [k for k, _ in effects]
     xe = [v for _, v in effects]
@@ -97,6 +106,7 @@ def _check(datasets, baseline, effects, free, xb, every_column=True):
     problem = _Problem(datasets, baseline, layout, xb)
     z = layout.to_z(xb, xe) + 0.01 * np.random.default_rng(1).standard_normal(layout.to_z(xb, xe).size)
     analytic = problem.jacobian(z)
+    _kept_is_fresh(problem, z, analytic)
     numeric = approx_derivative(problem.residuals, z, method="3-point", rel_step=1e-6)
     assert analytic.shape == numeric.shape == (problem.residuals(z).size, z.size)
     scale = np.max(np.abs(numeric), axis=0)
@@ -275,6 +285,7 @@ def test_fit_jacobian_with_the_sampled_feedthrough(channels, free_lag, hold):
         problem = _Problem([ds], bl, layout, xb, held_lag=held_lag)
     z = z + 0.01 * rng.standard_normal(z.size)
     analytic = problem.jacobian(z)
+    _kept_is_fresh(problem, z, analytic)
     numeric = approx_derivative(problem.residuals, z, method="3-point", rel_step=1e-6)
     scale = np.max(np.abs(numeric), axis=0)
     if free_lag:

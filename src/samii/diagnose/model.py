@@ -579,6 +579,8 @@ class _Problem:
             self.grids.append((2.0 * np.pi * np.asarray(ds.freq_hz, float), need))
         #: the held baseline's responses per dataset (a fit with the baseline held evaluates them once)
         self._held: dict[int, dict] = {}
+        #: the point of the last residuals and its Jacobian (residuals, jacobian)
+        self._last: tuple[np.ndarray, np.ndarray] | None = None
 
     def _need(self, i: int, ch: str) -> tuple[str, ...]:
         """The baseline channels block ``ch`` of dataset ``i`` needs: xdd/theta with the feedthrough needs act too."""
@@ -714,14 +716,51 @@ class _Problem:
 
     def evaluate(self, z: np.ndarray):
         """(per dataset: channel -> complex residual ln(data/model), baseline vectors, effect vectors) at ``z``."""
-        xs_b, xs_e = self._split(z)
-        eff = list(zip(self.layout.effects, xs_e))
-        res: list[dict] = [{} for _ in range(max((b.i for b in self.blocks), default=-1) + 1)]
-        resp = self._all_responses(xs_b, False)
-        for blk in self.blocks:
-            model, _, _, _ = self._model(blk, resp[blk.i], eff, False, self._feedthrough(blk, xs_b, z), xs_b[blk.i] if xs_b else None)
-            res[blk.i][blk.ch] = np.log(blk.data / model)  # one log of the ratio: its phase wrapped to (-pi, pi]
+        res, xs_b, xs_e, _ = self._evaluate(z, derivatives=False)
         return res, xs_b, xs_e
+
+    def _evaluate(self, z: np.ndarray, derivatives: bool):
+        """:meth:`evaluate`'s three and, with ``derivatives``, the Jacobian d(residual vector)/dz (else None): one
+        pass over the blocks, the model of each computed once for both (its value does not depend on whether its
+        derivatives are asked for)."""
+        lay = self.layout
+        xs_b, xs_e = self._split(z)
+        eff = list(zip(lay.effects, xs_e))
+        res: list[dict] = [{} for _ in range(max((b.i for b in self.blocks), default=-1) + 1)]
+        resp = self._all_responses(xs_b, derivatives)
+        rows = []
+        if derivatives:  # dx/dz of every variable: x for a log-transformed one, the scale for a linear one
+            dxdz_b = [np.where(lay.pos, x, sc) for x, sc in zip(xs_b, lay.b_scale)] if lay.nb else []
+            dxdz_e = [
+                np.array([v if p.transform == "log" else c for p, v, c in zip(k.params, x, sc)]) for k, x, sc in zip(lay.effects, xs_e, lay.e_scale)
+            ]
+            n = z.size
+            e_start = lay.nb * lay.n_data
+        for blk in self.blocks:
+            model, d_b, d_e, d_lag = self._model(blk, resp[blk.i], eff, derivatives, self._feedthrough(blk, xs_b, z), xs_b[blk.i] if xs_b else None)
+            e = np.log(blk.data / model)  # one log of the ratio: its phase wrapped to (-pi, pi]
+            res[blk.i][blk.ch] = e
+            if not derivatives:
+                continue
+            d = np.zeros((blk.w.size, n), complex)
+            if lay.nb:
+                j0 = blk.i * lay.nb
+                d[:, j0 : j0 + lay.nb] = d_b * dxdz_b[blk.i]
+            j = e_start
+            for col, f in zip(d_e, dxdz_e):
+                d[:, j : j + f.size] = col * f
+                j += f.size
+            if lay.n_lag and d_lag is not None:
+                d[:, n - 1] = d_lag
+            d *= -blk.inv_sigma[:, None]
+            d[~np.isfinite(e)] = 0.0
+            rows.append(d.real)
+            rows.append(d.imag)
+        jac = None
+        if derivatives:
+            jac = np.concatenate(rows, axis=0) if rows else np.zeros((0, z.size))
+            jac = np.where(np.isfinite(jac), jac, 0.0)
+        return res, xs_b, xs_e, jac
 
     def vector(self, res) -> np.ndarray:
         parts = []
@@ -732,45 +771,23 @@ class _Problem:
         return np.concatenate(parts)
 
     def residuals(self, z: np.ndarray) -> np.ndarray:
-        """The weighted residual vector (non-finite entries as 1e6: a model with a pole on a point)."""
+        """The weighted residual vector (non-finite entries as 1e6: a model with a pole on a point).
+
+        Its Jacobian is computed with it and kept for :meth:`jacobian`: the optimiser (scipy's trf) asks for the
+        Jacobian at every point whose step it accepts, right after the residuals there, and accepts most."""
         with np.errstate(all="ignore"):
-            v = self.vector(self.evaluate(z)[0])
+            res, _, _, jac = self._evaluate(z, derivatives=True)
+            v = self.vector(res)
+        self._last = (np.array(z, float, copy=True), jac)
         return np.where(np.isfinite(v), v, 1e6)
 
     def jacobian(self, z: np.ndarray) -> np.ndarray:
         """d(residual vector)/dz, analytic (class docstring); rows whose residual is not finite are zero."""
-        lay = self.layout
-        xs_b, xs_e = self._split(z)
-        eff = list(zip(lay.effects, xs_e))
-        # dx/dz of every variable: x for a log-transformed one, the scale for a linear one
-        dxdz_b = [np.where(lay.pos, x, sc) for x, sc in zip(xs_b, lay.b_scale)] if lay.nb else []
-        dxdz_e = [
-            np.array([v if p.transform == "log" else c for p, v, c in zip(k.params, x, sc)]) for k, x, sc in zip(lay.effects, xs_e, lay.e_scale)
-        ]
-        n = z.size
-        e_start = lay.nb * lay.n_data
-        rows = []
+        last, self._last = self._last, None
+        if last is not None and np.array_equal(last[0], z):
+            return last[1]
         with np.errstate(all="ignore"):
-            resp = self._all_responses(xs_b, True)
-            for blk in self.blocks:
-                model, d_b, d_e, d_lag = self._model(blk, resp[blk.i], eff, True, self._feedthrough(blk, xs_b, z), xs_b[blk.i] if xs_b else None)
-                d = np.zeros((blk.w.size, n), complex)
-                if lay.nb:
-                    j0 = blk.i * lay.nb
-                    d[:, j0 : j0 + lay.nb] = d_b * dxdz_b[blk.i]
-                j = e_start
-                for col, f in zip(d_e, dxdz_e):
-                    d[:, j : j + f.size] = col * f
-                    j += f.size
-                if lay.n_lag and d_lag is not None:
-                    d[:, n - 1] = d_lag
-                d *= -blk.inv_sigma[:, None]
-                bad = ~np.isfinite(np.log(blk.data / model))
-                d[bad] = 0.0
-                rows.append(d.real)
-                rows.append(d.imag)
-        jac = np.concatenate(rows, axis=0) if rows else np.zeros((0, n))
-        return np.where(np.isfinite(jac), jac, 0.0)
+            return self._evaluate(z, derivatives=True)[3]
 
 
 #: Singular values of the Jacobian below this fraction of the largest are directions the data do not determine.
