@@ -92,9 +92,11 @@ def _effects():
 
 def _kept_is_fresh(problem, z, analytic):
     """The Jacobian the residuals keep for the optimiser's next call (``_Problem.residuals``) is the one computed afresh
-    at that point, bit for bit, and is not given for another point."""
+    at that point, bit for bit; it is given (not computed again) once, and not for another point."""
     problem.residuals(z)
-    assert np.array_equal(problem.jacobian(z), analytic)
+    kept = problem._last[1]
+    assert problem.jacobian(z) is kept and np.array_equal(kept, analytic)  # given, not computed again
+    assert problem._last is None  # given once
     problem.residuals(z + 0.01)
     assert np.array_equal(problem.jacobian(z), analytic)
 
