@@ -579,7 +579,7 @@ class _Problem:
             self.grids.append((2.0 * np.pi * np.asarray(ds.freq_hz, float), need))
         #: the held baseline's responses per dataset (a fit with the baseline held evaluates them once)
         self._held: dict[int, dict] = {}
-        #: the point of the last residuals and its Jacobian (residuals, jacobian)
+        #: (z, Jacobian at z) of the last :meth:`residuals`, for :meth:`jacobian` to give once
         self._last: tuple[np.ndarray, np.ndarray] | None = None
 
     def _need(self, i: int, ch: str) -> tuple[str, ...]:
@@ -723,44 +723,52 @@ class _Problem:
         """:meth:`evaluate`'s three and, with ``derivatives``, the Jacobian d(residual vector)/dz (else None): one
         pass over the blocks, the model of each computed once for both (its value does not depend on whether its
         derivatives are asked for)."""
-        lay = self.layout
         xs_b, xs_e = self._split(z)
-        eff = list(zip(lay.effects, xs_e))
+        eff = list(zip(self.layout.effects, xs_e))
         res: list[dict] = [{} for _ in range(max((b.i for b in self.blocks), default=-1) + 1)]
         resp = self._all_responses(xs_b, derivatives)
+        dxdz = self._dxdz(xs_b, xs_e) if derivatives else None
         rows = []
-        if derivatives:  # dx/dz of every variable: x for a log-transformed one, the scale for a linear one
-            dxdz_b = [np.where(lay.pos, x, sc) for x, sc in zip(xs_b, lay.b_scale)] if lay.nb else []
-            dxdz_e = [
-                np.array([v if p.transform == "log" else c for p, v, c in zip(k.params, x, sc)]) for k, x, sc in zip(lay.effects, xs_e, lay.e_scale)
-            ]
-            n = z.size
-            e_start = lay.nb * lay.n_data
         for blk in self.blocks:
             model, d_b, d_e, d_lag = self._model(blk, resp[blk.i], eff, derivatives, self._feedthrough(blk, xs_b, z), xs_b[blk.i] if xs_b else None)
             e = np.log(blk.data / model)  # one log of the ratio: its phase wrapped to (-pi, pi]
             res[blk.i][blk.ch] = e
-            if not derivatives:
-                continue
-            d = np.zeros((blk.w.size, n), complex)
-            if lay.nb:
-                j0 = blk.i * lay.nb
-                d[:, j0 : j0 + lay.nb] = d_b * dxdz_b[blk.i]
-            j = e_start
-            for col, f in zip(d_e, dxdz_e):
-                d[:, j : j + f.size] = col * f
-                j += f.size
-            if lay.n_lag and d_lag is not None:
-                d[:, n - 1] = d_lag
-            d *= -blk.inv_sigma[:, None]
-            d[~np.isfinite(e)] = 0.0
-            rows.append(d.real)
-            rows.append(d.imag)
-        jac = None
-        if derivatives:
-            jac = np.concatenate(rows, axis=0) if rows else np.zeros((0, z.size))
-            jac = np.where(np.isfinite(jac), jac, 0.0)
-        return res, xs_b, xs_e, jac
+            if derivatives:
+                d = self._block_jacobian(blk, e, d_b, d_e, d_lag, dxdz, z.size)
+                rows += [d.real, d.imag]
+        if not derivatives:
+            return res, xs_b, xs_e, None
+        jac = np.concatenate(rows, axis=0) if rows else np.zeros((0, z.size))
+        return res, xs_b, xs_e, np.where(np.isfinite(jac), jac, 0.0)
+
+    def _dxdz(self, xs_b, xs_e) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """dx/dz of every variable, (baseline's per dataset, effects' per effect): x for a log-transformed one, the
+        scale for a linear one."""
+        lay = self.layout
+        dxdz_b = [np.where(lay.pos, x, sc) for x, sc in zip(xs_b, lay.b_scale)] if lay.nb else []
+        dxdz_e = [
+            np.array([v if p.transform == "log" else c for p, v, c in zip(k.params, x, sc)]) for k, x, sc in zip(lay.effects, xs_e, lay.e_scale)
+        ]
+        return dxdz_b, dxdz_e
+
+    def _block_jacobian(self, blk: _Block, e: np.ndarray, d_b, d_e, d_lag, dxdz, n: int) -> np.ndarray:
+        """d(weighted residual)/dz of one block (complex: its real and imaginary rows), from :meth:`_model`'s
+        derivatives of ln model and :meth:`_dxdz`; zero where its residual ``e`` is not finite."""
+        lay = self.layout
+        dxdz_b, dxdz_e = dxdz
+        d = np.zeros((blk.w.size, n), complex)
+        if lay.nb:
+            j0 = blk.i * lay.nb
+            d[:, j0 : j0 + lay.nb] = d_b * dxdz_b[blk.i]
+        j = lay.nb * lay.n_data
+        for col, f in zip(d_e, dxdz_e):
+            d[:, j : j + f.size] = col * f
+            j += f.size
+        if lay.n_lag and d_lag is not None:
+            d[:, n - 1] = d_lag
+        d *= -blk.inv_sigma[:, None]
+        d[~np.isfinite(e)] = 0.0
+        return d
 
     def vector(self, res) -> np.ndarray:
         parts = []
