@@ -275,6 +275,39 @@ def test_fork_later_runs_a_stage_in_a_worker_while_the_block_runs_here(two_worke
     assert went_on and marker.exists() and pid != os.getpid() and inner == [pid] * 3
 
 
+def _pipes_open_here() -> set[str]:
+    """The pipes this process holds an end of, as /proc names them (``pipe:[inode]``)."""
+    links = set()
+    for fd in os.listdir("/proc/self/fd"):
+        try:
+            links.add(os.readlink(f"/proc/self/fd/{fd}"))
+        except OSError:  # (the listing's own descriptor, closed by now)
+            pass
+    return {link for link in links if link.startswith("pipe:")}
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/fd"), reason="reads /proc")
+def test_a_worker_forked_later_holds_no_end_of_an_earlier_workers_pipes(two_workers):
+    """The main job's blocks nest: the measurement's figure is drawn in one worker while the diagnosis is forked into
+    another, and fork_maps run beside both. A worker that kept an end of an earlier worker's task pipe kept that worker
+    from seeing its end (the parent closing the pipe), and the parent waiting for it, until the later one ended too."""
+
+    def earlier_pipes() -> set[str]:
+        return {f"pipe:[{os.fstat(c.fileno()).st_ino}]" for w in forkmap._LATER for c in (w.tasks, w.results)}
+
+    with forkmap.fork_later(lambda: "drawn") as first:
+        firsts = earlier_pipes()
+        with forkmap.fork_later(_pipes_open_here) as second:
+            both = earlier_pipes()
+            inherited = second()
+            in_a_map = forkmap.fork_map(lambda _: _pipes_open_here(), range(2))
+        assert first() == "drawn"
+    assert len(firsts) == 2 and len(both) == 4 and firsts < both  # (each worker's task and result pipes)
+    assert inherited and not inherited & firsts  # (the second worker's own pipes only)
+    assert len(in_a_map) == 2 and all(pipes and not pipes & both for pipes in in_a_map)
+    assert not forkmap._LATER
+
+
 def test_fork_later_raises_the_jobs_error_and_leaves_no_worker(two_workers):
     def bad():
         raise InputError("stage `samii diagnose`: bad file")

@@ -58,6 +58,9 @@ _SHARED: dict[int, Any] = {}
 _TASK: tuple[Callable, list] | None = None
 #: True in a worker: a fork_map there runs serially.
 _IN_WORKER = False
+#: The workers of the fork_later blocks open in this process: a process forked later closes their pipes' ends (one
+#: left open in it kept such a worker alive, and its parent waiting on it, until that process ended too).
+_LATER: list = []
 
 
 def workers() -> int:
@@ -247,7 +250,7 @@ def _forked(fn: Callable, items: list, n: int, done: Callable[[], None] | None =
         try:
             parent = os.getpid()
             for _ in range(n):
-                workers.append(_fork_worker(parent, workers))
+                workers.append(_fork_worker(parent, [*_LATER, *workers]))
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, before)
         results = _serve(fn, items, workers, done)
@@ -369,7 +372,8 @@ def fork_later(job: Callable[[], R]) -> Iterator[Callable[[], R]]:
     on two cores); the block gets a function that waits for the result and returns it (an exception in ``job`` is
     raised there, and again at every later call). The job runs with one BLAS thread wherever it runs, and a
     :func:`fork_map` inside it runs serially in the worker (the block has the other core). Leaving the block ends the
-    worker: killed if the block raised or never asked.
+    worker: killed if the block raised or never asked. Blocks nest (the main job draws a figure in one worker while
+    its diagnosis runs in another): every process forked later holds no end of an open block's pipes.
 
     Where :func:`fork_map` would run serially (one worker, inside a worker, no fork), ``job`` runs here when its
     result is first asked for; a worker that dies (killed from outside) has it computed here, with a warning."""
@@ -409,9 +413,10 @@ def fork_later(job: Callable[[], R]) -> Iterator[Callable[[], R]]:
             warnings.simplefilter("ignore", DeprecationWarning)
             before = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
             try:
-                worker = _fork_worker(os.getpid(), [])
+                worker = _fork_worker(os.getpid(), list(_LATER))
             finally:
                 signal.pthread_sigmask(signal.SIG_SETMASK, before)  # (a signal meanwhile is raised here: the finally ends it)
+        _LATER.append(worker)
         _TASK = None
         worker.tasks.send(0)
 
@@ -437,4 +442,5 @@ def fork_later(job: Callable[[], R]) -> Iterator[Callable[[], R]]:
     finally:
         _TASK = None
         if worker is not None:
+            _LATER.remove(worker)
             _stop([worker], kill=not finished)

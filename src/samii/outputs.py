@@ -32,12 +32,14 @@ import os
 import secrets
 import shutil
 import tempfile
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from pathlib import Path
 
 from samii.errors import InputError, mark_outputs_started, raise_if_signalled, uninterrupted
 
 __all__ = [
+    "LaterOutput",
     "OutputFolder",
     "check_output_file",
     "create_parent",
@@ -251,6 +253,20 @@ def restore_replaced(out: Path, prefix: str) -> Path | None:
 def remove_stale_stages(folder: Path) -> list[Path]:
     """Remove staging folders left in ``folder`` by runs whose process no longer exists."""
     return remove_stale_runs(folder, _STAGE_PREFIX)
+
+
+@dataclass(frozen=True)
+class LaterOutput:
+    """An output a stage left for its caller to write (``later=True``): a figure or a recording that no later stage
+    reads, which the main job writes beside the next stages' work instead of before it. The stage's folder names it
+    as written (its run.json's outputs); the caller calls :attr:`write` before the folder is used (it writes
+    :attr:`path`, replacing what is there)."""
+
+    path: Path
+    write: Callable[[], None]
+    #: it may be written in a forked worker (a matplotlib figure); False: in this process (a Rerun recording: rerun
+    #: runs threads of its own, whose locks a forked process may find held)
+    forks: bool
 
 
 class OutputFolder:

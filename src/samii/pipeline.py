@@ -17,7 +17,10 @@ The stages, each the library call its command makes (so each stage's files are w
 8. ``report.html``: one self-contained page with the figures and tables of all of it (:mod:`samii.report`).
 
 The diagnosis (6) needs the measurement and the fit alone: it runs in a worker process of its own
-(:func:`samii.forkmap.fork_later`) while the design (4) and the closed-loop trials (5) run here, each on a core; the
+(:func:`samii.forkmap.fork_later`) while the design (4) and the closed-loop trials (5) run here, each on a core. The
+figures and the recording no later stage reads are drawn beside that chain (measurement -> fit -> diagnosis ->
+report), not in it: the measurement's Bode figure in a worker of its own while the fit runs, its recording and the
+fit's figure here once the diagnosis has started (the stages' ``later``, :class:`samii.outputs.LaterOutput`). The
 folder is the same as with the stages one after the other (``SAMII_WORKERS=1``).
 
 The stages hand each other the files a user's chain of commands would (the fit reads ``measure/frf.csv``, not the
@@ -38,7 +41,7 @@ import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from functools import cached_property
+from functools import cached_property, partial
 from pathlib import Path
 
 from samii import notebook as nb
@@ -52,7 +55,7 @@ from samii.formats import read_frf_csv, read_timeseries_csv
 from samii.identify.fit_file import fit_frf_file
 from samii.json_output import finite_or_none
 from samii.measure.bode_test import BodeTestRequest, run_bode_test
-from samii.outputs import remove_stale_runs, restore_replaced
+from samii.outputs import LaterOutput, remove_stale_runs, restore_replaced
 from samii.progress import SILENT, Progress
 from samii.report.page import write_report
 from samii.run_summary import CONTROLLERS, RECORDINGS, SCENARIOS
@@ -76,6 +79,7 @@ from samii.schema.summary import (
 )
 from samii.sim.overrides import parse_overrides
 from samii.timeseries import TimeSeries
+from samii.viz.figures import pyplot
 
 __all__ = ["run", "Run", "ClosedLoopRun", "N_STAGES"]
 
@@ -339,7 +343,7 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progr
     progress.stage("measuring (swept sine, 253 s simulated)")
     with _named_stage("measure"):
         test = run_bode_test(d / "measure", BodeTestRequest(noise=True, seed=seed), model=model_file, overrides=parsed,
-                             rerun=d / "measure.rrd", argv=argv, relative_to=d)  # fmt: skip
+                             rerun=d / "measure.rrd", argv=argv, relative_to=d, later=True)  # fmt: skip
     rec = test.record
     sweep = rec.excitation["swept"]
     measurement = MeasurementSummary(
@@ -351,27 +355,37 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progr
     )
     progress.advance()
 
-    progress.stage("fitting the notebook's 3-mode model")
-    with _named_stage("fit"):
-        fit_frf_file(d / "measure" / "frf.csv", out=d / "fit", relative_to=d)
-    fit = json.loads((d / "fit" / "fit.json").read_text())  # the summary repeats the file, as written
-    fit_summary = FitSummary(params=fit["params"], stderr=fit["stderr"], eq9_4=dict(nb.EQ9_4), **{k: fit.get(k) for k in FIT_FIELDS})
-    progress.advance()
-
-    def diagnosed():
-        with _named_stage("diagnose"):
-            return diagnose_files([d / "measure" / "timeseries.csv"], DiagnoseRequest(baseline=str(d / "fit" / "fit.json")),
-                                  out=d / "diagnose", relative_to=d).record  # fmt: skip
-
-    # the diagnosis needs the measurement and the fit alone: it runs in a worker of its own while the damping design
-    # and the closed-loop trials run here (each on a core; their folders are apart)
-    with fork_later(diagnosed) as diagnosis_record:
-        progress.stage("designing the damping controller")
-        damping, design = _design_stage(d, float(rec.model.hydraulic["position_gain"]), _sensor_chain(model_file, parsed))
+    # The figures and recordings no later stage reads are drawn beside the stages that wait on each other
+    # (measurement -> fit -> diagnosis -> report), not between them: the measurement's Bode figure in a worker of its
+    # own while the fit runs here, the recording (rerun's threads stay in this process) and the fit's figure here
+    # while the diagnosis runs in its worker.
+    pyplot()  # matplotlib imported once, before the workers fork: each would import it again (about 1 s each)
+    with fork_later(partial(_write_later, test.later, forks=True)) as measure_drawn:
+        progress.stage("fitting the notebook's 3-mode model")
+        with _named_stage("fit"):
+            fitted = fit_frf_file(d / "measure" / "frf.csv", out=d / "fit", relative_to=d, later=True)
+        fit = json.loads((d / "fit" / "fit.json").read_text())  # the summary repeats the file, as written
+        fit_summary = FitSummary(params=fit["params"], stderr=fit["stderr"], eq9_4=dict(nb.EQ9_4), **{k: fit.get(k) for k in FIT_FIELDS})
         progress.advance()
-        closed = _closed_loop_stage(d, damping, model_file, parsed, progress, said)
-        progress.stage("diagnosing the fit against the measured record")
-        diag = diagnosis_record()
+
+        def diagnosed():
+            with _named_stage("diagnose"):
+                return diagnose_files([d / "measure" / "timeseries.csv"], DiagnoseRequest(baseline=str(d / "fit" / "fit.json")),
+                                      out=d / "diagnose", relative_to=d).record  # fmt: skip
+
+        # the diagnosis needs the measurement and the fit alone: it runs in a worker of its own while the damping
+        # design and the closed-loop trials run here (each on a core; their folders are apart)
+        with fork_later(diagnosed) as diagnosis_record:
+            progress.stage("writing measure.rrd and the fit's figure")
+            _write_later(test.later, forks=False)
+            _write_later(fitted.later)
+            progress.stage("designing the damping controller")
+            damping, design = _design_stage(d, float(rec.model.hydraulic["position_gain"]), _sensor_chain(model_file, parsed))
+            progress.advance()
+            closed = _closed_loop_stage(d, damping, model_file, parsed, progress, said)
+            progress.stage("diagnosing the fit against the measured record")
+            diag = diagnosis_record()
+        measure_drawn()
     diagnosis = DiagnosisSummary(verdict=diag.verdict, effects=diag.found, error_before=diag.error_before, error_after=diag.error_after)
     progress.advance()
     return RunSummary(
@@ -385,6 +399,13 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progr
         closed_loop=closed,
         diagnosis=diagnosis,
     )
+
+
+def _write_later(outputs: Sequence[LaterOutput], forks: bool | None = None) -> None:
+    """Write the outputs a stage left for later (those that may be written in a forked worker or not, or all)."""
+    for o in outputs:
+        if forks is None or o.forks == forks:
+            o.write()
 
 
 def _sensor_chain(model_file, overrides: dict):

@@ -10,6 +10,7 @@ command's option names.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -19,9 +20,9 @@ from samii.formats import DataFormatError, csv_header, is_mat_file, read_frf_csv
 from samii.frequency_response import FrequencyResponse
 from samii.identify.cost import frequency_out_of_range
 from samii.identify.fit import check_not_noise, fit
-from samii.identify.report import fit_output_names, write_fit_outputs
+from samii.identify.report import fit_figures, fit_output_names, write_fit_outputs
 from samii.identify.structures import ModelStructure
-from samii.outputs import OutputFolder, shown_path
+from samii.outputs import LaterOutput, OutputFolder, shown_path
 from samii.progress import SILENT, Progress, part
 
 __all__ = ["FitRequest", "FitFile", "read_frf_file", "fit_frf_file"]
@@ -51,6 +52,8 @@ class FitFile:
     structure: object  #: samii.identify.structures.ModelStructure
     results: list
     written: list[str] = field(default_factory=list)  #: the files written, as the run names them
+    #: the figures, left for the caller to write (``later``; named in ``written`` all the same); empty: in the folder
+    later: tuple[LaterOutput, ...] = ()
 
 
 def _csv_line_of_row(path: Path, row: int) -> int | None:
@@ -115,11 +118,20 @@ def read_frf_file(path, *, mat_freq_name: str | None = None, mat_freq_unit: str 
 
 
 def fit_frf_file(
-    path, request: FitRequest = FitRequest(), *, out=None, overwrite: bool = False, progress: Progress | None = None, relative_to=None
+    path,
+    request: FitRequest = FitRequest(),
+    *,
+    out=None,
+    overwrite: bool = False,
+    progress: Progress | None = None,
+    relative_to=None,
+    later: bool = False,
 ) -> FitFile:
     """Fit the FRF file ``path`` as ``request`` asks and, given ``out``, write the fits into that folder (all or
     nothing; checked before any work). ``relative_to``: the folder whose files name ``path`` relative to it (the
-    main job's) rather than as given."""
+    main job's) rather than as given. ``later``: the figures are not drawn here but left in the result's ``later``
+    (:class:`samii.outputs.LaterOutput`), for the caller to draw after the folder is committed (the main job draws
+    them beside the next stages' work)."""
 
     name = shown_path(path, relative_to)
     folder = OutputFolder(out, fit_output_names(list(request.phase_weights)), overwrite=overwrite) if out is not None else None
@@ -164,9 +176,14 @@ def fit_frf_file(
         except (ValueError, KeyError) as exc:  # the data cannot be fitted as asked (InputError included)
             raise input_error_of(name, exc) from None
     written: list[str] = []
+    left: list[LaterOutput] = []
     if folder is not None:
         progress.stage("writing plots")
         with folder:
-            write_fit_outputs(data, results, folder, note=f"data: {name}")
+            write_fit_outputs(data, results, folder, note=f"data: {name}", figures=not later)
         written = [shown_path(p, relative_to) for p in folder.written]
-    return FitFile(data=data, structure=structure, results=results, written=written)
+        if later:
+            for figure, draw in fit_figures(data, results, note=f"data: {name}"):
+                left.append(LaterOutput(folder.final(figure), partial(draw, folder.final(figure)), forks=True))
+                written.append(shown_path(folder.final(figure), relative_to))
+    return FitFile(data=data, structure=structure, results=results, written=written, later=tuple(left))

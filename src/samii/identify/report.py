@@ -33,6 +33,7 @@ __all__ = [
     "fit_filename",
     "fit_output_names",
     "write_fit_outputs",
+    "fit_figures",
     "notebook_reference",
     "params_markdown",
     "quality_rows",
@@ -129,8 +130,11 @@ def notebook_reference(results: Sequence[FitResult]) -> dict[str, list[float]] |
     return {n: [nb.EQ9_FITS[r.phase_weight][n] if r.phase_weight in nb.EQ9_FITS else np.nan for r in results] for n in names}
 
 
-def write_fit_outputs(data: FrequencyResponse, results: Sequence[FitResult], out, *, overwrite: bool = False, note: str | None = None) -> list[Path]:
-    """Write ``fit.json`` (or ``fit_pw<W>.json`` per weight), ``bode_fit.png`` and, for a sweep, ``parameters.png``.
+def write_fit_outputs(
+    data: FrequencyResponse, results: Sequence[FitResult], out, *, overwrite: bool = False, note: str | None = None, figures: bool = True
+) -> list[Path]:
+    """Write ``fit.json`` (or ``fit_pw<W>.json`` per weight), ``bode_fit.png`` and, for a sweep, ``parameters.png``
+    (``figures`` False: the JSON alone; the caller draws :func:`fit_figures`).
 
     ``out`` is a folder path, or a ``samii.outputs.OutputFolder`` already
     entered (``samii fit`` makes it before fitting, so that a bad ``--out``
@@ -144,29 +148,43 @@ def write_fit_outputs(data: FrequencyResponse, results: Sequence[FitResult], out
         ``out`` is not a usable folder, or holds one of the files and ``overwrite`` is False.
     """
 
+    names = fit_output_names([r.phase_weight for r in results])
+    if not figures:
+        names = [n for n in names if not n.endswith(".png")]
     if isinstance(out, OutputFolder):
-        _write(out, data, results, note)
-        return [out.final(n) for n in fit_output_names([r.phase_weight for r in results])]
-    folder = OutputFolder(out, fit_output_names([r.phase_weight for r in results]), overwrite=overwrite)
+        _write(out, data, results, note, figures)
+        return [out.final(n) for n in names]
+    folder = OutputFolder(out, names, overwrite=overwrite)
     with folder:
-        _write(folder, data, results, note)
+        _write(folder, data, results, note, figures)
     return list(folder.written)
 
 
-def _write(folder, data: FrequencyResponse, results: Sequence[FitResult], note: str | None) -> None:
+def _write(folder, data: FrequencyResponse, results: Sequence[FitResult], note: str | None, figures: bool = True) -> None:
     many = len(results) > 1
     for r in results:
         folder.path(fit_filename(r, many)).write_text(json_text(versioned(r.to_dict())) + "\n")
+    if figures:
+        for name, draw in fit_figures(data, results, note):
+            draw(folder.path(name))
+
+
+def fit_figures(data: FrequencyResponse, results: Sequence[FitResult], note: str | None = None) -> list[tuple[str, Callable[[Path], None]]]:
+    """The figures of :func:`write_fit_outputs`, as ``(file name, function that draws it to a path)``: ``bode_fit.png``
+    and, for a sweep of phase weights, ``parameters.png``."""
+
+    many = len(results) > 1
     band = results[0].band_hz
     full = (data.freq_hz[0], data.freq_hz[-1])
-    models = {(f"fit, phase weight {r.phase_weight:g}" if many else "fit"): r for r in results}
     st = results[0].structure
-    title = f"samii fit: {st.describe()}"
-    fig = plot_fit_overlay(
-        data, models, channels=results[0].channels, band_hz=None if band == full else band, title=title, note=note or data.metadata.get("source")
-    )
-    save_figure(fig, folder.path("bode_fit.png"))
-    if many:
+
+    def overlay(path) -> None:
+        models = {(f"fit, phase weight {r.phase_weight:g}" if many else "fit"): r for r in results}
+        fig = plot_fit_overlay(data, models, channels=results[0].channels, band_hz=None if band == full else band,
+                               title=f"samii fit: {st.describe()}", note=note or data.metadata.get("source"))  # fmt: skip
+        save_figure(fig, path)
+
+    def sweep(path) -> None:
         fig = plot_parameter_sweep(
             [r.phase_weight for r in results],
             [r.params for r in results],
@@ -179,7 +197,9 @@ def _write(folder, data: FrequencyResponse, results: Sequence[FitResult], note: 
             title="fitted parameters against phase weight (95 % intervals)",
             note=note,
         )
-        save_figure(fig, folder.path("parameters.png"))
+        save_figure(fig, path)
+
+    return [("bode_fit.png", overlay)] + ([("parameters.png", sweep)] if many else [])
 
 
 def params_markdown(

@@ -22,7 +22,7 @@ import numpy as np
 from samii.errors import InputError, SimulationUnstable
 from samii.frequency_response import SUSTAINED_POINTS, max_deviation
 from samii.json_output import dumps
-from samii.outputs import OutputFolder, check_output_file, create_parent, shown_path, written_beside
+from samii.outputs import LaterOutput, OutputFolder, check_output_file, create_parent, shown_path, written_beside
 from samii.progress import SILENT, Progress, part
 from samii.schema import document, record_of
 from samii.schema.measurement import MeasurementRecord
@@ -98,6 +98,8 @@ class BodeTest:
     supply_pressure_pa: float
     record: MeasurementRecord  #: run.json's content, but timing.total_wall_s: measured once the recording is written too
     warnings: list[MeasureWarning] = field(default_factory=list)  #: what the command prints after "warning:"
+    #: bode.png and the recording, left for the caller to write (``later``); empty: written, in the folder
+    later: tuple[LaterOutput, ...] = ()
 
     @property
     def written(self) -> list[str]:
@@ -280,13 +282,16 @@ def run_bode_test(
     progress: Progress | None = None,
     argv: Sequence[str] = (),
     relative_to=None,
+    later: bool = False,
 ) -> BodeTest:
     """Run the Bode test ``request`` on ``model`` (an MJCF or parameter file; None: the embedded one) with
     ``overrides`` (``--set`` texts or a mapping, read after the request's own checks) and write it into folder ``out`` (all or nothing), with a Rerun recording at ``rerun`` if given.
 
     ``progress`` (samii.progress.Progress) counts physics steps over the whole test; ``argv`` is recorded in run.json as the
     command that ran it; ``relative_to`` names the written files relative to that folder (the main job's) instead
-    of as given."""
+    of as given. ``later``: bode.png and the recording are not written here but left in the result's ``later``
+    (:class:`samii.outputs.LaterOutput`), for the caller to write after the folder is committed (the main job draws
+    them beside the next stages' work); run.json names them all the same."""
     from samii.formats import write_frf_csv, write_text  # (lazy: this module is imported at samii's start-up, that one is not needed there)
     from samii.measure.campaign import linearised_frf, measure  # (lazy: this module is imported at samii's start-up, that one is not needed there)
     from samii.measure.daq import SensorNoise  # (lazy: this module is imported at samii's start-up, that one is not needed there)
@@ -366,21 +371,26 @@ def run_bode_test(
         if request.method == "both":
             write_frf_csv(results["stepped"].frf, folder.path("frf_stepped.csv"))
 
-        from samii.viz.bode_plot import bode_plot  # (lazy: this module is imported at samii's start-up, that one is not needed there)
-
         amp = (sweep if "swept" in results else stepped).amplitude_v
         model_name = str(model) if model else "embedded model"
         if overrides:
             model_name += " with " + ", ".join(f"{k}={v:g}" for k, v in overrides.items())
         title = f"samii measure: {METHOD_LABEL[request.method]}, {amp:g} V, {'with' if noise else 'no'} sensor noise\n{model_name}"
-        bode_plot(
-            results.get("swept").frf if "swept" in results else None,
-            stepped=results["stepped"].frf if "stepped" in results else None,
-            reference=reference,
-            reference_label="linearised simulator",
-            title=title,
-            path=folder.path("bode.png"),
-        )
+
+        def draw(path) -> None:
+            from samii.viz.bode_plot import bode_plot  # (lazy: this module is imported at samii's start-up, that one is not needed there)
+
+            bode_plot(
+                results.get("swept").frf if "swept" in results else None,
+                stepped=results["stepped"].frf if "stepped" in results else None,
+                reference=reference,
+                reference_label="linearised simulator",
+                title=title,
+                path=path,
+            )
+
+        if not later:
+            draw(folder.path("bode.png"))
 
         hp = hydraulic_params(model_obj)
         peaks = {
@@ -430,7 +440,8 @@ def run_bode_test(
             summary["warnings"] = [w.text for w in said]
         record = record_of(MeasurementRecord, summary, "samii.measure.bode_test.run_bode_test")
         write_text(folder.path("run.json"), dumps(document(record), indent=2) + "\n")
-        if rerun_path is not None:
+
+        def write_rrd(tmp) -> None:
             from samii.viz.recording import (  # (lazy: this module is imported at samii's start-up, that one is not needed there)
                 RunRecord,
                 recording_failed,
@@ -441,12 +452,26 @@ def run_bode_test(
                                   sweep_hz=exc.frequency_hz(results[kind].timeseries.t),
                                   label=f"samii measure: {kind} sine, {exc.amplitude_v:g} V on the valve command, joint 2 under its position loop")
                         for kind, exc in plan]  # fmt: skip
-            create_parent(rrd_tmp)
+            create_parent(tmp)
             try:
-                write_recording(rrd_tmp, model_obj, runs, application_id="samii_measure", thin_frames=rerun_fps is None)
+                write_recording(tmp, model_obj, runs, application_id="samii_measure", thin_frames=rerun_fps is None)
             except (RuntimeError, OSError) as exc:  # rerun's writer reports file-system failures as RuntimeError
                 raise recording_failed(exc, rerun_path) from None
+
+        if rerun_path is not None and not later:
+            write_rrd(rrd_tmp)
     record = replace(record, timing=replace(record.timing, total_wall_s=time.perf_counter() - t_start))
+    left: list[LaterOutput] = []
+    if later:
+        bode_png = folder.final("bode.png")
+        left.append(LaterOutput(bode_png, lambda: draw(bode_png), forks=True))
+        if rerun_path is not None:
+
+            def record_in_place() -> None:
+                with written_beside(rerun_path) as tmp:
+                    write_rrd(tmp)
+
+            left.append(LaterOutput(rerun_path, record_in_place, forks=False))
     return BodeTest(
         request=request,
         results=results,
@@ -456,4 +481,5 @@ def run_bode_test(
         supply_pressure_pa=hp.supply_pressure,
         record=record,
         warnings=said,
+        later=tuple(left),
     )
