@@ -726,3 +726,18 @@ def test_closedloop_says_the_sensors_the_controller_reads_through(tmp_path, caps
         assert needle in capsys.readouterr().err
     assert main(["closedloop", "--controller", "unity", *_STEP, "--duration-s", "3", "--antialias"]) == 2
     assert "--antialias: the unity servo loop samples no sensors" in capsys.readouterr().err
+
+
+def test_a_trial_given_its_controller_resolved_runs_that_one_and_the_same(monkeypatch):
+    """The main job designs the notebook's controllers in a worker beside its measurement and hands each trial its
+    own (``run_trial(saved=...)``): the trial runs that controller, without designing it again, and its record is the
+    one of a trial that designed it itself."""
+    import samii.closedloop.trial as tr
+
+    request = tr.TrialRequest("notebook-cancel", "step", duration_s=1.5)
+    itself = tr.run_trial(request)
+    given = tr.resolve_controller("notebook-cancel")
+    monkeypatch.setattr(tr, "resolve_controller", lambda *a, **k: pytest.fail("designed again"))
+    handed = tr.run_trial(request, saved=given)
+    assert handed.record == itself.record
+    assert np.array_equal(handed.result.signals.theta, itself.result.signals.theta)

@@ -21,7 +21,9 @@ The diagnosis (6) needs the measurement and the fit alone: it runs in a worker p
 figures and the recording no later stage reads are drawn beside that chain (measurement -> fit -> diagnosis ->
 report), not in it: the measurement's Bode figure in a worker of its own while the fit runs, its recording and the
 fit's figure here once the diagnosis has started (the stages' ``later``, :class:`samii.outputs.LaterOutput`). The
-folder is the same as with the stages one after the other (``SAMII_WORKERS=1``).
+notebook's controllers, which depend on its numbers alone, are designed in a worker while the measurement runs (the
+pole placement's symbolic canonical form takes seconds). The folder is the same as with the stages one after the
+other (``SAMII_WORKERS=1``).
 
 The stages hand each other the files a user's chain of commands would (the fit reads ``measure/frf.csv``, not the
 estimate in memory), so the numbers are those of the commands run one by one. The folder is written whole or not at
@@ -47,7 +49,7 @@ from pathlib import Path
 from samii import notebook as nb
 from samii.closedloop.controllers import read_controller, write_controller
 from samii.closedloop.damping import damping_from_frf
-from samii.closedloop.trial import TrialRequest, run_trial
+from samii.closedloop.trial import TrialRequest, resolve_controller, run_trial
 from samii.diagnose.files import DiagnoseRequest, diagnose_files
 from samii.errors import InputError, mark_outputs_started, raise_if_signalled, uninterrupted
 from samii.forkmap import fork_later
@@ -336,6 +338,25 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progr
     parsed = parse_overrides(overrides)
     model_file = _model_path(model)
 
+    # the notebook's controllers (chapters 8 and 10, as it built them: its numbers alone, whatever the model) are
+    # designed in a worker while the measurement runs here: the pole placement's symbolic canonical form takes seconds
+    with fork_later(_notebook_controllers) as notebook_controllers:
+        return _stages(d, model, model_file, parsed, overrides, seed, progress, said, argv, notebook_controllers)
+
+
+#: The notebook's controllers the closed-loop trials run, by their ``--controller`` names.
+_NOTEBOOK = tuple(spec for _, spec, _ in CONTROLLERS if spec)
+
+
+def _notebook_controllers() -> dict:
+    """The notebook's controllers the closed-loop trials run, designed as ``--controller NAME`` designs them."""
+    return {spec: resolve_controller(spec) for spec in _NOTEBOOK}
+
+
+def _stages(
+    d: Path, model, model_file, parsed: dict, overrides: list[str], seed: int, progress: Progress, said, argv, notebook_controllers
+) -> RunSummary:
+    """The stages in turn (module docstring); ``notebook_controllers()`` waits for the notebook's controllers."""
     progress.stage("modes")
     modes = _modes(model, parsed)
     progress.advance()
@@ -382,7 +403,7 @@ def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progr
             progress.stage("designing the damping controller")
             damping, design = _design_stage(d, float(rec.model.hydraulic["position_gain"]), _sensor_chain(model_file, parsed))
             progress.advance()
-            closed = _closed_loop_stage(d, damping, model_file, parsed, progress, said)
+            closed = _closed_loop_stage(d, damping, model_file, parsed, progress, said, notebook_controllers)
             progress.stage("diagnosing the fit against the measured record")
             diag = diagnosis_record()
         measure_drawn()
@@ -431,8 +452,11 @@ def _design_stage(d: Path, kp: float, chain=None) -> tuple[Path, dict]:
     return damping, finite_or_none(designed.to_dict())
 
 
-def _closed_loop_stage(d: Path, damping: Path, model_file, parsed, progress: Progress, said) -> dict[str, ClosedLoopSummary]:
-    """The closed-loop trials: the servo loop alone's step, each controller in each scenario."""
+def _closed_loop_stage(
+    d: Path, damping: Path, model_file, parsed, progress: Progress, said, notebook: Callable[[], Mapping]
+) -> dict[str, ClosedLoopSummary]:
+    """The closed-loop trials: the servo loop alone's step, each controller in each scenario (``notebook()``: the
+    notebook's controllers by name, designed beside the measurement)."""
     closed = {}
     trials = [("servo_loop_alone_step", TrialRequest("unity", "step"))] + [
         (f"{name}_{sc}", TrialRequest(spec or str(damping), sc)) for name, spec, _ in CONTROLLERS for sc in SCENARIOS
@@ -442,7 +466,8 @@ def _closed_loop_stage(d: Path, damping: Path, model_file, parsed, progress: Pro
         rerun = d / "closedloop.rrd" if name == "damping_loper" else None
         with _named_stage("closedloop"):
             trial = run_trial(request, out=d / "closedloop" / name, model=model_file, overrides=parsed, rerun=rerun, relative_to=d,
-                              note=lambda text, name=name: said(f"note: closed loop {name}: {text}"))  # fmt: skip
+                              note=lambda text, name=name: said(f"note: closed loop {name}: {text}"),
+                              saved=notebook()[request.controller] if request.controller in _NOTEBOOK else None)  # fmt: skip
         closed[name] = ClosedLoopSummary(**{k: getattr(trial.record, k) for k in CLOSED_LOOP_FIELDS})
         progress.advance()
     return closed

@@ -195,12 +195,15 @@ def run_trial(
     say: Callable[[str], None] | None = None,
     note: Callable[[str], None] | None = None,
     relative_to=None,
+    saved=None,
 ) -> Trial:
     """Run ``request`` on ``model`` (an MJCF or parameter file; None: the embedded one) with ``overrides``; given
     ``out``, write it into that folder (all or nothing, checked before any work), with its figures unless ``plots``
     is false; given ``rerun``, a recording there. ``say`` hears the stages of a "damping" controller's design, ``note``
     what was asked and will not be done (as it is found);
-    ``relative_to`` names the written files relative to that folder (the main job's) instead of as given."""
+    ``relative_to`` names the written files relative to that folder (the main job's) instead of as given; ``saved``:
+    the controller ``request.controller`` names, resolved already (:func:`resolve_controller`'s: the main job resolves
+    the notebook's beside its measurement), None: resolved here."""
     from samii.closedloop.plots import FIGURES  # (lazy: this module is imported at samii's start-up, that one is not needed there)
     from samii.closedloop.scenario import (  # (lazy: this module is imported at samii's start-up, that one is not needed there)
         NoiseSpec,
@@ -222,7 +225,8 @@ def run_trial(
 
     overrides = as_overrides(overrides)  # (read after the request's own checks)
     factory = default_spec_factory(model, overrides or None)
-    saved = resolve_controller(request.controller, factory, say=say)
+    if saved is None:
+        saved = resolve_controller(request.controller, factory, say=say)
     antialias = None
     if saved is not None:
         spec, _, _ = factory()
