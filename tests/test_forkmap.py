@@ -308,6 +308,35 @@ def test_a_worker_forked_later_holds_no_end_of_an_earlier_workers_pipes(two_work
     assert not forkmap._LATER
 
 
+def test_a_stop_signal_as_fork_later_forks_stops_the_block_and_leaves_no_worker(two_workers, monkeypatch):
+    """A stop signal that comes while the worker is forked (blocked then, raised as the mask is restored) stops the
+    block as the command's handler says, and the worker is stopped too: it was taken out of the open blocks' list
+    before it was ever put in (a ValueError, the signal only its context, and the worker left running)."""
+    import signal
+
+    class Stopped(Exception):
+        pass
+
+    def stop(signum, frame):
+        raise Stopped
+
+    real = forkmap._fork_worker
+
+    def fork_then_signalled(*args):
+        worker = real(*args)
+        os.kill(os.getpid(), signal.SIGHUP)  # (blocked here: raised when fork_later restores the mask)
+        return worker
+
+    monkeypatch.setattr(forkmap, "_fork_worker", fork_then_signalled)
+    before = signal.signal(signal.SIGHUP, stop)
+    try:
+        with pytest.raises(Stopped), forkmap.fork_later(lambda: __import__("time").sleep(60)):
+            pytest.fail("the block ran")
+    finally:
+        signal.signal(signal.SIGHUP, before)
+    assert not forkmap._LATER and not _children()
+
+
 def test_fork_later_raises_the_jobs_error_and_leaves_no_worker(two_workers):
     def bad():
         raise InputError("stage `samii diagnose`: bad file")

@@ -22,9 +22,12 @@ _REQUEST = BodeTestRequest(band_hz=(2.0, 20.0), averages=1, noise=True, seed=1)
 @pytest.mark.slow
 def test_the_figures_and_recording_left_for_later_are_the_ones_the_stages_write(tmp_path):
     now = run_bode_test(tmp_path / "now", _REQUEST, rerun=tmp_path / "now.rrd")
-    later = run_bode_test(tmp_path / "later", _REQUEST, rerun=tmp_path / "later.rrd", later=True)
+    (tmp_path / "later").mkdir()
+    (tmp_path / "later" / "bode.png").write_text("an earlier run's")
+    later = run_bode_test(tmp_path / "later", _REQUEST, rerun=tmp_path / "later.rrd", later=True, overwrite=True)
     assert now.later == ()
-    # the folder is committed without them, and run.json names them all the same
+    # the folder is committed without them (an earlier run's figure removed: never two runs mixed), and run.json
+    # names them all the same
     assert sorted(p.name for p in (tmp_path / "later").iterdir()) == ["frf.csv", "run.json", "timeseries.csv"]
     assert not (tmp_path / "later.rrd").exists()
     named = [tmp_path / "later" / n for n in ("timeseries.csv", "frf.csv", "bode.png", "run.json")] + [tmp_path / "later.rrd"]
@@ -34,7 +37,7 @@ def test_the_figures_and_recording_left_for_later_are_the_ones_the_stages_write(
     for o in later.later:
         o.write()
     assert (tmp_path / "later" / "bode.png").read_bytes() == (tmp_path / "now" / "bode.png").read_bytes()
-    assert not list(tmp_path.glob(".*.tmp"))  # (the recording written under a temporary name, then moved)
+    assert not list(tmp_path.rglob(".*tmp*"))  # (each written under a temporary name, then moved)
     entities = ["/swept/accel_m_s2/accel", "/swept/angle_deg/theta"]
     a, b = read_scalars(tmp_path / "now.rrd", entities), read_scalars(tmp_path / "later.rrd", entities)
     assert set(a) == set(b) == set(entities)
@@ -42,7 +45,9 @@ def test_the_figures_and_recording_left_for_later_are_the_ones_the_stages_write(
 
     frf = tmp_path / "now" / "frf.csv"
     request = FitRequest(phase_weights=(0.1, 0.5), profiles="off")  # (a sweep of weights: two figures)
-    fit_later = fit_frf_file(frf, request, out=tmp_path / "fit_later", later=True)
+    (tmp_path / "fit_later").mkdir()
+    (tmp_path / "fit_later" / "parameters.png").write_text("an earlier run's")
+    fit_later = fit_frf_file(frf, request, out=tmp_path / "fit_later", later=True, overwrite=True)
     assert sorted(p.name for p in (tmp_path / "fit_later").iterdir()) == ["fit_pw0.1.json", "fit_pw0.5.json"]
     assert [(o.path.name, o.forks) for o in fit_later.later] == [("bode_fit.png", True), ("parameters.png", True)]
     assert [Path(p).name for p in fit_later.written] == ["fit_pw0.1.json", "fit_pw0.5.json", "bode_fit.png", "parameters.png"]
@@ -52,3 +57,4 @@ def test_the_figures_and_recording_left_for_later_are_the_ones_the_stages_write(
     write_fit_outputs(fit_later.data, fit_later.results, tmp_path / "fit_now", note=f"data: {frf}")
     for name in ("fit_pw0.1.json", "fit_pw0.5.json", "bode_fit.png", "parameters.png"):
         assert (tmp_path / "fit_later" / name).read_bytes() == (tmp_path / "fit_now" / name).read_bytes(), name
+    assert not list(tmp_path.rglob(".*tmp*"))

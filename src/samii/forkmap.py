@@ -414,9 +414,9 @@ def fork_later(job: Callable[[], R]) -> Iterator[Callable[[], R]]:
             before = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
             try:
                 worker = _fork_worker(os.getpid(), list(_LATER))
+                _LATER.append(worker)  # (before a stop signal can be raised: the finally takes it out)
             finally:
                 signal.pthread_sigmask(signal.SIG_SETMASK, before)  # (a signal meanwhile is raised here: the finally ends it)
-        _LATER.append(worker)
         _TASK = None
         worker.tasks.send(0)
 
@@ -442,5 +442,6 @@ def fork_later(job: Callable[[], R]) -> Iterator[Callable[[], R]]:
     finally:
         _TASK = None
         if worker is not None:
-            _LATER.remove(worker)
+            if worker in _LATER:
+                _LATER.remove(worker)
             _stop([worker], kill=not finished)

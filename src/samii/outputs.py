@@ -51,6 +51,7 @@ __all__ = [
     "with_size",
     "shown_path",
     "written_beside",
+    "write_whole",
 ]
 
 _STAGE_PREFIX = ".samii-stage-"
@@ -187,6 +188,19 @@ def written_beside(path):
             tmp.unlink()
 
 
+def write_whole(path, write: Callable[[Path], None]) -> None:
+    """``write(tmp)`` to a temporary name beside ``path`` (its suffix kept: a figure's format), then moved onto
+    ``path``: ``path`` is the whole file or untouched, whatever stops the writing."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
 def with_size(path) -> str:
     """``path`` as printed after ``wrote``: a recording (``.rrd``) with its size, which a user keeps or not by it."""
     p = Path(path)
@@ -259,8 +273,9 @@ def remove_stale_stages(folder: Path) -> list[Path]:
 class LaterOutput:
     """An output a stage left for its caller to write (``later=True``): a figure or a recording that no later stage
     reads, which the main job writes beside the next stages' work instead of before it. The stage's folder names it
-    as written (its run.json's outputs); the caller calls :attr:`write` before the folder is used (it writes
-    :attr:`path`, replacing what is there)."""
+    as written (its run.json's outputs) and has no file of that name until the caller calls :attr:`write` (an earlier
+    run's is removed when the folder is committed); :attr:`write` writes :attr:`path` whole (a temporary name, then a
+    rename)."""
 
     path: Path
     write: Callable[[], None]

@@ -398,15 +398,18 @@ def _stages(
         # design and the closed-loop trials run here (each on a core; their folders are apart)
         with fork_later(diagnosed) as diagnosis_record:
             progress.stage("writing measure.rrd and the fit's figure")
-            _write_later(test.later, forks=False)
-            _write_later(fitted.later)
+            with _named_stage("measure"):
+                _write_later(test.later, forks=False)
+            with _named_stage("fit"):
+                _write_later(fitted.later)
             progress.stage("designing the damping controller")
             damping, design = _design_stage(d, float(rec.model.hydraulic["position_gain"]), _sensor_chain(model_file, parsed))
             progress.advance()
             closed = _closed_loop_stage(d, damping, model_file, parsed, progress, said, notebook_controllers)
             progress.stage("diagnosing the fit against the measured record")
             diag = diagnosis_record()
-        measure_drawn()
+        with _named_stage("measure"):
+            measure_drawn()
     diagnosis = DiagnosisSummary(verdict=diag.verdict, effects=diag.found, error_before=diag.error_before, error_after=diag.error_after)
     progress.advance()
     return RunSummary(

@@ -22,7 +22,7 @@ from samii.identify.cost import frequency_out_of_range
 from samii.identify.fit import check_not_noise, fit
 from samii.identify.report import fit_figures, fit_output_names, write_fit_outputs
 from samii.identify.structures import ModelStructure
-from samii.outputs import LaterOutput, OutputFolder, shown_path
+from samii.outputs import LaterOutput, OutputFolder, shown_path, write_whole
 from samii.progress import SILENT, Progress, part
 
 __all__ = ["FitRequest", "FitFile", "read_frf_file", "fit_frf_file"]
@@ -179,11 +179,13 @@ def fit_frf_file(
     left: list[LaterOutput] = []
     if folder is not None:
         progress.stage("writing plots")
+        figures = fit_figures(data, results, note=f"data: {name}") if later else []
         with folder:
             write_fit_outputs(data, results, folder, note=f"data: {name}", figures=not later)
+            for figure, _ in figures:
+                folder.omit(figure)  # (an earlier run's is removed at the commit: the caller writes this run's)
         written = [shown_path(p, relative_to) for p in folder.written]
-        if later:
-            for figure, draw in fit_figures(data, results, note=f"data: {name}"):
-                left.append(LaterOutput(folder.final(figure), partial(draw, folder.final(figure)), forks=True))
-                written.append(shown_path(folder.final(figure), relative_to))
+        for figure, draw in figures:
+            left.append(LaterOutput(folder.final(figure), partial(write_whole, folder.final(figure), draw), forks=True))
+            written.append(shown_path(folder.final(figure), relative_to))
     return FitFile(data=data, structure=structure, results=results, written=written, later=tuple(left))

@@ -15,6 +15,7 @@ import time
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
+from functools import partial
 from importlib import metadata
 
 import numpy as np
@@ -22,7 +23,7 @@ import numpy as np
 from samii.errors import InputError, SimulationUnstable
 from samii.frequency_response import SUSTAINED_POINTS, max_deviation
 from samii.json_output import dumps
-from samii.outputs import LaterOutput, OutputFolder, check_output_file, create_parent, shown_path, written_beside
+from samii.outputs import LaterOutput, OutputFolder, check_output_file, create_parent, shown_path, write_whole, written_beside
 from samii.progress import SILENT, Progress, part
 from samii.schema import document, record_of
 from samii.schema.measurement import MeasurementRecord
@@ -96,7 +97,9 @@ class BodeTest:
     peaks: dict  #: kind -> peak load pressure [Pa], valve command [V], joint angle [rad]
     coherence_ok: bool  #: whether the main record has coherence (false for one swept-sine record)
     supply_pressure_pa: float
-    record: MeasurementRecord  #: run.json's content, but timing.total_wall_s: measured once the recording is written too
+    #: run.json's content, but timing.total_wall_s: measured once the recording is written too (``later``: once the
+    #: folder is committed, without the figure and the recording)
+    record: MeasurementRecord
     warnings: list[MeasureWarning] = field(default_factory=list)  #: what the command prints after "warning:"
     #: bode.png and the recording, left for the caller to write (``later``); empty: written, in the folder
     later: tuple[LaterOutput, ...] = ()
@@ -389,7 +392,9 @@ def run_bode_test(
                 path=path,
             )
 
-        if not later:
+        if later:
+            folder.omit("bode.png")  # (an earlier run's is removed at the commit: the caller writes this run's)
+        else:
             draw(folder.path("bode.png"))
 
         hp = hydraulic_params(model_obj)
@@ -464,7 +469,7 @@ def run_bode_test(
     left: list[LaterOutput] = []
     if later:
         bode_png = folder.final("bode.png")
-        left.append(LaterOutput(bode_png, lambda: draw(bode_png), forks=True))
+        left.append(LaterOutput(bode_png, partial(write_whole, bode_png, draw), forks=True))
         if rerun_path is not None:
 
             def record_in_place() -> None:
