@@ -313,6 +313,7 @@ def test_a_stop_signal_as_fork_later_forks_stops_the_block_and_leaves_no_worker(
     block as the command's handler says, and the worker is stopped too: it was taken out of the open blocks' list
     before it was ever put in (a ValueError, the signal only its context, and the worker left running)."""
     import signal
+    import threading
 
     class Stopped(Exception):
         pass
@@ -324,7 +325,9 @@ def test_a_stop_signal_as_fork_later_forks_stops_the_block_and_leaves_no_worker(
 
     def fork_then_signalled(*args):
         worker = real(*args)
-        os.kill(os.getpid(), signal.SIGHUP)  # (blocked here: raised when fork_later restores the mask)
+        # to this thread, which blocks it: pending until fork_later restores the mask. (Sent to the process, pytest-
+        # xdist's I/O thread took it at once, and it was raised here, before the worker was known: not this case.)
+        signal.pthread_kill(threading.main_thread().ident, signal.SIGHUP)
         return worker
 
     monkeypatch.setattr(forkmap, "_fork_worker", fork_then_signalled)
@@ -334,7 +337,11 @@ def test_a_stop_signal_as_fork_later_forks_stops_the_block_and_leaves_no_worker(
             pytest.fail("the block ran")
     finally:
         signal.signal(signal.SIGHUP, before)
-    assert not forkmap._LATER and not _children()
+        left = _children()
+        for pid in left:  # (so that a failure here is this test's alone)
+            os.kill(int(pid), signal.SIGKILL)
+            os.waitpid(int(pid), 0)
+    assert not forkmap._LATER and not left
 
 
 def test_fork_later_raises_the_jobs_error_and_leaves_no_worker(two_workers):
