@@ -586,3 +586,4 @@ def test_ctrl_c_swallowed_by_a_library_still_stops_the_run(tmp_path, capsys, mon
     assert rc == 130, err
     assert "interrupted" in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
+    assert not SIGNALS_RECEIVED  # (the command's own: the caller's next library call is not stopped by it)

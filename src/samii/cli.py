@@ -232,6 +232,9 @@ def main(argv: list[str] | None = None, *, program: bool = False) -> int:
         _FINISHED[0] = program  # (in a program, its handlers stay for the exit; a caller's are restored)
         if not program:
             _restore_signal_handlers(previous)
+            # and the signals this command received and reported are its own: a caller's later work (a library call
+            # committing a folder) was stopped by them as if it had been signalled
+            _SIGNALLED.clear()
 
 
 def program() -> None:

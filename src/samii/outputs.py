@@ -170,15 +170,16 @@ def shown_path(path, relative_to=None) -> str:
 
 
 @contextlib.contextmanager
-def written_beside(path):
+def written_beside(path, *, keep_suffix: bool = False):
     """A temporary name beside output file ``path`` (a recording: ``--rerun FILE.rrd``) for the block to write it under:
     moved onto ``path`` when the block ends without an error (after the run's folder, which the block commits), removed
-    when it fails, so that ``path`` is the whole file or untouched. ``None`` in, ``None`` out (no such output)."""
+    when it fails, so that ``path`` is the whole file or untouched. ``None`` in, ``None`` out (no such output).
+    ``keep_suffix``: the temporary name ends as ``path`` does (a figure, whose format matplotlib reads from it)."""
     if path is None:
         yield None
         return
     path = Path(path)
-    tmp = path.parent / f".{path.name}.{os.getpid()}.tmp"
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}" if keep_suffix else f".{path.name}.{os.getpid()}.tmp")
     try:
         yield tmp
         if tmp.exists():
@@ -189,16 +190,10 @@ def written_beside(path):
 
 
 def write_whole(path, write: Callable[[Path], None]) -> None:
-    """``write(tmp)`` to a temporary name beside ``path`` (its suffix kept: a figure's format), then moved onto
-    ``path``: ``path`` is the whole file or untouched, whatever stops the writing."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
-    try:
+    """``write(tmp)`` under a temporary name beside ``path`` that ends as it does, then moved onto it
+    (:func:`written_beside`): ``path`` is the whole file or untouched, whatever stops the writing."""
+    with written_beside(path, keep_suffix=True) as tmp:
         write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 def with_size(path) -> str:

@@ -335,13 +335,11 @@ def _write_summary(d: Path, summary: RunSummary) -> None:
 
 
 def _run_stages(d: Path, model, overrides: list[str], seed: int, progress: Progress, said, argv: Sequence[str]) -> RunSummary:
-    parsed = parse_overrides(overrides)
-    model_file = _model_path(model)
-
+    parsed = parse_overrides(overrides)  # (a bad --set refused before any worker is forked)
     # the notebook's controllers (chapters 8 and 10, as it built them: its numbers alone, whatever the model) are
     # designed in a worker while the measurement runs here: the pole placement's symbolic canonical form takes seconds
     with fork_later(_notebook_controllers) as notebook_controllers:
-        return _stages(d, model, model_file, parsed, overrides, seed, progress, said, argv, notebook_controllers)
+        return _stages(d, model, parsed, overrides, seed, progress, said, argv, notebook_controllers)
 
 
 #: The notebook's controllers the closed-loop trials run, by their ``--controller`` names.
@@ -353,10 +351,9 @@ def _notebook_controllers() -> dict:
     return {spec: resolve_controller(spec) for spec in _NOTEBOOK}
 
 
-def _stages(
-    d: Path, model, model_file, parsed: dict, overrides: list[str], seed: int, progress: Progress, said, argv, notebook_controllers
-) -> RunSummary:
+def _stages(d: Path, model, parsed: dict, overrides: list[str], seed: int, progress: Progress, said, argv, notebook_controllers) -> RunSummary:
     """The stages in turn (module docstring); ``notebook_controllers()`` waits for the notebook's controllers."""
+    model_file = _model_path(model)
     progress.stage("modes")
     modes = _modes(model, parsed)
     progress.advance()

@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -24,6 +25,9 @@ from samii.progress import said
 from samii.schema import document, record_of
 from samii.schema.closed_loop import ClosedLoopRecord
 from samii.sim.overrides import as_overrides
+
+if TYPE_CHECKING:  # (the type only: this module is imported at samii's start-up, that one is not needed there)
+    from samii.closedloop.controllers import SavedController
 
 __all__ = ["TrialRequest", "Trial", "run_trial", "resolve_controller", "check_fits", "model_at_rest", "write_rerun", "BUILTIN_CONTROLLERS", "FILES"]
 
@@ -195,7 +199,7 @@ def run_trial(
     say: Callable[[str], None] | None = None,
     note: Callable[[str], None] | None = None,
     relative_to=None,
-    saved=None,
+    saved: SavedController | None = None,
 ) -> Trial:
     """Run ``request`` on ``model`` (an MJCF or parameter file; None: the embedded one) with ``overrides``; given
     ``out``, write it into that folder (all or nothing, checked before any work), with its figures unless ``plots``

@@ -471,12 +471,7 @@ def run_bode_test(
         bode_png = folder.final("bode.png")
         left.append(LaterOutput(bode_png, partial(write_whole, bode_png, draw), forks=True))
         if rerun_path is not None:
-
-            def record_in_place() -> None:
-                with written_beside(rerun_path) as tmp:
-                    write_rrd(tmp)
-
-            left.append(LaterOutput(rerun_path, record_in_place, forks=False))
+            left.append(LaterOutput(rerun_path, partial(write_whole, rerun_path, write_rrd), forks=False))
     return BodeTest(
         request=request,
         results=results,
