@@ -174,8 +174,8 @@ def main() -> int:
         print(f"  {k:<11} {by_kind[k]:7.0f} s  {by_kind[k] / max(cpu, 1e-9):5.0%}")
     rest = cpu - sum(by_kind.values())
     print(f"  {'the rest':<11} {rest:7.0f} s  {rest / max(cpu, 1e-9):5.0%}")
-    # by module: a pytest worker's own process counts from its start, before any test, so its CPU is not the
-    # module's; the modules' CPU is that of the processes their tests started (forks, commands) and the kinds' times
+    # by module: a pytest worker's own process is counted from its start, before any test, so its CPU is no module's;
+    # a module's is that of the processes its tests started (forks, commands), and the kinds' times wherever they ran
     mods: dict[str, dict[str, float]] = collections.defaultdict(lambda: collections.defaultdict(float))
     for r in rows:
         if r["test"]:
@@ -183,10 +183,12 @@ def main() -> int:
     wall_mod: dict[str, float] = collections.defaultdict(float)
     for s, _, test in durations:
         wall_mod[test.split("::")[0]] += s
-    print(f"\nby module (durations: the tests' wall time; the kinds: CPU, forked workers and commands included), top {args.top}")
-    print(f"{'module':<44} {'durations':>9} " + " ".join(f"{k:>10}" for k in KINDS))
+    print(
+        f"\nby module (durations: the tests' wall time; started: the CPU of the processes they forked or ran; the kinds: CPU, those included), top {args.top}"
+    )
+    print(f"{'module':<44} {'durations':>9} {'started':>9} " + " ".join(f"{k:>10}" for k in KINDS))
     for m, s in sorted(wall_mod.items(), key=lambda x: -x[1])[: args.top]:
-        print(f"{m:<44} {s:9.0f} " + " ".join(f"{mods[m].get(k, 0.0):10.0f}" for k in KINDS))
+        print(f"{m:<44} {s:9.0f} {mods[m].get('process', 0.0):9.0f} " + " ".join(f"{mods[m].get(k, 0.0):10.0f}" for k in KINDS))
     print(f"\nslowest {args.top}")
     for s, phase, test in sorted(durations, reverse=True)[: args.top]:
         print(f"{s:7.1f} s {phase:<8} {test}")
