@@ -531,6 +531,8 @@ class _Block:
     ch: str
     w: np.ndarray  # angular frequencies of the usable points [rad/s]
     at: np.ndarray  # their indices on the dataset's grid
+    #: their positions among the points any block of the dataset uses (_Problem.points), None where they are all of them
+    pos: np.ndarray | None
     data: np.ndarray
     inv_sigma: np.ndarray
     fixed: Mapping[str, np.ndarray] | None  # a fixed baseline's responses
@@ -567,14 +569,20 @@ class _Problem:
         #: per dataset, the command's hold [s] where the baseline models it (Baseline.hold_s; a structure refitted):
         #: its blocks are the sampled response (hold_factor, sampled_images, the feedthrough with its lag or none)
         self.hold = [baseline.hold(i) if baseline.structure is not None and not baseline.fixed else 0.0 for i in range(len(datasets))]
+        #: per dataset: the points (s = jw) any of its blocks uses, where the effects are evaluated once for all of them
+        self.points: list[np.ndarray] = []
         for i, ds in enumerate(datasets):
+            used = np.flatnonzero(np.any([ds.keep[ch] for ch in ds.data], axis=0)) if ds.data else np.zeros(0, int)
+            self.points.append(1j * (2.0 * np.pi * ds.freq_hz[used]))
             for ch in ds.data:
                 k = ds.keep[ch]
+                at = np.flatnonzero(k)
                 factor = {}
                 if baseline.correction:
                     factor = {c: np.broadcast_to(baseline.factor(i, ds.freq_hz, c), ds.freq_hz.shape)[k] for c in _NEED[ch]}
                 fixed = {c: baseline.fixed[i][ch][c] for c in _NEED[ch]} if baseline.fixed else None
-                self.blocks.append(_Block(i, ch, 2.0 * np.pi * ds.freq_hz[k], np.flatnonzero(k), ds.data[ch], ds.inv_sigma[ch], fixed, factor))
+                pos = None if at.size == used.size else np.searchsorted(used, at)
+                self.blocks.append(_Block(i, ch, 2.0 * np.pi * ds.freq_hz[k], at, pos, ds.data[ch], ds.inv_sigma[ch], fixed, factor))
             need = tuple(c for c in ("act", "base") if any(c in self._need(i, ch) for ch in ds.data))
             self.grids.append((2.0 * np.pi * np.asarray(ds.freq_hz, float), need))
         #: the held baseline's responses per dataset (a fit with the baseline held evaluates them once)
@@ -617,20 +625,28 @@ class _Problem:
         with np.errstate(divide="ignore", invalid="ignore"):  # a point no block uses may sit on a pole
             return self.baseline.structure.log_responses(xb, w, need, derivatives=derivatives)
 
-    def _model(self, blk: _Block, resp: dict | None, eff, derivatives: bool, ft=None, xb=None):
+    def _effects_at(self, i: int, eff, derivatives: bool) -> tuple:
+        """The effects at dataset ``i``'s points (:attr:`points`), once for all its blocks: (M_act, M_base, A_base) as
+        :func:`_effect_factors`, and with ``derivatives`` each effect's (d ln M_act/dp, d ln M_base/dp, dA/dp)."""
+        s = self.points[i]
+        return _effect_factors(eff, s), [kind.derivatives(p, s) for kind, p in eff] if derivatives else None
+
+    def _model(self, blk: _Block, resp: dict | None, eff, derivatives: bool, at_points: tuple, ft=None, xb=None):
         """(model, d ln model / d(baseline x) or None, [d ln model / d(effect p)] or None, d ln model / d(lag) or None)
         of one block; ``resp``: its dataset's baseline responses (:meth:`_responses`; None for a fixed baseline);
         ``ft``: its feedthrough (:meth:`_feedthrough`), the term xdd/v and xdd/theta carry; ``xb``: its dataset's
-        baseline vector (the sampled images need it)."""
+        baseline vector (the sampled images need it); ``at_points``: the effects at its dataset's points
+        (:meth:`_effects_at`), which the block picks its own from."""
         need = _NEED[blk.ch] if ft is None else ("act", "base")
         s = 1j * blk.w
+        pick = (lambda a: a) if blk.pos is None else (lambda a: None if a is None else a[blk.pos])
         if blk.fixed is not None:
             h = dict(blk.fixed)
             dh = dict.fromkeys(need)
         else:
             h = {c: resp[c][0][blk.at] * blk.factor[c] if blk.factor else resp[c][0][blk.at] for c in need}
             dh = {c: None if resp[c][1] is None else resp[c][1][blk.at] for c in need}
-        m_act, m_base, add = _effect_factors(eff, s)
+        m_act, m_base, add = (pick(a) for a in at_points[0])
         act = base = base_sum = None
         hold = self.hold[blk.i]
         if "act" in h:
@@ -683,8 +699,8 @@ class _Problem:
                 if blk.ch == "base":
                     d_b = d_b - (w_a[:, None] * d_act + d_images["act"][0] / act_s[:, None] if hold else d_act)
         d_e = []
-        for j, (kind, p) in enumerate(eff):
-            da, db, dA = kind.derivatives(p, s)
+        for j, (kind, _) in enumerate(eff):
+            da, db, dA = (pick(a) for a in at_points[1][j])
             col = np.zeros((s.size, len(kind.params)), complex)
             if da is not None and "act" in h:
                 col += da
@@ -727,10 +743,12 @@ class _Problem:
         eff = list(zip(self.layout.effects, xs_e))
         res: list[dict] = [{} for _ in range(max((b.i for b in self.blocks), default=-1) + 1)]
         resp = self._all_responses(xs_b, derivatives)
+        at_points = [self._effects_at(i, eff, derivatives) for i in range(len(self.points))]
         dxdz = self._dxdz(xs_b, xs_e) if derivatives else None
         rows = []
         for blk in self.blocks:
-            model, d_b, d_e, d_lag = self._model(blk, resp[blk.i], eff, derivatives, self._feedthrough(blk, xs_b, z), xs_b[blk.i] if xs_b else None)
+            ft, xb = self._feedthrough(blk, xs_b, z), xs_b[blk.i] if xs_b else None
+            model, d_b, d_e, d_lag = self._model(blk, resp[blk.i], eff, derivatives, at_points[blk.i], ft, xb)
             e = np.log(blk.data / model)  # one log of the ratio: its phase wrapped to (-pi, pi]
             res[blk.i][blk.ch] = e
             if derivatives:
@@ -739,7 +757,7 @@ class _Problem:
         if not derivatives:
             return res, xs_b, xs_e, None
         jac = np.concatenate(rows, axis=0) if rows else np.zeros((0, z.size))
-        return res, xs_b, xs_e, np.where(np.isfinite(jac), jac, 0.0)
+        return res, xs_b, xs_e, jac if np.isfinite(jac).all() else np.where(np.isfinite(jac), jac, 0.0)
 
     def _dxdz(self, xs_b, xs_e) -> tuple[list[np.ndarray], list[np.ndarray]]:
         """dx/dz of every variable, (baseline's per dataset, effects' per effect): x for a log-transformed one, the
