@@ -69,7 +69,8 @@ class Param:
 class EffectKind:
     """One hypothesis of the library.
 
-    ``response(p, s) -> (M_act, M_base, A_base)`` with None for "no change".
+    ``response(p, s) -> (M_act, M_base, A_base)`` with None for "no change", each an array of the points' shape
+    (the fit evaluates them once on a dataset's points and picks each channel's).
     ``derivatives(p, s) -> (d ln M_act/dp, d ln M_base/dp, d A_base/dp)``, each (points, parameters) or None
     where the response has none: analytic, derived from the same laws (the fit's Jacobian is built from them).
     ``needs_fixed_baseline``: only identifiable when the baseline's parameters are not refitted.
@@ -170,8 +171,8 @@ def _valve(p, s):
 
 
 def _col(*cols):
-    """The columns side by side, (points, parameters), complex: as ``np.stack(cols, axis=1)``, in a third of its time
-    (the fit's Jacobian calls this for every effect at every step)."""
+    """The 1-d columns (points,) side by side, (points, parameters), always complex: the values of
+    ``np.stack(cols, axis=1)`` in a third of its time (the fit's Jacobian calls this for every effect at every step)."""
     out = np.empty((cols[0].shape[0], len(cols)), complex)
     for i, c in enumerate(cols):
         out[:, i] = c
