@@ -199,7 +199,7 @@ def matrix_pencil(y: np.ndarray, dt: float, *, max_order: int = 16, rel_sv: floa
     Computed with BLAS on one thread (samii.threads). With two, the SVD's sums split over them: the modes differed in
     their last digits from those of a machine with one core (5 of the main job's 7 closed-loop runs), and in the main
     job, beside the diagnosis's worker process on the other core, the two threads spun against each other (a call
-    took 0.37 s there, 0.1 s on one thread)."""
+    took 0.3-0.4 s there, 0.1 s on one thread; with nothing beside them two threads took 0.07-0.10 s)."""
     with one_blas_thread():
         return _pencil(np.asarray(y, float), dt, max_order, rel_sv)
 
