@@ -46,7 +46,7 @@ def test_the_modes_of_a_known_decay():
 def test_the_modes_are_the_same_bits_on_one_blas_thread_or_two():
     """The pencil's SVD (800 x 401 here, as in a closed-loop run) split over two BLAS threads summed in another
     order: the modes differed in their last digits between machines with one core and two (the 9.3 Hz mode's
-    amplitude 0.40103530375368046 against 0.4010353037536336 m/s^2 here), and the main job's closed-loop figures
+    amplitude 0.40103530375368046 against 0.4010353037536336 m/s^2 here), and the main job's closed-loop numbers
     with them. It runs on one thread wherever it is called."""
     t, y = _decay()
     blas = ThreadpoolController()
