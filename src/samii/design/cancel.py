@@ -137,6 +137,29 @@ def closed_loop_poles(L: control.TransferFunction, K: float) -> np.ndarray:
     return feedback_poles(ss.A, ss.B, ss.C, ss.D, -K)  # 1 + K L = 0 is positive feedback with gain -K
 
 
+@dataclass(frozen=True)
+class _Locus:
+    """``L``'s realisation and open-loop poles, which do not depend on K: computed once for the many gains a scan
+    evaluates (:func:`gain_at_zeta`: about 400), not again at each (python-control's ``tf2ss`` and ``poles`` took 90 %
+    of each evaluation). The same calls on the same ``L``, so the same numbers as computing them at every K."""
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+    open_loop_poles: np.ndarray
+
+    @classmethod
+    def of(cls, L: control.TransferFunction | _Locus) -> _Locus:
+        if isinstance(L, _Locus):
+            return L
+        ss = control.tf2ss(L)
+        return cls(ss.A, ss.B, ss.C, ss.D, L.poles())
+
+    def closed_loop_poles(self, K: float) -> np.ndarray:
+        return feedback_poles(self.A, self.B, self.C, self.D, -K)  # as closed_loop_poles
+
+
 def moving_pairs(L: control.TransferFunction, K: float, *, cancel_tol: float = 1e-6) -> np.ndarray:
     """Upper-half-plane closed-loop poles of ``1 + K L = 0`` that are not open-loop poles, slowest first.
 
@@ -148,8 +171,9 @@ def moving_pairs(L: control.TransferFunction, K: float, *, cancel_tol: float = 1
     (near 11, 36, 77 and 141 rad/s at K = 0.0666); their magnitudes stay
     apart, so the rank by magnitude names a pair.
     """
-    ol = L.poles()
-    cl = closed_loop_poles(L, K)
+    locus = _Locus.of(L)
+    ol = locus.open_loop_poles
+    cl = locus.closed_loop_poles(K)
     cl = cl[cl.imag > 1e-9 * np.abs(cl)]
     moving = np.array([x for x in cl if np.min(np.abs(ol - x)) > cancel_tol * abs(x)], complex)
     return moving[np.argsort(np.abs(moving))]
@@ -188,9 +212,10 @@ def gain_at_zeta(
         If the damping does not cross ``zeta`` in the bracket.
     """
     ranks = (pair,) if isinstance(pair, (int, np.integer)) else tuple(pair)
+    locus = _Locus.of(L)
 
     def f(K: float) -> float:
-        z = pair_zetas(L, K, cancel_tol=cancel_tol)
+        z = pair_zetas(locus, K, cancel_tol=cancel_tol)
         if z.size <= max(ranks):  # the pair has not split off the real axis yet: critically damped
             return 1.0 - zeta
         return float(np.mean(z[list(ranks)])) - zeta
