@@ -47,6 +47,7 @@ cannot damp them, only avoid exciting them.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal
@@ -130,37 +131,36 @@ def cancel_open_loop(p: Mapping[str, float], Gc: control.TransferFunction, *, lo
     raise ValueError(f"loop must be 'theta' or 'accel', got {loop!r}")
 
 
-def closed_loop_poles(L: control.TransferFunction, K: float) -> np.ndarray:
+def closed_loop_poles(L: control.TransferFunction | _Locus, K: float) -> np.ndarray:
     """Roots of ``1 + K L = 0``, all of them including the cancelled ones (eigenvalues of a realisation of L)."""
 
-    ss = control.tf2ss(L)
-    return feedback_poles(ss.A, ss.B, ss.C, ss.D, -K)  # 1 + K L = 0 is positive feedback with gain -K
+    return _Locus.of(L).closed_loop_poles(K)
 
 
-@dataclass(frozen=True)
 class _Locus:
-    """``L``'s realisation and open-loop poles, which do not depend on K: computed once for the many gains a scan
-    evaluates (:func:`gain_at_zeta`: about 400), not again at each (python-control's ``tf2ss`` and ``poles`` took 90 %
-    of each evaluation). The same calls on the same ``L``, so the same numbers as computing them at every K."""
+    """``L``'s realisation and (when asked) its open-loop poles, which do not depend on K: computed once for the many
+    gains a scan evaluates (:func:`gain_at_zeta`: about 400), not again at each (python-control's ``tf2ss`` and
+    ``poles`` took 90 % of each evaluation). The same calls on the same ``L``, so the same numbers as computing them at
+    every K."""
 
-    A: np.ndarray
-    B: np.ndarray
-    C: np.ndarray
-    D: np.ndarray
-    open_loop_poles: np.ndarray
+    def __init__(self, L: control.TransferFunction):
+        self.L = L
+        self.ss = control.tf2ss(L)
 
     @classmethod
     def of(cls, L: control.TransferFunction | _Locus) -> _Locus:
-        if isinstance(L, _Locus):
-            return L
-        ss = control.tf2ss(L)
-        return cls(ss.A, ss.B, ss.C, ss.D, L.poles())
+        return L if isinstance(L, _Locus) else cls(L)
+
+    @functools.cached_property
+    def open_loop_poles(self) -> np.ndarray:
+        return self.L.poles()
 
     def closed_loop_poles(self, K: float) -> np.ndarray:
-        return feedback_poles(self.A, self.B, self.C, self.D, -K)  # as closed_loop_poles
+        ss = self.ss
+        return feedback_poles(ss.A, ss.B, ss.C, ss.D, -K)  # 1 + K L = 0 is positive feedback with gain -K
 
 
-def moving_pairs(L: control.TransferFunction, K: float, *, cancel_tol: float = 1e-6) -> np.ndarray:
+def moving_pairs(L: control.TransferFunction | _Locus, K: float, *, cancel_tol: float = 1e-6) -> np.ndarray:
     """Upper-half-plane closed-loop poles of ``1 + K L = 0`` that are not open-loop poles, slowest first.
 
     Poles cancelled by the compensator's zeros stay where they are for every K
@@ -179,7 +179,7 @@ def moving_pairs(L: control.TransferFunction, K: float, *, cancel_tol: float = 1
     return moving[np.argsort(np.abs(moving))]
 
 
-def pair_zetas(L: control.TransferFunction, K: float, *, cancel_tol: float = 1e-6) -> np.ndarray:
+def pair_zetas(L: control.TransferFunction | _Locus, K: float, *, cancel_tol: float = 1e-6) -> np.ndarray:
     """Damping ratios of :func:`moving_pairs` at gain K, slowest pair first."""
     p = moving_pairs(L, K, cancel_tol=cancel_tol)
     return -p.real / np.abs(p)
