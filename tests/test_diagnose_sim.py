@@ -2,21 +2,32 @@
 test, the effects found carried into it as physics, and its own error before and after.
 
 The data are the simulator's own swept-sine measurements (``samii measure --noise``: 0.1 V, three
-sign-alternating sweeps 0.1-40 Hz, seeded sensor noise) with an effect option the diagnosis is not
-told about, so what it should find is known exactly:
+sign-alternating sweeps, seeded sensor noise) with an effect option the diagnosis is not told about, so
+what it should find is known exactly:
 
-- clean data: nothing found, nothing carried, the simulator's error at the noise (chi2 ~ 1; the
-  record-to-record spread of 3 records runs ~20 % hot: measured 1.25 and 0.97, bound 1.6);
+- clean data, swept over the main job's 0.1-40 Hz (253 s): nothing found, nothing carried, the
+  simulator's error at the noise (chi2 ~ 1; the record-to-record spread of 3 records runs ~20 % hot:
+  measured 1.25 and 0.97, bound 1.6);
 - a 4 ms command delay: found within 0.5 ms (the issue's tolerance), carried as
   ``hydraulic.command_delay``, the simulator's xdd/v chi2 falling from far above the noise to
-  near it (measured 77 -> 1.4 on this seed; bounds > 20 before, < 2 after, and the rms phase
-  error at least halved: 19 -> 4.2 deg);
+  near it (measured 86 -> 0.87 on this seed; bounds > 20 before, < 2 after, and the rms phase
+  error at least halved: 17.2 -> 3.0 deg);
 - a 20 Hz first-order accelerometer roll-off: found within 15 % (the issue's tolerance for sensor
   corners), carried as ``sensor.accel_lowpass_hz``;
 - a 0.5 kg body on a 15 Hz mount at the beam's end (``beam.tip_body_*``): found as an extra base
   mode within 2 % of the mode it adds (15.13 Hz, joint 2 held), carried as a body on the tip in
-  the second round, the simulator's xdd/v chi2 falling to the noise (measured 1.50 -> 0.98);
+  the second round, the simulator's xdd/v chi2 falling to the noise;
 - the valve's spool twice as slow: found as a real pole/zero pair, carried as the spool's time constant.
+
+The effects are swept over 0.3-40 Hz (SWEEP: 161 s, issue 34's shorter records where the physics allows): each acts
+well inside that band (the delay's and the corners' phase grows with frequency, the body's mode is at 15 Hz), and the
+one thing that shows only below 0.3 Hz, the leak (0.199 1/s: test_diagnose_units), is the simulator's own. Measured
+on six seeds each (3, 4, 5, 6, 26, 31) at 0.3-40 Hz, every assert below holds on all six: the delay 3.95-4.02 ms
+alone, xdd/v chi2 85-89 -> 0.87-1.08; the roll-off 19.93-20.28 Hz; the spool 8.85-9.00 ms alone, xdd/v chi2
+19-21 -> 0.88-1.08; the body's mode alone at 15.10-15.19 Hz, 0.43-0.49 kg carried, xdd/v chi2 1.9-2.1 -> 0.87-1.06.
+From 0.5 Hz (143 s) seed 4 found an accelerometer gain beside the delay (1.003 +- 0.002, F 15.8) and beside the body
+(0.988, with a second, broad "mode" at 12 Hz): not traced (stop 73's note); a band that starts above 0.3 Hz is not
+the same test.
 """
 
 from __future__ import annotations
@@ -37,22 +48,25 @@ from samii.diagnose.files import simulator_params_text
 from samii.json_output import dumps
 from samii.measure.campaign import measure_swept
 from samii.measure.daq import SensorNoise
+from samii.measure.excitation import SweptSine
 from samii.measure.measured import load
 from samii.schema import document
 from samii.sim.model import dotted, load_model, params_from_dict
 
+#: The effects' sweep: 0.3-40 Hz, the rest as the main job's (module docstring).
+SWEEP = SweptSine(start_hz=0.3)
 
-def _measured(tmp_path_factory, name: str, overrides: dict, seed: int):
+
+def _measured(tmp_path_factory, name: str, overrides: dict, seed: int, sweep: SweptSine = SWEEP):
     path = tmp_path_factory.mktemp(name) / "timeseries.csv"
-    measure_swept(
-        load_model(overrides=overrides) if overrides else load_model(), noise=SensorNoise(), rng=np.random.default_rng(seed), timeseries_path=path
-    )
+    model = load_model(overrides=overrides) if overrides else load_model()
+    measure_swept(model, sweep, noise=SensorNoise(), rng=np.random.default_rng(seed), timeseries_path=path)
     return path
 
 
 @pytest.fixture(scope="module")
 def clean(tmp_path_factory):
-    return _measured(tmp_path_factory, "clean", {}, 3)
+    return _measured(tmp_path_factory, "clean", {}, 3, SweptSine())
 
 
 @pytest.fixture(scope="module")
@@ -232,8 +246,8 @@ def test_extra_base_mode_found_and_carried_as_a_body_on_the_tip(tip_body):
     assert "body on the beam's end" in real[0].evidence
     s = d.simulator
     assert s.carried == ("extra_mode/base_mode",)
-    # measured on this seed: 0.465 kg carried (the mass is the least pinned of the three: 0.44-0.53 kg over the
-    # battery's seeds); xdd/v chi2 1.50 -> 0.98 (the clean cases' 0.97-1.08: at the noise)
+    # measured on this seed: 0.468 kg carried (the mass is the least pinned of the three: 0.43-0.49 kg over six
+    # seeds); xdd/v chi2 2.07 -> 1.06 (the clean cases' 0.88-1.09: at the noise)
     assert abs(s.changes["beam.tip_body_mass_kg"] / 0.5 - 1) < 0.3
     before, after = s.error_before["total"], s.error_after["total"]
     assert after.chi2 < before.chi2 and after.chi2 < 1.3
@@ -253,8 +267,8 @@ def test_a_slower_spool_is_found_and_carried_as_the_spool_s_time_constant(slow_s
     """Against the simulator a spool twice as slow is (1 + s tau0)/(1 + s tau): a real pole/zero pair, 35.5 Hz zero
     and 17.7 Hz pole. The first selection (what carries directly) imitates it by a theta delay, an accelerometer
     roll-off and a gain error; the pair is found after that carry, carried alone as the spool's time constant, and
-    the imitations are not needed against it (measured on this seed: 8.90 ms carried, nothing else found; the
-    simulator's xdd/v chi2 14.5 -> 1.0)."""
+    the imitations are not needed against it (measured on this seed: 9.00 ms carried, nothing else found; the
+    simulator's xdd/v chi2 20.6 -> 0.89)."""
     d = diagnose([load(slow_spool)], baseline="sim")
     real = [e for e in d.effects if not e.expected]
     assert [(e.category, e.kind) for e in real] == [("actuator", "pole_zero")]
@@ -306,7 +320,6 @@ def test_the_simulators_own_harmonics_are_not_a_missing_nonlinearity(tmp_path_fa
     dead band on top is still claimed, as a dead band, within 15 % of its level."""
     from samii.diagnose.nonlinear import find_nonlinear
     from samii.diagnose.simulator import measured_like
-    from samii.measure.excitation import SweptSine
     from samii.sim.model import default_params
 
     sweep = SweptSine(amplitude_v=0.3)
@@ -343,7 +356,7 @@ def test_recording_of_the_simulator_against_the_data(delayed_diagnosis, tmp_path
     """``--rerun``: the file's record beside the simulator measured like it, before and after the
     4 ms delay was carried; the same excitation at the same times (the file's sweep from its
     metadata), and the base acceleration's residual against the data falling with the delay
-    carried (measured 0.030 -> 0.010 m/s^2 rms, the data's noise)."""
+    carried (measured 0.038 -> 0.010 m/s^2 rms, the data's noise)."""
     from samii.diagnose.recording import write_diagnosis_recording
 
     d = delayed_diagnosis
@@ -399,7 +412,8 @@ def test_the_data_sweep_frequency_from_the_file(delayed, tmp_path):
     assert int(float(ts.metadata["repetitions"])) == 3
     assert np.isnan(f[ts.t < lead - 0.01]).all() and np.isfinite(f[(ts.t > lead + 0.01) & (ts.t < lead + record - 25)]).all()
     assert np.isfinite(f[ts.t > lead + 2 * record + 1.0]).any()  # the third sweep too
-    assert np.nanmax(f) == pytest.approx(float(ts.metadata["stop_hz"]), rel=0.01) and np.nanmin(f) < 0.2
+    assert np.nanmax(f) == pytest.approx(float(ts.metadata["stop_hz"]), rel=0.01)
+    assert np.nanmin(f) == pytest.approx(float(ts.metadata["start_hz"]), rel=0.05)
     later = replace(ts, t=ts.t + 100.0)
     assert np.allclose(_sweep_hz(later), f, rtol=1e-9, equal_nan=True)
     assert np.allclose(_from_zero(later).t, ts.t, atol=1e-9) and _from_zero(ts) is ts
@@ -432,7 +446,6 @@ def test_misfits_say_where_and_by_how_much_the_simulator_misses():
     from samii.diagnose.model import Dataset
     from samii.diagnose.rig import EffectRig
     from samii.diagnose.simulator import misfits
-    from samii.measure.excitation import SweptSine
     from samii.measure.measured import from_timeseries
 
     fs = 1000.0
