@@ -51,3 +51,29 @@ def plain_rollout(model, data, n_steps: int) -> Callable[[], object]:
     mujoco.mj_getState(model, data, state, full)
     ctrl = np.zeros((1, int(n_steps), model.nu))
     return lambda: rollout.rollout(model, data, state[None, :], ctrl)
+
+
+#: One plain step of the embedded model (``mujoco.rollout``, one thread) on the machine issue 34 was measured on [s]:
+#: its robust sample's 10,000 steps of plain stepping took 54 ms. The goals in seconds (the main job's 12 s, the
+#: suite's 6 minutes) were set on that machine; :func:`step_yardstick` says how this one compares.
+ISSUE_34_STEP_S = 5.4e-6
+
+
+def step_yardstick(steps: int = 5000, repeats: int = 7) -> float:
+    """Seconds per plain step of the embedded model on this machine (``mujoco.rollout`` from its home state, zero
+    command; the median of ``repeats`` after a warm-up): the machine's speed beside a benchmark's seconds, so that
+    figures measured on different machines can be set side by side (it measures MuJoCo's C step, not Python)."""
+    from samii.sim.model import load_model, make_data
+    from samii.sim.plugin import load_plugin
+
+    load_plugin()
+    model = load_model()
+    return median_time(plain_rollout(model, make_data(model), steps), repeats, warm_up=True) / steps
+
+
+def yardstick_line(step_s: float) -> str:
+    """The machine's speed in words: its plain step against ISSUE_34_STEP_S."""
+    return (
+        f"this machine: a plain step of the embedded model takes {step_s * 1e6:.2f} us "
+        f"(issue 34's machine: {ISSUE_34_STEP_S * 1e6:.1f} us; this one {ISSUE_34_STEP_S / step_s:.2f}x as fast at stepping)"
+    )

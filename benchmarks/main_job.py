@@ -17,6 +17,8 @@ import subprocess
 import sys
 import tempfile
 
+from _timing import step_yardstick, yardstick_line
+
 _RUN = """
 import json, sys, tempfile, time
 from samii import pipeline
@@ -63,6 +65,7 @@ def main() -> None:
         runs["this machine's cores"].append(_once(None))
         runs["one process (SAMII_WORKERS=1)"].append(_once("1"))
     print(f"the main job on the embedded model, {os.cpu_count()} cores, median of {args.repeats} runs of each (library call, wall time)")
+    print(yardstick_line(step_yardstick()))
     totals = {}
     for label, rs in runs.items():
         totals[label] = statistics.median(r["total"] for r in rs)

@@ -35,6 +35,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from _timing import step_yardstick, yardstick_line
+
 GOAL_S = 360.0
 
 #: sitecustomize.py put first on PYTHONPATH: per process, the CPU seconds spent in a few functions, by the test running
@@ -142,6 +144,7 @@ def main() -> int:
     ap.add_argument("pytest_args", nargs="*", help="after --: passed to pytest")
     args = ap.parse_args()
     root = Path(__file__).resolve().parent.parent
+    step = step_yardstick()  # (before the suite, on a quiet machine)
     with tempfile.TemporaryDirectory() as tmp:
         (Path(tmp) / "sitecustomize.py").write_text(HOOK)
         out = Path(tmp) / "cost.jsonl"
@@ -163,6 +166,7 @@ def main() -> int:
     for s, _, test in durations:
         busy[worker.get(test, "main")] += s
     print(f"wall {wall:.0f} s against the goal's {GOAL_S:.0f} s: {wall / GOAL_S:.2f}x")
+    print(yardstick_line(step))
     print("busy (the tests' durations per worker): " + ", ".join(f"{w} {s:.0f} s ({s / wall:.0%})" for w, s in sorted(busy.items())))
     cpu = sum(r["s"] for r in rows if r["kind"] == "process")
     by_kind = {k: sum(r["s"] for r in rows if r["kind"] == k) for k in KINDS}
