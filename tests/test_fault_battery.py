@@ -768,7 +768,11 @@ def _robust_study(*extra: str, via_main: bool = False):
     try:
         header = proc.stderr.readline()  # printed once the study is about to start its workers (no bar: stderr is no terminal)
         assert "in 2 worker processes on this machine" in header, header
-        time.sleep(4.0)  # the workers are up and sampling
+        deadline = time.monotonic() + 60.0
+        while len(_workers_of(proc.pid)) < 2:  # the workers forked (a fixed 4 s wait before)...
+            assert proc.poll() is None and time.monotonic() < deadline, proc.poll()
+            time.sleep(0.1)
+        time.sleep(0.5)  # ...and sampling: forked, they have no start-up of their own (a sample takes about 0.03 s)
         assert proc.poll() is None
         yield proc
     finally:
@@ -1816,6 +1820,28 @@ def test_a_cluster_left_without_workers_mid_study_is_said_within_the_timeout(mon
             killer.cancel()
 
 
+@pytest.mark.slow
+def test_a_worker_that_joins_while_the_study_waits_is_used(monkeypatch):
+    """A study handed to a scheduler whose only worker is still starting waits for it (within --scheduler-timeout)
+    and runs on it once it joins. (The timeout tests below start their study once the worker has joined.)"""
+    from distributed import LocalCluster
+
+    from samii.robust import engine as eng
+
+    monkeypatch.setattr(eng, "run_sample", _slow_sample)
+    with LocalCluster(n_workers=0, threads_per_worker=1, processes=False, dashboard_address=None,
+                      scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}, protocol="tcp://", host="127.0.0.1") as cluster:  # fmt: skip
+        joiner = threading.Timer(1.0, lambda: cluster.scale(1))
+        started = time.monotonic()
+        joiner.start()
+        try:
+            with eng.Engine(scheduler=cluster.scheduler_address, connect_timeout_s=30.0) as engine:
+                got = engine.map([_Task(-1)] + [_Task(i) for i in range(4)])
+        finally:
+            joiner.cancel()
+    assert got == [-1, 0, 1, 2, 3] and time.monotonic() - started > 1.0
+
+
 @contextlib.contextmanager
 def _cluster_processes():
     """A Dask scheduler and one worker as processes of their own (sessions of their own, so that a signal to one stops
@@ -1844,7 +1870,7 @@ def _cluster_processes():
             env=env,
             start_new_session=True,
         )
-        _joined(address)
+        _joined(address, worker)
         yield address, sched, worker
     finally:
         for p in (sched, worker):
@@ -1854,14 +1880,19 @@ def _cluster_processes():
                 p.wait()
 
 
-def _joined(address: str, within_s: float = 120.0) -> None:
-    """Wait until the worker has joined the scheduler at ``address`` (a worker process starts in 2-4 s on a quiet 2-core
+def _joined(address: str, worker: subprocess.Popen, within_s: float = 120.0) -> None:
+    """Wait until ``worker`` has joined the scheduler at ``address`` (a worker process starts in 1-4 s on a 2-core
     machine, longer under the suite's load), so that a study's --scheduler-timeout need only cover what the test stops,
-    not the worker's start-up."""
+    not the worker's start-up; fail at once if it dies first. (A worker that joins while a study waits for it is
+    test_robust.py's and the scheduler-without-workers tests' case.)"""
     from distributed import Client
 
-    with Client(address, timeout=f"{within_s}s") as client:
-        client.wait_for_workers(1, timeout=within_s)
+    deadline = time.monotonic() + within_s
+    with Client(address, timeout=f"{within_s}s", set_as_default=False) as client:
+        while not client.scheduler_info()["workers"]:
+            assert worker.poll() is None, f"the Dask worker exited ({worker.returncode}) before joining {address}"
+            assert time.monotonic() < deadline, f"no Dask worker joined {address} within {within_s} s"
+            time.sleep(0.1)
 
 
 def _study_on(address: str, tmp_path, samples: int, timeout_s: int) -> subprocess.Popen:
@@ -1883,11 +1914,14 @@ def test_a_scheduler_that_stops_answering_mid_study_is_said_within_the_timeout(t
     with _cluster_processes() as (address, sched, _):
         study = _study_on(address, tmp_path, 200, 6)
         time.sleep(2.0)
+        stopped = time.monotonic()
         os.kill(sched.pid, signal.SIGSTOP)
         _, err = study.communicate(timeout=180)
+        waited = time.monotonic() - stopped
         lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith(_FEW_PLANTS)]
         assert study.returncode == 2 and len(lines) == 1, err
         assert f"--scheduler {address}: during the study, after" in lines[0] and "the scheduler stopped answering (nothing within 6 s)" in lines[0]
+        assert waited > 5.0, waited  # (said after the stop, not a false alarm before it: a call unanswered for 6 s)
 
 
 @pytest.mark.slow
@@ -1907,7 +1941,7 @@ def test_a_worker_that_stops_answering_mid_study_is_said_within_the_timeout(tmp_
         assert study.returncode == 2 and len(lines) == 1, err
         assert f"--scheduler {address}: during the study, after" in lines[0] and "of 400 samples, worker tcp://" in lines[0], lines[0]
         assert "stopped answering (not heard from for 5 s, no sample finished meanwhile)" in lines[0], lines[0]
-        assert waited < 60.0, waited  # (not the scheduler's worker-ttl of 300 s)
+        assert 3.0 < waited < 60.0, waited  # (after the stop, 5 s less a heartbeat or two; not the scheduler's worker-ttl of 300 s)
         assert not (tmp_path / "robust.json").exists()
 
 
