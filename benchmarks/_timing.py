@@ -7,8 +7,8 @@ import time
 from collections.abc import Callable
 
 
-def median_time(fn: Callable[[], object], repeats: int, *, warm_up: bool = False) -> float:
-    """Median wall time [s] of ``repeats`` calls of ``fn`` (after one untimed call with ``warm_up``)."""
+def _times(fn: Callable[[], object], repeats: int, *, warm_up: bool = False) -> list[float]:
+    """Wall times [s] of ``repeats`` calls of ``fn`` (after one untimed call with ``warm_up``)."""
     if warm_up:
         fn()
     times = []
@@ -16,7 +16,12 @@ def median_time(fn: Callable[[], object], repeats: int, *, warm_up: bool = False
         t = time.perf_counter()
         fn()
         times.append(time.perf_counter() - t)
-    return statistics.median(times)
+    return times
+
+
+def median_time(fn: Callable[[], object], repeats: int, *, warm_up: bool = False) -> float:
+    """Median wall time [s] of ``repeats`` calls of ``fn`` (after one untimed call with ``warm_up``)."""
+    return statistics.median(_times(fn, repeats, warm_up=warm_up))
 
 
 def paired_ratio(base: Callable[[], object], other: Callable[[], object], repeats: int) -> tuple[float, float, float, float, float]:
@@ -69,14 +74,7 @@ def step_yardstick(steps: int = 10_000, repeats: int = 9) -> float:
 
     load_plugin()
     model = load_model()
-    run = plain_rollout(model, make_data(model), steps)
-    run()
-    times = []
-    for _ in range(max(1, repeats)):
-        t = time.perf_counter()
-        run()
-        times.append(time.perf_counter() - t)
-    return min(times) / steps
+    return min(_times(plain_rollout(model, make_data(model), steps), repeats, warm_up=True)) / steps
 
 
 def yardstick_line(step_s: float) -> str:

@@ -21,11 +21,11 @@ what it should find is known exactly:
 
 The effects are swept over 0.3-40 Hz (SWEEP: 161 s, issue 34's shorter records where the physics allows): each acts
 well inside that band (the delay's and the corners' phase grows with frequency, the body's mode is at 15 Hz), and the
-one thing that shows mostly below 0.3 Hz, the leak (0.199 1/s: test_diagnose_units; its phase 18 deg at 0.1 Hz, 6 deg at
-0.3 Hz), is the simulator's own: the clean case keeps the main job's band. Measured
-on six seeds each (3, 4, 5, 6, 26, 31) at 0.3-40 Hz, every assert below holds on all six: the delay 3.95-4.02 ms
-alone, xdd/v chi2 85-89 -> 0.87-1.08; the roll-off 19.93-20.28 Hz; the spool 8.85-9.00 ms alone, xdd/v chi2
-19-21 -> 0.88-1.08; the body's mode alone at 15.10-15.19 Hz, 0.43-0.49 kg carried, xdd/v chi2 1.9-2.2 -> 0.87-1.06.
+one thing that shows mostly below 0.3 Hz, the leak (0.199 1/s: test_diagnose_units; its phase 18 deg at 0.1 Hz, 6 deg
+at 0.3 Hz), is the simulator's own: the clean case keeps the main job's band. Measured on six seeds each (3, 4, 5, 6,
+26, 31) at 0.3-40 Hz, every assert below holds on all six: the delay 3.95-4.02 ms alone, xdd/v chi2 85-89 ->
+0.87-1.08; the roll-off 19.93-20.28 Hz; the spool 8.85-9.00 ms alone, xdd/v chi2 19-21 -> 0.88-1.08; the body's mode
+alone at 15.10-15.19 Hz, 0.43-0.49 kg carried, xdd/v chi2 1.9-2.2 -> 0.87-1.06.
 From 0.5 Hz (143 s) seed 4 found an accelerometer gain beside the delay (1.003 +- 0.002, F 15.8) and beside the body
 (0.988, with a second, broad "mode" at 12 Hz): not traced (stop 73's note); a band that starts above 0.3 Hz is not
 the same test. experiments/sim_baseline_band/run.py measures these cases from any start frequency.

@@ -1883,8 +1883,8 @@ def _cluster_processes():
 def _joined(address: str, worker: subprocess.Popen, within_s: float = 120.0) -> None:
     """Wait until ``worker`` has joined the scheduler at ``address`` (a worker process starts in 1-4 s on a 2-core
     machine, longer under the suite's load), so that a study's --scheduler-timeout need only cover what the test stops,
-    not the worker's start-up; fail at once if it dies first. (A worker that joins while a study waits for it is
-    test_robust.py's and the scheduler-without-workers tests' case.)"""
+    not the worker's start-up; fail at once if it dies first. (A worker that joins while a study waits for it:
+    test_a_worker_that_joins_while_the_study_waits_is_used.)"""
     from distributed import Client
 
     deadline = time.monotonic() + within_s
