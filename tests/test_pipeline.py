@@ -65,7 +65,9 @@ def test_a_saved_folder_reads_back_into_typed_results(runs):
 @pytest.mark.slow
 def test_the_library_run_and_the_command_write_the_same_numbers(runs):
     """b is samii.pipeline.run() into a temporary folder, then Run.save(b): the same summary as the command's run a
-    (wall time and recording sizes aside), the same measured FRF to the byte, and its report names its own folder."""
+    (wall time and recording sizes aside), the same measured FRF, fit and diagnosis to the byte, and its report names
+    its own folder. a ran on two forked workers and, where pytest-xdist shares the tests out, b in one process
+    (conftest.py): the same bits either way."""
     from samii.pipeline import Run
 
     a, b = (Run.load(r) for r in runs)
@@ -73,7 +75,8 @@ def test_the_library_run_and_the_command_write_the_same_numbers(runs):
     for k in ("wall_s", "recordings_mb"):
         ja.pop(k), jb.pop(k)
     assert ja == jb
-    assert (runs[0] / "measure" / "frf.csv").read_bytes() == (runs[1] / "measure" / "frf.csv").read_bytes()
+    for f in ("measure/frf.csv", "fit/fit.json", "diagnose/diagnosis.json"):
+        assert (runs[0] / f).read_bytes() == (runs[1] / f).read_bytes(), f
     assert np.array_equal(a.closed_loop["damping_loper"].trace.accel, b.closed_loop["damping_loper"].trace.accel)
     page = (runs[1] / "report.html").read_text()
     assert f"wrote {runs[1].name}/" in page and "samii-run-" not in page

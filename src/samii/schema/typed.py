@@ -16,6 +16,7 @@ programming error, TypeError), so a file is written only as its type says."""
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 from dataclasses import MISSING, fields, is_dataclass
 from types import UnionType
@@ -72,6 +73,13 @@ def record_of(tp, doc, who: str):
     return read_as(tp, finite_or_none(doc), who, strict=True)
 
 
+@functools.cache
+def _hints(cls) -> dict:
+    """``cls``'s field types, resolved once per class (``get_type_hints`` evaluates every annotation string again at
+    each call: 0.3 s of a main job's 440 reads)."""
+    return get_type_hints(cls)
+
+
 class _Reader:
     def __init__(self, where, strict: bool):
         self.where, self.strict = where, strict
@@ -89,7 +97,7 @@ class _Reader:
     def part(self, cls, d, path: str):
         """An instance of dataclass ``cls`` from the object ``d`` at ``path``."""
         d = self.read(Mapping, d, path)
-        hints = get_type_hints(cls)
+        hints = _hints(cls)
         values = {}
         known = set()
         for f in fields(cls):
