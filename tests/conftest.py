@@ -9,14 +9,12 @@ import pytest
 
 
 def pytest_configure(config):
-    """Where pytest-xdist shares the tests out (pyproject.toml), its workers already keep the cores busy: each one
-    runs samii's own work in one process (``SAMII_WORKERS``: the cores shared out among the test workers, 1 on two cores
-    with ``-n auto``), unless the environment sets it. Forking a worker per core inside each test worker ran four
-    processes on two cores and cost more than it shared: on stop 74's machine the suite took 381 s and 659 CPU-seconds
-    (85 of them the kernel's: forks and their copied pages) with it, 310 s and 557 (19) without; the results are the
-    same bits either way (samii.forkmap). The paths that fork are still tested: tests/test_forkmap.py, the signal,
-    robust and cluster tests ask for their workers by name, and the main job ``runs`` a is computed on two workers and
-    compared with b, computed in one process."""
+    """Where pytest-xdist shares the tests out (pyproject.toml), its workers already keep the cores busy: each runs
+    samii's own work in one process unless the environment sets ``SAMII_WORKERS`` (the usable cores divided by the test
+    workers: 1 where ``-n auto`` starts one per core). A worker per core forked inside each test worker ran four
+    processes on two cores and cost more than it shared (README, "Tests"); the results are the same bits either way
+    (samii.forkmap). The forking paths are tested where a test asks for its workers by name: tests/test_forkmap.py, the
+    signal, robust and cluster tests, the ``runs`` main job a, and test_diagnose_sim.py's ``clean_cli``."""
     count = os.environ.get("PYTEST_XDIST_WORKER_COUNT")
     if count and "SAMII_WORKERS" not in os.environ:
         cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
@@ -44,10 +42,10 @@ def cwd(tmp_path, monkeypatch):
 @pytest.fixture(scope="session")
 def runs(tmp_path_factory, worker_id):
     """Two main jobs with the same seed (about 13 s each on 2 cores), read by test_main_job.py, test_report.py,
-    test_pipeline.py and test_fault_battery.py: ``a`` by the command (``samii run``) on two forked workers whatever the
-    test workers run on (:func:`pytest_configure`), ``b`` by the library (``samii.pipeline.run()`` into a temporary
-    folder, then ``Run.save``) on what they run on, so that test_pipeline.py's comparison of the two also compares a main
-    job forked with one computed in one process. Run once per test session: where pytest-xdist
+    test_pipeline.py and test_fault_battery.py: ``a`` by the command (``samii run``) on two workers (its diagnosis, the
+    notebook's controllers and the measurement's figure forked beside the other stages), ``b`` by the library
+    (``samii.pipeline.run()`` into a temporary folder, then ``Run.save``) in one process, so that test_pipeline.py's
+    comparison of the two also compares the stages forked with the same stages in turn. Run once per test session: where pytest-xdist
     shares the tests out (pyproject.toml), the first worker to ask runs them into the folder the workers share, under a
     lock, and the others read its folders."""
     if worker_id == "master":  # pytest-xdist's name for a session it does not share out (-n 0)
@@ -81,7 +79,9 @@ def _main_jobs(base):
         assert main(["run", "--out", str(base / "a"), "--seed", "3", "--no-progress"]) == 0
     from samii.pipeline import run
 
-    run(seed=3).save(base / "b")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("SAMII_WORKERS", "1")
+        run(seed=3).save(base / "b")
     out = [base / "a", base / "b"]
     assert not stale.exists(), "a rerun into the same --out removes what a killed run left (issue 36)"
     return out

@@ -82,21 +82,26 @@ def lowpass(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def delayed_diagnosis(delayed):
-    """``diagnose`` of the 4 ms delay record against the simulator, once for the two tests that read it (13 s in
-    stop 73's run of the suite on 2 cores; 33-36 s on an earlier, slower machine with the 0.1-40 Hz record)."""
+    """``diagnose`` of the 4 ms delay record against the simulator, once for the two tests that read it (11 s with its
+    measurement in stop 74's run of the suite, in one process; 33-36 s on an earlier, slower machine with the 0.1-40 Hz
+    record)."""
     return diagnose([load(delayed)], baseline="sim")
 
 
 @pytest.fixture(scope="module")
 def clean_cli(tmp_path_factory, clean):
     """``samii diagnose CLEAN --baseline sim --out DIR --rerun RRD --rerun-fps 10`` (text), once for the tests that
-    read its folder, its recording or its words: (stdout, DIR, RRD)."""
+    read its folder, its recording or its words: (stdout, DIR, RRD). On two forked workers whatever the tests run on
+    (conftest.py): the simulator's re-measurements, the forward selection's fits and the figures shared out, as on a
+    user's machine; test_a_diagnosis_forked_is_the_same_as_in_one_process compares it with the command in one process."""
     root = tmp_path_factory.mktemp("clean_cli")
     out, rrd = root / "out", root / "rec" / "clean.rrd"
     rrd.parent.mkdir()
-    rc, text, err = run_cli(
-        ["diagnose", str(clean), "--baseline", "sim", "--out", str(out), "--rerun", str(rrd), "--rerun-fps", "10", "--no-progress"]
-    )
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("SAMII_WORKERS", "2")
+        rc, text, err = run_cli(
+            ["diagnose", str(clean), "--baseline", "sim", "--out", str(out), "--rerun", str(rrd), "--rerun-fps", "10", "--no-progress"]
+        )
     assert rc == 0, err
     return text, out, rrd
 
@@ -159,6 +164,17 @@ def test_accelerometer_roll_off_found_and_carried(lowpass, tmp_path):
     diag.write_text(dumps(document(d.record())))
     found = sensors_from_diagnosis(diag)
     assert set(found) >= {"sensor.accel_lowpass_hz"} and found["sensor.accel_lowpass_hz"] == s.changes["sensor.accel_lowpass_hz"]
+
+
+@pytest.mark.slow
+def test_a_diagnosis_forked_is_the_same_as_in_one_process(clean_cli, clean, tmp_path, monkeypatch):
+    """``clean_cli`` ran on two forked workers; the same command in one process writes the same diagnosis.json, byte for
+    byte (the simulator's re-measurements kept from the workers, the fits' results read back by reference)."""
+    monkeypatch.setenv("SAMII_WORKERS", "1")
+    out = tmp_path / "serial"
+    rc, _, err = run_cli(["diagnose", str(clean), "--baseline", "sim", "--out", str(out), "--no-progress"])
+    assert rc == 0, err
+    assert (out / "diagnosis.json").read_bytes() == (clean_cli[1] / "diagnosis.json").read_bytes()
 
 
 @pytest.mark.slow

@@ -66,8 +66,8 @@ def test_a_saved_folder_reads_back_into_typed_results(runs):
 def test_the_library_run_and_the_command_write_the_same_numbers(runs):
     """b is samii.pipeline.run() into a temporary folder, then Run.save(b): the same summary as the command's run a
     (wall time and recording sizes aside), the same measured FRF, fit and diagnosis to the byte, and its report names
-    its own folder. a ran on two forked workers and, where pytest-xdist shares the tests out, b in one process
-    (conftest.py): the same bits either way."""
+    its own folder. a forked its diagnosis, the notebook's controllers and a figure beside its other stages, b ran them
+    in turn in one process (conftest.py's ``runs``): the same bits either way."""
     from samii.pipeline import Run
 
     a, b = (Run.load(r) for r in runs)
