@@ -17,8 +17,9 @@ def pytest_configure(config):
     signal, robust and cluster tests, the ``runs`` main job a, and test_diagnose_sim.py's ``clean_cli``."""
     count = os.environ.get("PYTEST_XDIST_WORKER_COUNT")
     if count and "SAMII_WORKERS" not in os.environ:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-        os.environ["SAMII_WORKERS"] = str(max(1, cores // int(count)))
+        from samii.forkmap import workers  # (unset: the cores this process may run on)
+
+        os.environ["SAMII_WORKERS"] = str(max(1, workers() // int(count)))
 
 
 @pytest.fixture()
@@ -45,9 +46,9 @@ def runs(tmp_path_factory, worker_id):
     test_pipeline.py and test_fault_battery.py: ``a`` by the command (``samii run``) on two workers (its diagnosis, the
     notebook's controllers and the measurement's figure forked beside the other stages), ``b`` by the library
     (``samii.pipeline.run()`` into a temporary folder, then ``Run.save``) in one process, so that test_pipeline.py's
-    comparison of the two also compares the stages forked with the same stages in turn. Run once per test session: where pytest-xdist
-    shares the tests out (pyproject.toml), the first worker to ask runs them into the folder the workers share, under a
-    lock, and the others read its folders."""
+    comparison of the two also compares the stages forked with the same stages in turn. Run once per test session:
+    where pytest-xdist shares the tests out (pyproject.toml), the first worker to ask runs them into the folder the
+    workers share, under a lock, and the others read its folders."""
     if worker_id == "master":  # pytest-xdist's name for a session it does not share out (-n 0)
         return _main_jobs(tmp_path_factory.mktemp("main"))
     import fcntl
@@ -74,12 +75,11 @@ def _main_jobs(base):
     dead.wait()
     stale = base / f".a.samii-run-{dead.pid}"  # what a main job killed outright (SIGKILL) leaves beside its --out
     (stale / "measure").mkdir(parents=True)
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("SAMII_WORKERS", "2")
-        assert main(["run", "--out", str(base / "a"), "--seed", "3", "--no-progress"]) == 0
     from samii.pipeline import run
 
     with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("SAMII_WORKERS", "2")
+        assert main(["run", "--out", str(base / "a"), "--seed", "3", "--no-progress"]) == 0
         mp.setenv("SAMII_WORKERS", "1")
         run(seed=3).save(base / "b")
     out = [base / "a", base / "b"]

@@ -768,16 +768,22 @@ def _robust_study(*extra: str, via_main: bool = False):
     try:
         header = proc.stderr.readline()  # printed once the study is about to start its workers (no bar: stderr is no terminal)
         assert "in 2 worker processes on this machine" in header, header
-        deadline = time.monotonic() + 60.0
-        while len(_workers_of(proc.pid)) < 2:  # the workers forked (a fixed 4 s wait before)...
-            assert proc.poll() is None and time.monotonic() < deadline, proc.poll()
-            time.sleep(0.1)
+        _until(lambda: len(_workers_of(proc.pid)) >= 2, proc, 60.0, "robust's two workers forked")  # (a fixed 4 s wait before)...
         time.sleep(0.5)  # ...and sampling: forked, they have no start-up of their own (a sample takes about 0.03 s)
         assert proc.poll() is None
         yield proc
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
+
+
+def _until(ready, proc: subprocess.Popen, within_s: float, what: str) -> None:
+    """Poll ``ready()`` every 0.1 s until it holds; fail at once if ``proc`` ends first, or after ``within_s``."""
+    deadline = time.monotonic() + within_s
+    while not ready():
+        assert proc.poll() is None, f"{what}: the process exited ({proc.returncode}) first"
+        assert time.monotonic() < deadline, f"{what}: not within {within_s} s"
+        time.sleep(0.1)
 
 
 def _workers_of(pid: int) -> list[int]:
@@ -1839,6 +1845,7 @@ def test_a_worker_that_joins_while_the_study_waits_is_used(monkeypatch):
                 got = engine.map([_Task(-1)] + [_Task(i) for i in range(4)])
         finally:
             joiner.cancel()
+    # the results, and not before the worker existed (a study that ran them here instead, or refused, would fail)
     assert got == [-1, 0, 1, 2, 3] and time.monotonic() - started > 1.0
 
 
@@ -1887,12 +1894,8 @@ def _joined(address: str, worker: subprocess.Popen, within_s: float = 120.0) -> 
     test_a_worker_that_joins_while_the_study_waits_is_used.)"""
     from distributed import Client
 
-    deadline = time.monotonic() + within_s
     with Client(address, timeout=f"{within_s}s", set_as_default=False) as client:
-        while not client.scheduler_info()["workers"]:
-            assert worker.poll() is None, f"the Dask worker exited ({worker.returncode}) before joining {address}"
-            assert time.monotonic() < deadline, f"no Dask worker joined {address} within {within_s} s"
-            time.sleep(0.1)
+        _until(lambda: bool(client.scheduler_info()["workers"]), worker, within_s, f"a Dask worker joining {address}")
 
 
 def _study_on(address: str, tmp_path, samples: int, timeout_s: int) -> subprocess.Popen:

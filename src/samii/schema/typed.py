@@ -76,7 +76,7 @@ def record_of(tp, doc, who: str):
 @functools.cache
 def _hints(cls) -> dict:
     """``cls``'s field types, resolved once per class (``get_type_hints`` evaluates every annotation string again at
-    each call: 0.3 s of a main job's 440 reads)."""
+    each call: 0.3 s of a main job's 440 reads under cProfile, stop 74)."""
     return get_type_hints(cls)
 
 
