@@ -3,7 +3,8 @@ machine's cores and, as the baseline measured in the same run, in one process (`
 after the other, as before issue 34). The folder is the same either way (every file but time stamps and the
 recordings' ids, compared when this was written).
 
-Goal (issue 34, item 3): the main job in at most 12 s on 2 cores.
+Goal (issue 34, item 3): the main job in at most 12 s on 2 cores, on the machine the issue was measured on: the time
+here is also printed scaled to that machine by the plain step (``_timing.on_issue_machine``).
 
     python benchmarks/main_job.py [--repeats 3]
 """
@@ -17,7 +18,7 @@ import subprocess
 import sys
 import tempfile
 
-from _timing import step_yardstick, yardstick_line
+from _timing import goal_line, step_yardstick, yardstick_line
 
 _RUN = """
 import json, sys, tempfile, time
@@ -65,14 +66,16 @@ def main() -> None:
         runs["this machine's cores"].append(_once(None))
         runs["one process (SAMII_WORKERS=1)"].append(_once("1"))
     print(f"the main job on the embedded model, {os.cpu_count()} cores, median of {args.repeats} runs of each (library call, wall time)")
-    print(yardstick_line(step_yardstick()))
+    step = step_yardstick()
+    print(yardstick_line(step))
     totals = {}
     for label, rs in runs.items():
         totals[label] = statistics.median(r["total"] for r in rs)
         each = ", ".join(f"{r['total']:.1f}" for r in rs)
         print(f"  {label:<32} {totals[label]:5.1f} s  (runs {each})")
     base, fast = totals["one process (SAMII_WORKERS=1)"], totals["this machine's cores"]
-    print(f"on the cores / in one process: {fast / base:.2f} (goal: at most 12 s on 2 cores: {'met' if fast <= 12.0 else 'NOT met'})")
+    print(f"on the cores / in one process: {fast / base:.2f}")
+    print(goal_line("the main job on the cores", fast, 12.0, step))
     print("stages (median, s): on the cores | in one process")
     names = list(runs["this machine's cores"][0]["stages"])
     for n in names:
