@@ -63,8 +63,8 @@ def plain_rollout(model, data, n_steps: int) -> Callable[[], object]:
 #: suite's 6 minutes) were set on that machine; :func:`step_yardstick` says how this one compares.
 #:
 #: The ratio holds for samii's Python as well, not only for MuJoCo's C step (stop 75, a machine stepping at 3.85 us,
-#: 1.40x the issue's): the code the issue was measured on (163091e, the commit before its first change) ran a robust
-#: sample in 174 ms there against the issue's 236 ms (1.36x; ``benchmarks/robust_scaling.py`` of that commit, in
+#: 1.40x the issue's): on that machine the code the issue was measured on (163091e, the commit before its first change)
+#: ran a robust sample in 174 ms against the issue's 236 ms (1.36x; ``benchmarks/robust_scaling.py`` of that commit, in
 #: process), and its test command in 6.9 minutes against the "about 10 minutes" its README gave (1.45x).
 ISSUE_34_STEP_S = 5.4e-6
 
